@@ -1,0 +1,398 @@
+//! SPIR-V loading: structural validation (SPIRV-Tools, linked statically), workgroup size and
+//! reflection of descriptor bindings and push constants (spirv-reflect).
+
+use crate::error::{Error, Result};
+use ash::vk;
+use std::ffi::{CStr, c_char, c_int, c_void};
+
+const SPIRV_MAGIC: u32 = 0x0723_0203;
+
+#[repr(C)]
+struct SpvPosition {
+    line: usize,
+    column: usize,
+    index: usize,
+}
+
+#[repr(C)]
+struct SpvDiagnostic {
+    position: SpvPosition,
+    error: *mut c_char,
+    is_text_source: bool,
+}
+
+// The C API of SPIRV-Tools (libspirv.h), from the static archives build.rs links.
+unsafe extern "C" {
+    fn spvParseTargetEnv(s: *const c_char, env: *mut c_int) -> bool;
+    fn spvContextCreate(env: c_int) -> *mut c_void;
+    fn spvContextDestroy(context: *mut c_void);
+    fn spvValidateBinary(
+        context: *const c_void,
+        words: *const u32,
+        num_words: usize,
+        diagnostic: *mut *mut SpvDiagnostic,
+    ) -> c_int;
+    fn spvDiagnosticDestroy(diagnostic: *mut SpvDiagnostic);
+}
+
+/// Runs the SPIRV-Tools validator (as `spirv-val --target-env vulkan1.3`) in-process.
+pub fn validate_spirv(words: &[u32]) -> std::result::Result<(), String> {
+    let mut env: c_int = 0;
+    // SAFETY: NUL-terminated string, valid out pointer.
+    if !unsafe { spvParseTargetEnv(c"vulkan1.3".as_ptr(), &mut env) } {
+        return Err("SPIRV-Tools does not know target env vulkan1.3".into());
+    }
+    // SAFETY: create/validate/destroy in sequence; the diagnostic is freed by its destroy call.
+    unsafe {
+        let context = spvContextCreate(env);
+        if context.is_null() {
+            return Err("spvContextCreate failed".into());
+        }
+        let mut diagnostic: *mut SpvDiagnostic = std::ptr::null_mut();
+        let rc = spvValidateBinary(context, words.as_ptr(), words.len(), &mut diagnostic);
+        let message = if diagnostic.is_null() || (*diagnostic).error.is_null() {
+            format!("validator result code {rc}")
+        } else {
+            let d = &*diagnostic;
+            format!(
+                "{} (at word {})",
+                CStr::from_ptr(d.error).to_string_lossy().trim(),
+                d.position.index
+            )
+        };
+        spvDiagnosticDestroy(diagnostic);
+        spvContextDestroy(context);
+        if rc == 0 { Ok(()) } else { Err(message) }
+    }
+}
+
+/// The kind of a descriptor binding, as a pipeline expects it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum DescriptorKind {
+    StorageBuffer,
+    UniformBuffer,
+    StorageImage,
+    SampledImage,
+    CombinedImageSampler,
+    Sampler,
+}
+
+impl DescriptorKind {
+    pub fn vk(self) -> vk::DescriptorType {
+        match self {
+            DescriptorKind::StorageBuffer => vk::DescriptorType::STORAGE_BUFFER,
+            DescriptorKind::UniformBuffer => vk::DescriptorType::UNIFORM_BUFFER,
+            DescriptorKind::StorageImage => vk::DescriptorType::STORAGE_IMAGE,
+            DescriptorKind::SampledImage => vk::DescriptorType::SAMPLED_IMAGE,
+            DescriptorKind::CombinedImageSampler => vk::DescriptorType::COMBINED_IMAGE_SAMPLER,
+            DescriptorKind::Sampler => vk::DescriptorType::SAMPLER,
+        }
+    }
+}
+
+/// One descriptor binding of a shader, as reflected.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct BindingInfo {
+    pub set: u32,
+    pub binding: u32,
+    /// Variable name, or the block's type name when the variable has none.
+    pub name: String,
+    pub kind: DescriptorKind,
+    /// Array size (1 for a single descriptor).
+    pub count: u32,
+    /// Minimum byte size a buffer must have (the fixed part of the block).
+    pub min_size: u64,
+    /// Whether the shader declares the binding `readonly` (storage buffers/images).
+    pub read_only: bool,
+}
+
+/// A compute shader: SPIR-V words plus everything needed to build its pipeline.
+#[derive(Clone, Debug)]
+pub struct Shader {
+    pub name: String,
+    pub words: Vec<u32>,
+    pub entry_point: String,
+    pub local_size: [u32; 3],
+    /// Sorted by (set, binding).
+    pub bindings: Vec<BindingInfo>,
+    /// Bytes of push constants (0 when the shader has none).
+    pub push_constant_size: u32,
+}
+
+impl Shader {
+    /// Parses, validates and reflects a compute shader. Garbage, truncated, non-compute or
+    /// invalid SPIR-V is rejected with a message naming `name`.
+    pub fn from_spirv(name: &str, bytes: &[u8]) -> Result<Shader> {
+        let err = |reason: String| Error::Spirv {
+            name: name.to_string(),
+            reason,
+        };
+        if bytes.len() < 20 || bytes.len() % 4 != 0 {
+            return Err(err(format!(
+                "{} bytes is not a SPIR-V module (needs a 5-word header and whole 32-bit words)",
+                bytes.len()
+            )));
+        }
+        let words: Vec<u32> = bytes
+            .chunks_exact(4)
+            .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect();
+        if words[0] != SPIRV_MAGIC {
+            return Err(err(format!(
+                "bad magic number {:#010x} (expected {SPIRV_MAGIC:#010x})",
+                words[0]
+            )));
+        }
+        validate_spirv(&words).map_err(|e| err(format!("spirv-val: {e}")))?;
+        let (entry_point, local_size) = compute_entry(&words).map_err(err)?;
+
+        let module = spirv_reflect::ShaderModule::load_u32_data(&normalize_for_reflection(&words))
+            .map_err(|e| err(format!("reflection failed: {e}")))?;
+        let reflected = module
+            .enumerate_descriptor_bindings(None)
+            .map_err(|e| err(format!("reflection of bindings failed: {e}")))?;
+        let mut bindings = Vec::with_capacity(reflected.len());
+        for b in reflected {
+            use spirv_reflect::types::ReflectDescriptorType as R;
+            let kind = match b.descriptor_type {
+                R::StorageBuffer => DescriptorKind::StorageBuffer,
+                R::UniformBuffer => DescriptorKind::UniformBuffer,
+                R::StorageImage => DescriptorKind::StorageImage,
+                R::SampledImage => DescriptorKind::SampledImage,
+                R::CombinedImageSampler => DescriptorKind::CombinedImageSampler,
+                R::Sampler => DescriptorKind::Sampler,
+                other => {
+                    return Err(err(format!(
+                        "binding {}.{} '{}' has descriptor type {other:?}, which vkshade does not bind",
+                        b.set, b.binding, b.name
+                    )));
+                }
+            };
+            let type_name = b
+                .type_description
+                .as_ref()
+                .map(|t| t.type_name.clone())
+                .unwrap_or_default();
+            let non_writable = |f: spirv_reflect::types::ReflectDecorationFlags| {
+                f.contains(spirv_reflect::types::ReflectDecorationFlags::NON_WRITABLE)
+            };
+            let members = &b.block.members;
+            let read_only = non_writable(b.block.decoration_flags)
+                || (!members.is_empty()
+                    && members.iter().all(|m| non_writable(m.decoration_flags)));
+            bindings.push(BindingInfo {
+                set: b.set,
+                binding: b.binding,
+                name: match (b.name.is_empty(), type_name.is_empty()) {
+                    (false, _) => b.name,
+                    (true, false) => type_name,
+                    (true, true) => format!("set{}_binding{}", b.set, b.binding),
+                },
+                kind,
+                count: b.count.max(1),
+                min_size: b.block.size as u64,
+                read_only,
+            });
+        }
+        bindings.sort_by_key(|b| (b.set, b.binding));
+        let reflected: Vec<(u32, u32)> = bindings.iter().map(|b| (b.set, b.binding)).collect();
+        let declared = decorated_bindings(&words);
+        if reflected != declared {
+            return Err(err(format!(
+                "reflection found bindings {reflected:?} but the module declares {declared:?}"
+            )));
+        }
+        let push_constant_size = module
+            .enumerate_push_constant_blocks(None)
+            .map_err(|e| err(format!("reflection of push constants failed: {e}")))?
+            .iter()
+            .map(|p| {
+                // The block's own size is padded to 16 bytes; the members give the real end.
+                let end = p
+                    .members
+                    .iter()
+                    .map(|m| m.offset + m.size)
+                    .max()
+                    .unwrap_or(p.size);
+                (p.offset + end).next_multiple_of(4)
+            })
+            .max()
+            .unwrap_or(0);
+        Ok(Shader {
+            name: name.to_string(),
+            words,
+            entry_point,
+            local_size,
+            bindings,
+            push_constant_size,
+        })
+    }
+
+    /// Invocations per workgroup.
+    pub fn invocations(&self) -> u32 {
+        self.local_size.iter().product()
+    }
+}
+
+/// Finds the single GLCompute entry point and its workgroup size, from `LocalSize` or from
+/// `LocalSizeId` (SPIR-V 1.6; the ids name constants, whose default values are used since
+/// vkshade does not specialise them).
+fn compute_entry(words: &[u32]) -> std::result::Result<(String, [u32; 3]), String> {
+    const OP_EXECUTION_MODE: u32 = 16;
+    const OP_EXECUTION_MODE_ID: u32 = 331;
+    const OP_CONSTANT: u32 = 43;
+    const OP_SPEC_CONSTANT: u32 = 50;
+    const EXECUTION_MODEL_GLCOMPUTE: u32 = 5;
+    const MODE_LOCAL_SIZE: u32 = 17;
+    const MODE_LOCAL_SIZE_ID: u32 = 38;
+    let mut entry: Option<String> = None;
+    let mut local_size = None;
+    let mut local_size_ids = None;
+    let mut constants = std::collections::HashMap::new();
+    for (op, ops) in instructions(words) {
+        match op {
+            OP_ENTRY_POINT if ops.len() >= 3 => {
+                if ops[0] != EXECUTION_MODEL_GLCOMPUTE {
+                    return Err(format!(
+                        "entry point has execution model {}, not GLCompute",
+                        ops[0]
+                    ));
+                }
+                if entry.is_some() {
+                    return Err("more than one entry point".into());
+                }
+                let bytes: Vec<u8> = ops[2..].iter().flat_map(|w| w.to_le_bytes()).collect();
+                let name = bytes.split(|&b| b == 0).next().unwrap_or(&[]);
+                entry = Some(String::from_utf8_lossy(name).into_owned());
+            }
+            OP_EXECUTION_MODE if ops.len() >= 5 && ops[1] == MODE_LOCAL_SIZE => {
+                local_size = Some([ops[2], ops[3], ops[4]]);
+            }
+            OP_EXECUTION_MODE_ID if ops.len() >= 5 && ops[1] == MODE_LOCAL_SIZE_ID => {
+                local_size_ids = Some([ops[2], ops[3], ops[4]]);
+            }
+            OP_CONSTANT | OP_SPEC_CONSTANT if ops.len() == 3 => {
+                constants.insert(ops[1], ops[2]);
+            }
+            _ => {}
+        }
+    }
+    let name = entry.ok_or("no entry point")?;
+    if let Some(ids) = local_size_ids {
+        let mut size = [0; 3];
+        for (s, id) in size.iter_mut().zip(ids) {
+            *s = *constants.get(&id).ok_or_else(|| {
+                format!("LocalSizeId names %{id}, which is not a 32-bit constant")
+            })?;
+        }
+        local_size = Some(size);
+    }
+    let local_size = local_size.ok_or("compute entry point has no LocalSize")?;
+    if local_size.contains(&0) {
+        return Err(format!(
+            "workgroup size {local_size:?} has a zero dimension"
+        ));
+    }
+    Ok((name, local_size))
+}
+
+/// Decoded instructions of a module: (opcode, operands).
+fn instructions(words: &[u32]) -> impl Iterator<Item = (u32, &[u32])> {
+    let mut i = 5;
+    std::iter::from_fn(move || {
+        if i >= words.len() {
+            return None;
+        }
+        let count = ((words[i] >> 16) as usize).max(1);
+        let end = (i + count).min(words.len());
+        let item = (words[i] & 0xffff, &words[i + 1..end]);
+        i = end;
+        Some(item)
+    })
+}
+
+const OP_ENTRY_POINT: u32 = 15;
+const OP_TYPE_POINTER: u32 = 32;
+const OP_VARIABLE: u32 = 59;
+const OP_DECORATE: u32 = 71;
+const DECORATION_BLOCK: u32 = 2;
+const DECORATION_BUFFER_BLOCK: u32 = 3;
+const DECORATION_BINDING: u32 = 33;
+const DECORATION_DESCRIPTOR_SET: u32 = 34;
+const STORAGE_CLASS_UNIFORM: u32 = 2;
+const STORAGE_CLASS_STORAGE_BUFFER: u32 = 12;
+
+/// A copy of a validated module in the form the SPIRV-Reflect C code of spirv-reflect 0.2
+/// understands (it predates SPIR-V 1.3's StorageBuffer storage class):
+/// - OpEntryPoint lists no interface variables (SPIR-V 1.4+ lists every global there, and
+///   the C code aborts the process with an `assert` on storage buffers);
+/// - StorageBuffer-class pointers and variables become Uniform-class with the struct
+///   decorated BufferBlock, the SPIR-V 1.0 spelling of the same storage buffer.
+///
+/// Only descriptor bindings and push constants are reflected from the copy; it never reaches
+/// the driver.
+fn normalize_for_reflection(words: &[u32]) -> Vec<u32> {
+    let ssbo_structs: Vec<u32> = instructions(words)
+        .filter(|(op, ops)| {
+            *op == OP_TYPE_POINTER && ops.len() == 3 && ops[1] == STORAGE_CLASS_STORAGE_BUFFER
+        })
+        .map(|(_, ops)| ops[2])
+        .collect();
+    let mut out = words[..5].to_vec();
+    for (op, ops) in instructions(words) {
+        let mut ops = ops.to_vec();
+        match op {
+            OP_ENTRY_POINT if ops.len() > 2 => {
+                // Operands: execution model, function id, then the NUL-terminated name.
+                let name_words = ops[2..]
+                    .iter()
+                    .position(|w| w.to_le_bytes().contains(&0))
+                    .map_or(ops.len() - 2, |p| p + 1);
+                ops.truncate(2 + name_words);
+            }
+            OP_TYPE_POINTER if ops.len() == 3 && ops[1] == STORAGE_CLASS_STORAGE_BUFFER => {
+                ops[1] = STORAGE_CLASS_UNIFORM;
+            }
+            OP_VARIABLE if ops.len() >= 3 && ops[2] == STORAGE_CLASS_STORAGE_BUFFER => {
+                ops[2] = STORAGE_CLASS_UNIFORM;
+            }
+            OP_DECORATE
+                if ops.len() == 2
+                    && ops[1] == DECORATION_BLOCK
+                    && ssbo_structs.contains(&ops[0]) =>
+            {
+                ops[1] = DECORATION_BUFFER_BLOCK;
+            }
+            _ => {}
+        }
+        out.push((((ops.len() + 1) as u32) << 16) | op);
+        out.extend_from_slice(&ops);
+    }
+    out
+}
+
+/// (set, binding) of every variable decorated with both, found by a plain scan of the module:
+/// the independent check that reflection saw every resource.
+fn decorated_bindings(words: &[u32]) -> Vec<(u32, u32)> {
+    let mut sets = std::collections::HashMap::new();
+    let mut bindings = std::collections::HashMap::new();
+    for (op, ops) in instructions(words) {
+        if op == OP_DECORATE && ops.len() == 3 {
+            match ops[1] {
+                DECORATION_DESCRIPTOR_SET => {
+                    sets.insert(ops[0], ops[2]);
+                }
+                DECORATION_BINDING => {
+                    bindings.insert(ops[0], ops[2]);
+                }
+                _ => {}
+            }
+        }
+    }
+    let mut out: Vec<(u32, u32)> = bindings
+        .iter()
+        .filter_map(|(id, b)| sets.get(id).map(|s| (*s, *b)))
+        .collect();
+    out.sort();
+    out
+}
