@@ -1,0 +1,215 @@
+//! GLSL sources (glsl/) compiled by shaderc into committed SPIR-V (spv/), and the modules
+//! embedded in the library.
+//!
+//! `vkshade shaders build` regenerates spv/; `vkshade shaders check` (and the test suite)
+//! fails when any module is missing, stale or orphaned.
+
+use crate::error::{Error, Result};
+use std::cell::RefCell;
+use std::path::{Path, PathBuf};
+use std::rc::Rc;
+
+/// The source tree this crate was built from (the default root for the shader tool).
+pub fn source_root() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+}
+
+include!(concat!(env!("OUT_DIR"), "/embedded_spv.rs"));
+
+/// The embedded SPIR-V module `name` (e.g. `"bench/fma"`).
+pub fn spirv(name: &str) -> Result<&'static [u8]> {
+    EMBEDDED
+        .iter()
+        .find(|(n, _)| *n == name)
+        .map(|(_, b)| *b)
+        .ok_or_else(|| {
+            Error::InvalidArgument(format!(
+                "no SPIR-V module '{name}' was embedded at build time (spv/{name}.spv missing); \
+                 run `vkshade shaders build`"
+            ))
+        })
+}
+
+/// shaderc settings shared by the build tool and the freshness check.
+fn options<'a>(
+    root: &Path,
+    included: Rc<RefCell<Vec<PathBuf>>>,
+) -> Result<shaderc::CompileOptions<'a>> {
+    let mut o = shaderc::CompileOptions::new().map_err(|e| Error::ShaderCompile {
+        path: root.to_path_buf(),
+        message: format!("shaderc options: {e}"),
+    })?;
+    // Vulkan 1.3 is what vkshade requires; SPIR-V 1.6 also drops the WorkgroupSize built-in
+    // that glslang otherwise emits (deprecated; flagged by best-practices validation).
+    o.set_target_env(
+        shaderc::TargetEnv::Vulkan,
+        shaderc::EnvVersion::Vulkan1_3 as u32,
+    );
+    o.set_target_spirv(shaderc::SpirvVersion::V1_6);
+    o.set_source_language(shaderc::SourceLanguage::GLSL);
+    // No SPIR-V optimisation: it strips the variable names that pipelines bind by, and every
+    // driver optimises the module again anyway.
+    o.set_optimization_level(shaderc::OptimizationLevel::Zero);
+    o.set_warnings_as_errors();
+    let root = root.to_path_buf();
+    o.set_include_callback(move |requested, kind, requester, _depth| {
+        let base = match kind {
+            shaderc::IncludeType::Standard => root.clone(),
+            shaderc::IncludeType::Relative => Path::new(requester)
+                .parent()
+                .map(Path::to_path_buf)
+                .unwrap_or_else(|| root.clone()),
+        };
+        let path = base.join(requested);
+        let content = std::fs::read_to_string(&path)
+            .map_err(|e| format!("cannot include {}: {e}", path.display()))?;
+        included.borrow_mut().push(path.clone());
+        Ok(shaderc::ResolvedInclude {
+            resolved_name: path.to_string_lossy().into_owned(),
+            content,
+        })
+    });
+    Ok(o)
+}
+
+/// Compiles one compute shader; `root` is the glsl/ directory (for `#include <...>`).
+pub fn compile_glsl(path: &Path, root: &Path) -> Result<Vec<u8>> {
+    let source = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+    let compiler = shaderc::Compiler::new().map_err(|e| Error::ShaderCompile {
+        path: path.to_path_buf(),
+        message: format!("shaderc unavailable: {e}"),
+    })?;
+    let included = Rc::new(RefCell::new(Vec::new()));
+    let opts = options(root, included)?;
+    let artifact = compiler
+        .compile_into_spirv(
+            &source,
+            shaderc::ShaderKind::Compute,
+            &path.to_string_lossy(),
+            "main",
+            Some(&opts),
+        )
+        .map_err(|e| Error::ShaderCompile {
+            path: path.to_path_buf(),
+            message: e.to_string(),
+        })?;
+    Ok(artifact.as_binary_u8().to_vec())
+}
+
+/// State of one module after a build or check.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum ModuleState {
+    Fresh,
+    /// Rewritten by `build`.
+    Updated,
+    /// Differs from what its source compiles to (check mode).
+    Stale,
+    /// No .spv for this source (check mode).
+    Missing,
+    /// A .spv whose source no longer exists.
+    Orphan,
+}
+
+/// One module of the spv/ tree.
+#[derive(Clone, Debug)]
+pub struct ModuleStatus {
+    /// Path under glsl/ without extension, e.g. `bench/fma`.
+    pub name: String,
+    pub state: ModuleState,
+}
+
+fn walk(dir: &Path, ext: &str, out: &mut Vec<PathBuf>) -> Result<()> {
+    let entries = std::fs::read_dir(dir).map_err(|e| Error::io(dir, e))?;
+    for entry in entries {
+        let path = entry.map_err(|e| Error::io(dir, e))?.path();
+        if path.is_dir() {
+            walk(&path, ext, out)?;
+        } else if path.extension().is_some_and(|e| e == ext) {
+            out.push(path);
+        }
+    }
+    Ok(())
+}
+
+/// Module names (paths under glsl/ without `.comp`) of every compute shader source.
+pub fn source_modules(root: &Path) -> Result<Vec<String>> {
+    let glsl = root.join("glsl");
+    let mut files = Vec::new();
+    walk(&glsl, "comp", &mut files)?;
+    let mut names: Vec<String> = files
+        .iter()
+        .filter_map(|p| p.strip_prefix(&glsl).ok())
+        .map(|p| p.with_extension("").to_string_lossy().replace('\\', "/"))
+        .collect();
+    names.sort();
+    Ok(names)
+}
+
+/// Writes `bytes` to `path` atomically (temporary file + rename): readers never see a
+/// half-written file.
+pub fn write_atomic(path: &Path, bytes: &[u8]) -> Result<()> {
+    if let Some(parent) = path.parent() {
+        std::fs::create_dir_all(parent).map_err(|e| Error::io(parent, e))?;
+    }
+    let tmp = path.with_extension(format!(
+        "{}.tmp{}",
+        path.extension().and_then(|e| e.to_str()).unwrap_or(""),
+        std::process::id()
+    ));
+    std::fs::write(&tmp, bytes).map_err(|e| Error::io(&tmp, e))?;
+    std::fs::rename(&tmp, path).map_err(|e| {
+        let _ = std::fs::remove_file(&tmp);
+        Error::io(path, e)
+    })
+}
+
+/// Compiles every glsl/**/*.comp under `root` and compares with spv/. With `write`, stale or
+/// missing modules are rewritten and orphans deleted; otherwise they are only reported.
+pub fn build_all(root: &Path, write: bool) -> Result<Vec<ModuleStatus>> {
+    let glsl = root.join("glsl");
+    let spv = root.join("spv");
+    let mut statuses = Vec::new();
+    let names = source_modules(root)?;
+    for name in &names {
+        let src = glsl.join(format!("{name}.comp"));
+        let out = spv.join(format!("{name}.spv"));
+        let compiled = compile_glsl(&src, &glsl)?;
+        let state = match std::fs::read(&out) {
+            Ok(existing) if existing == compiled => ModuleState::Fresh,
+            existing => {
+                if write {
+                    write_atomic(&out, &compiled)?;
+                    ModuleState::Updated
+                } else if existing.is_ok() {
+                    ModuleState::Stale
+                } else {
+                    ModuleState::Missing
+                }
+            }
+        };
+        statuses.push(ModuleStatus {
+            name: name.clone(),
+            state,
+        });
+    }
+    let mut spv_files = Vec::new();
+    if spv.is_dir() {
+        walk(&spv, "spv", &mut spv_files)?;
+    }
+    for f in spv_files {
+        let name = f
+            .strip_prefix(&spv)
+            .map(|p| p.with_extension("").to_string_lossy().replace('\\', "/"))
+            .unwrap_or_default();
+        if !names.contains(&name) {
+            if write {
+                std::fs::remove_file(&f).map_err(|e| Error::io(&f, e))?;
+            }
+            statuses.push(ModuleStatus {
+                name,
+                state: ModuleState::Orphan,
+            });
+        }
+    }
+    Ok(statuses)
+}
