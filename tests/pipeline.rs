@@ -1,0 +1,545 @@
+//! End-to-end compute on the GPU under validation: upload, a chain of dependent dispatches
+//! with barriers, readback, compared with the CPU; plus the harness's own negative tests
+//! (a deliberate validation error must be caught) and bad-input handling.
+
+mod common;
+
+use ash::vk;
+use common::{assert_clean, context, shutdown, with_gpu};
+use vkshade::Error;
+use vkshade::gpu::{
+    AccessType as A, Barrier, BindGroup, Buffer, BufferDesc, ComputePipeline, Context, Image,
+    ImageDesc, Recorder, Resource, Shader,
+};
+use vkshade::shaders::spirv;
+
+const N: u32 = 100_003; // not a multiple of the workgroup size: exercises the bounds check
+
+fn scale_push(a: f32, b: f32, n: u32) -> Vec<u8> {
+    [a.to_le_bytes(), b.to_le_bytes(), n.to_le_bytes()].concat()
+}
+
+fn add_push(c: f32, n: u32) -> Vec<u8> {
+    [c.to_le_bytes(), n.to_le_bytes()].concat()
+}
+
+fn inputs() -> (Vec<f32>, Vec<f32>) {
+    let x = (0..N).map(|i| ((i as f32) * 0.37).sin()).collect();
+    let acc = (0..N).map(|i| (i % 17) as f32 * 0.25 - 2.0).collect();
+    (x, acc)
+}
+
+/// CPU version of the chain: y = a1 x + b1; acc = acc c + y; y = a2 x + b2; acc = acc c + y.
+fn cpu_chain(x: &[f32], acc: &[f32]) -> Vec<f32> {
+    x.iter()
+        .zip(acc)
+        .map(|(&x, &acc)| {
+            let y1 = 1.5 * x + 0.25;
+            let acc = acc * 0.5 + y1;
+            let y2 = -2.0 * x + 1.0;
+            acc * 0.5 + y2
+        })
+        .collect()
+}
+
+struct Chain {
+    scale: ComputePipeline,
+    add: ComputePipeline,
+    scale_bind: BindGroup,
+    add_bind: BindGroup,
+    acc: Buffer,
+    // Kept alive for the bind groups that reference them.
+    _x: Buffer,
+    _y: Buffer,
+}
+
+impl Chain {
+    fn new(ctx: &Context) -> vkshade::Result<Chain> {
+        let (x, acc) = inputs();
+        let bytes = N as u64 * 4;
+        let scale =
+            ComputePipeline::from_spirv(ctx, "test/chain_scale", spirv("test/chain_scale")?)?;
+        let add = ComputePipeline::from_spirv(ctx, "test/chain_add", spirv("test/chain_add")?)?;
+        let x = ctx.upload_buffer(BufferDesc::storage("x", bytes), &x)?;
+        let y = Buffer::new(ctx, BufferDesc::storage("y", bytes))?;
+        let acc = ctx.upload_buffer(BufferDesc::storage("acc", bytes), &acc)?;
+        let scale_bind =
+            scale.bind(&[("src", Resource::Buffer(&x)), ("dst", Resource::Buffer(&y))])?;
+        let add_bind = add.bind(&[
+            ("ybuf", Resource::Buffer(&y)),
+            ("accbuf", Resource::Buffer(&acc)),
+        ])?;
+        Ok(Chain {
+            scale,
+            add,
+            scale_bind,
+            add_bind,
+            acc,
+            _x: x,
+            _y: y,
+        })
+    }
+
+    /// Records the four dispatches; `raw_barrier` controls the read-after-write barrier on
+    /// `y` between the first scale and the first add (the negative test leaves it out).
+    fn record<'a>(&'a self, rec: &mut Recorder<'a>, raw_barrier: bool) -> vkshade::Result<()> {
+        let y = &self._y;
+        rec.begin_pass("chain");
+        rec.begin_pass("scale 1");
+        rec.dispatch_invocations(
+            &self.scale,
+            &self.scale_bind,
+            &scale_push(1.5, 0.25, N),
+            [N, 1, 1],
+        )?;
+        rec.end_pass();
+        if raw_barrier {
+            rec.barrier(&[Barrier::buffer(
+                y,
+                A::ComputeShaderWrite,
+                A::ComputeShaderReadOther,
+            )]);
+        }
+        rec.begin_pass("add 1");
+        rec.dispatch_invocations(&self.add, &self.add_bind, &add_push(0.5, N), [N, 1, 1])?;
+        rec.end_pass();
+        // y: read by add 1, written by scale 2 (WAR); acc: read-modify-write twice (RAW+WAW).
+        rec.barrier(&[
+            Barrier::buffer(y, A::ComputeShaderReadOther, A::ComputeShaderWrite),
+            Barrier::buffer(
+                &self.acc,
+                A::ComputeShaderWrite,
+                A::ComputeShaderReadOther | A::ComputeShaderWrite,
+            ),
+        ]);
+        rec.begin_pass("scale 2");
+        rec.dispatch_invocations(
+            &self.scale,
+            &self.scale_bind,
+            &scale_push(-2.0, 1.0, N),
+            [N, 1, 1],
+        )?;
+        rec.end_pass();
+        rec.barrier(&[Barrier::buffer(
+            y,
+            A::ComputeShaderWrite,
+            A::ComputeShaderReadOther,
+        )]);
+        rec.begin_pass("add 2");
+        rec.dispatch_invocations(&self.add, &self.add_bind, &add_push(0.5, N), [N, 1, 1])?;
+        rec.end_pass();
+        rec.end_pass();
+        Ok(())
+    }
+}
+
+#[test]
+fn dispatch_chain_matches_cpu_and_is_validation_clean() {
+    let (x, acc0) = inputs();
+    let expected = cpu_chain(&x, &acc0);
+    let (got, timings) = with_gpu(|ctx| {
+        let chain = Chain::new(ctx)?;
+        let mut rec = ctx.recorder("chain")?;
+        chain.record(&mut rec, true)?;
+        let readback = rec.read_back(&chain.acc, A::ComputeShaderWrite)?;
+        let timings = rec.submit_and_wait()?;
+        Ok((readback.to_vec::<f32>()?, timings))
+    });
+    assert_eq!(got.len(), expected.len());
+    // The GPU may fuse a*x+b into one FMA; each of the four steps then differs from the CPU by
+    // at most one rounding (~6e-8 relative), far inside this bound.
+    let mut worst = 0f32;
+    for (i, (g, e)) in got.iter().zip(&expected).enumerate() {
+        let err = (g - e).abs() / e.abs().max(1.0);
+        assert!(err < 1e-5, "element {i}: GPU {g} vs CPU {e}");
+        worst = worst.max(err);
+    }
+    eprintln!("dispatch chain: {N} elements, max relative error {worst:e}");
+    for name in ["chain", "scale 1", "add 1", "scale 2", "add 2"] {
+        let ms = timings
+            .get(name)
+            .unwrap_or_else(|| panic!("pass '{name}' has no timing"));
+        assert!(ms > 0.0 && ms < 10_000.0, "pass '{name}' took {ms} ms");
+    }
+    let outer = timings.get("chain").unwrap();
+    let inner: f64 = ["scale 1", "add 1", "scale 2", "add 2"]
+        .iter()
+        .map(|n| timings.get(n).unwrap())
+        .sum();
+    assert!(
+        inner <= outer * 1.01,
+        "nested passes ({inner} ms) exceed their parent ({outer} ms)"
+    );
+}
+
+#[test]
+fn missing_barrier_is_caught_by_synchronization_validation() {
+    let ctx = context();
+    let result = (|| {
+        let chain = Chain::new(&ctx)?;
+        let mut rec = ctx.recorder("chain without barrier")?;
+        chain.record(&mut rec, false)?;
+        rec.submit_and_wait()
+    })();
+    let messages = shutdown(ctx);
+    result.expect("the run itself succeeds; only validation objects");
+    assert!(
+        messages
+            .iter()
+            .any(|m| m.id_name.contains("SYNC-HAZARD-READ-AFTER-WRITE") && m.text.contains("y")),
+        "expected a read-after-write hazard on buffer y, got: {messages:#?}"
+    );
+    // The message names the pass it happened in (debug labels) and the buffer (object names).
+    let m = messages
+        .iter()
+        .find(|m| m.id_name.contains("READ-AFTER-WRITE"))
+        .unwrap();
+    assert!(
+        m.to_string().contains("add 1") || m.to_string().contains("'y'"),
+        "message lacks pass or object names: {m}"
+    );
+}
+
+#[test]
+fn core_validation_error_is_caught() {
+    let ctx = context();
+    let device = ctx.raw_device().clone();
+    // A zero-sized buffer violates VUID-VkBufferCreateInfo-size-00912.
+    let info = vk::BufferCreateInfo::default()
+        .size(0)
+        .usage(vk::BufferUsageFlags::STORAGE_BUFFER);
+    // SAFETY: deliberately invalid usage that the layer reports; the handle (if any) is
+    // destroyed right away.
+    unsafe {
+        if let Ok(b) = device.create_buffer(&info, None) {
+            device.destroy_buffer(b, None);
+        }
+    }
+    let messages = shutdown(ctx);
+    assert!(
+        messages
+            .iter()
+            .any(|m| m.text.contains("VUID-VkBufferCreateInfo-size-00912")),
+        "expected VUID-VkBufferCreateInfo-size-00912, got: {messages:#?}"
+    );
+}
+
+#[test]
+fn undestroyed_object_is_reported_at_shutdown() {
+    let ctx = context();
+    let info = vk::BufferCreateInfo::default()
+        .size(64)
+        .usage(vk::BufferUsageFlags::STORAGE_BUFFER);
+    // SAFETY: valid create info; the buffer is leaked on purpose.
+    let _leaked = unsafe { ctx.raw_device().create_buffer(&info, None) }.expect("create");
+    let messages = shutdown(ctx);
+    assert!(
+        messages.iter().any(
+            |m| m.id_name == "VUID-vkDestroyDevice-device-00378" && m.text.contains("VkBuffer")
+        ),
+        "expected an undestroyed-object report, got: {messages:#?}"
+    );
+}
+
+#[test]
+fn live_resource_blocks_shutdown() {
+    let ctx = context();
+    let buffer = Buffer::new(&ctx, BufferDesc::storage("kept", 256)).expect("buffer");
+    let err = ctx
+        .shutdown()
+        .expect_err("a live buffer must block shutdown");
+    assert!(matches!(err, Error::Leak(_)), "{err}");
+    drop(buffer); // the last owner destroys the device now
+}
+
+#[test]
+fn garbage_spirv_is_rejected_with_its_name() {
+    let cases: Vec<(&str, Vec<u8>)> = vec![
+        ("empty.spv", vec![]),
+        ("odd-length.spv", vec![3, 2, 0x23, 7, 1]),
+        ("text.spv", b"#version 450\nvoid main() {}\n....".to_vec()),
+        (
+            "random.spv",
+            (0..400u32)
+                .flat_map(|i| (i.wrapping_mul(2654435761)).to_le_bytes())
+                .collect(),
+        ),
+        (
+            "truncated.spv",
+            spirv("test/chain_add").unwrap()[..200].to_vec(),
+        ),
+        ("bad-word.spv", {
+            let mut v = spirv("test/chain_add").unwrap().to_vec();
+            let mid = v.len() / 2 / 4 * 4;
+            v[mid..mid + 4].copy_from_slice(&0xffff_ffffu32.to_le_bytes());
+            v
+        }),
+    ];
+    for (name, bytes) in cases {
+        match Shader::from_spirv(name, &bytes) {
+            Err(Error::Spirv { name: n, reason }) => {
+                assert_eq!(n, name);
+                assert!(!reason.is_empty());
+                eprintln!("{name}: {reason}");
+            }
+            Err(e) => panic!("{name}: wrong error kind: {e}"),
+            Ok(_) => panic!("{name}: garbage accepted"),
+        }
+    }
+}
+
+#[test]
+fn non_compute_shader_is_rejected() {
+    let compiler = shaderc::Compiler::new().unwrap();
+    let frag = compiler
+        .compile_into_spirv(
+            "#version 450\nlayout(location=0) out vec4 c; void main() { c = vec4(1); }",
+            shaderc::ShaderKind::Fragment,
+            "f.frag",
+            "main",
+            None,
+        )
+        .unwrap();
+    let err = Shader::from_spirv("f.frag", frag.as_binary_u8()).unwrap_err();
+    assert!(err.to_string().contains("not GLCompute"), "{err}");
+}
+
+#[test]
+fn interface_mismatches_are_clear_errors() {
+    with_gpu(|ctx| {
+        let add = ComputePipeline::from_spirv(ctx, "test/chain_add", spirv("test/chain_add")?)?;
+        let scale =
+            ComputePipeline::from_spirv(ctx, "test/chain_scale", spirv("test/chain_scale")?)?;
+        let y = Buffer::new(ctx, BufferDesc::storage("y", 4096))?;
+        let acc = Buffer::new(ctx, BufferDesc::storage("acc", 4096))?;
+        let uniform_only = Buffer::new(
+            ctx,
+            BufferDesc {
+                name: "uniform-only".into(),
+                size: 4096,
+                usage: vk::BufferUsageFlags::UNIFORM_BUFFER,
+                memory: vkshade::gpu::MemoryUsage::GpuOnly,
+            },
+        )?;
+        let image = Image::new(
+            ctx,
+            ImageDesc {
+                name: "img".into(),
+                format: vk::Format::R32_SFLOAT,
+                extent: [4, 4, 1],
+                layers: 1,
+                usage: vk::ImageUsageFlags::STORAGE,
+            },
+        )?;
+        let expect_err = |r: vkshade::Result<vkshade::gpu::BindGroup>, needle: &str| match r {
+            Err(e @ Error::Interface { .. }) => {
+                assert!(
+                    e.to_string().contains(needle),
+                    "'{e}' should mention '{needle}'"
+                );
+                assert!(
+                    e.to_string().contains("test/chain_add"),
+                    "'{e}' should name the pipeline"
+                );
+            }
+            Err(e) => panic!("wrong error kind: {e}"),
+            Ok(_) => panic!("accepted a mismatched interface (expected '{needle}')"),
+        };
+        expect_err(add.bind(&[("ybuf", Resource::Buffer(&y))]), "accbuf");
+        expect_err(
+            add.bind(&[
+                ("ybuf", Resource::Buffer(&y)),
+                ("nonexistent", Resource::Buffer(&acc)),
+            ]),
+            "no binding named 'nonexistent'",
+        );
+        expect_err(
+            add.bind(&[
+                ("ybuf", Resource::Buffer(&y)),
+                ("accbuf", Resource::StorageImage(&image)),
+            ]),
+            "StorageBuffer but was given a storage image",
+        );
+        expect_err(
+            add.bind(&[
+                ("ybuf", Resource::Buffer(&y)),
+                ("accbuf", Resource::Buffer(&uniform_only)),
+            ]),
+            "lacks usage",
+        );
+        expect_err(
+            add.bind(&[
+                ("ybuf", Resource::Buffer(&y)),
+                (
+                    "accbuf",
+                    Resource::BufferRange {
+                        buffer: &acc,
+                        offset: 4000,
+                        size: 200,
+                    },
+                ),
+            ]),
+            "outside buffer",
+        );
+        expect_err(
+            add.bind(&[
+                ("ybuf", Resource::Buffer(&y)),
+                ("ybuf", Resource::Buffer(&acc)),
+                ("accbuf", Resource::Buffer(&acc)),
+            ]),
+            "given twice",
+        );
+        let good = add.bind(&[
+            ("ybuf", Resource::Buffer(&y)),
+            ("accbuf", Resource::Buffer(&acc)),
+        ])?;
+        let mut rec = ctx.recorder("bad dispatches")?;
+        let e = rec.dispatch(&add, &good, &[0u8; 4], [1, 1, 1]).unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("push constants are 4 bytes, the shader declares 8"),
+            "{e}"
+        );
+        let e = rec
+            .dispatch(&scale, &good, &scale_push(1.0, 0.0, 1), [1, 1, 1])
+            .unwrap_err();
+        assert!(e.to_string().contains("different pipeline"), "{e}");
+        let e = rec
+            .dispatch(&add, &good, &add_push(1.0, 1), [1 << 20, 1, 1])
+            .unwrap_err();
+        assert!(e.to_string().contains("maxComputeWorkGroupCount"), "{e}");
+        drop(rec); // never submitted: nothing was recorded that needs to run
+        Ok(())
+    });
+}
+
+#[test]
+fn buffers_beyond_device_limits_are_refused() {
+    with_gpu(|ctx| {
+        let max = ctx.limits().max_storage_buffer_range;
+        match Buffer::new(ctx, BufferDesc::storage("too big", max + 16)) {
+            Err(e @ Error::Limit { .. }) => {
+                let s = e.to_string();
+                assert!(
+                    s.contains("maxStorageBufferRange") && s.contains("too big"),
+                    "{s}"
+                );
+            }
+            Err(e) => panic!("wrong error: {e}"),
+            Ok(_) => panic!("a storage buffer beyond maxStorageBufferRange was created"),
+        }
+        let max_alloc = ctx.limits().max_memory_allocation_size;
+        let staging = BufferDesc {
+            name: "huge staging".into(),
+            size: max_alloc + 1,
+            usage: vk::BufferUsageFlags::TRANSFER_SRC,
+            memory: vkshade::gpu::MemoryUsage::Upload,
+        };
+        let e = Buffer::new(ctx, staging).unwrap_err();
+        assert!(e.to_string().contains("maxMemoryAllocationSize"), "{e}");
+        let e = Buffer::new(ctx, BufferDesc::storage("empty", 0)).unwrap_err();
+        assert!(e.to_string().contains("size 0"), "{e}");
+        Ok(())
+    });
+}
+
+#[test]
+fn images_round_trip_through_staging() {
+    with_gpu(|ctx| {
+        for (name, format, extent, texel) in [
+            ("rgba8 2d", vk::Format::R8G8B8A8_UNORM, [37, 19, 1], 4usize),
+            ("r32f 3d", vk::Format::R32_SFLOAT, [8, 5, 6], 4),
+        ] {
+            let image = Image::new(
+                ctx,
+                ImageDesc {
+                    name: name.into(),
+                    format,
+                    extent,
+                    layers: 1,
+                    usage: vk::ImageUsageFlags::TRANSFER_DST
+                        | vk::ImageUsageFlags::TRANSFER_SRC
+                        | vk::ImageUsageFlags::SAMPLED,
+                },
+            )?;
+            let n = extent.iter().product::<u32>() as usize * texel;
+            let data: Vec<u8> = (0..n).map(|i| (i * 7 % 251) as u8).collect();
+            let mut rec = ctx.recorder("image round trip")?;
+            rec.upload_image(&image, A::Nothing, &data)?;
+            rec.barrier(&[Barrier::image(
+                &image,
+                A::TransferWrite,
+                A::ComputeShaderReadSampledImage,
+            )]);
+            let rb = rec.read_back_image(&image, A::ComputeShaderReadSampledImage)?;
+            rec.submit_and_wait()?;
+            assert_eq!(rb.bytes()?, &data[..], "{name}");
+        }
+        let too_big = ImageDesc {
+            name: "too deep".into(),
+            format: vk::Format::R8G8B8A8_UNORM,
+            extent: [4, 4, ctx.limits().max_image_dimension_3d + 1],
+            layers: 1,
+            usage: vk::ImageUsageFlags::SAMPLED,
+        };
+        let e = Image::new(ctx, too_big).unwrap_err();
+        assert!(e.to_string().contains("maxImageDimension3D"), "{e}");
+        Ok(())
+    });
+}
+
+#[test]
+fn readback_before_submit_is_an_error() {
+    with_gpu(|ctx| {
+        let b = ctx.upload_buffer(BufferDesc::storage("b", 16), &[1u32, 2, 3, 4])?;
+        let mut rec = ctx.recorder("early read")?;
+        let rb = rec.read_back(&b, A::TransferWrite)?;
+        assert!(rb.bytes().is_err());
+        rec.submit_and_wait()?;
+        assert_eq!(rb.to_vec::<u32>()?, vec![1, 2, 3, 4]);
+        Ok(())
+    });
+}
+
+#[test]
+fn unknown_device_selector_names_the_devices_present() {
+    let desc = vkshade::gpu::ContextDesc {
+        device: vkshade::gpu::DeviceSelector::Name("no-such-gpu-xyz".into()),
+        validation: None,
+    };
+    let e = Context::new(&desc).unwrap_err();
+    let s = e.to_string();
+    assert!(s.contains("no-such-gpu-xyz") && s.contains("0:"), "{s}");
+}
+
+#[test]
+fn missing_driver_fails_with_install_hint() {
+    // In a child process, so the environment change cannot affect other tests.
+    let out = std::process::Command::new(env!("CARGO_BIN_EXE_vkshade"))
+        .args(["bench", "peak", "--samples", "1"])
+        .env("VK_DRIVER_FILES", "/nonexistent/icd.json")
+        .env("VK_ICD_FILENAMES", "/nonexistent/icd.json")
+        .output()
+        .expect("run vkshade");
+    assert!(!out.status.success(), "must fail without a driver");
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        stderr.contains("mesa-vulkan-drivers"),
+        "the error must say how to install lavapipe; stderr was:\n{stderr}"
+    );
+}
+
+#[test]
+fn validation_harness_reports_messages() {
+    // The assertion helper itself must fail on a message.
+    let fake = vkshade::gpu::ValidationMessage {
+        severity: vkshade::gpu::Severity::Error,
+        kind: "VALIDATION".into(),
+        id_number: 1,
+        id_name: "X".into(),
+        text: "t".into(),
+        objects: vec![],
+        labels: vec![],
+    };
+    assert!(std::panic::catch_unwind(|| assert_clean(&[fake])).is_err());
+}
