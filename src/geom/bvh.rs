@@ -1,0 +1,336 @@
+//! A bounding-volume hierarchy over triangles (binned SAH), for ray casting on the CPU: the
+//! ambient-occlusion ground truth and the sphere-tree builder's inside test.
+
+use glam::Vec3;
+
+#[derive(Clone, Copy, Debug)]
+struct Node {
+    min: Vec3,
+    max: Vec3,
+    /// Leaf: first triangle in `order`; inner: index of the left child (right = left + 1).
+    first: u32,
+    /// Leaf: triangle count (> 0); inner: 0.
+    count: u32,
+}
+
+/// A BVH over a triangle list; triangles are referenced, not copied.
+pub struct Bvh {
+    nodes: Vec<Node>,
+    /// Triangle vertices in leaf order: (a, b - a, c - a).
+    tris: Vec<[Vec3; 3]>,
+}
+
+const LEAF_SIZE: usize = 4;
+const BINS: usize = 12;
+
+fn grow(min: &mut Vec3, max: &mut Vec3, p: Vec3) {
+    *min = min.min(p);
+    *max = max.max(p);
+}
+
+fn area(min: Vec3, max: Vec3) -> f32 {
+    let d = (max - min).max(Vec3::ZERO);
+    d.x * d.y + d.y * d.z + d.z * d.x
+}
+
+impl Bvh {
+    /// Builds the hierarchy over `triangles` of `positions`.
+    pub fn build(positions: &[Vec3], triangles: &[[u32; 3]]) -> Bvh {
+        let prims: Vec<[Vec3; 3]> = triangles
+            .iter()
+            .map(|t| t.map(|i| positions[i as usize]))
+            .collect();
+        let centroids: Vec<Vec3> = prims.iter().map(|p| (p[0] + p[1] + p[2]) / 3.0).collect();
+        let mut order: Vec<u32> = (0..prims.len() as u32).collect();
+        let mut nodes = Vec::with_capacity(2 * prims.len().max(1));
+        nodes.push(Node {
+            min: Vec3::ZERO,
+            max: Vec3::ZERO,
+            first: 0,
+            count: prims.len() as u32,
+        });
+        let mut stack = vec![0usize];
+        while let Some(ni) = stack.pop() {
+            let (first, count) = (nodes[ni].first as usize, nodes[ni].count as usize);
+            let (mut min, mut max) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+            let (mut cmin, mut cmax) = (min, max);
+            for &t in &order[first..first + count] {
+                for v in prims[t as usize] {
+                    grow(&mut min, &mut max, v);
+                }
+                grow(&mut cmin, &mut cmax, centroids[t as usize]);
+            }
+            nodes[ni].min = min;
+            nodes[ni].max = max;
+            if count <= LEAF_SIZE {
+                continue;
+            }
+            // Binned SAH over the widest centroid axis.
+            let extent = cmax - cmin;
+            let axis = if extent.x >= extent.y && extent.x >= extent.z {
+                0
+            } else if extent.y >= extent.z {
+                1
+            } else {
+                2
+            };
+            if extent[axis] <= 0.0 {
+                continue; // all centroids coincide: keep as a (large) leaf
+            }
+            let bin_of = |t: u32| {
+                let c = centroids[t as usize][axis];
+                (((c - cmin[axis]) / extent[axis] * BINS as f32) as usize).min(BINS - 1)
+            };
+            let mut bins = [(
+                Vec3::splat(f32::INFINITY),
+                Vec3::splat(f32::NEG_INFINITY),
+                0usize,
+            ); BINS];
+            for &t in &order[first..first + count] {
+                let b = &mut bins[bin_of(t)];
+                for v in prims[t as usize] {
+                    grow(&mut b.0, &mut b.1, v);
+                }
+                b.2 += 1;
+            }
+            let mut best = (f32::INFINITY, 0usize);
+            for split in 1..BINS {
+                let side = |r: std::ops::Range<usize>| {
+                    bins[r].iter().fold(
+                        (
+                            Vec3::splat(f32::INFINITY),
+                            Vec3::splat(f32::NEG_INFINITY),
+                            0usize,
+                        ),
+                        |(a, b, n), bin| (a.min(bin.0), b.max(bin.1), n + bin.2),
+                    )
+                };
+                let (l, r) = (side(0..split), side(split..BINS));
+                if l.2 == 0 || r.2 == 0 {
+                    continue;
+                }
+                let cost = area(l.0, l.1) * l.2 as f32 + area(r.0, r.1) * r.2 as f32;
+                if cost < best.0 {
+                    best = (cost, split);
+                }
+            }
+            if best.1 == 0 || best.0 >= area(min, max) * count as f32 {
+                if count <= 4 * LEAF_SIZE {
+                    continue; // splitting does not pay
+                }
+                best.1 = BINS / 2;
+            }
+            let slice = &mut order[first..first + count];
+            let mut left = 0;
+            for i in 0..slice.len() {
+                if bin_of(slice[i]) < best.1 {
+                    slice.swap(i, left);
+                    left += 1;
+                }
+            }
+            if left == 0 || left == count {
+                left = count / 2; // degenerate binning: split the range in half
+            }
+            let l = nodes.len();
+            nodes.push(Node {
+                min: Vec3::ZERO,
+                max: Vec3::ZERO,
+                first: first as u32,
+                count: left as u32,
+            });
+            nodes.push(Node {
+                min: Vec3::ZERO,
+                max: Vec3::ZERO,
+                first: (first + left) as u32,
+                count: (count - left) as u32,
+            });
+            nodes[ni].first = l as u32;
+            nodes[ni].count = 0;
+            stack.push(l);
+            stack.push(l + 1);
+        }
+        let tris = order
+            .iter()
+            .map(|&t| {
+                let [a, b, c] = prims[t as usize];
+                [a, b - a, c - a]
+            })
+            .collect();
+        Bvh { nodes, tris }
+    }
+
+    /// Visits every triangle whose leaf box the ray segment [0, tmax] touches; `hit` gets the
+    /// ray parameter of each intersection and returns true to stop.
+    fn traverse(&self, o: Vec3, d: Vec3, tmax: f32, mut hit: impl FnMut(f32) -> bool) {
+        if self.tris.is_empty() {
+            return;
+        }
+        let inv = d.recip();
+        let mut stack = [0u32; 64];
+        let mut sp = 1;
+        while sp > 0 {
+            sp -= 1;
+            let node = &self.nodes[stack[sp] as usize];
+            let t0 = (node.min - o) * inv;
+            let t1 = (node.max - o) * inv;
+            let tnear = t0.min(t1).max_element().max(0.0);
+            let tfar = t0.max(t1).min_element().min(tmax);
+            if tnear > tfar {
+                continue;
+            }
+            if node.count > 0 {
+                for tri in &self.tris[node.first as usize..(node.first + node.count) as usize] {
+                    if let Some(t) = intersect(o, d, tri)
+                        && t <= tmax
+                        && hit(t)
+                    {
+                        return;
+                    }
+                }
+            } else if sp + 2 <= stack.len() {
+                stack[sp] = node.first;
+                stack[sp + 1] = node.first + 1;
+                sp += 2;
+            }
+        }
+    }
+
+    /// Whether the ray hits any triangle at a parameter in (0, tmax].
+    pub fn any_hit(&self, origin: Vec3, dir: Vec3, tmax: f32) -> bool {
+        let mut found = false;
+        self.traverse(origin, dir, tmax, |_| {
+            found = true;
+            true
+        });
+        found
+    }
+
+    /// Parameters of every intersection along the ray (unsorted).
+    pub fn all_hits(&self, origin: Vec3, dir: Vec3, out: &mut Vec<f32>) {
+        out.clear();
+        self.traverse(origin, dir, f32::INFINITY, |t| {
+            out.push(t);
+            false
+        });
+    }
+
+    /// Number of triangles.
+    pub fn len(&self) -> usize {
+        self.tris.len()
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.tris.is_empty()
+    }
+}
+
+/// Möller-Trumbore; two-sided. Returns t > 0 of the hit.
+#[inline]
+fn intersect(o: Vec3, d: Vec3, tri: &[Vec3; 3]) -> Option<f32> {
+    let [a, e1, e2] = *tri;
+    let p = d.cross(e2);
+    let det = e1.dot(p);
+    if det.abs() < 1e-12 {
+        return None;
+    }
+    let inv = 1.0 / det;
+    let s = o - a;
+    let u = s.dot(p) * inv;
+    if !(0.0..=1.0).contains(&u) {
+        return None;
+    }
+    let q = s.cross(e1);
+    let v = d.dot(q) * inv;
+    if v < 0.0 || u + v > 1.0 {
+        return None;
+    }
+    let t = e2.dot(q) * inv;
+    (t > 0.0).then_some(t)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn cube() -> (Vec<Vec3>, Vec<[u32; 3]>) {
+        let p: Vec<Vec3> = (0..8)
+            .map(|i| Vec3::new((i & 1) as f32, ((i >> 1) & 1) as f32, ((i >> 2) & 1) as f32))
+            .collect();
+        let quads = [
+            [0, 1, 3, 2],
+            [4, 6, 7, 5],
+            [0, 4, 5, 1],
+            [2, 3, 7, 6],
+            [0, 2, 6, 4],
+            [1, 5, 7, 3],
+        ];
+        let mut t = Vec::new();
+        for q in quads {
+            t.push([q[0], q[1], q[2]]);
+            t.push([q[0], q[2], q[3]]);
+        }
+        (p, t)
+    }
+
+    #[test]
+    fn rays_through_a_cube() {
+        let (p, t) = cube();
+        let bvh = Bvh::build(&p, &t);
+        let o = Vec3::new(0.3, 0.4, -1.0);
+        assert!(bvh.any_hit(o, Vec3::Z, 10.0));
+        assert!(!bvh.any_hit(o, Vec3::Z, 0.5));
+        assert!(!bvh.any_hit(o, -Vec3::Z, 10.0));
+        let mut hits = Vec::new();
+        bvh.all_hits(o, Vec3::Z, &mut hits);
+        hits.sort_by(f32::total_cmp);
+        assert_eq!(hits.len(), 2);
+        assert!((hits[0] - 1.0).abs() < 1e-6 && (hits[1] - 2.0).abs() < 1e-6);
+        // From inside, one crossing in every direction.
+        bvh.all_hits(
+            Vec3::splat(0.5),
+            Vec3::new(0.3, -0.8, 0.52).normalize(),
+            &mut hits,
+        );
+        assert_eq!(hits.len(), 1);
+    }
+
+    #[test]
+    fn many_triangles_agree_with_brute_force() {
+        // A grid of 2048 small triangles in random orientations.
+        let mut rng = crate::geom::Rng::new(7);
+        let mut p = Vec::new();
+        let mut t = Vec::new();
+        for i in 0..2048u32 {
+            let c = Vec3::new(rng.f32(), rng.f32(), rng.f32()) * 10.0;
+            for _ in 0..3 {
+                p.push(c + Vec3::new(rng.f32(), rng.f32(), rng.f32()) * 0.6);
+            }
+            t.push([3 * i, 3 * i + 1, 3 * i + 2]);
+        }
+        let bvh = Bvh::build(&p, &t);
+        let brute = Bvh {
+            nodes: vec![Node {
+                min: Vec3::splat(-1.0),
+                max: Vec3::splat(12.0),
+                first: 0,
+                count: t.len() as u32,
+            }],
+            tris: t
+                .iter()
+                .map(|t| {
+                    let [a, b, c] = t.map(|i| p[i as usize]);
+                    [a, b - a, c - a]
+                })
+                .collect(),
+        };
+        let (mut h1, mut h2) = (Vec::new(), Vec::new());
+        for _ in 0..500 {
+            let o = Vec3::new(rng.f32(), rng.f32(), rng.f32()) * 10.0;
+            let d = crate::geom::uniform_sphere(rng.f32(), rng.f32());
+            bvh.all_hits(o, d, &mut h1);
+            brute.all_hits(o, d, &mut h2);
+            assert_eq!(h1.len(), h2.len());
+            assert_eq!(bvh.any_hit(o, d, 3.0), brute.any_hit(o, d, 3.0));
+        }
+    }
+}

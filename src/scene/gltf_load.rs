@@ -1,0 +1,271 @@
+//! glTF 2.0 (.gltf / .glb) characters: the skinned mesh, its skeleton and animations.
+//!
+//! The mesh is every triangle primitive of the nodes that use the file's first skin (so a
+//! character split into several meshes comes back whole); without a skin, every mesh node,
+//! transformed to world space. Texture images are never decoded.
+
+use super::Character;
+use super::mesh::{Mesh, MeshData};
+use super::rig::{Animation, Channel, Interpolation, Node, Property, Rig, Trs};
+use crate::error::{Error, Result};
+use glam::{Mat3, Mat4, Quat, Vec3};
+use std::path::Path;
+
+pub fn load(path: &Path) -> Result<Character> {
+    let err = |m: String| Error::input(path, m);
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let gltf = gltf::Gltf::from_slice(&bytes).map_err(|e| err(format!("not valid glTF: {e}")))?;
+    let doc = gltf.document;
+    let base = path.parent();
+    let buffers = gltf::import_buffers(&doc, base, gltf.blob)
+        .map_err(|e| err(format!("cannot load buffers: {e}")))?;
+    let get = |b: gltf::Buffer<'_>| buffers.get(b.index()).map(|d| &d.0[..]);
+
+    // Node hierarchy.
+    let mut nodes: Vec<Node> = doc
+        .nodes()
+        .map(|n| {
+            let (t, r, s) = n.transform().decomposed();
+            Node {
+                name: n.name().unwrap_or("").to_string(),
+                parent: None,
+                rest: Trs {
+                    t: Vec3::from_array(t),
+                    r: Quat::from_array(r).normalize(),
+                    s: Vec3::from_array(s),
+                },
+            }
+        })
+        .collect();
+    for n in doc.nodes() {
+        for c in n.children() {
+            if nodes[c.index()].parent.is_some() {
+                return Err(err(format!("node {} has two parents", c.index())));
+            }
+            nodes[c.index()].parent = Some(n.index());
+        }
+    }
+
+    let skin = doc.skins().next();
+    let mesh_nodes: Vec<gltf::Node<'_>> = doc
+        .nodes()
+        .filter(|n| n.mesh().is_some())
+        .filter(|n| match &skin {
+            Some(s) => n.skin().is_some_and(|ns| ns.index() == s.index()),
+            None => true,
+        })
+        .collect();
+    if mesh_nodes.is_empty() {
+        return Err(err("no mesh nodes in the scene".into()));
+    }
+
+    // Static meshes are flattened into world space; skinned ones stay in bind space.
+    let rig_for_world = Rig::new(nodes.clone(), vec![], vec![]).map_err(err)?;
+    let world = rig_for_world.globals(&rig_for_world.pose(None, 0.0));
+
+    let mut data = MeshData {
+        name: path
+            .file_stem()
+            .map(|s| s.to_string_lossy().into_owned())
+            .unwrap_or_default(),
+        ..Default::default()
+    };
+    let mut normals: Vec<[f32; 3]> = Vec::new();
+    let mut uvs: Vec<[f32; 2]> = Vec::new();
+    let mut influences: Vec<Vec<(u32, f32)>> = Vec::new();
+    let (mut all_normals, mut all_uvs) = (true, true);
+    for node in &mesh_nodes {
+        let mesh = node.mesh().expect("filtered");
+        let to_world = if skin.is_some() {
+            Mat4::IDENTITY
+        } else {
+            world[node.index()]
+        };
+        let normal_matrix = Mat3::from_mat4(to_world).inverse().transpose();
+        for (pi, prim) in mesh.primitives().enumerate() {
+            let what = format!("mesh '{}' primitive {pi}", mesh.name().unwrap_or(""));
+            match prim.mode() {
+                gltf::mesh::Mode::Triangles => {}
+                m => {
+                    return Err(err(format!(
+                        "{what}: primitive mode {m:?} is not supported (triangles only)"
+                    )));
+                }
+            }
+            let reader = prim.reader(get);
+            let pos: Vec<[f32; 3]> = reader
+                .read_positions()
+                .ok_or_else(|| err(format!("{what} has no POSITION")))?
+                .collect();
+            let base_index = data.positions.len() as u32;
+            let count = pos.len();
+            data.positions.extend(
+                pos.iter()
+                    .map(|p| to_world.transform_point3(Vec3::from_array(*p)).to_array()),
+            );
+            match reader.read_normals() {
+                Some(n) => {
+                    normals.extend(n.map(|v| (normal_matrix * Vec3::from_array(v)).to_array()))
+                }
+                None => all_normals = false,
+            }
+            match reader.read_tex_coords(0) {
+                Some(t) => uvs.extend(t.into_f32()),
+                None => all_uvs = false,
+            }
+            if skin.is_some() {
+                let mut inf: Vec<Vec<(u32, f32)>> = vec![Vec::new(); count];
+                let mut set = 0;
+                while let (Some(j), Some(w)) = (reader.read_joints(set), reader.read_weights(set)) {
+                    let j: Vec<[u16; 4]> = j.into_u16().collect();
+                    let w: Vec<[f32; 4]> = w.into_f32().collect();
+                    if j.len() != count || w.len() != count {
+                        return Err(err(format!(
+                            "{what}: JOINTS_{set}/WEIGHTS_{set} have {}/{} entries for {count} vertices",
+                            j.len(),
+                            w.len()
+                        )));
+                    }
+                    for v in 0..count {
+                        for k in 0..4 {
+                            inf[v].push((j[v][k] as u32, w[v][k]));
+                        }
+                    }
+                    set += 1;
+                }
+                if set == 0 {
+                    return Err(err(format!(
+                        "{what} belongs to a skinned node but has no JOINTS_0/WEIGHTS_0"
+                    )));
+                }
+                influences.extend(inf);
+            }
+            let indices: Vec<u32> = match reader.read_indices() {
+                Some(i) => i.into_u32().collect(),
+                None => (0..count as u32).collect(),
+            };
+            if indices.len() % 3 != 0 {
+                return Err(err(format!(
+                    "{what}: {} indices is not a whole number of triangles",
+                    indices.len()
+                )));
+            }
+            for t in indices.chunks_exact(3) {
+                if let Some(&bad) = t.iter().find(|&&i| i as usize >= count) {
+                    return Err(err(format!(
+                        "{what}: index {bad} out of range ({count} vertices)"
+                    )));
+                }
+                data.triangles
+                    .push([t[0] + base_index, t[1] + base_index, t[2] + base_index]);
+            }
+        }
+    }
+    data.normals = all_normals.then_some(normals);
+    data.uvs = all_uvs.then_some(uvs);
+
+    let rig = match &skin {
+        Some(s) => {
+            let joints: Vec<usize> = s.joints().map(|j| j.index()).collect();
+            let ibm: Vec<Mat4> = match s.reader(get).read_inverse_bind_matrices() {
+                Some(m) => m.map(|c| Mat4::from_cols_array_2d(&c)).collect(),
+                None => vec![Mat4::IDENTITY; joints.len()],
+            };
+            data.joint_count = joints.len();
+            data.influences = Some(influences);
+            Rig::new(nodes, joints, ibm).map_err(err)?
+        }
+        None => Rig::identity(),
+    };
+    let skinned = skin.is_some();
+    let mesh = Mesh::from_data(data, path)?;
+
+    let mut animations = Vec::new();
+    if skinned {
+        for (ai, anim) in doc.animations().enumerate() {
+            let name = anim
+                .name()
+                .map(str::to_string)
+                .unwrap_or_else(|| format!("animation{ai}"));
+            let mut channels = Vec::new();
+            let mut duration = 0f32;
+            for ch in anim.channels() {
+                let property = match ch.target().property() {
+                    gltf::animation::Property::Translation => Property::Translation,
+                    gltf::animation::Property::Rotation => Property::Rotation,
+                    gltf::animation::Property::Scale => Property::Scale,
+                    gltf::animation::Property::MorphTargetWeights => continue,
+                };
+                let interpolation = match ch.sampler().interpolation() {
+                    gltf::animation::Interpolation::Step => Interpolation::Step,
+                    gltf::animation::Interpolation::Linear => Interpolation::Linear,
+                    gltf::animation::Interpolation::CubicSpline => Interpolation::CubicSpline,
+                };
+                let reader = ch.reader(get);
+                let times: Vec<f32> = reader
+                    .read_inputs()
+                    .ok_or_else(|| {
+                        err(format!("animation '{name}': a channel has no input times"))
+                    })?
+                    .collect();
+                let values: Vec<[f32; 4]> = match reader.read_outputs() {
+                    Some(gltf::animation::util::ReadOutputs::Translations(v)) => {
+                        v.map(|[x, y, z]| [x, y, z, 0.0]).collect()
+                    }
+                    Some(gltf::animation::util::ReadOutputs::Scales(v)) => {
+                        v.map(|[x, y, z]| [x, y, z, 0.0]).collect()
+                    }
+                    Some(gltf::animation::util::ReadOutputs::Rotations(r)) => {
+                        r.into_f32().collect()
+                    }
+                    _ => {
+                        return Err(err(format!(
+                            "animation '{name}': unreadable channel outputs"
+                        )));
+                    }
+                };
+                let per_key = if interpolation == Interpolation::CubicSpline {
+                    3
+                } else {
+                    1
+                };
+                if times.is_empty() || values.len() != times.len() * per_key {
+                    return Err(err(format!(
+                        "animation '{name}': {} keyframe times but {} values",
+                        times.len(),
+                        values.len()
+                    )));
+                }
+                if times.iter().any(|t| !t.is_finite()) || times.windows(2).any(|w| w[1] <= w[0]) {
+                    return Err(err(format!(
+                        "animation '{name}': keyframe times are not finite and strictly increasing"
+                    )));
+                }
+                if values.iter().flatten().any(|v| !v.is_finite()) {
+                    return Err(err(format!(
+                        "animation '{name}': non-finite keyframe values"
+                    )));
+                }
+                duration = duration.max(*times.last().expect("non-empty"));
+                channels.push(Channel {
+                    node: ch.target().node().index(),
+                    property,
+                    interpolation,
+                    times,
+                    values,
+                });
+            }
+            animations.push(Animation {
+                name,
+                duration,
+                channels,
+            });
+        }
+    }
+    Ok(Character {
+        mesh,
+        rig,
+        animations,
+        skinned,
+    })
+}

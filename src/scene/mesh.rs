@@ -1,0 +1,305 @@
+//! Triangle meshes with optional skin weights, validated on construction.
+//!
+//! Repairs, each counted in [`MeshReport`] (and printed in `report.json`):
+//! - degenerate triangles (a repeated index or zero area) are removed;
+//! - skin weights that do not sum to 1 are renormalised; more than four influences keep the
+//!   four largest, renormalised;
+//! - missing or zero-length normals are recomputed (area-weighted face normals).
+//!
+//! Errors (naming the file and the element): no triangles, a non-finite position, normal or
+//! weight, an index out of range, a negative weight, a vertex whose weights sum to zero, a
+//! joint index beyond the skeleton.
+//!
+//! Non-manifold edges (used by more than two triangles) and boundary edges are counted, not
+//! repaired: per-vertex occlusion does not need a manifold, and the sphere-tree builder's
+//! inside test takes a majority over three ray directions.
+
+use crate::error::{Error, Result};
+use glam::{Vec2, Vec3};
+use std::collections::HashMap;
+use std::path::Path;
+
+/// Up to four joint influences per vertex.
+#[derive(Clone, Debug, Default)]
+pub struct SkinWeights {
+    pub joints: Vec<[u16; 4]>,
+    /// Non-negative, summing to 1 per vertex.
+    pub weights: Vec<[f32; 4]>,
+}
+
+/// What validation found and repaired.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct MeshReport {
+    pub source: String,
+    pub vertices: usize,
+    pub triangles: usize,
+    pub degenerate_triangles_removed: usize,
+    pub weights_renormalised: usize,
+    pub influences_truncated: usize,
+    pub normals_recomputed: usize,
+    pub boundary_edges: usize,
+    pub non_manifold_edges: usize,
+    /// Vertices used by no triangle (kept; they get occlusion like any other).
+    pub unreferenced_vertices: usize,
+}
+
+/// A validated triangle mesh.
+#[derive(Clone, Debug)]
+pub struct Mesh {
+    pub name: String,
+    pub positions: Vec<Vec3>,
+    /// Unit length.
+    pub normals: Vec<Vec3>,
+    pub uvs: Option<Vec<Vec2>>,
+    pub triangles: Vec<[u32; 3]>,
+    pub skin: Option<SkinWeights>,
+    pub report: MeshReport,
+}
+
+/// Raw mesh data as a loader reads it, before validation.
+#[derive(Clone, Debug, Default)]
+pub struct MeshData {
+    pub name: String,
+    pub positions: Vec<[f32; 3]>,
+    pub normals: Option<Vec<[f32; 3]>>,
+    pub uvs: Option<Vec<[f32; 2]>>,
+    pub triangles: Vec<[u32; 3]>,
+    /// Per vertex, any number of (joint, weight) influences.
+    pub influences: Option<Vec<Vec<(u32, f32)>>>,
+    /// Number of joints that influences may refer to.
+    pub joint_count: usize,
+}
+
+impl Mesh {
+    /// Validates and repairs `data` read from `source` (named in every error).
+    pub fn from_data(data: MeshData, source: &Path) -> Result<Mesh> {
+        let err = |msg: String| Error::input(source, msg);
+        let n = data.positions.len();
+        let mut report = MeshReport {
+            source: source.display().to_string(),
+            vertices: n,
+            ..Default::default()
+        };
+        if n == 0 || data.triangles.is_empty() {
+            return Err(err(format!(
+                "mesh '{}' has {n} vertices and {} triangles; need at least one triangle",
+                data.name,
+                data.triangles.len()
+            )));
+        }
+        if n > u32::MAX as usize {
+            return Err(err(format!("{n} vertices exceed the 32-bit index range")));
+        }
+        let mut positions = Vec::with_capacity(n);
+        for (i, p) in data.positions.iter().enumerate() {
+            if !p.iter().all(|c| c.is_finite()) {
+                return Err(err(format!("vertex {i} has a non-finite position {p:?}")));
+            }
+            positions.push(Vec3::from_array(*p));
+        }
+        let mut triangles = Vec::with_capacity(data.triangles.len());
+        for (t, tri) in data.triangles.iter().enumerate() {
+            if let Some(&bad) = tri.iter().find(|&&v| v as usize >= n) {
+                return Err(err(format!(
+                    "triangle {t} refers to vertex {bad}, but there are only {n} vertices"
+                )));
+            }
+            let [a, b, c] = tri.map(|v| positions[v as usize]);
+            let area2 = (b - a).cross(c - a).length();
+            let scale = (b - a).length().max((c - a).length()).max(1e-30);
+            if tri[0] == tri[1]
+                || tri[1] == tri[2]
+                || tri[0] == tri[2]
+                || area2 <= 1e-12 * scale * scale
+            {
+                report.degenerate_triangles_removed += 1;
+            } else {
+                triangles.push(*tri);
+            }
+        }
+        if triangles.is_empty() {
+            return Err(err("every triangle is degenerate (zero area)".into()));
+        }
+        report.triangles = triangles.len();
+
+        // Normals: given ones checked, missing or zero-length ones recomputed.
+        let face_normals = area_weighted_normals(&positions, &triangles);
+        let mut normals = Vec::with_capacity(n);
+        match &data.normals {
+            Some(given) if given.len() != n => {
+                return Err(err(format!("{} normals for {n} vertices", given.len())));
+            }
+            Some(given) => {
+                for (i, nrm) in given.iter().enumerate() {
+                    if !nrm.iter().all(|c| c.is_finite()) {
+                        return Err(err(format!("vertex {i} has a non-finite normal {nrm:?}")));
+                    }
+                    let v = Vec3::from_array(*nrm);
+                    if v.length() > 1e-6 {
+                        normals.push(v.normalize());
+                    } else {
+                        report.normals_recomputed += 1;
+                        normals.push(face_normals[i]);
+                    }
+                }
+            }
+            None => {
+                report.normals_recomputed = n;
+                normals = face_normals;
+            }
+        }
+
+        let uvs = match data.uvs {
+            Some(uv) if uv.len() != n => {
+                return Err(err(format!(
+                    "{} texture coordinates for {n} vertices",
+                    uv.len()
+                )));
+            }
+            Some(uv) => {
+                if let Some(i) = uv.iter().position(|t| !t.iter().all(|c| c.is_finite())) {
+                    return Err(err(format!(
+                        "vertex {i} has non-finite texture coordinates"
+                    )));
+                }
+                Some(uv.into_iter().map(Vec2::from_array).collect())
+            }
+            None => None,
+        };
+
+        let skin = match data.influences {
+            None => None,
+            Some(inf) if inf.len() != n => {
+                return Err(err(format!(
+                    "skin weights for {} of {n} vertices",
+                    inf.len()
+                )));
+            }
+            Some(inf) => {
+                Some(normalise_influences(&inf, data.joint_count, &mut report).map_err(err)?)
+            }
+        };
+
+        let (boundary, non_manifold) = edge_counts(&triangles);
+        report.boundary_edges = boundary;
+        report.non_manifold_edges = non_manifold;
+        let mut used = vec![false; n];
+        for t in &triangles {
+            for &v in t {
+                used[v as usize] = true;
+            }
+        }
+        report.unreferenced_vertices = used.iter().filter(|u| !**u).count();
+
+        Ok(Mesh {
+            name: data.name,
+            positions,
+            normals,
+            uvs,
+            triangles,
+            skin,
+            report,
+        })
+    }
+
+    /// Axis-aligned bounds (min, max).
+    pub fn bounds(&self) -> (Vec3, Vec3) {
+        bounds(&self.positions)
+    }
+}
+
+/// Axis-aligned bounds of a point set.
+pub fn bounds(points: &[Vec3]) -> (Vec3, Vec3) {
+    points.iter().fold(
+        (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
+        |(lo, hi), p| (lo.min(*p), hi.max(*p)),
+    )
+}
+
+/// Unit vertex normals from area-weighted face normals (+Z where a vertex has no area).
+pub fn area_weighted_normals(positions: &[Vec3], triangles: &[[u32; 3]]) -> Vec<Vec3> {
+    let mut acc = vec![Vec3::ZERO; positions.len()];
+    for t in triangles {
+        let [a, b, c] = t.map(|v| positions[v as usize]);
+        let n = (b - a).cross(c - a); // length = twice the area
+        for &v in t {
+            acc[v as usize] += n;
+        }
+    }
+    acc.into_iter()
+        .map(|n| n.try_normalize().unwrap_or(Vec3::Z))
+        .collect()
+}
+
+fn normalise_influences(
+    inf: &[Vec<(u32, f32)>],
+    joint_count: usize,
+    report: &mut MeshReport,
+) -> std::result::Result<SkinWeights, String> {
+    let mut joints = Vec::with_capacity(inf.len());
+    let mut weights = Vec::with_capacity(inf.len());
+    for (v, list) in inf.iter().enumerate() {
+        let mut list: Vec<(u32, f32)> = Vec::with_capacity(list.len());
+        for &(j, w) in &inf[v] {
+            if !w.is_finite() {
+                return Err(format!("vertex {v} has a non-finite skin weight"));
+            }
+            if w < 0.0 {
+                return Err(format!("vertex {v} has a negative skin weight {w}"));
+            }
+            if w == 0.0 {
+                continue;
+            }
+            if j as usize >= joint_count {
+                return Err(format!(
+                    "vertex {v} is weighted to joint {j}, but the skin has {joint_count} joints"
+                ));
+            }
+            // Merge repeated joints.
+            match list.iter_mut().find(|(jj, _)| *jj == j) {
+                Some(e) => e.1 += w,
+                None => list.push((j, w)),
+            }
+        }
+        if list.is_empty() {
+            return Err(format!(
+                "vertex {v} has no skin weight (all weights are zero)"
+            ));
+        }
+        list.sort_by(|a, b| b.1.total_cmp(&a.1));
+        if list.len() > 4 {
+            report.influences_truncated += 1;
+            list.truncate(4);
+        }
+        let sum: f32 = list.iter().map(|e| e.1).sum();
+        if (sum - 1.0).abs() > 1e-4 {
+            report.weights_renormalised += 1;
+        }
+        let mut j4 = [0u16; 4];
+        let mut w4 = [0f32; 4];
+        for (k, (j, w)) in list.iter().enumerate() {
+            j4[k] = *j as u16;
+            w4[k] = w / sum;
+        }
+        joints.push(j4);
+        weights.push(w4);
+    }
+    if joint_count > u16::MAX as usize {
+        return Err(format!("{joint_count} joints exceed the supported 65535"));
+    }
+    Ok(SkinWeights { joints, weights })
+}
+
+/// (boundary edges, non-manifold edges).
+fn edge_counts(triangles: &[[u32; 3]]) -> (usize, usize) {
+    let mut edges: HashMap<(u32, u32), u32> = HashMap::with_capacity(triangles.len() * 3);
+    for t in triangles {
+        for k in 0..3 {
+            let (a, b) = (t[k], t[(k + 1) % 3]);
+            *edges.entry((a.min(b), a.max(b))).or_default() += 1;
+        }
+    }
+    let boundary = edges.values().filter(|&&c| c == 1).count();
+    let non_manifold = edges.values().filter(|&&c| c > 2).count();
+    (boundary, non_manifold)
+}
