@@ -1,0 +1,145 @@
+#version 450
+// Per-vertex ambient visibility from a cut through a skinned sphere tree.
+//
+// Cut: preorder walk of the implicit B-ary tree (children of n: n*B+1 .. n*B+B), starting at
+// level 1. An inner node is refined when radius > tau * distance; otherwise it (or a leaf)
+// contributes, so a parent and its children never both count. A receiver inside a leaf
+// sphere either skips it or clamps h to 1 (flags).
+//
+// Per sphere: the exact formula or a bilinear lookup in the (solid angle, angle) table.
+// Blending: product of (1 - I); clamped sum; or the cone-mask union: the analytic sum of I,
+// scaled by |union of cone masks| / sum of mask counts over 128 fixed cosine-distributed
+// directions (exact for coincident and for disjoint caps).
+//
+// Optional static correction: visibility times a per-vertex factor baked in the bind pose
+// (ray-traced mesh visibility / this method's visibility, capped), which restores detail no
+// sphere set represents (buried or thin geometry); see src/kernels/ao/mod.rs.
+#include <common/ao.glsl>
+#include <common/ao_dirs.glsl>
+layout(local_size_x = 64) in;
+
+layout(push_constant) uniform Push {
+    uint vertex_count;
+    uint node_count;
+    uint branch;
+    uint first_leaf;
+    float tau;
+    uint flags;       // bit 0: exact formula; bits 1-2: blend (0 product, 1 sum, 2 mask);
+                      // bit 3: clamp inside; bit 4: apply the static correction
+    uint table_n_psi;
+    uint table_n_theta;
+} pc;
+
+layout(std430, set = 0, binding = 0) readonly buffer Positions { vec4 p[]; } pos;
+layout(std430, set = 0, binding = 1) readonly buffer Normals { vec4 n[]; } nrm;
+layout(std430, set = 0, binding = 2) readonly buffer Spheres { vec4 s[]; } sph;
+layout(std430, set = 0, binding = 3) readonly buffer Table { float v[]; } table;
+layout(std430, set = 0, binding = 4) readonly buffer Correction { float c[]; } correction;
+layout(std430, set = 0, binding = 5) writeonly buffer Visibility { float v[]; } ao;
+layout(std430, set = 0, binding = 6) writeonly buffer Stats { uvec2 tested_used[]; } stats;
+
+const uint BLEND_PRODUCT = 0u;
+const uint BLEND_SUM = 1u;
+const uint BLEND_MASK = 2u;
+
+float table_lookup(float cos_t, float h) {
+    vec2 uv = ao_table_coords(cos_t, h);
+    float x = uv.x * float(pc.table_n_psi - 1u);
+    float y = uv.y * float(pc.table_n_theta - 1u);
+    uint i0 = min(uint(x), pc.table_n_psi - 2u);
+    uint j0 = min(uint(y), pc.table_n_theta - 2u);
+    float fx = x - float(i0);
+    float fy = y - float(j0);
+    uint r0 = j0 * pc.table_n_psi + i0;
+    uint r1 = r0 + pc.table_n_psi;
+    float a = table.v[r0] + (table.v[r0 + 1u] - table.v[r0]) * fx;
+    float b = table.v[r1] + (table.v[r1 + 1u] - table.v[r1]) * fx;
+    return a + (b - a) * fy;
+}
+
+// Bits of the directions first .. first + 31 that lie inside the cap (axis wl, cos half-angle).
+uint mask_word(const int first, vec3 wl, float cos_a) {
+    uint bits = 0u;
+    for (int k = 0; k < 32; ++k) {
+        bits |= uint(dot(AO_DIRS[first + k], wl) >= cos_a) << uint(k);
+    }
+    return bits;
+}
+
+void main() {
+    uint vi = gl_GlobalInvocationID.x;
+    if (vi >= pc.vertex_count) return;
+    vec3 p = pos.p[vi].xyz;
+    vec3 n = nrm.n[vi].xyz;
+    bool exact = (pc.flags & 1u) != 0u;
+    uint blend = (pc.flags >> 1) & 3u;
+    bool clamp_inside = (pc.flags & 8u) != 0u;
+    vec3 t, b;
+    ao_basis(n, t, b);
+
+    float product = 1.0;
+    float sum_all = 0.0;      // sum of I over all contributing spheres
+    float sum_masked = 0.0;   // sum of I over spheres with a non-empty mask
+    uint count_sum = 0u;      // sum of mask counts
+    uvec4 uni = uvec4(0u);    // union of masks
+    uint tested = 0u;
+    uint used = 0u;
+
+    uint node = 1u;
+    uint B = pc.branch;
+    while (node != 0u && node < pc.node_count) {
+        vec4 s = sph.s[node];
+        bool descend = false;
+        if (s.w >= 0.0) {
+            tested++;
+            vec3 dv = s.xyz - p;
+            float d = length(dv);
+            bool leaf = node >= pc.first_leaf;
+            if (!leaf && s.w > pc.tau * d) {
+                descend = true;
+            } else if (d > s.w || clamp_inside) {
+                float h = d / s.w;
+                float cos_t = d > 0.0 ? dot(n, dv) / d : 1.0;
+                float occ = exact ? sphere_occlusion(cos_t, h) : table_lookup(cos_t, h);
+                used++;
+                product *= 1.0 - occ;
+                sum_all += occ;
+                if (blend == BLEND_MASK && occ > 0.0) {
+                    vec3 w = d > 0.0 ? dv / d : n;
+                    vec3 wl = vec3(dot(w, t), dot(w, b), dot(w, n));
+                    float cos_a = sqrt(max(1.0 - 1.0 / max(h * h, 1.0), 0.0));
+                    uvec4 m = uvec4(mask_word(0, wl, cos_a), mask_word(32, wl, cos_a),
+                                    mask_word(64, wl, cos_a), mask_word(96, wl, cos_a));
+                    uint c = uint(bitCount(m.x) + bitCount(m.y) + bitCount(m.z) + bitCount(m.w));
+                    if (c > 0u) {
+                        sum_masked += occ;
+                        count_sum += c;
+                        uni |= m;
+                    }
+                }
+            }
+        }
+        if (descend) {
+            node = node * B + 1u;
+        } else {
+            // Next in preorder: climb while this is the last child, then step to the sibling.
+            while (node != 0u && (node - 1u) % B == B - 1u) node = (node - 1u) / B;
+            if (node != 0u) node += 1u;
+        }
+    }
+
+    float occlusion;
+    if (blend == BLEND_PRODUCT) {
+        occlusion = 1.0 - product;
+    } else if (blend == BLEND_SUM) {
+        occlusion = sum_all;
+    } else {
+        uint u = uint(bitCount(uni.x) + bitCount(uni.y) + bitCount(uni.z) + bitCount(uni.w));
+        float scale = count_sum > 0u ? float(u) / float(count_sum) : 1.0;
+        occlusion = (sum_all - sum_masked) + sum_masked * scale;
+    }
+    float visibility = clamp(1.0 - occlusion, 0.0, 1.0);
+    if ((pc.flags & 16u) != 0u) visibility = min(visibility * correction.c[vi], 1.0);
+    ao.v[vi] = visibility;
+    stats.tested_used[vi] = uvec2(tested, used);
+}

@@ -1,0 +1,49 @@
+#version 450
+// Linear-blend skinning of the mesh vertices (position and normal) and of the sphere-tree
+// centres (radii are rigid): invocations [0, vertex_count) skin vertices, the next
+// sphere_count invocations skin spheres.
+layout(local_size_x = 64) in;
+
+layout(push_constant) uniform Push { uint vertex_count; uint sphere_count; } pc;
+
+layout(std430, set = 0, binding = 0) readonly buffer Joints { mat4 m[]; } joints;
+layout(std430, set = 0, binding = 1) readonly buffer RestPositions { vec4 p[]; } rest_pos;
+layout(std430, set = 0, binding = 2) readonly buffer RestNormals { vec4 n[]; } rest_nrm;
+layout(std430, set = 0, binding = 3) readonly buffer VertexJoints { uvec2 j[]; } vjoints;
+layout(std430, set = 0, binding = 4) readonly buffer VertexWeights { vec4 w[]; } vweights;
+layout(std430, set = 0, binding = 5) readonly buffer RestSpheres { vec4 s[]; } rest_sph;
+layout(std430, set = 0, binding = 6) readonly buffer SphereJoints { uvec2 j[]; } sjoints;
+layout(std430, set = 0, binding = 7) readonly buffer SphereWeights { vec4 w[]; } sweights;
+layout(std430, set = 0, binding = 8) writeonly buffer Positions { vec4 p[]; } pos;
+layout(std430, set = 0, binding = 9) writeonly buffer Normals { vec4 n[]; } nrm;
+layout(std430, set = 0, binding = 10) writeonly buffer Spheres { vec4 s[]; } sph;
+
+mat4 blend(uvec2 packed, vec4 w) {
+    uvec4 j = uvec4(packed.x & 0xffffu, packed.x >> 16, packed.y & 0xffffu, packed.y >> 16);
+    mat4 m = mat4(0.0);
+    if (w.x != 0.0) m += joints.m[j.x] * w.x;
+    if (w.y != 0.0) m += joints.m[j.y] * w.y;
+    if (w.z != 0.0) m += joints.m[j.z] * w.z;
+    if (w.w != 0.0) m += joints.m[j.w] * w.w;
+    return m;
+}
+
+void main() {
+    uint i = gl_GlobalInvocationID.x;
+    if (i < pc.vertex_count) {
+        mat4 m = blend(vjoints.j[i], vweights.w[i]);
+        pos.p[i] = vec4((m * vec4(rest_pos.p[i].xyz, 1.0)).xyz, 1.0);
+        vec3 n = (m * vec4(rest_nrm.n[i].xyz, 0.0)).xyz;
+        float len = length(n);
+        nrm.n[i] = vec4(len > 0.0 ? n / len : rest_nrm.n[i].xyz, 0.0);
+    } else if (i < pc.vertex_count + pc.sphere_count) {
+        uint s = i - pc.vertex_count;
+        vec4 rest = rest_sph.s[s];
+        if (rest.w < 0.0) {
+            sph.s[s] = rest; // unused slot stays unused
+        } else {
+            mat4 m = blend(sjoints.j[s], sweights.w[s]);
+            sph.s[s] = vec4((m * vec4(rest.xyz, 1.0)).xyz, rest.w);
+        }
+    }
+}

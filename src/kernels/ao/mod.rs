@@ -1,0 +1,566 @@
+//! Hierarchical sphere ambient occlusion for skinned characters.
+//!
+//! Per frame, on the GPU: pass `ao skin` skins the vertices (positions, normals) and the sphere
+//! centres with linear blend skinning; pass `ao occlusion` computes each vertex's ambient
+//! visibility from a cut through the skinned sphere tree (see `glsl/ao/occlusion.comp`).
+//! [`AoKernel::record`] puts both into a caller's command buffer; outputs stay on the GPU
+//! (`visibility()` is usable as a vertex buffer) until read back.
+
+pub mod cpu;
+pub mod formula;
+
+use crate::error::{Error, Result};
+use crate::gpu::{
+    AccessType as A, Barrier, BindGroup, Buffer, BufferDesc, ComputePipeline, Context, Readback,
+    Recorder, Resource,
+};
+use crate::scene::{Mesh, SphereTree};
+use ash::vk;
+use formula::{OcclusionTable, TABLE_SIZE};
+use glam::Mat4;
+
+/// How each sphere's occlusion is evaluated.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub enum Occlusion {
+    /// Bilinear lookup in the precomputed (solid angle, angle to normal) table.
+    Table,
+    /// The closed form, evaluated per sphere.
+    Exact,
+}
+
+/// How the occlusion of several spheres combines.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub enum Blend {
+    /// V = prod(1 - I_i): right for independent caps, wrong for overlapping ones.
+    Product,
+    /// V = 1 - sum I_i: exact for disjoint caps, overcounts overlap.
+    Sum,
+    /// Cone-mask union: sum I_i scaled by |union of cap masks| / sum of mask counts over 128
+    /// cosine-distributed directions; exact for disjoint and for coincident caps.
+    Mask,
+}
+
+impl std::str::FromStr for Occlusion {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        match s {
+            "table" => Ok(Occlusion::Table),
+            "exact" => Ok(Occlusion::Exact),
+            _ => Err(format!("unknown occlusion '{s}' (table or exact)")),
+        }
+    }
+}
+
+impl std::str::FromStr for Blend {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        match s {
+            "product" => Ok(Blend::Product),
+            "sum" => Ok(Blend::Sum),
+            "mask" => Ok(Blend::Mask),
+            _ => Err(format!("unknown blend '{s}' (product, sum or mask)")),
+        }
+    }
+}
+
+/// Method parameters (push constants: changing them needs no new pipeline).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct AoParams {
+    /// Refine an inner node when radius / distance > tau; in (0, 1].
+    pub tau: f32,
+    pub occlusion: Occlusion,
+    pub blend: Blend,
+    /// A receiver inside a leaf sphere: clamp h to 1 (true) or skip that sphere (false).
+    pub clamp_inside: bool,
+    /// Multiply by the static correction factors (see [`Correction`]).
+    pub correct: bool,
+}
+
+impl Default for AoParams {
+    fn default() -> Self {
+        AoParams {
+            tau: 0.5,
+            occlusion: Occlusion::Table,
+            blend: Blend::Mask,
+            clamp_inside: false,
+            correct: true,
+        }
+    }
+}
+
+impl AoParams {
+    pub fn validate(&self) -> Result<()> {
+        if !(self.tau > 0.0 && self.tau <= 1.0) {
+            return Err(Error::InvalidArgument(format!(
+                "tau = {} is outside (0, 1]",
+                self.tau
+            )));
+        }
+        Ok(())
+    }
+
+    fn flags(&self) -> u32 {
+        let mut f = match self.occlusion {
+            Occlusion::Exact => 1,
+            Occlusion::Table => 0,
+        };
+        f |= match self.blend {
+            Blend::Product => 0,
+            Blend::Sum => 1,
+            Blend::Mask => 2,
+        } << 1;
+        if self.clamp_inside {
+            f |= 8;
+        }
+        if self.correct {
+            f |= 16;
+        }
+        f
+    }
+}
+
+/// Mesh and tree in the GPU's layout (also what the CPU implementation reads).
+#[derive(Clone, Debug)]
+pub struct Prepared {
+    pub positions: Vec<[f32; 4]>,
+    pub normals: Vec<[f32; 4]>,
+    /// Four u16 joint indices packed in two u32.
+    pub vertex_joints: Vec<[u32; 2]>,
+    pub vertex_weights: Vec<[f32; 4]>,
+    /// (centre, radius) of every tree node, root first; radius < 0 = unused.
+    pub spheres: Vec<[f32; 4]>,
+    pub sphere_joints: Vec<[u32; 2]>,
+    pub sphere_weights: Vec<[f32; 4]>,
+    pub shape: cpu::TreeShape,
+    pub joint_count: usize,
+}
+
+fn pack(j: [u16; 4]) -> [u32; 2] {
+    [
+        j[0] as u32 | (j[1] as u32) << 16,
+        j[2] as u32 | (j[3] as u32) << 16,
+    ]
+}
+
+impl Prepared {
+    /// Checks the mesh, tree and rig agree and lays them out for the GPU.
+    pub fn new(mesh: &Mesh, tree: &SphereTree, joint_count: usize) -> Result<Prepared> {
+        let skin = mesh.skin.as_ref().ok_or_else(|| {
+            Error::InvalidArgument(format!("mesh '{}' has no skin weights", mesh.name))
+        })?;
+        let bad_joint = skin
+            .joints
+            .iter()
+            .chain(&tree.joints)
+            .flatten()
+            .any(|&j| j as usize >= joint_count);
+        if bad_joint || joint_count == 0 {
+            return Err(Error::InvalidArgument(format!(
+                "skin weights refer to joints beyond the rig's {joint_count}"
+            )));
+        }
+        if tree.spheres.len() != tree.joints.len() || tree.spheres.len() != tree.weights.len() {
+            return Err(Error::InvalidArgument(
+                "sphere tree lacks skin weights (call assign_skin)".into(),
+            ));
+        }
+        let first_leaf = tree.level_range(tree.levels - 1).start as u32;
+        Ok(Prepared {
+            positions: mesh
+                .positions
+                .iter()
+                .map(|p| p.extend(1.0).to_array())
+                .collect(),
+            normals: mesh
+                .normals
+                .iter()
+                .map(|n| n.extend(0.0).to_array())
+                .collect(),
+            vertex_joints: skin.joints.iter().map(|&j| pack(j)).collect(),
+            vertex_weights: skin.weights.clone(),
+            spheres: tree
+                .spheres
+                .iter()
+                .map(|s| s.center.extend(s.radius).to_array())
+                .collect(),
+            sphere_joints: tree.joints.iter().map(|&j| pack(j)).collect(),
+            sphere_weights: tree.weights.clone(),
+            shape: cpu::TreeShape {
+                node_count: tree.spheres.len() as u32,
+                branch: tree.branch,
+                first_leaf,
+            },
+            joint_count,
+        })
+    }
+
+    pub fn vertex_count(&self) -> usize {
+        self.positions.len()
+    }
+}
+
+/// GPU outputs of one frame, read back to the host.
+pub struct FrameReadback {
+    visibility: Readback,
+    stats: Readback,
+    positions: Readback,
+    normals: Readback,
+}
+
+/// Host copies of one frame's outputs.
+#[derive(Clone, Debug)]
+pub struct FrameData {
+    pub visibility: Vec<f32>,
+    /// (spheres tested, spheres contributing) per vertex.
+    pub stats: Vec<[u32; 2]>,
+    pub positions: Vec<[f32; 4]>,
+    pub normals: Vec<[f32; 4]>,
+}
+
+impl FrameReadback {
+    /// The data, once the recorder that read it back has been submitted.
+    pub fn data(&self) -> Result<FrameData> {
+        Ok(FrameData {
+            visibility: self.visibility.to_vec()?,
+            stats: self.stats.to_vec()?,
+            positions: self.positions.to_vec()?,
+            normals: self.normals.to_vec()?,
+        })
+    }
+}
+
+/// The GPU kernel: pipelines, inputs and outputs of one character.
+pub struct AoKernel {
+    skin: ComputePipeline,
+    occlusion: ComputePipeline,
+    skin_bind: BindGroup,
+    occlusion_bind: BindGroup,
+    joints: Buffer,
+    correction: Buffer,
+    // Inputs, kept alive for the bind groups.
+    _inputs: Vec<Buffer>,
+    positions: Buffer,
+    normals: Buffer,
+    spheres: Buffer,
+    visibility: Buffer,
+    stats: Buffer,
+    vertex_count: u32,
+    shape: cpu::TreeShape,
+    joint_count: usize,
+    pub table: OcclusionTable,
+    pub params: AoParams,
+}
+
+impl AoKernel {
+    /// Uploads the mesh, tree and table and builds the pipelines.
+    pub fn new(ctx: &Context, prep: &Prepared, params: AoParams) -> Result<AoKernel> {
+        params.validate()?;
+        let spv = |name| crate::shaders::spirv(name);
+        let skin = ComputePipeline::from_spirv(ctx, "ao/skin", spv("ao/skin")?)?;
+        let occlusion = ComputePipeline::from_spirv(ctx, "ao/occlusion", spv("ao/occlusion")?)?;
+        let table = OcclusionTable::new(TABLE_SIZE, TABLE_SIZE);
+        let nv = prep.positions.len() as u64;
+        let ns = prep.spheres.len() as u64;
+        let upload = |name: &str, data: &[u8]| {
+            ctx.upload_buffer(BufferDesc::storage(name, data.len() as u64), data)
+        };
+        let rest_pos = upload("ao rest positions", bytemuck::cast_slice(&prep.positions))?;
+        let rest_nrm = upload("ao rest normals", bytemuck::cast_slice(&prep.normals))?;
+        let vjoints = upload(
+            "ao vertex joints",
+            bytemuck::cast_slice(&prep.vertex_joints),
+        )?;
+        let vweights = upload(
+            "ao vertex weights",
+            bytemuck::cast_slice(&prep.vertex_weights),
+        )?;
+        let rest_sph = upload("ao rest spheres", bytemuck::cast_slice(&prep.spheres))?;
+        let sjoints = upload(
+            "ao sphere joints",
+            bytemuck::cast_slice(&prep.sphere_joints),
+        )?;
+        let sweights = upload(
+            "ao sphere weights",
+            bytemuck::cast_slice(&prep.sphere_weights),
+        )?;
+        let table_buf = upload("ao table", bytemuck::cast_slice(&table.values))?;
+        let correction = upload(
+            "ao correction",
+            bytemuck::cast_slice(&vec![1.0f32; nv as usize]),
+        )?;
+        let joints = Buffer::new(
+            ctx,
+            BufferDesc::storage("ao joint matrices", prep.joint_count as u64 * 64),
+        )?;
+        // Outputs can also feed a renderer's vertex input directly.
+        let output = |name: &str, size: u64| {
+            let mut d = BufferDesc::storage(name, size);
+            d.usage |= vk::BufferUsageFlags::VERTEX_BUFFER;
+            Buffer::new(ctx, d)
+        };
+        let positions = output("ao posed positions", nv * 16)?;
+        let normals = output("ao posed normals", nv * 16)?;
+        let spheres = output("ao posed spheres", ns * 16)?;
+        let visibility = output("ao visibility", nv * 4)?;
+        let stats = output("ao stats", nv * 8)?;
+        let skin_bind = skin.bind(&[
+            ("joints", Resource::Buffer(&joints)),
+            ("rest_pos", Resource::Buffer(&rest_pos)),
+            ("rest_nrm", Resource::Buffer(&rest_nrm)),
+            ("vjoints", Resource::Buffer(&vjoints)),
+            ("vweights", Resource::Buffer(&vweights)),
+            ("rest_sph", Resource::Buffer(&rest_sph)),
+            ("sjoints", Resource::Buffer(&sjoints)),
+            ("sweights", Resource::Buffer(&sweights)),
+            ("pos", Resource::Buffer(&positions)),
+            ("nrm", Resource::Buffer(&normals)),
+            ("sph", Resource::Buffer(&spheres)),
+        ])?;
+        let occlusion_bind = occlusion.bind(&[
+            ("pos", Resource::Buffer(&positions)),
+            ("nrm", Resource::Buffer(&normals)),
+            ("sph", Resource::Buffer(&spheres)),
+            ("table", Resource::Buffer(&table_buf)),
+            ("correction", Resource::Buffer(&correction)),
+            ("ao", Resource::Buffer(&visibility)),
+            ("stats", Resource::Buffer(&stats)),
+        ])?;
+        Ok(AoKernel {
+            skin,
+            occlusion,
+            skin_bind,
+            occlusion_bind,
+            joints,
+            correction,
+            _inputs: vec![
+                rest_pos, rest_nrm, vjoints, vweights, rest_sph, sjoints, sweights, table_buf,
+            ],
+            positions,
+            normals,
+            spheres,
+            visibility,
+            stats,
+            vertex_count: nv as u32,
+            shape: prep.shape,
+            joint_count: prep.joint_count,
+            table,
+            params,
+        })
+    }
+
+    pub fn vertex_count(&self) -> usize {
+        self.vertex_count as usize
+    }
+
+    /// Per-vertex visibility (f32), written by [`AoKernel::record`] as a `ComputeShaderWrite`.
+    pub fn visibility(&self) -> &Buffer {
+        &self.visibility
+    }
+
+    /// Posed positions (vec4), written by the skinning pass.
+    pub fn posed_positions(&self) -> &Buffer {
+        &self.positions
+    }
+
+    /// Records one frame: joint matrices upload, pass `ao skin`, pass `ao occlusion`.
+    ///
+    /// Synchronisation: the first barrier orders this frame after any earlier use of the
+    /// kernel's buffers by compute shaders or copies (a previous frame, a readback); the
+    /// outputs are left as `ComputeShaderWrite`.
+    pub fn record<'a>(&'a self, rec: &mut Recorder<'a>, matrices: &[Mat4]) -> Result<()> {
+        if matrices.len() != self.joint_count {
+            return Err(Error::InvalidArgument(format!(
+                "{} joint matrices for a rig of {} joints",
+                matrices.len(),
+                self.joint_count
+            )));
+        }
+        if let Some(i) = matrices.iter().position(|m| !m.is_finite()) {
+            return Err(Error::InvalidArgument(format!(
+                "joint matrix {i} is not finite"
+            )));
+        }
+        let cols: Vec<[f32; 16]> = matrices.iter().map(|m| m.to_cols_array()).collect();
+        rec.barrier(&[Barrier::global(
+            A::ComputeShaderReadOther | A::ComputeShaderWrite | A::TransferRead,
+            A::TransferWrite | A::ComputeShaderWrite,
+        )]);
+        rec.upload(&self.joints, 0, &cols)?;
+        rec.barrier(&[Barrier::buffer(
+            &self.joints,
+            A::TransferWrite,
+            A::ComputeShaderReadOther,
+        )]);
+        rec.begin_pass("ao skin");
+        let ns = self.shape.node_count;
+        let push = [self.vertex_count, ns];
+        rec.dispatch_invocations(
+            &self.skin,
+            &self.skin_bind,
+            bytemuck::cast_slice(&push),
+            [self.vertex_count + ns, 1, 1],
+        )?;
+        rec.end_pass();
+        rec.barrier(&[Barrier::global(
+            A::ComputeShaderWrite,
+            A::ComputeShaderReadOther,
+        )]);
+        rec.begin_pass("ao occlusion");
+        self.record_occlusion(rec)?;
+        rec.end_pass();
+        Ok(())
+    }
+
+    /// Records the occlusion pass alone (posed buffers must be ready for reading).
+    pub fn record_occlusion<'a>(&'a self, rec: &mut Recorder<'a>) -> Result<()> {
+        self.params.validate()?;
+        let p = &self.params;
+        let push: [u32; 8] = [
+            self.vertex_count,
+            self.shape.node_count,
+            self.shape.branch,
+            self.shape.first_leaf,
+            p.tau.to_bits(),
+            p.flags(),
+            self.table.n_psi,
+            self.table.n_theta,
+        ];
+        rec.dispatch_invocations(
+            &self.occlusion,
+            &self.occlusion_bind,
+            bytemuck::cast_slice(&push),
+            [self.vertex_count, 1, 1],
+        )
+    }
+
+    /// Records copies of the outputs back to the host (after [`AoKernel::record`]).
+    pub fn read_back<'a>(&'a self, rec: &mut Recorder<'a>) -> Result<FrameReadback> {
+        Ok(FrameReadback {
+            visibility: rec.read_back(&self.visibility, A::ComputeShaderWrite)?,
+            stats: rec.read_back(&self.stats, A::ComputeShaderWrite)?,
+            positions: rec.read_back(
+                &self.positions,
+                A::ComputeShaderWrite | A::ComputeShaderReadOther,
+            )?,
+            normals: rec.read_back(
+                &self.normals,
+                A::ComputeShaderWrite | A::ComputeShaderReadOther,
+            )?,
+        })
+    }
+
+    /// Uploads per-vertex static correction factors (used when `params.correct` is set;
+    /// until then they are all 1).
+    pub fn set_correction(&self, ctx: &Context, factors: &[f32]) -> Result<()> {
+        if factors.len() != self.vertex_count as usize {
+            return Err(Error::InvalidArgument(format!(
+                "{} correction factors for {} vertices",
+                factors.len(),
+                self.vertex_count
+            )));
+        }
+        if let Some(i) = factors.iter().position(|f| !f.is_finite() || *f < 0.0) {
+            return Err(Error::InvalidArgument(format!(
+                "correction factor {i} is negative or not finite"
+            )));
+        }
+        let mut rec = ctx.recorder("ao correction upload")?;
+        rec.barrier(&[Barrier::buffer(
+            &self.correction,
+            A::ComputeShaderReadOther,
+            A::TransferWrite,
+        )]);
+        rec.upload(&self.correction, 0, factors)?;
+        rec.barrier(&[Barrier::buffer(
+            &self.correction,
+            A::TransferWrite,
+            A::ComputeShaderReadOther,
+        )]);
+        rec.submit_and_wait()?;
+        Ok(())
+    }
+
+    /// The posed spheres buffer (vec4 centre + radius per node).
+    pub fn posed_spheres(&self) -> &Buffer {
+        &self.spheres
+    }
+}
+
+/// The static correction: per-vertex factors baked once in the bind pose that restore the
+/// detail a sphere set cannot represent (geometry buried under overlapping shells, thin
+/// folds, grooves between tight parts).
+///
+/// factor = V_mesh / V_method in the bind pose, capped at [`Correction::cap`]; V_mesh is
+/// ray-traced against the bind-pose mesh, V_method is this method's own result there with
+/// the same parameters. In the bind pose the corrected method thus equals the ray-traced
+/// mesh; in other poses the spheres carry the change. It is an addition to the published
+/// method; `correct: false` gives the method alone.
+#[derive(Clone, Debug)]
+pub struct Correction {
+    /// Ray-traced visibility of every vertex in the bind pose.
+    pub bind_visibility: Vec<f32>,
+    /// Upper bound of a factor (factors > 1 brighten where the spheres over-occlude).
+    pub cap: f32,
+}
+
+impl Correction {
+    /// Ray-traces the bind pose (`rays` per vertex; its own seed, independent of any
+    /// reference the result is later compared with).
+    pub fn bake(mesh: &Mesh, rays: usize) -> Correction {
+        let (lo, hi) = mesh.bounds();
+        let cfg = crate::reference::ao::RayConfig {
+            rays,
+            seed: 0xba4e_d0ff,
+            ..crate::reference::ao::RayConfig::for_scene((hi - lo).length())
+        };
+        let bvh = crate::geom::Bvh::build(&mesh.positions, &mesh.triangles);
+        let all: Vec<usize> = (0..mesh.positions.len()).collect();
+        Correction {
+            bind_visibility: crate::reference::ao::mesh_visibility(
+                &mesh.positions,
+                &mesh.normals,
+                &bvh,
+                &all,
+                &cfg,
+            ),
+            cap: 2.0,
+        }
+    }
+
+    /// Factors for `params`: the method evaluated (on the CPU) in the bind pose.
+    pub fn factors(&self, cpu_ao: &cpu::CpuAo, prep: &Prepared, params: &AoParams) -> Vec<f32> {
+        let bind = cpu::Posed {
+            positions: prep
+                .positions
+                .iter()
+                .map(|p| glam::Vec4::from_array(*p).truncate())
+                .collect(),
+            normals: prep
+                .normals
+                .iter()
+                .map(|n| glam::Vec4::from_array(*n).truncate())
+                .collect(),
+            spheres: prep
+                .spheres
+                .iter()
+                .map(|s| glam::Vec4::from_array(*s))
+                .collect(),
+        };
+        let plain = AoParams {
+            correct: false,
+            ..*params
+        };
+        cpu_ao
+            .frame(&bind, prep.shape, &plain, None)
+            .iter()
+            .zip(&self.bind_visibility)
+            .map(|(m, t)| {
+                if m.visibility > 1e-3 {
+                    (t / m.visibility).min(self.cap)
+                } else {
+                    1.0
+                }
+            })
+            .collect()
+    }
+}
