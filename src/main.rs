@@ -1,6 +1,6 @@
 //! The `vkshade` command-line tool: a thin layer over the library.
 
-use clap::{Args, Parser, Subcommand};
+use clap::{Args, FromArgMatches, Parser, Subcommand};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use vkshade::bench::{self, BenchConfig};
@@ -50,6 +50,111 @@ enum Command {
     /// Regenerate or check the committed SPIR-V in spv/ against the GLSL in glsl/.
     #[command(subcommand)]
     Shaders(ShaderCommand),
+    /// Ambient occlusion of a skinned character from a sphere tree, per frame of an
+    /// animation: DIR/ao_NNNN.ply (posed mesh, per-vertex `ao` = visibility, 1 = unoccluded),
+    /// DIR/ao_NNNN.png and DIR/report.json.
+    Ao(AoArgs),
+    /// The main demo: `ao` on the built-in default (Testwuson's Run animation, 8 frames,
+    /// compared with the ray-traced mesh), pictures in out/ao/.
+    Demo,
+    /// Sphere trees.
+    #[command(subcommand)]
+    Spheretree(TreeCommand),
+    /// Meshes.
+    #[command(subcommand)]
+    Mesh(MeshCommand),
+}
+
+#[derive(Args)]
+struct AoArgs {
+    /// Character (.glb/.gltf with skin and animations) or static mesh (.obj .ply .off).
+    #[arg(long, default_value = vkshade::app::ao::DEFAULT_MESH)]
+    mesh: PathBuf,
+    /// Animation to play (default: Run for the built-in character, else the first that moves).
+    #[arg(long)]
+    anim: Option<String>,
+    /// Frames, evenly spaced over the animation.
+    #[arg(long, default_value_t = 8)]
+    frames: usize,
+    /// Use this .sph sphere tree (Dublin toolkit format) instead of building one.
+    #[arg(long)]
+    tree: Option<PathBuf>,
+    /// Refine a tree node when radius / distance > tau (0 < tau <= 1; smaller = finer cut).
+    #[arg(long, default_value_t = 0.5)]
+    tau: f32,
+    /// Per-sphere occlusion: `table` (2D lookup) or `exact` (closed form).
+    #[arg(long, default_value = "table")]
+    occlusion: vkshade::kernels::ao::Occlusion,
+    /// Overlap handling: `mask` (cone-mask union), `product`, or `sum`.
+    #[arg(long, default_value = "mask")]
+    blend: vkshade::kernels::ao::Blend,
+    /// The published method alone: no static correction baked in the bind pose.
+    #[arg(long)]
+    no_correction: bool,
+    /// A receiver inside a leaf sphere clamps h to 1 instead of skipping the sphere.
+    #[arg(long)]
+    clamp_inside: bool,
+    /// Compare every frame with the ray-traced mesh (MAE, RMSE, p95, max; error decomposition).
+    #[arg(long)]
+    reference: bool,
+    /// Rays per vertex of the ground truth.
+    #[arg(long, default_value_t = 4096)]
+    rays: usize,
+    #[command(flatten)]
+    tree_opts: TreeOpts,
+    /// Output directory.
+    #[arg(long, default_value = "out/ao")]
+    out: PathBuf,
+}
+
+#[derive(Args)]
+struct TreeOpts {
+    /// Levels below the root when building a tree (3 gives 8/64/512 spheres).
+    #[arg(long, default_value_t = 3)]
+    depth: u32,
+    /// Branch factor when building a tree.
+    #[arg(long, default_value_t = 8)]
+    branch: u32,
+    /// Sphere fit: `volume` (same volume as the cluster) or `bounding` (covers it).
+    #[arg(long, default_value = "volume")]
+    fit: vkshade::scene::spheretree::Fit,
+    /// Interior samples (voxels) to cluster.
+    #[arg(long, default_value_t = 200_000)]
+    samples: usize,
+}
+
+impl TreeOpts {
+    fn config(&self) -> vkshade::scene::spheretree::BuildConfig {
+        vkshade::scene::spheretree::BuildConfig {
+            depth: self.depth,
+            branch: self.branch,
+            fit: self.fit,
+            samples: self.samples,
+            ..Default::default()
+        }
+    }
+}
+
+#[derive(Subcommand)]
+enum TreeCommand {
+    /// Build a sphere tree for a mesh (bind pose) and report how tightly each level fits.
+    Build {
+        mesh: PathBuf,
+        /// Output .sph file.
+        #[arg(short, long)]
+        out: PathBuf,
+        #[command(flatten)]
+        opts: TreeOpts,
+        /// Also write the fit report as JSON.
+        #[arg(long)]
+        report: Option<PathBuf>,
+    },
+}
+
+#[derive(Subcommand)]
+enum MeshCommand {
+    /// Load a mesh, validate it, and report what was found and repaired.
+    Info { mesh: PathBuf },
 }
 
 #[derive(Subcommand)]
@@ -285,12 +390,151 @@ fn finish(ctx: Context) -> Result<()> {
     Ok(())
 }
 
+fn cmd_ao(g: &Global, a: &AoArgs, demo: bool) -> Result<()> {
+    use vkshade::app::ao;
+    let default_mesh = a.mesh == std::path::Path::new(ao::DEFAULT_MESH);
+    if default_mesh && !a.mesh.exists() {
+        return Err(Error::input(
+            &a.mesh,
+            "the built-in character is missing: run tools/setup.sh (it converts assimp's Testwuson.X)",
+        ));
+    }
+    let cfg = ao::AoRunConfig {
+        mesh: a.mesh.clone(),
+        animation: a
+            .anim
+            .clone()
+            .or_else(|| default_mesh.then(|| ao::DEFAULT_ANIMATION.to_string())),
+        frames: a.frames,
+        tree: a.tree.clone(),
+        build: a.tree_opts.config(),
+        params: vkshade::kernels::ao::AoParams {
+            tau: a.tau,
+            occlusion: a.occlusion,
+            blend: a.blend,
+            clamp_inside: a.clamp_inside,
+            correct: !a.no_correction,
+        },
+        reference: a.reference,
+        rays: a.rays,
+        out: a.out.clone(),
+        ..Default::default()
+    };
+    let ctx = context(g)?;
+    eprintln!("vkshade ao on {}", ctx.info().name);
+    let report = ao::run(&ctx, &cfg, &mut |l| progress(l))?;
+    let s = &report.summary;
+    println!(
+        "{} frames of {}: skin {:.3} ms + ao {:.3} ms GPU (median) = {:.0} fps; {:.1} spheres/vertex",
+        s.frames,
+        report.mesh.path,
+        s.skin_ms_median,
+        s.ao_ms_median,
+        s.fps,
+        s.spheres_used_per_vertex_mean
+    );
+    if let (Some(mae), Some(p95), Some(max)) = (s.mae_mean, s.p95_mean, s.max_max) {
+        println!(
+            "vs ray-traced mesh: MAE {mae:.4}, p95 {p95:.3}, max {max:.3} (mean over frames); \
+             without the static correction MAE {:.4}; bind-pose AO held static MAE {:.4}",
+            s.mae_uncorrected_mean.unwrap_or(f64::NAN),
+            s.mae_static_bind_pose_mean.unwrap_or(f64::NAN)
+        );
+    }
+    println!(
+        "wrote {} frames (ao_NNNN.ply, ao_NNNN.png) and report.json to {}",
+        report.frames.len(),
+        cfg.out.display()
+    );
+    if demo {
+        println!("pictures: {}", ao::frame_png(&cfg.out, 0).display());
+    }
+    finish(ctx)
+}
+
+fn cmd_tree_build(
+    mesh: &std::path::Path,
+    out: &std::path::Path,
+    opts: &TreeOpts,
+    report: Option<&std::path::Path>,
+) -> Result<()> {
+    bench::check_output(out)?;
+    let c = vkshade::scene::load(mesh)?;
+    let t = std::time::Instant::now();
+    let (tree, fit) = vkshade::scene::SphereTree::build(&c.mesh, &opts.config())?;
+    let ms = t.elapsed().as_secs_f64() * 1e3;
+    tree.write_sph(out)?;
+    println!(
+        "{}: {} levels below the root, branch {}, fit {:?}, from {} ({} cells of {:.4}), {ms:.0} ms",
+        mesh.display(),
+        tree.levels - 1,
+        tree.branch,
+        opts.fit,
+        fit.samples_from,
+        fit.interior_cells,
+        fit.cell_size
+    );
+    println!("level  spheres  volume coverage  volume excess  surface coverage");
+    for l in &fit.levels {
+        println!(
+            "{:>5}  {:>7}  {:>14.1}%  {:>12.1}%  {:>15.1}%",
+            l.level,
+            l.spheres,
+            100.0 * l.volume_coverage,
+            100.0 * l.volume_excess,
+            100.0 * l.surface_coverage
+        );
+    }
+    if let Some(path) = report {
+        bench::write_json(path, &fit)?;
+        println!("wrote {}", path.display());
+    }
+    println!("wrote {}", out.display());
+    Ok(())
+}
+
+fn cmd_mesh_info(mesh: &std::path::Path) -> Result<()> {
+    let c = vkshade::scene::load(mesh)?;
+    println!(
+        "{}",
+        serde_json::to_string_pretty(&c.mesh.report).unwrap_or_default()
+    );
+    println!("skinned: {}, joints: {}", c.skinned, c.rig.joints.len());
+    for a in &c.animations {
+        println!(
+            "animation '{}': {:.3} s, {} channels",
+            a.name,
+            a.duration,
+            a.channels.len()
+        );
+    }
+    let (lo, hi) = c.mesh.bounds();
+    println!("bounds: {lo} .. {hi}");
+    Ok(())
+}
+
 fn main() -> ExitCode {
     let cli = Cli::parse();
     let result = match &cli.command {
         Command::Info { json } => cmd_info(json.clone()),
         Command::Bench(BenchCommand::Peak { opts }) => cmd_bench_peak(&cli.global, opts),
         Command::Shaders(cmd) => cmd_shaders(cmd),
+        Command::Ao(a) => cmd_ao(&cli.global, a, false),
+        Command::Demo => {
+            let matches = AoArgs::augment_args(clap::Command::new("ao"))
+                .get_matches_from(["ao", "--reference"]);
+            match AoArgs::from_arg_matches(&matches) {
+                Ok(args) => cmd_ao(&cli.global, &args, true),
+                Err(e) => Err(Error::InvalidArgument(e.to_string())),
+            }
+        }
+        Command::Spheretree(TreeCommand::Build {
+            mesh,
+            out,
+            opts,
+            report,
+        }) => cmd_tree_build(mesh, out, opts, report.as_deref()),
+        Command::Mesh(MeshCommand::Info { mesh }) => cmd_mesh_info(mesh),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -1,0 +1,582 @@
+//! `vkshade ao`: sphere-tree ambient occlusion over the frames of an animation, with PLY and
+//! PNG output per frame, a JSON report and (optionally) the ray-traced ground truth.
+
+use crate::bench::{MachineInfo, Stats};
+use crate::error::{Error, Result};
+use crate::gpu::Context;
+use crate::kernels::ao::cpu::{self, CpuAo, Posed};
+use crate::kernels::ao::formula::{OcclusionTable, TABLE_SIZE};
+use crate::kernels::ao::{AoKernel, AoParams, Correction, Occlusion, Prepared};
+use crate::reference::ErrorStats;
+use crate::reference::ao::{RayConfig, mesh_visibility, spheres_visibility};
+use crate::scene::spheretree::{BuildConfig, FitReport, SphereTree};
+use crate::scene::{self, Animation, Character, MeshReport};
+use glam::{Vec3, Vec4};
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// The built-in default character (made by tools/setup.sh).
+pub const DEFAULT_MESH: &str = "data/testwuson.glb";
+/// The built-in default animation.
+pub const DEFAULT_ANIMATION: &str = "Run";
+
+/// Everything `vkshade ao` can be told.
+#[derive(Clone, Debug)]
+pub struct AoRunConfig {
+    pub mesh: PathBuf,
+    /// Animation name; `None`: the first animation that moves (static meshes: rest pose).
+    pub animation: Option<String>,
+    pub frames: usize,
+    /// A `.sph` tree to use instead of building one.
+    pub tree: Option<PathBuf>,
+    pub build: BuildConfig,
+    pub params: AoParams,
+    /// Rays per vertex of the bind-pose bake of the static correction.
+    pub correction_rays: usize,
+    /// Compare every frame with the ray-traced mesh.
+    pub reference: bool,
+    /// Rays per vertex of the ground truth.
+    pub rays: usize,
+    /// Every n-th vertex enters the error decomposition (which ray-traces sphere unions).
+    pub decompose_stride: usize,
+    pub out: PathBuf,
+    pub image: (u32, u32),
+}
+
+impl Default for AoRunConfig {
+    fn default() -> Self {
+        AoRunConfig {
+            mesh: PathBuf::from(DEFAULT_MESH),
+            animation: None,
+            frames: 8,
+            tree: None,
+            build: BuildConfig::default(),
+            params: AoParams::default(),
+            correction_rays: 4096,
+            reference: false,
+            rays: 4096,
+            decompose_stride: 4,
+            out: PathBuf::from("out/ao"),
+            image: (640, 480),
+        }
+    }
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct MeshInfo {
+    pub path: String,
+    pub vertices: usize,
+    pub triangles: usize,
+    pub skinned: bool,
+    pub joints: usize,
+    pub validation: MeshReport,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct TreeInfo {
+    /// "built" or the `.sph` path.
+    pub source: String,
+    pub levels: u32,
+    pub branch: u32,
+    /// Used spheres per level below the root.
+    pub spheres_per_level: Vec<usize>,
+    pub spheres_total: usize,
+    pub build_ms: f64,
+    pub fit: Option<FitReport>,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct CorrectionInfo {
+    pub rays: usize,
+    pub cap: f32,
+    pub bake_ms: f64,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct GpuTimes {
+    pub skin_ms: f64,
+    pub ao_ms: f64,
+    pub total_ms: f64,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct PerVertex {
+    pub mean: f64,
+    pub max: u32,
+}
+
+/// Where the error comes from (mean absolute differences over the decomposition subset).
+#[derive(Clone, Debug, Serialize)]
+pub struct Decomposition {
+    pub vertices: usize,
+    pub rays: usize,
+    /// |table - exact formula|, same cut and blending.
+    pub table: f64,
+    /// |blended analytic - exact union of the cut's spheres| (exact formula).
+    pub overlap: f64,
+    /// |union of the cut - union of all leaf spheres|.
+    pub cut: f64,
+    /// |union of all leaf spheres - ray-traced mesh|.
+    pub proxy: f64,
+    /// The method without the static correction against the mesh.
+    pub method_uncorrected: f64,
+    /// The method as configured against the mesh (same subset).
+    pub method: f64,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct FrameReference {
+    /// The method as configured against the ray-traced mesh, all vertices.
+    pub error: ErrorStats,
+    /// Over vertices the truth sees at least 5% of the sky (buried geometry excluded).
+    pub error_exposed: ErrorStats,
+    /// The method without the static correction.
+    pub error_uncorrected: ErrorStats,
+    /// The bind-pose truth used as if static (what the dynamic method must beat).
+    pub error_static_bind_pose: ErrorStats,
+    pub decomposition: Option<Decomposition>,
+    pub ray_ms: f64,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct FrameReport {
+    pub index: usize,
+    pub time_s: f32,
+    pub gpu: GpuTimes,
+    pub spheres_tested_per_vertex: PerVertex,
+    pub spheres_used_per_vertex: PerVertex,
+    pub mean_visibility: f64,
+    pub reference: Option<FrameReference>,
+    pub ply: String,
+    pub png: String,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct Summary {
+    pub frames: usize,
+    pub skin_ms_median: f64,
+    pub ao_ms_median: f64,
+    pub total_ms_median: f64,
+    /// 1000 / median(skin + ao).
+    pub fps: f64,
+    pub spheres_used_per_vertex_mean: f64,
+    pub mae_mean: Option<f64>,
+    pub rmse_mean: Option<f64>,
+    pub p95_mean: Option<f64>,
+    pub max_max: Option<f64>,
+    pub mae_exposed_mean: Option<f64>,
+    pub mae_uncorrected_mean: Option<f64>,
+    pub mae_static_bind_pose_mean: Option<f64>,
+}
+
+/// What `report.json` holds.
+#[derive(Clone, Debug, Serialize)]
+pub struct AoReport {
+    pub tool: &'static str,
+    pub machine: MachineInfo,
+    pub mesh: MeshInfo,
+    pub animation: Option<String>,
+    pub animation_duration_s: f32,
+    pub tree: TreeInfo,
+    pub params: AoParams,
+    pub table_size: [u32; 2],
+    pub correction: Option<CorrectionInfo>,
+    pub reference_rays: Option<usize>,
+    pub frames: Vec<FrameReport>,
+    pub summary: Summary,
+    pub notes: Vec<String>,
+}
+
+/// The character's animation to play.
+pub fn pick_animation<'c>(c: &'c Character, name: Option<&str>) -> Result<Option<&'c Animation>> {
+    match name {
+        Some(n) => c.animation(n).map(Some),
+        None => Ok(c.animations.iter().find(|a| a.duration > 0.0)),
+    }
+}
+
+/// Loads a `.sph` tree (skin weights from the mesh) or builds one.
+pub fn tree_for(c: &Character, cfg: &AoRunConfig) -> Result<(SphereTree, TreeInfo)> {
+    let t = Instant::now();
+    let (tree, source, fit) = match &cfg.tree {
+        Some(path) => {
+            let mut tree = SphereTree::read_sph(path)?;
+            let (lo, hi) = c.mesh.bounds();
+            tree.assign_skin(&c.mesh, 0.01 * (hi - lo).length());
+            (tree, path.display().to_string(), None)
+        }
+        None => {
+            let (tree, fit) = SphereTree::build(&c.mesh, &cfg.build)?;
+            (tree, "built".to_string(), Some(fit))
+        }
+    };
+    let spheres_per_level: Vec<usize> = (1..tree.levels).map(|l| tree.used_at(l)).collect();
+    let info = TreeInfo {
+        source,
+        levels: tree.levels,
+        branch: tree.branch,
+        spheres_total: tree.spheres.iter().filter(|s| s.used()).count(),
+        spheres_per_level,
+        build_ms: t.elapsed().as_secs_f64() * 1e3,
+        fit,
+    };
+    Ok((tree, info))
+}
+
+fn to_vec3(v: &[[f32; 4]]) -> Vec<Vec3> {
+    v.iter().map(|p| Vec4::from_array(*p).truncate()).collect()
+}
+
+/// Error decomposition on every `stride`-th vertex of a CPU-posed frame.
+#[allow(clippy::too_many_arguments)]
+fn decompose(
+    cpu_ao: &CpuAo,
+    prep: &Prepared,
+    posed: &Posed,
+    params: &AoParams,
+    correction: Option<&[f32]>,
+    truth: &[f32],
+    stride: usize,
+    rays: usize,
+    cfg: &RayConfig,
+) -> Decomposition {
+    use rayon::prelude::*;
+    let subset: Vec<usize> = (0..posed.positions.len()).step_by(stride.max(1)).collect();
+    let cfg = RayConfig { rays, ..*cfg };
+    let exact = AoParams {
+        occlusion: Occlusion::Exact,
+        correct: false,
+        ..*params
+    };
+    let plain = AoParams {
+        correct: false,
+        ..*params
+    };
+    let first_leaf = prep.shape.first_leaf as usize;
+    let rows: Vec<[f32; 6]> = subset
+        .par_iter()
+        .map(|&i| {
+            let (p, n) = (posed.positions[i], posed.normals[i]);
+            let with_table = cpu_ao
+                .vertex(p, n, &posed.spheres, prep.shape, &plain)
+                .visibility;
+            let with_exact = cpu_ao
+                .vertex(p, n, &posed.spheres, prep.shape, &exact)
+                .visibility;
+            let mut cut = Vec::new();
+            cpu::walk_cut(p, &posed.spheres, prep.shape, &exact, |node, _, _| {
+                cut.push(posed.spheres[node as usize])
+            });
+            let union_cut = spheres_visibility(p, n, i, &cut, &cfg);
+            let leaves: Vec<Vec4> = posed.spheres[first_leaf..]
+                .iter()
+                .copied()
+                .filter(|s| s.w >= 0.0 && s.truncate().distance(p) > s.w)
+                .collect();
+            let union_leaves = spheres_visibility(p, n, i, &leaves, &cfg);
+            let configured = match correction {
+                Some(c) if params.correct => (with_table * c[i]).min(1.0),
+                _ => with_table,
+            };
+            [
+                with_table,
+                with_exact,
+                union_cut,
+                union_leaves,
+                configured,
+                truth[i],
+            ]
+        })
+        .collect();
+    let mean = |f: &dyn Fn(&[f32; 6]) -> f32| {
+        rows.iter().map(|r| f(r).abs() as f64).sum::<f64>() / rows.len().max(1) as f64
+    };
+    Decomposition {
+        vertices: rows.len(),
+        rays: cfg.rays,
+        table: mean(&|r| r[0] - r[1]),
+        overlap: mean(&|r| r[1] - r[2]),
+        cut: mean(&|r| r[2] - r[3]),
+        proxy: mean(&|r| r[3] - r[5]),
+        method_uncorrected: mean(&|r| r[0] - r[5]),
+        method: mean(&|r| r[4] - r[5]),
+    }
+}
+
+/// Runs the kernel over the animation, writing DIR/ao_NNNN.{ply,png} and DIR/report.json.
+pub fn run(ctx: &Context, cfg: &AoRunConfig, progress: &mut dyn FnMut(&str)) -> Result<AoReport> {
+    cfg.params.validate()?;
+    if cfg.frames == 0 {
+        return Err(Error::InvalidArgument("--frames must be at least 1".into()));
+    }
+    crate::bench::check_output(&cfg.out.join("report.json"))?;
+    let character = scene::load(&cfg.mesh)?;
+    let anim = pick_animation(&character, cfg.animation.as_deref())?;
+    let mesh = &character.mesh;
+    progress(&format!(
+        "{}: {} vertices, {} triangles, {} joints{}",
+        cfg.mesh.display(),
+        mesh.positions.len(),
+        mesh.triangles.len(),
+        character.rig.joints.len(),
+        anim.map(|a| format!(", animation '{}' ({:.2} s)", a.name, a.duration))
+            .unwrap_or_default()
+    ));
+    let (tree, tree_info) = tree_for(&character, cfg)?;
+    progress(&format!(
+        "sphere tree ({}): {:?} spheres per level, {:.0} ms",
+        tree_info.source, tree_info.spheres_per_level, tree_info.build_ms
+    ));
+    let prep = Prepared::new(mesh, &tree, character.rig.joints.len())?;
+    let kernel = AoKernel::new(ctx, &prep, cfg.params)?;
+    let cpu_ao = CpuAo::new(OcclusionTable::new(TABLE_SIZE, TABLE_SIZE));
+
+    let (correction, correction_info) = if cfg.params.correct {
+        let t = Instant::now();
+        let c = Correction::bake(mesh, cfg.correction_rays);
+        let factors = c.factors(&cpu_ao, &prep, &cfg.params);
+        kernel.set_correction(ctx, &factors)?;
+        let ms = t.elapsed().as_secs_f64() * 1e3;
+        progress(&format!(
+            "static correction baked in the bind pose ({} rays/vertex, {ms:.0} ms)",
+            cfg.correction_rays
+        ));
+        (
+            Some((c.bind_visibility, factors)),
+            Some(CorrectionInfo {
+                rays: cfg.correction_rays,
+                cap: c.cap,
+                bake_ms: ms,
+            }),
+        )
+    } else {
+        (None, None)
+    };
+
+    let duration = anim.map(|a| a.duration).unwrap_or(0.0);
+    let frames = if anim.is_some() { cfg.frames } else { 1 };
+    let times: Vec<f32> = (0..frames)
+        .map(|i| duration * i as f32 / frames as f32)
+        .collect();
+    // Every frame of the animation frames the camera, so the pictures line up.
+    let mut frame_points = Vec::new();
+    for &t in &times {
+        let m = character.rig.skinning_matrices(anim, t);
+        frame_points.extend(cpu::skin(&prep, &m).positions.iter().step_by(7).copied());
+    }
+    let view = crate::render::View {
+        width: cfg.image.0,
+        height: cfg.image.1,
+        ..Default::default()
+    };
+    // One untimed warm-up submission: drivers may compile pipelines at first use.
+    {
+        let m = character.rig.skinning_matrices(anim, 0.0);
+        let mut rec = ctx.recorder("ao warm-up")?;
+        kernel.record(&mut rec, &m)?;
+        rec.submit_and_wait()?;
+    }
+    let diagonal = {
+        let (lo, hi) = mesh.bounds();
+        (hi - lo).length()
+    };
+    let ray_cfg = RayConfig {
+        rays: cfg.rays,
+        ..RayConfig::for_scene(diagonal)
+    };
+    // The bind-pose truth used as if static: the baseline the animated method must beat.
+    let static_bind: Option<Vec<f32>> = match (&correction, cfg.reference) {
+        (_, false) => None,
+        (Some((bind, _)), true) => Some(bind.clone()),
+        (None, true) => Some(Correction::bake(mesh, cfg.correction_rays).bind_visibility),
+    };
+    let mut frame_reports = Vec::new();
+    for (index, &time) in times.iter().enumerate() {
+        let matrices = character.rig.skinning_matrices(anim, time);
+        let mut rec = ctx.recorder(&format!("ao frame {index}"))?;
+        kernel.record(&mut rec, &matrices)?;
+        let readback = kernel.read_back(&mut rec)?;
+        let timings = rec.submit_and_wait()?;
+        let data = readback.data()?;
+        let gpu = GpuTimes {
+            skin_ms: timings.get("ao skin").unwrap_or(f64::NAN),
+            ao_ms: timings.get("ao occlusion").unwrap_or(f64::NAN),
+            total_ms: timings.get("ao skin").unwrap_or(f64::NAN)
+                + timings.get("ao occlusion").unwrap_or(f64::NAN),
+        };
+        let positions = to_vec3(&data.positions);
+        let normals = to_vec3(&data.normals);
+        let ply = cfg.out.join(format!("ao_{index:04}.ply"));
+        let png = cfg.out.join(format!("ao_{index:04}.png"));
+        scene::ply_write::write_ply(
+            &ply,
+            &format!(
+                "vkshade ambient occlusion: {} frame {index} t={time:.4}s; ao = ambient visibility, 1 = unoccluded",
+                cfg.mesh.display()
+            ),
+            &positions,
+            &normals,
+            &mesh.triangles,
+            "ao",
+            &data.visibility,
+        )?;
+        let rgb = crate::render::render(
+            &positions,
+            &mesh.triangles,
+            &data.visibility,
+            &frame_points,
+            &view,
+        );
+        crate::render::write_png(&png, view.width, view.height, &rgb)?;
+        let per_vertex = |k: usize| PerVertex {
+            mean: data.stats.iter().map(|s| s[k] as f64).sum::<f64>() / data.stats.len() as f64,
+            max: data.stats.iter().map(|s| s[k]).max().unwrap_or(0),
+        };
+
+        let reference = if cfg.reference {
+            let t = Instant::now();
+            // The truth is computed from the CPU's own skinning, independent of the GPU.
+            let posed = cpu::skin(&prep, &matrices);
+            let bvh = crate::geom::Bvh::build(&posed.positions, &mesh.triangles);
+            let all: Vec<usize> = (0..posed.positions.len()).collect();
+            let truth = mesh_visibility(&posed.positions, &posed.normals, &bvh, &all, &ray_cfg);
+            let ray_ms = t.elapsed().as_secs_f64() * 1e3;
+            let exposed: Vec<usize> = (0..truth.len()).filter(|&i| truth[i] >= 0.05).collect();
+            let pick = |v: &[f32]| exposed.iter().map(|&i| v[i]).collect::<Vec<f32>>();
+            let uncorrected: Vec<f32> = cpu_ao
+                .frame(
+                    &posed,
+                    prep.shape,
+                    &AoParams {
+                        correct: false,
+                        ..cfg.params
+                    },
+                    None,
+                )
+                .iter()
+                .map(|v| v.visibility)
+                .collect();
+            let decomposition = (cfg.decompose_stride > 0).then(|| {
+                decompose(
+                    &cpu_ao,
+                    &prep,
+                    &posed,
+                    &cfg.params,
+                    correction.as_ref().map(|c| &c.1[..]),
+                    &truth,
+                    cfg.decompose_stride,
+                    cfg.rays.min(1024),
+                    &ray_cfg,
+                )
+            });
+            Some(FrameReference {
+                error: ErrorStats::of(&data.visibility, &truth),
+                error_exposed: ErrorStats::of(&pick(&data.visibility), &pick(&truth)),
+                error_uncorrected: ErrorStats::of(&uncorrected, &truth),
+                error_static_bind_pose: ErrorStats::of(
+                    static_bind.as_deref().unwrap_or(&[]),
+                    &truth,
+                ),
+                decomposition,
+                ray_ms,
+            })
+        } else {
+            None
+        };
+        progress(&format!(
+            "frame {index} (t = {time:.3} s): skin {:.3} ms + ao {:.3} ms GPU, {:.1} spheres/vertex{}",
+            gpu.skin_ms,
+            gpu.ao_ms,
+            per_vertex(1).mean,
+            reference
+                .as_ref()
+                .map(|r| format!(
+                    ", vs ray-traced mesh: MAE {:.4} p95 {:.3} max {:.3}",
+                    r.error.mae, r.error.p95, r.error.max
+                ))
+                .unwrap_or_default()
+        ));
+        frame_reports.push(FrameReport {
+            index,
+            time_s: time,
+            gpu,
+            spheres_tested_per_vertex: per_vertex(0),
+            spheres_used_per_vertex: per_vertex(1),
+            mean_visibility: data.visibility.iter().map(|&v| v as f64).sum::<f64>()
+                / data.visibility.len() as f64,
+            reference,
+            ply: ply.display().to_string(),
+            png: png.display().to_string(),
+        });
+    }
+    let median = |f: &dyn Fn(&FrameReport) -> f64| {
+        let v: Vec<f64> = frame_reports.iter().map(f).collect();
+        Stats::of(&v).map(|s| s.median).unwrap_or(f64::NAN)
+    };
+    let refs: Vec<&FrameReference> = frame_reports
+        .iter()
+        .filter_map(|f| f.reference.as_ref())
+        .collect();
+    let mean_of = |f: &dyn Fn(&FrameReference) -> f64| {
+        (!refs.is_empty()).then(|| refs.iter().map(|r| f(r)).sum::<f64>() / refs.len() as f64)
+    };
+    let total = median(&|f| f.gpu.total_ms);
+    let summary = Summary {
+        frames: frame_reports.len(),
+        skin_ms_median: median(&|f| f.gpu.skin_ms),
+        ao_ms_median: median(&|f| f.gpu.ao_ms),
+        total_ms_median: total,
+        fps: 1000.0 / total,
+        spheres_used_per_vertex_mean: frame_reports
+            .iter()
+            .map(|f| f.spheres_used_per_vertex.mean)
+            .sum::<f64>()
+            / frame_reports.len() as f64,
+        mae_mean: mean_of(&|r| r.error.mae),
+        rmse_mean: mean_of(&|r| r.error.rmse),
+        p95_mean: mean_of(&|r| r.error.p95),
+        max_max: (!refs.is_empty()).then(|| refs.iter().map(|r| r.error.max).fold(0.0, f64::max)),
+        mae_exposed_mean: mean_of(&|r| r.error_exposed.mae),
+        mae_uncorrected_mean: mean_of(&|r| r.error_uncorrected.mae),
+        mae_static_bind_pose_mean: mean_of(&|r| r.error_static_bind_pose.mae),
+    };
+    let mut notes = vec![
+        "gpu times are single submissions per frame (timestamps); use `vkshade bench ao` for medians over many".to_string(),
+    ];
+    if ctx.info().device_type == "CPU" {
+        notes.push(
+            "the device is a CPU implementation (lavapipe): times measure the CPU, not a GPU"
+                .into(),
+        );
+    }
+    let report = AoReport {
+        tool: "vkshade ao",
+        machine: MachineInfo::of(ctx),
+        mesh: MeshInfo {
+            path: cfg.mesh.display().to_string(),
+            vertices: mesh.positions.len(),
+            triangles: mesh.triangles.len(),
+            skinned: character.skinned,
+            joints: character.rig.joints.len(),
+            validation: mesh.report.clone(),
+        },
+        animation: anim.map(|a| a.name.clone()),
+        animation_duration_s: duration,
+        tree: tree_info,
+        params: cfg.params,
+        table_size: [TABLE_SIZE, TABLE_SIZE],
+        correction: correction_info,
+        reference_rays: cfg.reference.then_some(cfg.rays),
+        frames: frame_reports,
+        summary,
+        notes,
+    };
+    crate::bench::write_json(&cfg.out.join("report.json"), &report)?;
+    Ok(report)
+}
+
+/// Path of frame `index`'s picture in `dir`.
+pub fn frame_png(dir: &Path, index: usize) -> PathBuf {
+    dir.join(format!("ao_{index:04}.png"))
+}
