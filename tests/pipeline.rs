@@ -543,3 +543,47 @@ fn validation_harness_reports_messages() {
     };
     assert!(std::panic::catch_unwind(|| assert_clean(&[fake])).is_err());
 }
+
+#[test]
+fn specialization_constants_by_name() {
+    with_gpu(|ctx| {
+        let shader = Shader::from_spirv("test/spec", spirv("test/spec")?)?;
+        let ids: Vec<(u32, &str)> = shader
+            .spec_constants
+            .iter()
+            .map(|c| (c.id, c.name.as_str()))
+            .collect();
+        assert_eq!(ids, vec![(0, "FACTOR"), (7, "OFFSET")]);
+        let out = Buffer::new(ctx, BufferDesc::storage("spec out", 4 * 100))?;
+        for (constants, factor, offset) in [
+            (vec![], 2.0f32, 0.5f32),
+            (
+                vec![("FACTOR", 5u32), ("OFFSET", 1.25f32.to_bits())],
+                5.0,
+                1.25,
+            ),
+        ] {
+            let p = ComputePipeline::specialized(ctx, &shader, &constants)?;
+            let bind = p.bind(&[("outbuf", Resource::Buffer(&out))])?;
+            let mut rec = ctx.recorder("spec")?;
+            rec.barrier(&[Barrier::buffer(
+                &out,
+                A::TransferRead,
+                A::ComputeShaderWrite,
+            )]);
+            rec.dispatch_invocations(&p, &bind, &100u32.to_le_bytes(), [100, 1, 1])?;
+            let rb = rec.read_back(&out, A::ComputeShaderWrite)?;
+            rec.submit_and_wait()?;
+            let v: Vec<f32> = rb.to_vec()?;
+            assert_eq!(v[37], factor * 37.0 + offset);
+        }
+        let e = ComputePipeline::specialized(ctx, &shader, &[("SCALE", 1)]).unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("no specialization constant named 'SCALE'")
+                && e.to_string().contains("FACTOR"),
+            "{e}"
+        );
+        Ok(())
+    });
+}

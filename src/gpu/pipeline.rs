@@ -67,6 +67,17 @@ impl ComputePipeline {
     /// Builds the pipeline for a reflected shader, checking workgroup size and push-constant
     /// size against the device limits.
     pub fn new(ctx: &Context, shader: &Shader) -> Result<ComputePipeline> {
+        ComputePipeline::specialized(ctx, shader, &[])
+    }
+
+    /// As [`ComputePipeline::new`], with specialization constants set by name (32-bit values:
+    /// `u32`, `f32::to_bits`, 0/1 for booleans). A name the shader does not declare is an
+    /// error; constants not given keep their defaults.
+    pub fn specialized(
+        ctx: &Context,
+        shader: &Shader,
+        constants: &[(&str, u32)],
+    ) -> Result<ComputePipeline> {
         let shared = &ctx.shared;
         let limits = &shared.info.limits;
         let limit_err = |what: &str, requested: u64, limit_name, limit: u64| Error::Limit {
@@ -181,10 +192,42 @@ impl ComputePipeline {
                 name: shader.name.clone(),
                 reason: "entry point name contains NUL".into(),
             })?;
-        let stage = vk::PipelineShaderStageCreateInfo::default()
+        let mut entries = Vec::with_capacity(constants.len());
+        let mut data: Vec<u8> = Vec::with_capacity(4 * constants.len());
+        for (name, value) in constants {
+            let Some(c) = shader.spec_constants.iter().find(|c| c.name == *name) else {
+                // SAFETY: the module is unused.
+                unsafe { shared.device.destroy_shader_module(module, None) };
+                return Err(Error::Interface {
+                    pipeline: shader.name.clone(),
+                    reason: format!(
+                        "no specialization constant named '{name}' (it has: {})",
+                        shader
+                            .spec_constants
+                            .iter()
+                            .map(|c| format!("'{}' (id {})", c.name, c.id))
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    ),
+                });
+            };
+            entries.push(vk::SpecializationMapEntry {
+                constant_id: c.id,
+                offset: data.len() as u32,
+                size: 4,
+            });
+            data.extend_from_slice(&value.to_le_bytes());
+        }
+        let specialization = vk::SpecializationInfo::default()
+            .map_entries(&entries)
+            .data(&data);
+        let mut stage = vk::PipelineShaderStageCreateInfo::default()
             .stage(vk::ShaderStageFlags::COMPUTE)
             .module(module)
             .name(&entry);
+        if !entries.is_empty() {
+            stage = stage.specialization_info(&specialization);
+        }
         let info = [vk::ComputePipelineCreateInfo::default()
             .stage(stage)
             .layout(pipeline.layout)];

@@ -106,6 +106,16 @@ pub struct BindingInfo {
     pub read_only: bool,
 }
 
+/// A specialization constant of a shader (32-bit: bool, int, uint or float).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct SpecConstant {
+    /// `constant_id` in GLSL, `SpecId` in SPIR-V.
+    pub id: u32,
+    pub name: String,
+    /// The default value's bits (VkBool32 0/1 for booleans).
+    pub default: u32,
+}
+
 /// A compute shader: SPIR-V words plus everything needed to build its pipeline.
 #[derive(Clone, Debug)]
 pub struct Shader {
@@ -117,6 +127,8 @@ pub struct Shader {
     pub bindings: Vec<BindingInfo>,
     /// Bytes of push constants (0 when the shader has none).
     pub push_constant_size: u32,
+    /// Specialization constants, sorted by id.
+    pub spec_constants: Vec<SpecConstant>,
 }
 
 impl Shader {
@@ -218,6 +230,7 @@ impl Shader {
             })
             .max()
             .unwrap_or(0);
+        let spec_constants = spec_constants(&words).map_err(err)?;
         Ok(Shader {
             name: name.to_string(),
             words,
@@ -225,6 +238,7 @@ impl Shader {
             local_size,
             bindings,
             push_constant_size,
+            spec_constants,
         })
     }
 
@@ -395,4 +409,54 @@ fn decorated_bindings(words: &[u32]) -> Vec<(u32, u32)> {
         .collect();
     out.sort();
     out
+}
+
+/// Specialization constants: `SpecId` decorations with their OpSpecConstant* defaults.
+fn spec_constants(words: &[u32]) -> std::result::Result<Vec<SpecConstant>, String> {
+    const OP_NAME: u32 = 5;
+    const OP_SPEC_CONSTANT_TRUE: u32 = 48;
+    const OP_SPEC_CONSTANT_FALSE: u32 = 49;
+    const OP_SPEC_CONSTANT: u32 = 50;
+    const DECORATION_SPEC_ID: u32 = 1;
+    let mut ids = std::collections::HashMap::new();
+    let mut names = std::collections::HashMap::new();
+    let mut defaults = std::collections::HashMap::new();
+    for (op, ops) in instructions(words) {
+        match op {
+            OP_DECORATE if ops.len() == 3 && ops[1] == DECORATION_SPEC_ID => {
+                ids.insert(ops[0], ops[2]);
+            }
+            OP_NAME if ops.len() >= 2 => {
+                let bytes: Vec<u8> = ops[1..].iter().flat_map(|w| w.to_le_bytes()).collect();
+                let name = bytes.split(|&b| b == 0).next().unwrap_or(&[]);
+                names.insert(ops[0], String::from_utf8_lossy(name).into_owned());
+            }
+            OP_SPEC_CONSTANT_TRUE if ops.len() == 2 => {
+                defaults.insert(ops[1], 1);
+            }
+            OP_SPEC_CONSTANT_FALSE if ops.len() == 2 => {
+                defaults.insert(ops[1], 0);
+            }
+            OP_SPEC_CONSTANT if ops.len() == 3 => {
+                defaults.insert(ops[1], ops[2]);
+            }
+            // Decorations precede constants in a module, so `ids` is complete here.
+            OP_SPEC_CONSTANT if ops.len() > 3 && ids.contains_key(&ops[1]) => {
+                return Err("64-bit specialization constants are not supported".into());
+            }
+            _ => {}
+        }
+    }
+    let mut out: Vec<SpecConstant> = ids
+        .iter()
+        .filter_map(|(result, &id)| {
+            defaults.get(result).map(|&d| SpecConstant {
+                id,
+                name: names.get(result).cloned().unwrap_or_default(),
+                default: d,
+            })
+        })
+        .collect();
+    out.sort_by_key(|c| c.id);
+    Ok(out)
 }
