@@ -4,7 +4,7 @@
 // Cut: preorder walk of the implicit B-ary tree (children of n: n*B+1 .. n*B+B), starting at
 // level 1. An inner node is refined when radius > tau * distance; otherwise it (or a leaf)
 // contributes, so a parent and its children never both count. A receiver inside a leaf
-// sphere either skips it or clamps h to 1 (flags).
+// sphere either skips it or clamps h to 1 (CLAMP_INSIDE).
 //
 // Per sphere: the exact formula or a bilinear lookup in the (solid angle, angle) table.
 // Blending: product of (1 - I); clamped sum; or the cone-mask union: the analytic sum of I,
@@ -15,8 +15,16 @@
 // (ray-traced mesh visibility / this method's visibility, capped), which restores detail no
 // sphere set represents (buried or thin geometry); see src/kernels/ao/mod.rs.
 #include <common/ao.glsl>
-#include <common/ao_dirs.glsl>
+#include <common/ao_mask.glsl>
 layout(local_size_x = 64) in;
+
+// Modes are specialization constants, so each pipeline holds only its own code: drivers
+// that run both sides of a branch under lane masks (lavapipe) would otherwise pay for the
+// mask blend in every mode.
+layout(constant_id = 0) const bool EXACT = false;       // closed form instead of the table
+layout(constant_id = 1) const uint BLEND = 2u;          // 0 product, 1 sum, 2 cone-mask union
+layout(constant_id = 2) const bool CLAMP_INSIDE = false; // receiver inside a leaf: clamp h to 1
+layout(constant_id = 3) const bool CORRECT = true;      // apply the static correction
 
 layout(push_constant) uniform Push {
     uint vertex_count;
@@ -24,8 +32,6 @@ layout(push_constant) uniform Push {
     uint branch;
     uint first_leaf;
     float tau;
-    uint flags;       // bit 0: exact formula; bits 1-2: blend (0 product, 1 sum, 2 mask);
-                      // bit 3: clamp inside; bit 4: apply the static correction
     uint table_n_psi;
     uint table_n_theta;
 } pc;
@@ -57,23 +63,11 @@ float table_lookup(float cos_t, float h) {
     return a + (b - a) * fy;
 }
 
-// Bits of the directions first .. first + 31 that lie inside the cap (axis wl, cos half-angle).
-uint mask_word(const int first, vec3 wl, float cos_a) {
-    uint bits = 0u;
-    for (int k = 0; k < 32; ++k) {
-        bits |= uint(dot(AO_DIRS[first + k], wl) >= cos_a) << uint(k);
-    }
-    return bits;
-}
-
 void main() {
     uint vi = gl_GlobalInvocationID.x;
     if (vi >= pc.vertex_count) return;
     vec3 p = pos.p[vi].xyz;
     vec3 n = nrm.n[vi].xyz;
-    bool exact = (pc.flags & 1u) != 0u;
-    uint blend = (pc.flags >> 1) & 3u;
-    bool clamp_inside = (pc.flags & 8u) != 0u;
     vec3 t, b;
     ao_basis(n, t, b);
 
@@ -97,19 +91,18 @@ void main() {
             bool leaf = node >= pc.first_leaf;
             if (!leaf && s.w > pc.tau * d) {
                 descend = true;
-            } else if (d > s.w || clamp_inside) {
+            } else if (d > s.w || CLAMP_INSIDE) {
                 float h = d / s.w;
                 float cos_t = d > 0.0 ? dot(n, dv) / d : 1.0;
-                float occ = exact ? sphere_occlusion(cos_t, h) : table_lookup(cos_t, h);
+                float occ = EXACT ? sphere_occlusion(cos_t, h) : table_lookup(cos_t, h);
                 used++;
                 product *= 1.0 - occ;
                 sum_all += occ;
-                if (blend == BLEND_MASK && occ > 0.0) {
+                if (BLEND == BLEND_MASK && occ > 0.0) {
                     vec3 w = d > 0.0 ? dv / d : n;
                     vec3 wl = vec3(dot(w, t), dot(w, b), dot(w, n));
                     float cos_a = sqrt(max(1.0 - 1.0 / max(h * h, 1.0), 0.0));
-                    uvec4 m = uvec4(mask_word(0, wl, cos_a), mask_word(32, wl, cos_a),
-                                    mask_word(64, wl, cos_a), mask_word(96, wl, cos_a));
+                    uvec4 m = ao_cap_mask(wl, cos_a);
                     uint c = uint(bitCount(m.x) + bitCount(m.y) + bitCount(m.z) + bitCount(m.w));
                     if (c > 0u) {
                         sum_masked += occ;
@@ -129,9 +122,9 @@ void main() {
     }
 
     float occlusion;
-    if (blend == BLEND_PRODUCT) {
+    if (BLEND == BLEND_PRODUCT) {
         occlusion = 1.0 - product;
-    } else if (blend == BLEND_SUM) {
+    } else if (BLEND == BLEND_SUM) {
         occlusion = sum_all;
     } else {
         uint u = uint(bitCount(uni.x) + bitCount(uni.y) + bitCount(uni.z) + bitCount(uni.w));
@@ -139,7 +132,7 @@ void main() {
         occlusion = (sum_all - sum_masked) + sum_masked * scale;
     }
     float visibility = clamp(1.0 - occlusion, 0.0, 1.0);
-    if ((pc.flags & 16u) != 0u) visibility = min(visibility * correction.c[vi], 1.0);
+    if (CORRECT) visibility = min(visibility * correction.c[vi], 1.0);
     ao.v[vi] = visibility;
     stats.tested_used[vi] = uvec2(tested, used);
 }

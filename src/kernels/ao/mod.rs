@@ -99,23 +99,21 @@ impl AoParams {
         Ok(())
     }
 
-    fn flags(&self) -> u32 {
-        let mut f = match self.occlusion {
-            Occlusion::Exact => 1,
-            Occlusion::Table => 0,
-        };
-        f |= match self.blend {
-            Blend::Product => 0,
-            Blend::Sum => 1,
-            Blend::Mask => 2,
-        } << 1;
-        if self.clamp_inside {
-            f |= 8;
-        }
-        if self.correct {
-            f |= 16;
-        }
-        f
+    /// The occlusion pipeline's specialization constants for these parameters.
+    fn specialization(&self) -> [(&'static str, u32); 4] {
+        [
+            ("EXACT", (self.occlusion == Occlusion::Exact) as u32),
+            (
+                "BLEND",
+                match self.blend {
+                    Blend::Product => 0,
+                    Blend::Sum => 1,
+                    Blend::Mask => 2,
+                },
+            ),
+            ("CLAMP_INSIDE", self.clamp_inside as u32),
+            ("CORRECT", self.correct as u32),
+        ]
     }
 }
 
@@ -232,9 +230,11 @@ impl FrameReadback {
 /// The GPU kernel: pipelines, inputs and outputs of one character.
 pub struct AoKernel {
     skin: ComputePipeline,
-    occlusion: ComputePipeline,
     skin_bind: BindGroup,
+    occlusion_shader: crate::gpu::Shader,
+    occlusion: ComputePipeline,
     occlusion_bind: BindGroup,
+    table_buf: Buffer,
     joints: Buffer,
     correction: Buffer,
     // Inputs, kept alive for the bind groups.
@@ -247,8 +247,8 @@ pub struct AoKernel {
     vertex_count: u32,
     shape: cpu::TreeShape,
     joint_count: usize,
-    pub table: OcclusionTable,
-    pub params: AoParams,
+    table: OcclusionTable,
+    params: AoParams,
 }
 
 impl AoKernel {
@@ -257,7 +257,8 @@ impl AoKernel {
         params.validate()?;
         let spv = |name| crate::shaders::spirv(name);
         let skin = ComputePipeline::from_spirv(ctx, "ao/skin", spv("ao/skin")?)?;
-        let occlusion = ComputePipeline::from_spirv(ctx, "ao/occlusion", spv("ao/occlusion")?)?;
+        let occlusion_shader =
+            crate::gpu::Shader::from_spirv("ao/occlusion", spv("ao/occlusion")?)?;
         let table = OcclusionTable::new(TABLE_SIZE, TABLE_SIZE);
         let nv = prep.positions.len() as u64;
         let ns = prep.spheres.len() as u64;
@@ -316,24 +317,31 @@ impl AoKernel {
             ("nrm", Resource::Buffer(&normals)),
             ("sph", Resource::Buffer(&spheres)),
         ])?;
-        let occlusion_bind = occlusion.bind(&[
-            ("pos", Resource::Buffer(&positions)),
-            ("nrm", Resource::Buffer(&normals)),
-            ("sph", Resource::Buffer(&spheres)),
-            ("table", Resource::Buffer(&table_buf)),
-            ("correction", Resource::Buffer(&correction)),
-            ("ao", Resource::Buffer(&visibility)),
-            ("stats", Resource::Buffer(&stats)),
-        ])?;
+        let (occlusion, occlusion_bind) = Self::occlusion_pipeline(
+            ctx,
+            &occlusion_shader,
+            &params,
+            [
+                &positions,
+                &normals,
+                &spheres,
+                &table_buf,
+                &correction,
+                &visibility,
+                &stats,
+            ],
+        )?;
         Ok(AoKernel {
             skin,
-            occlusion,
             skin_bind,
+            occlusion_shader,
+            occlusion,
             occlusion_bind,
+            table_buf,
             joints,
             correction,
             _inputs: vec![
-                rest_pos, rest_nrm, vjoints, vweights, rest_sph, sjoints, sweights, table_buf,
+                rest_pos, rest_nrm, vjoints, vweights, rest_sph, sjoints, sweights,
             ],
             positions,
             normals,
@@ -346,6 +354,64 @@ impl AoKernel {
             table,
             params,
         })
+    }
+
+    /// The occlusion pipeline specialised for `params`, and its bindings (in the order
+    /// positions, normals, spheres, table, correction, visibility, stats).
+    fn occlusion_pipeline(
+        ctx: &Context,
+        shader: &crate::gpu::Shader,
+        params: &AoParams,
+        b: [&Buffer; 7],
+    ) -> Result<(ComputePipeline, BindGroup)> {
+        let pipeline = ComputePipeline::specialized(ctx, shader, &params.specialization())?;
+        let bind = pipeline.bind(&[
+            ("pos", Resource::Buffer(b[0])),
+            ("nrm", Resource::Buffer(b[1])),
+            ("sph", Resource::Buffer(b[2])),
+            ("table", Resource::Buffer(b[3])),
+            ("correction", Resource::Buffer(b[4])),
+            ("ao", Resource::Buffer(b[5])),
+            ("stats", Resource::Buffer(b[6])),
+        ])?;
+        Ok((pipeline, bind))
+    }
+
+    /// The method parameters in use.
+    pub fn params(&self) -> &AoParams {
+        &self.params
+    }
+
+    /// The occlusion table in use.
+    pub fn table(&self) -> &OcclusionTable {
+        &self.table
+    }
+
+    /// Changes the parameters. Modes (occlusion, blend, clamp, correction) are
+    /// specialization constants: changing one builds the pipeline for it; tau is a push
+    /// constant and costs nothing.
+    pub fn set_params(&mut self, ctx: &Context, params: AoParams) -> Result<()> {
+        params.validate()?;
+        if params.specialization() != self.params.specialization() {
+            let (p, b) = Self::occlusion_pipeline(
+                ctx,
+                &self.occlusion_shader,
+                &params,
+                [
+                    &self.positions,
+                    &self.normals,
+                    &self.spheres,
+                    &self.table_buf,
+                    &self.correction,
+                    &self.visibility,
+                    &self.stats,
+                ],
+            )?;
+            self.occlusion = p;
+            self.occlusion_bind = b;
+        }
+        self.params = params;
+        Ok(())
     }
 
     pub fn vertex_count(&self) -> usize {
@@ -415,13 +481,12 @@ impl AoKernel {
     pub fn record_occlusion<'a>(&'a self, rec: &mut Recorder<'a>) -> Result<()> {
         self.params.validate()?;
         let p = &self.params;
-        let push: [u32; 8] = [
+        let push: [u32; 7] = [
             self.vertex_count,
             self.shape.node_count,
             self.shape.branch,
             self.shape.first_leaf,
             p.tau.to_bits(),
-            p.flags(),
             self.table.n_psi,
             self.table.n_theta,
         ];
@@ -478,6 +543,22 @@ impl AoKernel {
         )]);
         rec.submit_and_wait()?;
         Ok(())
+    }
+
+    /// Bytes of device memory held by the kernel's buffers.
+    pub fn memory_bytes(&self) -> u64 {
+        let own = [
+            &self.joints,
+            &self.correction,
+            &self.table_buf,
+            &self.positions,
+            &self.normals,
+            &self.spheres,
+            &self.visibility,
+            &self.stats,
+        ];
+        own.iter().map(|b| b.size()).sum::<u64>()
+            + self._inputs.iter().map(Buffer::size).sum::<u64>()
     }
 
     /// The posed spheres buffer (vec4 centre + radius per node).
