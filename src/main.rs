@@ -100,6 +100,9 @@ struct AoArgs {
     /// Rays per vertex of the ground truth.
     #[arg(long, default_value_t = 4096)]
     rays: usize,
+    /// Rays per vertex of the bind-pose bake of the static correction.
+    #[arg(long, default_value_t = 4096)]
+    correction_rays: usize,
     #[command(flatten)]
     tree_opts: TreeOpts,
     /// Output directory.
@@ -164,6 +167,24 @@ enum BenchCommand {
     Peak {
         #[command(flatten)]
         opts: BenchOpts,
+    },
+    /// Sphere-tree AO: sweeps vertex count (subdivision), sphere count (tree depth) and the
+    /// refinement threshold tau (error against the ray-traced mesh vs time); reports ms per
+    /// frame, spheres per vertex, GFLOP/s as a fraction of the measured FMA peak, and the
+    /// speed-up over the same method on the CPU and over ray tracing, all in the same run;
+    /// checks bench/targets.json.
+    Ao {
+        #[command(flatten)]
+        opts: BenchOpts,
+        /// Character to benchmark.
+        #[arg(long, default_value = vkshade::app::ao::DEFAULT_MESH)]
+        mesh: PathBuf,
+        /// Animation (default: Run for the built-in character).
+        #[arg(long)]
+        anim: Option<String>,
+        /// Smaller sweeps (for a quick check).
+        #[arg(long)]
+        quick: bool,
     },
 }
 
@@ -345,6 +366,79 @@ fn cmd_bench_peak(g: &Global, opts: &BenchOpts) -> Result<()> {
     finish(ctx)
 }
 
+fn cmd_bench_ao(
+    g: &Global,
+    opts: &BenchOpts,
+    mesh: &std::path::Path,
+    anim: Option<&str>,
+    quick: bool,
+) -> Result<()> {
+    use vkshade::bench::ao::{AoBenchConfig, panels, run};
+    for path in opts.json.iter().chain(&opts.plot) {
+        bench::check_output(path)?;
+    }
+    let mut cfg = AoBenchConfig {
+        mesh: mesh.to_path_buf(),
+        bench: opts.config()?,
+        ..Default::default()
+    };
+    cfg.bench.min_submit_ms = opts.min_ms.min(cfg.bench.min_submit_ms);
+    if anim.is_some() || mesh != std::path::Path::new(vkshade::app::ao::DEFAULT_MESH) {
+        cfg.animation = anim.map(str::to_string);
+    }
+    if quick {
+        cfg.subdivisions = vec![0, 1];
+        cfg.depths = vec![2, 3];
+        cfg.taus = vec![0.3, 0.5, 0.8];
+        cfg.reference_frames = 1;
+        cfg.rays = 256;
+        cfg.cpu_runs = 2;
+    }
+    let ctx = context(g)?;
+    eprintln!("bench ao on {}", ctx.info().name);
+    let r = run(&ctx, &cfg, &mut |l| progress(l))?;
+    let h = &r.headline;
+    println!("device                 {}", r.machine.device);
+    println!(
+        "headline               {} vertices, {} spheres, tau {}: skin {:.3} ms + AO {:.3} ms (median GPU) = {:.0} fps",
+        h.vertices, h.spheres, h.tau, h.skin_ms.median, h.ao_ms.median, h.fps
+    );
+    println!(
+        "work                   {:.1} spheres tested, {:.1} used per vertex; {:.2} GFLOP/s = {:.1}% of the {:.1} GFLOP/s FMA peak",
+        h.spheres_tested_per_vertex,
+        h.spheres_used_per_vertex,
+        h.gflops,
+        100.0 * h.fraction_of_peak,
+        r.peak_fma_gflops
+    );
+    println!(
+        "baselines              same method on the CPU (rayon) {:.2} ms: {:.1}x; ray-traced truth {:.0} ms: {:.0}x",
+        r.cpu_same_method_ms.median, r.speedup_vs_cpu, r.raytrace_ms.median, r.speedup_vs_raytrace
+    );
+    println!(
+        "gpu memory             {:.2} MiB",
+        r.gpu_memory_bytes as f64 / (1u64 << 20) as f64
+    );
+    for t in &r.targets {
+        println!(
+            "target {:<40} {:>10.4} (target {}) {}",
+            t.name,
+            t.measured,
+            t.target,
+            if t.pass { "PASS" } else { "MISS" }
+        );
+    }
+    if let Some(path) = &opts.json {
+        bench::write_json(path, &r)?;
+        println!("wrote {}", path.display());
+    }
+    if let Some(path) = &opts.plot {
+        bench::plot::draw(path, &panels(&r))?;
+        println!("wrote {}", path.display());
+    }
+    finish(ctx)
+}
+
 fn cmd_shaders(cmd: &ShaderCommand) -> Result<()> {
     let (root, write) = match cmd {
         ShaderCommand::Build { root } => (root, true),
@@ -417,6 +511,7 @@ fn cmd_ao(g: &Global, a: &AoArgs, demo: bool) -> Result<()> {
         },
         reference: a.reference,
         rays: a.rays,
+        correction_rays: a.correction_rays,
         out: a.out.clone(),
         ..Default::default()
     };
@@ -518,6 +613,12 @@ fn main() -> ExitCode {
     let result = match &cli.command {
         Command::Info { json } => cmd_info(json.clone()),
         Command::Bench(BenchCommand::Peak { opts }) => cmd_bench_peak(&cli.global, opts),
+        Command::Bench(BenchCommand::Ao {
+            opts,
+            mesh,
+            anim,
+            quick,
+        }) => cmd_bench_ao(&cli.global, opts, mesh, anim.as_deref(), *quick),
         Command::Shaders(cmd) => cmd_shaders(cmd),
         Command::Ao(a) => cmd_ao(&cli.global, a, false),
         Command::Demo => {

@@ -310,6 +310,17 @@ pub fn run(ctx: &Context, cfg: &AoRunConfig, progress: &mut dyn FnMut(&str)) -> 
     if cfg.frames == 0 {
         return Err(Error::InvalidArgument("--frames must be at least 1".into()));
     }
+    if cfg.rays == 0 || cfg.correction_rays == 0 {
+        return Err(Error::InvalidArgument(
+            "ray counts must be at least 1".into(),
+        ));
+    }
+    if cfg.image.0 == 0 || cfg.image.1 == 0 || cfg.image.0 > 8192 || cfg.image.1 > 8192 {
+        return Err(Error::InvalidArgument(format!(
+            "image size {:?} outside 1..=8192",
+            cfg.image
+        )));
+    }
     crate::bench::check_output(&cfg.out.join("report.json"))?;
     let character = scene::load(&cfg.mesh)?;
     let anim = pick_animation(&character, cfg.animation.as_deref())?;

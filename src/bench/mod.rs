@@ -1,6 +1,7 @@
 //! The benchmark harness: warm-up, N timed submissions, GPU time from timestamp queries,
 //! statistics, JSON and PNG output.
 
+pub mod ao;
 pub mod peak;
 pub mod plot;
 
@@ -78,24 +79,64 @@ pub fn time_gpu<'a>(
     ctx: &Context,
     cfg: &BenchConfig,
     pass: &str,
-    mut record: impl FnMut(&mut Recorder<'a>) -> Result<()>,
+    record: impl FnMut(&mut Recorder<'a>) -> Result<()>,
 ) -> Result<Stats> {
-    let mut samples = Vec::with_capacity(cfg.samples);
+    Ok(time_gpu_passes(ctx, cfg, &[pass], record)?.remove(0))
+}
+
+/// As [`time_gpu`], for several passes of the same submissions (one `Stats` per pass, in
+/// the order of `passes`).
+pub fn time_gpu_passes<'a>(
+    ctx: &Context,
+    cfg: &BenchConfig,
+    passes: &[&str],
+    mut record: impl FnMut(&mut Recorder<'a>) -> Result<()>,
+) -> Result<Vec<Stats>> {
+    let mut samples = vec![Vec::with_capacity(cfg.samples); passes.len()];
     for i in 0..cfg.warmup + cfg.samples.max(1) {
-        let mut rec = ctx.recorder(pass)?;
+        let mut rec = ctx.recorder(passes.first().copied().unwrap_or("bench"))?;
         record(&mut rec)?;
         let t = rec.submit_and_wait()?;
-        let ms = t.get(pass).ok_or_else(|| {
-            Error::InvalidArgument(format!(
-                "benchmark pass '{pass}' was not timed (no timestamps on this queue, or the pass was never opened)"
-            ))
-        })?;
-        if i >= cfg.warmup {
-            samples.push(ms);
+        if i < cfg.warmup {
+            continue;
+        }
+        for (pass, out) in passes.iter().zip(samples.iter_mut()) {
+            out.push(t.get(pass).ok_or_else(|| {
+                Error::InvalidArgument(format!(
+                    "benchmark pass '{pass}' was not timed (no timestamps on this queue, or the pass was never opened)"
+                ))
+            })?);
         }
     }
-    Stats::of(&samples)
-        .ok_or_else(|| Error::InvalidArgument(format!("no valid samples for '{pass}'")))
+    passes
+        .iter()
+        .zip(&samples)
+        .map(|(pass, s)| {
+            Stats::of(s)
+                .ok_or_else(|| Error::InvalidArgument(format!("no valid samples for '{pass}'")))
+        })
+        .collect()
+}
+
+/// Wall-clock milliseconds of `f` (median of `runs`, after one untimed run): for CPU
+/// baselines measured beside the GPU.
+pub fn time_cpu<T>(runs: usize, mut f: impl FnMut() -> T) -> Stats {
+    std::hint::black_box(f());
+    let samples: Vec<f64> = (0..runs.max(1))
+        .map(|_| {
+            let t = std::time::Instant::now();
+            std::hint::black_box(f());
+            t.elapsed().as_secs_f64() * 1e3
+        })
+        .collect();
+    Stats::of(&samples).unwrap_or(Stats {
+        n: 0,
+        median: f64::NAN,
+        min: f64::NAN,
+        max: f64::NAN,
+        mean: f64::NAN,
+        spread: 0.0,
+    })
 }
 
 /// Checks up front that an output file can be created (its folder is made if missing), so a

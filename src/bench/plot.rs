@@ -150,6 +150,7 @@ fn draw_panel(
             if panel.series.len() > 1 || panel.series.iter().any(|s| !s.name.is_empty()) {
                 chart
                     .configure_series_labels()
+                    .position(SeriesLabelPosition::UpperLeft)
                     .background_style(WHITE.mix(0.8))
                     .border_style(BLACK)
                     .label_font(("sans-serif", 13))

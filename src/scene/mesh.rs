@@ -303,3 +303,71 @@ fn edge_counts(triangles: &[[u32; 3]]) -> (usize, usize) {
     let non_manifold = edges.values().filter(|&&c| c > 2).count();
     (boundary, non_manifold)
 }
+
+impl Mesh {
+    /// Midpoint subdivision: every triangle becomes four; new vertices average the endpoints'
+    /// positions, normals, UVs and skin influences (merged, four largest kept, renormalised).
+    /// The shape is unchanged; it makes denser meshes for the vertex-count benchmarks.
+    pub fn subdivide(&self) -> Mesh {
+        let mut positions = self.positions.clone();
+        let mut normals = self.normals.clone();
+        let mut uvs = self.uvs.clone();
+        let mut skin = self.skin.clone();
+        let mut mid: HashMap<(u32, u32), u32> = HashMap::new();
+        let mut triangles = Vec::with_capacity(self.triangles.len() * 4);
+        let mut midpoint = |a: u32, b: u32| -> u32 {
+            *mid.entry((a.min(b), a.max(b))).or_insert_with(|| {
+                let (ia, ib) = (a as usize, b as usize);
+                positions.push((positions[ia] + positions[ib]) * 0.5);
+                normals.push(
+                    (normals[ia] + normals[ib])
+                        .try_normalize()
+                        .unwrap_or(normals[ia]),
+                );
+                if let Some(uv) = uvs.as_mut() {
+                    uv.push((uv[ia] + uv[ib]) * 0.5);
+                }
+                if let Some(s) = skin.as_mut() {
+                    let mut acc: Vec<(u16, f32)> = Vec::new();
+                    for v in [ia, ib] {
+                        for k in 0..4 {
+                            let (j, w) = (s.joints[v][k], s.weights[v][k] * 0.5);
+                            match acc.iter_mut().find(|e| e.0 == j) {
+                                Some(e) => e.1 += w,
+                                None => acc.push((j, w)),
+                            }
+                        }
+                    }
+                    acc.sort_by(|x, y| y.1.total_cmp(&x.1));
+                    acc.truncate(4);
+                    let sum: f32 = acc.iter().map(|e| e.1).sum::<f32>().max(1e-30);
+                    let mut j4 = [0u16; 4];
+                    let mut w4 = [0f32; 4];
+                    for (k, (j, w)) in acc.iter().enumerate() {
+                        j4[k] = *j;
+                        w4[k] = w / sum;
+                    }
+                    s.joints.push(j4);
+                    s.weights.push(w4);
+                }
+                (positions.len() - 1) as u32
+            })
+        };
+        for &[a, b, c] in &self.triangles {
+            let (ab, bc, ca) = (midpoint(a, b), midpoint(b, c), midpoint(c, a));
+            triangles.extend([[a, ab, ca], [ab, b, bc], [ca, bc, c], [ab, bc, ca]]);
+        }
+        let mut report = self.report.clone();
+        report.vertices = positions.len();
+        report.triangles = triangles.len();
+        Mesh {
+            name: format!("{} (subdivided)", self.name),
+            positions,
+            normals,
+            uvs,
+            triangles,
+            skin,
+            report,
+        }
+    }
+}
