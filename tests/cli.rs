@@ -97,3 +97,197 @@ fn bad_options_fail_with_a_message() {
         "output paths must be checked before the run: {stderr}"
     );
 }
+
+#[test]
+fn ao_writes_frames_and_report_under_validation() {
+    let out = temp("ao");
+    let (ok, stdout, stderr) = vkshade(&[
+        "--validate",
+        "ao",
+        "--frames",
+        "2",
+        "--reference",
+        "--rays",
+        "256",
+        "--correction-rays",
+        "256",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(ok, "stdout:\n{stdout}\nstderr:\n{stderr}");
+    assert!(
+        stderr.contains("validation: clean (0 messages)"),
+        "{stderr}"
+    );
+    assert!(stdout.contains("vs ray-traced mesh: MAE"), "{stdout}");
+    for f in [
+        "ao_0000.ply",
+        "ao_0000.png",
+        "ao_0001.ply",
+        "ao_0001.png",
+        "report.json",
+    ] {
+        assert!(out.join(f).is_file(), "{f} missing");
+    }
+    let v: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+    assert_eq!(v["mesh"]["vertices"], 3205);
+    assert_eq!(v["tree"]["spheres_total"], 585);
+    assert_eq!(v["animation"], "Wuson_Run");
+    let f0 = &v["frames"][0];
+    for key in ["skin_ms", "ao_ms"] {
+        assert!(f0["gpu"][key].as_f64().unwrap() > 0.0, "{key}");
+    }
+    assert!(f0["spheres_used_per_vertex"]["mean"].as_f64().unwrap() > 1.0);
+    for key in ["mae", "rmse", "p95", "max"] {
+        assert!(f0["reference"]["error"][key].as_f64().is_some(), "{key}");
+    }
+    assert!(!v["machine"]["device"].as_str().unwrap().is_empty());
+}
+
+#[test]
+fn ao_with_a_prebuilt_tree_and_a_static_mesh() {
+    let sph = temp("wuson.sph");
+    let (ok, stdout, stderr) = vkshade(&[
+        "spheretree",
+        "build",
+        "data/testwuson.glb",
+        "-o",
+        sph.to_str().unwrap(),
+        "--depth",
+        "2",
+    ]);
+    assert!(ok, "{stderr}");
+    assert!(
+        stdout.contains("volume coverage") && stdout.contains("surface coverage"),
+        "{stdout}"
+    );
+    let text = std::fs::read_to_string(&sph).unwrap();
+    assert!(
+        text.starts_with("3 8\n"),
+        "Dublin .sph header: levels incl. root, branch"
+    );
+    let out = temp("ao-tree");
+    let (ok, _, stderr) = vkshade(&[
+        "ao",
+        "--tree",
+        sph.to_str().unwrap(),
+        "--frames",
+        "1",
+        "--correction-rays",
+        "64",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(ok, "{stderr}");
+    let v: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+    assert_eq!(v["tree"]["spheres_per_level"], serde_json::json!([8, 64]));
+    // A static OBJ (no skin, no animation): one frame in the rest pose.
+    let obj = temp("tetra.obj");
+    std::fs::write(
+        &obj,
+        "v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n",
+    )
+    .unwrap();
+    let out = temp("ao-static");
+    let (ok, _, stderr) = vkshade(&[
+        "ao",
+        "--mesh",
+        obj.to_str().unwrap(),
+        "--frames",
+        "5",
+        "--correction-rays",
+        "64",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(ok, "{stderr}");
+    assert!(out.join("ao_0000.ply").is_file() && !out.join("ao_0001.ply").exists());
+}
+
+#[test]
+fn ao_bad_input_fails_cleanly_without_output() {
+    let out = temp("ao-bad");
+    for (args, needle) in [
+        (
+            vec!["ao", "--mesh", "/nonexistent/thing.glb"],
+            "/nonexistent/thing.glb",
+        ),
+        (vec!["ao", "--tau", "2"], "tau"),
+        (vec!["ao", "--anim", "Gallop"], "Wuson_Run"),
+        (
+            vec!["ao", "--tree", "/nonexistent/t.sph"],
+            "/nonexistent/t.sph",
+        ),
+        (vec!["ao", "--blend", "max"], "unknown blend"),
+        (vec!["ao", "--frames", "0"], "--frames"),
+    ] {
+        let mut a = args.clone();
+        a.extend(["--out", out.to_str().unwrap()]);
+        let (ok, _, stderr) = vkshade(&a);
+        assert!(!ok, "{args:?} succeeded");
+        assert!(
+            stderr.contains(needle),
+            "{args:?}: stderr lacks '{needle}':\n{stderr}"
+        );
+        assert!(
+            !out.join("report.json").exists(),
+            "{args:?} left output behind"
+        );
+    }
+    let (ok, stdout, _) = vkshade(&["mesh", "info", "data/testwuson.glb"]);
+    assert!(
+        ok && stdout.contains("Wuson_Run") && stdout.contains("\"vertices\": 3205"),
+        "{stdout}"
+    );
+}
+
+#[test]
+fn bench_ao_reports_sweeps_baselines_and_targets() {
+    let json = temp("ao-bench.json");
+    let (ok, stdout, stderr) = vkshade(&[
+        "--validate",
+        "bench",
+        "ao",
+        "--quick",
+        "--samples",
+        "1",
+        "--warmup",
+        "0",
+        "--min-ms",
+        "1",
+        "--json",
+        json.to_str().unwrap(),
+    ]);
+    assert!(ok, "stdout:\n{stdout}\nstderr:\n{stderr}");
+    assert!(
+        stderr.contains("validation: clean (0 messages)"),
+        "{stderr}"
+    );
+    let v: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+    let h = &v["headline"];
+    for key in [
+        "fps",
+        "gflops",
+        "fraction_of_peak",
+        "spheres_used_per_vertex",
+    ] {
+        let x = h[key].as_f64().unwrap_or(f64::NAN);
+        assert!(x.is_finite() && x > 0.0, "headline {key} = {x}");
+    }
+    assert!(v["peak_fma_gflops"].as_f64().unwrap() > 0.0);
+    assert!(v["speedup_vs_cpu"].as_f64().unwrap() > 0.0);
+    assert!(v["speedup_vs_raytrace"].as_f64().unwrap() > 0.0);
+    assert_eq!(v["vertex_sweep"].as_array().unwrap().len(), 2);
+    assert_eq!(v["sphere_sweep"].as_array().unwrap().len(), 2);
+    let taus = v["tau_sweep"].as_array().unwrap();
+    assert_eq!(taus.len(), 6);
+    assert!(taus.iter().all(|p| p["mae"].as_f64().is_some()));
+    // More vertices cost more; a deeper tree means more spheres per vertex.
+    let vs = v["vertex_sweep"].as_array().unwrap();
+    assert!(vs[1]["vertices"].as_u64() > vs[0]["vertices"].as_u64());
+    let ss = v["sphere_sweep"].as_array().unwrap();
+    assert!(ss[1]["spheres_used_per_vertex"].as_f64() > ss[0]["spheres_used_per_vertex"].as_f64());
+    assert_eq!(v["targets"].as_array().unwrap().len(), 3);
+}

@@ -1,0 +1,448 @@
+//! Loaders, validation and repair of bad input, sphere trees.
+
+use std::path::{Path, PathBuf};
+use vkshade::Error;
+use vkshade::scene::spheretree::{BuildConfig, Fit, SphereTree};
+use vkshade::scene::{self, Character};
+
+fn dir() -> PathBuf {
+    let d = std::env::temp_dir().join(format!("vkshade-scene-test-{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+fn write(name: &str, bytes: &[u8]) -> PathBuf {
+    let p = dir().join(name);
+    std::fs::write(&p, bytes).unwrap();
+    p
+}
+
+/// The error text; panics if loading succeeded.
+fn load_err(path: &Path) -> String {
+    match scene::load(path) {
+        Ok(_) => panic!("{} loaded, but it is malformed", path.display()),
+        Err(e) => {
+            let s = e.to_string();
+            assert!(
+                s.contains(&path.display().to_string()),
+                "error does not name the file: {s}"
+            );
+            s
+        }
+    }
+}
+
+const CUBE_OBJ: &str = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 1\nv 1 0 1\nv 1 1 1\nv 0 1 1\n\
+f 1 4 3 2\nf 5 6 7 8\nf 1 2 6 5\nf 4 8 7 3\nf 1 5 8 4\nf 2 3 7 6\n";
+
+#[test]
+fn obj_ply_off_load_the_same_cube() {
+    let obj = scene::load(&write("cube.obj", CUBE_OBJ.as_bytes())).unwrap();
+    assert_eq!(
+        (obj.mesh.positions.len(), obj.mesh.triangles.len()),
+        (8, 12)
+    );
+    assert!(
+        !obj.skinned && obj.mesh.uvs.is_none(),
+        "no UVs is fine for AO"
+    );
+    assert_eq!(obj.mesh.report.normals_recomputed, 8);
+    assert_eq!(obj.mesh.report.boundary_edges, 0);
+    let off = "OFF\n8 6 0\n0 0 0\n1 0 0\n1 1 0\n0 1 0\n0 0 1\n1 0 1\n1 1 1\n0 1 1\n\
+               4 0 3 2 1\n4 4 5 6 7\n4 0 1 5 4\n4 3 7 6 2\n4 0 4 7 3\n4 1 2 6 5\n";
+    let off = scene::load(&write("cube.off", off.as_bytes())).unwrap();
+    assert_eq!(off.mesh.triangles.len(), 12);
+    let ply = "ply\nformat ascii 1.0\nelement vertex 8\nproperty float x\nproperty float y\nproperty float z\n\
+               element face 6\nproperty list uchar int vertex_indices\nend_header\n\
+               0 0 0\n1 0 0\n1 1 0\n0 1 0\n0 0 1\n1 0 1\n1 1 1\n0 1 1\n\
+               4 0 3 2 1\n4 4 5 6 7\n4 0 1 5 4\n4 3 7 6 2\n4 0 4 7 3\n4 1 2 6 5\n";
+    let ply = scene::load(&write("cube.ply", ply.as_bytes())).unwrap();
+    // Same triangles as position triples (OBJ numbers vertices in order of first use).
+    let tris = |c: &Character| -> Vec<[[i32; 3]; 3]> {
+        c.mesh
+            .triangles
+            .iter()
+            .map(|t| t.map(|i| c.mesh.positions[i as usize].to_array().map(|x| x as i32)))
+            .collect()
+    };
+    assert_eq!(tris(&ply), tris(&obj));
+    assert_eq!(tris(&off), tris(&obj));
+    // Outward normals from the winding.
+    for (p, n) in obj.mesh.positions.iter().zip(&obj.mesh.normals) {
+        assert!((*p - glam::Vec3::splat(0.5)).dot(*n) > 0.0);
+    }
+}
+
+#[test]
+fn malformed_meshes_give_clear_errors() {
+    let e = load_err(&write("nan.obj", b"v 0 0 0\nv 1 0 0\nv nan 1 0\nf 1 2 3\n"));
+    assert!(e.contains("vertex 2") && e.contains("non-finite"), "{e}");
+    let e = load_err(&write("range.obj", b"v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 7\n"));
+    assert!(e.contains("line 4") && e.contains("out of range"), "{e}");
+    let e = load_err(&write("word.obj", b"v 0 zero 0\n"));
+    assert!(e.contains("line 1") && e.contains("zero"), "{e}");
+    let e = load_err(&write("empty.obj", b"# nothing\n"));
+    assert!(e.contains("at least one triangle"), "{e}");
+    let e = load_err(&write("flat.obj", b"v 0 0 0\nv 1 0 0\nv 2 0 0\nf 1 2 3\n"));
+    assert!(e.contains("degenerate"), "{e}");
+    let e = load_err(&write("short.off", b"OFF\n4 1 0\n0 0 0\n1 0 0\n"));
+    assert!(e.contains("ends before"), "{e}");
+    let e = load_err(&write(
+        "bad.ply",
+        b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float q\nend_header\n1\n",
+    ));
+    assert!(e.contains("lacks x"), "{e}");
+    // Binary PLY cut short.
+    let mut bin = b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n".to_vec();
+    bin.extend_from_slice(&[0u8; 20]);
+    let e = load_err(&write("cut.ply", &bin));
+    assert!(e.contains("ends inside vertex"), "{e}");
+    let e = load_err(&write("mesh.xyz", b"1 2 3\n"));
+    assert!(e.contains("unknown mesh format"), "{e}");
+    match scene::load(Path::new("/nonexistent/dir/character.glb")) {
+        Err(e @ Error::Io { .. }) => {
+            assert!(e.to_string().contains("/nonexistent/dir/character.glb"))
+        }
+        other => panic!("expected an I/O error, got {:?}", other.map(|_| ())),
+    }
+    let e = load_err(&write(
+        "garbage.glb",
+        b"glTF this is not a binary glTF at all",
+    ));
+    assert!(e.contains("not valid glTF"), "{e}");
+}
+
+#[test]
+fn degenerate_triangles_are_removed_and_counted() {
+    let obj = format!("{CUBE_OBJ}f 1 1 2\nv 5 5 5\n");
+    let c = scene::load(&write("degenerate.obj", obj.as_bytes())).unwrap();
+    assert_eq!(c.mesh.triangles.len(), 12);
+    assert_eq!(c.mesh.report.degenerate_triangles_removed, 1);
+}
+
+fn base64(bytes: &[u8]) -> String {
+    const T: &[u8; 64] = b"ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz0123456789+/";
+    let mut s = String::new();
+    for c in bytes.chunks(3) {
+        let n = (c[0] as u32) << 16
+            | (*c.get(1).unwrap_or(&0) as u32) << 8
+            | *c.get(2).unwrap_or(&0) as u32;
+        for k in 0..4 {
+            if k <= c.len() {
+                s.push(T[(n >> (18 - 6 * k) & 63) as usize] as char);
+            } else {
+                s.push('=');
+            }
+        }
+    }
+    s
+}
+
+/// A skinned triangle in glTF with a six-joint skin: `joints`/`weights` per vertex
+/// (JOINTS_0/WEIGHTS_0); with `extra`, a second set JOINTS_1 = (2, 3, 4, 5) / WEIGHTS_1.
+fn skinned_gltf(
+    name: &str,
+    joints: [[u8; 4]; 3],
+    weights: [[f32; 4]; 3],
+    extra: Option<[[f32; 4]; 3]>,
+) -> PathBuf {
+    let mut buf: Vec<u8> = Vec::new();
+    for p in [[0f32, 0.0, 0.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]] {
+        for f in p {
+            buf.extend_from_slice(&f.to_le_bytes());
+        }
+    }
+    let joints_off = buf.len();
+    for j in joints {
+        buf.extend_from_slice(&j);
+    }
+    let weights_off = buf.len();
+    for w in weights {
+        for f in w {
+            buf.extend_from_slice(&f.to_le_bytes());
+        }
+    }
+    let extra_off = buf.len();
+    if let Some(x) = extra {
+        for _ in 0..3 {
+            buf.extend_from_slice(&[2, 3, 4, 5]);
+        }
+        for w in x {
+            for f in w {
+                buf.extend_from_slice(&f.to_le_bytes());
+            }
+        }
+    }
+    let mut attributes = r#""POSITION": 0, "JOINTS_0": 1, "WEIGHTS_0": 2"#.to_string();
+    let mut accessors = r#"{"bufferView": 0, "componentType": 5126, "count": 3, "type": "VEC3", "min": [0,0,0], "max": [1,1,0]},
+           {"bufferView": 1, "componentType": 5121, "count": 3, "type": "VEC4"},
+           {"bufferView": 2, "componentType": 5126, "count": 3, "type": "VEC4"}"#
+        .to_string();
+    let mut views = format!(
+        r#"{{"buffer": 0, "byteOffset": 0, "byteLength": 36}},
+           {{"buffer": 0, "byteOffset": {joints_off}, "byteLength": 12}},
+           {{"buffer": 0, "byteOffset": {weights_off}, "byteLength": 48}}"#
+    );
+    if extra.is_some() {
+        attributes.push_str(r#", "JOINTS_1": 3, "WEIGHTS_1": 4"#);
+        accessors.push_str(
+            r#", {"bufferView": 3, "componentType": 5121, "count": 3, "type": "VEC4"},
+                 {"bufferView": 4, "componentType": 5126, "count": 3, "type": "VEC4"}"#,
+        );
+        views.push_str(&format!(
+            r#", {{"buffer": 0, "byteOffset": {extra_off}, "byteLength": 12}},
+                 {{"buffer": 0, "byteOffset": {}, "byteLength": 48}}"#,
+            extra_off + 12
+        ));
+    }
+    let json = format!(
+        r#"{{"asset": {{"version": "2.0"}}, "scene": 0, "scenes": [{{"nodes": [0, 1]}}],
+            "nodes": [{{"mesh": 0, "skin": 0}}, {{"children": [2]}}, {{"children": [3], "translation": [0, 1, 0]}},
+                      {{"children": [4]}}, {{"children": [5]}}, {{"children": [6]}}, {{}}],
+            "skins": [{{"joints": [1, 2, 3, 4, 5, 6]}}],
+            "meshes": [{{"primitives": [{{"attributes": {{{attributes}}}}}]}}],
+            "accessors": [{accessors}], "bufferViews": [{views}],
+            "buffers": [{{"byteLength": {}, "uri": "data:application/octet-stream;base64,{}"}}]}}"#,
+        buf.len(),
+        base64(&buf)
+    );
+    write(name, json.as_bytes())
+}
+
+#[test]
+fn skin_weights_are_renormalised_truncated_or_rejected() {
+    let j = [[0, 1, 0, 0]; 3];
+    // Sums of 0.5 and 2: renormalised, counted.
+    let c = scene::load(&skinned_gltf(
+        "halfweights.gltf",
+        j,
+        [
+            [0.25, 0.25, 0.0, 0.0],
+            [0.5, 0.0, 0.0, 0.0],
+            [1.0, 1.0, 0.0, 0.0],
+        ],
+        None,
+    ))
+    .unwrap();
+    assert!(c.skinned);
+    assert_eq!(c.mesh.report.weights_renormalised, 3);
+    let s = c.mesh.skin.as_ref().unwrap();
+    for w in &s.weights {
+        assert!((w.iter().sum::<f32>() - 1.0).abs() < 1e-6);
+    }
+    // Repeated joints merge: 0.4 + 0.05 on joint 0, 0.1 + 0.05 on joint 1.
+    let c = scene::load(&skinned_gltf(
+        "repeat.gltf",
+        [[0, 1, 0, 1]; 3],
+        [[0.4, 0.1, 0.05, 0.05]; 3],
+        None,
+    ))
+    .unwrap();
+    let (jr, w) = (
+        c.mesh.skin.as_ref().unwrap().joints[0],
+        c.mesh.skin.as_ref().unwrap().weights[0],
+    );
+    assert_eq!(&jr[..2], &[0, 1]);
+    assert!(
+        (w[0] - 0.75).abs() < 1e-6 && (w[1] - 0.25).abs() < 1e-6,
+        "{w:?}"
+    );
+    // Six distinct influences: the four largest are kept and renormalised.
+    let c = scene::load(&skinned_gltf(
+        "six.gltf",
+        [[0, 1, 0, 0]; 3],
+        [[0.3, 0.08, 0.0, 0.0]; 3],
+        Some([[0.25, 0.2, 0.1, 0.05]; 3]),
+    ))
+    .unwrap();
+    assert_eq!(c.mesh.report.influences_truncated, 3);
+    let s = c.mesh.skin.as_ref().unwrap();
+    assert_eq!(s.joints[0], [0, 2, 3, 4]);
+    let kept = 0.3 + 0.25 + 0.2 + 0.1;
+    assert!(
+        (s.weights[0][0] - 0.3 / kept).abs() < 1e-6,
+        "{:?}",
+        s.weights[0]
+    );
+    // Errors.
+    let e = load_err(&skinned_gltf(
+        "negative.gltf",
+        j,
+        [[1.2, -0.2, 0.0, 0.0]; 3],
+        None,
+    ));
+    assert!(e.contains("negative skin weight"), "{e}");
+    let e = load_err(&skinned_gltf("zero.gltf", j, [[0.0; 4]; 3], None));
+    assert!(e.contains("no skin weight"), "{e}");
+    let e = load_err(&skinned_gltf(
+        "badjoint.gltf",
+        [[0, 7, 0, 0]; 3],
+        [[0.5, 0.5, 0.0, 0.0]; 3],
+        None,
+    ));
+    assert!(e.contains("joint 7") && e.contains("6 joints"), "{e}");
+    let e = load_err(&skinned_gltf(
+        "nanweight.gltf",
+        j,
+        [[f32::NAN, 1.0, 0.0, 0.0]; 3],
+        None,
+    ));
+    assert!(e.contains("non-finite skin weight"), "{e}");
+}
+
+#[test]
+fn testwuson_loads_with_skin_and_animations() {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("data/testwuson.glb");
+    let c = scene::load(&path).unwrap_or_else(|e| panic!("{e}; run tools/setup.sh"));
+    assert!(c.skinned);
+    assert_eq!(c.mesh.positions.len(), 3205);
+    assert_eq!(c.rig.joints.len(), 37);
+    let names: Vec<&str> = c.animations.iter().map(|a| a.name.as_str()).collect();
+    assert!(
+        names.iter().any(|n| n.contains("Run")) && names.iter().any(|n| n.contains("Walk")),
+        "{names:?}"
+    );
+    // The rest pose reproduces the bind pose.
+    let m = c.rig.skinning_matrices(None, 0.0);
+    let s = c.mesh.skin.as_ref().unwrap();
+    for (i, p) in c.mesh.positions.iter().enumerate() {
+        let q =
+            vkshade::scene::rig::blend_matrix(&m, s.joints[i], s.weights[i]).transform_point3(*p);
+        assert!(
+            q.distance(*p) < 1e-4,
+            "vertex {i} moves {} in the rest pose",
+            q.distance(*p)
+        );
+    }
+    let e = c.animation("Gallop").unwrap_err().to_string();
+    assert!(e.contains("Wuson_Run"), "{e}");
+}
+
+/// A closed UV sphere of radius 1.
+fn ball() -> Character {
+    let (nu, nv) = (32u32, 16u32);
+    let mut d = scene::MeshData::default();
+    d.positions.push([0.0, 1.0, 0.0]);
+    for j in 1..nv {
+        let th = std::f32::consts::PI * j as f32 / nv as f32;
+        for i in 0..nu {
+            let ph = std::f32::consts::TAU * i as f32 / nu as f32;
+            d.positions
+                .push([th.sin() * ph.cos(), th.cos(), th.sin() * ph.sin()]);
+        }
+    }
+    d.positions.push([0.0, -1.0, 0.0]);
+    let ring = |j: u32, i: u32| 1 + (j - 1) * nu + i % nu;
+    for i in 0..nu {
+        d.triangles.push([0, ring(1, i + 1), ring(1, i)]);
+        d.triangles
+            .push([nu * (nv - 1) + 1, ring(nv - 1, i), ring(nv - 1, i + 1)]);
+    }
+    for j in 1..nv - 1 {
+        for i in 0..nu {
+            d.triangles
+                .push([ring(j, i), ring(j, i + 1), ring(j + 1, i)]);
+            d.triangles
+                .push([ring(j, i + 1), ring(j + 1, i + 1), ring(j + 1, i)]);
+        }
+    }
+    Character::from_static(vkshade::scene::Mesh::from_data(d, Path::new("ball")).unwrap())
+}
+
+#[test]
+fn sphere_tree_of_a_ball_fits_its_volume() {
+    let c = ball();
+    let (tree, fit) = SphereTree::build(
+        &c.mesh,
+        &BuildConfig {
+            samples: 50_000,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    assert_eq!(tree.levels, 4);
+    assert_eq!(tree.spheres.len(), 585);
+    assert_eq!(
+        (tree.used_at(1), tree.used_at(2), tree.used_at(3)),
+        (8, 64, 512)
+    );
+    assert_eq!(fit.samples_from, "volume");
+    // Volume of the unit ball (4.19) recovered by the voxel interior within a few percent.
+    assert!(
+        (fit.mesh_volume - 4.0 / 3.0 * std::f64::consts::PI).abs() < 0.2,
+        "{}",
+        fit.mesh_volume
+    );
+    // Volume-fitted spheres: most of the matter covered, little outside it.
+    let leaves = fit.levels.last().unwrap();
+    assert!(
+        leaves.volume_coverage > 0.7 && leaves.volume_excess < 0.15,
+        "{leaves:?}"
+    );
+    // A child lies near its parent.
+    for n in 1..tree.spheres.len() {
+        let parent = (n - 1) / 8;
+        if parent > 0 {
+            assert!(
+                tree.spheres[n].center.distance(tree.spheres[parent].center)
+                    < 2.0 * tree.spheres[parent].radius
+            );
+        }
+    }
+    // Bounding fit: every vertex covered, parents contain their children.
+    let (btree, bfit) = SphereTree::build(
+        &c.mesh,
+        &BuildConfig {
+            fit: Fit::Bounding,
+            samples: 50_000,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    assert!(
+        bfit.levels.iter().all(|l| l.volume_coverage > 0.999),
+        "{:?}",
+        bfit.levels
+    );
+    for n in 1..btree.spheres.len() {
+        let (c, p) = (btree.spheres[n], btree.spheres[(n - 1) / 8]);
+        assert!(c.center.distance(p.center) + c.radius <= p.radius * 1.0001);
+    }
+}
+
+#[test]
+fn sph_files_round_trip_and_malformed_ones_are_rejected() {
+    let c = ball();
+    let (tree, _) = SphereTree::build(
+        &c.mesh,
+        &BuildConfig {
+            samples: 20_000,
+            depth: 2,
+            branch: 4,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let p = dir().join("ball.sph");
+    tree.write_sph(&p).unwrap();
+    let back = SphereTree::read_sph(&p).unwrap();
+    assert_eq!((back.levels, back.branch), (3, 4));
+    for (a, b) in tree.spheres.iter().zip(&back.spheres) {
+        assert!(a.center.distance(b.center) < 1e-5 && (a.radius - b.radius).abs() < 1e-5);
+    }
+    for (name, text, needle) in [
+        ("short.sph", "4 8\n0 0 0 1 1\n", "need 585 nodes"),
+        ("word.sph", "2 2\n0 0 0 1 1\n0 0 0 x 1\n0 0 0 1 1\n", "'x'"),
+        ("huge.sph", "40 16\n", "expected 2..=8 levels"),
+        ("header.sph", "four 8\n", "not a whole number"),
+        (
+            "noroot.sph",
+            "2 2\n0 0 0 -1 1\n0 0 0 1 1\n0 0 0 1 1\n",
+            "root sphere is unused",
+        ),
+    ] {
+        let path = write(name, text.as_bytes());
+        let e = SphereTree::read_sph(&path).unwrap_err().to_string();
+        assert!(e.contains(needle) && e.contains(name), "{name}: {e}");
+    }
+}
