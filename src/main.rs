@@ -79,9 +79,12 @@ struct AoArgs {
     /// Use this .sph sphere tree (Dublin toolkit format) instead of building one.
     #[arg(long)]
     tree: Option<PathBuf>,
-    /// Refine a tree node when radius / distance > tau (0 < tau <= 1; smaller = finer cut).
-    #[arg(long, default_value_t = 0.5)]
+    /// Refine a tree node when size / distance > tau (0 < tau <= 1; smaller = finer cut).
+    #[arg(long, default_value_t = 0.8)]
     tau: f32,
+    /// A node's size for refinement: `extent` (reach of its skinned leaves) or `radius`.
+    #[arg(long, default_value = "extent")]
+    refine: vkshade::kernels::ao::Refine,
     /// Per-sphere occlusion: `table` (2D lookup) or `exact` (closed form).
     #[arg(long, default_value = "table")]
     occlusion: vkshade::kernels::ao::Occlusion,
@@ -504,6 +507,7 @@ fn cmd_ao(g: &Global, a: &AoArgs, demo: bool) -> Result<()> {
         build: a.tree_opts.config(),
         params: vkshade::kernels::ao::AoParams {
             tau: a.tau,
+            refine: a.refine,
             occlusion: a.occlusion,
             blend: a.blend,
             clamp_inside: a.clamp_inside,

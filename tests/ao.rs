@@ -85,6 +85,7 @@ fn gpu_frame(
 fn plain(occlusion: Occlusion, blend: Blend) -> AoParams {
     AoParams {
         tau: 1.0,
+        refine: vkshade::kernels::ao::Refine::Radius,
         occlusion,
         blend,
         clamp_inside: false,
@@ -242,8 +243,15 @@ fn gpu_matches_the_cpu_implementation_on_testwuson() {
         .into_iter()
         .enumerate()
         {
+            // Both refinement tests, each with two modes.
+            let refine = if k % 2 == 0 {
+                vkshade::kernels::ao::Refine::Extent
+            } else {
+                vkshade::kernels::ao::Refine::Radius
+            };
             let params = AoParams {
                 tau,
+                refine,
                 occlusion,
                 blend,
                 clamp_inside: k == 2,

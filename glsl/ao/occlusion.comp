@@ -2,8 +2,11 @@
 // Per-vertex ambient visibility from a cut through a skinned sphere tree.
 //
 // Cut: preorder walk of the implicit B-ary tree (children of n: n*B+1 .. n*B+B), starting at
-// level 1. An inner node is refined when radius > tau * distance; otherwise it (or a leaf)
-// contributes, so a parent and its children never both count. A receiver inside a leaf
+// level 1. An inner node is refined when size > tau * distance, where size is its radius
+// (REFINE = 0, the published test) or its extent, the reach of its skinned leaves
+// (REFINE = 1: an elongated cluster, an arm, is refined when its leaves come near, not when
+// its compact volume sphere does); otherwise it (or a leaf) contributes, so a parent and its
+// children never both count. A receiver inside a leaf
 // sphere either skips it or clamps h to 1 (CLAMP_INSIDE).
 //
 // Per sphere: the exact formula or a bilinear lookup in the (solid angle, angle) table.
@@ -25,6 +28,7 @@ layout(constant_id = 0) const bool EXACT = false;       // closed form instead o
 layout(constant_id = 1) const uint BLEND = 2u;          // 0 product, 1 sum, 2 cone-mask union
 layout(constant_id = 2) const bool CLAMP_INSIDE = false; // receiver inside a leaf: clamp h to 1
 layout(constant_id = 3) const bool CORRECT = true;      // apply the static correction
+layout(constant_id = 4) const uint REFINE = 1u;         // 0 radius, 1 extent
 
 layout(push_constant) uniform Push {
     uint vertex_count;
@@ -43,6 +47,7 @@ layout(std430, set = 0, binding = 3) readonly buffer Table { float v[]; } table;
 layout(std430, set = 0, binding = 4) readonly buffer Correction { float c[]; } correction;
 layout(std430, set = 0, binding = 5) writeonly buffer Visibility { float v[]; } ao;
 layout(std430, set = 0, binding = 6) writeonly buffer Stats { uvec2 tested_used[]; } stats;
+layout(std430, set = 0, binding = 7) readonly buffer Extents { float e[]; } ext;
 
 const uint BLEND_PRODUCT = 0u;
 const uint BLEND_SUM = 1u;
@@ -89,7 +94,8 @@ void main() {
             vec3 dv = s.xyz - p;
             float d = length(dv);
             bool leaf = node >= pc.first_leaf;
-            if (!leaf && s.w > pc.tau * d) {
+            float size = REFINE == 1u ? ext.e[node] : s.w;
+            if (!leaf && size > pc.tau * d) {
                 descend = true;
             } else if (d > s.w || CLAMP_INSIDE) {
                 float h = d / s.w;

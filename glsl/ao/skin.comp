@@ -1,10 +1,17 @@
 #version 450
 // Linear-blend skinning of the mesh vertices (position and normal) and of the sphere-tree
 // centres (radii are rigid): invocations [0, vertex_count) skin vertices, the next
-// sphere_count invocations skin spheres.
+// sphere_count invocations skin spheres. Each node also gets its extent: the farthest reach
+// of its skinned leaf spheres from its own skinned centre (a leaf's extent is its radius),
+// computed by the node itself so that no second pass is needed.
 layout(local_size_x = 64) in;
 
-layout(push_constant) uniform Push { uint vertex_count; uint sphere_count; } pc;
+layout(push_constant) uniform Push {
+    uint vertex_count;
+    uint sphere_count;
+    uint branch;
+    uint first_leaf;
+} pc;
 
 layout(std430, set = 0, binding = 0) readonly buffer Joints { mat4 m[]; } joints;
 layout(std430, set = 0, binding = 1) readonly buffer RestPositions { vec4 p[]; } rest_pos;
@@ -17,6 +24,7 @@ layout(std430, set = 0, binding = 7) readonly buffer SphereWeights { vec4 w[]; }
 layout(std430, set = 0, binding = 8) writeonly buffer Positions { vec4 p[]; } pos;
 layout(std430, set = 0, binding = 9) writeonly buffer Normals { vec4 n[]; } nrm;
 layout(std430, set = 0, binding = 10) writeonly buffer Spheres { vec4 s[]; } sph;
+layout(std430, set = 0, binding = 11) writeonly buffer Extents { float e[]; } ext;
 
 mat4 blend(uvec2 packed, vec4 w) {
     uvec4 j = uvec4(packed.x & 0xffffu, packed.x >> 16, packed.y & 0xffffu, packed.y >> 16);
@@ -41,9 +49,28 @@ void main() {
         vec4 rest = rest_sph.s[s];
         if (rest.w < 0.0) {
             sph.s[s] = rest; // unused slot stays unused
-        } else {
-            mat4 m = blend(sjoints.j[s], sweights.w[s]);
-            sph.s[s] = vec4((m * vec4(rest.xyz, 1.0)).xyz, rest.w);
+            ext.e[s] = rest.w;
+            return;
         }
+        mat4 m = blend(sjoints.j[s], sweights.w[s]);
+        vec3 c = (m * vec4(rest.xyz, 1.0)).xyz;
+        sph.s[s] = vec4(c, rest.w);
+        float extent = rest.w;
+        if (s < pc.first_leaf) {
+            // Leaf descendants of s: [s * B^k + (B^k - 1) / (B - 1), + B^k), k levels down.
+            uint first = s;
+            uint count = 1u;
+            while (first < pc.first_leaf) {
+                first = first * pc.branch + 1u;
+                count *= pc.branch;
+            }
+            for (uint l = first; l < first + count; ++l) {
+                vec4 leaf = rest_sph.s[l];
+                if (leaf.w < 0.0) continue;
+                vec3 lc = (blend(sjoints.j[l], sweights.w[l]) * vec4(leaf.xyz, 1.0)).xyz;
+                extent = max(extent, distance(lc, c) + leaf.w);
+            }
+        }
+        ext.e[s] = extent;
     }
 }

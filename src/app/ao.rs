@@ -258,16 +258,17 @@ fn decompose(
         .par_iter()
         .map(|&i| {
             let (p, n) = (posed.positions[i], posed.normals[i]);
-            let with_table = cpu_ao
-                .vertex(p, n, &posed.spheres, prep.shape, &plain)
-                .visibility;
-            let with_exact = cpu_ao
-                .vertex(p, n, &posed.spheres, prep.shape, &exact)
-                .visibility;
+            let with_table = cpu_ao.vertex(p, n, posed, prep.shape, &plain).visibility;
+            let with_exact = cpu_ao.vertex(p, n, posed, prep.shape, &exact).visibility;
             let mut cut = Vec::new();
-            cpu::walk_cut(p, &posed.spheres, prep.shape, &exact, |node, _, _| {
-                cut.push(posed.spheres[node as usize])
-            });
+            cpu::walk_cut(
+                p,
+                &posed.spheres,
+                &posed.extents,
+                prep.shape,
+                &exact,
+                |node, _, _| cut.push(posed.spheres[node as usize]),
+            );
             let union_cut = spheres_visibility(p, n, i, &cut, &cfg);
             let leaves: Vec<Vec4> = posed.spheres[first_leaf..]
                 .iter()

@@ -3,7 +3,7 @@
 //! GPU is tested against (tight bound) and the CPU baseline of `bench ao`.
 
 use super::formula::{OcclusionTable, mask_directions, sphere_occlusion};
-use super::{AoParams, Blend, Occlusion, Prepared};
+use super::{AoParams, Blend, Occlusion, Prepared, Refine};
 use crate::geom::orthonormal_basis;
 use glam::{Mat4, Vec3, Vec4};
 use rayon::prelude::*;
@@ -15,6 +15,8 @@ pub struct Posed {
     pub normals: Vec<Vec3>,
     /// (centre, radius); radius < 0: unused.
     pub spheres: Vec<Vec4>,
+    /// Per node: the farthest reach of its leaf spheres from its centre (leaves: radius).
+    pub extents: Vec<f32>,
 }
 
 fn blend(matrices: &[Mat4], packed: [u32; 2], w: [f32; 4]) -> Mat4 {
@@ -46,24 +48,42 @@ pub fn skin(prep: &Prepared, matrices: &[Mat4]) -> Posed {
             (p, if len > 0.0 { n / len } else { rest_n })
         })
         .unzip();
-    let spheres = prep
-        .spheres
-        .iter()
-        .enumerate()
-        .map(|(s, rest)| {
-            let rest = Vec4::from_array(*rest);
+    let skin_centre = |s: usize| {
+        let rest = Vec4::from_array(prep.spheres[s]);
+        blend(matrices, prep.sphere_joints[s], prep.sphere_weights[s])
+            .transform_point3(rest.truncate())
+    };
+    let (b, first_leaf) = (prep.shape.branch as usize, prep.shape.first_leaf as usize);
+    let (spheres, extents): (Vec<Vec4>, Vec<f32>) = (0..prep.spheres.len())
+        .map(|s| {
+            let rest = Vec4::from_array(prep.spheres[s]);
             if rest.w < 0.0 {
-                rest
-            } else {
-                let m = blend(matrices, prep.sphere_joints[s], prep.sphere_weights[s]);
-                m.transform_point3(rest.truncate()).extend(rest.w)
+                return (rest, rest.w);
             }
+            let c = skin_centre(s);
+            let mut extent = rest.w;
+            if s < first_leaf {
+                // Leaf descendants of s, as the shader finds them.
+                let (mut first, mut count) = (s, 1usize);
+                while first < first_leaf {
+                    first = first * b + 1;
+                    count *= b;
+                }
+                for l in first..first + count {
+                    let leaf = Vec4::from_array(prep.spheres[l]);
+                    if leaf.w >= 0.0 {
+                        extent = extent.max(skin_centre(l).distance(c) + leaf.w);
+                    }
+                }
+            }
+            (c.extend(rest.w), extent)
         })
-        .collect();
+        .unzip();
     Posed {
         positions,
         normals,
         spheres,
+        extents,
     }
 }
 
@@ -80,6 +100,7 @@ pub struct TreeShape {
 pub fn walk_cut(
     p: Vec3,
     spheres: &[Vec4],
+    extents: &[f32],
     shape: TreeShape,
     params: &AoParams,
     mut contribute: impl FnMut(u32, Vec3, f32),
@@ -95,7 +116,11 @@ pub fn walk_cut(
             let dv = s.truncate() - p;
             let d = dv.length();
             let leaf = node >= shape.first_leaf;
-            if !leaf && s.w > params.tau * d {
+            let size = match params.refine {
+                Refine::Radius => s.w,
+                Refine::Extent => extents[node as usize],
+            };
+            if !leaf && size > params.tau * d {
                 descend = true;
             } else if d > s.w || params.clamp_inside {
                 contribute(node, dv, d);
@@ -146,10 +171,11 @@ impl CpuAo {
         &self,
         p: Vec3,
         n: Vec3,
-        spheres: &[Vec4],
+        posed: &Posed,
         shape: TreeShape,
         params: &AoParams,
     ) -> VertexAo {
+        let spheres = &posed.spheres;
         let (t, b) = orthonormal_basis(n);
         let mut product = 1.0f32;
         let mut sum_all = 0.0f32;
@@ -157,7 +183,7 @@ impl CpuAo {
         let mut count_sum = 0u32;
         let mut uni = [0u32; 4];
         let mut used = 0;
-        let tested = walk_cut(p, spheres, shape, params, |node, dv, d| {
+        let tested = walk_cut(p, spheres, &posed.extents, shape, params, |node, dv, d| {
             let r = spheres[node as usize].w;
             let h = d / r;
             let cos_t = if d > 0.0 { n.dot(dv) / d } else { 1.0 };
@@ -223,7 +249,7 @@ impl CpuAo {
             .zip(&posed.normals)
             .enumerate()
             .map(|(i, (&p, &n))| {
-                let mut v = self.vertex(p, n, &posed.spheres, shape, params);
+                let mut v = self.vertex(p, n, posed, shape, params);
                 if params.correct
                     && let Some(c) = correction
                 {

@@ -63,11 +63,35 @@ impl std::str::FromStr for Blend {
     }
 }
 
-/// Method parameters (push constants: changing them needs no new pipeline).
+/// How the cut decides to refine an inner node: when size > tau * distance.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub enum Refine {
+    /// size = the node's radius (the published test).
+    Radius,
+    /// size = the node's extent: the farthest reach of its skinned leaves from its centre.
+    /// An elongated cluster (an arm) is refined when its leaves come near, not only when its
+    /// compact sphere does.
+    Extent,
+}
+
+impl std::str::FromStr for Refine {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        match s {
+            "radius" => Ok(Refine::Radius),
+            "extent" => Ok(Refine::Extent),
+            _ => Err(format!("unknown refinement '{s}' (radius or extent)")),
+        }
+    }
+}
+
+/// Method parameters. tau is a push constant; the modes are specialization constants of
+/// the occlusion pipeline (see [`AoKernel::set_params`]).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct AoParams {
-    /// Refine an inner node when radius / distance > tau; in (0, 1].
+    /// Refine an inner node when size / distance > tau; in (0, 1].
     pub tau: f32,
+    pub refine: Refine,
     pub occlusion: Occlusion,
     pub blend: Blend,
     /// A receiver inside a leaf sphere: clamp h to 1 (true) or skip that sphere (false).
@@ -79,7 +103,8 @@ pub struct AoParams {
 impl Default for AoParams {
     fn default() -> Self {
         AoParams {
-            tau: 0.5,
+            tau: 0.8,
+            refine: Refine::Extent,
             occlusion: Occlusion::Table,
             blend: Blend::Mask,
             clamp_inside: false,
@@ -100,7 +125,7 @@ impl AoParams {
     }
 
     /// The occlusion pipeline's specialization constants for these parameters.
-    fn specialization(&self) -> [(&'static str, u32); 4] {
+    fn specialization(&self) -> [(&'static str, u32); 5] {
         [
             ("EXACT", (self.occlusion == Occlusion::Exact) as u32),
             (
@@ -113,6 +138,7 @@ impl AoParams {
             ),
             ("CLAMP_INSIDE", self.clamp_inside as u32),
             ("CORRECT", self.correct as u32),
+            ("REFINE", (self.refine == Refine::Extent) as u32),
         ]
     }
 }
@@ -242,6 +268,7 @@ pub struct AoKernel {
     positions: Buffer,
     normals: Buffer,
     spheres: Buffer,
+    extents: Buffer,
     visibility: Buffer,
     stats: Buffer,
     vertex_count: u32,
@@ -302,6 +329,7 @@ impl AoKernel {
         let positions = output("ao posed positions", nv * 16)?;
         let normals = output("ao posed normals", nv * 16)?;
         let spheres = output("ao posed spheres", ns * 16)?;
+        let extents = output("ao posed extents", ns * 4)?;
         let visibility = output("ao visibility", nv * 4)?;
         let stats = output("ao stats", nv * 8)?;
         let skin_bind = skin.bind(&[
@@ -316,6 +344,7 @@ impl AoKernel {
             ("pos", Resource::Buffer(&positions)),
             ("nrm", Resource::Buffer(&normals)),
             ("sph", Resource::Buffer(&spheres)),
+            ("ext", Resource::Buffer(&extents)),
         ])?;
         let (occlusion, occlusion_bind) = Self::occlusion_pipeline(
             ctx,
@@ -329,6 +358,7 @@ impl AoKernel {
                 &correction,
                 &visibility,
                 &stats,
+                &extents,
             ],
         )?;
         Ok(AoKernel {
@@ -346,6 +376,7 @@ impl AoKernel {
             positions,
             normals,
             spheres,
+            extents,
             visibility,
             stats,
             vertex_count: nv as u32,
@@ -357,12 +388,12 @@ impl AoKernel {
     }
 
     /// The occlusion pipeline specialised for `params`, and its bindings (in the order
-    /// positions, normals, spheres, table, correction, visibility, stats).
+    /// positions, normals, spheres, table, correction, visibility, stats, extents).
     fn occlusion_pipeline(
         ctx: &Context,
         shader: &crate::gpu::Shader,
         params: &AoParams,
-        b: [&Buffer; 7],
+        b: [&Buffer; 8],
     ) -> Result<(ComputePipeline, BindGroup)> {
         let pipeline = ComputePipeline::specialized(ctx, shader, &params.specialization())?;
         let bind = pipeline.bind(&[
@@ -373,6 +404,7 @@ impl AoKernel {
             ("correction", Resource::Buffer(b[4])),
             ("ao", Resource::Buffer(b[5])),
             ("stats", Resource::Buffer(b[6])),
+            ("ext", Resource::Buffer(b[7])),
         ])?;
         Ok((pipeline, bind))
     }
@@ -405,6 +437,7 @@ impl AoKernel {
                     &self.correction,
                     &self.visibility,
                     &self.stats,
+                    &self.extents,
                 ],
             )?;
             self.occlusion = p;
@@ -459,7 +492,12 @@ impl AoKernel {
         )]);
         rec.begin_pass("ao skin");
         let ns = self.shape.node_count;
-        let push = [self.vertex_count, ns];
+        let push = [
+            self.vertex_count,
+            ns,
+            self.shape.branch,
+            self.shape.first_leaf,
+        ];
         rec.dispatch_invocations(
             &self.skin,
             &self.skin_bind,
@@ -554,6 +592,7 @@ impl AoKernel {
             &self.positions,
             &self.normals,
             &self.spheres,
+            &self.extents,
             &self.visibility,
             &self.stats,
         ];
@@ -610,23 +649,8 @@ impl Correction {
 
     /// Factors for `params`: the method evaluated (on the CPU) in the bind pose.
     pub fn factors(&self, cpu_ao: &cpu::CpuAo, prep: &Prepared, params: &AoParams) -> Vec<f32> {
-        let bind = cpu::Posed {
-            positions: prep
-                .positions
-                .iter()
-                .map(|p| glam::Vec4::from_array(*p).truncate())
-                .collect(),
-            normals: prep
-                .normals
-                .iter()
-                .map(|n| glam::Vec4::from_array(*n).truncate())
-                .collect(),
-            spheres: prep
-                .spheres
-                .iter()
-                .map(|s| glam::Vec4::from_array(*s))
-                .collect(),
-        };
+        // The bind pose: identity joint matrices (weights sum to 1).
+        let bind = cpu::skin(prep, &vec![glam::Mat4::IDENTITY; prep.joint_count]);
         let plain = AoParams {
             correct: false,
             ..*params
