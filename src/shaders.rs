@@ -191,6 +191,23 @@ pub fn generated_includes() -> Vec<(&'static str, String)> {
     vec![("common/ao_mask.glsl", s)]
 }
 
+/// Compares `path` with `wanted`; with `write`, rewrites it when it differs.
+fn sync_file(path: &Path, wanted: &[u8], write: bool) -> Result<ModuleState> {
+    Ok(match std::fs::read(path) {
+        Ok(existing) if existing == wanted => ModuleState::Fresh,
+        existing => {
+            if write {
+                write_atomic(path, wanted)?;
+                ModuleState::Updated
+            } else if existing.is_ok() {
+                ModuleState::Stale
+            } else {
+                ModuleState::Missing
+            }
+        }
+    })
+}
+
 /// Compiles every glsl/**/*.comp under `root` and compares with spv/. With `write`, stale or
 /// missing modules are rewritten and orphans deleted; otherwise they are only reported.
 pub fn build_all(root: &Path, write: bool) -> Result<Vec<ModuleStatus>> {
@@ -198,23 +215,9 @@ pub fn build_all(root: &Path, write: bool) -> Result<Vec<ModuleStatus>> {
     let spv = root.join("spv");
     let mut statuses = Vec::new();
     for (rel, content) in generated_includes() {
-        let path = glsl.join(rel);
-        let state = match std::fs::read_to_string(&path) {
-            Ok(existing) if existing == content => ModuleState::Fresh,
-            existing => {
-                if write {
-                    write_atomic(&path, content.as_bytes())?;
-                    ModuleState::Updated
-                } else if existing.is_ok() {
-                    ModuleState::Stale
-                } else {
-                    ModuleState::Missing
-                }
-            }
-        };
         statuses.push(ModuleStatus {
             name: format!("glsl/{rel} (generated)"),
-            state,
+            state: sync_file(&glsl.join(rel), content.as_bytes(), write)?,
         });
     }
     let names = source_modules(root)?;
@@ -222,22 +225,9 @@ pub fn build_all(root: &Path, write: bool) -> Result<Vec<ModuleStatus>> {
         let src = glsl.join(format!("{name}.comp"));
         let out = spv.join(format!("{name}.spv"));
         let compiled = compile_glsl(&src, &glsl)?;
-        let state = match std::fs::read(&out) {
-            Ok(existing) if existing == compiled => ModuleState::Fresh,
-            existing => {
-                if write {
-                    write_atomic(&out, &compiled)?;
-                    ModuleState::Updated
-                } else if existing.is_ok() {
-                    ModuleState::Stale
-                } else {
-                    ModuleState::Missing
-                }
-            }
-        };
         statuses.push(ModuleStatus {
             name: name.clone(),
-            state,
+            state: sync_file(&out, &compiled, write)?,
         });
     }
     let mut spv_files = Vec::new();

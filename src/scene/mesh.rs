@@ -231,6 +231,50 @@ pub fn area_weighted_normals(positions: &[Vec3], triangles: &[[u32; 3]]) -> Vec<
         .collect()
 }
 
+/// The result of [`four_largest`].
+#[derive(Clone, Copy, Debug)]
+pub struct FourLargest {
+    pub joints: [u16; 4],
+    /// Summing to 1.
+    pub weights: [f32; 4],
+    /// Distinct joints with positive weight before truncation.
+    pub distinct: usize,
+    /// Sum of the kept weights before renormalisation.
+    pub kept_sum: f32,
+}
+
+/// The four largest influences (repeated joints merged, non-positive weights ignored),
+/// renormalised to sum to 1. With no positive weight: joint 0 with weight 1.
+pub fn four_largest(influences: impl IntoIterator<Item = (u16, f32)>) -> FourLargest {
+    let mut merged: Vec<(u16, f32)> = Vec::new();
+    for (j, w) in influences {
+        if w > 0.0 {
+            match merged.iter_mut().find(|e| e.0 == j) {
+                Some(e) => e.1 += w,
+                None => merged.push((j, w)),
+            }
+        }
+    }
+    let distinct = merged.len();
+    merged.sort_by(|a, b| b.1.total_cmp(&a.1));
+    merged.truncate(4);
+    let kept_sum: f32 = merged.iter().map(|e| e.1).sum();
+    let mut out = FourLargest {
+        joints: [0; 4],
+        weights: [1.0, 0.0, 0.0, 0.0],
+        distinct,
+        kept_sum,
+    };
+    if kept_sum > 0.0 {
+        out.weights = [0.0; 4];
+        for (k, (j, w)) in merged.iter().enumerate() {
+            out.joints[k] = *j;
+            out.weights[k] = w / kept_sum;
+        }
+    }
+    out
+}
+
 fn normalise_influences(
     inf: &[Vec<(u32, f32)>],
     joint_count: usize,
@@ -239,8 +283,8 @@ fn normalise_influences(
     let mut joints = Vec::with_capacity(inf.len());
     let mut weights = Vec::with_capacity(inf.len());
     for (v, list) in inf.iter().enumerate() {
-        let mut list: Vec<(u32, f32)> = Vec::with_capacity(list.len());
-        for &(j, w) in &inf[v] {
+        let mut valid: Vec<(u16, f32)> = Vec::with_capacity(list.len());
+        for &(j, w) in list {
             if !w.is_finite() {
                 return Err(format!("vertex {v} has a non-finite skin weight"));
             }
@@ -255,32 +299,21 @@ fn normalise_influences(
                     "vertex {v} is weighted to joint {j}, but the skin has {joint_count} joints"
                 ));
             }
-            // Merge repeated joints.
-            match list.iter_mut().find(|(jj, _)| *jj == j) {
-                Some(e) => e.1 += w,
-                None => list.push((j, w)),
-            }
+            valid.push((j as u16, w));
         }
-        if list.is_empty() {
+        if valid.is_empty() {
             return Err(format!(
                 "vertex {v} has no skin weight (all weights are zero)"
             ));
         }
-        list.sort_by(|a, b| b.1.total_cmp(&a.1));
-        if list.len() > 4 {
+        let top = four_largest(valid);
+        if top.distinct > 4 {
             report.influences_truncated += 1;
-            list.truncate(4);
         }
-        let sum: f32 = list.iter().map(|e| e.1).sum();
-        if (sum - 1.0).abs() > 1e-4 {
+        if (top.kept_sum - 1.0).abs() > 1e-4 {
             report.weights_renormalised += 1;
         }
-        let mut j4 = [0u16; 4];
-        let mut w4 = [0f32; 4];
-        for (k, (j, w)) in list.iter().enumerate() {
-            j4[k] = *j as u16;
-            w4[k] = w / sum;
-        }
+        let (j4, w4) = (top.joints, top.weights);
         joints.push(j4);
         weights.push(w4);
     }
@@ -328,25 +361,11 @@ impl Mesh {
                     uv.push((uv[ia] + uv[ib]) * 0.5);
                 }
                 if let Some(s) = skin.as_mut() {
-                    let mut acc: Vec<(u16, f32)> = Vec::new();
-                    for v in [ia, ib] {
-                        for k in 0..4 {
-                            let (j, w) = (s.joints[v][k], s.weights[v][k] * 0.5);
-                            match acc.iter_mut().find(|e| e.0 == j) {
-                                Some(e) => e.1 += w,
-                                None => acc.push((j, w)),
-                            }
-                        }
-                    }
-                    acc.sort_by(|x, y| y.1.total_cmp(&x.1));
-                    acc.truncate(4);
-                    let sum: f32 = acc.iter().map(|e| e.1).sum::<f32>().max(1e-30);
-                    let mut j4 = [0u16; 4];
-                    let mut w4 = [0f32; 4];
-                    for (k, (j, w)) in acc.iter().enumerate() {
-                        j4[k] = *j;
-                        w4[k] = w / sum;
-                    }
+                    let sk: &SkinWeights = s;
+                    let top = four_largest([ia, ib].into_iter().flat_map(|v| {
+                        (0..4).map(move |k| (sk.joints[v][k], 0.5 * sk.weights[v][k]))
+                    }));
+                    let (j4, w4) = (top.joints, top.weights);
                     s.joints.push(j4);
                     s.weights.push(w4);
                 }

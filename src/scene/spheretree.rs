@@ -17,7 +17,7 @@
 //! A mesh with no interior (open surfaces) falls back to clustering surface samples with
 //! bounding spheres, which the report states.
 
-use super::mesh::Mesh;
+use super::mesh::{Mesh, four_largest};
 use crate::error::{Error, Result};
 use crate::geom::{Bvh, Rng};
 use glam::Vec3;
@@ -253,57 +253,37 @@ impl SphereTree {
         let Some(skin) = &mesh.skin else {
             return;
         };
-        let joint_count = skin
-            .joints
-            .iter()
-            .flatten()
-            .map(|&j| j as usize + 1)
-            .max()
-            .unwrap_or(1);
-        let result: Vec<([u16; 4], [f32; 4])> = self
-            .spheres
-            .par_iter()
-            .map(|s| {
-                if !s.used() {
-                    return ([0; 4], [1.0, 0.0, 0.0, 0.0]);
-                }
-                let mut covered: Vec<usize> = mesh
-                    .positions
-                    .iter()
-                    .enumerate()
-                    .filter(|(_, p)| p.distance(s.center) <= s.radius + slack)
-                    .map(|(i, _)| i)
-                    .collect();
-                if covered.is_empty() {
-                    let mut by_dist: Vec<(f32, usize)> = mesh
+        let result: Vec<([u16; 4], [f32; 4])> =
+            self.spheres
+                .par_iter()
+                .map(|s| {
+                    if !s.used() {
+                        return ([0; 4], [1.0, 0.0, 0.0, 0.0]);
+                    }
+                    let mut covered: Vec<usize> = mesh
                         .positions
                         .iter()
                         .enumerate()
-                        .map(|(i, p)| (p.distance_squared(s.center), i))
+                        .filter(|(_, p)| p.distance(s.center) <= s.radius + slack)
+                        .map(|(i, _)| i)
                         .collect();
-                    let k = 8.min(by_dist.len());
-                    by_dist.select_nth_unstable_by(k - 1, |a, b| a.0.total_cmp(&b.0));
-                    covered = by_dist[..k].iter().map(|e| e.1).collect();
-                }
-                let mut acc = vec![0f32; joint_count];
-                for &v in &covered {
-                    for k in 0..4 {
-                        acc[skin.joints[v][k] as usize] += skin.weights[v][k];
+                    if covered.is_empty() {
+                        let mut by_dist: Vec<(f32, usize)> = mesh
+                            .positions
+                            .iter()
+                            .enumerate()
+                            .map(|(i, p)| (p.distance_squared(s.center), i))
+                            .collect();
+                        let k = 8.min(by_dist.len());
+                        by_dist.select_nth_unstable_by(k - 1, |a, b| a.0.total_cmp(&b.0));
+                        covered = by_dist[..k].iter().map(|e| e.1).collect();
                     }
-                }
-                let mut order: Vec<usize> = (0..joint_count).filter(|&j| acc[j] > 0.0).collect();
-                order.sort_by(|&a, &b| acc[b].total_cmp(&acc[a]));
-                order.truncate(4);
-                let sum: f32 = order.iter().map(|&j| acc[j]).sum();
-                let mut j4 = [0u16; 4];
-                let mut w4 = [0f32; 4];
-                for (k, &j) in order.iter().enumerate() {
-                    j4[k] = j as u16;
-                    w4[k] = acc[j] / sum;
-                }
-                (j4, w4)
-            })
-            .collect();
+                    let top = four_largest(covered.iter().flat_map(|&v| {
+                        (0..4).map(move |k| (skin.joints[v][k], skin.weights[v][k]))
+                    }));
+                    (top.joints, top.weights)
+                })
+                .collect();
         self.joints = result.iter().map(|r| r.0).collect();
         self.weights = result.iter().map(|r| r.1).collect();
     }
