@@ -553,17 +553,29 @@ fn specialization_constants_by_name() {
             .iter()
             .map(|c| (c.id, c.name.as_str()))
             .collect();
-        assert_eq!(ids, vec![(0, "FACTOR"), (7, "OFFSET")]);
-        let out = Buffer::new(ctx, BufferDesc::storage("spec out", 4 * 100))?;
-        for (constants, factor, offset) in [
-            (vec![], 2.0f32, 0.5f32),
+        // The workgroup size's constant has no name in the module: it is called id3.
+        assert_eq!(ids, vec![(0, "FACTOR"), (3, "id3"), (7, "OFFSET")]);
+        assert_eq!(
+            (shader.local_size, shader.local_size_spec),
+            ([64, 1, 1], [Some(3), None, None])
+        );
+        let n = 1000u32;
+        let out = Buffer::new(ctx, BufferDesc::storage("spec out", 4 * n as u64))?;
+        for (constants, factor, offset, group) in [
+            (vec![], 2.0f32, 0.5f32, 64),
             (
-                vec![("FACTOR", 5u32), ("OFFSET", 1.25f32.to_bits())],
+                vec![("FACTOR", 5u32), ("OFFSET", 1.25f32.to_bits()), ("id3", 16)],
                 5.0,
                 1.25,
+                16,
             ),
         ] {
             let p = ComputePipeline::specialized(ctx, &shader, &constants)?;
+            assert_eq!(
+                p.local_size(),
+                [group, 1, 1],
+                "the specialised workgroup size is used"
+            );
             let bind = p.bind(&[("outbuf", Resource::Buffer(&out))])?;
             let mut rec = ctx.recorder("spec")?;
             rec.barrier(&[Barrier::buffer(
@@ -571,12 +583,18 @@ fn specialization_constants_by_name() {
                 A::TransferRead,
                 A::ComputeShaderWrite,
             )]);
-            rec.dispatch_invocations(&p, &bind, &100u32.to_le_bytes(), [100, 1, 1])?;
+            rec.dispatch_invocations(&p, &bind, &n.to_le_bytes(), [n, 1, 1])?;
             let rb = rec.read_back(&out, A::ComputeShaderWrite)?;
             rec.submit_and_wait()?;
             let v: Vec<f32> = rb.to_vec()?;
-            assert_eq!(v[37], factor * 37.0 + offset);
+            for (i, x) in v.iter().enumerate() {
+                assert_eq!(*x, factor * i as f32 + offset, "element {i}");
+            }
         }
+        let e = ComputePipeline::specialized(ctx, &shader, &[("id3", 0)]).unwrap_err();
+        assert!(e.to_string().contains("zero dimension"), "{e}");
+        let e = ComputePipeline::specialized(ctx, &shader, &[("id3", 1 << 20)]).unwrap_err();
+        assert!(e.to_string().contains("maxComputeWorkGroup"), "{e}");
         let e = ComputePipeline::specialized(ctx, &shader, &[("SCALE", 1)]).unwrap_err();
         assert!(
             e.to_string()
@@ -586,4 +604,192 @@ fn specialization_constants_by_name() {
         );
         Ok(())
     });
+}
+
+#[test]
+fn readback_dropped_before_submit_is_harmless() {
+    with_gpu(|ctx| {
+        let b = ctx.upload_buffer(BufferDesc::storage("b", 1 << 16), &vec![7u32; 1 << 14])?;
+        let mut rec = ctx.recorder("dropped readback")?;
+        let rb = rec.read_back(&b, A::TransferWrite)?;
+        drop(rb); // the recorded copy still has its staging buffer
+        rec.submit_and_wait()?;
+        Ok(())
+    });
+}
+
+#[test]
+fn bind_group_keeps_its_buffers_alive() {
+    let (x, _) = inputs();
+    with_gpu(|ctx| {
+        let scale =
+            ComputePipeline::from_spirv(ctx, "test/chain_scale", spirv("test/chain_scale")?)?;
+        let xb = ctx.upload_buffer(BufferDesc::storage("x", N as u64 * 4), &x)?;
+        let y = Buffer::new(ctx, BufferDesc::storage("y", N as u64 * 4))?;
+        let bind = scale.bind(&[
+            ("src", Resource::Buffer(&xb)),
+            ("dst", Resource::Buffer(&y)),
+        ])?;
+        drop(xb); // the bind group still holds the buffer it reads
+        let mut rec = ctx.recorder("after drop")?;
+        rec.dispatch_invocations(&scale, &bind, &scale_push(3.0, -1.0, N), [N, 1, 1])?;
+        let rb = rec.read_back(&y, A::ComputeShaderWrite)?;
+        rec.submit_and_wait()?;
+        let got: Vec<f32> = rb.to_vec()?;
+        for i in [0, 1, 777, N as usize - 1] {
+            assert!((got[i] - (3.0 * x[i] - 1.0)).abs() < 1e-6, "element {i}");
+        }
+        Ok(())
+    });
+}
+
+#[test]
+fn copies_out_of_bounds_or_empty_are_refused() {
+    with_gpu(|ctx| {
+        let a = Buffer::new(ctx, BufferDesc::storage("a", 64))?;
+        let b = Buffer::new(ctx, BufferDesc::storage("b", 64))?;
+        let mut rec = ctx.recorder("bad copies")?;
+        for (so, d, size) in [
+            (0u64, 0u64, 0u64),
+            (u64::MAX - 4, 0, 8),
+            (0, 60, 8),
+            (32, 0, 64),
+        ] {
+            let e = rec.copy_buffer(&a, so, &b, d, size).unwrap_err();
+            assert!(e.to_string().contains("empty or out of bounds"), "{e}");
+        }
+        Ok(())
+    });
+}
+
+#[test]
+fn external_device_command_buffer_and_semaphores() {
+    // A renderer's device: here, the handles of a validated context, which stays the owner
+    // and reports every message and leak at its shutdown.
+    let owner = context();
+    let result = (|| -> vkshade::Result<()> {
+        // SAFETY: the owner's handles stay valid until `ext` and everything made from it is
+        // dropped (below, before the owner's shutdown); nothing else submits meanwhile.
+        let ext = unsafe { Context::from_external(owner.external_handles())? };
+        let (x, acc) = inputs();
+        let chain = Chain::new(&ext)?;
+        let device = ext.raw_device().clone();
+
+        // 1. Non-blocking submissions chained by a semaphore of the caller's.
+        // SAFETY: valid device; destroyed below after both submissions completed.
+        let sem = unsafe { device.create_semaphore(&vk::SemaphoreCreateInfo::default(), None) }
+            .map_err(|result| vkshade::Error::Vk {
+                call: "vkCreateSemaphore",
+                result,
+            })?;
+        let signal = [vk::SemaphoreSubmitInfo::default()
+            .semaphore(sem)
+            .stage_mask(vk::PipelineStageFlags2::ALL_COMMANDS)];
+        let wait = [vk::SemaphoreSubmitInfo::default()
+            .semaphore(sem)
+            .stage_mask(vk::PipelineStageFlags2::COMPUTE_SHADER)];
+        let mut first = ext.recorder("first half")?;
+        first.begin_pass("scale 1");
+        first.dispatch_invocations(
+            &chain.scale,
+            &chain.scale_bind,
+            &scale_push(1.5, 0.25, N),
+            [N, 1, 1],
+        )?;
+        first.end_pass();
+        let first = first.submit(&[], &signal)?;
+        let mut second = ext.recorder("second half")?;
+        second.barrier(&[Barrier::buffer(
+            &chain._y,
+            A::ComputeShaderWrite,
+            A::ComputeShaderReadOther,
+        )]);
+        second.dispatch_invocations(&chain.add, &chain.add_bind, &add_push(0.5, N), [N, 1, 1])?;
+        let rb = second.read_back(&chain.acc, A::ComputeShaderWrite)?;
+        let second = second.submit(&wait, &[])?;
+        second.wait()?;
+        assert!(first.is_complete()?);
+        first.wait()?;
+        // SAFETY: both submissions completed.
+        unsafe { device.destroy_semaphore(sem, None) };
+        let got: Vec<f32> = rb.to_vec()?;
+        let want = acc[5] * 0.5 + (1.5 * x[5] + 0.25);
+        assert!((got[5] - want).abs() < 1e-5, "{} vs {want}", got[5]);
+
+        // 2. Recording into the caller's command buffer, which the caller submits.
+        // SAFETY: plain object creation and a one-time submission, all waited for; the
+        // Recorded is kept until the fence has signalled.
+        unsafe {
+            let pool = device
+                .create_command_pool(
+                    &vk::CommandPoolCreateInfo::default().queue_family_index(ext.queue_family()),
+                    None,
+                )
+                .unwrap();
+            let cmds = device
+                .allocate_command_buffers(
+                    &vk::CommandBufferAllocateInfo::default()
+                        .command_pool(pool)
+                        .command_buffer_count(2),
+                )
+                .unwrap();
+            let (cmd, spare) = (cmds[0], cmds[1]);
+            let begin = vk::CommandBufferBeginInfo::default();
+            device.begin_command_buffer(cmd, &begin).unwrap();
+            let mut rec = ext.record_into(cmd, "renderer frame")?;
+            rec.barrier(&[Barrier::buffer(
+                &chain.acc,
+                A::TransferRead,
+                A::ComputeShaderWrite,
+            )]);
+            rec.begin_pass("add in renderer frame");
+            rec.dispatch_invocations(&chain.add, &chain.add_bind, &add_push(1.0, N), [N, 1, 1])?;
+            rec.end_pass();
+            let rb2 = rec.read_back(&chain.acc, A::ComputeShaderWrite)?;
+            let recorded = rec.finish()?;
+            device.end_command_buffer(cmd).unwrap();
+            let fence = device
+                .create_fence(&vk::FenceCreateInfo::default(), None)
+                .unwrap();
+            let infos = [vk::CommandBufferSubmitInfo::default().command_buffer(cmd)];
+            device
+                .queue_submit2(
+                    owner.external_handles().queue,
+                    &[vk::SubmitInfo2::default().command_buffer_infos(&infos)],
+                    fence,
+                )
+                .unwrap();
+            device.wait_for_fences(&[fence], true, u64::MAX).unwrap();
+            let timings = recorded.complete()?;
+            assert!(
+                timings
+                    .get("add in renderer frame")
+                    .is_some_and(|ms| ms > 0.0)
+            );
+            let again: Vec<f32> = rb2.to_vec()?;
+            let want = got[5] + (1.5 * x[5] + 0.25);
+            assert!((again[5] - want).abs() < 1e-5, "{} vs {want}", again[5]);
+            // An external recorder cannot submit itself (checked on a spare command buffer
+            // that is never submitted).
+            device.begin_command_buffer(spare, &begin).unwrap();
+            let e = ext
+                .record_into(spare, "spare")?
+                .submit(&[], &[])
+                .err()
+                .unwrap();
+            assert!(e.to_string().contains("finish()"), "{e}");
+            device.destroy_fence(fence, None);
+            device.destroy_command_pool(pool, None);
+        }
+        drop((chain, rb));
+        let leftover = ext.shutdown()?;
+        assert!(
+            leftover.is_empty(),
+            "an external context collects no messages: {leftover:?}"
+        );
+        Ok(())
+    })();
+    let messages = shutdown(owner);
+    result.unwrap();
+    assert_clean(&messages);
 }

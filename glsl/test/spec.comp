@@ -1,6 +1,7 @@
 #version 450
-// Test kernel for specialization constants: out[i] = FACTOR * i + OFFSET.
-layout(local_size_x = 64) in;
+// Test kernel for specialization constants: out[i] = FACTOR * i + OFFSET, with a workgroup
+// size that can be specialised too (constant id 3, default 64).
+layout(local_size_x = 64, local_size_x_id = 3) in;
 layout(constant_id = 0) const uint FACTOR = 2u;
 layout(constant_id = 7) const float OFFSET = 0.5;
 layout(push_constant) uniform Push { uint n; } pc;

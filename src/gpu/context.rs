@@ -85,6 +85,19 @@ impl ContextDesc {
     }
 }
 
+/// A device created outside vkshade (see [`Context::from_external`]).
+#[derive(Clone)]
+pub struct ExternalDevice {
+    pub entry: ash::Entry,
+    pub instance: ash::Instance,
+    pub physical_device: vk::PhysicalDevice,
+    pub device: ash::Device,
+    pub queue: vk::Queue,
+    pub queue_family: u32,
+    /// Whether the instance has VK_EXT_debug_utils enabled.
+    pub debug_utils: bool,
+}
+
 /// The device limits that matter to the kernels.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct DeviceLimits {
@@ -101,6 +114,7 @@ pub struct DeviceLimits {
     pub max_compute_work_group_count: [u32; 3],
     pub max_bound_descriptor_sets: u32,
     pub min_storage_buffer_offset_alignment: u64,
+    pub min_uniform_buffer_offset_alignment: u64,
     pub subgroup_size: u32,
     /// Nanoseconds per timestamp tick.
     pub timestamp_period_ns: f32,
@@ -246,6 +260,7 @@ fn describe_device(instance: &ash::Instance, pd: vk::PhysicalDevice, index: usiz
             max_compute_work_group_count: l.max_compute_work_group_count,
             max_bound_descriptor_sets: l.max_bound_descriptor_sets,
             min_storage_buffer_offset_alignment: l.min_storage_buffer_offset_alignment,
+            min_uniform_buffer_offset_alignment: l.min_uniform_buffer_offset_alignment,
             subgroup_size: subgroup.subgroup_size,
             timestamp_period_ns: l.timestamp_period,
             timestamp_valid_bits: family.map(|f| f.1).unwrap_or(0),
@@ -345,6 +360,8 @@ pub(crate) struct Shared {
     pub queue_family: u32,
     pub allocator: ManuallyDrop<Mutex<Allocator>>,
     pub validation: bool,
+    /// Whether vkshade created (and so destroys) the instance and device.
+    owned: bool,
 }
 
 impl Shared {
@@ -388,11 +405,13 @@ impl Drop for Shared {
                 }
             }
             ManuallyDrop::drop(&mut self.allocator);
-            self.device.destroy_device(None);
-            if let Some(di) = &self.debug_instance {
-                di.destroy_debug_utils_messenger(self.messenger, None);
+            if self.owned {
+                self.device.destroy_device(None);
+                if let Some(di) = &self.debug_instance {
+                    di.destroy_debug_utils_messenger(self.messenger, None);
+                }
+                self.instance.destroy_instance(None);
             }
-            self.instance.destroy_instance(None);
         }
     }
 }
@@ -612,11 +631,99 @@ impl Context {
             queue_family,
             allocator: ManuallyDrop::new(Mutex::new(allocator)),
             validation: validation.is_some(),
+            owned: true,
         };
         shared.set_name(queue, "vkshade queue");
         Ok(Context {
             shared: Arc::new(shared),
         })
+    }
+
+    /// Wraps a device the caller created (a renderer's), so vkshade's kernels run on it.
+    /// vkshade makes its own allocator on the device and never destroys the instance, the
+    /// device or the queue; [`Context::shutdown`] (or the last resource) only frees what
+    /// vkshade allocated. Validation messages go to the caller's own messenger.
+    ///
+    /// # Safety
+    /// The handles must be valid and stay so until every vkshade object made from this
+    /// context is dropped. The device must be Vulkan 1.3 and created with the
+    /// `synchronization2` and `maintenance4` features, and `queue` must belong to
+    /// `queue_family`, support compute, and not be used by other threads while vkshade
+    /// submits to it (vkshade locks it only against its own submissions). With
+    /// `debug_utils`, the instance must have VK_EXT_debug_utils enabled (object names and
+    /// pass labels are then set).
+    pub unsafe fn from_external(ext: ExternalDevice) -> Result<Context> {
+        let mut info = describe_device(&ext.instance, ext.physical_device, 0);
+        // SAFETY: valid handles (the caller's contract).
+        let families = unsafe {
+            ext.instance
+                .get_physical_device_queue_family_properties(ext.physical_device)
+        };
+        let family = families.get(ext.queue_family as usize).ok_or_else(|| {
+            Error::InvalidArgument(format!("queue family {} does not exist", ext.queue_family))
+        })?;
+        if !family.queue_flags.contains(vk::QueueFlags::COMPUTE) {
+            return Err(Error::InvalidArgument(format!(
+                "queue family {} has no compute support",
+                ext.queue_family
+            )));
+        }
+        info.limits.timestamp_valid_bits = family.timestamp_valid_bits;
+        if let Err(why) = &info.usable {
+            return Err(Error::NoDevice {
+                reason: format!("{} is not usable: {why}", info.name),
+            });
+        }
+        let debug_device = ext
+            .debug_utils
+            .then(|| ash::ext::debug_utils::Device::new(&ext.instance, &ext.device));
+        let mut debug_settings = gpu_allocator::AllocatorDebugSettings::default();
+        debug_settings.log_leaks_on_shutdown = true;
+        let allocator = Allocator::new(&AllocatorCreateDesc {
+            instance: ext.instance.clone(),
+            device: ext.device.clone(),
+            physical_device: ext.physical_device,
+            debug_settings,
+            buffer_device_address: false,
+            allocation_sizes: Default::default(),
+        })
+        .map_err(|source| Error::Alloc {
+            name: "allocator".into(),
+            source,
+        })?;
+        Ok(Context {
+            shared: Arc::new(Shared {
+                _entry: ext.entry,
+                instance: ext.instance,
+                debug_instance: None,
+                messenger: vk::DebugUtilsMessengerEXT::null(),
+                sink: MessageSink::new(Vec::new()),
+                debug_device,
+                physical: ext.physical_device,
+                info,
+                device: ext.device,
+                queue: Mutex::new(ext.queue),
+                queue_family: ext.queue_family,
+                allocator: ManuallyDrop::new(Mutex::new(allocator)),
+                validation: false,
+                owned: false,
+            }),
+        })
+    }
+
+    /// The handles of this context's device, e.g. to share it with another library
+    /// (see [`Context::from_external`]).
+    pub fn external_handles(&self) -> ExternalDevice {
+        let s = &self.shared;
+        ExternalDevice {
+            entry: s._entry.clone(),
+            instance: s.instance.clone(),
+            physical_device: s.physical,
+            device: s.device.clone(),
+            queue: *lock(&s.queue),
+            queue_family: s.queue_family,
+            debug_utils: s.debug_device.is_some(),
+        }
     }
 
     /// Identity and limits of the chosen device.

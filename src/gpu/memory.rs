@@ -57,17 +57,63 @@ impl BufferDesc {
     }
 }
 
-/// A Vulkan buffer with its memory.
-pub struct Buffer {
-    pub(crate) shared: Arc<Shared>,
+/// The Vulkan buffer and its memory. Destroyed when the last holder drops it: the owning
+/// [`Buffer`] and any bind group or recording that uses it.
+pub(crate) struct BufferInner {
+    shared: Arc<Shared>,
     raw: vk::Buffer,
     allocation: Option<Allocation>,
     desc: BufferDesc,
 }
 
+impl BufferInner {
+    /// The mapped bytes of a host-visible buffer.
+    fn mapped(&self) -> Option<&[u8]> {
+        self.allocation
+            .as_ref()
+            .and_then(|a| a.mapped_slice())
+            .map(|s| &s[..self.desc.size as usize])
+    }
+
+    pub(crate) fn name(&self) -> &str {
+        &self.desc.name
+    }
+
+    fn not_mapped(&self) -> Error {
+        Error::InvalidArgument(format!(
+            "buffer '{}' is {:?}, not host-visible; use Context::read_buffer / upload_buffer",
+            self.desc.name, self.desc.memory
+        ))
+    }
+
+    /// Mapped bytes of a host-visible buffer that only the caller reads (readback staging).
+    pub(crate) fn mapped_bytes(&self) -> Result<&[u8]> {
+        self.mapped().ok_or_else(|| self.not_mapped())
+    }
+}
+
+impl Drop for BufferInner {
+    fn drop(&mut self) {
+        // SAFETY: the last holder is gone: no bind group or recording refers to the buffer,
+        // and every submission in vkshade waits for completion. The buffer goes before its
+        // memory, which may be a dedicated block freed with it.
+        unsafe { self.shared.device.destroy_buffer(self.raw, None) };
+        if let Some(a) = self.allocation.take() {
+            let _ = lock(&self.shared.allocator).free(a);
+        }
+    }
+}
+
+/// A Vulkan buffer with its memory (the owning handle; host access goes through it).
+pub struct Buffer {
+    inner: Arc<BufferInner>,
+}
+
 impl std::fmt::Debug for Buffer {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Buffer").field("desc", &self.desc).finish()
+        f.debug_struct("Buffer")
+            .field("desc", &self.inner.desc)
+            .finish()
     }
 }
 
@@ -143,91 +189,81 @@ impl Buffer {
                 .device
                 .bind_buffer_memory(raw, allocation.memory(), allocation.offset())
         };
-        let buffer = Buffer {
+        let inner = Arc::new(BufferInner {
             shared: shared.clone(),
             raw,
             allocation: Some(allocation),
             desc,
-        };
+        });
         bound.vk("vkBindBufferMemory")?;
-        shared.set_name(raw, &buffer.desc.name);
-        Ok(buffer)
+        shared.set_name(raw, &inner.desc.name);
+        Ok(Buffer { inner })
+    }
+
+    /// A reference that keeps the Vulkan buffer alive (for bind groups and recordings).
+    pub(crate) fn keep(&self) -> Arc<BufferInner> {
+        self.inner.clone()
     }
 
     pub fn raw(&self) -> vk::Buffer {
-        self.raw
+        self.inner.raw
     }
 
     pub fn size(&self) -> u64 {
-        self.desc.size
+        self.inner.desc.size
     }
 
     pub fn name(&self) -> &str {
-        &self.desc.name
+        &self.inner.desc.name
     }
 
     pub fn usage(&self) -> vk::BufferUsageFlags {
-        self.desc.usage
+        self.inner.desc.usage
     }
 
     pub fn memory(&self) -> MemoryUsage {
-        self.desc.memory
+        self.inner.desc.memory
     }
 
     /// The mapped bytes of a host-visible buffer (`Upload` or `Readback`).
     pub fn mapped(&self) -> Result<&[u8]> {
-        self.allocation
-            .as_ref()
-            .and_then(|a| a.mapped_slice())
-            .map(|s| &s[..self.desc.size as usize])
-            .ok_or_else(|| self.not_mapped())
+        self.inner.mapped_bytes()
     }
 
     /// The mapped bytes of a host-visible buffer, writable. Host writes are visible to
-    /// commands submitted afterwards (the memory is host-coherent).
+    /// commands submitted afterwards (the memory is host-coherent); synchronising with work
+    /// already submitted is the caller's part, as in Vulkan.
     pub fn mapped_mut(&mut self) -> Result<&mut [u8]> {
-        let size = self.desc.size as usize;
-        let err = self.not_mapped();
-        self.allocation
-            .as_mut()
-            .and_then(|a| a.mapped_slice_mut())
-            .map(|s| &mut s[..size])
-            .ok_or(err)
+        let size = self.inner.desc.size as usize;
+        let ptr = self
+            .inner
+            .allocation
+            .as_ref()
+            .and_then(|a| a.mapped_ptr())
+            .ok_or_else(|| self.inner.not_mapped())?;
+        // SAFETY: the mapping covers `size` bytes and lives as long as the allocation, which
+        // `self.inner` keeps. `Buffer` is the only handle through which the host reads or
+        // writes the mapping (bind groups and recordings hold the object, never the bytes),
+        // and `&mut self` makes this borrow exclusive among them.
+        Ok(unsafe { std::slice::from_raw_parts_mut(ptr.as_ptr().cast::<u8>(), size) })
     }
 
     /// Copies `data` into a host-visible buffer at byte `offset`.
     pub fn write<T: bytemuck::Pod>(&mut self, offset: u64, data: &[T]) -> Result<()> {
         let bytes: &[u8] = bytemuck::cast_slice(data);
-        let end = offset + bytes.len() as u64;
-        if end > self.desc.size {
-            return Err(Error::InvalidArgument(format!(
-                "write of {} bytes at offset {offset} overruns buffer '{}' of {} bytes",
-                bytes.len(),
-                self.desc.name,
-                self.desc.size
-            )));
-        }
+        let size = self.size();
+        let end = offset
+            .checked_add(bytes.len() as u64)
+            .filter(|&end| end <= size)
+            .ok_or_else(|| {
+                Error::InvalidArgument(format!(
+                    "write of {} bytes at offset {offset} overruns buffer '{}' of {size} bytes",
+                    bytes.len(),
+                    self.name(),
+                ))
+            })?;
         self.mapped_mut()?[offset as usize..end as usize].copy_from_slice(bytes);
         Ok(())
-    }
-
-    fn not_mapped(&self) -> Error {
-        Error::InvalidArgument(format!(
-            "buffer '{}' is {:?}, not host-visible; use Context::read_buffer / upload_buffer",
-            self.desc.name, self.desc.memory
-        ))
-    }
-}
-
-impl Drop for Buffer {
-    fn drop(&mut self) {
-        // SAFETY: callers must not drop a buffer that pending GPU work still uses; every
-        // submission in vkshade waits for completion before returning. The buffer goes
-        // before its memory, which may be a dedicated block freed with it.
-        unsafe { self.shared.device.destroy_buffer(self.raw, None) };
-        if let Some(a) = self.allocation.take() {
-            let _ = lock(&self.shared.allocator).free(a);
-        }
     }
 }
 
@@ -291,18 +327,25 @@ pub fn texel_size(format: vk::Format) -> Option<u64> {
     })
 }
 
-/// A Vulkan image with one view over all of it.
-pub struct Image {
-    pub(crate) shared: Arc<Shared>,
+/// The Vulkan image, its view and memory; destroyed when the last holder drops it.
+pub(crate) struct ImageInner {
+    shared: Arc<Shared>,
     raw: vk::Image,
     view: vk::ImageView,
     allocation: Option<Allocation>,
     desc: ImageDesc,
 }
 
+/// A Vulkan image with one view over all of it (the owning handle).
+pub struct Image {
+    inner: Arc<ImageInner>,
+}
+
 impl std::fmt::Debug for Image {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Image").field("desc", &self.desc).finish()
+        f.debug_struct("Image")
+            .field("desc", &self.inner.desc)
+            .finish()
     }
 }
 
@@ -401,7 +444,7 @@ impl Image {
                 });
             }
         };
-        let mut image = Image {
+        let mut image = ImageInner {
             shared: shared.clone(),
             raw,
             view: vk::ImageView::null(),
@@ -416,44 +459,45 @@ impl Image {
             .image(raw)
             .view_type(image.desc.view_type())
             .format(image.desc.format)
-            .subresource_range(image.full_range());
+            .subresource_range(full_range(image.desc.layers));
         // SAFETY: valid bound image.
         image.view =
             unsafe { shared.device.create_image_view(&view_info, None) }.vk("vkCreateImageView")?;
         shared.set_name(raw, &image.desc.name);
         shared.set_name(image.view, &format!("{} view", image.desc.name));
-        Ok(image)
+        Ok(Image {
+            inner: Arc::new(image),
+        })
+    }
+
+    /// A reference that keeps the Vulkan image alive (for bind groups).
+    pub(crate) fn keep(&self) -> Arc<ImageInner> {
+        self.inner.clone()
     }
 
     pub fn raw(&self) -> vk::Image {
-        self.raw
+        self.inner.raw
     }
 
     pub fn view(&self) -> vk::ImageView {
-        self.view
+        self.inner.view
     }
 
     pub fn desc(&self) -> &ImageDesc {
-        &self.desc
+        &self.inner.desc
     }
 
     pub fn name(&self) -> &str {
-        &self.desc.name
+        &self.inner.desc.name
     }
 
     /// The subresource range covering every layer (one mip level, colour aspect).
     pub fn full_range(&self) -> vk::ImageSubresourceRange {
-        vk::ImageSubresourceRange {
-            aspect_mask: vk::ImageAspectFlags::COLOR,
-            base_mip_level: 0,
-            level_count: 1,
-            base_array_layer: 0,
-            layer_count: self.desc.layers,
-        }
+        full_range(self.inner.desc.layers)
     }
 
     pub(crate) fn copy_region(&self, buffer_offset: u64) -> vk::BufferImageCopy {
-        let [w, h, d] = self.desc.extent;
+        let [w, h, d] = self.inner.desc.extent;
         vk::BufferImageCopy {
             buffer_offset,
             buffer_row_length: 0,
@@ -462,7 +506,7 @@ impl Image {
                 aspect_mask: vk::ImageAspectFlags::COLOR,
                 mip_level: 0,
                 base_array_layer: 0,
-                layer_count: self.desc.layers,
+                layer_count: self.inner.desc.layers,
             },
             image_offset: vk::Offset3D::default(),
             image_extent: vk::Extent3D {
@@ -471,6 +515,16 @@ impl Image {
                 depth: d,
             },
         }
+    }
+}
+
+fn full_range(layers: u32) -> vk::ImageSubresourceRange {
+    vk::ImageSubresourceRange {
+        aspect_mask: vk::ImageAspectFlags::COLOR,
+        base_mip_level: 0,
+        level_count: 1,
+        base_array_layer: 0,
+        layer_count: layers,
     }
 }
 
@@ -491,9 +545,9 @@ fn format_features_for(usage: vk::ImageUsageFlags) -> vk::FormatFeatureFlags {
     f
 }
 
-impl Drop for Image {
+impl Drop for ImageInner {
     fn drop(&mut self) {
-        // SAFETY: as for Buffer: no pending work uses the image when it is dropped.
+        // SAFETY: as for BufferInner: the last holder is gone.
         unsafe { self.shared.device.destroy_image_view(self.view, None) };
         // SAFETY: as above; the image goes before its memory.
         unsafe { self.shared.device.destroy_image(self.raw, None) };
@@ -512,10 +566,14 @@ pub struct SamplerDesc {
     pub unnormalized: bool,
 }
 
-/// A sampler object.
-pub struct Sampler {
+pub(crate) struct SamplerInner {
     shared: Arc<Shared>,
     raw: vk::Sampler,
+}
+
+/// A sampler object (the owning handle).
+pub struct Sampler {
+    inner: Arc<SamplerInner>,
 }
 
 impl Sampler {
@@ -533,19 +591,25 @@ impl Sampler {
         let raw = unsafe { ctx.shared.device.create_sampler(&info, None) }.vk("vkCreateSampler")?;
         ctx.shared.set_name(raw, name);
         Ok(Sampler {
-            shared: ctx.shared.clone(),
-            raw,
+            inner: Arc::new(SamplerInner {
+                shared: ctx.shared.clone(),
+                raw,
+            }),
         })
     }
 
     pub fn raw(&self) -> vk::Sampler {
-        self.raw
+        self.inner.raw
+    }
+
+    pub(crate) fn keep(&self) -> Arc<SamplerInner> {
+        self.inner.clone()
     }
 }
 
-impl Drop for Sampler {
+impl Drop for SamplerInner {
     fn drop(&mut self) {
-        // SAFETY: not in use by pending work (see Buffer::drop).
+        // SAFETY: the last holder is gone (see BufferInner::drop).
         unsafe { self.shared.device.destroy_sampler(self.raw, None) };
     }
 }

@@ -9,12 +9,12 @@ pub mod sync;
 pub mod validation;
 
 pub use context::{
-    Context, ContextDesc, DeviceInfo, DeviceLimits, DeviceSelector, SystemInfo, ValidationConfig,
-    enumerate_devices,
+    Context, ContextDesc, DeviceInfo, DeviceLimits, DeviceSelector, ExternalDevice, SystemInfo,
+    ValidationConfig, enumerate_devices,
 };
 pub use memory::{Buffer, BufferDesc, Image, ImageDesc, MemoryUsage, Sampler, SamplerDesc};
 pub use pipeline::{BindGroup, ComputePipeline, Resource};
-pub use record::{Barrier, PassTiming, Readback, Recorder, Timings};
+pub use record::{Barrier, PassTiming, Readback, Recorded, Recorder, Submission, Timings};
 pub use shader::{BindingInfo, DescriptorKind, Shader};
 pub use sync::{AccessSet, AccessType};
 pub use validation::{MessageSink, Severity, ValidationMessage};

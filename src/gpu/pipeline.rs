@@ -86,8 +86,40 @@ impl ComputePipeline {
             limit_name,
             limit,
         };
-        for (axis, (&size, &max)) in shader
-            .local_size
+        // Specialization constants by name, checked before anything is created.
+        let mut resolved: Vec<(u32, u32)> = Vec::with_capacity(constants.len());
+        for (name, value) in constants {
+            let Some(c) = shader.spec_constants.iter().find(|c| c.name == *name) else {
+                return Err(Error::Interface {
+                    pipeline: shader.name.clone(),
+                    reason: format!(
+                        "no specialization constant named '{name}' (it has: {})",
+                        shader
+                            .spec_constants
+                            .iter()
+                            .map(|c| format!("'{}' (id {})", c.name, c.id))
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    ),
+                });
+            };
+            resolved.push((c.id, *value));
+        }
+        // The workgroup size these constants give.
+        let mut local_size = shader.local_size;
+        for (axis, spec) in shader.local_size_spec.iter().enumerate() {
+            if let Some(&(_, v)) = spec.and_then(|id| resolved.iter().rev().find(|(i, _)| *i == id))
+            {
+                local_size[axis] = v;
+            }
+        }
+        if local_size.contains(&0) {
+            return Err(Error::Interface {
+                pipeline: shader.name.clone(),
+                reason: format!("specialised workgroup size {local_size:?} has a zero dimension"),
+            });
+        }
+        for (axis, (&size, &max)) in local_size
             .iter()
             .zip(&limits.max_compute_work_group_size)
             .enumerate()
@@ -101,10 +133,11 @@ impl ComputePipeline {
                 ));
             }
         }
-        if shader.invocations() > limits.max_compute_work_group_invocations {
+        let invocations: u64 = local_size.iter().map(|&s| s as u64).product();
+        if invocations > limits.max_compute_work_group_invocations as u64 {
             return Err(limit_err(
                 "invocations per workgroup",
-                shader.invocations() as u64,
+                invocations,
                 "maxComputeWorkGroupInvocations",
                 limits.max_compute_work_group_invocations as u64,
             ));
@@ -141,7 +174,7 @@ impl ComputePipeline {
             name: shader.name.clone(),
             bindings: shader.bindings.clone(),
             push_constant_size: shader.push_constant_size,
-            local_size: shader.local_size,
+            local_size,
             set_layouts: Vec::new(),
             layout: vk::PipelineLayout::null(),
             raw: vk::Pipeline::null(),
@@ -192,27 +225,11 @@ impl ComputePipeline {
                 name: shader.name.clone(),
                 reason: "entry point name contains NUL".into(),
             })?;
-        let mut entries = Vec::with_capacity(constants.len());
-        let mut data: Vec<u8> = Vec::with_capacity(4 * constants.len());
-        for (name, value) in constants {
-            let Some(c) = shader.spec_constants.iter().find(|c| c.name == *name) else {
-                // SAFETY: the module is unused.
-                unsafe { shared.device.destroy_shader_module(module, None) };
-                return Err(Error::Interface {
-                    pipeline: shader.name.clone(),
-                    reason: format!(
-                        "no specialization constant named '{name}' (it has: {})",
-                        shader
-                            .spec_constants
-                            .iter()
-                            .map(|c| format!("'{}' (id {})", c.name, c.id))
-                            .collect::<Vec<_>>()
-                            .join(", ")
-                    ),
-                });
-            };
+        let mut entries = Vec::with_capacity(resolved.len());
+        let mut data: Vec<u8> = Vec::with_capacity(4 * resolved.len());
+        for (id, value) in &resolved {
             entries.push(vk::SpecializationMapEntry {
-                constant_id: c.id,
+                constant_id: *id,
                 offset: data.len() as u32,
                 size: 4,
             });
@@ -373,10 +390,21 @@ impl ComputePipeline {
                         buffer.size()
                     )));
                 }
-                let align = self.shared.info.limits.min_storage_buffer_offset_alignment;
+                let limits = &self.shared.info.limits;
+                let (align, align_name) = if info.kind == DescriptorKind::StorageBuffer {
+                    (
+                        limits.min_storage_buffer_offset_alignment,
+                        "minStorageBufferOffsetAlignment",
+                    )
+                } else {
+                    (
+                        limits.min_uniform_buffer_offset_alignment,
+                        "minUniformBufferOffsetAlignment",
+                    )
+                };
                 if offset % align.max(1) != 0 {
                     return Err(self.interface_err(format!(
-                        "offset {offset} into buffer '{}' is not a multiple of minStorageBufferOffsetAlignment = {align}",
+                        "offset {offset} into buffer '{}' is not a multiple of {align_name} = {align}",
                         buffer.name()
                     )));
                 }
@@ -431,12 +459,14 @@ impl Drop for ComputePipeline {
     }
 }
 
-/// Descriptor sets for one pipeline, in their own pool.
+/// Descriptor sets for one pipeline, in their own pool. It keeps the buffers, images and
+/// samplers it refers to alive, so dropping their handles first is harmless.
 pub struct BindGroup {
     shared: Arc<Shared>,
     pipeline: vk::Pipeline,
     pool: vk::DescriptorPool,
     sets: Vec<vk::DescriptorSet>,
+    _resources: Vec<Arc<dyn std::any::Any + Send + Sync>>,
 }
 
 impl BindGroup {
@@ -457,11 +487,25 @@ impl BindGroup {
             })
             .collect();
         let n_sets = pipeline.set_layouts.len() as u32;
+        let mut resources: Vec<Arc<dyn std::any::Any + Send + Sync>> = Vec::new();
+        for (_, res) in bound.values() {
+            match *res {
+                Resource::Buffer(b) | Resource::BufferRange { buffer: b, .. } => {
+                    resources.push(b.keep())
+                }
+                Resource::StorageImage(i) => resources.push(i.keep()),
+                Resource::Sampled(i, s) => {
+                    resources.push(i.keep());
+                    resources.push(s.keep());
+                }
+            }
+        }
         let mut group = BindGroup {
             shared: pipeline.shared.clone(),
             pipeline: pipeline.raw,
             pool: vk::DescriptorPool::null(),
             sets: Vec::new(),
+            _resources: resources,
         };
         if n_sets == 0 {
             return Ok(group);

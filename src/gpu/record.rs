@@ -2,7 +2,7 @@
 //! staged uploads and readbacks, then one submission.
 
 use super::context::{Context, Shared};
-use super::memory::{Buffer, BufferDesc, Image, MemoryUsage};
+use super::memory::{Buffer, BufferDesc, BufferInner, Image, MemoryUsage};
 use super::pipeline::{BindGroup, ComputePipeline};
 use super::sync::{AccessSet, AccessType, buffer_barrier, image_barrier, memory_barrier};
 use super::validation::lock;
@@ -83,6 +83,9 @@ pub struct PassTiming {
 #[derive(Clone, Debug, Default, serde::Serialize)]
 pub struct Timings {
     pub passes: Vec<PassTiming>,
+    /// Passes that got no timing: beyond the query capacity (`MAX_PASSES`), or no
+    /// timestamps on this queue.
+    pub untimed: Vec<String>,
 }
 
 impl Timings {
@@ -109,8 +112,11 @@ struct Pass {
 }
 
 /// Data copied back to the host by a [`Recorder`]; readable after the submission completes.
+///
+/// The staging buffer is shared with the recorder, so dropping a `Readback` before the
+/// submission is harmless.
 pub struct Readback {
-    staging: Buffer,
+    staging: Arc<BufferInner>,
     submitted: Arc<std::sync::atomic::AtomicBool>,
 }
 
@@ -123,7 +129,7 @@ impl Readback {
                 self.staging.name()
             )));
         }
-        self.staging.mapped()
+        self.staging.mapped_bytes()
     }
 
     /// The data read back as a vector of `T`.
@@ -153,7 +159,8 @@ pub struct Recorder<'a> {
     queries_used: u32,
     passes: Vec<Pass>,
     open: Vec<usize>,
-    transient: Vec<Buffer>,
+    /// Staging buffers the recorded copies use, kept until the recorder is dropped.
+    transient: Vec<Arc<BufferInner>>,
     readbacks: Vec<Arc<std::sync::atomic::AtomicBool>>,
     pending_host_read: bool,
     _borrows: std::marker::PhantomData<&'a ()>,
@@ -164,22 +171,63 @@ impl Context {
     pub fn recorder<'a>(&self, name: &str) -> Result<Recorder<'a>> {
         Recorder::new(self, name)
     }
+
+    /// Records into a command buffer of the caller's (a renderer's frame), which the caller
+    /// submits. Pass timestamps work as usual; [`Recorder::finish`] returns what the
+    /// commands use.
+    ///
+    /// # Safety
+    /// `cmd` must be a primary command buffer of this device in the recording state, for a
+    /// queue of this context's queue family, and must not be reset or freed while vkshade
+    /// records; the [`Recorded`] returned by `finish` must be kept until the submission of
+    /// `cmd` has completed.
+    pub unsafe fn record_into<'a>(
+        &self,
+        cmd: vk::CommandBuffer,
+        name: &str,
+    ) -> Result<Recorder<'a>> {
+        let mut rec = Recorder::empty(self, name, vk::CommandPool::null(), cmd);
+        rec.start_queries()?;
+        Ok(rec)
+    }
 }
 
 impl<'a> Recorder<'a> {
     fn new(ctx: &Context, name: &str) -> Result<Recorder<'a>> {
-        let shared = ctx.shared.clone();
-        let device = &shared.device;
+        let device = &ctx.shared.device;
         let info = vk::CommandPoolCreateInfo::default()
             .flags(vk::CommandPoolCreateFlags::TRANSIENT)
-            .queue_family_index(shared.queue_family);
+            .queue_family_index(ctx.shared.queue_family);
         // SAFETY: valid device and create info.
         let pool = unsafe { device.create_command_pool(&info, None) }.vk("vkCreateCommandPool")?;
-        let mut rec = Recorder {
-            shared: shared.clone(),
+        let mut rec = Recorder::empty(ctx, name, pool, vk::CommandBuffer::null());
+        let alloc = vk::CommandBufferAllocateInfo::default()
+            .command_pool(pool)
+            .level(vk::CommandBufferLevel::PRIMARY)
+            .command_buffer_count(1);
+        // SAFETY: valid pool.
+        rec.cmd =
+            unsafe { device.allocate_command_buffers(&alloc) }.vk("vkAllocateCommandBuffers")?[0];
+        ctx.shared.set_name(rec.cmd, name);
+        let begin = vk::CommandBufferBeginInfo::default()
+            .flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT);
+        // SAFETY: fresh command buffer.
+        unsafe { device.begin_command_buffer(rec.cmd, &begin) }.vk("vkBeginCommandBuffer")?;
+        rec.start_queries()?;
+        Ok(rec)
+    }
+
+    fn empty(
+        ctx: &Context,
+        name: &str,
+        pool: vk::CommandPool,
+        cmd: vk::CommandBuffer,
+    ) -> Recorder<'a> {
+        Recorder {
+            shared: ctx.shared.clone(),
             name: name.to_string(),
             pool,
-            cmd: vk::CommandBuffer::null(),
+            cmd,
             query_pool: vk::QueryPool::null(),
             queries_used: 0,
             passes: Vec::new(),
@@ -188,32 +236,33 @@ impl<'a> Recorder<'a> {
             readbacks: Vec::new(),
             pending_host_read: false,
             _borrows: std::marker::PhantomData,
+        }
+    }
+
+    /// Creates the timestamp pool and resets it in the command buffer (when the queue has
+    /// timestamps).
+    fn start_queries(&mut self) -> Result<()> {
+        if self.shared.info.limits.timestamp_valid_bits == 0 {
+            return Ok(());
+        }
+        let qinfo = vk::QueryPoolCreateInfo::default()
+            .query_type(vk::QueryType::TIMESTAMP)
+            .query_count(2 * MAX_PASSES);
+        // SAFETY: valid device and create info.
+        self.query_pool = unsafe { self.shared.device.create_query_pool(&qinfo, None) }
+            .vk("vkCreateQueryPool")?;
+        // SAFETY: recording; the pool is new.
+        unsafe {
+            self.shared
+                .device
+                .cmd_reset_query_pool(self.cmd, self.query_pool, 0, 2 * MAX_PASSES)
         };
-        let alloc = vk::CommandBufferAllocateInfo::default()
-            .command_pool(pool)
-            .level(vk::CommandBufferLevel::PRIMARY)
-            .command_buffer_count(1);
-        // SAFETY: valid pool.
-        rec.cmd =
-            unsafe { device.allocate_command_buffers(&alloc) }.vk("vkAllocateCommandBuffers")?[0];
-        shared.set_name(rec.cmd, name);
-        if shared.info.limits.timestamp_valid_bits > 0 {
-            let qinfo = vk::QueryPoolCreateInfo::default()
-                .query_type(vk::QueryType::TIMESTAMP)
-                .query_count(2 * MAX_PASSES);
-            // SAFETY: valid device and create info.
-            rec.query_pool =
-                unsafe { device.create_query_pool(&qinfo, None) }.vk("vkCreateQueryPool")?;
-        }
-        let begin = vk::CommandBufferBeginInfo::default()
-            .flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT);
-        // SAFETY: fresh command buffer.
-        unsafe { device.begin_command_buffer(rec.cmd, &begin) }.vk("vkBeginCommandBuffer")?;
-        if rec.query_pool != vk::QueryPool::null() {
-            // SAFETY: recording; the pool is not in use elsewhere.
-            unsafe { device.cmd_reset_query_pool(rec.cmd, rec.query_pool, 0, 2 * MAX_PASSES) };
-        }
-        Ok(rec)
+        Ok(())
+    }
+
+    /// Whether this recorder writes into a caller's command buffer ([`Context::record_into`]).
+    pub fn is_external(&self) -> bool {
+        self.pool == vk::CommandPool::null()
     }
 
     /// The command buffer being recorded, for callers that add their own commands.
@@ -250,7 +299,10 @@ impl<'a> Recorder<'a> {
             // SAFETY: recording.
             unsafe { du.cmd_begin_debug_utils_label(self.cmd, &label) };
         }
-        let begin = self.timestamp(vk::PipelineStageFlags2::TOP_OF_PIPE);
+        // BOTTOM_OF_PIPE: the value is written once every earlier command has completed, so
+        // a pass's time never includes the tail of the previous one (a TOP_OF_PIPE value can
+        // be written early). ALL_COMMANDS means the same but draws a best-practices warning.
+        let begin = self.timestamp(vk::PipelineStageFlags2::BOTTOM_OF_PIPE);
         self.open.push(self.passes.len());
         self.passes.push(Pass {
             name: name.to_string(),
@@ -413,9 +465,10 @@ impl<'a> Recorder<'a> {
         dst_offset: u64,
         size: u64,
     ) -> Result<()> {
-        if src_offset + size > src.size() || dst_offset + size > dst.size() {
+        let fits = |offset: u64, len: u64| offset.checked_add(size).is_some_and(|end| end <= len);
+        if size == 0 || !fits(src_offset, src.size()) || !fits(dst_offset, dst.size()) {
             return Err(Error::InvalidArgument(format!(
-                "copy of {size} bytes from '{}'+{src_offset} to '{}'+{dst_offset} is out of bounds",
+                "copy of {size} bytes from '{}'+{src_offset} to '{}'+{dst_offset} is empty or out of bounds",
                 src.name(),
                 dst.name()
             )));
@@ -467,7 +520,7 @@ impl<'a> Recorder<'a> {
         )?;
         staging.write(0, bytes)?;
         self.copy_raw(&staging, 0, dst, offset, bytes.len() as u64)?;
-        self.transient.push(staging);
+        self.transient.push(staging.keep());
         Ok(())
     }
 
@@ -515,7 +568,7 @@ impl<'a> Recorder<'a> {
                 &[image.copy_region(0)],
             )
         };
-        self.transient.push(staging);
+        self.transient.push(staging.keep());
         Ok(())
     }
 
@@ -551,7 +604,11 @@ impl<'a> Recorder<'a> {
         let (staging, submitted) = self.readback_staging(buffer.name(), buffer.size())?;
         self.barrier(&[Barrier::buffer(buffer, prev, AccessType::TransferRead)]);
         self.copy_raw(buffer, 0, &staging, 0, buffer.size())?;
-        Ok(Readback { staging, submitted })
+        self.transient.push(staging.keep());
+        Ok(Readback {
+            staging: staging.keep(),
+            submitted,
+        })
     }
 
     /// Copies a whole image back to the host (tightly packed). `prev` is its last access;
@@ -574,11 +631,15 @@ impl<'a> Recorder<'a> {
                 &[image.copy_region(0)],
             )
         };
-        Ok(Readback { staging, submitted })
+        self.transient.push(staging.keep());
+        Ok(Readback {
+            staging: staging.keep(),
+            submitted,
+        })
     }
 
-    /// Ends recording, submits, waits for completion and returns the pass timings.
-    pub fn submit_and_wait(mut self) -> Result<Timings> {
+    /// Closes open passes and makes readbacks visible to the host.
+    fn close(&mut self) {
         while !self.open.is_empty() {
             self.end_pass();
         }
@@ -587,7 +648,26 @@ impl<'a> Recorder<'a> {
                 AccessType::TransferWrite,
                 AccessType::HostRead,
             )]);
+            self.pending_host_read = false;
         }
+    }
+
+    /// Ends recording and submits without waiting. `waits` and `signals` are semaphores of
+    /// the caller's (e.g. a renderer's frame): the work starts after the waits and signals
+    /// when done. The returned [`Submission`] keeps everything recorded alive; dropping it
+    /// waits for completion.
+    pub fn submit(
+        mut self,
+        waits: &[vk::SemaphoreSubmitInfo<'_>],
+        signals: &[vk::SemaphoreSubmitInfo<'_>],
+    ) -> Result<Submission<'a>> {
+        if self.is_external() {
+            return Err(Error::InvalidArgument(format!(
+                "recorder '{}' writes into the caller's command buffer: finish() it and submit that",
+                self.name
+            )));
+        }
+        self.close();
         let device = self.shared.device.clone();
         // SAFETY: recording state; ends it.
         unsafe { device.end_command_buffer(self.cmd) }.vk("vkEndCommandBuffer")?;
@@ -595,29 +675,57 @@ impl<'a> Recorder<'a> {
         let fence = unsafe { device.create_fence(&vk::FenceCreateInfo::default(), None) }
             .vk("vkCreateFence")?;
         let cmds = [vk::CommandBufferSubmitInfo::default().command_buffer(self.cmd)];
-        let submit = vk::SubmitInfo2::default().command_buffer_infos(&cmds);
-        let result = {
+        let submit = vk::SubmitInfo2::default()
+            .wait_semaphore_infos(waits)
+            .command_buffer_infos(&cmds)
+            .signal_semaphore_infos(signals);
+        let submitted = {
             let queue = lock(&self.shared.queue);
             // SAFETY: the command buffer is executable; the queue is externally synchronised
             // by the lock.
             unsafe { device.queue_submit2(*queue, &[submit], fence) }.vk("vkQueueSubmit2")
+        };
+        if let Err(e) = submitted {
+            // SAFETY: never submitted.
+            unsafe { device.destroy_fence(fence, None) };
+            return Err(e);
         }
-        .and_then(|_| {
-            // SAFETY: fence from this device.
-            unsafe { device.wait_for_fences(&[fence], true, u64::MAX) }.vk("vkWaitForFences")
-        });
-        // SAFETY: the fence is signalled or was never submitted.
-        unsafe { device.destroy_fence(fence, None) };
-        result?;
+        Ok(Submission {
+            recorder: Some(self),
+            fence,
+        })
+    }
+
+    /// Ends recording, submits, waits for completion and returns the pass timings.
+    pub fn submit_and_wait(self) -> Result<Timings> {
+        self.submit(&[], &[])?.wait()
+    }
+
+    /// Marks readbacks ready and reads the timestamps (the work has completed).
+    fn complete(&self) -> Result<Timings> {
         for flag in &self.readbacks {
             flag.store(true, std::sync::atomic::Ordering::Release);
         }
         self.collect_timings()
     }
 
+    /// Finishes a recorder made by [`Context::record_into`]: closes its passes and returns
+    /// what the recorded commands use, to keep until the caller's submission completes.
+    pub fn finish(mut self) -> Result<Recorded<'a>> {
+        if !self.is_external() {
+            return Err(Error::InvalidArgument(format!(
+                "recorder '{}' owns its command buffer: use submit()",
+                self.name
+            )));
+        }
+        self.close();
+        Ok(Recorded { recorder: self })
+    }
+
     fn collect_timings(&self) -> Result<Timings> {
         let mut timings = Timings::default();
         if self.queries_used == 0 {
+            timings.untimed = self.passes.iter().map(|p| p.name.clone()).collect();
             return Ok(timings);
         }
         let mut raw = vec![0u64; self.queries_used as usize];
@@ -638,14 +746,16 @@ impl<'a> Recorder<'a> {
             (1u64 << limits.timestamp_valid_bits) - 1
         };
         for p in &self.passes {
-            if let (Some(b), Some(e)) = (p.begin, p.end) {
-                let ticks = raw[e as usize].wrapping_sub(raw[b as usize]) & mask;
-                timings.passes.push(PassTiming {
-                    name: p.name.clone(),
-                    depth: p.depth,
-                    ms: ticks as f64 * limits.timestamp_period_ns as f64 * 1e-6,
-                });
-            }
+            let (Some(b), Some(e)) = (p.begin, p.end) else {
+                timings.untimed.push(p.name.clone());
+                continue;
+            };
+            let ticks = raw[e as usize].wrapping_sub(raw[b as usize]) & mask;
+            timings.passes.push(PassTiming {
+                name: p.name.clone(),
+                depth: p.depth,
+                ms: ticks as f64 * limits.timestamp_period_ns as f64 * 1e-6,
+            });
         }
         Ok(timings)
     }
@@ -658,11 +768,82 @@ impl<'a> Recorder<'a> {
 
 impl Drop for Recorder<'_> {
     fn drop(&mut self) {
-        // SAFETY: either submitted and waited for, or never submitted: nothing is pending.
+        // SAFETY: either completed (Submission waits before dropping it; Recorded's contract
+        // is that the caller's submission completed) or never submitted. An external command
+        // buffer belongs to the caller and is not freed here (its pool is null).
         unsafe {
             self.shared.device.destroy_query_pool(self.query_pool, None);
             self.shared.device.destroy_command_pool(self.pool, None);
         }
+    }
+}
+
+/// Work submitted by [`Recorder::submit`]. Dropping it waits for the work to finish.
+pub struct Submission<'a> {
+    recorder: Option<Recorder<'a>>,
+    fence: vk::Fence,
+}
+
+impl Submission<'_> {
+    /// Whether the work has finished (does not block).
+    pub fn is_complete(&self) -> Result<bool> {
+        let r = self.recorder.as_ref().expect("present until dropped");
+        // SAFETY: fence of this device.
+        unsafe { r.shared.device.get_fence_status(self.fence) }.vk("vkGetFenceStatus")
+    }
+
+    /// Waits for the work and returns the pass timings; readbacks become readable.
+    pub fn wait(mut self) -> Result<Timings> {
+        let r = self.recorder.as_ref().expect("present until dropped");
+        // SAFETY: fence of this device, submitted.
+        unsafe {
+            r.shared
+                .device
+                .wait_for_fences(&[self.fence], true, u64::MAX)
+        }
+        .vk("vkWaitForFences")?;
+        let timings = r.complete();
+        self.release();
+        timings
+    }
+
+    fn release(&mut self) {
+        if let Some(r) = self.recorder.take() {
+            // SAFETY: the fence was waited for (or the wait failed: the device is lost and
+            // nothing executes any more).
+            unsafe { r.shared.device.destroy_fence(self.fence, None) };
+        }
+    }
+}
+
+impl Drop for Submission<'_> {
+    fn drop(&mut self) {
+        if let Some(r) = &self.recorder {
+            // SAFETY: fence of this device; waiting makes the recorder's resources idle.
+            let _ = unsafe {
+                r.shared
+                    .device
+                    .wait_for_fences(&[self.fence], true, u64::MAX)
+            };
+        }
+        self.release();
+    }
+}
+
+/// Commands recorded into a caller's command buffer ([`Context::record_into`]) and the
+/// resources they use (staging, readbacks, timestamps).
+pub struct Recorded<'a> {
+    recorder: Recorder<'a>,
+}
+
+impl Recorded<'_> {
+    /// Call once the caller's submission of the command buffer has completed: readbacks
+    /// become readable and the pass timings are returned.
+    ///
+    /// # Safety
+    /// The command buffer must have completed execution.
+    pub unsafe fn complete(self) -> Result<Timings> {
+        self.recorder.complete()
     }
 }
 

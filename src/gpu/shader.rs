@@ -122,7 +122,10 @@ pub struct Shader {
     pub name: String,
     pub words: Vec<u32>,
     pub entry_point: String,
+    /// Workgroup size with the specialization constants' defaults.
     pub local_size: [u32; 3],
+    /// Per axis, the SpecId of the specialization constant that sets the size, if any.
+    pub local_size_spec: [Option<u32>; 3],
     /// Sorted by (set, binding).
     pub bindings: Vec<BindingInfo>,
     /// Bytes of push constants (0 when the shader has none).
@@ -156,7 +159,7 @@ impl Shader {
             )));
         }
         validate_spirv(&words).map_err(|e| err(format!("spirv-val: {e}")))?;
-        let (entry_point, local_size) = compute_entry(&words).map_err(err)?;
+        let (entry_point, local_size, local_size_spec) = compute_entry(&words).map_err(err)?;
 
         let module = spirv_reflect::ShaderModule::load_u32_data(&normalize_for_reflection(&words))
             .map_err(|e| err(format!("reflection failed: {e}")))?;
@@ -236,6 +239,7 @@ impl Shader {
             words,
             entry_point,
             local_size,
+            local_size_spec,
             bindings,
             push_constant_size,
             spec_constants,
@@ -248,21 +252,32 @@ impl Shader {
     }
 }
 
-/// Finds the single GLCompute entry point and its workgroup size, from `LocalSize` or from
-/// `LocalSizeId` (SPIR-V 1.6; the ids name constants, whose default values are used since
-/// vkshade does not specialise them).
-fn compute_entry(words: &[u32]) -> std::result::Result<(String, [u32; 3]), String> {
+/// The entry point's name, its workgroup size (default values), and per axis the SpecId of
+/// the specialization constant that sets it, if any. The size comes from, in order of
+/// precedence: a constant decorated `BuiltIn WorkgroupSize`, `LocalSizeId` (SPIR-V 1.6), or
+/// `LocalSize`.
+type EntryInfo = (String, [u32; 3], [Option<u32>; 3]);
+
+fn compute_entry(words: &[u32]) -> std::result::Result<EntryInfo, String> {
     const OP_EXECUTION_MODE: u32 = 16;
     const OP_EXECUTION_MODE_ID: u32 = 331;
     const OP_CONSTANT: u32 = 43;
+    const OP_CONSTANT_COMPOSITE: u32 = 44;
     const OP_SPEC_CONSTANT: u32 = 50;
+    const OP_SPEC_CONSTANT_COMPOSITE: u32 = 51;
     const EXECUTION_MODEL_GLCOMPUTE: u32 = 5;
     const MODE_LOCAL_SIZE: u32 = 17;
     const MODE_LOCAL_SIZE_ID: u32 = 38;
+    const DECORATION_SPEC_ID: u32 = 1;
+    const DECORATION_BUILTIN: u32 = 11;
+    const BUILTIN_WORKGROUP_SIZE: u32 = 25;
     let mut entry: Option<String> = None;
     let mut local_size = None;
     let mut local_size_ids = None;
+    let mut workgroup_size_id = None;
     let mut constants = std::collections::HashMap::new();
+    let mut composites = std::collections::HashMap::new();
+    let mut spec_ids = std::collections::HashMap::new();
     for (op, ops) in instructions(words) {
         match op {
             OP_ENTRY_POINT if ops.len() >= 3 => {
@@ -285,19 +300,43 @@ fn compute_entry(words: &[u32]) -> std::result::Result<(String, [u32; 3]), Strin
             OP_EXECUTION_MODE_ID if ops.len() >= 5 && ops[1] == MODE_LOCAL_SIZE_ID => {
                 local_size_ids = Some([ops[2], ops[3], ops[4]]);
             }
+            OP_DECORATE if ops.len() == 3 && ops[1] == DECORATION_SPEC_ID => {
+                spec_ids.insert(ops[0], ops[2]);
+            }
+            OP_DECORATE
+                if ops.len() == 3
+                    && ops[1] == DECORATION_BUILTIN
+                    && ops[2] == BUILTIN_WORKGROUP_SIZE =>
+            {
+                workgroup_size_id = Some(ops[0]);
+            }
             OP_CONSTANT | OP_SPEC_CONSTANT if ops.len() == 3 => {
                 constants.insert(ops[1], ops[2]);
+            }
+            OP_CONSTANT_COMPOSITE | OP_SPEC_CONSTANT_COMPOSITE if ops.len() == 5 => {
+                composites.insert(ops[1], [ops[2], ops[3], ops[4]]);
             }
             _ => {}
         }
     }
     let name = entry.ok_or("no entry point")?;
-    if let Some(ids) = local_size_ids {
+    let ids = match workgroup_size_id {
+        Some(id) => Some(
+            *composites
+                .get(&id)
+                .ok_or("the WorkgroupSize built-in is not a 3-component constant")?,
+        ),
+        None => local_size_ids,
+    };
+    let mut spec = [None; 3];
+    if let Some(ids) = ids {
         let mut size = [0; 3];
-        for (s, id) in size.iter_mut().zip(ids) {
-            *s = *constants.get(&id).ok_or_else(|| {
-                format!("LocalSizeId names %{id}, which is not a 32-bit constant")
+        for axis in 0..3 {
+            let id = ids[axis];
+            size[axis] = *constants.get(&id).ok_or_else(|| {
+                format!("workgroup size names %{id}, which is not a 32-bit constant")
             })?;
+            spec[axis] = spec_ids.get(&id).copied();
         }
         local_size = Some(size);
     }
@@ -307,7 +346,7 @@ fn compute_entry(words: &[u32]) -> std::result::Result<(String, [u32; 3]), Strin
             "workgroup size {local_size:?} has a zero dimension"
         ));
     }
-    Ok((name, local_size))
+    Ok((name, local_size, spec))
 }
 
 /// Decoded instructions of a module: (opcode, operands).
@@ -452,11 +491,19 @@ fn spec_constants(words: &[u32]) -> std::result::Result<Vec<SpecConstant>, Strin
         .filter_map(|(result, &id)| {
             defaults.get(result).map(|&d| SpecConstant {
                 id,
-                name: names.get(result).cloned().unwrap_or_default(),
+                // Unnamed constants (e.g. `local_size_x_id`) are called `id<N>`.
+                name: names
+                    .get(result)
+                    .filter(|n| !n.is_empty())
+                    .cloned()
+                    .unwrap_or_else(|| format!("id{id}")),
                 default: d,
             })
         })
         .collect();
-    out.sort_by_key(|c| c.id);
+    // One SpecId is one constant, though a module may decorate several results with it
+    // (glslang does for a specialised workgroup size); prefer a result that has a name.
+    out.sort_by_key(|c| (c.id, c.name.starts_with("id")));
+    out.dedup_by_key(|c| c.id);
     Ok(out)
 }
