@@ -212,9 +212,15 @@ struct BenchOpts {
 
 impl BenchOpts {
     fn config(&self) -> Result<BenchConfig> {
-        if self.samples == 0 || !self.min_ms.is_finite() || self.min_ms <= 0.0 {
+        if !(1..=100_000).contains(&self.samples)
+            || self.warmup > 100_000
+            || !self.min_ms.is_finite()
+            || self.min_ms <= 0.0
+            || self.min_ms > 60_000.0
+        {
             return Err(Error::InvalidArgument(
-                "--samples must be >= 1 and --min-ms > 0".into(),
+                "--samples must be in 1..=100000, --warmup <= 100000, --min-ms in (0, 60000]"
+                    .into(),
             ));
         }
         Ok(BenchConfig {

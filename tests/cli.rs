@@ -222,6 +222,8 @@ fn ao_bad_input_fails_cleanly_without_output() {
         ),
         (vec!["ao", "--blend", "max"], "unknown blend"),
         (vec!["ao", "--frames", "0"], "--frames"),
+        (vec!["ao", "--frames", "100000000000"], "--frames"),
+        (vec!["ao", "--rays", "0", "--reference"], "--rays"),
     ] {
         let mut a = args.clone();
         a.extend(["--out", out.to_str().unwrap()]);

@@ -96,7 +96,7 @@ fn malformed_meshes_give_clear_errors() {
     let mut bin = b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n".to_vec();
     bin.extend_from_slice(&[0u8; 20]);
     let e = load_err(&write("cut.ply", &bin));
-    assert!(e.contains("ends inside vertex"), "{e}");
+    assert!(e.contains("needing at least 37 bytes"), "{e}");
     let e = load_err(&write("mesh.xyz", b"1 2 3\n"));
     assert!(e.contains("unknown mesh format"), "{e}");
     match scene::load(Path::new("/nonexistent/dir/character.glb")) {
@@ -431,7 +431,7 @@ fn sph_files_round_trip_and_malformed_ones_are_rejected() {
         assert!(a.center.distance(b.center) < 1e-5 && (a.radius - b.radius).abs() < 1e-5);
     }
     for (name, text, needle) in [
-        ("short.sph", "4 8\n0 0 0 1 1\n", "need 585 nodes"),
+        ("short.sph", "4 8\n0 0 0 1 1\n", "need exactly 585 nodes"),
         ("word.sph", "2 2\n0 0 0 1 1\n0 0 0 x 1\n0 0 0 1 1\n", "'x'"),
         ("huge.sph", "40 16\n", "expected 2..=8 levels"),
         ("header.sph", "four 8\n", "not a whole number"),
@@ -445,4 +445,92 @@ fn sph_files_round_trip_and_malformed_ones_are_rejected() {
         let e = SphereTree::read_sph(&path).unwrap_err().to_string();
         assert!(e.contains(needle) && e.contains(name), "{name}: {e}");
     }
+}
+
+#[test]
+fn ply_headers_that_promise_more_than_the_file_holds_fail_fast() {
+    let t = std::time::Instant::now();
+    let e2 = load_err(&write(
+        "too-many.ply",
+        b"ply\nformat binary_little_endian 1.0\nelement vertex 4000000000\nproperty float x\nproperty float y\nproperty float z\nend_header\n\x00\x00",
+    ));
+    assert!(
+        e2.contains("needing at least") && e2.contains("bytes"),
+        "{e2}"
+    );
+    assert!(
+        t.elapsed().as_secs_f64() < 5.0,
+        "malformed headers must fail fast"
+    );
+}
+
+#[test]
+fn empty_property_elements_are_skipped() {
+    // An element with no properties holds no data, whatever its count.
+    let c = scene::load(&write(
+        "skip.ply",
+        b"ply\nformat ascii 1.0\nelement junk 100000000000\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n",
+    ))
+    .unwrap();
+    assert_eq!(c.mesh.triangles.len(), 1);
+}
+
+#[test]
+fn sph_trailing_data_and_empty_subtrees() {
+    let e = SphereTree::read_sph(&write(
+        "trailing.sph",
+        b"2 2\n0 0 0 1 1\n0 0 0 1 1\n0 0 0 1 1\n9 9 9 9 9\n",
+    ))
+    .unwrap_err();
+    assert!(e.to_string().contains("exactly 3 nodes"), "{e}");
+    // A used inner node whose children are all unused gets its own sphere as a child.
+    let t = SphereTree::read_sph(&write(
+        "hole.sph",
+        b"3 2\n0 0 0 5 1\n1 0 0 1 1\n-1 0 0 1 1\n0 0 0 1 1\n0 0 0 1 1\n0 0 0 -1 0\n0 0 0 -1 0\n",
+    ))
+    .unwrap();
+    assert!(t.spheres[5].used() && t.spheres[5].center.x == -1.0 && !t.spheres[6].used());
+}
+
+#[test]
+fn inconsistent_ao_input_is_refused() {
+    let c = ball();
+    let (mut tree, _) = SphereTree::build(
+        &c.mesh,
+        &BuildConfig {
+            samples: 20_000,
+            depth: 2,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    tree.spheres.truncate(20);
+    tree.joints.truncate(20);
+    tree.weights.truncate(20);
+    tree.importance.truncate(20);
+    let e = vkshade::kernels::ao::Prepared::new(&c.mesh, &tree, 1).unwrap_err();
+    assert!(e.to_string().contains("complete tree"), "{e}");
+    let (tree, _) = SphereTree::build(
+        &c.mesh,
+        &BuildConfig {
+            samples: 20_000,
+            depth: 2,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let mut prep = vkshade::kernels::ao::Prepared::new(&c.mesh, &tree, 1).unwrap();
+    prep.normals.pop();
+    assert!(prep.check().unwrap_err().to_string().contains("normals"));
+    let mut prep = vkshade::kernels::ao::Prepared::new(&c.mesh, &tree, 1).unwrap();
+    prep.shape.node_count += 1;
+    assert!(prep.check().is_err());
+    let mut prep = vkshade::kernels::ao::Prepared::new(&c.mesh, &tree, 1).unwrap();
+    prep.sphere_joints[3] = [5, 0];
+    assert!(
+        prep.check()
+            .unwrap_err()
+            .to_string()
+            .contains("joint index")
+    );
 }

@@ -21,6 +21,11 @@ pub const DEFAULT_MESH: &str = "data/testwuson.glb";
 /// The built-in default animation.
 pub const DEFAULT_ANIMATION: &str = "Run";
 
+/// Most frames one run writes (each is a PLY and a PNG).
+pub const MAX_FRAMES: usize = 100_000;
+/// Most rays per vertex for the ground truth and the correction bake.
+pub const MAX_RAYS: usize = 1 << 20;
+
 /// Everything `vkshade ao` can be told.
 #[derive(Clone, Debug)]
 pub struct AoRunConfig {
@@ -308,13 +313,21 @@ fn decompose(
 /// Runs the kernel over the animation, writing DIR/ao_NNNN.{ply,png} and DIR/report.json.
 pub fn run(ctx: &Context, cfg: &AoRunConfig, progress: &mut dyn FnMut(&str)) -> Result<AoReport> {
     cfg.params.validate()?;
-    if cfg.frames == 0 {
-        return Err(Error::InvalidArgument("--frames must be at least 1".into()));
+    if !(1..=MAX_FRAMES).contains(&cfg.frames) {
+        return Err(Error::InvalidArgument(format!(
+            "--frames must be in 1..={MAX_FRAMES}, not {}",
+            cfg.frames
+        )));
     }
-    if cfg.rays == 0 || cfg.correction_rays == 0 {
-        return Err(Error::InvalidArgument(
-            "ray counts must be at least 1".into(),
-        ));
+    for (name, rays) in [
+        ("--rays", cfg.rays),
+        ("--correction-rays", cfg.correction_rays),
+    ] {
+        if !(1..=MAX_RAYS).contains(&rays) {
+            return Err(Error::InvalidArgument(format!(
+                "{name} must be in 1..={MAX_RAYS}, not {rays}"
+            )));
+        }
     }
     if cfg.image.0 == 0 || cfg.image.1 == 0 || cfg.image.0 > 8192 || cfg.image.1 > 8192 {
         return Err(Error::InvalidArgument(format!(

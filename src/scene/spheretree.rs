@@ -149,6 +149,44 @@ impl SphereTree {
         }
     }
 
+    /// Checks that the arrays form a complete tree of `levels` levels (two or more).
+    pub fn check_shape(&self) -> Result<()> {
+        let n = node_count(self.levels, self.branch);
+        if self.levels < 2 || self.branch < 2 || n != Some(self.spheres.len()) {
+            return Err(Error::InvalidArgument(format!(
+                "sphere tree of {} levels, branch {}, has {} nodes; a complete tree of two or more levels needs {:?}",
+                self.levels,
+                self.branch,
+                self.spheres.len(),
+                n
+            )));
+        }
+        if self.importance.len() != self.spheres.len() {
+            return Err(Error::InvalidArgument(
+                "sphere tree importance column has the wrong length".into(),
+            ));
+        }
+        Ok(())
+    }
+
+    /// Makes every used inner node have a used child: where all children of a used node are
+    /// unused, its sphere is copied into its first child (down to the leaves), so a cut that
+    /// refines the node still sees it. Returns how many nodes were filled in.
+    pub fn fill_empty_children(&mut self) -> usize {
+        let b = self.branch as usize;
+        let first_leaf = node_count(self.levels - 1, self.branch).unwrap_or(0);
+        let mut filled = 0;
+        for n in 0..first_leaf {
+            let kids = n * b + 1..n * b + 1 + b;
+            if self.spheres[n].used() && !self.spheres[kids.clone()].iter().any(Sphere::used) {
+                self.spheres[kids.start] = self.spheres[n];
+                self.importance[kids.start] = self.importance[n];
+                filled += 1;
+            }
+        }
+        filled
+    }
+
     /// Number of used spheres at `level`.
     pub fn used_at(&self, level: u32) -> usize {
         self.spheres[self.level_range(level)]
@@ -182,11 +220,11 @@ impl SphereTree {
             .filter(|&n| n <= 1 << 22)
             .ok_or_else(|| Error::input(path, "tree too large"))?;
         let values: Vec<&str> = tokens.collect();
-        if values.len() < n * 5 {
+        if values.len() != n * 5 {
             return Err(Error::input(
                 path,
                 format!(
-                    "{levels} levels x branch {branch} need {n} nodes (5 numbers each), the file has {} numbers",
+                    "{levels} levels x branch {branch} need exactly {n} nodes (5 numbers each), the file has {} numbers",
                     values.len()
                 ),
             ));
@@ -225,13 +263,15 @@ impl SphereTree {
             joints: vec![[0; 4]; n],
             weights: vec![[1.0, 0.0, 0.0, 0.0]; n],
         };
-        // Children of an unused node are unused, whatever the file says.
+        // Children of an unused node are unused, whatever the file says; a used node whose
+        // children are all unused gets its own sphere as a child (documented repair).
         for i in 1..n {
             let parent = (i - 1) / branch as usize;
             if !tree.spheres[parent].used() {
                 tree.spheres[i].radius = -1.0;
             }
         }
+        tree.fill_empty_children();
         Ok(tree)
     }
 
@@ -401,6 +441,7 @@ impl SphereTree {
             joints: vec![[0; 4]; n],
             weights: vec![[1.0, 0.0, 0.0, 0.0]; n],
         };
+        tree.fill_empty_children();
         tree.assign_skin(mesh, h);
         let report = FitReport {
             config: cfg.clone(),

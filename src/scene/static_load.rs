@@ -336,6 +336,35 @@ pub fn load_ply_with_properties(path: &Path) -> Result<(MeshData, HashMap<String
     } else {
         None
     };
+    // Every element needs at least one token (ASCII) or its fixed bytes (binary): a header
+    // declaring more elements than the body can hold is refused before anything is read,
+    // and an element with no properties holds no data at all.
+    let available = match text_body {
+        Some(t) => t.split_whitespace().count() as u128,
+        None => body.len() as u128,
+    };
+    let mut needed: u128 = 0;
+    for el in &elements {
+        let per_element: u128 = el
+            .props
+            .iter()
+            .map(|p| match (ascii, p.list) {
+                (true, _) => 1,
+                (false, Some(ct)) => ct.size() as u128,
+                (false, None) => p.scalar.size() as u128,
+            })
+            .sum();
+        needed += per_element * el.count as u128;
+    }
+    if needed > available {
+        return Err(Error::input(
+            path,
+            format!(
+                "the header declares elements needing at least {needed} {}, but the body has {available}",
+                if ascii { "numbers" } else { "bytes" }
+            ),
+        ));
+    }
     let mut tokens = text_body.map(|t| t.split_whitespace());
     let mut offset = 0usize;
     // Reads one scalar, from text tokens or binary bytes.
@@ -363,7 +392,7 @@ pub fn load_ply_with_properties(path: &Path) -> Result<(MeshData, HashMap<String
     let mut has_normals = false;
     let mut has_uvs = false;
     let mut vertex_props: HashMap<String, Vec<f32>> = HashMap::new();
-    for el in &elements {
+    for el in elements.iter().filter(|e| !e.props.is_empty()) {
         let find = |names: &[&str]| {
             el.props
                 .iter()

@@ -188,8 +188,9 @@ impl Prepared {
                 "sphere tree lacks skin weights (call assign_skin)".into(),
             ));
         }
+        tree.check_shape()?;
         let first_leaf = tree.level_range(tree.levels - 1).start as u32;
-        Ok(Prepared {
+        let prep = Prepared {
             positions: mesh
                 .positions
                 .iter()
@@ -215,11 +216,82 @@ impl Prepared {
                 first_leaf,
             },
             joint_count,
-        })
+        };
+        prep.check()?;
+        Ok(prep)
     }
 
     pub fn vertex_count(&self) -> usize {
         self.positions.len()
+    }
+
+    /// Checks that every array has the length the shaders index it with (the fields are
+    /// public, so a caller can break this; the GPU must never read out of bounds).
+    pub fn check(&self) -> Result<()> {
+        let bad = |what: String| {
+            Err(Error::InvalidArgument(format!(
+                "inconsistent AO input: {what}"
+            )))
+        };
+        let nv = self.positions.len();
+        if nv == 0 || nv > u32::MAX as usize / 2 {
+            return bad(format!("{nv} vertices"));
+        }
+        for (name, len) in [
+            ("normals", self.normals.len()),
+            ("vertex joints", self.vertex_joints.len()),
+            ("vertex weights", self.vertex_weights.len()),
+        ] {
+            if len != nv {
+                return bad(format!("{len} {name} for {nv} vertices"));
+            }
+        }
+        let shape = self.shape;
+        let mut expected = 0u64;
+        let mut width = 1u64;
+        let mut first_leaf = 0u64;
+        while expected < shape.node_count as u64 {
+            first_leaf = expected;
+            expected += width;
+            width *= shape.branch.max(1) as u64;
+        }
+        if shape.branch < 2
+            || expected != shape.node_count as u64
+            || first_leaf != shape.first_leaf as u64
+            || shape.first_leaf == 0
+        {
+            return bad(format!(
+                "{} nodes with branch {} and first leaf {} is not a complete tree of two or more levels",
+                shape.node_count, shape.branch, shape.first_leaf
+            ));
+        }
+        for (name, len) in [
+            ("spheres", self.spheres.len()),
+            ("sphere joints", self.sphere_joints.len()),
+            ("sphere weights", self.sphere_weights.len()),
+        ] {
+            if len != shape.node_count as usize {
+                return bad(format!("{len} {name} for {} nodes", shape.node_count));
+            }
+        }
+        let unpack = |p: &[u32; 2]| [p[0] & 0xffff, p[0] >> 16, p[1] & 0xffff, p[1] >> 16];
+        if self
+            .vertex_joints
+            .iter()
+            .chain(&self.sphere_joints)
+            .flat_map(unpack)
+            .any(|j| j as usize >= self.joint_count)
+        {
+            return bad(format!(
+                "a joint index beyond the rig's {}",
+                self.joint_count
+            ));
+        }
+        let finite = |v: &[[f32; 4]]| v.iter().flatten().all(|x| x.is_finite());
+        if !finite(&self.positions) || !finite(&self.normals) || !finite(&self.spheres) {
+            return bad("non-finite positions, normals or spheres".into());
+        }
+        Ok(())
     }
 }
 
@@ -282,6 +354,7 @@ impl AoKernel {
     /// Uploads the mesh, tree and table and builds the pipelines.
     pub fn new(ctx: &Context, prep: &Prepared, params: AoParams) -> Result<AoKernel> {
         params.validate()?;
+        prep.check()?;
         let spv = |name| crate::shaders::spirv(name);
         let skin = ComputePipeline::from_spirv(ctx, "ao/skin", spv("ao/skin")?)?;
         let occlusion_shader =
@@ -467,6 +540,18 @@ impl AoKernel {
     /// kernel's buffers by compute shaders or copies (a previous frame, a readback); the
     /// outputs are left as `ComputeShaderWrite`.
     pub fn record<'a>(&'a self, rec: &mut Recorder<'a>, matrices: &[Mat4]) -> Result<()> {
+        self.record_after(rec, matrices, A::Nothing.into())
+    }
+
+    /// As [`AoKernel::record`], also ordering the frame after `prev`: how the caller used
+    /// the outputs since the last frame (e.g. `AccessType::VertexBuffer` when a renderer drew
+    /// with [`AoKernel::visibility`]).
+    pub fn record_after<'a>(
+        &'a self,
+        rec: &mut Recorder<'a>,
+        matrices: &[Mat4],
+        prev: crate::gpu::AccessSet,
+    ) -> Result<()> {
         if matrices.len() != self.joint_count {
             return Err(Error::InvalidArgument(format!(
                 "{} joint matrices for a rig of {} joints",
@@ -481,7 +566,7 @@ impl AoKernel {
         }
         let cols: Vec<[f32; 16]> = matrices.iter().map(|m| m.to_cols_array()).collect();
         rec.barrier(&[Barrier::global(
-            A::ComputeShaderReadOther | A::ComputeShaderWrite | A::TransferRead,
+            prev | A::ComputeShaderReadOther | A::ComputeShaderWrite | A::TransferRead,
             A::TransferWrite | A::ComputeShaderWrite,
         )]);
         rec.upload(&self.joints, 0, &cols)?;
@@ -515,7 +600,10 @@ impl AoKernel {
         Ok(())
     }
 
-    /// Records the occlusion pass alone (posed buffers must be ready for reading).
+    /// Records the occlusion pass alone, e.g. to re-evaluate with other parameters. The
+    /// caller orders it: the posed buffers must have been written and made visible
+    /// (`ComputeShaderWrite -> ComputeShaderReadOther`), and earlier reads of the outputs must
+    /// be finished (`prev -> ComputeShaderWrite`).
     pub fn record_occlusion<'a>(&'a self, rec: &mut Recorder<'a>) -> Result<()> {
         self.params.validate()?;
         let p = &self.params;
