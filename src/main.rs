@@ -94,7 +94,7 @@ struct AoArgs {
     /// The published method alone: no static correction baked in the bind pose.
     #[arg(long)]
     no_correction: bool,
-    /// A receiver inside a leaf sphere clamps h to 1 instead of skipping the sphere.
+    /// A receiver inside a leaf sphere clamps h to 1 instead of leaving that sphere out.
     #[arg(long)]
     clamp_inside: bool,
     /// Compare every frame with the ray-traced mesh (MAE, RMSE, p95, max; error decomposition).

@@ -230,6 +230,12 @@ pub fn build_all(root: &Path, write: bool) -> Result<Vec<ModuleStatus>> {
             state: sync_file(&out, &compiled, write)?,
         });
     }
+    if write && statuses.iter().any(|s| s.state == ModuleState::Updated) {
+        // Rewrites go through renames in subfolders; mark spv/ itself as regenerated too,
+        // for tools that compare its time with glsl/'s.
+        let _ =
+            std::fs::File::open(&spv).and_then(|f| f.set_modified(std::time::SystemTime::now()));
+    }
     let mut spv_files = Vec::new();
     if spv.is_dir() {
         walk(&spv, "spv", &mut spv_files)?;

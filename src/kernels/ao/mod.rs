@@ -538,7 +538,9 @@ impl AoKernel {
     ///
     /// Synchronisation: the first barrier orders this frame after any earlier use of the
     /// kernel's buffers by compute shaders or copies (a previous frame, a readback); the
-    /// outputs are left as `ComputeShaderWrite`.
+    /// outputs are left as `ComputeShaderWrite`. The joint matrices go through a staging
+    /// buffer owned by the recording, one per frame, so frames in flight never overwrite
+    /// each other's matrices.
     pub fn record<'a>(&'a self, rec: &mut Recorder<'a>, matrices: &[Mat4]) -> Result<()> {
         self.record_after(rec, matrices, A::Nothing.into())
     }
