@@ -432,8 +432,8 @@ pub fn run(ctx: &Context, cfg: &AoRunConfig, progress: &mut dyn FnMut(&str)) -> 
         };
         let positions = to_vec3(&data.positions);
         let normals = to_vec3(&data.normals);
-        let ply = cfg.out.join(format!("ao_{index:04}.ply"));
-        let png = cfg.out.join(format!("ao_{index:04}.png"));
+        let ply = frame_png(&cfg.out, index).with_extension("ply");
+        let png = frame_png(&cfg.out, index);
         scene::ply_write::write_ply(
             &ply,
             &format!(

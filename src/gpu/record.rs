@@ -507,21 +507,8 @@ impl<'a> Recorder<'a> {
         if bytes.is_empty() {
             return Ok(());
         }
-        let mut staging = Buffer::new(
-            &Context {
-                shared: self.shared.clone(),
-            },
-            BufferDesc {
-                name: format!("{} staging", dst.name()),
-                size: bytes.len() as u64,
-                usage: vk::BufferUsageFlags::TRANSFER_SRC,
-                memory: MemoryUsage::Upload,
-            },
-        )?;
-        staging.write(0, bytes)?;
-        self.copy_raw(&staging, 0, dst, offset, bytes.len() as u64)?;
-        self.transient.push(staging.keep());
-        Ok(())
+        let staging = self.upload_staging(dst.name(), bytes)?;
+        self.copy_raw(&staging, 0, dst, offset, bytes.len() as u64)
     }
 
     /// Copies tightly packed texel data into a whole image through staging, with the layout
@@ -540,18 +527,7 @@ impl<'a> Recorder<'a> {
                 data.len()
             )));
         }
-        let mut staging = Buffer::new(
-            &Context {
-                shared: self.shared.clone(),
-            },
-            BufferDesc {
-                name: format!("{} staging", image.name()),
-                size: expected,
-                usage: vk::BufferUsageFlags::TRANSFER_SRC,
-                memory: MemoryUsage::Upload,
-            },
-        )?;
-        staging.write(0, data)?;
+        let staging = self.upload_staging(image.name(), data)?;
         self.barrier(&[Barrier::Image {
             image,
             prev: prev.into(),
@@ -568,30 +544,50 @@ impl<'a> Recorder<'a> {
                 &[image.copy_region(0)],
             )
         };
-        self.transient.push(staging.keep());
         Ok(())
     }
 
-    fn readback_staging(
-        &mut self,
-        name: &str,
-        size: u64,
-    ) -> Result<(Buffer, Arc<std::sync::atomic::AtomicBool>)> {
-        let staging = Buffer::new(
-            &Context {
-                shared: self.shared.clone(),
-            },
+    /// A host-visible buffer kept alive by this recorder until it is dropped.
+    fn staging(&mut self, name: String, size: u64, readback: bool) -> Result<Buffer> {
+        let (usage, memory) = if readback {
+            (vk::BufferUsageFlags::TRANSFER_DST, MemoryUsage::Readback)
+        } else {
+            (vk::BufferUsageFlags::TRANSFER_SRC, MemoryUsage::Upload)
+        };
+        let ctx = Context {
+            shared: self.shared.clone(),
+        };
+        let buffer = Buffer::new(
+            &ctx,
             BufferDesc {
-                name: format!("{name} readback"),
+                name,
                 size,
-                usage: vk::BufferUsageFlags::TRANSFER_DST,
-                memory: MemoryUsage::Readback,
+                usage,
+                memory,
             },
         )?;
-        let flag = Arc::new(std::sync::atomic::AtomicBool::new(false));
-        self.readbacks.push(flag.clone());
+        self.transient.push(buffer.keep());
+        Ok(buffer)
+    }
+
+    /// A staging buffer holding `bytes`, to copy from.
+    fn upload_staging(&mut self, name: &str, bytes: &[u8]) -> Result<Buffer> {
+        let mut staging = self.staging(format!("{name} staging"), bytes.len() as u64, false)?;
+        staging.write(0, bytes)?;
+        Ok(staging)
+    }
+
+    /// A staging buffer to copy `size` bytes into, and the readback sharing it.
+    fn readback_staging(&mut self, name: &str, size: u64) -> Result<(Buffer, Readback)> {
+        let staging = self.staging(format!("{name} readback"), size, true)?;
+        let submitted = Arc::new(std::sync::atomic::AtomicBool::new(false));
+        self.readbacks.push(submitted.clone());
         self.pending_host_read = true;
-        Ok((staging, flag))
+        let readback = Readback {
+            staging: staging.keep(),
+            submitted,
+        };
+        Ok((staging, readback))
     }
 
     /// Copies a whole buffer back to the host. `prev` is the buffer's last access; afterwards
@@ -601,14 +597,10 @@ impl<'a> Recorder<'a> {
         buffer: &'a Buffer,
         prev: impl Into<AccessSet>,
     ) -> Result<Readback> {
-        let (staging, submitted) = self.readback_staging(buffer.name(), buffer.size())?;
+        let (staging, readback) = self.readback_staging(buffer.name(), buffer.size())?;
         self.barrier(&[Barrier::buffer(buffer, prev, AccessType::TransferRead)]);
         self.copy_raw(buffer, 0, &staging, 0, buffer.size())?;
-        self.transient.push(staging.keep());
-        Ok(Readback {
-            staging: staging.keep(),
-            submitted,
-        })
+        Ok(readback)
     }
 
     /// Copies a whole image back to the host (tightly packed). `prev` is its last access;
@@ -619,7 +611,7 @@ impl<'a> Recorder<'a> {
         prev: impl Into<AccessSet>,
     ) -> Result<Readback> {
         let size = image.desc().byte_size()?;
-        let (staging, submitted) = self.readback_staging(image.name(), size)?;
+        let (staging, readback) = self.readback_staging(image.name(), size)?;
         self.barrier(&[Barrier::image(image, prev, AccessType::TransferRead)]);
         // SAFETY: recording; the image is in TRANSFER_SRC_OPTIMAL after the barrier.
         unsafe {
@@ -631,11 +623,7 @@ impl<'a> Recorder<'a> {
                 &[image.copy_region(0)],
             )
         };
-        self.transient.push(staging.keep());
-        Ok(Readback {
-            staging: staging.keep(),
-            submitted,
-        })
+        Ok(readback)
     }
 
     /// Closes open passes and makes readbacks visible to the host.

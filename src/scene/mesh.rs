@@ -280,6 +280,9 @@ fn normalise_influences(
     joint_count: usize,
     report: &mut MeshReport,
 ) -> std::result::Result<SkinWeights, String> {
+    if joint_count > u16::MAX as usize {
+        return Err(format!("{joint_count} joints exceed the supported 65535"));
+    }
     let mut joints = Vec::with_capacity(inf.len());
     let mut weights = Vec::with_capacity(inf.len());
     for (v, list) in inf.iter().enumerate() {
@@ -316,9 +319,6 @@ fn normalise_influences(
         let (j4, w4) = (top.joints, top.weights);
         joints.push(j4);
         weights.push(w4);
-    }
-    if joint_count > u16::MAX as usize {
-        return Err(format!("{joint_count} joints exceed the supported 65535"));
     }
     Ok(SkinWeights { joints, weights })
 }

@@ -172,17 +172,6 @@ impl Prepared {
         let skin = mesh.skin.as_ref().ok_or_else(|| {
             Error::InvalidArgument(format!("mesh '{}' has no skin weights", mesh.name))
         })?;
-        let bad_joint = skin
-            .joints
-            .iter()
-            .chain(&tree.joints)
-            .flatten()
-            .any(|&j| j as usize >= joint_count);
-        if bad_joint || joint_count == 0 {
-            return Err(Error::InvalidArgument(format!(
-                "skin weights refer to joints beyond the rig's {joint_count}"
-            )));
-        }
         if tree.spheres.len() != tree.joints.len() || tree.spheres.len() != tree.weights.len() {
             return Err(Error::InvalidArgument(
                 "sphere tree lacks skin weights (call assign_skin)".into(),
@@ -283,7 +272,7 @@ impl Prepared {
             .any(|j| j as usize >= self.joint_count)
         {
             return bad(format!(
-                "a joint index beyond the rig's {}",
+                "a joint index beyond the rig's {} joints",
                 self.joint_count
             ));
         }
