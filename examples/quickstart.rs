@@ -1,9 +1,7 @@
 //! The README's library example: y = a * x + b on the GPU, under validation.
 //! Run with `cargo run --release --example quickstart`.
 
-use vkshade::gpu::{
-    AccessType as A, Buffer, BufferDesc, ComputePipeline, Context, ContextDesc, Resource,
-};
+use vkshade::gpu::{Buffer, BufferDesc, ComputePipeline, Context, ContextDesc, Resource};
 
 fn main() -> vkshade::Result<()> {
     let n = 1u32 << 20;
@@ -14,8 +12,8 @@ fn main() -> vkshade::Result<()> {
     let (values, ms) = {
         let spirv = vkshade::shaders::spirv("test/chain_scale")?; // any compute SPIR-V
         let pipeline = ComputePipeline::from_spirv(&ctx, "scale", spirv)?; // layout from reflection
-        let x = ctx.upload_buffer(BufferDesc::storage("x", 4 * n as u64), &data)?; // staging + barrier
-        let y = Buffer::new(&ctx, BufferDesc::storage("y", 4 * n as u64))?;
+        let x = ctx.upload_buffer("x", BufferDesc::storage(4 * n as u64), &data)?; // staging + barrier
+        let y = Buffer::new(&ctx, "y", BufferDesc::storage(4 * n as u64))?;
         let bind =
             pipeline.bind(&[("src", Resource::Buffer(&x)), ("dst", Resource::Buffer(&y))])?;
         let push = [2.0f32.to_le_bytes(), 1.0f32.to_le_bytes(), n.to_le_bytes()].concat();
@@ -24,7 +22,7 @@ fn main() -> vkshade::Result<()> {
         rec.begin_pass("scale"); // debug label + timestamps
         rec.dispatch_invocations(&pipeline, &bind, &push, [n, 1, 1])?;
         rec.end_pass();
-        let out = rec.read_back(&y, A::ComputeShaderWrite)?; // barrier + copy to the host
+        let out = rec.read_back(&y)?; // barrier + copy to the host
         let timings = rec.submit_and_wait()?; // GPU milliseconds per pass
         let values: Vec<f32> = out.to_vec()?;
         (values, timings.get("scale").unwrap_or(f64::NAN))

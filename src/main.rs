@@ -250,6 +250,7 @@ fn context(g: &Global) -> Result<Context> {
     Context::new(&ContextDesc {
         device: g.device.clone(),
         validation: g.validate.then(ValidationConfig::default),
+        ..ContextDesc::default()
     })
 }
 

@@ -71,11 +71,13 @@ fn gpu_frame(
     matrices: &[Mat4],
 ) -> vkshade::Result<FrameData> {
     let prep = Prepared::new(&character.mesh, tree, character.rig.joints.len())?;
-    let kernel = AoKernel::new(ctx, &prep, params)?;
-    if let Some(c) = correction {
-        kernel.set_correction(ctx, c)?;
-    }
+    // Construction, correction and the frame go into one recording: the uploads are
+    // recorded, not submitted on their own.
     let mut rec = ctx.recorder("ao test frame")?;
+    let kernel = AoKernel::new(&mut rec, &prep, params)?;
+    if let Some(c) = correction {
+        kernel.set_correction(&mut rec, c)?;
+    }
     kernel.record(&mut rec, matrices)?;
     let rb = kernel.read_back(&mut rec)?;
     rec.submit_and_wait()?;
@@ -401,8 +403,8 @@ fn bad_joint_matrices_are_refused() {
     );
     common::with_gpu(|ctx| {
         let prep = Prepared::new(&character.mesh, &tree, 1)?;
-        let kernel = AoKernel::new(ctx, &prep, AoParams::default())?;
         let mut rec = ctx.recorder("bad matrices")?;
+        let kernel = AoKernel::new(&mut rec, &prep, AoParams::default())?;
         let e = kernel
             .record(&mut rec, &[Mat4::IDENTITY, Mat4::IDENTITY])
             .unwrap_err();
@@ -414,9 +416,8 @@ fn bad_joint_matrices_are_refused() {
         nan.w_axis.x = f32::NAN;
         let e = kernel.record(&mut rec, &[nan]).unwrap_err();
         assert!(e.to_string().contains("not finite"), "{e}");
-        drop(rec);
         let e = AoKernel::new(
-            ctx,
+            &mut rec,
             &prep,
             AoParams {
                 tau: 0.0,
@@ -426,6 +427,7 @@ fn bad_joint_matrices_are_refused() {
         .err()
         .unwrap();
         assert!(e.to_string().contains("tau"), "{e}");
+        drop(rec);
         let e = Prepared::new(&character.mesh, &tree, 0).unwrap_err();
         assert!(e.to_string().contains("joints"), "{e}");
         Ok(())

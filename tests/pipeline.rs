@@ -9,7 +9,7 @@ use common::{assert_clean, context, shutdown, with_gpu};
 use vkshade::Error;
 use vkshade::gpu::{
     AccessType as A, Barrier, BindGroup, Buffer, BufferDesc, ComputePipeline, Context, Image,
-    ImageDesc, Recorder, Resource, Shader,
+    ImageDesc, ImageRegion, Recorder, Resource, Shader,
 };
 use vkshade::shaders::spirv;
 
@@ -60,9 +60,9 @@ impl Chain {
         let scale =
             ComputePipeline::from_spirv(ctx, "test/chain_scale", spirv("test/chain_scale")?)?;
         let add = ComputePipeline::from_spirv(ctx, "test/chain_add", spirv("test/chain_add")?)?;
-        let x = ctx.upload_buffer(BufferDesc::storage("x", bytes), &x)?;
-        let y = Buffer::new(ctx, BufferDesc::storage("y", bytes))?;
-        let acc = ctx.upload_buffer(BufferDesc::storage("acc", bytes), &acc)?;
+        let x = ctx.upload_buffer("x", BufferDesc::storage(bytes), &x)?;
+        let y = Buffer::new(ctx, "y", BufferDesc::storage(bytes))?;
+        let acc = ctx.upload_buffer("acc", BufferDesc::storage(bytes), &acc)?;
         let scale_bind =
             scale.bind(&[("src", Resource::Buffer(&x)), ("dst", Resource::Buffer(&y))])?;
         let add_bind = add.bind(&[
@@ -82,7 +82,7 @@ impl Chain {
 
     /// Records the four dispatches; `raw_barrier` controls the read-after-write barrier on
     /// `y` between the first scale and the first add (the negative test leaves it out).
-    fn record<'a>(&'a self, rec: &mut Recorder<'a>, raw_barrier: bool) -> vkshade::Result<()> {
+    fn record(&self, rec: &mut Recorder, raw_barrier: bool) -> vkshade::Result<()> {
         let y = &self._y;
         rec.begin_pass("chain");
         rec.begin_pass("scale 1");
@@ -141,7 +141,7 @@ fn dispatch_chain_matches_cpu_and_is_validation_clean() {
         let chain = Chain::new(ctx)?;
         let mut rec = ctx.recorder("chain")?;
         chain.record(&mut rec, true)?;
-        let readback = rec.read_back(&chain.acc, A::ComputeShaderWrite)?;
+        let readback = rec.read_back(&chain.acc)?;
         let timings = rec.submit_and_wait()?;
         Ok((readback.to_vec::<f32>()?, timings))
     });
@@ -244,7 +244,7 @@ fn undestroyed_object_is_reported_at_shutdown() {
 #[test]
 fn live_resource_blocks_shutdown() {
     let ctx = context();
-    let buffer = Buffer::new(&ctx, BufferDesc::storage("kept", 256)).expect("buffer");
+    let buffer = Buffer::new(&ctx, "kept", BufferDesc::storage(256)).expect("buffer");
     let err = ctx
         .shutdown()
         .expect_err("a live buffer must block shutdown");
@@ -310,26 +310,13 @@ fn interface_mismatches_are_clear_errors() {
         let add = ComputePipeline::from_spirv(ctx, "test/chain_add", spirv("test/chain_add")?)?;
         let scale =
             ComputePipeline::from_spirv(ctx, "test/chain_scale", spirv("test/chain_scale")?)?;
-        let y = Buffer::new(ctx, BufferDesc::storage("y", 4096))?;
-        let acc = Buffer::new(ctx, BufferDesc::storage("acc", 4096))?;
-        let uniform_only = Buffer::new(
-            ctx,
-            BufferDesc {
-                name: "uniform-only".into(),
-                size: 4096,
-                usage: vk::BufferUsageFlags::UNIFORM_BUFFER,
-                memory: vkshade::gpu::MemoryUsage::GpuOnly,
-            },
-        )?;
+        let y = Buffer::new(ctx, "y", BufferDesc::storage(4096))?;
+        let acc = Buffer::new(ctx, "acc", BufferDesc::storage(4096))?;
+        let uniform_only = Buffer::new(ctx, "uniform-only", BufferDesc::uniform(4096))?;
         let image = Image::new(
             ctx,
-            ImageDesc {
-                name: "img".into(),
-                format: vk::Format::R32_SFLOAT,
-                extent: [4, 4, 1],
-                layers: 1,
-                usage: vk::ImageUsageFlags::STORAGE,
-            },
+            "img",
+            ImageDesc::d2(vk::Format::R32_SFLOAT, [4, 4]).usage(vk::ImageUsageFlags::STORAGE),
         )?;
         let expect_err = |r: vkshade::Result<vkshade::gpu::BindGroup>, needle: &str| match r {
             Err(e @ Error::Interface { .. }) => {
@@ -356,7 +343,7 @@ fn interface_mismatches_are_clear_errors() {
         expect_err(
             add.bind(&[
                 ("ybuf", Resource::Buffer(&y)),
-                ("accbuf", Resource::StorageImage(&image)),
+                ("accbuf", Resource::storage_image(&image)),
             ]),
             "StorageBuffer but was given a storage image",
         );
@@ -417,7 +404,7 @@ fn interface_mismatches_are_clear_errors() {
 fn buffers_beyond_device_limits_are_refused() {
     with_gpu(|ctx| {
         let max = ctx.limits().max_storage_buffer_range;
-        match Buffer::new(ctx, BufferDesc::storage("too big", max + 16)) {
+        match Buffer::new(ctx, "too big", BufferDesc::storage(max + 16)) {
             Err(e @ Error::Limit { .. }) => {
                 let s = e.to_string();
                 assert!(
@@ -430,14 +417,12 @@ fn buffers_beyond_device_limits_are_refused() {
         }
         let max_alloc = ctx.limits().max_memory_allocation_size;
         let staging = BufferDesc {
-            name: "huge staging".into(),
-            size: max_alloc + 1,
             usage: vk::BufferUsageFlags::TRANSFER_SRC,
-            memory: vkshade::gpu::MemoryUsage::Upload,
+            ..BufferDesc::upload(max_alloc + 1)
         };
-        let e = Buffer::new(ctx, staging).unwrap_err();
+        let e = Buffer::new(ctx, "huge staging", staging).unwrap_err();
         assert!(e.to_string().contains("maxMemoryAllocationSize"), "{e}");
-        let e = Buffer::new(ctx, BufferDesc::storage("empty", 0)).unwrap_err();
+        let e = Buffer::new(ctx, "empty", BufferDesc::storage(0)).unwrap_err();
         assert!(e.to_string().contains("size 0"), "{e}");
         Ok(())
     });
@@ -450,39 +435,30 @@ fn images_round_trip_through_staging() {
             ("rgba8 2d", vk::Format::R8G8B8A8_UNORM, [37, 19, 1], 4usize),
             ("r32f 3d", vk::Format::R32_SFLOAT, [8, 5, 6], 4),
         ] {
-            let image = Image::new(
-                ctx,
-                ImageDesc {
-                    name: name.into(),
-                    format,
-                    extent,
-                    layers: 1,
-                    usage: vk::ImageUsageFlags::TRANSFER_DST
-                        | vk::ImageUsageFlags::TRANSFER_SRC
-                        | vk::ImageUsageFlags::SAMPLED,
-                },
-            )?;
+            let desc = if extent[2] > 1 {
+                ImageDesc::d3(format, extent)
+            } else {
+                ImageDesc::d2(format, [extent[0], extent[1]])
+            };
+            let image = Image::new(ctx, name, desc)?;
             let n = extent.iter().product::<u32>() as usize * texel;
             let data: Vec<u8> = (0..n).map(|i| (i * 7 % 251) as u8).collect();
             let mut rec = ctx.recorder("image round trip")?;
-            rec.upload_image(&image, A::Nothing, &data)?;
+            rec.upload_image(&image, ImageRegion::whole(image.desc()), &data)?;
             rec.barrier(&[Barrier::image(
                 &image,
                 A::TransferWrite,
                 A::ComputeShaderReadSampledImage,
             )]);
-            let rb = rec.read_back_image(&image, A::ComputeShaderReadSampledImage)?;
+            let rb = rec.read_back_image(&image, ImageRegion::whole(image.desc()))?;
             rec.submit_and_wait()?;
             assert_eq!(rb.bytes()?, &data[..], "{name}");
         }
-        let too_big = ImageDesc {
-            name: "too deep".into(),
-            format: vk::Format::R8G8B8A8_UNORM,
-            extent: [4, 4, ctx.limits().max_image_dimension_3d + 1],
-            layers: 1,
-            usage: vk::ImageUsageFlags::SAMPLED,
-        };
-        let e = Image::new(ctx, too_big).unwrap_err();
+        let too_big = ImageDesc::d3(
+            vk::Format::R8G8B8A8_UNORM,
+            [4, 4, ctx.limits().max_image_dimension_3d + 1],
+        );
+        let e = Image::new(ctx, "too deep", too_big).unwrap_err();
         assert!(e.to_string().contains("maxImageDimension3D"), "{e}");
         Ok(())
     });
@@ -491,9 +467,9 @@ fn images_round_trip_through_staging() {
 #[test]
 fn readback_before_submit_is_an_error() {
     with_gpu(|ctx| {
-        let b = ctx.upload_buffer(BufferDesc::storage("b", 16), &[1u32, 2, 3, 4])?;
+        let b = ctx.upload_buffer("b", BufferDesc::storage(16), &[1u32, 2, 3, 4])?;
         let mut rec = ctx.recorder("early read")?;
-        let rb = rec.read_back(&b, A::TransferWrite)?;
+        let rb = rec.read_back(&b)?;
         assert!(rb.bytes().is_err());
         rec.submit_and_wait()?;
         assert_eq!(rb.to_vec::<u32>()?, vec![1, 2, 3, 4]);
@@ -506,6 +482,7 @@ fn unknown_device_selector_names_the_devices_present() {
     let desc = vkshade::gpu::ContextDesc {
         device: vkshade::gpu::DeviceSelector::Name("no-such-gpu-xyz".into()),
         validation: None,
+        ..Default::default()
     };
     let e = Context::new(&desc).unwrap_err();
     let s = e.to_string();
@@ -560,7 +537,7 @@ fn specialization_constants_by_name() {
             ([64, 1, 1], [Some(3), None, None])
         );
         let n = 1000u32;
-        let out = Buffer::new(ctx, BufferDesc::storage("spec out", 4 * n as u64))?;
+        let out = Buffer::new(ctx, "spec out", BufferDesc::storage(4 * n as u64))?;
         for (constants, factor, offset, group) in [
             (vec![], 2.0f32, 0.5f32, 64),
             (
@@ -584,7 +561,7 @@ fn specialization_constants_by_name() {
                 A::ComputeShaderWrite,
             )]);
             rec.dispatch_invocations(&p, &bind, &n.to_le_bytes(), [n, 1, 1])?;
-            let rb = rec.read_back(&out, A::ComputeShaderWrite)?;
+            let rb = rec.read_back(&out)?;
             rec.submit_and_wait()?;
             let v: Vec<f32> = rb.to_vec()?;
             for (i, x) in v.iter().enumerate() {
@@ -609,9 +586,9 @@ fn specialization_constants_by_name() {
 #[test]
 fn readback_dropped_before_submit_is_harmless() {
     with_gpu(|ctx| {
-        let b = ctx.upload_buffer(BufferDesc::storage("b", 1 << 16), &vec![7u32; 1 << 14])?;
+        let b = ctx.upload_buffer("b", BufferDesc::storage(1 << 16), &vec![7u32; 1 << 14])?;
         let mut rec = ctx.recorder("dropped readback")?;
-        let rb = rec.read_back(&b, A::TransferWrite)?;
+        let rb = rec.read_back(&b)?;
         drop(rb); // the recorded copy still has its staging buffer
         rec.submit_and_wait()?;
         Ok(())
@@ -624,8 +601,8 @@ fn bind_group_keeps_its_buffers_alive() {
     with_gpu(|ctx| {
         let scale =
             ComputePipeline::from_spirv(ctx, "test/chain_scale", spirv("test/chain_scale")?)?;
-        let xb = ctx.upload_buffer(BufferDesc::storage("x", N as u64 * 4), &x)?;
-        let y = Buffer::new(ctx, BufferDesc::storage("y", N as u64 * 4))?;
+        let xb = ctx.upload_buffer("x", BufferDesc::storage(N as u64 * 4), &x)?;
+        let y = Buffer::new(ctx, "y", BufferDesc::storage(N as u64 * 4))?;
         let bind = scale.bind(&[
             ("src", Resource::Buffer(&xb)),
             ("dst", Resource::Buffer(&y)),
@@ -633,7 +610,7 @@ fn bind_group_keeps_its_buffers_alive() {
         drop(xb); // the bind group still holds the buffer it reads
         let mut rec = ctx.recorder("after drop")?;
         rec.dispatch_invocations(&scale, &bind, &scale_push(3.0, -1.0, N), [N, 1, 1])?;
-        let rb = rec.read_back(&y, A::ComputeShaderWrite)?;
+        let rb = rec.read_back(&y)?;
         rec.submit_and_wait()?;
         let got: Vec<f32> = rb.to_vec()?;
         for i in [0, 1, 777, N as usize - 1] {
@@ -646,8 +623,8 @@ fn bind_group_keeps_its_buffers_alive() {
 #[test]
 fn copies_out_of_bounds_or_empty_are_refused() {
     with_gpu(|ctx| {
-        let a = Buffer::new(ctx, BufferDesc::storage("a", 64))?;
-        let b = Buffer::new(ctx, BufferDesc::storage("b", 64))?;
+        let a = Buffer::new(ctx, "a", BufferDesc::storage(64))?;
+        let b = Buffer::new(ctx, "b", BufferDesc::storage(64))?;
         let mut rec = ctx.recorder("bad copies")?;
         for (so, d, size) in [
             (0u64, 0u64, 0u64),
@@ -705,10 +682,10 @@ fn external_device_command_buffer_and_semaphores() {
             A::ComputeShaderReadOther,
         )]);
         second.dispatch_invocations(&chain.add, &chain.add_bind, &add_push(0.5, N), [N, 1, 1])?;
-        let rb = second.read_back(&chain.acc, A::ComputeShaderWrite)?;
+        let rb = second.read_back(&chain.acc)?;
         let second = second.submit(&wait, &[])?;
         second.wait()?;
-        assert!(first.is_complete()?);
+        assert!(first.is_complete());
         first.wait()?;
         // SAFETY: both submissions completed.
         unsafe { device.destroy_semaphore(sem, None) };
@@ -745,22 +722,26 @@ fn external_device_command_buffer_and_semaphores() {
             rec.begin_pass("add in renderer frame");
             rec.dispatch_invocations(&chain.add, &chain.add_bind, &add_push(1.0, N), [N, 1, 1])?;
             rec.end_pass();
-            let rb2 = rec.read_back(&chain.acc, A::ComputeShaderWrite)?;
-            let recorded = rec.finish()?;
+            let rb2 = rec.read_back(&chain.acc)?;
+            let mut recorded = rec.finish()?;
             device.end_command_buffer(cmd).unwrap();
             let fence = device
                 .create_fence(&vk::FenceCreateInfo::default(), None)
                 .unwrap();
             let infos = [vk::CommandBufferSubmitInfo::default().command_buffer(cmd)];
+            let signals = [recorded.signal()];
+            let queue = owner.external_handles().queue;
             device
                 .queue_submit2(
-                    owner.external_handles().queue,
-                    &[vk::SubmitInfo2::default().command_buffer_infos(&infos)],
+                    *queue.lock().unwrap(),
+                    &[vk::SubmitInfo2::default()
+                        .command_buffer_infos(&infos)
+                        .signal_semaphore_infos(&signals)],
                     fence,
                 )
                 .unwrap();
             device.wait_for_fences(&[fence], true, u64::MAX).unwrap();
-            let timings = recorded.complete()?;
+            let timings = recorded.wait(u64::MAX)?;
             assert!(
                 timings
                     .get("add in renderer frame")

@@ -354,14 +354,15 @@ pub fn run(ctx: &Context, cfg: &AoRunConfig, progress: &mut dyn FnMut(&str)) -> 
         tree_info.source, tree_info.spheres_per_level, tree_info.build_ms
     ));
     let prep = Prepared::new(mesh, &tree, character.rig.joints.len())?;
-    let kernel = AoKernel::new(ctx, &prep, cfg.params)?;
+    let mut setup = ctx.recorder("ao setup")?;
+    let kernel = AoKernel::new(&mut setup, &prep, cfg.params)?;
     let cpu_ao = CpuAo::new(OcclusionTable::new(TABLE_SIZE, TABLE_SIZE));
 
     let (correction, correction_info) = if cfg.params.correct {
         let t = Instant::now();
         let c = Correction::bake(mesh, cfg.correction_rays);
         let factors = c.factors(&cpu_ao, &prep, &cfg.params);
-        kernel.set_correction(ctx, &factors)?;
+        kernel.set_correction(&mut setup, &factors)?;
         let ms = t.elapsed().as_secs_f64() * 1e3;
         progress(&format!(
             "static correction baked in the bind pose ({} rays/vertex, {ms:.0} ms)",
@@ -378,6 +379,7 @@ pub fn run(ctx: &Context, cfg: &AoRunConfig, progress: &mut dyn FnMut(&str)) -> 
     } else {
         (None, None)
     };
+    setup.submit_and_wait()?;
 
     let duration = anim.map(|a| a.duration).unwrap_or(0.0);
     let frames = if anim.is_some() { cfg.frames } else { 1 };

@@ -92,8 +92,10 @@ pub struct Point {
     pub gflops: f64,
     /// gflops / the device's measured FMA peak.
     pub fraction_of_peak: f64,
-    /// Device memory of the kernel's buffers.
+    /// Device memory of the kernel's buffers (their allocations).
     pub gpu_memory_bytes: u64,
+    /// Device memory the context's allocator holds in blocks (used or not) at this point.
+    pub gpu_memory_reserved_bytes: u64,
     /// Against the ray-traced mesh, mean over the reference frames (tau sweep only).
     pub mae: Option<f64>,
     pub p95: Option<f64>,
@@ -152,10 +154,12 @@ fn measure(
     peak: f64,
 ) -> Result<Point> {
     let prep = Prepared::new(case.mesh, case.tree, case.character.rig.joints.len())?;
-    let kernel = AoKernel::new(ctx, &prep, params)?;
+    let mut setup = ctx.recorder("ao bench setup")?;
+    let kernel = AoKernel::new(&mut setup, &prep, params)?;
     if let Some(f) = factors {
-        kernel.set_correction(ctx, f)?;
+        kernel.set_correction(&mut setup, f)?;
     }
+    setup.submit_and_wait()?;
     let times = time_gpu_passes(ctx, cfg, &["ao skin", "ao occlusion"], |rec| {
         kernel.record(rec, matrices)
     })?;
@@ -195,6 +199,7 @@ fn measure(
         gflops,
         fraction_of_peak: gflops / peak,
         gpu_memory_bytes: kernel.memory_bytes(),
+        gpu_memory_reserved_bytes: kernel.memory().reserved_bytes,
         mae: None,
         p95: None,
     })

@@ -75,22 +75,22 @@ impl Stats {
 
 /// Records `record` into a fresh command buffer `warmup + samples` times and returns the GPU
 /// time of the pass `pass` that `record` opens, from timestamps.
-pub fn time_gpu<'a>(
+pub fn time_gpu(
     ctx: &Context,
     cfg: &BenchConfig,
     pass: &str,
-    record: impl FnMut(&mut Recorder<'a>) -> Result<()>,
+    record: impl FnMut(&mut Recorder) -> Result<()>,
 ) -> Result<Stats> {
     Ok(time_gpu_passes(ctx, cfg, &[pass], record)?.remove(0))
 }
 
 /// As [`time_gpu`], for several passes of the same submissions (one `Stats` per pass, in
 /// the order of `passes`).
-pub fn time_gpu_passes<'a>(
+pub fn time_gpu_passes(
     ctx: &Context,
     cfg: &BenchConfig,
     passes: &[&str],
-    mut record: impl FnMut(&mut Recorder<'a>) -> Result<()>,
+    mut record: impl FnMut(&mut Recorder) -> Result<()>,
 ) -> Result<Vec<Stats>> {
     let mut samples = vec![Vec::with_capacity(cfg.samples); passes.len()];
     for i in 0..cfg.warmup + cfg.samples.max(1) {

@@ -84,7 +84,7 @@ pub fn run(ctx: &Context, cfg: &BenchConfig, progress: &mut dyn FnMut(&str)) -> 
 }
 
 fn record_fma<'a>(
-    rec: &mut Recorder<'a>,
+    rec: &mut Recorder,
     pipeline: &'a ComputePipeline,
     bind: &'a BindGroup,
     out: &'a Buffer,
@@ -108,7 +108,7 @@ fn record_fma<'a>(
 }
 
 fn record_stream<'a>(
-    rec: &mut Recorder<'a>,
+    rec: &mut Recorder,
     pipeline: &'a ComputePipeline,
     bind: &'a BindGroup,
     dst: &'a Buffer,
@@ -144,7 +144,8 @@ pub fn run_fma(
     let pipeline = ComputePipeline::from_spirv(ctx, "bench/fma", shaders::spirv("bench/fma")?)?;
     let out = Buffer::new(
         ctx,
-        BufferDesc::storage("fma out", FMA_INVOCATIONS as u64 * 16),
+        "fma out",
+        BufferDesc::storage(FMA_INVOCATIONS as u64 * 16),
     )?;
     let bind = pipeline.bind(&[("outbuf", Resource::Buffer(&out))])?;
     let flops = |iterations: u32| FMA_INVOCATIONS as f64 * iterations as f64 * FLOP_PER_ITERATION;
@@ -220,8 +221,8 @@ pub fn run_stream(
     let largest = *sizes
         .last()
         .ok_or_else(|| Error::InvalidArgument("no stream sizes".into()))?;
-    let src = Buffer::new(ctx, BufferDesc::storage("stream src", largest))?;
-    let dst = Buffer::new(ctx, BufferDesc::storage("stream dst", largest))?;
+    let src = Buffer::new(ctx, "stream src", BufferDesc::storage(largest))?;
+    let dst = Buffer::new(ctx, "stream dst", BufferDesc::storage(largest))?;
     {
         let mut rec = ctx.recorder("stream init")?;
         rec.fill_buffer(&src, 1.0f32.to_bits());

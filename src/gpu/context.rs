@@ -1,11 +1,15 @@
 //! Instance, physical-device choice, logical device, queue, allocator and validation.
 
+use super::lifetime::Retired;
+use super::memory::MemoryStats;
+use super::staging::StagingRing;
 use super::validation::{MessageSink, Severity, ValidationMessage, debug_callback, lock};
 use crate::error::{Error, Result, VkResultExt};
 use ash::vk;
 use gpu_allocator::vulkan::{Allocator, AllocatorCreateDesc};
 use std::ffi::{CStr, CString, c_char};
 use std::mem::ManuallyDrop;
+use std::sync::atomic::AtomicU64;
 use std::sync::{Arc, Mutex};
 
 const VALIDATION_LAYER: &CStr = c"VK_LAYER_KHRONOS_validation";
@@ -67,20 +71,104 @@ impl Default for ValidationConfig {
     }
 }
 
+/// Optional device features a kernel may need. Requested ones are enabled at device
+/// creation; a missing one is an error naming it. [`DeviceInfo::features`] lists what a
+/// device supports.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct Features {
+    /// `shaderFloat16` (float16 arithmetic in shaders).
+    pub shader_float16: bool,
+    /// `shaderInt16`.
+    pub shader_int16: bool,
+    /// `storageBuffer16BitAccess` (16-bit types in storage buffers).
+    pub storage_16bit: bool,
+    /// `shaderFloat64`.
+    pub shader_float64: bool,
+    /// `samplerAnisotropy`.
+    pub sampler_anisotropy: bool,
+    /// `textureCompressionBC` (BC1-7 formats).
+    pub texture_compression_bc: bool,
+}
+
+impl Features {
+    const NAMES: [&'static str; 6] = [
+        "shaderFloat16",
+        "shaderInt16",
+        "storageBuffer16BitAccess",
+        "shaderFloat64",
+        "samplerAnisotropy",
+        "textureCompressionBC",
+    ];
+
+    fn flags(&self) -> [bool; 6] {
+        [
+            self.shader_float16,
+            self.shader_int16,
+            self.storage_16bit,
+            self.shader_float64,
+            self.sampler_anisotropy,
+            self.texture_compression_bc,
+        ]
+    }
+
+    /// Names of the features in `self` that `supported` lacks.
+    pub fn missing_from(&self, supported: &Features) -> Vec<&'static str> {
+        self.flags()
+            .iter()
+            .zip(supported.flags())
+            .zip(Self::NAMES)
+            .filter(|((want, have), _)| **want && !*have)
+            .map(|(_, n)| n)
+            .collect()
+    }
+}
+
+/// Memory settings of a context.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct MemoryConfig {
+    /// Size of the allocator's device-local blocks (gpu-allocator default: 256 MiB).
+    pub device_block_bytes: u64,
+    /// Size of the allocator's host-visible blocks (gpu-allocator default: 64 MiB).
+    pub host_block_bytes: u64,
+    /// Size of the staging ring uploads go through (0: one-off staging buffers only).
+    pub staging_ring_bytes: u64,
+}
+
+impl Default for MemoryConfig {
+    fn default() -> Self {
+        MemoryConfig {
+            device_block_bytes: 64 << 20,
+            host_block_bytes: 16 << 20,
+            staging_ring_bytes: 16 << 20,
+        }
+    }
+}
+
+impl MemoryConfig {
+    fn allocation_sizes(&self) -> gpu_allocator::AllocationSizes {
+        gpu_allocator::AllocationSizes::new(self.device_block_bytes, self.host_block_bytes)
+    }
+}
+
 /// How to create a [`Context`].
 #[derive(Clone, Debug, Default)]
 pub struct ContextDesc {
     pub device: DeviceSelector,
     /// `None`: no validation layer. `Some`: the layer is required and an error if missing.
     pub validation: Option<ValidationConfig>,
+    /// Optional features to enable (an error if the device lacks one).
+    pub features: Features,
+    /// Device extensions to enable, e.g. `"VK_EXT_shader_atomic_float"` (an error if missing).
+    pub extensions: Vec<String>,
+    pub memory: MemoryConfig,
 }
 
 impl ContextDesc {
     /// Best device, validation with synchronization checks: what the tests use.
     pub fn validated() -> Self {
         ContextDesc {
-            device: DeviceSelector::Best,
             validation: Some(ValidationConfig::default()),
+            ..ContextDesc::default()
         }
     }
 }
@@ -92,10 +180,18 @@ pub struct ExternalDevice {
     pub instance: ash::Instance,
     pub physical_device: vk::PhysicalDevice,
     pub device: ash::Device,
-    pub queue: vk::Queue,
+    /// The queue vkshade submits to, behind the caller's lock (vkshade locks it for each
+    /// submission; the caller locks it for its own).
+    pub queue: Arc<Mutex<vk::Queue>>,
     pub queue_family: u32,
     /// Whether the instance has VK_EXT_debug_utils enabled.
     pub debug_utils: bool,
+    /// The caller's allocator, shared; `None` makes vkshade create its own on the device.
+    pub allocator: Option<Arc<Mutex<Allocator>>>,
+    /// Optional features the caller enabled on the device.
+    pub features: Features,
+    /// Memory settings (block sizes apply only to an allocator vkshade creates).
+    pub memory: MemoryConfig,
 }
 
 /// The device limits that matter to the kernels.
@@ -107,7 +203,10 @@ pub struct DeviceLimits {
     pub max_push_constants_size: u32,
     pub max_image_dimension_2d: u32,
     pub max_image_dimension_3d: u32,
+    pub max_image_dimension_cube: u32,
     pub max_image_array_layers: u32,
+    pub max_sampler_anisotropy: f32,
+    pub max_sampler_lod_bias: f32,
     pub max_compute_shared_memory_size: u32,
     pub max_compute_work_group_invocations: u32,
     pub max_compute_work_group_size: [u32; 3],
@@ -140,6 +239,8 @@ pub struct DeviceInfo {
     /// Whether the device meets vkshade's requirements, and if not why.
     pub usable: std::result::Result<(), String>,
     pub limits: DeviceLimits,
+    /// Optional features the device supports.
+    pub features: Features,
 }
 
 fn version_string(v: u32) -> String {
@@ -199,9 +300,23 @@ fn describe_device(instance: &ash::Instance, pd: vk::PhysicalDevice, index: usiz
     unsafe { instance.get_physical_device_properties2(pd, &mut props2) };
     let props = props2.properties;
     let mut sync2 = vk::PhysicalDeviceVulkan13Features::default();
-    let mut features2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut sync2);
+    let mut f12 = vk::PhysicalDeviceVulkan12Features::default();
+    let mut f11 = vk::PhysicalDeviceVulkan11Features::default();
+    let mut features2 = vk::PhysicalDeviceFeatures2::default()
+        .push_next(&mut sync2)
+        .push_next(&mut f12)
+        .push_next(&mut f11);
     // SAFETY: as above.
     unsafe { instance.get_physical_device_features2(pd, &mut features2) };
+    let core = features2.features;
+    let features = Features {
+        shader_float16: f12.shader_float16 == vk::TRUE,
+        shader_int16: core.shader_int16 == vk::TRUE,
+        storage_16bit: f11.storage_buffer16_bit_access == vk::TRUE,
+        shader_float64: core.shader_float64 == vk::TRUE,
+        sampler_anisotropy: core.sampler_anisotropy == vk::TRUE,
+        texture_compression_bc: core.texture_compression_bc == vk::TRUE,
+    };
     // SAFETY: as above.
     let mem = unsafe { instance.get_physical_device_memory_properties(pd) };
     let device_local_bytes = mem.memory_heaps[..mem.memory_heap_count as usize]
@@ -218,6 +333,8 @@ fn describe_device(instance: &ash::Instance, pd: vk::PhysicalDevice, index: usiz
         ))
     } else if sync2.synchronization2 == vk::FALSE || sync2.maintenance4 == vk::FALSE {
         Err("no synchronization2 or maintenance4 feature".into())
+    } else if f12.timeline_semaphore == vk::FALSE {
+        Err("no timelineSemaphore feature".into())
     } else if family.is_none() {
         Err("no compute queue family".into())
     } else {
@@ -246,6 +363,7 @@ fn describe_device(instance: &ash::Instance, pd: vk::PhysicalDevice, index: usiz
         device_id: props.device_id,
         device_local_bytes,
         usable,
+        features,
         limits: DeviceLimits {
             max_storage_buffer_range: l.max_storage_buffer_range as u64,
             max_uniform_buffer_range: l.max_uniform_buffer_range as u64,
@@ -253,7 +371,10 @@ fn describe_device(instance: &ash::Instance, pd: vk::PhysicalDevice, index: usiz
             max_push_constants_size: l.max_push_constants_size,
             max_image_dimension_2d: l.max_image_dimension2_d,
             max_image_dimension_3d: l.max_image_dimension3_d,
+            max_image_dimension_cube: l.max_image_dimension_cube,
             max_image_array_layers: l.max_image_array_layers,
+            max_sampler_anisotropy: l.max_sampler_anisotropy,
+            max_sampler_lod_bias: l.max_sampler_lod_bias,
             max_compute_shared_memory_size: l.max_compute_shared_memory_size,
             max_compute_work_group_invocations: l.max_compute_work_group_invocations,
             max_compute_work_group_size: l.max_compute_work_group_size,
@@ -355,13 +476,25 @@ pub(crate) struct Shared {
     pub debug_device: Option<ash::ext::debug_utils::Device>,
     pub physical: vk::PhysicalDevice,
     pub info: DeviceInfo,
+    /// Optional features enabled on the device.
+    pub features: Features,
     pub device: ash::Device,
-    pub queue: Mutex<vk::Queue>,
+    pub queue: Arc<Mutex<vk::Queue>>,
     pub queue_family: u32,
-    pub allocator: ManuallyDrop<Mutex<Allocator>>,
+    pub allocator: ManuallyDrop<Arc<Mutex<Allocator>>>,
+    /// Whether vkshade created the allocator (and so reports its leaks).
+    own_allocator: bool,
     pub validation: bool,
     /// Whether vkshade created (and so destroys) the instance and device.
     owned: bool,
+    /// The timeline every submission signals (see `lifetime`).
+    pub timeline: vk::Semaphore,
+    /// The last timeline value handed out.
+    pub next_value: AtomicU64,
+    /// Objects waiting for the timeline to reach a value.
+    pub graveyard: Mutex<Vec<(u64, Retired)>>,
+    pub staging: Mutex<StagingRing>,
+    pub stats: MemoryStats,
 }
 
 impl Shared {
@@ -377,34 +510,93 @@ impl Shared {
             let _ = unsafe { du.set_debug_utils_object_name(&info) };
         }
     }
+
+    /// The signal of timeline value `value`, for a `vkQueueSubmit2`.
+    pub fn timeline_signal(&self, value: u64) -> vk::SemaphoreSubmitInfo<'static> {
+        vk::SemaphoreSubmitInfo::default()
+            .semaphore(self.timeline)
+            .value(value)
+            .stage_mask(vk::PipelineStageFlags2::ALL_COMMANDS)
+    }
+
+    /// Locks the queue, reserves the next timeline value and runs `submit` with both. If
+    /// `submit` fails, the value is signalled from the host (after earlier work) so nothing
+    /// waits for it forever.
+    pub fn submit_locked(&self, submit: impl FnOnce(vk::Queue, u64) -> Result<()>) -> Result<u64> {
+        let queue = lock(&self.queue);
+        let value = self.reserve_value();
+        if let Err(e) = submit(*queue, value) {
+            if self.wait_value(value - 1, 10_000_000_000).unwrap_or(false)
+                && self.completed() < value
+            {
+                let info = vk::SemaphoreSignalInfo::default()
+                    .semaphore(self.timeline)
+                    .value(value);
+                // SAFETY: our timeline; `value` exceeds the current value and no pending
+                // signal is lower (everything before it completed).
+                let _ = unsafe { self.device.signal_semaphore(&info) };
+            }
+            return Err(e);
+        }
+        Ok(value)
+    }
+
+    /// Waits for vkshade's own work at shutdown: device idle for a device vkshade owns, the
+    /// timeline for a caller's device (never vkDeviceWaitIdle on it). False if it timed out.
+    fn wait_own_work(&self) -> bool {
+        if self.owned {
+            // SAFETY: our own device; nothing else submits to it.
+            return unsafe { self.device.device_wait_idle() }.is_ok();
+        }
+        let last = self.next_value.load(std::sync::atomic::Ordering::Acquire);
+        self.wait_value(last, 10_000_000_000).unwrap_or(false)
+    }
 }
 
 impl Drop for Shared {
     fn drop(&mut self) {
-        // SAFETY: this is the last owner: every resource holding an Arc<Shared> is gone.
+        let idle = self.wait_own_work();
+        if !idle {
+            // Never free what the GPU may still use: leak it, and say so.
+            let n = lock(&self.graveyard).len();
+            self.sink.push(ValidationMessage {
+                severity: Severity::Error,
+                kind: "VKSHADE".into(),
+                id_number: 0,
+                id_name: "vkshade-work-never-completed".into(),
+                text: format!(
+                    "work recorded by vkshade did not complete (a Recorded signalled but never \
+                     submitted?): {n} object(s) and the staging ring are leaked"
+                ),
+                objects: Vec::new(),
+                labels: Vec::new(),
+            });
+            std::mem::forget(std::mem::take(&mut *lock(&self.graveyard)));
+            if let Some(a) = lock(&self.staging).allocation.take() {
+                std::mem::forget(a);
+            }
+        }
+        // SAFETY: this is the last owner: every resource holding an Arc<Shared> is gone, and
+        // the GPU is idle with respect to vkshade's work (or what it may use was leaked).
         unsafe {
-            let _ = self.device.device_wait_idle();
-            {
-                let alloc = lock(&self.allocator);
-                let report = alloc.generate_report();
-                if !report.allocations.is_empty() {
-                    let names: Vec<_> = report
-                        .allocations
-                        .iter()
-                        .map(|a| format!("'{}' ({} bytes)", a.name, a.size))
-                        .collect();
-                    self.sink.push(ValidationMessage {
-                        severity: Severity::Error,
-                        kind: "VKSHADE".into(),
-                        id_number: 0,
-                        id_name: "vkshade-memory-leak".into(),
-                        text: format!("allocations alive at shutdown: {}", names.join(", ")),
-                        objects: Vec::new(),
-                        labels: Vec::new(),
-                    });
-                }
+            for (_, item) in std::mem::take(&mut *lock(&self.graveyard)) {
+                self.destroy(item);
+            }
+            let (buffer, allocation) = {
+                let mut st = lock(&self.staging);
+                (st.buffer, st.allocation.take())
+            };
+            if let Some(a) = allocation {
+                self.device.destroy_buffer(buffer, None);
+                self.free_memory(a);
+            }
+            if self.own_allocator {
+                self.report_leaks();
             }
             ManuallyDrop::drop(&mut self.allocator);
+            if idle {
+                self.device.destroy_semaphore(self.timeline, None);
+            }
             if self.owned {
                 self.device.destroy_device(None);
                 if let Some(di) = &self.debug_instance {
@@ -412,6 +604,30 @@ impl Drop for Shared {
                 }
                 self.instance.destroy_instance(None);
             }
+        }
+    }
+}
+
+impl Shared {
+    /// Reports allocations still alive in vkshade's own allocator.
+    fn report_leaks(&self) {
+        let alloc = lock(&self.allocator);
+        let report = alloc.generate_report();
+        if !report.allocations.is_empty() {
+            let names: Vec<_> = report
+                .allocations
+                .iter()
+                .map(|a| format!("'{}' ({} bytes)", a.name, a.size))
+                .collect();
+            self.sink.push(ValidationMessage {
+                severity: Severity::Error,
+                kind: "VKSHADE".into(),
+                id_number: 0,
+                id_name: "vkshade-memory-leak".into(),
+                text: format!("allocations alive at shutdown: {}", names.join(", ")),
+                objects: Vec::new(),
+                labels: Vec::new(),
+            });
         }
     }
 }
@@ -434,127 +650,264 @@ impl std::fmt::Debug for Context {
     }
 }
 
-impl Context {
-    /// Creates the instance (validation layer and messenger chained in when requested),
-    /// picks a device and creates it with one compute queue.
-    pub fn new(desc: &ContextDesc) -> Result<Context> {
-        let entry = load_entry()?;
-        let validation = desc.validation.as_ref();
-        if validation.is_some() && !layer_present(&entry, VALIDATION_LAYER)? {
-            return Err(Error::NoValidationLayer);
+/// An instance with validation and messenger, before a device exists.
+///
+/// Fields drop in declaration order: `partial` (which destroys the instance on failure)
+/// must go before the sink its messenger writes to and the loader (`entry`).
+struct InstanceParts {
+    /// Destroys the instance if a later step fails.
+    partial: Partial,
+    sink: Arc<MessageSink>,
+    instance: ash::Instance,
+    debug_instance: Option<ash::ext::debug_utils::Instance>,
+    messenger: vk::DebugUtilsMessengerEXT,
+    entry: ash::Entry,
+}
+
+/// Creates the instance, with the validation layer, its features and the messenger chained
+/// in when `validation` is given.
+fn create_instance(validation: Option<&ValidationConfig>) -> Result<InstanceParts> {
+    let entry = load_entry()?;
+    if validation.is_some() && !layer_present(&entry, VALIDATION_LAYER)? {
+        return Err(Error::NoValidationLayer);
+    }
+    let has_debug_utils = extension_present(&entry, None, ash::ext::debug_utils::NAME)?
+        || (validation.is_some()
+            && extension_present(&entry, Some(VALIDATION_LAYER), ash::ext::debug_utils::NAME)?);
+    if validation.is_some() && !has_debug_utils {
+        return Err(Error::Unsupported {
+            device: "instance".into(),
+            what: "VK_EXT_debug_utils, needed to collect validation messages".into(),
+        });
+    }
+    let has_validation_features = match validation {
+        Some(_) => extension_present(
+            &entry,
+            Some(VALIDATION_LAYER),
+            ash::ext::validation_features::NAME,
+        )?,
+        None => false,
+    };
+    let sink = MessageSink::new(
+        validation
+            .map(|v| v.ignored_ids.clone())
+            .unwrap_or_default(),
+    );
+    let user_data = Arc::as_ptr(&sink) as *mut std::ffi::c_void;
+    let mut layers: Vec<*const c_char> = Vec::new();
+    let mut extensions: Vec<*const c_char> = Vec::new();
+    if validation.is_some() {
+        layers.push(VALIDATION_LAYER.as_ptr());
+    }
+    if has_debug_utils {
+        extensions.push(ash::ext::debug_utils::NAME.as_ptr());
+    }
+    if has_validation_features {
+        extensions.push(ash::ext::validation_features::NAME.as_ptr());
+    }
+    let mut enables = Vec::new();
+    if let Some(v) = validation {
+        if v.synchronization {
+            enables.push(vk::ValidationFeatureEnableEXT::SYNCHRONIZATION_VALIDATION);
         }
-        let has_debug_utils = extension_present(&entry, None, ash::ext::debug_utils::NAME)?
-            || (validation.is_some()
-                && extension_present(&entry, Some(VALIDATION_LAYER), ash::ext::debug_utils::NAME)?);
-        if validation.is_some() && !has_debug_utils {
+        if v.best_practices {
+            enables.push(vk::ValidationFeatureEnableEXT::BEST_PRACTICES);
+        }
+        if v.gpu_assisted {
+            enables.push(vk::ValidationFeatureEnableEXT::GPU_ASSISTED);
+        }
+        if !enables.is_empty() && !has_validation_features {
             return Err(Error::Unsupported {
-                device: "instance".into(),
-                what: "VK_EXT_debug_utils, needed to collect validation messages".into(),
+                device: "validation layer".into(),
+                what: "VK_EXT_validation_features (synchronization validation)".into(),
             });
         }
-        let has_validation_features = match validation {
-            Some(_) => extension_present(
-                &entry,
-                Some(VALIDATION_LAYER),
-                ash::ext::validation_features::NAME,
-            )?,
-            None => false,
-        };
+    }
+    let mut messenger_info = vk::DebugUtilsMessengerCreateInfoEXT::default()
+        .message_severity(
+            vk::DebugUtilsMessageSeverityFlagsEXT::WARNING
+                | vk::DebugUtilsMessageSeverityFlagsEXT::ERROR,
+        )
+        .message_type(
+            vk::DebugUtilsMessageTypeFlagsEXT::GENERAL
+                | vk::DebugUtilsMessageTypeFlagsEXT::VALIDATION
+                | vk::DebugUtilsMessageTypeFlagsEXT::PERFORMANCE,
+        )
+        .pfn_user_callback(Some(debug_callback))
+        .user_data(user_data);
+    let mut features = vk::ValidationFeaturesEXT::default().enabled_validation_features(&enables);
+    let app = vk::ApplicationInfo::default()
+        .application_name(c"vkshade")
+        .engine_name(c"vkshade")
+        .api_version(REQUIRED_API);
+    let mut info = vk::InstanceCreateInfo::default()
+        .application_info(&app)
+        .enabled_layer_names(&layers)
+        .enabled_extension_names(&extensions);
+    if has_debug_utils {
+        info = info.push_next(&mut messenger_info);
+    }
+    if has_validation_features && !enables.is_empty() {
+        info = info.push_next(&mut features);
+    }
+    // SAFETY: all pointers in `info` outlive the call.
+    let instance = match unsafe { entry.create_instance(&info, None) } {
+        Err(vk::Result::ERROR_INCOMPATIBLE_DRIVER) => {
+            return Err(Error::NoDevice {
+                reason: "the Vulkan loader found no driver (VK_ERROR_INCOMPATIBLE_DRIVER)".into(),
+            });
+        }
+        other => other.vk("vkCreateInstance")?,
+    };
+    // From here on, failures must destroy what was created: `Partial` does that.
+    let mut partial = Partial {
+        instance: Some(instance.clone()),
+        debug: None,
+        messenger: vk::DebugUtilsMessengerEXT::null(),
+    };
+    let debug_instance =
+        has_debug_utils.then(|| ash::ext::debug_utils::Instance::new(&entry, &instance));
+    let messenger = match &debug_instance {
+        Some(di) => {
+            // SAFETY: valid create info; destroyed in Shared::drop or Partial::drop.
+            unsafe { di.create_debug_utils_messenger(&messenger_info, None) }
+                .vk("vkCreateDebugUtilsMessengerEXT")?
+        }
+        None => vk::DebugUtilsMessengerEXT::null(),
+    };
+    partial.debug = debug_instance.clone();
+    partial.messenger = messenger;
+    Ok(InstanceParts {
+        entry,
+        instance,
+        debug_instance,
+        messenger,
+        sink,
+        partial,
+    })
+}
 
-        let sink = MessageSink::new(
-            validation
-                .map(|v| v.ignored_ids.clone())
-                .unwrap_or_default(),
+/// Checks the requested extensions against what `physical` offers.
+fn check_extensions(
+    instance: &ash::Instance,
+    physical: vk::PhysicalDevice,
+    info: &DeviceInfo,
+    wanted: &[String],
+) -> Result<Vec<CString>> {
+    // SAFETY: valid physical device.
+    let available = unsafe { instance.enumerate_device_extension_properties(physical) }
+        .vk("vkEnumerateDeviceExtensionProperties")?;
+    let mut names = Vec::new();
+    for w in wanted {
+        let present = available.iter().any(|e| {
+            e.extension_name_as_c_str()
+                .is_ok_and(|n| n.to_bytes() == w.as_bytes())
+        });
+        if !present {
+            return Err(Error::Unsupported {
+                device: info.name.clone(),
+                what: format!("device extension {w}"),
+            });
+        }
+        names.push(
+            CString::new(w.as_str()).map_err(|_| {
+                Error::InvalidArgument(format!("extension name {w:?} contains NUL"))
+            })?,
         );
-        let user_data = Arc::as_ptr(&sink) as *mut std::ffi::c_void;
+    }
+    Ok(names)
+}
 
-        let mut layers: Vec<*const c_char> = Vec::new();
-        let mut extensions: Vec<*const c_char> = Vec::new();
-        if validation.is_some() {
-            layers.push(VALIDATION_LAYER.as_ptr());
-        }
-        if has_debug_utils {
-            extensions.push(ash::ext::debug_utils::NAME.as_ptr());
-        }
-        if has_validation_features {
-            extensions.push(ash::ext::validation_features::NAME.as_ptr());
-        }
-        let mut enables = Vec::new();
-        if let Some(v) = validation {
-            if v.synchronization {
-                enables.push(vk::ValidationFeatureEnableEXT::SYNCHRONIZATION_VALIDATION);
-            }
-            if v.best_practices {
-                enables.push(vk::ValidationFeatureEnableEXT::BEST_PRACTICES);
-            }
-            if v.gpu_assisted {
-                enables.push(vk::ValidationFeatureEnableEXT::GPU_ASSISTED);
-            }
-            if !enables.is_empty() && !has_validation_features {
-                return Err(Error::Unsupported {
-                    device: "validation layer".into(),
-                    what: "VK_EXT_validation_features (synchronization validation)".into(),
-                });
-            }
-        }
-        let mut messenger_info = vk::DebugUtilsMessengerCreateInfoEXT::default()
-            .message_severity(
-                vk::DebugUtilsMessageSeverityFlagsEXT::WARNING
-                    | vk::DebugUtilsMessageSeverityFlagsEXT::ERROR,
-            )
-            .message_type(
-                vk::DebugUtilsMessageTypeFlagsEXT::GENERAL
-                    | vk::DebugUtilsMessageTypeFlagsEXT::VALIDATION
-                    | vk::DebugUtilsMessageTypeFlagsEXT::PERFORMANCE,
-            )
-            .pfn_user_callback(Some(debug_callback))
-            .user_data(user_data);
-        let mut features =
-            vk::ValidationFeaturesEXT::default().enabled_validation_features(&enables);
-        let app = vk::ApplicationInfo::default()
-            .application_name(c"vkshade")
-            .engine_name(c"vkshade")
-            .api_version(REQUIRED_API);
-        let mut info = vk::InstanceCreateInfo::default()
-            .application_info(&app)
-            .enabled_layer_names(&layers)
-            .enabled_extension_names(&extensions);
-        if has_debug_utils {
-            info = info.push_next(&mut messenger_info);
-        }
-        if has_validation_features && !enables.is_empty() {
-            info = info.push_next(&mut features);
-        }
-        // SAFETY: all pointers in `info` outlive the call.
-        let instance = match unsafe { entry.create_instance(&info, None) } {
-            Err(vk::Result::ERROR_INCOMPATIBLE_DRIVER) => {
-                return Err(Error::NoDevice {
-                    reason: "the Vulkan loader found no driver (VK_ERROR_INCOMPATIBLE_DRIVER)"
-                        .into(),
-                });
-            }
-            other => other.vk("vkCreateInstance")?,
-        };
-        // From here on, failures must destroy what was created: `Partial` does that.
-        let mut partial = Partial {
-            instance: Some(instance.clone()),
-            debug: None,
-            messenger: vk::DebugUtilsMessengerEXT::null(),
-        };
+/// Creates the logical device with one queue of `family`, the required features
+/// (synchronization2, maintenance4, timelineSemaphore) and the requested optional ones.
+fn create_device(
+    instance: &ash::Instance,
+    physical: vk::PhysicalDevice,
+    info: &DeviceInfo,
+    family: u32,
+    desc: &ContextDesc,
+) -> Result<ash::Device> {
+    let missing = desc.features.missing_from(&info.features);
+    if !missing.is_empty() {
+        return Err(Error::Unsupported {
+            device: info.name.clone(),
+            what: format!("the requested feature(s) {}", missing.join(", ")),
+        });
+    }
+    let extensions = check_extensions(instance, physical, info, &desc.extensions)?;
+    let extension_ptrs: Vec<*const c_char> = extensions.iter().map(|e| e.as_ptr()).collect();
+    let f = desc.features;
+    let priorities = [1.0f32];
+    let queue_info = [vk::DeviceQueueCreateInfo::default()
+        .queue_family_index(family)
+        .queue_priorities(&priorities)];
+    // maintenance4 (mandatory in 1.3) allows the LocalSizeId of SPIR-V 1.6 modules and the
+    // memory-requirement queries without objects.
+    let mut f13 = vk::PhysicalDeviceVulkan13Features::default()
+        .synchronization2(true)
+        .maintenance4(true);
+    let mut f12 = vk::PhysicalDeviceVulkan12Features::default()
+        .timeline_semaphore(true)
+        .shader_float16(f.shader_float16);
+    let mut f11 =
+        vk::PhysicalDeviceVulkan11Features::default().storage_buffer16_bit_access(f.storage_16bit);
+    let core = vk::PhysicalDeviceFeatures::default()
+        .shader_int16(f.shader_int16)
+        .shader_float64(f.shader_float64)
+        .sampler_anisotropy(f.sampler_anisotropy)
+        .texture_compression_bc(f.texture_compression_bc);
+    let mut features2 = vk::PhysicalDeviceFeatures2::default()
+        .features(core)
+        .push_next(&mut f13)
+        .push_next(&mut f12)
+        .push_next(&mut f11);
+    let device_info = vk::DeviceCreateInfo::default()
+        .queue_create_infos(&queue_info)
+        .enabled_extension_names(&extension_ptrs)
+        .push_next(&mut features2);
+    // SAFETY: valid physical device and create info; features checked above.
+    unsafe { instance.create_device(physical, &device_info, None) }.vk("vkCreateDevice")
+}
 
-        let debug_instance =
-            has_debug_utils.then(|| ash::ext::debug_utils::Instance::new(&entry, &instance));
-        let messenger = match &debug_instance {
-            Some(di) => {
-                // SAFETY: valid create info; destroyed in Shared::drop or Partial::drop.
-                unsafe { di.create_debug_utils_messenger(&messenger_info, None) }
-                    .vk("vkCreateDebugUtilsMessengerEXT")?
-            }
-            None => vk::DebugUtilsMessengerEXT::null(),
-        };
-        partial.debug = debug_instance.clone();
-        partial.messenger = messenger;
+/// Creates the timeline semaphore every submission signals.
+fn create_timeline(device: &ash::Device) -> Result<vk::Semaphore> {
+    let mut type_info = vk::SemaphoreTypeCreateInfo::default()
+        .semaphore_type(vk::SemaphoreType::TIMELINE)
+        .initial_value(0);
+    let info = vk::SemaphoreCreateInfo::default().push_next(&mut type_info);
+    // SAFETY: valid device with timelineSemaphore enabled.
+    unsafe { device.create_semaphore(&info, None) }.vk("vkCreateSemaphore")
+}
 
+fn new_allocator(
+    instance: &ash::Instance,
+    device: &ash::Device,
+    physical: vk::PhysicalDevice,
+    memory: &MemoryConfig,
+) -> Result<Allocator> {
+    let mut debug_settings = gpu_allocator::AllocatorDebugSettings::default();
+    debug_settings.log_leaks_on_shutdown = true;
+    Allocator::new(&AllocatorCreateDesc {
+        instance: instance.clone(),
+        device: device.clone(),
+        physical_device: physical,
+        debug_settings,
+        buffer_device_address: false,
+        allocation_sizes: memory.allocation_sizes(),
+    })
+    .map_err(|source| Error::Alloc {
+        name: "allocator".into(),
+        source,
+    })
+}
+
+impl Context {
+    /// Creates the instance (validation layer and messenger chained in when requested),
+    /// picks a device and creates it with one compute queue and the requested features.
+    pub fn new(desc: &ContextDesc) -> Result<Context> {
+        let validation = desc.validation.as_ref();
+        let mut parts = create_instance(validation)?;
+        let instance = parts.instance.clone();
         // SAFETY: valid instance.
         let pds =
             unsafe { instance.enumerate_physical_devices() }.vk("vkEnumeratePhysicalDevices")?;
@@ -575,83 +928,69 @@ impl Context {
             pick_queue_family(&instance, physical).ok_or_else(|| Error::NoDevice {
                 reason: format!("{} has no compute queue", info.name),
             })?;
-
-        let priorities = [1.0f32];
-        let queue_info = [vk::DeviceQueueCreateInfo::default()
-            .queue_family_index(queue_family)
-            .queue_priorities(&priorities)];
-        // maintenance4 (mandatory in 1.3) allows the LocalSizeId of SPIR-V 1.6 modules.
-        let mut f13 = vk::PhysicalDeviceVulkan13Features::default()
-            .synchronization2(true)
-            .maintenance4(true);
-        let mut features2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut f13);
-        let device_info = vk::DeviceCreateInfo::default()
-            .queue_create_infos(&queue_info)
-            .push_next(&mut features2);
-        // SAFETY: valid physical device and create info.
-        let device =
-            unsafe { instance.create_device(physical, &device_info, None) }.vk("vkCreateDevice")?;
-        // SAFETY: family and index 0 were requested above.
-        let queue = unsafe { device.get_device_queue(queue_family, 0) };
-        let mut debug_settings = gpu_allocator::AllocatorDebugSettings::default();
-        debug_settings.log_leaks_on_shutdown = true;
-        let allocator = Allocator::new(&AllocatorCreateDesc {
-            instance: instance.clone(),
-            device: device.clone(),
-            physical_device: physical,
-            debug_settings,
-            buffer_device_address: false,
-            allocation_sizes: Default::default(),
+        let device = create_device(&instance, physical, &info, queue_family, desc)?;
+        let setup = create_timeline(&device).and_then(|t| {
+            new_allocator(&instance, &device, physical, &desc.memory).map(|a| (t, a))
         });
-        let allocator = match allocator {
-            Ok(a) => a,
-            Err(source) => {
-                // SAFETY: nothing was created on the device yet.
+        let (timeline, allocator) = match setup {
+            Ok(x) => x,
+            Err(e) => {
+                // SAFETY: only the timeline may exist on the device; destroying a null
+                // semaphore is a no-op.
                 unsafe { device.destroy_device(None) };
-                return Err(Error::Alloc {
-                    name: "allocator".into(),
-                    source,
-                });
+                return Err(e);
             }
         };
-        let debug_device =
-            has_debug_utils.then(|| ash::ext::debug_utils::Device::new(&instance, &device));
-        partial.instance = None; // ownership moves into Shared
+        // SAFETY: family and index 0 were requested at device creation.
+        let queue = unsafe { device.get_device_queue(queue_family, 0) };
+        let debug_device = parts
+            .debug_instance
+            .is_some()
+            .then(|| ash::ext::debug_utils::Device::new(&instance, &device));
+        parts.partial.instance = None; // ownership moves into Shared
         let shared = Shared {
-            _entry: entry,
+            _entry: parts.entry,
             instance,
-            debug_instance,
-            messenger,
-            sink,
+            debug_instance: parts.debug_instance,
+            messenger: parts.messenger,
+            sink: parts.sink,
             debug_device,
             physical,
             info,
+            features: desc.features,
             device,
-            queue: Mutex::new(queue),
+            queue: Arc::new(Mutex::new(queue)),
             queue_family,
-            allocator: ManuallyDrop::new(Mutex::new(allocator)),
+            allocator: ManuallyDrop::new(Arc::new(Mutex::new(allocator))),
+            own_allocator: true,
             validation: validation.is_some(),
             owned: true,
+            timeline,
+            next_value: AtomicU64::new(0),
+            graveyard: Mutex::new(Vec::new()),
+            staging: Mutex::new(StagingRing::new(desc.memory.staging_ring_bytes)),
+            stats: MemoryStats::default(),
         };
         shared.set_name(queue, "vkshade queue");
+        shared.set_name(timeline, "vkshade timeline");
         Ok(Context {
             shared: Arc::new(shared),
         })
     }
 
     /// Wraps a device the caller created (a renderer's), so vkshade's kernels run on it.
-    /// vkshade makes its own allocator on the device and never destroys the instance, the
-    /// device or the queue; [`Context::shutdown`] (or the last resource) only frees what
-    /// vkshade allocated. Validation messages go to the caller's own messenger.
+    /// vkshade uses the caller's allocator when given (else makes its own), creates one
+    /// timeline semaphore, and never destroys the instance, the device or the queue, nor
+    /// calls `vkDeviceWaitIdle` on them: at shutdown it waits only for its own timeline.
+    /// Validation messages go to the caller's own messenger.
     ///
     /// # Safety
     /// The handles must be valid and stay so until every vkshade object made from this
     /// context is dropped. The device must be Vulkan 1.3 and created with the
-    /// `synchronization2` and `maintenance4` features, and `queue` must belong to
-    /// `queue_family`, support compute, and not be used by other threads while vkshade
-    /// submits to it (vkshade locks it only against its own submissions). With
-    /// `debug_utils`, the instance must have VK_EXT_debug_utils enabled (object names and
-    /// pass labels are then set).
+    /// `synchronization2`, `maintenance4` and `timelineSemaphore` features (and those in
+    /// `features`); `queue` must belong to `queue_family` and support compute, and every
+    /// use of it by the caller must hold its lock. A given allocator must belong to this
+    /// device. With `debug_utils`, the instance must have VK_EXT_debug_utils enabled.
     pub unsafe fn from_external(ext: ExternalDevice) -> Result<Context> {
         let mut info = describe_device(&ext.instance, ext.physical_device, 0);
         // SAFETY: valid handles (the caller's contract).
@@ -677,20 +1016,19 @@ impl Context {
         let debug_device = ext
             .debug_utils
             .then(|| ash::ext::debug_utils::Device::new(&ext.instance, &ext.device));
-        let mut debug_settings = gpu_allocator::AllocatorDebugSettings::default();
-        debug_settings.log_leaks_on_shutdown = true;
-        let allocator = Allocator::new(&AllocatorCreateDesc {
-            instance: ext.instance.clone(),
-            device: ext.device.clone(),
-            physical_device: ext.physical_device,
-            debug_settings,
-            buffer_device_address: false,
-            allocation_sizes: Default::default(),
-        })
-        .map_err(|source| Error::Alloc {
-            name: "allocator".into(),
-            source,
-        })?;
+        let (allocator, own_allocator) = match ext.allocator {
+            Some(a) => (a, false),
+            None => (
+                Arc::new(Mutex::new(new_allocator(
+                    &ext.instance,
+                    &ext.device,
+                    ext.physical_device,
+                    &ext.memory,
+                )?)),
+                true,
+            ),
+        };
+        let timeline = create_timeline(&ext.device)?;
         Ok(Context {
             shared: Arc::new(Shared {
                 _entry: ext.entry,
@@ -701,18 +1039,25 @@ impl Context {
                 debug_device,
                 physical: ext.physical_device,
                 info,
+                features: ext.features,
                 device: ext.device,
-                queue: Mutex::new(ext.queue),
+                queue: ext.queue,
                 queue_family: ext.queue_family,
-                allocator: ManuallyDrop::new(Mutex::new(allocator)),
+                allocator: ManuallyDrop::new(allocator),
+                own_allocator,
                 validation: false,
                 owned: false,
+                timeline,
+                next_value: AtomicU64::new(0),
+                graveyard: Mutex::new(Vec::new()),
+                staging: Mutex::new(StagingRing::new(ext.memory.staging_ring_bytes)),
+                stats: MemoryStats::default(),
             }),
         })
     }
 
     /// The handles of this context's device, e.g. to share it with another library
-    /// (see [`Context::from_external`]).
+    /// (see [`Context::from_external`]); the allocator is not shared.
     pub fn external_handles(&self) -> ExternalDevice {
         let s = &self.shared;
         ExternalDevice {
@@ -720,9 +1065,12 @@ impl Context {
             instance: s.instance.clone(),
             physical_device: s.physical,
             device: s.device.clone(),
-            queue: *lock(&s.queue),
+            queue: s.queue.clone(),
             queue_family: s.queue_family,
             debug_utils: s.debug_device.is_some(),
+            allocator: None,
+            features: s.features,
+            memory: MemoryConfig::default(),
         }
     }
 
@@ -734,6 +1082,11 @@ impl Context {
     /// Shorthand for `info().limits`.
     pub fn limits(&self) -> &DeviceLimits {
         &self.shared.info.limits
+    }
+
+    /// The optional features enabled on the device.
+    pub fn features(&self) -> &Features {
+        &self.shared.features
     }
 
     /// Whether the validation layer is active.
@@ -756,16 +1109,50 @@ impl Context {
         self.shared.queue_family
     }
 
-    /// Waits until the device is idle.
-    pub fn wait_idle(&self) -> Result<()> {
-        let _q = lock(&self.shared.queue);
-        // SAFETY: valid device; the queue lock keeps submissions out meanwhile.
-        unsafe { self.shared.device.device_wait_idle() }.vk("vkDeviceWaitIdle")
+    /// The timeline semaphore vkshade's submissions signal.
+    pub fn timeline(&self) -> vk::Semaphore {
+        self.shared.timeline
     }
 
-    /// Destroys the device now. Fails if any resource (buffer, pipeline, ...) or another
-    /// clone of this context is still alive; on success returns the messages collected,
-    /// including those raised while destroying the device (undestroyed objects, leaks).
+    /// The highest timeline value completed.
+    pub fn completed_value(&self) -> u64 {
+        self.shared.completed()
+    }
+
+    /// Blocks until the timeline reaches `value` (e.g. a resource's `last_use()`), then
+    /// destroys whatever was waiting for it.
+    pub fn wait_for(&self, value: u64) -> Result<()> {
+        self.shared.wait_value(value, u64::MAX)?;
+        self.shared.collect();
+        Ok(())
+    }
+
+    /// Waits for every submission vkshade made or handed out on this context (its own
+    /// timeline only; other work on a shared queue is not waited for).
+    pub fn wait_idle(&self) -> Result<()> {
+        let last = self
+            .shared
+            .next_value
+            .load(std::sync::atomic::Ordering::Acquire);
+        self.wait_for(last)
+    }
+
+    /// Destroys retired objects whose submissions have completed; returns how many still
+    /// wait for the GPU. Called by vkshade itself on every recording and creation.
+    pub fn maintain(&self) -> usize {
+        self.shared.collect();
+        self.shared.retired_pending()
+    }
+
+    /// Peak bytes of the staging ring held at once so far.
+    pub fn staging_ring_peak(&self) -> u64 {
+        self.shared.ring_peak()
+    }
+
+    /// Destroys the device now. Fails if any resource (buffer, pipeline, submission...)
+    /// or another clone of this context is still alive; on success returns the messages
+    /// collected, including those raised while destroying the device (undestroyed objects,
+    /// leaks).
     pub fn shutdown(self) -> Result<Vec<ValidationMessage>> {
         let sink = self.shared.sink.clone();
         match Arc::try_unwrap(self.shared) {
@@ -773,7 +1160,7 @@ impl Context {
             Err(still_shared) => {
                 let n = Arc::strong_count(&still_shared) - 1;
                 return Err(Error::Leak(format!(
-                    "{n} GPU resource(s) or context clone(s) still alive at shutdown"
+                    "{n} GPU resource(s), submission(s) or context clone(s) still alive at shutdown"
                 )));
             }
         }

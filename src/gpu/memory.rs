@@ -1,110 +1,495 @@
-//! Buffers and images over gpu-allocator.
+//! Buffers over gpu-allocator, with the memory placement chosen by the caller.
 //!
-//! Kernel data lives in device-local memory (`MemoryUsage::GpuOnly`) and moves through staging
-//! buffers with explicit barriers, so the code is correct on discrete GPUs even though lavapipe
-//! exposes a single host-visible memory type. Every resource destroys itself on drop and keeps
-//! the device alive until then.
+//! Every resource is created with a [`Placement`]: where its memory lives ([`Location`]) and
+//! whether it gets an allocation of its own ([`Dedicated`]). Transient resources can share
+//! memory through an [`AliasGroup`]. A renderer's own buffers are wrapped with
+//! [`Buffer::from_raw`]. Destruction is deferred until the GPU is done (see `lifetime`).
+//!
+//! Host access to mapped memory is by copy ([`Buffer::write`], [`Buffer::read`]): each waits
+//! for the last submission that used the buffer, and submissions that use the buffer wait for
+//! a copy in progress, so the host never touches bytes the device is reading or writing.
 
 use super::context::{Context, Shared};
+use super::lifetime::{Retired, Stamp, Used};
+use super::sync::AccessSet;
 use super::validation::lock;
 use crate::error::{Error, Result, VkResultExt};
 use ash::vk;
 use gpu_allocator::MemoryLocation;
 use gpu_allocator::vulkan::{Allocation, AllocationCreateDesc, AllocationScheme};
-use std::sync::Arc;
+use std::sync::atomic::Ordering;
+use std::sync::{Arc, Mutex};
 
 /// Where a resource's memory lives.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum MemoryUsage {
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize)]
+pub enum Location {
     /// Device-local; reached from the host only through staging copies.
-    GpuOnly,
-    /// Host-visible, written by the host, read by the device (staging, per-frame uniforms).
+    Device,
+    /// Host-visible, written by the host, read by the device (staging, per-frame data).
     Upload,
-    /// Host-visible and cached, written by the device, read by the host.
+    /// Host-visible and cached where possible, written by the device, read by the host.
     Readback,
 }
 
-impl MemoryUsage {
-    fn location(self) -> MemoryLocation {
+impl Location {
+    fn gpu_allocator(self) -> MemoryLocation {
         match self {
-            MemoryUsage::GpuOnly => MemoryLocation::GpuOnly,
-            MemoryUsage::Upload => MemoryLocation::CpuToGpu,
-            MemoryUsage::Readback => MemoryLocation::GpuToCpu,
+            Location::Device => MemoryLocation::GpuOnly,
+            Location::Upload => MemoryLocation::CpuToGpu,
+            Location::Readback => MemoryLocation::GpuToCpu,
         }
+    }
+
+    pub fn host_visible(self) -> bool {
+        self != Location::Device
     }
 }
 
-/// What to create: a name (shown in validation messages), size, usage and memory.
-#[derive(Clone, Debug)]
+/// Whether a resource gets a `VkDeviceMemory` of its own.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize)]
+pub enum Dedicated {
+    /// Dedicated when the driver prefers or requires it (VkMemoryDedicatedRequirements),
+    /// otherwise sub-allocated from the allocator's blocks.
+    #[default]
+    Auto,
+    Always,
+    /// Sub-allocated unless the driver *requires* a dedicated allocation.
+    Never,
+}
+
+/// Where and how a resource's memory is allocated.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize)]
+pub struct Placement {
+    pub location: Location,
+    pub dedicated: Dedicated,
+}
+
+impl Placement {
+    pub const DEVICE: Placement = Placement {
+        location: Location::Device,
+        dedicated: Dedicated::Auto,
+    };
+    pub const UPLOAD: Placement = Placement {
+        location: Location::Upload,
+        dedicated: Dedicated::Auto,
+    };
+    pub const READBACK: Placement = Placement {
+        location: Location::Readback,
+        dedicated: Dedicated::Auto,
+    };
+
+    pub const fn dedicated(mut self, d: Dedicated) -> Placement {
+        self.dedicated = d;
+        self
+    }
+}
+
+/// What a buffer is: size, usage and placement (the name is given separately).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct BufferDesc {
-    pub name: String,
     pub size: u64,
     pub usage: vk::BufferUsageFlags,
-    pub memory: MemoryUsage,
+    pub placement: Placement,
 }
 
 impl BufferDesc {
     /// A device-local storage buffer that can be copied to and from.
-    pub fn storage(name: impl Into<String>, size: u64) -> Self {
+    pub const fn storage(size: u64) -> Self {
         BufferDesc {
-            name: name.into(),
             size,
-            usage: vk::BufferUsageFlags::STORAGE_BUFFER
-                | vk::BufferUsageFlags::TRANSFER_DST
-                | vk::BufferUsageFlags::TRANSFER_SRC,
-            memory: MemoryUsage::GpuOnly,
+            usage: vk::BufferUsageFlags::from_raw(
+                vk::BufferUsageFlags::STORAGE_BUFFER.as_raw()
+                    | vk::BufferUsageFlags::TRANSFER_DST.as_raw()
+                    | vk::BufferUsageFlags::TRANSFER_SRC.as_raw(),
+            ),
+            placement: Placement::DEVICE,
+        }
+    }
+
+    /// A device-local uniform buffer that can be copied to.
+    pub const fn uniform(size: u64) -> Self {
+        BufferDesc {
+            size,
+            usage: vk::BufferUsageFlags::from_raw(
+                vk::BufferUsageFlags::UNIFORM_BUFFER.as_raw()
+                    | vk::BufferUsageFlags::TRANSFER_DST.as_raw(),
+            ),
+            placement: Placement::DEVICE,
+        }
+    }
+
+    /// A host-visible buffer the host writes and the device reads (copy source, storage).
+    pub const fn upload(size: u64) -> Self {
+        BufferDesc {
+            size,
+            usage: vk::BufferUsageFlags::from_raw(
+                vk::BufferUsageFlags::TRANSFER_SRC.as_raw()
+                    | vk::BufferUsageFlags::STORAGE_BUFFER.as_raw(),
+            ),
+            placement: Placement::UPLOAD,
+        }
+    }
+
+    /// A host-visible buffer the device writes and the host reads.
+    pub const fn readback(size: u64) -> Self {
+        BufferDesc {
+            size,
+            usage: vk::BufferUsageFlags::from_raw(
+                vk::BufferUsageFlags::TRANSFER_DST.as_raw()
+                    | vk::BufferUsageFlags::STORAGE_BUFFER.as_raw(),
+            ),
+            placement: Placement::READBACK,
+        }
+    }
+
+    pub const fn usage(mut self, usage: vk::BufferUsageFlags) -> Self {
+        self.usage = vk::BufferUsageFlags::from_raw(self.usage.as_raw() | usage.as_raw());
+        self
+    }
+
+    pub const fn placement(mut self, placement: Placement) -> Self {
+        self.placement = placement;
+        self
+    }
+}
+
+/// Memory statistics of a context (all its resources) or a kernel.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct MemoryReport {
+    /// Bytes of live allocations (sub-allocations and dedicated ones).
+    pub used_bytes: u64,
+    /// Bytes of device memory reserved in the allocator's blocks (used or not). For an
+    /// allocator shared with a renderer this covers the renderer's allocations too.
+    pub reserved_bytes: u64,
+    /// Live allocations.
+    pub allocations: u64,
+    /// Highest `used_bytes` seen since the context was created.
+    pub peak_used_bytes: u64,
+    /// Bytes of the staging ring (included in the numbers above).
+    pub staging_ring_bytes: u64,
+}
+
+/// Counters kept by the context (the allocator's own report gives the reserved bytes).
+#[derive(Debug, Default)]
+pub(crate) struct MemoryStats {
+    used: std::sync::atomic::AtomicU64,
+    peak: std::sync::atomic::AtomicU64,
+    count: std::sync::atomic::AtomicU64,
+}
+
+impl Shared {
+    /// Allocates memory for `requirements` with `placement`. `dedicated_for` names the object
+    /// a dedicated allocation is made for; `prefers_dedicated` comes from the driver.
+    pub(crate) fn allocate(
+        &self,
+        name: &str,
+        requirements: vk::MemoryRequirements,
+        placement: Placement,
+        linear: bool,
+        dedicated: (AllocationScheme, bool, bool),
+    ) -> Result<Allocation> {
+        let (scheme, prefers, requires) = dedicated;
+        let use_dedicated = match placement.dedicated {
+            Dedicated::Always => true,
+            Dedicated::Auto => prefers || requires,
+            Dedicated::Never => requires,
+        };
+        let allocation = lock(&self.allocator)
+            .allocate(&AllocationCreateDesc {
+                name,
+                requirements,
+                location: placement.location.gpu_allocator(),
+                linear,
+                allocation_scheme: if use_dedicated {
+                    scheme
+                } else {
+                    AllocationScheme::GpuAllocatorManaged
+                },
+            })
+            .map_err(|source| Error::Alloc {
+                name: name.to_string(),
+                source,
+            })?;
+        let size = allocation.size();
+        let used = self.stats.used.fetch_add(size, Ordering::AcqRel) + size;
+        self.stats.peak.fetch_max(used, Ordering::AcqRel);
+        self.stats.count.fetch_add(1, Ordering::AcqRel);
+        Ok(allocation)
+    }
+
+    /// Frees memory from [`Shared::allocate`].
+    ///
+    /// # Safety
+    /// No pending GPU work may use the memory.
+    pub(crate) unsafe fn free_memory(&self, allocation: Allocation) {
+        self.stats
+            .used
+            .fetch_sub(allocation.size(), Ordering::AcqRel);
+        self.stats.count.fetch_sub(1, Ordering::AcqRel);
+        let _ = lock(&self.allocator).free(allocation);
+    }
+
+    pub(crate) fn memory_report(&self) -> MemoryReport {
+        let report = lock(&self.allocator).generate_report();
+        MemoryReport {
+            used_bytes: self.stats.used.load(Ordering::Acquire),
+            reserved_bytes: report.total_capacity_bytes,
+            allocations: self.stats.count.load(Ordering::Acquire),
+            peak_used_bytes: self.stats.peak.load(Ordering::Acquire),
+            staging_ring_bytes: lock(&self.staging).capacity(),
         }
     }
 }
 
-/// The Vulkan buffer and its memory. Destroyed when the last holder drops it: the owning
-/// [`Buffer`] and any bind group or recording that uses it.
-pub(crate) struct BufferInner {
-    shared: Arc<Shared>,
-    raw: vk::Buffer,
-    allocation: Option<Allocation>,
-    desc: BufferDesc,
+impl Context {
+    /// Memory used and reserved by this context's resources.
+    pub fn memory_report(&self) -> MemoryReport {
+        self.shared.memory_report()
+    }
 }
 
-impl BufferInner {
-    /// The mapped bytes of a host-visible buffer.
-    fn mapped(&self) -> Option<&[u8]> {
-        self.allocation
-            .as_ref()
-            .and_then(|a| a.mapped_slice())
-            .map(|s| &s[..self.desc.size as usize])
+/// Where a resource's memory comes from.
+pub(crate) enum Backing {
+    /// Its own allocation (sub-allocated or dedicated), freed with it.
+    Own(Allocation),
+    /// Memory of an alias group, freed with the group.
+    Group(Arc<AliasInner>),
+    /// Memory owned by the caller ([`Buffer::from_raw`], [`super::Image::from_raw`]).
+    External,
+}
+
+impl Backing {
+    pub fn size(&self) -> u64 {
+        match self {
+            Backing::Own(a) => a.size(),
+            _ => 0,
+        }
     }
 
-    pub(crate) fn name(&self) -> &str {
-        &self.desc.name
+    /// Stamps an alias group's memory with a use of one of its members.
+    pub fn stamp(&self, value: u64) {
+        if let Backing::Group(g) = self {
+            g.stamp.raise(value);
+        }
     }
 
-    fn not_mapped(&self) -> Error {
-        Error::InvalidArgument(format!(
-            "buffer '{}' is {:?}, not host-visible; use Context::read_buffer / upload_buffer",
-            self.desc.name, self.desc.memory
-        ))
+    /// The objects to retire with the resource.
+    pub fn retire(self) -> Option<Retired> {
+        match self {
+            Backing::Own(a) => Some(Retired::Memory(a)),
+            _ => None,
+        }
+    }
+}
+
+/// Memory shared by transient resources that are never live at the same time (aliasing).
+///
+/// Each member is bound at offset 0. Switching from one member to another needs a barrier
+/// from every access of the previous member to the first access of the next, and an image
+/// member starts from `discard` (its contents are undefined): see
+/// [`super::Recorder::alias_switch`].
+pub struct AliasGroup {
+    inner: Arc<AliasInner>,
+}
+
+pub(crate) struct AliasInner {
+    shared: Arc<Shared>,
+    name: String,
+    allocation: Mutex<Option<Allocation>>,
+    memory: vk::DeviceMemory,
+    offset: u64,
+    size: u64,
+    type_bits: u32,
+    location: Location,
+    stamp: Stamp,
+}
+
+/// One future member of an alias group, to size the group's memory.
+#[derive(Clone, Copy, Debug)]
+pub enum AliasMember<'a> {
+    Buffer(&'a BufferDesc),
+    Image(&'a super::image::ImageDesc),
+}
+
+impl AliasGroup {
+    /// Memory large and aligned enough for each of `members` (one at a time), in the memory
+    /// types all of them accept.
+    pub fn new(
+        ctx: &Context,
+        name: &str,
+        location: Location,
+        members: &[AliasMember<'_>],
+    ) -> Result<AliasGroup> {
+        let shared = &ctx.shared;
+        if members.is_empty() {
+            return Err(Error::InvalidArgument(format!(
+                "alias group '{name}' has no members"
+            )));
+        }
+        let mut req = vk::MemoryRequirements {
+            size: 0,
+            alignment: 1,
+            memory_type_bits: !0,
+        };
+        for m in members {
+            let r = match m {
+                AliasMember::Buffer(d) => buffer_requirements(shared, d)?,
+                AliasMember::Image(d) => super::image::image_requirements(shared, name, d)?,
+            };
+            req.size = req.size.max(r.size);
+            req.alignment = req.alignment.max(r.alignment);
+            req.memory_type_bits &= r.memory_type_bits;
+        }
+        if req.memory_type_bits == 0 {
+            return Err(Error::Unsupported {
+                device: shared.info.name.clone(),
+                what: format!("one memory type for all members of alias group '{name}'"),
+            });
+        }
+        let allocation = shared.allocate(
+            name,
+            req,
+            Placement {
+                location,
+                dedicated: Dedicated::Never,
+            },
+            false,
+            (AllocationScheme::GpuAllocatorManaged, false, false),
+        )?;
+        // SAFETY: reading the handle of a live allocation.
+        let memory = unsafe { allocation.memory() };
+        Ok(AliasGroup {
+            inner: Arc::new(AliasInner {
+                shared: shared.clone(),
+                name: name.to_string(),
+                memory,
+                offset: allocation.offset(),
+                size: req.size,
+                type_bits: req.memory_type_bits,
+                allocation: Mutex::new(Some(allocation)),
+                location,
+                stamp: Stamp::default(),
+            }),
+        })
     }
 
-    /// Mapped bytes of a host-visible buffer that only the caller reads (readback staging).
-    pub(crate) fn mapped_bytes(&self) -> Result<&[u8]> {
-        self.mapped().ok_or_else(|| self.not_mapped())
+    pub fn size(&self) -> u64 {
+        self.inner.size
+    }
+
+    pub fn name(&self) -> &str {
+        &self.inner.name
+    }
+
+    pub(crate) fn keep(&self) -> Arc<AliasInner> {
+        self.inner.clone()
+    }
+}
+
+impl AliasInner {
+    /// Checks that a member with `req` fits; returns (memory, offset) to bind at.
+    pub(crate) fn bind_point(
+        &self,
+        member: &str,
+        req: &vk::MemoryRequirements,
+    ) -> Result<(vk::DeviceMemory, u64)> {
+        if req.size > self.size
+            || self.offset % req.alignment.max(1) != 0
+            || req.memory_type_bits & self.type_bits != self.type_bits
+        {
+            return Err(Error::InvalidArgument(format!(
+                "'{member}' ({} bytes, alignment {}, memory types {:#x}) does not fit alias group \
+                 '{}' ({} bytes, memory types {:#x}); list it among the group's members",
+                req.size, req.alignment, req.memory_type_bits, self.name, self.size, self.type_bits
+            )));
+        }
+        Ok((self.memory, self.offset))
+    }
+
+    pub(crate) fn location(&self) -> Location {
+        self.location
+    }
+}
+
+impl Drop for AliasInner {
+    fn drop(&mut self) {
+        if let Some(a) = lock(&self.allocation).take() {
+            self.shared.retire(self.stamp.get(), [Retired::Memory(a)]);
+        }
+    }
+}
+
+fn buffer_requirements(shared: &Shared, desc: &BufferDesc) -> Result<vk::MemoryRequirements> {
+    let info = vk::BufferCreateInfo::default()
+        .size(desc.size.max(1))
+        .usage(desc.usage)
+        .sharing_mode(vk::SharingMode::EXCLUSIVE);
+    let query = vk::DeviceBufferMemoryRequirements::default().create_info(&info);
+    let mut out = vk::MemoryRequirements2::default();
+    // SAFETY: valid create info; maintenance4 (core 1.3) is enabled on every vkshade device.
+    unsafe {
+        shared
+            .device
+            .get_device_buffer_memory_requirements(&query, &mut out)
+    };
+    Ok(out.memory_requirements)
+}
+
+/// Pointer to mapped memory; the allocation it points into is owned by the same object.
+#[derive(Clone, Copy)]
+pub(crate) struct MappedPtr(pub std::ptr::NonNull<u8>);
+// SAFETY: the pointer is only dereferenced under the buffer's host lock (see Buffer::write).
+unsafe impl Send for MappedPtr {}
+// SAFETY: as above.
+unsafe impl Sync for MappedPtr {}
+
+/// The Vulkan buffer and its memory. Destroyed when the last holder drops it and the GPU
+/// has finished the submissions that used it.
+pub(crate) struct BufferInner {
+    pub(crate) shared: Arc<Shared>,
+    pub(crate) raw: vk::Buffer,
+    backing: Mutex<Option<Backing>>,
+    pub(crate) desc: BufferDesc,
+    pub(crate) name: String,
+    alloc_size: u64,
+    pub(crate) stamp: Stamp,
+    mapped: Option<MappedPtr>,
+    /// Held while the host copies to or from the mapping, and while a submission stamps the
+    /// buffer: the two never overlap.
+    host: Mutex<()>,
+    external: bool,
+    /// Last access, for state tracking (see `track`).
+    pub(crate) state: Mutex<super::track::BufferState>,
+}
+
+impl Used for BufferInner {
+    fn stamp(&self, value: u64) {
+        let _host = self.mapped.map(|_| lock(&self.host));
+        self.stamp.raise(value);
+        if let Some(b) = lock(&self.backing).as_ref() {
+            b.stamp(value)
+        }
+    }
+
+    fn host_visible(&self) -> bool {
+        self.mapped.is_some()
     }
 }
 
 impl Drop for BufferInner {
     fn drop(&mut self) {
-        // SAFETY: the last holder is gone: no bind group or recording refers to the buffer,
-        // and every submission in vkshade waits for completion. The buffer goes before its
-        // memory, which may be a dedicated block freed with it.
-        unsafe { self.shared.device.destroy_buffer(self.raw, None) };
-        if let Some(a) = self.allocation.take() {
-            let _ = lock(&self.shared.allocator).free(a);
+        if self.external {
+            return;
         }
+        let mut items = vec![Retired::Buffer(self.raw)];
+        if let Some(m) = lock(&self.backing).take().and_then(Backing::retire) {
+            items.push(m);
+        }
+        self.shared.retire(self.stamp.get(), items);
     }
 }
 
-/// A Vulkan buffer with its memory (the owning handle; host access goes through it).
+/// A Vulkan buffer with its memory (the owning handle).
 pub struct Buffer {
     inner: Arc<BufferInner>,
 }
@@ -112,50 +497,52 @@ pub struct Buffer {
 impl std::fmt::Debug for Buffer {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("Buffer")
+            .field("name", &self.inner.name)
             .field("desc", &self.inner.desc)
             .finish()
     }
 }
 
+/// How long a host copy waits for the GPU to finish with a buffer before failing.
+const HOST_WAIT_NS: u64 = 60_000_000_000;
+
 impl Buffer {
-    /// Creates a buffer, refusing sizes the device cannot address: a storage buffer beyond
-    /// `maxStorageBufferRange`, a uniform buffer beyond `maxUniformBufferRange`, anything
-    /// beyond `maxMemoryAllocationSize`.
-    pub fn new(ctx: &Context, desc: BufferDesc) -> Result<Buffer> {
+    /// Creates a buffer with its own memory, refusing sizes the device cannot address: a
+    /// storage buffer beyond `maxStorageBufferRange`, a uniform buffer beyond
+    /// `maxUniformBufferRange`, anything beyond `maxMemoryAllocationSize`.
+    pub fn new(ctx: &Context, name: &str, desc: BufferDesc) -> Result<Buffer> {
+        Buffer::create(ctx, name, desc, None)
+    }
+
+    /// Creates a buffer bound to the memory of an alias group (see [`AliasGroup`]); its
+    /// placement's location must be the group's.
+    pub fn in_group(
+        ctx: &Context,
+        name: &str,
+        desc: BufferDesc,
+        group: &AliasGroup,
+    ) -> Result<Buffer> {
+        Buffer::create(ctx, name, desc, Some(group))
+    }
+
+    fn create(
+        ctx: &Context,
+        name: &str,
+        desc: BufferDesc,
+        group: Option<&AliasGroup>,
+    ) -> Result<Buffer> {
         let shared = &ctx.shared;
-        let limits = &shared.info.limits;
-        if desc.size == 0 {
+        shared.collect();
+        check_buffer_desc(shared, name, &desc)?;
+        if let Some(g) = group
+            && g.inner.location() != desc.placement.location
+        {
             return Err(Error::InvalidArgument(format!(
-                "buffer '{}' has size 0",
-                desc.name
+                "buffer '{name}' wants {:?} memory but alias group '{}' is {:?}",
+                desc.placement.location,
+                g.name(),
+                g.inner.location()
             )));
-        }
-        let checks = [
-            (
-                vk::BufferUsageFlags::STORAGE_BUFFER,
-                limits.max_storage_buffer_range,
-                "maxStorageBufferRange",
-            ),
-            (
-                vk::BufferUsageFlags::UNIFORM_BUFFER,
-                limits.max_uniform_buffer_range,
-                "maxUniformBufferRange",
-            ),
-            (
-                vk::BufferUsageFlags::empty(),
-                limits.max_memory_allocation_size,
-                "maxMemoryAllocationSize",
-            ),
-        ];
-        for (usage, limit, limit_name) in checks {
-            if desc.usage.contains(usage) && desc.size > limit {
-                return Err(Error::Limit {
-                    what: format!("size in bytes of buffer '{}'", desc.name),
-                    requested: desc.size,
-                    limit_name,
-                    limit,
-                });
-            }
         }
         let info = vk::BufferCreateInfo::default()
             .size(desc.size)
@@ -163,41 +550,110 @@ impl Buffer {
             .sharing_mode(vk::SharingMode::EXCLUSIVE);
         // SAFETY: valid device and create info.
         let raw = unsafe { shared.device.create_buffer(&info, None) }.vk("vkCreateBuffer")?;
+        let mut dedicated_req = vk::MemoryDedicatedRequirements::default();
+        let mut req2 = vk::MemoryRequirements2::default().push_next(&mut dedicated_req);
+        let req_info = vk::BufferMemoryRequirementsInfo2::default().buffer(raw);
         // SAFETY: `raw` was just created on this device.
-        let requirements = unsafe { shared.device.get_buffer_memory_requirements(raw) };
-        let allocation = lock(&shared.allocator).allocate(&AllocationCreateDesc {
-            name: &desc.name,
-            requirements,
-            location: desc.memory.location(),
-            linear: true,
-            allocation_scheme: AllocationScheme::GpuAllocatorManaged,
-        });
-        let allocation = match allocation {
-            Ok(a) => a,
-            Err(source) => {
-                // SAFETY: not yet bound or used.
-                unsafe { shared.device.destroy_buffer(raw, None) };
-                return Err(Error::Alloc {
-                    name: desc.name,
-                    source,
-                });
-            }
-        };
-        // SAFETY: memory from this device's allocator, sized by the requirements.
-        let bound = unsafe {
+        unsafe {
             shared
                 .device
-                .bind_buffer_memory(raw, allocation.memory(), allocation.offset())
+                .get_buffer_memory_requirements2(&req_info, &mut req2)
         };
+        let requirements = req2.memory_requirements;
+        let (prefers, requires) = (
+            dedicated_req.prefers_dedicated_allocation == vk::TRUE,
+            dedicated_req.requires_dedicated_allocation == vk::TRUE,
+        );
+        let backing = match group {
+            Some(g) => g
+                .inner
+                .bind_point(name, &requirements)
+                .map(|(m, o)| (Backing::Group(g.keep()), m, o)),
+            None => shared
+                .allocate(
+                    name,
+                    requirements,
+                    desc.placement,
+                    true,
+                    (AllocationScheme::DedicatedBuffer(raw), prefers, requires),
+                )
+                .map(|a| {
+                    // SAFETY: reading the handle of a live allocation.
+                    let m = unsafe { a.memory() };
+                    let o = a.offset();
+                    (Backing::Own(a), m, o)
+                }),
+        };
+        let (backing, memory, offset) = match backing {
+            Ok(b) => b,
+            Err(e) => {
+                // SAFETY: never bound or used.
+                unsafe { shared.device.destroy_buffer(raw, None) };
+                return Err(e);
+            }
+        };
+        let mapped = match &backing {
+            Backing::Own(a) => a.mapped_ptr().map(|p| MappedPtr(p.cast())),
+            _ => None,
+        };
+        let alloc_size = backing.size();
         let inner = Arc::new(BufferInner {
             shared: shared.clone(),
             raw,
-            allocation: Some(allocation),
+            backing: Mutex::new(Some(backing)),
             desc,
+            name: name.to_string(),
+            alloc_size,
+            stamp: Stamp::default(),
+            mapped,
+            host: Mutex::new(()),
+            external: false,
+            state: Mutex::default(),
         });
-        bound.vk("vkBindBufferMemory")?;
-        shared.set_name(raw, &inner.desc.name);
+        // SAFETY: memory of this device, sized and aligned by the requirements (checked for
+        // alias groups); on failure `inner` is dropped and destroys the buffer.
+        unsafe { shared.device.bind_buffer_memory(raw, memory, offset) }
+            .vk("vkBindBufferMemory")?;
+        shared.set_name(raw, name);
         Ok(Buffer { inner })
+    }
+
+    /// Wraps a buffer the caller created (a renderer's), so vkshade can bind and copy it.
+    /// vkshade never destroys it and never maps it.
+    ///
+    /// # Safety
+    /// `raw` must be a buffer of this context's device created with `desc.size` and
+    /// `desc.usage`, bound to memory, and must stay valid until every vkshade handle to it is
+    /// dropped *and* the context's timeline has passed [`Buffer::last_use`] (see
+    /// [`Context::wait_for`]).
+    pub unsafe fn from_raw(
+        ctx: &Context,
+        name: &str,
+        raw: vk::Buffer,
+        desc: BufferDesc,
+    ) -> Result<Buffer> {
+        check_buffer_desc(&ctx.shared, name, &desc)?;
+        ctx.shared.set_name(raw, name);
+        Ok(Buffer {
+            inner: Arc::new(BufferInner {
+                shared: ctx.shared.clone(),
+                raw,
+                backing: Mutex::new(Some(Backing::External)),
+                desc,
+                name: name.to_string(),
+                alloc_size: 0,
+                stamp: Stamp::default(),
+                mapped: None,
+                host: Mutex::new(()),
+                external: true,
+                state: Mutex::default(),
+            }),
+        })
+    }
+
+    /// Another owning handle to the same buffer.
+    pub(crate) fn from_keep(inner: Arc<BufferInner>) -> Buffer {
+        Buffer { inner }
     }
 
     /// A reference that keeps the Vulkan buffer alive (for bind groups and recordings).
@@ -214,402 +670,164 @@ impl Buffer {
     }
 
     pub fn name(&self) -> &str {
-        &self.inner.desc.name
+        &self.inner.name
     }
 
     pub fn usage(&self) -> vk::BufferUsageFlags {
         self.inner.desc.usage
     }
 
-    pub fn memory(&self) -> MemoryUsage {
-        self.inner.desc.memory
-    }
-
-    /// The mapped bytes of a host-visible buffer (`Upload` or `Readback`).
-    pub fn mapped(&self) -> Result<&[u8]> {
-        self.inner.mapped_bytes()
-    }
-
-    /// The mapped bytes of a host-visible buffer, writable. Host writes are visible to
-    /// commands submitted afterwards (the memory is host-coherent); synchronising with work
-    /// already submitted is the caller's part, as in Vulkan.
-    pub fn mapped_mut(&mut self) -> Result<&mut [u8]> {
-        let size = self.inner.desc.size as usize;
-        let ptr = self
-            .inner
-            .allocation
-            .as_ref()
-            .and_then(|a| a.mapped_ptr())
-            .ok_or_else(|| self.inner.not_mapped())?;
-        // SAFETY: the mapping covers `size` bytes and lives as long as the allocation, which
-        // `self.inner` keeps. `Buffer` is the only handle through which the host reads or
-        // writes the mapping (bind groups and recordings hold the object, never the bytes),
-        // and `&mut self` makes this borrow exclusive among them.
-        Ok(unsafe { std::slice::from_raw_parts_mut(ptr.as_ptr().cast::<u8>(), size) })
-    }
-
-    /// Copies `data` into a host-visible buffer at byte `offset`.
-    pub fn write<T: bytemuck::Pod>(&mut self, offset: u64, data: &[T]) -> Result<()> {
-        let bytes: &[u8] = bytemuck::cast_slice(data);
-        let size = self.size();
-        let end = offset
-            .checked_add(bytes.len() as u64)
-            .filter(|&end| end <= size)
-            .ok_or_else(|| {
-                Error::InvalidArgument(format!(
-                    "write of {} bytes at offset {offset} overruns buffer '{}' of {size} bytes",
-                    bytes.len(),
-                    self.name(),
-                ))
-            })?;
-        self.mapped_mut()?[offset as usize..end as usize].copy_from_slice(bytes);
-        Ok(())
-    }
-}
-
-/// What to create for an image: 2D or 3D, one mip level.
-#[derive(Clone, Debug)]
-pub struct ImageDesc {
-    pub name: String,
-    pub format: vk::Format,
-    /// Width, height, depth (depth 1 for 2D).
-    pub extent: [u32; 3],
-    /// Array layers (2D only).
-    pub layers: u32,
-    pub usage: vk::ImageUsageFlags,
-}
-
-impl ImageDesc {
-    pub fn image_type(&self) -> vk::ImageType {
-        if self.extent[2] > 1 {
-            vk::ImageType::TYPE_3D
-        } else {
-            vk::ImageType::TYPE_2D
-        }
-    }
-
-    fn view_type(&self) -> vk::ImageViewType {
-        match (self.image_type(), self.layers) {
-            (vk::ImageType::TYPE_3D, _) => vk::ImageViewType::TYPE_3D,
-            (_, 1) => vk::ImageViewType::TYPE_2D,
-            _ => vk::ImageViewType::TYPE_2D_ARRAY,
-        }
-    }
-
-    /// Bytes per texel for the formats vkshade uses.
-    pub fn texel_size(&self) -> Result<u64> {
-        texel_size(self.format).ok_or_else(|| {
-            Error::InvalidArgument(format!(
-                "image '{}': format {:?} is not supported by vkshade's upload/readback",
-                self.name, self.format
-            ))
-        })
-    }
-
-    /// Size in bytes of the tightly packed contents.
-    pub fn byte_size(&self) -> Result<u64> {
-        Ok(self.texel_size()?
-            * self.extent.iter().map(|&e| e as u64).product::<u64>()
-            * self.layers as u64)
-    }
-}
-
-/// Texel size in bytes of the uncompressed colour formats vkshade moves through staging.
-pub fn texel_size(format: vk::Format) -> Option<u64> {
-    use vk::Format as F;
-    Some(match format {
-        F::R8_UNORM | F::R8_UINT => 1,
-        F::R8G8_UNORM | F::R16_SFLOAT | F::R16_UINT => 2,
-        F::R8G8B8A8_UNORM | F::R8G8B8A8_SRGB | F::R32_SFLOAT | F::R32_UINT | F::R16G16_SFLOAT => 4,
-        F::R16G16B16A16_SFLOAT | F::R32G32_SFLOAT => 8,
-        F::R32G32B32A32_SFLOAT => 16,
-        _ => return None,
-    })
-}
-
-/// The Vulkan image, its view and memory; destroyed when the last holder drops it.
-pub(crate) struct ImageInner {
-    shared: Arc<Shared>,
-    raw: vk::Image,
-    view: vk::ImageView,
-    allocation: Option<Allocation>,
-    desc: ImageDesc,
-}
-
-/// A Vulkan image with one view over all of it (the owning handle).
-pub struct Image {
-    inner: Arc<ImageInner>,
-}
-
-impl std::fmt::Debug for Image {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        f.debug_struct("Image")
-            .field("desc", &self.inner.desc)
-            .finish()
-    }
-}
-
-impl Image {
-    /// Creates a device-local image, checking the extent against maxImageDimension2D/3D and
-    /// maxImageArrayLayers, and the format's support for the requested usage.
-    pub fn new(ctx: &Context, desc: ImageDesc) -> Result<Image> {
-        let shared = &ctx.shared;
-        let limits = &shared.info.limits;
-        let [w, h, d] = desc.extent;
-        if w == 0 || h == 0 || d == 0 || desc.layers == 0 {
-            return Err(Error::InvalidArgument(format!(
-                "image '{}' has an empty extent {:?} x {} layers",
-                desc.name, desc.extent, desc.layers
-            )));
-        }
-        if d > 1 && desc.layers > 1 {
-            return Err(Error::InvalidArgument(format!(
-                "image '{}': 3D images cannot have array layers",
-                desc.name
-            )));
-        }
-        let (max, limit_name) = if d > 1 {
-            (limits.max_image_dimension_3d, "maxImageDimension3D")
-        } else {
-            (limits.max_image_dimension_2d, "maxImageDimension2D")
-        };
-        for (axis, e) in ["width", "height", "depth"].iter().zip(desc.extent) {
-            if e > max {
-                return Err(Error::Limit {
-                    what: format!("{axis} of image '{}'", desc.name),
-                    requested: e as u64,
-                    limit_name,
-                    limit: max as u64,
-                });
-            }
-        }
-        if desc.layers > limits.max_image_array_layers {
-            return Err(Error::Limit {
-                what: format!("array layers of image '{}'", desc.name),
-                requested: desc.layers as u64,
-                limit_name: "maxImageArrayLayers",
-                limit: limits.max_image_array_layers as u64,
-            });
-        }
-        // SAFETY: valid physical device.
-        let props = unsafe {
-            shared
-                .instance
-                .get_physical_device_format_properties(shared.physical, desc.format)
-        };
-        let needed = format_features_for(desc.usage);
-        if !props.optimal_tiling_features.contains(needed) {
-            return Err(Error::Unsupported {
-                device: shared.info.name.clone(),
-                what: format!(
-                    "format {:?} with {:?} for image '{}' (optimal tiling has {:?})",
-                    desc.format, desc.usage, desc.name, props.optimal_tiling_features
-                ),
-            });
-        }
-        let info = vk::ImageCreateInfo::default()
-            .image_type(desc.image_type())
-            .format(desc.format)
-            .extent(vk::Extent3D {
-                width: w,
-                height: h,
-                depth: d,
-            })
-            .mip_levels(1)
-            .array_layers(desc.layers)
-            .samples(vk::SampleCountFlags::TYPE_1)
-            .tiling(vk::ImageTiling::OPTIMAL)
-            .usage(desc.usage)
-            .sharing_mode(vk::SharingMode::EXCLUSIVE)
-            .initial_layout(vk::ImageLayout::UNDEFINED);
-        // SAFETY: valid device and create info.
-        let raw = unsafe { shared.device.create_image(&info, None) }.vk("vkCreateImage")?;
-        // SAFETY: `raw` was just created.
-        let requirements = unsafe { shared.device.get_image_memory_requirements(raw) };
-        let allocation = lock(&shared.allocator).allocate(&AllocationCreateDesc {
-            name: &desc.name,
-            requirements,
-            location: MemoryLocation::GpuOnly,
-            linear: false,
-            allocation_scheme: AllocationScheme::GpuAllocatorManaged,
-        });
-        let allocation = match allocation {
-            Ok(a) => a,
-            Err(source) => {
-                // SAFETY: unused image.
-                unsafe { shared.device.destroy_image(raw, None) };
-                return Err(Error::Alloc {
-                    name: desc.name,
-                    source,
-                });
-            }
-        };
-        let mut image = ImageInner {
-            shared: shared.clone(),
-            raw,
-            view: vk::ImageView::null(),
-            allocation: Some(allocation),
-            desc,
-        };
-        let a = image.allocation.as_ref().expect("just set");
-        // SAFETY: memory from this device's allocator, sized by the requirements.
-        unsafe { shared.device.bind_image_memory(raw, a.memory(), a.offset()) }
-            .vk("vkBindImageMemory")?;
-        let view_info = vk::ImageViewCreateInfo::default()
-            .image(raw)
-            .view_type(image.desc.view_type())
-            .format(image.desc.format)
-            .subresource_range(full_range(image.desc.layers));
-        // SAFETY: valid bound image.
-        image.view =
-            unsafe { shared.device.create_image_view(&view_info, None) }.vk("vkCreateImageView")?;
-        shared.set_name(raw, &image.desc.name);
-        shared.set_name(image.view, &format!("{} view", image.desc.name));
-        Ok(Image {
-            inner: Arc::new(image),
-        })
-    }
-
-    /// A reference that keeps the Vulkan image alive (for bind groups).
-    pub(crate) fn keep(&self) -> Arc<ImageInner> {
-        self.inner.clone()
-    }
-
-    pub fn raw(&self) -> vk::Image {
-        self.inner.raw
-    }
-
-    pub fn view(&self) -> vk::ImageView {
-        self.inner.view
-    }
-
-    pub fn desc(&self) -> &ImageDesc {
+    pub fn desc(&self) -> &BufferDesc {
         &self.inner.desc
     }
 
-    pub fn name(&self) -> &str {
-        &self.inner.desc.name
+    pub fn placement(&self) -> Placement {
+        self.inner.desc.placement
     }
 
-    /// The subresource range covering every layer (one mip level, colour aspect).
-    pub fn full_range(&self) -> vk::ImageSubresourceRange {
-        full_range(self.inner.desc.layers)
+    /// Bytes of the buffer's own allocation (0 for wrapped buffers and alias-group members).
+    pub fn allocation_size(&self) -> u64 {
+        self.inner.alloc_size
     }
 
-    pub(crate) fn copy_region(&self, buffer_offset: u64) -> vk::BufferImageCopy {
-        let [w, h, d] = self.inner.desc.extent;
-        vk::BufferImageCopy {
-            buffer_offset,
-            buffer_row_length: 0,
-            buffer_image_height: 0,
-            image_subresource: vk::ImageSubresourceLayers {
-                aspect_mask: vk::ImageAspectFlags::COLOR,
-                mip_level: 0,
-                base_array_layer: 0,
-                layer_count: self.inner.desc.layers,
-            },
-            image_offset: vk::Offset3D::default(),
-            image_extent: vk::Extent3D {
-                width: w,
-                height: h,
-                depth: d,
-            },
+    /// Timeline value of the last submission that used the buffer (0: none yet).
+    pub fn last_use(&self) -> u64 {
+        self.inner.stamp.get()
+    }
+
+    /// Declares how the buffer was last accessed outside vkshade's tracking (e.g. by a
+    /// renderer's draw), so the next tracked use waits for it.
+    pub fn assume_access(&self, access: impl Into<AccessSet>) {
+        *lock(&self.inner.state) = super::track::BufferState::after(access.into());
+    }
+
+    fn host_range(&self, offset: u64, len: u64, what: &str) -> Result<MappedPtr> {
+        let inner = &self.inner;
+        let ptr = inner.mapped.ok_or_else(|| {
+            Error::InvalidArgument(format!(
+                "buffer '{}' is {:?} memory, not host-visible; {what} it through a recording \
+                 (Recorder::upload / Recorder::read_back)",
+                inner.name, inner.desc.placement.location
+            ))
+        })?;
+        if offset
+            .checked_add(len)
+            .is_none_or(|end| end > inner.desc.size)
+        {
+            return Err(Error::InvalidArgument(format!(
+                "{what} of {len} bytes at offset {offset} overruns buffer '{}' of {} bytes",
+                inner.name, inner.desc.size
+            )));
+        }
+        Ok(ptr)
+    }
+
+    /// Waits (with the host lock held) until no submission uses the buffer.
+    fn wait_idle_locked(&self) -> Result<()> {
+        let value = self.inner.stamp.get();
+        if !self.inner.shared.wait_value(value, HOST_WAIT_NS)? {
+            return Err(Error::InvalidArgument(format!(
+                "buffer '{}' is still used by submission {value} after {} s (was a recording \
+                 into a caller's command buffer never submitted?)",
+                self.inner.name,
+                HOST_WAIT_NS / 1_000_000_000
+            )));
+        }
+        Ok(())
+    }
+
+    /// Copies `data` into a host-visible buffer at byte `offset`, after waiting for every
+    /// submission that used the buffer. Visible to submissions made afterwards.
+    pub fn write<T: bytemuck::Pod>(&self, offset: u64, data: &[T]) -> Result<()> {
+        let bytes: &[u8] = bytemuck::cast_slice(data);
+        let ptr = self.host_range(offset, bytes.len() as u64, "write")?;
+        let _host = lock(&self.inner.host);
+        self.wait_idle_locked()?;
+        // SAFETY: the range is inside the mapping (checked); no submission uses the buffer
+        // (waited for, and new ones stamp it under the host lock we hold); the source is a
+        // separate Rust slice.
+        unsafe {
+            std::ptr::copy_nonoverlapping(
+                bytes.as_ptr(),
+                ptr.0.as_ptr().add(offset as usize),
+                bytes.len(),
+            )
+        };
+        Ok(())
+    }
+
+    /// Copies bytes out of a host-visible buffer into `out`, after waiting for every
+    /// submission that used the buffer. Device writes must have been made available to the
+    /// host (recordings do that when they touch a host-visible buffer).
+    pub fn read_into<T: bytemuck::Pod>(&self, offset: u64, out: &mut [T]) -> Result<()> {
+        let bytes: &mut [u8] = bytemuck::cast_slice_mut(out);
+        let ptr = self.host_range(offset, bytes.len() as u64, "read")?;
+        let _host = lock(&self.inner.host);
+        self.wait_idle_locked()?;
+        // SAFETY: as in `write`: in range, idle, and not aliased by `out`.
+        unsafe {
+            std::ptr::copy_nonoverlapping(
+                ptr.0.as_ptr().add(offset as usize),
+                bytes.as_mut_ptr(),
+                bytes.len(),
+            )
+        };
+        Ok(())
+    }
+
+    /// The whole buffer (or as many whole `T` as fit) copied to a vector.
+    pub fn read<T: bytemuck::Pod>(&self) -> Result<Vec<T>> {
+        let n = self.size() as usize / std::mem::size_of::<T>().max(1);
+        let mut out = vec![T::zeroed(); n];
+        self.read_into(0, &mut out)?;
+        Ok(out)
+    }
+
+    /// The mapped pointer of a host-visible buffer, for zero-copy access.
+    ///
+    /// # Safety
+    /// The caller must not read bytes that a submission in flight writes, nor write bytes
+    /// that one reads or writes: wait for [`Buffer::last_use`] first, and submit no work
+    /// using the buffer while the pointer is used. Device writes must be made available to
+    /// the host (a `HostRead` barrier) before reading.
+    pub unsafe fn mapped_ptr(&self) -> Option<std::ptr::NonNull<u8>> {
+        self.inner.mapped.map(|p| p.0)
+    }
+}
+
+fn check_buffer_desc(shared: &Shared, name: &str, desc: &BufferDesc) -> Result<()> {
+    let limits = &shared.info.limits;
+    if desc.size == 0 {
+        return Err(Error::InvalidArgument(format!(
+            "buffer '{name}' has size 0"
+        )));
+    }
+    let checks = [
+        (
+            vk::BufferUsageFlags::STORAGE_BUFFER,
+            limits.max_storage_buffer_range,
+            "maxStorageBufferRange",
+        ),
+        (
+            vk::BufferUsageFlags::UNIFORM_BUFFER,
+            limits.max_uniform_buffer_range,
+            "maxUniformBufferRange",
+        ),
+        (
+            vk::BufferUsageFlags::empty(),
+            limits.max_memory_allocation_size,
+            "maxMemoryAllocationSize",
+        ),
+    ];
+    for (usage, limit, limit_name) in checks {
+        if desc.usage.contains(usage) && desc.size > limit {
+            return Err(Error::Limit {
+                what: format!("size in bytes of buffer '{name}'"),
+                requested: desc.size,
+                limit_name,
+                limit,
+            });
         }
     }
-}
-
-fn full_range(layers: u32) -> vk::ImageSubresourceRange {
-    vk::ImageSubresourceRange {
-        aspect_mask: vk::ImageAspectFlags::COLOR,
-        base_mip_level: 0,
-        level_count: 1,
-        base_array_layer: 0,
-        layer_count: layers,
-    }
-}
-
-fn format_features_for(usage: vk::ImageUsageFlags) -> vk::FormatFeatureFlags {
-    let mut f = vk::FormatFeatureFlags::empty();
-    if usage.contains(vk::ImageUsageFlags::SAMPLED) {
-        f |= vk::FormatFeatureFlags::SAMPLED_IMAGE;
-    }
-    if usage.contains(vk::ImageUsageFlags::STORAGE) {
-        f |= vk::FormatFeatureFlags::STORAGE_IMAGE;
-    }
-    if usage.contains(vk::ImageUsageFlags::TRANSFER_DST) {
-        f |= vk::FormatFeatureFlags::TRANSFER_DST;
-    }
-    if usage.contains(vk::ImageUsageFlags::TRANSFER_SRC) {
-        f |= vk::FormatFeatureFlags::TRANSFER_SRC;
-    }
-    f
-}
-
-impl Drop for ImageInner {
-    fn drop(&mut self) {
-        // SAFETY: as for BufferInner: the last holder is gone.
-        unsafe { self.shared.device.destroy_image_view(self.view, None) };
-        // SAFETY: as above; the image goes before its memory.
-        unsafe { self.shared.device.destroy_image(self.raw, None) };
-        if let Some(a) = self.allocation.take() {
-            let _ = lock(&self.shared.allocator).free(a);
-        }
-    }
-}
-
-/// Filtering and addressing for sampled images.
-#[derive(Clone, Copy, Debug)]
-pub struct SamplerDesc {
-    pub filter: vk::Filter,
-    pub address_mode: vk::SamplerAddressMode,
-    /// Unnormalized coordinates (texel units; nearest/clamp only).
-    pub unnormalized: bool,
-}
-
-pub(crate) struct SamplerInner {
-    shared: Arc<Shared>,
-    raw: vk::Sampler,
-}
-
-/// A sampler object (the owning handle).
-pub struct Sampler {
-    inner: Arc<SamplerInner>,
-}
-
-impl Sampler {
-    pub fn new(ctx: &Context, name: &str, desc: SamplerDesc) -> Result<Sampler> {
-        let info = vk::SamplerCreateInfo::default()
-            .mag_filter(desc.filter)
-            .min_filter(desc.filter)
-            .mipmap_mode(vk::SamplerMipmapMode::NEAREST)
-            .address_mode_u(desc.address_mode)
-            .address_mode_v(desc.address_mode)
-            .address_mode_w(desc.address_mode)
-            .max_lod(0.0)
-            .unnormalized_coordinates(desc.unnormalized);
-        // SAFETY: valid device and create info.
-        let raw = unsafe { ctx.shared.device.create_sampler(&info, None) }.vk("vkCreateSampler")?;
-        ctx.shared.set_name(raw, name);
-        Ok(Sampler {
-            inner: Arc::new(SamplerInner {
-                shared: ctx.shared.clone(),
-                raw,
-            }),
-        })
-    }
-
-    pub fn raw(&self) -> vk::Sampler {
-        self.inner.raw
-    }
-
-    pub(crate) fn keep(&self) -> Arc<SamplerInner> {
-        self.inner.clone()
-    }
-}
-
-impl Drop for SamplerInner {
-    fn drop(&mut self) {
-        // SAFETY: the last holder is gone (see BufferInner::drop).
-        unsafe { self.shared.device.destroy_sampler(self.raw, None) };
-    }
+    Ok(())
 }

@@ -1,20 +1,41 @@
 //! The Vulkan layer. Nothing here knows about ambient occlusion, skin or BTFs.
+//!
+//! - [`context`]: instance, device, queue, allocator, validation, the timeline.
+//! - [`memory`]: buffers, placement, alias groups, memory reports.
+//! - [`image`]: images, views, samplers.
+//! - [`sync`]: access types mapped to synchronization2 barriers.
+//! - [`track`]: per-resource (and per-subresource) state tracking for declared uses.
+//! - [`shader`], [`pipeline`]: reflection, pipelines, bind groups with declared accesses.
+//! - [`record`]: recordings, submissions, staged uploads and readbacks, timestamps.
+//! - `lifetime`, `staging`: deferred destruction and the staging ring.
 
 pub mod context;
+pub mod image;
+mod lifetime;
 pub mod memory;
 pub mod pipeline;
 pub mod record;
 pub mod shader;
+mod staging;
 pub mod sync;
+pub mod track;
 pub mod validation;
 
 pub use context::{
-    Context, ContextDesc, DeviceInfo, DeviceLimits, DeviceSelector, ExternalDevice, SystemInfo,
-    ValidationConfig, enumerate_devices,
+    Context, ContextDesc, DeviceInfo, DeviceLimits, DeviceSelector, ExternalDevice, Features,
+    MemoryConfig, SystemInfo, ValidationConfig, enumerate_devices,
 };
-pub use memory::{Buffer, BufferDesc, Image, ImageDesc, MemoryUsage, Sampler, SamplerDesc};
-pub use pipeline::{BindGroup, ComputePipeline, Resource};
-pub use record::{Barrier, PassTiming, Readback, Recorded, Recorder, Submission, Timings};
+pub use image::{
+    Image, ImageDesc, ImageDim, ImageRegion, Sampler, SamplerDesc, Subresources, ViewDesc,
+};
+pub use memory::{
+    AliasGroup, AliasMember, Buffer, BufferDesc, Dedicated, Location, MemoryReport, Placement,
+};
+pub use pipeline::{BindGroup, ComputePipeline, DeclaredUse, ImageRef, Resource, default_access};
+pub use record::{
+    AliasUse, Barrier, BarrierMode, PassTiming, PlannedBarrier, Readback, Recorded, Recorder,
+    Submission, Timings,
+};
 pub use shader::{BindingInfo, DescriptorKind, Shader};
 pub use sync::{AccessSet, AccessType};
 pub use validation::{MessageSink, Severity, ValidationMessage};

@@ -1,16 +1,48 @@
 //! Compute pipelines whose set layouts and push-constant ranges come from reflection, and
-//! bind groups that check every resource against the shader's interface.
+//! bind groups that check every resource against the shader's interface and declare how each
+//! binding is accessed (from the reflected `readonly` qualifiers, overridable).
 
 use super::context::{Context, Shared};
-use super::memory::{Buffer, Image, Sampler};
+use super::image::{Image, ImageInner, Sampler, SamplerInner, Subresources, ViewDesc};
+use super::lifetime::{Retired, Stamp, Used};
+use super::memory::{Buffer, BufferInner};
 use super::shader::{BindingInfo, DescriptorKind, Shader};
+use super::sync::{AccessSet, AccessType};
 use crate::error::{Error, Result, VkResultExt};
 use ash::vk;
 use std::collections::BTreeMap;
 use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
+
+/// An image (through a view) given for a binding.
+#[derive(Clone, Copy, Debug)]
+pub struct ImageRef<'a> {
+    pub image: &'a Image,
+    pub view: ViewDesc,
+}
+
+impl<'a> ImageRef<'a> {
+    pub fn new(image: &'a Image) -> Self {
+        ImageRef {
+            image,
+            view: ViewDesc::default(),
+        }
+    }
+
+    pub fn view(mut self, view: ViewDesc) -> Self {
+        self.view = view;
+        self
+    }
+}
+
+impl<'a> From<&'a Image> for ImageRef<'a> {
+    fn from(image: &'a Image) -> Self {
+        ImageRef::new(image)
+    }
+}
 
 /// A resource given for one binding.
-#[derive(Clone, Copy)]
+#[derive(Clone, Debug)]
 pub enum Resource<'a> {
     /// A whole storage or uniform buffer.
     Buffer(&'a Buffer),
@@ -20,26 +52,49 @@ pub enum Resource<'a> {
         offset: u64,
         size: u64,
     },
-    /// A storage image (GENERAL layout when dispatched).
-    StorageImage(&'a Image),
-    /// A sampled image with its sampler (SHADER_READ_ONLY_OPTIMAL when dispatched).
-    Sampled(&'a Image, &'a Sampler),
+    /// A storage image (`image2D`...; GENERAL layout when dispatched).
+    StorageImage(ImageRef<'a>),
+    /// A sampled image without sampler (`texture2D`...; SHADER_READ_ONLY_OPTIMAL).
+    Texture(ImageRef<'a>),
+    /// A sampled image with its sampler (`sampler2D`...; SHADER_READ_ONLY_OPTIMAL).
+    Sampled(ImageRef<'a>, &'a Sampler),
+    /// A sampler alone (`sampler`).
+    Sampler(&'a Sampler),
+    /// The elements of a descriptor array, in order (as many as the shader declares).
+    Array(Vec<Resource<'a>>),
 }
 
-impl Resource<'_> {
+impl<'a> Resource<'a> {
+    pub fn storage_image(image: &'a Image) -> Self {
+        Resource::StorageImage(image.into())
+    }
+
+    pub fn texture(image: &'a Image) -> Self {
+        Resource::Texture(image.into())
+    }
+
+    pub fn sampled(image: &'a Image, sampler: &'a Sampler) -> Self {
+        Resource::Sampled(image.into(), sampler)
+    }
+
     fn describe(&self) -> String {
         match self {
             Resource::Buffer(b) => format!("buffer '{}'", b.name()),
             Resource::BufferRange { buffer, .. } => format!("range of buffer '{}'", buffer.name()),
-            Resource::StorageImage(i) => format!("storage image '{}'", i.name()),
-            Resource::Sampled(i, _) => format!("sampled image '{}'", i.name()),
+            Resource::StorageImage(i) => format!("storage image '{}'", i.image.name()),
+            Resource::Texture(i) => format!("texture '{}'", i.image.name()),
+            Resource::Sampled(i, _) => format!("sampled image '{}'", i.image.name()),
+            Resource::Sampler(s) => format!("sampler '{}'", s.name()),
+            Resource::Array(v) => format!("array of {} resources", v.len()),
         }
     }
 }
 
-/// A compute pipeline and its layout.
-pub struct ComputePipeline {
+static PIPELINE_IDS: AtomicU64 = AtomicU64::new(1);
+
+pub(crate) struct PipelineInner {
     shared: Arc<Shared>,
+    id: u64,
     name: String,
     bindings: Vec<BindingInfo>,
     push_constant_size: u32,
@@ -47,14 +102,230 @@ pub struct ComputePipeline {
     set_layouts: Vec<vk::DescriptorSetLayout>,
     layout: vk::PipelineLayout,
     raw: vk::Pipeline,
+    stamp: Stamp,
+}
+
+impl Used for PipelineInner {
+    fn stamp(&self, value: u64) {
+        self.stamp.raise(value);
+    }
+}
+
+impl Drop for PipelineInner {
+    fn drop(&mut self) {
+        let mut items = vec![
+            Retired::Pipeline(self.raw),
+            Retired::PipelineLayout(self.layout),
+        ];
+        items.extend(self.set_layouts.iter().map(|&l| Retired::SetLayout(l)));
+        self.shared.retire(self.stamp.get(), items);
+    }
+}
+
+/// A compute pipeline and its layout (the owning handle; recordings keep it alive).
+pub struct ComputePipeline {
+    inner: Arc<PipelineInner>,
 }
 
 impl std::fmt::Debug for ComputePipeline {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.debug_struct("ComputePipeline")
-            .field("name", &self.name)
-            .field("local_size", &self.local_size)
+            .field("name", &self.inner.name)
+            .field("local_size", &self.inner.local_size)
             .finish()
+    }
+}
+
+/// Resolves specialization constants given by name to (id, value), checking every name.
+fn resolve_constants(shader: &Shader, constants: &[(&str, u32)]) -> Result<Vec<(u32, u32)>> {
+    constants
+        .iter()
+        .map(|(name, value)| {
+            let c = shader
+                .spec_constants
+                .iter()
+                .find(|c| c.name == *name)
+                .ok_or_else(|| Error::Interface {
+                    pipeline: shader.name.clone(),
+                    reason: format!(
+                        "no specialization constant named '{name}' (it has: {})",
+                        shader
+                            .spec_constants
+                            .iter()
+                            .map(|c| format!("'{}' (id {})", c.name, c.id))
+                            .collect::<Vec<_>>()
+                            .join(", ")
+                    ),
+                })?;
+            Ok((c.id, *value))
+        })
+        .collect()
+}
+
+/// The workgroup size the resolved constants give, checked against the device limits, and
+/// the push-constant and descriptor-set counts checked too.
+fn checked_local_size(
+    shared: &Shared,
+    shader: &Shader,
+    resolved: &[(u32, u32)],
+) -> Result<[u32; 3]> {
+    let limits = &shared.info.limits;
+    let limit_err = |what: &str, requested: u64, limit_name, limit: u64| Error::Limit {
+        what: format!("{what} of shader '{}'", shader.name),
+        requested,
+        limit_name,
+        limit,
+    };
+    let mut local_size = shader.local_size;
+    for (axis, spec) in shader.local_size_spec.iter().enumerate() {
+        if let Some(&(_, v)) = spec.and_then(|id| resolved.iter().rev().find(|(i, _)| *i == id)) {
+            local_size[axis] = v;
+        }
+    }
+    if local_size.contains(&0) {
+        return Err(Error::Interface {
+            pipeline: shader.name.clone(),
+            reason: format!("specialised workgroup size {local_size:?} has a zero dimension"),
+        });
+    }
+    for (axis, (&size, &max)) in local_size
+        .iter()
+        .zip(&limits.max_compute_work_group_size)
+        .enumerate()
+    {
+        if size > max {
+            return Err(limit_err(
+                &format!("workgroup size along axis {axis}"),
+                size as u64,
+                "maxComputeWorkGroupSize",
+                max as u64,
+            ));
+        }
+    }
+    let invocations: u64 = local_size.iter().map(|&s| s as u64).product();
+    if invocations > limits.max_compute_work_group_invocations as u64 {
+        return Err(limit_err(
+            "invocations per workgroup",
+            invocations,
+            "maxComputeWorkGroupInvocations",
+            limits.max_compute_work_group_invocations as u64,
+        ));
+    }
+    if shader.push_constant_size > limits.max_push_constants_size {
+        return Err(limit_err(
+            "push-constant bytes",
+            shader.push_constant_size as u64,
+            "maxPushConstantsSize",
+            limits.max_push_constants_size as u64,
+        ));
+    }
+    let n_sets = shader.bindings.iter().map(|b| b.set + 1).max().unwrap_or(0);
+    if n_sets > limits.max_bound_descriptor_sets {
+        return Err(limit_err(
+            "descriptor sets",
+            n_sets as u64,
+            "maxBoundDescriptorSets",
+            limits.max_bound_descriptor_sets as u64,
+        ));
+    }
+    Ok(local_size)
+}
+
+impl PipelineInner {
+    /// Creates the set layouts and the pipeline layout.
+    fn create_layouts(&mut self) -> Result<()> {
+        let device = &self.shared.device;
+        let n_sets = self.bindings.iter().map(|b| b.set + 1).max().unwrap_or(0);
+        for set in 0..n_sets {
+            let layout_bindings: Vec<_> = self
+                .bindings
+                .iter()
+                .filter(|b| b.set == set)
+                .map(|b| {
+                    vk::DescriptorSetLayoutBinding::default()
+                        .binding(b.binding)
+                        .descriptor_type(b.kind.vk())
+                        .descriptor_count(b.count)
+                        .stage_flags(vk::ShaderStageFlags::COMPUTE)
+                })
+                .collect();
+            let info = vk::DescriptorSetLayoutCreateInfo::default().bindings(&layout_bindings);
+            // SAFETY: valid device and create info.
+            let l = unsafe { device.create_descriptor_set_layout(&info, None) }
+                .vk("vkCreateDescriptorSetLayout")?;
+            self.set_layouts.push(l);
+        }
+        let ranges = [vk::PushConstantRange {
+            stage_flags: vk::ShaderStageFlags::COMPUTE,
+            offset: 0,
+            size: self.push_constant_size,
+        }];
+        let ranges: &[vk::PushConstantRange] = if self.push_constant_size > 0 {
+            &ranges
+        } else {
+            &[]
+        };
+        let layout_info = vk::PipelineLayoutCreateInfo::default()
+            .set_layouts(&self.set_layouts)
+            .push_constant_ranges(ranges);
+        // SAFETY: valid device and create info.
+        self.layout = unsafe { device.create_pipeline_layout(&layout_info, None) }
+            .vk("vkCreatePipelineLayout")?;
+        Ok(())
+    }
+
+    /// Creates the pipeline from the shader with the resolved constants.
+    fn create_pipeline(&mut self, shader: &Shader, resolved: &[(u32, u32)]) -> Result<()> {
+        let device = &self.shared.device;
+        let module_info = vk::ShaderModuleCreateInfo::default().code(&shader.words);
+        // SAFETY: the words passed SPIRV-Tools validation in Shader::from_spirv.
+        let module = unsafe { device.create_shader_module(&module_info, None) }
+            .vk("vkCreateShaderModule")?;
+        let entry = std::ffi::CString::new(shader.entry_point.clone()).map_err(|_| Error::Spirv {
+            name: shader.name.clone(),
+            reason: "entry point name contains NUL".into(),
+        });
+        let entry = match entry {
+            Ok(e) => e,
+            Err(e) => {
+                // SAFETY: unused module.
+                unsafe { device.destroy_shader_module(module, None) };
+                return Err(e);
+            }
+        };
+        let mut entries = Vec::with_capacity(resolved.len());
+        let mut data: Vec<u8> = Vec::with_capacity(4 * resolved.len());
+        for (id, value) in resolved {
+            entries.push(vk::SpecializationMapEntry {
+                constant_id: *id,
+                offset: data.len() as u32,
+                size: 4,
+            });
+            data.extend_from_slice(&value.to_le_bytes());
+        }
+        let specialization = vk::SpecializationInfo::default()
+            .map_entries(&entries)
+            .data(&data);
+        let mut stage = vk::PipelineShaderStageCreateInfo::default()
+            .stage(vk::ShaderStageFlags::COMPUTE)
+            .module(module)
+            .name(&entry);
+        if !entries.is_empty() {
+            stage = stage.specialization_info(&specialization);
+        }
+        let info = [vk::ComputePipelineCreateInfo::default()
+            .stage(stage)
+            .layout(self.layout)];
+        // SAFETY: valid module and layout.
+        let created =
+            unsafe { device.create_compute_pipelines(vk::PipelineCache::null(), &info, None) };
+        // SAFETY: the module is no longer needed once the pipeline exists (or failed).
+        unsafe { device.destroy_shader_module(module, None) };
+        self.raw = created.map_err(|(_, r)| Error::Vk {
+            call: "vkCreateComputePipelines",
+            result: r,
+        })?[0];
+        Ok(())
     }
 }
 
@@ -79,98 +350,22 @@ impl ComputePipeline {
         constants: &[(&str, u32)],
     ) -> Result<ComputePipeline> {
         let shared = &ctx.shared;
-        let limits = &shared.info.limits;
-        let limit_err = |what: &str, requested: u64, limit_name, limit: u64| Error::Limit {
-            what: format!("{what} of shader '{}'", shader.name),
-            requested,
-            limit_name,
-            limit,
-        };
-        // Specialization constants by name, checked before anything is created.
-        let mut resolved: Vec<(u32, u32)> = Vec::with_capacity(constants.len());
-        for (name, value) in constants {
-            let Some(c) = shader.spec_constants.iter().find(|c| c.name == *name) else {
-                return Err(Error::Interface {
-                    pipeline: shader.name.clone(),
-                    reason: format!(
-                        "no specialization constant named '{name}' (it has: {})",
-                        shader
-                            .spec_constants
-                            .iter()
-                            .map(|c| format!("'{}' (id {})", c.name, c.id))
-                            .collect::<Vec<_>>()
-                            .join(", ")
-                    ),
-                });
-            };
-            resolved.push((c.id, *value));
-        }
-        // The workgroup size these constants give.
-        let mut local_size = shader.local_size;
-        for (axis, spec) in shader.local_size_spec.iter().enumerate() {
-            if let Some(&(_, v)) = spec.and_then(|id| resolved.iter().rev().find(|(i, _)| *i == id))
-            {
-                local_size[axis] = v;
-            }
-        }
-        if local_size.contains(&0) {
-            return Err(Error::Interface {
-                pipeline: shader.name.clone(),
-                reason: format!("specialised workgroup size {local_size:?} has a zero dimension"),
-            });
-        }
-        for (axis, (&size, &max)) in local_size
-            .iter()
-            .zip(&limits.max_compute_work_group_size)
-            .enumerate()
-        {
-            if size > max {
-                return Err(limit_err(
-                    &format!("workgroup size along axis {axis}"),
-                    size as u64,
-                    "maxComputeWorkGroupSize",
-                    max as u64,
-                ));
-            }
-        }
-        let invocations: u64 = local_size.iter().map(|&s| s as u64).product();
-        if invocations > limits.max_compute_work_group_invocations as u64 {
-            return Err(limit_err(
-                "invocations per workgroup",
-                invocations,
-                "maxComputeWorkGroupInvocations",
-                limits.max_compute_work_group_invocations as u64,
-            ));
-        }
-        if shader.push_constant_size > limits.max_push_constants_size {
-            return Err(limit_err(
-                "push-constant bytes",
-                shader.push_constant_size as u64,
-                "maxPushConstantsSize",
-                limits.max_push_constants_size as u64,
-            ));
-        }
-        if let Some(b) = shader.bindings.iter().find(|b| b.count != 1) {
+        shared.collect();
+        let resolved = resolve_constants(shader, constants)?;
+        let local_size = checked_local_size(shared, shader, &resolved)?;
+        if let Some(b) = shader.bindings.iter().find(|b| b.count == 0) {
             return Err(Error::Interface {
                 pipeline: shader.name.clone(),
                 reason: format!(
-                    "binding '{}' is an array of {}; arrays of descriptors are not supported",
-                    b.name, b.count
+                    "binding '{}' is a runtime-sized array, which vkshade does not bind",
+                    b.name
                 ),
             });
         }
-        let n_sets = shader.bindings.iter().map(|b| b.set + 1).max().unwrap_or(0);
-        if n_sets > limits.max_bound_descriptor_sets {
-            return Err(limit_err(
-                "descriptor sets",
-                n_sets as u64,
-                "maxBoundDescriptorSets",
-                limits.max_bound_descriptor_sets as u64,
-            ));
-        }
-
-        let mut pipeline = ComputePipeline {
+        // Objects created below are retired by `inner`'s Drop if a later step fails.
+        let mut inner = PipelineInner {
             shared: shared.clone(),
+            id: PIPELINE_IDS.fetch_add(1, Ordering::Relaxed),
             name: shader.name.clone(),
             bindings: shader.bindings.clone(),
             push_constant_size: shader.push_constant_size,
@@ -178,149 +373,81 @@ impl ComputePipeline {
             set_layouts: Vec::new(),
             layout: vk::PipelineLayout::null(),
             raw: vk::Pipeline::null(),
+            stamp: Stamp::default(),
         };
-        // Objects created below are destroyed by `pipeline`'s Drop if a later step fails.
-        for set in 0..n_sets {
-            let layout_bindings: Vec<_> = shader
-                .bindings
-                .iter()
-                .filter(|b| b.set == set)
-                .map(|b| {
-                    vk::DescriptorSetLayoutBinding::default()
-                        .binding(b.binding)
-                        .descriptor_type(b.kind.vk())
-                        .descriptor_count(1)
-                        .stage_flags(vk::ShaderStageFlags::COMPUTE)
-                })
-                .collect();
-            let info = vk::DescriptorSetLayoutCreateInfo::default().bindings(&layout_bindings);
-            // SAFETY: valid device and create info.
-            let l = unsafe { shared.device.create_descriptor_set_layout(&info, None) }
-                .vk("vkCreateDescriptorSetLayout")?;
-            pipeline.set_layouts.push(l);
-        }
-        let ranges = [vk::PushConstantRange {
-            stage_flags: vk::ShaderStageFlags::COMPUTE,
-            offset: 0,
-            size: shader.push_constant_size,
-        }];
-        let ranges: &[vk::PushConstantRange] = if shader.push_constant_size > 0 {
-            &ranges
-        } else {
-            &[]
-        };
-        let layout_info = vk::PipelineLayoutCreateInfo::default()
-            .set_layouts(&pipeline.set_layouts)
-            .push_constant_ranges(ranges);
-        // SAFETY: valid device and create info.
-        pipeline.layout = unsafe { shared.device.create_pipeline_layout(&layout_info, None) }
-            .vk("vkCreatePipelineLayout")?;
+        inner.create_layouts()?;
+        inner.create_pipeline(shader, &resolved)?;
+        shared.set_name(inner.raw, &shader.name);
+        shared.set_name(inner.layout, &format!("{} layout", shader.name));
+        Ok(ComputePipeline {
+            inner: Arc::new(inner),
+        })
+    }
 
-        let module_info = vk::ShaderModuleCreateInfo::default().code(&shader.words);
-        // SAFETY: the words passed SPIRV-Tools validation in Shader::from_spirv.
-        let module = unsafe { shared.device.create_shader_module(&module_info, None) }
-            .vk("vkCreateShaderModule")?;
-        let entry =
-            std::ffi::CString::new(shader.entry_point.clone()).map_err(|_| Error::Spirv {
-                name: shader.name.clone(),
-                reason: "entry point name contains NUL".into(),
-            })?;
-        let mut entries = Vec::with_capacity(resolved.len());
-        let mut data: Vec<u8> = Vec::with_capacity(4 * resolved.len());
-        for (id, value) in &resolved {
-            entries.push(vk::SpecializationMapEntry {
-                constant_id: *id,
-                offset: data.len() as u32,
-                size: 4,
-            });
-            data.extend_from_slice(&value.to_le_bytes());
-        }
-        let specialization = vk::SpecializationInfo::default()
-            .map_entries(&entries)
-            .data(&data);
-        let mut stage = vk::PipelineShaderStageCreateInfo::default()
-            .stage(vk::ShaderStageFlags::COMPUTE)
-            .module(module)
-            .name(&entry);
-        if !entries.is_empty() {
-            stage = stage.specialization_info(&specialization);
-        }
-        let info = [vk::ComputePipelineCreateInfo::default()
-            .stage(stage)
-            .layout(pipeline.layout)];
-        // SAFETY: valid module and layout.
-        let created = unsafe {
-            shared
-                .device
-                .create_compute_pipelines(vk::PipelineCache::null(), &info, None)
-        };
-        // SAFETY: the module is no longer needed once the pipeline exists (or failed).
-        unsafe { shared.device.destroy_shader_module(module, None) };
-        pipeline.raw = created.map_err(|(_, r)| Error::Vk {
-            call: "vkCreateComputePipelines",
-            result: r,
-        })?[0];
-        shared.set_name(pipeline.raw, &shader.name);
-        shared.set_name(pipeline.layout, &format!("{} layout", shader.name));
-        Ok(pipeline)
+    pub(crate) fn keep(&self) -> Arc<PipelineInner> {
+        self.inner.clone()
     }
 
     pub fn name(&self) -> &str {
-        &self.name
+        &self.inner.name
     }
 
     pub fn local_size(&self) -> [u32; 3] {
-        self.local_size
+        self.inner.local_size
     }
 
     pub fn push_constant_size(&self) -> u32 {
-        self.push_constant_size
+        self.inner.push_constant_size
     }
 
     pub fn bindings(&self) -> &[BindingInfo] {
-        &self.bindings
+        &self.inner.bindings
     }
 
     pub fn raw(&self) -> vk::Pipeline {
-        self.raw
+        self.inner.raw
     }
 
     pub fn layout(&self) -> vk::PipelineLayout {
-        self.layout
+        self.inner.layout
     }
 
     fn interface_err(&self, reason: String) -> Error {
         Error::Interface {
-            pipeline: self.name.clone(),
+            pipeline: self.inner.name.clone(),
             reason,
         }
     }
 
     /// Creates descriptor sets holding `resources`, given by the shader's variable names.
     /// Every binding of the shader must be given exactly once, with a resource of the right
-    /// kind, usage and size; anything else is an error naming the binding.
+    /// kind, usage and size; anything else is an error naming the binding. Accesses are
+    /// the defaults of [`default_access`].
     pub fn bind(&self, resources: &[(&str, Resource<'_>)]) -> Result<BindGroup> {
+        self.bind_declared(resources, &[])
+    }
+
+    /// As [`ComputePipeline::bind`], declaring the access of some bindings instead of the
+    /// reflected default (e.g. a storage buffer the shader only writes:
+    /// `AccessType::ComputeShaderWrite`).
+    pub fn bind_declared(
+        &self,
+        resources: &[(&str, Resource<'_>)],
+        accesses: &[(&str, AccessSet)],
+    ) -> Result<BindGroup> {
         let mut by_binding: BTreeMap<(u32, u32), (&BindingInfo, Resource<'_>)> = BTreeMap::new();
         for (name, res) in resources {
-            let info = self
-                .bindings
-                .iter()
-                .find(|b| b.name == *name)
-                .ok_or_else(|| {
-                    self.interface_err(format!(
-                        "the shader has no binding named '{name}' (it has: {})",
-                        self.binding_list()
-                    ))
-                })?;
+            let info = self.binding_named(name)?;
             self.check_resource(info, res)?;
             if by_binding
-                .insert((info.set, info.binding), (info, *res))
+                .insert((info.set, info.binding), (info, res.clone()))
                 .is_some()
             {
                 return Err(self.interface_err(format!("binding '{name}' given twice")));
             }
         }
         let missing: Vec<_> = self
+            .inner
             .bindings
             .iter()
             .filter(|b| !by_binding.contains_key(&(b.set, b.binding)))
@@ -334,11 +461,30 @@ impl ComputePipeline {
         if !missing.is_empty() {
             return Err(self.interface_err(format!("no resource given for {}", missing.join(", "))));
         }
-        BindGroup::new(self, &by_binding)
+        let mut overrides = BTreeMap::new();
+        for (name, access) in accesses {
+            let info = self.binding_named(name)?;
+            overrides.insert((info.set, info.binding), *access);
+        }
+        BindGroup::new(self, &by_binding, &overrides)
+    }
+
+    fn binding_named(&self, name: &str) -> Result<&BindingInfo> {
+        self.inner
+            .bindings
+            .iter()
+            .find(|b| b.name == name)
+            .ok_or_else(|| {
+                self.interface_err(format!(
+                    "the shader has no binding named '{name}' (it has: {})",
+                    self.binding_list()
+                ))
+            })
     }
 
     fn binding_list(&self) -> String {
-        self.bindings
+        self.inner
+            .bindings
             .iter()
             .map(|b| format!("'{}' {:?}", b.name, b.kind))
             .collect::<Vec<_>>()
@@ -346,6 +492,33 @@ impl ComputePipeline {
     }
 
     fn check_resource(&self, info: &BindingInfo, res: &Resource<'_>) -> Result<()> {
+        if let Resource::Array(items) = res {
+            if info.count == 1 {
+                return Err(self.interface_err(format!(
+                    "binding '{}' is a single {:?}, not an array",
+                    info.name, info.kind
+                )));
+            }
+            if items.len() != info.count as usize {
+                return Err(self.interface_err(format!(
+                    "binding '{}' is an array of {}, given {} resources",
+                    info.name,
+                    info.count,
+                    items.len()
+                )));
+            }
+            return items.iter().try_for_each(|r| self.check_single(info, r));
+        }
+        if info.count != 1 {
+            return Err(self.interface_err(format!(
+                "binding '{}' is an array of {}: give Resource::Array",
+                info.name, info.count
+            )));
+        }
+        self.check_single(info, res)
+    }
+
+    fn check_single(&self, info: &BindingInfo, res: &Resource<'_>) -> Result<()> {
         let mismatch = || {
             self.interface_err(format!(
                 "binding '{}' is a {:?} but was given a {}",
@@ -354,130 +527,250 @@ impl ComputePipeline {
                 res.describe()
             ))
         };
+        let needs_usage = |img: &ImageRef<'_>, usage: vk::ImageUsageFlags| {
+            if !img.image.desc().usage.contains(usage) {
+                return Err(self.interface_err(format!(
+                    "image '{}' for binding '{}' lacks {usage:?} usage",
+                    img.image.name(),
+                    info.name
+                )));
+            }
+            img.image.keep().view(&img.view, usage).map(|_| ())
+        };
         match (info.kind, res) {
             (
                 DescriptorKind::StorageBuffer | DescriptorKind::UniformBuffer,
                 Resource::Buffer(_) | Resource::BufferRange { .. },
-            ) => {
-                let (buffer, offset, size) = match *res {
-                    Resource::Buffer(b) => (b, 0, b.size()),
-                    Resource::BufferRange {
-                        buffer,
-                        offset,
-                        size,
-                    } => (buffer, offset, size),
-                    _ => unreachable!("matched above"),
-                };
-                let usage = if info.kind == DescriptorKind::StorageBuffer {
-                    vk::BufferUsageFlags::STORAGE_BUFFER
-                } else {
-                    vk::BufferUsageFlags::UNIFORM_BUFFER
-                };
-                if !buffer.usage().contains(usage) {
-                    return Err(self.interface_err(format!(
-                        "buffer '{}' for binding '{}' lacks usage {usage:?}",
-                        buffer.name(),
-                        info.name
-                    )));
-                }
-                if offset
-                    .checked_add(size)
-                    .is_none_or(|end| end > buffer.size())
-                {
-                    return Err(self.interface_err(format!(
-                        "range {offset}+{size} is outside buffer '{}' of {} bytes",
-                        buffer.name(),
-                        buffer.size()
-                    )));
-                }
-                let limits = &self.shared.info.limits;
-                let (align, align_name) = if info.kind == DescriptorKind::StorageBuffer {
-                    (
-                        limits.min_storage_buffer_offset_alignment,
-                        "minStorageBufferOffsetAlignment",
-                    )
-                } else {
-                    (
-                        limits.min_uniform_buffer_offset_alignment,
-                        "minUniformBufferOffsetAlignment",
-                    )
-                };
-                if offset % align.max(1) != 0 {
-                    return Err(self.interface_err(format!(
-                        "offset {offset} into buffer '{}' is not a multiple of {align_name} = {align}",
-                        buffer.name()
-                    )));
-                }
-                if size < info.min_size {
-                    return Err(self.interface_err(format!(
-                        "binding '{}' needs at least {} bytes, buffer '{}' gives {size}",
-                        info.name,
-                        info.min_size,
-                        buffer.name()
-                    )));
-                }
-                Ok(())
-            }
+            ) => self.check_buffer(info, res),
             (DescriptorKind::StorageImage, Resource::StorageImage(img)) => {
-                if !img.desc().usage.contains(vk::ImageUsageFlags::STORAGE) {
-                    return Err(self.interface_err(format!(
-                        "image '{}' for binding '{}' lacks STORAGE usage",
-                        img.name(),
-                        info.name
-                    )));
+                needs_usage(img, vk::ImageUsageFlags::STORAGE)
+            }
+            (DescriptorKind::SampledImage, Resource::Texture(img)) => {
+                needs_usage(img, vk::ImageUsageFlags::SAMPLED)
+            }
+            (DescriptorKind::CombinedImageSampler, Resource::Sampled(img, sampler)) => {
+                needs_usage(img, vk::ImageUsageFlags::SAMPLED)?;
+                if sampler.desc().filters_linearly() {
+                    let format = img.view.format.unwrap_or(img.image.desc().format);
+                    self.inner.shared.require_format(
+                        format,
+                        vk::FormatFeatureFlags::SAMPLED_IMAGE_FILTER_LINEAR,
+                        &format!(
+                            "linear filtering of image '{}' by sampler '{}' (use nearest \
+                             filtering or another format)",
+                            img.image.name(),
+                            sampler.name()
+                        ),
+                    )?;
                 }
                 Ok(())
             }
-            (DescriptorKind::CombinedImageSampler, Resource::Sampled(img, _)) => {
-                if !img.desc().usage.contains(vk::ImageUsageFlags::SAMPLED) {
-                    return Err(self.interface_err(format!(
-                        "image '{}' for binding '{}' lacks SAMPLED usage",
-                        img.name(),
-                        info.name
-                    )));
-                }
-                Ok(())
-            }
+            (DescriptorKind::Sampler, Resource::Sampler(_)) => Ok(()),
             _ => Err(mismatch()),
         }
     }
+
+    fn check_buffer(&self, info: &BindingInfo, res: &Resource<'_>) -> Result<()> {
+        let (buffer, offset, size) = match *res {
+            Resource::Buffer(b) => (b, 0, b.size()),
+            Resource::BufferRange {
+                buffer,
+                offset,
+                size,
+            } => (buffer, offset, size),
+            _ => unreachable!("only called for buffers"),
+        };
+        let storage = info.kind == DescriptorKind::StorageBuffer;
+        let usage = if storage {
+            vk::BufferUsageFlags::STORAGE_BUFFER
+        } else {
+            vk::BufferUsageFlags::UNIFORM_BUFFER
+        };
+        if !buffer.usage().contains(usage) {
+            return Err(self.interface_err(format!(
+                "buffer '{}' for binding '{}' lacks usage {usage:?}",
+                buffer.name(),
+                info.name
+            )));
+        }
+        if offset
+            .checked_add(size)
+            .is_none_or(|end| end > buffer.size())
+        {
+            return Err(self.interface_err(format!(
+                "range {offset}+{size} is outside buffer '{}' of {} bytes",
+                buffer.name(),
+                buffer.size()
+            )));
+        }
+        let limits = &self.inner.shared.info.limits;
+        let (align, align_name) = if storage {
+            (
+                limits.min_storage_buffer_offset_alignment,
+                "minStorageBufferOffsetAlignment",
+            )
+        } else {
+            (
+                limits.min_uniform_buffer_offset_alignment,
+                "minUniformBufferOffsetAlignment",
+            )
+        };
+        if offset % align.max(1) != 0 {
+            return Err(self.interface_err(format!(
+                "offset {offset} into buffer '{}' is not a multiple of {align_name} = {align}",
+                buffer.name()
+            )));
+        }
+        if size < info.min_size {
+            return Err(self.interface_err(format!(
+                "binding '{}' needs at least {} bytes, buffer '{}' gives {size}",
+                info.name,
+                info.min_size,
+                buffer.name()
+            )));
+        }
+        Ok(())
+    }
 }
 
-impl Drop for ComputePipeline {
-    fn drop(&mut self) {
-        // SAFETY: no pending work uses the pipeline (every submission waits); null handles
-        // from a failed construction are ignored by the destroy calls.
-        unsafe {
-            self.shared.device.destroy_pipeline(self.raw, None);
-            self.shared
-                .device
-                .destroy_pipeline_layout(self.layout, None);
-            for &l in &self.set_layouts {
-                self.shared.device.destroy_descriptor_set_layout(l, None);
-            }
+/// The access a binding gets unless declared otherwise: `readonly` storage buffers and
+/// images are read (`ComputeShaderReadOther`), other storage bindings read and written,
+/// uniform buffers `ComputeShaderReadUniformBuffer`, sampled images
+/// `ComputeShaderReadSampledImage`; samplers have none.
+pub fn default_access(info: &BindingInfo) -> AccessSet {
+    use AccessType as A;
+    match info.kind {
+        DescriptorKind::StorageBuffer | DescriptorKind::StorageImage if info.read_only => {
+            A::ComputeShaderReadOther.into()
         }
+        DescriptorKind::StorageBuffer | DescriptorKind::StorageImage => {
+            A::ComputeShaderReadOther | A::ComputeShaderWrite
+        }
+        DescriptorKind::UniformBuffer => A::ComputeShaderReadUniformBuffer.into(),
+        DescriptorKind::SampledImage | DescriptorKind::CombinedImageSampler => {
+            A::ComputeShaderReadSampledImage.into()
+        }
+        DescriptorKind::Sampler => AccessSet::EMPTY,
+    }
+}
+
+/// What one binding of a bind group touches and how.
+#[derive(Clone)]
+pub(crate) enum Target {
+    Buffer(Arc<BufferInner>),
+    Image(Arc<ImageInner>, Subresources),
+}
+
+/// A declared use: binding name, resource, access.
+#[derive(Clone)]
+pub(crate) struct BoundUse {
+    pub binding: String,
+    pub target: Target,
+    pub access: AccessSet,
+}
+
+/// How one binding of a bind group is accessed (for inspection, e.g. by a render graph).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct DeclaredUse {
+    pub binding: String,
+    pub resource: String,
+    pub access: AccessSet,
+}
+
+pub(crate) struct BindGroupInner {
+    shared: Arc<Shared>,
+    pipeline_id: u64,
+    pool: vk::DescriptorPool,
+    sets: Vec<vk::DescriptorSet>,
+    pub(crate) uses: Vec<BoundUse>,
+    resources: Vec<Arc<dyn Used>>,
+    stamp: Stamp,
+}
+
+impl Used for BindGroupInner {
+    fn stamp(&self, value: u64) {
+        self.stamp.raise(value);
+        for r in &self.resources {
+            r.stamp(value);
+        }
+    }
+
+    fn host_visible(&self) -> bool {
+        self.resources.iter().any(|r| r.host_visible())
+    }
+}
+
+impl Drop for BindGroupInner {
+    fn drop(&mut self) {
+        self.shared
+            .retire(self.stamp.get(), [Retired::DescriptorPool(self.pool)]);
     }
 }
 
 /// Descriptor sets for one pipeline, in their own pool. It keeps the buffers, images and
-/// samplers it refers to alive, so dropping their handles first is harmless.
+/// samplers it refers to alive, and recordings keep it alive until the GPU is done.
 pub struct BindGroup {
-    shared: Arc<Shared>,
-    pipeline: vk::Pipeline,
-    pool: vk::DescriptorPool,
-    sets: Vec<vk::DescriptorSet>,
-    _resources: Vec<Arc<dyn std::any::Any + Send + Sync>>,
+    inner: Arc<BindGroupInner>,
+}
+
+/// Flattens a binding's resource into its elements.
+fn elements<'r, 'a>(res: &'r Resource<'a>) -> Vec<&'r Resource<'a>> {
+    match res {
+        Resource::Array(items) => items.iter().collect(),
+        single => vec![single],
+    }
 }
 
 impl BindGroup {
     fn new(
         pipeline: &ComputePipeline,
         bound: &BTreeMap<(u32, u32), (&BindingInfo, Resource<'_>)>,
+        overrides: &BTreeMap<(u32, u32), AccessSet>,
     ) -> Result<BindGroup> {
-        let device = &pipeline.shared.device;
+        let p = &pipeline.inner;
+        let device = &p.shared.device;
         let mut counts: BTreeMap<i32, u32> = BTreeMap::new();
-        for (info, _) in bound.values() {
-            *counts.entry(info.kind.vk().as_raw()).or_default() += 1;
+        let mut resources: Vec<Arc<dyn Used>> = Vec::new();
+        let mut uses = Vec::new();
+        for (key, (info, res)) in bound {
+            *counts.entry(info.kind.vk().as_raw()).or_default() += info.count;
+            let access = overrides
+                .get(key)
+                .copied()
+                .unwrap_or_else(|| default_access(info));
+            for r in elements(res) {
+                let target = match r {
+                    Resource::Buffer(b) | Resource::BufferRange { buffer: b, .. } => {
+                        resources.push(b.keep());
+                        Some(Target::Buffer(b.keep()))
+                    }
+                    Resource::StorageImage(i) | Resource::Texture(i) => {
+                        resources.push(i.image.keep());
+                        let range = i.image.keep().view_range(&i.view);
+                        Some(Target::Image(i.image.keep(), range))
+                    }
+                    Resource::Sampled(i, s) => {
+                        resources.push(i.image.keep());
+                        resources.push(s.keep() as Arc<SamplerInner>);
+                        let range = i.image.keep().view_range(&i.view);
+                        Some(Target::Image(i.image.keep(), range))
+                    }
+                    Resource::Sampler(s) => {
+                        resources.push(s.keep());
+                        None
+                    }
+                    Resource::Array(_) => unreachable!("flattened"),
+                };
+                if let Some(target) = target
+                    && !access.is_empty()
+                {
+                    uses.push(BoundUse {
+                        binding: info.name.clone(),
+                        target,
+                        access,
+                    });
+                }
+            }
         }
         let sizes: Vec<_> = counts
             .iter()
@@ -486,122 +779,155 @@ impl BindGroup {
                 descriptor_count: n,
             })
             .collect();
-        let n_sets = pipeline.set_layouts.len() as u32;
-        let mut resources: Vec<Arc<dyn std::any::Any + Send + Sync>> = Vec::new();
-        for (_, res) in bound.values() {
-            match *res {
-                Resource::Buffer(b) | Resource::BufferRange { buffer: b, .. } => {
-                    resources.push(b.keep())
-                }
-                Resource::StorageImage(i) => resources.push(i.keep()),
-                Resource::Sampled(i, s) => {
-                    resources.push(i.keep());
-                    resources.push(s.keep());
-                }
-            }
-        }
-        let mut group = BindGroup {
-            shared: pipeline.shared.clone(),
-            pipeline: pipeline.raw,
+        let n_sets = p.set_layouts.len() as u32;
+        let mut group = BindGroupInner {
+            shared: p.shared.clone(),
+            pipeline_id: p.id,
             pool: vk::DescriptorPool::null(),
             sets: Vec::new(),
-            _resources: resources,
+            uses,
+            resources,
+            stamp: Stamp::default(),
         };
-        if n_sets == 0 {
-            return Ok(group);
+        if n_sets > 0 {
+            let info = vk::DescriptorPoolCreateInfo::default()
+                .max_sets(n_sets)
+                .pool_sizes(&sizes);
+            // SAFETY: valid device and create info.
+            group.pool = unsafe { device.create_descriptor_pool(&info, None) }
+                .vk("vkCreateDescriptorPool")?;
+            let alloc = vk::DescriptorSetAllocateInfo::default()
+                .descriptor_pool(group.pool)
+                .set_layouts(&p.set_layouts);
+            // SAFETY: the pool was sized for exactly these sets.
+            group.sets = unsafe { device.allocate_descriptor_sets(&alloc) }
+                .vk("vkAllocateDescriptorSets")?;
+            write_sets(&group, bound)?;
         }
-        let info = vk::DescriptorPoolCreateInfo::default()
-            .max_sets(n_sets)
-            .pool_sizes(&sizes);
-        // SAFETY: valid device and create info.
-        group.pool =
-            unsafe { device.create_descriptor_pool(&info, None) }.vk("vkCreateDescriptorPool")?;
-        let alloc = vk::DescriptorSetAllocateInfo::default()
-            .descriptor_pool(group.pool)
-            .set_layouts(&pipeline.set_layouts);
-        // SAFETY: the pool was sized for exactly these sets.
-        group.sets =
-            unsafe { device.allocate_descriptor_sets(&alloc) }.vk("vkAllocateDescriptorSets")?;
-        let mut buffer_infos = Vec::new();
-        let mut image_infos = Vec::new();
-        for (info, res) in bound.values() {
-            match *res {
-                Resource::Buffer(b) => buffer_infos.push((
-                    info,
-                    vk::DescriptorBufferInfo {
-                        buffer: b.raw(),
-                        offset: 0,
-                        range: vk::WHOLE_SIZE,
-                    },
-                )),
-                Resource::BufferRange {
-                    buffer,
-                    offset,
-                    size,
-                } => buffer_infos.push((
-                    info,
-                    vk::DescriptorBufferInfo {
-                        buffer: buffer.raw(),
-                        offset,
-                        range: size,
-                    },
-                )),
-                Resource::StorageImage(img) => image_infos.push((
-                    info,
-                    vk::DescriptorImageInfo {
-                        sampler: vk::Sampler::null(),
-                        image_view: img.view(),
-                        image_layout: vk::ImageLayout::GENERAL,
-                    },
-                )),
-                Resource::Sampled(img, s) => image_infos.push((
-                    info,
-                    vk::DescriptorImageInfo {
-                        sampler: s.raw(),
-                        image_view: img.view(),
-                        image_layout: vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL,
-                    },
-                )),
-            }
-        }
-        let mut writes = Vec::new();
-        for (info, bi) in &buffer_infos {
-            writes.push(
-                vk::WriteDescriptorSet::default()
-                    .dst_set(group.sets[info.set as usize])
-                    .dst_binding(info.binding)
-                    .descriptor_type(info.kind.vk())
-                    .buffer_info(std::slice::from_ref(bi)),
-            );
-        }
-        for (info, ii) in &image_infos {
-            writes.push(
-                vk::WriteDescriptorSet::default()
-                    .dst_set(group.sets[info.set as usize])
-                    .dst_binding(info.binding)
-                    .descriptor_type(info.kind.vk())
-                    .image_info(std::slice::from_ref(ii)),
-            );
-        }
-        // SAFETY: every write targets a set of this group with a checked resource.
-        unsafe { device.update_descriptor_sets(&writes, &[]) };
-        Ok(group)
+        Ok(BindGroup {
+            inner: Arc::new(group),
+        })
     }
 
     /// The descriptor sets, indexed by set number.
     pub fn sets(&self) -> &[vk::DescriptorSet] {
-        &self.sets
+        &self.inner.sets
     }
 
     /// Whether these sets were made for `pipeline`.
     pub fn is_for(&self, pipeline: &ComputePipeline) -> bool {
-        self.pipeline == pipeline.raw
+        self.inner.pipeline_id == pipeline.inner.id
+    }
+
+    /// How each binding is accessed by a dispatch with this group.
+    pub fn accesses(&self) -> Vec<DeclaredUse> {
+        self.inner
+            .uses
+            .iter()
+            .map(|u| DeclaredUse {
+                binding: u.binding.clone(),
+                resource: match &u.target {
+                    Target::Buffer(b) => b.name.clone(),
+                    Target::Image(i, _) => i.name.clone(),
+                },
+                access: u.access,
+            })
+            .collect()
+    }
+
+    pub(crate) fn keep(&self) -> Arc<BindGroupInner> {
+        self.inner.clone()
     }
 }
 
-impl Drop for BindGroup {
-    fn drop(&mut self) {
-        // SAFETY: not in use by pending work; destroying the pool frees its sets.
-        unsafe { self.shared.device.destroy_descriptor_pool(self.pool, None) };
+/// Writes every descriptor of `bound` into the group's sets.
+fn write_sets(
+    group: &BindGroupInner,
+    bound: &BTreeMap<(u32, u32), (&BindingInfo, Resource<'_>)>,
+) -> Result<()> {
+    let mut buffer_infos: Vec<(&BindingInfo, Vec<vk::DescriptorBufferInfo>)> = Vec::new();
+    let mut image_infos: Vec<(&BindingInfo, Vec<vk::DescriptorImageInfo>)> = Vec::new();
+    for (info, res) in bound.values() {
+        let items = elements(res);
+        match info.kind {
+            DescriptorKind::StorageBuffer | DescriptorKind::UniformBuffer => {
+                let infos = items
+                    .iter()
+                    .map(|r| match **r {
+                        Resource::Buffer(b) => vk::DescriptorBufferInfo {
+                            buffer: b.raw(),
+                            offset: 0,
+                            range: vk::WHOLE_SIZE,
+                        },
+                        Resource::BufferRange {
+                            buffer,
+                            offset,
+                            size,
+                        } => vk::DescriptorBufferInfo {
+                            buffer: buffer.raw(),
+                            offset,
+                            range: size,
+                        },
+                        _ => unreachable!("checked"),
+                    })
+                    .collect();
+                buffer_infos.push((info, infos));
+            }
+            _ => {
+                let mut infos = Vec::with_capacity(items.len());
+                for r in items {
+                    let (view, sampler, layout) = match r {
+                        Resource::StorageImage(i) => (
+                            i.image.keep().view(&i.view, vk::ImageUsageFlags::empty())?,
+                            vk::Sampler::null(),
+                            vk::ImageLayout::GENERAL,
+                        ),
+                        Resource::Texture(i) => (
+                            i.image.keep().view(&i.view, vk::ImageUsageFlags::empty())?,
+                            vk::Sampler::null(),
+                            vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL,
+                        ),
+                        Resource::Sampled(i, s) => (
+                            i.image.keep().view(&i.view, vk::ImageUsageFlags::empty())?,
+                            s.raw(),
+                            vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL,
+                        ),
+                        Resource::Sampler(s) => {
+                            (vk::ImageView::null(), s.raw(), vk::ImageLayout::UNDEFINED)
+                        }
+                        _ => unreachable!("checked"),
+                    };
+                    infos.push(vk::DescriptorImageInfo {
+                        sampler,
+                        image_view: view,
+                        image_layout: layout,
+                    });
+                }
+                image_infos.push((info, infos));
+            }
+        }
     }
+    let mut writes = Vec::new();
+    for (info, bi) in &buffer_infos {
+        writes.push(
+            vk::WriteDescriptorSet::default()
+                .dst_set(group.sets[info.set as usize])
+                .dst_binding(info.binding)
+                .descriptor_type(info.kind.vk())
+                .buffer_info(bi),
+        );
+    }
+    for (info, ii) in &image_infos {
+        writes.push(
+            vk::WriteDescriptorSet::default()
+                .dst_set(group.sets[info.set as usize])
+                .dst_binding(info.binding)
+                .descriptor_type(info.kind.vk())
+                .image_info(ii),
+        );
+    }
+    // SAFETY: every write targets a set of this group with a checked resource whose views
+    // are alive (cached by their images, which the group keeps).
+    unsafe { group.shared.device.update_descriptor_sets(&writes, &[]) };
+    Ok(())
 }

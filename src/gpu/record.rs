@@ -1,15 +1,25 @@
-//! Command recording: passes (debug labels + timestamps), barriers, dispatches, copies,
-//! staged uploads and readbacks, then one submission.
+//! Command recording: passes (debug labels + timestamps), barriers (explicit or derived from
+//! declared uses), dispatches, copies, staged uploads and readbacks, then a submission.
+//!
+//! A [`Recorder`] keeps everything it records alive (reference counts) until it is
+//! submitted; submitting stamps each object with the timeline value the submission signals,
+//! so dropping a resource afterwards only retires it behind that value. Nothing borrows:
+//! kernels, resources and recordings can be dropped in any order, and a leaked
+//! [`Submission`] or [`Recorded`] leaks memory, never frees it early.
 
 use super::context::{Context, Shared};
-use super::memory::{Buffer, BufferDesc, BufferInner, Image, MemoryUsage};
-use super::pipeline::{BindGroup, ComputePipeline};
-use super::sync::{AccessSet, AccessType, buffer_barrier, image_barrier, memory_barrier};
+use super::image::{Image, ImageInner, ImageRegion, Subresources};
+use super::lifetime::{KeepAlive, Retired};
+use super::memory::{Buffer, BufferDesc, BufferInner};
+use super::pipeline::{BindGroup, ComputePipeline, Target};
+use super::sync::{AccessSet, AccessType, barrier_masks};
+use super::track::{RangeTransition, Transition};
 use super::validation::lock;
 use crate::error::{Error, Result, VkResultExt};
 use ash::vk;
 use std::ffi::CString;
 use std::sync::Arc;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 /// One barrier to record; see [`AccessType`] for the vocabulary.
 #[derive(Clone, Copy)]
@@ -21,9 +31,11 @@ pub enum Barrier<'a> {
         prev: AccessSet,
         next: AccessSet,
     },
-    /// An image; with `discard` its old contents are dropped (old layout UNDEFINED).
+    /// Subresources of an image; with `discard` their old contents are dropped (old layout
+    /// UNDEFINED).
     Image {
         image: &'a Image,
+        range: Subresources,
         prev: AccessSet,
         next: AccessSet,
         discard: bool,
@@ -50,9 +62,11 @@ impl<'a> Barrier<'a> {
         }
     }
 
+    /// Every subresource of an image.
     pub fn image(image: &'a Image, prev: impl Into<AccessSet>, next: impl Into<AccessSet>) -> Self {
         Barrier::Image {
             image,
+            range: image.all(),
             prev: prev.into(),
             next: next.into(),
             discard: false,
@@ -63,11 +77,55 @@ impl<'a> Barrier<'a> {
     pub fn image_discard(image: &'a Image, next: impl Into<AccessSet>) -> Self {
         Barrier::Image {
             image,
+            range: image.all(),
             prev: AccessType::Nothing.into(),
             next: next.into(),
             discard: true,
         }
     }
+
+    /// Restricts an image barrier to `range`.
+    pub fn range(self, range: Subresources) -> Self {
+        match self {
+            Barrier::Image {
+                image,
+                prev,
+                next,
+                discard,
+                ..
+            } => Barrier::Image {
+                image,
+                range,
+                prev,
+                next,
+                discard,
+            },
+            other => other,
+        }
+    }
+}
+
+/// Who records the barriers that declared uses need.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BarrierMode {
+    /// vkshade records them (batched, one `vkCmdPipelineBarrier2` per group).
+    Emit,
+    /// vkshade only collects them ([`Recorder::take_collected`]); the caller (a render graph)
+    /// merges and records them.
+    Collect,
+}
+
+/// A barrier derived from declared uses.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct PlannedBarrier {
+    /// The resource's name.
+    pub resource: String,
+    pub buffer: Option<vk::Buffer>,
+    pub image: Option<(vk::Image, Subresources)>,
+    pub prev: AccessSet,
+    pub next: AccessSet,
+    pub old_layout: vk::ImageLayout,
+    pub new_layout: vk::ImageLayout,
 }
 
 /// GPU time of one named pass.
@@ -111,34 +169,33 @@ struct Pass {
     end: Option<u32>,
 }
 
-/// Data copied back to the host by a [`Recorder`]; readable after the submission completes.
-///
-/// The staging buffer is shared with the recorder, so dropping a `Readback` before the
-/// submission is harmless.
+/// Data copied back to the host by a recording; readable once the recording is submitted
+/// (reading waits for the submission to complete).
 pub struct Readback {
-    staging: Arc<BufferInner>,
-    submitted: Arc<std::sync::atomic::AtomicBool>,
+    staging: Buffer,
+    /// The timeline value of the submission (0 until submitted).
+    value: Arc<AtomicU64>,
+    len: u64,
 }
 
 impl Readback {
-    /// The bytes read back. Fails if the recorder was not submitted.
-    pub fn bytes(&self) -> Result<&[u8]> {
-        if !self.submitted.load(std::sync::atomic::Ordering::Acquire) {
+    /// The bytes read back (waits for the submission). Fails if the recording was not
+    /// submitted.
+    pub fn bytes(&self) -> Result<Vec<u8>> {
+        self.to_vec::<u8>()
+    }
+
+    /// The data read back as a vector of `T` (waits for the submission).
+    pub fn to_vec<T: bytemuck::Pod>(&self) -> Result<Vec<T>> {
+        if self.value.load(Ordering::Acquire) == 0 {
             return Err(Error::InvalidArgument(format!(
-                "readback '{}' read before its recorder was submitted",
+                "readback '{}' read before its recording was submitted",
                 self.staging.name()
             )));
         }
-        self.staging.mapped_bytes()
-    }
-
-    /// The data read back as a vector of `T`.
-    pub fn to_vec<T: bytemuck::Pod>(&self) -> Result<Vec<T>> {
-        let bytes = self.bytes()?;
-        let n = bytes.len() / std::mem::size_of::<T>();
+        let n = self.len as usize / std::mem::size_of::<T>().max(1);
         let mut out = vec![T::zeroed(); n];
-        bytemuck::cast_slice_mut::<T, u8>(&mut out)
-            .copy_from_slice(&bytes[..n * std::mem::size_of::<T>()]);
+        self.staging.read_into(0, &mut out)?;
         Ok(out)
     }
 }
@@ -146,60 +203,147 @@ impl Readback {
 /// Maximum number of timestamped passes per recorder.
 pub const MAX_PASSES: u32 = 128;
 
-/// Records one command buffer and submits it.
-///
-/// Everything recorded (pipelines, bind groups, buffers, images) is borrowed for `'a`, so the
-/// compiler rejects dropping a resource that a recorded command still uses.
-pub struct Recorder<'a> {
+/// Timestamp queries of one recording.
+struct Queries {
+    pool: vk::QueryPool,
+    used: u32,
+    passes: Vec<Pass>,
+}
+
+impl Queries {
+    /// Reads the timings (the work has completed).
+    fn collect(&self, shared: &Shared) -> Result<Timings> {
+        let mut timings = Timings::default();
+        if self.used == 0 {
+            timings.untimed = self.passes.iter().map(|p| p.name.clone()).collect();
+            return Ok(timings);
+        }
+        let mut raw = vec![0u64; self.used as usize];
+        // SAFETY: queries 0..used were written by the completed submission.
+        unsafe {
+            shared.device.get_query_pool_results(
+                self.pool,
+                0,
+                &mut raw,
+                vk::QueryResultFlags::TYPE_64 | vk::QueryResultFlags::WAIT,
+            )
+        }
+        .vk("vkGetQueryPoolResults")?;
+        let limits = &shared.info.limits;
+        let mask = if limits.timestamp_valid_bits >= 64 {
+            u64::MAX
+        } else {
+            (1u64 << limits.timestamp_valid_bits) - 1
+        };
+        for p in &self.passes {
+            let (Some(b), Some(e)) = (p.begin, p.end) else {
+                timings.untimed.push(p.name.clone());
+                continue;
+            };
+            let ticks = raw[e as usize].wrapping_sub(raw[b as usize]) & mask;
+            timings.passes.push(PassTiming {
+                name: p.name.clone(),
+                depth: p.depth,
+                ms: ticks as f64 * limits.timestamp_period_ns as f64 * 1e-6,
+            });
+        }
+        Ok(timings)
+    }
+}
+
+/// What a recording hands over when it is submitted: stamped and released at once, except
+/// the query and command pools, retired behind the submission's value.
+struct Finished {
+    shared: Arc<Shared>,
+    queries: Queries,
+    pool: vk::CommandPool,
+    keep: KeepAlive,
+    ring_chunks: Vec<u64>,
+    readbacks: Vec<Arc<AtomicU64>>,
+}
+
+impl Finished {
+    /// Stamps everything with `value` (under the queue lock, before submitting).
+    fn stamp(&mut self, value: u64) {
+        self.keep.stamp_all(value);
+        if !self.ring_chunks.is_empty() {
+            lock(&self.shared.staging).mark(&self.ring_chunks, value);
+            self.ring_chunks.clear();
+        }
+        for r in self.readbacks.drain(..) {
+            r.store(value, Ordering::Release);
+        }
+    }
+
+    /// Retires the pools behind `value` (0: never submitted).
+    fn retire(&mut self, value: u64) {
+        if !self.ring_chunks.is_empty() {
+            lock(&self.shared.staging).mark(&self.ring_chunks, 0);
+            self.ring_chunks.clear();
+        }
+        let pools = [
+            Retired::QueryPool(std::mem::take(&mut self.queries.pool)),
+            Retired::CommandPool(std::mem::take(&mut self.pool)),
+        ];
+        self.shared.retire(value, pools);
+    }
+}
+
+/// Records one command buffer (its own, or a caller's).
+pub struct Recorder {
     shared: Arc<Shared>,
     name: String,
+    /// Null for a caller's command buffer.
     pool: vk::CommandPool,
     cmd: vk::CommandBuffer,
-    query_pool: vk::QueryPool,
-    queries_used: u32,
-    passes: Vec<Pass>,
+    queries: Queries,
     open: Vec<usize>,
-    /// Staging buffers the recorded copies use, kept until the recorder is dropped.
-    transient: Vec<Arc<BufferInner>>,
-    readbacks: Vec<Arc<std::sync::atomic::AtomicBool>>,
-    pending_host_read: bool,
-    _borrows: std::marker::PhantomData<&'a ()>,
+    keep: KeepAlive,
+    ring_chunks: Vec<u64>,
+    readbacks: Vec<Arc<AtomicU64>>,
+    pending_buffers: Vec<vk::BufferMemoryBarrier2<'static>>,
+    pending_images: Vec<vk::ImageMemoryBarrier2<'static>>,
+    mode: BarrierMode,
+    collected: Vec<PlannedBarrier>,
+    needs_host_barrier: bool,
+    done: bool,
 }
 
 impl Context {
     /// Starts recording a command buffer named `name` (shown in validation messages).
-    pub fn recorder<'a>(&self, name: &str) -> Result<Recorder<'a>> {
+    pub fn recorder(&self, name: &str) -> Result<Recorder> {
         Recorder::new(self, name)
     }
 
     /// Records into a command buffer of the caller's (a renderer's frame), which the caller
-    /// submits. Pass timestamps work as usual; [`Recorder::finish`] returns what the
-    /// commands use.
+    /// submits. Pass timestamps work as usual; [`Recorder::finish`] returns a [`Recorded`]
+    /// whose [`Recorded::signal`] gives the timeline signal the submission must carry.
     ///
     /// # Safety
     /// `cmd` must be a primary command buffer of this device in the recording state, for a
     /// queue of this context's queue family, and must not be reset or freed while vkshade
-    /// records; the [`Recorded`] returned by `finish` must be kept until the submission of
-    /// `cmd` has completed.
-    pub unsafe fn record_into<'a>(
-        &self,
-        cmd: vk::CommandBuffer,
-        name: &str,
-    ) -> Result<Recorder<'a>> {
+    /// records. The caller must submit `cmd` only with the semaphore signal returned by
+    /// [`Recorded::signal`] in the same batch, and must make that submission before any
+    /// later vkshade submission or `signal` on this context (timeline values are signalled
+    /// in the order they are handed out); until it is submitted, the resources it uses stay
+    /// alive (a `Recorded` that is never signalled is treated as never submitted).
+    pub unsafe fn record_into(&self, cmd: vk::CommandBuffer, name: &str) -> Result<Recorder> {
         let mut rec = Recorder::empty(self, name, vk::CommandPool::null(), cmd);
         rec.start_queries()?;
         Ok(rec)
     }
 }
 
-impl<'a> Recorder<'a> {
-    fn new(ctx: &Context, name: &str) -> Result<Recorder<'a>> {
+impl Recorder {
+    fn new(ctx: &Context, name: &str) -> Result<Recorder> {
+        ctx.shared.collect();
         let device = &ctx.shared.device;
         let info = vk::CommandPoolCreateInfo::default()
             .flags(vk::CommandPoolCreateFlags::TRANSIENT)
             .queue_family_index(ctx.shared.queue_family);
         // SAFETY: valid device and create info.
         let pool = unsafe { device.create_command_pool(&info, None) }.vk("vkCreateCommandPool")?;
+        // From here `rec` owns the pool: its Drop retires it on any failure.
         let mut rec = Recorder::empty(ctx, name, pool, vk::CommandBuffer::null());
         let alloc = vk::CommandBufferAllocateInfo::default()
             .command_pool(pool)
@@ -217,25 +361,27 @@ impl<'a> Recorder<'a> {
         Ok(rec)
     }
 
-    fn empty(
-        ctx: &Context,
-        name: &str,
-        pool: vk::CommandPool,
-        cmd: vk::CommandBuffer,
-    ) -> Recorder<'a> {
+    fn empty(ctx: &Context, name: &str, pool: vk::CommandPool, cmd: vk::CommandBuffer) -> Recorder {
         Recorder {
             shared: ctx.shared.clone(),
             name: name.to_string(),
             pool,
             cmd,
-            query_pool: vk::QueryPool::null(),
-            queries_used: 0,
-            passes: Vec::new(),
+            queries: Queries {
+                pool: vk::QueryPool::null(),
+                used: 0,
+                passes: Vec::new(),
+            },
             open: Vec::new(),
-            transient: Vec::new(),
+            keep: KeepAlive::default(),
+            ring_chunks: Vec::new(),
             readbacks: Vec::new(),
-            pending_host_read: false,
-            _borrows: std::marker::PhantomData,
+            pending_buffers: Vec::new(),
+            pending_images: Vec::new(),
+            mode: BarrierMode::Emit,
+            collected: Vec::new(),
+            needs_host_barrier: false,
+            done: false,
         }
     }
 
@@ -249,13 +395,13 @@ impl<'a> Recorder<'a> {
             .query_type(vk::QueryType::TIMESTAMP)
             .query_count(2 * MAX_PASSES);
         // SAFETY: valid device and create info.
-        self.query_pool = unsafe { self.shared.device.create_query_pool(&qinfo, None) }
+        self.queries.pool = unsafe { self.shared.device.create_query_pool(&qinfo, None) }
             .vk("vkCreateQueryPool")?;
         // SAFETY: recording; the pool is new.
         unsafe {
             self.shared
                 .device
-                .cmd_reset_query_pool(self.cmd, self.query_pool, 0, 2 * MAX_PASSES)
+                .cmd_reset_query_pool(self.cmd, self.queries.pool, 0, 2 * MAX_PASSES)
         };
         Ok(())
     }
@@ -265,25 +411,49 @@ impl<'a> Recorder<'a> {
         self.pool == vk::CommandPool::null()
     }
 
-    /// The command buffer being recorded, for callers that add their own commands.
+    /// The command buffer being recorded, for callers that add their own commands (call
+    /// [`Recorder::flush_barriers`] first so pending barriers precede them).
     pub fn raw(&self) -> vk::CommandBuffer {
         self.cmd
+    }
+
+    /// The recorder's name.
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// The context this recorder records for.
+    pub fn context(&self) -> Context {
+        Context {
+            shared: self.shared.clone(),
+        }
     }
 
     fn device(&self) -> &ash::Device {
         &self.shared.device
     }
 
+    /// Sets who records barriers derived from declared uses (default [`BarrierMode::Emit`]).
+    pub fn set_barrier_mode(&mut self, mode: BarrierMode) {
+        self.flush_barriers();
+        self.mode = mode;
+    }
+
+    /// Barriers collected in [`BarrierMode::Collect`] since the last call.
+    pub fn take_collected(&mut self) -> Vec<PlannedBarrier> {
+        std::mem::take(&mut self.collected)
+    }
+
     fn timestamp(&mut self, stage: vk::PipelineStageFlags2) -> Option<u32> {
-        if self.query_pool == vk::QueryPool::null() || self.queries_used >= 2 * MAX_PASSES {
+        if self.queries.pool == vk::QueryPool::null() || self.queries.used >= 2 * MAX_PASSES {
             return None;
         }
-        let q = self.queries_used;
-        self.queries_used += 1;
+        let q = self.queries.used;
+        self.queries.used += 1;
         // SAFETY: recording; query `q` was reset at the start of this command buffer.
         unsafe {
             self.device()
-                .cmd_write_timestamp2(self.cmd, stage, self.query_pool, q)
+                .cmd_write_timestamp2(self.cmd, stage, self.queries.pool, q)
         };
         Some(q)
     }
@@ -291,6 +461,7 @@ impl<'a> Recorder<'a> {
     /// Opens a named pass: a debug label, and a timestamp when the queue supports them.
     /// Passes nest; each must be closed with [`Recorder::end_pass`].
     pub fn begin_pass(&mut self, name: &str) {
+        self.flush_barriers();
         if let Some(du) = &self.shared.debug_device {
             let cname = CString::new(name.replace('\0', " ")).unwrap_or_default();
             let label = vk::DebugUtilsLabelEXT::default()
@@ -303,8 +474,8 @@ impl<'a> Recorder<'a> {
         // a pass's time never includes the tail of the previous one (a TOP_OF_PIPE value can
         // be written early). ALL_COMMANDS means the same but draws a best-practices warning.
         let begin = self.timestamp(vk::PipelineStageFlags2::BOTTOM_OF_PIPE);
-        self.open.push(self.passes.len());
-        self.passes.push(Pass {
+        self.open.push(self.queries.passes.len());
+        self.queries.passes.push(Pass {
             name: name.to_string(),
             depth: self.open.len() - 1,
             begin,
@@ -317,57 +488,249 @@ impl<'a> Recorder<'a> {
         let Some(i) = self.open.pop() else {
             return;
         };
-        let end = if self.passes[i].begin.is_some() {
+        self.flush_barriers();
+        let end = if self.queries.passes[i].begin.is_some() {
             self.timestamp(vk::PipelineStageFlags2::BOTTOM_OF_PIPE)
         } else {
             None
         };
-        self.passes[i].end = end;
+        self.queries.passes[i].end = end;
         if let Some(du) = &self.shared.debug_device {
             // SAFETY: matches the label opened in begin_pass.
             unsafe { du.cmd_end_debug_utils_label(self.cmd) };
         }
     }
 
-    /// Records one pipeline barrier holding all of `barriers`.
-    pub fn barrier(&mut self, barriers: &[Barrier<'a>]) {
+    // ---- barriers -------------------------------------------------------------------------
+
+    /// Records one pipeline barrier holding all of `barriers` (after any pending ones). The
+    /// tracked state of each buffer and image named becomes what the barrier declares.
+    pub fn barrier(&mut self, barriers: &[Barrier<'_>]) {
+        self.flush_barriers();
         let mut memory = Vec::new();
         let mut buffers = Vec::new();
         let mut images = Vec::new();
         for b in barriers {
             match *b {
-                Barrier::Global { prev, next } => memory.push(memory_barrier(prev, next)),
+                Barrier::Global { prev, next } => {
+                    memory.push(super::sync::memory_barrier(prev, next))
+                }
                 Barrier::Buffer { buffer, prev, next } => {
-                    buffers.push(buffer_barrier(buffer.raw(), 0, vk::WHOLE_SIZE, prev, next))
+                    self.keep.add(buffer.keep());
+                    declare_barrier(&mut lock(&buffer.keep().state), prev, next, false);
+                    buffers.push(super::sync::buffer_barrier(
+                        buffer.raw(),
+                        0,
+                        vk::WHOLE_SIZE,
+                        prev,
+                        next,
+                    ))
                 }
                 Barrier::Image {
                     image,
+                    range,
                     prev,
                     next,
                     discard,
-                } => images.push(image_barrier(
-                    image.raw(),
-                    image.full_range(),
-                    prev,
-                    next,
-                    discard,
-                )),
+                } => {
+                    let inner = image.keep();
+                    self.keep.add(inner.clone());
+                    let mut state = lock(&inner.state);
+                    for layer in range.base_layer..range.base_layer + range.layer_count {
+                        for mip in range.base_mip..range.base_mip + range.mip_count {
+                            let mut s = state.get(mip, layer);
+                            declare_barrier(&mut s, prev, next, true);
+                            state.set(mip, layer, s);
+                        }
+                    }
+                    drop(state);
+                    images.push(super::sync::image_barrier(
+                        image.raw(),
+                        range.vk(),
+                        prev,
+                        next,
+                        discard,
+                    ))
+                }
             }
         }
         let dep = vk::DependencyInfo::default()
             .memory_barriers(&memory)
             .buffer_memory_barriers(&buffers)
             .image_memory_barriers(&images);
-        // SAFETY: recording; every handle is alive (borrowed for the call).
+        // SAFETY: recording; every handle is alive (kept by this recorder).
         unsafe { self.device().cmd_pipeline_barrier2(self.cmd, &dep) };
     }
 
-    /// Dispatches `groups` workgroups. The bind group must belong to `pipeline`, `push` must
-    /// be exactly the shader's push-constant size, and the group counts within the limits.
-    pub fn dispatch(
+    /// Declares that `buffer` is accessed as `next` from here on; queues the barrier the
+    /// tracked state calls for (none for a read after reads).
+    pub fn use_buffer(&mut self, buffer: &Buffer, next: impl Into<AccessSet>) {
+        self.use_buffer_inner(&buffer.keep(), next.into());
+    }
+
+    fn use_buffer_inner(&mut self, inner: &Arc<BufferInner>, next: AccessSet) {
+        self.keep.add(inner.clone());
+        if next.iter().any(AccessType::is_write) && inner.desc.placement.location.host_visible() {
+            self.needs_host_barrier = true;
+        }
+        let t = lock(&inner.state).apply_buffer(next);
+        if let Some(t) = t {
+            self.queue_buffer(inner, t);
+        }
+    }
+
+    /// Declares that `range` of `image` is accessed as `next` from here on (layout
+    /// included); queues the barriers the tracked state calls for.
+    pub fn use_image(
         &mut self,
-        pipeline: &'a ComputePipeline,
-        bind: &'a BindGroup,
+        image: &Image,
+        range: Subresources,
+        next: impl Into<AccessSet>,
+    ) -> Result<()> {
+        range.check(image.name(), image.desc())?;
+        self.use_image_inner(&image.keep(), range, next.into(), false);
+        Ok(())
+    }
+
+    /// As [`Recorder::use_image`], discarding the old contents (the next access overwrites
+    /// them all, or the image is a fresh alias-group member).
+    pub fn discard_image(
+        &mut self,
+        image: &Image,
+        range: Subresources,
+        next: impl Into<AccessSet>,
+    ) -> Result<()> {
+        range.check(image.name(), image.desc())?;
+        self.use_image_inner(&image.keep(), range, next.into(), true);
+        Ok(())
+    }
+
+    fn use_image_inner(
+        &mut self,
+        inner: &Arc<ImageInner>,
+        range: Subresources,
+        next: AccessSet,
+        discard: bool,
+    ) {
+        self.keep.add(inner.clone());
+        let transitions = lock(&inner.state).apply(&range, next, discard);
+        for t in transitions {
+            self.queue_image(inner, t);
+        }
+    }
+
+    /// Starts using a member of an alias group after another member: waits for every
+    /// `prev` access of the previous member (to the shared memory) and discards the new
+    /// member's contents. Buffers get a global dependency; images a discarding barrier.
+    pub fn alias_switch(&mut self, prev: impl Into<AccessSet>, next_member: AliasUse<'_>) {
+        let prev = prev.into();
+        match next_member {
+            AliasUse::Buffer(b, next) => {
+                self.flush_barriers();
+                self.barrier(&[Barrier::global(prev, next)]);
+                *lock(&b.keep().state) = super::track::BufferState::after(next);
+                self.keep.add(b.keep());
+            }
+            AliasUse::Image(img, next) => {
+                let inner = img.keep();
+                lock(&inner.state).assume(&img.all(), AccessSet::EMPTY);
+                self.barrier(&[Barrier::Image {
+                    image: img,
+                    range: img.all(),
+                    prev,
+                    next,
+                    discard: true,
+                }]);
+            }
+        }
+    }
+
+    fn queue_buffer(&mut self, inner: &Arc<BufferInner>, t: Transition) {
+        match self.mode {
+            BarrierMode::Emit => {
+                let m = barrier_masks(t.prev, t.next, t.force_visible);
+                self.pending_buffers.push(
+                    vk::BufferMemoryBarrier2::default()
+                        .src_stage_mask(m.src_stages)
+                        .src_access_mask(m.src_access)
+                        .dst_stage_mask(m.dst_stages)
+                        .dst_access_mask(m.dst_access)
+                        .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                        .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                        .buffer(inner.raw)
+                        .offset(0)
+                        .size(vk::WHOLE_SIZE),
+                );
+            }
+            BarrierMode::Collect => self.collected.push(PlannedBarrier {
+                resource: inner.name.clone(),
+                buffer: Some(inner.raw),
+                image: None,
+                prev: t.prev,
+                next: t.next,
+                old_layout: vk::ImageLayout::UNDEFINED,
+                new_layout: vk::ImageLayout::UNDEFINED,
+            }),
+        }
+    }
+
+    fn queue_image(&mut self, inner: &Arc<ImageInner>, r: RangeTransition) {
+        let t = r.transition;
+        match self.mode {
+            BarrierMode::Emit => {
+                let m = barrier_masks(
+                    t.prev,
+                    t.next,
+                    t.force_visible || t.old_layout != t.new_layout,
+                );
+                self.pending_images.push(
+                    vk::ImageMemoryBarrier2::default()
+                        .src_stage_mask(m.src_stages)
+                        .src_access_mask(m.src_access)
+                        .dst_stage_mask(m.dst_stages)
+                        .dst_access_mask(m.dst_access)
+                        .old_layout(t.old_layout)
+                        .new_layout(t.new_layout)
+                        .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                        .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                        .image(inner.raw)
+                        .subresource_range(r.range.vk()),
+                );
+            }
+            BarrierMode::Collect => self.collected.push(PlannedBarrier {
+                resource: inner.name.clone(),
+                buffer: None,
+                image: Some((inner.raw, r.range)),
+                prev: t.prev,
+                next: t.next,
+                old_layout: t.old_layout,
+                new_layout: t.new_layout,
+            }),
+        }
+    }
+
+    /// Records the barriers queued by declared uses, as one `vkCmdPipelineBarrier2`.
+    /// Commands vkshade records call this first; call it before adding your own commands
+    /// to [`Recorder::raw`].
+    pub fn flush_barriers(&mut self) {
+        if self.pending_buffers.is_empty() && self.pending_images.is_empty() {
+            return;
+        }
+        let dep = vk::DependencyInfo::default()
+            .buffer_memory_barriers(&self.pending_buffers)
+            .image_memory_barriers(&self.pending_images);
+        // SAFETY: recording; every handle is kept alive by this recorder.
+        unsafe { self.shared.device.cmd_pipeline_barrier2(self.cmd, &dep) };
+        self.pending_buffers.clear();
+        self.pending_images.clear();
+    }
+
+    // ---- dispatches -----------------------------------------------------------------------
+
+    fn check_dispatch(
+        &self,
+        pipeline: &ComputePipeline,
+        bind: &BindGroup,
         push: &[u8],
         groups: [u32; 3],
     ) -> Result<()> {
@@ -401,8 +764,78 @@ impl<'a> Recorder<'a> {
                 });
             }
         }
+        Ok(())
+    }
+
+    /// Dispatches `groups` workgroups; barriers are the caller's. The bind group's declared
+    /// accesses still update the tracked state (as if the caller's barriers were right), so
+    /// later tracked uses order themselves after this dispatch.
+    pub fn dispatch(
+        &mut self,
+        pipeline: &ComputePipeline,
+        bind: &BindGroup,
+        push: &[u8],
+        groups: [u32; 3],
+    ) -> Result<()> {
+        self.check_dispatch(pipeline, bind, push, groups)?;
+        self.flush_barriers();
+        let inner = bind.keep();
+        for u in &inner.uses {
+            match &u.target {
+                Target::Buffer(b) => {
+                    let _ = lock(&b.state).apply_buffer(u.access);
+                    self.keep.add(b.clone());
+                }
+                Target::Image(i, range) => {
+                    let _ = lock(&i.state).apply(range, u.access, false);
+                    self.keep.add(i.clone());
+                }
+            }
+        }
+        self.record_dispatch(pipeline, bind, push, groups);
+        Ok(())
+    }
+
+    /// Dispatches `groups` workgroups with the barriers its declared accesses call for
+    /// (batched into one barrier before the dispatch).
+    pub fn dispatch_tracked(
+        &mut self,
+        pipeline: &ComputePipeline,
+        bind: &BindGroup,
+        push: &[u8],
+        groups: [u32; 3],
+    ) -> Result<()> {
+        self.check_dispatch(pipeline, bind, push, groups)?;
+        let inner = bind.keep();
+        for u in &inner.uses {
+            match &u.target {
+                Target::Buffer(b) => self.use_buffer_inner(b, u.access),
+                Target::Image(i, range) => self.use_image_inner(i, *range, u.access, false),
+            }
+        }
+        self.flush_barriers();
+        self.record_dispatch(pipeline, bind, push, groups);
+        Ok(())
+    }
+
+    fn record_dispatch(
+        &mut self,
+        pipeline: &ComputePipeline,
+        bind: &BindGroup,
+        push: &[u8],
+        groups: [u32; 3],
+    ) {
+        self.keep.add(pipeline.keep());
+        self.keep.add(bind.keep());
+        if bind.keep().uses.iter().any(|u| {
+            u.access.iter().any(AccessType::is_write)
+                && matches!(&u.target, Target::Buffer(b) if b.desc.placement.location.host_visible())
+        }) {
+            self.needs_host_barrier = true;
+        }
         let device = &self.shared.device;
-        // SAFETY: recording; pipeline, layout and sets are alive and compatible (checked).
+        // SAFETY: recording; pipeline, layout and sets are alive (kept) and compatible
+        // (checked).
         unsafe {
             device.cmd_bind_pipeline(self.cmd, vk::PipelineBindPoint::COMPUTE, pipeline.raw());
             if !bind.sets().is_empty() {
@@ -428,36 +861,50 @@ impl<'a> Recorder<'a> {
                 device.cmd_dispatch(self.cmd, groups[0], groups[1], groups[2]);
             }
         }
-        Ok(())
     }
 
-    /// Dispatches enough workgroups to cover `invocations` (rounded up per axis).
+    fn groups_for(pipeline: &ComputePipeline, invocations: [u32; 3]) -> [u32; 3] {
+        let l = pipeline.local_size();
+        [0, 1, 2].map(|i| invocations[i].div_ceil(l[i]))
+    }
+
+    /// [`Recorder::dispatch`] with enough workgroups to cover `invocations`.
     pub fn dispatch_invocations(
         &mut self,
-        pipeline: &'a ComputePipeline,
-        bind: &'a BindGroup,
+        pipeline: &ComputePipeline,
+        bind: &BindGroup,
         push: &[u8],
         invocations: [u32; 3],
     ) -> Result<()> {
-        let l = pipeline.local_size();
-        let groups = [0, 1, 2].map(|i| invocations[i].div_ceil(l[i]));
-        self.dispatch(pipeline, bind, push, groups)
+        self.dispatch(
+            pipeline,
+            bind,
+            push,
+            Self::groups_for(pipeline, invocations),
+        )
     }
 
-    /// Copies `size` bytes between buffers (TRANSFER stage; barriers are the caller's).
-    pub fn copy_buffer(
+    /// [`Recorder::dispatch_tracked`] with enough workgroups to cover `invocations`.
+    pub fn dispatch_invocations_tracked(
         &mut self,
-        src: &'a Buffer,
-        src_offset: u64,
-        dst: &'a Buffer,
-        dst_offset: u64,
-        size: u64,
+        pipeline: &ComputePipeline,
+        bind: &BindGroup,
+        push: &[u8],
+        invocations: [u32; 3],
     ) -> Result<()> {
-        self.copy_raw(src, src_offset, dst, dst_offset, size)
+        self.dispatch_tracked(
+            pipeline,
+            bind,
+            push,
+            Self::groups_for(pipeline, invocations),
+        )
     }
 
-    /// Copy between buffers where the recorder itself keeps one of them alive (staging).
-    fn copy_raw(
+    // ---- buffer transfers -----------------------------------------------------------------
+
+    /// Copies `size` bytes between buffers, with the barriers the tracked state calls for
+    /// (`TransferRead` of `src`, `TransferWrite` of `dst`).
+    pub fn copy_buffer(
         &mut self,
         src: &Buffer,
         src_offset: u64,
@@ -473,12 +920,21 @@ impl<'a> Recorder<'a> {
                 dst.name()
             )));
         }
+        if src.raw() == dst.raw() {
+            return Err(Error::InvalidArgument(format!(
+                "copy within buffer '{}': use two buffers",
+                src.name()
+            )));
+        }
+        self.use_buffer(src, AccessType::TransferRead);
+        self.use_buffer(dst, AccessType::TransferWrite);
+        self.flush_barriers();
         let region = vk::BufferCopy {
             src_offset,
             dst_offset,
             size,
         };
-        // SAFETY: recording; bounds checked above.
+        // SAFETY: recording; bounds checked; both kept alive.
         unsafe {
             self.device()
                 .cmd_copy_buffer(self.cmd, src.raw(), dst.raw(), &[region])
@@ -486,20 +942,44 @@ impl<'a> Recorder<'a> {
         Ok(())
     }
 
-    /// Fills a whole buffer with a repeated 32-bit value (TRANSFER stage).
-    pub fn fill_buffer(&mut self, buffer: &'a Buffer, value: u32) {
-        // SAFETY: recording.
+    /// Fills a whole buffer with a repeated 32-bit value (a tracked `TransferWrite`).
+    pub fn fill_buffer(&mut self, buffer: &Buffer, value: u32) {
+        self.use_buffer(buffer, AccessType::TransferWrite);
+        self.flush_barriers();
+        // SAFETY: recording; kept alive.
         unsafe {
             self.device()
                 .cmd_fill_buffer(self.cmd, buffer.raw(), 0, vk::WHOLE_SIZE, value)
         };
     }
 
-    /// Copies `data` into `dst` at `offset` through a staging buffer kept alive until the
-    /// submission completes. The copy is a `TransferWrite`: add a barrier before using `dst`.
+    /// Staging space holding `bytes`: a chunk of the context's ring when it has room
+    /// (waiting for earlier submissions to give space back), else a one-off buffer kept
+    /// by this recording. Returns (buffer, offset).
+    fn stage(&mut self, what: &str, bytes: &[u8], align: u64) -> Result<(vk::Buffer, u64)> {
+        if let Some((id, offset)) = self.shared.ring_alloc(bytes.len() as u64, align)? {
+            self.ring_chunks.push(id);
+            // SAFETY: the chunk [offset, offset + len) is ours alone until this recording is
+            // submitted and completes; the ring's mapping covers it.
+            unsafe { self.shared.ring_write(offset, bytes) };
+            return Ok((self.shared.ring_buffer(), offset));
+        }
+        let ctx = self.context();
+        let staging = Buffer::new(
+            &ctx,
+            &format!("{what} staging"),
+            BufferDesc::upload(bytes.len() as u64),
+        )?;
+        staging.write(0, bytes)?;
+        let raw = staging.raw();
+        self.keep.add(staging.keep());
+        Ok((raw, 0))
+    }
+
+    /// Copies `data` into `dst` at `offset` through staging (a tracked `TransferWrite`).
     pub fn upload<T: bytemuck::Pod>(
         &mut self,
-        dst: &'a Buffer,
+        dst: &Buffer,
         offset: u64,
         data: &[T],
     ) -> Result<()> {
@@ -507,148 +987,406 @@ impl<'a> Recorder<'a> {
         if bytes.is_empty() {
             return Ok(());
         }
-        let staging = self.upload_staging(dst.name(), bytes)?;
-        self.copy_raw(&staging, 0, dst, offset, bytes.len() as u64)
+        if offset
+            .checked_add(bytes.len() as u64)
+            .is_none_or(|end| end > dst.size())
+        {
+            return Err(Error::InvalidArgument(format!(
+                "upload of {} bytes at offset {offset} overruns buffer '{}' of {} bytes",
+                bytes.len(),
+                dst.name(),
+                dst.size()
+            )));
+        }
+        let (src, src_offset) = self.stage(dst.name(), bytes, 4)?;
+        self.use_buffer(dst, AccessType::TransferWrite);
+        self.flush_barriers();
+        let region = vk::BufferCopy {
+            src_offset,
+            dst_offset: offset,
+            size: bytes.len() as u64,
+        };
+        // SAFETY: recording; staging holds the bytes and stays alive until completion.
+        unsafe {
+            self.device()
+                .cmd_copy_buffer(self.cmd, src, dst.raw(), &[region])
+        };
+        Ok(())
     }
 
-    /// Copies tightly packed texel data into a whole image through staging, with the layout
-    /// transitions: `prev` is how the image was last used (old contents are discarded).
-    pub fn upload_image(
-        &mut self,
-        image: &'a Image,
-        prev: impl Into<AccessSet>,
-        data: &[u8],
-    ) -> Result<()> {
-        let expected = image.desc().byte_size()?;
+    fn readback_buffer(&mut self, what: &str, size: u64) -> Result<(Buffer, Readback)> {
+        let ctx = self.context();
+        let staging = Buffer::new(
+            &ctx,
+            &format!("{what} readback"),
+            BufferDesc::readback(size),
+        )?;
+        let value = Arc::new(AtomicU64::new(0));
+        self.readbacks.push(value.clone());
+        self.keep.add(staging.keep());
+        self.needs_host_barrier = true;
+        let handle = Buffer::from_keep(staging.keep());
+        Ok((
+            staging,
+            Readback {
+                staging: handle,
+                value,
+                len: size,
+            },
+        ))
+    }
+
+    /// Copies a whole buffer back to the host (a tracked `TransferRead`).
+    pub fn read_back(&mut self, buffer: &Buffer) -> Result<Readback> {
+        self.read_back_range(buffer, 0, buffer.size())
+    }
+
+    /// Copies `size` bytes from `offset` of `buffer` back to the host.
+    pub fn read_back_range(&mut self, buffer: &Buffer, offset: u64, size: u64) -> Result<Readback> {
+        if size == 0
+            || offset
+                .checked_add(size)
+                .is_none_or(|end| end > buffer.size())
+        {
+            return Err(Error::InvalidArgument(format!(
+                "readback of {size} bytes at {offset} is empty or outside buffer '{}' ({} bytes)",
+                buffer.name(),
+                buffer.size()
+            )));
+        }
+        let (staging, readback) = self.readback_buffer(buffer.name(), size)?;
+        self.use_buffer(buffer, AccessType::TransferRead);
+        *lock(&staging.keep().state) =
+            super::track::BufferState::after(AccessType::TransferWrite.into());
+        self.flush_barriers();
+        let region = vk::BufferCopy {
+            src_offset: offset,
+            dst_offset: 0,
+            size,
+        };
+        // SAFETY: recording; both buffers kept alive; bounds checked.
+        unsafe {
+            self.device()
+                .cmd_copy_buffer(self.cmd, buffer.raw(), staging.raw(), &[region])
+        };
+        Ok(readback)
+    }
+
+    // ---- image transfers ------------------------------------------------------------------
+
+    /// Copies tightly packed texels into `region` of `image` through staging (a tracked
+    /// `TransferWrite`; a region covering the whole mip level discards its old contents).
+    pub fn upload_image(&mut self, image: &Image, region: ImageRegion, data: &[u8]) -> Result<()> {
+        region.check(image.name(), image.desc())?;
+        let texel = image.desc().texel_size()?;
+        let expected = region.texels() * texel;
         if data.len() as u64 != expected {
             return Err(Error::InvalidArgument(format!(
-                "image '{}' needs {expected} bytes of texels, got {}",
+                "region {:?} of image '{}' needs {expected} bytes of texels, got {}",
+                region.extent,
                 image.name(),
                 data.len()
             )));
         }
-        let staging = self.upload_staging(image.name(), data)?;
-        self.barrier(&[Barrier::Image {
-            image,
-            prev: prev.into(),
-            next: AccessType::TransferWrite.into(),
-            discard: true,
-        }]);
-        // SAFETY: recording; the image is in TRANSFER_DST_OPTIMAL after the barrier.
+        let (src, offset) = self.stage(image.name(), data, texel.max(4))?;
+        let whole = region.offset == [0; 3] && region.extent == image.desc().mip_extent(region.mip);
+        self.use_image_inner(
+            &image.keep(),
+            region.subresources(),
+            AccessType::TransferWrite.into(),
+            whole,
+        );
+        self.flush_barriers();
+        // SAFETY: recording; the subresources are in TRANSFER_DST_OPTIMAL after the barrier.
         unsafe {
             self.device().cmd_copy_buffer_to_image(
                 self.cmd,
-                staging.raw(),
+                src,
                 image.raw(),
                 vk::ImageLayout::TRANSFER_DST_OPTIMAL,
-                &[image.copy_region(0)],
+                &[copy_region(&region, offset)],
             )
         };
         Ok(())
     }
 
-    /// A host-visible buffer kept alive by this recorder until it is dropped.
-    fn staging(&mut self, name: String, size: u64, readback: bool) -> Result<Buffer> {
-        let (usage, memory) = if readback {
-            (vk::BufferUsageFlags::TRANSFER_DST, MemoryUsage::Readback)
-        } else {
-            (vk::BufferUsageFlags::TRANSFER_SRC, MemoryUsage::Upload)
-        };
-        let ctx = Context {
-            shared: self.shared.clone(),
-        };
-        let buffer = Buffer::new(
-            &ctx,
-            BufferDesc {
-                name,
-                size,
-                usage,
-                memory,
-            },
-        )?;
-        self.transient.push(buffer.keep());
-        Ok(buffer)
-    }
-
-    /// A staging buffer holding `bytes`, to copy from.
-    fn upload_staging(&mut self, name: &str, bytes: &[u8]) -> Result<Buffer> {
-        let mut staging = self.staging(format!("{name} staging"), bytes.len() as u64, false)?;
-        staging.write(0, bytes)?;
-        Ok(staging)
-    }
-
-    /// A staging buffer to copy `size` bytes into, and the readback sharing it.
-    fn readback_staging(&mut self, name: &str, size: u64) -> Result<(Buffer, Readback)> {
-        let staging = self.staging(format!("{name} readback"), size, true)?;
-        let submitted = Arc::new(std::sync::atomic::AtomicBool::new(false));
-        self.readbacks.push(submitted.clone());
-        self.pending_host_read = true;
-        let readback = Readback {
-            staging: staging.keep(),
-            submitted,
-        };
-        Ok((staging, readback))
-    }
-
-    /// Copies a whole buffer back to the host. `prev` is the buffer's last access; afterwards
-    /// the buffer has been accessed as `TransferRead`.
-    pub fn read_back(
-        &mut self,
-        buffer: &'a Buffer,
-        prev: impl Into<AccessSet>,
-    ) -> Result<Readback> {
-        let (staging, readback) = self.readback_staging(buffer.name(), buffer.size())?;
-        self.barrier(&[Barrier::buffer(buffer, prev, AccessType::TransferRead)]);
-        self.copy_raw(buffer, 0, &staging, 0, buffer.size())?;
-        Ok(readback)
-    }
-
-    /// Copies a whole image back to the host (tightly packed). `prev` is its last access;
-    /// afterwards the image is in the `TransferRead` layout.
-    pub fn read_back_image(
-        &mut self,
-        image: &'a Image,
-        prev: impl Into<AccessSet>,
-    ) -> Result<Readback> {
-        let size = image.desc().byte_size()?;
-        let (staging, readback) = self.readback_staging(image.name(), size)?;
-        self.barrier(&[Barrier::image(image, prev, AccessType::TransferRead)]);
-        // SAFETY: recording; the image is in TRANSFER_SRC_OPTIMAL after the barrier.
+    /// Copies `region` of `image` back to the host, tightly packed (a tracked `TransferRead`).
+    pub fn read_back_image(&mut self, image: &Image, region: ImageRegion) -> Result<Readback> {
+        region.check(image.name(), image.desc())?;
+        let size = region.texels() * image.desc().texel_size()?;
+        let (staging, readback) = self.readback_buffer(image.name(), size)?;
+        self.use_image(image, region.subresources(), AccessType::TransferRead)?;
+        *lock(&staging.keep().state) =
+            super::track::BufferState::after(AccessType::TransferWrite.into());
+        self.flush_barriers();
+        // SAFETY: recording; the subresources are in TRANSFER_SRC_OPTIMAL after the barrier.
         unsafe {
             self.device().cmd_copy_image_to_buffer(
                 self.cmd,
                 image.raw(),
                 vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
                 staging.raw(),
-                &[image.copy_region(0)],
+                &[copy_region(&region, 0)],
             )
         };
         Ok(readback)
     }
 
-    /// Closes open passes and makes readbacks visible to the host.
+    /// Copies `src_region` of `src` to `dst` at `dst_region` (same extent; formats of the
+    /// same texel size).
+    pub fn copy_image(
+        &mut self,
+        src: &Image,
+        src_region: ImageRegion,
+        dst: &Image,
+        dst_region: ImageRegion,
+    ) -> Result<()> {
+        src_region.check(src.name(), src.desc())?;
+        dst_region.check(dst.name(), dst.desc())?;
+        if src_region.extent != dst_region.extent || src_region.layers != dst_region.layers {
+            return Err(Error::InvalidArgument(format!(
+                "image copy from '{}' {:?}x{} to '{}' {:?}x{}: extents and layer counts must match",
+                src.name(),
+                src_region.extent,
+                src_region.layers,
+                dst.name(),
+                dst_region.extent,
+                dst_region.layers
+            )));
+        }
+        if src.desc().texel_size()? != dst.desc().texel_size()? {
+            return Err(Error::InvalidArgument(format!(
+                "image copy from '{}' ({:?}) to '{}' ({:?}): texel sizes differ",
+                src.name(),
+                src.desc().format,
+                dst.name(),
+                dst.desc().format
+            )));
+        }
+        if src.raw() == dst.raw() {
+            return Err(Error::InvalidArgument(format!(
+                "image copy within '{}': use two images",
+                src.name()
+            )));
+        }
+        self.use_image(src, src_region.subresources(), AccessType::TransferRead)?;
+        let whole = dst_region.offset == [0; 3]
+            && dst_region.extent == dst.desc().mip_extent(dst_region.mip);
+        self.use_image_inner(
+            &dst.keep(),
+            dst_region.subresources(),
+            AccessType::TransferWrite.into(),
+            whole,
+        );
+        self.flush_barriers();
+        let to_offset = |o: [u32; 3]| vk::Offset3D {
+            x: o[0] as i32,
+            y: o[1] as i32,
+            z: o[2] as i32,
+        };
+        let region = vk::ImageCopy {
+            src_subresource: src_region.layers_vk(),
+            src_offset: to_offset(src_region.offset),
+            dst_subresource: dst_region.layers_vk(),
+            dst_offset: to_offset(dst_region.offset),
+            extent: vk::Extent3D {
+                width: src_region.extent[0],
+                height: src_region.extent[1],
+                depth: src_region.extent[2],
+            },
+        };
+        // SAFETY: recording; layouts set by the barriers above; regions checked.
+        unsafe {
+            self.device().cmd_copy_image(
+                self.cmd,
+                src.raw(),
+                vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
+                dst.raw(),
+                vk::ImageLayout::TRANSFER_DST_OPTIMAL,
+                &[region],
+            )
+        };
+        Ok(())
+    }
+
+    /// Clears `range` of `image` to `color` (float formats; a tracked `TransferWrite` that
+    /// discards the old contents).
+    pub fn clear_image(
+        &mut self,
+        image: &Image,
+        range: Subresources,
+        color: [f32; 4],
+    ) -> Result<()> {
+        range.check(image.name(), image.desc())?;
+        if !image
+            .desc()
+            .usage
+            .contains(vk::ImageUsageFlags::TRANSFER_DST)
+        {
+            return Err(Error::InvalidArgument(format!(
+                "image '{}' lacks TRANSFER_DST usage, needed to clear it",
+                image.name()
+            )));
+        }
+        self.use_image_inner(&image.keep(), range, AccessType::TransferWrite.into(), true);
+        self.flush_barriers();
+        let value = vk::ClearColorValue { float32: color };
+        // SAFETY: recording; the range is in TRANSFER_DST_OPTIMAL.
+        unsafe {
+            self.device().cmd_clear_color_image(
+                self.cmd,
+                image.raw(),
+                vk::ImageLayout::TRANSFER_DST_OPTIMAL,
+                &value,
+                &[range.vk()],
+            )
+        };
+        Ok(())
+    }
+
+    /// Scales `src_region` of `src` into `dst_region` of `dst` with `filter` (format
+    /// features BLIT_SRC/BLIT_DST, and linear filtering for `LINEAR`, are checked).
+    pub fn blit_image(
+        &mut self,
+        src: &Image,
+        src_region: ImageRegion,
+        dst: &Image,
+        dst_region: ImageRegion,
+        filter: vk::Filter,
+    ) -> Result<()> {
+        src_region.check(src.name(), src.desc())?;
+        dst_region.check(dst.name(), dst.desc())?;
+        let mut src_needs = vk::FormatFeatureFlags::BLIT_SRC;
+        if filter == vk::Filter::LINEAR {
+            src_needs |= vk::FormatFeatureFlags::SAMPLED_IMAGE_FILTER_LINEAR;
+        }
+        self.shared.require_format(
+            src.desc().format,
+            src_needs,
+            &format!("blitting from '{}'", src.name()),
+        )?;
+        self.shared.require_format(
+            dst.desc().format,
+            vk::FormatFeatureFlags::BLIT_DST,
+            &format!("blitting to '{}'", dst.name()),
+        )?;
+        if src_region.layers != dst_region.layers {
+            return Err(Error::InvalidArgument(format!(
+                "blit from '{}' to '{}': layer counts differ",
+                src.name(),
+                dst.name()
+            )));
+        }
+        let same = src.raw() == dst.raw();
+        if same && src_region.mip == dst_region.mip {
+            return Err(Error::InvalidArgument(format!(
+                "blit within one mip level of '{}'",
+                src.name()
+            )));
+        }
+        self.use_image(src, src_region.subresources(), AccessType::TransferRead)?;
+        let whole = dst_region.offset == [0; 3]
+            && dst_region.extent == dst.desc().mip_extent(dst_region.mip);
+        self.use_image_inner(
+            &dst.keep(),
+            dst_region.subresources(),
+            AccessType::TransferWrite.into(),
+            whole,
+        );
+        self.flush_barriers();
+        let corners = |r: &ImageRegion| {
+            [
+                vk::Offset3D {
+                    x: r.offset[0] as i32,
+                    y: r.offset[1] as i32,
+                    z: r.offset[2] as i32,
+                },
+                vk::Offset3D {
+                    x: (r.offset[0] + r.extent[0]) as i32,
+                    y: (r.offset[1] + r.extent[1]) as i32,
+                    z: (r.offset[2] + r.extent[2]) as i32,
+                },
+            ]
+        };
+        let blit = vk::ImageBlit {
+            src_subresource: src_region.layers_vk(),
+            src_offsets: corners(&src_region),
+            dst_subresource: dst_region.layers_vk(),
+            dst_offsets: corners(&dst_region),
+        };
+        // SAFETY: recording; layouts set by the barriers above; regions and features checked.
+        unsafe {
+            self.device().cmd_blit_image(
+                self.cmd,
+                src.raw(),
+                vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
+                dst.raw(),
+                vk::ImageLayout::TRANSFER_DST_OPTIMAL,
+                &[blit],
+                filter,
+            )
+        };
+        Ok(())
+    }
+
+    /// Fills mips 1.. of `image` by successive linear blits from mip 0.
+    pub fn generate_mips(&mut self, image: &Image) -> Result<()> {
+        let desc = *image.desc();
+        for mip in 1..desc.mips {
+            self.blit_image(
+                image,
+                ImageRegion::mip(&desc, mip - 1),
+                image,
+                ImageRegion::mip(&desc, mip),
+                vk::Filter::LINEAR,
+            )?;
+        }
+        Ok(())
+    }
+
+    // ---- ending ---------------------------------------------------------------------------
+
+    /// Closes open passes, records pending barriers and makes device writes to host-visible
+    /// memory available to the host.
     fn close(&mut self) {
         while !self.open.is_empty() {
             self.end_pass();
         }
-        if self.pending_host_read {
+        self.flush_barriers();
+        if self.needs_host_barrier || self.keep.host_visible {
             self.barrier(&[Barrier::global(
-                AccessType::TransferWrite,
+                AccessType::TransferWrite | AccessType::ComputeShaderWrite,
                 AccessType::HostRead,
             )]);
-            self.pending_host_read = false;
+            self.needs_host_barrier = false;
+        }
+    }
+
+    fn take_finished(&mut self) -> Finished {
+        self.done = true;
+        Finished {
+            shared: self.shared.clone(),
+            queries: Queries {
+                pool: std::mem::take(&mut self.queries.pool),
+                used: self.queries.used,
+                passes: std::mem::take(&mut self.queries.passes),
+            },
+            pool: std::mem::take(&mut self.pool),
+            keep: std::mem::take(&mut self.keep),
+            ring_chunks: std::mem::take(&mut self.ring_chunks),
+            readbacks: std::mem::take(&mut self.readbacks),
         }
     }
 
     /// Ends recording and submits without waiting. `waits` and `signals` are semaphores of
     /// the caller's (e.g. a renderer's frame): the work starts after the waits and signals
-    /// when done. The returned [`Submission`] keeps everything recorded alive; dropping it
-    /// waits for completion.
+    /// when done. Dropping the returned [`Submission`] does not wait: what the work uses
+    /// stays alive until it completes.
     pub fn submit(
         mut self,
         waits: &[vk::SemaphoreSubmitInfo<'_>],
         signals: &[vk::SemaphoreSubmitInfo<'_>],
-    ) -> Result<Submission<'a>> {
+    ) -> Result<Submission> {
         if self.is_external() {
             return Err(Error::InvalidArgument(format!(
                 "recorder '{}' writes into the caller's command buffer: finish() it and submit that",
@@ -656,31 +1394,39 @@ impl<'a> Recorder<'a> {
             )));
         }
         self.close();
-        let device = self.shared.device.clone();
         // SAFETY: recording state; ends it.
-        unsafe { device.end_command_buffer(self.cmd) }.vk("vkEndCommandBuffer")?;
-        // SAFETY: valid device.
-        let fence = unsafe { device.create_fence(&vk::FenceCreateInfo::default(), None) }
-            .vk("vkCreateFence")?;
-        let cmds = [vk::CommandBufferSubmitInfo::default().command_buffer(self.cmd)];
-        let submit = vk::SubmitInfo2::default()
-            .wait_semaphore_infos(waits)
-            .command_buffer_infos(&cmds)
-            .signal_semaphore_infos(signals);
-        let submitted = {
-            let queue = lock(&self.shared.queue);
-            // SAFETY: the command buffer is executable; the queue is externally synchronised
-            // by the lock.
-            unsafe { device.queue_submit2(*queue, &[submit], fence) }.vk("vkQueueSubmit2")
+        unsafe { self.shared.device.end_command_buffer(self.cmd) }.vk("vkEndCommandBuffer")?;
+        let cmd = self.cmd;
+        let mut finished = self.take_finished();
+        let shared = finished.shared.clone();
+        let value = shared.submit_locked(|queue, value| {
+            finished.stamp(value);
+            let cmds = [vk::CommandBufferSubmitInfo::default().command_buffer(cmd)];
+            let mut all_signals: Vec<vk::SemaphoreSubmitInfo<'_>> = signals.to_vec();
+            all_signals.push(shared.timeline_signal(value));
+            let submit = vk::SubmitInfo2::default()
+                .wait_semaphore_infos(waits)
+                .command_buffer_infos(&cmds)
+                .signal_semaphore_infos(&all_signals);
+            // SAFETY: the command buffer is executable and everything it uses is kept alive
+            // until `value`; the queue is externally synchronised by the caller's lock.
+            unsafe {
+                shared
+                    .device
+                    .queue_submit2(queue, &[submit], vk::Fence::null())
+            }
+            .vk("vkQueueSubmit2")
+        });
+        let value = match value {
+            Ok(v) => v,
+            Err(e) => {
+                finished.retire(0);
+                return Err(e);
+            }
         };
-        if let Err(e) = submitted {
-            // SAFETY: never submitted.
-            unsafe { device.destroy_fence(fence, None) };
-            return Err(e);
-        }
         Ok(Submission {
-            recorder: Some(self),
-            fence,
+            finished: Some(finished),
+            value,
         })
     }
 
@@ -689,17 +1435,9 @@ impl<'a> Recorder<'a> {
         self.submit(&[], &[])?.wait()
     }
 
-    /// Marks readbacks ready and reads the timestamps (the work has completed).
-    fn complete(&self) -> Result<Timings> {
-        for flag in &self.readbacks {
-            flag.store(true, std::sync::atomic::Ordering::Release);
-        }
-        self.collect_timings()
-    }
-
     /// Finishes a recorder made by [`Context::record_into`]: closes its passes and returns
-    /// what the recorded commands use, to keep until the caller's submission completes.
-    pub fn finish(mut self) -> Result<Recorded<'a>> {
+    /// what the caller's submission needs ([`Recorded::signal`]).
+    pub fn finish(mut self) -> Result<Recorded> {
         if !self.is_external() {
             return Err(Error::InvalidArgument(format!(
                 "recorder '{}' owns its command buffer: use submit()",
@@ -707,172 +1445,271 @@ impl<'a> Recorder<'a> {
             )));
         }
         self.close();
-        Ok(Recorded { recorder: self })
-    }
-
-    fn collect_timings(&self) -> Result<Timings> {
-        let mut timings = Timings::default();
-        if self.queries_used == 0 {
-            timings.untimed = self.passes.iter().map(|p| p.name.clone()).collect();
-            return Ok(timings);
-        }
-        let mut raw = vec![0u64; self.queries_used as usize];
-        // SAFETY: queries 0..queries_used were written by the completed submission.
-        unsafe {
-            self.device().get_query_pool_results(
-                self.query_pool,
-                0,
-                &mut raw,
-                vk::QueryResultFlags::TYPE_64 | vk::QueryResultFlags::WAIT,
-            )
-        }
-        .vk("vkGetQueryPoolResults")?;
-        let limits = &self.shared.info.limits;
-        let mask = if limits.timestamp_valid_bits >= 64 {
-            u64::MAX
-        } else {
-            (1u64 << limits.timestamp_valid_bits) - 1
-        };
-        for p in &self.passes {
-            let (Some(b), Some(e)) = (p.begin, p.end) else {
-                timings.untimed.push(p.name.clone());
-                continue;
-            };
-            let ticks = raw[e as usize].wrapping_sub(raw[b as usize]) & mask;
-            timings.passes.push(PassTiming {
-                name: p.name.clone(),
-                depth: p.depth,
-                ms: ticks as f64 * limits.timestamp_period_ns as f64 * 1e-6,
-            });
-        }
-        Ok(timings)
-    }
-
-    /// The recorder's name.
-    pub fn name(&self) -> &str {
-        &self.name
+        Ok(Recorded {
+            finished: Some(self.take_finished()),
+            value: 0,
+        })
     }
 }
 
-impl Drop for Recorder<'_> {
+/// The state after an explicit barrier from `prev` to `next`: `next` reads are ordered
+/// after `prev` (and see its writes); a `next` write becomes the last access.
+fn declare_barrier(
+    state: &mut super::track::AccessState,
+    prev: AccessSet,
+    next: AccessSet,
+    image: bool,
+) {
+    let layout = if image {
+        next.layout()
+    } else {
+        vk::ImageLayout::UNDEFINED
+    };
+    let writes = next.iter().any(AccessType::is_write);
+    *state = if writes || prev.is_empty() {
+        super::track::AccessState {
+            layout,
+            ..super::track::AccessState::after(next)
+        }
+    } else {
+        // `next` reads see `prev`'s writes; later reads chain through them.
+        super::track::AccessState {
+            last: next,
+            reads: next,
+            wrote: prev.iter().any(AccessType::is_write) || (image && prev.layout() != layout),
+            layout,
+        }
+    };
+}
+
+fn copy_region(region: &ImageRegion, buffer_offset: u64) -> vk::BufferImageCopy {
+    vk::BufferImageCopy {
+        buffer_offset,
+        buffer_row_length: 0,
+        buffer_image_height: 0,
+        image_subresource: region.layers_vk(),
+        image_offset: vk::Offset3D {
+            x: region.offset[0] as i32,
+            y: region.offset[1] as i32,
+            z: region.offset[2] as i32,
+        },
+        image_extent: vk::Extent3D {
+            width: region.extent[0],
+            height: region.extent[1],
+            depth: region.extent[2],
+        },
+    }
+}
+
+/// A member of an alias group starting to be used (see [`Recorder::alias_switch`]).
+pub enum AliasUse<'a> {
+    Buffer(&'a Buffer, AccessSet),
+    Image(&'a Image, AccessSet),
+}
+
+impl Drop for Recorder {
     fn drop(&mut self) {
-        // SAFETY: either completed (Submission waits before dropping it; Recorded's contract
-        // is that the caller's submission completed) or never submitted. An external command
-        // buffer belongs to the caller and is not freed here (its pool is null).
-        unsafe {
-            self.shared.device.destroy_query_pool(self.query_pool, None);
-            self.shared.device.destroy_command_pool(self.pool, None);
+        if self.done {
+            return;
         }
+        // Never submitted: nothing recorded runs. Give back ring space and pools.
+        let mut f = self.take_finished();
+        f.retire(0);
     }
 }
 
-/// Work submitted by [`Recorder::submit`]. Dropping it waits for the work to finish.
-pub struct Submission<'a> {
-    recorder: Option<Recorder<'a>>,
-    fence: vk::Fence,
+/// Work submitted by [`Recorder::submit`]. Dropping it does not wait; the work's resources
+/// stay alive until it completes.
+pub struct Submission {
+    finished: Option<Finished>,
+    value: u64,
 }
 
-impl Submission<'_> {
+impl Submission {
+    /// The timeline value this submission signals when complete.
+    pub fn value(&self) -> u64 {
+        self.value
+    }
+
     /// Whether the work has finished (does not block).
-    pub fn is_complete(&self) -> Result<bool> {
-        let r = self.recorder.as_ref().expect("present until dropped");
-        // SAFETY: fence of this device.
-        unsafe { r.shared.device.get_fence_status(self.fence) }.vk("vkGetFenceStatus")
+    pub fn is_complete(&self) -> bool {
+        let f = self.finished.as_ref().expect("present until dropped");
+        f.shared.completed() >= self.value
     }
 
     /// Waits for the work and returns the pass timings; readbacks become readable.
-    pub fn wait(mut self) -> Result<Timings> {
-        let r = self.recorder.as_ref().expect("present until dropped");
-        // SAFETY: fence of this device, submitted.
-        unsafe {
-            r.shared
-                .device
-                .wait_for_fences(&[self.fence], true, u64::MAX)
-        }
-        .vk("vkWaitForFences")?;
-        let timings = r.complete();
-        self.release();
+    pub fn wait(self) -> Result<Timings> {
+        let f = self.finished.as_ref().expect("present until dropped");
+        f.shared.wait_value(self.value, u64::MAX)?;
+        let timings = f.queries.collect(&f.shared);
+        f.shared.collect();
         timings
     }
-
-    fn release(&mut self) {
-        if let Some(r) = self.recorder.take() {
-            // SAFETY: the fence was waited for (or the wait failed: the device is lost and
-            // nothing executes any more).
-            unsafe { r.shared.device.destroy_fence(self.fence, None) };
-        }
-    }
 }
 
-impl Drop for Submission<'_> {
+impl Drop for Submission {
     fn drop(&mut self) {
-        if let Some(r) = &self.recorder {
-            // SAFETY: fence of this device; waiting makes the recorder's resources idle.
-            let _ = unsafe {
-                r.shared
-                    .device
-                    .wait_for_fences(&[self.fence], true, u64::MAX)
-            };
+        if let Some(mut f) = self.finished.take() {
+            f.retire(self.value);
         }
-        self.release();
     }
 }
 
-/// Commands recorded into a caller's command buffer ([`Context::record_into`]) and the
-/// resources they use (staging, readbacks, timestamps).
-pub struct Recorded<'a> {
-    recorder: Recorder<'a>,
+/// Commands recorded into a caller's command buffer ([`Context::record_into`]) and what
+/// they use (staging, readbacks, timestamps).
+pub struct Recorded {
+    finished: Option<Finished>,
+    value: u64,
 }
 
-impl Recorded<'_> {
-    /// Call once the caller's submission of the command buffer has completed: readbacks
-    /// become readable and the pass timings are returned.
-    ///
-    /// # Safety
-    /// The command buffer must have completed execution.
-    pub unsafe fn complete(self) -> Result<Timings> {
-        self.recorder.complete()
+impl Recorded {
+    /// Reserves this recording's timeline value, stamps what it uses, and returns the
+    /// signal to add to the caller's `vkQueueSubmit2` of the command buffer (see the
+    /// contract of [`Context::record_into`]). Calling it again returns the same signal.
+    pub fn signal(&mut self) -> vk::SemaphoreSubmitInfo<'static> {
+        let f = self.finished.as_mut().expect("present until dropped");
+        if self.value == 0 {
+            let shared = f.shared.clone();
+            let _queue = lock(&shared.queue);
+            self.value = shared.reserve_value();
+            f.stamp(self.value);
+        }
+        f.shared.timeline_signal(self.value)
+    }
+
+    /// The timeline value (0 until [`Recorded::signal`]).
+    pub fn value(&self) -> u64 {
+        self.value
+    }
+
+    /// Waits until the caller's submission has completed and returns the pass timings;
+    /// readbacks become readable. Fails after `timeout_ns` or if never signalled.
+    pub fn wait(self, timeout_ns: u64) -> Result<Timings> {
+        let f = self.finished.as_ref().expect("present until dropped");
+        if self.value == 0 {
+            return Err(Error::InvalidArgument(
+                "Recorded::wait before Recorded::signal: the work was never submitted".into(),
+            ));
+        }
+        if !f.shared.wait_value(self.value, timeout_ns)? {
+            return Err(Error::InvalidArgument(format!(
+                "recorded work (timeline value {}) did not complete within {} ms",
+                self.value,
+                timeout_ns / 1_000_000
+            )));
+        }
+        f.queries.collect(&f.shared)
     }
 }
 
-impl Context {
-    /// Creates a device-local buffer holding `data` (uploaded through staging, followed by a
-    /// barrier that makes the data visible to every compute-shader and transfer access,
-    /// [`sync::COMPUTE_OR_TRANSFER`](super::sync::COMPUTE_OR_TRANSFER)).
-    pub fn upload_buffer<T: bytemuck::Pod>(
-        &self,
-        mut desc: BufferDesc,
+impl Drop for Recorded {
+    fn drop(&mut self) {
+        if let Some(mut f) = self.finished.take() {
+            f.retire(self.value);
+        }
+    }
+}
+
+impl Recorder {
+    /// Creates a buffer and records the upload of `data` into it (kernel construction uses
+    /// this: the upload runs with the caller's submission).
+    pub fn buffer_with<T: bytemuck::Pod>(
+        &mut self,
+        name: &str,
+        desc: BufferDesc,
         data: &[T],
     ) -> Result<Buffer> {
         let bytes = std::mem::size_of_val(data) as u64;
         if bytes > desc.size {
             return Err(Error::InvalidArgument(format!(
-                "{bytes} bytes of data do not fit buffer '{}' of {} bytes",
-                desc.name, desc.size
+                "{bytes} bytes of data do not fit buffer '{name}' of {} bytes",
+                desc.size
             )));
         }
-        desc.usage |= vk::BufferUsageFlags::TRANSFER_DST;
-        let buffer = Buffer::new(self, desc)?;
-        let mut rec = self.recorder(&format!("upload {}", buffer.name()))?;
-        rec.upload(&buffer, 0, data)?;
-        rec.barrier(&[Barrier::buffer(
-            &buffer,
-            AccessType::TransferWrite,
-            super::sync::COMPUTE_OR_TRANSFER,
-        )]);
+        let desc = desc.usage(vk::BufferUsageFlags::TRANSFER_DST);
+        let buffer = Buffer::new(&self.context(), name, desc)?;
+        self.upload(&buffer, 0, data)?;
+        Ok(buffer)
+    }
+}
+
+impl Context {
+    /// Creates a buffer holding `data`: records the upload, submits and waits. A convenience
+    /// for tests and tools; kernels record uploads with [`Recorder::buffer_with`].
+    pub fn upload_buffer<T: bytemuck::Pod>(
+        &self,
+        name: &str,
+        desc: BufferDesc,
+        data: &[T],
+    ) -> Result<Buffer> {
+        let mut rec = self.recorder(&format!("upload {name}"))?;
+        let buffer = rec.buffer_with(name, desc, data)?;
         rec.submit_and_wait()?;
         Ok(buffer)
     }
 
-    /// Reads a whole buffer back to the host. `prev` is how the buffer was last accessed.
-    pub fn read_buffer<T: bytemuck::Pod>(
-        &self,
-        buffer: &Buffer,
-        prev: impl Into<AccessSet>,
-    ) -> Result<Vec<T>> {
+    /// Reads a whole buffer back to the host: records the copy, submits and waits.
+    pub fn read_buffer<T: bytemuck::Pod>(&self, buffer: &Buffer) -> Result<Vec<T>> {
         let mut rec = self.recorder(&format!("read {}", buffer.name()))?;
-        let rb = rec.read_back(buffer, prev)?;
+        let rb = rec.read_back(buffer)?;
         rec.submit_and_wait()?;
         rb.to_vec()
+    }
+
+    /// Uploads mip 0 of `image` (tightly packed texels, all layers) in chunks of at most
+    /// `chunk_bytes` (whole rows, slices or layers), each recorded and submitted on its own
+    /// and staged through the ring, so a large texture volume needs no staging buffer of its
+    /// size. Returns the timeline value of the last chunk (see [`Context::wait_for`]).
+    pub fn upload_image_streamed(
+        &self,
+        image: &Image,
+        data: &[u8],
+        chunk_bytes: u64,
+    ) -> Result<u64> {
+        let desc = *image.desc();
+        let texel = desc.texel_size()?;
+        let [w, h, d] = desc.extent;
+        if data.len() as u64 != desc.byte_size()? {
+            return Err(Error::InvalidArgument(format!(
+                "image '{}' needs {} bytes of texels, got {}",
+                image.name(),
+                desc.byte_size()?,
+                data.len()
+            )));
+        }
+        let row = w as u64 * texel;
+        let slice = row * h as u64;
+        // Units along the slowest axis: layers (2D arrays), depth slices (3D) or rows.
+        let (units, unit_bytes) = if desc.layers > 1 {
+            (desc.layers, slice)
+        } else if d > 1 {
+            (d, slice)
+        } else {
+            (h, row)
+        };
+        let per_chunk = (chunk_bytes / unit_bytes).clamp(1, units as u64) as u32;
+        let mut last = 0;
+        let mut start = 0u32;
+        while start < units {
+            let n = per_chunk.min(units - start);
+            let mut region = ImageRegion::whole(&desc);
+            if desc.layers > 1 {
+                region.base_layer = start;
+                region.layers = n;
+            } else if d > 1 {
+                region.offset[2] = start;
+                region.extent[2] = n;
+            } else {
+                region.offset[1] = start;
+                region.extent[1] = n;
+            }
+            let bytes = &data
+                [(start as u64 * unit_bytes) as usize..((start + n) as u64 * unit_bytes) as usize];
+            let mut rec = self.recorder(&format!("upload {} part {start}", image.name()))?;
+            rec.upload_image(image, region, bytes)?;
+            last = rec.submit(&[], &[])?.value();
+            start += n;
+        }
+        Ok(last)
     }
 }

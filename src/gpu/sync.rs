@@ -203,6 +203,16 @@ pub struct AccessSet(u32);
 impl AccessSet {
     pub const EMPTY: AccessSet = AccessSet(0);
 
+    /// The raw bit set (bit `i` = `AccessType::ALL[i]`).
+    pub const fn bits(self) -> u32 {
+        self.0
+    }
+
+    /// A set from raw bits (unknown bits are dropped).
+    pub const fn from_bits(bits: u32) -> AccessSet {
+        AccessSet(bits & ((1 << AccessType::ALL.len()) - 1))
+    }
+
     pub fn contains(self, a: AccessType) -> bool {
         self.0 & (1 << a as u8) != 0
     }

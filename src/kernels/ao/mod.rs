@@ -11,7 +11,7 @@ pub mod formula;
 
 use crate::error::{Error, Result};
 use crate::gpu::{
-    AccessType as A, Barrier, BindGroup, Buffer, BufferDesc, ComputePipeline, Context, Readback,
+    AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context, Readback,
     Recorder, Resource,
 };
 use crate::scene::{Mesh, SphereTree};
@@ -316,6 +316,7 @@ impl FrameReadback {
 
 /// The GPU kernel: pipelines, inputs and outputs of one character.
 pub struct AoKernel {
+    ctx: Context,
     skin: ComputePipeline,
     skin_bind: BindGroup,
     occlusion_shader: crate::gpu::Shader,
@@ -325,7 +326,7 @@ pub struct AoKernel {
     joints: Buffer,
     correction: Buffer,
     // Inputs, kept alive for the bind groups.
-    _inputs: Vec<Buffer>,
+    inputs: Vec<Buffer>,
     positions: Buffer,
     normals: Buffer,
     spheres: Buffer,
@@ -339,20 +340,26 @@ pub struct AoKernel {
     params: AoParams,
 }
 
+/// Pass names, as they appear in timings and debug labels.
+pub const PASS_SKIN: &str = "ao skin";
+pub const PASS_OCCLUSION: &str = "ao occlusion";
+
 impl AoKernel {
-    /// Uploads the mesh, tree and table and builds the pipelines.
-    pub fn new(ctx: &Context, prep: &Prepared, params: AoParams) -> Result<AoKernel> {
+    /// Creates the buffers and pipelines, and records the uploads of the mesh, tree and
+    /// table into `rec` (they run when the caller submits it; nothing is submitted here).
+    pub fn new(rec: &mut Recorder, prep: &Prepared, params: AoParams) -> Result<AoKernel> {
         params.validate()?;
         prep.check()?;
+        let ctx = rec.context();
         let spv = |name| crate::shaders::spirv(name);
-        let skin = ComputePipeline::from_spirv(ctx, "ao/skin", spv("ao/skin")?)?;
+        let skin = ComputePipeline::from_spirv(&ctx, "ao/skin", spv("ao/skin")?)?;
         let occlusion_shader =
             crate::gpu::Shader::from_spirv("ao/occlusion", spv("ao/occlusion")?)?;
         let table = OcclusionTable::new(TABLE_SIZE, TABLE_SIZE);
         let nv = prep.positions.len() as u64;
         let ns = prep.spheres.len() as u64;
-        let upload = |name: &str, data: &[u8]| {
-            ctx.upload_buffer(BufferDesc::storage(name, data.len() as u64), data)
+        let mut upload = |name: &str, data: &[u8]| {
+            rec.buffer_with(name, BufferDesc::storage(data.len() as u64), data)
         };
         let rest_pos = upload("ao rest positions", bytemuck::cast_slice(&prep.positions))?;
         let rest_nrm = upload("ao rest normals", bytemuck::cast_slice(&prep.normals))?;
@@ -379,14 +386,17 @@ impl AoKernel {
             bytemuck::cast_slice(&vec![1.0f32; nv as usize]),
         )?;
         let joints = Buffer::new(
-            ctx,
-            BufferDesc::storage("ao joint matrices", prep.joint_count as u64 * 64),
+            &ctx,
+            "ao joint matrices",
+            BufferDesc::storage(prep.joint_count as u64 * 64),
         )?;
         // Outputs can also feed a renderer's vertex input directly.
         let output = |name: &str, size: u64| {
-            let mut d = BufferDesc::storage(name, size);
-            d.usage |= vk::BufferUsageFlags::VERTEX_BUFFER;
-            Buffer::new(ctx, d)
+            Buffer::new(
+                &ctx,
+                name,
+                BufferDesc::storage(size).usage(vk::BufferUsageFlags::VERTEX_BUFFER),
+            )
         };
         let positions = output("ao posed positions", nv * 16)?;
         let normals = output("ao posed normals", nv * 16)?;
@@ -394,22 +404,27 @@ impl AoKernel {
         let extents = output("ao posed extents", ns * 4)?;
         let visibility = output("ao visibility", nv * 4)?;
         let stats = output("ao stats", nv * 8)?;
-        let skin_bind = skin.bind(&[
-            ("joints", Resource::Buffer(&joints)),
-            ("rest_pos", Resource::Buffer(&rest_pos)),
-            ("rest_nrm", Resource::Buffer(&rest_nrm)),
-            ("vjoints", Resource::Buffer(&vjoints)),
-            ("vweights", Resource::Buffer(&vweights)),
-            ("rest_sph", Resource::Buffer(&rest_sph)),
-            ("sjoints", Resource::Buffer(&sjoints)),
-            ("sweights", Resource::Buffer(&sweights)),
-            ("pos", Resource::Buffer(&positions)),
-            ("nrm", Resource::Buffer(&normals)),
-            ("sph", Resource::Buffer(&spheres)),
-            ("ext", Resource::Buffer(&extents)),
-        ])?;
+        // The outputs are `writeonly` in GLSL: declared as writes only.
+        let w = AccessSet::from(A::ComputeShaderWrite);
+        let skin_bind = skin.bind_declared(
+            &[
+                ("joints", Resource::Buffer(&joints)),
+                ("rest_pos", Resource::Buffer(&rest_pos)),
+                ("rest_nrm", Resource::Buffer(&rest_nrm)),
+                ("vjoints", Resource::Buffer(&vjoints)),
+                ("vweights", Resource::Buffer(&vweights)),
+                ("rest_sph", Resource::Buffer(&rest_sph)),
+                ("sjoints", Resource::Buffer(&sjoints)),
+                ("sweights", Resource::Buffer(&sweights)),
+                ("pos", Resource::Buffer(&positions)),
+                ("nrm", Resource::Buffer(&normals)),
+                ("sph", Resource::Buffer(&spheres)),
+                ("ext", Resource::Buffer(&extents)),
+            ],
+            &[("pos", w), ("nrm", w), ("sph", w), ("ext", w)],
+        )?;
         let (occlusion, occlusion_bind) = Self::occlusion_pipeline(
-            ctx,
+            &ctx,
             &occlusion_shader,
             &params,
             [
@@ -424,6 +439,7 @@ impl AoKernel {
             ],
         )?;
         Ok(AoKernel {
+            ctx,
             skin,
             skin_bind,
             occlusion_shader,
@@ -432,7 +448,7 @@ impl AoKernel {
             table_buf,
             joints,
             correction,
-            _inputs: vec![
+            inputs: vec![
                 rest_pos, rest_nrm, vjoints, vweights, rest_sph, sjoints, sweights,
             ],
             positions,
@@ -458,16 +474,20 @@ impl AoKernel {
         b: [&Buffer; 8],
     ) -> Result<(ComputePipeline, BindGroup)> {
         let pipeline = ComputePipeline::specialized(ctx, shader, &params.specialization())?;
-        let bind = pipeline.bind(&[
-            ("pos", Resource::Buffer(b[0])),
-            ("nrm", Resource::Buffer(b[1])),
-            ("sph", Resource::Buffer(b[2])),
-            ("table", Resource::Buffer(b[3])),
-            ("correction", Resource::Buffer(b[4])),
-            ("ao", Resource::Buffer(b[5])),
-            ("stats", Resource::Buffer(b[6])),
-            ("ext", Resource::Buffer(b[7])),
-        ])?;
+        let w = AccessSet::from(A::ComputeShaderWrite);
+        let bind = pipeline.bind_declared(
+            &[
+                ("pos", Resource::Buffer(b[0])),
+                ("nrm", Resource::Buffer(b[1])),
+                ("sph", Resource::Buffer(b[2])),
+                ("table", Resource::Buffer(b[3])),
+                ("correction", Resource::Buffer(b[4])),
+                ("ao", Resource::Buffer(b[5])),
+                ("stats", Resource::Buffer(b[6])),
+                ("ext", Resource::Buffer(b[7])),
+            ],
+            &[("ao", w), ("stats", w)],
+        )?;
         Ok((pipeline, bind))
     }
 
@@ -482,13 +502,13 @@ impl AoKernel {
     }
 
     /// Changes the parameters. Modes (occlusion, blend, clamp, correction) are
-    /// specialization constants: changing one builds the pipeline for it; tau is a push
-    /// constant and costs nothing.
-    pub fn set_params(&mut self, ctx: &Context, params: AoParams) -> Result<()> {
+    /// specialization constants: changing one builds the pipeline for it (the old one is
+    /// retired once the work using it completes); tau is a push constant and costs nothing.
+    pub fn set_params(&mut self, params: AoParams) -> Result<()> {
         params.validate()?;
         if params.specialization() != self.params.specialization() {
             let (p, b) = Self::occlusion_pipeline(
-                ctx,
+                &self.ctx,
                 &self.occlusion_shader,
                 &params,
                 [
@@ -513,7 +533,9 @@ impl AoKernel {
         self.vertex_count as usize
     }
 
-    /// Per-vertex visibility (f32), written by [`AoKernel::record`] as a `ComputeShaderWrite`.
+    /// Per-vertex visibility (f32), written by [`AoKernel::record`]. A caller that reads it
+    /// (e.g. as a vertex buffer) declares that with `Recorder::use_buffer`, so the next
+    /// frame's write waits for it.
     pub fn visibility(&self) -> &Buffer {
         &self.visibility
     }
@@ -523,26 +545,31 @@ impl AoKernel {
         &self.positions
     }
 
-    /// Records one frame: joint matrices upload, pass `ao skin`, pass `ao occlusion`.
-    ///
-    /// Synchronisation: the first barrier orders this frame after any earlier use of the
-    /// kernel's buffers by compute shaders or copies (a previous frame, a readback); the
-    /// outputs are left as `ComputeShaderWrite`. The joint matrices go through a staging
-    /// buffer owned by the recording, one per frame, so frames in flight never overwrite
-    /// each other's matrices.
-    pub fn record<'a>(&'a self, rec: &mut Recorder<'a>, matrices: &[Mat4]) -> Result<()> {
-        self.record_after(rec, matrices, A::Nothing.into())
+    /// The posed spheres buffer (vec4 centre + radius per node).
+    pub fn posed_spheres(&self) -> &Buffer {
+        &self.spheres
     }
 
-    /// As [`AoKernel::record`], also ordering the frame after `prev`: how the caller used
-    /// the outputs since the last frame (e.g. `AccessType::VertexBuffer` when a renderer drew
-    /// with [`AoKernel::visibility`]).
-    pub fn record_after<'a>(
-        &'a self,
-        rec: &mut Recorder<'a>,
-        matrices: &[Mat4],
-        prev: crate::gpu::AccessSet,
-    ) -> Result<()> {
+    /// The passes [`AoKernel::record`] records, with every binding's declared access (what a
+    /// render graph needs to schedule them).
+    pub fn passes(&self) -> Vec<(&'static str, Vec<crate::gpu::DeclaredUse>)> {
+        let mut skin = vec![crate::gpu::DeclaredUse {
+            binding: "joints (upload)".into(),
+            resource: self.joints.name().to_string(),
+            access: A::TransferWrite.into(),
+        }];
+        skin.extend(self.skin_bind.accesses());
+        vec![
+            (PASS_SKIN, skin),
+            (PASS_OCCLUSION, self.occlusion_bind.accesses()),
+        ]
+    }
+
+    /// Records one frame: the joint matrices' upload, pass `ao skin`, pass `ao occlusion`.
+    /// Barriers come from the declared accesses through the recorder's tracking (or are
+    /// collected for the caller in `BarrierMode::Collect`). The matrices are staged through
+    /// the context's ring, so frames in flight never overwrite each other's.
+    pub fn record(&self, rec: &mut Recorder, matrices: &[Mat4]) -> Result<()> {
         if matrices.len() != self.joint_count {
             return Err(Error::InvalidArgument(format!(
                 "{} joint matrices for a rig of {} joints",
@@ -556,17 +583,8 @@ impl AoKernel {
             )));
         }
         let cols: Vec<[f32; 16]> = matrices.iter().map(|m| m.to_cols_array()).collect();
-        rec.barrier(&[Barrier::global(
-            prev | A::ComputeShaderReadOther | A::ComputeShaderWrite | A::TransferRead,
-            A::TransferWrite | A::ComputeShaderWrite,
-        )]);
         rec.upload(&self.joints, 0, &cols)?;
-        rec.barrier(&[Barrier::buffer(
-            &self.joints,
-            A::TransferWrite,
-            A::ComputeShaderReadOther,
-        )]);
-        rec.begin_pass("ao skin");
+        rec.begin_pass(PASS_SKIN);
         let ns = self.shape.node_count;
         let push = [
             self.vertex_count,
@@ -574,28 +592,22 @@ impl AoKernel {
             self.shape.branch,
             self.shape.first_leaf,
         ];
-        rec.dispatch_invocations(
+        rec.dispatch_invocations_tracked(
             &self.skin,
             &self.skin_bind,
             bytemuck::cast_slice(&push),
             [self.vertex_count + ns, 1, 1],
         )?;
         rec.end_pass();
-        rec.barrier(&[Barrier::global(
-            A::ComputeShaderWrite,
-            A::ComputeShaderReadOther,
-        )]);
-        rec.begin_pass("ao occlusion");
+        rec.begin_pass(PASS_OCCLUSION);
         self.record_occlusion(rec)?;
         rec.end_pass();
         Ok(())
     }
 
-    /// Records the occlusion pass alone, e.g. to re-evaluate with other parameters. The
-    /// caller orders it: the posed buffers must have been written and made visible
-    /// (`ComputeShaderWrite -> ComputeShaderReadOther`), and earlier reads of the outputs must
-    /// be finished (`prev -> ComputeShaderWrite`).
-    pub fn record_occlusion<'a>(&'a self, rec: &mut Recorder<'a>) -> Result<()> {
+    /// Records the occlusion pass alone, e.g. to re-evaluate with other parameters after a
+    /// frame was skinned (barriers from the declared accesses).
+    pub fn record_occlusion(&self, rec: &mut Recorder) -> Result<()> {
         self.params.validate()?;
         let p = &self.params;
         let push: [u32; 7] = [
@@ -607,7 +619,7 @@ impl AoKernel {
             self.table.n_psi,
             self.table.n_theta,
         ];
-        rec.dispatch_invocations(
+        rec.dispatch_invocations_tracked(
             &self.occlusion,
             &self.occlusion_bind,
             bytemuck::cast_slice(&push),
@@ -616,24 +628,18 @@ impl AoKernel {
     }
 
     /// Records copies of the outputs back to the host (after [`AoKernel::record`]).
-    pub fn read_back<'a>(&'a self, rec: &mut Recorder<'a>) -> Result<FrameReadback> {
+    pub fn read_back(&self, rec: &mut Recorder) -> Result<FrameReadback> {
         Ok(FrameReadback {
-            visibility: rec.read_back(&self.visibility, A::ComputeShaderWrite)?,
-            stats: rec.read_back(&self.stats, A::ComputeShaderWrite)?,
-            positions: rec.read_back(
-                &self.positions,
-                A::ComputeShaderWrite | A::ComputeShaderReadOther,
-            )?,
-            normals: rec.read_back(
-                &self.normals,
-                A::ComputeShaderWrite | A::ComputeShaderReadOther,
-            )?,
+            visibility: rec.read_back(&self.visibility)?,
+            stats: rec.read_back(&self.stats)?,
+            positions: rec.read_back(&self.positions)?,
+            normals: rec.read_back(&self.normals)?,
         })
     }
 
-    /// Uploads per-vertex static correction factors (used when `params.correct` is set;
-    /// until then they are all 1).
-    pub fn set_correction(&self, ctx: &Context, factors: &[f32]) -> Result<()> {
+    /// Records the upload of per-vertex static correction factors (used when
+    /// `params.correct` is set; until then they are all 1).
+    pub fn set_correction(&self, rec: &mut Recorder, factors: &[f32]) -> Result<()> {
         if factors.len() != self.vertex_count as usize {
             return Err(Error::InvalidArgument(format!(
                 "{} correction factors for {} vertices",
@@ -646,24 +652,12 @@ impl AoKernel {
                 "correction factor {i} is negative or not finite"
             )));
         }
-        let mut rec = ctx.recorder("ao correction upload")?;
-        rec.barrier(&[Barrier::buffer(
-            &self.correction,
-            A::ComputeShaderReadOther,
-            A::TransferWrite,
-        )]);
-        rec.upload(&self.correction, 0, factors)?;
-        rec.barrier(&[Barrier::buffer(
-            &self.correction,
-            A::TransferWrite,
-            A::ComputeShaderReadOther,
-        )]);
-        rec.submit_and_wait()?;
-        Ok(())
+        rec.upload(&self.correction, 0, factors)
     }
 
-    /// Bytes of device memory held by the kernel's buffers.
-    pub fn memory_bytes(&self) -> u64 {
+    /// Device memory held by the kernel's buffers: `used_bytes` and `allocations` are the
+    /// kernel's own; `reserved_bytes` is the context's (blocks are shared).
+    pub fn memory(&self) -> crate::gpu::MemoryReport {
         let own = [
             &self.joints,
             &self.correction,
@@ -675,13 +669,20 @@ impl AoKernel {
             &self.visibility,
             &self.stats,
         ];
-        own.iter().map(|b| b.size()).sum::<u64>()
-            + self._inputs.iter().map(Buffer::size).sum::<u64>()
+        let all: Vec<&Buffer> = own.into_iter().chain(self.inputs.iter()).collect();
+        let ctx = self.ctx.memory_report();
+        crate::gpu::MemoryReport {
+            used_bytes: all.iter().map(|b| b.allocation_size()).sum(),
+            allocations: all.len() as u64,
+            reserved_bytes: ctx.reserved_bytes,
+            peak_used_bytes: ctx.peak_used_bytes,
+            staging_ring_bytes: ctx.staging_ring_bytes,
+        }
     }
 
-    /// The posed spheres buffer (vec4 centre + radius per node).
-    pub fn posed_spheres(&self) -> &Buffer {
-        &self.spheres
+    /// Bytes of the kernel's buffers (their allocations).
+    pub fn memory_bytes(&self) -> u64 {
+        self.memory().used_bytes
     }
 }
 
