@@ -68,7 +68,7 @@ enum Command {
 #[derive(Args)]
 struct AoArgs {
     /// Character (.glb/.gltf with skin and animations) or static mesh (.obj .ply .off).
-    #[arg(long, default_value = vkshade::app::ao::DEFAULT_MESH)]
+    #[arg(long, default_value = vkshade::kernels::ao::DEFAULT_MESH)]
     mesh: PathBuf,
     /// Animation to play (default: Run for the built-in character, else the first that moves).
     #[arg(long)]
@@ -180,7 +180,7 @@ enum BenchCommand {
         #[command(flatten)]
         opts: BenchOpts,
         /// Character to benchmark.
-        #[arg(long, default_value = vkshade::app::ao::DEFAULT_MESH)]
+        #[arg(long, default_value = vkshade::kernels::ao::DEFAULT_MESH)]
         mesh: PathBuf,
         /// Animation (default: Run for the built-in character).
         #[arg(long)]
@@ -333,7 +333,7 @@ fn cmd_info(json: Option<PathBuf>) -> Result<()> {
         );
     }
     if let Some(path) = json {
-        bench::write_json(&path, &sys)?;
+        vkshade::io::write_json(&path, &sys)?;
         println!("\nwrote {}", path.display());
     }
     Ok(())
@@ -342,7 +342,10 @@ fn cmd_info(json: Option<PathBuf>) -> Result<()> {
 fn cmd_bench_peak(g: &Global, opts: &BenchOpts) -> Result<()> {
     let cfg = opts.config()?;
     for path in opts.json.iter().chain(&opts.plot) {
-        bench::check_output(path)?;
+        vkshade::io::check_writable(path)?;
+    }
+    if opts.plot.is_some() {
+        bench::plot::ensure_available()?;
     }
     let ctx = context(g)?;
     eprintln!(
@@ -365,7 +368,7 @@ fn cmd_bench_peak(g: &Global, opts: &BenchOpts) -> Result<()> {
         report.stream.problem
     );
     if let Some(path) = &opts.json {
-        bench::write_json(path, &report)?;
+        vkshade::io::write_json(path, &report)?;
         println!("wrote {}", path.display());
     }
     if let Some(path) = &opts.plot {
@@ -384,7 +387,10 @@ fn cmd_bench_ao(
 ) -> Result<()> {
     use vkshade::bench::ao::{AoBenchConfig, panels, run};
     for path in opts.json.iter().chain(&opts.plot) {
-        bench::check_output(path)?;
+        vkshade::io::check_writable(path)?;
+    }
+    if opts.plot.is_some() {
+        bench::plot::ensure_available()?;
     }
     let mut cfg = AoBenchConfig {
         mesh: mesh.to_path_buf(),
@@ -392,7 +398,7 @@ fn cmd_bench_ao(
         ..Default::default()
     };
     cfg.bench.min_submit_ms = opts.min_ms.min(cfg.bench.min_submit_ms);
-    if anim.is_some() || mesh != std::path::Path::new(vkshade::app::ao::DEFAULT_MESH) {
+    if anim.is_some() || mesh != std::path::Path::new(vkshade::kernels::ao::DEFAULT_MESH) {
         cfg.animation = anim.map(str::to_string);
     }
     if quick {
@@ -438,7 +444,7 @@ fn cmd_bench_ao(
         );
     }
     if let Some(path) = &opts.json {
-        bench::write_json(path, &r)?;
+        vkshade::io::write_json(path, &r)?;
         println!("wrote {}", path.display());
     }
     if let Some(path) = &opts.plot {
@@ -495,7 +501,7 @@ fn finish(ctx: Context) -> Result<()> {
 
 fn cmd_ao(g: &Global, a: &AoArgs, demo: bool) -> Result<()> {
     use vkshade::app::ao;
-    let default_mesh = a.mesh == std::path::Path::new(ao::DEFAULT_MESH);
+    let default_mesh = a.mesh == std::path::Path::new(vkshade::kernels::ao::DEFAULT_MESH);
     if default_mesh && !a.mesh.exists() {
         return Err(Error::input(
             &a.mesh,
@@ -507,7 +513,7 @@ fn cmd_ao(g: &Global, a: &AoArgs, demo: bool) -> Result<()> {
         animation: a
             .anim
             .clone()
-            .or_else(|| default_mesh.then(|| ao::DEFAULT_ANIMATION.to_string())),
+            .or_else(|| default_mesh.then(|| vkshade::kernels::ao::DEFAULT_ANIMATION.to_string())),
         frames: a.frames,
         tree: a.tree.clone(),
         build: a.tree_opts.config(),
@@ -563,7 +569,7 @@ fn cmd_tree_build(
     opts: &TreeOpts,
     report: Option<&std::path::Path>,
 ) -> Result<()> {
-    bench::check_output(out)?;
+    vkshade::io::check_writable(out)?;
     let c = vkshade::scene::load(mesh)?;
     let t = std::time::Instant::now();
     let (tree, fit) = vkshade::scene::SphereTree::build(&c.mesh, &opts.config())?;
@@ -591,7 +597,7 @@ fn cmd_tree_build(
         );
     }
     if let Some(path) = report {
-        bench::write_json(path, &fit)?;
+        vkshade::io::write_json(path, &fit)?;
         println!("wrote {}", path.display());
     }
     println!("wrote {}", out.display());

@@ -509,3 +509,46 @@ fn the_cut_partitions_the_leaves() {
         }
     }
 }
+
+#[test]
+fn inconsistent_ao_input_is_refused() {
+    let c = common::ball();
+    let (mut tree, _) = SphereTree::build(
+        &c.mesh,
+        &BuildConfig {
+            samples: 20_000,
+            depth: 2,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    tree.spheres.truncate(20);
+    tree.joints.truncate(20);
+    tree.weights.truncate(20);
+    tree.importance.truncate(20);
+    let e = Prepared::new(&c.mesh, &tree, 1).unwrap_err();
+    assert!(e.to_string().contains("complete tree"), "{e}");
+    let (tree, _) = SphereTree::build(
+        &c.mesh,
+        &BuildConfig {
+            samples: 20_000,
+            depth: 2,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let mut prep = Prepared::new(&c.mesh, &tree, 1).unwrap();
+    prep.normals.pop();
+    assert!(prep.check().unwrap_err().to_string().contains("normals"));
+    let mut prep = Prepared::new(&c.mesh, &tree, 1).unwrap();
+    prep.shape.node_count += 1;
+    assert!(prep.check().is_err());
+    let mut prep = Prepared::new(&c.mesh, &tree, 1).unwrap();
+    prep.sphere_joints[3] = [5, 0];
+    assert!(
+        prep.check()
+            .unwrap_err()
+            .to_string()
+            .contains("joint index")
+    );
+}

@@ -1,25 +1,20 @@
 //! `vkshade ao`: sphere-tree ambient occlusion over the frames of an animation, with PLY and
 //! PNG output per frame, a JSON report and (optionally) the ray-traced ground truth.
 
-use crate::bench::{MachineInfo, Stats};
 use crate::error::{Error, Result};
 use crate::gpu::Context;
 use crate::kernels::ao::cpu::{self, CpuAo, Posed};
 use crate::kernels::ao::formula::{OcclusionTable, TABLE_SIZE};
-use crate::kernels::ao::{AoKernel, AoParams, Correction, Occlusion, Prepared};
+use crate::kernels::ao::{AoKernel, AoParams, Correction, DEFAULT_MESH, Occlusion, Prepared};
 use crate::reference::ErrorStats;
 use crate::reference::ao::{RayConfig, mesh_visibility, spheres_visibility};
+use crate::report::{MachineInfo, Stats};
 use crate::scene::spheretree::{BuildConfig, FitReport, SphereTree};
-use crate::scene::{self, Animation, Character, MeshReport};
+use crate::scene::{self, Character, MeshReport};
 use glam::{Vec3, Vec4};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
-
-/// The built-in default character (made by tools/setup.sh).
-pub const DEFAULT_MESH: &str = "data/testwuson.glb";
-/// The built-in default animation.
-pub const DEFAULT_ANIMATION: &str = "Run";
 
 /// Most frames one run writes (each is a PLY and a PNG).
 pub const MAX_FRAMES: usize = 100_000;
@@ -193,14 +188,6 @@ pub struct AoReport {
     pub notes: Vec<String>,
 }
 
-/// The character's animation to play.
-pub fn pick_animation<'c>(c: &'c Character, name: Option<&str>) -> Result<Option<&'c Animation>> {
-    match name {
-        Some(n) => c.animation(n).map(Some),
-        None => Ok(c.animations.iter().find(|a| a.duration > 0.0)),
-    }
-}
-
 /// Loads a `.sph` tree (skin weights from the mesh) or builds one.
 pub fn tree_for(c: &Character, cfg: &AoRunConfig) -> Result<(SphereTree, TreeInfo)> {
     let t = Instant::now();
@@ -335,9 +322,9 @@ pub fn run(ctx: &Context, cfg: &AoRunConfig, progress: &mut dyn FnMut(&str)) -> 
             cfg.image
         )));
     }
-    crate::bench::check_output(&cfg.out.join("report.json"))?;
+    crate::io::check_writable(&cfg.out.join("report.json"))?;
     let character = scene::load(&cfg.mesh)?;
-    let anim = pick_animation(&character, cfg.animation.as_deref())?;
+    let anim = character.pick_animation(cfg.animation.as_deref())?;
     let mesh = &character.mesh;
     progress(&format!(
         "{}: {} vertices, {} triangles, {} joints{}",
@@ -597,7 +584,7 @@ pub fn run(ctx: &Context, cfg: &AoRunConfig, progress: &mut dyn FnMut(&str)) -> 
         summary,
         notes,
     };
-    crate::bench::write_json(&cfg.out.join("report.json"), &report)?;
+    crate::io::write_json(&cfg.out.join("report.json"), &report)?;
     Ok(report)
 }
 

@@ -54,8 +54,8 @@ pub struct AoBenchConfig {
 impl Default for AoBenchConfig {
     fn default() -> Self {
         AoBenchConfig {
-            mesh: PathBuf::from(crate::app::ao::DEFAULT_MESH),
-            animation: Some(crate::app::ao::DEFAULT_ANIMATION.into()),
+            mesh: PathBuf::from(crate::kernels::ao::DEFAULT_MESH),
+            animation: Some(crate::kernels::ao::DEFAULT_ANIMATION.into()),
             bench: BenchConfig {
                 warmup: 2,
                 samples: 10,
@@ -209,7 +209,7 @@ pub fn run(
     let targets: serde_json::Value = serde_json::from_str(TARGETS)
         .map_err(|e| Error::InvalidArgument(format!("bench/targets.json: {e}")))?;
     let character = scene::load(&cfg.mesh)?;
-    let anim = crate::app::ao::pick_animation(&character, cfg.animation.as_deref())?;
+    let anim = character.pick_animation(cfg.animation.as_deref())?;
     let duration = anim.map(|a| a.duration).unwrap_or(0.0);
     let matrices = character.rig.skinning_matrices(anim, 0.37 * duration);
 
