@@ -52,7 +52,8 @@ enum Command {
     Shaders(ShaderCommand),
     /// Ambient occlusion of a skinned character from a sphere tree, per frame of an
     /// animation: DIR/ao_NNNN.ply (posed mesh, per-vertex `ao` = visibility, 1 = unoccluded),
-    /// DIR/ao_NNNN.png and DIR/report.json.
+    /// DIR/ao_NNNN.png (with --reference: result | truth | error), its linear twin
+    /// DIR/ao_NNNN.exr, and DIR/report.json.
     Ao(AoArgs),
     /// The main demo: `ao` on the built-in default (Testwuson's Run animation, 8 frames,
     /// compared with the ray-traced mesh), pictures in out/ao/.
@@ -97,9 +98,13 @@ struct AoArgs {
     /// A receiver inside a leaf sphere clamps h to 1 instead of leaving that sphere out.
     #[arg(long)]
     clamp_inside: bool,
-    /// Compare every frame with the ray-traced mesh (MAE, RMSE, p95, max; error decomposition).
+    /// Compare every frame with the ray-traced mesh (MAE, RMSE, p95, max; error decomposition);
+    /// pictures become result | truth | error side by side.
     #[arg(long)]
     reference: bool,
+    /// Error at the top of the heat map in the --reference pictures (larger errors saturate).
+    #[arg(long, default_value_t = 0.2)]
+    error_scale: f32,
     /// Rays per vertex of the ground truth.
     #[arg(long, default_value_t = 4096)]
     rays: usize,
@@ -253,8 +258,9 @@ fn context(g: &Global) -> Result<Context> {
     })
 }
 
+/// A progress line on stderr (without breaking a progress counter being drawn).
 fn progress(line: &str) {
-    eprintln!("  {line}");
+    vkshade::progress::message(&format!("  {line}"));
 }
 
 fn cmd_info(json: Option<PathBuf>) -> Result<()> {
@@ -528,6 +534,7 @@ fn cmd_ao(g: &Global, a: &AoArgs, demo: bool) -> Result<()> {
         reference: a.reference,
         rays: a.rays,
         correction_rays: a.correction_rays,
+        error_scale: a.error_scale,
         out: a.out.clone(),
         ..Default::default()
     };
@@ -553,7 +560,7 @@ fn cmd_ao(g: &Global, a: &AoArgs, demo: bool) -> Result<()> {
         );
     }
     println!(
-        "wrote {} frames (ao_NNNN.ply, ao_NNNN.png) and report.json to {}",
+        "wrote {} frames (ao_NNNN.ply, ao_NNNN.png, ao_NNNN.exr) and report.json to {}",
         report.frames.len(),
         cfg.out.display()
     );

@@ -361,7 +361,7 @@ pub fn side_by_side(
         } else {
             label(v)
         };
-        out.text(bx + 26, y.saturating_sub(3), &text, 1, [20, 20, 20]);
+        out.text(bx + 26, y.saturating_sub(7), &text, 2, [20, 20, 20]);
     }
     let max = error
         .iter()

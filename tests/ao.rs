@@ -307,6 +307,7 @@ fn gpu_matches_the_cpu_implementation_on_testwuson() {
     });
 }
 
+#[cfg(feature = "cli")]
 #[test]
 fn method_against_the_ray_traced_mesh_on_testwuson() {
     use vkshade::app::ao::{AoRunConfig, run};
@@ -375,6 +376,31 @@ fn method_against_the_ray_traced_mesh_on_testwuson() {
             assert!(ao.iter().all(|v| (0.0..=1.0).contains(v)));
             let png = std::fs::read(&f.png).unwrap();
             assert_eq!(&png[1..4], b"PNG");
+            // The EXR twin: result | truth | error at the same pixels as the picture, linear.
+            let exr = vkshade::io::exr::read_rgba(std::path::Path::new(&f.exr)).unwrap();
+            let layout = vkshade::render::SideBySideLayout {
+                panel_width: 160,
+                panel_height: 120,
+            };
+            assert_eq!((exr.width, exr.height), layout.size());
+            let mut covered = 0;
+            for y in 0..120 {
+                for x in 0..160 {
+                    let at = |k: u32| {
+                        let (x0, y0) = layout.panel_origin(k);
+                        exr.get(x0 + x, y0 + y).unwrap()
+                    };
+                    let (r, t, e) = (at(0), at(1), at(2));
+                    if r[3] < 1.0 {
+                        continue;
+                    }
+                    covered += 1;
+                    assert!((0.0..=1.0).contains(&r[0]) && (0.0..=1.0).contains(&t[0]));
+                    // Interpolated |v - t| is at least |interpolated v - interpolated t|.
+                    assert!(e[0] >= (r[0] - t[0]).abs() - 1e-5, "{r:?} {t:?} {e:?}");
+                }
+            }
+            assert!(covered > 2000, "{covered} covered pixels");
         }
         let json: serde_json::Value =
             serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();

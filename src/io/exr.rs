@@ -1,9 +1,11 @@
-//! Linear float RGB(A) images in OpenEXR (32-bit float samples, lossless compression).
+//! Linear float RGB(A) images in OpenEXR (32-bit float samples, ZIP compression, lossless).
 //! Writes are atomic; every error names the file.
 
 use super::FloatImage;
 use crate::error::{Error, Result};
-use exr::prelude::{ReadChannels, ReadLayers, SpecificChannels, Vec2, WritableImage, read};
+use exr::prelude::{
+    Encoding, ReadChannels, ReadLayers, SpecificChannels, Vec2, WritableImage, read,
+};
 use std::path::Path;
 
 /// Largest width or height accepted (both when writing and when reading).
@@ -51,8 +53,9 @@ pub fn write(path: &Path, img: &FloatImage, channels: Channels) -> Result<()> {
     let px = |x: usize, y: usize| img.pixels[y * w + x];
     let mut bytes = std::io::Cursor::new(Vec::new());
     let encoded = match channels {
-        Channels::Rgba => exr::prelude::Image::from_channels(
+        Channels::Rgba => exr::prelude::Image::from_encoded_channels(
             size,
+            Encoding::SMALL_LOSSLESS,
             SpecificChannels::rgba(|Vec2(x, y)| {
                 let p = px(x, y);
                 (p[0], p[1], p[2], p[3])
@@ -60,8 +63,9 @@ pub fn write(path: &Path, img: &FloatImage, channels: Channels) -> Result<()> {
         )
         .write()
         .to_buffered(&mut bytes),
-        Channels::Rgb => exr::prelude::Image::from_channels(
+        Channels::Rgb => exr::prelude::Image::from_encoded_channels(
             size,
+            Encoding::SMALL_LOSSLESS,
             SpecificChannels::rgb(|Vec2(x, y)| {
                 let p = px(x, y);
                 (p[0], p[1], p[2])
