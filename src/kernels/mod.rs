@@ -3,8 +3,11 @@
 
 pub mod ao;
 
-/// Every kernel's GLSL includes generated from Rust: (path under glsl/, generator). The
-/// shader tool writes and checks them without knowing any kernel.
-pub fn generated_includes() -> impl Iterator<Item = (&'static str, fn() -> String)> {
+/// A GLSL include generated from Rust: (path under glsl/, generator of its text).
+pub type GeneratedInclude = (&'static str, fn() -> String);
+
+/// Every kernel's generated GLSL includes; a new kernel adds its list here. The shader tool
+/// writes and checks them without knowing any kernel.
+pub fn generated_includes() -> impl Iterator<Item = GeneratedInclude> {
     [ao::GENERATED_INCLUDES].into_iter().flatten().copied()
 }

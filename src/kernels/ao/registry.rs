@@ -1,6 +1,8 @@
 //! What the AO kernel tells the rest of the crate about itself: its built-in demo input and
 //! the GLSL includes generated from its Rust code (collected in [`crate::kernels`]).
 
+use crate::kernels::GeneratedInclude;
+
 /// The built-in default character (made by tools/setup.sh from assimp's Testwuson.X).
 pub const DEFAULT_MESH: &str = "data/testwuson.glb";
 /// The built-in default character's animation.
@@ -8,7 +10,7 @@ pub const DEFAULT_ANIMATION: &str = "Run";
 
 /// GLSL includes generated from Rust, so the CPU and GPU share one definition: (path under
 /// glsl/, generator).
-pub const GENERATED_INCLUDES: &[(&str, fn() -> String)] = &[("common/ao_mask.glsl", mask_glsl)];
+pub const GENERATED_INCLUDES: &[GeneratedInclude] = &[("common/ao_mask.glsl", mask_glsl)];
 
 /// `common/ao_mask.glsl`: the cone mask of the overlap model over
 /// [`super::formula::mask_directions`].
