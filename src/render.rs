@@ -354,14 +354,22 @@ pub fn side_by_side(
     out.text(bx - 2, 7, "ERROR", 2, [20, 20, 20]);
     for q in 0..=4u32 {
         let y = by0 + (bar_h - 1) * (4 - q) / 4;
-        out.fill(bx + 18, y, 5, 1, [20, 20, 20]);
+        out.fill(bx + 18, y, 4, 1, [20, 20, 20]);
         let v = scale * q as f32 / 4.0;
         let text = if q == 4 {
             format!("{}+", label(v))
         } else {
             label(v)
         };
-        out.text(bx + 26, y.saturating_sub(7), &text, 2, [20, 20, 20]);
+        // Large digits where they fit in the bar's column, small ones otherwise.
+        let size = if text.len() <= 5 { 2 } else { 1 };
+        out.text(
+            bx + 29,
+            y.saturating_sub(3 * size),
+            &text,
+            size,
+            [20, 20, 20],
+        );
     }
     let max = error
         .iter()
