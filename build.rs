@@ -1,5 +1,9 @@
 //! 1. Links the static glslang and SPIRV-Tools archives that Debian's `libshaderc_combined.a`
-//!    leaves undefined (order matters for static linking; see README "Building").
+//!    leaves undefined (order matters for static linking; see README "Building notes"). The
+//!    folder holding them: `VKSHADE_SHADERC_LIB_DIR` if set; else pkg-config's libdir for
+//!    SPIRV-Tools / glslang / shaderc; else the first of the target's multiarch folder
+//!    (`/usr/lib/<arch>-linux-gnu`), /usr/lib64, /usr/lib, /usr/local/lib holding both
+//!    `libglslang.a` and `libSPIRV-Tools.a`. None: the build fails saying what to install.
 //! 2. Embeds every committed SPIR-V module under spv/ into the library (`shaders::EMBEDDED`).
 
 use std::path::{Path, PathBuf};
@@ -18,12 +22,104 @@ fn walk(dir: &Path, out: &mut Vec<PathBuf>) {
     }
 }
 
+/// Archives that must be present in the chosen folder (the rest come with them).
+const REQUIRED: &[&str] = &["libglslang.a", "libSPIRV-Tools.a"];
+
+fn has_archives(dir: &Path) -> bool {
+    REQUIRED.iter().all(|a| dir.join(a).is_file())
+}
+
+/// `pkg-config --variable=libdir PKG`, if pkg-config is installed and knows PKG.
+fn pkg_config_libdir(pkg: &str) -> Option<PathBuf> {
+    let out = std::process::Command::new("pkg-config")
+        .args(["--variable=libdir", pkg])
+        .output()
+        .ok()?;
+    let dir = String::from_utf8(out.stdout).ok()?.trim().to_string();
+    (out.status.success() && !dir.is_empty()).then(|| PathBuf::from(dir))
+}
+
+/// The Debian multiarch triplet of the target (`x86_64-linux-gnu`, `aarch64-linux-gnu`, ...).
+fn multiarch() -> Option<String> {
+    let arch = std::env::var("CARGO_CFG_TARGET_ARCH").ok()?;
+    let os = std::env::var("CARGO_CFG_TARGET_OS").ok()?;
+    if os != "linux" {
+        return None;
+    }
+    let env = std::env::var("CARGO_CFG_TARGET_ENV").unwrap_or_default();
+    let abi = std::env::var("TARGET").unwrap_or_default();
+    let arch = match arch.as_str() {
+        "x86" => "i386".to_string(),
+        "arm" if abi.ends_with("hf") => return Some("arm-linux-gnueabihf".into()),
+        "arm" => return Some("arm-linux-gnueabi".into()),
+        "powerpc64" if abi.starts_with("powerpc64le") => "powerpc64le".to_string(),
+        other => other.to_string(),
+    };
+    Some(format!(
+        "{arch}-linux-{}",
+        if env.is_empty() { "gnu" } else { &env }
+    ))
+}
+
+/// Finds the folder of the static glslang and SPIRV-Tools archives, or explains how to get
+/// them.
+fn find_lib_dir() -> Result<PathBuf, String> {
+    if let Ok(dir) = std::env::var("VKSHADE_SHADERC_LIB_DIR") {
+        let dir = PathBuf::from(dir);
+        return if has_archives(&dir) {
+            Ok(dir)
+        } else {
+            Err(format!(
+                "VKSHADE_SHADERC_LIB_DIR={} does not hold {}",
+                dir.display(),
+                REQUIRED.join(" and ")
+            ))
+        };
+    }
+    let mut tried: Vec<PathBuf> = Vec::new();
+    let pkg = ["SPIRV-Tools", "glslang", "shaderc"]
+        .iter()
+        .filter_map(|p| pkg_config_libdir(p));
+    let multi = multiarch().map(|m| PathBuf::from(format!("/usr/lib/{m}")));
+    let fixed = ["/usr/lib64", "/usr/lib", "/usr/local/lib"].map(PathBuf::from);
+    for dir in pkg.chain(multi).chain(fixed) {
+        if tried.contains(&dir) {
+            continue;
+        }
+        if has_archives(&dir) {
+            return Ok(dir);
+        }
+        tried.push(dir);
+    }
+    Err(format!(
+        "none of {} holds {}",
+        tried
+            .iter()
+            .map(|d| d.display().to_string())
+            .collect::<Vec<_>>()
+            .join(", "),
+        REQUIRED.join(" and ")
+    ))
+}
+
 fn main() {
     println!("cargo:rerun-if-changed=build.rs");
     println!("cargo:rerun-if-env-changed=VKSHADE_SHADERC_LIB_DIR");
-    let dir = std::env::var("VKSHADE_SHADERC_LIB_DIR")
-        .unwrap_or_else(|_| "/usr/lib/x86_64-linux-gnu".to_string());
-    println!("cargo:rustc-link-search=native={dir}");
+    println!("cargo:rerun-if-env-changed=PKG_CONFIG_PATH");
+    let dir = match find_lib_dir() {
+        Ok(dir) => dir,
+        Err(why) => {
+            eprintln!(
+                "vkshade needs the static glslang and SPIRV-Tools libraries ({why}).\n\
+                 On Debian/Ubuntu: apt-get install libshaderc-dev glslang-dev spirv-tools \
+                 (libglslang.a is in glslang-dev, libSPIRV-Tools.a in spirv-tools, \
+                 libshaderc_combined.a in libshaderc-dev; tools/setup.sh installs them).\n\
+                 Elsewhere: set VKSHADE_SHADERC_LIB_DIR to the folder holding them."
+            );
+            std::process::exit(1);
+        }
+    };
+    println!("cargo:rustc-link-search=native={}", dir.display());
     for lib in [
         "SPIRV",
         "glslang",

@@ -74,6 +74,13 @@ pub enum Error {
 
     #[error("shutdown found leaks: {0}")]
     Leak(String),
+
+    /// A capability compiled out of this build (see the `[features]` of Cargo.toml).
+    #[error(
+        "{what} needs vkshade's cargo feature `{feature}`, which this build leaves out; \
+         rebuild with it (`--features {feature}`, or the default features)"
+    )]
+    FeatureDisabled { what: String, feature: &'static str },
 }
 
 pub type Result<T, E = Error> = std::result::Result<T, E>;
@@ -84,6 +91,14 @@ impl Error {
         Error::Input {
             path: path.as_ref().to_path_buf(),
             message: message.into(),
+        }
+    }
+
+    /// An error saying that `what` needs the cargo feature `feature`.
+    pub fn feature(what: impl Into<String>, feature: &'static str) -> Self {
+        Error::FeatureDisabled {
+            what: what.into(),
+            feature,
         }
     }
 

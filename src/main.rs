@@ -52,7 +52,8 @@ enum Command {
     Shaders(ShaderCommand),
     /// Ambient occlusion of a skinned character from a sphere tree, per frame of an
     /// animation: DIR/ao_NNNN.ply (posed mesh, per-vertex `ao` = visibility, 1 = unoccluded),
-    /// DIR/ao_NNNN.png and DIR/report.json.
+    /// DIR/ao_NNNN.png (with --reference: result | truth | error), its linear twin
+    /// DIR/ao_NNNN.exr, and DIR/report.json.
     Ao(AoArgs),
     /// The main demo: `ao` on the built-in default (Testwuson's Run animation, 8 frames,
     /// compared with the ray-traced mesh), pictures in out/ao/.
@@ -68,7 +69,7 @@ enum Command {
 #[derive(Args)]
 struct AoArgs {
     /// Character (.glb/.gltf with skin and animations) or static mesh (.obj .ply .off).
-    #[arg(long, default_value = vkshade::app::ao::DEFAULT_MESH)]
+    #[arg(long, default_value = vkshade::kernels::ao::DEFAULT_MESH)]
     mesh: PathBuf,
     /// Animation to play (default: Run for the built-in character, else the first that moves).
     #[arg(long)]
@@ -97,9 +98,13 @@ struct AoArgs {
     /// A receiver inside a leaf sphere clamps h to 1 instead of leaving that sphere out.
     #[arg(long)]
     clamp_inside: bool,
-    /// Compare every frame with the ray-traced mesh (MAE, RMSE, p95, max; error decomposition).
+    /// Compare every frame with the ray-traced mesh (MAE, RMSE, p95, max; error decomposition);
+    /// pictures become result | truth | error side by side.
     #[arg(long)]
     reference: bool,
+    /// Error at the top of the heat map in the --reference pictures (larger errors saturate).
+    #[arg(long, default_value_t = 0.2)]
+    error_scale: f32,
     /// Rays per vertex of the ground truth.
     #[arg(long, default_value_t = 4096)]
     rays: usize,
@@ -180,7 +185,7 @@ enum BenchCommand {
         #[command(flatten)]
         opts: BenchOpts,
         /// Character to benchmark.
-        #[arg(long, default_value = vkshade::app::ao::DEFAULT_MESH)]
+        #[arg(long, default_value = vkshade::kernels::ao::DEFAULT_MESH)]
         mesh: PathBuf,
         /// Animation (default: Run for the built-in character).
         #[arg(long)]
@@ -254,8 +259,9 @@ fn context(g: &Global) -> Result<Context> {
     })
 }
 
+/// A progress line on stderr (without breaking a progress counter being drawn).
 fn progress(line: &str) {
-    eprintln!("  {line}");
+    vkshade::progress::message(&format!("  {line}"));
 }
 
 fn cmd_info(json: Option<PathBuf>) -> Result<()> {
@@ -334,7 +340,7 @@ fn cmd_info(json: Option<PathBuf>) -> Result<()> {
         );
     }
     if let Some(path) = json {
-        bench::write_json(&path, &sys)?;
+        vkshade::io::write_json(&path, &sys)?;
         println!("\nwrote {}", path.display());
     }
     Ok(())
@@ -343,7 +349,10 @@ fn cmd_info(json: Option<PathBuf>) -> Result<()> {
 fn cmd_bench_peak(g: &Global, opts: &BenchOpts) -> Result<()> {
     let cfg = opts.config()?;
     for path in opts.json.iter().chain(&opts.plot) {
-        bench::check_output(path)?;
+        vkshade::io::check_writable(path)?;
+    }
+    if opts.plot.is_some() {
+        bench::plot::ensure_available()?;
     }
     let ctx = context(g)?;
     eprintln!(
@@ -366,7 +375,7 @@ fn cmd_bench_peak(g: &Global, opts: &BenchOpts) -> Result<()> {
         report.stream.problem
     );
     if let Some(path) = &opts.json {
-        bench::write_json(path, &report)?;
+        vkshade::io::write_json(path, &report)?;
         println!("wrote {}", path.display());
     }
     if let Some(path) = &opts.plot {
@@ -385,7 +394,10 @@ fn cmd_bench_ao(
 ) -> Result<()> {
     use vkshade::bench::ao::{AoBenchConfig, panels, run};
     for path in opts.json.iter().chain(&opts.plot) {
-        bench::check_output(path)?;
+        vkshade::io::check_writable(path)?;
+    }
+    if opts.plot.is_some() {
+        bench::plot::ensure_available()?;
     }
     let mut cfg = AoBenchConfig {
         mesh: mesh.to_path_buf(),
@@ -393,7 +405,7 @@ fn cmd_bench_ao(
         ..Default::default()
     };
     cfg.bench.min_submit_ms = opts.min_ms.min(cfg.bench.min_submit_ms);
-    if anim.is_some() || mesh != std::path::Path::new(vkshade::app::ao::DEFAULT_MESH) {
+    if anim.is_some() || mesh != std::path::Path::new(vkshade::kernels::ao::DEFAULT_MESH) {
         cfg.animation = anim.map(str::to_string);
     }
     if quick {
@@ -439,7 +451,7 @@ fn cmd_bench_ao(
         );
     }
     if let Some(path) = &opts.json {
-        bench::write_json(path, &r)?;
+        vkshade::io::write_json(path, &r)?;
         println!("wrote {}", path.display());
     }
     if let Some(path) = &opts.plot {
@@ -496,7 +508,7 @@ fn finish(ctx: Context) -> Result<()> {
 
 fn cmd_ao(g: &Global, a: &AoArgs, demo: bool) -> Result<()> {
     use vkshade::app::ao;
-    let default_mesh = a.mesh == std::path::Path::new(ao::DEFAULT_MESH);
+    let default_mesh = a.mesh == std::path::Path::new(vkshade::kernels::ao::DEFAULT_MESH);
     if default_mesh && !a.mesh.exists() {
         return Err(Error::input(
             &a.mesh,
@@ -508,7 +520,7 @@ fn cmd_ao(g: &Global, a: &AoArgs, demo: bool) -> Result<()> {
         animation: a
             .anim
             .clone()
-            .or_else(|| default_mesh.then(|| ao::DEFAULT_ANIMATION.to_string())),
+            .or_else(|| default_mesh.then(|| vkshade::kernels::ao::DEFAULT_ANIMATION.to_string())),
         frames: a.frames,
         tree: a.tree.clone(),
         build: a.tree_opts.config(),
@@ -523,6 +535,7 @@ fn cmd_ao(g: &Global, a: &AoArgs, demo: bool) -> Result<()> {
         reference: a.reference,
         rays: a.rays,
         correction_rays: a.correction_rays,
+        error_scale: a.error_scale,
         out: a.out.clone(),
         ..Default::default()
     };
@@ -548,7 +561,7 @@ fn cmd_ao(g: &Global, a: &AoArgs, demo: bool) -> Result<()> {
         );
     }
     println!(
-        "wrote {} frames (ao_NNNN.ply, ao_NNNN.png) and report.json to {}",
+        "wrote {} frames (ao_NNNN.ply, ao_NNNN.png, ao_NNNN.exr) and report.json to {}",
         report.frames.len(),
         cfg.out.display()
     );
@@ -564,7 +577,7 @@ fn cmd_tree_build(
     opts: &TreeOpts,
     report: Option<&std::path::Path>,
 ) -> Result<()> {
-    bench::check_output(out)?;
+    vkshade::io::check_writable(out)?;
     let c = vkshade::scene::load(mesh)?;
     let t = std::time::Instant::now();
     let (tree, fit) = vkshade::scene::SphereTree::build(&c.mesh, &opts.config())?;
@@ -592,7 +605,7 @@ fn cmd_tree_build(
         );
     }
     if let Some(path) = report {
-        bench::write_json(path, &fit)?;
+        vkshade::io::write_json(path, &fit)?;
         println!("wrote {}", path.display());
     }
     println!("wrote {}", out.display());

@@ -309,6 +309,7 @@ fn gpu_matches_the_cpu_implementation_on_testwuson() {
     });
 }
 
+#[cfg(feature = "cli")]
 #[test]
 fn method_against_the_ray_traced_mesh_on_testwuson() {
     use vkshade::app::ao::{AoRunConfig, run};
@@ -377,6 +378,31 @@ fn method_against_the_ray_traced_mesh_on_testwuson() {
             assert!(ao.iter().all(|v| (0.0..=1.0).contains(v)));
             let png = std::fs::read(&f.png).unwrap();
             assert_eq!(&png[1..4], b"PNG");
+            // The EXR twin: result | truth | error at the same pixels as the picture, linear.
+            let exr = vkshade::io::exr::read_rgba(std::path::Path::new(&f.exr)).unwrap();
+            let layout = vkshade::render::SideBySideLayout {
+                panel_width: 160,
+                panel_height: 120,
+            };
+            assert_eq!((exr.width, exr.height), layout.size());
+            let mut covered = 0;
+            for y in 0..120 {
+                for x in 0..160 {
+                    let at = |k: u32| {
+                        let (x0, y0) = layout.panel_origin(k);
+                        exr.get(x0 + x, y0 + y).unwrap()
+                    };
+                    let (r, t, e) = (at(0), at(1), at(2));
+                    if r[3] < 1.0 {
+                        continue;
+                    }
+                    covered += 1;
+                    assert!((0.0..=1.0).contains(&r[0]) && (0.0..=1.0).contains(&t[0]));
+                    // Interpolated |v - t| is at least |interpolated v - interpolated t|.
+                    assert!(e[0] >= (r[0] - t[0]).abs() - 1e-5, "{r:?} {t:?} {e:?}");
+                }
+            }
+            assert!(covered > 2000, "{covered} covered pixels");
         }
         let json: serde_json::Value =
             serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
@@ -510,4 +536,47 @@ fn the_cut_partitions_the_leaves() {
             }
         }
     }
+}
+
+#[test]
+fn inconsistent_ao_input_is_refused() {
+    let c = common::ball();
+    let (mut tree, _) = SphereTree::build(
+        &c.mesh,
+        &BuildConfig {
+            samples: 20_000,
+            depth: 2,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    tree.spheres.truncate(20);
+    tree.joints.truncate(20);
+    tree.weights.truncate(20);
+    tree.importance.truncate(20);
+    let e = Prepared::new(&c.mesh, &tree, 1).unwrap_err();
+    assert!(e.to_string().contains("complete tree"), "{e}");
+    let (tree, _) = SphereTree::build(
+        &c.mesh,
+        &BuildConfig {
+            samples: 20_000,
+            depth: 2,
+            ..Default::default()
+        },
+    )
+    .unwrap();
+    let mut prep = Prepared::new(&c.mesh, &tree, 1).unwrap();
+    prep.normals.pop();
+    assert!(prep.check().unwrap_err().to_string().contains("normals"));
+    let mut prep = Prepared::new(&c.mesh, &tree, 1).unwrap();
+    prep.shape.node_count += 1;
+    assert!(prep.check().is_err());
+    let mut prep = Prepared::new(&c.mesh, &tree, 1).unwrap();
+    prep.sphere_joints[3] = [5, 0];
+    assert!(
+        prep.check()
+            .unwrap_err()
+            .to_string()
+            .contains("joint index")
+    );
 }

@@ -123,8 +123,10 @@ fn ao_writes_frames_and_report_under_validation() {
     for f in [
         "ao_0000.ply",
         "ao_0000.png",
+        "ao_0000.exr",
         "ao_0001.ply",
         "ao_0001.png",
+        "ao_0001.exr",
         "report.json",
     ] {
         assert!(out.join(f).is_file(), "{f} missing");

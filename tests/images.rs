@@ -8,8 +8,8 @@ mod common;
 use ash::vk;
 use common::with_gpu;
 use vkshade::gpu::{
-    AccessType as A, Buffer, BufferDesc, ComputePipeline, Context, ContextDesc, Features, Image,
-    ImageDesc, ImageRef, ImageRegion, Resource, Sampler, SamplerDesc, Subresources, ViewDesc,
+    Buffer, BufferDesc, ComputePipeline, Context, ContextDesc, Features, Image, ImageDesc,
+    ImageRef, ImageRegion, Resource, Sampler, SamplerDesc, Subresources, ViewDesc,
 };
 use vkshade::shaders::spirv;
 

@@ -1,5 +1,7 @@
 //! Loaders, validation and repair of bad input, sphere trees.
 
+mod common;
+
 use std::path::{Path, PathBuf};
 use vkshade::Error;
 use vkshade::scene::spheretree::{BuildConfig, Fit, SphereTree};
@@ -318,40 +320,9 @@ fn testwuson_loads_with_skin_and_animations() {
     assert!(e.contains("Wuson_Run"), "{e}");
 }
 
-/// A closed UV sphere of radius 1.
-fn ball() -> Character {
-    let (nu, nv) = (32u32, 16u32);
-    let mut d = scene::MeshData::default();
-    d.positions.push([0.0, 1.0, 0.0]);
-    for j in 1..nv {
-        let th = std::f32::consts::PI * j as f32 / nv as f32;
-        for i in 0..nu {
-            let ph = std::f32::consts::TAU * i as f32 / nu as f32;
-            d.positions
-                .push([th.sin() * ph.cos(), th.cos(), th.sin() * ph.sin()]);
-        }
-    }
-    d.positions.push([0.0, -1.0, 0.0]);
-    let ring = |j: u32, i: u32| 1 + (j - 1) * nu + i % nu;
-    for i in 0..nu {
-        d.triangles.push([0, ring(1, i + 1), ring(1, i)]);
-        d.triangles
-            .push([nu * (nv - 1) + 1, ring(nv - 1, i), ring(nv - 1, i + 1)]);
-    }
-    for j in 1..nv - 1 {
-        for i in 0..nu {
-            d.triangles
-                .push([ring(j, i), ring(j, i + 1), ring(j + 1, i)]);
-            d.triangles
-                .push([ring(j, i + 1), ring(j + 1, i + 1), ring(j + 1, i)]);
-        }
-    }
-    Character::from_static(vkshade::scene::Mesh::from_data(d, Path::new("ball")).unwrap())
-}
-
 #[test]
 fn sphere_tree_of_a_ball_fits_its_volume() {
-    let c = ball();
+    let c = common::ball();
     let (tree, fit) = SphereTree::build(
         &c.mesh,
         &BuildConfig {
@@ -412,7 +383,7 @@ fn sphere_tree_of_a_ball_fits_its_volume() {
 
 #[test]
 fn sph_files_round_trip_and_malformed_ones_are_rejected() {
-    let c = ball();
+    let c = common::ball();
     let (tree, _) = SphereTree::build(
         &c.mesh,
         &BuildConfig {
@@ -490,47 +461,4 @@ fn sph_trailing_data_and_empty_subtrees() {
     ))
     .unwrap();
     assert!(t.spheres[5].used() && t.spheres[5].center.x == -1.0 && !t.spheres[6].used());
-}
-
-#[test]
-fn inconsistent_ao_input_is_refused() {
-    let c = ball();
-    let (mut tree, _) = SphereTree::build(
-        &c.mesh,
-        &BuildConfig {
-            samples: 20_000,
-            depth: 2,
-            ..Default::default()
-        },
-    )
-    .unwrap();
-    tree.spheres.truncate(20);
-    tree.joints.truncate(20);
-    tree.weights.truncate(20);
-    tree.importance.truncate(20);
-    let e = vkshade::kernels::ao::Prepared::new(&c.mesh, &tree, 1).unwrap_err();
-    assert!(e.to_string().contains("complete tree"), "{e}");
-    let (tree, _) = SphereTree::build(
-        &c.mesh,
-        &BuildConfig {
-            samples: 20_000,
-            depth: 2,
-            ..Default::default()
-        },
-    )
-    .unwrap();
-    let mut prep = vkshade::kernels::ao::Prepared::new(&c.mesh, &tree, 1).unwrap();
-    prep.normals.pop();
-    assert!(prep.check().unwrap_err().to_string().contains("normals"));
-    let mut prep = vkshade::kernels::ao::Prepared::new(&c.mesh, &tree, 1).unwrap();
-    prep.shape.node_count += 1;
-    assert!(prep.check().is_err());
-    let mut prep = vkshade::kernels::ao::Prepared::new(&c.mesh, &tree, 1).unwrap();
-    prep.sphere_joints[3] = [5, 0];
-    assert!(
-        prep.check()
-            .unwrap_err()
-            .to_string()
-            .contains("joint index")
-    );
 }

@@ -1,25 +1,21 @@
-//! `vkshade ao`: sphere-tree ambient occlusion over the frames of an animation, with PLY and
-//! PNG output per frame, a JSON report and (optionally) the ray-traced ground truth.
+//! `vkshade ao`: sphere-tree ambient occlusion over the frames of an animation, with PLY, PNG
+//! and EXR output per frame, a JSON report and (optionally) the ray-traced ground truth.
 
-use crate::bench::{MachineInfo, Stats};
 use crate::error::{Error, Result};
 use crate::gpu::Context;
 use crate::kernels::ao::cpu::{self, CpuAo, Posed};
 use crate::kernels::ao::formula::{OcclusionTable, TABLE_SIZE};
-use crate::kernels::ao::{AoKernel, AoParams, Correction, Occlusion, Prepared};
+use crate::kernels::ao::{AoKernel, AoParams, Correction, DEFAULT_MESH, Occlusion, Prepared};
+use crate::progress::Progress;
 use crate::reference::ErrorStats;
 use crate::reference::ao::{RayConfig, mesh_visibility, spheres_visibility};
+use crate::report::{MachineInfo, Stats};
 use crate::scene::spheretree::{BuildConfig, FitReport, SphereTree};
-use crate::scene::{self, Animation, Character, MeshReport};
-use glam::{Vec3, Vec4};
+use crate::scene::{self, Animation, Character, Mesh, MeshReport};
+use glam::{Mat4, Vec3, Vec4};
 use serde::Serialize;
 use std::path::{Path, PathBuf};
 use std::time::Instant;
-
-/// The built-in default character (made by tools/setup.sh).
-pub const DEFAULT_MESH: &str = "data/testwuson.glb";
-/// The built-in default animation.
-pub const DEFAULT_ANIMATION: &str = "Run";
 
 /// Most frames one run writes (each is a PLY and a PNG).
 pub const MAX_FRAMES: usize = 100_000;
@@ -47,6 +43,8 @@ pub struct AoRunConfig {
     pub decompose_stride: usize,
     pub out: PathBuf,
     pub image: (u32, u32),
+    /// Error at the top of the heat map of the `--reference` pictures.
+    pub error_scale: f32,
 }
 
 impl Default for AoRunConfig {
@@ -64,6 +62,7 @@ impl Default for AoRunConfig {
             decompose_stride: 4,
             out: PathBuf::from("out/ao"),
             image: (640, 480),
+            error_scale: 0.2,
         }
     }
 }
@@ -155,6 +154,8 @@ pub struct FrameReport {
     pub reference: Option<FrameReference>,
     pub ply: String,
     pub png: String,
+    /// The picture's linear float twin (same pixels; alpha = coverage).
+    pub exr: String,
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -191,14 +192,6 @@ pub struct AoReport {
     pub frames: Vec<FrameReport>,
     pub summary: Summary,
     pub notes: Vec<String>,
-}
-
-/// The character's animation to play.
-pub fn pick_animation<'c>(c: &'c Character, name: Option<&str>) -> Result<Option<&'c Animation>> {
-    match name {
-        Some(n) => c.animation(n).map(Some),
-        None => Ok(c.animations.iter().find(|a| a.duration > 0.0)),
-    }
 }
 
 /// Loads a `.sph` tree (skin weights from the mesh) or builds one.
@@ -310,34 +303,83 @@ fn decompose(
     }
 }
 
-/// Runs the kernel over the animation, writing DIR/ao_NNNN.{ply,png} and DIR/report.json.
-pub fn run(ctx: &Context, cfg: &AoRunConfig, progress: &mut dyn FnMut(&str)) -> Result<AoReport> {
-    cfg.params.validate()?;
-    if !(1..=MAX_FRAMES).contains(&cfg.frames) {
-        return Err(Error::InvalidArgument(format!(
-            "--frames must be in 1..={MAX_FRAMES}, not {}",
-            cfg.frames
-        )));
-    }
-    for (name, rays) in [
-        ("--rays", cfg.rays),
-        ("--correction-rays", cfg.correction_rays),
-    ] {
-        if !(1..=MAX_RAYS).contains(&rays) {
+impl AoRunConfig {
+    /// Refuses settings outside their documented ranges, naming the option.
+    pub fn validate(&self) -> Result<()> {
+        self.params.validate()?;
+        if !(1..=MAX_FRAMES).contains(&self.frames) {
             return Err(Error::InvalidArgument(format!(
-                "{name} must be in 1..={MAX_RAYS}, not {rays}"
+                "--frames must be in 1..={MAX_FRAMES}, not {}",
+                self.frames
             )));
         }
+        for (name, rays) in [
+            ("--rays", self.rays),
+            ("--correction-rays", self.correction_rays),
+        ] {
+            if !(1..=MAX_RAYS).contains(&rays) {
+                return Err(Error::InvalidArgument(format!(
+                    "{name} must be in 1..={MAX_RAYS}, not {rays}"
+                )));
+            }
+        }
+        if self.image.0 == 0 || self.image.1 == 0 || self.image.0 > 8192 || self.image.1 > 8192 {
+            return Err(Error::InvalidArgument(format!(
+                "image size {:?} outside 1..=8192",
+                self.image
+            )));
+        }
+        if !(self.error_scale.is_finite() && self.error_scale > 0.0) {
+            return Err(Error::InvalidArgument(format!(
+                "--error-scale must be finite and > 0, not {}",
+                self.error_scale
+            )));
+        }
+        Ok(())
     }
-    if cfg.image.0 == 0 || cfg.image.1 == 0 || cfg.image.0 > 8192 || cfg.image.1 > 8192 {
-        return Err(Error::InvalidArgument(format!(
-            "image size {:?} outside 1..=8192",
-            cfg.image
-        )));
-    }
-    crate::bench::check_output(&cfg.out.join("report.json"))?;
+}
+
+/// The static correction as baked for this run.
+struct Baked {
+    bind_visibility: Vec<f32>,
+    factors: Vec<f32>,
+    info: CorrectionInfo,
+}
+
+/// Everything a frame needs, prepared once per run.
+struct Session<'a> {
+    ctx: &'a Context,
+    cfg: &'a AoRunConfig,
+    character: &'a Character,
+    anim: Option<&'a Animation>,
+    prep: Prepared,
+    kernel: AoKernel,
+    cpu_ao: CpuAo,
+    correction: Option<Baked>,
+    /// The bind-pose truth used as if static (the baseline the animated method must beat).
+    static_bind: Option<Vec<f32>>,
+    /// Points of every frame, so the camera frames the whole animation and pictures line up.
+    frame_points: Vec<Vec3>,
+    view: crate::render::View,
+    ray_cfg: RayConfig,
+}
+
+/// What one GPU frame gave back.
+struct GpuFrame {
+    gpu: GpuTimes,
+    positions: Vec<Vec3>,
+    normals: Vec<Vec3>,
+    visibility: Vec<f32>,
+    stats: Vec<[u32; 2]>,
+}
+
+/// Runs the kernel over the animation, writing DIR/ao_NNNN.{ply,png,exr} and
+/// DIR/report.json. With `cfg.reference`, each picture is result | ray-traced truth | error.
+pub fn run(ctx: &Context, cfg: &AoRunConfig, progress: &mut dyn FnMut(&str)) -> Result<AoReport> {
+    cfg.validate()?;
+    crate::io::check_writable(&cfg.out.join("report.json"))?;
     let character = scene::load(&cfg.mesh)?;
-    let anim = pick_animation(&character, cfg.animation.as_deref())?;
+    let anim = character.pick_animation(cfg.animation.as_deref())?;
     let mesh = &character.mesh;
     progress(&format!(
         "{}: {} vertices, {} triangles, {} joints{}",
@@ -353,168 +395,185 @@ pub fn run(ctx: &Context, cfg: &AoRunConfig, progress: &mut dyn FnMut(&str)) -> 
         "sphere tree ({}): {:?} spheres per level, {:.0} ms",
         tree_info.source, tree_info.spheres_per_level, tree_info.build_ms
     ));
-    let prep = Prepared::new(mesh, &tree, character.rig.joints.len())?;
-    let mut setup = ctx.recorder("ao setup")?;
-    let kernel = AoKernel::new(&mut setup, &prep, cfg.params)?;
-    let cpu_ao = CpuAo::new(OcclusionTable::new(TABLE_SIZE, TABLE_SIZE));
-
-    let (correction, correction_info) = if cfg.params.correct {
-        let t = Instant::now();
-        let c = Correction::bake(mesh, cfg.correction_rays);
-        let factors = c.factors(&cpu_ao, &prep, &cfg.params);
-        kernel.set_correction(&mut setup, &factors)?;
-        let ms = t.elapsed().as_secs_f64() * 1e3;
-        progress(&format!(
-            "static correction baked in the bind pose ({} rays/vertex, {ms:.0} ms)",
-            cfg.correction_rays
-        ));
-        (
-            Some((c.bind_visibility, factors)),
-            Some(CorrectionInfo {
-                rays: cfg.correction_rays,
-                cap: c.cap,
-                bake_ms: ms,
-            }),
-        )
+    let session = Session::new(ctx, cfg, &character, anim, &tree, progress)?;
+    let times = session.frame_times();
+    let units = if cfg.reference {
+        mesh.positions.len() as u64
     } else {
-        (None, None)
+        1
     };
-    setup.submit_and_wait()?;
-
-    let duration = anim.map(|a| a.duration).unwrap_or(0.0);
-    let frames = if anim.is_some() { cfg.frames } else { 1 };
-    let times: Vec<f32> = (0..frames)
-        .map(|i| duration * i as f32 / frames as f32)
-        .collect();
-    // Every frame of the animation frames the camera, so the pictures line up.
-    let mut frame_points = Vec::new();
-    for &t in &times {
-        let m = character.rig.skinning_matrices(anim, t);
-        frame_points.extend(cpu::skin(&prep, &m).positions.iter().step_by(7).copied());
+    let counter = Progress::start(
+        if cfg.reference {
+            "frames (ray-traced reference)"
+        } else {
+            "frames"
+        },
+        times.len() as u64 * units,
+    );
+    let mut frames = Vec::with_capacity(times.len());
+    for (index, &time) in times.iter().enumerate() {
+        frames.push(session.frame(index, time, progress)?);
+        if !cfg.reference {
+            counter.add(1);
+        }
     }
-    let view = crate::render::View {
-        width: cfg.image.0,
-        height: cfg.image.1,
-        ..Default::default()
-    };
-    // One untimed warm-up submission: drivers may compile pipelines at first use.
-    {
+    drop(counter);
+    let report = session.report(tree_info, frames);
+    crate::io::write_json(&cfg.out.join("report.json"), &report)?;
+    Ok(report)
+}
+
+impl<'a> Session<'a> {
+    /// Uploads the kernel, bakes the correction, frames the camera, warms the pipeline up.
+    fn new(
+        ctx: &'a Context,
+        cfg: &'a AoRunConfig,
+        character: &'a Character,
+        anim: Option<&'a Animation>,
+        tree: &SphereTree,
+        progress: &mut dyn FnMut(&str),
+    ) -> Result<Session<'a>> {
+        let mesh = &character.mesh;
+        let prep = Prepared::new(mesh, tree, character.rig.joints.len())?;
+        // Construction and the correction record their uploads; one submission runs them.
+        let mut setup = ctx.recorder("ao setup")?;
+        let kernel = AoKernel::new(&mut setup, &prep, cfg.params)?;
+        let cpu_ao = CpuAo::new(OcclusionTable::new(TABLE_SIZE, TABLE_SIZE));
+        let correction = if cfg.params.correct {
+            let baked = bake(cfg, mesh, &cpu_ao, &prep)?;
+            kernel.set_correction(&mut setup, &baked.factors)?;
+            progress(&format!(
+                "static correction baked in the bind pose ({} rays/vertex, {:.0} ms)",
+                baked.info.rays, baked.info.bake_ms
+            ));
+            Some(baked)
+        } else {
+            None
+        };
+        setup.submit_and_wait()?;
+        let static_bind = match (&correction, cfg.reference) {
+            (_, false) => None,
+            (Some(b), true) => Some(b.bind_visibility.clone()),
+            (None, true) => {
+                let _p = Progress::start("bind-pose reference", mesh.positions.len() as u64);
+                Some(Correction::bake(mesh, cfg.correction_rays).bind_visibility)
+            }
+        };
+        let diagonal = {
+            let (lo, hi) = mesh.bounds();
+            (hi - lo).length()
+        };
+        let mut session = Session {
+            ctx,
+            cfg,
+            character,
+            anim,
+            prep,
+            kernel,
+            cpu_ao,
+            correction,
+            static_bind,
+            frame_points: Vec::new(),
+            view: crate::render::View {
+                width: cfg.image.0,
+                height: cfg.image.1,
+                ..Default::default()
+            },
+            ray_cfg: RayConfig {
+                rays: cfg.rays,
+                ..RayConfig::for_scene(diagonal)
+            },
+        };
+        for t in session.frame_times() {
+            let m = character.rig.skinning_matrices(anim, t);
+            let posed = cpu::skin(&session.prep, &m);
+            session
+                .frame_points
+                .extend(posed.positions.iter().step_by(7).copied());
+        }
+        // One untimed warm-up submission: drivers may compile pipelines at first use.
         let m = character.rig.skinning_matrices(anim, 0.0);
         let mut rec = ctx.recorder("ao warm-up")?;
-        kernel.record(&mut rec, &m)?;
+        session.kernel.record(&mut rec, &m)?;
         rec.submit_and_wait()?;
+        Ok(session)
     }
-    let diagonal = {
-        let (lo, hi) = mesh.bounds();
-        (hi - lo).length()
-    };
-    let ray_cfg = RayConfig {
-        rays: cfg.rays,
-        ..RayConfig::for_scene(diagonal)
-    };
-    // The bind-pose truth used as if static: the baseline the animated method must beat.
-    let static_bind: Option<Vec<f32>> = match (&correction, cfg.reference) {
-        (_, false) => None,
-        (Some((bind, _)), true) => Some(bind.clone()),
-        (None, true) => Some(Correction::bake(mesh, cfg.correction_rays).bind_visibility),
-    };
-    let mut frame_reports = Vec::new();
-    for (index, &time) in times.iter().enumerate() {
-        let matrices = character.rig.skinning_matrices(anim, time);
-        let mut rec = ctx.recorder(&format!("ao frame {index}"))?;
-        kernel.record(&mut rec, &matrices)?;
-        let readback = kernel.read_back(&mut rec)?;
+
+    /// Animation times of the frames (one frame, the rest pose, without an animation).
+    fn frame_times(&self) -> Vec<f32> {
+        let duration = self.anim.map(|a| a.duration).unwrap_or(0.0);
+        let frames = if self.anim.is_some() {
+            self.cfg.frames
+        } else {
+            1
+        };
+        (0..frames)
+            .map(|i| duration * i as f32 / frames as f32)
+            .collect()
+    }
+
+    /// Skinning + AO of one frame on the GPU, read back.
+    fn gpu_frame(&self, index: usize, matrices: &[Mat4]) -> Result<GpuFrame> {
+        let mut rec = self.ctx.recorder(&format!("ao frame {index}"))?;
+        self.kernel.record(&mut rec, matrices)?;
+        let readback = self.kernel.read_back(&mut rec)?;
         let timings = rec.submit_and_wait()?;
         let data = readback.data()?;
-        let gpu = GpuTimes {
-            skin_ms: timings.get("ao skin").unwrap_or(f64::NAN),
-            ao_ms: timings.get("ao occlusion").unwrap_or(f64::NAN),
-            total_ms: timings.get("ao skin").unwrap_or(f64::NAN)
-                + timings.get("ao occlusion").unwrap_or(f64::NAN),
-        };
-        let positions = to_vec3(&data.positions);
-        let normals = to_vec3(&data.normals);
-        let ply = frame_png(&cfg.out, index).with_extension("ply");
+        let skin_ms = timings.get("ao skin").unwrap_or(f64::NAN);
+        let ao_ms = timings.get("ao occlusion").unwrap_or(f64::NAN);
+        Ok(GpuFrame {
+            gpu: GpuTimes {
+                skin_ms,
+                ao_ms,
+                total_ms: skin_ms + ao_ms,
+            },
+            positions: to_vec3(&data.positions),
+            normals: to_vec3(&data.normals),
+            visibility: data.visibility,
+            stats: data.stats,
+        })
+    }
+
+    /// One frame: GPU run, PLY, optional reference, pictures, a progress line.
+    fn frame(
+        &self,
+        index: usize,
+        time: f32,
+        progress: &mut dyn FnMut(&str),
+    ) -> Result<FrameReport> {
+        let cfg = self.cfg;
+        let matrices = self.character.rig.skinning_matrices(self.anim, time);
+        let f = self.gpu_frame(index, &matrices)?;
         let png = frame_png(&cfg.out, index);
+        let (ply, exr) = (png.with_extension("ply"), png.with_extension("exr"));
         scene::ply_write::write_ply(
             &ply,
             &format!(
                 "vkshade ambient occlusion: {} frame {index} t={time:.4}s; ao = ambient visibility, 1 = unoccluded",
                 cfg.mesh.display()
             ),
-            &positions,
-            &normals,
-            &mesh.triangles,
+            &f.positions,
+            &f.normals,
+            &self.character.mesh.triangles,
             "ao",
-            &data.visibility,
+            &f.visibility,
         )?;
-        let rgb = crate::render::render(
-            &positions,
-            &mesh.triangles,
-            &data.visibility,
-            &frame_points,
-            &view,
-        );
-        crate::render::write_png(&png, view.width, view.height, &rgb)?;
-        let per_vertex = |k: usize| PerVertex {
-            mean: data.stats.iter().map(|s| s[k] as f64).sum::<f64>() / data.stats.len() as f64,
-            max: data.stats.iter().map(|s| s[k]).max().unwrap_or(0),
+        let (reference, truth) = match cfg.reference {
+            true => {
+                let (r, t) = self.reference(&matrices, &f.visibility);
+                (Some(r), Some(t))
+            }
+            false => (None, None),
         };
-
-        let reference = if cfg.reference {
-            let t = Instant::now();
-            // The truth is computed from the CPU's own skinning, independent of the GPU.
-            let posed = cpu::skin(&prep, &matrices);
-            let bvh = crate::geom::Bvh::build(&posed.positions, &mesh.triangles);
-            let all: Vec<usize> = (0..posed.positions.len()).collect();
-            let truth = mesh_visibility(&posed.positions, &posed.normals, &bvh, &all, &ray_cfg);
-            let ray_ms = t.elapsed().as_secs_f64() * 1e3;
-            let exposed: Vec<usize> = (0..truth.len()).filter(|&i| truth[i] >= 0.05).collect();
-            let pick = |v: &[f32]| exposed.iter().map(|&i| v[i]).collect::<Vec<f32>>();
-            let uncorrected: Vec<f32> = cpu_ao
-                .frame(
-                    &posed,
-                    prep.shape,
-                    &AoParams {
-                        correct: false,
-                        ..cfg.params
-                    },
-                    None,
-                )
-                .iter()
-                .map(|v| v.visibility)
-                .collect();
-            let decomposition = (cfg.decompose_stride > 0).then(|| {
-                decompose(
-                    &cpu_ao,
-                    &prep,
-                    &posed,
-                    &cfg.params,
-                    correction.as_ref().map(|c| &c.1[..]),
-                    &truth,
-                    cfg.decompose_stride,
-                    cfg.rays.min(1024),
-                    &ray_cfg,
-                )
-            });
-            Some(FrameReference {
-                error: ErrorStats::of(&data.visibility, &truth),
-                error_exposed: ErrorStats::of(&pick(&data.visibility), &pick(&truth)),
-                error_uncorrected: ErrorStats::of(&uncorrected, &truth),
-                error_static_bind_pose: ErrorStats::of(
-                    static_bind.as_deref().unwrap_or(&[]),
-                    &truth,
-                ),
-                decomposition,
-                ray_ms,
-            })
-        } else {
-            None
+        self.pictures(&png, &exr, &f, truth.as_deref())?;
+        let per_vertex = |k: usize| PerVertex {
+            mean: f.stats.iter().map(|s| s[k] as f64).sum::<f64>() / f.stats.len() as f64,
+            max: f.stats.iter().map(|s| s[k]).max().unwrap_or(0),
         };
         progress(&format!(
             "frame {index} (t = {time:.3} s): skin {:.3} ms + ao {:.3} ms GPU, {:.1} spheres/vertex{}",
-            gpu.skin_ms,
-            gpu.ao_ms,
+            f.gpu.skin_ms,
+            f.gpu.ao_ms,
             per_vertex(1).mean,
             reference
                 .as_ref()
@@ -524,42 +583,182 @@ pub fn run(ctx: &Context, cfg: &AoRunConfig, progress: &mut dyn FnMut(&str)) -> 
                 ))
                 .unwrap_or_default()
         ));
-        frame_reports.push(FrameReport {
+        Ok(FrameReport {
             index,
             time_s: time,
-            gpu,
+            gpu: f.gpu.clone(),
             spheres_tested_per_vertex: per_vertex(0),
             spheres_used_per_vertex: per_vertex(1),
-            mean_visibility: data.visibility.iter().map(|&v| v as f64).sum::<f64>()
-                / data.visibility.len() as f64,
+            mean_visibility: f.visibility.iter().map(|&v| v as f64).sum::<f64>()
+                / f.visibility.len() as f64,
             reference,
             ply: ply.display().to_string(),
             png: png.display().to_string(),
-        });
+            exr: exr.display().to_string(),
+        })
     }
+
+    /// The ray-traced truth of a frame (from the CPU's own skinning, independent of the
+    /// GPU) and the errors measured against it.
+    fn reference(&self, matrices: &[Mat4], visibility: &[f32]) -> (FrameReference, Vec<f32>) {
+        let (cfg, prep) = (self.cfg, &self.prep);
+        let t = Instant::now();
+        let posed = cpu::skin(prep, matrices);
+        let bvh = crate::geom::Bvh::build(&posed.positions, &self.character.mesh.triangles);
+        let all: Vec<usize> = (0..posed.positions.len()).collect();
+        let truth = mesh_visibility(&posed.positions, &posed.normals, &bvh, &all, &self.ray_cfg);
+        let ray_ms = t.elapsed().as_secs_f64() * 1e3;
+        let exposed: Vec<usize> = (0..truth.len()).filter(|&i| truth[i] >= 0.05).collect();
+        let pick = |v: &[f32]| exposed.iter().map(|&i| v[i]).collect::<Vec<f32>>();
+        let plain = AoParams {
+            correct: false,
+            ..cfg.params
+        };
+        let uncorrected: Vec<f32> = self
+            .cpu_ao
+            .frame(&posed, prep.shape, &plain, None)
+            .iter()
+            .map(|v| v.visibility)
+            .collect();
+        let decomposition = (cfg.decompose_stride > 0).then(|| {
+            decompose(
+                &self.cpu_ao,
+                prep,
+                &posed,
+                &cfg.params,
+                self.correction.as_ref().map(|c| &c.factors[..]),
+                &truth,
+                cfg.decompose_stride,
+                cfg.rays.min(1024),
+                &self.ray_cfg,
+            )
+        });
+        let reference = FrameReference {
+            error: ErrorStats::of(visibility, &truth),
+            error_exposed: ErrorStats::of(&pick(visibility), &pick(&truth)),
+            error_uncorrected: ErrorStats::of(&uncorrected, &truth),
+            error_static_bind_pose: ErrorStats::of(
+                self.static_bind.as_deref().unwrap_or(&[]),
+                &truth,
+            ),
+            decomposition,
+            ray_ms,
+        };
+        (reference, truth)
+    }
+
+    /// Writes the frame's PNG and its linear EXR twin: the result alone, or with a truth,
+    /// result | truth | error (heat map up to `cfg.error_scale`) at the same camera.
+    fn pictures(&self, png: &Path, exr: &Path, f: &GpuFrame, truth: Option<&[f32]>) -> Result<()> {
+        use crate::render::{rasterize, shade, side_by_side, side_by_side_linear};
+        let tris = &self.character.mesh.triangles;
+        let raster =
+            |values: &[f32]| rasterize(&f.positions, tris, values, &self.frame_points, &self.view);
+        let result = raster(&f.visibility);
+        let (picture, linear) = match truth {
+            None => (shade(&result), result.to_float()),
+            Some(truth) => {
+                let error: Vec<f32> = f
+                    .visibility
+                    .iter()
+                    .zip(truth)
+                    .map(|(v, t)| (v - t).abs())
+                    .collect();
+                let (truth, error) = (raster(truth), raster(&error));
+                (
+                    side_by_side(
+                        &shade(&result),
+                        &shade(&truth),
+                        &error.value,
+                        self.cfg.error_scale,
+                    )?,
+                    side_by_side_linear(&result.to_float(), &truth.to_float(), &error.to_float())?,
+                )
+            }
+        };
+        crate::render::write_png(png, picture.width, picture.height, &picture.rgb)?;
+        crate::io::exr::write(exr, &linear, crate::io::exr::Channels::Rgba)
+    }
+
+    /// The report of the run: inputs, per-frame results and their summary.
+    fn report(&self, tree: TreeInfo, frames: Vec<FrameReport>) -> AoReport {
+        let (cfg, ctx, character) = (self.cfg, self.ctx, self.character);
+        let mesh = &character.mesh;
+        let mut notes = vec![
+            "gpu times are single submissions per frame (timestamps); use `vkshade bench ao` for medians over many".to_string(),
+        ];
+        if ctx.info().device_type == "CPU" {
+            notes.push(
+                "the device is a CPU implementation (lavapipe): times measure the CPU, not a GPU"
+                    .into(),
+            );
+        }
+        AoReport {
+            tool: "vkshade ao",
+            machine: MachineInfo::of(ctx),
+            mesh: MeshInfo {
+                path: cfg.mesh.display().to_string(),
+                vertices: mesh.positions.len(),
+                triangles: mesh.triangles.len(),
+                skinned: character.skinned,
+                joints: character.rig.joints.len(),
+                validation: mesh.report.clone(),
+            },
+            animation: self.anim.map(|a| a.name.clone()),
+            animation_duration_s: self.anim.map(|a| a.duration).unwrap_or(0.0),
+            tree,
+            params: cfg.params,
+            table_size: [TABLE_SIZE, TABLE_SIZE],
+            correction: self.correction.as_ref().map(|c| c.info.clone()),
+            reference_rays: cfg.reference.then_some(cfg.rays),
+            summary: summarize(&frames),
+            frames,
+            notes,
+        }
+    }
+}
+
+/// Bakes the static correction in the bind pose (a terminal shows its progress).
+fn bake(cfg: &AoRunConfig, mesh: &Mesh, cpu_ao: &CpuAo, prep: &Prepared) -> Result<Baked> {
+    let t = Instant::now();
+    let c = {
+        let _p = Progress::start("static correction bake", mesh.positions.len() as u64);
+        Correction::bake(mesh, cfg.correction_rays)
+    };
+    let factors = c.factors(cpu_ao, prep, &cfg.params);
+    Ok(Baked {
+        info: CorrectionInfo {
+            rays: cfg.correction_rays,
+            cap: c.cap,
+            bake_ms: t.elapsed().as_secs_f64() * 1e3,
+        },
+        bind_visibility: c.bind_visibility,
+        factors,
+    })
+}
+
+/// Medians of the times and means of the errors over the frames.
+fn summarize(frames: &[FrameReport]) -> Summary {
     let median = |f: &dyn Fn(&FrameReport) -> f64| {
-        let v: Vec<f64> = frame_reports.iter().map(f).collect();
+        let v: Vec<f64> = frames.iter().map(f).collect();
         Stats::of(&v).map(|s| s.median).unwrap_or(f64::NAN)
     };
-    let refs: Vec<&FrameReference> = frame_reports
-        .iter()
-        .filter_map(|f| f.reference.as_ref())
-        .collect();
+    let refs: Vec<&FrameReference> = frames.iter().filter_map(|f| f.reference.as_ref()).collect();
     let mean_of = |f: &dyn Fn(&FrameReference) -> f64| {
         (!refs.is_empty()).then(|| refs.iter().map(|r| f(r)).sum::<f64>() / refs.len() as f64)
     };
     let total = median(&|f| f.gpu.total_ms);
-    let summary = Summary {
-        frames: frame_reports.len(),
+    Summary {
+        frames: frames.len(),
         skin_ms_median: median(&|f| f.gpu.skin_ms),
         ao_ms_median: median(&|f| f.gpu.ao_ms),
         total_ms_median: total,
         fps: 1000.0 / total,
-        spheres_used_per_vertex_mean: frame_reports
+        spheres_used_per_vertex_mean: frames
             .iter()
             .map(|f| f.spheres_used_per_vertex.mean)
             .sum::<f64>()
-            / frame_reports.len() as f64,
+            / frames.len().max(1) as f64,
         mae_mean: mean_of(&|r| r.error.mae),
         rmse_mean: mean_of(&|r| r.error.rmse),
         p95_mean: mean_of(&|r| r.error.p95),
@@ -567,40 +766,7 @@ pub fn run(ctx: &Context, cfg: &AoRunConfig, progress: &mut dyn FnMut(&str)) -> 
         mae_exposed_mean: mean_of(&|r| r.error_exposed.mae),
         mae_uncorrected_mean: mean_of(&|r| r.error_uncorrected.mae),
         mae_static_bind_pose_mean: mean_of(&|r| r.error_static_bind_pose.mae),
-    };
-    let mut notes = vec![
-        "gpu times are single submissions per frame (timestamps); use `vkshade bench ao` for medians over many".to_string(),
-    ];
-    if ctx.info().device_type == "CPU" {
-        notes.push(
-            "the device is a CPU implementation (lavapipe): times measure the CPU, not a GPU"
-                .into(),
-        );
     }
-    let report = AoReport {
-        tool: "vkshade ao",
-        machine: MachineInfo::of(ctx),
-        mesh: MeshInfo {
-            path: cfg.mesh.display().to_string(),
-            vertices: mesh.positions.len(),
-            triangles: mesh.triangles.len(),
-            skinned: character.skinned,
-            joints: character.rig.joints.len(),
-            validation: mesh.report.clone(),
-        },
-        animation: anim.map(|a| a.name.clone()),
-        animation_duration_s: duration,
-        tree: tree_info,
-        params: cfg.params,
-        table_size: [TABLE_SIZE, TABLE_SIZE],
-        correction: correction_info,
-        reference_rays: cfg.reference.then_some(cfg.rays),
-        frames: frame_reports,
-        summary,
-        notes,
-    };
-    crate::bench::write_json(&cfg.out.join("report.json"), &report)?;
-    Ok(report)
 }
 
 /// Path of frame `index`'s picture in `dir`.

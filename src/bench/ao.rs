@@ -9,6 +9,7 @@ use crate::gpu::Context;
 use crate::kernels::ao::cpu::{self, CpuAo};
 use crate::kernels::ao::formula::{OcclusionTable, TABLE_SIZE};
 use crate::kernels::ao::{AoKernel, AoParams, Blend, Correction, Occlusion, Prepared};
+use crate::progress::Progress;
 use crate::reference::ErrorStats;
 use crate::reference::ao::{RayConfig, mesh_visibility};
 use crate::scene::spheretree::{BuildConfig, SphereTree};
@@ -54,8 +55,8 @@ pub struct AoBenchConfig {
 impl Default for AoBenchConfig {
     fn default() -> Self {
         AoBenchConfig {
-            mesh: PathBuf::from(crate::app::ao::DEFAULT_MESH),
-            animation: Some(crate::app::ao::DEFAULT_ANIMATION.into()),
+            mesh: PathBuf::from(crate::kernels::ao::DEFAULT_MESH),
+            animation: Some(crate::kernels::ao::DEFAULT_ANIMATION.into()),
             bench: BenchConfig {
                 warmup: 2,
                 samples: 10,
@@ -205,7 +206,30 @@ fn measure(
     })
 }
 
-/// Runs the benchmark; `progress` receives one line per measurement.
+/// What every step of the benchmark shares: the character, its base tree and correction,
+/// the timed frame's matrices and the measured peak.
+struct Setup<'a> {
+    ctx: &'a Context,
+    cfg: &'a AoBenchConfig,
+    character: Character,
+    anim_duration: f32,
+    matrices: Vec<Mat4>,
+    peak: f64,
+    base_tree: SphereTree,
+    prep: Prepared,
+    cpu_ao: CpuAo,
+    correction: Correction,
+    diagonal: f32,
+}
+
+/// A ray-traced reference frame of the tau sweep.
+struct ReferenceFrame {
+    matrices: Vec<Mat4>,
+    truth: Vec<f32>,
+}
+
+/// Runs the benchmark; `progress` receives one line per measurement (and a terminal shows
+/// a counter over the long steps).
 pub fn run(
     ctx: &Context,
     cfg: &AoBenchConfig,
@@ -213,181 +237,304 @@ pub fn run(
 ) -> Result<AoBenchReport> {
     let targets: serde_json::Value = serde_json::from_str(TARGETS)
         .map_err(|e| Error::InvalidArgument(format!("bench/targets.json: {e}")))?;
-    let character = scene::load(&cfg.mesh)?;
-    let anim = crate::app::ao::pick_animation(&character, cfg.animation.as_deref())?;
-    let duration = anim.map(|a| a.duration).unwrap_or(0.0);
-    let matrices = character.rig.skinning_matrices(anim, 0.37 * duration);
+    let setup = Setup::new(ctx, cfg, progress)?;
+    let frames = setup.reference_frames();
+    let (cpu_same_method_ms, raytrace_ms) = setup.baselines(progress);
+    let measurements = 1 + cfg.subdivisions.len() + cfg.depths.len() + 2 * cfg.taus.len();
+    let counter = Progress::start("bench ao measurements", measurements as u64);
+    let headline = setup.headline(progress)?;
+    counter.add(1);
+    let vertex_sweep = setup.vertex_sweep(&counter, progress)?;
+    let sphere_sweep = setup.sphere_sweep(&counter, progress)?;
+    let tau_sweep = setup.tau_sweep(&frames, &counter, progress)?;
+    drop(counter);
+    let targets = check_targets(&targets["ao"], &headline, &tau_sweep);
+    Ok(AoBenchReport {
+        benchmark: "ao",
+        machine: MachineInfo::of(ctx),
+        config: cfg.clone(),
+        flop_model: [
+            ("skin_vertex", flop_model::SKIN_VERTEX),
+            ("skin_sphere", flop_model::SKIN_SPHERE),
+            ("tested", flop_model::TESTED),
+            ("used", flop_model::USED),
+            ("mask", flop_model::MASK),
+        ],
+        peak_fma_gflops: setup.peak,
+        speedup_vs_cpu: cpu_same_method_ms.median / headline.total_ms,
+        speedup_vs_raytrace: raytrace_ms.median / headline.total_ms,
+        gpu_memory_bytes: headline.gpu_memory_bytes,
+        headline,
+        cpu_same_method_ms,
+        raytrace_ms,
+        vertex_sweep,
+        sphere_sweep,
+        tau_sweep,
+        targets,
+    })
+}
 
-    progress("device peak (FMA) for the roofline");
-    let peak_cfg = BenchConfig {
-        warmup: 1,
-        samples: 3,
-        min_submit_ms: cfg.bench.min_submit_ms,
-    };
-    let peak = super::peak::run_fma(ctx, &peak_cfg, &mut |_| {})?.throughput_median;
-    progress(&format!("  {peak:.1} GFLOP/s"));
+impl<'a> Setup<'a> {
+    /// Loads the character, measures the FMA peak, builds the base tree, bakes the correction.
+    fn new(
+        ctx: &'a Context,
+        cfg: &'a AoBenchConfig,
+        progress: &mut dyn FnMut(&str),
+    ) -> Result<Setup<'a>> {
+        let character = scene::load(&cfg.mesh)?;
+        let anim = character.pick_animation(cfg.animation.as_deref())?;
+        let anim_duration = anim.map(|a| a.duration).unwrap_or(0.0);
+        let matrices = character.rig.skinning_matrices(anim, 0.37 * anim_duration);
 
-    let base_tree = SphereTree::build(&character.mesh, &BuildConfig::default())?.0;
-    let base = Case {
-        character: &character,
-        mesh: &character.mesh,
-        tree: &base_tree,
-    };
-    let defaults = AoParams::default();
-    let timing_only = AoParams {
-        correct: false,
-        ..defaults
-    };
+        progress("device peak (FMA) for the roofline");
+        let peak_cfg = BenchConfig {
+            warmup: 1,
+            samples: 3,
+            min_submit_ms: cfg.bench.min_submit_ms,
+        };
+        let peak = super::peak::run_fma(ctx, &peak_cfg, &mut |_| {})?.throughput_median;
+        progress(&format!("  {peak:.1} GFLOP/s"));
 
-    // Headline, with the static correction as the CLI uses it.
-    let cpu_ao = CpuAo::new(OcclusionTable::new(TABLE_SIZE, TABLE_SIZE));
-    let prep = Prepared::new(&character.mesh, &base_tree, character.rig.joints.len())?;
-    let correction = Correction::bake(&character.mesh, cfg.rays);
-    let factors = correction.factors(&cpu_ao, &prep, &defaults);
-    let headline = measure(
-        ctx,
-        &cfg.bench,
-        &base,
-        defaults,
-        Some(&factors),
-        &matrices,
-        peak,
-    )?;
-    progress(&format!(
-        "headline: {} vertices, {} spheres: skin {:.3} + ao {:.3} ms = {:.0} fps, {:.1} spheres/vertex, {:.1} GFLOP/s ({:.1}% of peak)",
-        headline.vertices,
-        headline.spheres,
-        headline.skin_ms.median,
-        headline.ao_ms.median,
-        headline.fps,
-        headline.spheres_used_per_vertex,
-        headline.gflops,
-        100.0 * headline.fraction_of_peak
-    ));
-    let gpu_memory_bytes = headline.gpu_memory_bytes;
-
-    // Same method on the CPU, and the ray tracer, on the same frame.
-    let cpu_same_method_ms = time_cpu(cfg.cpu_runs, || {
-        let posed = cpu::skin(&prep, &matrices);
-        cpu_ao.frame(&posed, prep.shape, &defaults, Some(&factors))
-    });
-    let posed = cpu::skin(&prep, &matrices);
-    let diag = {
-        let (lo, hi) = character.mesh.bounds();
-        (hi - lo).length()
-    };
-    let all: Vec<usize> = (0..posed.positions.len()).collect();
-    let raytrace_ms = time_cpu(cfg.cpu_runs.min(2), || {
-        let bvh = crate::geom::Bvh::build(&posed.positions, &character.mesh.triangles);
-        mesh_visibility(
-            &posed.positions,
-            &posed.normals,
-            &bvh,
-            &all,
-            &RayConfig::for_scene(diag),
-        )
-    });
-    progress(&format!(
-        "CPU same method {:.2} ms; ray-traced truth (4096 rays) {:.0} ms",
-        cpu_same_method_ms.median, raytrace_ms.median
-    ));
-
-    let mut vertex_sweep = Vec::new();
-    let mut mesh = character.mesh.clone();
-    for level in 0..=cfg.subdivisions.iter().copied().max().unwrap_or(0) {
-        if cfg.subdivisions.contains(&level) {
-            let tree = SphereTree::build(&mesh, &BuildConfig::default())?.0;
-            let case = Case {
-                character: &character,
-                mesh: &mesh,
-                tree: &tree,
-            };
-            let p = measure(ctx, &cfg.bench, &case, timing_only, None, &matrices, peak)?;
-            progress(&format!(
-                "vertices {}: {:.3} ms ({:.0} fps)",
-                p.vertices, p.total_ms, p.fps
-            ));
-            vertex_sweep.push(p);
-        }
-        mesh = mesh.subdivide();
+        let base_tree = SphereTree::build(&character.mesh, &BuildConfig::default())?.0;
+        let prep = Prepared::new(&character.mesh, &base_tree, character.rig.joints.len())?;
+        let correction = {
+            let _p = Progress::start("static correction bake", prep.vertex_count() as u64);
+            Correction::bake(&character.mesh, cfg.rays)
+        };
+        let diagonal = {
+            let (lo, hi) = character.mesh.bounds();
+            (hi - lo).length()
+        };
+        Ok(Setup {
+            ctx,
+            cfg,
+            anim_duration,
+            matrices,
+            peak,
+            base_tree,
+            prep,
+            cpu_ao: CpuAo::new(OcclusionTable::new(TABLE_SIZE, TABLE_SIZE)),
+            correction,
+            diagonal,
+            character,
+        })
     }
 
-    let mut sphere_sweep = Vec::new();
-    for &depth in &cfg.depths {
-        let tree = SphereTree::build(
-            &character.mesh,
-            &BuildConfig {
+    fn base(&self) -> Case<'_> {
+        Case {
+            character: &self.character,
+            mesh: &self.character.mesh,
+            tree: &self.base_tree,
+        }
+    }
+
+    /// Times one configuration of `case` at the benchmark's frame.
+    fn measure(&self, case: &Case<'_>, params: AoParams, factors: Option<&[f32]>) -> Result<Point> {
+        measure(
+            self.ctx,
+            &self.cfg.bench,
+            case,
+            params,
+            factors,
+            &self.matrices,
+            self.peak,
+        )
+    }
+
+    /// The default configuration, with the static correction as the CLI uses it.
+    fn headline(&self, progress: &mut dyn FnMut(&str)) -> Result<Point> {
+        let defaults = AoParams::default();
+        let factors = self.correction.factors(&self.cpu_ao, &self.prep, &defaults);
+        let h = self.measure(&self.base(), defaults, Some(&factors))?;
+        progress(&format!(
+            "headline: {} vertices, {} spheres: skin {:.3} + ao {:.3} ms = {:.0} fps, {:.1} spheres/vertex, {:.1} GFLOP/s ({:.1}% of peak)",
+            h.vertices,
+            h.spheres,
+            h.skin_ms.median,
+            h.ao_ms.median,
+            h.fps,
+            h.spheres_used_per_vertex,
+            h.gflops,
+            100.0 * h.fraction_of_peak
+        ));
+        Ok(h)
+    }
+
+    /// The same method on the CPU, and the ray tracer, on the benchmark's frame.
+    fn baselines(&self, progress: &mut dyn FnMut(&str)) -> (Stats, Stats) {
+        let defaults = AoParams::default();
+        let factors = self.correction.factors(&self.cpu_ao, &self.prep, &defaults);
+        let cpu_same_method_ms = time_cpu(self.cfg.cpu_runs, || {
+            let posed = cpu::skin(&self.prep, &self.matrices);
+            self.cpu_ao
+                .frame(&posed, self.prep.shape, &defaults, Some(&factors))
+        });
+        let posed = cpu::skin(&self.prep, &self.matrices);
+        let all: Vec<usize> = (0..posed.positions.len()).collect();
+        let runs = self.cfg.cpu_runs.min(2);
+        // time_cpu runs once untimed first.
+        let _p = Progress::start("ray-tracing baseline", ((runs + 1) * all.len()) as u64);
+        let raytrace_ms = time_cpu(runs, || {
+            let bvh = crate::geom::Bvh::build(&posed.positions, &self.character.mesh.triangles);
+            mesh_visibility(
+                &posed.positions,
+                &posed.normals,
+                &bvh,
+                &all,
+                &RayConfig::for_scene(self.diagonal),
+            )
+        });
+        progress(&format!(
+            "CPU same method {:.2} ms; ray-traced truth (4096 rays) {:.0} ms",
+            cpu_same_method_ms.median, raytrace_ms.median
+        ));
+        (cpu_same_method_ms, raytrace_ms)
+    }
+
+    /// Time against vertex count: the mesh subdivided, a tree built for each level.
+    fn vertex_sweep(
+        &self,
+        counter: &Progress,
+        progress: &mut dyn FnMut(&str),
+    ) -> Result<Vec<Point>> {
+        let timing_only = AoParams {
+            correct: false,
+            ..AoParams::default()
+        };
+        let mut sweep = Vec::new();
+        let mut mesh = self.character.mesh.clone();
+        for level in 0..=self.cfg.subdivisions.iter().copied().max().unwrap_or(0) {
+            if self.cfg.subdivisions.contains(&level) {
+                let tree = SphereTree::build(&mesh, &BuildConfig::default())?.0;
+                let case = Case {
+                    character: &self.character,
+                    mesh: &mesh,
+                    tree: &tree,
+                };
+                let p = self.measure(&case, timing_only, None)?;
+                counter.add(1);
+                progress(&format!(
+                    "vertices {}: {:.3} ms ({:.0} fps)",
+                    p.vertices, p.total_ms, p.fps
+                ));
+                sweep.push(p);
+            }
+            mesh = mesh.subdivide();
+        }
+        Ok(sweep)
+    }
+
+    /// Time against sphere count: trees of each depth over the base mesh.
+    fn sphere_sweep(
+        &self,
+        counter: &Progress,
+        progress: &mut dyn FnMut(&str),
+    ) -> Result<Vec<Point>> {
+        let timing_only = AoParams {
+            correct: false,
+            ..AoParams::default()
+        };
+        let mut sweep = Vec::new();
+        for &depth in &self.cfg.depths {
+            let build = BuildConfig {
                 depth,
                 ..Default::default()
-            },
-        )?
-        .0;
-        let case = Case {
-            character: &character,
-            mesh: &character.mesh,
-            tree: &tree,
-        };
-        let p = measure(ctx, &cfg.bench, &case, timing_only, None, &matrices, peak)?;
-        progress(&format!(
-            "spheres {}: {:.3} ms, {:.1} spheres/vertex",
-            p.spheres, p.total_ms, p.spheres_used_per_vertex
-        ));
-        sphere_sweep.push(p);
+            };
+            let tree = SphereTree::build(&self.character.mesh, &build)?.0;
+            let case = Case {
+                character: &self.character,
+                mesh: &self.character.mesh,
+                tree: &tree,
+            };
+            let p = self.measure(&case, timing_only, None)?;
+            counter.add(1);
+            progress(&format!(
+                "spheres {}: {:.3} ms, {:.1} spheres/vertex",
+                p.spheres, p.total_ms, p.spheres_used_per_vertex
+            ));
+            sweep.push(p);
+        }
+        Ok(sweep)
     }
 
-    // Error against time: tau x blend, with the reference frames ray-traced once.
-    let ref_cfg = RayConfig {
-        rays: cfg.rays,
-        ..RayConfig::for_scene(diag)
-    };
-    let frames: Vec<(Vec<Mat4>, Vec<f32>)> = (0..cfg.reference_frames.max(1))
-        .map(|k| {
-            let t = duration * (k as f32 + 0.5) / cfg.reference_frames.max(1) as f32;
-            let m = character.rig.skinning_matrices(anim, t);
-            let posed = cpu::skin(&prep, &m);
-            let bvh = crate::geom::Bvh::build(&posed.positions, &character.mesh.triangles);
-            let truth = mesh_visibility(&posed.positions, &posed.normals, &bvh, &all, &ref_cfg);
-            (m, truth)
-        })
-        .collect();
-    let mut tau_sweep = Vec::new();
-    for blend in [Blend::Product, Blend::Mask] {
-        for &tau in &cfg.taus {
-            let params = AoParams {
-                tau,
-                blend,
-                ..defaults
-            };
-            let f = correction.factors(&cpu_ao, &prep, &params);
-            let mut p = measure(ctx, &cfg.bench, &base, params, Some(&f), &matrices, peak)?;
-            let (mut mae, mut p95) = (0.0, 0.0);
-            for (m, truth) in &frames {
-                let posed = cpu::skin(&prep, m);
-                let v: Vec<f32> = cpu_ao
-                    .frame(&posed, prep.shape, &params, Some(&f))
-                    .iter()
-                    .map(|v| v.visibility)
-                    .collect();
-                let e = ErrorStats::of(&v, truth);
-                mae += e.mae / frames.len() as f64;
-                p95 += e.p95 / frames.len() as f64;
-            }
-            p.mae = Some(mae);
-            p.p95 = Some(p95);
-            progress(&format!(
-                "{blend:?} tau {tau}: {:.3} ms, MAE {mae:.4}",
-                p.total_ms
-            ));
-            tau_sweep.push(p);
-        }
+    /// The frames of the tau sweep's error axis, ray-traced once.
+    fn reference_frames(&self) -> Vec<ReferenceFrame> {
+        let n = self.cfg.reference_frames.max(1);
+        let all: Vec<usize> = (0..self.prep.vertex_count()).collect();
+        let ray_cfg = RayConfig {
+            rays: self.cfg.rays,
+            ..RayConfig::for_scene(self.diagonal)
+        };
+        let anim = self
+            .character
+            .pick_animation(self.cfg.animation.as_deref())
+            .ok()
+            .flatten();
+        let _p = Progress::start("ray-traced reference frames", (n * all.len()) as u64);
+        (0..n)
+            .map(|k| {
+                let t = self.anim_duration * (k as f32 + 0.5) / n as f32;
+                let matrices = self.character.rig.skinning_matrices(anim, t);
+                let posed = cpu::skin(&self.prep, &matrices);
+                let bvh = crate::geom::Bvh::build(&posed.positions, &self.character.mesh.triangles);
+                let truth = mesh_visibility(&posed.positions, &posed.normals, &bvh, &all, &ray_cfg);
+                ReferenceFrame { matrices, truth }
+            })
+            .collect()
     }
+
+    /// Error against time: tau x blend, each timed and compared with the reference frames.
+    fn tau_sweep(
+        &self,
+        frames: &[ReferenceFrame],
+        counter: &Progress,
+        progress: &mut dyn FnMut(&str),
+    ) -> Result<Vec<Point>> {
+        let mut sweep = Vec::new();
+        for blend in [Blend::Product, Blend::Mask] {
+            for &tau in &self.cfg.taus {
+                let params = AoParams {
+                    tau,
+                    blend,
+                    ..AoParams::default()
+                };
+                let f = self.correction.factors(&self.cpu_ao, &self.prep, &params);
+                let mut p = self.measure(&self.base(), params, Some(&f))?;
+                let (mut mae, mut p95) = (0.0, 0.0);
+                for frame in frames {
+                    let posed = cpu::skin(&self.prep, &frame.matrices);
+                    let v: Vec<f32> = self
+                        .cpu_ao
+                        .frame(&posed, self.prep.shape, &params, Some(&f))
+                        .iter()
+                        .map(|v| v.visibility)
+                        .collect();
+                    let e = ErrorStats::of(&v, &frame.truth);
+                    mae += e.mae / frames.len() as f64;
+                    p95 += e.p95 / frames.len() as f64;
+                }
+                p.mae = Some(mae);
+                p.p95 = Some(p95);
+                counter.add(1);
+                progress(&format!(
+                    "{blend:?} tau {tau}: {:.3} ms, MAE {mae:.4}",
+                    p.total_ms
+                ));
+                sweep.push(p);
+            }
+        }
+        Ok(sweep)
+    }
+}
+
+/// The targets of bench/targets.json (`ao` section) against the headline and the tau sweep.
+fn check_targets(t: &serde_json::Value, headline: &Point, tau_sweep: &[Point]) -> Vec<TargetCheck> {
+    let defaults = AoParams::default();
     let mae_default = tau_sweep
         .iter()
         .find(|p| p.blend == defaults.blend && (p.tau - defaults.tau).abs() < 1e-6)
         .and_then(|p| p.mae)
         .unwrap_or(f64::NAN);
-
-    let t = &targets["ao"];
     let check = |name: &str, target: Option<f64>, measured: f64, at_least: bool| {
         target.map(|target| TargetCheck {
             name: name.to_string(),
@@ -400,7 +547,7 @@ pub fn run(
             },
         })
     };
-    let targets: Vec<TargetCheck> = [
+    [
         check(
             "fps (skinning + AO, headline)",
             t["fps_min"].as_f64(),
@@ -416,37 +563,13 @@ pub fn run(
         check(
             "GPU memory of the kernel (MiB)",
             t["gpu_memory_mib_max"].as_f64(),
-            gpu_memory_bytes as f64 / (1 << 20) as f64,
+            headline.gpu_memory_bytes as f64 / (1 << 20) as f64,
             false,
         ),
     ]
     .into_iter()
     .flatten()
-    .collect();
-
-    Ok(AoBenchReport {
-        benchmark: "ao",
-        machine: MachineInfo::of(ctx),
-        config: cfg.clone(),
-        flop_model: [
-            ("skin_vertex", flop_model::SKIN_VERTEX),
-            ("skin_sphere", flop_model::SKIN_SPHERE),
-            ("tested", flop_model::TESTED),
-            ("used", flop_model::USED),
-            ("mask", flop_model::MASK),
-        ],
-        peak_fma_gflops: peak,
-        speedup_vs_cpu: cpu_same_method_ms.median / headline.total_ms,
-        speedup_vs_raytrace: raytrace_ms.median / headline.total_ms,
-        headline,
-        cpu_same_method_ms,
-        raytrace_ms,
-        gpu_memory_bytes,
-        vertex_sweep,
-        sphere_sweep,
-        tau_sweep,
-        targets,
-    })
+    .collect()
 }
 
 /// Error against time (tau sweep), time against vertices and against spheres.

@@ -1,5 +1,5 @@
 //! The benchmark harness: warm-up, N timed submissions, GPU time from timestamp queries,
-//! statistics, JSON and PNG output.
+//! statistics (JSON and PNG output go through [`crate::io`] and [`plot`]).
 
 pub mod ao;
 pub mod peak;
@@ -8,7 +8,8 @@ pub mod plot;
 use crate::error::{Error, Result};
 use crate::gpu::{Context, Recorder};
 use serde::Serialize;
-use std::path::Path;
+
+pub use crate::report::{MachineInfo, Stats};
 
 /// How to time a kernel.
 #[derive(Clone, Debug, Serialize)]
@@ -28,48 +29,6 @@ impl Default for BenchConfig {
             samples: 10,
             min_submit_ms: 100.0,
         }
-    }
-}
-
-/// Order statistics of a set of samples (milliseconds unless stated).
-#[derive(Clone, Debug, Serialize)]
-pub struct Stats {
-    pub n: usize,
-    pub median: f64,
-    pub min: f64,
-    pub max: f64,
-    pub mean: f64,
-    /// Relative spread (max - min) / median.
-    pub spread: f64,
-}
-
-impl Stats {
-    /// Statistics of `samples`; `None` when empty or when any sample is not finite.
-    pub fn of(samples: &[f64]) -> Option<Stats> {
-        if samples.is_empty() || samples.iter().any(|s| !s.is_finite()) {
-            return None;
-        }
-        let mut v = samples.to_vec();
-        v.sort_by(f64::total_cmp);
-        let n = v.len();
-        let median = if n % 2 == 1 {
-            v[n / 2]
-        } else {
-            0.5 * (v[n / 2 - 1] + v[n / 2])
-        };
-        let (min, max) = (v[0], v[n - 1]);
-        Some(Stats {
-            n,
-            median,
-            min,
-            max,
-            mean: v.iter().sum::<f64>() / n as f64,
-            spread: if median > 0.0 {
-                (max - min) / median
-            } else {
-                0.0
-            },
-        })
     }
 }
 
@@ -129,58 +88,5 @@ pub fn time_cpu<T>(runs: usize, mut f: impl FnMut() -> T) -> Stats {
             t.elapsed().as_secs_f64() * 1e3
         })
         .collect();
-    Stats::of(&samples).unwrap_or(Stats {
-        n: 0,
-        median: f64::NAN,
-        min: f64::NAN,
-        max: f64::NAN,
-        mean: f64::NAN,
-        spread: 0.0,
-    })
-}
-
-/// Checks up front that an output file can be created (its folder is made if missing), so a
-/// long run does not fail at the end.
-pub fn check_output(path: &Path) -> Result<()> {
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d,
-        _ => Path::new("."),
-    };
-    std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
-    let probe = dir.join(format!(".vkshade-write-test-{}", std::process::id()));
-    std::fs::write(&probe, b"").map_err(|e| Error::io(dir, e))?;
-    let _ = std::fs::remove_file(probe);
-    Ok(())
-}
-
-/// Writes `value` as pretty JSON, atomically.
-pub fn write_json(path: &Path, value: &impl Serialize) -> Result<()> {
-    let text = serde_json::to_string_pretty(value)
-        .map_err(|e| Error::InvalidArgument(format!("JSON encoding failed: {e}")))?;
-    crate::shaders::write_atomic(path, format!("{text}\n").as_bytes())
-}
-
-/// Identity of the machine a result was measured on.
-#[derive(Clone, Debug, Serialize)]
-pub struct MachineInfo {
-    pub device: String,
-    pub device_type: String,
-    pub driver: String,
-    pub api_version: String,
-    pub host_cpus: usize,
-}
-
-impl MachineInfo {
-    pub fn of(ctx: &Context) -> Self {
-        let i = ctx.info();
-        MachineInfo {
-            device: i.name.clone(),
-            device_type: i.device_type.clone(),
-            driver: i.driver.clone(),
-            api_version: i.api_version.clone(),
-            host_cpus: std::thread::available_parallelism()
-                .map(|n| n.get())
-                .unwrap_or(1),
-        }
-    }
+    Stats::of(&samples).unwrap_or_else(Stats::none)
 }

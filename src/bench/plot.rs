@@ -1,10 +1,14 @@
 //! PNG line plots of benchmark sweeps (plotters, bitmap backend, a system TrueType font).
+//! The panels are plain data; drawing them needs the cargo feature `plots`.
 
 use crate::error::{Error, Result};
+#[cfg(feature = "plots")]
 use plotters::prelude::*;
 use std::path::Path;
+#[cfg(feature = "plots")]
 use std::sync::OnceLock;
 
+#[cfg(feature = "plots")]
 /// TrueType fonts tried in order (Debian: fonts-dejavu-core, installed by tools/setup.sh).
 const FONT_PATHS: &[&str] = &[
     "/usr/share/fonts/truetype/dejavu/DejaVuSans.ttf",
@@ -13,6 +17,7 @@ const FONT_PATHS: &[&str] = &[
     "/usr/share/fonts/truetype/liberation/LiberationSans-Regular.ttf",
 ];
 
+#[cfg(feature = "plots")]
 fn ensure_font() -> Result<()> {
     static FONT: OnceLock<std::result::Result<(), String>> = OnceLock::new();
     FONT.get_or_init(|| {
@@ -34,6 +39,25 @@ fn ensure_font() -> Result<()> {
     .map_err(Error::InvalidArgument)
 }
 
+/// Whether this build can draw plots: an error naming the feature `plots` when not, so a
+/// command can refuse `--plot` before a long run.
+pub fn ensure_available() -> Result<()> {
+    if cfg!(feature = "plots") {
+        Ok(())
+    } else {
+        Err(Error::feature("drawing plots (--plot)", "plots"))
+    }
+}
+
+/// Draws `panels` into a PNG: compiled out (feature `plots`), always an error naming it.
+#[cfg(not(feature = "plots"))]
+pub fn draw(path: &Path, _panels: &[Panel]) -> Result<()> {
+    Err(Error::feature(
+        format!("drawing the plot {}", path.display()),
+        "plots",
+    ))
+}
+
 /// One line of a plot.
 #[derive(Clone, Debug)]
 pub struct Series {
@@ -52,6 +76,7 @@ pub struct Panel {
     pub series: Vec<Series>,
 }
 
+#[cfg(feature = "plots")]
 fn range(values: impl Iterator<Item = f64>, log: bool) -> (f64, f64) {
     let v: Vec<f64> = values
         .filter(|v| v.is_finite() && (!log || *v > 0.0))
@@ -72,6 +97,7 @@ fn range(values: impl Iterator<Item = f64>, log: bool) -> (f64, f64) {
     }
 }
 
+#[cfg(feature = "plots")]
 /// Draws `panels` side by side into a PNG at `path` (written atomically).
 pub fn draw(path: &Path, panels: &[Panel]) -> Result<()> {
     ensure_font()?;
@@ -93,11 +119,13 @@ pub fn draw(path: &Path, panels: &[Panel]) -> Result<()> {
     let mut png = Vec::new();
     img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
         .map_err(|e| Error::InvalidArgument(format!("PNG encoding failed: {e}")))?;
-    crate::shaders::write_atomic(path, &png)
+    crate::io::write_atomic(path, &png)
 }
 
+#[cfg(feature = "plots")]
 type Area<'a> = DrawingArea<BitMapBackend<'a>, plotters::coord::Shift>;
 
+#[cfg(feature = "plots")]
 fn draw_panel(
     panel: &Panel,
     area: &Area<'_>,

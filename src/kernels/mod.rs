@@ -2,3 +2,12 @@
 //! it inside its own command buffer, and has a CPU implementation of the same method.
 
 pub mod ao;
+
+/// A GLSL include generated from Rust: (path under glsl/, generator of its text).
+pub type GeneratedInclude = (&'static str, fn() -> String);
+
+/// Every kernel's generated GLSL includes; a new kernel adds its list here. The shader tool
+/// writes and checks them without knowing any kernel.
+pub fn generated_includes() -> impl Iterator<Item = GeneratedInclude> {
+    [ao::GENERATED_INCLUDES].into_iter().flatten().copied()
+}

@@ -45,7 +45,8 @@ pub fn directions(n: Vec3, index: usize, cfg: &RayConfig) -> impl Iterator<Item 
     })
 }
 
-/// Visibility of `receivers` (vertex indices) of a posed triangle mesh.
+/// Visibility of `receivers` (vertex indices) of a posed triangle mesh. Each receiver done
+/// advances the current [`crate::progress`] counter by one.
 pub fn mesh_visibility(
     positions: &[Vec3],
     normals: &[Vec3],
@@ -66,6 +67,7 @@ pub fn mesh_visibility(
                     escaped += 1;
                 }
             }
+            crate::progress::advance(1);
             escaped as f32 / total as f32
         })
         .collect()

@@ -1,6 +1,7 @@
 //! CPU-side inputs: meshes, skeletons and animations, sphere trees. Loaders validate their
 //! input and name the file in every error.
 
+#[cfg(feature = "gltf")]
 pub mod gltf_load;
 pub mod mesh;
 pub mod ply_write;
@@ -39,6 +40,15 @@ impl Character {
             rig: Rig::identity(),
             animations: Vec::new(),
             skinned: false,
+        }
+    }
+
+    /// The animation to play: the one called `name` (as [`Character::animation`]), or with no
+    /// name the first animation that moves (`None` for a static mesh: play the rest pose).
+    pub fn pick_animation(&self, name: Option<&str>) -> Result<Option<&Animation>> {
+        match name {
+            Some(n) => self.animation(n).map(Some),
+            None => Ok(self.animations.iter().find(|a| a.duration > 0.0)),
         }
     }
 
@@ -88,12 +98,20 @@ pub fn load(path: &Path) -> Result<Character> {
         ));
     }
     let data = match ext.as_str() {
+        #[cfg(feature = "gltf")]
         "glb" | "gltf" => {
             let mut c = gltf_load::load(path)?;
             if !c.skinned {
                 c = Character::from_static(c.mesh);
             }
             return Ok(c);
+        }
+        #[cfg(not(feature = "gltf"))]
+        "glb" | "gltf" => {
+            return Err(Error::feature(
+                format!("loading the glTF file {}", path.display()),
+                "gltf",
+            ));
         }
         "obj" => static_load::load_obj(path)?,
         "ply" => static_load::load_ply(path)?,

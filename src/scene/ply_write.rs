@@ -38,5 +38,5 @@ pub fn write_ply(
             out.extend_from_slice(&i.to_le_bytes());
         }
     }
-    crate::shaders::write_atomic(path, &out)
+    crate::io::write_atomic(path, &out)
 }

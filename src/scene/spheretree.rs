@@ -284,7 +284,7 @@ impl SphereTree {
                 sp.center.x, sp.center.y, sp.center.z, sp.radius, imp
             ));
         }
-        crate::shaders::write_atomic(path, s.as_bytes())
+        crate::io::write_atomic(path, s.as_bytes())
     }
 
     /// Gives each sphere the skin weights of the bind-pose vertices it covers (within its

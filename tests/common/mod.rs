@@ -50,3 +50,36 @@ pub fn assert_clean(messages: &[ValidationMessage]) {
         );
     }
 }
+
+/// A closed UV sphere of radius 1.
+pub fn ball() -> vkshade::scene::Character {
+    let (nu, nv) = (32u32, 16u32);
+    let mut d = vkshade::scene::MeshData::default();
+    d.positions.push([0.0, 1.0, 0.0]);
+    for j in 1..nv {
+        let th = std::f32::consts::PI * j as f32 / nv as f32;
+        for i in 0..nu {
+            let ph = std::f32::consts::TAU * i as f32 / nu as f32;
+            d.positions
+                .push([th.sin() * ph.cos(), th.cos(), th.sin() * ph.sin()]);
+        }
+    }
+    d.positions.push([0.0, -1.0, 0.0]);
+    let ring = |j: u32, i: u32| 1 + (j - 1) * nu + i % nu;
+    for i in 0..nu {
+        d.triangles.push([0, ring(1, i + 1), ring(1, i)]);
+        d.triangles
+            .push([nu * (nv - 1) + 1, ring(nv - 1, i), ring(nv - 1, i + 1)]);
+    }
+    for j in 1..nv - 1 {
+        for i in 0..nu {
+            d.triangles
+                .push([ring(j, i), ring(j, i + 1), ring(j + 1, i)]);
+            d.triangles
+                .push([ring(j, i + 1), ring(j + 1, i + 1), ring(j + 1, i)]);
+        }
+    }
+    vkshade::scene::Character::from_static(
+        vkshade::scene::Mesh::from_data(d, std::path::Path::new("ball")).unwrap(),
+    )
+}

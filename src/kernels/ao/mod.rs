@@ -8,6 +8,9 @@
 
 pub mod cpu;
 pub mod formula;
+mod registry;
+
+pub use registry::{DEFAULT_ANIMATION, DEFAULT_MESH, GENERATED_INCLUDES};
 
 use crate::error::{Error, Result};
 use crate::gpu::{
