@@ -592,8 +592,12 @@ impl Buffer {
                 return Err(e);
             }
         };
+        // Host access only for memory placed for it: device-local memory that happens to
+        // be mappable (lavapipe, integrated GPUs) is not, so code stays portable.
         let mapped = match &backing {
-            Backing::Own(a) => a.mapped_ptr().map(|p| MappedPtr(p.cast())),
+            Backing::Own(a) if desc.placement.location.host_visible() => {
+                a.mapped_ptr().map(|p| MappedPtr(p.cast()))
+            }
             _ => None,
         };
         let alloc_size = backing.size();

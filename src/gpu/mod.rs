@@ -34,7 +34,7 @@ pub use memory::{
 pub use pipeline::{BindGroup, ComputePipeline, DeclaredUse, ImageRef, Resource, default_access};
 pub use record::{
     AliasUse, Barrier, BarrierMode, PassTiming, PlannedBarrier, Readback, Recorded, Recorder,
-    Submission, Timings,
+    Submission, Timings, Use,
 };
 pub use shader::{BindingInfo, DescriptorKind, Shader};
 pub use sync::{AccessSet, AccessType};

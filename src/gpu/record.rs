@@ -110,8 +110,10 @@ impl<'a> Barrier<'a> {
 pub enum BarrierMode {
     /// vkshade records them (batched, one `vkCmdPipelineBarrier2` per group).
     Emit,
-    /// vkshade only collects them ([`Recorder::take_collected`]); the caller (a render graph)
-    /// merges and records them.
+    /// vkshade records none: the caller (a render graph) has planned them beforehand
+    /// ([`Recorder::plan`], [`Recorder::plan_dispatch`]) and recorded them merged with its
+    /// own. What tracked commands would have needed is kept for checking
+    /// ([`Recorder::take_collected`]); after a correct plan it holds nothing new.
     Collect,
 }
 
@@ -124,6 +126,8 @@ pub struct PlannedBarrier {
     pub image: Option<(vk::Image, Subresources)>,
     pub prev: AccessSet,
     pub next: AccessSet,
+    /// Make `prev`'s (already available) writes visible to `next`.
+    pub force_visible: bool,
     pub old_layout: vk::ImageLayout,
     pub new_layout: vk::ImageLayout,
 }
@@ -444,6 +448,100 @@ impl Recorder {
         std::mem::take(&mut self.collected)
     }
 
+    /// Applies `uses` to the tracked state and returns the barriers they need, without
+    /// recording them (whatever the barrier mode): a render graph plans a pass this way,
+    /// merges the barriers with its own, records them ([`Recorder::record_planned`]), then
+    /// records the pass in [`BarrierMode::Collect`].
+    pub fn plan(&mut self, uses: &[Use<'_>]) -> Result<Vec<PlannedBarrier>> {
+        self.flush_barriers();
+        let mode = std::mem::replace(&mut self.mode, BarrierMode::Collect);
+        let earlier = std::mem::take(&mut self.collected);
+        let mut result = Ok(());
+        for u in uses {
+            match *u {
+                Use::Buffer(b, access) => self.use_buffer(b, access),
+                Use::Image(i, range, access) => {
+                    if let Err(e) = self.use_image(i, range, access) {
+                        result = Err(e);
+                        break;
+                    }
+                }
+            }
+        }
+        let planned = std::mem::replace(&mut self.collected, earlier);
+        self.mode = mode;
+        result.map(|_| planned)
+    }
+
+    /// [`Recorder::plan`] for the declared accesses of a bind group (what a tracked
+    /// dispatch with it would use).
+    pub fn plan_dispatch(&mut self, bind: &BindGroup) -> Vec<PlannedBarrier> {
+        self.flush_barriers();
+        let mode = std::mem::replace(&mut self.mode, BarrierMode::Collect);
+        let earlier = std::mem::take(&mut self.collected);
+        let inner = bind.keep();
+        for u in &inner.uses {
+            match &u.target {
+                Target::Buffer(b) => self.use_buffer_inner(b, u.access),
+                Target::Image(i, range) => self.use_image_inner(i, *range, u.access, false),
+            }
+        }
+        self.keep.add(inner);
+        let planned = std::mem::replace(&mut self.collected, earlier);
+        self.mode = mode;
+        planned
+    }
+
+    /// Records planned barriers (e.g. collected from several kernels and merged by a render
+    /// graph) as one `vkCmdPipelineBarrier2`. The resources they name must be alive: they
+    /// are the ones the collecting recorder keeps.
+    pub fn record_planned(&mut self, planned: &[PlannedBarrier]) {
+        self.flush_barriers();
+        let mut buffers = Vec::new();
+        let mut images = Vec::new();
+        for p in planned {
+            let m = barrier_masks(
+                p.prev,
+                p.next,
+                p.force_visible || p.old_layout != p.new_layout,
+            );
+            if let Some(b) = p.buffer {
+                buffers.push(
+                    vk::BufferMemoryBarrier2::default()
+                        .src_stage_mask(m.src_stages)
+                        .src_access_mask(m.src_access)
+                        .dst_stage_mask(m.dst_stages)
+                        .dst_access_mask(m.dst_access)
+                        .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                        .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                        .buffer(b)
+                        .offset(0)
+                        .size(vk::WHOLE_SIZE),
+                );
+            }
+            if let Some((image, range)) = p.image {
+                images.push(
+                    vk::ImageMemoryBarrier2::default()
+                        .src_stage_mask(m.src_stages)
+                        .src_access_mask(m.src_access)
+                        .dst_stage_mask(m.dst_stages)
+                        .dst_access_mask(m.dst_access)
+                        .old_layout(p.old_layout)
+                        .new_layout(p.new_layout)
+                        .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                        .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                        .image(image)
+                        .subresource_range(range.vk()),
+                );
+            }
+        }
+        let dep = vk::DependencyInfo::default()
+            .buffer_memory_barriers(&buffers)
+            .image_memory_barriers(&images);
+        // SAFETY: recording; the caller guarantees the named resources are alive.
+        unsafe { self.shared.device.cmd_pipeline_barrier2(self.cmd, &dep) };
+    }
+
     fn timestamp(&mut self, stage: vk::PipelineStageFlags2) -> Option<u32> {
         if self.queries.pool == vk::QueryPool::null() || self.queries.used >= 2 * MAX_PASSES {
             return None;
@@ -622,7 +720,11 @@ impl Recorder {
     /// Starts using a member of an alias group after another member: waits for every
     /// `prev` access of the previous member (to the shared memory) and discards the new
     /// member's contents. Buffers get a global dependency; images a discarding barrier.
-    pub fn alias_switch(&mut self, prev: impl Into<AccessSet>, next_member: AliasUse<'_>) {
+    pub fn alias_switch(
+        &mut self,
+        prev: impl Into<AccessSet>,
+        next_member: AliasUse<'_>,
+    ) -> Result<()> {
         let prev = prev.into();
         match next_member {
             AliasUse::Buffer(b, next) => {
@@ -643,6 +745,7 @@ impl Recorder {
                 }]);
             }
         }
+        Ok(())
     }
 
     fn queue_buffer(&mut self, inner: &Arc<BufferInner>, t: Transition) {
@@ -668,6 +771,7 @@ impl Recorder {
                 image: None,
                 prev: t.prev,
                 next: t.next,
+                force_visible: t.force_visible,
                 old_layout: vk::ImageLayout::UNDEFINED,
                 new_layout: vk::ImageLayout::UNDEFINED,
             }),
@@ -703,6 +807,7 @@ impl Recorder {
                 image: Some((inner.raw, r.range)),
                 prev: t.prev,
                 next: t.next,
+                force_visible: t.force_visible,
                 old_layout: t.old_layout,
                 new_layout: t.new_layout,
             }),
@@ -1499,6 +1604,13 @@ fn copy_region(region: &ImageRegion, buffer_offset: u64) -> vk::BufferImageCopy 
             depth: region.extent[2],
         },
     }
+}
+
+/// A declared use of a resource, for [`Recorder::plan`].
+#[derive(Clone, Copy)]
+pub enum Use<'a> {
+    Buffer(&'a Buffer, AccessSet),
+    Image(&'a Image, Subresources, AccessSet),
 }
 
 /// A member of an alias group starting to be used (see [`Recorder::alias_switch`]).

@@ -1,0 +1,427 @@
+//! The holes the core-v2 review found, each as a test under validation, plus memory
+//! placement, alias groups, wrapped handles, the staging ring and declared accesses:
+//! - a leaked (`mem::forget`) submission must not let its resources be destroyed early;
+//! - host reads of mapped memory see device writes (copy-out, after the last use);
+//! - host writes wait for submitted work that uses the buffer;
+//! - a wrong declared use is caught by synchronization validation; collected barriers
+//!   recorded by the caller are enough.
+
+mod common;
+
+use ash::vk;
+use common::{assert_clean, context, shutdown, with_gpu};
+use vkshade::gpu::{
+    AccessSet, AccessType as A, AliasGroup, AliasMember, AliasUse, BarrierMode, Buffer, BufferDesc,
+    ComputePipeline, Context, ContextDesc, Dedicated, Image, ImageDesc, ImageRegion, Location,
+    MemoryConfig, Placement, Resource,
+};
+use vkshade::shaders::spirv;
+
+const N: u32 = 4096;
+
+fn scale_push(a: f32, b: f32, n: u32) -> Vec<u8> {
+    [a.to_le_bytes(), b.to_le_bytes(), n.to_le_bytes()].concat()
+}
+
+fn add_push(c: f32, n: u32) -> Vec<u8> {
+    [c.to_le_bytes(), n.to_le_bytes()].concat()
+}
+
+#[test]
+fn forgotten_submission_keeps_what_it_uses_alive() {
+    let ctx = context();
+    let value = (|| -> vkshade::Result<u64> {
+        let scale =
+            ComputePipeline::from_spirv(&ctx, "test/chain_scale", spirv("test/chain_scale")?)?;
+        let x: Vec<f32> = (0..N).map(|i| i as f32).collect();
+        let src = ctx.upload_buffer("x", BufferDesc::storage(N as u64 * 4), &x)?;
+        let dst = Buffer::new(&ctx, "y", BufferDesc::storage(N as u64 * 4))?;
+        let bind = scale.bind(&[
+            ("src", Resource::Buffer(&src)),
+            ("dst", Resource::Buffer(&dst)),
+        ])?;
+        let mut rec = ctx.recorder("forgotten")?;
+        for _ in 0..50 {
+            rec.dispatch_invocations_tracked(&scale, &bind, &scale_push(2.0, 1.0, N), [N, 1, 1])?;
+        }
+        let submission = rec.submit(&[], &[])?;
+        let value = submission.value();
+        std::mem::forget(submission);
+        // The review measured VUID-vkDestroyDescriptorPool-descriptorPool-00303 and
+        // VUID-vkDestroyPipeline-pipeline-00765 here: objects destroyed while in use.
+        drop(bind);
+        drop(scale);
+        drop((src, dst));
+        assert!(ctx.maintain() > 0 || ctx.completed_value() >= value);
+        ctx.wait_for(value)?;
+        assert_eq!(
+            ctx.maintain(),
+            0,
+            "everything retired once the work completed"
+        );
+        Ok(value)
+    })()
+    .unwrap();
+    assert!(value > 0);
+    let messages = ctx.messages().take();
+    assert_clean(&messages);
+    // The forgotten submission still holds the context: shutdown reports it, frees nothing.
+    let e = ctx.shutdown().unwrap_err();
+    assert!(e.to_string().contains("still alive"), "{e}");
+}
+
+#[test]
+fn dropping_everything_before_the_work_completes_is_safe() {
+    with_gpu(|ctx| {
+        let scale =
+            ComputePipeline::from_spirv(ctx, "test/chain_scale", spirv("test/chain_scale")?)?;
+        let src = Buffer::new(ctx, "x", BufferDesc::storage(N as u64 * 4))?;
+        let dst = Buffer::new(ctx, "y", BufferDesc::storage(N as u64 * 4))?;
+        let bind = scale.bind(&[
+            ("src", Resource::Buffer(&src)),
+            ("dst", Resource::Buffer(&dst)),
+        ])?;
+        let mut rec = ctx.recorder("dropped early")?;
+        rec.fill_buffer(&src, 0);
+        rec.dispatch_invocations_tracked(&scale, &bind, &scale_push(2.0, 1.0, N), [N, 1, 1])?;
+        let submission = rec.submit(&[], &[])?;
+        drop((bind, scale, src, dst, submission)); // the submission's drop does not wait
+        ctx.wait_idle()?;
+        assert_eq!(ctx.maintain(), 0);
+        Ok(())
+    });
+}
+
+#[test]
+fn mapped_reads_see_every_device_write() {
+    with_gpu(|ctx| {
+        let buf = Buffer::new(ctx, "readback", BufferDesc::readback(1024))?;
+        for value in [0xdead_beefu32, 7, 0x1234_5678] {
+            let mut rec = ctx.recorder("fill")?;
+            rec.fill_buffer(&buf, value);
+            rec.submit_and_wait()?;
+            // Copy-out after the last use: never a slice aliasing memory the device writes.
+            let got: Vec<u32> = buf.read()?;
+            assert!(
+                got.iter().all(|&v| v == value),
+                "{:#x} vs {value:#x}",
+                got[0]
+            );
+        }
+        // A device-local buffer has no mapping: a clear error, not a panic.
+        let local = Buffer::new(ctx, "local", BufferDesc::storage(64))?;
+        let e = local.read::<u32>().unwrap_err();
+        assert!(e.to_string().contains("not host-visible"), "{e}");
+        Ok(())
+    });
+}
+
+#[test]
+fn host_writes_wait_for_submitted_work_that_uses_the_buffer() {
+    with_gpu(|ctx| {
+        let n = 1u32 << 20;
+        let upload = Buffer::new(ctx, "upload", BufferDesc::upload(n as u64 * 4))?;
+        let a: Vec<f32> = (0..n).map(|i| i as f32).collect();
+        upload.write(0, &a)?;
+        let scale =
+            ComputePipeline::from_spirv(ctx, "test/chain_scale", spirv("test/chain_scale")?)?;
+        let out = Buffer::new(ctx, "out", BufferDesc::storage(n as u64 * 4))?;
+        let bind = scale.bind(&[
+            ("src", Resource::Buffer(&upload)),
+            ("dst", Resource::Buffer(&out)),
+        ])?;
+        let mut rec = ctx.recorder("reads the upload buffer")?;
+        for _ in 0..8 {
+            rec.dispatch_invocations_tracked(&scale, &bind, &scale_push(1.0, 0.0, n), [n, 1, 1])?;
+        }
+        let rb = rec.read_back(&out)?;
+        let submission = rec.submit(&[], &[])?;
+        // While the dispatches may still run, overwrite the input: write() waits for them.
+        upload.write(0, &vec![-1.0f32; n as usize])?;
+        assert!(
+            submission.is_complete(),
+            "write returned before the work that reads it"
+        );
+        submission.wait()?;
+        let got: Vec<f32> = rb.to_vec()?;
+        assert_eq!(got, a, "the dispatches saw the old contents only");
+        Ok(())
+    });
+}
+
+#[test]
+fn placement_block_sizes_and_memory_reports() {
+    let desc = ContextDesc {
+        memory: MemoryConfig {
+            device_block_bytes: 4 << 20,
+            host_block_bytes: 4 << 20,
+            staging_ring_bytes: 1 << 20,
+        },
+        ..ContextDesc::validated()
+    };
+    let ctx = Context::new(&desc).unwrap();
+    (|| -> vkshade::Result<()> {
+        let before = ctx.memory_report();
+        let small = Buffer::new(&ctx, "small", BufferDesc::storage(4096))?;
+        let r1 = ctx.memory_report();
+        assert_eq!(r1.allocations, before.allocations + 1);
+        assert!(r1.used_bytes >= before.used_bytes + 4096);
+        assert!(
+            r1.reserved_bytes >= 4 << 20 && r1.reserved_bytes < 64 << 20,
+            "a 4 MiB block, not gpu-allocator's 256 MiB default: {r1:?}"
+        );
+        let dedicated = Buffer::new(
+            &ctx,
+            "dedicated",
+            BufferDesc::storage(3 << 20).placement(Placement::DEVICE.dedicated(Dedicated::Always)),
+        )?;
+        let r2 = ctx.memory_report();
+        assert!(
+            r2.reserved_bytes >= r1.reserved_bytes + (3 << 20),
+            "a dedicated allocation is a block of its own: {r1:?} -> {r2:?}"
+        );
+        let upload = Buffer::new(&ctx, "upload", BufferDesc::upload(256))?;
+        assert_eq!(upload.placement().location, Location::Upload);
+        upload.write(0, &[1u32, 2, 3])?;
+        let mut back = [0u32; 3];
+        upload.read_into(0, &mut back)?;
+        assert_eq!(back, [1, 2, 3]);
+        assert!(r2.peak_used_bytes >= r2.used_bytes);
+        drop((small, dedicated, upload));
+        ctx.maintain();
+        let after = ctx.memory_report();
+        assert_eq!(after.allocations, before.allocations);
+        assert_eq!(after.used_bytes, before.used_bytes);
+        Ok(())
+    })()
+    .unwrap();
+    assert_clean(&shutdown(ctx));
+}
+
+#[test]
+fn alias_group_members_share_memory_with_the_barrier_aliasing_needs() {
+    with_gpu(|ctx| {
+        let a_desc = ImageDesc::d2(vk::Format::R32G32B32A32_SFLOAT, [64, 64]);
+        let b_desc = ImageDesc::d2(vk::Format::R32_SFLOAT, [128, 32]);
+        let c_desc = BufferDesc::storage(16 * 1024);
+        let group = AliasGroup::new(
+            ctx,
+            "transient",
+            Location::Device,
+            &[
+                AliasMember::Image(&a_desc),
+                AliasMember::Image(&b_desc),
+                AliasMember::Buffer(&c_desc),
+            ],
+        )?;
+        assert!(group.size() >= 64 * 64 * 16, "sized for the largest member");
+        let before = ctx.memory_report().allocations;
+        let a = Image::in_group(ctx, "a", a_desc, &group)?;
+        let b = Image::in_group(ctx, "b", b_desc, &group)?;
+        let c = Buffer::in_group(ctx, "c", c_desc, &group)?;
+        assert_eq!(
+            ctx.memory_report().allocations,
+            before,
+            "members allocate nothing"
+        );
+        let mut rec = ctx.recorder("aliasing")?;
+        rec.clear_image(&a, a.all(), [1.0, 2.0, 3.0, 4.0])?;
+        let ra = rec.read_back_image(&a, ImageRegion::whole(&a_desc))?;
+        rec.alias_switch(
+            A::TransferRead,
+            AliasUse::Image(&b, A::TransferWrite.into()),
+        )?;
+        rec.clear_image(&b, b.all(), [0.25, 0.0, 0.0, 0.0])?;
+        let rb = rec.read_back_image(&b, ImageRegion::whole(&b_desc))?;
+        rec.alias_switch(
+            A::TransferRead,
+            AliasUse::Buffer(&c, A::TransferWrite.into()),
+        )?;
+        rec.fill_buffer(&c, 5);
+        let rc = rec.read_back(&c)?;
+        rec.submit_and_wait()?;
+        assert!(
+            ra.to_vec::<[f32; 4]>()?
+                .iter()
+                .all(|t| *t == [1.0, 2.0, 3.0, 4.0])
+        );
+        assert!(rb.to_vec::<f32>()?.iter().all(|&v| v == 0.25));
+        assert!(rc.to_vec::<u32>()?.iter().all(|&v| v == 5));
+        // A member the group was not sized for is refused.
+        let e = Buffer::in_group(ctx, "too big", BufferDesc::storage(1 << 22), &group).unwrap_err();
+        assert!(e.to_string().contains("does not fit alias group"), "{e}");
+        Ok(())
+    });
+}
+
+#[test]
+fn wrapped_raw_handles_are_bound_and_never_destroyed_by_vkshade() {
+    with_gpu(|ctx| {
+        // Stand-ins for a renderer's own objects: vkshade handles whose raw handles are
+        // wrapped a second time (the owners outlive the wrappers' use).
+        let owner_buf = Buffer::new(ctx, "renderer buffer", BufferDesc::storage(256))?;
+        let owner_img = Image::new(
+            ctx,
+            "renderer image",
+            ImageDesc::d2(vk::Format::R32_SFLOAT, [8, 8]),
+        )?;
+        // SAFETY: same device, same description; the owners stay alive past the last use.
+        let (wrapped_buf, wrapped_img) = unsafe {
+            (
+                Buffer::from_raw(ctx, "wrapped buffer", owner_buf.raw(), *owner_buf.desc())?,
+                Image::from_raw(ctx, "wrapped image", owner_img.raw(), *owner_img.desc())?,
+            )
+        };
+        let mut rec = ctx.recorder("wrapped")?;
+        rec.upload(&wrapped_buf, 0, &[9u32; 64])?;
+        rec.clear_image(&wrapped_img, wrapped_img.all(), [3.5, 0.0, 0.0, 0.0])?;
+        let value = rec.submit(&[], &[])?.value();
+        ctx.wait_for(value)?;
+        drop((wrapped_buf, wrapped_img)); // destroys nothing
+        owner_img.assume_access(owner_img.all(), A::TransferWrite)?;
+        let got_buf: Vec<u32> = ctx.read_buffer(&owner_buf)?;
+        assert!(got_buf.iter().all(|&v| v == 9));
+        let mut rec = ctx.recorder("read owner image")?;
+        let rb = rec.read_back_image(&owner_img, ImageRegion::whole(owner_img.desc()))?;
+        rec.submit_and_wait()?;
+        assert!(rb.to_vec::<f32>()?.iter().all(|&v| v == 3.5));
+        Ok(())
+    });
+}
+
+#[test]
+fn a_large_volume_streams_through_a_small_staging_ring() {
+    let ring = 8u64 << 20;
+    let desc = ContextDesc {
+        memory: MemoryConfig {
+            staging_ring_bytes: ring,
+            ..MemoryConfig::default()
+        },
+        ..ContextDesc::validated()
+    };
+    let ctx = Context::new(&desc).unwrap();
+    (|| -> vkshade::Result<()> {
+        // 128 x 128 x 400 R32F = 25 MiB.
+        let extent = [128u32, 128, 400];
+        let vdesc = ImageDesc::d3(vk::Format::R32_SFLOAT, extent);
+        let vol = Image::new(&ctx, "volume", vdesc)?;
+        let n = (extent[0] * extent[1] * extent[2]) as usize;
+        let data: Vec<f32> = (0..n).map(|i| (i % 9973) as f32).collect();
+        let last = ctx.upload_image_streamed(&vol, bytemuck::cast_slice(&data), 2 << 20)?;
+        ctx.wait_for(last)?;
+        let peak = ctx.staging_ring_peak();
+        assert!(peak <= ring && peak > 0, "ring peak {peak} bytes");
+        assert_eq!(ctx.memory_report().staging_ring_bytes, ring);
+        for z in [0u32, 217, 399] {
+            let mut rec = ctx.recorder("read slice")?;
+            let rb = rec.read_back_image(
+                &vol,
+                ImageRegion {
+                    offset: [0, 0, z],
+                    extent: [128, 128, 1],
+                    ..ImageRegion::whole(&vdesc)
+                },
+            )?;
+            rec.submit_and_wait()?;
+            let slice = 128 * 128;
+            assert_eq!(
+                rb.to_vec::<f32>()?,
+                data[z as usize * slice..(z as usize + 1) * slice],
+                "slice {z}"
+            );
+        }
+        // Small per-frame uploads reuse the ring: no growth in allocations.
+        let target = Buffer::new(&ctx, "per-frame", BufferDesc::storage(64 * 1024))?;
+        let allocations = ctx.memory_report().allocations;
+        for frame in 0..64u32 {
+            let mut rec = ctx.recorder("frame")?;
+            rec.upload(&target, 0, &vec![frame; 16 * 1024])?;
+            rec.submit(&[], &[])?;
+        }
+        ctx.wait_idle()?;
+        assert_eq!(ctx.memory_report().allocations, allocations);
+        assert_eq!(ctx.read_buffer::<u32>(&target)?[5], 63);
+        Ok(())
+    })()
+    .unwrap();
+    assert_clean(&shutdown(ctx));
+}
+
+/// Two dispatches: scale writes y, add reads it. `declare_y` is the access declared for y
+/// in the scale dispatch.
+fn chain_with_declared(ctx: &Context, declare_y: AccessSet, collect: bool) -> vkshade::Result<()> {
+    let scale = ComputePipeline::from_spirv(ctx, "test/chain_scale", spirv("test/chain_scale")?)?;
+    let add = ComputePipeline::from_spirv(ctx, "test/chain_add", spirv("test/chain_add")?)?;
+    let x = ctx.upload_buffer(
+        "x",
+        BufferDesc::storage(N as u64 * 4),
+        &vec![1.0f32; N as usize],
+    )?;
+    let y = Buffer::new(ctx, "y", BufferDesc::storage(N as u64 * 4))?;
+    let acc = ctx.upload_buffer(
+        "acc",
+        BufferDesc::storage(N as u64 * 4),
+        &vec![0.0f32; N as usize],
+    )?;
+    let sb = scale.bind_declared(
+        &[("src", Resource::Buffer(&x)), ("dst", Resource::Buffer(&y))],
+        &[("dst", declare_y)],
+    )?;
+    let ab = add.bind(&[
+        ("ybuf", Resource::Buffer(&y)),
+        ("accbuf", Resource::Buffer(&acc)),
+    ])?;
+    assert!(
+        sb.accesses()
+            .iter()
+            .any(|u| u.binding == "src" && u.access == A::ComputeShaderReadOther.into()),
+        "readonly in GLSL gives a read by default: {:?}",
+        sb.accesses()
+    );
+    let mut rec = ctx.recorder("declared chain")?;
+    if collect {
+        // A render graph: plan each pass from its declared uses, record the barriers,
+        // then record the pass with vkshade emitting none.
+        rec.set_barrier_mode(BarrierMode::Collect);
+        let planned = rec.plan_dispatch(&sb);
+        rec.record_planned(&planned);
+        rec.dispatch_invocations_tracked(&scale, &sb, &scale_push(2.0, 1.0, N), [N, 1, 1])?;
+        let planned = rec.plan_dispatch(&ab);
+        assert!(
+            planned
+                .iter()
+                .any(|p| p.resource == "y" && p.prev.contains(A::ComputeShaderWrite)),
+            "the read-after-write on y is planned: {planned:?}"
+        );
+        rec.record_planned(&planned);
+        rec.dispatch_invocations_tracked(&add, &ab, &add_push(1.0, N), [N, 1, 1])?;
+        rec.set_barrier_mode(BarrierMode::Emit);
+    } else {
+        rec.dispatch_invocations_tracked(&scale, &sb, &scale_push(2.0, 1.0, N), [N, 1, 1])?;
+        rec.dispatch_invocations_tracked(&add, &ab, &add_push(1.0, N), [N, 1, 1])?;
+    }
+    let rb = rec.read_back(&acc)?;
+    rec.submit_and_wait()?;
+    assert!(rb.to_vec::<f32>()?.iter().all(|&v| v == 3.0));
+    Ok(())
+}
+
+#[test]
+fn barriers_collected_for_the_caller_are_enough() {
+    with_gpu(|ctx| chain_with_declared(ctx, A::ComputeShaderWrite.into(), true));
+}
+
+#[test]
+fn a_wrong_declared_use_is_caught_by_synchronization_validation() {
+    let ctx = context();
+    // y declared as only read by the dispatch that writes it: no barrier before the add.
+    let result = chain_with_declared(&ctx, A::ComputeShaderReadOther.into(), false);
+    let messages = shutdown(ctx);
+    let _ = result; // the values may or may not be right; the layer must object
+    assert!(
+        messages
+            .iter()
+            .any(|m| m.id_name.contains("SYNC-HAZARD-READ-AFTER-WRITE") && m.text.contains("[y]")),
+        "expected a hazard on y: {messages:#?}"
+    );
+}
