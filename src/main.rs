@@ -105,6 +105,9 @@ struct AoArgs {
     /// Error at the top of the heat map in the --reference pictures (larger errors saturate).
     #[arg(long, default_value_t = 0.2)]
     error_scale: f32,
+    /// Frames submitted before the oldest is waited for (frames in flight).
+    #[arg(long, default_value_t = 2)]
+    in_flight: usize,
     /// Rays per vertex of the ground truth.
     #[arg(long, default_value_t = 4096)]
     rays: usize,
@@ -536,6 +539,7 @@ fn cmd_ao(g: &Global, a: &AoArgs, demo: bool) -> Result<()> {
         rays: a.rays,
         correction_rays: a.correction_rays,
         error_scale: a.error_scale,
+        in_flight: a.in_flight,
         out: a.out.clone(),
         ..Default::default()
     };

@@ -2,10 +2,14 @@
 //! and EXR output per frame, a JSON report and (optionally) the ray-traced ground truth.
 
 use crate::error::{Error, Result};
-use crate::gpu::Context;
+use crate::gpu::{Context, Timings};
 use crate::kernels::ao::cpu::{self, CpuAo, Posed};
 use crate::kernels::ao::formula::{OcclusionTable, TABLE_SIZE};
-use crate::kernels::ao::{AoKernel, AoParams, Correction, DEFAULT_MESH, Occlusion, Prepared};
+use crate::kernels::ao::{
+    AoKernel, AoParams, Correction, DEFAULT_MESH, FrameData, Occlusion, PASS_OCCLUSION, PASS_SKIN,
+    Prepared,
+};
+use crate::kernels::{KernelInfo, run_frames};
 use crate::progress::Progress;
 use crate::reference::ErrorStats;
 use crate::reference::ao::{RayConfig, mesh_visibility, spheres_visibility};
@@ -45,6 +49,8 @@ pub struct AoRunConfig {
     pub image: (u32, u32),
     /// Error at the top of the heat map of the `--reference` pictures.
     pub error_scale: f32,
+    /// Frames submitted before the oldest is waited for.
+    pub in_flight: usize,
 }
 
 impl Default for AoRunConfig {
@@ -63,6 +69,7 @@ impl Default for AoRunConfig {
             out: PathBuf::from("out/ao"),
             image: (640, 480),
             error_scale: 0.2,
+            in_flight: 2,
         }
     }
 }
@@ -189,6 +196,8 @@ pub struct AoReport {
     pub table_size: [u32; 2],
     pub correction: Option<CorrectionInfo>,
     pub reference_rays: Option<usize>,
+    /// Passes with declared accesses, memory, frames in flight.
+    pub kernel: KernelInfo,
     pub frames: Vec<FrameReport>,
     pub summary: Summary,
     pub notes: Vec<String>,
@@ -307,6 +316,12 @@ impl AoRunConfig {
     /// Refuses settings outside their documented ranges, naming the option.
     pub fn validate(&self) -> Result<()> {
         self.params.validate()?;
+        if !(1..=16).contains(&self.in_flight) {
+            return Err(Error::InvalidArgument(format!(
+                "--in-flight must be in 1..=16, not {}",
+                self.in_flight
+            )));
+        }
         if !(1..=MAX_FRAMES).contains(&self.frames) {
             return Err(Error::InvalidArgument(format!(
                 "--frames must be in 1..={MAX_FRAMES}, not {}",
@@ -373,6 +388,24 @@ struct GpuFrame {
     stats: Vec<[u32; 2]>,
 }
 
+impl GpuFrame {
+    fn new(data: FrameData, timings: &Timings) -> GpuFrame {
+        let skin_ms = timings.get(PASS_SKIN).unwrap_or(f64::NAN);
+        let ao_ms = timings.get(PASS_OCCLUSION).unwrap_or(f64::NAN);
+        GpuFrame {
+            gpu: GpuTimes {
+                skin_ms,
+                ao_ms,
+                total_ms: skin_ms + ao_ms,
+            },
+            positions: to_vec3(&data.positions),
+            normals: to_vec3(&data.normals),
+            visibility: data.visibility,
+            stats: data.stats,
+        }
+    }
+}
+
 /// Runs the kernel over the animation, writing DIR/ao_NNNN.{ply,png,exr} and
 /// DIR/report.json. With `cfg.reference`, each picture is result | ray-traced truth | error.
 pub fn run(ctx: &Context, cfg: &AoRunConfig, progress: &mut dyn FnMut(&str)) -> Result<AoReport> {
@@ -410,15 +443,23 @@ pub fn run(ctx: &Context, cfg: &AoRunConfig, progress: &mut dyn FnMut(&str)) -> 
         },
         times.len() as u64 * units,
     );
+    let matrices: Vec<Vec<Mat4>> = times
+        .iter()
+        .map(|&t| character.rig.skinning_matrices(anim, t))
+        .collect();
     let mut frames = Vec::with_capacity(times.len());
-    for (index, &time) in times.iter().enumerate() {
-        frames.push(session.frame(index, time, progress)?);
+    let inputs = matrices.iter().map(Vec::as_slice);
+    let in_flight = run_frames(ctx, &session.kernel, inputs, cfg.in_flight, |r| {
+        let (index, time) = (r.index, times[r.index]);
+        let f = GpuFrame::new(r.output, &r.timings);
+        frames.push(session.frame(index, time, &matrices[index], f, progress)?);
         if !cfg.reference {
             counter.add(1);
         }
-    }
+        Ok(())
+    })?;
     drop(counter);
-    let report = session.report(tree_info, frames);
+    let report = session.report(tree_info, frames, in_flight);
     crate::io::write_json(&cfg.out.join("report.json"), &report)?;
     Ok(report)
 }
@@ -512,38 +553,16 @@ impl<'a> Session<'a> {
             .collect()
     }
 
-    /// Skinning + AO of one frame on the GPU, read back.
-    fn gpu_frame(&self, index: usize, matrices: &[Mat4]) -> Result<GpuFrame> {
-        let mut rec = self.ctx.recorder(&format!("ao frame {index}"))?;
-        self.kernel.record(&mut rec, matrices)?;
-        let readback = self.kernel.read_back(&mut rec)?;
-        let timings = rec.submit_and_wait()?;
-        let data = readback.data()?;
-        let skin_ms = timings.get("ao skin").unwrap_or(f64::NAN);
-        let ao_ms = timings.get("ao occlusion").unwrap_or(f64::NAN);
-        Ok(GpuFrame {
-            gpu: GpuTimes {
-                skin_ms,
-                ao_ms,
-                total_ms: skin_ms + ao_ms,
-            },
-            positions: to_vec3(&data.positions),
-            normals: to_vec3(&data.normals),
-            visibility: data.visibility,
-            stats: data.stats,
-        })
-    }
-
-    /// One frame: GPU run, PLY, optional reference, pictures, a progress line.
+    /// One frame the GPU completed: PLY, optional reference, pictures, a progress line.
     fn frame(
         &self,
         index: usize,
         time: f32,
+        matrices: &[Mat4],
+        f: GpuFrame,
         progress: &mut dyn FnMut(&str),
     ) -> Result<FrameReport> {
         let cfg = self.cfg;
-        let matrices = self.character.rig.skinning_matrices(self.anim, time);
-        let f = self.gpu_frame(index, &matrices)?;
         let png = frame_png(&cfg.out, index);
         let (ply, exr) = (png.with_extension("ply"), png.with_extension("exr"));
         scene::ply_write::write_ply(
@@ -560,7 +579,7 @@ impl<'a> Session<'a> {
         )?;
         let (reference, truth) = match cfg.reference {
             true => {
-                let (r, t) = self.reference(&matrices, &f.visibility);
+                let (r, t) = self.reference(matrices, &f.visibility);
                 (Some(r), Some(t))
             }
             false => (None, None),
@@ -681,7 +700,7 @@ impl<'a> Session<'a> {
     }
 
     /// The report of the run: inputs, per-frame results and their summary.
-    fn report(&self, tree: TreeInfo, frames: Vec<FrameReport>) -> AoReport {
+    fn report(&self, tree: TreeInfo, frames: Vec<FrameReport>, in_flight: usize) -> AoReport {
         let (cfg, ctx, character) = (self.cfg, self.ctx, self.character);
         let mesh = &character.mesh;
         let mut notes = vec![
@@ -711,6 +730,7 @@ impl<'a> Session<'a> {
             table_size: [TABLE_SIZE, TABLE_SIZE],
             correction: self.correction.as_ref().map(|c| c.info.clone()),
             reference_rays: cfg.reference.then_some(cfg.rays),
+            kernel: KernelInfo::of(&self.kernel, in_flight),
             summary: summarize(&frames),
             frames,
             notes,

@@ -2,6 +2,9 @@
 //! it inside its own command buffer, and has a CPU implementation of the same method.
 
 pub mod ao;
+pub mod shape;
+
+pub use shape::{FrameResult, Kernel, KernelInfo, PassInfo, UseInfo, record_as_graph, run_frames};
 
 /// A GLSL include generated from Rust: (path under glsl/, generator of its text).
 pub type GeneratedInclude = (&'static str, fn() -> String);

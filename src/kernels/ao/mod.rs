@@ -14,9 +14,10 @@ pub use registry::{DEFAULT_ANIMATION, DEFAULT_MESH, GENERATED_INCLUDES};
 
 use crate::error::{Error, Result};
 use crate::gpu::{
-    AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context, Readback,
-    Recorder, Resource,
+    AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context,
+    PlannedBarrier, Readback, Recorder, Resource, Use,
 };
+use crate::kernels::{Kernel, PassInfo, UseInfo};
 use crate::scene::{Mesh, SphereTree};
 use ash::vk;
 use formula::{OcclusionTable, TABLE_SIZE};
@@ -344,6 +345,7 @@ pub struct AoKernel {
 }
 
 /// Pass names, as they appear in timings and debug labels.
+pub const PASS_JOINTS: &str = "ao joints";
 pub const PASS_SKIN: &str = "ao skin";
 pub const PASS_OCCLUSION: &str = "ao occlusion";
 
@@ -553,26 +555,18 @@ impl AoKernel {
         &self.spheres
     }
 
-    /// The passes [`AoKernel::record`] records, with every binding's declared access (what a
-    /// render graph needs to schedule them).
-    pub fn passes(&self) -> Vec<(&'static str, Vec<crate::gpu::DeclaredUse>)> {
-        let mut skin = vec![crate::gpu::DeclaredUse {
-            binding: "joints (upload)".into(),
-            resource: self.joints.name().to_string(),
-            access: A::TransferWrite.into(),
-        }];
-        skin.extend(self.skin_bind.accesses());
-        vec![
-            (PASS_SKIN, skin),
-            (PASS_OCCLUSION, self.occlusion_bind.accesses()),
-        ]
+    /// Records one frame: passes `ao joints` (the joint matrices' upload), `ao skin` and
+    /// `ao occlusion`. Barriers come from the declared accesses through the recorder's
+    /// tracking (or are planned by the caller, see [`Kernel::plan_pass`]). The matrices are
+    /// staged through the context's ring, so frames in flight never overwrite each other's.
+    pub fn record(&self, rec: &mut Recorder, matrices: &[Mat4]) -> Result<()> {
+        for pass in 0..3 {
+            self.record_pass(rec, pass, matrices)?;
+        }
+        Ok(())
     }
 
-    /// Records one frame: the joint matrices' upload, pass `ao skin`, pass `ao occlusion`.
-    /// Barriers come from the declared accesses through the recorder's tracking (or are
-    /// collected for the caller in `BarrierMode::Collect`). The matrices are staged through
-    /// the context's ring, so frames in flight never overwrite each other's.
-    pub fn record(&self, rec: &mut Recorder, matrices: &[Mat4]) -> Result<()> {
+    fn check_matrices(&self, matrices: &[Mat4]) -> Result<()> {
         if matrices.len() != self.joint_count {
             return Err(Error::InvalidArgument(format!(
                 "{} joint matrices for a rig of {} joints",
@@ -585,9 +579,31 @@ impl AoKernel {
                 "joint matrix {i} is not finite"
             )));
         }
-        let cols: Vec<[f32; 16]> = matrices.iter().map(|m| m.to_cols_array()).collect();
-        rec.upload(&self.joints, 0, &cols)?;
-        rec.begin_pass(PASS_SKIN);
+        Ok(())
+    }
+
+    /// Records pass `pass` (0 joints, 1 skin, 2 occlusion) in its labelled, timed pass.
+    pub fn record_pass(&self, rec: &mut Recorder, pass: usize, matrices: &[Mat4]) -> Result<()> {
+        if pass == 0 {
+            self.check_matrices(matrices)?;
+        }
+        let name = [PASS_JOINTS, PASS_SKIN, PASS_OCCLUSION]
+            .get(pass)
+            .ok_or_else(|| Error::InvalidArgument(format!("AO has 3 passes, not {}", pass + 1)))?;
+        rec.begin_pass(name);
+        let r = match pass {
+            0 => {
+                let cols: Vec<[f32; 16]> = matrices.iter().map(|m| m.to_cols_array()).collect();
+                rec.upload(&self.joints, 0, &cols)
+            }
+            1 => self.record_skin_dispatch(rec),
+            _ => self.record_occlusion(rec),
+        };
+        rec.end_pass();
+        r
+    }
+
+    fn record_skin_dispatch(&self, rec: &mut Recorder) -> Result<()> {
         let ns = self.shape.node_count;
         let push = [
             self.vertex_count,
@@ -600,16 +616,11 @@ impl AoKernel {
             &self.skin_bind,
             bytemuck::cast_slice(&push),
             [self.vertex_count + ns, 1, 1],
-        )?;
-        rec.end_pass();
-        rec.begin_pass(PASS_OCCLUSION);
-        self.record_occlusion(rec)?;
-        rec.end_pass();
-        Ok(())
+        )
     }
 
-    /// Records the occlusion pass alone, e.g. to re-evaluate with other parameters after a
-    /// frame was skinned (barriers from the declared accesses).
+    /// Records the occlusion dispatch alone (no labelled pass), e.g. to re-evaluate with
+    /// other parameters after a frame was skinned (barriers from the declared accesses).
     pub fn record_occlusion(&self, rec: &mut Recorder) -> Result<()> {
         self.params.validate()?;
         let p = &self.params;
@@ -686,6 +697,66 @@ impl AoKernel {
     /// Bytes of the kernel's buffers (their allocations).
     pub fn memory_bytes(&self) -> u64 {
         self.memory().used_bytes
+    }
+}
+
+impl Kernel for AoKernel {
+    type Input = [Mat4];
+    type Readback = FrameReadback;
+    type Output = FrameData;
+
+    fn name(&self) -> &'static str {
+        "ao"
+    }
+
+    fn passes(&self) -> Vec<PassInfo> {
+        let uses = |b: &BindGroup| b.accesses().into_iter().map(UseInfo::from).collect();
+        vec![
+            PassInfo {
+                name: PASS_JOINTS,
+                uses: vec![UseInfo {
+                    binding: "(upload)".into(),
+                    resource: self.joints.name().to_string(),
+                    access: format!("{:?}", AccessSet::from(A::TransferWrite)),
+                }],
+            },
+            PassInfo {
+                name: PASS_SKIN,
+                uses: uses(&self.skin_bind),
+            },
+            PassInfo {
+                name: PASS_OCCLUSION,
+                uses: uses(&self.occlusion_bind),
+            },
+        ]
+    }
+
+    fn record_pass(&self, rec: &mut Recorder, pass: usize, input: &[Mat4]) -> Result<()> {
+        AoKernel::record_pass(self, rec, pass, input)
+    }
+
+    fn plan_pass(&self, rec: &mut Recorder, pass: usize) -> Result<Vec<PlannedBarrier>> {
+        match pass {
+            0 => rec.plan(&[Use::Buffer(&self.joints, A::TransferWrite.into())]),
+            1 => Ok(rec.plan_dispatch(&self.skin_bind)),
+            2 => Ok(rec.plan_dispatch(&self.occlusion_bind)),
+            _ => Err(Error::InvalidArgument(format!(
+                "AO has 3 passes, not {}",
+                pass + 1
+            ))),
+        }
+    }
+
+    fn read_back(&self, rec: &mut Recorder) -> Result<FrameReadback> {
+        AoKernel::read_back(self, rec)
+    }
+
+    fn collect(&self, readback: &FrameReadback) -> Result<FrameData> {
+        readback.data()
+    }
+
+    fn memory(&self) -> crate::gpu::MemoryReport {
+        AoKernel::memory(self)
     }
 }
 
