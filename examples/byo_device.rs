@@ -561,9 +561,9 @@ impl Drop for Slots {
 /// caller's fence.
 ///
 /// # Safety
-/// `cmd` must be recording, and `recorded` must be what vkshade recorded into it. No other
-/// vkshade submission or `signal()` may happen between the `signal()` here and the submit
-/// (this example is single-threaded, so none can).
+/// `cmd` must be recording, and `recorded` must be what vkshade recorded into it. The
+/// timeline value is reserved under the queue lock held for the submit, so no other
+/// submission can come between them.
 unsafe fn submit(
     dev: &DeviceGuard,
     cmd: vk::CommandBuffer,
@@ -572,14 +572,14 @@ unsafe fn submit(
 ) -> Result<(), String> {
     // SAFETY: `cmd` is recording (the caller's contract).
     unsafe { dev.device.end_command_buffer(cmd) }.map_err(vk_err("vkEndCommandBuffer"))?;
-    // vkshade's timeline value, reserved now, in submission order. `signal()` takes the
-    // queue lock itself, so it is called before we take it (std mutexes do not nest).
-    let signals = [recorded.signal()];
+    // vkshade's timeline value, reserved under the lock we submit with: values are signalled
+    // in the order they are handed out, whatever other threads do.
+    let queue = lock(&dev.queue);
+    let signals = [recorded.signal_locked(&queue)];
     let cmds = [vk::CommandBufferSubmitInfo::default().command_buffer(cmd)];
     let batch = vk::SubmitInfo2::default()
         .command_buffer_infos(&cmds)
         .signal_semaphore_infos(&signals);
-    let queue = lock(&dev.queue);
     // SAFETY: the queue is externally synchronised by the lock we hold; `cmd` is executable
     // and everything it uses is kept alive by `recorded` (vkshade's resources, until its
     // timeline value) and by us (the pool, until the fence); the fence is unsignalled and
@@ -794,7 +794,7 @@ fn frames(inst: &InstanceGuard, dev: &DeviceGuard) -> Result<Summary, String> {
     let mut setup = setup_rec.finish().map_err(vks_err("finish"))?;
     let setup_fence = slots.slots[0].fence;
     // SAFETY: slot 0's buffer is recording and holds exactly what `setup` recorded; the
-    // program is single-threaded, so nothing submits between signal() and the submit.
+    // value is reserved under the queue lock of the submit.
     unsafe { submit(dev, slots.slots[0].cmd, &mut setup, setup_fence)? };
     slots.pending.push(setup_fence);
     // The uploads must be done before slot 0 is reused; waiting here also checks them.
@@ -854,7 +854,7 @@ fn frames(inst: &InstanceGuard, dev: &DeviceGuard) -> Result<Summary, String> {
         };
         let fence = slots.slots[slot].fence;
         // SAFETY: the slot's buffer is recording and holds exactly what `recorded` recorded;
-        // single-threaded, so nothing submits between signal() and the submit.
+        // the value is reserved under the queue lock of the submit.
         unsafe { submit(dev, slots.slots[slot].cmd, &mut recorded, fence)? };
         slots.pending.push(fence);
         in_flight.push_back(InFlight {

@@ -992,7 +992,12 @@ impl Context {
     /// use of it by the caller must hold its lock. A given allocator must belong to this
     /// device. With `debug_utils`, the instance must have VK_EXT_debug_utils enabled.
     pub unsafe fn from_external(ext: ExternalDevice) -> Result<Context> {
-        let mut info = describe_device(&ext.instance, ext.physical_device, 0);
+        // SAFETY: valid instance (the caller's contract).
+        let index = unsafe { ext.instance.enumerate_physical_devices() }
+            .ok()
+            .and_then(|pds| pds.iter().position(|&p| p == ext.physical_device))
+            .unwrap_or(0);
+        let mut info = describe_device(&ext.instance, ext.physical_device, index);
         // SAFETY: valid handles (the caller's contract).
         let families = unsafe {
             ext.instance

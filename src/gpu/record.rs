@@ -1679,11 +1679,26 @@ impl Recorded {
     /// signal to add to the caller's `vkQueueSubmit2` of the command buffer (see the
     /// contract of [`Context::record_into`]). Calling it again returns the same signal.
     pub fn signal(&mut self) -> vk::SemaphoreSubmitInfo<'static> {
+        let shared = self
+            .finished
+            .as_ref()
+            .expect("present until dropped")
+            .shared
+            .clone();
+        let queue = lock(&shared.queue);
+        self.signal_locked(&queue)
+    }
+
+    /// As [`Recorded::signal`], for a caller that already holds the queue lock (the one in
+    /// `ExternalDevice::queue`) for its submission: reserving the value and submitting are
+    /// then one step that no other thread can interleave.
+    pub fn signal_locked(
+        &mut self,
+        _queue: &std::sync::MutexGuard<'_, vk::Queue>,
+    ) -> vk::SemaphoreSubmitInfo<'static> {
         let f = self.finished.as_mut().expect("present until dropped");
         if self.value == 0 {
-            let shared = f.shared.clone();
-            let _queue = lock(&shared.queue);
-            self.value = shared.reserve_value();
+            self.value = f.shared.reserve_value();
             f.stamp(self.value);
         }
         f.shared.timeline_signal(self.value)
