@@ -12,17 +12,17 @@ fn main() -> vkshade::Result<()> {
     let (values, ms) = {
         let spirv = vkshade::shaders::spirv("test/chain_scale")?; // any compute SPIR-V
         let pipeline = ComputePipeline::from_spirv(&ctx, "scale", spirv)?; // layout from reflection
-        let x = ctx.upload_buffer("x", BufferDesc::storage(4 * n as u64), &data)?; // staging + barrier
-        let y = Buffer::new(&ctx, "y", BufferDesc::storage(4 * n as u64))?;
+        let x = ctx.upload_buffer("x", BufferDesc::storage(4 * n as u64), &data)?; // staged, waited
+        let y = Buffer::new(&ctx, "y", BufferDesc::storage(4 * n as u64))?; // device-local
         let bind =
             pipeline.bind(&[("src", Resource::Buffer(&x)), ("dst", Resource::Buffer(&y))])?;
         let push = [2.0f32.to_le_bytes(), 1.0f32.to_le_bytes(), n.to_le_bytes()].concat();
 
         let mut rec = ctx.recorder("frame")?;
         rec.begin_pass("scale"); // debug label + timestamps
-        rec.dispatch_invocations(&pipeline, &bind, &push, [n, 1, 1])?;
+        rec.dispatch_invocations_tracked(&pipeline, &bind, &push, [n, 1, 1])?; // barriers from uses
         rec.end_pass();
-        let out = rec.read_back(&y)?; // barrier + copy to the host
+        let out = rec.read_back(&y)?; // tracked barrier + copy to the host
         let timings = rec.submit_and_wait()?; // GPU milliseconds per pass
         let values: Vec<f32> = out.to_vec()?;
         (values, timings.get("scale").unwrap_or(f64::NAN))
