@@ -671,31 +671,19 @@ impl Image {
                 .device
                 .get_image_memory_requirements2(&req_info, &mut req2)
         };
-        let requirements = req2.memory_requirements;
-        let (prefers, requires) = (
-            dedicated_req.prefers_dedicated_allocation == vk::TRUE,
-            dedicated_req.requires_dedicated_allocation == vk::TRUE,
+        let backing = super::memory::back(
+            shared,
+            name,
+            req2.memory_requirements,
+            (
+                AllocationScheme::DedicatedImage(raw),
+                dedicated_req.prefers_dedicated_allocation == vk::TRUE,
+                dedicated_req.requires_dedicated_allocation == vk::TRUE,
+            ),
+            desc.placement,
+            false,
+            group,
         );
-        let backing = match group {
-            Some(g) => g
-                .keep()
-                .bind_point(name, &requirements)
-                .map(|(m, o)| (Backing::Group(g.keep()), m, o)),
-            None => shared
-                .allocate(
-                    name,
-                    requirements,
-                    desc.placement,
-                    false,
-                    (AllocationScheme::DedicatedImage(raw), prefers, requires),
-                )
-                .map(|a| {
-                    // SAFETY: reading the handle of a live allocation.
-                    let m = unsafe { a.memory() };
-                    let o = a.offset();
-                    (Backing::Own(a), m, o)
-                }),
-        };
         let (backing, memory, offset) = match backing {
             Ok(b) => b,
             Err(e) => {

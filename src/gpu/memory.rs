@@ -435,6 +435,29 @@ fn buffer_requirements(shared: &Shared, desc: &BufferDesc) -> Result<vk::MemoryR
     Ok(out.memory_requirements)
 }
 
+/// Memory for a new buffer or image: bound in `group`, or an allocation of its own per
+/// `placement` (dedicated when the policy and the driver's `dedicated` answer say so).
+/// Returns the backing and where to bind.
+pub(crate) fn back(
+    shared: &Shared,
+    name: &str,
+    requirements: vk::MemoryRequirements,
+    dedicated: (AllocationScheme, bool, bool),
+    placement: Placement,
+    linear: bool,
+    group: Option<&AliasGroup>,
+) -> Result<(Backing, vk::DeviceMemory, u64)> {
+    if let Some(g) = group {
+        let (m, o) = g.inner.bind_point(name, &requirements)?;
+        return Ok((Backing::Group(g.keep()), m, o));
+    }
+    let a = shared.allocate(name, requirements, placement, linear, dedicated)?;
+    // SAFETY: reading the handle of a live allocation.
+    let memory = unsafe { a.memory() };
+    let offset = a.offset();
+    Ok((Backing::Own(a), memory, offset))
+}
+
 /// Pointer to mapped memory; the allocation it points into is owned by the same object.
 #[derive(Clone, Copy)]
 pub(crate) struct MappedPtr(pub std::ptr::NonNull<u8>);
@@ -559,31 +582,19 @@ impl Buffer {
                 .device
                 .get_buffer_memory_requirements2(&req_info, &mut req2)
         };
-        let requirements = req2.memory_requirements;
-        let (prefers, requires) = (
-            dedicated_req.prefers_dedicated_allocation == vk::TRUE,
-            dedicated_req.requires_dedicated_allocation == vk::TRUE,
+        let backing = back(
+            shared,
+            name,
+            req2.memory_requirements,
+            (
+                AllocationScheme::DedicatedBuffer(raw),
+                dedicated_req.prefers_dedicated_allocation == vk::TRUE,
+                dedicated_req.requires_dedicated_allocation == vk::TRUE,
+            ),
+            desc.placement,
+            true,
+            group,
         );
-        let backing = match group {
-            Some(g) => g
-                .inner
-                .bind_point(name, &requirements)
-                .map(|(m, o)| (Backing::Group(g.keep()), m, o)),
-            None => shared
-                .allocate(
-                    name,
-                    requirements,
-                    desc.placement,
-                    true,
-                    (AllocationScheme::DedicatedBuffer(raw), prefers, requires),
-                )
-                .map(|a| {
-                    // SAFETY: reading the handle of a live allocation.
-                    let m = unsafe { a.memory() };
-                    let o = a.offset();
-                    (Backing::Own(a), m, o)
-                }),
-        };
         let (backing, memory, offset) = match backing {
             Ok(b) => b,
             Err(e) => {

@@ -132,6 +132,54 @@ pub struct PlannedBarrier {
     pub new_layout: vk::ImageLayout,
 }
 
+impl PlannedBarrier {
+    fn masks(&self) -> super::sync::BarrierMasks {
+        barrier_masks(
+            self.prev,
+            self.next,
+            self.force_visible || self.old_layout != self.new_layout,
+        )
+    }
+
+    /// Appends the Vulkan barrier to `buffers` or `images`.
+    fn push_vk(
+        &self,
+        buffers: &mut Vec<vk::BufferMemoryBarrier2<'static>>,
+        images: &mut Vec<vk::ImageMemoryBarrier2<'static>>,
+    ) {
+        let m = self.masks();
+        if let Some(b) = self.buffer {
+            buffers.push(
+                vk::BufferMemoryBarrier2::default()
+                    .src_stage_mask(m.src_stages)
+                    .src_access_mask(m.src_access)
+                    .dst_stage_mask(m.dst_stages)
+                    .dst_access_mask(m.dst_access)
+                    .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                    .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                    .buffer(b)
+                    .offset(0)
+                    .size(vk::WHOLE_SIZE),
+            );
+        }
+        if let Some((image, range)) = self.image {
+            images.push(
+                vk::ImageMemoryBarrier2::default()
+                    .src_stage_mask(m.src_stages)
+                    .src_access_mask(m.src_access)
+                    .dst_stage_mask(m.dst_stages)
+                    .dst_access_mask(m.dst_access)
+                    .old_layout(self.old_layout)
+                    .new_layout(self.new_layout)
+                    .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                    .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
+                    .image(image)
+                    .subresource_range(range.vk()),
+            );
+        }
+    }
+}
+
 /// GPU time of one named pass.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct PassTiming {
@@ -305,8 +353,8 @@ pub struct Recorder {
     keep: KeepAlive,
     ring_chunks: Vec<u64>,
     readbacks: Vec<Arc<AtomicU64>>,
-    pending_buffers: Vec<vk::BufferMemoryBarrier2<'static>>,
-    pending_images: Vec<vk::ImageMemoryBarrier2<'static>>,
+    /// Barriers queued by declared uses, recorded before the next command.
+    pending: Vec<PlannedBarrier>,
     mode: BarrierMode,
     collected: Vec<PlannedBarrier>,
     needs_host_barrier: bool,
@@ -380,8 +428,7 @@ impl Recorder {
             keep: KeepAlive::default(),
             ring_chunks: Vec::new(),
             readbacks: Vec::new(),
-            pending_buffers: Vec::new(),
-            pending_images: Vec::new(),
+            pending: Vec::new(),
             mode: BarrierMode::Emit,
             collected: Vec::new(),
             needs_host_barrier: false,
@@ -497,43 +544,9 @@ impl Recorder {
     /// are the ones the collecting recorder keeps.
     pub fn record_planned(&mut self, planned: &[PlannedBarrier]) {
         self.flush_barriers();
-        let mut buffers = Vec::new();
-        let mut images = Vec::new();
+        let (mut buffers, mut images) = (Vec::new(), Vec::new());
         for p in planned {
-            let m = barrier_masks(
-                p.prev,
-                p.next,
-                p.force_visible || p.old_layout != p.new_layout,
-            );
-            if let Some(b) = p.buffer {
-                buffers.push(
-                    vk::BufferMemoryBarrier2::default()
-                        .src_stage_mask(m.src_stages)
-                        .src_access_mask(m.src_access)
-                        .dst_stage_mask(m.dst_stages)
-                        .dst_access_mask(m.dst_access)
-                        .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
-                        .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
-                        .buffer(b)
-                        .offset(0)
-                        .size(vk::WHOLE_SIZE),
-                );
-            }
-            if let Some((image, range)) = p.image {
-                images.push(
-                    vk::ImageMemoryBarrier2::default()
-                        .src_stage_mask(m.src_stages)
-                        .src_access_mask(m.src_access)
-                        .dst_stage_mask(m.dst_stages)
-                        .dst_access_mask(m.dst_access)
-                        .old_layout(p.old_layout)
-                        .new_layout(p.new_layout)
-                        .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
-                        .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
-                        .image(image)
-                        .subresource_range(range.vk()),
-                );
-            }
+            p.push_vk(&mut buffers, &mut images);
         }
         let dep = vk::DependencyInfo::default()
             .buffer_memory_barriers(&buffers)
@@ -748,86 +761,57 @@ impl Recorder {
         Ok(())
     }
 
-    fn queue_buffer(&mut self, inner: &Arc<BufferInner>, t: Transition) {
+    fn queue(&mut self, planned: PlannedBarrier) {
         match self.mode {
-            BarrierMode::Emit => {
-                let m = barrier_masks(t.prev, t.next, t.force_visible);
-                self.pending_buffers.push(
-                    vk::BufferMemoryBarrier2::default()
-                        .src_stage_mask(m.src_stages)
-                        .src_access_mask(m.src_access)
-                        .dst_stage_mask(m.dst_stages)
-                        .dst_access_mask(m.dst_access)
-                        .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
-                        .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
-                        .buffer(inner.raw)
-                        .offset(0)
-                        .size(vk::WHOLE_SIZE),
-                );
-            }
-            BarrierMode::Collect => self.collected.push(PlannedBarrier {
-                resource: inner.name.clone(),
-                buffer: Some(inner.raw),
-                image: None,
-                prev: t.prev,
-                next: t.next,
-                force_visible: t.force_visible,
-                old_layout: vk::ImageLayout::UNDEFINED,
-                new_layout: vk::ImageLayout::UNDEFINED,
-            }),
+            BarrierMode::Emit => self.pending.push(planned),
+            BarrierMode::Collect => self.collected.push(planned),
         }
+    }
+
+    fn queue_buffer(&mut self, inner: &Arc<BufferInner>, t: Transition) {
+        self.queue(PlannedBarrier {
+            resource: inner.name.clone(),
+            buffer: Some(inner.raw),
+            image: None,
+            prev: t.prev,
+            next: t.next,
+            force_visible: t.force_visible,
+            old_layout: vk::ImageLayout::UNDEFINED,
+            new_layout: vk::ImageLayout::UNDEFINED,
+        });
     }
 
     fn queue_image(&mut self, inner: &Arc<ImageInner>, r: RangeTransition) {
         let t = r.transition;
-        match self.mode {
-            BarrierMode::Emit => {
-                let m = barrier_masks(
-                    t.prev,
-                    t.next,
-                    t.force_visible || t.old_layout != t.new_layout,
-                );
-                self.pending_images.push(
-                    vk::ImageMemoryBarrier2::default()
-                        .src_stage_mask(m.src_stages)
-                        .src_access_mask(m.src_access)
-                        .dst_stage_mask(m.dst_stages)
-                        .dst_access_mask(m.dst_access)
-                        .old_layout(t.old_layout)
-                        .new_layout(t.new_layout)
-                        .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
-                        .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
-                        .image(inner.raw)
-                        .subresource_range(r.range.vk()),
-                );
-            }
-            BarrierMode::Collect => self.collected.push(PlannedBarrier {
-                resource: inner.name.clone(),
-                buffer: None,
-                image: Some((inner.raw, r.range)),
-                prev: t.prev,
-                next: t.next,
-                force_visible: t.force_visible,
-                old_layout: t.old_layout,
-                new_layout: t.new_layout,
-            }),
-        }
+        self.queue(PlannedBarrier {
+            resource: inner.name.clone(),
+            buffer: None,
+            image: Some((inner.raw, r.range)),
+            prev: t.prev,
+            next: t.next,
+            force_visible: t.force_visible,
+            old_layout: t.old_layout,
+            new_layout: t.new_layout,
+        });
     }
 
     /// Records the barriers queued by declared uses, as one `vkCmdPipelineBarrier2`.
     /// Commands vkshade records call this first; call it before adding your own commands
     /// to [`Recorder::raw`].
     pub fn flush_barriers(&mut self) {
-        if self.pending_buffers.is_empty() && self.pending_images.is_empty() {
+        if self.pending.is_empty() {
             return;
         }
+        let pending = std::mem::take(&mut self.pending);
+        let (mut buffers, mut images) = (Vec::new(), Vec::new());
+        for p in &pending {
+            p.push_vk(&mut buffers, &mut images);
+        }
         let dep = vk::DependencyInfo::default()
-            .buffer_memory_barriers(&self.pending_buffers)
-            .image_memory_barriers(&self.pending_images);
+            .buffer_memory_barriers(&buffers)
+            .image_memory_barriers(&images);
         // SAFETY: recording; every handle is kept alive by this recorder.
         unsafe { self.shared.device.cmd_pipeline_barrier2(self.cmd, &dep) };
-        self.pending_buffers.clear();
-        self.pending_images.clear();
     }
 
     // ---- dispatches -----------------------------------------------------------------------
@@ -1237,6 +1221,29 @@ impl Recorder {
         Ok(readback)
     }
 
+    /// Declares `src_region` of `src` a `TransferRead` and `dst_region` of `dst` a
+    /// `TransferWrite` (discarding the old contents when it covers the whole mip level),
+    /// and records the barriers.
+    fn use_for_transfer(
+        &mut self,
+        src: &Image,
+        src_region: &ImageRegion,
+        dst: &Image,
+        dst_region: &ImageRegion,
+    ) -> Result<()> {
+        self.use_image(src, src_region.subresources(), AccessType::TransferRead)?;
+        let whole = dst_region.offset == [0; 3]
+            && dst_region.extent == dst.desc().mip_extent(dst_region.mip);
+        self.use_image_inner(
+            &dst.keep(),
+            dst_region.subresources(),
+            AccessType::TransferWrite.into(),
+            whole,
+        );
+        self.flush_barriers();
+        Ok(())
+    }
+
     /// Copies `src_region` of `src` to `dst` at `dst_region` (same extent; formats of the
     /// same texel size).
     pub fn copy_image(
@@ -1274,16 +1281,7 @@ impl Recorder {
                 src.name()
             )));
         }
-        self.use_image(src, src_region.subresources(), AccessType::TransferRead)?;
-        let whole = dst_region.offset == [0; 3]
-            && dst_region.extent == dst.desc().mip_extent(dst_region.mip);
-        self.use_image_inner(
-            &dst.keep(),
-            dst_region.subresources(),
-            AccessType::TransferWrite.into(),
-            whole,
-        );
-        self.flush_barriers();
+        self.use_for_transfer(src, &src_region, dst, &dst_region)?;
         let to_offset = |o: [u32; 3]| vk::Offset3D {
             x: o[0] as i32,
             y: o[1] as i32,
@@ -1389,16 +1387,7 @@ impl Recorder {
                 src.name()
             )));
         }
-        self.use_image(src, src_region.subresources(), AccessType::TransferRead)?;
-        let whole = dst_region.offset == [0; 3]
-            && dst_region.extent == dst.desc().mip_extent(dst_region.mip);
-        self.use_image_inner(
-            &dst.keep(),
-            dst_region.subresources(),
-            AccessType::TransferWrite.into(),
-            whole,
-        );
-        self.flush_barriers();
+        self.use_for_transfer(src, &src_region, dst, &dst_region)?;
         let corners = |r: &ImageRegion| {
             [
                 vk::Offset3D {
