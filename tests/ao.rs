@@ -643,6 +643,7 @@ fn frames_in_flight_and_render_graph_driving_match_the_cpu_twin() {
             planned_passes.push((pass, planned.clone()));
             planned
         })?;
+        assert!(rec.take_collected().is_empty(), "every use was planned");
         assert!(
             planned_passes
                 .iter()

@@ -44,7 +44,7 @@ fn forgotten_submission_keeps_what_it_uses_alive() {
         for _ in 0..50 {
             rec.dispatch_invocations_tracked(&scale, &bind, &scale_push(2.0, 1.0, N), [N, 1, 1])?;
         }
-        let submission = rec.submit(&[], &[])?;
+        let submission = rec.submit()?;
         let value = submission.value();
         std::mem::forget(submission);
         // The review measured VUID-vkDestroyDescriptorPool-descriptorPool-00303 and
@@ -84,7 +84,7 @@ fn dropping_everything_before_the_work_completes_is_safe() {
         let mut rec = ctx.recorder("dropped early")?;
         rec.fill_buffer(&src, 0);
         rec.dispatch_invocations_tracked(&scale, &bind, &scale_push(2.0, 1.0, N), [N, 1, 1])?;
-        let submission = rec.submit(&[], &[])?;
+        let submission = rec.submit()?;
         drop((bind, scale, src, dst, submission)); // the submission's drop does not wait
         ctx.wait_idle()?;
         assert_eq!(ctx.maintain(), 0);
@@ -135,7 +135,7 @@ fn host_writes_wait_for_submitted_work_that_uses_the_buffer() {
             rec.dispatch_invocations_tracked(&scale, &bind, &scale_push(1.0, 0.0, n), [n, 1, 1])?;
         }
         let rb = rec.read_back(&out)?;
-        let submission = rec.submit(&[], &[])?;
+        let submission = rec.submit()?;
         // While the dispatches may still run, overwrite the input: write() waits for them.
         upload.write(0, &vec![-1.0f32; n as usize])?;
         assert!(
@@ -275,7 +275,7 @@ fn wrapped_raw_handles_are_bound_and_never_destroyed_by_vkshade() {
         let mut rec = ctx.recorder("wrapped")?;
         rec.upload(&wrapped_buf, 0, &[9u32; 64])?;
         rec.clear_image(&wrapped_img, wrapped_img.all(), [3.5, 0.0, 0.0, 0.0])?;
-        let value = rec.submit(&[], &[])?.value();
+        let value = rec.submit()?.value();
         ctx.wait_for(value)?;
         drop((wrapped_buf, wrapped_img)); // destroys nothing
         owner_img.assume_access(owner_img.all(), A::TransferWrite)?;
@@ -336,7 +336,7 @@ fn a_large_volume_streams_through_a_small_staging_ring() {
         for frame in 0..64u32 {
             let mut rec = ctx.recorder("frame")?;
             rec.upload(&target, 0, &vec![frame; 16 * 1024])?;
-            rec.submit(&[], &[])?;
+            rec.submit()?;
         }
         ctx.wait_idle()?;
         assert_eq!(ctx.memory_report().allocations, allocations);
@@ -395,6 +395,8 @@ fn chain_with_declared(ctx: &Context, declare_y: AccessSet, collect: bool) -> vk
         );
         rec.record_planned(&planned);
         rec.dispatch_invocations_tracked(&add, &ab, &add_push(1.0, N), [N, 1, 1])?;
+        let unplanned = rec.take_collected();
+        assert!(unplanned.is_empty(), "nothing unplanned: {unplanned:?}");
         rec.set_barrier_mode(BarrierMode::Emit);
     } else {
         rec.dispatch_invocations_tracked(&scale, &sb, &scale_push(2.0, 1.0, N), [N, 1, 1])?;

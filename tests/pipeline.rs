@@ -98,7 +98,7 @@ impl Chain {
                 y,
                 A::ComputeShaderWrite,
                 A::ComputeShaderReadOther,
-            )]);
+            )])?;
         }
         rec.begin_pass("add 1");
         rec.dispatch_invocations(&self.add, &self.add_bind, &add_push(0.5, N), [N, 1, 1])?;
@@ -111,7 +111,7 @@ impl Chain {
                 A::ComputeShaderWrite,
                 A::ComputeShaderReadOther | A::ComputeShaderWrite,
             ),
-        ]);
+        ])?;
         rec.begin_pass("scale 2");
         rec.dispatch_invocations(
             &self.scale,
@@ -124,7 +124,7 @@ impl Chain {
             y,
             A::ComputeShaderWrite,
             A::ComputeShaderReadOther,
-        )]);
+        )])?;
         rec.begin_pass("add 2");
         rec.dispatch_invocations(&self.add, &self.add_bind, &add_push(0.5, N), [N, 1, 1])?;
         rec.end_pass();
@@ -449,7 +449,7 @@ fn images_round_trip_through_staging() {
                 &image,
                 A::TransferWrite,
                 A::ComputeShaderReadSampledImage,
-            )]);
+            )])?;
             let rb = rec.read_back_image(&image, ImageRegion::whole(image.desc()))?;
             rec.submit_and_wait()?;
             assert_eq!(rb.bytes()?, &data[..], "{name}");
@@ -559,7 +559,7 @@ fn specialization_constants_by_name() {
                 &out,
                 A::TransferRead,
                 A::ComputeShaderWrite,
-            )]);
+            )])?;
             rec.dispatch_invocations(&p, &bind, &n.to_le_bytes(), [n, 1, 1])?;
             let rb = rec.read_back(&out)?;
             rec.submit_and_wait()?;
@@ -674,16 +674,19 @@ fn external_device_command_buffer_and_semaphores() {
             [N, 1, 1],
         )?;
         first.end_pass();
-        let first = first.submit(&[], &signal)?;
+        // SAFETY: `sem` is a fresh binary semaphore of this device, signalled once here and
+        // waited once below; it is destroyed after both submissions completed.
+        let first = unsafe { first.submit_with(&[], &signal)? };
         let mut second = ext.recorder("second half")?;
         second.barrier(&[Barrier::buffer(
             &chain._y,
             A::ComputeShaderWrite,
             A::ComputeShaderReadOther,
-        )]);
+        )])?;
         second.dispatch_invocations(&chain.add, &chain.add_bind, &add_push(0.5, N), [N, 1, 1])?;
         let rb = second.read_back(&chain.acc)?;
-        let second = second.submit(&wait, &[])?;
+        // SAFETY: as above: the wait pairs with the signal submitted just before.
+        let second = unsafe { second.submit_with(&wait, &[])? };
         second.wait()?;
         assert!(first.is_complete());
         first.wait()?;
@@ -718,7 +721,7 @@ fn external_device_command_buffer_and_semaphores() {
                 &chain.acc,
                 A::TransferRead,
                 A::ComputeShaderWrite,
-            )]);
+            )])?;
             rec.begin_pass("add in renderer frame");
             rec.dispatch_invocations(&chain.add, &chain.add_bind, &add_push(1.0, N), [N, 1, 1])?;
             rec.end_pass();
@@ -753,11 +756,7 @@ fn external_device_command_buffer_and_semaphores() {
             // An external recorder cannot submit itself (checked on a spare command buffer
             // that is never submitted).
             device.begin_command_buffer(spare, &begin).unwrap();
-            let e = ext
-                .record_into(spare, "spare")?
-                .submit(&[], &[])
-                .err()
-                .unwrap();
+            let e = ext.record_into(spare, "spare")?.submit().err().unwrap();
             assert!(e.to_string().contains("finish()"), "{e}");
             device.destroy_fence(fence, None);
             device.destroy_command_pool(pool, None);

@@ -95,7 +95,7 @@ fn record_fma<'a>(
         out,
         AccessType::ComputeShaderWrite,
         AccessType::ComputeShaderWrite,
-    )]);
+    )])?;
     rec.begin_pass("fma");
     rec.dispatch_invocations(
         pipeline,
@@ -123,11 +123,11 @@ fn record_stream<'a>(
             AccessType::ComputeShaderWrite,
         )
     };
-    rec.barrier(&[waw()]);
+    rec.barrier(&[waw()])?;
     rec.begin_pass("stream");
     for r in 0..repeats {
         if r > 0 {
-            rec.barrier(&[waw()]);
+            rec.barrier(&[waw()])?;
         }
         rec.dispatch_invocations(pipeline, bind, push, [n, 1, 1])?;
     }
@@ -230,7 +230,7 @@ pub fn run_stream(
         rec.barrier(&[Barrier::global(
             AccessType::TransferWrite,
             AccessType::ComputeShaderReadOther | AccessType::ComputeShaderWrite,
-        )]);
+        )])?;
         rec.submit_and_wait()?;
     }
     let probe = BenchConfig {

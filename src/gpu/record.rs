@@ -112,18 +112,21 @@ pub enum BarrierMode {
     Emit,
     /// vkshade records none: the caller (a render graph) has planned them beforehand
     /// ([`Recorder::plan`], [`Recorder::plan_dispatch`]) and recorded them merged with its
-    /// own. What tracked commands would have needed is kept for checking
-    /// ([`Recorder::take_collected`]); after a correct plan it holds nothing new.
+    /// own. A tracked command whose uses were planned applies nothing again; what an
+    /// unplanned use would have needed is kept for checking ([`Recorder::take_collected`]),
+    /// so after a correct plan it is empty.
     Collect,
 }
 
-/// A barrier derived from declared uses.
-#[derive(Clone, Debug, PartialEq, Eq)]
+/// A barrier derived from declared uses. It keeps the resource it names alive, so
+/// recording it later ([`Recorder::record_planned`]) never names a destroyed object.
+#[derive(Clone)]
 pub struct PlannedBarrier {
     /// The resource's name.
     pub resource: String,
-    pub buffer: Option<vk::Buffer>,
-    pub image: Option<(vk::Image, Subresources)>,
+    buffer: Option<vk::Buffer>,
+    image: Option<(vk::Image, Subresources)>,
+    target: Arc<dyn super::lifetime::Used>,
     pub prev: AccessSet,
     pub next: AccessSet,
     /// Make `prev`'s (already available) writes visible to `next`.
@@ -132,7 +135,31 @@ pub struct PlannedBarrier {
     pub new_layout: vk::ImageLayout,
 }
 
+impl std::fmt::Debug for PlannedBarrier {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("PlannedBarrier")
+            .field("resource", &self.resource)
+            .field("image_range", &self.image.map(|(_, r)| r))
+            .field("prev", &self.prev)
+            .field("next", &self.next)
+            .field("force_visible", &self.force_visible)
+            .field("old_layout", &self.old_layout)
+            .field("new_layout", &self.new_layout)
+            .finish()
+    }
+}
+
 impl PlannedBarrier {
+    /// The buffer it is for, if a buffer.
+    pub fn buffer(&self) -> Option<vk::Buffer> {
+        self.buffer
+    }
+
+    /// The image and subresources it is for, if an image.
+    pub fn image(&self) -> Option<(vk::Image, Subresources)> {
+        self.image
+    }
+
     fn masks(&self) -> super::sync::BarrierMasks {
         barrier_masks(
             self.prev,
@@ -357,6 +384,12 @@ pub struct Recorder {
     pending: Vec<PlannedBarrier>,
     mode: BarrierMode,
     collected: Vec<PlannedBarrier>,
+    /// Uses already applied by `plan`/`plan_dispatch` (resource address, image range,
+    /// access): the tracked command that makes them consumes the entry instead of applying
+    /// the use twice.
+    planned_uses: Vec<(usize, Option<Subresources>, AccessSet)>,
+    /// Set while `plan`/`plan_dispatch` apply uses (they record markers, not consume them).
+    planning: bool,
     needs_host_barrier: bool,
     done: bool,
 }
@@ -431,6 +464,8 @@ impl Recorder {
             pending: Vec::new(),
             mode: BarrierMode::Emit,
             collected: Vec::new(),
+            planned_uses: Vec::new(),
+            planning: false,
             needs_host_barrier: false,
             done: false,
         }
@@ -485,8 +520,12 @@ impl Recorder {
     }
 
     /// Sets who records barriers derived from declared uses (default [`BarrierMode::Emit`]).
+    /// Leaving Collect mode drops planned uses no command consumed.
     pub fn set_barrier_mode(&mut self, mode: BarrierMode) {
         self.flush_barriers();
+        if mode == BarrierMode::Emit {
+            self.planned_uses.clear();
+        }
         self.mode = mode;
     }
 
@@ -501,6 +540,7 @@ impl Recorder {
     /// records the pass in [`BarrierMode::Collect`].
     pub fn plan(&mut self, uses: &[Use<'_>]) -> Result<Vec<PlannedBarrier>> {
         self.flush_barriers();
+        self.planning = true;
         let mode = std::mem::replace(&mut self.mode, BarrierMode::Collect);
         let earlier = std::mem::take(&mut self.collected);
         let mut result = Ok(());
@@ -517,6 +557,7 @@ impl Recorder {
         }
         let planned = std::mem::replace(&mut self.collected, earlier);
         self.mode = mode;
+        self.planning = false;
         result.map(|_| planned)
     }
 
@@ -524,6 +565,7 @@ impl Recorder {
     /// dispatch with it would use).
     pub fn plan_dispatch(&mut self, bind: &BindGroup) -> Vec<PlannedBarrier> {
         self.flush_barriers();
+        self.planning = true;
         let mode = std::mem::replace(&mut self.mode, BarrierMode::Collect);
         let earlier = std::mem::take(&mut self.collected);
         let inner = bind.keep();
@@ -536,6 +578,7 @@ impl Recorder {
         self.keep.add(inner);
         let planned = std::mem::replace(&mut self.collected, earlier);
         self.mode = mode;
+        self.planning = false;
         planned
     }
 
@@ -546,12 +589,14 @@ impl Recorder {
         self.flush_barriers();
         let (mut buffers, mut images) = (Vec::new(), Vec::new());
         for p in planned {
+            self.keep.add(p.target.clone());
             p.push_vk(&mut buffers, &mut images);
         }
         let dep = vk::DependencyInfo::default()
             .buffer_memory_barriers(&buffers)
             .image_memory_barriers(&images);
-        // SAFETY: recording; the caller guarantees the named resources are alive.
+        // SAFETY: recording; each planned barrier keeps its resource alive, and this recorder
+        // now keeps them too.
         unsafe { self.shared.device.cmd_pipeline_barrier2(self.cmd, &dep) };
     }
 
@@ -615,8 +660,28 @@ impl Recorder {
     // ---- barriers -------------------------------------------------------------------------
 
     /// Records one pipeline barrier holding all of `barriers` (after any pending ones). The
-    /// tracked state of each buffer and image named becomes what the barrier declares.
-    pub fn barrier(&mut self, barriers: &[Barrier<'_>]) {
+    /// tracked state of each buffer and image named becomes what the barrier declares. An
+    /// image range outside the image, or image accesses without a layout, are errors.
+    ///
+    /// Explicit barriers are the caller's word: a wrong `prev` (and so a wrong old layout)
+    /// is reported by the validation layer, not checked here.
+    pub fn barrier(&mut self, barriers: &[Barrier<'_>]) -> Result<()> {
+        for b in barriers {
+            if let Barrier::Image {
+                image,
+                range,
+                prev,
+                next,
+                discard,
+            } = *b
+            {
+                range.check(image.name(), image.desc())?;
+                check_image_access(image, next)?;
+                if !discard && !prev.is_empty() {
+                    check_image_access(image, prev)?;
+                }
+            }
+        }
         self.flush_barriers();
         let mut memory = Vec::new();
         let mut buffers = Vec::new();
@@ -671,6 +736,7 @@ impl Recorder {
             .image_memory_barriers(&images);
         // SAFETY: recording; every handle is alive (kept by this recorder).
         unsafe { self.device().cmd_pipeline_barrier2(self.cmd, &dep) };
+        Ok(())
     }
 
     /// Declares that `buffer` is accessed as `next` from here on; queues the barrier the
@@ -679,8 +745,39 @@ impl Recorder {
         self.use_buffer_inner(&buffer.keep(), next.into());
     }
 
+    /// In planning, records a marker; in Collect mode, consumes a matching marker. Returns
+    /// whether the use was planned already (and so must not be applied again).
+    fn planned_already(
+        &mut self,
+        key: usize,
+        range: Option<Subresources>,
+        next: AccessSet,
+    ) -> bool {
+        if self.planning {
+            self.planned_uses.push((key, range, next));
+            return false;
+        }
+        if self.mode != BarrierMode::Collect {
+            return false;
+        }
+        match self
+            .planned_uses
+            .iter()
+            .position(|u| *u == (key, range, next))
+        {
+            Some(i) => {
+                self.planned_uses.remove(i);
+                true
+            }
+            None => false,
+        }
+    }
+
     fn use_buffer_inner(&mut self, inner: &Arc<BufferInner>, next: AccessSet) {
         self.keep.add(inner.clone());
+        if self.planned_already(Arc::as_ptr(inner) as usize, None, next) {
+            return;
+        }
         if next.iter().any(AccessType::is_write) && inner.desc.placement.location.host_visible() {
             self.needs_host_barrier = true;
         }
@@ -698,8 +795,10 @@ impl Recorder {
         range: Subresources,
         next: impl Into<AccessSet>,
     ) -> Result<()> {
+        let next = next.into();
         range.check(image.name(), image.desc())?;
-        self.use_image_inner(&image.keep(), range, next.into(), false);
+        check_image_access(image, next)?;
+        self.use_image_inner(&image.keep(), range, next, false);
         Ok(())
     }
 
@@ -711,8 +810,10 @@ impl Recorder {
         range: Subresources,
         next: impl Into<AccessSet>,
     ) -> Result<()> {
+        let next = next.into();
         range.check(image.name(), image.desc())?;
-        self.use_image_inner(&image.keep(), range, next.into(), true);
+        check_image_access(image, next)?;
+        self.use_image_inner(&image.keep(), range, next, true);
         Ok(())
     }
 
@@ -724,6 +825,9 @@ impl Recorder {
         discard: bool,
     ) {
         self.keep.add(inner.clone());
+        if self.planned_already(Arc::as_ptr(inner) as usize, Some(range), next) {
+            return;
+        }
         let transitions = lock(&inner.state).apply(&range, next, discard);
         for t in transitions {
             self.queue_image(inner, t);
@@ -742,7 +846,7 @@ impl Recorder {
         match next_member {
             AliasUse::Buffer(b, next) => {
                 self.flush_barriers();
-                self.barrier(&[Barrier::global(prev, next)]);
+                self.barrier(&[Barrier::global(prev, next)])?;
                 *lock(&b.keep().state) = super::track::BufferState::after(next);
                 self.keep.add(b.keep());
             }
@@ -755,7 +859,7 @@ impl Recorder {
                     prev,
                     next,
                     discard: true,
-                }]);
+                }])?;
             }
         }
         Ok(())
@@ -773,6 +877,7 @@ impl Recorder {
             resource: inner.name.clone(),
             buffer: Some(inner.raw),
             image: None,
+            target: inner.clone(),
             prev: t.prev,
             next: t.next,
             force_visible: t.force_visible,
@@ -787,6 +892,7 @@ impl Recorder {
             resource: inner.name.clone(),
             buffer: None,
             image: Some((inner.raw, r.range)),
+            target: inner.clone(),
             prev: t.prev,
             next: t.next,
             force_visible: t.force_visible,
@@ -1448,7 +1554,8 @@ impl Recorder {
         }
         self.flush_barriers();
         if self.needs_host_barrier || self.keep.host_visible {
-            self.barrier(&[Barrier::global(
+            // A global barrier names no image: it cannot fail.
+            let _ = self.barrier(&[Barrier::global(
                 AccessType::TransferWrite | AccessType::ComputeShaderWrite,
                 AccessType::HostRead,
             )]);
@@ -1472,15 +1579,39 @@ impl Recorder {
         }
     }
 
-    /// Ends recording and submits without waiting. `waits` and `signals` are semaphores of
-    /// the caller's (e.g. a renderer's frame): the work starts after the waits and signals
-    /// when done. Dropping the returned [`Submission`] does not wait: what the work uses
-    /// stays alive until it completes.
-    pub fn submit(
+    /// Ends recording and submits without waiting. Dropping the returned [`Submission`]
+    /// does not wait: what the work uses stays alive until it completes.
+    pub fn submit(self) -> Result<Submission> {
+        // SAFETY: no semaphores of the caller's are involved.
+        unsafe { self.submit_with(&[], &[]) }
+    }
+
+    /// As [`Recorder::submit`], with semaphores of the caller's (e.g. a renderer's frame):
+    /// the work starts after the waits and signals `signals` when done.
+    ///
+    /// # Safety
+    /// Every semaphore must be a live semaphore of this device, other than the context's
+    /// own timeline ([`Context::timeline`], refused with an error); a binary semaphore waited
+    /// on must have a signal submitted before (or with) this submission and no other wait
+    /// on it, one signalled must not be signalled already; timeline values must follow the
+    /// Vulkan rules (signals increase). The semaphores must stay alive until the submission
+    /// completes.
+    pub unsafe fn submit_with(
         mut self,
         waits: &[vk::SemaphoreSubmitInfo<'_>],
         signals: &[vk::SemaphoreSubmitInfo<'_>],
     ) -> Result<Submission> {
+        if waits
+            .iter()
+            .chain(signals)
+            .any(|s| s.semaphore == self.shared.timeline)
+        {
+            return Err(Error::InvalidArgument(
+                "the context's own timeline semaphore cannot be waited on or signalled through \
+                 submit_with: vkshade signals it itself"
+                    .into(),
+            ));
+        }
         if self.is_external() {
             return Err(Error::InvalidArgument(format!(
                 "recorder '{}' writes into the caller's command buffer: finish() it and submit that",
@@ -1526,7 +1657,7 @@ impl Recorder {
 
     /// Ends recording, submits, waits for completion and returns the pass timings.
     pub fn submit_and_wait(self) -> Result<Timings> {
-        self.submit(&[], &[])?.wait()
+        self.submit()?.wait()
     }
 
     /// Finishes a recorder made by [`Context::record_into`]: closes its passes and returns
@@ -1544,6 +1675,33 @@ impl Recorder {
             value: 0,
         })
     }
+}
+
+/// Fails unless `access` gives `image` a layout it can be in (image accesses only, and the
+/// usage the layout needs).
+fn check_image_access(image: &Image, access: AccessSet) -> Result<()> {
+    let layout = access.layout();
+    let usage = image.desc().usage;
+    let needs = match layout {
+        vk::ImageLayout::UNDEFINED => {
+            return Err(Error::InvalidArgument(format!(
+                "{access:?} are not image accesses (no layout) for image '{}'",
+                image.name()
+            )));
+        }
+        vk::ImageLayout::TRANSFER_DST_OPTIMAL => vk::ImageUsageFlags::TRANSFER_DST,
+        vk::ImageLayout::TRANSFER_SRC_OPTIMAL => vk::ImageUsageFlags::TRANSFER_SRC,
+        vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL => vk::ImageUsageFlags::SAMPLED,
+        vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL => vk::ImageUsageFlags::COLOR_ATTACHMENT,
+        _ => vk::ImageUsageFlags::empty(),
+    };
+    if !usage.contains(needs) {
+        return Err(Error::InvalidArgument(format!(
+            "image '{}' lacks {needs:?} usage, needed for {access:?}",
+            image.name()
+        )));
+    }
+    Ok(())
 }
 
 /// The state after an explicit barrier from `prev` to `next`: `next` reads are ordered
@@ -1823,7 +1981,7 @@ impl Context {
                 [(start as u64 * unit_bytes) as usize..((start + n) as u64 * unit_bytes) as usize];
             let mut rec = self.recorder(&format!("upload {} part {start}", image.name()))?;
             rec.upload_image(image, region, bytes)?;
-            last = rec.submit(&[], &[])?.value();
+            last = rec.submit()?.value();
             start += n;
         }
         Ok(last)

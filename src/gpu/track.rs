@@ -73,9 +73,15 @@ impl AccessState {
         let layout_change = image && old_layout != new_layout;
         if has_write(next) || layout_change || discard {
             let prev = self.last | self.reads;
+            // After a transition to a read-only access, those reads already see it.
+            let reads = if has_write(next) {
+                AccessSet::EMPTY
+            } else {
+                next
+            };
             *self = AccessState {
                 last: next,
-                reads: AccessSet::EMPTY,
+                reads,
                 wrote: true,
                 layout: new_layout,
             };
@@ -175,8 +181,12 @@ impl ImageState {
         next: AccessSet,
         discard: bool,
     ) -> Vec<RangeTransition> {
-        debug_assert!(range.base_mip + range.mip_count <= self.mips);
-        debug_assert!(range.base_layer + range.layer_count <= self.layers);
+        // Every public entry point checks ranges against the image (Subresources::check).
+        assert!(
+            range.base_mip + range.mip_count <= self.mips
+                && range.base_layer + range.layer_count <= self.layers,
+            "unchecked subresource range {range:?}"
+        );
         // Per mip: runs of layers.
         let mut per_mip: Vec<Vec<RangeTransition>> = Vec::new();
         for mip in range.base_mip..range.base_mip + range.mip_count {
@@ -270,6 +280,11 @@ mod tests {
         assert_eq!(
             t[0].transition.new_layout,
             vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL
+        );
+        let again = s.apply(&all, A::ComputeShaderReadSampledImage.into(), false);
+        assert!(
+            again.is_empty(),
+            "the transition's reads need no second barrier"
         );
         let t = s.apply(&all, A::TransferRead.into(), false);
         assert_eq!(t.len(), 1, "read -> read in another layout transitions");

@@ -148,7 +148,7 @@ where
         let mut rec = ctx.recorder(&format!("{} frame {index}", kernel.name()))?;
         kernel.record(&mut rec, input.borrow())?;
         let readback = kernel.read_back(&mut rec)?;
-        pending.push_back((index, rec.submit(&[], &[])?, readback));
+        pending.push_back((index, rec.submit()?, readback));
         most = most.max(pending.len());
         if pending.len() >= in_flight
             && let Some(oldest) = pending.pop_front()
