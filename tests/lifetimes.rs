@@ -82,7 +82,7 @@ fn dropping_everything_before_the_work_completes_is_safe() {
             ("dst", Resource::Buffer(&dst)),
         ])?;
         let mut rec = ctx.recorder("dropped early")?;
-        rec.fill_buffer(&src, 0);
+        rec.fill_buffer(&src, 0)?;
         rec.dispatch_invocations_tracked(&scale, &bind, &scale_push(2.0, 1.0, N), [N, 1, 1])?;
         let submission = rec.submit()?;
         drop((bind, scale, src, dst, submission)); // the submission's drop does not wait
@@ -98,7 +98,7 @@ fn mapped_reads_see_every_device_write() {
         let buf = Buffer::new(ctx, "readback", BufferDesc::readback(1024))?;
         for value in [0xdead_beefu32, 7, 0x1234_5678] {
             let mut rec = ctx.recorder("fill")?;
-            rec.fill_buffer(&buf, value);
+            rec.fill_buffer(&buf, value)?;
             rec.submit_and_wait()?;
             // Copy-out after the last use: never a slice aliasing memory the device writes.
             let got: Vec<u32> = buf.read()?;
@@ -237,7 +237,7 @@ fn alias_group_members_share_memory_with_the_barrier_aliasing_needs() {
             A::TransferRead,
             AliasUse::Buffer(&c, A::TransferWrite.into()),
         )?;
-        rec.fill_buffer(&c, 5);
+        rec.fill_buffer(&c, 5)?;
         let rc = rec.read_back(&c)?;
         rec.submit_and_wait()?;
         assert!(

@@ -225,8 +225,8 @@ pub fn run_stream(
     let dst = Buffer::new(ctx, "stream dst", BufferDesc::storage(largest))?;
     {
         let mut rec = ctx.recorder("stream init")?;
-        rec.fill_buffer(&src, 1.0f32.to_bits());
-        rec.fill_buffer(&dst, 0);
+        rec.fill_buffer(&src, 1.0f32.to_bits())?;
+        rec.fill_buffer(&dst, 0)?;
         rec.barrier(&[Barrier::global(
             AccessType::TransferWrite,
             AccessType::ComputeShaderReadOther | AccessType::ComputeShaderWrite,

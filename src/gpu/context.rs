@@ -545,7 +545,10 @@ impl Shared {
     /// timeline for a caller's device (never vkDeviceWaitIdle on it). False if it timed out.
     fn wait_own_work(&self) -> bool {
         if self.owned {
-            // SAFETY: our own device; nothing else submits to it.
+            // The queue lock keeps out submissions through handles shared with
+            // `external_handles()`.
+            let _queue = lock(&self.queue);
+            // SAFETY: our own device; every queue use holds the lock we hold.
             return unsafe { self.device.device_wait_idle() }.is_ok();
         }
         let last = self.next_value.load(std::sync::atomic::Ordering::Acquire);
@@ -593,11 +596,16 @@ impl Drop for Shared {
             if self.own_allocator {
                 self.report_leaks();
             }
-            ManuallyDrop::drop(&mut self.allocator);
             if idle {
+                ManuallyDrop::drop(&mut self.allocator);
                 self.device.destroy_semaphore(self.timeline, None);
+            } else {
+                // Dropping the allocator frees every block, whatever is still in use:
+                // leak it (and, below, the device) instead.
+                let allocator = ManuallyDrop::take(&mut self.allocator);
+                std::mem::forget(allocator);
             }
-            if self.owned {
+            if self.owned && idle {
                 self.device.destroy_device(None);
                 if let Some(di) = &self.debug_instance {
                     di.destroy_debug_utils_messenger(self.messenger, None);
@@ -1127,6 +1135,16 @@ impl Context {
     /// Blocks until the timeline reaches `value` (e.g. a resource's `last_use()`), then
     /// destroys whatever was waiting for it.
     pub fn wait_for(&self, value: u64) -> Result<()> {
+        let last = self
+            .shared
+            .next_value
+            .load(std::sync::atomic::Ordering::Acquire);
+        if value > last {
+            return Err(Error::InvalidArgument(format!(
+                "timeline value {value} was never handed out (the last is {last}): waiting \
+                 for it would never end"
+            )));
+        }
         self.shared.wait_value(value, u64::MAX)?;
         self.shared.collect();
         Ok(())

@@ -210,6 +210,20 @@ pub fn texel_size(format: vk::Format) -> Option<u64> {
     })
 }
 
+fn is_depth_stencil(format: vk::Format) -> bool {
+    use vk::Format as F;
+    matches!(
+        format,
+        F::D16_UNORM
+            | F::X8_D24_UNORM_PACK32
+            | F::D32_SFLOAT
+            | F::S8_UINT
+            | F::D16_UNORM_S8_UINT
+            | F::D24_UNORM_S8_UINT
+            | F::D32_SFLOAT_S8_UINT
+    )
+}
+
 /// A range of mip levels and array layers.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct Subresources {
@@ -525,6 +539,12 @@ fn check_image_desc(shared: &Shared, name: &str, desc: &ImageDesc) -> Result<()>
         )));
     }
     let bad = |why: String| Err(Error::InvalidArgument(format!("image '{name}': {why}")));
+    if is_depth_stencil(desc.format) {
+        return bad(format!(
+            "{:?} is a depth/stencil format; vkshade's images are colour images",
+            desc.format
+        ));
+    }
     match desc.dim {
         ImageDim::D3 if desc.layers > 1 => return bad("3D images cannot have array layers".into()),
         ImageDim::D2 | ImageDim::Cube if d > 1 => {
@@ -767,6 +787,22 @@ impl Image {
         self.inner.alloc_size
     }
 
+    /// Whether the image is bound to an alias group's memory.
+    pub fn is_alias_member(&self) -> bool {
+        matches!(lock(&self.inner.backing).as_ref(), Some(Backing::Group(_)))
+    }
+
+    /// Fails unless the image has `usage` (needed by `what`).
+    pub(crate) fn require_usage(&self, usage: vk::ImageUsageFlags, what: &str) -> Result<()> {
+        if !self.inner.desc.usage.contains(usage) {
+            return Err(Error::InvalidArgument(format!(
+                "image '{}' lacks {usage:?} usage, needed for {what}",
+                self.inner.name
+            )));
+        }
+        Ok(())
+    }
+
     /// Timeline value of the last submission that used the image (0: none yet).
     pub fn last_use(&self) -> u64 {
         self.inner.stamp.get()
@@ -824,7 +860,9 @@ impl ImageInner {
                 self.name, self.desc.format
             )));
         }
-        if texel_size(format) != texel_size(self.desc.format) {
+        if format != self.desc.format
+            && (texel_size(format).is_none() || texel_size(format) != texel_size(self.desc.format))
+        {
             return Err(Error::InvalidArgument(format!(
                 "view format {format:?} is not size-compatible with image '{}' ({:?})",
                 self.name, self.desc.format
@@ -852,6 +890,7 @@ impl ImageInner {
                 d.default_view_type()
             }
         });
+        check_view_type(&self.name, &self.desc, view_type, &range)?;
         let key = ViewDesc {
             view_type: Some(view_type),
             format: Some(format),
@@ -890,6 +929,34 @@ impl ImageInner {
         views.insert(key, view);
         Ok(view)
     }
+}
+
+/// Fails unless a `view_type` view of `range` is allowed for an image of `desc`.
+fn check_view_type(
+    name: &str,
+    desc: &ImageDesc,
+    view_type: vk::ImageViewType,
+    range: &Subresources,
+) -> Result<()> {
+    use vk::ImageViewType as T;
+    let n = range.layer_count;
+    let ok = match (desc.dim, view_type) {
+        (ImageDim::D3, T::TYPE_3D) => true,
+        (ImageDim::D3, _) | (_, T::TYPE_3D) => false,
+        (_, T::TYPE_2D) => n == 1,
+        (_, T::TYPE_2D_ARRAY) => true,
+        (ImageDim::Cube, T::CUBE) => n == 6,
+        (ImageDim::Cube, T::CUBE_ARRAY) => n % 6 == 0,
+        _ => false,
+    };
+    if !ok {
+        return Err(Error::InvalidArgument(format!(
+            "a {view_type:?} view of {n} layer(s) of image '{name}' ({:?}, {} layers) is not \
+             possible",
+            desc.dim, desc.layers
+        )));
+    }
+    Ok(())
 }
 
 /// Filtering, addressing and level-of-detail of a sampler.

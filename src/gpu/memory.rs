@@ -106,13 +106,14 @@ impl BufferDesc {
         }
     }
 
-    /// A device-local uniform buffer that can be copied to.
+    /// A device-local uniform buffer that can be copied to and from.
     pub const fn uniform(size: u64) -> Self {
         BufferDesc {
             size,
             usage: vk::BufferUsageFlags::from_raw(
                 vk::BufferUsageFlags::UNIFORM_BUFFER.as_raw()
-                    | vk::BufferUsageFlags::TRANSFER_DST.as_raw(),
+                    | vk::BufferUsageFlags::TRANSFER_DST.as_raw()
+                    | vk::BufferUsageFlags::TRANSFER_SRC.as_raw(),
             ),
             placement: Placement::DEVICE,
         }
@@ -124,6 +125,7 @@ impl BufferDesc {
             size,
             usage: vk::BufferUsageFlags::from_raw(
                 vk::BufferUsageFlags::TRANSFER_SRC.as_raw()
+                    | vk::BufferUsageFlags::TRANSFER_DST.as_raw()
                     | vk::BufferUsageFlags::STORAGE_BUFFER.as_raw(),
             ),
             placement: Placement::UPLOAD,
@@ -136,6 +138,7 @@ impl BufferDesc {
             size,
             usage: vk::BufferUsageFlags::from_raw(
                 vk::BufferUsageFlags::TRANSFER_DST.as_raw()
+                    | vk::BufferUsageFlags::TRANSFER_SRC.as_raw()
                     | vk::BufferUsageFlags::STORAGE_BUFFER.as_raw(),
             ),
             placement: Placement::READBACK,
@@ -666,6 +669,11 @@ impl Buffer {
         })
     }
 
+    /// Whether the buffer is bound to an alias group's memory.
+    pub fn is_alias_member(&self) -> bool {
+        matches!(lock(&self.inner.backing).as_ref(), Some(Backing::Group(_)))
+    }
+
     /// Another owning handle to the same buffer.
     pub(crate) fn from_keep(inner: Arc<BufferInner>) -> Buffer {
         Buffer { inner }
@@ -754,6 +762,7 @@ impl Buffer {
     /// Copies `data` into a host-visible buffer at byte `offset`, after waiting for every
     /// submission that used the buffer. Visible to submissions made afterwards.
     pub fn write<T: bytemuck::Pod>(&self, offset: u64, data: &[T]) -> Result<()> {
+        not_zero_sized::<T>()?;
         let bytes: &[u8] = bytemuck::cast_slice(data);
         let ptr = self.host_range(offset, bytes.len() as u64, "write")?;
         let _host = lock(&self.inner.host);
@@ -775,6 +784,7 @@ impl Buffer {
     /// submission that used the buffer. Device writes must have been made available to the
     /// host (recordings do that when they touch a host-visible buffer).
     pub fn read_into<T: bytemuck::Pod>(&self, offset: u64, out: &mut [T]) -> Result<()> {
+        not_zero_sized::<T>()?;
         let bytes: &mut [u8] = bytemuck::cast_slice_mut(out);
         let ptr = self.host_range(offset, bytes.len() as u64, "read")?;
         let _host = lock(&self.inner.host);
@@ -792,6 +802,7 @@ impl Buffer {
 
     /// The whole buffer (or as many whole `T` as fit) copied to a vector.
     pub fn read<T: bytemuck::Pod>(&self) -> Result<Vec<T>> {
+        not_zero_sized::<T>()?;
         let n = self.size() as usize / std::mem::size_of::<T>().max(1);
         let mut out = vec![T::zeroed(); n];
         self.read_into(0, &mut out)?;
@@ -808,6 +819,32 @@ impl Buffer {
     pub unsafe fn mapped_ptr(&self) -> Option<std::ptr::NonNull<u8>> {
         self.inner.mapped.map(|p| p.0)
     }
+}
+
+/// Refuses zero-sized element types (bytemuck cannot cast them).
+pub(crate) fn not_zero_sized<T>() -> Result<()> {
+    if std::mem::size_of::<T>() == 0 {
+        return Err(Error::InvalidArgument(format!(
+            "{} is zero-sized: no bytes to copy",
+            std::any::type_name::<T>()
+        )));
+    }
+    Ok(())
+}
+
+/// Fails unless `buffer` has `usage` (needed by `what`).
+pub(crate) fn require_buffer_usage(
+    buffer: &Buffer,
+    usage: vk::BufferUsageFlags,
+    what: &str,
+) -> Result<()> {
+    if !buffer.usage().contains(usage) {
+        return Err(Error::InvalidArgument(format!(
+            "buffer '{}' lacks {usage:?} usage, needed for {what}",
+            buffer.name()
+        )));
+    }
+    Ok(())
 }
 
 fn check_buffer_desc(shared: &Shared, name: &str, desc: &BufferDesc) -> Result<()> {

@@ -438,9 +438,10 @@ impl ComputePipeline {
         let mut by_binding: BTreeMap<(u32, u32), (&BindingInfo, Resource<'_>)> = BTreeMap::new();
         for (name, res) in resources {
             let info = self.binding_named(name)?;
-            self.check_resource(info, res)?;
+            let res = self.resolve_views(info, res)?;
+            self.check_resource(info, &res)?;
             if by_binding
-                .insert((info.set, info.binding), (info, res.clone()))
+                .insert((info.set, info.binding), (info, res))
                 .is_some()
             {
                 return Err(self.interface_err(format!("binding '{name}' given twice")));
@@ -464,9 +465,71 @@ impl ComputePipeline {
         let mut overrides = BTreeMap::new();
         for (name, access) in accesses {
             let info = self.binding_named(name)?;
+            self.check_override(info, *access)?;
             overrides.insert((info.set, info.binding), *access);
         }
         BindGroup::new(self, &by_binding, &overrides)
+    }
+
+    /// An override must be an access the descriptor allows: non-empty, the same image
+    /// layout as the default (the descriptor is written with it), and no writes through a
+    /// sampled image or a uniform buffer.
+    fn check_override(&self, info: &BindingInfo, access: AccessSet) -> Result<()> {
+        let default = default_access(info);
+        let writes = access.iter().any(AccessType::is_write);
+        let read_only_kind = matches!(
+            info.kind,
+            DescriptorKind::UniformBuffer
+                | DescriptorKind::SampledImage
+                | DescriptorKind::CombinedImageSampler
+        );
+        if default.is_empty() || access.is_empty() || (writes && read_only_kind) {
+            return Err(self.interface_err(format!(
+                "binding '{}' ({:?}) cannot be declared as {access:?}",
+                info.name, info.kind
+            )));
+        }
+        if info.view_type.is_some() && access.layout() != default.layout() {
+            return Err(self.interface_err(format!(
+                "binding '{}' is bound in layout {:?}; {access:?} needs {:?}",
+                info.name,
+                default.layout(),
+                access.layout()
+            )));
+        }
+        Ok(())
+    }
+
+    /// The resource with each image view's type set from the shader's image type (`image2D`
+    /// gets a 2D view); a view type given that differs from it is an error.
+    fn resolve_views<'a>(&self, info: &BindingInfo, res: &Resource<'a>) -> Result<Resource<'a>> {
+        let fix = |img: &ImageRef<'a>| -> Result<ImageRef<'a>> {
+            let mut r = *img;
+            match (r.view.view_type, info.view_type) {
+                (None, t) => r.view.view_type = t,
+                (Some(given), Some(needed)) if given != needed => {
+                    return Err(self.interface_err(format!(
+                        "binding '{}' needs a {needed:?} view; image '{}' was given as {given:?}",
+                        info.name,
+                        img.image.name()
+                    )));
+                }
+                _ => {}
+            }
+            Ok(r)
+        };
+        Ok(match res {
+            Resource::StorageImage(i) => Resource::StorageImage(fix(i)?),
+            Resource::Texture(i) => Resource::Texture(fix(i)?),
+            Resource::Sampled(i, s) => Resource::Sampled(fix(i)?, s),
+            Resource::Array(items) => Resource::Array(
+                items
+                    .iter()
+                    .map(|r| self.resolve_views(info, r))
+                    .collect::<Result<_>>()?,
+            ),
+            other => other.clone(),
+        })
     }
 
     fn binding_named(&self, name: &str) -> Result<&BindingInfo> {
@@ -772,6 +835,7 @@ impl BindGroup {
                 }
             }
         }
+        check_overlaps(pipeline, &uses)?;
         let sizes: Vec<_> = counts
             .iter()
             .map(|(&ty, &n)| vk::DescriptorPoolSize {
@@ -838,6 +902,37 @@ impl BindGroup {
     pub(crate) fn keep(&self) -> Arc<BindGroupInner> {
         self.inner.clone()
     }
+}
+
+/// Two bindings of one group on overlapping subresources of one image must use the same
+/// layout (a texture and a storage image of the same mip cannot both be right).
+fn check_overlaps(pipeline: &ComputePipeline, uses: &[BoundUse]) -> Result<()> {
+    let overlap = |a: &Subresources, b: &Subresources| {
+        a.base_mip < b.base_mip + b.mip_count
+            && b.base_mip < a.base_mip + a.mip_count
+            && a.base_layer < b.base_layer + b.layer_count
+            && b.base_layer < a.base_layer + a.layer_count
+    };
+    for (i, a) in uses.iter().enumerate() {
+        for b in &uses[i + 1..] {
+            if let (Target::Image(ia, ra), Target::Image(ib, rb)) = (&a.target, &b.target)
+                && Arc::ptr_eq(ia, ib)
+                && overlap(ra, rb)
+                && a.access.layout() != b.access.layout()
+            {
+                return Err(pipeline.interface_err(format!(
+                    "bindings '{}' and '{}' use the same subresources of image '{}' in layouts \
+                     {:?} and {:?}; bind different mips or layers, or one binding",
+                    a.binding,
+                    b.binding,
+                    ia.name,
+                    a.access.layout(),
+                    b.access.layout()
+                )));
+            }
+        }
+    }
+    Ok(())
 }
 
 /// Writes every descriptor of `bound` into the group's sets.

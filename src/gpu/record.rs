@@ -10,7 +10,7 @@
 use super::context::{Context, Shared};
 use super::image::{Image, ImageInner, ImageRegion, Subresources};
 use super::lifetime::{KeepAlive, Retired};
-use super::memory::{Buffer, BufferDesc, BufferInner};
+use super::memory::{Buffer, BufferDesc, BufferInner, require_buffer_usage};
 use super::pipeline::{BindGroup, ComputePipeline, Target};
 use super::sync::{AccessSet, AccessType, barrier_masks};
 use super::track::{RangeTransition, Transition};
@@ -266,6 +266,7 @@ impl Readback {
 
     /// The data read back as a vector of `T` (waits for the submission).
     pub fn to_vec<T: bytemuck::Pod>(&self) -> Result<Vec<T>> {
+        super::memory::not_zero_sized::<T>()?;
         if self.value.load(Ordering::Acquire) == 0 {
             return Err(Error::InvalidArgument(format!(
                 "readback '{}' read before its recording was submitted",
@@ -843,6 +844,15 @@ impl Recorder {
         next_member: AliasUse<'_>,
     ) -> Result<()> {
         let prev = prev.into();
+        let member = match next_member {
+            AliasUse::Buffer(b, _) => b.is_alias_member(),
+            AliasUse::Image(i, _) => i.is_alias_member(),
+        };
+        if !member {
+            return Err(Error::InvalidArgument(
+                "alias_switch names a resource that is not in an alias group".into(),
+            ));
+        }
         match next_member {
             AliasUse::Buffer(b, next) => {
                 self.flush_barriers();
@@ -1121,6 +1131,8 @@ impl Recorder {
                 src.name()
             )));
         }
+        require_buffer_usage(src, vk::BufferUsageFlags::TRANSFER_SRC, "a copy from it")?;
+        require_buffer_usage(dst, vk::BufferUsageFlags::TRANSFER_DST, "a copy to it")?;
         self.use_buffer(src, AccessType::TransferRead);
         self.use_buffer(dst, AccessType::TransferWrite);
         self.flush_barriers();
@@ -1138,7 +1150,8 @@ impl Recorder {
     }
 
     /// Fills a whole buffer with a repeated 32-bit value (a tracked `TransferWrite`).
-    pub fn fill_buffer(&mut self, buffer: &Buffer, value: u32) {
+    pub fn fill_buffer(&mut self, buffer: &Buffer, value: u32) -> Result<()> {
+        require_buffer_usage(buffer, vk::BufferUsageFlags::TRANSFER_DST, "fill_buffer")?;
         self.use_buffer(buffer, AccessType::TransferWrite);
         self.flush_barriers();
         // SAFETY: recording; kept alive.
@@ -1146,6 +1159,7 @@ impl Recorder {
             self.device()
                 .cmd_fill_buffer(self.cmd, buffer.raw(), 0, vk::WHOLE_SIZE, value)
         };
+        Ok(())
     }
 
     /// Staging space holding `bytes`: a chunk of the context's ring when it has room
@@ -1249,6 +1263,7 @@ impl Recorder {
                 buffer.size()
             )));
         }
+        require_buffer_usage(buffer, vk::BufferUsageFlags::TRANSFER_SRC, "a readback")?;
         let (staging, readback) = self.readback_buffer(buffer.name(), size)?;
         self.use_buffer(buffer, AccessType::TransferRead);
         *lock(&staging.keep().state) =
@@ -1273,6 +1288,7 @@ impl Recorder {
     /// `TransferWrite`; a region covering the whole mip level discards its old contents).
     pub fn upload_image(&mut self, image: &Image, region: ImageRegion, data: &[u8]) -> Result<()> {
         region.check(image.name(), image.desc())?;
+        image.require_usage(vk::ImageUsageFlags::TRANSFER_DST, "an upload to it")?;
         let texel = image.desc().texel_size()?;
         let expected = region.texels() * texel;
         if data.len() as u64 != expected {
@@ -1308,6 +1324,7 @@ impl Recorder {
     /// Copies `region` of `image` back to the host, tightly packed (a tracked `TransferRead`).
     pub fn read_back_image(&mut self, image: &Image, region: ImageRegion) -> Result<Readback> {
         region.check(image.name(), image.desc())?;
+        image.require_usage(vk::ImageUsageFlags::TRANSFER_SRC, "a readback")?;
         let size = region.texels() * image.desc().texel_size()?;
         let (staging, readback) = self.readback_buffer(image.name(), size)?;
         self.use_image(image, region.subresources(), AccessType::TransferRead)?;
@@ -1337,6 +1354,8 @@ impl Recorder {
         dst: &Image,
         dst_region: &ImageRegion,
     ) -> Result<()> {
+        src.require_usage(vk::ImageUsageFlags::TRANSFER_SRC, "a transfer from it")?;
+        dst.require_usage(vk::ImageUsageFlags::TRANSFER_DST, "a transfer to it")?;
         self.use_image(src, src_region.subresources(), AccessType::TransferRead)?;
         let whole = dst_region.offset == [0; 3]
             && dst_region.extent == dst.desc().mip_extent(dst_region.mip);
@@ -1694,6 +1713,13 @@ fn check_image_access(image: &Image, access: AccessSet) -> Result<()> {
         vk::ImageLayout::SHADER_READ_ONLY_OPTIMAL => vk::ImageUsageFlags::SAMPLED,
         vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL => vk::ImageUsageFlags::COLOR_ATTACHMENT,
         _ => vk::ImageUsageFlags::empty(),
+    };
+    let storage = access.contains(AccessType::ComputeShaderWrite)
+        || access.contains(AccessType::ComputeShaderReadOther);
+    let needs = if storage {
+        needs | vk::ImageUsageFlags::STORAGE
+    } else {
+        needs
     };
     if !usage.contains(needs) {
         return Err(Error::InvalidArgument(format!(

@@ -90,6 +90,33 @@ impl DescriptorKind {
     }
 }
 
+/// The view type an image binding needs, from its reflected dimension and arrayed flag.
+fn image_view_type(
+    kind: DescriptorKind,
+    image: &spirv_reflect::types::ReflectImageTraits,
+) -> Option<vk::ImageViewType> {
+    use spirv_reflect::types::ReflectDimension as D;
+    if !matches!(
+        kind,
+        DescriptorKind::StorageImage
+            | DescriptorKind::SampledImage
+            | DescriptorKind::CombinedImageSampler
+    ) {
+        return None;
+    }
+    let arrayed = image.arrayed != 0;
+    Some(match (image.dim, arrayed) {
+        (D::Type1d, false) => vk::ImageViewType::TYPE_1D,
+        (D::Type1d, true) => vk::ImageViewType::TYPE_1D_ARRAY,
+        (D::Type2d, false) => vk::ImageViewType::TYPE_2D,
+        (D::Type2d, true) => vk::ImageViewType::TYPE_2D_ARRAY,
+        (D::Type3d, _) => vk::ImageViewType::TYPE_3D,
+        (D::Cube, false) => vk::ImageViewType::CUBE,
+        (D::Cube, true) => vk::ImageViewType::CUBE_ARRAY,
+        _ => return None,
+    })
+}
+
 /// One descriptor binding of a shader, as reflected.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct BindingInfo {
@@ -104,6 +131,9 @@ pub struct BindingInfo {
     pub min_size: u64,
     /// Whether the shader declares the binding `readonly` (storage buffers/images).
     pub read_only: bool,
+    /// For images: the view type the shader's image type needs (`image2D` -> 2D,
+    /// `texture2DArray` -> 2D_ARRAY, `samplerCube` -> CUBE, ...).
+    pub view_type: Option<vk::ImageViewType>,
 }
 
 /// A specialization constant of a shader (32-bit: bool, int, uint or float).
@@ -207,6 +237,7 @@ impl Shader {
                 count: b.count.max(1),
                 min_size: b.block.size as u64,
                 read_only,
+                view_type: image_view_type(kind, &b.image),
             });
         }
         bindings.sort_by_key(|b| (b.set, b.binding));

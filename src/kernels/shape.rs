@@ -162,7 +162,6 @@ where
     Ok(most)
 }
 
-#[cfg(feature = "cli")]
 /// GPU time of each of the kernel's passes over `warmup + samples` submissions of one
 /// frame (median and spread in each [`crate::report::Stats`]), in the order of
 /// [`Kernel::passes`].
