@@ -441,8 +441,9 @@ fn cmd_bench_ao(
         r.cpu_same_method_ms.median, r.speedup_vs_cpu, r.raytrace_ms.median, r.speedup_vs_raytrace
     );
     println!(
-        "gpu memory             {:.2} MiB",
-        r.gpu_memory_bytes as f64 / (1u64 << 20) as f64
+        "gpu memory             {:.2} MiB in the kernel's buffers; {:.1} MiB reserved by the context's allocator",
+        r.gpu_memory_bytes as f64 / (1u64 << 20) as f64,
+        r.headline.gpu_memory_reserved_bytes as f64 / (1u64 << 20) as f64
     );
     for t in &r.targets {
         println!(

@@ -587,3 +587,88 @@ fn pingpong_and_layout_changing_write_after_read_are_tracked() {
         Ok(())
     });
 }
+
+#[test]
+fn sampler_addressing_border_and_lod_range_match_the_cpu() {
+    with_gpu(|ctx| {
+        // A 4x1x1 volume: values 1, 2, 3, 4 along x; sampled with nearest filtering at
+        // x outside [0, 1] under each address mode.
+        let desc = ImageDesc::d3(vk::Format::R32_SFLOAT, [4, 1, 1]);
+        let vol = Image::new(ctx, "row", desc)?;
+        let values = [1.0f32, 2.0, 3.0, 4.0];
+        let xs = [0.125f32, 1.125, -0.125, 1.875, 2.375];
+        let points: Vec<[f32; 4]> = xs.iter().map(|&x| [x, 0.5, 0.5, 0.0]).collect();
+        let pts = ctx.upload_buffer("points", BufferDesc::storage(16 * 5), &points)?;
+        let out = Buffer::new(ctx, "values", BufferDesc::storage(4 * 5))?;
+        let p = pipeline(ctx, "test/sample_3d")?;
+        let texel = |i: i64| values[i as usize];
+        // CPU expectations per mode for each x (texel index floor(x * 4)).
+        let cpu = |mode: vk::SamplerAddressMode, x: f32| -> f32 {
+            let i = (x * 4.0).floor() as i64;
+            match mode {
+                vk::SamplerAddressMode::REPEAT => texel(i.rem_euclid(4)),
+                vk::SamplerAddressMode::MIRRORED_REPEAT => {
+                    let m = i.rem_euclid(8);
+                    texel(if m < 4 { m } else { 7 - m })
+                }
+                vk::SamplerAddressMode::CLAMP_TO_EDGE => texel(i.clamp(0, 3)),
+                _ => {
+                    if (0..4).contains(&i) {
+                        texel(i)
+                    } else {
+                        1.0 // FLOAT_OPAQUE_WHITE's red channel
+                    }
+                }
+            }
+        };
+        let mut rec = ctx.recorder("upload row")?;
+        rec.upload_image(
+            &vol,
+            ImageRegion::whole(&desc),
+            bytemuck::cast_slice(&values),
+        )?;
+        rec.submit_and_wait()?;
+        for mode in [
+            vk::SamplerAddressMode::REPEAT,
+            vk::SamplerAddressMode::MIRRORED_REPEAT,
+            vk::SamplerAddressMode::CLAMP_TO_EDGE,
+            vk::SamplerAddressMode::CLAMP_TO_BORDER,
+        ] {
+            let s = Sampler::new(
+                ctx,
+                "addressing",
+                SamplerDesc::nearest()
+                    .address(mode)
+                    .border(vk::BorderColor::FLOAT_OPAQUE_WHITE),
+            )?;
+            let bind = p.bind(&[
+                ("vol", Resource::sampled(&vol, &s)),
+                ("points", Resource::Buffer(&pts)),
+                ("values", Resource::Buffer(&out)),
+            ])?;
+            let mut rec = ctx.recorder("addressing")?;
+            rec.dispatch_tracked(&p, &bind, &5u32.to_le_bytes(), [1, 1, 1])?;
+            let rb = rec.read_back(&out)?;
+            rec.submit_and_wait()?;
+            let want: Vec<f32> = xs.iter().map(|&x| cpu(mode, x)).collect();
+            assert_eq!(rb.to_vec::<f32>()?, want, "{mode:?}");
+        }
+        // The LOD range clamps: min_lod 1 samples mip 1 even when asked for mip 0.
+        let mdesc = ImageDesc::d2_array(RGBA32F, [8, 8], 1).mips(0);
+        let mipped = Image::new(ctx, "mipped", mdesc)?;
+        let mut rec = ctx.recorder("mips")?;
+        for mip in 0..mdesc.mips {
+            let data = mip_texels(&mdesc, 0, mip);
+            rec.upload_image(
+                &mipped,
+                ImageRegion::mip(&mdesc, mip),
+                bytemuck::cast_slice(&data),
+            )?;
+        }
+        rec.submit_and_wait()?;
+        let clamped = Sampler::new(ctx, "lod 1..", SamplerDesc::nearest().lod(1.0, 8.0))?;
+        let got = sample_mip(ctx, (&mipped).into(), &clamped, [4, 4], 0, 0.0)?;
+        assert_eq!(got, mip_texels(&mdesc, 0, 1), "min_lod clamps to mip 1");
+        Ok(())
+    });
+}

@@ -449,7 +449,15 @@ pub fn run(ctx: &Context, cfg: &AoRunConfig, progress: &mut dyn FnMut(&str)) -> 
         .collect();
     let mut frames = Vec::with_capacity(times.len());
     let inputs = matrices.iter().map(Vec::as_slice);
-    let in_flight = run_frames(ctx, &session.kernel, inputs, cfg.in_flight, |r| {
+    // On a CPU device (lavapipe) the ray-traced reference of one frame would run on the
+    // same cores as the next frame's "GPU" work and time the contention: one at a time.
+    let cpu_device = ctx.info().device_type == "CPU";
+    let limit = if cfg.reference && cpu_device {
+        1
+    } else {
+        cfg.in_flight
+    };
+    let in_flight = run_frames(ctx, &session.kernel, inputs, limit, |r| {
         let (index, time) = (r.index, times[r.index]);
         let f = GpuFrame::new(r.output, &r.timings);
         frames.push(session.frame(index, time, &matrices[index], f, progress)?);
@@ -711,6 +719,13 @@ impl<'a> Session<'a> {
                 "the device is a CPU implementation (lavapipe): times measure the CPU, not a GPU"
                     .into(),
             );
+            if cfg.reference && cfg.in_flight > 1 {
+                notes.push(
+                    "with --reference on a CPU device frames ran one at a time, so the CPU ray \
+                     tracing did not share the cores with the timed kernel"
+                        .into(),
+                );
+            }
         }
         AoReport {
             tool: "vkshade ao",
