@@ -1,0 +1,183 @@
+//! The SRBF kernel on the GPU against the same pipeline on the CPU (f64), under validation.
+
+mod common;
+
+use glam::{Mat3, Vec3};
+use vkshade::geom::Rng;
+use vkshade::kernels::srbf::gpu::{SrbfFrame, SrbfInputs, SrbfKernel};
+use vkshade::kernels::srbf::sg::{self, Lobe};
+use vkshade::kernels::{Kernel, run_frames};
+
+struct Scene {
+    lobes: Vec<Lobe>,
+    basis: Vec<Vec3>,
+    mu: f32,
+    coeffs: Vec<f32>,
+    vertices: usize,
+}
+
+fn scene(lobes: usize, k: usize, vertices: usize) -> Scene {
+    let mut rng = Rng::new(7);
+    let lobes = (0..lobes)
+        .map(|_| {
+            let axis = vkshade::geom::uniform_sphere(rng.f32(), rng.f32());
+            Lobe {
+                axis: axis.to_array(),
+                sharpness: 1.0 + 60.0 * rng.f32() * rng.f32(),
+                amplitude: [rng.f32() * 3.0, rng.f32() * 2.0, rng.f32()],
+            }
+        })
+        .collect();
+    let coeffs = (0..vertices * k).map(|_| rng.f32() * 0.1 - 0.02).collect();
+    Scene {
+        lobes,
+        basis: sg::fibonacci_sphere(k),
+        mu: 8.0,
+        coeffs,
+        vertices,
+    }
+}
+
+/// The pipeline in f64: c_k = sum_j a_j <G_j(R xi_j), G_k>, L_v = albedo sum_k t_vk c_k.
+fn cpu(s: &Scene, frame: &SrbfFrame) -> Vec<[f64; 3]> {
+    let k = s.basis.len();
+    let coeffs: Vec<[f64; 3]> = s
+        .basis
+        .iter()
+        .map(|eta| {
+            let mut c = [0f64; 3];
+            for l in &s.lobes {
+                let axis = (frame.rotation * l.axis()).normalize();
+                let ip = sg::inner_product_f64(
+                    axis.as_dvec3(),
+                    l.sharpness as f64,
+                    eta.as_dvec3(),
+                    s.mu as f64,
+                );
+                for ch in 0..3 {
+                    c[ch] += l.amplitude[ch] as f64 * ip;
+                }
+            }
+            c
+        })
+        .collect();
+    (0..s.vertices)
+        .map(|v| {
+            let mut out = [0f64; 3];
+            for (i, c) in coeffs.iter().enumerate() {
+                let t = s.coeffs[v * k + i] as f64;
+                for ch in 0..3 {
+                    out[ch] += t * c[ch];
+                }
+            }
+            [0, 1, 2].map(|ch| out[ch] * frame.albedo[ch] as f64)
+        })
+        .collect()
+}
+
+fn inputs(s: &Scene) -> SrbfInputs<'_> {
+    SrbfInputs {
+        lobes: &s.lobes,
+        basis_axes: &s.basis,
+        basis_sharpness: s.mu,
+        coeffs: &s.coeffs,
+        vertices: s.vertices,
+    }
+}
+
+#[test]
+fn gpu_rotation_and_shading_match_the_cpu_pipeline() {
+    let s = scene(48, 300, 2000);
+    let frames: Vec<SrbfFrame> = [0.0f32, 30.0, 97.0, 180.0, 271.0]
+        .iter()
+        .enumerate()
+        .map(|(i, &deg)| SrbfFrame {
+            rotation: if i % 2 == 0 {
+                sg::rotation(Vec3::Y, deg)
+            } else {
+                sg::rotation(Vec3::new(1.0, 2.0, -0.5), deg)
+            },
+            albedo: [0.8, 0.6, 0.4],
+        })
+        .collect();
+    common::with_gpu(|ctx| {
+        let mut setup = ctx.recorder("srbf setup")?;
+        let kernel = SrbfKernel::new(&mut setup, &inputs(&s))?;
+        setup.submit_and_wait()?;
+        let names: Vec<&str> = kernel.passes().iter().map(|p| p.name).collect();
+        assert_eq!(names, ["srbf lighting", "srbf shade"]);
+        let mut done = 0;
+        run_frames(ctx, &kernel, &frames, 2, |r| {
+            let want = cpu(&s, &frames[r.index]);
+            // f32 on the GPU: each coefficient sums 48 products and each vertex 300 terms of
+            // mixed sign; relative to the output's scale the rounding is ~1e-6 per term, so
+            // the error bound is 1e-4 of the largest |value|.
+            let scale = want.iter().flatten().fold(0f64, |m, x| m.max(x.abs()));
+            let worst = r
+                .output
+                .iter()
+                .zip(&want)
+                .flat_map(|(g, w)| (0..3).map(move |c| (g[c] as f64 - w[c]).abs()))
+                .fold(0f64, f64::max);
+            assert!(
+                worst <= 1e-4 * scale,
+                "frame {}: {worst} vs scale {scale}",
+                r.index
+            );
+            assert!(
+                r.timings.get("srbf lighting").is_some() && r.timings.get("srbf shade").is_some()
+            );
+            done += 1;
+            Ok(())
+        })?;
+        assert_eq!(done, frames.len());
+        Ok(())
+    });
+}
+
+#[test]
+fn bad_srbf_inputs_and_frames_are_refused() {
+    let s = scene(4, 16, 10);
+    common::with_gpu(|ctx| {
+        let mut rec = ctx.recorder("bad srbf")?;
+        let mut short = inputs(&s);
+        short.coeffs = &s.coeffs[1..];
+        let e = SrbfKernel::new(&mut rec, &short).err().unwrap();
+        assert!(e.to_string().contains("transfer coefficients"), "{e}");
+        let mut bad_lobes = s.lobes.clone();
+        bad_lobes[2].sharpness = f32::NAN;
+        let e = SrbfKernel::new(
+            &mut rec,
+            &SrbfInputs {
+                lobes: &bad_lobes,
+                ..inputs(&s)
+            },
+        )
+        .err()
+        .unwrap();
+        assert!(e.to_string().contains("lobe 2"), "{e}");
+        let kernel = SrbfKernel::new(&mut rec, &inputs(&s))?;
+        let e = kernel
+            .record(
+                &mut rec,
+                &SrbfFrame {
+                    rotation: Mat3::from_diagonal(Vec3::new(1.0, 2.0, 1.0)),
+                    albedo: [1.0; 3],
+                },
+            )
+            .unwrap_err();
+        assert!(e.to_string().contains("not a rotation"), "{e}");
+        let e = kernel
+            .record(
+                &mut rec,
+                &SrbfFrame {
+                    rotation: Mat3::IDENTITY,
+                    albedo: [1.0, -1.0, 0.0],
+                },
+            )
+            .unwrap_err();
+        assert!(e.to_string().contains("albedo"), "{e}");
+        rec.submit_and_wait()?;
+        Ok(())
+    });
+}
