@@ -54,8 +54,8 @@ fn cpu(s: &Scene, frame: &SrbfFrame) -> Vec<[f64; 3]> {
                     eta.as_dvec3(),
                     s.mu as f64,
                 );
-                for ch in 0..3 {
-                    c[ch] += l.amplitude[ch] as f64 * ip;
+                for (c, a) in c.iter_mut().zip(l.amplitude) {
+                    *c += a as f64 * ip;
                 }
             }
             c
@@ -66,8 +66,8 @@ fn cpu(s: &Scene, frame: &SrbfFrame) -> Vec<[f64; 3]> {
             let mut out = [0f64; 3];
             for (i, c) in coeffs.iter().enumerate() {
                 let t = s.coeffs[v * k + i] as f64;
-                for ch in 0..3 {
-                    out[ch] += t * c[ch];
+                for (o, c) in out.iter_mut().zip(c) {
+                    *o += t * c;
                 }
             }
             [0, 1, 2].map(|ch| out[ch] * frame.albedo[ch] as f64)
