@@ -206,6 +206,54 @@ pub fn shade(img: &ValueImage) -> Picture {
     }
 }
 
+/// Shades three value images (linear RGB radiance per channel) for display: multiplied by
+/// `exposure`, then the sRGB transfer curve, over the background.
+pub fn shade_rgb(channels: [&ValueImage; 3], exposure: f32) -> Result<Picture> {
+    let [r, g, b] = channels;
+    let (w, h) = (r.width, r.height);
+    if [g, b]
+        .iter()
+        .any(|c| (c.width, c.height) != (w, h) || c.value.len() != r.value.len())
+    {
+        return Err(Error::InvalidArgument(
+            "shade_rgb: the three channel images differ in size".into(),
+        ));
+    }
+    let srgb = |v: f32| {
+        let v = v.clamp(0.0, 1.0);
+        if v <= 0.003_130_8 {
+            12.92 * v
+        } else {
+            1.055 * v.powf(1.0 / 2.4) - 0.055
+        }
+    };
+    let mut rgb = vec![0u8; (w * h * 3) as usize];
+    for y in 0..h {
+        for x in 0..w {
+            let o = (y * w + x) as usize;
+            let c = r.coverage[o];
+            let value = |img: &ValueImage| {
+                let v = img.value[o];
+                if c > 0.0 && v.is_finite() { v } else { 0.0 }
+            };
+            let colour = Vec3::new(
+                srgb(value(r) * exposure),
+                srgb(value(g) * exposure),
+                srgb(value(b) * exposure),
+            ) * c
+                + background(y, h) * (1.0 - c);
+            for k in 0..3 {
+                rgb[o * 3 + k] = to_u8(colour[k]);
+            }
+        }
+    }
+    Ok(Picture {
+        width: w,
+        height: h,
+        rgb,
+    })
+}
+
 /// Renders triangles shaded by `value` (0 black .. 1 white, slightly warm, linear) and returns
 /// RGB8: [`rasterize`] then [`shade`].
 pub fn render(
