@@ -1,9 +1,11 @@
-//! Environment maps (src/scene/envmap.rs).
+//! Environment maps (src/scene/envmap.rs) and the SRBF brute-force reference
+//! (src/reference/srbf.rs).
 
 use glam::{Mat3, Vec3};
 use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
-use vkshade::geom::Rng;
+use vkshade::geom::{Bvh, Rng};
+use vkshade::reference::srbf::{shade_brute_force, visibility};
 use vkshade::scene::EnvMap;
 
 fn dir() -> PathBuf {
@@ -481,4 +483,250 @@ fn blender_studio_lights_load() {
             f.display()
         );
     }
+}
+
+// ---------------------------------------------------------------- brute-force reference
+
+/// A closed UV sphere: radius 1, outward normals.
+fn uv_sphere(rings: u32, segs: u32) -> (Vec<Vec3>, Vec<[u32; 3]>) {
+    let mut pos = vec![Vec3::Y];
+    for i in 1..rings {
+        let t = std::f32::consts::PI * i as f32 / rings as f32;
+        for j in 0..segs {
+            let p = 2.0 * std::f32::consts::PI * j as f32 / segs as f32;
+            pos.push(Vec3::new(t.sin() * p.cos(), t.cos(), t.sin() * p.sin()));
+        }
+    }
+    pos.push(Vec3::NEG_Y);
+    let last = pos.len() as u32 - 1;
+    let ring = |i: u32, j: u32| 1 + (i - 1) * segs + j % segs;
+    let mut tris = Vec::new();
+    for j in 0..segs {
+        tris.push([0, ring(1, j + 1), ring(1, j)]);
+        tris.push([last, ring(rings - 1, j), ring(rings - 1, j + 1)]);
+        for i in 1..rings - 1 {
+            let (a, b, c, d) = (
+                ring(i, j),
+                ring(i, j + 1),
+                ring(i + 1, j),
+                ring(i + 1, j + 1),
+            );
+            tris.push([a, b, d]);
+            tris.push([a, d, c]);
+        }
+    }
+    (pos, tris)
+}
+
+fn dirs(env: &EnvMap) -> Vec<Vec3> {
+    env.samples().iter().map(|s| s.0).collect()
+}
+
+#[test]
+fn constant_environment_on_an_open_plane() {
+    let c = [0.7f32, 1.3, 2.0];
+    let albedo = [0.8f32, 0.5, 0.25];
+    let env = EnvMap::from_texels(64, 32, vec![c; 64 * 32], "const").unwrap();
+    let d = dirs(&env);
+    // A ground quad at y = 0; receivers on it facing up, away from it.
+    let quad = [
+        Vec3::new(-5.0, 0.0, -5.0),
+        Vec3::new(5.0, 0.0, -5.0),
+        Vec3::new(5.0, 0.0, 5.0),
+        Vec3::new(-5.0, 0.0, 5.0),
+    ];
+    let bvh = Bvh::build(&quad, &[[0, 1, 2], [0, 2, 3]]);
+    let pos = vec![Vec3::ZERO, Vec3::new(1.0, 0.0, -2.0)];
+    let nrm = vec![Vec3::Y; 2];
+    let vis = visibility(&pos, &nrm, &bvh, &d, 1e-4);
+    assert_eq!(
+        vis.visible_count(0),
+        64 * 16,
+        "the whole upper hemisphere is open"
+    );
+    let out = shade_brute_force(&env, Mat3::IDENTITY, &nrm, &vis, albedo).unwrap();
+    // The cosine quadrature over the upper hemisphere at 64 x 32.
+    let q: f64 = env
+        .samples()
+        .iter()
+        .map(|(w, d, _)| (w.y as f64).max(0.0) * d)
+        .sum();
+    let qerr = (q - PI).abs() / PI;
+    println!("64x32, n = +Y: sum max(0, n.w) dOmega = {q:.9}, relative error {qerr:.3e}");
+    assert!(qerr < 1.25e-3, "quadrature error {qerr}");
+    for v in &out {
+        for ch in 0..3 {
+            let exact = albedo[ch] as f64 * c[ch] as f64;
+            // The sum is exactly albedo * c * q / pi: only the quadrature differs from exact.
+            let want = exact * q / PI;
+            assert!((v[ch] - want).abs() <= 1e-12 * want, "{} vs {want}", v[ch]);
+            assert!(
+                (v[ch] - exact).abs() <= 1.25e-3 * exact,
+                "{} vs {exact}",
+                v[ch]
+            );
+        }
+    }
+    // With no geometry at all, tilted normals: same up to the quadrature error.
+    let empty = Bvh::build(&[], &[]);
+    let mut rng = Rng::new(11);
+    let nrm: Vec<Vec3> = (0..64)
+        .map(|_| vkshade::geom::uniform_sphere(rng.f32(), rng.f32()))
+        .collect();
+    let pos = vec![Vec3::ZERO; nrm.len()];
+    let vis = visibility(&pos, &nrm, &empty, &d, 1e-4);
+    let out = shade_brute_force(&env, Mat3::IDENTITY, &nrm, &vis, [1.0; 3]).unwrap();
+    let worst = out
+        .iter()
+        .map(|v| (v[0] - c[0] as f64).abs() / c[0] as f64)
+        .fold(0.0f64, f64::max);
+    println!("64x32, 64 random normals: max relative error {worst:.3e}");
+    assert!(worst < 3e-3, "{worst}");
+}
+
+#[test]
+fn closed_sphere_does_not_shadow_its_own_hemisphere() {
+    let (pos, tris) = uv_sphere(16, 32);
+    let nrm: Vec<Vec3> = pos.iter().map(|p| p.normalize()).collect();
+    let bvh = Bvh::build(&pos, &tris);
+    let env = EnvMap::from_texels(64, 32, vec![[1.0; 3]; 64 * 32], "c").unwrap();
+    let d = dirs(&env);
+    let vis = visibility(&pos, &nrm, &bvh, &d, 1e-4);
+    assert_eq!(vis.vertices, pos.len());
+    for (v, n) in nrm.iter().enumerate() {
+        for (k, w) in d.iter().enumerate() {
+            let c = n.dot(*w);
+            if c > 0.1 {
+                assert!(
+                    vis.visible(v, k),
+                    "vertex {v} direction {k} (n.w = {c}) blocked"
+                );
+            }
+            if c <= 0.0 {
+                assert!(!vis.visible(v, k), "vertex {v} sees below its horizon");
+            }
+        }
+    }
+    assert!(!vis.visible(pos.len(), 0) && !vis.visible(0, d.len()));
+}
+
+#[test]
+fn quad_overhead_occludes_the_sky() {
+    let s = 10.0;
+    let quad = [
+        Vec3::new(-s, 1.0, -s),
+        Vec3::new(s, 1.0, -s),
+        Vec3::new(s, 1.0, s),
+        Vec3::new(-s, 1.0, s),
+    ];
+    let bvh = Bvh::build(&quad, &[[0, 1, 2], [0, 2, 3]]);
+    let env = random_map(64, 9);
+    let d = dirs(&env);
+    let vis = visibility(&[Vec3::ZERO], &[Vec3::Y], &bvh, &d, 1e-4);
+    let mut open = 0;
+    for (k, w) in d.iter().enumerate() {
+        if w.y > 0.15 {
+            assert!(!vis.visible(0, k), "direction {w} should hit the quad");
+        }
+        if w.y <= 0.0 {
+            assert!(!vis.visible(0, k));
+        }
+        open += vis.visible(0, k) as usize;
+    }
+    // The grazing row (y = cos 87.2 deg = 0.049) leaves past the quad's edge.
+    assert!(open > 0 && open <= 64, "{open} directions open");
+    // Fully blocked receiver (quad above, sky only near the horizon) is darker than open.
+    let empty = Bvh::build(&[], &[]);
+    let free = visibility(&[Vec3::ZERO], &[Vec3::Y], &empty, &d, 1e-4);
+    let a = shade_brute_force(&env, Mat3::IDENTITY, &[Vec3::Y], &vis, [1.0; 3]).unwrap();
+    let b = shade_brute_force(&env, Mat3::IDENTITY, &[Vec3::Y], &free, [1.0; 3]).unwrap();
+    for c in 0..3 {
+        assert!(a[0][c] < 0.1 * b[0][c], "{:?} vs {:?}", a[0], b[0]);
+    }
+}
+
+#[test]
+fn rotation_by_whole_texels_and_full_turns() {
+    let env = random_map(64, 21);
+    let d = dirs(&env);
+    let (pos, tris) = uv_sphere(8, 16);
+    let nrm: Vec<Vec3> = pos.iter().map(|p| p.normalize()).collect();
+    // A ground quad under the sphere, so some directions are occluded.
+    let g = [
+        Vec3::new(-3.0, -1.2, -3.0),
+        Vec3::new(3.0, -1.2, -3.0),
+        Vec3::new(3.0, -1.2, 3.0),
+        Vec3::new(-3.0, -1.2, 3.0),
+    ];
+    let mut all = pos.clone();
+    all.extend_from_slice(&g);
+    let n = pos.len() as u32;
+    let mut t = tris.clone();
+    t.push([n, n + 1, n + 2]);
+    t.push([n, n + 2, n + 3]);
+    let bvh = Bvh::build(&all, &t);
+    let vis = visibility(&pos, &nrm, &bvh, &d, 1e-4);
+    let albedo = [0.9, 0.6, 0.3];
+    let base = shade_brute_force(&env, Mat3::IDENTITY, &nrm, &vis, albedo).unwrap();
+    let full = std::f32::consts::TAU;
+    for r in [
+        Mat3::from_rotation_y(full),
+        Mat3::from_rotation_y(-2.0 * full),
+    ] {
+        let turned = shade_brute_force(&env, r, &nrm, &vis, albedo).unwrap();
+        assert_eq!(turned, base);
+    }
+    // Turning about +Y by k columns (k 360/W degrees) equals shading the map with its
+    // columns shifted by k: L_R(w) = L(R^-1 w) and R^-1 adds k columns to u.
+    for k in [1u32, 5, 32, 63] {
+        let r = Mat3::from_rotation_y(full * k as f32 / 64.0);
+        let turned = shade_brute_force(&env, r, &nrm, &vis, albedo).unwrap();
+        let shifted: Vec<[f32; 3]> = (0..32)
+            .flat_map(|y| (0..64).map(move |x| (x, y)))
+            .map(|(x, y)| env.texel((x + k) % 64, y))
+            .collect();
+        let moved = EnvMap::from_texels(64, 32, shifted, "shifted").unwrap();
+        let want = shade_brute_force(&moved, Mat3::IDENTITY, &nrm, &vis, albedo).unwrap();
+        assert_eq!(turned, want, "k = {k}");
+        assert_ne!(turned, base, "k = {k}");
+    }
+}
+
+#[test]
+fn brute_force_rejects_mismatched_inputs() {
+    let env = random_map(16, 1);
+    let d = dirs(&env);
+    let empty = Bvh::build(&[], &[]);
+    let vis = visibility(&[Vec3::ZERO], &[Vec3::Y], &empty, &d, 1e-4);
+    let other = random_map(32, 1);
+    assert!(shade_brute_force(&other, Mat3::IDENTITY, &[Vec3::Y], &vis, [1.0; 3]).is_err());
+    let mut wrong = d.clone();
+    wrong.swap(0, 1);
+    let vis2 = visibility(&[Vec3::ZERO], &[Vec3::Y], &empty, &wrong, 1e-4);
+    assert!(shade_brute_force(&env, Mat3::IDENTITY, &[Vec3::Y], &vis2, [1.0; 3]).is_err());
+    assert!(shade_brute_force(&env, Mat3::IDENTITY, &[Vec3::Y, Vec3::X], &vis, [1.0; 3]).is_err());
+    assert!(
+        shade_brute_force(
+            &env,
+            Mat3::from_diagonal(Vec3::splat(2.0)),
+            &[Vec3::Y],
+            &vis,
+            [1.0; 3]
+        )
+        .is_err()
+    );
+    assert!(
+        shade_brute_force(
+            &env,
+            Mat3::from_diagonal(Vec3::new(1.0, 1.0, -1.0)),
+            &[Vec3::Y],
+            &vis,
+            [1.0; 3]
+        )
+        .is_err()
+    );
+    assert!(
+        shade_brute_force(&env, Mat3::IDENTITY, &[Vec3::Y], &vis, [f32::NAN, 1.0, 1.0]).is_err()
+    );
+    assert!(shade_brute_force(&env, Mat3::IDENTITY, &[Vec3::Y], &vis, [1.0; 3]).is_ok());
 }
