@@ -1,6 +1,7 @@
 //! CPU-side inputs: meshes, skeletons and animations, sphere trees. Loaders validate their
 //! input and name the file in every error.
 
+pub mod envmap;
 #[cfg(feature = "gltf")]
 pub mod gltf_load;
 pub mod mesh;
@@ -9,6 +10,7 @@ pub mod rig;
 pub mod spheretree;
 pub mod static_load;
 
+pub use envmap::EnvMap;
 pub use mesh::{Mesh, MeshData, MeshReport, SkinWeights};
 pub use rig::{Animation, Rig};
 pub use spheretree::SphereTree;

@@ -1,0 +1,232 @@
+//! SRBF-lighting ground truth: brute-force diffuse precomputed-radiance transfer under an
+//! environment map, in f64, with per-direction visibility from ray casting.
+//!
+//! For vertex v with normal n, albedo rho and environment rotation R:
+//!
+//! ```text
+//! B_v = (rho / pi) * sum_p L(R^-1 w_p) V_v(w_p) max(0, n . w_p) dOmega_p
+//! ```
+//!
+//! over the texels p of the map, w_p the direction of texel p's centre and dOmega_p its exact
+//! solid angle ([`EnvMap::solid_angle`]). This is the midpoint rule of the hemisphere
+//! integral, so it carries quadrature error against the continuous integral: the cosine lobe
+//! straddling the horizon and sampled at texel centres. sum_p max(0, n . w_p) dOmega_p, which
+//! is pi for the exact integral, is off by at most 1.21e-3 relative at 64 x 32 (measured over
+//! 505 normals; n = +Y is the worst), 7.5e-5 at 256 x 128, 4.7e-6 at 1024 x 512 and 1.2e-6 at
+//! 2048 x 1024 (falling as 1 / H^2); the unit tests hold these bounds.
+//!
+//! L(R^-1 w_p) is a nearest-texel lookup into the same map at the rotated direction: this
+//! resampling is part of the ground truth (the method being judged is compared against this
+//! sum, not against a continuous rotation of L). For rotations about +Y by multiples of
+//! 360 / W degrees the lookup lands exactly on texel centres, so it is exact: it equals the
+//! unrotated sum over the map with its columns shifted.
+
+use crate::error::{Error, Result};
+use crate::geom::Bvh;
+use crate::scene::EnvMap;
+use glam::{Mat3, Vec3};
+use rayon::prelude::*;
+
+/// Visibility of a direction set from every vertex: one bit per (vertex, direction);
+/// directions with n . w <= 0 are invisible without casting a ray.
+#[derive(Clone, Debug)]
+pub struct Visibility {
+    pub directions: Vec<Vec3>,
+    pub vertices: usize,
+    /// `words` u64 per vertex; bit d of vertex v: word v * words + d / 64, bit d % 64.
+    bits: Vec<u64>,
+    words: usize,
+}
+
+impl Visibility {
+    /// Whether `dir` (an index into `directions`) is visible from `vertex`. Indices out of
+    /// range are not visible.
+    pub fn visible(&self, vertex: usize, dir: usize) -> bool {
+        if vertex >= self.vertices || dir >= self.directions.len() {
+            return false;
+        }
+        self.bits[vertex * self.words + dir / 64] >> (dir % 64) & 1 == 1
+    }
+
+    /// How many directions `vertex` sees.
+    pub fn visible_count(&self, vertex: usize) -> usize {
+        if vertex >= self.vertices {
+            return 0;
+        }
+        self.row(vertex)
+            .iter()
+            .map(|w| w.count_ones() as usize)
+            .sum()
+    }
+
+    fn row(&self, vertex: usize) -> &[u64] {
+        &self.bits[vertex * self.words..(vertex + 1) * self.words]
+    }
+}
+
+/// Casts a ray from every vertex (from p + offset * n) along every direction with n . w > 0;
+/// rayon over vertices. `directions` should be unit vectors. Vertices are the first
+/// `min(positions.len(), normals.len())` (the two should be equally long).
+pub fn visibility(
+    positions: &[Vec3],
+    normals: &[Vec3],
+    bvh: &Bvh,
+    directions: &[Vec3],
+    offset: f32,
+) -> Visibility {
+    let vertices = positions.len().min(normals.len());
+    let words = directions.len().div_ceil(64);
+    let mut bits = vec![0u64; vertices * words];
+    if words > 0 {
+        bits.par_chunks_mut(words).enumerate().for_each(|(v, row)| {
+            let (p, n) = (positions[v], normals[v]);
+            let origin = p + offset * n;
+            for (d, &w) in directions.iter().enumerate() {
+                if n.dot(w) > 0.0 && !bvh.any_hit(origin, w, f32::INFINITY) {
+                    row[d / 64] |= 1 << (d % 64);
+                }
+            }
+        });
+    }
+    Visibility {
+        directions: directions.to_vec(),
+        vertices,
+        bits,
+        words,
+    }
+}
+
+/// Brute-force outgoing radiance per vertex, f64: (albedo / pi) * sum over the env's texels p
+/// of L(R^-1 w_p) * V(w_p) * max(0, n . w_p) * dOmega_p, where w_p is texel p's direction and
+/// V comes from `vis`, which must have been computed for exactly `env.samples()`'s directions
+/// (the same count and the same vectors; an error otherwise). `normals` must have one entry
+/// per vertex of `vis`, `rotation` must be a rotation (orthonormal to 1e-4, det +1) and the
+/// albedo finite and non-negative; otherwise an error.
+pub fn shade_brute_force(
+    env: &EnvMap,
+    rotation: Mat3,
+    normals: &[Vec3],
+    vis: &Visibility,
+    albedo: [f32; 3],
+) -> Result<Vec<[f64; 3]>> {
+    let samples = env.samples();
+    if vis.directions.len() != samples.len() {
+        return Err(Error::InvalidArgument(format!(
+            "the visibility has {} directions, the environment {} ({} x {}) has {} texels; \
+             compute it for the map's own directions (EnvMap::samples)",
+            vis.directions.len(),
+            env.source.display(),
+            env.width,
+            env.height,
+            samples.len()
+        )));
+    }
+    if let Some(i) = samples
+        .iter()
+        .zip(&vis.directions)
+        .position(|(s, d)| (s.0 - *d).length() > 1e-6)
+    {
+        return Err(Error::InvalidArgument(format!(
+            "visibility direction {i} ({}) is not the direction of texel {i} of {} ({}); \
+             compute it for the map's own directions (EnvMap::samples)",
+            vis.directions[i],
+            env.source.display(),
+            samples[i].0
+        )));
+    }
+    if normals.len() != vis.vertices {
+        return Err(Error::InvalidArgument(format!(
+            "{} normals for a visibility of {} vertices",
+            normals.len(),
+            vis.vertices
+        )));
+    }
+    let rt = rotation.transpose();
+    let gram = rt * rotation;
+    let off = (gram - Mat3::IDENTITY).to_cols_array().map(f32::abs);
+    if !rotation.is_finite() || off.iter().any(|&e| e > 1e-4) || rotation.determinant() <= 0.0 {
+        return Err(Error::InvalidArgument(format!(
+            "the environment rotation {rotation} is not a rotation matrix (orthonormal, det +1)"
+        )));
+    }
+    if albedo.iter().any(|a| !a.is_finite() || *a < 0.0) {
+        return Err(Error::InvalidArgument(format!(
+            "albedo {albedo:?} must be finite and non-negative"
+        )));
+    }
+    // The rotated radiance times the solid angle does not depend on the vertex.
+    let weighted: Vec<[f64; 3]> = samples
+        .par_iter()
+        .map(|(w, d_omega, _)| {
+            let l = env.lookup(rt * *w);
+            l.map(|c| c as f64 * d_omega)
+        })
+        .collect();
+    let dirs: Vec<[f64; 3]> = samples.iter().map(|s| s.0.as_dvec3().to_array()).collect();
+    let scale = albedo.map(|a| a as f64 / std::f64::consts::PI);
+    Ok((0..vis.vertices)
+        .into_par_iter()
+        .map(|v| {
+            let n = normals[v].as_dvec3();
+            let mut sum = [0.0f64; 3];
+            for (k, &word) in vis.row(v).iter().enumerate() {
+                let mut bits = word;
+                while bits != 0 {
+                    let p = k * 64 + bits.trailing_zeros() as usize;
+                    bits &= bits - 1;
+                    let w = dirs[p];
+                    let cos = n.x * w[0] + n.y * w[1] + n.z * w[2];
+                    if cos > 0.0 {
+                        for c in 0..3 {
+                            sum[c] += weighted[p][c] * cos;
+                        }
+                    }
+                }
+            }
+            [0, 1, 2].map(|c| sum[c] * scale[c])
+        })
+        .collect())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// sum_p max(0, n . w_p) dOmega_p over a W x W/2 map (pi for the exact integral).
+    fn cosine_quadrature(env: &EnvMap, n: Vec3) -> f64 {
+        env.samples()
+            .iter()
+            .map(|(w, d, _)| (n.as_dvec3().dot(w.as_dvec3())).max(0.0) * d)
+            .sum()
+    }
+
+    #[test]
+    fn cosine_quadrature_bound_at_64x32() {
+        let env = EnvMap::from_texels(64, 32, vec![[1.0; 3]; 64 * 32], "const").unwrap();
+        let mut worst: f64 = 0.0;
+        let mut rng = crate::geom::Rng::new(7);
+        let mut normals = vec![Vec3::Y, -Vec3::Y, Vec3::X, Vec3::Z, Vec3::ONE.normalize()];
+        for _ in 0..500 {
+            normals.push(crate::geom::uniform_sphere(rng.f32(), rng.f32()));
+        }
+        for n in normals {
+            let rel =
+                (cosine_quadrature(&env, n) - std::f64::consts::PI).abs() / std::f64::consts::PI;
+            worst = worst.max(rel);
+        }
+        println!("64x32 cosine quadrature: max relative error {worst:.3e}");
+        assert!(worst < 1.25e-3, "quadrature error {worst}");
+        // The midpoint rule's error falls as 1 / H^2 (n = +Y is the worst case above).
+        for (w, bound) in [(256u32, 8e-5), (1024, 5e-6), (2048, 1.25e-6)] {
+            let env =
+                EnvMap::from_texels(w, w / 2, vec![[1.0; 3]; (w * w / 2) as usize], "c").unwrap();
+            let rel = (cosine_quadrature(&env, Vec3::Y) - std::f64::consts::PI).abs()
+                / std::f64::consts::PI;
+            println!(
+                "{w}x{} cosine quadrature, n = +Y: relative error {rel:.3e}",
+                w / 2
+            );
+            assert!(rel < bound, "{w}: {rel}");
+        }
+    }
+}
