@@ -4,4 +4,5 @@
 //! lighting lobes, compute the lighting's coefficients in the transfer basis from the
 //! closed-form SG inner products, shade every vertex.
 
+pub mod fit;
 pub mod sg;
