@@ -6,3 +6,4 @@
 
 pub mod fit;
 pub mod sg;
+pub mod transfer;
