@@ -58,6 +58,10 @@ enum Command {
     /// The main demo: `ao` on the built-in default (Testwuson's Run animation, 8 frames,
     /// compared with the ray-traced mesh), pictures in out/ao/.
     Demo,
+    /// Environment lighting by spherical Gaussians (SRBFs) rotated on the GPU with
+    /// precomputed per-vertex transfer.
+    #[command(subcommand)]
+    Srbf(SrbfCommand),
     /// Sphere trees.
     #[command(subcommand)]
     Spheretree(TreeCommand),
@@ -118,6 +122,62 @@ struct AoArgs {
     tree_opts: TreeOpts,
     /// Output directory.
     #[arg(long, default_value = "out/ao")]
+    out: PathBuf,
+}
+
+#[derive(Subcommand)]
+enum SrbfCommand {
+    /// Fit spherical Gaussians to an equirectangular HDR environment (EXR or .hdr); reports
+    /// the fit error for 8, 16, ... up to --lobes lobes and writes the largest fit as JSON.
+    Fit {
+        #[arg(long, default_value = vkshade::app::srbf::DEFAULT_ENV)]
+        env: PathBuf,
+        #[arg(long, default_value_t = 64)]
+        lobes: usize,
+        /// Width of the downsampled map the lobes are fitted to.
+        #[arg(long, default_value_t = 128)]
+        fit_width: u32,
+        #[arg(short = 'o', long, default_value = "out/srbf/fit.json")]
+        out: PathBuf,
+    },
+    /// Shade a mesh under a rotated environment: per frame DIR/shade_NNNN.ply (per-vertex
+    /// linear RGB radiance r, g, b) and DIR/shade_NNNN.png (with --reference: result |
+    /// brute-force truth | error), and DIR/report.json.
+    Shade(SrbfShadeArgs),
+}
+
+#[derive(Args)]
+struct SrbfShadeArgs {
+    /// Mesh (.obj .ply .off .glb/.gltf; a skinned mesh is shaded in its bind pose).
+    #[arg(long, default_value = vkshade::app::srbf::DEFAULT_MESH)]
+    mesh: PathBuf,
+    /// Equirectangular environment (EXR, including DWAB, or Radiance .hdr).
+    #[arg(long, default_value = vkshade::app::srbf::DEFAULT_ENV)]
+    env: PathBuf,
+    #[arg(long, default_value_t = 64)]
+    lobes: usize,
+    /// Transfer basis functions (spherical Gaussians on a Fibonacci lattice).
+    #[arg(long, default_value_t = 256)]
+    basis: usize,
+    /// Rotate the environment, e.g. y:30 (L_R(w) = L(R^-1 w)); with --frames, the start of a
+    /// spin about that axis.
+    #[arg(long)]
+    rotate: Option<vkshade::app::srbf::AxisAngle>,
+    /// Frames of a continuous 360-degree spin (about +Y, or --rotate's axis).
+    #[arg(long, default_value_t = 1)]
+    frames: usize,
+    /// Diffuse albedo R,G,B (default 1,1,1).
+    #[arg(long, value_delimiter = ',', num_args = 3, default_values_t = [1.0f32, 1.0, 1.0])]
+    albedo: Vec<f32>,
+    /// Compare each frame with the brute-force integration of the rotated map (f64).
+    #[arg(long)]
+    reference: bool,
+    /// Width of the map whose texel directions carry the transfer and the ground truth.
+    #[arg(long, default_value_t = 64)]
+    directions: u32,
+    #[arg(long, default_value_t = 2)]
+    in_flight: usize,
+    #[arg(long, default_value = "out/srbf")]
     out: PathBuf,
 }
 
@@ -193,6 +253,16 @@ enum BenchCommand {
         /// Animation (default: Run for the built-in character).
         #[arg(long)]
         anim: Option<String>,
+        /// Smaller sweeps (for a quick check).
+        #[arg(long)]
+        quick: bool,
+    },
+    /// SRBF lighting: GPU time of rotation (`srbf lighting`) and shading (`srbf shade`)
+    /// over lobes x basis size x vertices, GFLOP/s against the FMA peak measured in the same
+    /// run, and the speed-up over the same method on the CPU and over brute force.
+    Srbf {
+        #[command(flatten)]
+        opts: BenchOpts,
         /// Smaller sweeps (for a quick check).
         #[arg(long)]
         quick: bool,
@@ -576,6 +646,138 @@ fn cmd_ao(g: &Global, a: &AoArgs, demo: bool) -> Result<()> {
     finish(ctx)
 }
 
+fn cmd_bench_srbf(g: &Global, opts: &BenchOpts, quick: bool) -> Result<()> {
+    use vkshade::bench::srbf::{SrbfBenchConfig, run};
+    for path in opts.json.iter() {
+        vkshade::io::check_writable(path)?;
+    }
+    let mut cfg = SrbfBenchConfig {
+        bench: opts.config()?,
+        ..Default::default()
+    };
+    cfg.bench.min_submit_ms = opts.min_ms.min(cfg.bench.min_submit_ms);
+    if quick {
+        cfg.lobes = vec![16, 64];
+        cfg.basis = vec![64, 256];
+        cfg.vertices = vec![3205];
+        cfg.cpu_runs = 1;
+    }
+    let ctx = context(g)?;
+    eprintln!("bench srbf on {}", ctx.info().name);
+    let r = run(&ctx, &cfg, &mut |l| progress(l))?;
+    let h = &r.headline;
+    println!("device                 {}", r.machine.device);
+    println!(
+        "headline               {} lobes x {} basis x {} vertices: lighting {:.3} ms + shade {:.3} ms (median GPU) = {:.0} fps",
+        h.lobes, h.basis, h.vertices, h.lighting_ms.median, h.shade_ms.median, h.fps
+    );
+    println!(
+        "work                   {:.3} GFLOP/frame; {:.2} GFLOP/s = {:.1}% of the {:.1} GFLOP/s FMA peak",
+        h.gflop_per_frame,
+        h.gflops,
+        100.0 * h.fraction_of_peak,
+        r.peak_fma_gflops
+    );
+    println!(
+        "baselines              same method on the CPU {:.2} ms: {:.1}x; brute force {:.0} ms: {:.0}x",
+        r.cpu_same_method_ms.median,
+        r.speedup_vs_cpu,
+        r.brute_force_ms.median,
+        r.speedup_vs_brute_force
+    );
+    println!(
+        "gpu memory             {:.2} MiB in the kernel's buffers; {:.1} MiB reserved by the context's allocator",
+        h.gpu_memory_bytes as f64 / (1u64 << 20) as f64,
+        h.gpu_memory_reserved_bytes as f64 / (1u64 << 20) as f64
+    );
+    let target = 200.0;
+    println!(
+        "target fps (bunny, 64 lobes, 256 basis)         {:>10.1} (target {target}) {}",
+        h.fps,
+        if h.fps >= target { "PASS" } else { "MISS" }
+    );
+    if let Some(path) = &opts.json {
+        vkshade::io::write_json(path, &r)?;
+        println!("wrote {}", path.display());
+    }
+    finish(ctx)
+}
+
+fn cmd_srbf(g: &Global, cmd: &SrbfCommand) -> Result<()> {
+    use vkshade::app::srbf;
+    match cmd {
+        SrbfCommand::Fit {
+            env,
+            lobes,
+            fit_width,
+            out,
+        } => {
+            let r = srbf::fit_command(env, *lobes, *fit_width, out, &mut |l| progress(l))?;
+            println!(
+                "fitted {} lobes to {} ({}x{}): relative L2 {:.4}; wrote {}",
+                r.lobes.len(),
+                r.env,
+                r.fit_size[0],
+                r.fit_size[1],
+                r.errors.last().map(|e| e.1).unwrap_or(f64::NAN),
+                out.display()
+            );
+            Ok(())
+        }
+        SrbfCommand::Shade(a) => {
+            let albedo: [f32; 3] =
+                a.albedo.as_slice().try_into().map_err(|_| {
+                    Error::InvalidArgument("--albedo takes three values R,G,B".into())
+                })?;
+            let cfg = srbf::ShadeConfig {
+                mesh: a.mesh.clone(),
+                env: a.env.clone(),
+                lobes: a.lobes,
+                basis: a.basis,
+                rotate: a.rotate,
+                frames: a.frames,
+                albedo,
+                reference: a.reference,
+                direction_width: a.directions,
+                in_flight: a.in_flight,
+                out: a.out.clone(),
+                ..Default::default()
+            };
+            let ctx = context(g)?;
+            eprintln!("vkshade srbf shade on {}", ctx.info().name);
+            let r = srbf::shade(&ctx, &cfg, &mut |l| progress(l))?;
+            println!(
+                "{} frames of {} ({} vertices), {} lobes x {} basis: lighting {:.3} ms + shade {:.3} ms GPU (median) = {:.0} fps; fit error {:.4}, transfer projection error {:.4}",
+                r.frames.len(),
+                r.mesh,
+                r.vertices,
+                r.lobes,
+                r.basis,
+                r.gpu_ms_lighting_median,
+                r.gpu_ms_shade_median,
+                r.fps,
+                r.fit_rel_l2,
+                r.transfer_rel_l2
+            );
+            if let Some(worst) = r
+                .frames
+                .iter()
+                .filter_map(|f| f.vs_ground_truth.map(|e| e.all))
+                .reduce(f64::max)
+            {
+                println!(
+                    "vs brute-force ground truth: relative L2 at most {worst:.4} over the frames"
+                );
+            }
+            println!(
+                "wrote shade_NNNN.ply, shade_NNNN.png and report.json to {}",
+                cfg.out.display()
+            );
+            finish(ctx)
+        }
+    }
+}
+
 fn cmd_tree_build(
     mesh: &std::path::Path,
     out: &std::path::Path,
@@ -648,6 +850,9 @@ fn main() -> ExitCode {
             anim,
             quick,
         }) => cmd_bench_ao(&cli.global, opts, mesh, anim.as_deref(), *quick),
+        Command::Bench(BenchCommand::Srbf { opts, quick }) => {
+            cmd_bench_srbf(&cli.global, opts, *quick)
+        }
         Command::Shaders(cmd) => cmd_shaders(cmd),
         Command::Ao(a) => cmd_ao(&cli.global, a, false),
         Command::Demo => {
@@ -665,6 +870,7 @@ fn main() -> ExitCode {
             report,
         }) => cmd_tree_build(mesh, out, opts, report.as_deref()),
         Command::Mesh(MeshCommand::Info { mesh }) => cmd_mesh_info(mesh),
+        Command::Srbf(cmd) => cmd_srbf(&cli.global, cmd),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -181,3 +181,120 @@ fn bad_srbf_inputs_and_frames_are_refused() {
         Ok(())
     });
 }
+
+/// The whole method on a real map and mesh against the brute-force ground truth: Blender's
+/// forest light on Testwuson (3205 vertices), 32 lobes, 256 basis functions, directions of a
+/// 32x16 map; rotations about +Y and a tilted axis. The error must stay under the 5%
+/// and must not grow with the angle.
+#[test]
+fn method_against_the_brute_force_ground_truth_on_a_real_map_and_mesh() {
+    use vkshade::app::srbf::{RelL2, cpu_pipeline};
+    use vkshade::kernels::srbf::fit::{FitConfig, fit};
+    use vkshade::kernels::srbf::transfer::{Basis, project};
+    use vkshade::reference::srbf::{shade_brute_force, visibility};
+    use vkshade::scene::envmap::EnvMap;
+    let env_path = std::path::Path::new(vkshade::kernels::srbf::DEFAULT_ENV);
+    let env = EnvMap::load(env_path).unwrap_or_else(|e| {
+        panic!("{e}\nThe Blender studio lights come from `apt-get install blender-data` (tools/setup.sh).")
+    });
+    let mesh_path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/testwuson.glb");
+    let character = vkshade::scene::load(&mesh_path)
+        .unwrap_or_else(|e| panic!("{e}\nThe test character comes from tools/setup.sh."));
+    let mesh = &character.mesh;
+    let fitted = fit(
+        &env.downsampled(128).unwrap().samples(),
+        &FitConfig {
+            lobes: 32,
+            ..FitConfig::default()
+        },
+    )
+    .unwrap();
+    let dir_env = env.downsampled(64).unwrap();
+    let samples = dir_env.samples();
+    let dirs: Vec<Vec3> = samples.iter().map(|s| s.0).collect();
+    let solid: Vec<f64> = samples.iter().map(|s| s.1).collect();
+    let (lo, hi) = mesh.bounds();
+    let bvh = vkshade::geom::Bvh::build(&mesh.positions, &mesh.triangles);
+    let vis = visibility(
+        &mesh.positions,
+        &mesh.normals,
+        &bvh,
+        &dirs,
+        1e-4 * (hi - lo).length(),
+    );
+    let transfer = project(
+        &Basis::fibonacci(256),
+        &dirs,
+        &solid,
+        mesh.positions.len(),
+        |v, d| {
+            if vis.visible(v, d) {
+                mesh.normals[v].dot(dirs[d]).max(0.0) / std::f32::consts::PI
+            } else {
+                0.0
+            }
+        },
+    )
+    .unwrap();
+    let rotations: Vec<(String, Mat3)> = [0.0f32, 45.0, 90.0, 180.0, 270.0]
+        .iter()
+        .map(|&d| (format!("y:{d}"), sg::rotation(Vec3::Y, d)))
+        .chain([(
+            "tilted 60".to_string(),
+            sg::rotation(Vec3::new(1.0, 1.0, 0.0), 60.0),
+        )])
+        .collect();
+    common::with_gpu(|ctx| {
+        let mut setup = ctx.recorder("srbf setup")?;
+        let kernel = SrbfKernel::new(
+            &mut setup,
+            &SrbfInputs {
+                lobes: &fitted.lobes,
+                basis_axes: &transfer.basis.axes,
+                basis_sharpness: transfer.basis.sharpness,
+                coeffs: &transfer.coeffs,
+                vertices: transfer.vertices,
+            },
+        )?;
+        setup.submit_and_wait()?;
+        let frames: Vec<SrbfFrame> = rotations
+            .iter()
+            .map(|(_, r)| SrbfFrame {
+                rotation: *r,
+                albedo: [1.0; 3],
+            })
+            .collect();
+        let mut errors = Vec::new();
+        run_frames(ctx, &kernel, &frames, 2, |r| {
+            let frame = &frames[r.index];
+            let gpu: Vec<[f64; 3]> = r.output.iter().map(|c| c.map(|x| x as f64)).collect();
+            let cpu = cpu_pipeline(&fitted.lobes, &transfer, frame)?;
+            let truth =
+                shade_brute_force(&dir_env, frame.rotation, &mesh.normals, &vis, frame.albedo)?;
+            let (gc, gt) = (RelL2::of(&gpu, &cpu), RelL2::of(&gpu, &truth));
+            eprintln!(
+                "{}: GPU vs CPU {:.2e}; vs ground truth {:.4} (rgb {:.4} {:.4} {:.4})",
+                rotations[r.index].0, gc.all, gt.all, gt.rgb[0], gt.rgb[1], gt.rgb[2]
+            );
+            assert!(gc.all < 1e-4, "GPU vs CPU of the same pipeline: {gc:?}");
+            errors.push(gt.all);
+            Ok(())
+        })?;
+        eprintln!(
+            "fit relative L2 {:.4}, transfer projection {:.4}",
+            fitted.rel_l2, transfer.projection_rel_l2
+        );
+        let worst = errors.iter().cloned().fold(0f64, f64::max);
+        assert!(
+            worst < 0.05,
+            "relative L2 against the ground truth {errors:?}"
+        );
+        // Not growing with the angle: every rotation within 1.5x of the unrotated error
+        // (plus a floor for quadrature noise).
+        assert!(
+            errors.iter().all(|e| *e <= 1.5 * errors[0] + 0.005),
+            "{errors:?}"
+        );
+        Ok(())
+    });
+}

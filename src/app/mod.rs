@@ -2,3 +2,4 @@
 //! can call them the way the CLI does).
 
 pub mod ao;
+pub mod srbf;

@@ -4,6 +4,7 @@
 pub mod ao;
 pub mod peak;
 pub mod plot;
+pub mod srbf;
 
 use crate::error::{Error, Result};
 use crate::gpu::{Context, Recorder};

@@ -1,0 +1,631 @@
+//! `vkshade srbf fit` and `vkshade srbf shade`: environment lighting by spherical Gaussians,
+//! rotated on the GPU and combined with per-vertex precomputed transfer; PLY, PNG and a JSON
+//! report per run, and (optionally) the brute-force ground truth with the error split by
+//! stage.
+
+use crate::error::{Error, Result};
+use crate::geom::Bvh;
+use crate::gpu::Context;
+use crate::kernels::srbf::fit::{FitConfig, fit};
+use crate::kernels::srbf::gpu::{PASS_LIGHTING, PASS_SHADE, SrbfFrame, SrbfInputs, SrbfKernel};
+use crate::kernels::srbf::sg::{self, Lobe};
+use crate::kernels::srbf::transfer::{self, Basis, Transfer};
+use crate::kernels::{KernelInfo, run_frames};
+use crate::reference::srbf::{Visibility, shade_brute_force, visibility};
+use crate::report::MachineInfo;
+use crate::scene::envmap::EnvMap;
+use crate::scene::{self, Mesh};
+use glam::{Mat3, Vec3};
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+pub use crate::kernels::srbf::{DEFAULT_ENV, DEFAULT_MESH};
+
+/// A rotation given on the command line: `y:30` (axis x, y or z; degrees).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct AxisAngle {
+    pub axis: Vec3,
+    pub degrees: f32,
+}
+
+impl std::str::FromStr for AxisAngle {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        let (axis, deg) = s
+            .split_once(':')
+            .ok_or_else(|| format!("'{s}': expected AXIS:DEGREES, e.g. y:30"))?;
+        let axis = match axis.trim() {
+            "x" | "X" => Vec3::X,
+            "y" | "Y" => Vec3::Y,
+            "z" | "Z" => Vec3::Z,
+            other => return Err(format!("axis '{other}' is not x, y or z")),
+        };
+        let degrees: f32 = deg
+            .trim()
+            .parse()
+            .map_err(|_| format!("'{deg}' is not a number of degrees"))?;
+        if !degrees.is_finite() {
+            return Err(format!("{degrees} degrees"));
+        }
+        Ok(AxisAngle { axis, degrees })
+    }
+}
+
+/// Everything `vkshade srbf shade` can be told.
+#[derive(Clone, Debug)]
+pub struct ShadeConfig {
+    pub mesh: PathBuf,
+    pub env: PathBuf,
+    /// Lighting lobes fitted to the environment.
+    pub lobes: usize,
+    /// Transfer basis functions.
+    pub basis: usize,
+    /// One frame at this rotation, or (with `frames` > 1) a spin about this axis.
+    pub rotate: Option<AxisAngle>,
+    /// Frames of a continuous spin (360 degrees over the frames) about `rotate`'s axis (+Y
+    /// by default).
+    pub frames: usize,
+    pub albedo: [f32; 3],
+    pub reference: bool,
+    /// Width of the environment the lobes are fitted to (a downsampled copy).
+    pub fit_width: u32,
+    /// Width of the environment whose texel directions the transfer and the ground truth
+    /// use (visibility is ray-cast for each of them).
+    pub direction_width: u32,
+    pub out: PathBuf,
+    pub image: (u32, u32),
+    /// Relative error at the top of the heat map.
+    pub error_scale: f32,
+    pub in_flight: usize,
+}
+
+impl Default for ShadeConfig {
+    fn default() -> Self {
+        ShadeConfig {
+            mesh: PathBuf::from(DEFAULT_MESH),
+            env: PathBuf::from(DEFAULT_ENV),
+            lobes: 64,
+            basis: 256,
+            rotate: None,
+            frames: 1,
+            albedo: [1.0; 3],
+            reference: false,
+            fit_width: 128,
+            direction_width: 64,
+            out: PathBuf::from("out/srbf"),
+            image: (640, 480),
+            error_scale: 0.1,
+            in_flight: 2,
+        }
+    }
+}
+
+impl ShadeConfig {
+    pub fn validate(&self) -> Result<()> {
+        let bad = |m: String| Err(Error::InvalidArgument(m));
+        if !(1..=4096).contains(&self.lobes) {
+            return bad(format!("--lobes must be in 1..=4096, not {}", self.lobes));
+        }
+        if !(1..=4096).contains(&self.basis) {
+            return bad(format!("--basis must be in 1..=4096, not {}", self.basis));
+        }
+        if !(1..=100_000).contains(&self.frames) {
+            return bad(format!(
+                "--frames must be in 1..=100000, not {}",
+                self.frames
+            ));
+        }
+        if self.albedo.iter().any(|a| !a.is_finite() || *a < 0.0) {
+            return bad(format!(
+                "--albedo {:?} must be finite and >= 0",
+                self.albedo
+            ));
+        }
+        if !(1..=16).contains(&self.in_flight) {
+            return bad(format!(
+                "--in-flight must be in 1..=16, not {}",
+                self.in_flight
+            ));
+        }
+        if !(self.error_scale.is_finite() && self.error_scale > 0.0) {
+            return bad(format!(
+                "--error-scale must be > 0, not {}",
+                self.error_scale
+            ));
+        }
+        for (name, w) in [
+            ("fit width", self.fit_width),
+            ("direction width", self.direction_width),
+        ] {
+            if !(8..=4096).contains(&w) || w % 2 != 0 {
+                return bad(format!("{name} {w} must be even and in 8..=4096"));
+            }
+        }
+        Ok(())
+    }
+
+    /// The environment rotation of each frame.
+    pub fn rotations(&self) -> Vec<Mat3> {
+        let axis = self.rotate.map(|r| r.axis).unwrap_or(Vec3::Y);
+        let start = self.rotate.map(|r| r.degrees).unwrap_or(0.0);
+        if self.frames <= 1 {
+            return vec![sg::rotation(axis, start)];
+        }
+        (0..self.frames)
+            .map(|i| sg::rotation(axis, start + 360.0 * i as f32 / self.frames as f32))
+            .collect()
+    }
+}
+
+/// Relative L2 errors per channel (sqrt(sum |a - b|^2 / sum |b|^2)) and over all channels.
+#[derive(Clone, Copy, Debug, Serialize)]
+pub struct RelL2 {
+    pub rgb: [f64; 3],
+    pub all: f64,
+}
+
+impl RelL2 {
+    pub fn of(a: &[[f64; 3]], b: &[[f64; 3]]) -> RelL2 {
+        let mut num = [0f64; 3];
+        let mut den = [0f64; 3];
+        for (x, y) in a.iter().zip(b) {
+            for c in 0..3 {
+                num[c] += (x[c] - y[c]).powi(2);
+                den[c] += y[c].powi(2);
+            }
+        }
+        let ratio = |n: f64, d: f64| if d > 0.0 { (n / d).sqrt() } else { n.sqrt() };
+        RelL2 {
+            rgb: [0, 1, 2].map(|c| ratio(num[c], den[c])),
+            all: ratio(num.iter().sum(), den.iter().sum()),
+        }
+    }
+}
+
+/// One frame of the report.
+#[derive(Clone, Debug, Serialize)]
+pub struct FrameReport {
+    pub index: usize,
+    /// Column-major rotation matrix of the environment.
+    pub rotation: [f32; 9],
+    pub gpu_ms_lighting: f64,
+    pub gpu_ms_shade: f64,
+    /// GPU against the same pipeline on the CPU (f64).
+    pub gpu_vs_cpu: RelL2,
+    /// With --reference: the method against the brute-force ground truth.
+    pub vs_ground_truth: Option<RelL2>,
+    /// With --reference: the exact SG lighting with this transfer against the ground truth
+    /// isolates the transfer projection's share (the rest is the fit's).
+    pub ply: String,
+    pub png: String,
+}
+
+/// What `report.json` holds.
+#[derive(Clone, Debug, Serialize)]
+pub struct ShadeReport {
+    pub tool: &'static str,
+    pub machine: MachineInfo,
+    pub mesh: String,
+    pub vertices: usize,
+    pub env: String,
+    pub env_size: [u32; 2],
+    pub lobes: usize,
+    pub basis: usize,
+    pub basis_sharpness: f32,
+    pub albedo: [f32; 3],
+    /// Fit of the lobes to the environment (at `fit_width`): solid-angle-weighted relative L2.
+    pub fit_rel_l2: f64,
+    pub fit_ms: f64,
+    /// Mean over vertices of the transfer projection's relative L2.
+    pub transfer_rel_l2: f64,
+    pub transfer_ms: f64,
+    pub transfer_cached: bool,
+    pub directions: usize,
+    pub kernel: KernelInfo,
+    pub frames: Vec<FrameReport>,
+    pub gpu_ms_lighting_median: f64,
+    pub gpu_ms_shade_median: f64,
+    pub fps: f64,
+    pub notes: Vec<String>,
+}
+
+/// The transfer of a mesh, computed once and cached beside the outputs (reused when the
+/// mesh, basis and direction set are the same).
+fn transfer_for(
+    cfg: &ShadeConfig,
+    mesh: &Mesh,
+    dir_env: &EnvMap,
+    vis: &Visibility,
+) -> Result<(Transfer, bool, f64)> {
+    let path = cfg.out.join("transfer.bin");
+    let key_path = cfg.out.join("transfer.key");
+    let key = format!(
+        "{} {} {} {} {}",
+        cfg.mesh.display(),
+        mesh.positions.len(),
+        cfg.basis,
+        dir_env.width,
+        std::fs::metadata(&cfg.mesh)
+            .and_then(|m| m.modified())
+            .map(|t| format!("{t:?}"))
+            .unwrap_or_default()
+    );
+    if std::fs::read_to_string(&key_path).ok().as_deref() == Some(key.as_str())
+        && let Ok(t) = Transfer::load(&path)
+        && t.vertices == mesh.positions.len()
+        && t.basis.axes.len() == cfg.basis
+    {
+        return Ok((t, true, 0.0));
+    }
+    let t0 = Instant::now();
+    let samples = dir_env.samples();
+    let directions: Vec<Vec3> = samples.iter().map(|s| s.0).collect();
+    let solid_angles: Vec<f64> = samples.iter().map(|s| s.1).collect();
+    let normals = &mesh.normals;
+    let t = transfer::project(
+        &Basis::fibonacci(cfg.basis),
+        &directions,
+        &solid_angles,
+        mesh.positions.len(),
+        |v, d| {
+            if vis.visible(v, d) {
+                normals[v].dot(directions[d]).max(0.0) / std::f32::consts::PI
+            } else {
+                0.0
+            }
+        },
+    )?;
+    let ms = t0.elapsed().as_secs_f64() * 1e3;
+    t.save(&path)?;
+    crate::io::write_atomic(&key_path, key.as_bytes())?;
+    Ok((t, false, ms))
+}
+
+/// Runs `vkshade srbf shade`.
+pub fn shade(
+    ctx: &Context,
+    cfg: &ShadeConfig,
+    progress: &mut dyn FnMut(&str),
+) -> Result<ShadeReport> {
+    cfg.validate()?;
+    crate::io::check_writable(&cfg.out.join("report.json"))?;
+    let character = scene::load(&cfg.mesh)?;
+    let mesh = &character.mesh;
+    let env = EnvMap::load(&cfg.env)?;
+    progress(&format!(
+        "{}: {} vertices; {}: {}x{}",
+        cfg.mesh.display(),
+        mesh.positions.len(),
+        cfg.env.display(),
+        env.width,
+        env.height
+    ));
+    let t = Instant::now();
+    let fit_env = env.downsampled(cfg.fit_width.min(env.width))?;
+    let fitted = fit(
+        &fit_env.samples(),
+        &FitConfig {
+            lobes: cfg.lobes,
+            ..FitConfig::default()
+        },
+    )?;
+    let fit_ms = t.elapsed().as_secs_f64() * 1e3;
+    progress(&format!(
+        "fit {} lobes to {}x{}: relative L2 {:.4} ({fit_ms:.0} ms)",
+        cfg.lobes, fit_env.width, fit_env.height, fitted.rel_l2
+    ));
+    let dir_env = env.downsampled(cfg.direction_width.min(env.width))?;
+    let directions: Vec<Vec3> = dir_env.samples().iter().map(|s| s.0).collect();
+    let (lo, hi) = mesh.bounds();
+    let bvh = Bvh::build(&mesh.positions, &mesh.triangles);
+    let vis = visibility(
+        &mesh.positions,
+        &mesh.normals,
+        &bvh,
+        &directions,
+        1e-4 * (hi - lo).length(),
+    );
+    let (transfer, cached, transfer_ms) = transfer_for(cfg, mesh, &dir_env, &vis)?;
+    progress(&format!(
+        "transfer: {} basis SGs (sharpness {:.1}), projection relative L2 {:.4}{}",
+        transfer.basis.axes.len(),
+        transfer.basis.sharpness,
+        transfer.projection_rel_l2,
+        if cached {
+            " (cached)".to_string()
+        } else {
+            format!(" ({transfer_ms:.0} ms)")
+        }
+    ));
+    let mut setup = ctx.recorder("srbf setup")?;
+    let kernel = SrbfKernel::new(
+        &mut setup,
+        &SrbfInputs {
+            lobes: &fitted.lobes,
+            basis_axes: &transfer.basis.axes,
+            basis_sharpness: transfer.basis.sharpness,
+            coeffs: &transfer.coeffs,
+            vertices: transfer.vertices,
+        },
+    )?;
+    setup.submit_and_wait()?;
+    let rotations = cfg.rotations();
+    let frames_in: Vec<SrbfFrame> = rotations
+        .iter()
+        .map(|&rotation| SrbfFrame {
+            rotation,
+            albedo: cfg.albedo,
+        })
+        .collect();
+    let pictures = Pictures::new(cfg, mesh);
+    let mut frames = Vec::with_capacity(frames_in.len());
+    let in_flight = run_frames(ctx, &kernel, &frames_in, cfg.in_flight, |r| {
+        let frame = &frames_in[r.index];
+        let cpu = cpu_pipeline(&fitted.lobes, &transfer, frame)?;
+        let gpu: Vec<[f64; 3]> = r.output.iter().map(|c| c.map(|x| x as f64)).collect();
+        let truth = if cfg.reference {
+            Some(shade_brute_force(
+                &dir_env,
+                frame.rotation,
+                &mesh.normals,
+                &vis,
+                cfg.albedo,
+            )?)
+        } else {
+            None
+        };
+        let report = FrameReport {
+            index: r.index,
+            rotation: frame.rotation.to_cols_array(),
+            gpu_ms_lighting: r.timings.get(PASS_LIGHTING).unwrap_or(f64::NAN),
+            gpu_ms_shade: r.timings.get(PASS_SHADE).unwrap_or(f64::NAN),
+            gpu_vs_cpu: RelL2::of(&gpu, &cpu),
+            vs_ground_truth: truth.as_ref().map(|t| RelL2::of(&gpu, t)),
+            ply: String::new(),
+            png: String::new(),
+        };
+        let report = pictures.write(report, &character.mesh, &gpu, truth.as_deref())?;
+        progress(&format!(
+            "frame {}: lighting {:.3} ms + shade {:.3} ms GPU; GPU vs CPU {:.1e}{}",
+            r.index,
+            report.gpu_ms_lighting,
+            report.gpu_ms_shade,
+            report.gpu_vs_cpu.all,
+            report
+                .vs_ground_truth
+                .map(|e| format!(
+                    ", vs ground truth {:.4} (rgb {:.4} {:.4} {:.4})",
+                    e.all, e.rgb[0], e.rgb[1], e.rgb[2]
+                ))
+                .unwrap_or_default()
+        ));
+        frames.push(report);
+        Ok(())
+    })?;
+    let median = |f: &dyn Fn(&FrameReport) -> f64| {
+        let mut v: Vec<f64> = frames.iter().map(f).collect();
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let lighting = median(&|f| f.gpu_ms_lighting);
+    let shade_ms = median(&|f| f.gpu_ms_shade);
+    let mut notes = Vec::new();
+    if ctx.info().device_type == "CPU" {
+        notes.push("the device is a CPU implementation (lavapipe): times measure the CPU".into());
+    }
+    notes.push(format!(
+        "ground truth: {}x{} texel directions of the environment (solid-angle-weighted \
+         downsampling of the original), visibility ray-cast per direction; L(R^-1 w) is \
+         looked up in that map",
+        dir_env.width, dir_env.height
+    ));
+    let report = ShadeReport {
+        tool: "vkshade srbf shade",
+        machine: MachineInfo::of(ctx),
+        mesh: cfg.mesh.display().to_string(),
+        vertices: mesh.positions.len(),
+        env: cfg.env.display().to_string(),
+        env_size: [env.width, env.height],
+        lobes: cfg.lobes,
+        basis: transfer.basis.axes.len(),
+        basis_sharpness: transfer.basis.sharpness,
+        albedo: cfg.albedo,
+        fit_rel_l2: fitted.rel_l2,
+        fit_ms,
+        transfer_rel_l2: transfer.projection_rel_l2,
+        transfer_ms,
+        transfer_cached: cached,
+        directions: directions.len(),
+        kernel: KernelInfo::of(&kernel, in_flight),
+        gpu_ms_lighting_median: lighting,
+        gpu_ms_shade_median: shade_ms,
+        fps: 1000.0 / (lighting + shade_ms),
+        frames,
+        notes,
+    };
+    crate::io::write_json(&cfg.out.join("report.json"), &report)?;
+    Ok(report)
+}
+
+/// The same pipeline as the GPU, on the CPU (f64 accumulation of the f32 inputs).
+pub fn cpu_pipeline(
+    lobes: &[Lobe],
+    transfer: &Transfer,
+    frame: &SrbfFrame,
+) -> Result<Vec<[f64; 3]>> {
+    let coeffs = transfer::lighting_coefficients(lobes, frame.rotation, &transfer.basis);
+    Ok(transfer::shade(transfer, &coeffs, frame.albedo)?
+        .iter()
+        .map(|c| c.map(|x| x as f64))
+        .collect())
+}
+
+/// Writes each frame's PLY and PNG (result, or result | truth | relative error).
+struct Pictures {
+    out: PathBuf,
+    view: crate::render::View,
+    frame_points: Vec<Vec3>,
+    exposure: f32,
+    error_scale: f32,
+}
+
+impl Pictures {
+    fn new(cfg: &ShadeConfig, mesh: &Mesh) -> Pictures {
+        Pictures {
+            out: cfg.out.clone(),
+            view: crate::render::View {
+                width: cfg.image.0,
+                height: cfg.image.1,
+                ..Default::default()
+            },
+            frame_points: mesh.positions.clone(),
+            exposure: 0.0,
+            error_scale: cfg.error_scale,
+        }
+    }
+
+    fn write(
+        &self,
+        mut report: FrameReport,
+        mesh: &Mesh,
+        gpu: &[[f64; 3]],
+        truth: Option<&[[f64; 3]]>,
+    ) -> Result<FrameReport> {
+        use crate::render::{rasterize, shade_rgb, side_by_side};
+        let png = self.out.join(format!("shade_{:04}.png", report.index));
+        let ply = png.with_extension("ply");
+        let channel =
+            |v: &[[f64; 3]], c: usize| -> Vec<f32> { v.iter().map(|x| x[c] as f32).collect() };
+        let (r, g, b) = (channel(gpu, 0), channel(gpu, 1), channel(gpu, 2));
+        crate::scene::ply_write::write_ply_properties(
+            &ply,
+            "vkshade srbf shade: linear RGB outgoing radiance per vertex",
+            &mesh.positions,
+            &mesh.normals,
+            &mesh.triangles,
+            &[("r", &r), ("g", &g), ("b", &b)],
+        )?;
+        // Exposure: the 99th percentile of the luminance maps to 0.9.
+        let exposure = if self.exposure > 0.0 {
+            self.exposure
+        } else {
+            let mut lum: Vec<f64> = gpu
+                .iter()
+                .map(|c| 0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2])
+                .collect();
+            lum.sort_by(f64::total_cmp);
+            let p99 = lum
+                .get(lum.len() * 99 / 100)
+                .copied()
+                .unwrap_or(1.0)
+                .max(1e-9);
+            (0.9 / p99) as f32
+        };
+        let raster = |v: &[f32]| {
+            rasterize(
+                &mesh.positions,
+                &mesh.triangles,
+                v,
+                &self.frame_points,
+                &self.view,
+            )
+        };
+        let picture_of = |v: &[[f64; 3]]| {
+            let (r, g, b) = (channel(v, 0), channel(v, 1), channel(v, 2));
+            shade_rgb([&raster(&r), &raster(&g), &raster(&b)], exposure)
+        };
+        let picture = match truth {
+            None => picture_of(gpu)?,
+            Some(truth) => {
+                let scale = truth
+                    .iter()
+                    .map(|c| c[0].max(c[1]).max(c[2]))
+                    .fold(0f64, f64::max)
+                    .max(1e-12);
+                // Error relative to the brightest truth value (a per-vertex relative error
+                // explodes in the shadows, where both are near zero).
+                let err: Vec<f32> = gpu
+                    .iter()
+                    .zip(truth)
+                    .map(|(a, t)| {
+                        ((0..3).map(|c| (a[c] - t[c]).abs()).fold(0f64, f64::max) / scale) as f32
+                    })
+                    .collect();
+                side_by_side(
+                    &picture_of(gpu)?,
+                    &picture_of(truth)?,
+                    &raster(&err).value,
+                    self.error_scale,
+                )?
+            }
+        };
+        crate::render::write_png(&png, picture.width, picture.height, &picture.rgb)?;
+        report.ply = ply.display().to_string();
+        report.png = png.display().to_string();
+        Ok(report)
+    }
+}
+
+/// What `vkshade srbf fit` writes.
+#[derive(Clone, Debug, Serialize)]
+pub struct FitReport {
+    pub tool: &'static str,
+    pub env: String,
+    pub fit_size: [u32; 2],
+    /// (lobes, solid-angle-weighted relative L2, per channel, ms) for each lobe count tried.
+    pub errors: Vec<(usize, f64, [f64; 3], f64)>,
+    pub lobes: Vec<Lobe>,
+}
+
+/// Runs `vkshade srbf fit`: fits 8, 16, ... up to `lobes` lobes (reporting each error) and
+/// writes the largest fit to `out`.
+pub fn fit_command(
+    env: &Path,
+    lobes: usize,
+    fit_width: u32,
+    out: &Path,
+    progress: &mut dyn FnMut(&str),
+) -> Result<FitReport> {
+    if !(1..=4096).contains(&lobes) {
+        return Err(Error::InvalidArgument(format!(
+            "--lobes must be in 1..=4096, not {lobes}"
+        )));
+    }
+    crate::io::check_writable(out)?;
+    let map = EnvMap::load(env)?;
+    let small = map.downsampled(fit_width.min(map.width))?;
+    let samples = small.samples();
+    let mut counts: Vec<usize> = std::iter::successors(Some(8usize), |n| Some(n * 2))
+        .take_while(|&n| n < lobes)
+        .collect();
+    counts.push(lobes);
+    let mut errors = Vec::new();
+    let mut last = None;
+    for n in counts {
+        let t = Instant::now();
+        let f = fit(
+            &samples,
+            &FitConfig {
+                lobes: n,
+                ..FitConfig::default()
+            },
+        )?;
+        let ms = t.elapsed().as_secs_f64() * 1e3;
+        progress(&format!(
+            "{n} lobes: relative L2 {:.4} ({ms:.0} ms)",
+            f.rel_l2
+        ));
+        errors.push((n, f.rel_l2, f.rel_l2_per_channel, ms));
+        last = Some(f);
+    }
+    let report = FitReport {
+        tool: "vkshade srbf fit",
+        env: env.display().to_string(),
+        fit_size: [small.width, small.height],
+        errors,
+        lobes: last.map(|f| f.lobes).unwrap_or_default(),
+    };
+    crate::io::write_json(out, &report)?;
+    Ok(report)
+}

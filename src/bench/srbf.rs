@@ -1,0 +1,272 @@
+//! `vkshade bench srbf`: GPU time of the SRBF passes over lobes x basis size x vertices,
+//! GFLOP/s against the FMA peak measured in the same run, and the speed-up over the same
+//! method on the CPU and over the brute-force integration, on the glmark2 bunny under a
+//! Blender studio light.
+
+use super::{BenchConfig, MachineInfo, Stats, time_cpu};
+use crate::error::Result;
+use crate::geom::{Bvh, Rng};
+use crate::gpu::Context;
+use crate::kernels::srbf::fit::{FitConfig, fit};
+use crate::kernels::srbf::gpu::{PASS_LIGHTING, PASS_SHADE, SrbfFrame, SrbfInputs, SrbfKernel};
+use crate::kernels::srbf::sg::{self, Lobe};
+use crate::kernels::srbf::transfer::{self, Basis, Transfer};
+use crate::kernels::{Kernel, shape::time_passes};
+use crate::reference::srbf::{shade_brute_force, visibility};
+use crate::scene::envmap::EnvMap;
+use glam::Vec3;
+use serde::Serialize;
+use std::path::PathBuf;
+
+/// Operation counts per unit of work (documented, not a hardware counter).
+pub mod flop_model {
+    /// One (lobe, basis function) pair of `srbf lighting`: rotation share, the SG inner
+    /// product (a length, a division, two exponentials counted as 10 each) and 3 FMAs.
+    pub const LIGHTING_PAIR: f64 = 40.0;
+    /// One (vertex, basis function) term of `srbf shade`: 3 FMAs.
+    pub const SHADE_TERM: f64 = 6.0;
+}
+
+/// What `bench srbf` measures.
+#[derive(Clone, Debug, Serialize)]
+pub struct SrbfBenchConfig {
+    pub mesh: PathBuf,
+    pub env: PathBuf,
+    pub bench: BenchConfig,
+    pub lobes: Vec<usize>,
+    pub basis: Vec<usize>,
+    /// Vertex counts (the mesh's own, and the mesh's vertices repeated or cut).
+    pub vertices: Vec<usize>,
+    /// The headline: (lobes, basis, vertices = the mesh's).
+    pub headline: (usize, usize),
+    /// Width of the direction map of the brute-force baseline.
+    pub brute_force_width: u32,
+    pub cpu_runs: usize,
+}
+
+impl Default for SrbfBenchConfig {
+    fn default() -> Self {
+        SrbfBenchConfig {
+            mesh: PathBuf::from(crate::kernels::srbf::DEFAULT_MESH),
+            env: PathBuf::from(crate::kernels::srbf::DEFAULT_ENV),
+            bench: BenchConfig::default(),
+            lobes: vec![16, 64, 256],
+            basis: vec![64, 256, 1024],
+            vertices: vec![3205, 34835],
+            headline: (64, 256),
+            brute_force_width: 32,
+            cpu_runs: 3,
+        }
+    }
+}
+
+/// One configuration's timing.
+#[derive(Clone, Debug, Serialize)]
+pub struct Point {
+    pub lobes: usize,
+    pub basis: usize,
+    pub vertices: usize,
+    pub lighting_ms: Stats,
+    pub shade_ms: Stats,
+    pub total_ms: f64,
+    pub fps: f64,
+    pub gflop_per_frame: f64,
+    pub gflops: f64,
+    pub fraction_of_peak: f64,
+    pub gpu_memory_bytes: u64,
+    pub gpu_memory_reserved_bytes: u64,
+}
+
+/// What `bench srbf` writes.
+#[derive(Clone, Debug, Serialize)]
+pub struct SrbfBenchReport {
+    pub benchmark: &'static str,
+    pub machine: MachineInfo,
+    pub config: SrbfBenchConfig,
+    pub flop_model: [(&'static str, f64); 2],
+    pub peak_fma_gflops: f64,
+    pub headline: Point,
+    /// The same method on the CPU (lighting coefficients + per-vertex contraction, one
+    /// thread per vertex chunk with rayon), headline configuration.
+    pub cpu_same_method_ms: Stats,
+    pub speedup_vs_cpu: f64,
+    /// Brute-force integration of the map against visibility x cosine, every vertex, per
+    /// frame (visibility precomputed), at `brute_force_width`.
+    pub brute_force_ms: Stats,
+    pub speedup_vs_brute_force: f64,
+    pub sweep: Vec<Point>,
+}
+
+/// Transfer coefficients for timing: the values do not change the work, only the sizes do.
+fn synthetic_transfer(basis: usize, vertices: usize, seed: u64) -> Transfer {
+    let mut rng = Rng::new(seed);
+    Transfer {
+        basis: Basis::fibonacci(basis),
+        vertices,
+        coeffs: (0..basis * vertices).map(|_| rng.f32() * 0.01).collect(),
+        projection_rel_l2: f64::NAN,
+    }
+}
+
+fn synthetic_lobes(n: usize, seed: u64) -> Vec<Lobe> {
+    let mut rng = Rng::new(seed);
+    sg::fibonacci_sphere(n)
+        .into_iter()
+        .map(|axis| Lobe {
+            axis: axis.to_array(),
+            sharpness: 2.0 + 50.0 * rng.f32(),
+            amplitude: [rng.f32(), rng.f32(), rng.f32()],
+        })
+        .collect()
+}
+
+fn measure(
+    ctx: &Context,
+    cfg: &BenchConfig,
+    lobes: &[Lobe],
+    t: &Transfer,
+    peak: f64,
+) -> Result<Point> {
+    let mut setup = ctx.recorder("srbf bench setup")?;
+    let kernel = SrbfKernel::new(
+        &mut setup,
+        &SrbfInputs {
+            lobes,
+            basis_axes: &t.basis.axes,
+            basis_sharpness: t.basis.sharpness,
+            coeffs: &t.coeffs,
+            vertices: t.vertices,
+        },
+    )?;
+    setup.submit_and_wait()?;
+    let frame = SrbfFrame {
+        rotation: sg::rotation(Vec3::Y, 30.0),
+        albedo: [1.0; 3],
+    };
+    let passes = time_passes(ctx, cfg, &kernel, &frame)?;
+    let get = |name: &str| {
+        passes
+            .iter()
+            .find(|(n, _)| *n == name)
+            .map(|(_, s)| s.clone())
+            .unwrap_or_else(Stats::none)
+    };
+    let (lighting, shade) = (get(PASS_LIGHTING), get(PASS_SHADE));
+    let total = lighting.median + shade.median;
+    let k = t.basis.axes.len() as f64;
+    let flop = lobes.len() as f64 * k * flop_model::LIGHTING_PAIR
+        + t.vertices as f64 * k * flop_model::SHADE_TERM;
+    let gflops = flop / (total * 1e-3) * 1e-9;
+    let memory = kernel.memory();
+    Ok(Point {
+        lobes: lobes.len(),
+        basis: t.basis.axes.len(),
+        vertices: t.vertices,
+        lighting_ms: lighting,
+        shade_ms: shade,
+        total_ms: total,
+        fps: 1000.0 / total,
+        gflop_per_frame: flop * 1e-9,
+        gflops,
+        fraction_of_peak: gflops / peak,
+        gpu_memory_bytes: memory.used_bytes,
+        gpu_memory_reserved_bytes: memory.reserved_bytes,
+    })
+}
+
+/// Runs the benchmark.
+pub fn run(
+    ctx: &Context,
+    cfg: &SrbfBenchConfig,
+    progress: &mut dyn FnMut(&str),
+) -> Result<SrbfBenchReport> {
+    let character = crate::scene::load(&cfg.mesh)?;
+    let mesh = &character.mesh;
+    let nv = mesh.positions.len();
+    progress("device peak (FMA) for the roofline");
+    let peak = super::peak::run_fma(ctx, &cfg.bench, &mut |_| {})?.throughput_median;
+    progress(&format!("  {peak:.1} GFLOP/s"));
+
+    // Headline: a real fit and the mesh's vertex count (synthetic transfer values).
+    let env = EnvMap::load(&cfg.env)?;
+    let (hl, hk) = cfg.headline;
+    let fitted = fit(
+        &env.downsampled(128.min(env.width))?.samples(),
+        &FitConfig {
+            lobes: hl,
+            ..FitConfig::default()
+        },
+    )?;
+    let t = synthetic_transfer(hk, nv, 1);
+    let headline = measure(ctx, &cfg.bench, &fitted.lobes, &t, peak)?;
+    progress(&format!(
+        "headline: {hl} lobes x {hk} basis x {nv} vertices: lighting {:.3} + shade {:.3} ms = {:.0} fps, {:.1} GFLOP/s ({:.1}% of peak)",
+        headline.lighting_ms.median,
+        headline.shade_ms.median,
+        headline.fps,
+        headline.gflops,
+        100.0 * headline.fraction_of_peak
+    ));
+
+    // Baselines: the same method on the CPU, and brute force.
+    let frame = SrbfFrame {
+        rotation: sg::rotation(Vec3::Y, 30.0),
+        albedo: [1.0; 3],
+    };
+    let cpu = time_cpu(cfg.cpu_runs, || {
+        let c = transfer::lighting_coefficients(&fitted.lobes, frame.rotation, &t.basis);
+        transfer::shade(&t, &c, frame.albedo)
+    });
+    progress(&format!("CPU same method: {:.2} ms", cpu.median));
+    let dir_env = env.downsampled(cfg.brute_force_width.min(env.width))?;
+    let dirs: Vec<Vec3> = dir_env.samples().iter().map(|s| s.0).collect();
+    let (lo, hi) = mesh.bounds();
+    let bvh = Bvh::build(&mesh.positions, &mesh.triangles);
+    let vis = visibility(
+        &mesh.positions,
+        &mesh.normals,
+        &bvh,
+        &dirs,
+        1e-4 * (hi - lo).length(),
+    );
+    let brute = time_cpu(1, || {
+        shade_brute_force(&dir_env, frame.rotation, &mesh.normals, &vis, frame.albedo)
+    });
+    progress(&format!(
+        "brute force ({}x{} directions): {:.1} ms",
+        dir_env.width, dir_env.height, brute.median
+    ));
+
+    // Sweep: lobes x basis x vertices (synthetic lobes and transfer).
+    let mut sweep = Vec::new();
+    for &v in &cfg.vertices {
+        for &k in &cfg.basis {
+            let t = synthetic_transfer(k, v, 2);
+            for &l in &cfg.lobes {
+                let p = measure(ctx, &cfg.bench, &synthetic_lobes(l, 3), &t, peak)?;
+                progress(&format!(
+                    "  {l} lobes x {k} basis x {v} vertices: {:.3} ms ({:.1} GFLOP/s)",
+                    p.total_ms, p.gflops
+                ));
+                sweep.push(p);
+            }
+        }
+    }
+    let total = headline.total_ms;
+    Ok(SrbfBenchReport {
+        benchmark: "vkshade bench srbf",
+        machine: MachineInfo::of(ctx),
+        config: cfg.clone(),
+        flop_model: [
+            ("lighting per (lobe, basis) pair", flop_model::LIGHTING_PAIR),
+            ("shade per (vertex, basis) term", flop_model::SHADE_TERM),
+        ],
+        peak_fma_gflops: peak,
+        speedup_vs_cpu: cpu.median / total,
+        speedup_vs_brute_force: brute.median / total,
+        cpu_same_method_ms: cpu,
+        brute_force_ms: brute,
+        headline,
+        sweep,
+    })
+}
