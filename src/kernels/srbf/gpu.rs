@@ -115,14 +115,29 @@ impl SrbfKernel {
             .map(|a| a.extend(0.0).to_array())
             .collect();
         let k = basis.len() as u64;
+        // On the GPU: groups of four basis functions, group-major
+        // (t4[g * vertices + v]), zero-padded, so neighbouring invocations read neighbouring
+        // vec4s; the coefficient buffer is padded to whole groups (zeros).
+        let nv = inputs.vertices;
+        let groups = (k as usize).div_ceil(4);
+        let mut grouped = vec![0f32; groups * 4 * nv];
+        for (v, row) in inputs.coeffs.chunks_exact(k as usize).enumerate() {
+            for (i, &t) in row.iter().enumerate() {
+                grouped[((i / 4) * nv + v) * 4 + i % 4] = t;
+            }
+        }
         let mut upload = |name: &str, bytes: &[u8]| {
             rec.buffer_with(name, BufferDesc::storage(bytes.len() as u64), bytes)
         };
         let lobe_axes = upload("srbf lobe axes", bytemuck::cast_slice(&axes))?;
         let lobe_amps = upload("srbf lobe amplitudes", bytemuck::cast_slice(&amps))?;
         let basis_axes = upload("srbf basis axes", bytemuck::cast_slice(&basis))?;
-        let transfer = upload("srbf transfer", bytemuck::cast_slice(inputs.coeffs))?;
-        let coeffs = Buffer::new(&ctx, "srbf coefficients", BufferDesc::storage(k * 16))?;
+        let transfer = upload("srbf transfer", bytemuck::cast_slice(&grouped))?;
+        let padded = groups as u64 * 4;
+        let coeffs = upload(
+            "srbf coefficients",
+            bytemuck::cast_slice(&vec![[0f32; 4]; padded as usize]),
+        )?;
         let radiance = Buffer::new(
             &ctx,
             "srbf radiance",
@@ -224,7 +239,7 @@ impl SrbfKernel {
             .iter()
             .flat_map(|x| x.to_le_bytes())
             .chain(self.vertices.to_le_bytes())
-            .chain(self.basis.to_le_bytes())
+            .chain(self.basis.div_ceil(4).to_le_bytes())
             .collect();
         rec.dispatch_invocations_tracked(
             &self.shade,
