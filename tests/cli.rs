@@ -295,3 +295,61 @@ fn bench_ao_reports_sweeps_baselines_and_targets() {
     assert!(ss[1]["spheres_used_per_vertex"].as_f64() > ss[0]["spheres_used_per_vertex"].as_f64());
     assert_eq!(v["targets"].as_array().unwrap().len(), 3);
 }
+
+#[test]
+fn srbf_shade_writes_ply_png_and_report_and_refuses_bad_input() {
+    let dir = temp("srbf-cli");
+    let mesh = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/testwuson.glb");
+    let (ok, stdout, stderr) = vkshade(&[
+        "--validate",
+        "srbf",
+        "shade",
+        "--mesh",
+        mesh.to_str().unwrap(),
+        "--lobes",
+        "16",
+        "--basis",
+        "64",
+        "--directions",
+        "32",
+        "--frames",
+        "2",
+        "--reference",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    assert!(ok, "{stdout}\n{stderr}");
+    assert!(stderr.contains("validation: clean"), "{stderr}");
+    for f in [
+        "shade_0000.ply",
+        "shade_0001.png",
+        "report.json",
+        "transfer.bin",
+    ] {
+        assert!(dir.join(f).exists(), "{f} missing");
+    }
+    let ply = std::fs::read(dir.join("shade_0001.ply")).unwrap();
+    let header = String::from_utf8_lossy(&ply[..400.min(ply.len())]).into_owned();
+    assert!(
+        header.contains("property float r\nproperty float g\nproperty float b"),
+        "{header}"
+    );
+    let v: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.join("report.json")).unwrap()).unwrap();
+    assert_eq!(v["frames"].as_array().map(Vec::len), Some(2));
+    assert!(v["frames"][1]["vs_ground_truth"]["all"].as_f64().unwrap() < 0.1);
+    assert!(v["frames"][0]["gpu_ms_shade"].as_f64().unwrap() > 0.0);
+    assert_eq!(v["kernel"]["passes"][0]["name"], "srbf lighting");
+    // Bad input: a missing map, a bad rotation, a non-2:1 map.
+    let (ok, _, stderr) = vkshade(&["srbf", "fit", "--env", "/nonexistent/map.exr"]);
+    assert!(!ok && stderr.contains("/nonexistent/map.exr"), "{stderr}");
+    let (ok, _, stderr) = vkshade(&["srbf", "shade", "--rotate", "w:30"]);
+    assert!(!ok && stderr.contains("axis 'w'"), "{stderr}");
+    let not_2_1 = dir.join("square.hdr");
+    let mut hdr = b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 4 +X 4\n".to_vec();
+    hdr.extend(std::iter::repeat_n([128u8, 128, 128, 129], 16).flatten());
+    std::fs::write(&not_2_1, hdr).unwrap();
+    let (ok, _, stderr) = vkshade(&["srbf", "fit", "--env", not_2_1.to_str().unwrap()]);
+    assert!(!ok && stderr.contains("square.hdr"), "{stderr}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

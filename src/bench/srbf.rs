@@ -95,6 +95,8 @@ pub struct SrbfBenchReport {
     pub brute_force_ms: Stats,
     pub speedup_vs_brute_force: f64,
     pub sweep: Vec<Point>,
+    /// Configurations the device cannot hold (and why).
+    pub skipped: Vec<String>,
 }
 
 /// Transfer coefficients for timing: the values do not change the work, only the sizes do.
@@ -239,8 +241,22 @@ pub fn run(
 
     // Sweep: lobes x basis x vertices (synthetic lobes and transfer).
     let mut sweep = Vec::new();
+    let mut skipped = Vec::new();
+    let max_bytes = ctx.limits().max_storage_buffer_range;
     for &v in &cfg.vertices {
         for &k in &cfg.basis {
+            let bytes = (k.div_ceil(4) * 4 * v * 4) as u64;
+            if bytes > max_bytes {
+                skipped.push(format!(
+                    "{k} basis x {v} vertices: the transfer ({bytes} bytes) exceeds \
+                     maxStorageBufferRange ({max_bytes})"
+                ));
+                progress(&format!(
+                    "  skipped: {}",
+                    skipped.last().expect("just pushed")
+                ));
+                continue;
+            }
             let t = synthetic_transfer(k, v, 2);
             for &l in &cfg.lobes {
                 let p = measure(ctx, &cfg.bench, &synthetic_lobes(l, 3), &t, peak)?;
@@ -268,5 +284,6 @@ pub fn run(
         brute_force_ms: brute,
         headline,
         sweep,
+        skipped,
     })
 }
