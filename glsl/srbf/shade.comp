@@ -15,7 +15,11 @@ layout(push_constant) uniform Push {
 } pc;
 
 layout(std430, set = 0, binding = 0) readonly buffer Transfer { vec4 t[]; } transfer;
-layout(std430, set = 0, binding = 1) readonly buffer Coeffs { vec4 v[]; } coeffs; // 4 per group, zero-padded
+// The lighting's coefficients as a uniform buffer: every invocation reads the same ones, and
+// uniform-buffer loads with a dynamically uniform index are scalar (on lavapipe a storage
+// buffer load here is a per-lane gather: it cost three quarters of the pass).
+const uint MAX_BASIS = 1024u;
+layout(std140, set = 0, binding = 1) uniform Coeffs { vec4 v[MAX_BASIS]; } coeffs; // zero-padded
 layout(std430, set = 0, binding = 2) writeonly buffer Radiance { vec4 v[]; } radiance;
 
 void main() {

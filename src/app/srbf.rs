@@ -107,8 +107,12 @@ impl ShadeConfig {
         if !(1..=4096).contains(&self.lobes) {
             return bad(format!("--lobes must be in 1..=4096, not {}", self.lobes));
         }
-        if !(1..=4096).contains(&self.basis) {
-            return bad(format!("--basis must be in 1..=4096, not {}", self.basis));
+        let max_basis = crate::kernels::srbf::gpu::MAX_BASIS;
+        if !(1..=max_basis).contains(&self.basis) {
+            return bad(format!(
+                "--basis must be in 1..={max_basis}, not {}",
+                self.basis
+            ));
         }
         if !(1..=100_000).contains(&self.frames) {
             return bad(format!(

@@ -13,6 +13,9 @@ use ash::vk;
 use glam::{Mat3, Vec3};
 
 pub const PASS_LIGHTING: &str = "srbf lighting";
+/// Most transfer basis functions (the size of `srbf shade`'s uniform coefficient array; a
+/// 16 KiB uniform buffer, the smallest maxUniformBufferRange Vulkan allows).
+pub const MAX_BASIS: usize = 1024;
 pub const PASS_SHADE: &str = "srbf shade";
 
 /// One frame's input: the environment's rotation and the surface albedo.
@@ -46,8 +49,8 @@ impl SrbfInputs<'_> {
         if let Some(i) = self.lobes.iter().position(|l| !l.is_valid()) {
             return bad(format!("lobe {i} is not a valid SG: {:?}", self.lobes[i]));
         }
-        if k == 0 || k > 65_536 {
-            return bad(format!("{k} basis functions (1..=65536)"));
+        if k == 0 || k > MAX_BASIS {
+            return bad(format!("{k} basis functions (1..={MAX_BASIS})"));
         }
         if let Some(i) = self
             .basis_axes
@@ -133,10 +136,12 @@ impl SrbfKernel {
         let lobe_amps = upload("srbf lobe amplitudes", bytemuck::cast_slice(&amps))?;
         let basis_axes = upload("srbf basis axes", bytemuck::cast_slice(&basis))?;
         let transfer = upload("srbf transfer", bytemuck::cast_slice(&grouped))?;
-        let padded = groups as u64 * 4;
-        let coeffs = upload(
+        // Written as storage by `srbf lighting`, read as a uniform buffer by `srbf shade`
+        // (sized for its fixed array of MAX_BASIS vec4s, zero-padded).
+        let coeffs = rec.buffer_with(
             "srbf coefficients",
-            bytemuck::cast_slice(&vec![[0f32; 4]; padded as usize]),
+            BufferDesc::storage(MAX_BASIS as u64 * 16).usage(vk::BufferUsageFlags::UNIFORM_BUFFER),
+            &vec![[0f32; 4]; MAX_BASIS],
         )?;
         let radiance = Buffer::new(
             &ctx,
