@@ -189,9 +189,10 @@ fn bad_srbf_inputs_and_frames_are_refused() {
 #[test]
 fn method_against_the_brute_force_ground_truth_on_a_real_map_and_mesh() {
     use vkshade::app::srbf::{RelL2, cpu_pipeline};
+    use vkshade::kernels::srbf::diffuse_transfer;
     use vkshade::kernels::srbf::fit::{FitConfig, fit};
-    use vkshade::kernels::srbf::transfer::{Basis, project};
-    use vkshade::reference::srbf::{shade_brute_force, visibility};
+    use vkshade::kernels::srbf::transfer::Basis;
+    use vkshade::reference::srbf::{mesh_visibility, shade_brute_force};
     use vkshade::scene::envmap::EnvMap;
     let env_path = std::path::Path::new(vkshade::kernels::srbf::DEFAULT_ENV);
     let env = EnvMap::load(env_path).unwrap_or_else(|e| {
@@ -210,32 +211,8 @@ fn method_against_the_brute_force_ground_truth_on_a_real_map_and_mesh() {
     )
     .unwrap();
     let dir_env = env.downsampled(64).unwrap();
-    let samples = dir_env.samples();
-    let dirs: Vec<Vec3> = samples.iter().map(|s| s.0).collect();
-    let solid: Vec<f64> = samples.iter().map(|s| s.1).collect();
-    let (lo, hi) = mesh.bounds();
-    let bvh = vkshade::geom::Bvh::build(&mesh.positions, &mesh.triangles);
-    let vis = visibility(
-        &mesh.positions,
-        &mesh.normals,
-        &bvh,
-        &dirs,
-        1e-4 * (hi - lo).length(),
-    );
-    let transfer = project(
-        &Basis::fibonacci(256),
-        &dirs,
-        &solid,
-        mesh.positions.len(),
-        |v, d| {
-            if vis.visible(v, d) {
-                mesh.normals[v].dot(dirs[d]).max(0.0) / std::f32::consts::PI
-            } else {
-                0.0
-            }
-        },
-    )
-    .unwrap();
+    let vis = mesh_visibility(mesh, &dir_env);
+    let transfer = diffuse_transfer(&Basis::fibonacci(256), &dir_env, &mesh.normals, &vis).unwrap();
     let rotations: Vec<(String, Mat3)> = [0.0f32, 45.0, 90.0, 180.0, 270.0]
         .iter()
         .map(|&d| (format!("y:{d}"), sg::rotation(Vec3::Y, d)))
@@ -246,16 +223,7 @@ fn method_against_the_brute_force_ground_truth_on_a_real_map_and_mesh() {
         .collect();
     common::with_gpu(|ctx| {
         let mut setup = ctx.recorder("srbf setup")?;
-        let kernel = SrbfKernel::new(
-            &mut setup,
-            &SrbfInputs {
-                lobes: &fitted.lobes,
-                basis_axes: &transfer.basis.axes,
-                basis_sharpness: transfer.basis.sharpness,
-                coeffs: &transfer.coeffs,
-                vertices: transfer.vertices,
-            },
-        )?;
+        let kernel = SrbfKernel::new(&mut setup, &SrbfInputs::new(&fitted.lobes, &transfer))?;
         setup.submit_and_wait()?;
         let frames: Vec<SrbfFrame> = rotations
             .iter()

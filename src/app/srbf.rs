@@ -4,14 +4,14 @@
 //! stage.
 
 use crate::error::{Error, Result};
-use crate::geom::Bvh;
 use crate::gpu::Context;
+use crate::kernels::srbf::diffuse_transfer;
 use crate::kernels::srbf::fit::{FitConfig, fit};
 use crate::kernels::srbf::gpu::{PASS_LIGHTING, PASS_SHADE, SrbfFrame, SrbfInputs, SrbfKernel};
 use crate::kernels::srbf::sg::{self, Lobe};
 use crate::kernels::srbf::transfer::{self, Basis, Transfer};
 use crate::kernels::{KernelInfo, run_frames};
-use crate::reference::srbf::{Visibility, shade_brute_force, visibility};
+use crate::reference::srbf::{Visibility, mesh_visibility, shade_brute_force};
 use crate::report::MachineInfo;
 use crate::scene::envmap::EnvMap;
 use crate::scene::{self, Mesh};
@@ -263,23 +263,7 @@ fn transfer_for(
         return Ok((t, true, 0.0));
     }
     let t0 = Instant::now();
-    let samples = dir_env.samples();
-    let directions: Vec<Vec3> = samples.iter().map(|s| s.0).collect();
-    let solid_angles: Vec<f64> = samples.iter().map(|s| s.1).collect();
-    let normals = &mesh.normals;
-    let t = transfer::project(
-        &Basis::fibonacci(cfg.basis),
-        &directions,
-        &solid_angles,
-        mesh.positions.len(),
-        |v, d| {
-            if vis.visible(v, d) {
-                normals[v].dot(directions[d]).max(0.0) / std::f32::consts::PI
-            } else {
-                0.0
-            }
-        },
-    )?;
+    let t = diffuse_transfer(&Basis::fibonacci(cfg.basis), dir_env, &mesh.normals, vis)?;
     let ms = t0.elapsed().as_secs_f64() * 1e3;
     t.save(&path)?;
     crate::io::write_atomic(&key_path, key.as_bytes())?;
@@ -320,16 +304,7 @@ pub fn shade(
         cfg.lobes, fit_env.width, fit_env.height, fitted.rel_l2
     ));
     let dir_env = env.downsampled(cfg.direction_width.min(env.width))?;
-    let directions: Vec<Vec3> = dir_env.samples().iter().map(|s| s.0).collect();
-    let (lo, hi) = mesh.bounds();
-    let bvh = Bvh::build(&mesh.positions, &mesh.triangles);
-    let vis = visibility(
-        &mesh.positions,
-        &mesh.normals,
-        &bvh,
-        &directions,
-        1e-4 * (hi - lo).length(),
-    );
+    let vis = mesh_visibility(mesh, &dir_env);
     let (transfer, cached, transfer_ms) = transfer_for(cfg, mesh, &dir_env, &vis)?;
     progress(&format!(
         "transfer: {} basis SGs (sharpness {:.1}), projection relative L2 {:.4}{}",
@@ -343,16 +318,7 @@ pub fn shade(
         }
     ));
     let mut setup = ctx.recorder("srbf setup")?;
-    let kernel = SrbfKernel::new(
-        &mut setup,
-        &SrbfInputs {
-            lobes: &fitted.lobes,
-            basis_axes: &transfer.basis.axes,
-            basis_sharpness: transfer.basis.sharpness,
-            coeffs: &transfer.coeffs,
-            vertices: transfer.vertices,
-        },
-    )?;
+    let kernel = SrbfKernel::new(&mut setup, &SrbfInputs::new(&fitted.lobes, &transfer))?;
     setup.submit_and_wait()?;
     let rotations = cfg.rotations();
     let frames_in: Vec<SrbfFrame> = rotations
@@ -440,7 +406,7 @@ pub fn shade(
         transfer_rel_l2: transfer.projection_rel_l2,
         transfer_ms,
         transfer_cached: cached,
-        directions: directions.len(),
+        directions: vis.directions.len(),
         kernel: KernelInfo::of(&kernel, in_flight),
         gpu_ms_lighting_median: lighting,
         gpu_ms_shade_median: shade_ms,

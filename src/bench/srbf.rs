@@ -5,14 +5,14 @@
 
 use super::{BenchConfig, MachineInfo, Stats, time_cpu};
 use crate::error::Result;
-use crate::geom::{Bvh, Rng};
+use crate::geom::Rng;
 use crate::gpu::Context;
 use crate::kernels::srbf::fit::{FitConfig, fit};
 use crate::kernels::srbf::gpu::{PASS_LIGHTING, PASS_SHADE, SrbfFrame, SrbfInputs, SrbfKernel};
 use crate::kernels::srbf::sg::{self, Lobe};
 use crate::kernels::srbf::transfer::{self, Basis, Transfer};
 use crate::kernels::{Kernel, shape::time_passes};
-use crate::reference::srbf::{shade_brute_force, visibility};
+use crate::reference::srbf::{mesh_visibility, shade_brute_force};
 use crate::scene::envmap::EnvMap;
 use glam::Vec3;
 use serde::Serialize;
@@ -130,16 +130,7 @@ fn measure(
     peak: f64,
 ) -> Result<Point> {
     let mut setup = ctx.recorder("srbf bench setup")?;
-    let kernel = SrbfKernel::new(
-        &mut setup,
-        &SrbfInputs {
-            lobes,
-            basis_axes: &t.basis.axes,
-            basis_sharpness: t.basis.sharpness,
-            coeffs: &t.coeffs,
-            vertices: t.vertices,
-        },
-    )?;
+    let kernel = SrbfKernel::new(&mut setup, &SrbfInputs::new(lobes, t))?;
     setup.submit_and_wait()?;
     let frame = SrbfFrame {
         rotation: sg::rotation(Vec3::Y, 30.0),
@@ -221,16 +212,7 @@ pub fn run(
     });
     progress(&format!("CPU same method: {:.2} ms", cpu.median));
     let dir_env = env.downsampled(cfg.brute_force_width.min(env.width))?;
-    let dirs: Vec<Vec3> = dir_env.samples().iter().map(|s| s.0).collect();
-    let (lo, hi) = mesh.bounds();
-    let bvh = Bvh::build(&mesh.positions, &mesh.triangles);
-    let vis = visibility(
-        &mesh.positions,
-        &mesh.normals,
-        &bvh,
-        &dirs,
-        1e-4 * (hi - lo).length(),
-    );
+    let vis = mesh_visibility(mesh, &dir_env);
     let brute = time_cpu(1, || {
         shade_brute_force(&dir_env, frame.rotation, &mesh.normals, &vis, frame.albedo)
     });

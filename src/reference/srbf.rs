@@ -96,6 +96,22 @@ pub fn visibility(
     }
 }
 
+/// Visibility of every texel direction of `dir_env` from every vertex of `mesh` (BVH built
+/// here; rays start 1e-4 of the mesh's diagonal along the normal). What the transfer
+/// projection and the brute-force ground truth both read.
+pub fn mesh_visibility(mesh: &crate::scene::Mesh, dir_env: &EnvMap) -> Visibility {
+    let directions: Vec<Vec3> = dir_env.samples().iter().map(|s| s.0).collect();
+    let (lo, hi) = mesh.bounds();
+    let bvh = Bvh::build(&mesh.positions, &mesh.triangles);
+    visibility(
+        &mesh.positions,
+        &mesh.normals,
+        &bvh,
+        &directions,
+        1e-4 * (hi - lo).length(),
+    )
+}
+
 /// Brute-force outgoing radiance per vertex, f64: (albedo / pi) * sum over the env's texels p
 /// of L(R^-1 w_p) * V(w_p) * max(0, n . w_p) * dOmega_p, where w_p is texel p's direction and
 /// V comes from `vis`, which must have been computed for exactly `env.samples()`'s directions

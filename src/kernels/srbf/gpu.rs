@@ -37,7 +37,18 @@ pub struct SrbfInputs<'a> {
     pub vertices: usize,
 }
 
-impl SrbfInputs<'_> {
+impl<'a> SrbfInputs<'a> {
+    /// The lobes with a projected transfer.
+    pub fn new(lobes: &'a [Lobe], transfer: &'a super::transfer::Transfer) -> Self {
+        SrbfInputs {
+            lobes,
+            basis_axes: &transfer.basis.axes,
+            basis_sharpness: transfer.basis.sharpness,
+            coeffs: &transfer.coeffs,
+            vertices: transfer.vertices,
+        }
+    }
+
     /// Checks sizes and values (the shaders index with them; the GPU must never read out of
     /// bounds or produce NaN from bad input).
     pub fn check(&self) -> Result<()> {

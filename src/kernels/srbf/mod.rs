@@ -9,6 +9,32 @@ pub mod gpu;
 pub mod sg;
 pub mod transfer;
 
+use crate::error::Result;
+use crate::reference::srbf::Visibility;
+use crate::scene::EnvMap;
+use transfer::{Basis, Transfer};
+
+/// The diffuse transfer of a mesh: each vertex's V(w) max(0, n . w) / pi, sampled at the
+/// texel directions of `dir_env` (the directions `vis` was cast for), projected onto
+/// `basis`.
+pub fn diffuse_transfer(
+    basis: &Basis,
+    dir_env: &EnvMap,
+    normals: &[glam::Vec3],
+    vis: &Visibility,
+) -> Result<Transfer> {
+    let samples = dir_env.samples();
+    let directions: Vec<glam::Vec3> = samples.iter().map(|s| s.0).collect();
+    let solid_angles: Vec<f64> = samples.iter().map(|s| s.1).collect();
+    transfer::project(basis, &directions, &solid_angles, vis.vertices, |v, d| {
+        if vis.visible(v, d) {
+            normals[v].dot(directions[d]).max(0.0) / std::f32::consts::PI
+        } else {
+            0.0
+        }
+    })
+}
+
 /// The built-in mesh of `vkshade srbf shade` and `bench srbf` (Debian package glmark2-data).
 pub const DEFAULT_MESH: &str = "/usr/share/glmark2/models/bunny.obj";
 /// The built-in environment (Debian package blender-data).
