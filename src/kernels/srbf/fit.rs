@@ -1008,40 +1008,6 @@ pub(crate) mod tests {
         assert!(f.lobes.iter().all(|l| l.amplitude == [0.0; 3]) && f.rel_l2 == 0.0);
     }
 
-    /// Timing and error per lobe count on a 128 x 64 sky with a sun (`cargo test --release
-    /// --lib fit_timing -- --ignored --nocapture`).
-    #[test]
-    #[ignore]
-    fn fit_timing() {
-        let sun = DVec3::new(0.4, 0.6, 0.5).normalize();
-        let samples = equirect(128, 64, |d| {
-            let sky = 0.3 + 0.7 * d.y.max(0.0);
-            let s = if d.as_dvec3().angle_between(sun) < 0.04 {
-                2000.0
-            } else {
-                0.0
-            };
-            [s + sky * 0.6, s + sky * 0.8, s + sky]
-        });
-        for lobes in [8, 16, 32, 64] {
-            let start = std::time::Instant::now();
-            let f = fit(
-                &samples,
-                &FitConfig {
-                    lobes,
-                    ..Default::default()
-                },
-            )
-            .unwrap();
-            eprintln!(
-                "{lobes} lobes: rel_l2 {:.3e} {:.3?} in {:.2?}",
-                f.rel_l2,
-                f.rel_l2_per_channel,
-                start.elapsed()
-            );
-        }
-    }
-
     #[test]
     fn nnls_matches_a_known_solution() {
         // G = A^T A with A = I + small; b chosen so the unconstrained optimum has a
