@@ -1,6 +1,8 @@
 //! Environment maps (src/scene/envmap.rs) and the SRBF brute-force reference
 //! (src/reference/srbf.rs).
 
+mod common;
+
 use glam::{Mat3, Vec3};
 use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
@@ -9,30 +11,16 @@ use vkshade::reference::srbf::{shade_brute_force, visibility};
 use vkshade::scene::EnvMap;
 
 fn dir() -> PathBuf {
-    let d = std::env::temp_dir().join(format!("vkshade-envmap-test-{}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
+    common::temp_dir("envmap")
 }
 
 fn write(name: &str, bytes: &[u8]) -> PathBuf {
-    let p = dir().join(name);
-    std::fs::write(&p, bytes).unwrap();
-    p
+    common::temp_file("envmap", name, bytes)
 }
 
 /// The error text of loading `path`; fails if it loaded or if the error does not name it.
 fn load_err(path: &Path) -> String {
-    match EnvMap::load(path) {
-        Ok(_) => panic!("{} loaded, but it is malformed", path.display()),
-        Err(e) => {
-            let s = e.to_string();
-            assert!(
-                s.contains(&path.display().to_string()),
-                "error does not name the file: {s}"
-            );
-            s
-        }
-    }
+    common::error_naming(path, EnvMap::load(path))
 }
 
 fn random_map(w: u32, seed: u64) -> EnvMap {

@@ -8,30 +8,16 @@ use vkshade::scene::spheretree::{BuildConfig, Fit, SphereTree};
 use vkshade::scene::{self, Character};
 
 fn dir() -> PathBuf {
-    let d = std::env::temp_dir().join(format!("vkshade-scene-test-{}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
+    common::temp_dir("scene")
 }
 
 fn write(name: &str, bytes: &[u8]) -> PathBuf {
-    let p = dir().join(name);
-    std::fs::write(&p, bytes).unwrap();
-    p
+    common::temp_file("scene", name, bytes)
 }
 
-/// The error text; panics if loading succeeded.
+/// The error text of loading `path`; fails if it loaded or if the error does not name it.
 fn load_err(path: &Path) -> String {
-    match scene::load(path) {
-        Ok(_) => panic!("{} loaded, but it is malformed", path.display()),
-        Err(e) => {
-            let s = e.to_string();
-            assert!(
-                s.contains(&path.display().to_string()),
-                "error does not name the file: {s}"
-            );
-            s
-        }
-    }
+    common::error_naming(path, scene::load(path))
 }
 
 const CUBE_OBJ: &str = "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nv 0 0 1\nv 1 0 1\nv 1 1 1\nv 0 1 1\n\

@@ -83,3 +83,32 @@ pub fn ball() -> vkshade::scene::Character {
         vkshade::scene::Mesh::from_data(d, std::path::Path::new("ball")).unwrap(),
     )
 }
+
+/// A scratch folder for the test file `tag`, unique to this process.
+pub fn temp_dir(tag: &str) -> std::path::PathBuf {
+    let d = std::env::temp_dir().join(format!("vkshade-{tag}-test-{}", std::process::id()));
+    std::fs::create_dir_all(&d).unwrap();
+    d
+}
+
+/// Writes `bytes` to `name` in [`temp_dir`]`(tag)`.
+pub fn temp_file(tag: &str, name: &str, bytes: &[u8]) -> std::path::PathBuf {
+    let p = temp_dir(tag).join(name);
+    std::fs::write(&p, bytes).unwrap();
+    p
+}
+
+/// The error text of a load of `path`; fails if it loaded or if the error does not name it.
+pub fn error_naming<T>(path: &std::path::Path, result: vkshade::Result<T>) -> String {
+    match result {
+        Ok(_) => panic!("{} loaded, but it is malformed", path.display()),
+        Err(e) => {
+            let s = e.to_string();
+            assert!(
+                s.contains(&path.display().to_string()),
+                "error does not name the file: {s}"
+            );
+            s
+        }
+    }
+}
