@@ -176,33 +176,16 @@ impl PlannedBarrier {
     ) {
         let m = self.masks();
         if let Some(b) = self.buffer {
-            buffers.push(
-                vk::BufferMemoryBarrier2::default()
-                    .src_stage_mask(m.src_stages)
-                    .src_access_mask(m.src_access)
-                    .dst_stage_mask(m.dst_stages)
-                    .dst_access_mask(m.dst_access)
-                    .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
-                    .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
-                    .buffer(b)
-                    .offset(0)
-                    .size(vk::WHOLE_SIZE),
-            );
+            buffers.push(super::sync::buffer_barrier_masks(b, 0, vk::WHOLE_SIZE, m));
         }
         if let Some((image, range)) = self.image {
-            images.push(
-                vk::ImageMemoryBarrier2::default()
-                    .src_stage_mask(m.src_stages)
-                    .src_access_mask(m.src_access)
-                    .dst_stage_mask(m.dst_stages)
-                    .dst_access_mask(m.dst_access)
-                    .old_layout(self.old_layout)
-                    .new_layout(self.new_layout)
-                    .src_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
-                    .dst_queue_family_index(vk::QUEUE_FAMILY_IGNORED)
-                    .image(image)
-                    .subresource_range(range.vk()),
-            );
+            images.push(super::sync::image_barrier_masks(
+                image,
+                range.vk(),
+                m,
+                self.old_layout,
+                self.new_layout,
+            ));
         }
     }
 }
@@ -796,11 +779,7 @@ impl Recorder {
         range: Subresources,
         next: impl Into<AccessSet>,
     ) -> Result<()> {
-        let next = next.into();
-        range.check(image.name(), image.desc())?;
-        check_image_access(image, next)?;
-        self.use_image_inner(&image.keep(), range, next, false);
-        Ok(())
+        self.use_image_checked(image, range, next.into(), false)
     }
 
     /// As [`Recorder::use_image`], discarding the old contents (the next access overwrites
@@ -811,10 +790,19 @@ impl Recorder {
         range: Subresources,
         next: impl Into<AccessSet>,
     ) -> Result<()> {
-        let next = next.into();
+        self.use_image_checked(image, range, next.into(), true)
+    }
+
+    fn use_image_checked(
+        &mut self,
+        image: &Image,
+        range: Subresources,
+        next: AccessSet,
+        discard: bool,
+    ) -> Result<()> {
         range.check(image.name(), image.desc())?;
         check_image_access(image, next)?;
-        self.use_image_inner(&image.keep(), range, next, true);
+        self.use_image_inner(&image.keep(), range, next, discard);
         Ok(())
     }
 

@@ -324,7 +324,21 @@ pub fn buffer_barrier(
     prev: impl Into<AccessSet>,
     next: impl Into<AccessSet>,
 ) -> vk::BufferMemoryBarrier2<'static> {
-    let m = barrier_masks(prev.into(), next.into(), false);
+    buffer_barrier_masks(
+        buffer,
+        offset,
+        size,
+        barrier_masks(prev.into(), next.into(), false),
+    )
+}
+
+/// A buffer barrier with the given masks.
+pub fn buffer_barrier_masks(
+    buffer: vk::Buffer,
+    offset: u64,
+    size: u64,
+    m: BarrierMasks,
+) -> vk::BufferMemoryBarrier2<'static> {
     vk::BufferMemoryBarrier2::default()
         .src_stage_mask(m.src_stages)
         .src_access_mask(m.src_access)
@@ -354,6 +368,17 @@ pub fn image_barrier(
     };
     let new_layout = next.layout();
     let m = barrier_masks(prev, next, old_layout != new_layout);
+    image_barrier_masks(image, range, m, old_layout, new_layout)
+}
+
+/// An image barrier with the given masks and layouts.
+pub fn image_barrier_masks(
+    image: vk::Image,
+    range: vk::ImageSubresourceRange,
+    m: BarrierMasks,
+    old_layout: vk::ImageLayout,
+    new_layout: vk::ImageLayout,
+) -> vk::ImageMemoryBarrier2<'static> {
     vk::ImageMemoryBarrier2::default()
         .src_stage_mask(m.src_stages)
         .src_access_mask(m.src_access)
