@@ -394,7 +394,6 @@ pub(crate) struct ImageInner {
     alloc_size: u64,
     views: Mutex<HashMap<ViewDesc, vk::ImageView>>,
     pub(crate) stamp: Stamp,
-    external: bool,
     /// Per-subresource state for tracking (see `track`).
     pub(crate) state: Mutex<super::track::ImageState>,
 }
@@ -414,11 +413,11 @@ impl Drop for ImageInner {
             .drain()
             .map(|(_, v)| Retired::View(v))
             .collect();
-        if !self.external {
+        let backing = lock(&self.backing).take();
+        // A caller's image (from_raw) is the caller's to destroy; the views are vkshade's.
+        if !matches!(backing, Some(Backing::External)) {
             items.push(Retired::Image(self.raw));
-            if let Some(m) = lock(&self.backing).take().and_then(Backing::retire) {
-                items.push(m);
-            }
+            items.extend(backing.and_then(Backing::retire));
         }
         self.shared.retire(self.stamp.get(), items);
     }
@@ -723,7 +722,6 @@ impl Image {
                 alloc_size,
                 views: Mutex::new(HashMap::new()),
                 stamp: Stamp::default(),
-                external: false,
                 state: Mutex::new(super::track::ImageState::new(desc.mips, desc.layers)),
             }),
         };
@@ -761,7 +759,6 @@ impl Image {
                 alloc_size: 0,
                 views: Mutex::new(HashMap::new()),
                 stamp: Stamp::default(),
-                external: true,
                 state: Mutex::new(super::track::ImageState::new(desc.mips, desc.layers)),
             }),
         })

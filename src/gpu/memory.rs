@@ -483,7 +483,6 @@ pub(crate) struct BufferInner {
     /// Held while the host copies to or from the mapping, and while a submission stamps the
     /// buffer: the two never overlap.
     host: Mutex<()>,
-    external: bool,
     /// Last access, for state tracking (see `track`).
     pub(crate) state: Mutex<super::track::BufferState>,
 }
@@ -504,13 +503,13 @@ impl Used for BufferInner {
 
 impl Drop for BufferInner {
     fn drop(&mut self) {
-        if self.external {
+        let backing = lock(&self.backing).take();
+        // A caller's buffer (from_raw) is the caller's to destroy.
+        if matches!(backing, Some(Backing::External)) {
             return;
         }
         let mut items = vec![Retired::Buffer(self.raw)];
-        if let Some(m) = lock(&self.backing).take().and_then(Backing::retire) {
-            items.push(m);
-        }
+        items.extend(backing.and_then(Backing::retire));
         self.shared.retire(self.stamp.get(), items);
     }
 }
@@ -625,7 +624,6 @@ impl Buffer {
             stamp: Stamp::default(),
             mapped,
             host: Mutex::new(()),
-            external: false,
             state: Mutex::default(),
         });
         // SAFETY: memory of this device, sized and aligned by the requirements (checked for
@@ -663,7 +661,6 @@ impl Buffer {
                 stamp: Stamp::default(),
                 mapped: None,
                 host: Mutex::new(()),
-                external: true,
                 state: Mutex::default(),
             }),
         })
