@@ -436,7 +436,6 @@ struct Pictures {
     out: PathBuf,
     view: crate::render::View,
     frame_points: Vec<Vec3>,
-    exposure: f32,
     error_scale: f32,
 }
 
@@ -450,7 +449,6 @@ impl Pictures {
                 ..Default::default()
             },
             frame_points: mesh.positions.clone(),
-            exposure: 0.0,
             error_scale: cfg.error_scale,
         }
     }
@@ -477,9 +475,7 @@ impl Pictures {
             &[("r", &r), ("g", &g), ("b", &b)],
         )?;
         // Exposure: the 99th percentile of the luminance maps to 0.9.
-        let exposure = if self.exposure > 0.0 {
-            self.exposure
-        } else {
+        let exposure = {
             let mut lum: Vec<f64> = gpu
                 .iter()
                 .map(|c| 0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2])

@@ -249,6 +249,16 @@ impl Context {
     pub fn memory_report(&self) -> MemoryReport {
         self.shared.memory_report()
     }
+
+    /// The memory of a set of buffers (a kernel's): their allocations' bytes and count; the
+    /// reserved, peak and ring bytes are the context's (blocks are shared).
+    pub fn memory_of(&self, buffers: &[&Buffer]) -> MemoryReport {
+        MemoryReport {
+            used_bytes: buffers.iter().map(|b| b.allocation_size()).sum(),
+            allocations: buffers.len() as u64,
+            ..self.memory_report()
+        }
+    }
 }
 
 /// Where a resource's memory comes from.

@@ -684,14 +684,7 @@ impl AoKernel {
             &self.stats,
         ];
         let all: Vec<&Buffer> = own.into_iter().chain(self.inputs.iter()).collect();
-        let ctx = self.ctx.memory_report();
-        crate::gpu::MemoryReport {
-            used_bytes: all.iter().map(|b| b.allocation_size()).sum(),
-            allocations: all.len() as u64,
-            reserved_bytes: ctx.reserved_bytes,
-            peak_used_bytes: ctx.peak_used_bytes,
-            staging_ring_bytes: ctx.staging_ring_bytes,
-        }
+        self.ctx.memory_of(&all)
     }
 
     /// Bytes of the kernel's buffers (their allocations).

@@ -325,13 +325,6 @@ impl Kernel for SrbfKernel {
 
     fn memory(&self) -> MemoryReport {
         let all: Vec<&Buffer> = self.buffers.iter().chain([&self.radiance]).collect();
-        let ctx = self.ctx.memory_report();
-        MemoryReport {
-            used_bytes: all.iter().map(|b| b.allocation_size()).sum(),
-            allocations: all.len() as u64,
-            reserved_bytes: ctx.reserved_bytes,
-            peak_used_bytes: ctx.peak_used_bytes,
-            staging_ring_bytes: ctx.staging_ring_bytes,
-        }
+        self.ctx.memory_of(&all)
     }
 }
