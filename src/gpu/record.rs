@@ -19,7 +19,6 @@ use crate::error::{Error, Result, VkResultExt};
 use ash::vk;
 use std::ffi::CString;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicU64, Ordering};
 
 /// One barrier to record; see [`AccessType`] for the vocabulary.
 #[derive(Clone, Copy)]
@@ -234,10 +233,9 @@ struct Pass {
 /// Data copied back to the host by a recording; readable once the recording is submitted
 /// (reading waits for the submission to complete).
 pub struct Readback {
+    /// Stamped with the submission's timeline value when the recording is submitted (0
+    /// until then).
     staging: Buffer,
-    /// The timeline value of the submission (0 until submitted).
-    value: Arc<AtomicU64>,
-    len: u64,
 }
 
 impl Readback {
@@ -250,16 +248,13 @@ impl Readback {
     /// The data read back as a vector of `T` (waits for the submission).
     pub fn to_vec<T: bytemuck::Pod>(&self) -> Result<Vec<T>> {
         super::memory::not_zero_sized::<T>()?;
-        if self.value.load(Ordering::Acquire) == 0 {
+        if self.staging.last_use() == 0 {
             return Err(Error::InvalidArgument(format!(
                 "readback '{}' read before its recording was submitted",
                 self.staging.name()
             )));
         }
-        let n = self.len as usize / std::mem::size_of::<T>().max(1);
-        let mut out = vec![T::zeroed(); n];
-        self.staging.read_into(0, &mut out)?;
-        Ok(out)
+        self.staging.read()
     }
 }
 
@@ -322,7 +317,6 @@ struct Finished {
     pool: vk::CommandPool,
     keep: KeepAlive,
     ring_chunks: Vec<u64>,
-    readbacks: Vec<Arc<AtomicU64>>,
 }
 
 impl Finished {
@@ -332,9 +326,6 @@ impl Finished {
         if !self.ring_chunks.is_empty() {
             lock(&self.shared.staging).mark(&self.ring_chunks, value);
             self.ring_chunks.clear();
-        }
-        for r in self.readbacks.drain(..) {
-            r.store(value, Ordering::Release);
         }
     }
 
@@ -363,7 +354,6 @@ pub struct Recorder {
     open: Vec<usize>,
     keep: KeepAlive,
     ring_chunks: Vec<u64>,
-    readbacks: Vec<Arc<AtomicU64>>,
     /// Barriers queued by declared uses, recorded before the next command.
     pending: Vec<PlannedBarrier>,
     mode: BarrierMode,
@@ -444,7 +434,6 @@ impl Recorder {
             open: Vec::new(),
             keep: KeepAlive::default(),
             ring_chunks: Vec::new(),
-            readbacks: Vec::new(),
             pending: Vec::new(),
             mode: BarrierMode::Emit,
             collected: Vec::new(),
@@ -1218,19 +1207,10 @@ impl Recorder {
             &format!("{what} readback"),
             BufferDesc::readback(size),
         )?;
-        let value = Arc::new(AtomicU64::new(0));
-        self.readbacks.push(value.clone());
         self.keep.add(staging.keep());
         self.needs_host_barrier = true;
         let handle = Buffer::from_keep(staging.keep());
-        Ok((
-            staging,
-            Readback {
-                staging: handle,
-                value,
-                len: size,
-            },
-        ))
+        Ok((staging, Readback { staging: handle }))
     }
 
     /// Copies a whole buffer back to the host (a tracked `TransferRead`).
@@ -1582,7 +1562,6 @@ impl Recorder {
             pool: std::mem::take(&mut self.pool),
             keep: std::mem::take(&mut self.keep),
             ring_chunks: std::mem::take(&mut self.ring_chunks),
-            readbacks: std::mem::take(&mut self.readbacks),
         }
     }
 
