@@ -159,6 +159,12 @@ struct SrbfShadeArgs {
     /// Transfer basis functions (spherical Gaussians on a Fibonacci lattice).
     #[arg(long, default_value_t = 256)]
     basis: usize,
+    /// Clusters of the clustered-PCA transfer compression.
+    #[arg(long, default_value_t = 64)]
+    clusters: usize,
+    /// Principal components per cluster (0: the uncompressed transfer).
+    #[arg(long, default_value_t = 16)]
+    components: usize,
     /// Rotate the environment, e.g. y:30 (L_R(w) = L(R^-1 w)); with --frames, the start of a
     /// spin about that axis.
     #[arg(long)]
@@ -668,8 +674,21 @@ fn cmd_bench_srbf(g: &Global, opts: &BenchOpts, quick: bool) -> Result<()> {
     let h = &r.headline;
     println!("device                 {}", r.machine.device);
     println!(
-        "headline               {} lobes x {} basis x {} vertices: lighting {:.3} ms + shade {:.3} ms (median GPU) = {:.0} fps",
-        h.lobes, h.basis, h.vertices, h.lighting_ms.median, h.shade_ms.median, h.fps
+        "headline               {} lobes x {} basis x {} vertices, {} clusters x {} components (compression error {:.4}): lighting {:.3} + project {:.3} + shade {:.3} ms (median GPU) = {:.0} fps",
+        h.lobes,
+        h.basis,
+        h.vertices,
+        h.clusters,
+        h.components,
+        r.headline_cpca_rel_l2,
+        h.lighting_ms.median,
+        h.project_ms.median,
+        h.shade_ms.median,
+        h.fps
+    );
+    println!(
+        "uncompressed           {:.3} ms = {:.0} fps",
+        r.uncompressed.total_ms, r.uncompressed.fps
     );
     println!(
         "work                   {:.3} GFLOP/frame; {:.2} GFLOP/s = {:.1}% of the {:.1} GFLOP/s FMA peak",
@@ -734,6 +753,8 @@ fn cmd_srbf(g: &Global, cmd: &SrbfCommand) -> Result<()> {
                 env: a.env.clone(),
                 lobes: a.lobes,
                 basis: a.basis,
+                clusters: a.clusters,
+                components: a.components,
                 rotate: a.rotate,
                 frames: a.frames,
                 albedo,
@@ -747,17 +768,21 @@ fn cmd_srbf(g: &Global, cmd: &SrbfCommand) -> Result<()> {
             eprintln!("vkshade srbf shade on {}", ctx.info().name);
             let r = srbf::shade(&ctx, &cfg, &mut |l| progress(l))?;
             println!(
-                "{} frames of {} ({} vertices), {} lobes x {} basis: lighting {:.3} ms + shade {:.3} ms GPU (median) = {:.0} fps; fit error {:.4}, transfer projection error {:.4}",
+                "{} frames of {} ({} vertices), {} lobes x {} basis ({} clusters x {} components): lighting {:.3} + project {:.3} + shade {:.3} ms GPU (median) = {:.0} fps; fit error {:.4}, transfer projection error {:.4}, compression error {:.4}",
                 r.frames.len(),
                 r.mesh,
                 r.vertices,
                 r.lobes,
                 r.basis,
+                r.clusters,
+                r.components,
                 r.gpu_ms_lighting_median,
+                r.gpu_ms_project_median,
                 r.gpu_ms_shade_median,
                 r.fps,
                 r.fit_rel_l2,
-                r.transfer_rel_l2
+                r.transfer_rel_l2,
+                r.cpca_rel_l2
             );
             if let Some(worst) = r
                 .frames

@@ -325,6 +325,7 @@ fn srbf_shade_writes_ply_png_and_report_and_refuses_bad_input() {
         "shade_0001.png",
         "report.json",
         "transfer.bin",
+        "transfer.cpca",
     ] {
         assert!(dir.join(f).exists(), "{f} missing");
     }
@@ -340,6 +341,37 @@ fn srbf_shade_writes_ply_png_and_report_and_refuses_bad_input() {
     assert!(v["frames"][1]["vs_ground_truth"]["all"].as_f64().unwrap() < 0.1);
     assert!(v["frames"][0]["gpu_ms_shade"].as_f64().unwrap() > 0.0);
     assert_eq!(v["kernel"]["passes"][0]["name"], "srbf lighting");
+    assert_eq!(v["kernel"]["passes"][1]["name"], "srbf project");
+    assert!(v["frames"][0]["gpu_ms_project"].as_f64().unwrap() > 0.0);
+    // The compressed transfer (64 clusters x 16 components by default) and the share of the
+    // error it adds, against the same lobes with the uncompressed transfer.
+    assert_eq!(v["components"], 16);
+    let (c, u) = (
+        v["frames"][1]["vs_ground_truth"]["all"].as_f64().unwrap(),
+        v["frames"][1]["uncompressed_vs_ground_truth"]["all"]
+            .as_f64()
+            .unwrap(),
+    );
+    assert!(
+        v["cpca_rel_l2"].as_f64().unwrap() > 0.0 && c < u + 0.02,
+        "{c} vs {u}"
+    );
+    // A more compact transfer than the GPU path holds is refused with the reason.
+    let (ok, _, stderr) = vkshade(&[
+        "srbf",
+        "shade",
+        "--mesh",
+        mesh.to_str().unwrap(),
+        "--basis",
+        "64",
+        "--clusters",
+        "1000",
+        "--components",
+        "8",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    assert!(!ok && stderr.contains("projected rows"), "{stderr}");
     // Bad input: a missing map, a bad rotation, a non-2:1 map.
     let (ok, _, stderr) = vkshade(&["srbf", "fit", "--env", "/nonexistent/map.exr"]);
     assert!(!ok && stderr.contains("/nonexistent/map.exr"), "{stderr}");

@@ -4,19 +4,19 @@ mod common;
 
 use glam::{Mat3, Vec3};
 use vkshade::geom::Rng;
+use vkshade::kernels::srbf::cpca::{Cpca, CpcaConfig};
 use vkshade::kernels::srbf::gpu::{SrbfFrame, SrbfInputs, SrbfKernel};
 use vkshade::kernels::srbf::sg::{self, Lobe};
+use vkshade::kernels::srbf::transfer::{Basis, Transfer};
 use vkshade::kernels::{Kernel, run_frames};
 
 struct Scene {
     lobes: Vec<Lobe>,
-    basis: Vec<Vec3>,
-    mu: f32,
-    coeffs: Vec<f32>,
-    vertices: usize,
+    transfer: Cpca,
 }
 
-fn scene(lobes: usize, k: usize, vertices: usize) -> Scene {
+/// Random lobes and a random clustered-PCA transfer (`components` 0: the uncompressed form).
+fn scene(lobes: usize, k: usize, vertices: usize, clusters: usize, components: usize) -> Scene {
     let mut rng = Rng::new(7);
     let lobes = (0..lobes)
         .map(|_| {
@@ -28,21 +28,52 @@ fn scene(lobes: usize, k: usize, vertices: usize) -> Scene {
             }
         })
         .collect();
-    let coeffs = (0..vertices * k).map(|_| rng.f32() * 0.1 - 0.02).collect();
-    Scene {
-        lobes,
-        basis: sg::fibonacci_sphere(k),
-        mu: 8.0,
-        coeffs,
-        vertices,
-    }
+    let basis = Basis {
+        axes: sg::fibonacci_sphere(k),
+        sharpness: 8.0,
+    };
+    let coeffs: Vec<f32> = (0..vertices * k).map(|_| rng.f32() * 0.1 - 0.02).collect();
+    let transfer = if components == 0 {
+        Cpca::exact(&Transfer {
+            basis,
+            vertices,
+            coeffs,
+            projection_rel_l2: 0.0,
+        })
+    } else {
+        // Uneven cluster sizes (some under one workgroup, one empty), rows and weights of
+        // mixed sign.
+        Cpca {
+            basis,
+            vertices,
+            clusters,
+            components,
+            cluster_of: (0..vertices)
+                .map(|_| {
+                    ((rng.f32() * rng.f32() * (clusters - 1) as f32) as u32)
+                        .min(clusters as u32 - 2)
+                })
+                .collect(),
+            rows: (0..clusters * (components + 1) * k)
+                .map(|_| rng.f32() * 0.1 - 0.03)
+                .collect(),
+            weights: (0..vertices * components)
+                .map(|_| rng.f32() * 2.0 - 1.0)
+                .collect(),
+            rel_l2: 0.0,
+        }
+    };
+    Scene { lobes, transfer }
 }
 
-/// The pipeline in f64: c_k = sum_j a_j <G_j(R xi_j), G_k>, L_v = albedo sum_k t_vk c_k.
+/// The pipeline in f64: c_k = sum_j a_j <G_j(R xi_j), G_k>,
+/// L_v = albedo sum_k (m_ck + sum_i w_vi a_cik) c_k.
 fn cpu(s: &Scene, frame: &SrbfFrame) -> Vec<[f64; 3]> {
-    let k = s.basis.len();
-    let coeffs: Vec<[f64; 3]> = s
+    let t = &s.transfer;
+    let (k, m) = (t.basis.len(), t.components);
+    let coeffs: Vec<[f64; 3]> = t
         .basis
+        .axes
         .iter()
         .map(|eta| {
             let mut c = [0f64; 3];
@@ -52,7 +83,7 @@ fn cpu(s: &Scene, frame: &SrbfFrame) -> Vec<[f64; 3]> {
                     axis.as_dvec3(),
                     l.sharpness as f64,
                     eta.as_dvec3(),
-                    s.mu as f64,
+                    t.basis.sharpness as f64,
                 );
                 for (c, a) in c.iter_mut().zip(l.amplitude) {
                     *c += a as f64 * ip;
@@ -61,13 +92,18 @@ fn cpu(s: &Scene, frame: &SrbfFrame) -> Vec<[f64; 3]> {
             c
         })
         .collect();
-    (0..s.vertices)
+    (0..t.vertices)
         .map(|v| {
+            let rows = &t.rows[t.cluster_of[v] as usize * (m + 1) * k..];
+            let w = &t.weights[v * m..(v + 1) * m];
             let mut out = [0f64; 3];
             for (i, c) in coeffs.iter().enumerate() {
-                let t = s.coeffs[v * k + i] as f64;
+                let mut tv = rows[i] as f64;
+                for (j, wj) in w.iter().enumerate() {
+                    tv += *wj as f64 * rows[(j + 1) * k + i] as f64;
+                }
                 for (o, c) in out.iter_mut().zip(c) {
-                    *o += t * c;
+                    *o += tv * c;
                 }
             }
             [0, 1, 2].map(|ch| out[ch] * frame.albedo[ch] as f64)
@@ -76,18 +112,17 @@ fn cpu(s: &Scene, frame: &SrbfFrame) -> Vec<[f64; 3]> {
 }
 
 fn inputs(s: &Scene) -> SrbfInputs<'_> {
-    SrbfInputs {
-        lobes: &s.lobes,
-        basis_axes: &s.basis,
-        basis_sharpness: s.mu,
-        coeffs: &s.coeffs,
-        vertices: s.vertices,
-    }
+    SrbfInputs::new(&s.lobes, &s.transfer)
 }
 
 #[test]
 fn gpu_rotation_and_shading_match_the_cpu_pipeline() {
-    let s = scene(48, 300, 2000);
+    // Compressed (9 clusters x 6 components: padded groups and slots) and uncompressed.
+    gpu_matches_cpu(&scene(48, 300, 2000, 9, 6));
+    gpu_matches_cpu(&scene(48, 300, 2000, 1, 0));
+}
+
+fn gpu_matches_cpu(s: &Scene) {
     let frames: Vec<SrbfFrame> = [0.0f32, 30.0, 97.0, 180.0, 271.0]
         .iter()
         .enumerate()
@@ -102,16 +137,16 @@ fn gpu_rotation_and_shading_match_the_cpu_pipeline() {
         .collect();
     common::with_gpu(|ctx| {
         let mut setup = ctx.recorder("srbf setup")?;
-        let kernel = SrbfKernel::new(&mut setup, &inputs(&s))?;
+        let kernel = SrbfKernel::new(&mut setup, &inputs(s))?;
         setup.submit_and_wait()?;
         let names: Vec<&str> = kernel.passes().iter().map(|p| p.name).collect();
-        assert_eq!(names, ["srbf lighting", "srbf shade"]);
+        assert_eq!(names, ["srbf lighting", "srbf project", "srbf shade"]);
         let mut done = 0;
         run_frames(ctx, &kernel, &frames, 2, |r| {
-            let want = cpu(&s, &frames[r.index]);
-            // f32 on the GPU: each coefficient sums 48 products and each vertex 300 terms of
-            // mixed sign; relative to the output's scale the rounding is ~1e-6 per term, so
-            // the error bound is 1e-4 of the largest |value|.
+            let want = cpu(s, &frames[r.index]);
+            // f32 on the GPU: each coefficient sums 48 products, each row 300 terms and each
+            // vertex 7 (or 300) terms, of mixed sign; relative to the output's scale the
+            // rounding is ~1e-6 per term, so the error bound is 1e-4 of the largest |value|.
             let scale = want.iter().flatten().fold(0f64, |m, x| m.max(x.abs()));
             let worst = r
                 .output
@@ -137,13 +172,21 @@ fn gpu_rotation_and_shading_match_the_cpu_pipeline() {
 
 #[test]
 fn bad_srbf_inputs_and_frames_are_refused() {
-    let s = scene(4, 16, 10);
+    let s = scene(4, 16, 10, 1, 0);
     common::with_gpu(|ctx| {
         let mut rec = ctx.recorder("bad srbf")?;
-        let mut short = inputs(&s);
-        short.coeffs = &s.coeffs[1..];
-        let e = SrbfKernel::new(&mut rec, &short).err().unwrap();
-        assert!(e.to_string().contains("transfer coefficients"), "{e}");
+        let mut short = s.transfer.clone();
+        short.weights.pop();
+        let e = SrbfKernel::new(&mut rec, &SrbfInputs::new(&s.lobes, &short))
+            .err()
+            .unwrap();
+        assert!(e.to_string().contains("weights"), "{e}");
+        let mut stray = s.transfer.clone();
+        stray.cluster_of[3] = 1;
+        let e = SrbfKernel::new(&mut rec, &SrbfInputs::new(&s.lobes, &stray))
+            .err()
+            .unwrap();
+        assert!(e.to_string().contains("vertex 3"), "{e}");
         let mut bad_lobes = s.lobes.clone();
         bad_lobes[2].sharpness = f32::NAN;
         let e = SrbfKernel::new(
@@ -183,8 +226,8 @@ fn bad_srbf_inputs_and_frames_are_refused() {
 }
 
 /// The whole method on a real map and mesh against the brute-force ground truth: Blender's
-/// forest light on Testwuson (3205 vertices), 32 lobes, 256 basis functions, directions of a
-/// 32x16 map; rotations about +Y and a tilted axis. The error must stay under the 5%
+/// forest light on Testwuson (3205 vertices), 32 lobes, 256 basis functions compressed to 64
+/// clusters x 16 components, directions of a 64x32 map; rotations about +Y and a tilted axis. The error must stay under the 5%
 /// and must not grow with the angle.
 #[test]
 fn method_against_the_brute_force_ground_truth_on_a_real_map_and_mesh() {
@@ -213,6 +256,8 @@ fn method_against_the_brute_force_ground_truth_on_a_real_map_and_mesh() {
     let dir_env = env.downsampled(64).unwrap();
     let vis = mesh_visibility(mesh, &dir_env);
     let transfer = diffuse_transfer(&Basis::fibonacci(256), &dir_env, &mesh.normals, &vis).unwrap();
+    // The shipped default: 64 clusters x 16 components.
+    let cpca = Cpca::compress(&transfer, &CpcaConfig::default()).unwrap();
     let rotations: Vec<(String, Mat3)> = [0.0f32, 45.0, 90.0, 180.0, 270.0]
         .iter()
         .map(|&d| (format!("y:{d}"), sg::rotation(Vec3::Y, d)))
@@ -223,7 +268,7 @@ fn method_against_the_brute_force_ground_truth_on_a_real_map_and_mesh() {
         .collect();
     common::with_gpu(|ctx| {
         let mut setup = ctx.recorder("srbf setup")?;
-        let kernel = SrbfKernel::new(&mut setup, &SrbfInputs::new(&fitted.lobes, &transfer))?;
+        let kernel = SrbfKernel::new(&mut setup, &SrbfInputs::new(&fitted.lobes, &cpca))?;
         setup.submit_and_wait()?;
         let frames: Vec<SrbfFrame> = rotations
             .iter()
@@ -236,7 +281,7 @@ fn method_against_the_brute_force_ground_truth_on_a_real_map_and_mesh() {
         run_frames(ctx, &kernel, &frames, 2, |r| {
             let frame = &frames[r.index];
             let gpu: Vec<[f64; 3]> = r.output.iter().map(|c| c.map(|x| x as f64)).collect();
-            let cpu = cpu_pipeline(&fitted.lobes, &transfer, frame)?;
+            let cpu = cpu_pipeline(&fitted.lobes, &cpca, frame)?;
             let truth =
                 shade_brute_force(&dir_env, frame.rotation, &mesh.normals, &vis, frame.albedo)?;
             let (gc, gt) = (RelL2::of(&gpu, &cpu), RelL2::of(&gpu, &truth));
@@ -249,8 +294,8 @@ fn method_against_the_brute_force_ground_truth_on_a_real_map_and_mesh() {
             Ok(())
         })?;
         eprintln!(
-            "fit relative L2 {:.4}, transfer projection {:.4}",
-            fitted.rel_l2, transfer.projection_rel_l2
+            "fit relative L2 {:.4}, transfer projection {:.4}, compression {:.4}",
+            fitted.rel_l2, transfer.projection_rel_l2, cpca.rel_l2
         );
         let worst = errors.iter().cloned().fold(0f64, f64::max);
         assert!(

@@ -1,38 +1,43 @@
 #version 450
-// Per-vertex shading with precomputed transfer: L_o,v = albedo * sum_k t_vk c_k, where t_v
-// projects V(w) max(0, n.w) / pi onto the basis and c_k are the lighting's coefficients.
-// The transfer is stored in groups of four basis functions, group-major:
-// t4[g * vertices + v] = (t_v,4g .. t_v,4g+3), zero-padded; neighbouring invocations read
-// neighbouring vec4s (coalesced on GPUs, wide loads on lavapipe). The coefficients are the
-// same for every invocation and stay in cache. No shared memory: barriers are expensive on
-// CPU implementations and buy nothing here.
+// Per-vertex shading with clustered-PCA transfer: L_o,v = albedo * (p_c,0 + sum_i w_vi p_c,i),
+// p the lighting projected onto the rows of the vertex's cluster c (pass `srbf project`).
+// Vertices are sorted by cluster and every workgroup holds vertices of one cluster only
+// (slots padded per cluster), so the cluster and every row index are uniform across the
+// workgroup: the projected rows come from a uniform buffer with uniform indices (scalar
+// loads on CPU implementations, broadcasts on GPUs) and only the weights are streamed, in
+// groups of four, group-major: w4[g * slots + slot], neighbouring invocations reading
+// neighbouring vec4s. A padding slot (vertex index ~0u) computes and writes nothing.
 layout(local_size_x = 64) in;
 
 layout(push_constant) uniform Push {
     vec4 albedo;   // rgb
-    uint vertices;
-    uint groups;   // ceil(basis / 4)
+    uint slots;    // 64 x workgroups
+    uint groups;   // ceil(components / 4)
+    uint stride;   // projected rows per cluster: 1 + 4 * groups
 } pc;
 
-layout(std430, set = 0, binding = 0) readonly buffer Transfer { vec4 t[]; } transfer;
-// The lighting's coefficients as a uniform buffer: every invocation reads the same ones, and
-// uniform-buffer loads with a dynamically uniform index are scalar (on lavapipe a storage
-// buffer load here is a per-lane gather: it cost three quarters of the pass).
-const uint MAX_BASIS = 1024u;
-layout(std140, set = 0, binding = 1) uniform Coeffs { vec4 v[MAX_BASIS]; } coeffs; // zero-padded
-layout(std430, set = 0, binding = 2) writeonly buffer Radiance { vec4 v[]; } radiance;
+layout(std430, set = 0, binding = 0) readonly buffer Weights { vec4 w[]; } weights;
+layout(std430, set = 0, binding = 1) readonly buffer Slots { uint v[]; } slot_vertex;
+layout(std430, set = 0, binding = 2) readonly buffer Groups { uint c[]; } group_cluster;
+const uint MAX_ROWS = 4096u;
+layout(std140, set = 0, binding = 3) uniform Projected { vec4 v[MAX_ROWS]; } projected;
+layout(std430, set = 0, binding = 4) writeonly buffer Radiance { vec4 v[]; } radiance;
 
 void main() {
-    uint v = gl_GlobalInvocationID.x;
-    if (v >= pc.vertices) return;
-    vec3 sum = vec3(0.0);
-    uint index = v;
+    uint slot = gl_GlobalInvocationID.x;
+    if (slot >= pc.slots) return;
+    uint vertex = slot_vertex.v[slot];
+    uint base = group_cluster.c[gl_WorkGroupID.x] * pc.stride;
+    vec3 sum = projected.v[base].rgb;
+    uint index = slot;
     for (uint g = 0u; g < pc.groups; g++) {
-        vec4 t = transfer.t[index];
-        uint k = 4u * g;
-        sum += t.x * coeffs.v[k].rgb + t.y * coeffs.v[k + 1u].rgb + t.z * coeffs.v[k + 2u].rgb
-            + t.w * coeffs.v[k + 3u].rgb;
-        index += pc.vertices;
+        vec4 w = weights.w[index];
+        uint k = base + 1u + 4u * g;
+        sum += w.x * projected.v[k].rgb + w.y * projected.v[k + 1u].rgb
+            + w.z * projected.v[k + 2u].rgb + w.w * projected.v[k + 3u].rgb;
+        index += pc.slots;
     }
-    radiance.v[v] = vec4(pc.albedo.rgb * sum, 1.0);
+    if (vertex != 0xFFFFFFFFu) {
+        radiance.v[vertex] = vec4(pc.albedo.rgb * sum, 1.0);
+    }
 }

@@ -5,9 +5,12 @@
 
 use crate::error::{Error, Result};
 use crate::gpu::Context;
+use crate::kernels::srbf::cpca::{Cpca, CpcaConfig};
 use crate::kernels::srbf::diffuse_transfer;
 use crate::kernels::srbf::fit::{FitConfig, fit};
-use crate::kernels::srbf::gpu::{PASS_LIGHTING, PASS_SHADE, SrbfFrame, SrbfInputs, SrbfKernel};
+use crate::kernels::srbf::gpu::{
+    PASS_LIGHTING, PASS_PROJECT, PASS_SHADE, SrbfFrame, SrbfInputs, SrbfKernel,
+};
 use crate::kernels::srbf::sg::{self, Lobe};
 use crate::kernels::srbf::transfer::{self, Basis, Transfer};
 use crate::kernels::{KernelInfo, run_frames};
@@ -61,6 +64,10 @@ pub struct ShadeConfig {
     pub lobes: usize,
     /// Transfer basis functions.
     pub basis: usize,
+    /// Clustered PCA of the transfer: clusters x principal components per cluster;
+    /// `components` 0 keeps the transfer uncompressed.
+    pub clusters: usize,
+    pub components: usize,
     /// One frame at this rotation, or (with `frames` > 1) a spin about this axis.
     pub rotate: Option<AxisAngle>,
     /// Frames of a continuous spin (360 degrees over the frames) about `rotate`'s axis (+Y
@@ -87,6 +94,8 @@ impl Default for ShadeConfig {
             env: PathBuf::from(DEFAULT_ENV),
             lobes: 64,
             basis: 256,
+            clusters: CpcaConfig::default().clusters,
+            components: CpcaConfig::default().components,
             rotate: None,
             frames: 1,
             albedo: [1.0; 3],
@@ -112,6 +121,21 @@ impl ShadeConfig {
             return bad(format!(
                 "--basis must be in 1..={max_basis}, not {}",
                 self.basis
+            ));
+        }
+        if self.components > self.basis {
+            return bad(format!(
+                "--components {} exceeds --basis {}",
+                self.components, self.basis
+            ));
+        }
+        let max_rows = crate::kernels::srbf::gpu::MAX_ROWS;
+        let rows = self.clusters * (1 + 4 * self.components.div_ceil(4));
+        if self.clusters == 0 || (self.components > 0 && rows > max_rows) {
+            return bad(format!(
+                "--clusters {} x --components {} need {rows} projected rows; the GPU path \
+                 holds {max_rows} (fewer clusters or components)",
+                self.clusters, self.components
             ));
         }
         if !(1..=100_000).contains(&self.frames) {
@@ -194,13 +218,15 @@ pub struct FrameReport {
     /// Column-major rotation matrix of the environment.
     pub rotation: [f32; 9],
     pub gpu_ms_lighting: f64,
+    pub gpu_ms_project: f64,
     pub gpu_ms_shade: f64,
     /// GPU against the same pipeline on the CPU (f64).
     pub gpu_vs_cpu: RelL2,
     /// With --reference: the method against the brute-force ground truth.
     pub vs_ground_truth: Option<RelL2>,
-    /// With --reference: the exact SG lighting with this transfer against the ground truth
-    /// isolates the transfer projection's share (the rest is the fit's).
+    /// With --reference: the same lobes with the uncompressed transfer (CPU) against the
+    /// ground truth; the difference to `vs_ground_truth` is the compression's share.
+    pub uncompressed_vs_ground_truth: Option<RelL2>,
     pub ply: String,
     pub png: String,
 }
@@ -225,10 +251,20 @@ pub struct ShadeReport {
     pub transfer_rel_l2: f64,
     pub transfer_ms: f64,
     pub transfer_cached: bool,
+    /// Clustered PCA (0 components: uncompressed).
+    pub clusters: usize,
+    pub components: usize,
+    /// Function-space relative L2 of the compressed transfer against the projected one.
+    pub cpca_rel_l2: f64,
+    pub cpca_ms: f64,
+    pub cpca_cached: bool,
+    /// Transfer bytes streamed per vertex per frame.
+    pub transfer_bytes_per_vertex: usize,
     pub directions: usize,
     pub kernel: KernelInfo,
     pub frames: Vec<FrameReport>,
     pub gpu_ms_lighting_median: f64,
+    pub gpu_ms_project_median: f64,
     pub gpu_ms_shade_median: f64,
     pub fps: f64,
     pub notes: Vec<String>,
@@ -268,6 +304,41 @@ fn transfer_for(
     t.save(&path)?;
     crate::io::write_atomic(&key_path, key.as_bytes())?;
     Ok((t, false, ms))
+}
+
+/// The transfer in the form the GPU runs (clustered PCA, or uncompressed with
+/// `components` 0), cached beside the transfer (reused while the transfer and the
+/// compression settings are the same).
+fn cpca_for(
+    cfg: &ShadeConfig,
+    transfer: &Transfer,
+    transfer_cached: bool,
+) -> Result<(Cpca, bool, f64)> {
+    if cfg.components == 0 {
+        return Ok((Cpca::exact(transfer), false, 0.0));
+    }
+    let path = cfg.out.join("transfer.cpca");
+    let key_path = cfg.out.join("transfer.cpca.key");
+    let settings = CpcaConfig {
+        clusters: cfg.clusters,
+        components: cfg.components,
+        ..CpcaConfig::default()
+    };
+    let key = format!("{settings:?}");
+    if transfer_cached
+        && std::fs::read_to_string(&key_path).ok().as_deref() == Some(key.as_str())
+        && let Ok(c) = Cpca::load(&path)
+        && c.vertices == transfer.vertices
+        && c.basis == transfer.basis
+    {
+        return Ok((c, true, 0.0));
+    }
+    let t0 = Instant::now();
+    let c = Cpca::compress(transfer, &settings)?;
+    let ms = t0.elapsed().as_secs_f64() * 1e3;
+    c.save(&path)?;
+    crate::io::write_atomic(&key_path, key.as_bytes())?;
+    Ok((c, false, ms))
 }
 
 /// Runs `vkshade srbf shade`.
@@ -317,8 +388,22 @@ pub fn shade(
             format!(" ({transfer_ms:.0} ms)")
         }
     ));
+    let (cpca, cpca_cached, cpca_ms) = cpca_for(cfg, &transfer, cached)?;
+    if cfg.components > 0 {
+        progress(&format!(
+            "clustered PCA: {} clusters x {} components, relative L2 {:.4}{}",
+            cpca.clusters,
+            cpca.components,
+            cpca.rel_l2,
+            if cpca_cached {
+                " (cached)".to_string()
+            } else {
+                format!(" ({cpca_ms:.0} ms)")
+            }
+        ));
+    }
     let mut setup = ctx.recorder("srbf setup")?;
-    let kernel = SrbfKernel::new(&mut setup, &SrbfInputs::new(&fitted.lobes, &transfer))?;
+    let kernel = SrbfKernel::new(&mut setup, &SrbfInputs::new(&fitted.lobes, &cpca))?;
     setup.submit_and_wait()?;
     let rotations = cfg.rotations();
     let frames_in: Vec<SrbfFrame> = rotations
@@ -332,7 +417,7 @@ pub fn shade(
     let mut frames = Vec::with_capacity(frames_in.len());
     let in_flight = run_frames(ctx, &kernel, &frames_in, cfg.in_flight, |r| {
         let frame = &frames_in[r.index];
-        let cpu = cpu_pipeline(&fitted.lobes, &transfer, frame)?;
+        let cpu = cpu_pipeline(&fitted.lobes, &cpca, frame)?;
         let gpu: Vec<[f64; 3]> = r.output.iter().map(|c| c.map(|x| x as f64)).collect();
         let truth = if cfg.reference {
             Some(shade_brute_force(
@@ -345,21 +430,37 @@ pub fn shade(
         } else {
             None
         };
+        let uncompressed = match (&truth, cfg.components) {
+            (Some(t), c) if c > 0 => {
+                let coeffs =
+                    transfer::lighting_coefficients(&fitted.lobes, frame.rotation, &transfer.basis);
+                let exact: Vec<[f64; 3]> = transfer::shade(&transfer, &coeffs, frame.albedo)?
+                    .iter()
+                    .map(|c| c.map(|x| x as f64))
+                    .collect();
+                Some(RelL2::of(&exact, t))
+            }
+            (Some(t), _) => Some(RelL2::of(&cpu, t)),
+            _ => None,
+        };
         let report = FrameReport {
             index: r.index,
             rotation: frame.rotation.to_cols_array(),
             gpu_ms_lighting: r.timings.get(PASS_LIGHTING).unwrap_or(f64::NAN),
+            gpu_ms_project: r.timings.get(PASS_PROJECT).unwrap_or(f64::NAN),
             gpu_ms_shade: r.timings.get(PASS_SHADE).unwrap_or(f64::NAN),
             gpu_vs_cpu: RelL2::of(&gpu, &cpu),
             vs_ground_truth: truth.as_ref().map(|t| RelL2::of(&gpu, t)),
+            uncompressed_vs_ground_truth: uncompressed,
             ply: String::new(),
             png: String::new(),
         };
         let report = pictures.write(report, &character.mesh, &gpu, truth.as_deref())?;
         progress(&format!(
-            "frame {}: lighting {:.3} ms + shade {:.3} ms GPU; GPU vs CPU {:.1e}{}",
+            "frame {}: lighting {:.3} + project {:.3} + shade {:.3} ms GPU; GPU vs CPU {:.1e}{}",
             r.index,
             report.gpu_ms_lighting,
+            report.gpu_ms_project,
             report.gpu_ms_shade,
             report.gpu_vs_cpu.all,
             report
@@ -379,6 +480,7 @@ pub fn shade(
         v[v.len() / 2]
     };
     let lighting = median(&|f| f.gpu_ms_lighting);
+    let project_ms = median(&|f| f.gpu_ms_project);
     let shade_ms = median(&|f| f.gpu_ms_shade);
     let mut notes = Vec::new();
     if ctx.info().device_type == "CPU" {
@@ -406,11 +508,18 @@ pub fn shade(
         transfer_rel_l2: transfer.projection_rel_l2,
         transfer_ms,
         transfer_cached: cached,
+        clusters: if cfg.components > 0 { cpca.clusters } else { 0 },
+        components: cfg.components,
+        cpca_rel_l2: cpca.rel_l2,
+        cpca_ms,
+        cpca_cached,
+        transfer_bytes_per_vertex: cpca.bytes_per_vertex(),
         directions: vis.directions.len(),
         kernel: KernelInfo::of(&kernel, in_flight),
         gpu_ms_lighting_median: lighting,
+        gpu_ms_project_median: project_ms,
         gpu_ms_shade_median: shade_ms,
-        fps: 1000.0 / (lighting + shade_ms),
+        fps: 1000.0 / (lighting + project_ms + shade_ms),
         frames,
         notes,
     };
@@ -419,13 +528,10 @@ pub fn shade(
 }
 
 /// The same pipeline as the GPU, on the CPU (f64 accumulation of the f32 inputs).
-pub fn cpu_pipeline(
-    lobes: &[Lobe],
-    transfer: &Transfer,
-    frame: &SrbfFrame,
-) -> Result<Vec<[f64; 3]>> {
+pub fn cpu_pipeline(lobes: &[Lobe], transfer: &Cpca, frame: &SrbfFrame) -> Result<Vec<[f64; 3]>> {
     let coeffs = transfer::lighting_coefficients(lobes, frame.rotation, &transfer.basis);
-    Ok(transfer::shade(transfer, &coeffs, frame.albedo)?
+    Ok(transfer
+        .shade(&coeffs, frame.albedo)?
         .iter()
         .map(|c| c.map(|x| x as f64))
         .collect())

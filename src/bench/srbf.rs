@@ -1,4 +1,5 @@
-//! `vkshade bench srbf`: GPU time of the SRBF passes over lobes x basis size x vertices,
+//! `vkshade bench srbf`: GPU time of the SRBF passes over lobes x basis size x vertices
+//! (clustered-PCA transfer),
 //! GFLOP/s against the FMA peak measured in the same run, and the speed-up over the same
 //! method on the CPU and over the brute-force integration, on the glmark2 bunny under a
 //! Blender studio light.
@@ -7,10 +8,14 @@ use super::{BenchConfig, MachineInfo, Stats, time_cpu};
 use crate::error::Result;
 use crate::geom::Rng;
 use crate::gpu::Context;
+use crate::kernels::srbf::cpca::{Cpca, CpcaConfig};
+use crate::kernels::srbf::diffuse_transfer;
 use crate::kernels::srbf::fit::{FitConfig, fit};
-use crate::kernels::srbf::gpu::{PASS_LIGHTING, PASS_SHADE, SrbfFrame, SrbfInputs, SrbfKernel};
+use crate::kernels::srbf::gpu::{
+    PASS_LIGHTING, PASS_PROJECT, PASS_SHADE, SrbfFrame, SrbfInputs, SrbfKernel,
+};
 use crate::kernels::srbf::sg::{self, Lobe};
-use crate::kernels::srbf::transfer::{self, Basis, Transfer};
+use crate::kernels::srbf::transfer::{self, Basis};
 use crate::kernels::{Kernel, shape::time_passes};
 use crate::reference::srbf::{mesh_visibility, shade_brute_force};
 use crate::scene::envmap::EnvMap;
@@ -23,8 +28,9 @@ pub mod flop_model {
     /// One (lobe, basis function) pair of `srbf lighting`: rotation share, the SG inner
     /// product (a length, a division, two exponentials counted as 10 each) and 3 FMAs.
     pub const LIGHTING_PAIR: f64 = 40.0;
-    /// One (vertex, basis function) term of `srbf shade`: 3 FMAs.
-    pub const SHADE_TERM: f64 = 6.0;
+    /// One (row, basis function) term of `srbf project`, and one (vertex, component) term of
+    /// `srbf shade`: 3 FMAs.
+    pub const TERM: f64 = 6.0;
 }
 
 /// What `bench srbf` measures.
@@ -39,9 +45,12 @@ pub struct SrbfBenchConfig {
     pub vertices: Vec<usize>,
     /// The headline: (lobes, basis, vertices = the mesh's).
     pub headline: (usize, usize),
-    /// Width of the direction map of the brute-force baseline.
+    /// Width of the direction map of the brute-force baseline (and of the headline's real
+    /// transfer).
     pub brute_force_width: u32,
     pub cpu_runs: usize,
+    /// The transfer compression of every point (the headline's on the real transfer).
+    pub cpca: CpcaConfig,
 }
 
 impl Default for SrbfBenchConfig {
@@ -56,6 +65,7 @@ impl Default for SrbfBenchConfig {
             headline: (64, 256),
             brute_force_width: 32,
             cpu_runs: 3,
+            cpca: CpcaConfig::default(),
         }
     }
 }
@@ -66,7 +76,11 @@ pub struct Point {
     pub lobes: usize,
     pub basis: usize,
     pub vertices: usize,
+    /// 0 clusters: the uncompressed transfer.
+    pub clusters: usize,
+    pub components: usize,
     pub lighting_ms: Stats,
+    pub project_ms: Stats,
     pub shade_ms: Stats,
     pub total_ms: f64,
     pub fps: f64,
@@ -77,7 +91,6 @@ pub struct Point {
     pub gpu_memory_reserved_bytes: u64,
 }
 
-/// What `bench srbf` writes.
 #[derive(Clone, Debug, Serialize)]
 pub struct SrbfBenchReport {
     pub benchmark: &'static str,
@@ -85,28 +98,36 @@ pub struct SrbfBenchReport {
     pub config: SrbfBenchConfig,
     pub flop_model: [(&'static str, f64); 2],
     pub peak_fma_gflops: f64,
+    /// The mesh's real transfer (at `brute_force_width` directions), compressed.
     pub headline: Point,
-    /// The same method on the CPU (lighting coefficients + per-vertex contraction, one
-    /// thread per vertex chunk with rayon), headline configuration.
+    /// Function-space relative L2 of the headline's compression.
+    pub headline_cpca_rel_l2: f64,
+    /// The same, uncompressed.
+    pub uncompressed: Point,
     pub cpu_same_method_ms: Stats,
     pub speedup_vs_cpu: f64,
-    /// Brute-force integration of the map against visibility x cosine, every vertex, per
-    /// frame (visibility precomputed), at `brute_force_width`.
     pub brute_force_ms: Stats,
     pub speedup_vs_brute_force: f64,
     pub sweep: Vec<Point>,
-    /// Configurations the device cannot hold (and why).
     pub skipped: Vec<String>,
 }
 
-/// Transfer coefficients for timing: the values do not change the work, only the sizes do.
-fn synthetic_transfer(basis: usize, vertices: usize, seed: u64) -> Transfer {
+/// A transfer of the given shape with random values (the passes' cost depends on the shape
+/// and on how the vertices spread over clusters, not on the values).
+fn synthetic_cpca(basis: usize, vertices: usize, cfg: &CpcaConfig, seed: u64) -> Cpca {
     let mut rng = Rng::new(seed);
-    Transfer {
+    let (clusters, m) = (cfg.clusters.min(vertices), cfg.components.min(basis));
+    Cpca {
         basis: Basis::fibonacci(basis),
         vertices,
-        coeffs: (0..basis * vertices).map(|_| rng.f32() * 0.01).collect(),
-        projection_rel_l2: f64::NAN,
+        clusters,
+        components: m,
+        cluster_of: (0..vertices).map(|_| rng.below(clusters) as u32).collect(),
+        rows: (0..clusters * (m + 1) * basis)
+            .map(|_| rng.f32() * 0.01)
+            .collect(),
+        weights: (0..vertices * m).map(|_| rng.f32()).collect(),
+        rel_l2: f64::NAN,
     }
 }
 
@@ -126,7 +147,8 @@ fn measure(
     ctx: &Context,
     cfg: &BenchConfig,
     lobes: &[Lobe],
-    t: &Transfer,
+    t: &Cpca,
+    compressed: bool,
     peak: f64,
 ) -> Result<Point> {
     let mut setup = ctx.recorder("srbf bench setup")?;
@@ -144,18 +166,23 @@ fn measure(
             .map(|(_, s)| s.clone())
             .unwrap_or_else(Stats::none)
     };
-    let (lighting, shade) = (get(PASS_LIGHTING), get(PASS_SHADE));
-    let total = lighting.median + shade.median;
-    let k = t.basis.axes.len() as f64;
+    let (lighting, project, shade) = (get(PASS_LIGHTING), get(PASS_PROJECT), get(PASS_SHADE));
+    let total = lighting.median + project.median + shade.median;
+    let k = t.basis.len() as f64;
+    let rows = (t.clusters * (t.components + 1)) as f64;
     let flop = lobes.len() as f64 * k * flop_model::LIGHTING_PAIR
-        + t.vertices as f64 * k * flop_model::SHADE_TERM;
+        + rows * k * flop_model::TERM
+        + t.vertices as f64 * (t.components + 1) as f64 * flop_model::TERM;
     let gflops = flop / (total * 1e-3) * 1e-9;
     let memory = kernel.memory();
     Ok(Point {
         lobes: lobes.len(),
-        basis: t.basis.axes.len(),
+        basis: t.basis.len(),
         vertices: t.vertices,
+        clusters: if compressed { t.clusters } else { 0 },
+        components: if compressed { t.components } else { 0 },
         lighting_ms: lighting,
+        project_ms: project,
         shade_ms: shade,
         total_ms: total,
         fps: 1000.0 / total,
@@ -180,7 +207,8 @@ pub fn run(
     let peak = super::peak::run_fma(ctx, &cfg.bench, &mut |_| {})?.throughput_median;
     progress(&format!("  {peak:.1} GFLOP/s"));
 
-    // Headline: a real fit and the mesh's vertex count (synthetic transfer values).
+    // Headline: a real fit, the mesh's real transfer (visibility ray-cast at the directions
+    // of the brute-force baseline), compressed as configured; and the same uncompressed.
     let env = EnvMap::load(&cfg.env)?;
     let (hl, hk) = cfg.headline;
     let fitted = fit(
@@ -190,15 +218,34 @@ pub fn run(
             ..FitConfig::default()
         },
     )?;
-    let t = synthetic_transfer(hk, nv, 1);
-    let headline = measure(ctx, &cfg.bench, &fitted.lobes, &t, peak)?;
+    let dir_env = env.downsampled(cfg.brute_force_width.min(env.width))?;
+    progress("transfer of the mesh (visibility, projection, compression)");
+    let vis = mesh_visibility(mesh, &dir_env);
+    let real = diffuse_transfer(&Basis::fibonacci(hk), &dir_env, &mesh.normals, &vis)?;
+    let cpca = Cpca::compress(&real, &cfg.cpca)?;
+    let headline = measure(ctx, &cfg.bench, &fitted.lobes, &cpca, true, peak)?;
     progress(&format!(
-        "headline: {hl} lobes x {hk} basis x {nv} vertices: lighting {:.3} + shade {:.3} ms = {:.0} fps, {:.1} GFLOP/s ({:.1}% of peak)",
+        "headline: {hl} lobes x {hk} basis x {nv} vertices, {} clusters x {} components: lighting {:.3} + project {:.3} + shade {:.3} ms = {:.0} fps, {:.1} GFLOP/s ({:.1}% of peak)",
+        cpca.clusters,
+        cpca.components,
         headline.lighting_ms.median,
+        headline.project_ms.median,
         headline.shade_ms.median,
         headline.fps,
         headline.gflops,
         100.0 * headline.fraction_of_peak
+    ));
+    let uncompressed = measure(
+        ctx,
+        &cfg.bench,
+        &fitted.lobes,
+        &Cpca::exact(&real),
+        false,
+        peak,
+    )?;
+    progress(&format!(
+        "uncompressed: {:.3} ms = {:.0} fps",
+        uncompressed.total_ms, uncompressed.fps
     ));
 
     // Baselines: the same method on the CPU, and brute force.
@@ -207,12 +254,10 @@ pub fn run(
         albedo: [1.0; 3],
     };
     let cpu = time_cpu(cfg.cpu_runs, || {
-        let c = transfer::lighting_coefficients(&fitted.lobes, frame.rotation, &t.basis);
-        transfer::shade(&t, &c, frame.albedo)
+        let c = transfer::lighting_coefficients(&fitted.lobes, frame.rotation, &cpca.basis);
+        cpca.shade(&c, frame.albedo)
     });
     progress(&format!("CPU same method: {:.2} ms", cpu.median));
-    let dir_env = env.downsampled(cfg.brute_force_width.min(env.width))?;
-    let vis = mesh_visibility(mesh, &dir_env);
     let brute = time_cpu(1, || {
         shade_brute_force(&dir_env, frame.rotation, &mesh.normals, &vis, frame.albedo)
     });
@@ -227,10 +272,11 @@ pub fn run(
     let max_bytes = ctx.limits().max_storage_buffer_range;
     for &v in &cfg.vertices {
         for &k in &cfg.basis {
-            let bytes = (k.div_ceil(4) * 4 * v * 4) as u64;
+            let m = cfg.cpca.components.min(k);
+            let bytes = (m.div_ceil(4) * 4 * (v + 64 * cfg.cpca.clusters) * 4) as u64;
             if bytes > max_bytes {
                 skipped.push(format!(
-                    "{k} basis x {v} vertices: the transfer ({bytes} bytes) exceeds \
+                    "{k} basis x {v} vertices: the weights ({bytes} bytes) exceed \
                      maxStorageBufferRange ({max_bytes})"
                 ));
                 progress(&format!(
@@ -239,9 +285,9 @@ pub fn run(
                 ));
                 continue;
             }
-            let t = synthetic_transfer(k, v, 2);
+            let t = synthetic_cpca(k, v, &cfg.cpca, 2);
             for &l in &cfg.lobes {
-                let p = measure(ctx, &cfg.bench, &synthetic_lobes(l, 3), &t, peak)?;
+                let p = measure(ctx, &cfg.bench, &synthetic_lobes(l, 3), &t, true, peak)?;
                 progress(&format!(
                     "  {l} lobes x {k} basis x {v} vertices: {:.3} ms ({:.1} GFLOP/s)",
                     p.total_ms, p.gflops
@@ -257,7 +303,10 @@ pub fn run(
         config: cfg.clone(),
         flop_model: [
             ("lighting per (lobe, basis) pair", flop_model::LIGHTING_PAIR),
-            ("shade per (vertex, basis) term", flop_model::SHADE_TERM),
+            (
+                "project per (row, basis) and shade per (vertex, component) term",
+                flop_model::TERM,
+            ),
         ],
         peak_fma_gflops: peak,
         speedup_vs_cpu: cpu.median / total,
@@ -265,6 +314,8 @@ pub fn run(
         cpu_same_method_ms: cpu,
         brute_force_ms: brute,
         headline,
+        headline_cpca_rel_l2: cpca.rel_l2,
+        uncompressed,
         sweep,
         skipped,
     })

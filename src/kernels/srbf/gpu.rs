@@ -1,7 +1,10 @@
 //! The SRBF kernel on the GPU: pass `srbf lighting` rotates the lighting lobes and computes
-//! their coefficients in the transfer basis; pass `srbf shade` shades every vertex. The
+//! their coefficients in the transfer basis; pass `srbf project` projects them onto every
+//! row of the clustered-PCA transfer (each cluster's mean and principal axes); pass
+//! `srbf shade` shades every vertex from its cluster's projected rows and its weights. The
 //! per-vertex result is an RGB radiance buffer that can also feed a renderer's vertex input.
 
+use super::cpca::Cpca;
 use super::sg::Lobe;
 use crate::error::{Error, Result};
 use crate::gpu::{
@@ -10,13 +13,21 @@ use crate::gpu::{
 };
 use crate::kernels::{Kernel, PassInfo, UseInfo};
 use ash::vk;
-use glam::{Mat3, Vec3};
+use glam::Mat3;
 
 pub const PASS_LIGHTING: &str = "srbf lighting";
-/// Most transfer basis functions (the size of `srbf shade`'s uniform coefficient array; a
-/// 16 KiB uniform buffer, the smallest maxUniformBufferRange Vulkan allows).
-pub const MAX_BASIS: usize = 1024;
+pub const PASS_PROJECT: &str = "srbf project";
 pub const PASS_SHADE: &str = "srbf shade";
+/// Most transfer basis functions (the size of the uniform coefficient array that `srbf
+/// project` reads; a 16 KiB uniform buffer, the smallest maxUniformBufferRange Vulkan allows).
+pub const MAX_BASIS: usize = 1024;
+/// Most projected rows, clusters x (1 + 4 ceil(M / 4)) (`srbf shade`'s uniform array: 64 KiB,
+/// the maxUniformBufferRange of lavapipe and of most desktop GPUs; checked at run time).
+pub const MAX_ROWS: usize = 4096;
+/// Invocations per workgroup of `srbf shade` (its local_size_x): one cluster per workgroup.
+const SHADE_GROUP: usize = 64;
+/// A padding slot of `srbf shade`.
+const NO_VERTEX: u32 = u32::MAX;
 
 /// One frame's input: the environment's rotation and the surface albedo.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -26,62 +37,42 @@ pub struct SrbfFrame {
     pub albedo: [f32; 3],
 }
 
-/// What the kernel is built from: the lighting lobes and the per-vertex transfer in a basis
-/// of spherical Gaussians of common sharpness.
+/// What the kernel is built from: the lighting lobes and the per-vertex transfer in
+/// clustered-PCA form on a basis of spherical Gaussians ([`Cpca::exact`] for the
+/// uncompressed transfer).
 pub struct SrbfInputs<'a> {
     pub lobes: &'a [Lobe],
-    pub basis_axes: &'a [Vec3],
-    pub basis_sharpness: f32,
-    /// Vertex-major: `basis_axes.len()` coefficients per vertex.
-    pub coeffs: &'a [f32],
-    pub vertices: usize,
+    pub transfer: &'a Cpca,
 }
 
 impl<'a> SrbfInputs<'a> {
-    /// The lobes with a projected transfer.
-    pub fn new(lobes: &'a [Lobe], transfer: &'a super::transfer::Transfer) -> Self {
-        SrbfInputs {
-            lobes,
-            basis_axes: &transfer.basis.axes,
-            basis_sharpness: transfer.basis.sharpness,
-            coeffs: &transfer.coeffs,
-            vertices: transfer.vertices,
-        }
+    pub fn new(lobes: &'a [Lobe], transfer: &'a Cpca) -> Self {
+        SrbfInputs { lobes, transfer }
     }
 
     /// Checks sizes and values (the shaders index with them; the GPU must never read out of
     /// bounds or produce NaN from bad input).
     pub fn check(&self) -> Result<()> {
         let bad = |what: String| Err(Error::InvalidArgument(format!("SRBF input: {what}")));
-        let k = self.basis_axes.len();
         if self.lobes.is_empty() || self.lobes.len() > 65_536 {
             return bad(format!("{} lighting lobes (1..=65536)", self.lobes.len()));
         }
         if let Some(i) = self.lobes.iter().position(|l| !l.is_valid()) {
             return bad(format!("lobe {i} is not a valid SG: {:?}", self.lobes[i]));
         }
-        if k == 0 || k > MAX_BASIS {
+        let t = self.transfer;
+        t.check()?;
+        let k = t.basis.len();
+        if k > MAX_BASIS {
             return bad(format!("{k} basis functions (1..={MAX_BASIS})"));
         }
-        if let Some(i) = self
-            .basis_axes
-            .iter()
-            .position(|a| !a.is_finite() || (a.length() - 1.0).abs() > 1e-3)
-        {
-            return bad(format!("basis axis {i} is not a unit vector"));
-        }
-        if !(self.basis_sharpness.is_finite() && self.basis_sharpness > 0.0) {
-            return bad(format!("basis sharpness {}", self.basis_sharpness));
-        }
-        if self.vertices == 0 || self.coeffs.len() != self.vertices * k {
+        let rows = t.clusters * (1 + 4 * t.components.div_ceil(4));
+        if rows > MAX_ROWS {
             return bad(format!(
-                "{} transfer coefficients for {} vertices x {k} basis functions",
-                self.coeffs.len(),
-                self.vertices
+                "{} clusters x {} components need {rows} projected rows; the GPU path holds \
+                 {MAX_ROWS} (fewer clusters or components)",
+                t.clusters, t.components
             ));
-        }
-        if let Some(i) = self.coeffs.iter().position(|c| !c.is_finite()) {
-            return bad(format!("transfer coefficient {i} is not finite"));
         }
         Ok(())
     }
@@ -90,11 +81,78 @@ impl<'a> SrbfInputs<'a> {
 /// Host copy of one frame: RGB radiance per vertex.
 pub type SrbfOutput = Vec<[f32; 3]>;
 
+/// The GPU layout of a [`Cpca`] transfer (see glsl/srbf/shade.comp and project.comp).
+struct Layout {
+    /// Shade slots (a multiple of SHADE_GROUP): vertices sorted by cluster, each cluster
+    /// padded to whole workgroups.
+    slot_vertex: Vec<u32>,
+    group_cluster: Vec<u32>,
+    /// Weights, group-major vec4s over slots.
+    weights: Vec<[f32; 4]>,
+    /// Rows per cluster in `projected`: 1 + 4 ceil(M / 4).
+    stride: usize,
+    /// Rows, group-major vec4s over clusters x stride rows.
+    rows: Vec<[f32; 4]>,
+}
+
+impl Layout {
+    fn of(t: &Cpca) -> Layout {
+        let (k, m) = (t.basis.len(), t.components);
+        let m_groups = m.div_ceil(4);
+        let stride = 1 + 4 * m_groups;
+        let mut members: Vec<Vec<u32>> = vec![Vec::new(); t.clusters];
+        for (v, &c) in t.cluster_of.iter().enumerate() {
+            members[c as usize].push(v as u32);
+        }
+        let mut slot_vertex = Vec::new();
+        let mut group_cluster = Vec::new();
+        for (c, list) in members.iter().enumerate() {
+            for chunk in list.chunks(SHADE_GROUP) {
+                group_cluster.push(c as u32);
+                slot_vertex.extend_from_slice(chunk);
+                slot_vertex.resize(group_cluster.len() * SHADE_GROUP, NO_VERTEX);
+            }
+        }
+        let slots = slot_vertex.len();
+        let mut weights = vec![[0f32; 4]; m_groups * slots];
+        for (slot, &v) in slot_vertex.iter().enumerate() {
+            if v == NO_VERTEX {
+                continue;
+            }
+            let w = &t.weights[v as usize * m..(v as usize + 1) * m];
+            for (i, x) in w.iter().enumerate() {
+                weights[(i / 4) * slots + slot][i % 4] = *x;
+            }
+        }
+        let k_groups = k.div_ceil(4);
+        let n_rows = t.clusters * stride;
+        let mut rows = vec![[0f32; 4]; k_groups * n_rows];
+        for c in 0..t.clusters {
+            for i in 0..=m {
+                let src = &t.rows[(c * (m + 1) + i) * k..(c * (m + 1) + i + 1) * k];
+                let r = c * stride + i;
+                for (j, x) in src.iter().enumerate() {
+                    rows[(j / 4) * n_rows + r][j % 4] = *x;
+                }
+            }
+        }
+        Layout {
+            slot_vertex,
+            group_cluster,
+            weights,
+            stride,
+            rows,
+        }
+    }
+}
+
 /// The GPU kernel: pipelines, the lobes, the transfer and the outputs of one mesh.
 pub struct SrbfKernel {
     ctx: Context,
     lighting: ComputePipeline,
     lighting_bind: BindGroup,
+    project: ComputePipeline,
+    project_bind: BindGroup,
     shade: ComputePipeline,
     shade_bind: BindGroup,
     buffers: Vec<Buffer>,
@@ -103,6 +161,11 @@ pub struct SrbfKernel {
     basis: u32,
     basis_sharpness: f32,
     vertices: u32,
+    clusters: u32,
+    components: u32,
+    rows: u32,
+    stride: u32,
+    slots: u32,
 }
 
 impl SrbfKernel {
@@ -110,9 +173,19 @@ impl SrbfKernel {
     pub fn new(rec: &mut Recorder, inputs: &SrbfInputs<'_>) -> Result<SrbfKernel> {
         inputs.check()?;
         let ctx = rec.context();
+        let ubo_limit = ctx.limits().max_uniform_buffer_range as usize;
+        if ubo_limit < MAX_ROWS * 16 {
+            return Err(Error::InvalidArgument(format!(
+                "SRBF needs uniform buffers of {} bytes; the device allows {ubo_limit} \
+                 (maxUniformBufferRange)",
+                MAX_ROWS * 16
+            )));
+        }
         let spv = |name| crate::shaders::spirv(name);
         let lighting = ComputePipeline::from_spirv(&ctx, "srbf/lighting", spv("srbf/lighting")?)?;
+        let project = ComputePipeline::from_spirv(&ctx, "srbf/project", spv("srbf/project")?)?;
         let shade = ComputePipeline::from_spirv(&ctx, "srbf/shade", spv("srbf/shade")?)?;
+        let t = inputs.transfer;
         let axes: Vec<[f32; 4]> = inputs
             .lobes
             .iter()
@@ -123,22 +196,21 @@ impl SrbfKernel {
             .iter()
             .map(|l| [l.amplitude[0], l.amplitude[1], l.amplitude[2], 0.0])
             .collect();
-        let basis: Vec<[f32; 4]> = inputs
-            .basis_axes
+        let basis: Vec<[f32; 4]> = t
+            .basis
+            .axes
             .iter()
             .map(|a| a.extend(0.0).to_array())
             .collect();
-        let k = basis.len() as u64;
-        // On the GPU: groups of four basis functions, group-major
-        // (t4[g * vertices + v]), zero-padded, so neighbouring invocations read neighbouring
-        // vec4s; the coefficient buffer is padded to whole groups (zeros).
-        let nv = inputs.vertices;
-        let groups = (k as usize).div_ceil(4);
-        let mut grouped = vec![0f32; groups * 4 * nv];
-        for (v, row) in inputs.coeffs.chunks_exact(k as usize).enumerate() {
-            for (i, &t) in row.iter().enumerate() {
-                grouped[((i / 4) * nv + v) * 4 + i % 4] = t;
-            }
+        let layout = Layout::of(t);
+        let slots = layout.slot_vertex.len();
+        let max_groups = ctx.limits().max_compute_work_group_count[0] as usize;
+        if slots / SHADE_GROUP > max_groups {
+            return Err(Error::InvalidArgument(format!(
+                "SRBF: {} vertices need {} workgroups; the device dispatches {max_groups}",
+                t.vertices,
+                slots / SHADE_GROUP
+            )));
         }
         let mut upload = |name: &str, bytes: &[u8]| {
             rec.buffer_with(name, BufferDesc::storage(bytes.len() as u64), bytes)
@@ -146,19 +218,31 @@ impl SrbfKernel {
         let lobe_axes = upload("srbf lobe axes", bytemuck::cast_slice(&axes))?;
         let lobe_amps = upload("srbf lobe amplitudes", bytemuck::cast_slice(&amps))?;
         let basis_axes = upload("srbf basis axes", bytemuck::cast_slice(&basis))?;
-        let transfer = upload("srbf transfer", bytemuck::cast_slice(&grouped))?;
-        // Written as storage by `srbf lighting`, read as a uniform buffer by `srbf shade`
-        // (sized for its fixed array of MAX_BASIS vec4s, zero-padded).
-        let coeffs = rec.buffer_with(
-            "srbf coefficients",
-            BufferDesc::storage(MAX_BASIS as u64 * 16).usage(vk::BufferUsageFlags::UNIFORM_BUFFER),
-            &vec![[0f32; 4]; MAX_BASIS],
+        let rows = upload("srbf cpca rows", bytemuck::cast_slice(&layout.rows))?;
+        let weights = upload("srbf cpca weights", bytemuck::cast_slice(&layout.weights))?;
+        let slot_vertex = upload(
+            "srbf slot vertices",
+            bytemuck::cast_slice(&layout.slot_vertex),
         )?;
+        let group_cluster = upload(
+            "srbf workgroup clusters",
+            bytemuck::cast_slice(&layout.group_cluster),
+        )?;
+        // Written as storage by one pass and read as a uniform buffer by the next (sized for
+        // the reader's fixed array, zero-padded).
+        let ubo = |rec: &mut Recorder, name: &str, vec4s: usize| {
+            rec.buffer_with(
+                name,
+                BufferDesc::storage(vec4s as u64 * 16).usage(vk::BufferUsageFlags::UNIFORM_BUFFER),
+                &vec![[0f32; 4]; vec4s],
+            )
+        };
+        let coeffs = ubo(rec, "srbf coefficients", MAX_BASIS)?;
+        let projected = ubo(rec, "srbf projected rows", MAX_ROWS)?;
         let radiance = Buffer::new(
             &ctx,
             "srbf radiance",
-            BufferDesc::storage(inputs.vertices as u64 * 16)
-                .usage(vk::BufferUsageFlags::VERTEX_BUFFER),
+            BufferDesc::storage(t.vertices as u64 * 16).usage(vk::BufferUsageFlags::VERTEX_BUFFER),
         )?;
         let w = AccessSet::from(A::ComputeShaderWrite);
         let lighting_bind = lighting.bind_declared(
@@ -170,10 +254,20 @@ impl SrbfKernel {
             ],
             &[("coeffs", w)],
         )?;
+        let project_bind = project.bind_declared(
+            &[
+                ("rows", Resource::Buffer(&rows)),
+                ("coeffs", Resource::Buffer(&coeffs)),
+                ("projected", Resource::Buffer(&projected)),
+            ],
+            &[("projected", w)],
+        )?;
         let shade_bind = shade.bind_declared(
             &[
-                ("transfer", Resource::Buffer(&transfer)),
-                ("coeffs", Resource::Buffer(&coeffs)),
+                ("weights", Resource::Buffer(&weights)),
+                ("slot_vertex", Resource::Buffer(&slot_vertex)),
+                ("group_cluster", Resource::Buffer(&group_cluster)),
+                ("projected", Resource::Buffer(&projected)),
                 ("radiance", Resource::Buffer(&radiance)),
             ],
             &[("radiance", w)],
@@ -182,14 +276,31 @@ impl SrbfKernel {
             ctx,
             lighting,
             lighting_bind,
+            project,
+            project_bind,
             shade,
             shade_bind,
-            buffers: vec![lobe_axes, lobe_amps, basis_axes, transfer, coeffs],
+            buffers: vec![
+                lobe_axes,
+                lobe_amps,
+                basis_axes,
+                rows,
+                weights,
+                slot_vertex,
+                group_cluster,
+                coeffs,
+                projected,
+            ],
             radiance,
             lobes: inputs.lobes.len() as u32,
-            basis: k as u32,
-            basis_sharpness: inputs.basis_sharpness,
-            vertices: inputs.vertices as u32,
+            basis: t.basis.len() as u32,
+            basis_sharpness: t.basis.sharpness,
+            vertices: t.vertices as u32,
+            clusters: t.clusters as u32,
+            components: t.components as u32,
+            rows: (t.clusters * layout.stride) as u32,
+            stride: layout.stride as u32,
+            slots: slots as u32,
         })
     }
 
@@ -208,6 +319,16 @@ impl SrbfKernel {
 
     pub fn basis_count(&self) -> usize {
         self.basis as usize
+    }
+
+    /// (clusters, principal components per cluster) of the transfer.
+    pub fn cpca_shape(&self) -> (usize, usize) {
+        (self.clusters as usize, self.components as usize)
+    }
+
+    /// Shade slots (vertices padded so that every workgroup holds one cluster).
+    pub fn slot_count(&self) -> usize {
+        self.slots as usize
     }
 
     fn check_frame(frame: &SrbfFrame) -> Result<()> {
@@ -249,20 +370,29 @@ impl SrbfKernel {
         )
     }
 
+    fn record_project(&self, rec: &mut Recorder) -> Result<()> {
+        let push: Vec<u8> = [self.rows, self.basis.div_ceil(4)]
+            .iter()
+            .flat_map(|x| x.to_le_bytes())
+            .collect();
+        rec.dispatch_invocations_tracked(
+            &self.project,
+            &self.project_bind,
+            &push,
+            [self.rows, 1, 1],
+        )
+    }
+
     fn record_shade(&self, rec: &mut Recorder, frame: &SrbfFrame) -> Result<()> {
         let a = frame.albedo;
         let push: Vec<u8> = [a[0], a[1], a[2], 0.0]
             .iter()
             .flat_map(|x| x.to_le_bytes())
-            .chain(self.vertices.to_le_bytes())
-            .chain(self.basis.div_ceil(4).to_le_bytes())
+            .chain(self.slots.to_le_bytes())
+            .chain(self.components.div_ceil(4).to_le_bytes())
+            .chain(self.stride.to_le_bytes())
             .collect();
-        rec.dispatch_invocations_tracked(
-            &self.shade,
-            &self.shade_bind,
-            &push,
-            [self.vertices, 1, 1],
-        )
+        rec.dispatch_invocations_tracked(&self.shade, &self.shade_bind, &push, [self.slots, 1, 1])
     }
 }
 
@@ -283,6 +413,10 @@ impl Kernel for SrbfKernel {
                 uses: uses(&self.lighting_bind),
             },
             PassInfo {
+                name: PASS_PROJECT,
+                uses: uses(&self.project_bind),
+            },
+            PassInfo {
                 name: PASS_SHADE,
                 uses: uses(&self.shade_bind),
             },
@@ -291,12 +425,15 @@ impl Kernel for SrbfKernel {
 
     fn record_pass(&self, rec: &mut Recorder, pass: usize, input: &SrbfFrame) -> Result<()> {
         Self::check_frame(input)?;
-        let name = [PASS_LIGHTING, PASS_SHADE].get(pass).ok_or_else(|| {
-            Error::InvalidArgument(format!("SRBF has 2 passes, not {}", pass + 1))
-        })?;
+        let name = [PASS_LIGHTING, PASS_PROJECT, PASS_SHADE]
+            .get(pass)
+            .ok_or_else(|| {
+                Error::InvalidArgument(format!("SRBF has 3 passes, not {}", pass + 1))
+            })?;
         rec.begin_pass(name);
         let r = match pass {
             0 => self.record_lighting(rec, input),
+            1 => self.record_project(rec),
             _ => self.record_shade(rec, input),
         };
         rec.end_pass();
@@ -306,9 +443,10 @@ impl Kernel for SrbfKernel {
     fn plan_pass(&self, rec: &mut Recorder, pass: usize) -> Result<Vec<PlannedBarrier>> {
         match pass {
             0 => Ok(rec.plan_dispatch(&self.lighting_bind)),
-            1 => Ok(rec.plan_dispatch(&self.shade_bind)),
+            1 => Ok(rec.plan_dispatch(&self.project_bind)),
+            2 => Ok(rec.plan_dispatch(&self.shade_bind)),
             _ => Err(Error::InvalidArgument(format!(
-                "SRBF has 2 passes, not {}",
+                "SRBF has 3 passes, not {}",
                 pass + 1
             ))),
         }

@@ -4,6 +4,7 @@
 //! lighting lobes, compute the lighting's coefficients in the transfer basis from the
 //! closed-form SG inner products, shade every vertex.
 
+pub mod cpca;
 pub mod fit;
 pub mod gpu;
 pub mod sg;

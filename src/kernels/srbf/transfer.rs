@@ -73,7 +73,7 @@ impl Basis {
         g
     }
 
-    fn check(&self) -> Result<()> {
+    pub fn check(&self) -> Result<()> {
         let k = self.len();
         if k == 0 || k > MAX_BASIS {
             return Err(Error::InvalidArgument(format!(
@@ -322,7 +322,7 @@ const VERSION: u32 = 1;
 const HEADER: usize = 8 + 4 + 4 + 4 + 8 + 8;
 
 /// FNV-1a, 64 bit: the file's trailing checksum.
-fn fnv1a(bytes: &[u8]) -> u64 {
+pub(crate) fn fnv1a(bytes: &[u8]) -> u64 {
     bytes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, b| {
         (h ^ *b as u64).wrapping_mul(0x0000_0100_0000_01b3)
     })

@@ -1,0 +1,32 @@
+#version 450
+// Clustered-PCA projection: for every row r of every cluster (its mean, then its principal
+// axes, zero-padded to a whole number of groups of four), p_r = sum_k row_rk c_k (RGB), c_k
+// the lighting's coefficients in the transfer basis. Rows are stored in groups of four basis
+// functions, group-major: rows4[g * rows + r], so neighbouring invocations read neighbouring
+// vec4s; the coefficients are the same for every invocation (a uniform buffer: scalar loads).
+layout(local_size_x = 64) in;
+
+layout(push_constant) uniform Push {
+    uint rows;
+    uint groups;   // ceil(basis / 4)
+} pc;
+
+layout(std430, set = 0, binding = 0) readonly buffer Rows { vec4 r[]; } rows;
+const uint MAX_BASIS = 1024u;
+layout(std140, set = 0, binding = 1) uniform Coeffs { vec4 v[MAX_BASIS]; } coeffs; // zero-padded
+layout(std430, set = 0, binding = 2) writeonly buffer Projected { vec4 v[]; } projected;
+
+void main() {
+    uint r = gl_GlobalInvocationID.x;
+    if (r >= pc.rows) return;
+    vec3 sum = vec3(0.0);
+    uint index = r;
+    for (uint g = 0u; g < pc.groups; g++) {
+        vec4 t = rows.r[index];
+        uint k = 4u * g;
+        sum += t.x * coeffs.v[k].rgb + t.y * coeffs.v[k + 1u].rgb + t.z * coeffs.v[k + 2u].rgb
+            + t.w * coeffs.v[k + 3u].rgb;
+        index += pc.rows;
+    }
+    projected.v[r] = vec4(sum, 0.0);
+}
