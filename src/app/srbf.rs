@@ -14,7 +14,9 @@ use crate::kernels::srbf::gpu::{
 use crate::kernels::srbf::sg::{self, Lobe};
 use crate::kernels::srbf::transfer::{self, Basis, Transfer};
 use crate::kernels::{KernelInfo, run_frames};
-use crate::reference::srbf::{Visibility, mesh_visibility, shade_brute_force};
+use crate::reference::srbf::{
+    Visibility, mesh_visibility, rasterise_lobes, shade_brute_force, shade_brute_force_radiance,
+};
 use crate::report::MachineInfo;
 use crate::scene::envmap::EnvMap;
 use crate::scene::{self, Mesh};
@@ -227,6 +229,13 @@ pub struct FrameReport {
     /// With --reference: the same lobes with the uncompressed transfer (CPU) against the
     /// ground truth; the difference to `vs_ground_truth` is the compression's share.
     pub uncompressed_vs_ground_truth: Option<RelL2>,
+    /// With --reference, the error split by stage. Fit: the brute-force sum with the fitted
+    /// lobes (rotated, rasterised into the same texels) in place of the map, against the
+    /// ground truth.
+    pub fit_share: Option<RelL2>,
+    /// Transfer projection: the method with the uncompressed transfer against that same
+    /// brute-force sum over the fitted lobes (the lighting is then the same on both sides).
+    pub transfer_share: Option<RelL2>,
     pub ply: String,
     pub png: String,
 }
@@ -430,19 +439,21 @@ pub fn shade(
         } else {
             None
         };
-        let uncompressed = match (&truth, cfg.components) {
-            (Some(t), c) if c > 0 => {
-                let coeffs =
-                    transfer::lighting_coefficients(&fitted.lobes, frame.rotation, &transfer.basis);
-                let exact: Vec<[f64; 3]> = transfer::shade(&transfer, &coeffs, frame.albedo)?
-                    .iter()
-                    .map(|c| c.map(|x| x as f64))
-                    .collect();
-                Some(RelL2::of(&exact, t))
-            }
-            (Some(t), _) => Some(RelL2::of(&cpu, t)),
-            _ => None,
-        };
+        let (mut uncompressed, mut fit_share, mut transfer_share) = (None, None, None);
+        if let Some(t) = &truth {
+            let coeffs =
+                transfer::lighting_coefficients(&fitted.lobes, frame.rotation, &transfer.basis);
+            let exact: Vec<[f64; 3]> = transfer::shade(&transfer, &coeffs, frame.albedo)?
+                .iter()
+                .map(|c| c.map(|x| x as f64))
+                .collect();
+            let lobes = rasterise_lobes(&fitted.lobes, frame.rotation, &dir_env);
+            let sg_truth =
+                shade_brute_force_radiance(&dir_env, &lobes, &mesh.normals, &vis, cfg.albedo)?;
+            uncompressed = Some(RelL2::of(&exact, t));
+            fit_share = Some(RelL2::of(&sg_truth, t));
+            transfer_share = Some(RelL2::of(&exact, &sg_truth));
+        }
         let report = FrameReport {
             index: r.index,
             rotation: frame.rotation.to_cols_array(),
@@ -452,6 +463,8 @@ pub fn shade(
             gpu_vs_cpu: RelL2::of(&gpu, &cpu),
             vs_ground_truth: truth.as_ref().map(|t| RelL2::of(&gpu, t)),
             uncompressed_vs_ground_truth: uncompressed,
+            fit_share,
+            transfer_share,
             ply: String::new(),
             png: String::new(),
         };
@@ -463,13 +476,19 @@ pub fn shade(
             report.gpu_ms_project,
             report.gpu_ms_shade,
             report.gpu_vs_cpu.all,
-            report
-                .vs_ground_truth
-                .map(|e| format!(
-                    ", vs ground truth {:.4} (rgb {:.4} {:.4} {:.4})",
-                    e.all, e.rgb[0], e.rgb[1], e.rgb[2]
-                ))
-                .unwrap_or_default()
+            match (
+                report.vs_ground_truth,
+                report.fit_share,
+                report.transfer_share,
+                report.uncompressed_vs_ground_truth
+            ) {
+                (Some(e), Some(f), Some(t), Some(u)) => format!(
+                    ", vs ground truth {:.4} (rgb {:.4} {:.4} {:.4}; by stage: fit {:.4}, \
+                     transfer {:.4}, uncompressed {:.4})",
+                    e.all, e.rgb[0], e.rgb[1], e.rgb[2], f.all, t.all, u.all
+                ),
+                _ => String::new(),
+            }
         ));
         frames.push(report);
         Ok(())

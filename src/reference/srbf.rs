@@ -23,6 +23,7 @@
 
 use crate::error::{Error, Result};
 use crate::geom::Bvh;
+use crate::kernels::srbf::sg::Lobe;
 use crate::scene::EnvMap;
 use glam::{Mat3, Vec3};
 use rayon::prelude::*;
@@ -178,9 +179,102 @@ pub fn shade_brute_force(
             l.map(|c| c as f64 * d_omega)
         })
         .collect();
+    Ok(sum_visible(&samples, &weighted, normals, vis, albedo))
+}
+
+/// The same sum with the radiance of every texel of `env` given directly (`radiance[p]` for
+/// texel p, row-major, already rotated; it may be negative): e.g. the fitted lobes
+/// rasterised by [`rasterise_lobes`], which isolates the fit's share of the method's error.
+pub fn shade_brute_force_radiance(
+    env: &EnvMap,
+    radiance: &[[f64; 3]],
+    normals: &[Vec3],
+    vis: &Visibility,
+    albedo: [f32; 3],
+) -> Result<Vec<[f64; 3]>> {
+    let samples = env.samples();
+    if radiance.len() != samples.len() || vis.directions.len() != samples.len() {
+        return Err(Error::InvalidArgument(format!(
+            "{} radiance values and {} visibility directions for a map of {} texels",
+            radiance.len(),
+            vis.directions.len(),
+            samples.len()
+        )));
+    }
+    if normals.len() != vis.vertices {
+        return Err(Error::InvalidArgument(format!(
+            "{} normals for a visibility of {} vertices",
+            normals.len(),
+            vis.vertices
+        )));
+    }
+    let weighted: Vec<[f64; 3]> = samples
+        .iter()
+        .zip(radiance)
+        .map(|((_, d_omega, _), l)| l.map(|c| c * d_omega))
+        .collect();
+    Ok(sum_visible(&samples, &weighted, normals, vis, albedo))
+}
+
+/// Mean radiance over every texel of `env`'s grid of the lobes rotated by `rotation`
+/// (L~_R(w) = L~(R^-1 w)): each texel integrated on a 16 x 16 grid of sub-texels weighted by
+/// their solid angles; a lobe narrower than a sub-texel (1 / sqrt(lambda) below its angular
+/// size) puts its whole integral into the texel holding its axis instead.
+pub fn rasterise_lobes(lobes: &[Lobe], rotation: Mat3, env: &EnvMap) -> Vec<[f64; 3]> {
+    const SUB: u32 = 16;
+    let (w, h) = (env.width, env.height);
+    let sub_angle = std::f64::consts::PI / (h * SUB) as f64;
+    let rotated: Vec<Lobe> = lobes.iter().map(|l| l.rotated(rotation)).collect();
+    let (sharp, smooth): (Vec<Lobe>, Vec<Lobe>) = rotated
+        .into_iter()
+        .partition(|l| 1.0 / (l.sharpness as f64).sqrt() < sub_angle);
+    let mut out: Vec<[f64; 3]> = (0..w * h)
+        .into_par_iter()
+        .map(|p| {
+            let (x, y) = (p % w, p / w);
+            let mut sum = [0f64; 3];
+            let mut weight = 0f64;
+            for j in 0..SUB {
+                let v = (y as f64 + (j as f64 + 0.5) / SUB as f64) / h as f64;
+                let theta = std::f64::consts::PI * v;
+                let d_omega = theta.sin();
+                for i in 0..SUB {
+                    let u = (x as f64 + (i as f64 + 0.5) / SUB as f64) / w as f64;
+                    let dir = crate::scene::envmap::direction_of(u, v);
+                    for l in &smooth {
+                        let g = (l.sharpness as f64 * (l.axis().as_dvec3().dot(dir) - 1.0)).exp();
+                        for c in 0..3 {
+                            sum[c] += l.amplitude[c] as f64 * g * d_omega;
+                        }
+                    }
+                    weight += d_omega;
+                }
+            }
+            sum.map(|s| if weight > 0.0 { s / weight } else { 0.0 })
+        })
+        .collect();
+    for l in &sharp {
+        let (x, y) = env.texel_of(l.axis());
+        let total = crate::kernels::srbf::sg::integral(l.sharpness as f64) / env.solid_angle(y);
+        let t = &mut out[(y * w + x) as usize];
+        for c in 0..3 {
+            t[c] += l.amplitude[c] as f64 * total;
+        }
+    }
+    out
+}
+
+/// (albedo / pi) sum_p weighted_p V_v(w_p) max(0, n . w_p) for every vertex.
+fn sum_visible(
+    samples: &[(Vec3, f64, [f32; 3])],
+    weighted: &[[f64; 3]],
+    normals: &[Vec3],
+    vis: &Visibility,
+    albedo: [f32; 3],
+) -> Vec<[f64; 3]> {
     let dirs: Vec<[f64; 3]> = samples.iter().map(|s| s.0.as_dvec3().to_array()).collect();
     let scale = albedo.map(|a| a as f64 / std::f64::consts::PI);
-    Ok((0..vis.vertices)
+    (0..vis.vertices)
         .into_par_iter()
         .map(|v| {
             let n = normals[v].as_dvec3();
@@ -201,7 +295,7 @@ pub fn shade_brute_force(
             }
             [0, 1, 2].map(|c| sum[c] * scale[c])
         })
-        .collect())
+        .collect()
 }
 
 #[cfg(test)]
@@ -214,6 +308,43 @@ mod tests {
             .iter()
             .map(|(w, d, _)| (n.as_dvec3().dot(w.as_dvec3())).max(0.0) * d)
             .sum()
+    }
+
+    #[test]
+    fn rasterised_lobes_keep_their_integral() {
+        let env = EnvMap::from_texels(64, 32, vec![[0.0; 3]; 64 * 32], "grid").unwrap();
+        let lobes = [
+            Lobe {
+                axis: Vec3::new(0.3, 0.8, -0.2).normalize().to_array(),
+                sharpness: 5.0,
+                amplitude: [1.0, 2.0, 0.5],
+            },
+            Lobe {
+                axis: Vec3::new(-0.5, 0.1, 0.7).normalize().to_array(),
+                sharpness: 2.0e6,
+                amplitude: [1.0e4, 0.0, 3.0e3],
+            },
+        ];
+        let r = crate::kernels::srbf::sg::rotation(Vec3::new(1.0, 2.0, 0.5), 40.0);
+        let raster = rasterise_lobes(&lobes, r, &env);
+        let samples = env.samples();
+        for c in 0..3 {
+            let got: f64 = raster.iter().zip(&samples).map(|(l, s)| l[c] * s.1).sum();
+            let want: f64 = lobes
+                .iter()
+                .map(|l| {
+                    l.amplitude[c] as f64 * crate::kernels::srbf::sg::integral(l.sharpness as f64)
+                })
+                .sum();
+            assert!(
+                (got - want).abs() <= 2e-3 * want,
+                "channel {c}: {got} vs {want}"
+            );
+        }
+        // The sharp lobe lands in the texel of its rotated axis.
+        let (x, y) = env.texel_of(r * lobes[1].axis());
+        let sharp = 1.0e4 * crate::kernels::srbf::sg::integral(2.0e6);
+        assert!(raster[(y * 64 + x) as usize][0] * env.solid_angle(y) > sharp);
     }
 
     #[test]

@@ -28,6 +28,15 @@ use std::path::{Path, PathBuf};
 /// Largest accepted width (the height is half of it).
 pub const MAX_WIDTH: u32 = 1 << 15;
 
+/// The unit direction at map coordinates (u, v) in [0, 1]^2 (v = 0 at the top row):
+/// the inverse of u = 0.5 + atan2(x, -z) / (2 pi), v = acos(y) / pi.
+pub fn direction_of(u: f64, v: f64) -> glam::DVec3 {
+    let (theta, phi) = (PI * v, 2.0 * PI * (u - 0.5));
+    let (st, ct) = theta.sin_cos();
+    let (sp, cp) = phi.sin_cos();
+    glam::DVec3::new(st * sp, ct, -st * cp)
+}
+
 /// An equirectangular radiance map, linear RGB.
 #[derive(Clone, Debug)]
 pub struct EnvMap {
@@ -140,10 +149,7 @@ impl EnvMap {
     pub fn direction(&self, x: u32, y: u32) -> Vec3 {
         let u = (x as f64 + 0.5) / self.width as f64;
         let v = (y as f64 + 0.5) / self.height as f64;
-        let (theta, phi) = (PI * v, 2.0 * PI * (u - 0.5));
-        let (st, ct) = theta.sin_cos();
-        let (sp, cp) = phi.sin_cos();
-        Vec3::new((st * sp) as f32, ct as f32, (-st * cp) as f32)
+        direction_of(u, v).as_vec3()
     }
 
     /// The texel containing direction `dir` (need not be unit length). Directions on a

@@ -26,6 +26,8 @@ pub const MAX_BASIS: usize = 1024;
 pub const MAX_ROWS: usize = 4096;
 /// Invocations per workgroup of `srbf shade` (its local_size_x): one cluster per workgroup.
 const SHADE_GROUP: usize = 64;
+/// Most workgroups of `srbf shade` (its uniform workgroup-to-cluster table: 64 KiB).
+pub const MAX_SHADE_GROUPS: usize = 16384;
 /// A padding slot of `srbf shade`.
 const NO_VERTEX: u32 = u32::MAX;
 
@@ -204,7 +206,8 @@ impl SrbfKernel {
             .collect();
         let layout = Layout::of(t);
         let slots = layout.slot_vertex.len();
-        let max_groups = ctx.limits().max_compute_work_group_count[0] as usize;
+        let max_groups =
+            (ctx.limits().max_compute_work_group_count[0] as usize).min(MAX_SHADE_GROUPS);
         if slots / SHADE_GROUP > max_groups {
             return Err(Error::InvalidArgument(format!(
                 "SRBF: {} vertices need {} workgroups; the device dispatches {max_groups}",
@@ -224,9 +227,13 @@ impl SrbfKernel {
             "srbf slot vertices",
             bytemuck::cast_slice(&layout.slot_vertex),
         )?;
-        let group_cluster = upload(
+        // A uniform buffer sized for shade.comp's fixed array (zero-padded).
+        let mut groups = layout.group_cluster.clone();
+        groups.resize(MAX_SHADE_GROUPS, 0);
+        let group_cluster = rec.buffer_with(
             "srbf workgroup clusters",
-            bytemuck::cast_slice(&layout.group_cluster),
+            BufferDesc::uniform(groups.len() as u64 * 4),
+            &groups,
         )?;
         // Written as storage by one pass and read as a uniform buffer by the next (sized for
         // the reader's fixed array, zero-padded).
