@@ -181,6 +181,9 @@ struct SrbfShadeArgs {
     /// Width of the map whose texel directions carry the transfer and the ground truth.
     #[arg(long, default_value_t = 64)]
     directions: u32,
+    /// Width of the downsampled map the lobes are fitted to.
+    #[arg(long, default_value_t = 128)]
+    fit_width: u32,
     #[arg(long, default_value_t = 2)]
     in_flight: usize,
     #[arg(long, default_value = "out/srbf")]
@@ -760,6 +763,7 @@ fn cmd_srbf(g: &Global, cmd: &SrbfCommand) -> Result<()> {
                 albedo,
                 reference: a.reference,
                 direction_width: a.directions,
+                fit_width: a.fit_width,
                 in_flight: a.in_flight,
                 out: a.out.clone(),
                 ..Default::default()

@@ -371,13 +371,11 @@ pub fn shade(
     ));
     let t = Instant::now();
     let fit_env = env.downsampled(cfg.fit_width.min(env.width))?;
-    let fitted = fit(
-        &fit_env.samples(),
-        &FitConfig {
-            lobes: cfg.lobes,
-            ..FitConfig::default()
-        },
-    )?;
+    let fit_cfg = FitConfig {
+        lobes: cfg.lobes,
+        ..FitConfig::default()
+    };
+    let fitted = fit(&fit_env.samples(), &fit_cfg)?;
     let fit_ms = t.elapsed().as_secs_f64() * 1e3;
     progress(&format!(
         "fit {} lobes to {}x{}: relative L2 {:.4} ({fit_ms:.0} ms)",

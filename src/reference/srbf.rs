@@ -243,8 +243,8 @@ pub fn rasterise_lobes(lobes: &[Lobe], rotation: Mat3, env: &EnvMap) -> Vec<[f64
                     let dir = crate::scene::envmap::direction_of(u, v);
                     for l in &smooth {
                         let g = (l.sharpness as f64 * (l.axis().as_dvec3().dot(dir) - 1.0)).exp();
-                        for c in 0..3 {
-                            sum[c] += l.amplitude[c] as f64 * g * d_omega;
+                        for (s, a) in sum.iter_mut().zip(l.amplitude) {
+                            *s += a as f64 * g * d_omega;
                         }
                     }
                     weight += d_omega;
@@ -257,8 +257,8 @@ pub fn rasterise_lobes(lobes: &[Lobe], rotation: Mat3, env: &EnvMap) -> Vec<[f64
         let (x, y) = env.texel_of(l.axis());
         let total = crate::kernels::srbf::sg::integral(l.sharpness as f64) / env.solid_angle(y);
         let t = &mut out[(y * w + x) as usize];
-        for c in 0..3 {
-            t[c] += l.amplitude[c] as f64 * total;
+        for (tc, a) in t.iter_mut().zip(l.amplitude) {
+            *tc += a as f64 * total;
         }
     }
     out

@@ -15,6 +15,8 @@
 //!    (variable projection; Lawson-Hanson NNLS per channel on the Gram matrix of the
 //!    sampled lobes). The analytic gradient at the NNLS optimum is the reduced gradient.
 //!    The best iterate is kept, so refinement never ends worse than its start.
+//! 4. Compact sources: lobes at the sharpness cap are rescaled so that the energy around them
+//!    matches the map's ([`FitConfig::match_compact_energy`]); the L2 loss alone misjudges it.
 //!
 //! The Gram matrix is the *sampled* one, sum_p dO_p G_i(w_p) G_j(w_p), not the closed-form
 //! [`sg::inner_product`]: it makes the NNLS the exact minimiser of the same discrete loss the
@@ -67,6 +69,10 @@ pub struct FitConfig {
     /// lobe off the texel centre, where its sampled sum matches its integral, and the
     /// amplitude grows to keep the centre value.)
     pub energy_weight: f64,
+    /// After the refinement, rescale the lobes at the sharpness cap (compact sources: a sun,
+    /// a lamp) so that the energy around each group of them matches the map's
+    /// ([`match_compact_energy`]).
+    pub match_compact_energy: bool,
 }
 
 impl Default for FitConfig {
@@ -80,6 +86,7 @@ impl Default for FitConfig {
             seed_threshold: 8.0,
             max_seeds: None,
             energy_weight: 0.3,
+            match_compact_energy: true,
         }
     }
 }
@@ -206,13 +213,16 @@ pub fn fit(samples: &[(Vec3, f64, [f32; 3])], cfg: &FitConfig) -> Result<Fit> {
         }
         state = best.1;
     }
-    let lobes: Vec<Lobe> = (0..cfg.lobes)
+    let mut lobes: Vec<Lobe> = (0..cfg.lobes)
         .map(|j| Lobe {
             axis: state.axes[j].normalize().as_vec3().to_array(),
             sharpness: state.log_lam[j].exp() as f32,
             amplitude: state.amps[j].map(|a| a as f32),
         })
         .collect();
+    if cfg.match_compact_energy {
+        match_compact_energy(&data, &mut lobes, lam_max);
+    }
     let (total, per_channel) = rel_l2(samples, &lobes);
     Ok(Fit {
         lobes,
@@ -220,6 +230,114 @@ pub fn fit(samples: &[(Vec3, f64, [f32; 3])], cfg: &FitConfig) -> Result<Fit> {
         rel_l2_per_channel: per_channel,
         iterations: run,
     })
+}
+
+/// Lobes whose sharpness is at least this fraction of the cap count as compact.
+const COMPACT: f64 = 0.5;
+/// Radius of a compact group's neighbourhood, in texel widths (sqrt of the texel's solid
+/// angle) around each of its lobes.
+const COMPACT_RADIUS: f64 = 2.5;
+
+/// The L2 loss over point values misjudges the energy of lobes at the sharpness cap: a
+/// one-texel source is a box, the lobe a Gaussian with spill, and the best L2 match of a
+/// box by a Gaussian has the wrong integral (Blender's interior light: a lamp's lobe holds
+/// 35% more than its texels). A diffuse surface sees energy, not point values, so each
+/// group of compact lobes (within a few texels of each other) is scaled per channel so that
+/// the energy in its neighbourhood, its lobes' exact integrals plus the other lobes'
+/// sampled values, equals the map's there. The factor is clamped to [0, 4].
+fn match_compact_energy(data: &Data, lobes: &mut [Lobe], lam_max: f64) {
+    let n = lobes.len();
+    let axes: Vec<DVec3> = lobes.iter().map(|l| l.axis().as_dvec3()).collect();
+    let texel_of = |a: DVec3| {
+        data.dirs
+            .iter()
+            .zip(&data.weights)
+            .filter(|(_, w)| **w > 0.0)
+            .max_by(|x, y| a.dot(*x.0).total_cmp(&a.dot(*y.0)))
+            .map(|(_, w)| *w)
+            .unwrap_or(0.0)
+    };
+    let d_omega: Vec<f64> = axes.iter().map(|a| texel_of(*a)).collect();
+    let compact: Vec<bool> = (0..n)
+        .map(|j| {
+            let cap = lam_max.min(2.0 * std::f64::consts::PI / d_omega[j].max(1e-30));
+            lobes[j].sharpness as f64 >= COMPACT * cap && d_omega[j] > 0.0
+        })
+        .collect();
+    let radius: Vec<f64> = d_omega.iter().map(|d| COMPACT_RADIUS * d.sqrt()).collect();
+    // Groups: compact lobes within each other's radius (union-find by scanning).
+    let mut group: Vec<usize> = (0..n).collect();
+    fn root(g: &mut [usize], mut i: usize) -> usize {
+        while g[i] != i {
+            g[i] = g[g[i]];
+            i = g[i];
+        }
+        i
+    }
+    for i in 0..n {
+        for j in i + 1..n {
+            if compact[i] && compact[j] && axes[i].angle_between(axes[j]) < radius[i].max(radius[j])
+            {
+                let (a, b) = (root(&mut group, i), root(&mut group, j));
+                group[a] = b;
+            }
+        }
+    }
+    let roots: Vec<usize> = (0..n)
+        .filter(|&j| compact[j] && root(&mut group, j) == j)
+        .collect();
+    let mut scale = vec![[1.0f64; 3]; n];
+    for r in roots {
+        let members: Vec<usize> = (0..n)
+            .filter(|&j| compact[j] && root(&mut group, j) == r)
+            .collect();
+        let near = |w: DVec3| {
+            members
+                .iter()
+                .any(|&j| w.angle_between(axes[j]) < radius[j])
+        };
+        let mut map = [0f64; 3];
+        let mut others = [0f64; 3];
+        for ((w, d), l) in data.dirs.iter().zip(&data.weights).zip(&data.radiance) {
+            if !near(*w) {
+                continue;
+            }
+            for k in 0..n {
+                if members.contains(&k) {
+                    continue;
+                }
+                let g = (lobes[k].sharpness as f64 * (axes[k].dot(*w) - 1.0)).exp();
+                for (o, a) in others.iter_mut().zip(lobes[k].amplitude) {
+                    *o += d * g * a as f64;
+                }
+            }
+            for (m, lc) in map.iter_mut().zip(l) {
+                *m += d * lc;
+            }
+        }
+        let mut own = [0f64; 3];
+        for &j in &members {
+            let integral = sg::integral(lobes[j].sharpness as f64);
+            for (o, a) in own.iter_mut().zip(lobes[j].amplitude) {
+                *o += a as f64 * integral;
+            }
+        }
+        for c in 0..3 {
+            let f = if own[c] > 0.0 {
+                ((map[c] - others[c]) / own[c]).clamp(0.0, 4.0)
+            } else {
+                1.0
+            };
+            for &j in &members {
+                scale[j][c] = f;
+            }
+        }
+    }
+    for (l, s) in lobes.iter_mut().zip(scale) {
+        for (a, f) in l.amplitude.iter_mut().zip(s) {
+            *a = (*a as f64 * f) as f32;
+        }
+    }
 }
 
 /// The samples in f64, structure of arrays.
@@ -872,8 +990,10 @@ pub(crate) mod tests {
                 fit.rel_l2,
                 elapsed
             );
+            // Measured: -1.85% (one texel), -0.39% (2 x 2) with the compact-energy match
+            // (+1.8% / +0.8% without it); the rest is the 4x grid's sampling of the lobe.
             assert!(
-                (fitted / map - 1.0).abs() < 0.1,
+                (fitted / map - 1.0).abs() < 0.03,
                 "{name}: {fitted} vs {map}"
             );
         }
