@@ -32,7 +32,10 @@ pub struct Angles {
 impl Angles {
     /// The unit vector of these angles.
     pub fn vector(self) -> [f64; 3] {
-        let (t, p) = ((self.theta as f64).to_radians(), (self.phi as f64).to_radians());
+        let (t, p) = (
+            (self.theta as f64).to_radians(),
+            (self.phi as f64).to_radians(),
+        );
         [t.sin() * p.cos(), t.sin() * p.sin(), t.cos()]
     }
 }
@@ -78,7 +81,11 @@ pub fn project(d: [f64; 3]) -> [f64; 2] {
 /// Inverse of [`project`]: with l = px^2 + py^2, d = (2 px, 2 py, 1 - l) / (1 + l).
 pub fn unproject(p: [f64; 2]) -> [f64; 3] {
     let l = p[0] * p[0] + p[1] * p[1];
-    [2.0 * p[0] / (1.0 + l), 2.0 * p[1] / (1.0 + l), (1.0 - l) / (1.0 + l)]
+    [
+        2.0 * p[0] / (1.0 + l),
+        2.0 * p[1] / (1.0 + l),
+        (1.0 - l) / (1.0 + l),
+    ]
 }
 
 /// The projected points of the triangulation: the 81 samples, then the 24 virtual ones.
@@ -171,9 +178,7 @@ impl Triangulation {
             for t in &bad {
                 for e in [[t[0], t[1]], [t[1], t[2]], [t[2], t[0]]] {
                     let shared = bad.iter().any(|u| {
-                        u != t
-                            && [[u[0], u[1]], [u[1], u[2]], [u[2], u[0]]]
-                                .contains(&[e[1], e[0]])
+                        u != t && [[u[0], u[1]], [u[1], u[2]], [u[2], u[0]]].contains(&[e[1], e[0]])
                     });
                     if !shared {
                         edges.push(e);

@@ -5,3 +5,5 @@
 //! the repeating-tile finder.
 
 pub mod dirs;
+pub mod load;
+pub mod synth;
