@@ -4,6 +4,9 @@
 //! synthetic BTFs ray-cast from periodic heightfields; `load`: UBO2003-style directories and
 //! the repeating-tile finder.
 
+pub mod cpu;
 pub mod dirs;
+pub mod gbuffer;
+pub mod gpu;
 pub mod load;
 pub mod synth;

@@ -1,0 +1,369 @@
+//! The BTF kernel on the GPU: the 6561 images packed into 2D array textures sized to the
+//! device's limits, the parabolic index/weight maps, a G-buffer, and one pass `btf shade`
+//! writing linear RGB per pixel.
+
+use super::dirs::{self, Maps};
+use super::gbuffer::{Frame, GBuffer, MAX_LIGHTS};
+use super::synth::{Btf, srgb_encode};
+use crate::error::{Error, Result};
+use crate::gpu::{
+    AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context, Image,
+    ImageDesc, ImageRegion, MemoryReport, PlannedBarrier, Readback, Recorder, Resource, Sampler,
+    SamplerDesc,
+};
+use crate::kernels::{Kernel, PassInfo, UseInfo};
+use ash::vk;
+
+pub const PASS_SHADE: &str = "btf shade";
+/// Array textures the shader binds (`btf[4]`).
+pub const MAX_ARRAYS: u32 = 4;
+/// The texel format of the packed BTF: 8-bit sRGB, decoded to linear by the sampler.
+pub const FORMAT: vk::Format = vk::Format::R8G8B8A8_SRGB;
+const SLICES: u32 = (dirs::COUNT * dirs::COUNT) as u32;
+
+/// How the 6561 images are laid out on a device: `arrays` 2D array textures of
+/// `layers_per_array` layers (the last may hold fewer), one image per layer.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct Packing {
+    pub tile: [u32; 2],
+    pub layers_per_array: u32,
+    pub arrays: u32,
+}
+
+impl Packing {
+    /// The packing of a `tile`-sized BTF within limits of maxImageDimension2D and
+    /// maxImageArrayLayers (queried from the device); `layer_cap` optionally lowers the
+    /// layers per array (to exercise multi-array packing on any device).
+    pub fn for_limits(
+        tile: [u32; 2],
+        max_dim_2d: u32,
+        max_layers: u32,
+        layer_cap: Option<u32>,
+    ) -> Result<Packing> {
+        let side = tile[0].max(tile[1]);
+        if side > max_dim_2d {
+            return Err(Error::Limit {
+                what: "BTF tile side".into(),
+                requested: side as u64,
+                limit_name: "maxImageDimension2D",
+                limit: max_dim_2d as u64,
+            });
+        }
+        let layers = max_layers
+            .min(layer_cap.unwrap_or(u32::MAX))
+            .clamp(1, SLICES);
+        let arrays = SLICES.div_ceil(layers);
+        if arrays > MAX_ARRAYS {
+            return Err(Error::Limit {
+                what: format!(
+                    "BTF packing: {SLICES} images need {arrays} array textures (the shader binds {MAX_ARRAYS}); layers per array"
+                ),
+                requested: SLICES.div_ceil(MAX_ARRAYS) as u64,
+                limit_name: "maxImageArrayLayers",
+                limit: layers as u64,
+            });
+        }
+        Ok(Packing {
+            tile,
+            layers_per_array: layers,
+            arrays,
+        })
+    }
+
+    /// Layers of array `a`.
+    pub fn layers(&self, a: u32) -> u32 {
+        (SLICES - a * self.layers_per_array).min(self.layers_per_array)
+    }
+
+    /// Texel bytes of the packed BTF.
+    pub fn bytes(&self) -> u64 {
+        SLICES as u64 * self.tile[0] as u64 * self.tile[1] as u64 * 4
+    }
+}
+
+/// The packed texels: slice-major (slice = view * 81 + light), RGBA8 sRGB, alpha 255.
+pub fn pack(btf: &Btf) -> Vec<u8> {
+    btf.texels
+        .iter()
+        .flat_map(|p| {
+            let [r, g, b] = p.map(srgb_encode);
+            [r, g, b, 255]
+        })
+        .collect()
+}
+
+/// What the kernel is built from.
+pub struct BtfInputs<'a> {
+    pub btf: &'a Btf,
+    pub maps: &'a Maps,
+    pub gbuffer: &'a GBuffer,
+    /// Lower the layers per array below the device's limit (tests of multi-array packing).
+    pub layer_cap: Option<u32>,
+}
+
+/// Host copy of one frame: linear RGBA per pixel (alpha 0 where the G-buffer is empty).
+pub type BtfOutput = Vec<[f32; 4]>;
+
+/// The GPU kernel.
+pub struct BtfKernel {
+    ctx: Context,
+    pipeline: ComputePipeline,
+    bind: BindGroup,
+    arrays: Vec<Image>,
+    packing: Packing,
+    _sampler: Sampler,
+    maps: [Image; 2],
+    gbuffer: Buffer,
+    result: Buffer,
+    size: [u32; 2],
+}
+
+impl BtfKernel {
+    /// Creates the textures, buffers and pipeline and records the uploads into `rec`.
+    pub fn new(rec: &mut Recorder, inputs: &BtfInputs<'_>) -> Result<BtfKernel> {
+        let ctx = rec.context();
+        let btf = inputs.btf;
+        if btf.texels.len() != SLICES as usize * btf.image_len() || btf.image_len() == 0 {
+            return Err(Error::InvalidArgument(format!(
+                "BTF holds {} texels, not 6561 images of {} x {}",
+                btf.texels.len(),
+                btf.size[0],
+                btf.size[1]
+            )));
+        }
+        inputs.gbuffer.check()?;
+        let limits = ctx.limits();
+        let packing = Packing::for_limits(
+            btf.size,
+            limits.max_image_dimension_2d,
+            limits.max_image_array_layers,
+            inputs.layer_cap,
+        )?;
+        let pipeline =
+            ComputePipeline::from_spirv(&ctx, "btf/shade", crate::shaders::spirv("btf/shade")?)?;
+        let texels = pack(btf);
+        let per_layer = btf.image_len() * 4;
+        let mut arrays = Vec::new();
+        for a in 0..MAX_ARRAYS {
+            if a < packing.arrays {
+                let layers = packing.layers(a);
+                let desc = ImageDesc::d2_array(FORMAT, btf.size, layers);
+                let img = Image::new(&ctx, &format!("btf array {a}"), desc)?;
+                let start = (a * packing.layers_per_array) as usize * per_layer;
+                rec.upload_image(
+                    &img,
+                    ImageRegion::whole(&desc),
+                    &texels[start..start + layers as usize * per_layer],
+                )?;
+                arrays.push(img);
+            } else {
+                // Unused bindings get a 1 x 1 black placeholder (never read).
+                let desc = ImageDesc::d2_array(FORMAT, [1, 1], 1);
+                let img = Image::new(&ctx, &format!("btf array {a} (unused)"), desc)?;
+                rec.upload_image(&img, ImageRegion::whole(&desc), &[0, 0, 0, 255])?;
+                arrays.push(img);
+            }
+        }
+        let m = inputs.maps;
+        let index_desc = ImageDesc::d2(vk::Format::R8G8B8A8_UINT, [m.res, m.res]);
+        let index = Image::new(&ctx, "btf index map", index_desc)?;
+        rec.upload_image(
+            &index,
+            ImageRegion::whole(&index_desc),
+            bytemuck::cast_slice(&m.index),
+        )?;
+        let weight_desc = ImageDesc::d2(vk::Format::R32G32B32A32_SFLOAT, [m.res, m.res]);
+        let weight = Image::new(&ctx, "btf weight map", weight_desc)?;
+        rec.upload_image(
+            &weight,
+            ImageRegion::whole(&weight_desc),
+            bytemuck::cast_slice(&m.weight),
+        )?;
+        let sampler = Sampler::new(
+            &ctx,
+            "btf tile sampler",
+            SamplerDesc::linear()
+                .address(vk::SamplerAddressMode::REPEAT)
+                .lod(0.0, 0.0),
+        )?;
+        let gb = inputs.gbuffer;
+        let gbuffer = rec.buffer_with(
+            "btf gbuffer",
+            BufferDesc::storage(gb.texels.len() as u64 * 16),
+            &gb.texels,
+        )?;
+        let result = Buffer::new(
+            &ctx,
+            "btf result",
+            BufferDesc::storage(gb.width as u64 * gb.height as u64 * 16),
+        )?;
+        let bind = pipeline.bind_declared(
+            &[
+                (
+                    "btf",
+                    Resource::Array(arrays.iter().map(Resource::texture).collect()),
+                ),
+                ("tile_sampler", Resource::Sampler(&sampler)),
+                ("index_map", Resource::texture(&index)),
+                ("weight_map", Resource::texture(&weight)),
+                ("gbuffer", Resource::Buffer(&gbuffer)),
+                ("result", Resource::Buffer(&result)),
+            ],
+            &[("result", AccessSet::from(A::ComputeShaderWrite))],
+        )?;
+        Ok(BtfKernel {
+            ctx,
+            pipeline,
+            bind,
+            arrays,
+            packing,
+            _sampler: sampler,
+            maps: [index, weight],
+            gbuffer,
+            result,
+            size: [gb.width, gb.height],
+        })
+    }
+
+    /// The packing chosen for this device.
+    pub fn packing(&self) -> Packing {
+        self.packing
+    }
+
+    /// The array textures holding the BTF (the first `packing().arrays`).
+    pub fn arrays(&self) -> &[Image] {
+        &self.arrays[..self.packing.arrays as usize]
+    }
+
+    /// Device bytes of the packed BTF textures alone.
+    pub fn texture_bytes(&self) -> u64 {
+        self.arrays().iter().map(|i| i.allocation_size()).sum()
+    }
+
+    /// Device bytes of the two maps.
+    pub fn map_bytes(&self) -> u64 {
+        self.maps.iter().map(|i| i.allocation_size()).sum()
+    }
+
+    /// Output width and height.
+    pub fn size(&self) -> [u32; 2] {
+        self.size
+    }
+
+    fn push(&self, frame: &Frame) -> Result<Vec<u8>> {
+        frame.check()?;
+        let mut f = Vec::with_capacity(24);
+        let cam = frame.camera.push();
+        f.extend_from_slice(&cam);
+        let mut dirs = [[0f32; 4]; MAX_LIGHTS];
+        let mut rgb = [[0f32; 4]; MAX_LIGHTS];
+        for (i, l) in frame.lights.iter().enumerate() {
+            let d = l.direction.normalize();
+            dirs[i] = [d.x, d.y, d.z, 0.0];
+            rgb[i] = [l.rgb[0], l.rgb[1], l.rgb[2], 0.0];
+        }
+        f.extend(dirs.iter().flatten());
+        f.extend(rgb.iter().flatten());
+        let mut push: Vec<u8> = f.iter().flat_map(|x| x.to_le_bytes()).collect();
+        for u in [
+            self.size[0],
+            self.size[1],
+            frame.lights.len() as u32,
+            self.packing.layers_per_array,
+        ] {
+            push.extend_from_slice(&u.to_le_bytes());
+        }
+        Ok(push)
+    }
+}
+
+impl Kernel for BtfKernel {
+    type Input = Frame;
+    type Readback = Readback;
+    type Output = BtfOutput;
+
+    fn name(&self) -> &'static str {
+        "btf"
+    }
+
+    fn passes(&self) -> Vec<PassInfo> {
+        vec![PassInfo {
+            name: PASS_SHADE,
+            uses: self
+                .bind
+                .accesses()
+                .into_iter()
+                .map(UseInfo::from)
+                .collect(),
+        }]
+    }
+
+    fn record_pass(&self, rec: &mut Recorder, pass: usize, input: &Frame) -> Result<()> {
+        if pass != 0 {
+            return Err(Error::InvalidArgument(format!(
+                "BTF has 1 pass, not {}",
+                pass + 1
+            )));
+        }
+        let push = self.push(input)?;
+        rec.begin_pass(PASS_SHADE);
+        let r = rec.dispatch_invocations_tracked(
+            &self.pipeline,
+            &self.bind,
+            &push,
+            [self.size[0], self.size[1], 1],
+        );
+        rec.end_pass();
+        r
+    }
+
+    fn plan_pass(&self, rec: &mut Recorder, pass: usize) -> Result<Vec<PlannedBarrier>> {
+        match pass {
+            0 => Ok(rec.plan_dispatch(&self.bind)),
+            _ => Err(Error::InvalidArgument(format!(
+                "BTF has 1 pass, not {}",
+                pass + 1
+            ))),
+        }
+    }
+
+    fn read_back(&self, rec: &mut Recorder) -> Result<Readback> {
+        rec.read_back(&self.result)
+    }
+
+    fn collect(&self, readback: &Readback) -> Result<BtfOutput> {
+        readback.to_vec()
+    }
+
+    fn memory(&self) -> MemoryReport {
+        let images: u64 = self
+            .arrays
+            .iter()
+            .chain(self.maps.iter())
+            .map(|i| i.allocation_size())
+            .sum();
+        let buffers = self.ctx.memory_of(&[&self.gbuffer, &self.result]);
+        MemoryReport {
+            used_bytes: buffers.used_bytes + images,
+            allocations: buffers.allocations + (self.arrays.len() + 2) as u64,
+            ..buffers
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn packing_follows_the_limits() {
+        let p = Packing::for_limits([32, 32], 16384, 2048, None).unwrap();
+        assert_eq!((p.layers_per_array, p.arrays), (2048, 4));
+        assert_eq!(p.layers(3), 6561 - 3 * 2048);
+        assert_eq!(p.bytes(), 6561 * 32 * 32 * 4);
+        let p = Packing::for_limits([32, 32], 16384, 8192, None).unwrap();
+        assert_eq!((p.layers_per_array, p.arrays), (6561, 1));
+        assert!(Packing::for_limits([32, 32], 16384, 256, None).is_err());
+        assert!(Packing::for_limits([64, 64], 32, 2048, None).is_err());
+    }
+}

@@ -1,0 +1,342 @@
+//! BTF kernel: packing round trip, GPU against the CPU interpolation (f64) and against the
+//! direct ray-cast, the loader on good and bad data sets. Small sizes (8 x 8 tiles, 32 x 32
+//! maps) keep it fast; every GPU test runs under validation.
+
+mod common;
+
+use common::{error_naming, temp_dir, with_gpu};
+use glam::Vec3;
+use std::sync::OnceLock;
+use vkshade::gpu::ImageRegion;
+use vkshade::kernels::Kernel;
+use vkshade::kernels::btf::dirs::{Maps, Triangulation};
+use vkshade::kernels::btf::gbuffer::{Camera, Frame, GBuffer, Light, Object, render_object};
+use vkshade::kernels::btf::gpu::{BtfInputs, BtfKernel, pack};
+use vkshade::kernels::btf::synth::{Btf, FileFormat, Pattern, SynthConfig, synthesize, write_dir};
+use vkshade::kernels::btf::{cpu, load};
+
+/// An 8 x 8 weave, synthesised once per test binary.
+fn weave() -> &'static (SynthConfig, Btf) {
+    static B: OnceLock<(SynthConfig, Btf)> = OnceLock::new();
+    B.get_or_init(|| {
+        let cfg = SynthConfig::tile(Pattern::Weave, 8);
+        let btf = synthesize(&cfg).unwrap();
+        (cfg, btf)
+    })
+}
+
+fn maps() -> Maps {
+    Maps::build(&Triangulation::new().unwrap(), 32).unwrap()
+}
+
+fn frame() -> Frame {
+    Frame {
+        camera: Camera::Perspective(Vec3::from(vkshade::kernels::btf::gbuffer::EYE)),
+        lights: vec![
+            Light {
+                direction: Vec3::new(0.5, 0.8, 0.6),
+                rgb: [1.0, 0.95, 0.9],
+            },
+            Light {
+                direction: Vec3::new(-0.9, 0.1, 0.2),
+                rgb: [0.3, 0.35, 0.5],
+            },
+        ],
+    }
+}
+
+/// Runs the kernel once and returns its output.
+fn run(
+    ctx: &vkshade::gpu::Context,
+    btf: &Btf,
+    maps: &Maps,
+    gbuffer: &GBuffer,
+    frame: &Frame,
+) -> vkshade::Result<Vec<[f32; 4]>> {
+    let mut rec = ctx.recorder("btf test")?;
+    let k = BtfKernel::new(
+        &mut rec,
+        &BtfInputs {
+            btf,
+            maps,
+            gbuffer,
+            layer_cap: None,
+        },
+    )?;
+    k.record(&mut rec, frame)?;
+    let rb = k.read_back(&mut rec)?;
+    rec.submit_and_wait()?;
+    k.collect(&rb)
+}
+
+#[test]
+fn packing_round_trips_through_the_array_textures() {
+    let (_, btf) = weave();
+    let maps = maps();
+    let gbuffer = GBuffer::tile([8, 8]);
+    with_gpu(|ctx| {
+        let packed = pack(btf);
+        // The device's own limit, and a lower cap that splits the slices differently.
+        for cap in [None, Some(1700)] {
+            let mut rec = ctx.recorder("btf packing")?;
+            let k = BtfKernel::new(
+                &mut rec,
+                &BtfInputs {
+                    btf,
+                    maps: &maps,
+                    gbuffer: &gbuffer,
+                    layer_cap: cap,
+                },
+            )?;
+            let p = k.packing();
+            assert!(p.layers_per_array <= ctx.limits().max_image_array_layers);
+            if cap.is_some() {
+                assert_eq!((p.layers_per_array, p.arrays), (1700, 4));
+            }
+            let rbs: Vec<_> = k
+                .arrays()
+                .iter()
+                .map(|a| rec.read_back_image(a, ImageRegion::whole(a.desc())))
+                .collect::<vkshade::Result<_>>()?;
+            rec.submit_and_wait()?;
+            let mut back = Vec::new();
+            for rb in rbs {
+                back.extend(rb.bytes()?);
+            }
+            assert_eq!(back.len(), packed.len());
+            assert!(back == packed, "packed texels differ after the round trip");
+            assert_eq!(k.texture_bytes() >= p.bytes(), true);
+        }
+        Ok(())
+    });
+}
+
+/// Largest difference between GPU and the f64 CPU interpolation allowed: the sampler's
+/// bilinear weights are fixed point (subTexelPrecisionBits, 8 on lavapipe: weights within
+/// 2^-9) and its sRGB decode within ~0.5 ulp of 8 bits; over 9 taps whose weights sum to 1,
+/// |GPU - CPU| <= 2 * 2^-9 * (max texel) + decode + f32 rounding < 5e-3 per light of
+/// strength 1. Measured on lavapipe: 1.2e-3 (two lights, sums up to ~1.3).
+const GPU_CPU_BOUND: f64 = 5e-3;
+
+#[test]
+fn gpu_matches_the_cpu_interpolation_and_the_direct_ray_cast() {
+    let (cfg, btf) = weave();
+    let maps = maps();
+    let frame = frame();
+    for object in [Object::Sphere, Object::Cylinder, Object::Plane] {
+        let gbuffer = render_object(object, 48, 40).unwrap();
+        assert!(gbuffer.covered() > 300, "{object:?} covers too little");
+        let out = with_gpu(|ctx| run(ctx, btf, &maps, &gbuffer, &frame));
+        let packed = pack(btf);
+        let (want, ambiguous) = cpu::shade(
+            &cpu::Packed::new(btf.size, &packed),
+            &maps,
+            &gbuffer,
+            &frame,
+        );
+        let mut max: f64 = 0.0;
+        let mut compared = 0;
+        for (k, (g, c)) in out.iter().zip(&want).enumerate() {
+            assert_eq!(g[3] as f64, c[3], "coverage of pixel {k}");
+            if ambiguous[k] {
+                continue;
+            }
+            compared += 1;
+            for i in 0..3 {
+                max = max.max((g[i] as f64 - c[i]).abs());
+            }
+        }
+        let lit = want.iter().filter(|c| c[0] > 0.01).count();
+        assert!(lit > 100, "{object:?}: only {lit} lit pixels");
+        assert!(
+            compared + 20 > gbuffer.covered(),
+            "too many ambiguous pixels"
+        );
+        assert!(max < GPU_CPU_BOUND, "{object:?}: |GPU - CPU| = {max}");
+
+        // Against the heightfield ray-cast at each pixel's exact directions.
+        let (truth, theta) = vkshade::reference::btf::ray_cast(cfg, &gbuffer, &frame);
+        // Split at 75 deg (the largest polar angle of the view and the lights).
+        let (mut se, mut n) = ([0.0; 2], [0usize; 2]);
+        for k in 0..out.len() {
+            if truth[k][3] > 0.0 {
+                let band = (theta[k] > 75.0) as usize;
+                for i in 0..3 {
+                    se[band] += (out[k][i] as f64 - truth[k][i]).powi(2);
+                }
+                n[band] += 3;
+            }
+        }
+        let psnr = |b: usize| 10.0 * (1.0 / (se[b] / n[b] as f64)).log10();
+        eprintln!(
+            "{object:?}: |GPU - CPU| max {max:.2e}; PSNR vs ray-cast {:.1} dB ({} px <= 75 deg), {:.1} dB ({} px grazing)",
+            psnr(0),
+            n[0] / 3,
+            psnr(1),
+            n[1] / 3
+        );
+        let psnr = if n[0] > 300 { psnr(0) } else { psnr(1) };
+        assert!(psnr > 20.0, "{object:?}: PSNR {psnr:.1} dB");
+    }
+}
+
+#[test]
+fn eval_tile_at_sample_directions_is_the_stored_image() {
+    // Light and view at sampled directions whose map texels hold weight ~1 on them: the
+    // interpolated tile is (nearly) the stored image.
+    let (_, btf) = weave();
+    let maps = Maps::build(&Triangulation::new().unwrap(), 256).unwrap();
+    let d = vkshade::kernels::btf::dirs::directions();
+    let (li, vi) = (0, 7); // light at the pole, view at theta 30, phi 0
+    let frame = Frame {
+        camera: Camera::Orthographic(Vec3::from_array(d[vi].vector().map(|x| x as f32))),
+        lights: vec![Light {
+            direction: Vec3::from_array(d[li].vector().map(|x| x as f32)),
+            rgb: [1.0; 3],
+        }],
+    };
+    let gbuffer = GBuffer::tile(btf.size);
+    let out = with_gpu(|ctx| run(ctx, btf, &maps, &gbuffer, &frame));
+    let img = btf.image(li, vi);
+    let wv = maps.lookup(d[vi].vector());
+    let on_self: f64 = (0..3)
+        .filter(|&k| wv.index[k] == vi)
+        .map(|k| wv.weight[k])
+        .sum();
+    assert!(on_self > 0.95, "map texel weight on the sample {on_self}");
+    let mut max: f32 = 0.0;
+    for (o, t) in out.iter().zip(img) {
+        for i in 0..3 {
+            max = max.max((o[i] - t[i]).abs());
+        }
+    }
+    // The rest of the weight goes to neighbouring samples whose texels differ by < 1.
+    assert!(max < (1.0 - on_self as f32) + 0.01, "max {max}");
+}
+
+#[test]
+fn directories_load_and_bad_ones_fail_clearly() {
+    let cfg = SynthConfig::tile(Pattern::Rib, 4);
+    let btf = synthesize(&cfg).unwrap();
+    let dir = temp_dir("btf-load").join("rib");
+    write_dir(&btf, &dir, FileFormat::Png, &cfg).unwrap();
+    let loaded = load::load_dir(&dir).unwrap();
+    assert_eq!(loaded.size, [4, 4]);
+    // PNG holds 8-bit sRGB: the loaded values are the quantised originals.
+    for (a, b) in loaded.texels.iter().zip(&btf.texels) {
+        for i in 0..3 {
+            let q = vkshade::kernels::btf::synth::srgb_decode(
+                vkshade::kernels::btf::synth::srgb_encode(b[i]),
+            ) as f32;
+            assert!((a[i] - q).abs() < 1e-6);
+        }
+    }
+    let name = |tl: u32, pl: u32, tv: u32, pv: u32| {
+        dir.join(format!("btf_tl{tl:03}_pl{pl:03}_tv{tv:03}_pv{pv:03}.png"))
+    };
+    let victim = name(45, 40, 30, 60);
+    let saved = std::fs::read(&victim).unwrap();
+
+    // A missing direction names the directory and the missing pair.
+    std::fs::remove_file(&victim).unwrap();
+    let e = error_naming(&dir, load::load_dir(&dir));
+    assert!(
+        e.contains("missing") && e.contains("tl045 pl040 tv030 pv060"),
+        "{e}"
+    );
+
+    // Inconsistent image sizes name the odd file.
+    let small = temp_dir("btf-load").join("small");
+    write_dir(
+        &Btf {
+            size: [3, 4],
+            texels: vec![[0.2; 3]; 6561 * 12],
+        },
+        &small,
+        FileFormat::Png,
+        &"3x4",
+    )
+    .unwrap();
+    std::fs::copy(small.join("btf_tl045_pl040_tv030_pv060.png"), &victim).unwrap();
+    let e = error_naming(&victim, load::load_dir(&dir));
+    assert!(e.contains("3 x 4") && e.contains("same size"), "{e}");
+
+    // An unreadable file names itself.
+    std::fs::write(&victim, b"not a png").unwrap();
+    let e = error_naming(&victim, load::load_dir(&dir));
+    assert!(e.contains("cannot read"), "{e}");
+    std::fs::write(&victim, &saved).unwrap();
+    assert!(load::load_dir(&dir).is_ok());
+
+    // A direction outside the UBO2003 set, and a duplicate pair, name the file.
+    let odd = name(20, 0, 0, 0);
+    std::fs::write(&odd, &saved).unwrap();
+    let e = error_naming(&odd, load::load_dir(&dir));
+    assert!(e.contains("not one of the 81"), "{e}");
+    std::fs::remove_file(&odd).unwrap();
+    let dup = dir.join("copy tl045 pl040 tv030 pv060.png");
+    std::fs::write(&dup, &saved).unwrap();
+    let e = load::load_dir(&dir)
+        .err()
+        .expect("duplicate accepted")
+        .to_string();
+    assert!(e.contains("same (light, view) pair"), "{e}");
+    std::fs::remove_file(&dup).unwrap();
+
+    // Not a directory at all.
+    let none = temp_dir("btf-load").join("absent");
+    error_naming(&none, load::load_dir(&none));
+    let _ = std::fs::remove_dir_all(temp_dir("btf-load"));
+}
+
+#[test]
+fn bad_kernel_inputs_are_errors() {
+    let (_, btf) = weave();
+    let maps = maps();
+    let gbuffer = GBuffer::tile([8, 8]);
+    with_gpu(|ctx| {
+        let mut rec = ctx.recorder("bad btf")?;
+        let short = Btf {
+            size: [8, 8],
+            texels: btf.texels[..64 * 100].to_vec(),
+        };
+        let r = BtfKernel::new(
+            &mut rec,
+            &BtfInputs {
+                btf: &short,
+                maps: &maps,
+                gbuffer: &gbuffer,
+                layer_cap: None,
+            },
+        );
+        assert!(r.is_err());
+        // A layer cap needing more than the shader's four arrays is a limit error.
+        let r = BtfKernel::new(
+            &mut rec,
+            &BtfInputs {
+                btf,
+                maps: &maps,
+                gbuffer: &gbuffer,
+                layer_cap: Some(1000),
+            },
+        );
+        let e = r.err().expect("7 arrays accepted").to_string();
+        assert!(e.contains("maxImageArrayLayers"), "{e}");
+        let k = BtfKernel::new(
+            &mut rec,
+            &BtfInputs {
+                btf,
+                maps: &maps,
+                gbuffer: &gbuffer,
+                layer_cap: None,
+            },
+        )?;
+        let mut f = frame();
+        f.lights.push(f.lights[0]);
+        assert!(k.record(&mut rec, &f).is_err(), "three lights accepted");
+        f.lights.clear();
+        assert!(k.record(&mut rec, &f).is_err(), "no light accepted");
+        rec.submit_and_wait()?;
+        Ok(())
+    });
+}
