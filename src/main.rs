@@ -62,6 +62,10 @@ enum Command {
     /// precomputed per-vertex transfer.
     #[command(subcommand)]
     Srbf(SrbfCommand),
+    /// Bidirectional texture functions (cloth): synthesise a BTF, interpolate one tile, render
+    /// a cloth-covered object through 2D array textures and parabolic-map lookup.
+    #[command(subcommand)]
+    Btf(BtfCommand),
     /// Sphere trees.
     #[command(subcommand)]
     Spheretree(TreeCommand),
@@ -210,6 +214,78 @@ impl TreeOpts {
 }
 
 #[derive(Subcommand)]
+enum BtfCommand {
+    /// Ray-cast a periodic cloth heightfield (known BRDF, shadowing, masking) at the 81 x 81
+    /// UBO2003 directions and write a UBO2003-style directory (one image per (light, view),
+    /// angles in the names: btf_tlTTT_plPPP_tvTTT_pvPPP.png) plus btf.json.
+    Synth {
+        /// weave, knit or rib.
+        #[arg(long)]
+        pattern: vkshade::kernels::btf::synth::Pattern,
+        /// Tile side in texels.
+        #[arg(long, default_value_t = 32)]
+        size: u32,
+        /// Rays per texel along each axis.
+        #[arg(long, default_value_t = 1)]
+        samples: u32,
+        /// png (8-bit sRGB) or exr (linear float).
+        #[arg(long, default_value = "png")]
+        format: vkshade::kernels::btf::synth::FileFormat,
+        #[arg(short = 'o', long)]
+        out: PathBuf,
+    },
+    /// The tile interpolated at one (light, view) pair through the GPU path, as linear EXR.
+    Eval {
+        /// A UBO2003-style directory (from `btf synth`, or your own in PNG/EXR).
+        #[arg(long)]
+        btf: PathBuf,
+        /// THETA,PHI in degrees in the tile's tangent frame (as in the file names).
+        #[arg(long, value_parser = vkshade::app::btf::parse_angles)]
+        light: [f64; 2],
+        /// THETA,PHI in degrees.
+        #[arg(long, value_parser = vkshade::app::btf::parse_angles)]
+        view: [f64; 2],
+        /// Index/weight map resolution.
+        #[arg(long, default_value_t = 128)]
+        map_res: u32,
+        #[arg(short = 'o', long)]
+        out: PathBuf,
+    },
+    /// A cloth-covered object: DIR/render.png (with --reference: result | direct ray-cast |
+    /// error), DIR/render.exr (linear) and DIR/report.json (GPU time, texture memory, map
+    /// resolution, errors).
+    Render {
+        #[arg(long)]
+        btf: PathBuf,
+        /// sphere, cylinder or plane.
+        #[arg(long, default_value = "sphere")]
+        object: vkshade::kernels::btf::gbuffer::Object,
+        /// A directional light X,Y,Z[,R,G,B] (towards the light, world space; y up, camera
+        /// on +z); up to 2 (default: a warm key light and a cool grazing fill).
+        #[arg(long)]
+        light: Vec<String>,
+        #[arg(long, default_value_t = 512)]
+        width: u32,
+        #[arg(long, default_value_t = 512)]
+        height: u32,
+        #[arg(long, default_value_t = 128)]
+        map_res: u32,
+        /// Texture layout: rows (one 81-layer array, images side by side with gutters) or
+        /// layers (one image per layer, split over arrays of maxImageArrayLayers).
+        #[arg(long, default_value = "rows")]
+        layout: vkshade::kernels::btf::gpu::Layout,
+        /// Compare with the f64 CPU interpolation and with the heightfield ray-cast at the
+        /// exact directions (needs the btf.json of `btf synth`).
+        #[arg(long)]
+        reference: bool,
+        #[arg(long, default_value_t = 0.1)]
+        error_scale: f32,
+        #[arg(long, default_value = "out/btf")]
+        out: PathBuf,
+    },
+}
+
+#[derive(Subcommand)]
 enum TreeCommand {
     /// Build a sphere tree for a mesh (bind pose) and report how tightly each level fits.
     Build {
@@ -261,6 +337,16 @@ enum BenchCommand {
     /// over lobes x basis size x vertices, GFLOP/s against the FMA peak measured in the same
     /// run, and the speed-up over the same method on the CPU and over brute force.
     Srbf {
+        #[command(flatten)]
+        opts: BenchOpts,
+        /// Smaller sweeps (for a quick check).
+        #[arg(long)]
+        quick: bool,
+    },
+    /// BTF shading: GPU time over resolution x map resolution x tile size, texel fetches
+    /// per second against the fetch rate the device sustains (measured in the same run), the
+    /// speed-up over the CPU interpolation, texture memory; checks bench/targets.json.
+    Btf {
         #[command(flatten)]
         opts: BenchOpts,
         /// Smaller sweeps (for a quick check).
@@ -778,6 +864,164 @@ fn cmd_srbf(g: &Global, cmd: &SrbfCommand) -> Result<()> {
     }
 }
 
+fn parse_light(s: &str) -> Result<vkshade::kernels::btf::gbuffer::Light> {
+    let v: Vec<f32> = s
+        .split(',')
+        .map(|x| x.trim().parse::<f32>())
+        .collect::<std::result::Result<_, _>>()
+        .map_err(|_| Error::InvalidArgument(format!("--light '{s}': expected X,Y,Z[,R,G,B]")))?;
+    let (d, rgb) = match v[..] {
+        [x, y, z] => ([x, y, z], [1.0; 3]),
+        [x, y, z, r, g, b] => ([x, y, z], [r, g, b]),
+        _ => {
+            return Err(Error::InvalidArgument(format!(
+                "--light '{s}': expected X,Y,Z[,R,G,B]"
+            )));
+        }
+    };
+    Ok(vkshade::kernels::btf::gbuffer::Light {
+        direction: glam::Vec3::from(d),
+        rgb,
+    })
+}
+
+fn cmd_btf(g: &Global, cmd: &BtfCommand) -> Result<()> {
+    use vkshade::app::btf;
+    match cmd {
+        BtfCommand::Synth {
+            pattern,
+            size,
+            samples,
+            format,
+            out,
+        } => {
+            eprintln!(
+                "synthesising {} x {size} x 6561 images of {pattern:?}",
+                size
+            );
+            let m = btf::synth_command(*pattern, *size, *samples, *format, out)?;
+            println!(
+                "wrote 6561 {} images of {size} x {size} texels ({:?}) and {} to {} in {:.1} s",
+                m.format,
+                pattern,
+                btf::META,
+                out.display(),
+                m.ms / 1e3
+            );
+            Ok(())
+        }
+        BtfCommand::Eval {
+            btf: dir,
+            light,
+            view,
+            map_res,
+            out,
+        } => {
+            let ctx = context(g)?;
+            let r = btf::eval_command(&ctx, dir, *light, *view, *map_res, out)?;
+            let taps = |t: &[(vkshade::kernels::btf::dirs::Angles, f64)]| {
+                t.iter()
+                    .map(|(a, w)| format!("({},{}) x {w:.3}", a.theta, a.phi))
+                    .collect::<Vec<_>>()
+                    .join(" + ")
+            };
+            println!("light taps: {}", taps(&r.light_taps));
+            println!("view taps:  {}", taps(&r.view_taps));
+            println!(
+                "wrote the {} x {} tile to {} ({:.3} ms GPU)",
+                r.size[0],
+                r.size[1],
+                out.display(),
+                r.gpu_ms
+            );
+            finish(ctx)
+        }
+        BtfCommand::Render {
+            btf: dir,
+            object,
+            light,
+            width,
+            height,
+            map_res,
+            layout,
+            reference,
+            error_scale,
+            out,
+        } => {
+            let lights = if light.is_empty() {
+                btf::default_lights()
+            } else {
+                light
+                    .iter()
+                    .map(|s| parse_light(s))
+                    .collect::<Result<_>>()?
+            };
+            if !(error_scale.is_finite() && *error_scale > 0.0) {
+                return Err(Error::InvalidArgument(format!(
+                    "--error-scale must be > 0, not {error_scale}"
+                )));
+            }
+            let cfg = btf::RenderConfig {
+                btf: dir.clone(),
+                object: *object,
+                lights,
+                width: *width,
+                height: *height,
+                map_res: *map_res,
+                layout: *layout,
+                reference: *reference,
+                error_scale: *error_scale,
+                out: out.clone(),
+                bench: BenchConfig::default(),
+            };
+            let ctx = context(g)?;
+            eprintln!("vkshade btf render on {}", ctx.info().name);
+            let r = btf::render(&ctx, &cfg, &mut |l| progress(l))?;
+            println!(
+                "{:?} {} x {} ({} px covered), {} x {} tile, map {}: {:.3} ms GPU (median) = {:.1} fps; BTF textures {:.2} MiB in {} array(s) of {} layers, maps {:.2} MiB",
+                r.object,
+                r.size[0],
+                r.size[1],
+                r.covered_pixels,
+                r.tile[0],
+                r.tile[1],
+                r.map_resolution,
+                r.gpu_ms.median,
+                r.fps,
+                r.texture_mib,
+                r.packing.arrays,
+                r.packing.layers_per_array,
+                r.map_bytes as f64 / (1u64 << 20) as f64
+            );
+            if let Some(c) = &r.vs_cpu {
+                println!(
+                    "vs CPU interpolation (f64): max {:.2e}, RMS {:.2e} over {} px ({} ambiguous left out); bound {:.0e}; CPU {:.0} ms",
+                    c.max_abs, c.rms, c.pixels, c.ambiguous_pixels, c.bound, c.cpu_ms
+                );
+            }
+            if let Some(t) = &r.vs_ray_cast {
+                println!(
+                    "vs direct ray-cast: PSNR {:.1} dB (RMSE {:.4}, {} px) within 75 deg, {:.1} dB (RMSE {:.4}, {} px) grazing, {:.1} dB all",
+                    t.within_75.psnr_db,
+                    t.within_75.rmse,
+                    t.within_75.pixels,
+                    t.grazing.psnr_db,
+                    t.grazing.rmse,
+                    t.grazing.pixels,
+                    t.all.psnr_db
+                );
+            }
+            println!("wrote {}, {} and report.json", r.png, r.exr);
+            finish(ctx)
+        }
+    }
+}
+
+fn cmd_bench_btf(g: &Global, opts: &BenchOpts, quick: bool) -> Result<()> {
+    let _ = (g, opts, quick);
+    Err(Error::InvalidArgument("bench btf: not built yet".into()))
+}
+
 fn cmd_tree_build(
     mesh: &std::path::Path,
     out: &std::path::Path,
@@ -871,6 +1115,10 @@ fn main() -> ExitCode {
         }) => cmd_tree_build(mesh, out, opts, report.as_deref()),
         Command::Mesh(MeshCommand::Info { mesh }) => cmd_mesh_info(mesh),
         Command::Srbf(cmd) => cmd_srbf(&cli.global, cmd),
+        Command::Btf(cmd) => cmd_btf(&cli.global, cmd),
+        Command::Bench(BenchCommand::Btf { opts, quick }) => {
+            cmd_bench_btf(&cli.global, opts, *quick)
+        }
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

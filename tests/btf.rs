@@ -11,7 +11,7 @@ use vkshade::gpu::ImageRegion;
 use vkshade::kernels::Kernel;
 use vkshade::kernels::btf::dirs::{Maps, Triangulation};
 use vkshade::kernels::btf::gbuffer::{Camera, Frame, GBuffer, Light, Object, render_object};
-use vkshade::kernels::btf::gpu::{BtfInputs, BtfKernel, pack};
+use vkshade::kernels::btf::gpu::{BtfInputs, BtfKernel, Layout, pack};
 use vkshade::kernels::btf::synth::{Btf, FileFormat, Pattern, SynthConfig, synthesize, write_dir};
 use vkshade::kernels::btf::{cpu, load};
 
@@ -52,6 +52,7 @@ fn run(
     maps: &Maps,
     gbuffer: &GBuffer,
     frame: &Frame,
+    layout: Layout,
 ) -> vkshade::Result<Vec<[f32; 4]>> {
     let mut rec = ctx.recorder("btf test")?;
     let k = BtfKernel::new(
@@ -60,6 +61,7 @@ fn run(
             btf,
             maps,
             gbuffer,
+            layout,
             layer_cap: None,
         },
     )?;
@@ -76,8 +78,13 @@ fn packing_round_trips_through_the_array_textures() {
     let gbuffer = GBuffer::tile([8, 8]);
     with_gpu(|ctx| {
         let packed = pack(btf);
-        // The device's own limit, and a lower cap that splits the slices differently.
-        for cap in [None, Some(1700)] {
+        // Rows; one image per layer at the device's own limit, and at a lower cap that
+        // splits the slices differently.
+        for (layout, cap) in [
+            (Layout::Rows, None),
+            (Layout::Layers, None),
+            (Layout::Layers, Some(1700)),
+        ] {
             let mut rec = ctx.recorder("btf packing")?;
             let k = BtfKernel::new(
                 &mut rec,
@@ -85,6 +92,7 @@ fn packing_round_trips_through_the_array_textures() {
                     btf,
                     maps: &maps,
                     gbuffer: &gbuffer,
+                    layout,
                     layer_cap: cap,
                 },
             )?;
@@ -103,9 +111,27 @@ fn packing_round_trips_through_the_array_textures() {
             for rb in rbs {
                 back.extend(rb.bytes()?);
             }
-            assert_eq!(back.len(), packed.len());
-            assert!(back == packed, "packed texels differ after the round trip");
-            assert_eq!(k.texture_bytes() >= p.bytes(), true);
+            let want = p.arrange(&packed);
+            assert_eq!(back.len(), want.len(), "{layout:?}");
+            assert!(
+                back == want,
+                "{layout:?}: texels differ after the round trip"
+            );
+            // Every image's texels are in there: un-arrange the rows.
+            if layout == Layout::Rows {
+                let (w, n) = (8usize, 81usize);
+                for s in [0usize, 1, 80, 81, 3000, 6560] {
+                    let (v, l) = (s / n, s % n);
+                    for r in 0..8 {
+                        let at = ((v * 8 + r) * n * (w + 2) + l * (w + 2) + 1) * 4;
+                        assert_eq!(
+                            &back[at..at + w * 4],
+                            &packed[(s * 64 + r * w) * 4..][..w * 4]
+                        );
+                    }
+                }
+            }
+            assert!(k.texture_bytes() >= p.bytes());
         }
         Ok(())
     });
@@ -123,10 +149,15 @@ fn gpu_matches_the_cpu_interpolation_and_the_direct_ray_cast() {
     let (cfg, btf) = weave();
     let maps = maps();
     let frame = frame();
-    for object in [Object::Sphere, Object::Cylinder, Object::Plane] {
+    for (object, layout) in [
+        (Object::Sphere, Layout::Rows),
+        (Object::Sphere, Layout::Layers),
+        (Object::Cylinder, Layout::Rows),
+        (Object::Plane, Layout::Rows),
+    ] {
         let gbuffer = render_object(object, 48, 40).unwrap();
         assert!(gbuffer.covered() > 300, "{object:?} covers too little");
-        let out = with_gpu(|ctx| run(ctx, btf, &maps, &gbuffer, &frame));
+        let out = with_gpu(|ctx| run(ctx, btf, &maps, &gbuffer, &frame, layout));
         let packed = pack(btf);
         let (want, ambiguous) = cpu::shade(
             &cpu::Packed::new(btf.size, &packed),
@@ -169,7 +200,7 @@ fn gpu_matches_the_cpu_interpolation_and_the_direct_ray_cast() {
         }
         let psnr = |b: usize| 10.0 * (1.0 / (se[b] / n[b] as f64)).log10();
         eprintln!(
-            "{object:?}: |GPU - CPU| max {max:.2e}; PSNR vs ray-cast {:.1} dB ({} px <= 75 deg), {:.1} dB ({} px grazing)",
+            "{object:?} {layout:?}: |GPU - CPU| max {max:.2e}; PSNR vs ray-cast {:.1} dB ({} px <= 75 deg), {:.1} dB ({} px grazing)",
             psnr(0),
             n[0] / 3,
             psnr(1),
@@ -196,7 +227,7 @@ fn eval_tile_at_sample_directions_is_the_stored_image() {
         }],
     };
     let gbuffer = GBuffer::tile(btf.size);
-    let out = with_gpu(|ctx| run(ctx, btf, &maps, &gbuffer, &frame));
+    let out = with_gpu(|ctx| run(ctx, btf, &maps, &gbuffer, &frame, Layout::Rows));
     let img = btf.image(li, vi);
     let wv = maps.lookup(d[vi].vector());
     let on_self: f64 = (0..3)
@@ -306,6 +337,7 @@ fn bad_kernel_inputs_are_errors() {
                 btf: &short,
                 maps: &maps,
                 gbuffer: &gbuffer,
+                layout: Layout::Rows,
                 layer_cap: None,
             },
         );
@@ -317,6 +349,7 @@ fn bad_kernel_inputs_are_errors() {
                 btf,
                 maps: &maps,
                 gbuffer: &gbuffer,
+                layout: Layout::Layers,
                 layer_cap: Some(1000),
             },
         );
@@ -328,6 +361,7 @@ fn bad_kernel_inputs_are_errors() {
                 btf,
                 maps: &maps,
                 gbuffer: &gbuffer,
+                layout: Layout::Rows,
                 layer_cap: None,
             },
         )?;

@@ -23,7 +23,7 @@ pub const MAX_THETA_DEG: f64 = 75.0;
 pub const VIRTUAL: usize = 24;
 
 /// One sampled direction: angles in whole degrees (as in the UBO2003 file names).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize)]
 pub struct Angles {
     pub theta: u32,
     pub phi: u32,

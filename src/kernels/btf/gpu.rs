@@ -19,13 +19,42 @@ pub const PASS_SHADE: &str = "btf shade";
 pub const MAX_ARRAYS: u32 = 4;
 /// The texel format of the packed BTF: 8-bit sRGB, decoded to linear by the sampler.
 pub const FORMAT: vk::Format = vk::Format::R8G8B8A8_SRGB;
-const SLICES: u32 = (dirs::COUNT * dirs::COUNT) as u32;
+const COUNT: u32 = dirs::COUNT as u32;
+const SLICES: u32 = COUNT * COUNT;
+
+/// How the images are arranged in the array textures.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Layout {
+    /// One image per layer, 6561 layers split over up to four array textures of at most
+    /// maxImageArrayLayers layers; the sampler's REPEAT wraps the tile. The shader picks
+    /// the array per tap (a branch that diverges across pixels).
+    Layers,
+    /// One array texture of 81 layers (one per view); a layer is a row of the 81 light
+    /// images, each with a one-texel gutter left and right holding the wrapped column, so
+    /// bilinear filtering never reaches a neighbouring image (REPEAT wraps rows). Needs
+    /// 81 (w + 2) <= maxImageDimension2D.
+    Rows,
+}
+
+impl std::str::FromStr for Layout {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        match s {
+            "layers" => Ok(Layout::Layers),
+            "rows" => Ok(Layout::Rows),
+            _ => Err(format!("unknown layout '{s}' (rows, layers)")),
+        }
+    }
+}
 
 /// How the 6561 images are laid out on a device: `arrays` 2D array textures of
-/// `layers_per_array` layers (the last may hold fewer), one image per layer.
+/// `layers_per_array` layers of `layer_extent` texels (the last array may hold fewer).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 pub struct Packing {
+    pub layout: Layout,
     pub tile: [u32; 2],
+    pub layer_extent: [u32; 2],
     pub layers_per_array: u32,
     pub arrays: u32,
 }
@@ -35,49 +64,91 @@ impl Packing {
     /// maxImageArrayLayers (queried from the device); `layer_cap` optionally lowers the
     /// layers per array (to exercise multi-array packing on any device).
     pub fn for_limits(
+        layout: Layout,
         tile: [u32; 2],
         max_dim_2d: u32,
         max_layers: u32,
         layer_cap: Option<u32>,
     ) -> Result<Packing> {
-        let side = tile[0].max(tile[1]);
+        let max_layers = max_layers.min(layer_cap.unwrap_or(u32::MAX)).max(1);
+        let layer_extent = match layout {
+            Layout::Layers => tile,
+            Layout::Rows => [COUNT * (tile[0] + 2), tile[1]],
+        };
+        let side = layer_extent[0].max(layer_extent[1]);
         if side > max_dim_2d {
             return Err(Error::Limit {
-                what: "BTF tile side".into(),
+                what: format!("BTF packing ({layout:?}): layer side"),
                 requested: side as u64,
                 limit_name: "maxImageDimension2D",
                 limit: max_dim_2d as u64,
             });
         }
-        let layers = max_layers
-            .min(layer_cap.unwrap_or(u32::MAX))
-            .clamp(1, SLICES);
-        let arrays = SLICES.div_ceil(layers);
+        let total = match layout {
+            Layout::Layers => SLICES,
+            Layout::Rows => COUNT,
+        };
+        let layers = max_layers.min(total);
+        let arrays = total.div_ceil(layers);
         if arrays > MAX_ARRAYS {
             return Err(Error::Limit {
                 what: format!(
-                    "BTF packing: {SLICES} images need {arrays} array textures (the shader binds {MAX_ARRAYS}); layers per array"
+                    "BTF packing ({layout:?}): {total} layers need {arrays} array textures (the shader binds {MAX_ARRAYS}); layers per array"
                 ),
-                requested: SLICES.div_ceil(MAX_ARRAYS) as u64,
+                requested: total.div_ceil(MAX_ARRAYS) as u64,
                 limit_name: "maxImageArrayLayers",
                 limit: layers as u64,
             });
         }
         Ok(Packing {
+            layout,
             tile,
+            layer_extent,
             layers_per_array: layers,
             arrays,
         })
     }
 
-    /// Layers of array `a`.
-    pub fn layers(&self, a: u32) -> u32 {
-        (SLICES - a * self.layers_per_array).min(self.layers_per_array)
+    /// Layers in all.
+    pub fn total_layers(&self) -> u32 {
+        match self.layout {
+            Layout::Layers => SLICES,
+            Layout::Rows => COUNT,
+        }
     }
 
-    /// Texel bytes of the packed BTF.
+    /// Layers of array `a`.
+    pub fn layers(&self, a: u32) -> u32 {
+        (self.total_layers() - a * self.layers_per_array).min(self.layers_per_array)
+    }
+
+    /// Texel bytes of the packed BTF (gutters included).
     pub fn bytes(&self) -> u64 {
-        SLICES as u64 * self.tile[0] as u64 * self.tile[1] as u64 * 4
+        self.total_layers() as u64 * self.layer_extent[0] as u64 * self.layer_extent[1] as u64 * 4
+    }
+
+    /// The texels of all layers in order, from the slice-major [`pack`]ed images.
+    pub fn arrange(&self, packed: &[u8]) -> Vec<u8> {
+        match self.layout {
+            Layout::Layers => packed.to_vec(),
+            Layout::Rows => {
+                let [w, h] = [self.tile[0] as usize, self.tile[1] as usize];
+                let n = COUNT as usize;
+                let mut out = Vec::with_capacity(self.bytes() as usize);
+                for v in 0..n {
+                    for r in 0..h {
+                        for l in 0..n {
+                            let img = &packed[(v * n + l) * w * h * 4..][..w * h * 4];
+                            let row = &img[r * w * 4..(r + 1) * w * 4];
+                            out.extend_from_slice(&row[(w - 1) * 4..]);
+                            out.extend_from_slice(row);
+                            out.extend_from_slice(&row[..4]);
+                        }
+                    }
+                }
+                out
+            }
+        }
     }
 }
 
@@ -97,6 +168,7 @@ pub struct BtfInputs<'a> {
     pub btf: &'a Btf,
     pub maps: &'a Maps,
     pub gbuffer: &'a GBuffer,
+    pub layout: Layout,
     /// Lower the layers per array below the device's limit (tests of multi-array packing).
     pub layer_cap: Option<u32>,
 }
@@ -134,20 +206,27 @@ impl BtfKernel {
         inputs.gbuffer.check()?;
         let limits = ctx.limits();
         let packing = Packing::for_limits(
+            inputs.layout,
             btf.size,
             limits.max_image_dimension_2d,
             limits.max_image_array_layers,
             inputs.layer_cap,
         )?;
-        let pipeline =
-            ComputePipeline::from_spirv(&ctx, "btf/shade", crate::shaders::spirv("btf/shade")?)?;
-        let texels = pack(btf);
-        let per_layer = btf.image_len() * 4;
+        // One module per layout (not a specialization constant: lavapipe 22.3.6 ignored the
+        // constant's value in this shader; and a runtime branch keeps all five sampling call
+        // sites, which lavapipe inlines each: 3x slower).
+        let name = match packing.layout {
+            Layout::Rows => "btf/shade_rows",
+            Layout::Layers => "btf/shade_layers",
+        };
+        let pipeline = ComputePipeline::from_spirv(&ctx, name, crate::shaders::spirv(name)?)?;
+        let texels = packing.arrange(&pack(btf));
+        let per_layer = (packing.layer_extent[0] * packing.layer_extent[1]) as usize * 4;
         let mut arrays = Vec::new();
         for a in 0..MAX_ARRAYS {
             if a < packing.arrays {
                 let layers = packing.layers(a);
-                let desc = ImageDesc::d2_array(FORMAT, btf.size, layers);
+                let desc = ImageDesc::d2_array(FORMAT, packing.layer_extent, layers);
                 let img = Image::new(&ctx, &format!("btf array {a}"), desc)?;
                 let start = (a * packing.layers_per_array) as usize * per_layer;
                 rec.upload_image(
@@ -265,11 +344,16 @@ impl BtfKernel {
         f.extend(dirs.iter().flatten());
         f.extend(rgb.iter().flatten());
         let mut push: Vec<u8> = f.iter().flat_map(|x| x.to_le_bytes()).collect();
+        let p = &self.packing;
         for u in [
             self.size[0],
             self.size[1],
             frame.lights.len() as u32,
-            self.packing.layers_per_array,
+            p.layers_per_array,
+            0,
+            p.tile[0],
+            p.layer_extent[0],
+            0,
         ] {
             push.extend_from_slice(&u.to_le_bytes());
         }
@@ -357,13 +441,38 @@ mod tests {
 
     #[test]
     fn packing_follows_the_limits() {
-        let p = Packing::for_limits([32, 32], 16384, 2048, None).unwrap();
+        let p = Packing::for_limits(Layout::Layers, [32, 32], 16384, 2048, None).unwrap();
         assert_eq!((p.layers_per_array, p.arrays), (2048, 4));
         assert_eq!(p.layers(3), 6561 - 3 * 2048);
         assert_eq!(p.bytes(), 6561 * 32 * 32 * 4);
-        let p = Packing::for_limits([32, 32], 16384, 8192, None).unwrap();
+        let p = Packing::for_limits(Layout::Layers, [32, 32], 16384, 8192, None).unwrap();
         assert_eq!((p.layers_per_array, p.arrays), (6561, 1));
-        assert!(Packing::for_limits([32, 32], 16384, 256, None).is_err());
-        assert!(Packing::for_limits([64, 64], 32, 2048, None).is_err());
+        assert!(Packing::for_limits(Layout::Layers, [32, 32], 16384, 256, None).is_err());
+        assert!(Packing::for_limits(Layout::Layers, [64, 64], 32, 2048, None).is_err());
+        let p = Packing::for_limits(Layout::Rows, [32, 32], 16384, 2048, None).unwrap();
+        assert_eq!(
+            (p.layer_extent, p.layers_per_array, p.arrays),
+            ([81 * 34, 32], 81, 1)
+        );
+        assert!(Packing::for_limits(Layout::Rows, [32, 32], 2048, 2048, None).is_err());
+    }
+
+    #[test]
+    fn rows_carry_wrapped_gutters() {
+        let p = Packing::for_limits(Layout::Rows, [2, 1], 16384, 2048, None).unwrap();
+        let packed: Vec<u8> = (0..6561 * 2 * 4).map(|i| (i / 4 % 251) as u8).collect();
+        let rows = p.arrange(&packed);
+        assert_eq!(rows.len() as u64, p.bytes());
+        // Layer 0 (view 0), light 0: gutter = texel 1, texels 0 1, gutter = texel 0.
+        let texel = |b: &[u8], i: usize| b[4 * i];
+        assert_eq!(
+            [0, 1, 2, 3].map(|i| texel(&rows, i)),
+            [
+                texel(&packed, 1),
+                texel(&packed, 0),
+                texel(&packed, 1),
+                texel(&packed, 0)
+            ]
+        );
     }
 }

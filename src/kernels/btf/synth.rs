@@ -15,7 +15,8 @@ use crate::error::{Error, Result};
 use rayon::prelude::*;
 
 /// The cloth patterns `btf synth` knows.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum Pattern {
     /// Plain weave: two warp and two weft threads per tile, alternating over and under.
     Weave,
@@ -201,7 +202,7 @@ pub fn radiance(pattern: Pattern, x: f64, y: f64, l: [f64; 3], v: [f64; 3]) -> [
 }
 
 /// What to synthesise.
-#[derive(Clone, Debug, serde::Serialize)]
+#[derive(Clone, Debug, serde::Serialize, serde::Deserialize)]
 pub struct SynthConfig {
     pub pattern: Pattern,
     /// Image width and height in texels.
@@ -223,7 +224,7 @@ impl SynthConfig {
         }
     }
 
-    fn check(&self) -> Result<()> {
+    pub fn check(&self) -> Result<()> {
         if !(1..=1024).contains(&self.size[0])
             || !(1..=1024).contains(&self.size[1])
             || !(1..=1024).contains(&self.period)

@@ -1,13 +1,15 @@
-#version 450
-#extension GL_EXT_samplerless_texture_functions : require
-// BTF shading over a G-buffer: per pixel, the view and each light in the tangent frame, two
+// BTF shading over a G-buffer, included by btf/shade_rows.comp (BTF_ROWS 1) and
+// btf/shade_layers.comp (BTF_ROWS 0): one pipeline per layout, each with only its own
+// sampling code (lavapipe inlines the sampler per call site; five sites cost 3x one).
+// Per pixel: the view and each light in the tangent frame, two
 // lookups in the parabolic index/weight maps (nearest texel: indices are never filtered),
 // and 3 x 3 = 9 taps of the packed BTF, weighted and summed:
 //   out = sum_lights E * sum_i sum_j wL_i wV_j BTF(uv; l_i, v_j).
-// The BTF slice of (light l, view v) is s = v * 81 + l, stored in array texture
-// s / layers_per_array at layer s % layers_per_array (sRGB: the hardware decodes to linear
-// before filtering); the tile repeats in uv (REPEAT addressing, bilinear inside a layer,
-// never across layers).
+// Layout "layers": the image of (light l, view v) is slice s = v * 81 + l, in array
+// texture s / layers_per_array at layer s % layers_per_array; the tile repeats in uv
+// (REPEAT). Layout "rows": layer v holds the 81 light images side by side, each with a
+// one-texel wrapped gutter left and right, so bilinear filtering stays inside the image;
+// REPEAT wraps v. Texels are sRGB: the sampler decodes to linear before filtering.
 layout(local_size_x = 8, local_size_y = 8) in;
 
 const uint MAX_LIGHTS = 2u;
@@ -17,6 +19,7 @@ layout(push_constant) uniform Push {
     vec4 light_dir[MAX_LIGHTS]; // xyz: unit direction towards the light (world)
     vec4 light_rgb[MAX_LIGHTS]; // rgb: its strength
     uvec4 dims;                 // width, height, lights, layers per array
+    uvec4 layout_info;          // y: tile width; z: layer width (x, w unused)
 } pc;
 
 layout(set = 0, binding = 0) uniform texture2DArray btf[4];
@@ -27,13 +30,22 @@ layout(set = 0, binding = 3) uniform texture2D weight_map;   // RGBA32F: 3 weigh
 layout(std430, set = 0, binding = 4) readonly buffer GBuffer { vec4 g[]; } gbuffer;
 layout(std430, set = 0, binding = 5) writeonly buffer Result { vec4 v[]; } result;
 
-vec3 tap(uint slice, vec2 uv) {
+vec3 tap(uint view, uint light, vec2 uv) {
+#if BTF_ROWS
+        // Rows: image `light` of layer `view` starts at texel light * (w + 2) + 1.
+        float w = float(pc.layout_info.y);
+        float x = float(light) * (w + 2.0) + 1.0 + fract(uv.x) * w;
+        return textureLod(sampler2DArray(btf[0], tile_sampler),
+                          vec3(x / float(pc.layout_info.z), uv.y, float(view)), 0.0).rgb;
+#else
+    uint slice = view * 81u + light;
     uint a = slice / pc.dims.w;
     vec3 c = vec3(uv, float(slice - a * pc.dims.w));
     if (a == 0u) return textureLod(sampler2DArray(btf[0], tile_sampler), c, 0.0).rgb;
     if (a == 1u) return textureLod(sampler2DArray(btf[1], tile_sampler), c, 0.0).rgb;
     if (a == 2u) return textureLod(sampler2DArray(btf[2], tile_sampler), c, 0.0).rgb;
     return textureLod(sampler2DArray(btf[3], tile_sampler), c, 0.0).rgb;
+#endif
 }
 
 // Map texel of a tangent-space direction (z > 0): parabolic p = d.xy / (1 + d.z).
@@ -73,11 +85,14 @@ void main() {
             uvec3 il = texelFetch(index_map, tl, 0).xyz;
             vec3 wl = texelFetch(weight_map, tl, 0).xyz;
             vec3 c = vec3(0.0);
+            // Zero weights (virtual directions past 75 deg) are skipped. The loops stay
+            // loops: unrolled, the sampling code (inlined per call site on lavapipe) made
+            // the pass 3x slower.
             for (int a = 0; a < 3; a++) {
                 if (wv[a] == 0.0) continue;
                 for (int e = 0; e < 3; e++) {
                     if (wl[e] == 0.0) continue;
-                    c += (wv[a] * wl[e]) * tap(iv[a] * 81u + il[e], uv);
+                    c += (wv[a] * wl[e]) * tap(iv[a], il[e], uv);
                 }
             }
             sum += pc.light_rgb[i].rgb * c;
