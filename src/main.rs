@@ -1018,8 +1018,84 @@ fn cmd_btf(g: &Global, cmd: &BtfCommand) -> Result<()> {
 }
 
 fn cmd_bench_btf(g: &Global, opts: &BenchOpts, quick: bool) -> Result<()> {
-    let _ = (g, opts, quick);
-    Err(Error::InvalidArgument("bench btf: not built yet".into()))
+    use vkshade::bench::btf::{BtfBenchConfig, run};
+    for path in opts.json.iter() {
+        vkshade::io::check_writable(path)?;
+    }
+    let mut cfg = BtfBenchConfig {
+        bench: opts.config()?,
+        ..Default::default()
+    };
+    if quick {
+        cfg.resolutions = vec![256, 512];
+        cfg.map_resolutions = vec![32, 128];
+        cfg.tiles = vec![8, 32];
+        cfg.cpu_runs = 1;
+    }
+    let ctx = context(g)?;
+    eprintln!("bench btf on {}", ctx.info().name);
+    let r = run(&ctx, &cfg, &mut |l| progress(l))?;
+    let h = &r.headline;
+    println!("device                 {}", r.machine.device);
+    println!(
+        "headline               {}^2 sphere ({} px covered), map {}, tile {}, {} light(s), {:?}: {:.2} ms (median GPU) = {:.1} fps",
+        h.resolution,
+        h.covered_pixels,
+        h.map_resolution,
+        h.tile,
+        h.lights,
+        h.layout,
+        h.gpu_ms.median,
+        h.fps
+    );
+    println!(
+        "fetches                {:.1} M filtered taps/s = {:.1}% of the {:.1} M/s the fetch probe sustains",
+        h.taps_per_second / 1e6,
+        100.0 * h.fraction_of_fetch_rate,
+        r.probe_fetches_per_second / 1e6
+    );
+    println!(
+        "baseline               same interpolation on the CPU (f64, rayon) {:.1} ms: {:.2}x (speed-up of the GPU path)",
+        r.cpu_same_method_ms.median, r.speedup_vs_cpu
+    );
+    println!(
+        "texture memory         {:.2} MiB ({:?} layout, {} array(s) of {} layers of {}x{})",
+        h.texture_mib,
+        h.packing.layout,
+        h.packing.arrays,
+        h.packing.layers_per_array,
+        h.packing.layer_extent[0],
+        h.packing.layer_extent[1]
+    );
+    println!("sweep (resolution, map, tile, layout, lights: ms, fps, % of fetch rate, MiB)");
+    for p in &r.sweep {
+        println!(
+            "  {:>5} {:>4} {:>3} {:<7} {}: {:>9.2} ms {:>8.1} fps {:>6.1}% {:>7.2}",
+            p.resolution,
+            p.map_resolution,
+            p.tile,
+            format!("{:?}", p.layout),
+            p.lights,
+            p.gpu_ms.median,
+            p.fps,
+            100.0 * p.fraction_of_fetch_rate,
+            p.texture_mib
+        );
+    }
+    for t in &r.targets {
+        println!(
+            "target {:<58} {:>10.2} (target {}) {}",
+            t.name,
+            t.measured,
+            t.target,
+            if t.pass { "PASS" } else { "MISS" }
+        );
+    }
+    if let Some(path) = &opts.json {
+        vkshade::io::write_json(path, &r)?;
+        println!("wrote {}", path.display());
+    }
+    finish(ctx)
 }
 
 fn cmd_tree_build(

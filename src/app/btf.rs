@@ -196,19 +196,7 @@ pub struct RenderConfig {
     pub bench: crate::bench::BenchConfig,
 }
 
-/// The default lights of `btf render`: a warm key light and a dim cool grazing one.
-pub fn default_lights() -> Vec<Light> {
-    vec![
-        Light {
-            direction: Vec3::new(0.5, 0.8, 0.6),
-            rgb: [1.0, 0.95, 0.9],
-        },
-        Light {
-            direction: Vec3::new(-0.9, 0.1, 0.2),
-            rgb: [0.3, 0.35, 0.5],
-        },
-    ]
-}
+pub use crate::kernels::btf::gbuffer::default_lights;
 
 /// Errors against one reference.
 #[derive(Clone, Debug, Serialize)]

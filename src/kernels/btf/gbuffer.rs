@@ -326,3 +326,18 @@ pub fn frame_of(p: &Pixel) -> (DVec3, DVec3, DVec3) {
 pub fn to_tangent(w: DVec3, (t, b, n): (DVec3, DVec3, DVec3)) -> [f64; 3] {
     [w.dot(t), w.dot(b), w.dot(n)]
 }
+
+/// The default lights of `btf render` and `bench btf`: a warm key light and a dim cool
+/// grazing fill.
+pub fn default_lights() -> Vec<Light> {
+    vec![
+        Light {
+            direction: Vec3::new(0.5, 0.8, 0.6),
+            rgb: [1.0, 0.95, 0.9],
+        },
+        Light {
+            direction: Vec3::new(-0.9, 0.1, 0.2),
+            rgb: [0.3, 0.35, 0.5],
+        },
+    ]
+}
