@@ -308,8 +308,7 @@ fn directories_load_and_bad_ones_fail_clearly() {
     let dup = dir.join("copy tl045 pl040 tv030 pv060.png");
     std::fs::write(&dup, &saved).unwrap();
     let e = load::load_dir(&dir)
-        .err()
-        .expect("duplicate accepted")
+        .expect_err("duplicate accepted")
         .to_string();
     assert!(e.contains("same (light, view) pair"), "{e}");
     std::fs::remove_file(&dup).unwrap();
