@@ -313,6 +313,33 @@ fn directories_load_and_bad_ones_fail_clearly() {
     assert!(e.contains("same (light, view) pair"), "{e}");
     std::fs::remove_file(&dup).unwrap();
 
+    // The Bonn naming and format: running number, spaces, sRGB JPEG.
+    let bonn = temp_dir("btf-load").join("bonn");
+    std::fs::create_dir_all(&bonn).unwrap();
+    let d = vkshade::kernels::btf::dirs::directions();
+    for s in 0..6561 {
+        let (l, v) = (d[s % 81], d[s / 81]);
+        let rgb: Vec<u8> = btf
+            .image(s % 81, s / 81)
+            .iter()
+            .flat_map(|p| p.map(vkshade::kernels::btf::synth::srgb_encode))
+            .collect();
+        let name = format!(
+            "{s:05} tl{:03} pl{:03} tv{:03} pv{:03}.jpg",
+            l.theta, l.phi, v.theta, v.phi
+        );
+        image::save_buffer(bonn.join(name), &rgb, 4, 4, image::ExtendedColorType::Rgb8).unwrap();
+    }
+    let jpeg = load::load_dir(&bonn).unwrap();
+    let mae: f64 = jpeg
+        .texels
+        .iter()
+        .zip(&btf.texels)
+        .map(|(a, b)| (0..3).map(|i| (a[i] - b[i]).abs() as f64).sum::<f64>())
+        .sum::<f64>()
+        / (3 * btf.texels.len()) as f64;
+    assert!(mae < 0.03, "JPEG round trip: mean error {mae}");
+
     // Not a directory at all.
     let none = temp_dir("btf-load").join("absent");
     error_naming(&none, load::load_dir(&none));

@@ -3,8 +3,8 @@
 //! `00042 tl015 pl060 tv030 pv000.png` or `btf_tl015_pl060_tv030_pv000.exr`), and the
 //! repeating-tile finder that cuts one period out of a larger sample.
 //!
-//! PNG images are taken as sRGB-encoded and decoded to linear; EXR images are linear.
-//! (UBO2003 ships JPEG: convert those to PNG first; this build reads PNG and EXR.)
+//! PNG and JPEG images (UBO2003 ships sRGB JPEG) are taken as sRGB-encoded and decoded to
+//! linear; EXR images are linear.
 
 use super::dirs::{self, Angles};
 use super::synth::{Btf, srgb_decode};
@@ -50,7 +50,7 @@ fn is_image(path: &Path) -> bool {
     path.extension()
         .map(|e| {
             let e = e.to_string_lossy().to_ascii_lowercase();
-            e == "png" || e == "exr"
+            e == "png" || e == "exr" || e == "jpg" || e == "jpeg"
         })
         .unwrap_or(false)
 }
