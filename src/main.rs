@@ -225,10 +225,28 @@ enum BtfCommand {
         /// Tile side in texels.
         #[arg(long, default_value_t = 32)]
         size: u32,
+        /// Texels per pattern repeat (default: the size, one tile); a smaller period makes a
+        /// larger sample for `btf tile`.
+        #[arg(long)]
+        period: Option<u32>,
         /// Rays per texel along each axis.
         #[arg(long, default_value_t = 1)]
         samples: u32,
         /// png (8-bit sRGB) or exr (linear float).
+        #[arg(long, default_value = "png")]
+        format: vkshade::kernels::btf::synth::FileFormat,
+        #[arg(short = 'o', long)]
+        out: PathBuf,
+    },
+    /// Find the repeat period of a larger BTF sample (local minima of a 2D offset cost over
+    /// a few of its images) and write one tile of it as a new directory.
+    Tile {
+        #[arg(long)]
+        btf: PathBuf,
+        /// Texel where the tile starts (X,Y).
+        #[arg(long, default_value = "0,0")]
+        origin: String,
+        /// png (8-bit sRGB) or exr (linear float; slower to write).
         #[arg(long, default_value = "png")]
         format: vkshade::kernels::btf::synth::FileFormat,
         #[arg(short = 'o', long)]
@@ -891,6 +909,7 @@ fn cmd_btf(g: &Global, cmd: &BtfCommand) -> Result<()> {
         BtfCommand::Synth {
             pattern,
             size,
+            period,
             samples,
             format,
             out,
@@ -899,7 +918,7 @@ fn cmd_btf(g: &Global, cmd: &BtfCommand) -> Result<()> {
                 "synthesising {} x {size} x 6561 images of {pattern:?}",
                 size
             );
-            let m = btf::synth_command(*pattern, *size, *samples, *format, out)?;
+            let m = btf::synth_command(*pattern, *size, *period, *samples, *format, out)?;
             println!(
                 "wrote 6561 {} images of {size} x {size} texels ({:?}) and {} to {} in {:.1} s",
                 m.format,
@@ -907,6 +926,32 @@ fn cmd_btf(g: &Global, cmd: &BtfCommand) -> Result<()> {
                 btf::META,
                 out.display(),
                 m.ms / 1e3
+            );
+            Ok(())
+        }
+        BtfCommand::Tile {
+            btf: dir,
+            origin,
+            format,
+            out,
+        } => {
+            let bad = || Error::InvalidArgument(format!("--origin '{origin}': expected X,Y"));
+            let v: Vec<u32> = origin
+                .split(',')
+                .map(|x| x.trim().parse::<u32>().map_err(|_| bad()))
+                .collect::<Result<_>>()?;
+            let origin: [u32; 2] = v.as_slice().try_into().map_err(|_| bad())?;
+            let r = btf::tile_command(dir, origin, *format, out)?;
+            println!(
+                "{} x {} sample: repeat period {} x {} (cost {:.2e} against a median of {:.2e}); wrote the tile at {:?} to {}",
+                r.sample_size[0],
+                r.sample_size[1],
+                r.period.period[0],
+                r.period.period[1],
+                r.period.cost,
+                r.period.median_cost,
+                r.origin,
+                out.display()
             );
             Ok(())
         }

@@ -438,6 +438,38 @@ fn btf_synth_eval_render_write_their_files_and_refuse_bad_input() {
     ]);
     assert!(!ok && stderr.contains("/nonexistent/btf"), "{stderr}");
     assert!(!dir.join("none").join("report.json").exists());
+    // A larger sample repeating every 6 texels: `btf tile` finds the period and cuts a tile.
+    let sample = dir.join("weave12");
+    let (ok, stdout, stderr) = vkshade(&[
+        "btf",
+        "synth",
+        "--pattern",
+        "weave",
+        "--size",
+        "12",
+        "--period",
+        "6",
+        "-o",
+        sample.to_str().unwrap(),
+    ]);
+    assert!(ok, "{stdout}\n{stderr}");
+    let tile = dir.join("weave-tile");
+    let (ok, stdout, stderr) = vkshade(&[
+        "btf",
+        "tile",
+        "--btf",
+        sample.to_str().unwrap(),
+        "--origin",
+        "3,1",
+        "-o",
+        tile.to_str().unwrap(),
+    ]);
+    assert!(
+        ok && stdout.contains("repeat period 6 x 6"),
+        "{stdout}\n{stderr}"
+    );
+    let cut = vkshade::kernels::btf::load::load_dir(&tile).unwrap();
+    assert_eq!(cut.size, [6, 6]);
     let (ok, _, stderr) = vkshade(&["btf", "synth", "--pattern", "tweed", "-o", "x"]);
     assert!(!ok && stderr.contains("tweed"), "{stderr}");
     let _ = std::fs::remove_dir_all(&dir);

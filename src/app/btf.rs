@@ -32,16 +32,19 @@ pub struct SynthMeta {
     pub ms: f64,
 }
 
-/// Runs `vkshade btf synth`: synthesises a tile of `pattern` and writes it to `out`.
+/// Runs `vkshade btf synth`: synthesises `size` x `size` texels of `pattern` repeating every
+/// `period` texels (default: one tile, period = size) and writes them to `out`.
 pub fn synth_command(
     pattern: Pattern,
     size: u32,
+    period: Option<u32>,
     samples: u32,
     format: FileFormat,
     out: &Path,
 ) -> Result<SynthMeta> {
     let cfg = SynthConfig {
         samples,
+        period: period.unwrap_or(size),
         ..SynthConfig::tile(pattern, size)
     };
     cfg.check()?;
@@ -500,5 +503,33 @@ pub fn render(
         ],
     };
     crate::io::write_json(&report_path, &report)?;
+    Ok(report)
+}
+
+/// What `btf tile` reports.
+#[derive(Clone, Debug, Serialize)]
+pub struct TileReport {
+    pub sample_size: [u32; 2],
+    pub period: load::Period,
+    pub origin: [u32; 2],
+}
+
+/// Runs `vkshade btf tile`: finds the repeat period of the BTF sample in `dir` (local minima
+/// of the 2D offset cost) and writes one tile cut at `origin` as a new directory `out`.
+pub fn tile_command(
+    dir: &Path,
+    origin: [u32; 2],
+    format: FileFormat,
+    out: &Path,
+) -> Result<TileReport> {
+    let btf = load::load_dir(dir)?;
+    let period = load::find_period(&btf)?;
+    let tile = load::cut_tile(&btf, origin, period.period)?;
+    let report = TileReport {
+        sample_size: btf.size,
+        period,
+        origin,
+    };
+    synth::write_dir(&tile, out, format, &report)?;
     Ok(report)
 }

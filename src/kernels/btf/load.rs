@@ -93,6 +93,9 @@ fn read_image(path: &Path) -> Result<([u32; 2], Vec<[f32; 3]>)> {
     ))
 }
 
+/// Largest data set [`load_dir`] accepts, in bytes of linear f32 texels.
+pub const MAX_BYTES: u64 = 8 << 30;
+
 /// Loads the BTF in directory `dir`. Every one of the 81 x 81 (light, view) pairs must be
 /// present exactly once, all images the same size; files whose names carry no angles are
 /// ignored. Errors name the directory or the file and what is wrong.
@@ -153,10 +156,29 @@ pub fn load_dir(dir: &Path) -> Result<Btf> {
         ));
     }
     let paths: Vec<PathBuf> = slots.into_iter().flatten().collect();
-    let images: Vec<([u32; 2], Vec<[f32; 3]>)> = paths
-        .par_iter()
-        .map(|p| read_image(p))
-        .collect::<Result<_>>()?;
+    // The first image tells the size: refuse a data set that would not fit in memory as
+    // linear f32 before decoding all of it.
+    let first = read_image(&paths[0])?;
+    let bytes = 6561 * first.1.len() as u64 * 12;
+    if bytes > MAX_BYTES {
+        return Err(Error::input(
+            &paths[0],
+            format!(
+                "{} x {} texels per image: 6561 of them take {:.1} GiB as linear f32 (at most {} GiB); cut a repeating tile from a few images first",
+                first.0[0],
+                first.0[1],
+                bytes as f64 / (1u64 << 30) as f64,
+                MAX_BYTES >> 30
+            ),
+        ));
+    }
+    let mut images: Vec<([u32; 2], Vec<[f32; 3]>)> = vec![first];
+    images.extend(
+        paths[1..]
+            .par_iter()
+            .map(|p| read_image(p))
+            .collect::<Result<Vec<_>>>()?,
+    );
     let size = images[0].0;
     for (p, (s, _)) in paths.iter().zip(&images) {
         if *s != size {
