@@ -1064,6 +1064,11 @@ fn cmd_btf(g: &Global, cmd: &BtfCommand) -> Result<()> {
 
 fn cmd_bench_btf(g: &Global, opts: &BenchOpts, quick: bool) -> Result<()> {
     use vkshade::bench::btf::{BtfBenchConfig, run};
+    if opts.plot.is_some() {
+        return Err(Error::InvalidArgument(
+            "bench btf writes no plot yet (its sweeps are in the --json report)".into(),
+        ));
+    }
     for path in opts.json.iter() {
         vkshade::io::check_writable(path)?;
     }
