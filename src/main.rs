@@ -275,9 +275,10 @@ enum BtfCommand {
     Render {
         #[arg(long)]
         btf: PathBuf,
-        /// sphere, cylinder or plane.
+        /// sphere, cylinder, plane, or a mesh file with UVs (.glb/.gltf/.obj/.ply/.off;
+        /// centred, scaled to radius 1.2, uv x 8).
         #[arg(long, default_value = "sphere")]
-        object: vkshade::kernels::btf::gbuffer::Object,
+        object: String,
         /// A directional light X,Y,Z[,R,G,B] (towards the light, world space; y up, camera
         /// on +z); up to 2 (default: a warm key light and a cool grazing fill).
         #[arg(long)]
@@ -1006,9 +1007,17 @@ fn cmd_btf(g: &Global, cmd: &BtfCommand) -> Result<()> {
                     "--error-scale must be > 0, not {error_scale}"
                 )));
             }
+            let (shape, mesh) = match object.parse::<vkshade::kernels::btf::gbuffer::Object>() {
+                Ok(o) => (o, None),
+                Err(_) => (
+                    vkshade::kernels::btf::gbuffer::Object::Sphere,
+                    Some(PathBuf::from(object)),
+                ),
+            };
             let cfg = btf::RenderConfig {
                 btf: dir.clone(),
-                object: *object,
+                object: shape,
+                mesh,
                 lights,
                 width: *width,
                 height: *height,
@@ -1023,7 +1032,7 @@ fn cmd_btf(g: &Global, cmd: &BtfCommand) -> Result<()> {
             eprintln!("vkshade btf render on {}", ctx.info().name);
             let r = btf::render(&ctx, &cfg, &mut |l| progress(l))?;
             println!(
-                "{:?} {} x {} ({} px covered), {} x {} tile, map {}: {:.3} ms GPU (median) = {:.1} fps; BTF textures {:.2} MiB in {} array(s) of {} layers, maps {:.2} MiB",
+                "{} {} x {} ({} px covered), {} x {} tile, map {}: {:.3} ms GPU (median) = {:.1} fps; BTF textures {:.2} MiB in {} array(s) of {} layers, maps {:.2} MiB",
                 r.object,
                 r.size[0],
                 r.size[1],

@@ -400,3 +400,39 @@ fn bad_kernel_inputs_are_errors() {
         Ok(())
     });
 }
+
+#[test]
+fn a_mesh_with_uvs_is_shaded_like_the_cpu_and_one_without_is_refused() {
+    let (_, btf) = weave();
+    let maps = maps();
+    let frame = frame();
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/testwuson.glb");
+    let character = vkshade::scene::load(&path).unwrap();
+    let gbuffer = vkshade::kernels::btf::gbuffer::render_mesh(&character.mesh, 64, 64).unwrap();
+    assert!(gbuffer.covered() > 100, "{} px", gbuffer.covered());
+    let out = with_gpu(|ctx| run(ctx, btf, &maps, &gbuffer, &frame, Layout::Rows));
+    let packed = pack(btf);
+    let (want, ambiguous) = cpu::shade(
+        &cpu::Packed::new(btf.size, &packed),
+        &maps,
+        &gbuffer,
+        &frame,
+    );
+    let mut max: f64 = 0.0;
+    for k in 0..out.len() {
+        assert_eq!(out[k][3] as f64, want[k][3]);
+        if !ambiguous[k] {
+            for i in 0..3 {
+                max = max.max((out[k][i] as f64 - want[k][i]).abs());
+            }
+        }
+    }
+    assert!(max < GPU_CPU_BOUND, "|GPU - CPU| = {max}");
+    assert!(want.iter().filter(|c| c[0] > 0.01).count() > 50);
+    // The test ball has no texture coordinates.
+    let e = vkshade::kernels::btf::gbuffer::render_mesh(&common::ball().mesh, 8, 8)
+        .err()
+        .map(|e| e.to_string())
+        .unwrap_or_default();
+    assert!(e.contains("no texture coordinates"), "{e}");
+}

@@ -187,6 +187,8 @@ fn write_exr(path: &Path, img: &FloatImage) -> Result<()> {
 pub struct RenderConfig {
     pub btf: PathBuf,
     pub object: Object,
+    /// A mesh with UVs (glTF, OBJ, PLY, OFF) to cover instead of `object`.
+    pub mesh: Option<PathBuf>,
     pub lights: Vec<Light>,
     pub width: u32,
     pub height: u32,
@@ -266,7 +268,7 @@ pub struct RenderReport {
     pub machine: MachineInfo,
     pub btf: String,
     pub tile: [u32; 2],
-    pub object: Object,
+    pub object: String,
     pub size: [u32; 2],
     pub covered_pixels: usize,
     pub map_resolution: u32,
@@ -315,7 +317,14 @@ pub fn render(
         btf.size[1]
     ));
     let maps = Maps::build(&Triangulation::new()?, cfg.map_res)?;
-    let gb = gbuffer::render_object(cfg.object, cfg.width, cfg.height)?;
+    let gb = match &cfg.mesh {
+        Some(path) => {
+            let character = crate::scene::load(path)?;
+            gbuffer::render_mesh(&character.mesh, cfg.width, cfg.height)
+                .map_err(|e| Error::input(path, e.to_string()))?
+        }
+        None => gbuffer::render_object(cfg.object, cfg.width, cfg.height)?,
+    };
     let frame = Frame {
         camera: Camera::Perspective(Vec3::from(gbuffer::EYE)),
         lights: cfg.lights.clone(),
@@ -472,7 +481,10 @@ pub fn render(
         machine: MachineInfo::of(ctx),
         btf: cfg.btf.display().to_string(),
         tile: btf.size,
-        object: cfg.object,
+        object: match &cfg.mesh {
+            Some(p) => p.display().to_string(),
+            None => format!("{:?}", cfg.object).to_lowercase(),
+        },
         size: [cfg.width, cfg.height],
         covered_pixels: gb.covered(),
         map_resolution: cfg.map_res,

@@ -1,5 +1,6 @@
 //! The G-buffer the BTF pass shades (position, normal, tangent, uv per pixel), generated on
-//! the CPU by ray-casting analytic objects (a sphere, a cylinder, a tilted plane) from a
+//! the CPU by ray-casting analytic objects (a sphere, a cylinder, a tilted plane) or
+//! rasterising a mesh with UVs (`render_mesh`) from a
 //! pinhole camera, or a flat tile seen by an orthographic camera (`btf eval`); and the
 //! per-frame camera and lights.
 //!
@@ -340,4 +341,187 @@ pub fn default_lights() -> Vec<Light> {
             rgb: [0.3, 0.35, 0.5],
         },
     ]
+}
+
+/// Texture repeats per unit of a mesh's own uv in [`render_mesh`].
+pub const MESH_UV_SCALE: f64 = 8.0;
+
+/// The G-buffer of a mesh with UVs seen from the camera at [`EYE`]: the mesh is centred and
+/// scaled to a radius of 1.2; per pixel the nearest triangle (CPU z-buffer of triangle ids),
+/// then the pixel's ray intersected with it for exact barycentrics; normals interpolated,
+/// tangents per vertex from the UV gradients (Gram-Schmidt against the normal), uv scaled by
+/// [`MESH_UV_SCALE`].
+pub fn render_mesh(mesh: &crate::scene::Mesh, width: u32, height: u32) -> Result<GBuffer> {
+    if !(1..=8192).contains(&width) || !(1..=8192).contains(&height) {
+        return Err(Error::InvalidArgument(format!(
+            "image size {width} x {height} outside 1..=8192"
+        )));
+    }
+    let Some(uvs) = &mesh.uvs else {
+        return Err(Error::input(
+            &mesh.name,
+            "has no texture coordinates: a BTF needs uv and a tangent frame",
+        ));
+    };
+    let (lo, hi) = mesh.bounds();
+    let centre = ((lo + hi) * 0.5).as_dvec3();
+    let radius = mesh
+        .positions
+        .iter()
+        .map(|p| (p.as_dvec3() - centre).length())
+        .fold(0.0, f64::max)
+        .max(1e-12);
+    let scale = 1.2 / radius;
+    let pos: Vec<DVec3> = mesh
+        .positions
+        .iter()
+        .map(|p| (p.as_dvec3() - centre) * scale)
+        .collect();
+    let nrm: Vec<DVec3> = mesh.normals.iter().map(|n| n.as_dvec3()).collect();
+    let uv: Vec<[f64; 2]> = uvs.iter().map(|t| [t.x as f64, t.y as f64]).collect();
+    // Per-vertex tangents: accumulated dP/du of the triangles around each vertex.
+    let mut tan = vec![DVec3::ZERO; pos.len()];
+    for t in &mesh.triangles {
+        let [a, b, c] = t.map(|i| i as usize);
+        let (e1, e2) = (pos[b] - pos[a], pos[c] - pos[a]);
+        let (du1, dv1) = (uv[b][0] - uv[a][0], uv[b][1] - uv[a][1]);
+        let (du2, dv2) = (uv[c][0] - uv[a][0], uv[c][1] - uv[a][1]);
+        let det = du1 * dv2 - du2 * dv1;
+        if det.abs() < 1e-20 {
+            continue;
+        }
+        let dpdu = (e1 * dv2 - e2 * dv1) / det;
+        for v in [a, b, c] {
+            tan[v] += dpdu;
+        }
+    }
+    // Camera (as render_object).
+    let eye = DVec3::new(EYE[0] as f64, EYE[1] as f64, EYE[2] as f64);
+    let fwd = (-eye).normalize();
+    let right = fwd.cross(DVec3::Y).normalize();
+    let up = right.cross(fwd);
+    let tan_fov = (FOV_Y_DEG.to_radians() / 2.0).tan();
+    let aspect = width as f64 / height as f64;
+    let (w, h) = (width as usize, height as usize);
+    // Z-buffer of triangle ids (screen-space depth, for visibility only).
+    let mut depth = vec![f64::INFINITY; w * h];
+    let mut id = vec![u32::MAX; w * h];
+    let project = |p: DVec3| {
+        let q = p - eye;
+        let z = q.dot(fwd);
+        let x = q.dot(right) / (z * tan_fov * aspect);
+        let y = q.dot(up) / (z * tan_fov);
+        [
+            (x + 1.0) * 0.5 * width as f64,
+            (1.0 - y) * 0.5 * height as f64,
+            z,
+        ]
+    };
+    for (ti, t) in mesh.triangles.iter().enumerate() {
+        let s = t.map(|i| project(pos[i as usize]));
+        if s.iter().any(|p| p[2] <= 1e-6) {
+            continue;
+        }
+        let x0 = s
+            .iter()
+            .map(|p| p[0])
+            .fold(f64::INFINITY, f64::min)
+            .floor()
+            .max(0.0) as usize;
+        let x1 = s
+            .iter()
+            .map(|p| p[0])
+            .fold(f64::NEG_INFINITY, f64::max)
+            .ceil()
+            .min(width as f64) as usize;
+        let y0 = s
+            .iter()
+            .map(|p| p[1])
+            .fold(f64::INFINITY, f64::min)
+            .floor()
+            .max(0.0) as usize;
+        let y1 = s
+            .iter()
+            .map(|p| p[1])
+            .fold(f64::NEG_INFINITY, f64::max)
+            .ceil()
+            .min(height as f64) as usize;
+        let edge = |a: [f64; 3], b: [f64; 3], x: f64, y: f64| {
+            (b[0] - a[0]) * (y - a[1]) - (b[1] - a[1]) * (x - a[0])
+        };
+        let area = edge(s[0], s[1], s[2][0], s[2][1]);
+        if area.abs() < 1e-12 {
+            continue;
+        }
+        for y in y0..y1 {
+            for x in x0..x1 {
+                let (px, py) = (x as f64 + 0.5, y as f64 + 0.5);
+                let b0 = edge(s[1], s[2], px, py) / area;
+                let b1 = edge(s[2], s[0], px, py) / area;
+                let b2 = 1.0 - b0 - b1;
+                if b0 < 0.0 || b1 < 0.0 || b2 < 0.0 {
+                    continue;
+                }
+                let z = b0 * s[0][2] + b1 * s[1][2] + b2 * s[2][2];
+                let k = y * w + x;
+                if z < depth[k] {
+                    depth[k] = z;
+                    id[k] = ti as u32;
+                }
+            }
+        }
+    }
+    let mut texels = Vec::with_capacity(3 * w * h);
+    for k in 0..w * h {
+        let (x, y) = (k % w, k / w);
+        let g = (|| {
+            let ti = *id.get(k).filter(|&&i| i != u32::MAX)?;
+            let [a, b, c] = mesh.triangles[ti as usize].map(|i| i as usize);
+            let sx = ((x as f64 + 0.5) / width as f64 * 2.0 - 1.0) * tan_fov * aspect;
+            let sy = (1.0 - (y as f64 + 0.5) / height as f64 * 2.0) * tan_fov;
+            let d = (fwd + right * sx + up * sy).normalize();
+            // Barycentrics of the ray's hit on the triangle's plane (Moller-Trumbore).
+            let (e1, e2) = (pos[b] - pos[a], pos[c] - pos[a]);
+            let pv = d.cross(e2);
+            let det = e1.dot(pv);
+            if det.abs() < 1e-18 {
+                return None;
+            }
+            let tv = eye - pos[a];
+            let u = (tv.dot(pv) / det).clamp(0.0, 1.0);
+            let qv = tv.cross(e1);
+            let v = (d.dot(qv) / det).clamp(0.0, 1.0 - u);
+            let t = e2.dot(qv) / det;
+            let w0 = 1.0 - u - v;
+            let p = eye + d * t;
+            let mut n = (nrm[a] * w0 + nrm[b] * u + nrm[c] * v).normalize_or_zero();
+            if n == DVec3::ZERO {
+                n = e1.cross(e2).normalize();
+            }
+            if n.dot(d) > 0.0 {
+                n = -n; // seen from behind: shade the side facing the camera
+            }
+            let tg = tan[a] * w0 + tan[b] * u + tan[c] * v;
+            let mut tg = tg - n * n.dot(tg);
+            if tg.length_squared() < 1e-24 {
+                tg = n.any_orthonormal_vector();
+            }
+            let tx = [
+                uv[a][0] * w0 + uv[b][0] * u + uv[c][0] * v,
+                uv[a][1] * w0 + uv[b][1] * u + uv[c][1] * v,
+            ]
+            .map(|x| x * MESH_UV_SCALE);
+            Some([
+                [p.x as f32, p.y as f32, p.z as f32, 1.0],
+                [n.x as f32, n.y as f32, n.z as f32, tx[0] as f32],
+                [tg.x as f32, tg.y as f32, tg.z as f32, tx[1] as f32],
+            ])
+        })();
+        texels.extend(g.unwrap_or([[0.0; 4]; 3]));
+    }
+    Ok(GBuffer {
+        width,
+        height,
+        texels,
+    })
 }
