@@ -266,6 +266,10 @@ enum BtfCommand {
         /// Index/weight map resolution.
         #[arg(long, default_value_t = 128)]
         map_res: u32,
+        /// Texel format of the packed BTF: bc1 (4x4 blocks, 8x smaller; needs
+        /// textureCompressionBC) or rgba8.
+        #[arg(long, default_value = "rgba8")]
+        texture: vkshade::kernels::btf::gpu::Texture,
         #[arg(short = 'o', long)]
         out: PathBuf,
     },
@@ -290,9 +294,14 @@ enum BtfCommand {
         #[arg(long, default_value_t = 128)]
         map_res: u32,
         /// Texture layout: rows (one 81-layer array, images side by side with gutters) or
-        /// layers (one image per layer, split over arrays of maxImageArrayLayers).
-        #[arg(long, default_value = "rows")]
-        layout: vkshade::kernels::btf::gpu::Layout,
+        /// layers (one image per layer, split over arrays of maxImageArrayLayers). Default:
+        /// rows for rgba8, layers for bc1 (which needs it).
+        #[arg(long)]
+        layout: Option<vkshade::kernels::btf::gpu::Layout>,
+        /// Texel format of the packed BTF: bc1 (4x4 blocks, 8x smaller; needs
+        /// textureCompressionBC) or rgba8.
+        #[arg(long, default_value = "rgba8")]
+        texture: vkshade::kernels::btf::gpu::Texture,
         /// Compare with the f64 CPU interpolation and with the heightfield ray-cast at the
         /// exact directions (needs the btf.json of `btf synth`).
         #[arg(long)]
@@ -371,6 +380,10 @@ enum BenchCommand {
         /// Smaller sweeps (for a quick check).
         #[arg(long)]
         quick: bool,
+        /// Texel format of the headline and sweeps (the headline is also measured in the
+        /// other format when the device supports BC1).
+        #[arg(long, default_value = "rgba8")]
+        texture: vkshade::kernels::btf::gpu::Texture,
     },
 }
 
@@ -430,11 +443,28 @@ enum ShaderCommand {
 }
 
 fn context(g: &Global) -> Result<Context> {
+    context_with(g, vkshade::gpu::Features::default())
+}
+
+/// A context with optional device features (an error naming a missing one).
+fn context_with(g: &Global, features: vkshade::gpu::Features) -> Result<Context> {
     Context::new(&ContextDesc {
         device: g.device.clone(),
         validation: g.validate.then(ValidationConfig::default),
+        features,
         ..ContextDesc::default()
     })
+}
+
+/// The context a BTF command storing its texture as `texture` needs.
+fn btf_context(g: &Global, texture: vkshade::kernels::btf::gpu::Texture) -> Result<Context> {
+    context_with(
+        g,
+        vkshade::gpu::Features {
+            texture_compression_bc: texture == vkshade::kernels::btf::gpu::Texture::Bc1,
+            ..Default::default()
+        },
+    )
 }
 
 /// A progress line on stderr (without breaking a progress counter being drawn).
@@ -961,10 +991,11 @@ fn cmd_btf(g: &Global, cmd: &BtfCommand) -> Result<()> {
             light,
             view,
             map_res,
+            texture,
             out,
         } => {
-            let ctx = context(g)?;
-            let r = btf::eval_command(&ctx, dir, *light, *view, *map_res, out)?;
+            let ctx = btf_context(g, *texture)?;
+            let r = btf::eval_command(&ctx, dir, *light, *view, *map_res, *texture, out)?;
             let taps = |t: &[(vkshade::kernels::btf::dirs::Angles, f64)]| {
                 t.iter()
                     .map(|(a, w)| format!("({},{}) x {w:.3}", a.theta, a.phi))
@@ -990,6 +1021,7 @@ fn cmd_btf(g: &Global, cmd: &BtfCommand) -> Result<()> {
             height,
             map_res,
             layout,
+            texture,
             reference,
             error_scale,
             out,
@@ -1022,13 +1054,14 @@ fn cmd_btf(g: &Global, cmd: &BtfCommand) -> Result<()> {
                 width: *width,
                 height: *height,
                 map_res: *map_res,
-                layout: *layout,
+                layout: layout.unwrap_or(texture.default_layout()),
+                texture: *texture,
                 reference: *reference,
                 error_scale: *error_scale,
                 out: out.clone(),
                 bench: BenchConfig::default(),
             };
-            let ctx = context(g)?;
+            let ctx = btf_context(g, *texture)?;
             eprintln!("vkshade btf render on {}", ctx.info().name);
             let r = btf::render(&ctx, &cfg, &mut |l| progress(l))?;
             println!(
@@ -1071,7 +1104,12 @@ fn cmd_btf(g: &Global, cmd: &BtfCommand) -> Result<()> {
     }
 }
 
-fn cmd_bench_btf(g: &Global, opts: &BenchOpts, quick: bool) -> Result<()> {
+fn cmd_bench_btf(
+    g: &Global,
+    opts: &BenchOpts,
+    quick: bool,
+    texture: vkshade::kernels::btf::gpu::Texture,
+) -> Result<()> {
     use vkshade::bench::btf::{BtfBenchConfig, run};
     if opts.plot.is_some() {
         return Err(Error::InvalidArgument(
@@ -1091,7 +1129,17 @@ fn cmd_bench_btf(g: &Global, opts: &BenchOpts, quick: bool) -> Result<()> {
         cfg.tiles = vec![8, 32];
         cfg.cpu_runs = 1;
     }
-    let ctx = context(g)?;
+    cfg.texture = texture;
+    // BC1 needs textureCompressionBC: without it an rgba8 run skips the bc1 comparison.
+    let ctx = match btf_context(g, vkshade::kernels::btf::gpu::Texture::Bc1) {
+        Ok(ctx) => ctx,
+        Err(e) if texture == vkshade::kernels::btf::gpu::Texture::Rgba8 => {
+            eprintln!("bench btf: no BC1 comparison ({e})");
+            cfg.bc1_available = false;
+            context(g)?
+        }
+        Err(e) => return Err(e),
+    };
     eprintln!("bench btf on {}", ctx.info().name);
     let r = run(&ctx, &cfg, &mut |l| progress(l))?;
     let h = &r.headline;
@@ -1126,6 +1174,16 @@ fn cmd_bench_btf(g: &Global, opts: &BenchOpts, quick: bool) -> Result<()> {
         h.packing.layer_extent[0],
         h.packing.layer_extent[1]
     );
+    for p in &r.formats {
+        println!(
+            "format {:<6} {:<7}  {:.2} ms = {:.1} fps, {:.2} MiB of texture",
+            format!("{:?}", p.texture).to_lowercase(),
+            format!("{:?}", p.layout),
+            p.gpu_ms.median,
+            p.fps,
+            p.texture_mib
+        );
+    }
     println!("sweep (resolution, map, tile, layout, lights: ms, fps, % of fetch rate, MiB)");
     for p in &r.sweep {
         println!(
@@ -1251,9 +1309,11 @@ fn main() -> ExitCode {
         Command::Mesh(MeshCommand::Info { mesh }) => cmd_mesh_info(mesh),
         Command::Srbf(cmd) => cmd_srbf(&cli.global, cmd),
         Command::Btf(cmd) => cmd_btf(&cli.global, cmd),
-        Command::Bench(BenchCommand::Btf { opts, quick }) => {
-            cmd_bench_btf(&cli.global, opts, *quick)
-        }
+        Command::Bench(BenchCommand::Btf {
+            opts,
+            quick,
+            texture,
+        }) => cmd_bench_btf(&cli.global, opts, *quick, *texture),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

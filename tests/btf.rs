@@ -4,14 +4,16 @@
 
 mod common;
 
-use common::{error_naming, temp_dir, with_gpu};
+use common::{error_naming, temp_dir, with_gpu, with_gpu_features};
 use glam::Vec3;
 use std::sync::OnceLock;
 use vkshade::gpu::ImageRegion;
 use vkshade::kernels::Kernel;
 use vkshade::kernels::btf::dirs::{Maps, Triangulation};
 use vkshade::kernels::btf::gbuffer::{Camera, Frame, GBuffer, Light, Object, render_object};
-use vkshade::kernels::btf::gpu::{BtfInputs, BtfKernel, Layout, pack};
+use vkshade::kernels::btf::gpu::{
+    BtfInputs, BtfKernel, Layout, Texture, encode_bc1, pack, sampled_texels,
+};
 use vkshade::kernels::btf::synth::{Btf, FileFormat, Pattern, SynthConfig, synthesize, write_dir};
 use vkshade::kernels::btf::{cpu, load};
 
@@ -52,7 +54,7 @@ fn run(
     maps: &Maps,
     gbuffer: &GBuffer,
     frame: &Frame,
-    layout: Layout,
+    (texture, layout): (Texture, Layout),
 ) -> vkshade::Result<Vec<[f32; 4]>> {
     let mut rec = ctx.recorder("btf test")?;
     let k = BtfKernel::new(
@@ -62,6 +64,7 @@ fn run(
             maps,
             gbuffer,
             layout,
+            texture,
             layer_cap: None,
         },
     )?;
@@ -93,6 +96,7 @@ fn packing_round_trips_through_the_array_textures() {
                     maps: &maps,
                     gbuffer: &gbuffer,
                     layout,
+                    texture: Texture::Rgba8,
                     layer_cap: cap,
                 },
             )?;
@@ -135,6 +139,86 @@ fn packing_round_trips_through_the_array_textures() {
         }
         Ok(())
     });
+    // BC1: the blocks come back as encoded, 8 bytes per 4 x 4 texels.
+    with_gpu_features(BC, |ctx| {
+        let mut rec = ctx.recorder("btf packing bc1")?;
+        let k = BtfKernel::new(
+            &mut rec,
+            &BtfInputs {
+                btf,
+                maps: &maps,
+                gbuffer: &gbuffer,
+                layout: Layout::Layers,
+                texture: Texture::Bc1,
+                layer_cap: Some(1700),
+            },
+        )?;
+        let rbs: Vec<_> = k
+            .arrays()
+            .iter()
+            .map(|a| rec.read_back_image(a, ImageRegion::whole(a.desc())))
+            .collect::<vkshade::Result<_>>()?;
+        rec.submit_and_wait()?;
+        let mut back = Vec::new();
+        for rb in rbs {
+            back.extend(rb.bytes()?);
+        }
+        let want = encode_bc1(btf);
+        assert_eq!(want.len(), 6561 * 4 * 8);
+        assert!(back == want, "BC1 blocks differ after the round trip");
+        assert!(k.texture_bytes() >= want.len() as u64);
+        // Rows: 4-texel (one block) gutters; decoded, every layer is the arrangement of the
+        // per-image decoded BC1 texels the CPU twin reads (gutter blocks are copies of the
+        // image's edge blocks, interior blocks those of the per-image encoding).
+        let mut rec = ctx.recorder("btf packing bc1 rows")?;
+        let k = BtfKernel::new(
+            &mut rec,
+            &BtfInputs {
+                btf,
+                maps: &maps,
+                gbuffer: &gbuffer,
+                layout: Layout::Rows,
+                texture: Texture::Bc1,
+                layer_cap: None,
+            },
+        )?;
+        let p = k.packing();
+        assert_eq!((p.gutter, p.layer_extent), (4, [81 * 16, 8]));
+        let rb = rec.read_back_image(&k.arrays()[0], ImageRegion::whole(k.arrays()[0].desc()))?;
+        rec.submit_and_wait()?;
+        let back = rb.bytes()?;
+        assert_eq!(back.len() as u64, p.bytes());
+        let [lw, lh] = p.layer_extent;
+        let decoded: Vec<u8> = back
+            .chunks(p.layer_bytes())
+            .flat_map(|l| vkshade::io::bc1::decode_image(lw, lh, l))
+            .collect();
+        assert!(
+            decoded == p.arrange(&sampled_texels(btf, Texture::Bc1)),
+            "BC1 rows layout differs from the per-image decoded texels"
+        );
+        Ok(())
+    });
+    // Without textureCompressionBC the error names the feature.
+    with_gpu(|ctx| {
+        let mut rec = ctx.recorder("btf bc1 without feature")?;
+        let e = BtfKernel::new(
+            &mut rec,
+            &BtfInputs {
+                btf,
+                maps: &maps,
+                gbuffer: &gbuffer,
+                layout: Layout::Layers,
+                texture: Texture::Bc1,
+                layer_cap: None,
+            },
+        )
+        .err()
+        .expect("bc1 without the feature is refused");
+        assert!(e.to_string().contains("textureCompressionBC"), "{e}");
+        drop(rec);
+        Ok(())
+    });
 }
 
 /// Largest difference between GPU and the f64 CPU interpolation allowed: the sampler's
@@ -143,22 +227,48 @@ fn packing_round_trips_through_the_array_textures() {
 /// |GPU - CPU| <= 2 * 2^-9 * (max texel) + decode + f32 rounding < 5e-3 per light of
 /// strength 1. Measured on lavapipe: 1.2e-3 (two lights, sums up to ~1.3).
 const GPU_CPU_BOUND: f64 = 5e-3;
+/// BC1: the device may round the palette's 1/3 and 2/3 entries one 8-bit step away from
+/// io::bc1's decoder (bc1::PALETTE_TOLERANCE), at most srgb(255) - srgb(254) = 4.5e-3 in
+/// linear per texel; over taps whose weights sum to 1, per light of strength 1, added to
+/// the RGBA8 bound (the two lights here sum to < 2): 5e-3 + 2 * 4.5e-3.
+const GPU_CPU_BOUND_BC1: f64 = 1.4e-2;
+
+const BC: vkshade::gpu::Features = vkshade::gpu::Features {
+    shader_float16: false,
+    shader_int16: false,
+    storage_16bit: false,
+    shader_float64: false,
+    sampler_anisotropy: false,
+    texture_compression_bc: true,
+};
 
 #[test]
 fn gpu_matches_the_cpu_interpolation_and_the_direct_ray_cast() {
     let (cfg, btf) = weave();
     let maps = maps();
     let frame = frame();
-    for (object, layout) in [
-        (Object::Sphere, Layout::Rows),
-        (Object::Sphere, Layout::Layers),
-        (Object::Cylinder, Layout::Rows),
-        (Object::Plane, Layout::Rows),
+    for (object, texture, layout) in [
+        (Object::Sphere, Texture::Rgba8, Layout::Rows),
+        (Object::Sphere, Texture::Rgba8, Layout::Layers),
+        (Object::Sphere, Texture::Bc1, Layout::Rows),
+        (Object::Sphere, Texture::Bc1, Layout::Layers),
+        (Object::Cylinder, Texture::Rgba8, Layout::Rows),
+        (Object::Plane, Texture::Rgba8, Layout::Rows),
     ] {
         let gbuffer = render_object(object, 48, 40).unwrap();
         assert!(gbuffer.covered() > 300, "{object:?} covers too little");
-        let out = with_gpu(|ctx| run(ctx, btf, &maps, &gbuffer, &frame, layout));
-        let packed = pack(btf);
+        let run =
+            |ctx: &vkshade::gpu::Context| run(ctx, btf, &maps, &gbuffer, &frame, (texture, layout));
+        let out = match texture {
+            Texture::Rgba8 => with_gpu(run),
+            Texture::Bc1 => with_gpu_features(BC, run),
+        };
+        // The texels the GPU samples (BC1: the encoding decoded again).
+        let packed = sampled_texels(btf, texture);
+        let bound = match texture {
+            Texture::Rgba8 => GPU_CPU_BOUND,
+            Texture::Bc1 => GPU_CPU_BOUND_BC1,
+        };
         let (want, ambiguous) = cpu::shade(
             &cpu::Packed::new(btf.size, &packed),
             &maps,
@@ -183,7 +293,7 @@ fn gpu_matches_the_cpu_interpolation_and_the_direct_ray_cast() {
             compared + 20 > gbuffer.covered(),
             "too many ambiguous pixels"
         );
-        assert!(max < GPU_CPU_BOUND, "{object:?}: |GPU - CPU| = {max}");
+        assert!(max < bound, "{object:?} {texture:?}: |GPU - CPU| = {max}");
 
         // Against the heightfield ray-cast at each pixel's exact directions.
         let (truth, theta) = vkshade::reference::btf::ray_cast(cfg, &gbuffer, &frame);
@@ -200,7 +310,7 @@ fn gpu_matches_the_cpu_interpolation_and_the_direct_ray_cast() {
         }
         let psnr = |b: usize| 10.0 * (1.0 / (se[b] / n[b] as f64)).log10();
         eprintln!(
-            "{object:?} {layout:?}: |GPU - CPU| max {max:.2e}; PSNR vs ray-cast {:.1} dB ({} px <= 75 deg), {:.1} dB ({} px grazing)",
+            "{object:?} {texture:?} {layout:?}: |GPU - CPU| max {max:.2e}; PSNR vs ray-cast {:.1} dB ({} px <= 75 deg), {:.1} dB ({} px grazing)",
             psnr(0),
             n[0] / 3,
             psnr(1),
@@ -227,7 +337,16 @@ fn eval_tile_at_sample_directions_is_the_stored_image() {
         }],
     };
     let gbuffer = GBuffer::tile(btf.size);
-    let out = with_gpu(|ctx| run(ctx, btf, &maps, &gbuffer, &frame, Layout::Rows));
+    let out = with_gpu(|ctx| {
+        run(
+            ctx,
+            btf,
+            &maps,
+            &gbuffer,
+            &frame,
+            (Texture::Rgba8, Layout::Rows),
+        )
+    });
     let img = btf.image(li, vi);
     let wv = maps.lookup(d[vi].vector());
     let on_self: f64 = (0..3)
@@ -364,6 +483,7 @@ fn bad_kernel_inputs_are_errors() {
                 maps: &maps,
                 gbuffer: &gbuffer,
                 layout: Layout::Rows,
+                texture: Texture::Rgba8,
                 layer_cap: None,
             },
         );
@@ -376,6 +496,7 @@ fn bad_kernel_inputs_are_errors() {
                 maps: &maps,
                 gbuffer: &gbuffer,
                 layout: Layout::Layers,
+                texture: Texture::Rgba8,
                 layer_cap: Some(1000),
             },
         );
@@ -388,6 +509,7 @@ fn bad_kernel_inputs_are_errors() {
                 maps: &maps,
                 gbuffer: &gbuffer,
                 layout: Layout::Rows,
+                texture: Texture::Rgba8,
                 layer_cap: None,
             },
         )?;
@@ -410,7 +532,16 @@ fn a_mesh_with_uvs_is_shaded_like_the_cpu_and_one_without_is_refused() {
     let character = vkshade::scene::load(&path).unwrap();
     let gbuffer = vkshade::kernels::btf::gbuffer::render_mesh(&character.mesh, 64, 64).unwrap();
     assert!(gbuffer.covered() > 100, "{} px", gbuffer.covered());
-    let out = with_gpu(|ctx| run(ctx, btf, &maps, &gbuffer, &frame, Layout::Rows));
+    let out = with_gpu(|ctx| {
+        run(
+            ctx,
+            btf,
+            &maps,
+            &gbuffer,
+            &frame,
+            (Texture::Rgba8, Layout::Rows),
+        )
+    });
     let packed = pack(btf);
     let (want, ambiguous) = cpu::shade(
         &cpu::Packed::new(btf.size, &packed),

@@ -8,7 +8,7 @@
 // Layout "layers": the image of (light l, view v) is slice s = v * 81 + l, in array
 // texture s / layers_per_array at layer s % layers_per_array; the tile repeats in uv
 // (REPEAT). Layout "rows": layer v holds the 81 light images side by side, each with a
-// one-texel wrapped gutter left and right, so bilinear filtering stays inside the image;
+// wrapped gutter (1 texel; 4 for BC1) left and right, so bilinear filtering stays inside the image;
 // REPEAT wraps v. Texels are sRGB: the sampler decodes to linear before filtering.
 layout(local_size_x = 8, local_size_y = 8) in;
 
@@ -19,7 +19,7 @@ layout(push_constant) uniform Push {
     vec4 light_dir[MAX_LIGHTS]; // xyz: unit direction towards the light (world)
     vec4 light_rgb[MAX_LIGHTS]; // rgb: its strength
     uvec4 dims;                 // width, height, lights, layers per array
-    uvec4 layout_info;          // y: tile width; z: layer width (x, w unused)
+    uvec4 layout_info;          // x: gutter; y: tile width; z: layer width (w unused)
 } pc;
 
 layout(set = 0, binding = 0) uniform texture2DArray btf[4];
@@ -32,9 +32,11 @@ layout(std430, set = 0, binding = 5) writeonly buffer Result { vec4 v[]; } resul
 
 vec3 tap(uint view, uint light, vec2 uv) {
 #if BTF_ROWS
-        // Rows: image `light` of layer `view` starts at texel light * (w + 2) + 1.
+        // Rows: image `light` of layer `view` starts at texel light * (w + 2 g) + g, with
+        // g = layout_info.x wrapped columns each side (1 for RGBA8, 4 for BC1 blocks).
         float w = float(pc.layout_info.y);
-        float x = float(light) * (w + 2.0) + 1.0 + fract(uv.x) * w;
+        float g = float(pc.layout_info.x);
+        float x = float(light) * (w + 2.0 * g) + g + fract(uv.x) * w;
         return textureLod(sampler2DArray(btf[0], tile_sampler),
                           vec3(x / float(pc.layout_info.z), uv.y, float(view)), 0.0).rgb;
 #else

@@ -8,7 +8,9 @@ use crate::io::FloatImage;
 use crate::kernels::btf::cpu;
 use crate::kernels::btf::dirs::{self, Angles, Maps, Triangulation};
 use crate::kernels::btf::gbuffer::{self, Camera, Frame, GBuffer, Light, Object};
-use crate::kernels::btf::gpu::{BtfInputs, BtfKernel, Layout, PASS_SHADE, Packing, pack};
+use crate::kernels::btf::gpu::{
+    BtfInputs, BtfKernel, Layout, PASS_SHADE, Packing, Texture, sampled_texels,
+};
 use crate::kernels::btf::load;
 use crate::kernels::btf::synth::{self, FileFormat, Pattern, SynthConfig, srgb_encode};
 use crate::kernels::shape::time_passes;
@@ -117,6 +119,7 @@ pub fn eval_command(
     light: [f64; 2],
     view: [f64; 2],
     map_res: u32,
+    texture: Texture,
     out: &Path,
 ) -> Result<EvalReport> {
     crate::io::check_writable(out)?;
@@ -137,7 +140,8 @@ pub fn eval_command(
             btf: &btf,
             maps: &maps,
             gbuffer: &gb,
-            layout: Layout::Rows,
+            layout: texture.default_layout(),
+            texture,
             layer_cap: None,
         },
     )?;
@@ -194,6 +198,7 @@ pub struct RenderConfig {
     pub height: u32,
     pub map_res: u32,
     pub layout: Layout,
+    pub texture: Texture,
     pub reference: bool,
     /// Error at the top of the heat map.
     pub error_scale: f32,
@@ -274,6 +279,8 @@ pub struct RenderReport {
     pub map_resolution: u32,
     pub lights: Vec<[f32; 6]>,
     pub packing: Packing,
+    /// The texel format of the packed BTF (rgba8 or bc1).
+    pub texture: Texture,
     /// Device bytes of the packed BTF (array textures) and of the two maps.
     pub texture_bytes: u64,
     pub texture_mib: f64,
@@ -338,6 +345,7 @@ pub fn render(
             maps: &maps,
             gbuffer: &gb,
             layout: cfg.layout,
+            texture: cfg.texture,
             layer_cap: None,
         },
     )?;
@@ -356,7 +364,8 @@ pub fn render(
     let mut vs_ray_cast = None;
     let mut truth_px = None;
     if let Some(meta) = &meta {
-        let packed = pack(&btf);
+        // The texels the GPU samples (for BC1: encoded and decoded again, see io::bc1).
+        let packed = sampled_texels(&btf, cfg.texture);
         let t = Instant::now();
         let (want, ambiguous) =
             cpu::shade(&cpu::Packed::new(btf.size, &packed), &maps, &gb, &frame);
@@ -497,6 +506,7 @@ pub fn render(
             })
             .collect(),
         packing: kernel.packing(),
+        texture: kernel.texture(),
         texture_bytes,
         texture_mib: texture_bytes as f64 / (1u64 << 20) as f64,
         map_bytes: kernel.map_bytes(),

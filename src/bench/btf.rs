@@ -16,7 +16,9 @@ use crate::gpu::{
 use crate::kernels::btf::cpu;
 use crate::kernels::btf::dirs::{self, Maps, Triangulation};
 use crate::kernels::btf::gbuffer::{Camera, EYE, Frame, GBuffer, Light, Object, render_object};
-use crate::kernels::btf::gpu::{BtfInputs, BtfKernel, FORMAT, Layout, Packing, pack};
+use crate::kernels::btf::gpu::{
+    BtfInputs, BtfKernel, FORMAT, Layout, Packing, Texture, pack, sampled_texels,
+};
 use crate::kernels::btf::synth::Btf;
 use crate::kernels::shape::time_passes;
 use glam::Vec3;
@@ -36,6 +38,11 @@ pub struct BtfBenchConfig {
     pub cpu_runs: usize,
     /// Fetches per invocation of the probe.
     pub probe_fetches: u32,
+    /// Texel format of the headline and sweeps (at its default layout).
+    pub texture: Texture,
+    /// Whether the device may store BC1 (the context has textureCompressionBC): the
+    /// headline is then also measured in the other format.
+    pub bc1_available: bool,
 }
 
 impl Default for BtfBenchConfig {
@@ -49,6 +56,8 @@ impl Default for BtfBenchConfig {
             object: Object::Sphere,
             cpu_runs: 3,
             probe_fetches: 16,
+            texture: Texture::Rgba8,
+            bc1_available: true,
         }
     }
 }
@@ -60,6 +69,7 @@ pub struct Point {
     pub map_resolution: u32,
     pub tile: u32,
     pub layout: Layout,
+    pub texture: Texture,
     pub lights: usize,
     pub covered_pixels: usize,
     pub gpu_ms: Stats,
@@ -85,6 +95,9 @@ pub struct BtfBenchReport {
     pub probe_fetches_per_second: f64,
     pub probe_ms: Stats,
     pub headline: Point,
+    /// The headline configuration in each texel format the device can store (rgba8 at the
+    /// rows layout, bc1 at the layers layout), measured in this run.
+    pub formats: Vec<Point>,
     /// The same 9-tap interpolation on the CPU (f64, rayon), headline configuration.
     pub cpu_same_method_ms: Stats,
     pub speedup_vs_cpu: f64,
@@ -157,7 +170,7 @@ fn measure(
     cfg: &BtfBenchConfig,
     btf: &Btf,
     setup: &Setup,
-    layout: Layout,
+    (texture, layout): (Texture, Layout),
     lights: usize,
     probe_rate: f64,
 ) -> Result<Point> {
@@ -169,6 +182,7 @@ fn measure(
             maps: &setup.maps,
             gbuffer: &setup.gb,
             layout,
+            texture,
             layer_cap: None,
         },
     )?;
@@ -183,6 +197,7 @@ fn measure(
         map_resolution: setup.maps.res,
         tile: btf.size[0],
         layout,
+        texture,
         lights,
         covered_pixels: setup.gb.covered(),
         fps: 1000.0 / gpu_ms.median,
@@ -280,15 +295,29 @@ pub fn run(
         probe_ms.median
     ));
     let head_setup = setup(res, map_res)?;
-    let headline = measure(
-        ctx,
-        cfg,
-        &head_btf,
-        &head_setup,
-        Layout::Rows,
-        lights,
-        probe_rate,
-    )?;
+    let fmt = (cfg.texture, cfg.texture.default_layout());
+    let headline = measure(ctx, cfg, &head_btf, &head_setup, fmt, lights, probe_rate)?;
+    let mut formats = vec![headline.clone()];
+    let other = match cfg.texture {
+        Texture::Rgba8 => Texture::Bc1,
+        Texture::Bc1 => Texture::Rgba8,
+    };
+    if other == Texture::Rgba8 || cfg.bc1_available {
+        let p = measure(
+            ctx,
+            cfg,
+            &head_btf,
+            &head_setup,
+            (other, other.default_layout()),
+            lights,
+            probe_rate,
+        )?;
+        progress(&format!(
+            "headline in {other:?}: {:.2} ms = {:.1} fps, {:.2} MiB",
+            p.gpu_ms.median, p.fps, p.texture_mib
+        ));
+        formats.push(p);
+    }
     progress(&format!(
         "headline {res}^2, map {map_res}, tile {tile}, {lights} light(s): {:.2} ms = {:.1} fps",
         headline.gpu_ms.median, headline.fps
@@ -310,21 +339,21 @@ pub fn run(
     for &r in &cfg.resolutions {
         let s = setup(r, map_res)?;
         push(
-            measure(ctx, cfg, &head_btf, &s, Layout::Rows, lights, probe_rate)?,
+            measure(ctx, cfg, &head_btf, &s, fmt, lights, probe_rate)?,
             progress,
         );
     }
     for &m in &cfg.map_resolutions {
         let s = setup(res, m)?;
         push(
-            measure(ctx, cfg, &head_btf, &s, Layout::Rows, lights, probe_rate)?,
+            measure(ctx, cfg, &head_btf, &s, fmt, lights, probe_rate)?,
             progress,
         );
     }
     for &t in &cfg.tiles {
         let b = hashed_btf(t);
         push(
-            measure(ctx, cfg, &b, &head_setup, Layout::Rows, lights, probe_rate)?,
+            measure(ctx, cfg, &b, &head_setup, fmt, lights, probe_rate)?,
             progress,
         );
     }
@@ -334,26 +363,24 @@ pub fn run(
             cfg,
             &head_btf,
             &head_setup,
-            Layout::Layers,
+            (
+                Texture::Rgba8,
+                match fmt.1 {
+                    Layout::Rows => Layout::Layers,
+                    Layout::Layers => Layout::Rows,
+                },
+            ),
             lights,
             probe_rate,
         )?,
         progress,
     );
     push(
-        measure(
-            ctx,
-            cfg,
-            &head_btf,
-            &head_setup,
-            Layout::Rows,
-            2,
-            probe_rate,
-        )?,
+        measure(ctx, cfg, &head_btf, &head_setup, fmt, 2, probe_rate)?,
         progress,
     );
 
-    let packed = pack(&head_btf);
+    let packed = sampled_texels(&head_btf, cfg.texture);
     let f = frame(lights);
     let cpu_ms = time_cpu(cfg.cpu_runs, || {
         cpu::shade(
@@ -404,6 +431,7 @@ pub fn run(
         probe_ms,
         speedup_vs_cpu: cpu_ms.median / headline.gpu_ms.median,
         headline,
+        formats,
         cpu_same_method_ms: cpu_ms,
         sweep,
         targets,

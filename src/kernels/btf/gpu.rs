@@ -13,6 +13,7 @@ use crate::gpu::{
 };
 use crate::kernels::{Kernel, PassInfo, UseInfo};
 use ash::vk;
+use rayon::prelude::*;
 
 pub const PASS_SHADE: &str = "btf shade";
 /// Array textures the shader binds (`btf[4]`).
@@ -21,6 +22,74 @@ pub const MAX_ARRAYS: u32 = 4;
 pub const FORMAT: vk::Format = vk::Format::R8G8B8A8_SRGB;
 const COUNT: u32 = dirs::COUNT as u32;
 const SLICES: u32 = COUNT * COUNT;
+
+/// The texel format the BTF is stored in.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Texture {
+    /// RGBA8 sRGB, 4 bytes per texel ([`FORMAT`]).
+    Rgba8,
+    /// BC1 sRGB, 4 x 4 texels in 8 bytes (0.5 bytes per texel, [`BC1_FORMAT`]); the sampler
+    /// decodes the palette colour from sRGB before filtering. Needs the device feature
+    /// textureCompressionBC; in the 'rows' layout the gutters are 4 texels (one block).
+    Bc1,
+}
+
+/// The BC1 format of [`Texture::Bc1`].
+pub const BC1_FORMAT: vk::Format = vk::Format::BC1_RGB_SRGB_BLOCK;
+
+impl Texture {
+    pub fn format(self) -> vk::Format {
+        match self {
+            Texture::Rgba8 => FORMAT,
+            Texture::Bc1 => BC1_FORMAT,
+        }
+    }
+
+    /// The layout used when none is asked for ('rows': one array, the faster on lavapipe).
+    pub fn default_layout(self) -> Layout {
+        Layout::Rows
+    }
+}
+
+impl std::str::FromStr for Texture {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        match s {
+            "rgba8" => Ok(Texture::Rgba8),
+            "bc1" => Ok(Texture::Bc1),
+            _ => Err(format!("unknown texture format '{s}' (rgba8, bc1)")),
+        }
+    }
+}
+
+/// The texels the GPU samples, as RGBA8 sRGB slice-major (the CPU twin's input): the packed
+/// texels for RGBA8, the BC1 encoding decoded again (as `io::bc1` decodes) for BC1.
+pub fn sampled_texels(btf: &Btf, texture: Texture) -> Vec<u8> {
+    let packed = pack(btf);
+    match texture {
+        Texture::Rgba8 => packed,
+        Texture::Bc1 => {
+            let [w, h] = btf.size;
+            let n = (w * h) as usize * 4;
+            packed
+                .par_chunks(n)
+                .flat_map_iter(|img| {
+                    crate::io::bc1::decode_image(w, h, &crate::io::bc1::encode_image(w, h, img))
+                })
+                .collect()
+        }
+    }
+}
+
+/// The BC1 blocks of every slice (slice-major, row-major blocks within a slice).
+pub fn encode_bc1(btf: &Btf) -> Vec<u8> {
+    let [w, h] = btf.size;
+    pack(btf)
+        .par_chunks((w * h) as usize * 4)
+        .flat_map_iter(|img| crate::io::bc1::encode_image(w, h, img))
+        .collect()
+}
 
 /// How the images are arranged in the array textures.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
@@ -31,9 +100,9 @@ pub enum Layout {
     /// the array per tap (a branch that diverges across pixels).
     Layers,
     /// One array texture of 81 layers (one per view); a layer is a row of the 81 light
-    /// images, each with a one-texel gutter left and right holding the wrapped column, so
+    /// images, each with a gutter left and right holding the wrapped columns (1; 4 for BC1), so
     /// bilinear filtering never reaches a neighbouring image (REPEAT wraps rows). Needs
-    /// 81 (w + 2) <= maxImageDimension2D.
+    /// 81 (w + 2 gutter) <= maxImageDimension2D.
     Rows,
 }
 
@@ -53,7 +122,12 @@ impl std::str::FromStr for Layout {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 pub struct Packing {
     pub layout: Layout,
+    pub texture: Texture,
     pub tile: [u32; 2],
+    /// Wrapped columns left and right of each image in the rows layout: 1 for RGBA8 (all
+    /// bilinear filtering needs), 4 for BC1 (one block column, so every image starts on a
+    /// block and its gutters are copies of its own edge blocks); 0 in the layers layout.
+    pub gutter: u32,
     pub layer_extent: [u32; 2],
     pub layers_per_array: u32,
     pub arrays: u32,
@@ -70,10 +144,43 @@ impl Packing {
         max_layers: u32,
         layer_cap: Option<u32>,
     ) -> Result<Packing> {
+        Self::for_format(
+            layout,
+            Texture::Rgba8,
+            tile,
+            max_dim_2d,
+            max_layers,
+            layer_cap,
+        )
+    }
+
+    /// [`Packing::for_limits`] for the texel format `texture`.
+    pub fn for_format(
+        layout: Layout,
+        texture: Texture,
+        tile: [u32; 2],
+        max_dim_2d: u32,
+        max_layers: u32,
+        layer_cap: Option<u32>,
+    ) -> Result<Packing> {
         let max_layers = max_layers.min(layer_cap.unwrap_or(u32::MAX)).max(1);
+        let gutter = match (layout, texture) {
+            (Layout::Layers, _) => 0,
+            (Layout::Rows, Texture::Rgba8) => 1,
+            (Layout::Rows, Texture::Bc1) => {
+                if tile[0] % 4 != 0 {
+                    return Err(Error::InvalidArgument(format!(
+                        "BTF texture bc1 in the 'rows' layout needs a tile width that is a \
+                         multiple of 4 (BC1 blocks are 4 x 4), not {}; use --layout layers",
+                        tile[0]
+                    )));
+                }
+                4
+            }
+        };
         let layer_extent = match layout {
             Layout::Layers => tile,
-            Layout::Rows => [COUNT * (tile[0] + 2), tile[1]],
+            Layout::Rows => [COUNT * (tile[0] + 2 * gutter), tile[1]],
         };
         let side = layer_extent[0].max(layer_extent[1]);
         if side > max_dim_2d {
@@ -102,7 +209,9 @@ impl Packing {
         }
         Ok(Packing {
             layout,
+            texture,
             tile,
+            gutter,
             layer_extent,
             layers_per_array: layers,
             arrays,
@@ -122,27 +231,55 @@ impl Packing {
         (self.total_layers() - a * self.layers_per_array).min(self.layers_per_array)
     }
 
-    /// Texel bytes of the packed BTF (gutters included).
+    /// Bytes of the packed BTF (gutters included; BC1: whole blocks).
     pub fn bytes(&self) -> u64 {
-        self.total_layers() as u64 * self.layer_extent[0] as u64 * self.layer_extent[1] as u64 * 4
+        let [w, h] = self.layer_extent;
+        self.total_layers() as u64
+            * match self.texture {
+                Texture::Rgba8 => w as u64 * h as u64 * 4,
+                Texture::Bc1 => crate::io::bc1::encoded_len(w, h) as u64,
+            }
     }
 
-    /// The texels of all layers in order, from the slice-major [`pack`]ed images.
+    /// Bytes of one layer as uploaded.
+    pub fn layer_bytes(&self) -> usize {
+        (self.bytes() / self.total_layers() as u64) as usize
+    }
+
+    /// The bytes of all layers in order as uploaded: RGBA8 texels, or BC1 blocks of each
+    /// layer (row-major blocks) encoded from the arranged RGBA8 texels.
+    pub fn upload_bytes(&self, btf: &Btf) -> Vec<u8> {
+        let texels = self.arrange(&pack(btf));
+        match self.texture {
+            Texture::Rgba8 => texels,
+            Texture::Bc1 => {
+                let [w, h] = self.layer_extent;
+                texels
+                    .par_chunks((w * h) as usize * 4)
+                    .flat_map_iter(|layer| crate::io::bc1::encode_image(w, h, layer))
+                    .collect()
+            }
+        }
+    }
+
+    /// The RGBA8 texels of all layers in order, from the slice-major [`pack`]ed images.
     pub fn arrange(&self, packed: &[u8]) -> Vec<u8> {
         match self.layout {
             Layout::Layers => packed.to_vec(),
             Layout::Rows => {
                 let [w, h] = [self.tile[0] as usize, self.tile[1] as usize];
+                let g = self.gutter as usize;
                 let n = COUNT as usize;
-                let mut out = Vec::with_capacity(self.bytes() as usize);
+                let [lw, lh] = self.layer_extent;
+                let mut out = Vec::with_capacity(n * lw as usize * lh as usize * 4);
                 for v in 0..n {
                     for r in 0..h {
                         for l in 0..n {
                             let img = &packed[(v * n + l) * w * h * 4..][..w * h * 4];
                             let row = &img[r * w * 4..(r + 1) * w * 4];
-                            out.extend_from_slice(&row[(w - 1) * 4..]);
+                            out.extend_from_slice(&row[(w - g) * 4..]);
                             out.extend_from_slice(row);
-                            out.extend_from_slice(&row[..4]);
+                            out.extend_from_slice(&row[..g * 4]);
                         }
                     }
                 }
@@ -169,6 +306,7 @@ pub struct BtfInputs<'a> {
     pub maps: &'a Maps,
     pub gbuffer: &'a GBuffer,
     pub layout: Layout,
+    pub texture: Texture,
     /// Lower the layers per array below the device's limit (tests of multi-array packing).
     pub layer_cap: Option<u32>,
 }
@@ -183,6 +321,7 @@ pub struct BtfKernel {
     bind: BindGroup,
     arrays: Vec<Image>,
     packing: Packing,
+    texture: Texture,
     _sampler: Sampler,
     maps: [Image; 2],
     gbuffer: Buffer,
@@ -205,8 +344,9 @@ impl BtfKernel {
         }
         inputs.gbuffer.check()?;
         let limits = ctx.limits();
-        let packing = Packing::for_limits(
+        let packing = Packing::for_format(
             inputs.layout,
+            inputs.texture,
             btf.size,
             limits.max_image_dimension_2d,
             limits.max_image_array_layers,
@@ -220,13 +360,14 @@ impl BtfKernel {
             Layout::Layers => "btf/shade_layers",
         };
         let pipeline = ComputePipeline::from_spirv(&ctx, name, crate::shaders::spirv(name)?)?;
-        let texels = packing.arrange(&pack(btf));
-        let per_layer = (packing.layer_extent[0] * packing.layer_extent[1]) as usize * 4;
+        let texture = inputs.texture;
+        let texels = packing.upload_bytes(btf);
+        let per_layer = packing.layer_bytes();
         let mut arrays = Vec::new();
         for a in 0..MAX_ARRAYS {
             if a < packing.arrays {
                 let layers = packing.layers(a);
-                let desc = ImageDesc::d2_array(FORMAT, packing.layer_extent, layers);
+                let desc = ImageDesc::d2_array(texture.format(), packing.layer_extent, layers);
                 let img = Image::new(&ctx, &format!("btf array {a}"), desc)?;
                 let start = (a * packing.layers_per_array) as usize * per_layer;
                 rec.upload_image(
@@ -237,9 +378,13 @@ impl BtfKernel {
                 arrays.push(img);
             } else {
                 // Unused bindings get a 1 x 1 black placeholder (never read).
-                let desc = ImageDesc::d2_array(FORMAT, [1, 1], 1);
+                let desc = ImageDesc::d2_array(texture.format(), [1, 1], 1);
                 let img = Image::new(&ctx, &format!("btf array {a} (unused)"), desc)?;
-                rec.upload_image(&img, ImageRegion::whole(&desc), &[0, 0, 0, 255])?;
+                let black: &[u8] = match texture {
+                    Texture::Rgba8 => &[0, 0, 0, 255],
+                    Texture::Bc1 => &[0; 8],
+                };
+                rec.upload_image(&img, ImageRegion::whole(&desc), black)?;
                 arrays.push(img);
             }
         }
@@ -296,6 +441,7 @@ impl BtfKernel {
             bind,
             arrays,
             packing,
+            texture,
             _sampler: sampler,
             maps: [index, weight],
             gbuffer,
@@ -315,6 +461,11 @@ impl BtfKernel {
     }
 
     /// Device bytes of the packed BTF textures alone.
+    /// The texel format the BTF is stored in.
+    pub fn texture(&self) -> Texture {
+        self.texture
+    }
+
     pub fn texture_bytes(&self) -> u64 {
         self.arrays().iter().map(|i| i.allocation_size()).sum()
     }
@@ -350,7 +501,7 @@ impl BtfKernel {
             self.size[1],
             frame.lights.len() as u32,
             p.layers_per_array,
-            0,
+            p.gutter,
             p.tile[0],
             p.layer_extent[0],
             0,
