@@ -266,9 +266,9 @@ enum BtfCommand {
         /// Index/weight map resolution.
         #[arg(long, default_value_t = 128)]
         map_res: u32,
-        /// Texel format of the packed BTF: bc1 (4x4 blocks, 8x smaller; needs
-        /// textureCompressionBC) or rgba8.
-        #[arg(long, default_value = "rgba8")]
+        /// Texel format of the packed BTF: bc1 (4x4 blocks, 8x smaller; needs the device
+        /// feature textureCompressionBC) or rgba8.
+        #[arg(long, default_value = "bc1")]
         texture: vkshade::kernels::btf::gpu::Texture,
         #[arg(short = 'o', long)]
         out: PathBuf,
@@ -298,9 +298,9 @@ enum BtfCommand {
         /// rows for rgba8, layers for bc1 (which needs it).
         #[arg(long)]
         layout: Option<vkshade::kernels::btf::gpu::Layout>,
-        /// Texel format of the packed BTF: bc1 (4x4 blocks, 8x smaller; needs
-        /// textureCompressionBC) or rgba8.
-        #[arg(long, default_value = "rgba8")]
+        /// Texel format of the packed BTF: bc1 (4x4 blocks, 8x smaller; needs the device
+        /// feature textureCompressionBC) or rgba8.
+        #[arg(long, default_value = "bc1")]
         texture: vkshade::kernels::btf::gpu::Texture,
         /// Compare with the f64 CPU interpolation and with the heightfield ray-cast at the
         /// exact directions (needs the btf.json of `btf synth`).
@@ -382,7 +382,7 @@ enum BenchCommand {
         quick: bool,
         /// Texel format of the headline and sweeps (the headline is also measured in the
         /// other format when the device supports BC1).
-        #[arg(long, default_value = "rgba8")]
+        #[arg(long, default_value = "bc1")]
         texture: vkshade::kernels::btf::gpu::Texture,
     },
 }
@@ -458,13 +458,21 @@ fn context_with(g: &Global, features: vkshade::gpu::Features) -> Result<Context>
 
 /// The context a BTF command storing its texture as `texture` needs.
 fn btf_context(g: &Global, texture: vkshade::kernels::btf::gpu::Texture) -> Result<Context> {
+    let bc1 = texture == vkshade::kernels::btf::gpu::Texture::Bc1;
     context_with(
         g,
         vkshade::gpu::Features {
-            texture_compression_bc: texture == vkshade::kernels::btf::gpu::Texture::Bc1,
+            texture_compression_bc: bc1,
             ..Default::default()
         },
     )
+    .map_err(|e| match e {
+        Error::Unsupported { device, what } if bc1 => Error::Unsupported {
+            device,
+            what: format!("{what} (the BTF's default --texture bc1 needs it; use --texture rgba8)"),
+        },
+        e => e,
+    })
 }
 
 /// A progress line on stderr (without breaking a progress counter being drawn).
@@ -1184,13 +1192,16 @@ fn cmd_bench_btf(
             p.texture_mib
         );
     }
-    println!("sweep (resolution, map, tile, layout, lights: ms, fps, % of fetch rate, MiB)");
+    println!(
+        "sweep (resolution, map, tile, texture, layout, lights: ms, fps, % of fetch rate, MiB)"
+    );
     for p in &r.sweep {
         println!(
-            "  {:>5} {:>4} {:>3} {:<7} {}: {:>9.2} ms {:>8.1} fps {:>6.1}% {:>7.2}",
+            "  {:>5} {:>4} {:>3} {:<5} {:<7} {}: {:>9.2} ms {:>8.1} fps {:>6.1}% {:>7.2}",
             p.resolution,
             p.map_resolution,
             p.tile,
+            format!("{:?}", p.texture).to_lowercase(),
             format!("{:?}", p.layout),
             p.lights,
             p.gpu_ms.median,

@@ -391,7 +391,11 @@ pub fn render(
             rms: (se / (3 * n.max(1)) as f64).sqrt(),
             pixels: n,
             ambiguous_pixels: amb,
-            bound: 5e-3,
+            // tests/btf.rs: GPU_CPU_BOUND (RGBA8) and GPU_CPU_BOUND_BC1 (palette rounding).
+            bound: match cfg.texture {
+                Texture::Rgba8 => 5e-3,
+                Texture::Bc1 => 1.4e-2,
+            },
             cpu_ms,
         });
         if meta.synth.size != btf.size || meta.synth.period != btf.size[0] {

@@ -56,7 +56,7 @@ impl Default for BtfBenchConfig {
             object: Object::Sphere,
             cpu_runs: 3,
             probe_fetches: 16,
-            texture: Texture::Rgba8,
+            texture: Texture::Bc1,
             bc1_available: true,
         }
     }
