@@ -62,6 +62,10 @@ enum Command {
     /// precomputed per-vertex transfer.
     #[command(subcommand)]
     Srbf(SrbfCommand),
+    /// Bidirectional texture functions (cloth): synthesise a BTF, interpolate one tile, render
+    /// a cloth-covered object through 2D array textures and parabolic-map lookup.
+    #[command(subcommand)]
+    Btf(BtfCommand),
     /// Sphere trees.
     #[command(subcommand)]
     Spheretree(TreeCommand),
@@ -219,6 +223,106 @@ impl TreeOpts {
 }
 
 #[derive(Subcommand)]
+enum BtfCommand {
+    /// Ray-cast a periodic cloth heightfield (known BRDF, shadowing, masking) at the 81 x 81
+    /// UBO2003 directions and write a UBO2003-style directory (one image per (light, view),
+    /// angles in the names: btf_tlTTT_plPPP_tvTTT_pvPPP.png) plus btf.json.
+    Synth {
+        /// weave, knit or rib.
+        #[arg(long)]
+        pattern: vkshade::kernels::btf::synth::Pattern,
+        /// Tile side in texels.
+        #[arg(long, default_value_t = 32)]
+        size: u32,
+        /// Texels per pattern repeat (default: the size, one tile); a smaller period makes a
+        /// larger sample for `btf tile`.
+        #[arg(long)]
+        period: Option<u32>,
+        /// Rays per texel along each axis.
+        #[arg(long, default_value_t = 1)]
+        samples: u32,
+        /// png (8-bit sRGB) or exr (linear float).
+        #[arg(long, default_value = "png")]
+        format: vkshade::kernels::btf::synth::FileFormat,
+        #[arg(short = 'o', long)]
+        out: PathBuf,
+    },
+    /// Find the repeat period of a larger BTF sample (local minima of a 2D offset cost over
+    /// a few of its images) and write one tile of it as a new directory.
+    Tile {
+        #[arg(long)]
+        btf: PathBuf,
+        /// Texel where the tile starts (X,Y).
+        #[arg(long, default_value = "0,0")]
+        origin: String,
+        /// png (8-bit sRGB) or exr (linear float; slower to write).
+        #[arg(long, default_value = "png")]
+        format: vkshade::kernels::btf::synth::FileFormat,
+        #[arg(short = 'o', long)]
+        out: PathBuf,
+    },
+    /// The tile interpolated at one (light, view) pair through the GPU path, as linear EXR.
+    Eval {
+        /// A UBO2003-style directory (from `btf synth`, or your own in PNG/EXR).
+        #[arg(long)]
+        btf: PathBuf,
+        /// THETA,PHI in degrees in the tile's tangent frame (as in the file names).
+        #[arg(long, value_parser = vkshade::app::btf::parse_angles)]
+        light: [f64; 2],
+        /// THETA,PHI in degrees.
+        #[arg(long, value_parser = vkshade::app::btf::parse_angles)]
+        view: [f64; 2],
+        /// Index/weight map resolution.
+        #[arg(long, default_value_t = 128)]
+        map_res: u32,
+        /// Texel format of the packed BTF: bc1 (4x4 blocks, 8x smaller; needs the device
+        /// feature textureCompressionBC) or rgba8.
+        #[arg(long, default_value = "bc1")]
+        texture: vkshade::kernels::btf::gpu::Texture,
+        #[arg(short = 'o', long)]
+        out: PathBuf,
+    },
+    /// A cloth-covered object: DIR/render.png (with --reference: result | direct ray-cast |
+    /// error), DIR/render.exr (linear) and DIR/report.json (GPU time, texture memory, map
+    /// resolution, errors).
+    Render {
+        #[arg(long)]
+        btf: PathBuf,
+        /// sphere, cylinder, plane, or a mesh file with UVs (.glb/.gltf/.obj/.ply/.off;
+        /// centred, scaled to radius 1.2, uv x 8).
+        #[arg(long, default_value = "sphere")]
+        object: String,
+        /// A directional light X,Y,Z[,R,G,B] (towards the light, world space; y up, camera
+        /// on +z); up to 2 (default: a warm key light and a cool grazing fill).
+        #[arg(long)]
+        light: Vec<String>,
+        #[arg(long, default_value_t = 512)]
+        width: u32,
+        #[arg(long, default_value_t = 512)]
+        height: u32,
+        #[arg(long, default_value_t = 128)]
+        map_res: u32,
+        /// Texture layout: rows (one 81-layer array, images side by side with gutters) or
+        /// layers (one image per layer, split over arrays of maxImageArrayLayers). Default:
+        /// rows for rgba8, layers for bc1 (which needs it).
+        #[arg(long)]
+        layout: Option<vkshade::kernels::btf::gpu::Layout>,
+        /// Texel format of the packed BTF: bc1 (4x4 blocks, 8x smaller; needs the device
+        /// feature textureCompressionBC) or rgba8.
+        #[arg(long, default_value = "bc1")]
+        texture: vkshade::kernels::btf::gpu::Texture,
+        /// Compare with the f64 CPU interpolation and with the heightfield ray-cast at the
+        /// exact directions (needs the btf.json of `btf synth`).
+        #[arg(long)]
+        reference: bool,
+        #[arg(long, default_value_t = 0.1)]
+        error_scale: f32,
+        #[arg(long, default_value = "out/btf")]
+        out: PathBuf,
+    },
+}
+
+#[derive(Subcommand)]
 enum TreeCommand {
     /// Build a sphere tree for a mesh (bind pose) and report how tightly each level fits.
     Build {
@@ -275,6 +379,20 @@ enum BenchCommand {
         /// Smaller sweeps (for a quick check).
         #[arg(long)]
         quick: bool,
+    },
+    /// BTF shading: GPU time over resolution x map resolution x tile size, texel fetches
+    /// per second against the fetch rate the device sustains (measured in the same run), the
+    /// speed-up over the CPU interpolation, texture memory; checks bench/targets.json.
+    Btf {
+        #[command(flatten)]
+        opts: BenchOpts,
+        /// Smaller sweeps (for a quick check).
+        #[arg(long)]
+        quick: bool,
+        /// Texel format of the headline and sweeps (the headline is also measured in the
+        /// other format when the device supports BC1).
+        #[arg(long, default_value = "bc1")]
+        texture: vkshade::kernels::btf::gpu::Texture,
     },
 }
 
@@ -334,10 +452,35 @@ enum ShaderCommand {
 }
 
 fn context(g: &Global) -> Result<Context> {
+    context_with(g, vkshade::gpu::Features::default())
+}
+
+/// A context with optional device features (an error naming a missing one).
+fn context_with(g: &Global, features: vkshade::gpu::Features) -> Result<Context> {
     Context::new(&ContextDesc {
         device: g.device.clone(),
         validation: g.validate.then(ValidationConfig::default),
+        features,
         ..ContextDesc::default()
+    })
+}
+
+/// The context a BTF command storing its texture as `texture` needs.
+fn btf_context(g: &Global, texture: vkshade::kernels::btf::gpu::Texture) -> Result<Context> {
+    let bc1 = texture == vkshade::kernels::btf::gpu::Texture::Bc1;
+    context_with(
+        g,
+        vkshade::gpu::Features {
+            texture_compression_bc: bc1,
+            ..Default::default()
+        },
+    )
+    .map_err(|e| match e {
+        Error::Unsupported { device, what } if bc1 => Error::Unsupported {
+            device,
+            what: format!("{what} (the BTF's default --texture bc1 needs it; use --texture rgba8)"),
+        },
+        e => e,
     })
 }
 
@@ -807,6 +950,311 @@ fn cmd_srbf(g: &Global, cmd: &SrbfCommand) -> Result<()> {
     }
 }
 
+fn parse_light(s: &str) -> Result<vkshade::kernels::btf::gbuffer::Light> {
+    let v: Vec<f32> = s
+        .split(',')
+        .map(|x| x.trim().parse::<f32>())
+        .collect::<std::result::Result<_, _>>()
+        .map_err(|_| Error::InvalidArgument(format!("--light '{s}': expected X,Y,Z[,R,G,B]")))?;
+    let (d, rgb) = match v[..] {
+        [x, y, z] => ([x, y, z], [1.0; 3]),
+        [x, y, z, r, g, b] => ([x, y, z], [r, g, b]),
+        _ => {
+            return Err(Error::InvalidArgument(format!(
+                "--light '{s}': expected X,Y,Z[,R,G,B]"
+            )));
+        }
+    };
+    Ok(vkshade::kernels::btf::gbuffer::Light {
+        direction: glam::Vec3::from(d),
+        rgb,
+    })
+}
+
+fn cmd_btf(g: &Global, cmd: &BtfCommand) -> Result<()> {
+    use vkshade::app::btf;
+    match cmd {
+        BtfCommand::Synth {
+            pattern,
+            size,
+            period,
+            samples,
+            format,
+            out,
+        } => {
+            eprintln!(
+                "synthesising {} x {size} x 6561 images of {pattern:?}",
+                size
+            );
+            let m = btf::synth_command(*pattern, *size, *period, *samples, *format, out)?;
+            println!(
+                "wrote 6561 {} images of {size} x {size} texels ({:?}) and {} to {} in {:.1} s",
+                m.format,
+                pattern,
+                btf::META,
+                out.display(),
+                m.ms / 1e3
+            );
+            Ok(())
+        }
+        BtfCommand::Tile {
+            btf: dir,
+            origin,
+            format,
+            out,
+        } => {
+            let bad = || Error::InvalidArgument(format!("--origin '{origin}': expected X,Y"));
+            let v: Vec<u32> = origin
+                .split(',')
+                .map(|x| x.trim().parse::<u32>().map_err(|_| bad()))
+                .collect::<Result<_>>()?;
+            let origin: [u32; 2] = v.as_slice().try_into().map_err(|_| bad())?;
+            let r = btf::tile_command(dir, origin, *format, out)?;
+            println!(
+                "{} x {} sample: repeat period {} x {} (cost {:.2e} against a median of {:.2e}); wrote the tile at {:?} to {}",
+                r.sample_size[0],
+                r.sample_size[1],
+                r.period.period[0],
+                r.period.period[1],
+                r.period.cost,
+                r.period.median_cost,
+                r.origin,
+                out.display()
+            );
+            Ok(())
+        }
+        BtfCommand::Eval {
+            btf: dir,
+            light,
+            view,
+            map_res,
+            texture,
+            out,
+        } => {
+            let ctx = btf_context(g, *texture)?;
+            let r = btf::eval_command(&ctx, dir, *light, *view, *map_res, *texture, out)?;
+            let taps = |t: &[(vkshade::kernels::btf::dirs::Angles, f64)]| {
+                t.iter()
+                    .map(|(a, w)| format!("({},{}) x {w:.3}", a.theta, a.phi))
+                    .collect::<Vec<_>>()
+                    .join(" + ")
+            };
+            println!("light taps: {}", taps(&r.light_taps));
+            println!("view taps:  {}", taps(&r.view_taps));
+            println!(
+                "wrote the {} x {} tile to {} ({:.3} ms GPU)",
+                r.size[0],
+                r.size[1],
+                out.display(),
+                r.gpu_ms
+            );
+            finish(ctx)
+        }
+        BtfCommand::Render {
+            btf: dir,
+            object,
+            light,
+            width,
+            height,
+            map_res,
+            layout,
+            texture,
+            reference,
+            error_scale,
+            out,
+        } => {
+            let lights = if light.is_empty() {
+                btf::default_lights()
+            } else {
+                light
+                    .iter()
+                    .map(|s| parse_light(s))
+                    .collect::<Result<_>>()?
+            };
+            if !(error_scale.is_finite() && *error_scale > 0.0) {
+                return Err(Error::InvalidArgument(format!(
+                    "--error-scale must be > 0, not {error_scale}"
+                )));
+            }
+            let (shape, mesh) = match object.parse::<vkshade::kernels::btf::gbuffer::Object>() {
+                Ok(o) => (o, None),
+                Err(_) => (
+                    vkshade::kernels::btf::gbuffer::Object::Sphere,
+                    Some(PathBuf::from(object)),
+                ),
+            };
+            let cfg = btf::RenderConfig {
+                btf: dir.clone(),
+                object: shape,
+                mesh,
+                lights,
+                width: *width,
+                height: *height,
+                map_res: *map_res,
+                layout: layout.unwrap_or(texture.default_layout()),
+                texture: *texture,
+                reference: *reference,
+                error_scale: *error_scale,
+                out: out.clone(),
+                bench: BenchConfig::default(),
+            };
+            let ctx = btf_context(g, *texture)?;
+            eprintln!("vkshade btf render on {}", ctx.info().name);
+            let r = btf::render(&ctx, &cfg, &mut |l| progress(l))?;
+            println!(
+                "{} {} x {} ({} px covered), {} x {} tile, map {}: {:.3} ms GPU (median) = {:.1} fps; BTF textures {:.2} MiB in {} array(s) of {} layers, maps {:.2} MiB",
+                r.object,
+                r.size[0],
+                r.size[1],
+                r.covered_pixels,
+                r.tile[0],
+                r.tile[1],
+                r.map_resolution,
+                r.gpu_ms.median,
+                r.fps,
+                r.texture_mib,
+                r.packing.arrays,
+                r.packing.layers_per_array,
+                r.map_bytes as f64 / (1u64 << 20) as f64
+            );
+            if let Some(c) = &r.vs_cpu {
+                println!(
+                    "vs CPU interpolation (f64): max {:.2e}, RMS {:.2e} over {} px ({} ambiguous left out); bound {:.0e}; CPU {:.0} ms",
+                    c.max_abs, c.rms, c.pixels, c.ambiguous_pixels, c.bound, c.cpu_ms
+                );
+            }
+            if let Some(t) = &r.vs_ray_cast {
+                println!(
+                    "vs direct ray-cast: PSNR {:.1} dB (RMSE {:.4}, {} px) within 75 deg, {:.1} dB (RMSE {:.4}, {} px) grazing, {:.1} dB all",
+                    t.within_75.psnr_db,
+                    t.within_75.rmse,
+                    t.within_75.pixels,
+                    t.grazing.psnr_db,
+                    t.grazing.rmse,
+                    t.grazing.pixels,
+                    t.all.psnr_db
+                );
+            }
+            println!("wrote {}, {} and report.json", r.png, r.exr);
+            finish(ctx)
+        }
+    }
+}
+
+fn cmd_bench_btf(
+    g: &Global,
+    opts: &BenchOpts,
+    quick: bool,
+    texture: vkshade::kernels::btf::gpu::Texture,
+) -> Result<()> {
+    use vkshade::bench::btf::{BtfBenchConfig, run};
+    if opts.plot.is_some() {
+        return Err(Error::InvalidArgument(
+            "bench btf writes no plot yet (its sweeps are in the --json report)".into(),
+        ));
+    }
+    for path in opts.json.iter() {
+        vkshade::io::check_writable(path)?;
+    }
+    let mut cfg = BtfBenchConfig {
+        bench: opts.config()?,
+        ..Default::default()
+    };
+    if quick {
+        cfg.resolutions = vec![256, 512];
+        cfg.map_resolutions = vec![32, 128];
+        cfg.tiles = vec![8, 32];
+        cfg.cpu_runs = 1;
+    }
+    cfg.texture = texture;
+    // BC1 needs textureCompressionBC: without it an rgba8 run skips the bc1 comparison.
+    let ctx = match btf_context(g, vkshade::kernels::btf::gpu::Texture::Bc1) {
+        Ok(ctx) => ctx,
+        Err(e) if texture == vkshade::kernels::btf::gpu::Texture::Rgba8 => {
+            eprintln!("bench btf: no BC1 comparison ({e})");
+            cfg.bc1_available = false;
+            context(g)?
+        }
+        Err(e) => return Err(e),
+    };
+    eprintln!("bench btf on {}", ctx.info().name);
+    let r = run(&ctx, &cfg, &mut |l| progress(l))?;
+    let h = &r.headline;
+    println!("device                 {}", r.machine.device);
+    println!(
+        "headline               {}^2 sphere ({} px covered), map {}, tile {}, {} light(s), {:?}: {:.2} ms (median GPU) = {:.1} fps",
+        h.resolution,
+        h.covered_pixels,
+        h.map_resolution,
+        h.tile,
+        h.lights,
+        h.layout,
+        h.gpu_ms.median,
+        h.fps
+    );
+    println!(
+        "fetches                {:.1} M filtered taps/s = {:.1}% of the {:.1} M/s the fetch probe sustains",
+        h.taps_per_second / 1e6,
+        100.0 * h.fraction_of_fetch_rate,
+        r.probe_fetches_per_second / 1e6
+    );
+    println!(
+        "baseline               same interpolation on the CPU (f64, rayon) {:.1} ms: {:.2}x (speed-up of the GPU path)",
+        r.cpu_same_method_ms.median, r.speedup_vs_cpu
+    );
+    println!(
+        "texture memory         {:.2} MiB ({:?} layout, {} array(s) of {} layers of {}x{})",
+        h.texture_mib,
+        h.packing.layout,
+        h.packing.arrays,
+        h.packing.layers_per_array,
+        h.packing.layer_extent[0],
+        h.packing.layer_extent[1]
+    );
+    for p in &r.formats {
+        println!(
+            "format {:<6} {:<7}  {:.2} ms = {:.1} fps, {:.2} MiB of texture",
+            format!("{:?}", p.texture).to_lowercase(),
+            format!("{:?}", p.layout),
+            p.gpu_ms.median,
+            p.fps,
+            p.texture_mib
+        );
+    }
+    println!(
+        "sweep (resolution, map, tile, texture, layout, lights: ms, fps, % of fetch rate, MiB)"
+    );
+    for p in &r.sweep {
+        println!(
+            "  {:>5} {:>4} {:>3} {:<5} {:<7} {}: {:>9.2} ms {:>8.1} fps {:>6.1}% {:>7.2}",
+            p.resolution,
+            p.map_resolution,
+            p.tile,
+            format!("{:?}", p.texture).to_lowercase(),
+            format!("{:?}", p.layout),
+            p.lights,
+            p.gpu_ms.median,
+            p.fps,
+            100.0 * p.fraction_of_fetch_rate,
+            p.texture_mib
+        );
+    }
+    for t in &r.targets {
+        println!(
+            "target {:<58} {:>10.2} (target {}) {}",
+            t.name,
+            t.measured,
+            t.target,
+            if t.pass { "PASS" } else { "MISS" }
+        );
+    }
+    if let Some(path) = &opts.json {
+        vkshade::io::write_json(path, &r)?;
+        println!("wrote {}", path.display());
+    }
+    finish(ctx)
+}
+
 fn cmd_tree_build(
     mesh: &std::path::Path,
     out: &std::path::Path,
@@ -900,6 +1348,12 @@ fn main() -> ExitCode {
         }) => cmd_tree_build(mesh, out, opts, report.as_deref()),
         Command::Mesh(MeshCommand::Info { mesh }) => cmd_mesh_info(mesh),
         Command::Srbf(cmd) => cmd_srbf(&cli.global, cmd),
+        Command::Btf(cmd) => cmd_btf(&cli.global, cmd),
+        Command::Bench(BenchCommand::Btf {
+            opts,
+            quick,
+            texture,
+        }) => cmd_bench_btf(&cli.global, opts, *quick, *texture),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -385,3 +385,128 @@ fn srbf_shade_writes_ply_png_and_report_and_refuses_bad_input() {
     assert!(!ok && stderr.contains("square.hdr"), "{stderr}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn btf_synth_eval_render_write_their_files_and_refuse_bad_input() {
+    let dir = temp("btf-cli");
+    let btf = dir.join("rib4");
+    let (ok, stdout, stderr) = vkshade(&[
+        "btf",
+        "synth",
+        "--pattern",
+        "rib",
+        "--size",
+        "4",
+        "-o",
+        btf.to_str().unwrap(),
+    ]);
+    assert!(ok, "{stdout}\n{stderr}");
+    assert!(btf.join("btf_tl075_pl345_tv075_pv345.png").exists());
+    assert!(btf.join("btf.json").exists());
+    let tile = dir.join("tile.exr");
+    let (ok, stdout, stderr) = vkshade(&[
+        "--validate",
+        "btf",
+        "eval",
+        "--btf",
+        btf.to_str().unwrap(),
+        "--light",
+        "30,40",
+        "--view",
+        "10,200",
+        "--map-res",
+        "32",
+        "-o",
+        tile.to_str().unwrap(),
+    ]);
+    assert!(ok, "{stdout}\n{stderr}");
+    assert!(stderr.contains("validation: clean"), "{stderr}");
+    let img = vkshade::io::exr::read_rgba(&tile).unwrap();
+    assert_eq!((img.width, img.height), (4, 4));
+    assert!(img.pixels.iter().any(|p| p[0] > 0.01));
+    let out = dir.join("render");
+    let (ok, stdout, stderr) = vkshade(&[
+        "--validate",
+        "btf",
+        "render",
+        "--btf",
+        btf.to_str().unwrap(),
+        "--object",
+        "cylinder",
+        "--width",
+        "48",
+        "--height",
+        "40",
+        "--map-res",
+        "32",
+        "--reference",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(ok, "{stdout}\n{stderr}");
+    assert!(stderr.contains("validation: clean"), "{stderr}");
+    for f in ["render.png", "render.exr", "report.json"] {
+        assert!(out.join(f).exists(), "{f} missing");
+    }
+    let v: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+    assert!(v["gpu_ms"]["median"].as_f64().unwrap() > 0.0);
+    // The default texture is BC1: 8 bytes per 4 x 4 block (gutters included in the bytes).
+    assert_eq!(v["texture"], "bc1");
+    assert!(v["texture_bytes"].as_u64().unwrap() >= 6561 * 16 / 2);
+    assert!(v["texture_bytes"].as_u64().unwrap() < 6561 * 16 * 4);
+    assert_eq!(v["map_resolution"], 32);
+    assert!(v["vs_cpu"]["max_abs"].as_f64().unwrap() < v["vs_cpu"]["bound"].as_f64().unwrap());
+    assert!(v["vs_cpu"]["bound"].as_f64().unwrap() <= 1.4e-2);
+    assert!(v["vs_ray_cast"]["all"]["psnr_db"].as_f64().unwrap() > 15.0);
+    // Bad input: a light below the horizon, a missing directory, a bad pattern.
+    let (ok, _, stderr) = vkshade(&[
+        "btf", "eval", "--btf", "x", "--light", "95,0", "--view", "0,0", "-o", "t.exr",
+    ]);
+    assert!(!ok && stderr.contains("THETA"), "{stderr}");
+    let (ok, _, stderr) = vkshade(&[
+        "btf",
+        "render",
+        "--btf",
+        "/nonexistent/btf",
+        "--out",
+        dir.join("none").to_str().unwrap(),
+    ]);
+    assert!(!ok && stderr.contains("/nonexistent/btf"), "{stderr}");
+    assert!(!dir.join("none").join("report.json").exists());
+    // A larger sample repeating every 6 texels: `btf tile` finds the period and cuts a tile.
+    let sample = dir.join("weave12");
+    let (ok, stdout, stderr) = vkshade(&[
+        "btf",
+        "synth",
+        "--pattern",
+        "weave",
+        "--size",
+        "12",
+        "--period",
+        "6",
+        "-o",
+        sample.to_str().unwrap(),
+    ]);
+    assert!(ok, "{stdout}\n{stderr}");
+    let tile = dir.join("weave-tile");
+    let (ok, stdout, stderr) = vkshade(&[
+        "btf",
+        "tile",
+        "--btf",
+        sample.to_str().unwrap(),
+        "--origin",
+        "3,1",
+        "-o",
+        tile.to_str().unwrap(),
+    ]);
+    assert!(
+        ok && stdout.contains("repeat period 6 x 6"),
+        "{stdout}\n{stderr}"
+    );
+    let cut = vkshade::kernels::btf::load::load_dir(&tile).unwrap();
+    assert_eq!(cut.size, [6, 6]);
+    let (ok, _, stderr) = vkshade(&["btf", "synth", "--pattern", "tweed", "-o", "x"]);
+    assert!(!ok && stderr.contains("tweed"), "{stderr}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -672,3 +672,127 @@ fn sampler_addressing_border_and_lod_range_match_the_cpu() {
         Ok(())
     });
 }
+
+/// BC1 images: block-sized staging, region alignment, the textureCompressionBC feature, and
+/// texels read back through a nearest sampler at texel centres (what texelFetch returns)
+/// against the CPU decoder of `io::bc1`, in UNORM and sRGB.
+#[test]
+fn bc1_images_upload_and_sample_like_the_cpu_decoder() {
+    use vkshade::io::bc1;
+    // Without the feature enabled, a BC1 image is refused by name.
+    with_gpu(|ctx| {
+        let e = Image::new(
+            ctx,
+            "bc1 without feature",
+            ImageDesc::d2(vk::Format::BC1_RGB_SRGB_BLOCK, [8, 8]),
+        )
+        .unwrap_err();
+        assert!(e.to_string().contains("textureCompressionBC"), "{e}");
+        Ok(())
+    });
+    let ctx = Context::new(&ContextDesc {
+        features: Features {
+            texture_compression_bc: true,
+            ..Features::default()
+        },
+        ..ContextDesc::validated()
+    })
+    .expect("lavapipe supports textureCompressionBC");
+    let run = |ctx: &Context| -> vkshade::Result<()> {
+        // 10 x 6: partial blocks at the right and bottom edges; two layers.
+        let (w, h) = (10u32, 6u32);
+        let rgba: Vec<Vec<u8>> = (0..2u32)
+            .map(|layer| {
+                (0..w * h)
+                    .flat_map(|i| {
+                        let (x, y) = (i % w, i / w);
+                        [
+                            (x * 23 + layer * 40) as u8,
+                            (200 - y * 30) as u8,
+                            ((x * y * 13 + layer * 7) % 256) as u8,
+                            255,
+                        ]
+                    })
+                    .collect()
+            })
+            .collect();
+        let blocks: Vec<Vec<u8>> = rgba.iter().map(|t| bc1::encode_image(w, h, t)).collect();
+        let nearest = Sampler::new(ctx, "nearest", SamplerDesc::nearest())?;
+        for format in [
+            vk::Format::BC1_RGB_UNORM_BLOCK,
+            vk::Format::BC1_RGB_SRGB_BLOCK,
+        ] {
+            let desc = ImageDesc::d2_array(format, [w, h], 2);
+            assert_eq!(desc.byte_size()?, 2 * 3 * 2 * 8);
+            let image = Image::new(ctx, "bc1", desc)?;
+            let mut rec = ctx.recorder("upload bc1")?;
+            // Layer 0 whole; layer 1 in two regions: the left block column, then the rest
+            // (which ends at the mip edge, not on a block boundary).
+            rec.upload_image(
+                &image,
+                ImageRegion {
+                    layers: 1,
+                    ..ImageRegion::whole(&desc)
+                },
+                &blocks[0],
+            )?;
+            let left: Vec<u8> = [0usize, 3]
+                .iter()
+                .flat_map(|&b| blocks[1][b * 8..b * 8 + 8].to_vec())
+                .collect();
+            let right: Vec<u8> = [1usize, 2, 4, 5]
+                .iter()
+                .flat_map(|&b| blocks[1][b * 8..b * 8 + 8].to_vec())
+                .collect();
+            let region = |x: u32, width: u32| ImageRegion {
+                mip: 0,
+                base_layer: 1,
+                layers: 1,
+                offset: [x, 0, 0],
+                extent: [width, h, 1],
+            };
+            rec.upload_image(&image, region(0, 4), &left)?;
+            rec.upload_image(&image, region(4, 6), &right)?;
+            // A region that starts inside a block, or ends inside one short of the edge.
+            for bad in [region(2, 8), region(0, 6)] {
+                let e = rec.upload_image(&image, bad, &[0; 32]).unwrap_err();
+                assert!(e.to_string().contains("aligned"), "{e}");
+            }
+            rec.submit_and_wait()?;
+            for layer in 0..2 {
+                let got = sample_mip(ctx, ImageRef::new(&image), &nearest, [w, h], layer, 0.0)?;
+                let want = bc1::decode_image(w, h, &blocks[layer as usize]);
+                for (i, g) in got.iter().enumerate() {
+                    for c in 0..3 {
+                        // The palette may round entries 2 and 3 differently by one step
+                        // (bc1::PALETTE_TOLERANCE); sRGB decoding adds its 2e-3 (as above).
+                        let step = bc1::PALETTE_TOLERANCE as f32 / 255.0;
+                        let b = want[4 * i + c] as f32 / 255.0;
+                        let (lo, hi, slack) = if format == vk::Format::BC1_RGB_SRGB_BLOCK {
+                            (
+                                srgb_to_linear((b - step).max(0.0)),
+                                srgb_to_linear((b + step).min(1.0)),
+                                2e-3,
+                            )
+                        } else {
+                            (b - step, b + step, 1e-5)
+                        };
+                        assert!(
+                            g[c] >= lo - slack && g[c] <= hi + slack,
+                            "{format:?} layer {layer} texel {i}.{c}: {} outside [{lo}, {hi}]",
+                            g[c]
+                        );
+                    }
+                    assert_eq!(g[3], 1.0);
+                }
+            }
+        }
+        Ok(())
+    };
+    let result = run(&ctx);
+    let messages = common::shutdown(ctx);
+    if let Err(e) = result {
+        panic!("GPU test failed: {e}");
+    }
+    common::assert_clean(&messages);
+}

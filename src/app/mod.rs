@@ -2,4 +2,5 @@
 //! can call them the way the CLI does).
 
 pub mod ao;
+pub mod btf;
 pub mod srbf;

@@ -2,6 +2,7 @@
 //! statistics (JSON and PNG output go through [`crate::io`] and [`plot`]).
 
 pub mod ao;
+pub mod btf;
 pub mod peak;
 pub mod plot;
 pub mod srbf;

@@ -152,10 +152,21 @@ impl ImageDesc {
         })
     }
 
-    /// Size in bytes of one mip level's tightly packed texels, all layers.
+    /// The format's texel block (1 x 1 for uncompressed formats, 4 x 4 for BC1).
+    pub fn block(&self) -> Result<FormatBlock> {
+        format_block(self.format).ok_or_else(|| {
+            Error::InvalidArgument(format!(
+                "format {:?} has no texel block size vkshade can stage (only uncompressed \
+                 colour formats and BC1 are uploaded; depth/stencil formats are not)",
+                self.format
+            ))
+        })
+    }
+
+    /// Size in bytes of one mip level's tightly packed texels (texel blocks for a
+    /// block-compressed format, partial blocks at the edges counted whole), all layers.
     pub fn mip_byte_size(&self, mip: u32) -> Result<u64> {
-        let e = self.mip_extent(mip);
-        Ok(self.texel_size()? * e.iter().map(|&x| x as u64).product::<u64>() * self.layers as u64)
+        Ok(self.block()?.bytes_for(self.mip_extent(mip)) * self.layers as u64)
     }
 
     /// Size in bytes of mip 0, all layers (tightly packed).
@@ -172,6 +183,60 @@ impl ImageDesc {
             layer_count: self.layers,
         }
     }
+}
+
+/// The texel block of a format: `width` x `height` texels stored in `bytes` bytes
+/// (1 x 1 for uncompressed formats). Buffer-image copies of a block-compressed image move
+/// whole blocks: regions start on a block boundary and end on one or at the mip edge.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FormatBlock {
+    pub width: u32,
+    pub height: u32,
+    pub bytes: u64,
+}
+
+impl FormatBlock {
+    /// Whether the format is block-compressed.
+    pub fn compressed(&self) -> bool {
+        self.width > 1 || self.height > 1
+    }
+
+    /// Bytes of a tightly packed `extent` (one layer), partial edge blocks counted whole.
+    pub fn bytes_for(&self, extent: [u32; 3]) -> u64 {
+        extent[0].div_ceil(self.width) as u64
+            * extent[1].div_ceil(self.height) as u64
+            * extent[2] as u64
+            * self.bytes
+    }
+}
+
+/// The texel block of the formats vkshade moves through staging: the uncompressed colour
+/// formats of [`texel_size`] and BC1 (RGB/RGBA, UNORM/SRGB: 4 x 4 texels in 8 bytes).
+pub fn format_block(format: vk::Format) -> Option<FormatBlock> {
+    if is_bc(format) {
+        return Some(FormatBlock {
+            width: 4,
+            height: 4,
+            bytes: 8,
+        });
+    }
+    texel_size(format).map(|bytes| FormatBlock {
+        width: 1,
+        height: 1,
+        bytes,
+    })
+}
+
+/// Whether `format` is one of the BC formats vkshade stages (needs `textureCompressionBC`).
+pub fn is_bc(format: vk::Format) -> bool {
+    use vk::Format as F;
+    matches!(
+        format,
+        F::BC1_RGB_UNORM_BLOCK
+            | F::BC1_RGB_SRGB_BLOCK
+            | F::BC1_RGBA_UNORM_BLOCK
+            | F::BC1_RGBA_SRGB_BLOCK
+    )
 }
 
 /// Texel size in bytes of the uncompressed colour formats vkshade moves through staging.
@@ -345,6 +410,11 @@ impl ImageRegion {
         self.extent.iter().map(|&e| e as u64).product::<u64>() * self.layers as u64
     }
 
+    /// Bytes of the region's tightly packed texels (whole blocks for a compressed format).
+    pub fn byte_size(&self, desc: &ImageDesc) -> Result<u64> {
+        Ok(desc.block()?.bytes_for(self.extent) * self.layers as u64)
+    }
+
     pub fn subresources(&self) -> Subresources {
         Subresources {
             base_mip: self.mip,
@@ -378,6 +448,21 @@ impl ImageRegion {
                 "region offset {:?} extent {:?} is empty or outside mip {} ({:?}) of image '{name}'",
                 self.offset, self.extent, self.mip, e
             )));
+        }
+        if let Some(b) = format_block(desc.format).filter(FormatBlock::compressed) {
+            let aligned = (0..2).all(|i| {
+                let bw = [b.width, b.height][i];
+                self.offset[i] % bw == 0
+                    && (self.extent[i] % bw == 0 || self.offset[i] + self.extent[i] == e[i])
+            });
+            if !aligned {
+                return Err(Error::InvalidArgument(format!(
+                    "region offset {:?} extent {:?} of image '{name}' ({:?}) is not aligned to \
+                     its {}x{} texel blocks (it must start on a block and end on one or at the \
+                     edge of mip {} {:?})",
+                    self.offset, self.extent, desc.format, b.width, b.height, self.mip, e
+                )));
+            }
         }
         Ok(())
     }
@@ -586,6 +671,21 @@ fn check_image_desc(shared: &Shared, name: &str, desc: &ImageDesc) -> Result<()>
             requested: desc.layers as u64,
             limit_name: "maxImageArrayLayers",
             limit: limits.max_image_array_layers as u64,
+        });
+    }
+    if is_bc(desc.format) && !shared.features.texture_compression_bc {
+        return Err(Error::Unsupported {
+            device: shared.info.name.clone(),
+            what: format!(
+                "format {:?} for image '{name}' without the textureCompressionBC feature \
+                 (request it in ContextDesc features; the device {} it)",
+                desc.format,
+                if shared.info.features.texture_compression_bc {
+                    "supports"
+                } else {
+                    "lacks"
+                }
+            ),
         });
     }
     // With a mutable format, storage may be meant for a view of another format only.

@@ -26,7 +26,8 @@ pub use context::{
     MemoryConfig, SystemInfo, ValidationConfig, enumerate_devices,
 };
 pub use image::{
-    Image, ImageDesc, ImageDim, ImageRegion, Sampler, SamplerDesc, Subresources, ViewDesc,
+    FormatBlock, Image, ImageDesc, ImageDim, ImageRegion, Sampler, SamplerDesc, Subresources,
+    ViewDesc, format_block, is_bc,
 };
 pub use memory::{
     AliasGroup, AliasMember, Buffer, BufferDesc, Dedicated, Location, MemoryReport, Placement,

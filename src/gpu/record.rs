@@ -1257,8 +1257,8 @@ impl Recorder {
     pub fn upload_image(&mut self, image: &Image, region: ImageRegion, data: &[u8]) -> Result<()> {
         region.check(image.name(), image.desc())?;
         image.require_usage(vk::ImageUsageFlags::TRANSFER_DST, "an upload to it")?;
-        let texel = image.desc().texel_size()?;
-        let expected = region.texels() * texel;
+        let block = image.desc().block()?;
+        let expected = region.byte_size(image.desc())?;
         if data.len() as u64 != expected {
             return Err(Error::InvalidArgument(format!(
                 "region {:?} of image '{}' needs {expected} bytes of texels, got {}",
@@ -1267,7 +1267,8 @@ impl Recorder {
                 data.len()
             )));
         }
-        let (src, offset) = self.stage(image.name(), data, texel.max(4))?;
+        // bufferOffset: a multiple of the texel block size and of 4.
+        let (src, offset) = self.stage(image.name(), data, block.bytes.max(4))?;
         let whole = region.offset == [0; 3] && region.extent == image.desc().mip_extent(region.mip);
         self.use_image_inner(
             &image.keep(),
@@ -1293,7 +1294,7 @@ impl Recorder {
     pub fn read_back_image(&mut self, image: &Image, region: ImageRegion) -> Result<Readback> {
         region.check(image.name(), image.desc())?;
         image.require_usage(vk::ImageUsageFlags::TRANSFER_SRC, "a readback")?;
-        let size = region.texels() * image.desc().texel_size()?;
+        let size = region.byte_size(image.desc())?;
         let (staging, readback) = self.readback_buffer(image.name(), size)?;
         self.use_image(image, region.subresources(), AccessType::TransferRead)?;
         *lock(&staging.keep().state) =
@@ -1934,7 +1935,7 @@ impl Context {
         chunk_bytes: u64,
     ) -> Result<u64> {
         let desc = *image.desc();
-        let texel = desc.texel_size()?;
+        let block = desc.block()?;
         let [w, h, d] = desc.extent;
         if data.len() as u64 != desc.byte_size()? {
             return Err(Error::InvalidArgument(format!(
@@ -1944,15 +1945,16 @@ impl Context {
                 data.len()
             )));
         }
-        let row = w as u64 * texel;
-        let slice = row * h as u64;
-        // Units along the slowest axis: layers (2D arrays), depth slices (3D) or rows.
+        // A row of texel blocks (a row of texels for an uncompressed format).
+        let row = block.bytes_for([w, 1, 1]);
+        let slice = block.bytes_for([w, h, 1]);
+        // Units along the slowest axis: layers (2D arrays), depth slices (3D) or block rows.
         let (units, unit_bytes) = if desc.layers > 1 {
             (desc.layers, slice)
         } else if d > 1 {
             (d, slice)
         } else {
-            (h, row)
+            (h.div_ceil(block.height), row)
         };
         let per_chunk = (chunk_bytes / unit_bytes).clamp(1, units as u64) as u32;
         let mut last = 0;
@@ -1967,8 +1969,8 @@ impl Context {
                 region.offset[2] = start;
                 region.extent[2] = n;
             } else {
-                region.offset[1] = start;
-                region.extent[1] = n;
+                region.offset[1] = start * block.height;
+                region.extent[1] = (n * block.height).min(h - region.offset[1]);
             }
             let bytes = &data
                 [(start as u64 * unit_bytes) as usize..((start + n) as u64 * unit_bytes) as usize];

@@ -3,6 +3,7 @@
 //! writability check, JSON, and (feature `exr`) linear float images.
 
 #[cfg(feature = "exr")]
+pub mod bc1;
 pub mod exr;
 
 use crate::error::{Error, Result};

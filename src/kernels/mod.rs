@@ -2,6 +2,7 @@
 //! it inside its own command buffer, and has a CPU implementation of the same method.
 
 pub mod ao;
+pub mod btf;
 pub mod shape;
 pub mod srbf;
 

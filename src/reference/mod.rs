@@ -1,6 +1,7 @@
 //! CPU ground truths (f32/f64, rayon): independent of the methods they judge.
 
 pub mod ao;
+pub mod btf;
 pub mod srbf;
 
 /// Error statistics of an estimate against a reference.

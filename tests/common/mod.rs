@@ -26,6 +26,29 @@ pub fn shutdown(ctx: Context) -> Vec<ValidationMessage> {
     }
 }
 
+/// Runs `f` on a validated context with optional device `features` (which the device must
+/// support); fails on any error, validation message or leak.
+pub fn with_gpu_features<T>(
+    features: vkshade::gpu::Features,
+    f: impl FnOnce(&Context) -> vkshade::Result<T>,
+) -> T {
+    let ctx = match Context::new(&ContextDesc {
+        features,
+        ..ContextDesc::validated()
+    }) {
+        Ok(ctx) => ctx,
+        Err(e) => panic!("cannot create a validated context with {features:?}: {e}"),
+    };
+    let result = f(&ctx);
+    let messages = shutdown(ctx);
+    let value = match result {
+        Ok(v) => v,
+        Err(e) => panic!("GPU test failed: {e}"),
+    };
+    assert_clean(&messages);
+    value
+}
+
 /// Runs `f` on a validated context; fails on any error, validation message or leak.
 pub fn with_gpu<T>(f: impl FnOnce(&Context) -> vkshade::Result<T>) -> T {
     let ctx = context();

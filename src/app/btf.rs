@@ -1,0 +1,561 @@
+//! `vkshade btf synth|eval|render`: synthetic BTF directories, one interpolated tile through
+//! the GPU path, and cloth-covered objects with (optionally) the CPU interpolation and the
+//! direct ray-cast as references.
+
+use crate::error::{Error, Result};
+use crate::gpu::Context;
+use crate::io::FloatImage;
+use crate::kernels::btf::cpu;
+use crate::kernels::btf::dirs::{self, Angles, Maps, Triangulation};
+use crate::kernels::btf::gbuffer::{self, Camera, Frame, GBuffer, Light, Object};
+use crate::kernels::btf::gpu::{
+    BtfInputs, BtfKernel, Layout, PASS_SHADE, Packing, Texture, sampled_texels,
+};
+use crate::kernels::btf::load;
+use crate::kernels::btf::synth::{self, FileFormat, Pattern, SynthConfig, srgb_encode};
+use crate::kernels::shape::time_passes;
+use crate::kernels::{Kernel, KernelInfo};
+use crate::report::MachineInfo;
+use glam::Vec3;
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// The metadata file `btf synth` writes beside the images (the ground truth reads it).
+pub const META: &str = "btf.json";
+
+/// What `btf.json` holds.
+#[derive(Clone, Debug, Serialize, serde::Deserialize)]
+pub struct SynthMeta {
+    pub tool: String,
+    pub synth: SynthConfig,
+    pub format: String,
+    pub brdf: String,
+    pub ms: f64,
+}
+
+/// Runs `vkshade btf synth`: synthesises `size` x `size` texels of `pattern` repeating every
+/// `period` texels (default: one tile, period = size) and writes them to `out`.
+pub fn synth_command(
+    pattern: Pattern,
+    size: u32,
+    period: Option<u32>,
+    samples: u32,
+    format: FileFormat,
+    out: &Path,
+) -> Result<SynthMeta> {
+    let cfg = SynthConfig {
+        samples,
+        period: period.unwrap_or(size),
+        ..SynthConfig::tile(pattern, size)
+    };
+    cfg.check()?;
+    let t = Instant::now();
+    let btf = synth::synthesize(&cfg)?;
+    let meta = SynthMeta {
+        tool: "vkshade btf synth".into(),
+        synth: cfg,
+        format: format!("{format:?}").to_lowercase(),
+        brdf: format!(
+            "Lambert (KD {} x albedo) + normalised Blinn-Phong (KS {}, exponent {}), value = radiance under irradiance pi, shadowing and masking by ray-casting",
+            synth::KD,
+            synth::KS,
+            synth::EXPONENT
+        ),
+        ms: t.elapsed().as_secs_f64() * 1e3,
+    };
+    synth::write_dir(&btf, out, format, &meta)?;
+    Ok(meta)
+}
+
+/// The synthesis settings of a directory written by `btf synth` (for the ground truth).
+pub fn read_meta(dir: &Path) -> Result<SynthMeta> {
+    let path = dir.join(META);
+    let text = std::fs::read_to_string(&path).map_err(|e| Error::io(&path, e))?;
+    let meta: SynthMeta = serde_json::from_str(&text)
+        .map_err(|e| Error::input(&path, format!("not a btf synth description: {e}")))?;
+    meta.synth.check()?;
+    Ok(meta)
+}
+
+/// `THETA,PHI` in degrees.
+pub fn parse_angles(s: &str) -> std::result::Result<[f64; 2], String> {
+    let v: Vec<f64> = s
+        .split(',')
+        .map(|x| x.trim().parse::<f64>())
+        .collect::<std::result::Result<_, _>>()
+        .map_err(|_| format!("'{s}': expected THETA,PHI in degrees"))?;
+    match v[..] {
+        [t, p] if t.is_finite() && p.is_finite() && (0.0..90.0).contains(&t) => Ok([t, p]),
+        _ => Err(format!(
+            "'{s}': expected THETA,PHI in degrees with 0 <= THETA < 90"
+        )),
+    }
+}
+
+fn angles_vector([t, p]: [f64; 2]) -> Vec3 {
+    let (t, p) = (t.to_radians(), p.to_radians());
+    Vec3::new(
+        (t.sin() * p.cos()) as f32,
+        (t.sin() * p.sin()) as f32,
+        t.cos() as f32,
+    )
+}
+
+/// What `btf eval` reports.
+#[derive(Clone, Debug, Serialize)]
+pub struct EvalReport {
+    pub size: [u32; 2],
+    pub light_taps: Vec<(Angles, f64)>,
+    pub view_taps: Vec<(Angles, f64)>,
+    pub gpu_ms: f64,
+}
+
+/// Runs `vkshade btf eval`: the tile interpolated at one (light, view) pair through the GPU
+/// path, written as linear EXR.
+pub fn eval_command(
+    ctx: &Context,
+    dir: &Path,
+    light: [f64; 2],
+    view: [f64; 2],
+    map_res: u32,
+    texture: Texture,
+    out: &Path,
+) -> Result<EvalReport> {
+    crate::io::check_writable(out)?;
+    let btf = load::load_dir(dir)?;
+    let maps = Maps::build(&Triangulation::new()?, map_res)?;
+    let gb = GBuffer::tile(btf.size);
+    let frame = Frame {
+        camera: Camera::Orthographic(angles_vector(view)),
+        lights: vec![Light {
+            direction: angles_vector(light),
+            rgb: [1.0; 3],
+        }],
+    };
+    let mut rec = ctx.recorder("btf eval")?;
+    let kernel = BtfKernel::new(
+        &mut rec,
+        &BtfInputs {
+            btf: &btf,
+            maps: &maps,
+            gbuffer: &gb,
+            layout: texture.default_layout(),
+            texture,
+            layer_cap: None,
+        },
+    )?;
+    kernel.record(&mut rec, &frame)?;
+    let rb = kernel.read_back(&mut rec)?;
+    let t = rec.submit_and_wait()?;
+    let px = kernel.collect(&rb)?;
+    write_exr(
+        out,
+        &FloatImage {
+            width: btf.size[0],
+            height: btf.size[1],
+            pixels: px,
+        },
+    )?;
+    let d = dirs::directions();
+    let taps = |v: Vec3| {
+        let t = maps.lookup(v.as_dvec3().to_array());
+        (0..3)
+            .filter(|&k| t.weight[k] > 0.0)
+            .map(|k| (d[t.index[k]], t.weight[k]))
+            .collect()
+    };
+    Ok(EvalReport {
+        size: btf.size,
+        light_taps: taps(angles_vector(light)),
+        view_taps: taps(angles_vector(view)),
+        gpu_ms: t.get(PASS_SHADE).unwrap_or(f64::NAN),
+    })
+}
+
+fn write_exr(path: &Path, img: &FloatImage) -> Result<()> {
+    #[cfg(feature = "exr")]
+    return crate::io::exr::write(path, img, crate::io::exr::Channels::Rgba);
+    #[cfg(not(feature = "exr"))]
+    {
+        let _ = img;
+        Err(Error::feature(
+            format!("writing the EXR {}", path.display()),
+            "exr",
+        ))
+    }
+}
+
+/// Everything `vkshade btf render` can be told.
+#[derive(Clone, Debug)]
+pub struct RenderConfig {
+    pub btf: PathBuf,
+    pub object: Object,
+    /// A mesh with UVs (glTF, OBJ, PLY, OFF) to cover instead of `object`.
+    pub mesh: Option<PathBuf>,
+    pub lights: Vec<Light>,
+    pub width: u32,
+    pub height: u32,
+    pub map_res: u32,
+    pub layout: Layout,
+    pub texture: Texture,
+    pub reference: bool,
+    /// Error at the top of the heat map.
+    pub error_scale: f32,
+    pub out: PathBuf,
+    pub bench: crate::bench::BenchConfig,
+}
+
+pub use crate::kernels::btf::gbuffer::default_lights;
+
+/// Errors against one reference.
+#[derive(Clone, Debug, Serialize)]
+pub struct VsCpu {
+    /// Largest and RMS |GPU - CPU| over covered, unambiguous pixels and channels.
+    pub max_abs: f64,
+    pub rms: f64,
+    pub pixels: usize,
+    /// Pixels left out: a map coordinate within 1e-3 texels of a texel border, where f32
+    /// on the GPU may pick the neighbouring map texel.
+    pub ambiguous_pixels: usize,
+    /// The bound stated for the stored formats (see tests/btf.rs).
+    pub bound: f64,
+    pub cpu_ms: f64,
+}
+
+/// Errors against the direct ray-cast, split at 75 deg.
+#[derive(Clone, Debug, Serialize)]
+pub struct VsRayCast {
+    pub within_75: Band,
+    pub grazing: Band,
+    pub all: Band,
+    pub ray_cast_ms: f64,
+}
+
+/// RMSE and PSNR (peak 1, linear) of one band of pixels.
+#[derive(Clone, Debug, Serialize)]
+pub struct Band {
+    pub pixels: usize,
+    pub rmse: f64,
+    pub psnr_db: f64,
+    pub max_abs: f64,
+}
+
+impl Band {
+    fn of(pairs: impl Iterator<Item = ([f32; 4], [f64; 4])>) -> Band {
+        let (mut se, mut n, mut max) = (0.0, 0usize, 0.0f64);
+        for (g, t) in pairs {
+            for i in 0..3 {
+                let e = g[i] as f64 - t[i];
+                se += e * e;
+                max = max.max(e.abs());
+            }
+            n += 1;
+        }
+        let rmse = (se / (3 * n.max(1)) as f64).sqrt();
+        Band {
+            pixels: n,
+            rmse,
+            psnr_db: if n == 0 {
+                f64::NAN
+            } else {
+                -20.0 * rmse.log10()
+            },
+            max_abs: max,
+        }
+    }
+}
+
+/// What `report.json` of `btf render` holds.
+#[derive(Clone, Debug, Serialize)]
+pub struct RenderReport {
+    pub tool: &'static str,
+    pub machine: MachineInfo,
+    pub btf: String,
+    pub tile: [u32; 2],
+    pub object: String,
+    pub size: [u32; 2],
+    pub covered_pixels: usize,
+    pub map_resolution: u32,
+    pub lights: Vec<[f32; 6]>,
+    pub packing: Packing,
+    /// The texel format of the packed BTF (rgba8 or bc1).
+    pub texture: Texture,
+    /// Device bytes of the packed BTF (array textures) and of the two maps.
+    pub texture_bytes: u64,
+    pub texture_mib: f64,
+    pub map_bytes: u64,
+    pub gpu_ms: crate::report::Stats,
+    pub fps: f64,
+    pub load_ms: f64,
+    pub kernel: KernelInfo,
+    pub vs_cpu: Option<VsCpu>,
+    pub vs_ray_cast: Option<VsRayCast>,
+    pub png: String,
+    pub exr: String,
+    pub notes: Vec<String>,
+}
+
+/// Runs `vkshade btf render`.
+pub fn render(
+    ctx: &Context,
+    cfg: &RenderConfig,
+    progress: &mut dyn FnMut(&str),
+) -> Result<RenderReport> {
+    let report_path = cfg.out.join("report.json");
+    crate::io::check_writable(&report_path)?;
+    let meta = if cfg.reference {
+        Some(read_meta(&cfg.btf).map_err(|e| {
+            Error::InvalidArgument(format!(
+                "--reference ray-casts the heightfield the BTF was synthesised from, described in {}: {e}",
+                cfg.btf.join(META).display()
+            ))
+        })?)
+    } else {
+        None
+    };
+    let t = Instant::now();
+    let btf = load::load_dir(&cfg.btf)?;
+    let load_ms = t.elapsed().as_secs_f64() * 1e3;
+    progress(&format!(
+        "loaded {} ({} x {} texels x 6561 images) in {load_ms:.0} ms",
+        cfg.btf.display(),
+        btf.size[0],
+        btf.size[1]
+    ));
+    let maps = Maps::build(&Triangulation::new()?, cfg.map_res)?;
+    let gb = match &cfg.mesh {
+        Some(path) => {
+            let character = crate::scene::load(path)?;
+            gbuffer::render_mesh(&character.mesh, cfg.width, cfg.height)
+                .map_err(|e| Error::input(path, e.to_string()))?
+        }
+        None => gbuffer::render_object(cfg.object, cfg.width, cfg.height)?,
+    };
+    let frame = Frame {
+        camera: Camera::Perspective(Vec3::from(gbuffer::EYE)),
+        lights: cfg.lights.clone(),
+    };
+    frame.check()?;
+    let mut rec = ctx.recorder("btf render")?;
+    let kernel = BtfKernel::new(
+        &mut rec,
+        &BtfInputs {
+            btf: &btf,
+            maps: &maps,
+            gbuffer: &gb,
+            layout: cfg.layout,
+            texture: cfg.texture,
+            layer_cap: None,
+        },
+    )?;
+    kernel.record(&mut rec, &frame)?;
+    let rb = kernel.read_back(&mut rec)?;
+    rec.submit_and_wait()?;
+    let out = kernel.collect(&rb)?;
+    let timed = time_passes(ctx, &cfg.bench, &kernel, &frame)?;
+    let gpu_ms = timed[0].1.clone();
+    progress(&format!(
+        "btf shade {} x {}: {:.3} ms (median GPU)",
+        cfg.width, cfg.height, gpu_ms.median
+    ));
+
+    let mut vs_cpu = None;
+    let mut vs_ray_cast = None;
+    let mut truth_px = None;
+    if let Some(meta) = &meta {
+        // The texels the GPU samples (for BC1: encoded and decoded again, see io::bc1).
+        let packed = sampled_texels(&btf, cfg.texture);
+        let t = Instant::now();
+        let (want, ambiguous) =
+            cpu::shade(&cpu::Packed::new(btf.size, &packed), &maps, &gb, &frame);
+        let cpu_ms = t.elapsed().as_secs_f64() * 1e3;
+        let (mut max, mut se, mut n, mut amb) = (0.0f64, 0.0, 0usize, 0usize);
+        for k in 0..out.len() {
+            if want[k][3] == 0.0 {
+                continue;
+            }
+            if ambiguous[k] {
+                amb += 1;
+                continue;
+            }
+            for i in 0..3 {
+                let e = out[k][i] as f64 - want[k][i];
+                max = max.max(e.abs());
+                se += e * e;
+            }
+            n += 1;
+        }
+        vs_cpu = Some(VsCpu {
+            max_abs: max,
+            rms: (se / (3 * n.max(1)) as f64).sqrt(),
+            pixels: n,
+            ambiguous_pixels: amb,
+            // tests/btf.rs: GPU_CPU_BOUND (RGBA8) and GPU_CPU_BOUND_BC1 (palette rounding).
+            bound: match cfg.texture {
+                Texture::Rgba8 => 5e-3,
+                Texture::Bc1 => 1.4e-2,
+            },
+            cpu_ms,
+        });
+        if meta.synth.size != btf.size || meta.synth.period != btf.size[0] {
+            return Err(Error::input(
+                cfg.btf.join(META),
+                format!(
+                    "describes a {:?} sample of period {}, but the images are {:?}",
+                    meta.synth.size, meta.synth.period, btf.size
+                ),
+            ));
+        }
+        progress("ray-casting the heightfield at every pixel's exact directions");
+        let t = Instant::now();
+        let (truth, theta) = crate::reference::btf::ray_cast(&meta.synth, &gb, &frame);
+        let ray_cast_ms = t.elapsed().as_secs_f64() * 1e3;
+        let covered = |k: &usize| truth[*k][3] > 0.0;
+        let band = |f: &dyn Fn(usize) -> bool| {
+            Band::of(
+                (0..out.len())
+                    .filter(covered)
+                    .filter(|&k| f(k))
+                    .map(|k| (out[k], truth[k])),
+            )
+        };
+        vs_ray_cast = Some(VsRayCast {
+            within_75: band(&|k| theta[k] <= 75.0),
+            grazing: band(&|k| theta[k] > 75.0),
+            all: band(&|_| true),
+            ray_cast_ms,
+        });
+        truth_px = Some(truth);
+    }
+
+    // Pictures: render.exr (linear; with --reference result | truth | error), render.png.
+    let png = cfg.out.join("render.png");
+    let exr = cfg.out.join("render.exr");
+    let to_picture = |px: &dyn Fn(usize) -> [f64; 3]| crate::render::Picture {
+        width: gb.width,
+        height: gb.height,
+        rgb: (0..out.len())
+            .flat_map(|k| px(k).map(|x| srgb_encode(x as f32)))
+            .collect(),
+    };
+    let result_pic = to_picture(&|k| out[k].map(|x| x as f64)[..3].try_into().unwrap_or([0.0; 3]));
+    let result_float = FloatImage {
+        width: gb.width,
+        height: gb.height,
+        pixels: out.clone(),
+    };
+    match &truth_px {
+        None => {
+            crate::render::write_png(&png, result_pic.width, result_pic.height, &result_pic.rgb)?;
+            write_exr(&exr, &result_float)?;
+        }
+        Some(truth) => {
+            let truth_pic = to_picture(&|k| [truth[k][0], truth[k][1], truth[k][2]]);
+            let error: Vec<f32> = (0..out.len())
+                .map(|k| {
+                    if truth[k][3] > 0.0 {
+                        (0..3)
+                            .map(|i| (out[k][i] as f64 - truth[k][i]).abs())
+                            .fold(0.0, f64::max) as f32
+                    } else {
+                        f32::NAN
+                    }
+                })
+                .collect();
+            let pic =
+                crate::render::side_by_side(&result_pic, &truth_pic, &error, cfg.error_scale)?;
+            crate::render::write_png(&png, pic.width, pic.height, &pic.rgb)?;
+            let truth_float = FloatImage {
+                width: gb.width,
+                height: gb.height,
+                pixels: truth.iter().map(|t| t.map(|x| x as f32)).collect(),
+            };
+            let err_float = FloatImage {
+                width: gb.width,
+                height: gb.height,
+                pixels: error
+                    .iter()
+                    .map(|&e| {
+                        let e = if e.is_finite() { e } else { 0.0 };
+                        [e, e, e, 1.0]
+                    })
+                    .collect(),
+            };
+            write_exr(
+                &exr,
+                &crate::render::side_by_side_linear(&result_float, &truth_float, &err_float)?,
+            )?;
+        }
+    }
+    let texture_bytes = kernel.texture_bytes();
+    let report = RenderReport {
+        tool: "vkshade btf render",
+        machine: MachineInfo::of(ctx),
+        btf: cfg.btf.display().to_string(),
+        tile: btf.size,
+        object: match &cfg.mesh {
+            Some(p) => p.display().to_string(),
+            None => format!("{:?}", cfg.object).to_lowercase(),
+        },
+        size: [cfg.width, cfg.height],
+        covered_pixels: gb.covered(),
+        map_resolution: cfg.map_res,
+        lights: cfg
+            .lights
+            .iter()
+            .map(|l| {
+                let d = l.direction.normalize();
+                [d.x, d.y, d.z, l.rgb[0], l.rgb[1], l.rgb[2]]
+            })
+            .collect(),
+        packing: kernel.packing(),
+        texture: kernel.texture(),
+        texture_bytes,
+        texture_mib: texture_bytes as f64 / (1u64 << 20) as f64,
+        map_bytes: kernel.map_bytes(),
+        fps: 1000.0 / gpu_ms.median,
+        gpu_ms,
+        load_ms,
+        kernel: KernelInfo::of(&kernel, 1),
+        vs_cpu,
+        vs_ray_cast,
+        png: png.display().to_string(),
+        exr: exr.display().to_string(),
+        notes: vec![
+            "Directions are interpolated through nearest-texel parabolic index/weight maps (Delaunay triangulation of the 81 UBO2003 directions); beyond 75 deg btflib's zero-weight virtual ring fades the BTF towards 0 at the horizon.".into(),
+            "The packed BTF is RGBA8 sRGB (decoded to linear by the sampler, bilinear inside a tile, repeat in uv); RGB8 is not a sampled format on most devices.".into(),
+            "vs_ray_cast: the heightfield ray-cast at each pixel's exact tangent-space directions, filtered over the tile texels like the GPU, clipped at 1 like the 8-bit images; its error includes the 8-bit storage. Bands by the larger polar angle of view and lights.".into(),
+        ],
+    };
+    crate::io::write_json(&report_path, &report)?;
+    Ok(report)
+}
+
+/// What `btf tile` reports.
+#[derive(Clone, Debug, Serialize)]
+pub struct TileReport {
+    pub sample_size: [u32; 2],
+    pub period: load::Period,
+    pub origin: [u32; 2],
+}
+
+/// Runs `vkshade btf tile`: finds the repeat period of the BTF sample in `dir` (local minima
+/// of the 2D offset cost) and writes one tile cut at `origin` as a new directory `out`.
+pub fn tile_command(
+    dir: &Path,
+    origin: [u32; 2],
+    format: FileFormat,
+    out: &Path,
+) -> Result<TileReport> {
+    let btf = load::load_dir(dir)?;
+    let period = load::find_period(&btf)?;
+    let tile = load::cut_tile(&btf, origin, period.period)?;
+    let report = TileReport {
+        sample_size: btf.size,
+        period,
+        origin,
+    };
+    synth::write_dir(&tile, out, format, &report)?;
+    Ok(report)
+}

@@ -1,0 +1,439 @@
+//! `vkshade bench btf`: GPU time of `btf shade` on a cloth-covered sphere over resolution,
+//! map resolution, tile size, layout and light count (one at a time around the headline),
+//! filtered fetches per second against the rate a fetch probe sustains on the same texture
+//! in the same run, the speed-up over the CPU interpolation, and texture memory.
+//!
+//! Timing does not depend on the texels, so the sweeps use hashed texels (the ray-cast
+//! synthesis of a 32 x 32 tile takes ~20 s on two cores); the maps, G-buffer and lights are
+//! the real ones.
+
+use super::{BenchConfig, MachineInfo, Stats, time_cpu, time_gpu};
+use crate::error::{Error, Result};
+use crate::gpu::{
+    AccessSet, AccessType as A, Buffer, BufferDesc, ComputePipeline, Context, Image, ImageDesc,
+    ImageRegion, Resource, Sampler, SamplerDesc,
+};
+use crate::kernels::btf::cpu;
+use crate::kernels::btf::dirs::{self, Maps, Triangulation};
+use crate::kernels::btf::gbuffer::{Camera, EYE, Frame, GBuffer, Light, Object, render_object};
+use crate::kernels::btf::gpu::{
+    BtfInputs, BtfKernel, FORMAT, Layout, Packing, Texture, pack, sampled_texels,
+};
+use crate::kernels::btf::synth::Btf;
+use crate::kernels::shape::time_passes;
+use glam::Vec3;
+use serde::Serialize;
+
+/// What `bench btf` measures.
+#[derive(Clone, Debug, Serialize)]
+pub struct BtfBenchConfig {
+    pub bench: BenchConfig,
+    /// Square output sizes.
+    pub resolutions: Vec<u32>,
+    pub map_resolutions: Vec<u32>,
+    pub tiles: Vec<u32>,
+    /// (resolution, map resolution, tile, lights) of the headline.
+    pub headline: (u32, u32, u32, usize),
+    pub object: Object,
+    pub cpu_runs: usize,
+    /// Fetches per invocation of the probe.
+    pub probe_fetches: u32,
+    /// Texel format of the headline and sweeps (at its default layout).
+    pub texture: Texture,
+    /// Whether the device may store BC1 (the context has textureCompressionBC): the
+    /// headline is then also measured in the other format.
+    pub bc1_available: bool,
+}
+
+impl Default for BtfBenchConfig {
+    fn default() -> Self {
+        BtfBenchConfig {
+            bench: BenchConfig::default(),
+            resolutions: vec![256, 512, 1024],
+            map_resolutions: vec![32, 128, 512],
+            tiles: vec![8, 16, 32],
+            headline: (512, 128, 32, 1),
+            object: Object::Sphere,
+            cpu_runs: 3,
+            probe_fetches: 16,
+            texture: Texture::Bc1,
+            bc1_available: true,
+        }
+    }
+}
+
+/// One configuration's timing.
+#[derive(Clone, Debug, Serialize)]
+pub struct Point {
+    pub resolution: u32,
+    pub map_resolution: u32,
+    pub tile: u32,
+    pub layout: Layout,
+    pub texture: Texture,
+    pub lights: usize,
+    pub covered_pixels: usize,
+    pub gpu_ms: Stats,
+    pub fps: f64,
+    /// Filtered BTF fetches (taps with non-zero weight) and map texel fetches per frame.
+    pub taps_per_frame: u64,
+    pub map_fetches_per_frame: u64,
+    pub taps_per_second: f64,
+    /// taps_per_second / the probe's sustained filtered fetches per second.
+    pub fraction_of_fetch_rate: f64,
+    pub texture_bytes: u64,
+    pub texture_mib: f64,
+    pub packing: Packing,
+}
+
+/// What `bench btf` writes.
+#[derive(Clone, Debug, Serialize)]
+pub struct BtfBenchReport {
+    pub benchmark: &'static str,
+    pub machine: MachineInfo,
+    pub config: BtfBenchConfig,
+    /// Sustained filtered fetches per second from the rows-layout array texture (probe).
+    pub probe_fetches_per_second: f64,
+    pub probe_ms: Stats,
+    pub headline: Point,
+    /// The headline configuration in each texel format the device can store (rgba8 at the
+    /// rows layout, bc1 at the layers layout), measured in this run.
+    pub formats: Vec<Point>,
+    /// The same 9-tap interpolation on the CPU (f64, rayon), headline configuration.
+    pub cpu_same_method_ms: Stats,
+    pub speedup_vs_cpu: f64,
+    pub sweep: Vec<Point>,
+    pub targets: Vec<super::ao::TargetCheck>,
+}
+
+/// Texels for timing: hashed bytes (the work does not depend on them).
+fn hashed_btf(tile: u32) -> Btf {
+    let n = dirs::COUNT * dirs::COUNT * (tile * tile) as usize;
+    let mut h = 0x2545_f491_4f6c_dd1du64;
+    let texels = (0..n)
+        .map(|_| {
+            h ^= h << 13;
+            h ^= h >> 7;
+            h ^= h << 17;
+            [0, 1, 2].map(|k| ((h >> (8 * k)) & 0xff) as f32 / 255.0)
+        })
+        .collect();
+    Btf {
+        size: [tile, tile],
+        texels,
+    }
+}
+
+fn frame(lights: usize) -> Frame {
+    let all = crate::kernels::btf::gbuffer::default_lights();
+    Frame {
+        camera: Camera::Perspective(Vec3::from(EYE)),
+        lights: all.into_iter().take(lights.max(1)).collect::<Vec<Light>>(),
+    }
+}
+
+/// Taps (non-zero weight pairs per lit light) and map fetches of one frame.
+fn count_work(maps: &Maps, gb: &GBuffer, frame: &Frame) -> (u64, u64) {
+    use crate::kernels::btf::gbuffer::{frame_of, to_tangent};
+    let (mut taps, mut map) = (0u64, 0u64);
+    for k in 0..(gb.width * gb.height) as usize {
+        let Some(px) = gb.pixel(k) else { continue };
+        let tbn = frame_of(&px);
+        let v = to_tangent(frame.camera.view(px.position), tbn);
+        if v[2] <= 0.0 {
+            continue;
+        }
+        map += 2;
+        let wv = maps.lookup(v);
+        for l in &frame.lights {
+            let lt = to_tangent(l.direction.as_dvec3().normalize(), tbn);
+            if lt[2] <= 0.0 {
+                continue;
+            }
+            map += 2;
+            let wl = maps.lookup(lt);
+            let nv = wv.weight.iter().filter(|w| **w != 0.0).count() as u64;
+            let nl = wl.weight.iter().filter(|w| **w != 0.0).count() as u64;
+            taps += nv * nl;
+        }
+    }
+    (taps, map)
+}
+
+struct Setup {
+    maps: Maps,
+    gb: GBuffer,
+}
+
+#[allow(clippy::too_many_arguments)]
+fn measure(
+    ctx: &Context,
+    cfg: &BtfBenchConfig,
+    btf: &Btf,
+    setup: &Setup,
+    (texture, layout): (Texture, Layout),
+    lights: usize,
+    probe_rate: f64,
+) -> Result<Point> {
+    let mut rec = ctx.recorder("bench btf setup")?;
+    let kernel = BtfKernel::new(
+        &mut rec,
+        &BtfInputs {
+            btf,
+            maps: &setup.maps,
+            gbuffer: &setup.gb,
+            layout,
+            texture,
+            layer_cap: None,
+        },
+    )?;
+    rec.submit_and_wait()?;
+    let f = frame(lights);
+    let gpu_ms = time_passes(ctx, &cfg.bench, &kernel, &f)?.remove(0).1;
+    let (taps, map) = count_work(&setup.maps, &setup.gb, &f);
+    let taps_per_second = taps as f64 / (gpu_ms.median * 1e-3);
+    let texture_bytes = kernel.texture_bytes();
+    Ok(Point {
+        resolution: setup.gb.width,
+        map_resolution: setup.maps.res,
+        tile: btf.size[0],
+        layout,
+        texture,
+        lights,
+        covered_pixels: setup.gb.covered(),
+        fps: 1000.0 / gpu_ms.median,
+        gpu_ms,
+        taps_per_frame: taps,
+        map_fetches_per_frame: map,
+        taps_per_second,
+        fraction_of_fetch_rate: taps_per_second / probe_rate,
+        texture_bytes,
+        texture_mib: texture_bytes as f64 / (1u64 << 20) as f64,
+        packing: kernel.packing(),
+    })
+}
+
+/// The fetch probe: sustained filtered fetches per second from a rows-layout texture.
+fn probe(ctx: &Context, cfg: &BtfBenchConfig, btf: &Btf) -> Result<(f64, Stats)> {
+    let l = ctx.limits();
+    let p = Packing::for_limits(
+        Layout::Rows,
+        btf.size,
+        l.max_image_dimension_2d,
+        l.max_image_array_layers,
+        None,
+    )?;
+    let desc = ImageDesc::d2_array(FORMAT, p.layer_extent, p.layers(0));
+    let img = Image::new(ctx, "bench btf probe texture", desc)?;
+    let sampler = Sampler::new(
+        ctx,
+        "bench btf probe sampler",
+        SamplerDesc::linear()
+            .address(ash::vk::SamplerAddressMode::REPEAT)
+            .lod(0.0, 0.0),
+    )?;
+    let size = cfg.headline.0;
+    let out = Buffer::new(
+        ctx,
+        "bench btf probe out",
+        BufferDesc::storage(size as u64 * size as u64 * 16),
+    )?;
+    let pipeline =
+        ComputePipeline::from_spirv(ctx, "btf/fetch", crate::shaders::spirv("btf/fetch")?)?;
+    let bind = pipeline.bind_declared(
+        &[
+            ("tex", Resource::texture(&img)),
+            ("smp", Resource::Sampler(&sampler)),
+            ("result", Resource::Buffer(&out)),
+        ],
+        &[("result", AccessSet::from(A::ComputeShaderWrite))],
+    )?;
+    let mut rec = ctx.recorder("bench btf probe upload")?;
+    rec.upload_image(&img, ImageRegion::whole(&desc), &p.arrange(&pack(btf)))?;
+    rec.submit_and_wait()?;
+    let fetches = cfg.probe_fetches;
+    let mut push: Vec<u8> = [size, size, fetches, p.layers(0)]
+        .iter()
+        .flat_map(|v| v.to_le_bytes())
+        .collect();
+    // About 8 pixels per texel, as the sphere shows the tile.
+    let s = 1.0 / (8.0 * btf.size[0] as f32);
+    for v in [s, s, 0.0, 0.0] {
+        push.extend_from_slice(&v.to_le_bytes());
+    }
+    let stats = time_gpu(ctx, &cfg.bench, "btf fetch probe", |rec| {
+        rec.begin_pass("btf fetch probe");
+        let r = rec.dispatch_invocations_tracked(&pipeline, &bind, &push, [size, size, 1]);
+        rec.end_pass();
+        r
+    })?;
+    let rate = (size as f64 * size as f64 * fetches as f64) / (stats.median * 1e-3);
+    Ok((rate, stats))
+}
+
+/// Runs the benchmark.
+pub fn run(
+    ctx: &Context,
+    cfg: &BtfBenchConfig,
+    progress: &mut dyn FnMut(&str),
+) -> Result<BtfBenchReport> {
+    let (res, map_res, tile, lights) = cfg.headline;
+    if cfg.resolutions.is_empty() || cfg.map_resolutions.is_empty() || cfg.tiles.is_empty() {
+        return Err(Error::InvalidArgument("bench btf: empty sweep".into()));
+    }
+    let tri = Triangulation::new()?;
+    let setup = |r: u32, m: u32| -> Result<Setup> {
+        Ok(Setup {
+            maps: Maps::build(&tri, m)?,
+            gb: render_object(cfg.object, r, r)?,
+        })
+    };
+    let head_btf = hashed_btf(tile);
+    let (probe_rate, probe_ms) = probe(ctx, cfg, &head_btf)?;
+    progress(&format!(
+        "fetch probe: {:.1} M filtered fetches/s ({:.2} ms)",
+        probe_rate / 1e6,
+        probe_ms.median
+    ));
+    let head_setup = setup(res, map_res)?;
+    let fmt = (cfg.texture, cfg.texture.default_layout());
+    let headline = measure(ctx, cfg, &head_btf, &head_setup, fmt, lights, probe_rate)?;
+    let mut formats = vec![headline.clone()];
+    let other = match cfg.texture {
+        Texture::Rgba8 => Texture::Bc1,
+        Texture::Bc1 => Texture::Rgba8,
+    };
+    if other == Texture::Rgba8 || cfg.bc1_available {
+        let p = measure(
+            ctx,
+            cfg,
+            &head_btf,
+            &head_setup,
+            (other, other.default_layout()),
+            lights,
+            probe_rate,
+        )?;
+        progress(&format!(
+            "headline in {other:?}: {:.2} ms = {:.1} fps, {:.2} MiB",
+            p.gpu_ms.median, p.fps, p.texture_mib
+        ));
+        formats.push(p);
+    }
+    progress(&format!(
+        "headline {res}^2, map {map_res}, tile {tile}, {lights} light(s): {:.2} ms = {:.1} fps",
+        headline.gpu_ms.median, headline.fps
+    ));
+    let mut sweep = Vec::new();
+    let mut push = |p: Point, progress: &mut dyn FnMut(&str)| {
+        progress(&format!(
+            "{}^2 map {} tile {} {:?} {} light(s): {:.2} ms, {:.1}% of the probe's fetch rate",
+            p.resolution,
+            p.map_resolution,
+            p.tile,
+            p.layout,
+            p.lights,
+            p.gpu_ms.median,
+            100.0 * p.fraction_of_fetch_rate
+        ));
+        sweep.push(p);
+    };
+    for &r in &cfg.resolutions {
+        let s = setup(r, map_res)?;
+        push(
+            measure(ctx, cfg, &head_btf, &s, fmt, lights, probe_rate)?,
+            progress,
+        );
+    }
+    for &m in &cfg.map_resolutions {
+        let s = setup(res, m)?;
+        push(
+            measure(ctx, cfg, &head_btf, &s, fmt, lights, probe_rate)?,
+            progress,
+        );
+    }
+    for &t in &cfg.tiles {
+        let b = hashed_btf(t);
+        push(
+            measure(ctx, cfg, &b, &head_setup, fmt, lights, probe_rate)?,
+            progress,
+        );
+    }
+    push(
+        measure(
+            ctx,
+            cfg,
+            &head_btf,
+            &head_setup,
+            (
+                Texture::Rgba8,
+                match fmt.1 {
+                    Layout::Rows => Layout::Layers,
+                    Layout::Layers => Layout::Rows,
+                },
+            ),
+            lights,
+            probe_rate,
+        )?,
+        progress,
+    );
+    push(
+        measure(ctx, cfg, &head_btf, &head_setup, fmt, 2, probe_rate)?,
+        progress,
+    );
+
+    let packed = sampled_texels(&head_btf, cfg.texture);
+    let f = frame(lights);
+    let cpu_ms = time_cpu(cfg.cpu_runs, || {
+        cpu::shade(
+            &cpu::Packed::new(head_btf.size, &packed),
+            &head_setup.maps,
+            &head_setup.gb,
+            &f,
+        )
+    });
+    progress(&format!("CPU interpolation: {:.1} ms", cpu_ms.median));
+    let targets_json: serde_json::Value = serde_json::from_str(super::ao::TARGETS)
+        .map_err(|e| Error::InvalidArgument(format!("bench/targets.json: {e}")))?;
+    let t = &targets_json["btf"];
+    let check = |name: &str, target: Option<f64>, measured: f64, at_least: bool| {
+        target.map(|target| super::ao::TargetCheck {
+            name: name.to_string(),
+            target,
+            measured,
+            pass: if at_least {
+                measured >= target
+            } else {
+                measured <= target
+            },
+        })
+    };
+    let targets = [
+        check(
+            "fps (512 x 512 sphere, 1 light, 32 x 32 tile, map 128)",
+            t["fps_min"].as_f64(),
+            headline.fps,
+            true,
+        ),
+        check(
+            "texture memory of the packed BTF, 32 x 32 tile (MiB)",
+            t["texture_mib_max"].as_f64(),
+            headline.texture_mib,
+            false,
+        ),
+    ]
+    .into_iter()
+    .flatten()
+    .collect();
+    Ok(BtfBenchReport {
+        benchmark: "btf",
+        machine: MachineInfo::of(ctx),
+        config: cfg.clone(),
+        probe_fetches_per_second: probe_rate,
+        probe_ms,
+        speedup_vs_cpu: cpu_ms.median / headline.gpu_ms.median,
+        headline,
+        formats,
+        cpu_same_method_ms: cpu_ms,
+        sweep,
+        targets,
+    })
+}

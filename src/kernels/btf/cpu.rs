@@ -1,0 +1,122 @@
+//! The CPU twin of `btf shade`: the same 9-tap interpolation over the same packed texels
+//! and maps, in f64 (sRGB decoded exactly, bilinear filtering with exact weights).
+
+use super::dirs::{self, Maps};
+use super::gbuffer::{Frame, GBuffer, frame_of, to_tangent};
+use super::synth::srgb_decode;
+use rayon::prelude::*;
+
+/// A map texel border closer than this (in texels) to a pixel's continuous map coordinate
+/// makes the pixel ambiguous: f32 on the GPU may pick the neighbouring texel.
+pub const AMBIGUOUS_MARGIN: f64 = 1e-3;
+
+/// The packed BTF as the GPU holds it (RGBA8 sRGB, slice-major), decoded on the fly.
+pub struct Packed<'a> {
+    pub size: [u32; 2],
+    pub texels: &'a [u8],
+    lut: [f64; 256],
+}
+
+impl<'a> Packed<'a> {
+    pub fn new(size: [u32; 2], texels: &'a [u8]) -> Self {
+        let mut lut = [0.0; 256];
+        for (b, l) in lut.iter_mut().enumerate() {
+            *l = srgb_decode(b as u8);
+        }
+        Packed { size, texels, lut }
+    }
+
+    /// Linear RGB of texel (c, r) of slice `s`.
+    pub fn texel(&self, s: usize, c: u32, r: u32) -> [f64; 3] {
+        let [w, h] = self.size;
+        let k = 4 * (s * (w * h) as usize + (r * w + c) as usize);
+        [0, 1, 2].map(|i| self.lut[self.texels[k + i] as usize])
+    }
+
+    /// Bilinear filtering of slice `s` at `uv` with REPEAT wrapping (texel centres at
+    /// (i + 0.5) / size), as a sampler with linear filtering does.
+    pub fn bilinear(&self, s: usize, uv: [f64; 2]) -> [f64; 3] {
+        bilinear(self.size, uv, |c, r| self.texel(s, c, r))
+    }
+}
+
+/// Bilinear filtering with REPEAT wrapping of the texels given by `texel(c, r)`.
+pub fn bilinear(size: [u32; 2], uv: [f64; 2], texel: impl Fn(u32, u32) -> [f64; 3]) -> [f64; 3] {
+    let (w, h) = (size[0] as i64, size[1] as i64);
+    let x = uv[0] * w as f64 - 0.5;
+    let y = uv[1] * h as f64 - 0.5;
+    let (x0, y0) = (x.floor(), y.floor());
+    let (fx, fy) = (x - x0, y - y0);
+    let (x0, y0) = (x0 as i64, y0 as i64);
+    let mut out = [0.0; 3];
+    for (dy, wy) in [(0, 1.0 - fy), (1, fy)] {
+        for (dx, wx) in [(0, 1.0 - fx), (1, fx)] {
+            let c = (x0 + dx).rem_euclid(w) as u32;
+            let r = (y0 + dy).rem_euclid(h) as u32;
+            let t = texel(c, r);
+            for k in 0..3 {
+                out[k] += wx * wy * t[k];
+            }
+        }
+    }
+    out
+}
+
+/// One frame shaded on the CPU: linear RGBA per pixel (alpha 0 outside the object) and
+/// whether the pixel is ambiguous (see [`AMBIGUOUS_MARGIN`]).
+pub fn shade(
+    packed: &Packed,
+    maps: &Maps,
+    gbuffer: &GBuffer,
+    frame: &Frame,
+) -> (Vec<[f64; 4]>, Vec<bool>) {
+    let n = gbuffer.width as usize * gbuffer.height as usize;
+    (0..n)
+        .into_par_iter()
+        .map(|k| {
+            let Some(px) = gbuffer.pixel(k) else {
+                return ([0.0; 4], false);
+            };
+            let tbn = frame_of(&px);
+            let vt = to_tangent(frame.camera.view(px.position), tbn);
+            let mut sum = [0.0; 3];
+            let mut ambiguous = false;
+            if vt[2] > 0.0 {
+                let (_, mv) = maps.texel_of(vt);
+                ambiguous |= mv < AMBIGUOUS_MARGIN || vt[2] < 1e-6;
+                let tv = maps.lookup(vt);
+                for light in &frame.lights {
+                    let lt = to_tangent(light.direction.as_dvec3().normalize(), tbn);
+                    if lt[2].abs() < 1e-6 {
+                        ambiguous = true;
+                    }
+                    if lt[2] <= 0.0 {
+                        continue;
+                    }
+                    let (_, ml) = maps.texel_of(lt);
+                    ambiguous |= ml < AMBIGUOUS_MARGIN;
+                    let tl = maps.lookup(lt);
+                    let mut c = [0.0; 3];
+                    for a in 0..3 {
+                        for e in 0..3 {
+                            let w = tv.weight[a] * tl.weight[e];
+                            if w == 0.0 {
+                                continue;
+                            }
+                            let t = packed.bilinear(tv.index[a] * dirs::COUNT + tl.index[e], px.uv);
+                            for i in 0..3 {
+                                c[i] += w * t[i];
+                            }
+                        }
+                    }
+                    for i in 0..3 {
+                        sum[i] += light.rgb[i] as f64 * c[i];
+                    }
+                }
+            } else if vt[2] > -1e-6 {
+                ambiguous = true;
+            }
+            ([sum[0], sum[1], sum[2], 1.0], ambiguous)
+        })
+        .unzip()
+}

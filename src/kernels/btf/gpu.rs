@@ -1,0 +1,629 @@
+//! The BTF kernel on the GPU: the 6561 images packed into 2D array textures sized to the
+//! device's limits, the parabolic index/weight maps, a G-buffer, and one pass `btf shade`
+//! writing linear RGB per pixel.
+
+use super::dirs::{self, Maps};
+use super::gbuffer::{Frame, GBuffer, MAX_LIGHTS};
+use super::synth::{Btf, srgb_encode};
+use crate::error::{Error, Result};
+use crate::gpu::{
+    AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context, Image,
+    ImageDesc, ImageRegion, MemoryReport, PlannedBarrier, Readback, Recorder, Resource, Sampler,
+    SamplerDesc,
+};
+use crate::kernels::{Kernel, PassInfo, UseInfo};
+use ash::vk;
+use rayon::prelude::*;
+
+pub const PASS_SHADE: &str = "btf shade";
+/// Array textures the shader binds (`btf[4]`).
+pub const MAX_ARRAYS: u32 = 4;
+/// The texel format of the packed BTF: 8-bit sRGB, decoded to linear by the sampler.
+pub const FORMAT: vk::Format = vk::Format::R8G8B8A8_SRGB;
+const COUNT: u32 = dirs::COUNT as u32;
+const SLICES: u32 = COUNT * COUNT;
+
+/// The texel format the BTF is stored in.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Texture {
+    /// RGBA8 sRGB, 4 bytes per texel ([`FORMAT`]).
+    Rgba8,
+    /// BC1 sRGB, 4 x 4 texels in 8 bytes (0.5 bytes per texel, [`BC1_FORMAT`]); the sampler
+    /// decodes the palette colour from sRGB before filtering. Needs the device feature
+    /// textureCompressionBC; in the 'rows' layout the gutters are 4 texels (one block).
+    Bc1,
+}
+
+/// The BC1 format of [`Texture::Bc1`].
+pub const BC1_FORMAT: vk::Format = vk::Format::BC1_RGB_SRGB_BLOCK;
+
+impl Texture {
+    pub fn format(self) -> vk::Format {
+        match self {
+            Texture::Rgba8 => FORMAT,
+            Texture::Bc1 => BC1_FORMAT,
+        }
+    }
+
+    /// The layout used when none is asked for ('rows': one array, the faster on lavapipe).
+    pub fn default_layout(self) -> Layout {
+        Layout::Rows
+    }
+}
+
+impl std::str::FromStr for Texture {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        match s {
+            "rgba8" => Ok(Texture::Rgba8),
+            "bc1" => Ok(Texture::Bc1),
+            _ => Err(format!("unknown texture format '{s}' (rgba8, bc1)")),
+        }
+    }
+}
+
+/// The texels the GPU samples, as RGBA8 sRGB slice-major (the CPU twin's input): the packed
+/// texels for RGBA8, the BC1 encoding decoded again (as `io::bc1` decodes) for BC1.
+pub fn sampled_texels(btf: &Btf, texture: Texture) -> Vec<u8> {
+    let packed = pack(btf);
+    match texture {
+        Texture::Rgba8 => packed,
+        Texture::Bc1 => {
+            let [w, h] = btf.size;
+            let n = (w * h) as usize * 4;
+            packed
+                .par_chunks(n)
+                .flat_map_iter(|img| {
+                    crate::io::bc1::decode_image(w, h, &crate::io::bc1::encode_image(w, h, img))
+                })
+                .collect()
+        }
+    }
+}
+
+/// The BC1 blocks of every slice (slice-major, row-major blocks within a slice).
+pub fn encode_bc1(btf: &Btf) -> Vec<u8> {
+    let [w, h] = btf.size;
+    pack(btf)
+        .par_chunks((w * h) as usize * 4)
+        .flat_map_iter(|img| crate::io::bc1::encode_image(w, h, img))
+        .collect()
+}
+
+/// How the images are arranged in the array textures.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Layout {
+    /// One image per layer, 6561 layers split over up to four array textures of at most
+    /// maxImageArrayLayers layers; the sampler's REPEAT wraps the tile. The shader picks
+    /// the array per tap (a branch that diverges across pixels).
+    Layers,
+    /// One array texture of 81 layers (one per view); a layer is a row of the 81 light
+    /// images, each with a gutter left and right holding the wrapped columns (1; 4 for BC1), so
+    /// bilinear filtering never reaches a neighbouring image (REPEAT wraps rows). Needs
+    /// 81 (w + 2 gutter) <= maxImageDimension2D.
+    Rows,
+}
+
+impl std::str::FromStr for Layout {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        match s {
+            "layers" => Ok(Layout::Layers),
+            "rows" => Ok(Layout::Rows),
+            _ => Err(format!("unknown layout '{s}' (rows, layers)")),
+        }
+    }
+}
+
+/// How the 6561 images are laid out on a device: `arrays` 2D array textures of
+/// `layers_per_array` layers of `layer_extent` texels (the last array may hold fewer).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct Packing {
+    pub layout: Layout,
+    pub texture: Texture,
+    pub tile: [u32; 2],
+    /// Wrapped columns left and right of each image in the rows layout: 1 for RGBA8 (all
+    /// bilinear filtering needs), 4 for BC1 (one block column, so every image starts on a
+    /// block and its gutters are copies of its own edge blocks); 0 in the layers layout.
+    pub gutter: u32,
+    pub layer_extent: [u32; 2],
+    pub layers_per_array: u32,
+    pub arrays: u32,
+}
+
+impl Packing {
+    /// The packing of a `tile`-sized BTF within limits of maxImageDimension2D and
+    /// maxImageArrayLayers (queried from the device); `layer_cap` optionally lowers the
+    /// layers per array (to exercise multi-array packing on any device).
+    pub fn for_limits(
+        layout: Layout,
+        tile: [u32; 2],
+        max_dim_2d: u32,
+        max_layers: u32,
+        layer_cap: Option<u32>,
+    ) -> Result<Packing> {
+        Self::for_format(
+            layout,
+            Texture::Rgba8,
+            tile,
+            max_dim_2d,
+            max_layers,
+            layer_cap,
+        )
+    }
+
+    /// [`Packing::for_limits`] for the texel format `texture`.
+    pub fn for_format(
+        layout: Layout,
+        texture: Texture,
+        tile: [u32; 2],
+        max_dim_2d: u32,
+        max_layers: u32,
+        layer_cap: Option<u32>,
+    ) -> Result<Packing> {
+        let max_layers = max_layers.min(layer_cap.unwrap_or(u32::MAX)).max(1);
+        let gutter = match (layout, texture) {
+            (Layout::Layers, _) => 0,
+            (Layout::Rows, Texture::Rgba8) => 1,
+            (Layout::Rows, Texture::Bc1) => {
+                if tile[0] % 4 != 0 {
+                    return Err(Error::InvalidArgument(format!(
+                        "BTF texture bc1 in the 'rows' layout needs a tile width that is a \
+                         multiple of 4 (BC1 blocks are 4 x 4), not {}; use --layout layers",
+                        tile[0]
+                    )));
+                }
+                4
+            }
+        };
+        let layer_extent = match layout {
+            Layout::Layers => tile,
+            Layout::Rows => [COUNT * (tile[0] + 2 * gutter), tile[1]],
+        };
+        let side = layer_extent[0].max(layer_extent[1]);
+        if side > max_dim_2d {
+            return Err(Error::Limit {
+                what: format!("BTF packing ({layout:?}): layer side"),
+                requested: side as u64,
+                limit_name: "maxImageDimension2D",
+                limit: max_dim_2d as u64,
+            });
+        }
+        let total = match layout {
+            Layout::Layers => SLICES,
+            Layout::Rows => COUNT,
+        };
+        let layers = max_layers.min(total);
+        let arrays = total.div_ceil(layers);
+        if arrays > MAX_ARRAYS {
+            return Err(Error::Limit {
+                what: format!(
+                    "BTF packing ({layout:?}): {total} layers need {arrays} array textures (the shader binds {MAX_ARRAYS}); layers per array"
+                ),
+                requested: total.div_ceil(MAX_ARRAYS) as u64,
+                limit_name: "maxImageArrayLayers",
+                limit: layers as u64,
+            });
+        }
+        Ok(Packing {
+            layout,
+            texture,
+            tile,
+            gutter,
+            layer_extent,
+            layers_per_array: layers,
+            arrays,
+        })
+    }
+
+    /// Layers in all.
+    pub fn total_layers(&self) -> u32 {
+        match self.layout {
+            Layout::Layers => SLICES,
+            Layout::Rows => COUNT,
+        }
+    }
+
+    /// Layers of array `a`.
+    pub fn layers(&self, a: u32) -> u32 {
+        (self.total_layers() - a * self.layers_per_array).min(self.layers_per_array)
+    }
+
+    /// Bytes of the packed BTF (gutters included; BC1: whole blocks).
+    pub fn bytes(&self) -> u64 {
+        let [w, h] = self.layer_extent;
+        self.total_layers() as u64
+            * match self.texture {
+                Texture::Rgba8 => w as u64 * h as u64 * 4,
+                Texture::Bc1 => crate::io::bc1::encoded_len(w, h) as u64,
+            }
+    }
+
+    /// Bytes of one layer as uploaded.
+    pub fn layer_bytes(&self) -> usize {
+        (self.bytes() / self.total_layers() as u64) as usize
+    }
+
+    /// The bytes of all layers in order as uploaded: RGBA8 texels, or BC1 blocks of each
+    /// layer (row-major blocks) encoded from the arranged RGBA8 texels.
+    pub fn upload_bytes(&self, btf: &Btf) -> Vec<u8> {
+        let texels = self.arrange(&pack(btf));
+        match self.texture {
+            Texture::Rgba8 => texels,
+            Texture::Bc1 => {
+                let [w, h] = self.layer_extent;
+                texels
+                    .par_chunks((w * h) as usize * 4)
+                    .flat_map_iter(|layer| crate::io::bc1::encode_image(w, h, layer))
+                    .collect()
+            }
+        }
+    }
+
+    /// The RGBA8 texels of all layers in order, from the slice-major [`pack`]ed images.
+    pub fn arrange(&self, packed: &[u8]) -> Vec<u8> {
+        match self.layout {
+            Layout::Layers => packed.to_vec(),
+            Layout::Rows => {
+                let [w, h] = [self.tile[0] as usize, self.tile[1] as usize];
+                let g = self.gutter as usize;
+                let n = COUNT as usize;
+                let [lw, lh] = self.layer_extent;
+                let mut out = Vec::with_capacity(n * lw as usize * lh as usize * 4);
+                for v in 0..n {
+                    for r in 0..h {
+                        for l in 0..n {
+                            let img = &packed[(v * n + l) * w * h * 4..][..w * h * 4];
+                            let row = &img[r * w * 4..(r + 1) * w * 4];
+                            out.extend_from_slice(&row[(w - g) * 4..]);
+                            out.extend_from_slice(row);
+                            out.extend_from_slice(&row[..g * 4]);
+                        }
+                    }
+                }
+                out
+            }
+        }
+    }
+}
+
+/// The packed texels: slice-major (slice = view * 81 + light), RGBA8 sRGB, alpha 255.
+pub fn pack(btf: &Btf) -> Vec<u8> {
+    btf.texels
+        .iter()
+        .flat_map(|p| {
+            let [r, g, b] = p.map(srgb_encode);
+            [r, g, b, 255]
+        })
+        .collect()
+}
+
+/// What the kernel is built from.
+pub struct BtfInputs<'a> {
+    pub btf: &'a Btf,
+    pub maps: &'a Maps,
+    pub gbuffer: &'a GBuffer,
+    pub layout: Layout,
+    pub texture: Texture,
+    /// Lower the layers per array below the device's limit (tests of multi-array packing).
+    pub layer_cap: Option<u32>,
+}
+
+/// Host copy of one frame: linear RGBA per pixel (alpha 0 where the G-buffer is empty).
+pub type BtfOutput = Vec<[f32; 4]>;
+
+/// The GPU kernel.
+pub struct BtfKernel {
+    ctx: Context,
+    pipeline: ComputePipeline,
+    bind: BindGroup,
+    arrays: Vec<Image>,
+    packing: Packing,
+    texture: Texture,
+    _sampler: Sampler,
+    maps: [Image; 2],
+    gbuffer: Buffer,
+    result: Buffer,
+    size: [u32; 2],
+}
+
+impl BtfKernel {
+    /// Creates the textures, buffers and pipeline and records the uploads into `rec`.
+    pub fn new(rec: &mut Recorder, inputs: &BtfInputs<'_>) -> Result<BtfKernel> {
+        let ctx = rec.context();
+        let btf = inputs.btf;
+        if btf.texels.len() != SLICES as usize * btf.image_len() || btf.image_len() == 0 {
+            return Err(Error::InvalidArgument(format!(
+                "BTF holds {} texels, not 6561 images of {} x {}",
+                btf.texels.len(),
+                btf.size[0],
+                btf.size[1]
+            )));
+        }
+        inputs.gbuffer.check()?;
+        let limits = ctx.limits();
+        let packing = Packing::for_format(
+            inputs.layout,
+            inputs.texture,
+            btf.size,
+            limits.max_image_dimension_2d,
+            limits.max_image_array_layers,
+            inputs.layer_cap,
+        )?;
+        // One module per layout (not a specialization constant: lavapipe 22.3.6 ignored the
+        // constant's value in this shader; and a runtime branch keeps all five sampling call
+        // sites, which lavapipe inlines each: 3x slower).
+        let name = match packing.layout {
+            Layout::Rows => "btf/shade_rows",
+            Layout::Layers => "btf/shade_layers",
+        };
+        let pipeline = ComputePipeline::from_spirv(&ctx, name, crate::shaders::spirv(name)?)?;
+        let texture = inputs.texture;
+        let texels = packing.upload_bytes(btf);
+        let per_layer = packing.layer_bytes();
+        let mut arrays = Vec::new();
+        for a in 0..MAX_ARRAYS {
+            if a < packing.arrays {
+                let layers = packing.layers(a);
+                let desc = ImageDesc::d2_array(texture.format(), packing.layer_extent, layers);
+                let img = Image::new(&ctx, &format!("btf array {a}"), desc)?;
+                let start = (a * packing.layers_per_array) as usize * per_layer;
+                rec.upload_image(
+                    &img,
+                    ImageRegion::whole(&desc),
+                    &texels[start..start + layers as usize * per_layer],
+                )?;
+                arrays.push(img);
+            } else {
+                // Unused bindings get a 1 x 1 black placeholder (never read).
+                let desc = ImageDesc::d2_array(texture.format(), [1, 1], 1);
+                let img = Image::new(&ctx, &format!("btf array {a} (unused)"), desc)?;
+                let black: &[u8] = match texture {
+                    Texture::Rgba8 => &[0, 0, 0, 255],
+                    Texture::Bc1 => &[0; 8],
+                };
+                rec.upload_image(&img, ImageRegion::whole(&desc), black)?;
+                arrays.push(img);
+            }
+        }
+        let m = inputs.maps;
+        let index_desc = ImageDesc::d2(vk::Format::R8G8B8A8_UINT, [m.res, m.res]);
+        let index = Image::new(&ctx, "btf index map", index_desc)?;
+        rec.upload_image(
+            &index,
+            ImageRegion::whole(&index_desc),
+            bytemuck::cast_slice(&m.index),
+        )?;
+        let weight_desc = ImageDesc::d2(vk::Format::R32G32B32A32_SFLOAT, [m.res, m.res]);
+        let weight = Image::new(&ctx, "btf weight map", weight_desc)?;
+        rec.upload_image(
+            &weight,
+            ImageRegion::whole(&weight_desc),
+            bytemuck::cast_slice(&m.weight),
+        )?;
+        let sampler = Sampler::new(
+            &ctx,
+            "btf tile sampler",
+            SamplerDesc::linear()
+                .address(vk::SamplerAddressMode::REPEAT)
+                .lod(0.0, 0.0),
+        )?;
+        let gb = inputs.gbuffer;
+        let gbuffer = rec.buffer_with(
+            "btf gbuffer",
+            BufferDesc::storage(gb.texels.len() as u64 * 16),
+            &gb.texels,
+        )?;
+        let result = Buffer::new(
+            &ctx,
+            "btf result",
+            BufferDesc::storage(gb.width as u64 * gb.height as u64 * 16),
+        )?;
+        let bind = pipeline.bind_declared(
+            &[
+                (
+                    "btf",
+                    Resource::Array(arrays.iter().map(Resource::texture).collect()),
+                ),
+                ("tile_sampler", Resource::Sampler(&sampler)),
+                ("index_map", Resource::texture(&index)),
+                ("weight_map", Resource::texture(&weight)),
+                ("gbuffer", Resource::Buffer(&gbuffer)),
+                ("result", Resource::Buffer(&result)),
+            ],
+            &[("result", AccessSet::from(A::ComputeShaderWrite))],
+        )?;
+        Ok(BtfKernel {
+            ctx,
+            pipeline,
+            bind,
+            arrays,
+            packing,
+            texture,
+            _sampler: sampler,
+            maps: [index, weight],
+            gbuffer,
+            result,
+            size: [gb.width, gb.height],
+        })
+    }
+
+    /// The packing chosen for this device.
+    pub fn packing(&self) -> Packing {
+        self.packing
+    }
+
+    /// The array textures holding the BTF (the first `packing().arrays`).
+    pub fn arrays(&self) -> &[Image] {
+        &self.arrays[..self.packing.arrays as usize]
+    }
+
+    /// Device bytes of the packed BTF textures alone.
+    /// The texel format the BTF is stored in.
+    pub fn texture(&self) -> Texture {
+        self.texture
+    }
+
+    pub fn texture_bytes(&self) -> u64 {
+        self.arrays().iter().map(|i| i.allocation_size()).sum()
+    }
+
+    /// Device bytes of the two maps.
+    pub fn map_bytes(&self) -> u64 {
+        self.maps.iter().map(|i| i.allocation_size()).sum()
+    }
+
+    /// Output width and height.
+    pub fn size(&self) -> [u32; 2] {
+        self.size
+    }
+
+    fn push(&self, frame: &Frame) -> Result<Vec<u8>> {
+        frame.check()?;
+        let mut f = Vec::with_capacity(24);
+        let cam = frame.camera.push();
+        f.extend_from_slice(&cam);
+        let mut dirs = [[0f32; 4]; MAX_LIGHTS];
+        let mut rgb = [[0f32; 4]; MAX_LIGHTS];
+        for (i, l) in frame.lights.iter().enumerate() {
+            let d = l.direction.normalize();
+            dirs[i] = [d.x, d.y, d.z, 0.0];
+            rgb[i] = [l.rgb[0], l.rgb[1], l.rgb[2], 0.0];
+        }
+        f.extend(dirs.iter().flatten());
+        f.extend(rgb.iter().flatten());
+        let mut push: Vec<u8> = f.iter().flat_map(|x| x.to_le_bytes()).collect();
+        let p = &self.packing;
+        for u in [
+            self.size[0],
+            self.size[1],
+            frame.lights.len() as u32,
+            p.layers_per_array,
+            p.gutter,
+            p.tile[0],
+            p.layer_extent[0],
+            0,
+        ] {
+            push.extend_from_slice(&u.to_le_bytes());
+        }
+        Ok(push)
+    }
+}
+
+impl Kernel for BtfKernel {
+    type Input = Frame;
+    type Readback = Readback;
+    type Output = BtfOutput;
+
+    fn name(&self) -> &'static str {
+        "btf"
+    }
+
+    fn passes(&self) -> Vec<PassInfo> {
+        vec![PassInfo {
+            name: PASS_SHADE,
+            uses: self
+                .bind
+                .accesses()
+                .into_iter()
+                .map(UseInfo::from)
+                .collect(),
+        }]
+    }
+
+    fn record_pass(&self, rec: &mut Recorder, pass: usize, input: &Frame) -> Result<()> {
+        if pass != 0 {
+            return Err(Error::InvalidArgument(format!(
+                "BTF has 1 pass, not {}",
+                pass + 1
+            )));
+        }
+        let push = self.push(input)?;
+        rec.begin_pass(PASS_SHADE);
+        let r = rec.dispatch_invocations_tracked(
+            &self.pipeline,
+            &self.bind,
+            &push,
+            [self.size[0], self.size[1], 1],
+        );
+        rec.end_pass();
+        r
+    }
+
+    fn plan_pass(&self, rec: &mut Recorder, pass: usize) -> Result<Vec<PlannedBarrier>> {
+        match pass {
+            0 => Ok(rec.plan_dispatch(&self.bind)),
+            _ => Err(Error::InvalidArgument(format!(
+                "BTF has 1 pass, not {}",
+                pass + 1
+            ))),
+        }
+    }
+
+    fn read_back(&self, rec: &mut Recorder) -> Result<Readback> {
+        rec.read_back(&self.result)
+    }
+
+    fn collect(&self, readback: &Readback) -> Result<BtfOutput> {
+        readback.to_vec()
+    }
+
+    fn memory(&self) -> MemoryReport {
+        let images: u64 = self
+            .arrays
+            .iter()
+            .chain(self.maps.iter())
+            .map(|i| i.allocation_size())
+            .sum();
+        let buffers = self.ctx.memory_of(&[&self.gbuffer, &self.result]);
+        MemoryReport {
+            used_bytes: buffers.used_bytes + images,
+            allocations: buffers.allocations + (self.arrays.len() + 2) as u64,
+            ..buffers
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn packing_follows_the_limits() {
+        let p = Packing::for_limits(Layout::Layers, [32, 32], 16384, 2048, None).unwrap();
+        assert_eq!((p.layers_per_array, p.arrays), (2048, 4));
+        assert_eq!(p.layers(3), 6561 - 3 * 2048);
+        assert_eq!(p.bytes(), 6561 * 32 * 32 * 4);
+        let p = Packing::for_limits(Layout::Layers, [32, 32], 16384, 8192, None).unwrap();
+        assert_eq!((p.layers_per_array, p.arrays), (6561, 1));
+        assert!(Packing::for_limits(Layout::Layers, [32, 32], 16384, 256, None).is_err());
+        assert!(Packing::for_limits(Layout::Layers, [64, 64], 32, 2048, None).is_err());
+        let p = Packing::for_limits(Layout::Rows, [32, 32], 16384, 2048, None).unwrap();
+        assert_eq!(
+            (p.layer_extent, p.layers_per_array, p.arrays),
+            ([81 * 34, 32], 81, 1)
+        );
+        assert!(Packing::for_limits(Layout::Rows, [32, 32], 2048, 2048, None).is_err());
+    }
+
+    #[test]
+    fn rows_carry_wrapped_gutters() {
+        let p = Packing::for_limits(Layout::Rows, [2, 1], 16384, 2048, None).unwrap();
+        let packed: Vec<u8> = (0..6561 * 2 * 4).map(|i| (i / 4 % 251) as u8).collect();
+        let rows = p.arrange(&packed);
+        assert_eq!(rows.len() as u64, p.bytes());
+        // Layer 0 (view 0), light 0: gutter = texel 1, texels 0 1, gutter = texel 0.
+        let texel = |b: &[u8], i: usize| b[4 * i];
+        assert_eq!(
+            [0, 1, 2, 3].map(|i| texel(&rows, i)),
+            [
+                texel(&packed, 1),
+                texel(&packed, 0),
+                texel(&packed, 1),
+                texel(&packed, 0)
+            ]
+        );
+    }
+}

@@ -1,0 +1,569 @@
+//! BTF kernel: packing round trip, GPU against the CPU interpolation (f64) and against the
+//! direct ray-cast, the loader on good and bad data sets. Small sizes (8 x 8 tiles, 32 x 32
+//! maps) keep it fast; every GPU test runs under validation.
+
+mod common;
+
+use common::{error_naming, temp_dir, with_gpu, with_gpu_features};
+use glam::Vec3;
+use std::sync::OnceLock;
+use vkshade::gpu::ImageRegion;
+use vkshade::kernels::Kernel;
+use vkshade::kernels::btf::dirs::{Maps, Triangulation};
+use vkshade::kernels::btf::gbuffer::{Camera, Frame, GBuffer, Light, Object, render_object};
+use vkshade::kernels::btf::gpu::{
+    BtfInputs, BtfKernel, Layout, Texture, encode_bc1, pack, sampled_texels,
+};
+use vkshade::kernels::btf::synth::{Btf, FileFormat, Pattern, SynthConfig, synthesize, write_dir};
+use vkshade::kernels::btf::{cpu, load};
+
+/// An 8 x 8 weave, synthesised once per test binary.
+fn weave() -> &'static (SynthConfig, Btf) {
+    static B: OnceLock<(SynthConfig, Btf)> = OnceLock::new();
+    B.get_or_init(|| {
+        let cfg = SynthConfig::tile(Pattern::Weave, 8);
+        let btf = synthesize(&cfg).unwrap();
+        (cfg, btf)
+    })
+}
+
+fn maps() -> Maps {
+    Maps::build(&Triangulation::new().unwrap(), 32).unwrap()
+}
+
+fn frame() -> Frame {
+    Frame {
+        camera: Camera::Perspective(Vec3::from(vkshade::kernels::btf::gbuffer::EYE)),
+        lights: vec![
+            Light {
+                direction: Vec3::new(0.5, 0.8, 0.6),
+                rgb: [1.0, 0.95, 0.9],
+            },
+            Light {
+                direction: Vec3::new(-0.9, 0.1, 0.2),
+                rgb: [0.3, 0.35, 0.5],
+            },
+        ],
+    }
+}
+
+/// Runs the kernel once and returns its output.
+fn run(
+    ctx: &vkshade::gpu::Context,
+    btf: &Btf,
+    maps: &Maps,
+    gbuffer: &GBuffer,
+    frame: &Frame,
+    (texture, layout): (Texture, Layout),
+) -> vkshade::Result<Vec<[f32; 4]>> {
+    let mut rec = ctx.recorder("btf test")?;
+    let k = BtfKernel::new(
+        &mut rec,
+        &BtfInputs {
+            btf,
+            maps,
+            gbuffer,
+            layout,
+            texture,
+            layer_cap: None,
+        },
+    )?;
+    k.record(&mut rec, frame)?;
+    let rb = k.read_back(&mut rec)?;
+    rec.submit_and_wait()?;
+    k.collect(&rb)
+}
+
+#[test]
+fn packing_round_trips_through_the_array_textures() {
+    let (_, btf) = weave();
+    let maps = maps();
+    let gbuffer = GBuffer::tile([8, 8]);
+    with_gpu(|ctx| {
+        let packed = pack(btf);
+        // Rows; one image per layer at the device's own limit, and at a lower cap that
+        // splits the slices differently.
+        for (layout, cap) in [
+            (Layout::Rows, None),
+            (Layout::Layers, None),
+            (Layout::Layers, Some(1700)),
+        ] {
+            let mut rec = ctx.recorder("btf packing")?;
+            let k = BtfKernel::new(
+                &mut rec,
+                &BtfInputs {
+                    btf,
+                    maps: &maps,
+                    gbuffer: &gbuffer,
+                    layout,
+                    texture: Texture::Rgba8,
+                    layer_cap: cap,
+                },
+            )?;
+            let p = k.packing();
+            assert!(p.layers_per_array <= ctx.limits().max_image_array_layers);
+            if cap.is_some() {
+                assert_eq!((p.layers_per_array, p.arrays), (1700, 4));
+            }
+            let rbs: Vec<_> = k
+                .arrays()
+                .iter()
+                .map(|a| rec.read_back_image(a, ImageRegion::whole(a.desc())))
+                .collect::<vkshade::Result<_>>()?;
+            rec.submit_and_wait()?;
+            let mut back = Vec::new();
+            for rb in rbs {
+                back.extend(rb.bytes()?);
+            }
+            let want = p.arrange(&packed);
+            assert_eq!(back.len(), want.len(), "{layout:?}");
+            assert!(
+                back == want,
+                "{layout:?}: texels differ after the round trip"
+            );
+            // Every image's texels are in there: un-arrange the rows.
+            if layout == Layout::Rows {
+                let (w, n) = (8usize, 81usize);
+                for s in [0usize, 1, 80, 81, 3000, 6560] {
+                    let (v, l) = (s / n, s % n);
+                    for r in 0..8 {
+                        let at = ((v * 8 + r) * n * (w + 2) + l * (w + 2) + 1) * 4;
+                        assert_eq!(
+                            &back[at..at + w * 4],
+                            &packed[(s * 64 + r * w) * 4..][..w * 4]
+                        );
+                    }
+                }
+            }
+            assert!(k.texture_bytes() >= p.bytes());
+        }
+        Ok(())
+    });
+    // BC1: the blocks come back as encoded, 8 bytes per 4 x 4 texels.
+    with_gpu_features(BC, |ctx| {
+        let mut rec = ctx.recorder("btf packing bc1")?;
+        let k = BtfKernel::new(
+            &mut rec,
+            &BtfInputs {
+                btf,
+                maps: &maps,
+                gbuffer: &gbuffer,
+                layout: Layout::Layers,
+                texture: Texture::Bc1,
+                layer_cap: Some(1700),
+            },
+        )?;
+        let rbs: Vec<_> = k
+            .arrays()
+            .iter()
+            .map(|a| rec.read_back_image(a, ImageRegion::whole(a.desc())))
+            .collect::<vkshade::Result<_>>()?;
+        rec.submit_and_wait()?;
+        let mut back = Vec::new();
+        for rb in rbs {
+            back.extend(rb.bytes()?);
+        }
+        let want = encode_bc1(btf);
+        assert_eq!(want.len(), 6561 * 4 * 8);
+        assert!(back == want, "BC1 blocks differ after the round trip");
+        assert!(k.texture_bytes() >= want.len() as u64);
+        // Rows: 4-texel (one block) gutters; decoded, every layer is the arrangement of the
+        // per-image decoded BC1 texels the CPU twin reads (gutter blocks are copies of the
+        // image's edge blocks, interior blocks those of the per-image encoding).
+        let mut rec = ctx.recorder("btf packing bc1 rows")?;
+        let k = BtfKernel::new(
+            &mut rec,
+            &BtfInputs {
+                btf,
+                maps: &maps,
+                gbuffer: &gbuffer,
+                layout: Layout::Rows,
+                texture: Texture::Bc1,
+                layer_cap: None,
+            },
+        )?;
+        let p = k.packing();
+        assert_eq!((p.gutter, p.layer_extent), (4, [81 * 16, 8]));
+        let rb = rec.read_back_image(&k.arrays()[0], ImageRegion::whole(k.arrays()[0].desc()))?;
+        rec.submit_and_wait()?;
+        let back = rb.bytes()?;
+        assert_eq!(back.len() as u64, p.bytes());
+        let [lw, lh] = p.layer_extent;
+        let decoded: Vec<u8> = back
+            .chunks(p.layer_bytes())
+            .flat_map(|l| vkshade::io::bc1::decode_image(lw, lh, l))
+            .collect();
+        assert!(
+            decoded == p.arrange(&sampled_texels(btf, Texture::Bc1)),
+            "BC1 rows layout differs from the per-image decoded texels"
+        );
+        Ok(())
+    });
+    // Without textureCompressionBC the error names the feature.
+    with_gpu(|ctx| {
+        let mut rec = ctx.recorder("btf bc1 without feature")?;
+        let e = BtfKernel::new(
+            &mut rec,
+            &BtfInputs {
+                btf,
+                maps: &maps,
+                gbuffer: &gbuffer,
+                layout: Layout::Layers,
+                texture: Texture::Bc1,
+                layer_cap: None,
+            },
+        )
+        .err()
+        .expect("bc1 without the feature is refused");
+        assert!(e.to_string().contains("textureCompressionBC"), "{e}");
+        drop(rec);
+        Ok(())
+    });
+}
+
+/// Largest difference between GPU and the f64 CPU interpolation allowed: the sampler's
+/// bilinear weights are fixed point (subTexelPrecisionBits, 8 on lavapipe: weights within
+/// 2^-9) and its sRGB decode within ~0.5 ulp of 8 bits; over 9 taps whose weights sum to 1,
+/// |GPU - CPU| <= 2 * 2^-9 * (max texel) + decode + f32 rounding < 5e-3 per light of
+/// strength 1. Measured on lavapipe: 1.2e-3 (two lights, sums up to ~1.3).
+const GPU_CPU_BOUND: f64 = 5e-3;
+/// BC1: the device may round the palette's 1/3 and 2/3 entries one 8-bit step away from
+/// io::bc1's decoder (bc1::PALETTE_TOLERANCE), at most srgb(255) - srgb(254) = 4.5e-3 in
+/// linear per texel; over taps whose weights sum to 1, per light of strength 1, added to
+/// the RGBA8 bound (the two lights here sum to < 2): 5e-3 + 2 * 4.5e-3.
+const GPU_CPU_BOUND_BC1: f64 = 1.4e-2;
+
+const BC: vkshade::gpu::Features = vkshade::gpu::Features {
+    shader_float16: false,
+    shader_int16: false,
+    storage_16bit: false,
+    shader_float64: false,
+    sampler_anisotropy: false,
+    texture_compression_bc: true,
+};
+
+#[test]
+fn gpu_matches_the_cpu_interpolation_and_the_direct_ray_cast() {
+    let (cfg, btf) = weave();
+    let maps = maps();
+    let frame = frame();
+    for (object, texture, layout) in [
+        (Object::Sphere, Texture::Rgba8, Layout::Rows),
+        (Object::Sphere, Texture::Rgba8, Layout::Layers),
+        (Object::Sphere, Texture::Bc1, Layout::Rows),
+        (Object::Sphere, Texture::Bc1, Layout::Layers),
+        (Object::Cylinder, Texture::Rgba8, Layout::Rows),
+        (Object::Plane, Texture::Rgba8, Layout::Rows),
+    ] {
+        let gbuffer = render_object(object, 48, 40).unwrap();
+        assert!(gbuffer.covered() > 300, "{object:?} covers too little");
+        let run =
+            |ctx: &vkshade::gpu::Context| run(ctx, btf, &maps, &gbuffer, &frame, (texture, layout));
+        let out = match texture {
+            Texture::Rgba8 => with_gpu(run),
+            Texture::Bc1 => with_gpu_features(BC, run),
+        };
+        // The texels the GPU samples (BC1: the encoding decoded again).
+        let packed = sampled_texels(btf, texture);
+        let bound = match texture {
+            Texture::Rgba8 => GPU_CPU_BOUND,
+            Texture::Bc1 => GPU_CPU_BOUND_BC1,
+        };
+        let (want, ambiguous) = cpu::shade(
+            &cpu::Packed::new(btf.size, &packed),
+            &maps,
+            &gbuffer,
+            &frame,
+        );
+        let mut max: f64 = 0.0;
+        let mut compared = 0;
+        for (k, (g, c)) in out.iter().zip(&want).enumerate() {
+            assert_eq!(g[3] as f64, c[3], "coverage of pixel {k}");
+            if ambiguous[k] {
+                continue;
+            }
+            compared += 1;
+            for i in 0..3 {
+                max = max.max((g[i] as f64 - c[i]).abs());
+            }
+        }
+        let lit = want.iter().filter(|c| c[0] > 0.01).count();
+        assert!(lit > 100, "{object:?}: only {lit} lit pixels");
+        assert!(
+            compared + 20 > gbuffer.covered(),
+            "too many ambiguous pixels"
+        );
+        assert!(max < bound, "{object:?} {texture:?}: |GPU - CPU| = {max}");
+
+        // Against the heightfield ray-cast at each pixel's exact directions.
+        let (truth, theta) = vkshade::reference::btf::ray_cast(cfg, &gbuffer, &frame);
+        // Split at 75 deg (the largest polar angle of the view and the lights).
+        let (mut se, mut n) = ([0.0; 2], [0usize; 2]);
+        for k in 0..out.len() {
+            if truth[k][3] > 0.0 {
+                let band = (theta[k] > 75.0) as usize;
+                for i in 0..3 {
+                    se[band] += (out[k][i] as f64 - truth[k][i]).powi(2);
+                }
+                n[band] += 3;
+            }
+        }
+        let psnr = |b: usize| 10.0 * (1.0 / (se[b] / n[b] as f64)).log10();
+        eprintln!(
+            "{object:?} {texture:?} {layout:?}: |GPU - CPU| max {max:.2e}; PSNR vs ray-cast {:.1} dB ({} px <= 75 deg), {:.1} dB ({} px grazing)",
+            psnr(0),
+            n[0] / 3,
+            psnr(1),
+            n[1] / 3
+        );
+        let psnr = if n[0] > 300 { psnr(0) } else { psnr(1) };
+        assert!(psnr > 20.0, "{object:?}: PSNR {psnr:.1} dB");
+    }
+}
+
+#[test]
+fn eval_tile_at_sample_directions_is_the_stored_image() {
+    // Light and view at sampled directions whose map texels hold weight ~1 on them: the
+    // interpolated tile is (nearly) the stored image.
+    let (_, btf) = weave();
+    let maps = Maps::build(&Triangulation::new().unwrap(), 256).unwrap();
+    let d = vkshade::kernels::btf::dirs::directions();
+    let (li, vi) = (0, 7); // light at the pole, view at theta 30, phi 0
+    let frame = Frame {
+        camera: Camera::Orthographic(Vec3::from_array(d[vi].vector().map(|x| x as f32))),
+        lights: vec![Light {
+            direction: Vec3::from_array(d[li].vector().map(|x| x as f32)),
+            rgb: [1.0; 3],
+        }],
+    };
+    let gbuffer = GBuffer::tile(btf.size);
+    let out = with_gpu(|ctx| {
+        run(
+            ctx,
+            btf,
+            &maps,
+            &gbuffer,
+            &frame,
+            (Texture::Rgba8, Layout::Rows),
+        )
+    });
+    let img = btf.image(li, vi);
+    let wv = maps.lookup(d[vi].vector());
+    let on_self: f64 = (0..3)
+        .filter(|&k| wv.index[k] == vi)
+        .map(|k| wv.weight[k])
+        .sum();
+    assert!(on_self > 0.95, "map texel weight on the sample {on_self}");
+    let mut max: f32 = 0.0;
+    for (o, t) in out.iter().zip(img) {
+        for i in 0..3 {
+            max = max.max((o[i] - t[i]).abs());
+        }
+    }
+    // The rest of the weight goes to neighbouring samples whose texels differ by < 1.
+    assert!(max < (1.0 - on_self as f32) + 0.01, "max {max}");
+}
+
+#[test]
+fn directories_load_and_bad_ones_fail_clearly() {
+    let cfg = SynthConfig::tile(Pattern::Rib, 4);
+    let btf = synthesize(&cfg).unwrap();
+    let dir = temp_dir("btf-load").join("rib");
+    write_dir(&btf, &dir, FileFormat::Png, &cfg).unwrap();
+    let loaded = load::load_dir(&dir).unwrap();
+    assert_eq!(loaded.size, [4, 4]);
+    // PNG holds 8-bit sRGB: the loaded values are the quantised originals.
+    for (a, b) in loaded.texels.iter().zip(&btf.texels) {
+        for i in 0..3 {
+            let q = vkshade::kernels::btf::synth::srgb_decode(
+                vkshade::kernels::btf::synth::srgb_encode(b[i]),
+            ) as f32;
+            assert!((a[i] - q).abs() < 1e-6);
+        }
+    }
+    let name = |tl: u32, pl: u32, tv: u32, pv: u32| {
+        dir.join(format!("btf_tl{tl:03}_pl{pl:03}_tv{tv:03}_pv{pv:03}.png"))
+    };
+    let victim = name(45, 40, 30, 60);
+    let saved = std::fs::read(&victim).unwrap();
+
+    // A missing direction names the directory and the missing pair.
+    std::fs::remove_file(&victim).unwrap();
+    let e = error_naming(&dir, load::load_dir(&dir));
+    assert!(
+        e.contains("missing") && e.contains("tl045 pl040 tv030 pv060"),
+        "{e}"
+    );
+
+    // Inconsistent image sizes name the odd file.
+    let small = temp_dir("btf-load").join("small");
+    write_dir(
+        &Btf {
+            size: [3, 4],
+            texels: vec![[0.2; 3]; 6561 * 12],
+        },
+        &small,
+        FileFormat::Png,
+        &"3x4",
+    )
+    .unwrap();
+    std::fs::copy(small.join("btf_tl045_pl040_tv030_pv060.png"), &victim).unwrap();
+    let e = error_naming(&victim, load::load_dir(&dir));
+    assert!(e.contains("3 x 4") && e.contains("same size"), "{e}");
+
+    // An unreadable file names itself.
+    std::fs::write(&victim, b"not a png").unwrap();
+    let e = error_naming(&victim, load::load_dir(&dir));
+    assert!(e.contains("cannot read"), "{e}");
+    std::fs::write(&victim, &saved).unwrap();
+    assert!(load::load_dir(&dir).is_ok());
+
+    // A direction outside the UBO2003 set, and a duplicate pair, name the file.
+    let odd = name(20, 0, 0, 0);
+    std::fs::write(&odd, &saved).unwrap();
+    let e = error_naming(&odd, load::load_dir(&dir));
+    assert!(e.contains("not one of the 81"), "{e}");
+    std::fs::remove_file(&odd).unwrap();
+    let dup = dir.join("copy tl045 pl040 tv030 pv060.png");
+    std::fs::write(&dup, &saved).unwrap();
+    let e = load::load_dir(&dir)
+        .expect_err("duplicate accepted")
+        .to_string();
+    assert!(e.contains("same (light, view) pair"), "{e}");
+    std::fs::remove_file(&dup).unwrap();
+
+    // The Bonn naming and format: running number, spaces, sRGB JPEG.
+    let bonn = temp_dir("btf-load").join("bonn");
+    std::fs::create_dir_all(&bonn).unwrap();
+    let d = vkshade::kernels::btf::dirs::directions();
+    for s in 0..6561 {
+        let (l, v) = (d[s % 81], d[s / 81]);
+        let rgb: Vec<u8> = btf
+            .image(s % 81, s / 81)
+            .iter()
+            .flat_map(|p| p.map(vkshade::kernels::btf::synth::srgb_encode))
+            .collect();
+        let name = format!(
+            "{s:05} tl{:03} pl{:03} tv{:03} pv{:03}.jpg",
+            l.theta, l.phi, v.theta, v.phi
+        );
+        image::save_buffer(bonn.join(name), &rgb, 4, 4, image::ExtendedColorType::Rgb8).unwrap();
+    }
+    let jpeg = load::load_dir(&bonn).unwrap();
+    let mae: f64 = jpeg
+        .texels
+        .iter()
+        .zip(&btf.texels)
+        .map(|(a, b)| (0..3).map(|i| (a[i] - b[i]).abs() as f64).sum::<f64>())
+        .sum::<f64>()
+        / (3 * btf.texels.len()) as f64;
+    assert!(mae < 0.03, "JPEG round trip: mean error {mae}");
+
+    // Not a directory at all.
+    let none = temp_dir("btf-load").join("absent");
+    error_naming(&none, load::load_dir(&none));
+    let _ = std::fs::remove_dir_all(temp_dir("btf-load"));
+}
+
+#[test]
+fn bad_kernel_inputs_are_errors() {
+    let (_, btf) = weave();
+    let maps = maps();
+    let gbuffer = GBuffer::tile([8, 8]);
+    with_gpu(|ctx| {
+        let mut rec = ctx.recorder("bad btf")?;
+        let short = Btf {
+            size: [8, 8],
+            texels: btf.texels[..64 * 100].to_vec(),
+        };
+        let r = BtfKernel::new(
+            &mut rec,
+            &BtfInputs {
+                btf: &short,
+                maps: &maps,
+                gbuffer: &gbuffer,
+                layout: Layout::Rows,
+                texture: Texture::Rgba8,
+                layer_cap: None,
+            },
+        );
+        assert!(r.is_err());
+        // A layer cap needing more than the shader's four arrays is a limit error.
+        let r = BtfKernel::new(
+            &mut rec,
+            &BtfInputs {
+                btf,
+                maps: &maps,
+                gbuffer: &gbuffer,
+                layout: Layout::Layers,
+                texture: Texture::Rgba8,
+                layer_cap: Some(1000),
+            },
+        );
+        let e = r.err().expect("7 arrays accepted").to_string();
+        assert!(e.contains("maxImageArrayLayers"), "{e}");
+        let k = BtfKernel::new(
+            &mut rec,
+            &BtfInputs {
+                btf,
+                maps: &maps,
+                gbuffer: &gbuffer,
+                layout: Layout::Rows,
+                texture: Texture::Rgba8,
+                layer_cap: None,
+            },
+        )?;
+        let mut f = frame();
+        f.lights.push(f.lights[0]);
+        assert!(k.record(&mut rec, &f).is_err(), "three lights accepted");
+        f.lights.clear();
+        assert!(k.record(&mut rec, &f).is_err(), "no light accepted");
+        rec.submit_and_wait()?;
+        Ok(())
+    });
+}
+
+#[test]
+fn a_mesh_with_uvs_is_shaded_like_the_cpu_and_one_without_is_refused() {
+    let (_, btf) = weave();
+    let maps = maps();
+    let frame = frame();
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/testwuson.glb");
+    let character = vkshade::scene::load(&path).unwrap();
+    let gbuffer = vkshade::kernels::btf::gbuffer::render_mesh(&character.mesh, 64, 64).unwrap();
+    assert!(gbuffer.covered() > 100, "{} px", gbuffer.covered());
+    let out = with_gpu(|ctx| {
+        run(
+            ctx,
+            btf,
+            &maps,
+            &gbuffer,
+            &frame,
+            (Texture::Rgba8, Layout::Rows),
+        )
+    });
+    let packed = pack(btf);
+    let (want, ambiguous) = cpu::shade(
+        &cpu::Packed::new(btf.size, &packed),
+        &maps,
+        &gbuffer,
+        &frame,
+    );
+    let mut max: f64 = 0.0;
+    for k in 0..out.len() {
+        assert_eq!(out[k][3] as f64, want[k][3]);
+        if !ambiguous[k] {
+            for i in 0..3 {
+                max = max.max((out[k][i] as f64 - want[k][i]).abs());
+            }
+        }
+    }
+    assert!(max < GPU_CPU_BOUND, "|GPU - CPU| = {max}");
+    assert!(want.iter().filter(|c| c[0] > 0.01).count() > 50);
+    // The test ball has no texture coordinates.
+    let e = vkshade::kernels::btf::gbuffer::render_mesh(&common::ball().mesh, 8, 8)
+        .err()
+        .map(|e| e.to_string())
+        .unwrap_or_default();
+    assert!(e.contains("no texture coordinates"), "{e}");
+}
