@@ -214,6 +214,40 @@ impl Bvh {
         });
     }
 
+    /// The hierarchy as flat arrays for a GPU traversal: per node two vec4s
+    /// (min.xyz, first as bits), (max.xyz, count as bits) with the meaning of the CPU nodes
+    /// (leaf: `count` > 0 triangles from `first`; inner: children `first`, `first + 1`), and
+    /// per triangle three vec4s (a, b - a, c - a) in leaf order.
+    pub fn flat(&self) -> (Vec<[f32; 8]>, Vec<[f32; 12]>) {
+        let nodes = self
+            .nodes
+            .iter()
+            .map(|n| {
+                [
+                    n.min.x,
+                    n.min.y,
+                    n.min.z,
+                    f32::from_bits(n.first),
+                    n.max.x,
+                    n.max.y,
+                    n.max.z,
+                    f32::from_bits(n.count),
+                ]
+            })
+            .collect();
+        let tris = self
+            .tris
+            .iter()
+            .map(|t| {
+                [
+                    t[0].x, t[0].y, t[0].z, 0.0, t[1].x, t[1].y, t[1].z, 0.0, t[2].x, t[2].y,
+                    t[2].z, 0.0,
+                ]
+            })
+            .collect();
+        (nodes, tris)
+    }
+
     /// Number of triangles.
     pub fn len(&self) -> usize {
         self.tris.len()

@@ -1,0 +1,129 @@
+#version 450
+// Texture-space subsurface diffusion, importance sampled (p(r) ~ Rd(r) r per channel):
+// B(xo) = K(R) * mean of E over accepted samples. Each sample is a tangent-plane offset of
+// radius r (inverse CDF: table for the dipole, closed form for Burley) and angle phi, mapped
+// to UV by (J^T J)^-1 J^T (the circle becomes the texel's ellipse; area is accounted for
+// because the offsets are drawn in surface area, not in UV). Seams: a sample whose
+// bilinear 3D position is not at distance ~r is rejected; B renormalises over the accepted
+// ones. The CPU twin is src/kernels/sss/cpu.rs (same sequence and arithmetic).
+layout(local_size_x = 8, local_size_y = 8) in;
+
+layout(push_constant) uniform Push {
+    vec4 k;          // K(R) per channel (rgb)
+    vec4 burley_d;   // Burley d per channel (rgb)
+    vec4 burley_pr;  // Burley P(R) per channel (rgb)
+    uint size;
+    uint samples;
+    uint burley;     // 0: dipole table, 1: Burley analytic
+    float seam_rel;
+    float seam_texels;
+} pc;
+
+layout(std430, set = 0, binding = 0) readonly buffer Pos { vec4 v[]; } pos;
+layout(std430, set = 0, binding = 1) readonly buffer Nrm { vec4 v[]; } nrm;
+layout(std430, set = 0, binding = 2) readonly buffer Dpdu { vec4 v[]; } dpdu;
+layout(std430, set = 0, binding = 3) readonly buffer Dpdv { vec4 v[]; } dpdv;
+layout(std430, set = 0, binding = 4) readonly buffer Irr { vec4 v[]; } irr;
+layout(std430, set = 0, binding = 5) readonly buffer Table { vec4 v[]; } table;  // rgb radii
+layout(std430, set = 0, binding = 6) writeonly buffer Diffuse { vec4 v[]; } diffuse;
+
+const uint TABLE_SIZE = 1024u;
+const float TAU = 6.28318530718;
+
+uint pcg(uint v) {
+    uint state = v * 747796405u + 2891336453u;
+    uint word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
+    return (word >> 22u) ^ word;
+}
+
+float radius(uint c, float u) {
+    if (pc.burley == 0u) {
+        float t = sqrt(max(u, 0.0)) * float(TABLE_SIZE - 1u);
+        uint j = min(uint(t), TABLE_SIZE - 2u);
+        float f = t - float(j);
+        float a = table.v[j][c];
+        float b = table.v[j + 1u][c];
+        return a + (b - a) * f;
+    }
+    float uu = 1.0 - u * pc.burley_pr[c];
+    float g = 1.0 + 4.0 * uu * (2.0 * uu + sqrt(1.0 + 4.0 * uu * uu));
+    float cb = pow(g, 1.0 / 3.0);
+    return max(pc.burley_d[c] * 3.0 * log((1.0 + 1.0 / cb + cb) / (4.0 * uu)), 0.0);
+}
+
+void main() {
+    uvec2 xy = gl_GlobalInvocationID.xy;
+    if (xy.x >= pc.size || xy.y >= pc.size) return;
+    int n = int(pc.size);
+    float nf = float(pc.size);
+    uint i = xy.y * pc.size + xy.x;
+    vec4 p4 = pos.v[i];
+    if (p4.w == 0.0) {
+        diffuse.v[i] = vec4(0.0);
+        return;
+    }
+    vec3 po = p4.xyz;
+    vec4 eo = irr.v[i];
+    vec3 a = dpdu.v[i].xyz;
+    vec3 b = dpdv.v[i].xyz;
+    vec3 nn = nrm.v[i].xyz;
+    vec3 t1 = a - nn * dot(nn, a);
+    float t1l = length(t1);
+    t1 = t1l > 0.0 ? t1 / t1l : vec3(0.0);
+    vec3 t2 = cross(nn, t1);
+    float aa = dot(a, a), ab = dot(a, b), bb = dot(b, b);
+    float det = aa * bb - ab * ab;
+    if (!(det > 1e-20 * aa * bb) || t1l == 0.0) {
+        diffuse.v[i] = vec4(pc.k.rgb * eo.rgb, 0.0);
+        return;
+    }
+    float r00 = dot(a, t1), r01 = dot(a, t2), r10 = dot(b, t1), r11 = dot(b, t2);
+    float m00 = (bb * r00 - ab * r10) / det;
+    float m01 = (bb * r01 - ab * r11) / det;
+    float m10 = (-ab * r00 + aa * r10) / det;
+    float m11 = (-ab * r01 + aa * r11) / det;
+    float texel_mm = sqrt(length(cross(a, b))) / nf;
+    float x = float(xy.x), y = float(xy.y);
+    vec4 outv = vec4(0.0);
+    uint accepted_all = 0u;
+    for (uint c = 0u; c < 3u; c++) {
+        uint h = pcg(i * 3u + c);
+        float off_u = float(h >> 16u) / 65536.0;
+        float off_phi = float(h & 0xffffu) / 65536.0;
+        float sum = 0.0;
+        uint acc = 0u;
+        for (uint s = 0u; s < pc.samples; s++) {
+            float u = fract((float(s) + 0.5) / float(pc.samples) + off_u);
+            float phi = TAU * fract(float(s) * 0.618034 + off_phi);
+            float r = radius(c, u);
+            float cs = cos(phi) * r, sn = sin(phi) * r;
+            float tx = x + (m00 * cs + m01 * sn) * nf;
+            float ty = y + (m10 * cs + m11 * sn) * nf;
+            float fx = floor(tx), fy = floor(ty);
+            int x0 = int(fx), y0 = int(fy);
+            if (isnan(tx) || isnan(ty) || isinf(tx) || isinf(ty) || x0 < 0 || y0 < 0
+                || x0 + 1 >= n || y0 + 1 >= n) continue;
+            float wx = tx - fx, wy = ty - fy;
+            uint i00 = uint(y0 * n + x0);
+            uint i10 = i00 + 1u;
+            uint i01 = i00 + pc.size;
+            uint i11 = i01 + 1u;
+            vec4 p00 = pos.v[i00], p10 = pos.v[i10], p01 = pos.v[i01], p11 = pos.v[i11];
+            if (p00.w == 0.0 || p10.w == 0.0 || p01.w == 0.0 || p11.w == 0.0) continue;
+            float w00 = (1.0 - wx) * (1.0 - wy), w10 = wx * (1.0 - wy);
+            float w01 = (1.0 - wx) * wy, w11 = wx * wy;
+            float es = w00 * irr.v[i00][c] + w10 * irr.v[i10][c] + w01 * irr.v[i01][c]
+                + w11 * irr.v[i11][c];
+            vec3 ps = w00 * p00.xyz + w10 * p10.xyz + w01 * p01.xyz + w11 * p11.xyz;
+            float d = length(ps - po);
+            if (abs(d - r) <= pc.seam_rel * r + pc.seam_texels * texel_mm) {
+                sum += es;
+                acc++;
+            }
+        }
+        outv[c] = acc > 0u ? pc.k[c] * (sum / float(acc)) : pc.k[c] * eo[c];
+        accepted_all += acc;
+    }
+    outv.a = float(accepted_all) / float(3u * pc.samples);
+    diffuse.v[i] = outv;
+}
