@@ -62,6 +62,11 @@ enum Command {
     /// precomputed per-vertex transfer.
     #[command(subcommand)]
     Srbf(SrbfCommand),
+    /// Texture-space subsurface diffusion (skin): DIR/irradiance.exr, DIR/diffuse.exr
+    /// (texture space, linear float; B = int E Rd dA before the exit Fresnel and 1/pi),
+    /// DIR/render.png (SSS | Lambertian), with --reference DIR/reference.png, and
+    /// DIR/report.json.
+    Sss(SssArgs),
     /// Sphere trees.
     #[command(subcommand)]
     Spheretree(TreeCommand),
@@ -178,6 +183,55 @@ struct SrbfShadeArgs {
     #[arg(long, default_value_t = 2)]
     in_flight: usize,
     #[arg(long, default_value = "out/srbf")]
+    out: PathBuf,
+}
+
+#[derive(Args)]
+struct SssArgs {
+    /// Mesh with UVs (.glb/.gltf .obj .ply; a skinned mesh is used in its bind pose).
+    #[arg(long, default_value = vkshade::app::sss::DEFAULT_MESH)]
+    mesh: PathBuf,
+    /// Use only this glTF mesh (node or mesh name); `--part ''` uses the whole file.
+    #[arg(long, default_value = vkshade::app::sss::DEFAULT_PART)]
+    part: String,
+    /// Millimetres per model unit (scattering coefficients are per mm).
+    #[arg(long, default_value_t = 1.0)]
+    mm_per_unit: f64,
+    /// dir:X,Y,Z[:E] (arriving from X,Y,Z; irradiance E, default 1) or point:X,Y,Z:I
+    /// (position in model units, intensity I). Repeatable.
+    #[arg(long = "light")]
+    lights: Vec<String>,
+    /// dipole (tabulated inverse CDF) or burley (analytic inverse CDF).
+    #[arg(long, default_value = "dipole")]
+    profile: String,
+    /// skin1 or skin2 (Jensen 2001), or custom with --sigma-a and --sigma-s.
+    #[arg(long, default_value = "skin1")]
+    material: String,
+    /// Absorption coefficients R,G,B per mm (custom material).
+    #[arg(long, value_delimiter = ',', num_args = 3)]
+    sigma_a: Option<Vec<f64>>,
+    /// Reduced scattering coefficients R,G,B per mm (custom material).
+    #[arg(long, value_delimiter = ',', num_args = 3)]
+    sigma_s: Option<Vec<f64>>,
+    /// Relative index of refraction (default 1.3).
+    #[arg(long, default_value_t = vkshade::kernels::sss::profile::DEFAULT_ETA)]
+    eta: f64,
+    /// Fraction of each channel's reflectance inside its sampling radius.
+    #[arg(long, default_value_t = vkshade::kernels::sss::profile::DEFAULT_ENERGY)]
+    energy: f64,
+    /// Samples per texel per channel.
+    #[arg(long, default_value_t = 32)]
+    samples: u32,
+    /// Texture size (N x N texels).
+    #[arg(long, default_value_t = 512)]
+    size: u32,
+    /// Frames to run (the same lights; timings are medians).
+    #[arg(long, default_value_t = 1)]
+    frames: usize,
+    /// Compare with the brute-force ground truth (f64, every covered texel).
+    #[arg(long)]
+    reference: bool,
+    #[arg(long, default_value = "out/sss")]
     out: PathBuf,
 }
 
@@ -703,6 +757,62 @@ fn cmd_bench_srbf(g: &Global, opts: &BenchOpts, quick: bool) -> Result<()> {
     finish(ctx)
 }
 
+fn cmd_sss(g: &Global, a: &SssArgs) -> Result<()> {
+    use vkshade::app::sss;
+    use vkshade::kernels::sss::Material;
+    let three = |v: &Option<Vec<f64>>, what: &str| -> Result<Option<[f64; 3]>> {
+        v.as_ref()
+            .map(|v| {
+                v.as_slice()
+                    .try_into()
+                    .map_err(|_| Error::InvalidArgument(format!("{what} takes three values R,G,B")))
+            })
+            .transpose()
+    };
+    let material = match (three(&a.sigma_a, "--sigma-a")?, three(&a.sigma_s, "--sigma-s")?) {
+        (Some(sa), Some(ss)) => Material::custom(sa, ss, a.eta)?,
+        (None, None) => Material::named(&a.material)?.with_eta(a.eta)?,
+        _ => {
+            return Err(Error::InvalidArgument(
+                "a custom material needs both --sigma-a and --sigma-s".into(),
+            ));
+        }
+    };
+    let cfg = sss::SssConfig {
+        mesh: a.mesh.clone(),
+        part: (!a.part.is_empty()).then(|| a.part.clone()),
+        mm_per_unit: a.mm_per_unit,
+        lights: if a.lights.is_empty() {
+            sss::SssConfig::default().lights
+        } else {
+            a.lights.clone()
+        },
+        profile: a.profile.parse()?,
+        material,
+        energy: a.energy,
+        samples: a.samples,
+        size: a.size,
+        frames: a.frames,
+        reference: a.reference,
+        out: a.out.clone(),
+        ..Default::default()
+    };
+    let ctx = context(g)?;
+    eprintln!("vkshade sss on {}", ctx.info().name);
+    let r = sss::run(&ctx, &cfg, &mut |l| progress(l))?;
+    println!(
+        "{} {}^2 texels x {} samples: irradiance {:.2} ms + diffusion {:.2} ms GPU = {:.1} fps; wrote {}",
+        r.mesh,
+        r.size,
+        r.samples,
+        r.gpu_ms_irradiance,
+        r.gpu_ms_diffusion,
+        r.fps,
+        cfg.out.display()
+    );
+    finish(ctx)
+}
+
 fn cmd_srbf(g: &Global, cmd: &SrbfCommand) -> Result<()> {
     use vkshade::app::srbf;
     match cmd {
@@ -871,6 +981,7 @@ fn main() -> ExitCode {
         }) => cmd_tree_build(mesh, out, opts, report.as_deref()),
         Command::Mesh(MeshCommand::Info { mesh }) => cmd_mesh_info(mesh),
         Command::Srbf(cmd) => cmd_srbf(&cli.global, cmd),
+        Command::Sss(a) => cmd_sss(&cli.global, a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

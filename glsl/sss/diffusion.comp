@@ -51,6 +51,53 @@ float radius(uint c, float u) {
     return max(pc.burley_d[c] * 3.0 * log((1.0 + 1.0 / cb + cb) / (4.0 * uu)), 0.0);
 }
 
+// One channel's estimate (called with a constant channel, so component indices are static
+// after inlining).
+float channel(uint c, uint i, float x, float y, float nf, int n, vec3 po, float eo, float kc,
+              float m00, float m01, float m10, float m11, float texel_mm,
+              inout uint accepted_all) {
+    uint h = pcg(i * 3u + c);
+    float off_u = float(h >> 16u) / 65536.0;
+    float off_phi = float(h & 0xffffu) / 65536.0;
+    float sum = 0.0;
+    uint acc = 0u;
+    // Angles phi_s = phi_0 + s * golden angle, by rotating (cos, sin) (no sin/cos per sample).
+    float phi0 = TAU * off_phi;
+    vec2 dir = vec2(cos(phi0), sin(phi0));
+    const vec2 STEP = vec2(-0.73736883, -0.67549035); // (cos, sin) of 2 pi 0.618034
+    for (uint s = 0u; s < pc.samples; s++) {
+        float u = fract((float(s) + 0.5) / float(pc.samples) + off_u);
+        float r = radius(c, u);
+        float cs = dir.x * r, sn = dir.y * r;
+        dir = vec2(dir.x * STEP.x - dir.y * STEP.y, dir.x * STEP.y + dir.y * STEP.x);
+        float tx = x + (m00 * cs + m01 * sn) * nf;
+        float ty = y + (m10 * cs + m11 * sn) * nf;
+        float fx = floor(tx), fy = floor(ty);
+        int x0 = int(fx), y0 = int(fy);
+        if (isnan(tx) || isnan(ty) || isinf(tx) || isinf(ty) || x0 < 0 || y0 < 0
+            || x0 + 1 >= n || y0 + 1 >= n) continue;
+        float wx = tx - fx, wy = ty - fy;
+        uint i00 = uint(y0 * n + x0);
+        uint i10 = i00 + 1u;
+        uint i01 = i00 + pc.size;
+        uint i11 = i01 + 1u;
+        vec4 p00 = pos.v[i00], p10 = pos.v[i10], p01 = pos.v[i01], p11 = pos.v[i11];
+        if (p00.w == 0.0 || p10.w == 0.0 || p01.w == 0.0 || p11.w == 0.0) continue;
+        float w00 = (1.0 - wx) * (1.0 - wy), w10 = wx * (1.0 - wy);
+        float w01 = (1.0 - wx) * wy, w11 = wx * wy;
+        float es = w00 * irr.v[i00][c] + w10 * irr.v[i10][c] + w01 * irr.v[i01][c]
+            + w11 * irr.v[i11][c];
+        vec3 ps = w00 * p00.xyz + w10 * p10.xyz + w01 * p01.xyz + w11 * p11.xyz;
+        float d = length(ps - po);
+        if (abs(d - r) <= pc.seam_rel * r + pc.seam_texels * texel_mm) {
+            sum += es;
+            acc++;
+        }
+    }
+    accepted_all += acc;
+    return acc > 0u ? kc * (sum / float(acc)) : kc * eo;
+}
+
 void main() {
     uvec2 xy = gl_GlobalInvocationID.xy;
     if (xy.x >= pc.size || xy.y >= pc.size) return;
@@ -86,44 +133,10 @@ void main() {
     float x = float(xy.x), y = float(xy.y);
     vec4 outv = vec4(0.0);
     uint accepted_all = 0u;
-    for (uint c = 0u; c < 3u; c++) {
-        uint h = pcg(i * 3u + c);
-        float off_u = float(h >> 16u) / 65536.0;
-        float off_phi = float(h & 0xffffu) / 65536.0;
-        float sum = 0.0;
-        uint acc = 0u;
-        for (uint s = 0u; s < pc.samples; s++) {
-            float u = fract((float(s) + 0.5) / float(pc.samples) + off_u);
-            float phi = TAU * fract(float(s) * 0.618034 + off_phi);
-            float r = radius(c, u);
-            float cs = cos(phi) * r, sn = sin(phi) * r;
-            float tx = x + (m00 * cs + m01 * sn) * nf;
-            float ty = y + (m10 * cs + m11 * sn) * nf;
-            float fx = floor(tx), fy = floor(ty);
-            int x0 = int(fx), y0 = int(fy);
-            if (isnan(tx) || isnan(ty) || isinf(tx) || isinf(ty) || x0 < 0 || y0 < 0
-                || x0 + 1 >= n || y0 + 1 >= n) continue;
-            float wx = tx - fx, wy = ty - fy;
-            uint i00 = uint(y0 * n + x0);
-            uint i10 = i00 + 1u;
-            uint i01 = i00 + pc.size;
-            uint i11 = i01 + 1u;
-            vec4 p00 = pos.v[i00], p10 = pos.v[i10], p01 = pos.v[i01], p11 = pos.v[i11];
-            if (p00.w == 0.0 || p10.w == 0.0 || p01.w == 0.0 || p11.w == 0.0) continue;
-            float w00 = (1.0 - wx) * (1.0 - wy), w10 = wx * (1.0 - wy);
-            float w01 = (1.0 - wx) * wy, w11 = wx * wy;
-            float es = w00 * irr.v[i00][c] + w10 * irr.v[i10][c] + w01 * irr.v[i01][c]
-                + w11 * irr.v[i11][c];
-            vec3 ps = w00 * p00.xyz + w10 * p10.xyz + w01 * p01.xyz + w11 * p11.xyz;
-            float d = length(ps - po);
-            if (abs(d - r) <= pc.seam_rel * r + pc.seam_texels * texel_mm) {
-                sum += es;
-                acc++;
-            }
-        }
-        outv[c] = acc > 0u ? pc.k[c] * (sum / float(acc)) : pc.k[c] * eo[c];
-        accepted_all += acc;
-    }
+    vec3 k3 = pc.k.rgb;
+    outv.r = channel(0u, i, x, y, nf, n, po, eo.r, k3.r, m00, m01, m10, m11, texel_mm, accepted_all);
+    outv.g = channel(1u, i, x, y, nf, n, po, eo.g, k3.g, m00, m01, m10, m11, texel_mm, accepted_all);
+    outv.b = channel(2u, i, x, y, nf, n, po, eo.b, k3.b, m00, m01, m10, m11, texel_mm, accepted_all);
     outv.a = float(accepted_all) / float(3u * pc.samples);
     diffuse.v[i] = outv;
 }

@@ -3,3 +3,4 @@
 
 pub mod ao;
 pub mod srbf;
+pub mod sss;

@@ -147,7 +147,7 @@ pub fn shadow_edge(profile: &Profile, c: usize, s: f64) -> f64 {
         }
     };
     // Simpson on sqrt-spaced radii (the integrand ~ r near 0).
-    let n = 20_000;
+    let n = 4_000;
     let g = |q: f64| {
         let r = q * q;
         2.0 * std::f64::consts::PI * r * profile.rd(c, r) * lit_fraction(r) * 2.0 * q

@@ -165,12 +165,14 @@ pub fn offsets(texel: u32, c: u32) -> (f32, f32) {
     ((h >> 16) as f32 / 65536.0, (h & 0xffff) as f32 / 65536.0)
 }
 
-/// Sample `i` of `n` of a channel: (u for the radius, angle in [0, 2 pi)).
-pub fn sample(i: u32, n: u32, off: (f32, f32)) -> (f32, f32) {
-    let u = fract((i as f32 + 0.5) / n as f32 + off.0);
-    let phi = std::f32::consts::TAU * fract(i as f32 * 0.618_034 + off.1);
-    (u, phi)
+/// The radius variable of sample `i` of `n` (stratified, rotated by the texel's offset).
+pub fn sample_u(i: u32, n: u32, off_u: f32) -> f32 {
+    fract((i as f32 + 0.5) / n as f32 + off_u)
 }
+
+/// (cos, sin) of the golden angle 2 pi 0.618034: sample i's direction is the first one
+/// (angle 2 pi off_phi) rotated i times by it.
+pub const GOLDEN_STEP: (f32, f32) = (-0.737_368_83, -0.675_490_35);
 
 /// The 2x2 map from a tangent-plane offset (cos phi, sin phi) * r (mm) to a UV offset at
 /// texel `i`: (J^T J)^-1 J^T [t1 t2], columns (m00, m10), (m01, m11); None if degenerate.
@@ -270,10 +272,14 @@ pub fn diffusion(
                 let off = offsets(i as u32, c);
                 let mut sum = 0f32;
                 let mut acc = 0u32;
+                let phi0 = std::f32::consts::TAU * off.1;
+                let mut dir = (phi0.cos(), phi0.sin());
+                let st = GOLDEN_STEP;
                 for s in 0..params.samples {
-                    let (u, phi) = sample(s, params.samples, off);
+                    let u = sample_u(s, params.samples, off.0);
                     let r = profile.sample_radius(c as usize, u);
-                    let (cs, sn) = (phi.cos() * r, phi.sin() * r);
+                    let (cs, sn) = (dir.0 * r, dir.1 * r);
+                    dir = (dir.0 * st.0 - dir.1 * st.1, dir.0 * st.1 + dir.1 * st.0);
                     let du = m[0] * cs + m[1] * sn;
                     let dv = m[2] * cs + m[3] * sn;
                     let tx = x + du * nf;
