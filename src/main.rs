@@ -321,6 +321,17 @@ enum BenchCommand {
         #[arg(long)]
         quick: bool,
     },
+    /// Texture-space SSS on the BCN_Epileptic head: GPU time of irradiance and diffusion
+    /// over texture size x samples per texel, error against the brute-force ground truth vs
+    /// time, throughput against the FMA and bandwidth peaks, and the speed-up over the same
+    /// sampler on the CPU and over the brute force.
+    Sss {
+        #[command(flatten)]
+        opts: BenchOpts,
+        /// Smaller sweeps (for a quick check).
+        #[arg(long)]
+        quick: bool,
+    },
 }
 
 #[derive(Args)]
@@ -757,6 +768,69 @@ fn cmd_bench_srbf(g: &Global, opts: &BenchOpts, quick: bool) -> Result<()> {
     finish(ctx)
 }
 
+fn cmd_bench_sss(g: &Global, opts: &BenchOpts, quick: bool) -> Result<()> {
+    use vkshade::bench::sss::{SssBenchConfig, panels, run};
+    for path in opts.json.iter().chain(&opts.plot) {
+        vkshade::io::check_writable(path)?;
+    }
+    if opts.plot.is_some() {
+        bench::plot::ensure_available()?;
+    }
+    let mut cfg = SssBenchConfig::default();
+    // This benchmark's passes take seconds on lavapipe: its own defaults (1 warm-up, 3 timed
+    // submissions) unless the options were changed.
+    let given = opts.config()?;
+    if given.samples != BenchConfig::default().samples || given.warmup != BenchConfig::default().warmup {
+        cfg.bench = given;
+    }
+    if quick {
+        cfg.sizes = vec![128, 256];
+        cfg.samples = vec![8, 32];
+        cfg.headline = (256, 32);
+        cfg.error_size = 128;
+    }
+    let ctx = context(g)?;
+    eprintln!("bench sss on {}", ctx.info().name);
+    let r = run(&ctx, &cfg, &mut |l| progress(l))?;
+    let h = &r.headline;
+    println!("device                 {}", r.machine.device);
+    println!(
+        "headline               {}^2 texels x {} samples/texel/channel: irradiance {:.1} ms + diffusion {:.1} ms (median GPU) = {:.2} fps",
+        h.size, h.samples, h.irradiance_ms.median, h.diffusion_ms.median, h.fps
+    );
+    println!(
+        "throughput             {:.2e} samples/s = {:.1}% of the {:.1} GFLOP/s FMA peak, {:.1}% of {:.1} GB/s (work model in bench/sss.rs)",
+        h.samples_per_s,
+        100.0 * h.fraction_of_fma_peak,
+        r.peak_fma_gflops,
+        100.0 * h.fraction_of_bandwidth,
+        r.bandwidth_gb_s
+    );
+    println!(
+        "baselines              same sampler on the CPU {:.0} ms: {:.2}x; brute force at {}^2 {:.0} ms: {:.1}x (speed-up of the GPU path)",
+        r.cpu_same_method_ms.median,
+        r.speedup_vs_cpu,
+        r.brute_force_size,
+        r.brute_force_ms.median,
+        r.speedup_vs_brute_force
+    );
+    let target = 30.0;
+    println!(
+        "target fps (head, 512^2, 32 samples)            {:>10.2} (target {target}) {}",
+        h.fps,
+        if h.fps >= target { "PASS" } else { "MISS" }
+    );
+    if let Some(path) = &opts.json {
+        vkshade::io::write_json(path, &r)?;
+        println!("wrote {}", path.display());
+    }
+    if let Some(path) = &opts.plot {
+        bench::plot::draw(path, &panels(&r))?;
+        println!("wrote {}", path.display());
+    }
+    finish(ctx)
+}
+
 fn cmd_sss(g: &Global, a: &SssArgs) -> Result<()> {
     use vkshade::app::sss;
     use vkshade::kernels::sss::Material;
@@ -962,6 +1036,9 @@ fn main() -> ExitCode {
         }) => cmd_bench_ao(&cli.global, opts, mesh, anim.as_deref(), *quick),
         Command::Bench(BenchCommand::Srbf { opts, quick }) => {
             cmd_bench_srbf(&cli.global, opts, *quick)
+        }
+        Command::Bench(BenchCommand::Sss { opts, quick }) => {
+            cmd_bench_sss(&cli.global, opts, *quick)
         }
         Command::Shaders(cmd) => cmd_shaders(cmd),
         Command::Ao(a) => cmd_ao(&cli.global, a, false),

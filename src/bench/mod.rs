@@ -5,6 +5,7 @@ pub mod ao;
 pub mod peak;
 pub mod plot;
 pub mod srbf;
+pub mod sss;
 
 use crate::error::{Error, Result};
 use crate::gpu::{Context, Recorder};
