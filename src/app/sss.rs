@@ -1,8 +1,10 @@
-//! `vkshade sss`: texture-space subsurface diffusion of a mesh. Writes `irradiance.exr` and
+//! `vkshade sss`: texture-space subsurface diffusion of a mesh. Writes `irradiance.exr`,
 //! `diffuse.exr` (texture space, linear float RGB; diffuse alpha = accepted fraction of the
-//! samples), `render.png` (the mesh lit with subsurface diffusion | the same irradiance shaded
-//! as plain Lambertian with the same total reflectance, same camera), with `--reference`
-//! `reference.png` (result | brute-force truth | error heat map), and `report.json`.
+//! samples) and `transmission.exr` (light through thin parts; alpha = thickness in mm),
+//! `render.png` (the mesh lit with subsurface diffusion + transmission | the same irradiance
+//! shaded as plain Lambertian with the same total reflectance, same camera), with
+//! `--reference` `reference.png` (diffusion alone | brute-force truth | error heat map), and
+//! `report.json`.
 
 use crate::error::{Error, Result};
 use crate::geom::bvh::Bvh;
@@ -128,10 +130,20 @@ pub struct TwinError {
     pub diffuse_max_rel: [f64; 3],
     pub diffuse_rel_rmse: [f64; 3],
     pub diffuse_texels_differing: f64,
+    /// Transmission: max |gpu - cpu| / max cpu over channels, and the fraction of texels
+    /// whose thickness ray found a different back surface.
+    pub transmission_max_rel: f64,
+    pub transmission_texels_differing: f64,
 }
 
 impl TwinError {
-    pub fn of(geo: &TexGeometry, gpu: &SssOutput, e: &[[f32; 4]], b: &[[f32; 4]]) -> TwinError {
+    pub fn of(
+        geo: &TexGeometry,
+        gpu: &SssOutput,
+        e: &[[f32; 4]],
+        b: &[[f32; 4]],
+        t: &[[f32; 4]],
+    ) -> TwinError {
         let valid: Vec<usize> = (0..geo.texels()).filter(|&i| geo.pos[i][3] > 0.0).collect();
         let n = valid.len().max(1) as f64;
         let emax = valid.iter().map(|&i| e[i][0]).fold(0f32, f32::max).max(1e-30) as f64;
@@ -160,7 +172,22 @@ impl TwinError {
             let differs = (0..3).any(|c| (gpu.diffuse[i][c] - b[i][c]).abs() > 1e-4 * b[i][c].abs().max(1e-6));
             b_diff += differs as usize;
         }
+        let tmax = valid
+            .iter()
+            .map(|&i| t[i][0].max(t[i][1]).max(t[i][2]))
+            .fold(0f32, f32::max)
+            .max(1e-30) as f64;
+        let mut t_worst = 0f64;
+        let mut t_diff = 0usize;
+        for &i in &valid {
+            for c in 0..3 {
+                t_worst = t_worst.max((gpu.transmission[i][c] - t[i][c]).abs() as f64 / tmax);
+            }
+            t_diff += ((gpu.transmission[i][3] - t[i][3]).abs() > 1e-3 * t[i][3].max(1e-3)) as usize;
+        }
         TwinError {
+            transmission_max_rel: t_worst,
+            transmission_texels_differing: t_diff as f64 / n,
             irradiance_max_rel: e_worst,
             irradiance_texels_differing: e_diff as f64 / n,
             diffuse_max_rel: worst,
@@ -281,7 +308,8 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
     let t = Instant::now();
     let cpu_b = cpu::diffusion(&geo, &profile, &cpu_e, &params);
     let cpu_ms_diffusion = t.elapsed().as_secs_f64() * 1e3;
-    let twin = TwinError::of(&geo, &gpu, &cpu_e, &cpu_b);
+    let cpu_t = cpu::transmission(&geo, &bvh, &lights, &profile);
+    let twin = TwinError::of(&geo, &gpu, &cpu_e, &cpu_b, &cpu_t);
     progress(&format!(
         "CPU twin ({cpu_ms_irradiance:.0} + {cpu_ms_diffusion:.0} ms): irradiance max rel {:.1e}, \
          diffuse rel RMSE {:.1e} {:.1e} {:.1e}",
@@ -299,7 +327,11 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
         height: geo.size,
         pixels: v.to_vec(),
     };
-    for (name, data) in [("irradiance.exr", &gpu.irradiance), ("diffuse.exr", &gpu.diffuse)] {
+    for (name, data) in [
+        ("irradiance.exr", &gpu.irradiance),
+        ("diffuse.exr", &gpu.diffuse),
+        ("transmission.exr", &gpu.transmission),
+    ] {
         let path = cfg.out.join(name);
         crate::io::exr::write(&path, &texture(data), crate::io::exr::Channels::Rgba)?;
         files.push(path.display().to_string());
@@ -363,7 +395,9 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
     notes.push(
         "samples are per texel per channel (three sample sets); irradiance shadows are rays \
          through a BVH of the mesh on the GPU; the texture-space geometry is rasterised once \
-         on the CPU (static mesh, rest pose); no transmission term"
+         on the CPU (static mesh, rest pose); transmission: thickness along -n by a ray, \
+         back irradiance times the profile beyond the thickness (flat-slab model), added in \
+         render.png, not in diffuse.exr"
             .into(),
     );
     notes.push(
@@ -479,7 +513,11 @@ fn pictures(
     // Exit radiance L = B / pi (Fresnel transmittance left out); the Lambertian comparison
     // has the same total reflectance: L = R_tot E / pi.
     let pi = std::f32::consts::PI;
-    let sss = image_of(&|uv| lookup(&gpu.diffuse, &geo.pos, geo.size, uv).map(|b| b / pi));
+    let sss = image_of(&|uv| {
+        let b = lookup(&gpu.diffuse, &geo.pos, geo.size, uv);
+        let t = lookup(&gpu.transmission, &geo.pos, geo.size, uv);
+        [0, 1, 2].map(|c| (b[c] + t[c]) / pi)
+    });
     let r_tot = profile.r_tot.map(|r| r as f32);
     let lambert = image_of(&|uv| {
         let e = lookup(&gpu.irradiance, &geo.pos, geo.size, uv);
@@ -510,6 +548,9 @@ fn pictures(
     write_png(&path, a.width * 2, a.height, &rgb)?;
     let mut files = vec![path.display().to_string()];
     if let Some(truth) = truth {
+        let d_img = image_of(&|uv| lookup(&gpu.diffuse, &geo.pos, geo.size, uv).map(|b| b / pi));
+        let a = shade_rgb([&d_img[0], &d_img[1], &d_img[2]], exposure)?;
+        let sss = d_img;
         let t_img = image_of(&|uv| lookup(truth, &geo.pos, geo.size, uv).map(|b| b / pi));
         let t_pic = shade_rgb([&t_img[0], &t_img[1], &t_img[2]], exposure)?;
         let scale = truth

@@ -161,7 +161,7 @@ impl Bvh {
 
     /// Visits every triangle whose leaf box the ray segment [0, tmax] touches; `hit` gets the
     /// ray parameter of each intersection and returns true to stop.
-    fn traverse(&self, o: Vec3, d: Vec3, tmax: f32, mut hit: impl FnMut(f32) -> bool) {
+    fn traverse(&self, o: Vec3, d: Vec3, tmax: f32, mut hit: impl FnMut(f32, usize) -> bool) {
         if self.tris.is_empty() {
             return;
         }
@@ -179,10 +179,11 @@ impl Bvh {
                 continue;
             }
             if node.count > 0 {
-                for tri in &self.tris[node.first as usize..(node.first + node.count) as usize] {
+                let range = node.first as usize..(node.first + node.count) as usize;
+                for (k, tri) in self.tris[range.clone()].iter().enumerate() {
                     if let Some(t) = intersect(o, d, tri)
                         && t <= tmax
-                        && hit(t)
+                        && hit(t, range.start + k)
                     {
                         return;
                     }
@@ -198,7 +199,7 @@ impl Bvh {
     /// Whether the ray hits any triangle at a parameter in (0, tmax].
     pub fn any_hit(&self, origin: Vec3, dir: Vec3, tmax: f32) -> bool {
         let mut found = false;
-        self.traverse(origin, dir, tmax, |_| {
+        self.traverse(origin, dir, tmax, |_, _| {
             found = true;
             true
         });
@@ -208,7 +209,7 @@ impl Bvh {
     /// Parameters of every intersection along the ray (unsorted).
     pub fn all_hits(&self, origin: Vec3, dir: Vec3, out: &mut Vec<f32>) {
         out.clear();
-        self.traverse(origin, dir, f32::INFINITY, |t| {
+        self.traverse(origin, dir, f32::INFINITY, |t, _| {
             out.push(t);
             false
         });
@@ -246,6 +247,19 @@ impl Bvh {
             })
             .collect();
         (nodes, tris)
+    }
+
+    /// The nearest hit along the ray in (0, tmax]: its parameter and the unit geometric
+    /// normal (e1 x e2 of the triangle as stored, i.e. its winding) of the triangle hit.
+    pub fn closest_hit(&self, origin: Vec3, dir: Vec3, tmax: f32) -> Option<(f32, Vec3)> {
+        let mut best: Option<(f32, usize)> = None;
+        self.traverse(origin, dir, tmax, |t, k| {
+            if best.is_none_or(|(b, _)| t < b) {
+                best = Some((t, k));
+            }
+            false
+        });
+        best.map(|(t, k)| (t, self.tris[k][1].cross(self.tris[k][2]).normalize_or_zero()))
     }
 
     /// Number of triangles.

@@ -148,6 +148,42 @@ pub fn irradiance(geo: &TexGeometry, bvh: &Bvh, lights: &[Light]) -> Vec<[f32; 4
         .collect()
 }
 
+/// The transmission through thin parts on the CPU (the shader's arithmetic): per texel, a ray
+/// from just inside the surface along -n finds the back surface at distance t (thickness);
+/// if t is below `max_thickness`, the back point's irradiance E_b (its own geometric normal,
+/// shadow rays as for the front) times R_tot - F(t) per channel ([`Profile::tail_f32`]):
+/// the diffuse transmission of a locally flat slab lit uniformly from behind. Alpha holds
+/// t (0 where no back surface counts).
+pub fn transmission(
+    geo: &TexGeometry,
+    bvh: &Bvh,
+    lights: &[Light],
+    profile: &Profile,
+) -> Vec<[f32; 4]> {
+    let bias = shadow_bias(geo.extent_mm());
+    let max_t = profile.max_radius() as f32;
+    (0..geo.texels())
+        .into_par_iter()
+        .map(|i| {
+            let p = geo.pos[i];
+            if p[3] == 0.0 {
+                return [0.0; 4];
+            }
+            let n = Vec3::from_slice(&geo.nrm[i][..3]);
+            let o = Vec3::new(p[0], p[1], p[2]) - n * bias;
+            let Some((t, nb)) = bvh.closest_hit(o, -n, max_t) else {
+                return [0.0; 4];
+            };
+            let nb = if nb.dot(n) > 0.0 { -nb } else { nb };
+            let xb = o - n * t;
+            let eb = irradiance_at(bvh, xb, nb, lights, bias);
+            let thick = t + bias;
+            let tr = [0, 1, 2].map(|c| eb * profile.tail_f32(c, thick));
+            [tr[0], tr[1], tr[2], thick]
+        })
+        .collect()
+}
+
 /// PCG hash (O'Neill), as in the shader.
 pub fn pcg(v: u32) -> u32 {
     let state = v.wrapping_mul(747_796_405).wrapping_add(2_891_336_453);
@@ -209,6 +245,8 @@ pub struct SamplerParams {
     /// |d - r| <= seam_rel * r + seam_texels * texel size.
     pub seam_rel: f32,
     pub seam_texels: f32,
+    /// Also compute the transmission through thin parts (in the irradiance pass).
+    pub transmission: bool,
 }
 
 impl Default for SamplerParams {
@@ -217,6 +255,7 @@ impl Default for SamplerParams {
             samples: 32,
             seam_rel: 0.25,
             seam_texels: 2.0,
+            transmission: true,
         }
     }
 }

@@ -20,17 +20,20 @@ pub const PASS_IRRADIANCE: &str = "sss irradiance";
 pub const PASS_DIFFUSION: &str = "sss diffusion";
 const PASSES: [&str; 3] = [PASS_LIGHTS, PASS_IRRADIANCE, PASS_DIFFUSION];
 
-/// Host copies of a frame: irradiance and diffuse (rgba per texel; diffuse alpha is the
-/// accepted fraction of the samples).
+/// Host copies of a frame: irradiance, diffuse (rgba per texel; diffuse alpha is the
+/// accepted fraction of the samples) and transmission (rgb; alpha the thickness in mm, 0
+/// where nothing transmits).
 #[derive(Clone, Debug)]
 pub struct SssOutput {
     pub irradiance: Vec<[f32; 4]>,
     pub diffuse: Vec<[f32; 4]>,
+    pub transmission: Vec<[f32; 4]>,
 }
 
 pub struct SssReadback {
     irradiance: Readback,
     diffuse: Readback,
+    transmission: Readback,
 }
 
 pub struct SssKernel {
@@ -43,6 +46,7 @@ pub struct SssKernel {
     lights: Buffer,
     irr: Buffer,
     diffuse: Buffer,
+    trans: Buffer,
     size: u32,
     bias: f32,
     profile: Profile,
@@ -91,6 +95,7 @@ impl SssKernel {
         let texels = geo.texels() as u64;
         let irr = Buffer::new(&ctx, "sss irradiance", BufferDesc::storage(texels * 16))?;
         let diffuse = Buffer::new(&ctx, "sss diffuse", BufferDesc::storage(texels * 16))?;
+        let trans = Buffer::new(&ctx, "sss transmission", BufferDesc::storage(texels * 16))?;
         let w = AccessSet::from(A::ComputeShaderWrite);
         let irradiance_bind = irradiance.bind_declared(
             &[
@@ -100,8 +105,9 @@ impl SssKernel {
                 ("tris", Resource::Buffer(&tris)),
                 ("lights", Resource::Buffer(&lights)),
                 ("irr", Resource::Buffer(&irr)),
+                ("trans", Resource::Buffer(&trans)),
             ],
-            &[("irr", w)],
+            &[("irr", w), ("trans", w)],
         )?;
         let diffusion_bind = diffusion.bind_declared(
             &[
@@ -125,6 +131,7 @@ impl SssKernel {
             lights,
             irr,
             diffuse,
+            trans,
             size: geo.size,
             bias: shadow_bias(geo.extent_mm()),
             profile: profile.clone(),
@@ -175,11 +182,29 @@ impl SssKernel {
         rec.upload(&self.irr, 0, e)
     }
 
+    /// The transmission buffer (rgb, alpha thickness), written by `sss irradiance`.
+    pub fn transmission(&self) -> &Buffer {
+        &self.trans
+    }
+
     fn record_irradiance(&self, rec: &mut Recorder, lights: usize) -> Result<()> {
-        let push: Vec<u8> = [self.size, lights as u32, self.bias.to_bits()]
-            .iter()
-            .flat_map(|x| x.to_le_bytes())
+        let p = &self.profile;
+        let mode = match (self.params.transmission, p.kind) {
+            (false, _) => 0u32,
+            (true, ProfileKind::Dipole) => 1,
+            (true, ProfileKind::Burley) => 2,
+        };
+        let mut words: Vec<u32> = (0..3)
+            .flat_map(|c| p.tail_gpu(c).map(f32::to_bits))
             .collect();
+        words.extend([
+            self.size,
+            lights as u32,
+            self.bias.to_bits(),
+            mode,
+            (p.max_radius() as f32).to_bits(),
+        ]);
+        let push: Vec<u8> = words.iter().flat_map(|x| x.to_le_bytes()).collect();
         rec.dispatch_invocations_tracked(
             &self.irradiance,
             &self.irradiance_bind,
@@ -287,6 +312,7 @@ impl Kernel for SssKernel {
         Ok(SssReadback {
             irradiance: rec.read_back(&self.irr)?,
             diffuse: rec.read_back(&self.diffuse)?,
+            transmission: rec.read_back(&self.trans)?,
         })
     }
 
@@ -294,6 +320,7 @@ impl Kernel for SssKernel {
         Ok(SssOutput {
             irradiance: rb.irradiance.to_vec()?,
             diffuse: rb.diffuse.to_vec()?,
+            transmission: rb.transmission.to_vec()?,
         })
     }
 
@@ -301,7 +328,7 @@ impl Kernel for SssKernel {
         let all: Vec<&Buffer> = self
             .inputs
             .iter()
-            .chain([&self.lights, &self.irr, &self.diffuse])
+            .chain([&self.lights, &self.irr, &self.diffuse, &self.trans])
             .collect();
         self.ctx.memory_of(&all)
     }

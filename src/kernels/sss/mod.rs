@@ -10,8 +10,10 @@
 //! Conventions: model units are scaled to mm (`mm_per_unit`); scattering coefficients are
 //! per mm; `diffuse` holds B(xo) = int E(xi) Rd(|xi - xo|) dA(xi) before the exit Fresnel
 //! and 1/pi factors, so a uniformly lit plane gives B = E K(R) (E R_tot untruncated).
-//! Not done: a transmission term for thin parts, per-frame re-rasterisation of a skinned
-//! mesh.
+//! Transmission through thin parts (ears): in the irradiance pass, the thickness along -n
+//! and the back surface's irradiance give E_b (R_tot - F(t)) per channel (a locally flat
+//! slab lit from behind; [`cpu::transmission`]), written to its own buffer.
+//! Not done: per-frame re-rasterisation of a skinned mesh (the geometry is the rest pose).
 
 pub mod cpu;
 pub mod gpu;

@@ -314,6 +314,42 @@ impl Profile {
         [b.d as f32, b.p(self.radius[c]) as f32]
     }
 
+    /// The transmission parameters of channel `c` as the shader gets them: dipole
+    /// (alpha'/2, sigma_tr, z_r, z_v), Burley (A, d, 0, 0).
+    pub fn tail_gpu(&self, c: usize) -> [f32; 4] {
+        match self.kind {
+            ProfileKind::Dipole => {
+                let d = &self.dipole[c];
+                [
+                    (d.alpha_prime / 2.0) as f32,
+                    d.sigma_tr as f32,
+                    d.z_r as f32,
+                    d.z_v as f32,
+                ]
+            }
+            ProfileKind::Burley => [self.burley[c].a as f32, self.burley[c].d as f32, 0.0, 0.0],
+        }
+    }
+
+    /// R_tot - F(t) = int_t^inf 2 pi s Rd(s) ds of channel `c` in f32, as the shader computes
+    /// it: the diffuse transmission of a locally flat slab of thickness t lit uniformly on
+    /// the other side (int over the plane of Rd(sqrt(r^2 + t^2))). Dipole:
+    /// alpha'/2 sum_z z e^(-sigma_tr d)/d, d = sqrt(t^2 + z^2); Burley: A (e^(-t/d)/4 +
+    /// 3 e^(-t/3d)/4).
+    pub fn tail_f32(&self, c: usize, t: f32) -> f32 {
+        let p = self.tail_gpu(c);
+        match self.kind {
+            ProfileKind::Dipole => {
+                let dr = (t * t + p[2] * p[2]).sqrt();
+                let dv = (t * t + p[3] * p[3]).sqrt();
+                p[0] * (p[2] * (-p[1] * dr).exp() / dr + p[3] * (-p[1] * dv).exp() / dv)
+            }
+            ProfileKind::Burley => {
+                p[0] * (0.25 * (-t / p[1]).exp() + 0.75 * (-t / (3.0 * p[1])).exp())
+            }
+        }
+    }
+
     /// Largest sampling radius (mm).
     pub fn max_radius(&self) -> f64 {
         self.radius.iter().cloned().fold(0.0, f64::max)
@@ -488,6 +524,23 @@ mod tests {
                 assert!((f - q).abs() < 1e-4, "ch {c} u {q}: {f}");
             }
             assert!((p.k[c] / p.r_tot[c] - DEFAULT_ENERGY).abs() < 1e-9);
+        }
+    }
+
+    #[test]
+    fn transmission_tail_is_the_profile_beyond_t() {
+        for kind in [ProfileKind::Dipole, ProfileKind::Burley] {
+            let p = Profile::new(kind, Material::SKIN1, DEFAULT_ENERGY).unwrap();
+            for c in 0..3 {
+                assert!((p.tail_f32(c, 0.0) as f64 - p.r_tot[c]).abs() < 1e-6 * p.r_tot[c]);
+                for t in [0.5, 2.0, 5.0] {
+                    let num = integrate(|s| 2.0 * PI * s * p.rd(c, s), t, 400.0, 20000);
+                    let got = p.tail_f32(c, t as f32) as f64;
+                    assert!((got - num).abs() < 1e-5 * p.r_tot[c], "{kind:?} {c} {t}: {got} vs {num}");
+                }
+            }
+            // Thin skin transmits red far more than blue.
+            assert!(p.tail_f32(0, 4.0) > 5.0 * p.tail_f32(2, 4.0));
         }
     }
 
