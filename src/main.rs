@@ -780,7 +780,9 @@ fn cmd_bench_sss(g: &Global, opts: &BenchOpts, quick: bool) -> Result<()> {
     // This benchmark's passes take seconds on lavapipe: its own defaults (1 warm-up, 3 timed
     // submissions) unless the options were changed.
     let given = opts.config()?;
-    if given.samples != BenchConfig::default().samples || given.warmup != BenchConfig::default().warmup {
+    if given.samples != BenchConfig::default().samples
+        || given.warmup != BenchConfig::default().warmup
+    {
         cfg.bench = given;
     }
     if quick {
@@ -843,7 +845,10 @@ fn cmd_sss(g: &Global, a: &SssArgs) -> Result<()> {
             })
             .transpose()
     };
-    let material = match (three(&a.sigma_a, "--sigma-a")?, three(&a.sigma_s, "--sigma-s")?) {
+    let material = match (
+        three(&a.sigma_a, "--sigma-a")?,
+        three(&a.sigma_s, "--sigma-s")?,
+    ) {
         (Some(sa), Some(ss)) => Material::custom(sa, ss, a.eta)?,
         (None, None) => Material::named(&a.material)?.with_eta(a.eta)?,
         _ => {

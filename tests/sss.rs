@@ -2,6 +2,9 @@
 //! of the same sampler, the method against the brute-force ground truth on the BCN_Epileptic
 //! head, deformation, bad inputs. Every GPU test runs under validation.
 
+// Channel and texel indices run over several parallel arrays at once.
+#![allow(clippy::needless_range_loop)]
+
 mod common;
 
 use glam::{DVec3, Vec3};
@@ -110,7 +113,13 @@ fn shadow_edge_follows_the_half_plane_integral() {
     let e: Vec<[f32; 4]> = geo
         .pos
         .iter()
-        .map(|q| if q[0] < 0.0 { [1.0, 1.0, 1.0, 1.0] } else { [0.0, 0.0, 0.0, 1.0] })
+        .map(|q| {
+            if q[0] < 0.0 {
+                [1.0, 1.0, 1.0, 1.0]
+            } else {
+                [0.0, 0.0, 0.0, 1.0]
+            }
+        })
         .collect();
     let params = SamplerParams {
         samples: 256,
@@ -125,7 +134,9 @@ fn shadow_edge_follows_the_half_plane_integral() {
     let mut columns = std::collections::BTreeMap::<i64, (f64, [f64; 3], usize)>::new();
     for &i in &inner {
         let x = geo.pos[i][0] as f64;
-        let col = columns.entry((x / texel as f64).floor() as i64).or_insert((x, [0.0; 3], 0));
+        let col = columns
+            .entry((x / texel as f64).floor() as i64)
+            .or_insert((x, [0.0; 3], 0));
         for c in 0..3 {
             col.1[c] += out.diffuse[i][c] as f64;
             // GPU and CPU run the same sampler: agreement to float rounding.
@@ -188,17 +199,33 @@ fn head_gpu_matches_the_cpu_twin_and_the_brute_force() {
         .iter()
         .filter(|&&i| (out.irradiance[i][0] - e[i][0]).abs() > 1e-4 * e[i][0].max(1e-3))
         .count();
-    assert!(flipped * 1000 <= valid.len(), "{flipped} texels' irradiance differ");
-    assert!(valid.iter().any(|&i| e[i][0] == 0.0), "no self-shadowing at all");
+    assert!(
+        flipped * 1000 <= valid.len(),
+        "{flipped} texels' irradiance differ"
+    );
+    assert!(
+        valid.iter().any(|&i| e[i][0] == 0.0),
+        "no self-shadowing at all"
+    );
     // Transmission: the same thickness rays; a texel may differ where a ray grazes an edge.
-    let tr = cpu::transmission(&geo, &Bvh::build(&geo.positions, &geo.triangles), &lights, &p);
+    let tr = cpu::transmission(
+        &geo,
+        &Bvh::build(&geo.positions, &geo.triangles),
+        &lights,
+        &p,
+    );
     let tmax = valid.iter().map(|&i| tr[i][0]).fold(0f32, f32::max);
     assert!(tmax > 0.0, "nothing transmits through the head");
     let differ = valid
         .iter()
-        .filter(|&&i| (0..4).any(|c| (out.transmission[i][c] - tr[i][c]).abs() > 1e-4 * tmax.max(tr[i][3])))
+        .filter(|&&i| {
+            (0..4).any(|c| (out.transmission[i][c] - tr[i][c]).abs() > 1e-4 * tmax.max(tr[i][3]))
+        })
         .count();
-    assert!(differ * 1000 <= valid.len(), "{differ} texels' transmission differ");
+    assert!(
+        differ * 1000 <= valid.len(),
+        "{differ} texels' transmission differ"
+    );
     // Diffusion: the same sample sequence from the GPU's irradiance. Measured relative RMSE
     // ~3e-8 per channel; a sample may flip at a tap or seam-test boundary.
     let b = cpu::diffusion(&geo, &p, &out.irradiance, &params);
@@ -209,7 +236,10 @@ fn head_gpu_matches_the_cpu_twin_and_the_brute_force() {
             t2 += (b[i][c] as f64).powi(2);
         }
         let rel = (d2 / t2).sqrt();
-        assert!(rel < 1e-5, "channel {c}: GPU vs CPU twin relative RMSE {rel}");
+        assert!(
+            rel < 1e-5,
+            "channel {c}: GPU vs CPU twin relative RMSE {rel}"
+        );
     }
     // Against the brute force (every 3rd covered texel as a receiver, all as sources).
     let covered: Vec<usize> = (0..geo.texels())
@@ -237,14 +267,24 @@ fn head_gpu_matches_the_cpu_twin_and_the_brute_force() {
     // texels against the 3.5 mm blue radius). Bounds with margin:
     for c in 0..3 {
         assert!(err.rel_rmse[c] < 0.13, "channel {c}: {err:?}");
-        assert!((err.energy_ratio[c] - 1.0).abs() < 0.07, "channel {c}: {err:?}");
+        assert!(
+            (err.energy_ratio[c] - 1.0).abs() < 0.07,
+            "channel {c}: {err:?}"
+        );
     }
 }
 
 #[test]
 fn bad_inputs_are_refused_with_clear_errors() {
     // Lights.
-    for bad in ["dir:0,0,0", "dir:1,x,0", "point:1,2,3", "spot:1,2,3:1", "dir:0,1,0:-1", "dir"] {
+    for bad in [
+        "dir:0,0,0",
+        "dir:1,x,0",
+        "point:1,2,3",
+        "spot:1,2,3:1",
+        "dir:0,1,0:-1",
+        "dir",
+    ] {
         let e = Light::parse(bad, 1.0).unwrap_err().to_string();
         assert!(e.contains(bad), "{e}");
     }
@@ -270,7 +310,9 @@ fn bad_inputs_are_refused_with_clear_errors() {
         let e = SssKernel::new(&mut rec, &geo, &p, zero).err().unwrap();
         assert!(e.to_string().contains("samples"), "{e}");
         let kernel = SssKernel::new(&mut rec, &geo, &p, SamplerParams::default())?;
-        let e = kernel.upload_irradiance(&mut rec, &[[0.0; 4]; 7]).unwrap_err();
+        let e = kernel
+            .upload_irradiance(&mut rec, &[[0.0; 4]; 7])
+            .unwrap_err();
         assert!(e.to_string().contains("7 irradiance texels"), "{e}");
         let mut nan = vec![[1.0f32; 4]; geo.texels()];
         nan[5][1] = f32::NAN;
@@ -342,7 +384,11 @@ fn back_lit_thin_slab_transmits_red() {
         }
         front += 1;
         assert_eq!(out.irradiance[i][0], 0.0);
-        assert!((out.transmission[i][3] - t).abs() < 1e-4, "thickness {}", out.transmission[i][3]);
+        assert!(
+            (out.transmission[i][3] - t).abs() < 1e-4,
+            "thickness {}",
+            out.transmission[i][3]
+        );
         for c in 0..3 {
             assert!((out.transmission[i][c] - want[c]).abs() <= 1e-4 * want[c]);
             assert!((cpu_t[i][c] - out.transmission[i][c]).abs() <= 1e-5 * want[c]);

@@ -79,19 +79,31 @@ impl SssConfig {
             return bad(format!("--size {} must be in 16..=4096", self.size));
         }
         if !(1..=4096).contains(&self.samples) {
-            return bad(format!("--samples must be in 1..=4096, not {}", self.samples));
+            return bad(format!(
+                "--samples must be in 1..=4096, not {}",
+                self.samples
+            ));
         }
         if !(1..=10_000).contains(&self.frames) {
-            return bad(format!("--frames must be in 1..=10000, not {}", self.frames));
+            return bad(format!(
+                "--frames must be in 1..=10000, not {}",
+                self.frames
+            ));
         }
         if !(self.mm_per_unit.is_finite() && self.mm_per_unit > 0.0) {
-            return bad(format!("--mm-per-unit must be > 0, not {}", self.mm_per_unit));
+            return bad(format!(
+                "--mm-per-unit must be > 0, not {}",
+                self.mm_per_unit
+            ));
         }
         if self.lights.is_empty() {
             return bad("give at least one --light".into());
         }
         if !(self.error_scale.is_finite() && self.error_scale > 0.0) {
-            return bad(format!("--error-scale must be > 0, not {}", self.error_scale));
+            return bad(format!(
+                "--error-scale must be > 0, not {}",
+                self.error_scale
+            ));
         }
         self.material.check()
     }
@@ -146,7 +158,11 @@ impl TwinError {
     ) -> TwinError {
         let valid: Vec<usize> = (0..geo.texels()).filter(|&i| geo.pos[i][3] > 0.0).collect();
         let n = valid.len().max(1) as f64;
-        let emax = valid.iter().map(|&i| e[i][0]).fold(0f32, f32::max).max(1e-30) as f64;
+        let emax = valid
+            .iter()
+            .map(|&i| e[i][0])
+            .fold(0f32, f32::max)
+            .max(1e-30) as f64;
         let mut e_worst = 0f64;
         let mut e_diff = 0usize;
         for &i in &valid {
@@ -158,7 +174,11 @@ impl TwinError {
         let mut rmse = [0f64; 3];
         let mut b_diff = 0usize;
         for c in 0..3 {
-            let bmax = valid.iter().map(|&i| b[i][c]).fold(0f32, f32::max).max(1e-30) as f64;
+            let bmax = valid
+                .iter()
+                .map(|&i| b[i][c])
+                .fold(0f32, f32::max)
+                .max(1e-30) as f64;
             let (mut d2, mut t2) = (0f64, 0f64);
             for &i in &valid {
                 let d = (gpu.diffuse[i][c] - b[i][c]).abs() as f64;
@@ -169,7 +189,8 @@ impl TwinError {
             rmse[c] = if t2 > 0.0 { (d2 / t2).sqrt() } else { 0.0 };
         }
         for &i in &valid {
-            let differs = (0..3).any(|c| (gpu.diffuse[i][c] - b[i][c]).abs() > 1e-4 * b[i][c].abs().max(1e-6));
+            let differs = (0..3)
+                .any(|c| (gpu.diffuse[i][c] - b[i][c]).abs() > 1e-4 * b[i][c].abs().max(1e-6));
             b_diff += differs as usize;
         }
         let tmax = valid
@@ -180,10 +201,11 @@ impl TwinError {
         let mut t_worst = 0f64;
         let mut t_diff = 0usize;
         for &i in &valid {
-            for c in 0..3 {
-                t_worst = t_worst.max((gpu.transmission[i][c] - t[i][c]).abs() as f64 / tmax);
+            for (g, c) in gpu.transmission[i].iter().zip(&t[i]).take(3) {
+                t_worst = t_worst.max((g - c).abs() as f64 / tmax);
             }
-            t_diff += ((gpu.transmission[i][3] - t[i][3]).abs() > 1e-3 * t[i][3].max(1e-3)) as usize;
+            t_diff +=
+                ((gpu.transmission[i][3] - t[i][3]).abs() > 1e-3 * t[i][3].max(1e-3)) as usize;
         }
         TwinError {
             transmission_max_rel: t_worst,
@@ -313,13 +335,19 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
     progress(&format!(
         "CPU twin ({cpu_ms_irradiance:.0} + {cpu_ms_diffusion:.0} ms): irradiance max rel {:.1e}, \
          diffuse rel RMSE {:.1e} {:.1e} {:.1e}",
-        twin.irradiance_max_rel, twin.diffuse_rel_rmse[0], twin.diffuse_rel_rmse[1], twin.diffuse_rel_rmse[2]
+        twin.irradiance_max_rel,
+        twin.diffuse_rel_rmse[0],
+        twin.diffuse_rel_rmse[1],
+        twin.diffuse_rel_rmse[2]
     ));
     let covered: Vec<usize> = (0..geo.texels())
         .filter(|&i| geo.pos[i][3] == COVERED)
         .collect();
-    let accepted_fraction =
-        covered.iter().map(|&i| gpu.diffuse[i][3] as f64).sum::<f64>() / covered.len() as f64;
+    let accepted_fraction = covered
+        .iter()
+        .map(|&i| gpu.diffuse[i][3] as f64)
+        .sum::<f64>()
+        / covered.len() as f64;
 
     let mut files = Vec::new();
     let texture = |v: &[[f32; 4]]| FloatImage {
@@ -376,18 +404,17 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
         ));
         let mut tex = vec![[0f32; 4]; geo.texels()];
         for (k, &i) in covered.iter().enumerate() {
-            tex[i] = [truth[k][0] as f32, truth[k][1] as f32, truth[k][2] as f32, 1.0];
+            tex[i] = [
+                truth[k][0] as f32,
+                truth[k][1] as f32,
+                truth[k][2] as f32,
+                1.0,
+            ];
         }
         truth_tex = Some(tex);
         reference = Some(rep);
     }
-    files.extend(pictures(
-        cfg,
-        &geo,
-        &profile,
-        &gpu,
-        truth_tex.as_deref(),
-    )?);
+    files.extend(pictures(cfg, &geo, &profile, &gpu, truth_tex.as_deref())?);
     let mut notes = Vec::new();
     if ctx.info().device_type == "CPU" {
         notes.push("the device is a CPU implementation (lavapipe): times measure the CPU".into());
@@ -479,10 +506,10 @@ fn pictures(
     let mut vs = Vec::new();
     let mut tris = Vec::new();
     for (t, tri) in geo.triangles.iter().enumerate() {
-        for k in 0..3 {
-            positions.push(geo.positions[tri[k] as usize]);
-            us.push(geo.corner_uvs[t][k].x);
-            vs.push(geo.corner_uvs[t][k].y);
+        for (&v, uv) in tri.iter().zip(&geo.corner_uvs[t]) {
+            positions.push(geo.positions[v as usize]);
+            us.push(uv.x);
+            vs.push(uv.y);
         }
         let b = 3 * t as u32;
         tris.push([b, b + 1, b + 2]);
@@ -533,7 +560,11 @@ fn pictures(
             .map(|((r, g), b)| 0.2126 * r + 0.7152 * g + 0.0722 * b)
             .collect();
         lum.sort_by(f32::total_cmp);
-        let p99 = lum.get(lum.len() * 99 / 100).copied().unwrap_or(1.0).max(1e-9);
+        let p99 = lum
+            .get(lum.len() * 99 / 100)
+            .copied()
+            .unwrap_or(1.0)
+            .max(1e-9);
         0.9 / p99
     };
     let a = shade_rgb([&sss[0], &sss[1], &sss[2]], exposure)?;

@@ -178,7 +178,11 @@ pub fn run(
     progress: &mut dyn FnMut(&str),
 ) -> Result<SssBenchReport> {
     let mesh = load_mesh(&cfg.mesh, Some(&cfg.part))?;
-    let profile = Profile::new(ProfileKind::Dipole, Material::SKIN1, super::super::kernels::sss::profile::DEFAULT_ENERGY)?;
+    let profile = Profile::new(
+        ProfileKind::Dipole,
+        Material::SKIN1,
+        super::super::kernels::sss::profile::DEFAULT_ENERGY,
+    )?;
     progress("device peaks (FMA, streaming) for the roofline");
     let fma = super::peak::run_fma(ctx, &cfg.bench, &mut |_| {})?.throughput_median;
     let bw = super::peak::run_stream(ctx, &cfg.bench, &mut |_| {})?.throughput_median;
@@ -257,12 +261,13 @@ pub fn run(
         let e = cpu::irradiance(&geo, &bvh, &lights());
         cpu::diffusion(&geo, &profile, &e, &params)
     });
-    progress(&format!("CPU same sampler at {hs}^2 x {hn}: {:.0} ms", cpu_ms.median));
+    progress(&format!(
+        "CPU same sampler at {hs}^2 x {hn}: {:.0} ms",
+        cpu_ms.median
+    ));
     let gpu_at_error = match at_error_size_headline {
         Some(ms) => ms,
-        None => {
-            measure(ctx, cfg, &geo_e, &profile, hn, peaks, None)?.total_ms
-        }
+        None => measure(ctx, cfg, &geo_e, &profile, hn, peaks, None)?.total_ms,
     };
     Ok(SssBenchReport {
         benchmark: "vkshade bench sss",
@@ -290,7 +295,12 @@ pub fn panels(r: &SssBenchReport) -> Vec<super::plot::Panel> {
             name: ["R", "G", "B"][c].into(),
             points: at_err
                 .iter()
-                .map(|p| (p.total_ms, p.error.as_ref().map(|e| e.rel_rmse[c]).unwrap_or(f64::NAN)))
+                .map(|p| {
+                    (
+                        p.total_ms,
+                        p.error.as_ref().map(|e| e.rel_rmse[c]).unwrap_or(f64::NAN),
+                    )
+                })
                 .collect(),
         })
         .collect();

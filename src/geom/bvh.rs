@@ -259,7 +259,12 @@ impl Bvh {
             }
             false
         });
-        best.map(|(t, k)| (t, self.tris[k][1].cross(self.tris[k][2]).normalize_or_zero()))
+        best.map(|(t, k)| {
+            (
+                t,
+                self.tris[k][1].cross(self.tris[k][2]).normalize_or_zero(),
+            )
+        })
     }
 
     /// Number of triangles.

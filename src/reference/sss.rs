@@ -37,14 +37,14 @@ impl Sources {
             e: Vec::new(),
             area: Vec::new(),
         };
-        for i in 0..geo.texels() {
+        for (i, ei) in e.iter().enumerate().take(geo.texels()) {
             if geo.pos[i][3] != COVERED {
                 continue;
             }
             let v = |a: [f32; 4]| DVec3::new(a[0] as f64, a[1] as f64, a[2] as f64);
             s.pos.push(v(geo.pos[i]));
             s.edges.push((v(geo.dpdu[i]) / nf, v(geo.dpdv[i]) / nf));
-            s.e.push([e[i][0] as f64, e[i][1] as f64, e[i][2] as f64]);
+            s.e.push([ei[0] as f64, ei[1] as f64, ei[2] as f64]);
             s.area.push(geo.nrm[i][3] as f64);
         }
         s

@@ -76,8 +76,7 @@ fn load_filtered(path: &Path, only: Option<&str>) -> Result<Character> {
             let named = |n: &gltf::Node<'_>| {
                 let w = want.to_lowercase();
                 n.name().is_some_and(|x| x.to_lowercase() == w)
-                    || n
-                        .mesh()
+                    || n.mesh()
                         .and_then(|m| m.name().map(|x| x.to_lowercase() == w))
                         .unwrap_or(false)
             };

@@ -208,7 +208,7 @@ pub fn sample_u(i: u32, n: u32, off_u: f32) -> f32 {
 
 /// (cos, sin) of the golden angle 2 pi 0.618034: sample i's direction is the first one
 /// (angle 2 pi off_phi) rotated i times by it.
-pub const GOLDEN_STEP: (f32, f32) = (-0.737_368_83, -0.675_490_35);
+pub const GOLDEN_STEP: (f32, f32) = (-0.737_368_8, -0.675_490_4);
 
 /// The 2x2 map from a tangent-plane offset (cos phi, sin phi) * r (mm) to a UV offset at
 /// texel `i`: (J^T J)^-1 J^T [t1 t2], columns (m00, m10), (m01, m11); None if degenerate.
@@ -224,7 +224,9 @@ fn offset_map_of(a: Vec3, b: Vec3, n: Vec3) -> Option<[f32; 4]> {
     let t2 = n.cross(t1);
     let (aa, ab, bb) = (a.dot(a), a.dot(b), b.dot(b));
     let det = aa * bb - ab * ab;
-    if !(det > 1e-20 * aa * bb) || t1 == Vec3::ZERO {
+    // (written so that a NaN determinant also counts as degenerate)
+    if det.partial_cmp(&(1e-20 * aa * bb)) != Some(std::cmp::Ordering::Greater) || t1 == Vec3::ZERO
+    {
         return None;
     }
     // Ginv = [[bb, -ab], [-ab, aa]] / det; R = [[a.t1, a.t2], [b.t1, b.t2]].
@@ -268,9 +270,8 @@ impl SamplerParams {
                 self.samples
             )));
         }
-        if !(self.seam_rel.is_finite() && self.seam_rel >= 0.0)
-            || !(self.seam_texels.is_finite() && self.seam_texels >= 0.0)
-        {
+        let ok = |x: f32| x.is_finite() && x >= 0.0;
+        if !ok(self.seam_rel) || !ok(self.seam_texels) {
             return Err(Error::InvalidArgument(
                 "seam tolerances must be finite and >= 0".into(),
             ));
@@ -361,11 +362,21 @@ fn bilinear(
     }
     let (wx, wy) = (tx - fx, ty - fy);
     let idx = |x: i32, y: i32| (y * n + x) as usize;
-    let taps = [idx(x0, y0), idx(x0 + 1, y0), idx(x0, y0 + 1), idx(x0 + 1, y0 + 1)];
+    let taps = [
+        idx(x0, y0),
+        idx(x0 + 1, y0),
+        idx(x0, y0 + 1),
+        idx(x0 + 1, y0 + 1),
+    ];
     if taps.iter().any(|&t| geo.pos[t][3] == 0.0) {
         return None;
     }
-    let w = [(1.0 - wx) * (1.0 - wy), wx * (1.0 - wy), (1.0 - wx) * wy, wx * wy];
+    let w = [
+        (1.0 - wx) * (1.0 - wy),
+        wx * (1.0 - wy),
+        (1.0 - wx) * wy,
+        wx * wy,
+    ];
     let mut es = 0.0;
     let mut ps = Vec3::ZERO;
     for (t, wt) in taps.iter().zip(w) {

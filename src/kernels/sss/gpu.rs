@@ -276,9 +276,9 @@ impl Kernel for SssKernel {
 
     fn record_pass(&self, rec: &mut Recorder, pass: usize, lights: &[Light]) -> Result<()> {
         check_lights(lights)?;
-        let name = PASSES.get(pass).ok_or_else(|| {
-            Error::InvalidArgument(format!("SSS has 3 passes, not {}", pass + 1))
-        })?;
+        let name = PASSES
+            .get(pass)
+            .ok_or_else(|| Error::InvalidArgument(format!("SSS has 3 passes, not {}", pass + 1)))?;
         rec.begin_pass(name);
         let r = match pass {
             0 => {
@@ -298,7 +298,10 @@ impl Kernel for SssKernel {
 
     fn plan_pass(&self, rec: &mut Recorder, pass: usize) -> Result<Vec<PlannedBarrier>> {
         match pass {
-            0 => rec.plan(&[crate::gpu::Use::Buffer(&self.lights, A::TransferWrite.into())]),
+            0 => rec.plan(&[crate::gpu::Use::Buffer(
+                &self.lights,
+                A::TransferWrite.into(),
+            )]),
             1 => Ok(rec.plan_dispatch(&self.irradiance_bind)),
             2 => Ok(rec.plan_dispatch(&self.diffusion_bind)),
             _ => Err(Error::InvalidArgument(format!(

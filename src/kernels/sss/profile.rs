@@ -86,7 +86,12 @@ impl Material {
 
     pub fn check(&self) -> Result<()> {
         let ok = |x: f64| x.is_finite() && x > 0.0;
-        if !self.sigma_a.iter().chain(&self.sigma_s_prime).all(|&x| ok(x)) {
+        if !self
+            .sigma_a
+            .iter()
+            .chain(&self.sigma_s_prime)
+            .all(|&x| ok(x))
+        {
             return Err(Error::InvalidArgument(format!(
                 "material '{}': sigma_a {:?} and sigma_s' {:?} must be finite and > 0 (per mm)",
                 self.name, self.sigma_a, self.sigma_s_prime
@@ -536,7 +541,10 @@ mod tests {
                 for t in [0.5, 2.0, 5.0] {
                     let num = integrate(|s| 2.0 * PI * s * p.rd(c, s), t, 400.0, 20000);
                     let got = p.tail_f32(c, t as f32) as f64;
-                    assert!((got - num).abs() < 1e-5 * p.r_tot[c], "{kind:?} {c} {t}: {got} vs {num}");
+                    assert!(
+                        (got - num).abs() < 1e-5 * p.r_tot[c],
+                        "{kind:?} {c} {t}: {got} vs {num}"
+                    );
                 }
             }
             // Thin skin transmits red far more than blue.

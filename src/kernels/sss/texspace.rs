@@ -178,10 +178,9 @@ impl TexGeometry {
                 "mm per model unit {mm_per_unit} must be finite and > 0"
             )));
         }
-        let uvs = mesh
-            .uvs
-            .as_ref()
-            .ok_or_else(|| err("has no texture coordinates (UVs); texture-space diffusion needs them".into()))?;
+        let uvs = mesh.uvs.as_ref().ok_or_else(|| {
+            err("has no texture coordinates (UVs); texture-space diffusion needs them".into())
+        })?;
         if let Some(i) = uvs
             .iter()
             .position(|u| !u.is_finite() || u.x < 0.0 || u.x > 1.0 || u.y < 0.0 || u.y > 1.0)
@@ -295,11 +294,10 @@ impl TexGeometry {
         let mut dpdv = vec![[0f32; 4]; npx];
         let mut mesh_area = 0.0;
         let mut texel_area = 0.0;
-        for t in 0..nt {
-            let tri = mesh.triangles[t];
+        for (&tri, corners) in mesh.triangles.iter().zip(&corner_uvs) {
             let p = tri.map(|i| positions[i as usize].as_dvec3());
             let nv = tri.map(|i| mesh.normals[i as usize].as_dvec3());
-            let uv = corner_uvs[t].map(|u| u.as_dvec2());
+            let uv = corners.map(|u| u.as_dvec2());
             let (e1, e2) = (p[1] - p[0], p[2] - p[0]);
             let (d1, d2) = (uv[1] - uv[0], uv[2] - uv[0]);
             let det = d1.x * d2.y - d2.x * d1.y;
@@ -370,12 +368,21 @@ impl TexGeometry {
                     if self.pos[i][3] != 0.0 {
                         continue;
                     }
-                    let src = [(-1, 0), (1, 0), (0, -1), (0, 1), (-1, -1), (1, -1), (-1, 1), (1, 1)]
-                        .iter()
-                        .map(|(dx, dy)| (x + dx, y + dy))
-                        .filter(|&(a, b)| a >= 0 && b >= 0 && a < n && b < n)
-                        .map(|(a, b)| (b * n + a) as usize)
-                        .find(|&j| self.pos[j][3] != 0.0);
+                    let src = [
+                        (-1, 0),
+                        (1, 0),
+                        (0, -1),
+                        (0, 1),
+                        (-1, -1),
+                        (1, -1),
+                        (-1, 1),
+                        (1, 1),
+                    ]
+                    .iter()
+                    .map(|(dx, dy)| (x + dx, y + dy))
+                    .filter(|&(a, b)| a >= 0 && b >= 0 && a < n && b < n)
+                    .map(|(a, b)| (b * n + a) as usize)
+                    .find(|&j| self.pos[j][3] != 0.0);
                     if let Some(j) = src {
                         fills.push((i, j));
                     }
@@ -471,7 +478,9 @@ mod tests {
             for (x, y) in [(0.0, 0.0), (10.0, 0.0), (10.0, 10.0), (0.0, 10.0)] {
                 d.positions.push([ox + x, y, 0.0]);
                 let u = x / 10.0;
-                d.uvs.get_or_insert_with(Vec::new).push([if mirror { 1.0 - u } else { u }, y / 10.0]);
+                d.uvs
+                    .get_or_insert_with(Vec::new)
+                    .push([if mirror { 1.0 - u } else { u }, y / 10.0]);
             }
             d.triangles.push([b, b + 1, b + 2]);
             d.triangles.push([b, b + 2, b + 3]);
@@ -491,7 +500,10 @@ mod tests {
         let mut m = plane_mesh(10.0, 10.0, 2).unwrap();
         m.uvs = None;
         let e = TexGeometry::build(&m, 32, 1.0).unwrap_err().to_string();
-        assert!(e.contains("no texture coordinates") && e.contains("plane"), "{e}");
+        assert!(
+            e.contains("no texture coordinates") && e.contains("plane"),
+            "{e}"
+        );
         let mut m = plane_mesh(10.0, 10.0, 2).unwrap();
         m.uvs.as_mut().unwrap()[4] = Vec2::new(0.0, 0.0);
         m.uvs.as_mut().unwrap()[0] = Vec2::new(0.0, 0.0);
