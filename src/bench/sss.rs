@@ -87,7 +87,8 @@ pub struct SssBenchReport {
     pub peak_fma_gflops: f64,
     pub bandwidth_gb_s: f64,
     pub headline: Point,
-    /// The same sampler on the CPU (rayon), headline configuration: irradiance + diffusion.
+    /// The same sampler on the CPU (rayon), headline configuration: irradiance, transmission
+    /// and diffusion.
     pub cpu_same_method_ms: Stats,
     pub speedup_vs_cpu: f64,
     /// Brute force at `error_size` against the GPU at (`error_size`, headline samples).
@@ -259,7 +260,11 @@ pub fn run(
     };
     let cpu_ms = time_cpu(cfg.cpu_runs, || {
         let e = cpu::irradiance(&geo, &bvh, &lights());
-        cpu::diffusion(&geo, &profile, &e, &params)
+        // The GPU's irradiance pass also computes the transmission.
+        let t = params
+            .transmission
+            .then(|| cpu::transmission(&geo, &bvh, &lights(), &profile));
+        (cpu::diffusion(&geo, &profile, &e, &params), t)
     });
     progress(&format!(
         "CPU same sampler at {hs}^2 x {hn}: {:.0} ms",
