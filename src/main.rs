@@ -225,9 +225,13 @@ struct SssArgs {
     /// Texture size (N x N texels).
     #[arg(long, default_value_t = 512)]
     size: u32,
-    /// Frames to run (the same lights; timings are medians).
+    /// Frames to run: spread over --anim (posed and re-rasterised each frame), or the same
+    /// frame repeated; timings are medians, the last frame is written.
     #[arg(long, default_value_t = 1)]
     frames: usize,
+    /// Animation of the mesh's skeleton (glTF; name or unique substring).
+    #[arg(long)]
+    anim: Option<String>,
     /// Compare with the brute-force ground truth (f64, every covered texel).
     #[arg(long)]
     reference: bool,
@@ -872,6 +876,7 @@ fn cmd_sss(g: &Global, a: &SssArgs) -> Result<()> {
         samples: a.samples,
         size: a.size,
         frames: a.frames,
+        anim: a.anim.clone(),
         reference: a.reference,
         out: a.out.clone(),
         ..Default::default()

@@ -398,3 +398,52 @@ fn back_lit_thin_slab_transmits_red() {
     }
     assert!(front > 1000, "{front} front texels");
 }
+
+#[test]
+fn a_frame_that_stretches_the_mesh_keeps_the_plane_result() {
+    // The kernel is built for a square plane, then the next frame's geometry (the same
+    // triangles and UVs, stretched 2:1 in 3D) is uploaded: the uniformly lit result is still
+    // E K(R) per channel (the ellipse follows the new Jacobian), and it matches the CPU twin.
+    let p = profile(ProfileKind::Dipole);
+    let rmax = p.max_radius() as f32;
+    let square =
+        TexGeometry::build(&plane_mesh(4.0 * rmax, 4.0 * rmax, 4).unwrap(), 64, 1.0).unwrap();
+    let (w, h) = (6.0 * rmax, 3.0 * rmax);
+    let stretched = TexGeometry::build(&plane_mesh(w, h, 4).unwrap(), 64, 1.0).unwrap();
+    let lights = [Light::Directional {
+        toward: Vec3::Z,
+        e: 1.5,
+    }];
+    let params = SamplerParams {
+        samples: 8,
+        ..Default::default()
+    };
+    let out = common::with_gpu(|ctx| {
+        let mut setup = ctx.recorder("sss setup")?;
+        let kernel = SssKernel::new(&mut setup, &square, &p, params)?;
+        setup.submit_and_wait()?;
+        let mut rec = ctx.recorder("sss stretched frame")?;
+        kernel.update_geometry(&mut rec, &stretched)?;
+        kernel.record(&mut rec, &lights[..])?;
+        let rb = kernel.read_back(&mut rec)?;
+        rec.submit_and_wait()?;
+        // A geometry of another size is refused.
+        let mut rec = ctx.recorder("sss wrong geometry")?;
+        let other = TexGeometry::build(&plane_mesh(w, h, 4).unwrap(), 32, 1.0)?;
+        let e = kernel.update_geometry(&mut rec, &other).unwrap_err();
+        assert!(e.to_string().contains("does not match"), "{e}");
+        rec.submit_and_wait()?;
+        kernel.collect(&rb)
+    });
+    let cpu_b = cpu::diffusion(&stretched, &p, &out.irradiance, &params);
+    let inner = interior(&stretched, w, h, rmax * 1.02);
+    assert!(inner.len() > 50);
+    for &i in &inner {
+        for c in 0..3 {
+            let want = 1.5 * p.k[c] as f32;
+            assert!((out.diffuse[i][c] - want).abs() <= 1e-5 * want, "{i} {c}");
+            assert!((out.diffuse[i][c] - cpu_b[i][c]).abs() <= 1e-5 * want);
+        }
+        assert_eq!(out.diffuse[i][3], 1.0);
+    }
+}

@@ -15,7 +15,7 @@ use crate::kernels::sss::gpu::{PASS_DIFFUSION, PASS_IRRADIANCE};
 use crate::kernels::sss::profile::DEFAULT_ENERGY;
 use crate::kernels::sss::texspace::{COVERED, TexReport};
 use crate::kernels::sss::{Material, Profile, ProfileKind, SssKernel, SssOutput, TexGeometry};
-use crate::kernels::{KernelInfo, run_frames};
+use crate::kernels::{Kernel, KernelInfo, run_frames};
 use crate::reference::sss::{ChannelError, Sources, brute_force};
 use crate::report::MachineInfo;
 use crate::scene::{self, Mesh};
@@ -43,7 +43,11 @@ pub struct SssConfig {
     pub energy: f64,
     pub samples: u32,
     pub size: u32,
+    /// With `anim`: frames spread over the animation (the mesh is posed and re-rasterised
+    /// for each); without: the same frame repeated (timing).
     pub frames: usize,
+    /// An animation of the mesh's skeleton (glTF); `None`: the rest pose.
+    pub anim: Option<String>,
     pub reference: bool,
     pub out: PathBuf,
     pub image: (u32, u32),
@@ -64,6 +68,7 @@ impl Default for SssConfig {
             samples: 32,
             size: 512,
             frames: 1,
+            anim: None,
             reference: false,
             out: PathBuf::from("out/sss"),
             image: (480, 480),
@@ -121,15 +126,20 @@ impl SssConfig {
 
 /// Loads `mesh` (the glTF part `part` alone when given).
 pub fn load_mesh(mesh: &Path, part: Option<&str>) -> Result<Mesh> {
+    Ok(load_character(mesh, part)?.mesh)
+}
+
+/// Loads `mesh` with its rig and animations (the glTF part `part` alone when given).
+pub fn load_character(mesh: &Path, part: Option<&str>) -> Result<scene::Character> {
     match part {
         #[cfg(feature = "gltf")]
-        Some(name) => Ok(scene::gltf_load::load_named(mesh, name)?.mesh),
+        Some(name) => scene::gltf_load::load_named(mesh, name),
         #[cfg(not(feature = "gltf"))]
         Some(_) => Err(Error::feature(
             format!("selecting a part of {}", mesh.display()),
             "gltf",
         )),
-        None => Ok(scene::load(mesh)?.mesh),
+        None => scene::load(mesh),
     }
 }
 
@@ -242,6 +252,7 @@ pub struct SssReport {
     pub machine: MachineInfo,
     pub mesh: String,
     pub part: Option<String>,
+    pub anim: Option<String>,
     pub mm_per_unit: f64,
     pub lights: Vec<String>,
     pub profile: Profile,
@@ -269,9 +280,14 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
     cfg.validate()?;
     crate::io::check_writable(&cfg.out.join("report.json"))?;
     let lights = cfg.parsed_lights()?;
-    let mesh = load_mesh(&cfg.mesh, cfg.part.as_deref())?;
+    let character = load_character(&cfg.mesh, cfg.part.as_deref())?;
+    let anim = match &cfg.anim {
+        Some(name) => Some(character.animation(name)?),
+        None => None,
+    };
+    let mesh = &character.mesh;
     let t = Instant::now();
-    let geo = TexGeometry::build(&mesh, cfg.size, cfg.mm_per_unit)?;
+    let mut geo = TexGeometry::build(mesh, cfg.size, cfg.mm_per_unit)?;
     let r = &geo.report;
     progress(&format!(
         "{}: {} triangles, {:.0} mm^2; {}^2 texture: {} charts ({} mirrored), {} overlapping \
@@ -300,17 +316,53 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
     let mut setup = ctx.recorder("sss setup")?;
     let kernel = SssKernel::new(&mut setup, &geo, &profile, params)?;
     setup.submit_and_wait()?;
-    let inputs: Vec<&[Light]> = vec![&lights[..]; cfg.frames];
     let mut times: Vec<(f64, f64)> = Vec::new();
     let mut last = None;
-    let in_flight = run_frames(ctx, &kernel, inputs, 2, |r| {
-        times.push((
-            r.timings.get(PASS_IRRADIANCE).unwrap_or(f64::NAN),
-            r.timings.get(PASS_DIFFUSION).unwrap_or(f64::NAN),
-        ));
-        last = Some(r.output);
-        Ok(())
-    })?;
+    let in_flight = match anim {
+        None => {
+            let inputs: Vec<&[Light]> = vec![&lights[..]; cfg.frames];
+            run_frames(ctx, &kernel, inputs, 2, |r| {
+                times.push((
+                    r.timings.get(PASS_IRRADIANCE).unwrap_or(f64::NAN),
+                    r.timings.get(PASS_DIFFUSION).unwrap_or(f64::NAN),
+                ));
+                last = Some(r.output);
+                Ok(())
+            })?
+        }
+        Some(a) => {
+            // Each frame: pose on the CPU, re-rasterise the texture-space geometry (same UV
+            // layout), upload it, run the passes. The last frame's outputs are written.
+            for f in 0..cfg.frames {
+                let time = a.duration * f as f32 / cfg.frames.max(2).saturating_sub(1) as f32;
+                let m = character.rig.skinning_matrices(Some(a), time);
+                let posed = crate::kernels::sss::texspace::posed(mesh, &m)?;
+                let moved = posed
+                    .positions
+                    .iter()
+                    .zip(&mesh.positions)
+                    .map(|(p, q)| (*p - *q).length())
+                    .fold(0f32, f32::max) as f64
+                    * cfg.mm_per_unit;
+                geo = TexGeometry::build(&posed, cfg.size, cfg.mm_per_unit)?;
+                let mut rec = ctx.recorder(&format!("sss frame {f}"))?;
+                kernel.update_geometry(&mut rec, &geo)?;
+                kernel.record(&mut rec, &lights[..])?;
+                let rb = kernel.read_back(&mut rec)?;
+                let timings = rec.submit_and_wait()?;
+                times.push((
+                    timings.get(PASS_IRRADIANCE).unwrap_or(f64::NAN),
+                    timings.get(PASS_DIFFUSION).unwrap_or(f64::NAN),
+                ));
+                last = Some(kernel.collect(&rb)?);
+                progress(&format!(
+                    "frame {f} ({} at {time:.2} s): vertices moved up to {moved:.1} mm",
+                    a.name
+                ));
+            }
+            1
+        }
+    };
     let gpu = last.ok_or_else(|| Error::InvalidArgument("no frame ran".into()))?;
     let median = |f: &dyn Fn(&(f64, f64)) -> f64| {
         let mut v: Vec<f64> = times.iter().map(f).collect();
@@ -421,8 +473,9 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
     }
     notes.push(
         "samples are per texel per channel (three sample sets); irradiance shadows are rays \
-         through a BVH of the mesh on the GPU; the texture-space geometry is rasterised once \
-         on the CPU (static mesh, rest pose); transmission: thickness along -n by a ray, \
+         through a BVH of the mesh on the GPU; the texture-space geometry is rasterised on \
+         the CPU (once; with --anim once per frame after CPU skinning, BVH rebuilt); \
+         transmission: thickness along -n by a ray, \
          back irradiance times the profile beyond the thickness (flat-slab model), added in \
          render.png, not in diffuse.exr"
             .into(),
@@ -438,6 +491,7 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
         machine: MachineInfo::of(ctx),
         mesh: cfg.mesh.display().to_string(),
         part: cfg.part.clone(),
+        anim: anim.map(|a| a.name.clone()),
         mm_per_unit: cfg.mm_per_unit,
         lights: cfg.lights.clone(),
         profile,

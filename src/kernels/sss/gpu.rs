@@ -84,7 +84,11 @@ impl SssKernel {
         let nrm = upload("sss normals", bytemuck::cast_slice(&geo.nrm))?;
         let dpdu = upload("sss dP/du", bytemuck::cast_slice(&geo.dpdu))?;
         let dpdv = upload("sss dP/dv", bytemuck::cast_slice(&geo.dpdv))?;
-        let nodes = upload("sss bvh nodes", bytemuck::cast_slice(&nodes))?;
+        // Room for any hierarchy over this many triangles (a rebuilt one may have more
+        // nodes): at most 2 n - 1.
+        let mut node_room = nodes.clone();
+        node_room.resize((2 * geo.triangles.len()).max(nodes.len()), [0.0; 8]);
+        let nodes = upload("sss bvh nodes", bytemuck::cast_slice(&node_room))?;
         let tris = upload("sss bvh triangles", bytemuck::cast_slice(&tris))?;
         let table = upload("sss inverse cdf", bytemuck::cast_slice(&table))?;
         let lights = Buffer::new(
@@ -141,6 +145,38 @@ impl SssKernel {
 
     pub fn size(&self) -> u32 {
         self.size
+    }
+
+    /// Records the upload of a new pose of the same mesh (same texture size, same triangles
+    /// and UV layout; e.g. the skinned mesh of the next frame re-rasterised): the texel
+    /// geometry and a rebuilt BVH.
+    pub fn update_geometry(&self, rec: &mut Recorder, geo: &TexGeometry) -> Result<()> {
+        let [pos, nrm, dpdu, dpdv, nodes, tris, _] = &self.inputs[..] else {
+            return Err(Error::InvalidArgument(
+                "SSS kernel without its inputs".into(),
+            ));
+        };
+        if geo.size != self.size || (tris.size() as usize) != geo.triangles.len() * 48 {
+            return Err(Error::InvalidArgument(format!(
+                "new geometry ({}^2, {} triangles) does not match the kernel's ({}^2, {} \
+                 triangles)",
+                geo.size,
+                geo.triangles.len(),
+                self.size,
+                tris.size() / 48
+            )));
+        }
+        let bvh = Bvh::build(&geo.positions, &geo.triangles);
+        let (n, t) = bvh.flat();
+        if (n.len() * 32) as u64 > nodes.size() {
+            return Err(Error::InvalidArgument("BVH larger than its buffer".into()));
+        }
+        rec.upload(pos, 0, &geo.pos)?;
+        rec.upload(nrm, 0, &geo.nrm)?;
+        rec.upload(dpdu, 0, &geo.dpdu)?;
+        rec.upload(dpdv, 0, &geo.dpdv)?;
+        rec.upload(nodes, 0, &n)?;
+        rec.upload(tris, 0, &t)
     }
 
     pub fn params(&self) -> &SamplerParams {

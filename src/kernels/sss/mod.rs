@@ -13,7 +13,8 @@
 //! Transmission through thin parts (ears): in the irradiance pass, the thickness along -n
 //! and the back surface's irradiance give E_b (R_tot - F(t)) per channel (a locally flat
 //! slab lit from behind; [`cpu::transmission`]), written to its own buffer.
-//! Not done: per-frame re-rasterisation of a skinned mesh (the geometry is the rest pose).
+//! Skinned meshes: posed and re-rasterised on the CPU each frame, uploaded with
+//! [`SssKernel::update_geometry`] (`vkshade sss --anim`).
 
 pub mod cpu;
 pub mod gpu;

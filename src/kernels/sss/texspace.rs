@@ -23,8 +23,9 @@
 //! covered texel (ring by ring), flagged as gutter (area 0): irradiance computed there
 //! repeats the chart's border, so bilinear lookups at chart borders stay on the surface.
 //!
-//! Computed once per mesh on the CPU (a static mesh in its rest pose; re-rasterising the
-//! posed mesh each frame is what a skinned mesh would need, not done here).
+//! Computed on the CPU: once for a static mesh; for a skinned mesh once per frame from the
+//! mesh posed by [`posed`] (linear blend skinning on the CPU; the UV layout, and so the
+//! overlap repair, is the same in every pose), uploaded with `SssKernel::update_geometry`.
 
 use crate::error::{Error, Result};
 use crate::scene::Mesh;
@@ -413,6 +414,37 @@ impl TexGeometry {
     }
 }
 
+/// `mesh` posed by linear blend skinning with `matrices` (one per joint of its skin):
+/// positions and normals move, triangles and UVs stay (so the UV layout, and with it the
+/// overlap repair, is the same in every pose).
+pub fn posed(mesh: &Mesh, matrices: &[glam::Mat4]) -> Result<Mesh> {
+    let skin = mesh.skin.as_ref().ok_or_else(|| {
+        Error::InvalidArgument(format!("mesh '{}' has no skin weights to pose", mesh.name))
+    })?;
+    let mut out = mesh.clone();
+    for (v, (j, w)) in skin.joints.iter().zip(&skin.weights).enumerate() {
+        let mut m = glam::Mat4::ZERO;
+        for k in 0..4 {
+            if w[k] > 0.0 {
+                let mat = matrices.get(j[k] as usize).ok_or_else(|| {
+                    Error::InvalidArgument(format!(
+                        "vertex {v} uses joint {} of {} skinning matrices",
+                        j[k],
+                        matrices.len()
+                    ))
+                })?;
+                m += *mat * w[k];
+            }
+        }
+        out.positions[v] = m.transform_point3(mesh.positions[v]);
+        out.normals[v] = m
+            .transform_vector3(mesh.normals[v])
+            .try_normalize()
+            .unwrap_or(mesh.normals[v]);
+    }
+    Ok(out)
+}
+
 /// A flat rectangle of `w` x `h` mm in the z = 0 plane, normal +z, UV (0,0)-(1,1) spanning
 /// it (a `w`:`h` stretch when w != h), split into `cells` x `cells` quads. For the analytic
 /// plane tests.
@@ -493,6 +525,25 @@ mod tests {
         assert_eq!(g.report.layers, 2);
         assert_eq!(g.report.covered_texels, 32 * 32);
         assert!((g.report.texel_area_mm2 - 200.0).abs() < 1e-3);
+    }
+
+    #[test]
+    fn posing_moves_positions_and_keeps_the_layout() {
+        let mut m = plane_mesh(10.0, 10.0, 2).unwrap();
+        let n = m.positions.len();
+        m.skin = Some(crate::scene::mesh::SkinWeights {
+            joints: vec![[0, 1, 0, 0]; n],
+            weights: vec![[0.5, 0.5, 0.0, 0.0]; n],
+        });
+        let t = glam::Mat4::from_translation(Vec3::new(0.0, 0.0, 4.0));
+        let p = posed(&m, &[glam::Mat4::IDENTITY, t]).unwrap();
+        for (a, b) in p.positions.iter().zip(&m.positions) {
+            assert!((*a - *b - Vec3::new(0.0, 0.0, 2.0)).length() < 1e-6);
+        }
+        let g0 = TexGeometry::build(&m, 32, 1.0).unwrap();
+        let g1 = TexGeometry::build(&p, 32, 1.0).unwrap();
+        assert_eq!(g0.corner_uvs, g1.corner_uvs);
+        assert!(posed(&m, &[glam::Mat4::IDENTITY]).is_err());
     }
 
     #[test]
