@@ -3,9 +3,10 @@
 // B(xo) = K(R) * mean of E over accepted samples. Each sample is a tangent-plane offset of
 // radius r (inverse CDF: table for the dipole, closed form for Burley) and angle phi, mapped
 // to UV by (J^T J)^-1 J^T (the circle becomes the texel's ellipse; area is accounted for
-// because the offsets are drawn in surface area, not in UV). Seams: a sample whose
-// bilinear 3D position is not at distance ~r is rejected; B renormalises over the accepted
-// ones. The CPU twin is src/kernels/sss/cpu.rs (same sequence and arithmetic).
+// because the offsets are drawn in surface area, not in UV). A sample reads E and the 3D
+// position of its nearest texel. Seams: a sample whose 3D position is not at distance ~r
+// (within the tolerance, which exceeds the half-texel rounding) is rejected; B renormalises
+// over the accepted ones. The CPU twin is src/kernels/sss/cpu.rs (same sequence and arithmetic).
 layout(local_size_x = 8, local_size_y = 8) in;
 
 layout(push_constant) uniform Push {
@@ -53,7 +54,7 @@ float radius(uint c, float u) {
 
 // One channel's estimate (called with a constant channel, so component indices are static
 // after inlining).
-float channel(uint c, uint i, float x, float y, float nf, int n, vec3 po, float eo, float kc,
+float channel(uint c, uint i, float x, float y, float nf, vec3 po, float eo, float kc,
               float m00, float m01, float m10, float m11, float texel_mm,
               inout uint accepted_all) {
     uint h = pcg(i * 3u + c);
@@ -72,22 +73,16 @@ float channel(uint c, uint i, float x, float y, float nf, int n, vec3 po, float 
         dir = vec2(dir.x * STEP.x - dir.y * STEP.y, dir.x * STEP.y + dir.y * STEP.x);
         float tx = x + (m00 * cs + m01 * sn) * nf;
         float ty = y + (m10 * cs + m11 * sn) * nf;
-        float fx = floor(tx), fy = floor(ty);
-        int x0 = int(fx), y0 = int(fy);
-        if (isnan(tx) || isnan(ty) || isinf(tx) || isinf(ty) || x0 < 0 || y0 < 0
-            || x0 + 1 >= n || y0 + 1 >= n) continue;
-        float wx = tx - fx, wy = ty - fy;
-        uint i00 = uint(y0 * n + x0);
-        uint i10 = i00 + 1u;
-        uint i01 = i00 + pc.size;
-        uint i11 = i01 + 1u;
-        vec4 p00 = pos.v[i00], p10 = pos.v[i10], p01 = pos.v[i01], p11 = pos.v[i11];
-        if (p00.w == 0.0 || p10.w == 0.0 || p01.w == 0.0 || p11.w == 0.0) continue;
-        float w00 = (1.0 - wx) * (1.0 - wy), w10 = wx * (1.0 - wy);
-        float w01 = (1.0 - wx) * wy, w11 = wx * wy;
-        float es = w00 * irr.v[i00][c] + w10 * irr.v[i10][c] + w01 * irr.v[i01][c]
-            + w11 * irr.v[i11][c];
-        vec3 ps = w00 * p00.xyz + w10 * p10.xyz + w01 * p01.xyz + w11 * p11.xyz;
+        // Nearest texel (E and position at its centre): one gather of each per sample
+        // instead of four (lavapipe runs per-lane loads one lane at a time).
+        float fx = floor(tx + 0.5), fy = floor(ty + 0.5);
+        if (isnan(tx) || isnan(ty) || isinf(tx) || isinf(ty) || fx < 0.0 || fy < 0.0
+            || fx >= nf || fy >= nf) continue;
+        uint i00 = uint(fy) * pc.size + uint(fx);
+        vec4 p00 = pos.v[i00];
+        if (p00.w == 0.0) continue;
+        float es = irr.v[i00][c];
+        vec3 ps = p00.xyz;
         float d = length(ps - po);
         if (abs(d - r) <= pc.seam_rel * r + pc.seam_texels * texel_mm) {
             sum += es;
@@ -101,7 +96,6 @@ float channel(uint c, uint i, float x, float y, float nf, int n, vec3 po, float 
 void main() {
     uvec2 xy = gl_GlobalInvocationID.xy;
     if (xy.x >= pc.size || xy.y >= pc.size) return;
-    int n = int(pc.size);
     float nf = float(pc.size);
     uint i = xy.y * pc.size + xy.x;
     vec4 p4 = pos.v[i];
@@ -134,9 +128,9 @@ void main() {
     vec4 outv = vec4(0.0);
     uint accepted_all = 0u;
     vec3 k3 = pc.k.rgb;
-    outv.r = channel(0u, i, x, y, nf, n, po, eo.r, k3.r, m00, m01, m10, m11, texel_mm, accepted_all);
-    outv.g = channel(1u, i, x, y, nf, n, po, eo.g, k3.g, m00, m01, m10, m11, texel_mm, accepted_all);
-    outv.b = channel(2u, i, x, y, nf, n, po, eo.b, k3.b, m00, m01, m10, m11, texel_mm, accepted_all);
+    outv.r = channel(0u, i, x, y, nf, po, eo.r, k3.r, m00, m01, m10, m11, texel_mm, accepted_all);
+    outv.g = channel(1u, i, x, y, nf, po, eo.g, k3.g, m00, m01, m10, m11, texel_mm, accepted_all);
+    outv.b = channel(2u, i, x, y, nf, po, eo.b, k3.b, m00, m01, m10, m11, texel_mm, accepted_all);
     outv.a = float(accepted_all) / float(3u * pc.samples);
     diffuse.v[i] = outv;
 }

@@ -19,12 +19,12 @@ use glam::{DVec3, Vec3};
 use serde::Serialize;
 use std::path::PathBuf;
 
-/// Work per diffusion sample (documented model, not a counter): ~40 FLOP (radius lookup,
-/// direction rotation, UV map, bilinear weights, 3D distance, seam test) and 10 vec4 loads
-/// (two table entries, four positions, four irradiance texels) = 160 bytes.
+/// Work per diffusion sample (documented model, not a counter): ~30 FLOP (radius lookup,
+/// direction rotation, UV map, rounding to the nearest texel, 3D distance, seam test) and
+/// 4 vec4 loads (two table entries, the nearest texel's position and irradiance) = 64 bytes.
 pub mod work_model {
-    pub const FLOP_PER_SAMPLE: f64 = 40.0;
-    pub const BYTES_PER_SAMPLE: f64 = 160.0;
+    pub const FLOP_PER_SAMPLE: f64 = 30.0;
+    pub const BYTES_PER_SAMPLE: f64 = 64.0;
 }
 
 #[derive(Clone, Debug, Serialize)]

@@ -324,7 +324,7 @@ pub fn diffusion(
                     let dv = m[2] * cs + m[3] * sn;
                     let tx = x + du * nf;
                     let ty = y + dv * nf;
-                    if let Some((es, ps)) = bilinear(geo, e, n, tx, ty, c as usize) {
+                    if let Some((es, ps)) = nearest(geo, e, nf, tx, ty, c as usize) {
                         let d = (ps - po).length();
                         if (d - r).abs() <= params.seam_rel * r + params.seam_texels * texel_mm {
                             sum += es;
@@ -345,45 +345,25 @@ pub fn diffusion(
         .collect()
 }
 
-/// Bilinear E (channel c) and position at texel coordinates (tx, ty) (texel centres at
-/// integers); None when a tap is outside the texture or empty.
-fn bilinear(
+/// E (channel c) and position of the texel nearest to texel coordinates (tx, ty) (texel
+/// centres at integers); None when it is outside the texture or empty.
+fn nearest(
     geo: &TexGeometry,
     e: &[[f32; 4]],
-    n: i32,
+    nf: f32,
     tx: f32,
     ty: f32,
     c: usize,
 ) -> Option<(f32, Vec3)> {
-    let (fx, fy) = (tx.floor(), ty.floor());
-    let (x0, y0) = (fx as i32, fy as i32);
-    if !(tx.is_finite() && ty.is_finite()) || x0 < 0 || y0 < 0 || x0 + 1 >= n || y0 + 1 >= n {
+    let (fx, fy) = ((tx + 0.5).floor(), (ty + 0.5).floor());
+    if !(tx.is_finite() && ty.is_finite()) || fx < 0.0 || fy < 0.0 || fx >= nf || fy >= nf {
         return None;
     }
-    let (wx, wy) = (tx - fx, ty - fy);
-    let idx = |x: i32, y: i32| (y * n + x) as usize;
-    let taps = [
-        idx(x0, y0),
-        idx(x0 + 1, y0),
-        idx(x0, y0 + 1),
-        idx(x0 + 1, y0 + 1),
-    ];
-    if taps.iter().any(|&t| geo.pos[t][3] == 0.0) {
+    let t = fy as usize * nf as usize + fx as usize;
+    if geo.pos[t][3] == 0.0 {
         return None;
     }
-    let w = [
-        (1.0 - wx) * (1.0 - wy),
-        wx * (1.0 - wy),
-        (1.0 - wx) * wy,
-        wx * wy,
-    ];
-    let mut es = 0.0;
-    let mut ps = Vec3::ZERO;
-    for (t, wt) in taps.iter().zip(w) {
-        es += wt * e[*t][c];
-        ps += wt * Vec3::from_slice(&geo.pos[*t][..3]);
-    }
-    Some((es, ps))
+    Some((e[t][c], Vec3::from_slice(&geo.pos[t][..3])))
 }
 
 /// The UV of texel i's centre.
