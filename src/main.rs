@@ -66,6 +66,11 @@ enum Command {
     /// a cloth-covered object through 2D array textures and parabolic-map lookup.
     #[command(subcommand)]
     Btf(BtfCommand),
+    /// Texture-space subsurface diffusion (skin): DIR/irradiance.exr, DIR/diffuse.exr
+    /// (texture space, linear float; B = int E Rd dA before the exit Fresnel and 1/pi),
+    /// DIR/render.png (SSS | Lambertian), with --reference DIR/reference.png, and
+    /// DIR/report.json.
+    Sss(SssArgs),
     /// Sphere trees.
     #[command(subcommand)]
     Spheretree(TreeCommand),
@@ -191,6 +196,60 @@ struct SrbfShadeArgs {
     #[arg(long, default_value_t = 2)]
     in_flight: usize,
     #[arg(long, default_value = "out/srbf")]
+    out: PathBuf,
+}
+
+#[derive(Args)]
+struct SssArgs {
+    /// Mesh with UVs (.glb/.gltf .obj .ply; a skinned mesh is used in its bind pose).
+    #[arg(long, default_value = vkshade::app::sss::DEFAULT_MESH)]
+    mesh: PathBuf,
+    /// Use only this glTF mesh (node or mesh name); `--part ''` uses the whole file.
+    #[arg(long, default_value = vkshade::app::sss::DEFAULT_PART)]
+    part: String,
+    /// Millimetres per model unit (scattering coefficients are per mm). Default: 1, or
+    /// 1000 for the built-in BCN_Epileptic mesh (modelled in metres).
+    #[arg(long)]
+    mm_per_unit: Option<f64>,
+    /// dir:X,Y,Z[:E] (arriving from X,Y,Z; irradiance E, default 1) or point:X,Y,Z:I
+    /// (position in model units, intensity I). Repeatable.
+    #[arg(long = "light")]
+    lights: Vec<String>,
+    /// dipole (tabulated inverse CDF) or burley (analytic inverse CDF).
+    #[arg(long, default_value = "dipole")]
+    profile: String,
+    /// skin1 or skin2 (Jensen 2001), or custom with --sigma-a and --sigma-s.
+    #[arg(long, default_value = "skin1")]
+    material: String,
+    /// Absorption coefficients R,G,B per mm (custom material).
+    #[arg(long, value_delimiter = ',', num_args = 3)]
+    sigma_a: Option<Vec<f64>>,
+    /// Reduced scattering coefficients R,G,B per mm (custom material).
+    #[arg(long, value_delimiter = ',', num_args = 3)]
+    sigma_s: Option<Vec<f64>>,
+    /// Relative index of refraction (default 1.3).
+    #[arg(long, default_value_t = vkshade::kernels::sss::profile::DEFAULT_ETA)]
+    eta: f64,
+    /// Fraction of each channel's reflectance inside its sampling radius.
+    #[arg(long, default_value_t = vkshade::kernels::sss::profile::DEFAULT_ENERGY)]
+    energy: f64,
+    /// Samples per texel per channel.
+    #[arg(long, default_value_t = 32)]
+    samples: u32,
+    /// Texture size (N x N texels).
+    #[arg(long, default_value_t = 512)]
+    size: u32,
+    /// Frames to run: spread over --anim (posed and re-rasterised each frame), or the same
+    /// frame repeated; timings are medians, the last frame is written.
+    #[arg(long, default_value_t = 1)]
+    frames: usize,
+    /// Animation of the mesh's skeleton (glTF; name or unique substring).
+    #[arg(long)]
+    anim: Option<String>,
+    /// Compare with the brute-force ground truth (f64, every covered texel).
+    #[arg(long)]
+    reference: bool,
+    #[arg(long, default_value = "out/sss")]
     out: PathBuf,
 }
 
@@ -393,6 +452,17 @@ enum BenchCommand {
         /// other format when the device supports BC1).
         #[arg(long, default_value = "bc1")]
         texture: vkshade::kernels::btf::gpu::Texture,
+    },
+    /// Texture-space SSS on the BCN_Epileptic head: GPU time of irradiance and diffusion
+    /// over texture size x samples per texel, error against the brute-force ground truth vs
+    /// time, throughput against the FMA and bandwidth peaks, and the speed-up over the same
+    /// sampler on the CPU and over the brute force.
+    Sss {
+        #[command(flatten)]
+        opts: BenchOpts,
+        /// Smaller sweeps (for a quick check).
+        #[arg(long)]
+        quick: bool,
     },
 }
 
@@ -868,6 +938,133 @@ fn cmd_bench_srbf(g: &Global, opts: &BenchOpts, quick: bool) -> Result<()> {
     finish(ctx)
 }
 
+fn cmd_bench_sss(g: &Global, opts: &BenchOpts, quick: bool) -> Result<()> {
+    use vkshade::bench::sss::{SssBenchConfig, panels, run};
+    for path in opts.json.iter().chain(&opts.plot) {
+        vkshade::io::check_writable(path)?;
+    }
+    if opts.plot.is_some() {
+        bench::plot::ensure_available()?;
+    }
+    let mut cfg = SssBenchConfig::default();
+    // This benchmark's passes take seconds on lavapipe: its own defaults (1 warm-up, 3 timed
+    // submissions) unless the options were changed.
+    let given = opts.config()?;
+    if given.samples != BenchConfig::default().samples
+        || given.warmup != BenchConfig::default().warmup
+    {
+        cfg.bench = given;
+    }
+    if quick {
+        cfg.sizes = vec![128, 256];
+        cfg.samples = vec![8, 32];
+        cfg.headline = (256, 32);
+        cfg.error_size = 128;
+    }
+    let ctx = context(g)?;
+    eprintln!("bench sss on {}", ctx.info().name);
+    let r = run(&ctx, &cfg, &mut |l| progress(l))?;
+    let h = &r.headline;
+    println!("device                 {}", r.machine.device);
+    println!(
+        "headline               {}^2 texels x {} samples/texel/channel: irradiance {:.1} ms + diffusion {:.1} ms (median GPU) = {:.2} fps",
+        h.size, h.samples, h.irradiance_ms.median, h.diffusion_ms.median, h.fps
+    );
+    println!(
+        "throughput             {:.2e} samples/s = {:.1}% of the {:.1} GFLOP/s FMA peak, {:.1}% of {:.1} GB/s (work model in bench/sss.rs)",
+        h.samples_per_s,
+        100.0 * h.fraction_of_fma_peak,
+        r.peak_fma_gflops,
+        100.0 * h.fraction_of_bandwidth,
+        r.bandwidth_gb_s
+    );
+    println!(
+        "baselines              same sampler on the CPU {:.0} ms: {:.2}x; brute force at {}^2 {:.0} ms: {:.1}x (speed-up of the GPU path)",
+        r.cpu_same_method_ms.median,
+        r.speedup_vs_cpu,
+        r.brute_force_size,
+        r.brute_force_ms.median,
+        r.speedup_vs_brute_force
+    );
+    let target = 30.0;
+    println!(
+        "target fps (head, 512^2, 32 samples)            {:>10.2} (target {target}) {}",
+        h.fps,
+        if h.fps >= target { "PASS" } else { "MISS" }
+    );
+    if let Some(path) = &opts.json {
+        vkshade::io::write_json(path, &r)?;
+        println!("wrote {}", path.display());
+    }
+    if let Some(path) = &opts.plot {
+        bench::plot::draw(path, &panels(&r))?;
+        println!("wrote {}", path.display());
+    }
+    finish(ctx)
+}
+
+fn cmd_sss(g: &Global, a: &SssArgs) -> Result<()> {
+    use vkshade::app::sss;
+    use vkshade::kernels::sss::Material;
+    let three = |v: &Option<Vec<f64>>, what: &str| -> Result<Option<[f64; 3]>> {
+        v.as_ref()
+            .map(|v| {
+                v.as_slice()
+                    .try_into()
+                    .map_err(|_| Error::InvalidArgument(format!("{what} takes three values R,G,B")))
+            })
+            .transpose()
+    };
+    let material = match (
+        three(&a.sigma_a, "--sigma-a")?,
+        three(&a.sigma_s, "--sigma-s")?,
+    ) {
+        (Some(sa), Some(ss)) => Material::custom(sa, ss, a.eta)?,
+        (None, None) => Material::named(&a.material)?.with_eta(a.eta)?,
+        _ => {
+            return Err(Error::InvalidArgument(
+                "a custom material needs both --sigma-a and --sigma-s".into(),
+            ));
+        }
+    };
+    let cfg = sss::SssConfig {
+        mesh: a.mesh.clone(),
+        part: (!a.part.is_empty()).then(|| a.part.clone()),
+        mm_per_unit: a
+            .mm_per_unit
+            .unwrap_or_else(|| vkshade::app::sss::default_mm_per_unit(&a.mesh)),
+        lights: if a.lights.is_empty() {
+            sss::SssConfig::default().lights
+        } else {
+            a.lights.clone()
+        },
+        profile: a.profile.parse()?,
+        material,
+        energy: a.energy,
+        samples: a.samples,
+        size: a.size,
+        frames: a.frames,
+        anim: a.anim.clone(),
+        reference: a.reference,
+        out: a.out.clone(),
+        ..Default::default()
+    };
+    let ctx = context(g)?;
+    eprintln!("vkshade sss on {}", ctx.info().name);
+    let r = sss::run(&ctx, &cfg, &mut |l| progress(l))?;
+    println!(
+        "{} {}^2 texels x {} samples: irradiance {:.2} ms + diffusion {:.2} ms GPU = {:.1} fps; wrote {}",
+        r.mesh,
+        r.size,
+        r.samples,
+        r.gpu_ms_irradiance,
+        r.gpu_ms_diffusion,
+        r.fps,
+        cfg.out.display()
+    );
+    finish(ctx)
+}
+
 fn cmd_srbf(g: &Global, cmd: &SrbfCommand) -> Result<()> {
     use vkshade::app::srbf;
     match cmd {
@@ -1330,6 +1527,9 @@ fn main() -> ExitCode {
         Command::Bench(BenchCommand::Srbf { opts, quick }) => {
             cmd_bench_srbf(&cli.global, opts, *quick)
         }
+        Command::Bench(BenchCommand::Sss { opts, quick }) => {
+            cmd_bench_sss(&cli.global, opts, *quick)
+        }
         Command::Shaders(cmd) => cmd_shaders(cmd),
         Command::Ao(a) => cmd_ao(&cli.global, a, false),
         Command::Demo => {
@@ -1354,6 +1554,7 @@ fn main() -> ExitCode {
             quick,
             texture,
         }) => cmd_bench_btf(&cli.global, opts, *quick, *texture),
+        Command::Sss(a) => cmd_sss(&cli.global, a),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

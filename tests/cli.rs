@@ -510,3 +510,50 @@ fn btf_synth_eval_render_write_their_files_and_refuse_bad_input() {
     assert!(!ok && stderr.contains("tweed"), "{stderr}");
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+#[test]
+fn sss_writes_texture_space_exrs_render_and_report_and_refuses_bad_input() {
+    let dir = temp("sss-cli");
+    // The built-in head (BCN_Epileptic, in metres: the default scale is 1000 mm per unit).
+    let (ok, stdout, stderr) = vkshade(&[
+        "--validate",
+        "sss",
+        "--size",
+        "64",
+        "--samples",
+        "4",
+        "--reference",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    assert!(ok, "{stdout}\n{stderr}");
+    assert!(stderr.contains("validation: clean"), "{stderr}");
+    for f in ["irradiance.exr", "diffuse.exr", "render.png", "report.json"] {
+        assert!(dir.join(f).exists(), "{f} missing");
+    }
+    let v: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(dir.join("report.json")).unwrap()).unwrap();
+    assert_eq!(v["mm_per_unit"], 1000.0);
+    assert_eq!(v["samples"], 4);
+    assert!(v["gpu_ms_diffusion"].as_f64().unwrap() > 0.0);
+    assert!(v["reference"].is_object(), "{}", v["reference"]);
+    // A scale that makes the head 0.3 mm across is reported, not silently used.
+    let (ok, _, stderr) = vkshade(&[
+        "sss",
+        "--size",
+        "32",
+        "--samples",
+        "2",
+        "--mm-per-unit",
+        "1",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    assert!(ok && stderr.contains("check the model's units"), "{stderr}");
+    // Bad input names the file or the option.
+    let (ok, _, stderr) = vkshade(&["sss", "--mesh", "/nonexistent/head.glb"]);
+    assert!(!ok && stderr.contains("/nonexistent/head.glb"), "{stderr}");
+    let (ok, _, stderr) = vkshade(&["sss", "--light", "dir:0,0,0"]);
+    assert!(!ok && stderr.contains("light"), "{stderr}");
+    std::fs::remove_dir_all(&dir).ok();
+}

@@ -44,6 +44,8 @@ convert() {
 }
 convert /usr/share/assimp/models/X/Testwuson.X data/testwuson.glb
 convert /usr/share/assimp/models/X/BCN_Epileptic.X data/bcn_epileptic.glb
+# The MakeHuman body (Collada, zipped): the SSS issue's second real test case.
+convert /usr/share/assimp/models/Collada/human.zae data/human.glb
 
 echo "setup: building vkshade (release)"
 cargo build --release --quiet

@@ -4,3 +4,4 @@
 pub mod ao;
 pub mod btf;
 pub mod srbf;
+pub mod sss;

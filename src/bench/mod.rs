@@ -6,6 +6,7 @@ pub mod btf;
 pub mod peak;
 pub mod plot;
 pub mod srbf;
+pub mod sss;
 
 use crate::error::{Error, Result};
 use crate::gpu::{Context, Recorder};

@@ -161,7 +161,7 @@ impl Bvh {
 
     /// Visits every triangle whose leaf box the ray segment [0, tmax] touches; `hit` gets the
     /// ray parameter of each intersection and returns true to stop.
-    fn traverse(&self, o: Vec3, d: Vec3, tmax: f32, mut hit: impl FnMut(f32) -> bool) {
+    fn traverse(&self, o: Vec3, d: Vec3, tmax: f32, mut hit: impl FnMut(f32, usize) -> bool) {
         if self.tris.is_empty() {
             return;
         }
@@ -179,10 +179,11 @@ impl Bvh {
                 continue;
             }
             if node.count > 0 {
-                for tri in &self.tris[node.first as usize..(node.first + node.count) as usize] {
+                let range = node.first as usize..(node.first + node.count) as usize;
+                for (k, tri) in self.tris[range.clone()].iter().enumerate() {
                     if let Some(t) = intersect(o, d, tri)
                         && t <= tmax
-                        && hit(t)
+                        && hit(t, range.start + k)
                     {
                         return;
                     }
@@ -198,7 +199,7 @@ impl Bvh {
     /// Whether the ray hits any triangle at a parameter in (0, tmax].
     pub fn any_hit(&self, origin: Vec3, dir: Vec3, tmax: f32) -> bool {
         let mut found = false;
-        self.traverse(origin, dir, tmax, |_| {
+        self.traverse(origin, dir, tmax, |_, _| {
             found = true;
             true
         });
@@ -208,10 +209,62 @@ impl Bvh {
     /// Parameters of every intersection along the ray (unsorted).
     pub fn all_hits(&self, origin: Vec3, dir: Vec3, out: &mut Vec<f32>) {
         out.clear();
-        self.traverse(origin, dir, f32::INFINITY, |t| {
+        self.traverse(origin, dir, f32::INFINITY, |t, _| {
             out.push(t);
             false
         });
+    }
+
+    /// The hierarchy as flat arrays for a GPU traversal: per node two vec4s
+    /// (min.xyz, first as bits), (max.xyz, count as bits) with the meaning of the CPU nodes
+    /// (leaf: `count` > 0 triangles from `first`; inner: children `first`, `first + 1`), and
+    /// per triangle three vec4s (a, b - a, c - a) in leaf order.
+    pub fn flat(&self) -> (Vec<[f32; 8]>, Vec<[f32; 12]>) {
+        let nodes = self
+            .nodes
+            .iter()
+            .map(|n| {
+                [
+                    n.min.x,
+                    n.min.y,
+                    n.min.z,
+                    f32::from_bits(n.first),
+                    n.max.x,
+                    n.max.y,
+                    n.max.z,
+                    f32::from_bits(n.count),
+                ]
+            })
+            .collect();
+        let tris = self
+            .tris
+            .iter()
+            .map(|t| {
+                [
+                    t[0].x, t[0].y, t[0].z, 0.0, t[1].x, t[1].y, t[1].z, 0.0, t[2].x, t[2].y,
+                    t[2].z, 0.0,
+                ]
+            })
+            .collect();
+        (nodes, tris)
+    }
+
+    /// The nearest hit along the ray in (0, tmax]: its parameter and the unit geometric
+    /// normal (e1 x e2 of the triangle as stored, i.e. its winding) of the triangle hit.
+    pub fn closest_hit(&self, origin: Vec3, dir: Vec3, tmax: f32) -> Option<(f32, Vec3)> {
+        let mut best: Option<(f32, usize)> = None;
+        self.traverse(origin, dir, tmax, |t, k| {
+            if best.is_none_or(|(b, _)| t < b) {
+                best = Some((t, k));
+            }
+            false
+        });
+        best.map(|(t, k)| {
+            (
+                t,
+                self.tris[k][1].cross(self.tris[k][2]).normalize_or_zero(),
+            )
+        })
     }
 
     /// Number of triangles.

@@ -5,6 +5,7 @@ pub mod ao;
 pub mod btf;
 pub mod shape;
 pub mod srbf;
+pub mod sss;
 
 pub use shape::{FrameResult, Kernel, KernelInfo, PassInfo, UseInfo, record_as_graph, run_frames};
 

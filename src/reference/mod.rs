@@ -3,6 +3,7 @@
 pub mod ao;
 pub mod btf;
 pub mod srbf;
+pub mod sss;
 
 /// Error statistics of an estimate against a reference.
 #[derive(Clone, Debug, Default, serde::Serialize)]

@@ -12,6 +12,18 @@ use glam::{Mat3, Mat4, Quat, Vec3};
 use std::path::Path;
 
 pub fn load(path: &Path) -> Result<Character> {
+    load_filtered(path, None)
+}
+
+/// Only the mesh nodes whose node or mesh name is `name` (case-insensitive), e.g. the
+/// `Head` of a character split into several meshes; skinned meshes stay in bind space.
+pub fn load_named(path: &Path, name: &str) -> Result<Character> {
+    let mut c = load_filtered(path, Some(name))?;
+    c.mesh.name = format!("{}:{name}", c.mesh.name);
+    Ok(c)
+}
+
+fn load_filtered(path: &Path, only: Option<&str>) -> Result<Character> {
     let err = |m: String| Error::input(path, m);
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
     let gltf = gltf::Gltf::from_slice(&bytes).map_err(|e| err(format!("not valid glTF: {e}")))?;
@@ -58,6 +70,30 @@ pub fn load(path: &Path) -> Result<Character> {
     if mesh_nodes.is_empty() {
         return Err(err("no mesh nodes in the scene".into()));
     }
+    let mesh_nodes: Vec<gltf::Node<'_>> = match only {
+        None => mesh_nodes,
+        Some(want) => {
+            let named = |n: &gltf::Node<'_>| {
+                let w = want.to_lowercase();
+                n.name().is_some_and(|x| x.to_lowercase() == w)
+                    || n.mesh()
+                        .and_then(|m| m.name().map(|x| x.to_lowercase() == w))
+                        .unwrap_or(false)
+            };
+            let names: Vec<String> = mesh_nodes
+                .iter()
+                .map(|n| n.name().unwrap_or("(unnamed)").to_string())
+                .collect();
+            let chosen: Vec<gltf::Node<'_>> = mesh_nodes.into_iter().filter(named).collect();
+            if chosen.is_empty() {
+                return Err(err(format!(
+                    "no mesh named '{want}'; the meshes are: {}",
+                    names.join(", ")
+                )));
+            }
+            chosen
+        }
+    };
 
     // Static meshes are flattened into world space; skinned ones stay in bind space.
     let rig_for_world = Rig::new(nodes.clone(), vec![], vec![]).map_err(err)?;

@@ -1,0 +1,695 @@
+//! `vkshade sss`: texture-space subsurface diffusion of a mesh. Writes `irradiance.exr`,
+//! `diffuse.exr` (texture space, linear float RGB; diffuse alpha = accepted fraction of the
+//! samples) and `transmission.exr` (light through thin parts; alpha = thickness in mm),
+//! `render.png` (the mesh lit with subsurface diffusion + transmission | the same irradiance
+//! shaded as plain Lambertian with the same total reflectance, same camera), with
+//! `--reference` `reference.png` (diffusion alone | brute-force truth | error heat map), and
+//! `report.json`.
+
+use crate::error::{Error, Result};
+use crate::geom::bvh::Bvh;
+use crate::gpu::Context;
+use crate::io::FloatImage;
+use crate::kernels::sss::cpu::{self, Light, SamplerParams};
+use crate::kernels::sss::gpu::{PASS_DIFFUSION, PASS_IRRADIANCE};
+use crate::kernels::sss::profile::DEFAULT_ENERGY;
+use crate::kernels::sss::texspace::{COVERED, TexReport};
+use crate::kernels::sss::{Material, Profile, ProfileKind, SssKernel, SssOutput, TexGeometry};
+use crate::kernels::{Kernel, KernelInfo, run_frames};
+use crate::reference::sss::{ChannelError, Sources, brute_force};
+use crate::report::MachineInfo;
+use crate::scene::{self, Mesh};
+use glam::{DVec3, Vec2, Vec3};
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// The head of BCN_Epileptic (assimp-testmodels, converted to glTF), in metres.
+pub const DEFAULT_MESH: &str = "data/bcn_epileptic.glb";
+/// Millimetres per unit of [`DEFAULT_MESH`] (it is modelled in metres).
+pub const DEFAULT_MESH_MM_PER_UNIT: f64 = 1000.0;
+
+/// The scale to use when none is given: [`DEFAULT_MESH_MM_PER_UNIT`] for the built-in mesh,
+/// 1 (millimetres) for any other.
+pub fn default_mm_per_unit(mesh: &std::path::Path) -> f64 {
+    if mesh == std::path::Path::new(DEFAULT_MESH) {
+        DEFAULT_MESH_MM_PER_UNIT
+    } else {
+        1.0
+    }
+}
+pub const DEFAULT_PART: &str = "Head";
+
+/// Everything `vkshade sss` can be told.
+#[derive(Clone, Debug)]
+pub struct SssConfig {
+    pub mesh: PathBuf,
+    /// A glTF mesh (node or mesh name) to use alone, e.g. `Head`.
+    pub part: Option<String>,
+    pub mm_per_unit: f64,
+    /// `dir:X,Y,Z[:E]` or `point:X,Y,Z:I` (see [`Light::parse`]).
+    pub lights: Vec<String>,
+    pub profile: ProfileKind,
+    pub material: Material,
+    /// Fraction of each channel's reflectance inside its sampling radius.
+    pub energy: f64,
+    pub samples: u32,
+    pub size: u32,
+    /// With `anim`: frames spread over the animation (the mesh is posed and re-rasterised
+    /// for each); without: the same frame repeated (timing).
+    pub frames: usize,
+    /// An animation of the mesh's skeleton (glTF); `None`: the rest pose.
+    pub anim: Option<String>,
+    pub reference: bool,
+    pub out: PathBuf,
+    pub image: (u32, u32),
+    /// Relative error at the top of the heat map.
+    pub error_scale: f32,
+}
+
+impl Default for SssConfig {
+    fn default() -> Self {
+        SssConfig {
+            mesh: PathBuf::from(DEFAULT_MESH),
+            part: Some(DEFAULT_PART.into()),
+            mm_per_unit: DEFAULT_MESH_MM_PER_UNIT,
+            lights: vec!["dir:0.3,0.4,1".into()],
+            profile: ProfileKind::Dipole,
+            material: Material::SKIN1,
+            energy: DEFAULT_ENERGY,
+            samples: 32,
+            size: 512,
+            frames: 1,
+            anim: None,
+            reference: false,
+            out: PathBuf::from("out/sss"),
+            image: (480, 480),
+            error_scale: 0.1,
+        }
+    }
+}
+
+impl SssConfig {
+    pub fn validate(&self) -> Result<()> {
+        let bad = |m: String| Err(Error::InvalidArgument(m));
+        if ![256, 512, 1024, 2048].contains(&self.size) && !(16..=4096).contains(&self.size) {
+            return bad(format!("--size {} must be in 16..=4096", self.size));
+        }
+        if !(1..=4096).contains(&self.samples) {
+            return bad(format!(
+                "--samples must be in 1..=4096, not {}",
+                self.samples
+            ));
+        }
+        if !(1..=10_000).contains(&self.frames) {
+            return bad(format!(
+                "--frames must be in 1..=10000, not {}",
+                self.frames
+            ));
+        }
+        if !(self.mm_per_unit.is_finite() && self.mm_per_unit > 0.0) {
+            return bad(format!(
+                "--mm-per-unit must be > 0, not {}",
+                self.mm_per_unit
+            ));
+        }
+        if self.lights.is_empty() {
+            return bad("give at least one --light".into());
+        }
+        if !(self.error_scale.is_finite() && self.error_scale > 0.0) {
+            return bad(format!(
+                "--error-scale must be > 0, not {}",
+                self.error_scale
+            ));
+        }
+        self.material.check()
+    }
+
+    pub fn parsed_lights(&self) -> Result<Vec<Light>> {
+        let lights = self
+            .lights
+            .iter()
+            .map(|s| Light::parse(s, self.mm_per_unit as f32))
+            .collect::<Result<Vec<_>>>()?;
+        cpu::check_lights(&lights)?;
+        Ok(lights)
+    }
+}
+
+/// Loads `mesh` (the glTF part `part` alone when given).
+pub fn load_mesh(mesh: &Path, part: Option<&str>) -> Result<Mesh> {
+    Ok(load_character(mesh, part)?.mesh)
+}
+
+/// Loads `mesh` with its rig and animations (the glTF part `part` alone when given).
+pub fn load_character(mesh: &Path, part: Option<&str>) -> Result<scene::Character> {
+    match part {
+        #[cfg(feature = "gltf")]
+        Some(name) => scene::gltf_load::load_named(mesh, name),
+        #[cfg(not(feature = "gltf"))]
+        Some(_) => Err(Error::feature(
+            format!("selecting a part of {}", mesh.display()),
+            "gltf",
+        )),
+        None => scene::load(mesh),
+    }
+}
+
+/// GPU against CPU twin, per channel: max |gpu - cpu| / max cpu, and the fraction of
+/// texels differing by more than 1e-4 of the channel's maximum.
+#[derive(Clone, Debug, Serialize)]
+pub struct TwinError {
+    pub irradiance_max_rel: f64,
+    pub irradiance_texels_differing: f64,
+    pub diffuse_max_rel: [f64; 3],
+    pub diffuse_rel_rmse: [f64; 3],
+    pub diffuse_texels_differing: f64,
+    /// Transmission: max |gpu - cpu| / max cpu over channels, and the fraction of texels
+    /// whose thickness ray found a different back surface.
+    pub transmission_max_rel: f64,
+    pub transmission_texels_differing: f64,
+}
+
+impl TwinError {
+    pub fn of(
+        geo: &TexGeometry,
+        gpu: &SssOutput,
+        e: &[[f32; 4]],
+        b: &[[f32; 4]],
+        t: &[[f32; 4]],
+    ) -> TwinError {
+        let valid: Vec<usize> = (0..geo.texels()).filter(|&i| geo.pos[i][3] > 0.0).collect();
+        let n = valid.len().max(1) as f64;
+        let emax = valid
+            .iter()
+            .map(|&i| e[i][0])
+            .fold(0f32, f32::max)
+            .max(1e-30) as f64;
+        let mut e_worst = 0f64;
+        let mut e_diff = 0usize;
+        for &i in &valid {
+            let d = (gpu.irradiance[i][0] - e[i][0]).abs() as f64 / emax;
+            e_worst = e_worst.max(d);
+            e_diff += (d > 1e-4) as usize;
+        }
+        let mut worst = [0f64; 3];
+        let mut rmse = [0f64; 3];
+        let mut b_diff = 0usize;
+        for c in 0..3 {
+            let bmax = valid
+                .iter()
+                .map(|&i| b[i][c])
+                .fold(0f32, f32::max)
+                .max(1e-30) as f64;
+            let (mut d2, mut t2) = (0f64, 0f64);
+            for &i in &valid {
+                let d = (gpu.diffuse[i][c] - b[i][c]).abs() as f64;
+                worst[c] = worst[c].max(d / bmax);
+                d2 += d * d;
+                t2 += (b[i][c] as f64).powi(2);
+            }
+            rmse[c] = if t2 > 0.0 { (d2 / t2).sqrt() } else { 0.0 };
+        }
+        for &i in &valid {
+            let differs = (0..3)
+                .any(|c| (gpu.diffuse[i][c] - b[i][c]).abs() > 1e-4 * b[i][c].abs().max(1e-6));
+            b_diff += differs as usize;
+        }
+        let tmax = valid
+            .iter()
+            .map(|&i| t[i][0].max(t[i][1]).max(t[i][2]))
+            .fold(0f32, f32::max)
+            .max(1e-30) as f64;
+        let mut t_worst = 0f64;
+        let mut t_diff = 0usize;
+        for &i in &valid {
+            for (g, c) in gpu.transmission[i].iter().zip(&t[i]).take(3) {
+                t_worst = t_worst.max((g - c).abs() as f64 / tmax);
+            }
+            t_diff +=
+                ((gpu.transmission[i][3] - t[i][3]).abs() > 1e-3 * t[i][3].max(1e-3)) as usize;
+        }
+        TwinError {
+            transmission_max_rel: t_worst,
+            transmission_texels_differing: t_diff as f64 / n,
+            irradiance_max_rel: e_worst,
+            irradiance_texels_differing: e_diff as f64 / n,
+            diffuse_max_rel: worst,
+            diffuse_rel_rmse: rmse,
+            diffuse_texels_differing: b_diff as f64 / n,
+        }
+    }
+}
+
+/// The method against the brute-force ground truth, split by where the error comes from.
+#[derive(Clone, Debug, Serialize)]
+pub struct ReferenceReport {
+    pub sources: usize,
+    pub ms: f64,
+    /// Every covered texel.
+    pub all: ChannelError,
+    /// Texels where every sample was accepted (no seam or border nearby).
+    pub interior: ChannelError,
+    /// Texels where samples were rejected (seams, chart borders, texture edge).
+    pub seam: ChannelError,
+    /// 1 - K(R)/R_tot per channel: the bias truncation alone causes on a flat, uniformly lit
+    /// surface (the truth is not truncated).
+    pub truncation: [f64; 3],
+}
+
+/// What `report.json` holds.
+#[derive(Clone, Debug, Serialize)]
+pub struct SssReport {
+    pub tool: &'static str,
+    pub machine: MachineInfo,
+    pub mesh: String,
+    pub part: Option<String>,
+    pub anim: Option<String>,
+    pub mm_per_unit: f64,
+    pub lights: Vec<String>,
+    pub profile: Profile,
+    pub sampler: SamplerParams,
+    /// Samples per texel per channel.
+    pub samples: u32,
+    pub size: u32,
+    pub texture: TexReport,
+    pub kernel: KernelInfo,
+    pub gpu_ms_irradiance: f64,
+    pub gpu_ms_diffusion: f64,
+    pub fps: f64,
+    /// Mean accepted fraction of the samples over covered texels.
+    pub accepted_fraction: f64,
+    pub gpu_vs_cpu: TwinError,
+    pub cpu_ms_irradiance: f64,
+    pub cpu_ms_diffusion: f64,
+    pub reference: Option<ReferenceReport>,
+    pub files: Vec<String>,
+    pub notes: Vec<String>,
+}
+
+/// Runs `vkshade sss`.
+pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Result<SssReport> {
+    cfg.validate()?;
+    crate::io::check_writable(&cfg.out.join("report.json"))?;
+    let lights = cfg.parsed_lights()?;
+    let character = load_character(&cfg.mesh, cfg.part.as_deref())?;
+    let anim = match &cfg.anim {
+        Some(name) => Some(character.animation(name)?),
+        None => None,
+    };
+    let mesh = &character.mesh;
+    // A scale that makes the mesh smaller than a fingertip or larger than a room is almost
+    // always a units mistake (the coefficients are per mm): say so, in the report too.
+    let mut scale_warning = None;
+    if let Some((lo, hi)) =
+        mesh.positions
+            .iter()
+            .fold(None, |acc: Option<(glam::Vec3, glam::Vec3)>, p| {
+                Some(acc.map_or((*p, *p), |(lo, hi)| (lo.min(*p), hi.max(*p))))
+            })
+    {
+        let extent_mm = (hi - lo).length() as f64 * cfg.mm_per_unit;
+        if !(10.0..=10_000.0).contains(&extent_mm) {
+            let w = format!(
+                "{} is {extent_mm:.3} mm across at --mm-per-unit {}: scattering lengths are \
+                 in mm, so the result is unlikely to mean anything; check the model's units",
+                cfg.mesh.display(),
+                cfg.mm_per_unit
+            );
+            progress(&format!("warning: {w}"));
+            scale_warning = Some(w);
+        }
+    }
+    let t = Instant::now();
+    let mut geo = TexGeometry::build(mesh, cfg.size, cfg.mm_per_unit)?;
+    let r = &geo.report;
+    progress(&format!(
+        "{}: {} triangles, {:.0} mm^2; {}^2 texture: {} charts ({} mirrored), {} overlapping \
+         texels -> {} layer(s), {} covered + {} gutter texels ({:.0} ms)",
+        mesh.name,
+        r.triangles,
+        r.mesh_area_mm2,
+        cfg.size,
+        r.charts,
+        r.mirrored_charts,
+        r.overlapping_texels,
+        r.layers,
+        r.covered_texels,
+        r.gutter_texels,
+        t.elapsed().as_secs_f64() * 1e3
+    ));
+    let profile = Profile::new(cfg.profile, cfg.material, cfg.energy)?;
+    progress(&format!(
+        "{:?} {} (eta {}): R_tot {:.4?}, radius {:.2?} mm, K(R) {:.4?}",
+        cfg.profile, cfg.material.name, cfg.material.eta, profile.r_tot, profile.radius, profile.k
+    ));
+    let params = SamplerParams {
+        samples: cfg.samples,
+        ..SamplerParams::default()
+    };
+    let mut setup = ctx.recorder("sss setup")?;
+    let kernel = SssKernel::new(&mut setup, &geo, &profile, params)?;
+    setup.submit_and_wait()?;
+    let mut times: Vec<(f64, f64)> = Vec::new();
+    let mut last = None;
+    let in_flight = match anim {
+        None => {
+            let inputs: Vec<&[Light]> = vec![&lights[..]; cfg.frames];
+            run_frames(ctx, &kernel, inputs, 2, |r| {
+                times.push((
+                    r.timings.get(PASS_IRRADIANCE).unwrap_or(f64::NAN),
+                    r.timings.get(PASS_DIFFUSION).unwrap_or(f64::NAN),
+                ));
+                last = Some(r.output);
+                Ok(())
+            })?
+        }
+        Some(a) => {
+            // Each frame: pose on the CPU, re-rasterise the texture-space geometry (same UV
+            // layout), upload it, run the passes. The last frame's outputs are written.
+            for f in 0..cfg.frames {
+                let time = a.duration * f as f32 / cfg.frames.max(2).saturating_sub(1) as f32;
+                let m = character.rig.skinning_matrices(Some(a), time);
+                let posed = crate::kernels::sss::texspace::posed(mesh, &m)?;
+                let moved = posed
+                    .positions
+                    .iter()
+                    .zip(&mesh.positions)
+                    .map(|(p, q)| (*p - *q).length())
+                    .fold(0f32, f32::max) as f64
+                    * cfg.mm_per_unit;
+                geo = TexGeometry::build(&posed, cfg.size, cfg.mm_per_unit)?;
+                let mut rec = ctx.recorder(&format!("sss frame {f}"))?;
+                kernel.update_geometry(&mut rec, &geo)?;
+                kernel.record(&mut rec, &lights[..])?;
+                let rb = kernel.read_back(&mut rec)?;
+                let timings = rec.submit_and_wait()?;
+                times.push((
+                    timings.get(PASS_IRRADIANCE).unwrap_or(f64::NAN),
+                    timings.get(PASS_DIFFUSION).unwrap_or(f64::NAN),
+                ));
+                last = Some(kernel.collect(&rb)?);
+                progress(&format!(
+                    "frame {f} ({} at {time:.2} s): vertices moved up to {moved:.1} mm",
+                    a.name
+                ));
+            }
+            1
+        }
+    };
+    let gpu = last.ok_or_else(|| Error::InvalidArgument("no frame ran".into()))?;
+    let median = |f: &dyn Fn(&(f64, f64)) -> f64| {
+        let mut v: Vec<f64> = times.iter().map(f).collect();
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let (ms_e, ms_b) = (median(&|t| t.0), median(&|t| t.1));
+    progress(&format!(
+        "GPU: irradiance {ms_e:.2} ms + diffusion {ms_b:.2} ms ({:.1} fps)",
+        1000.0 / (ms_e + ms_b)
+    ));
+    // The CPU twin of both passes.
+    let t = Instant::now();
+    let bvh = Bvh::build(&geo.positions, &geo.triangles);
+    let cpu_e = cpu::irradiance(&geo, &bvh, &lights);
+    let cpu_ms_irradiance = t.elapsed().as_secs_f64() * 1e3;
+    let t = Instant::now();
+    let cpu_b = cpu::diffusion(&geo, &profile, &cpu_e, &params);
+    let cpu_ms_diffusion = t.elapsed().as_secs_f64() * 1e3;
+    let cpu_t = cpu::transmission(&geo, &bvh, &lights, &profile);
+    let twin = TwinError::of(&geo, &gpu, &cpu_e, &cpu_b, &cpu_t);
+    progress(&format!(
+        "CPU twin ({cpu_ms_irradiance:.0} + {cpu_ms_diffusion:.0} ms): irradiance max rel {:.1e}, \
+         diffuse rel RMSE {:.1e} {:.1e} {:.1e}",
+        twin.irradiance_max_rel,
+        twin.diffuse_rel_rmse[0],
+        twin.diffuse_rel_rmse[1],
+        twin.diffuse_rel_rmse[2]
+    ));
+    let covered: Vec<usize> = (0..geo.texels())
+        .filter(|&i| geo.pos[i][3] == COVERED)
+        .collect();
+    let accepted_fraction = covered
+        .iter()
+        .map(|&i| gpu.diffuse[i][3] as f64)
+        .sum::<f64>()
+        / covered.len() as f64;
+
+    let mut files = Vec::new();
+    let texture = |v: &[[f32; 4]]| FloatImage {
+        width: geo.size,
+        height: geo.size,
+        pixels: v.to_vec(),
+    };
+    for (name, data) in [
+        ("irradiance.exr", &gpu.irradiance),
+        ("diffuse.exr", &gpu.diffuse),
+        ("transmission.exr", &gpu.transmission),
+    ] {
+        let path = cfg.out.join(name);
+        crate::io::exr::write(&path, &texture(data), crate::io::exr::Channels::Rgba)?;
+        files.push(path.display().to_string());
+    }
+
+    let mut reference = None;
+    let mut truth_tex = None;
+    if cfg.reference {
+        let t = Instant::now();
+        let sources = Sources::from_texels(&geo, &gpu.irradiance);
+        let receivers: Vec<DVec3> = covered
+            .iter()
+            .map(|&i| Vec3::from_slice(&geo.pos[i][..3]).as_dvec3())
+            .collect();
+        let truth = brute_force(&sources, &receivers, &profile);
+        let ms = t.elapsed().as_secs_f64() * 1e3;
+        let est: Vec<[f64; 3]> = covered
+            .iter()
+            .map(|&i| [0, 1, 2].map(|c| gpu.diffuse[i][c] as f64))
+            .collect();
+        let w: Vec<f64> = covered.iter().map(|&i| geo.nrm[i][3] as f64).collect();
+        let split = |keep: &dyn Fn(usize) -> bool| {
+            let idx: Vec<usize> = (0..covered.len()).filter(|&k| keep(covered[k])).collect();
+            ChannelError::of(
+                &idx.iter().map(|&k| est[k]).collect::<Vec<_>>(),
+                &idx.iter().map(|&k| truth[k]).collect::<Vec<_>>(),
+                &idx.iter().map(|&k| w[k]).collect::<Vec<_>>(),
+            )
+        };
+        let rep = ReferenceReport {
+            sources: sources.pos.len(),
+            ms,
+            all: ChannelError::of(&est, &truth, &w),
+            interior: split(&|i| gpu.diffuse[i][3] >= 1.0),
+            seam: split(&|i| gpu.diffuse[i][3] < 1.0),
+            truncation: [0, 1, 2].map(|c| 1.0 - profile.k[c] / profile.r_tot[c]),
+        };
+        progress(&format!(
+            "vs brute force ({} sources, {ms:.0} ms): rel RMSE {:.4?}, max rel {:.3?}, energy \
+             ratio {:.4?}",
+            rep.sources, rep.all.rel_rmse, rep.all.max_rel, rep.all.energy_ratio
+        ));
+        let mut tex = vec![[0f32; 4]; geo.texels()];
+        for (k, &i) in covered.iter().enumerate() {
+            tex[i] = [
+                truth[k][0] as f32,
+                truth[k][1] as f32,
+                truth[k][2] as f32,
+                1.0,
+            ];
+        }
+        truth_tex = Some(tex);
+        reference = Some(rep);
+    }
+    files.extend(pictures(cfg, &geo, &profile, &gpu, truth_tex.as_deref())?);
+    let mut notes: Vec<String> = scale_warning.into_iter().collect();
+    if ctx.info().device_type == "CPU" {
+        notes.push("the device is a CPU implementation (lavapipe): times measure the CPU".into());
+    }
+    notes.push(
+        "samples are per texel per channel (three sample sets); irradiance shadows are rays \
+         through a BVH of the mesh on the GPU; the texture-space geometry is rasterised on \
+         the CPU (once; with --anim once per frame after CPU skinning, BVH rebuilt); \
+         transmission: thickness along -n by a ray, \
+         back irradiance times the profile beyond the thickness (flat-slab model), added in \
+         render.png, not in diffuse.exr"
+            .into(),
+    );
+    notes.push(
+        "reference: brute force over every covered texel (position, GPU irradiance, area) \
+         with the untruncated profile and Euclidean distances; `seam` = texels where samples \
+         were rejected"
+            .into(),
+    );
+    let report = SssReport {
+        tool: "vkshade sss",
+        machine: MachineInfo::of(ctx),
+        mesh: cfg.mesh.display().to_string(),
+        part: cfg.part.clone(),
+        anim: anim.map(|a| a.name.clone()),
+        mm_per_unit: cfg.mm_per_unit,
+        lights: cfg.lights.clone(),
+        profile,
+        sampler: params,
+        samples: cfg.samples,
+        size: cfg.size,
+        texture: geo.report.clone(),
+        kernel: KernelInfo::of(&kernel, in_flight),
+        gpu_ms_irradiance: ms_e,
+        gpu_ms_diffusion: ms_b,
+        fps: 1000.0 / (ms_e + ms_b),
+        accepted_fraction,
+        gpu_vs_cpu: twin,
+        cpu_ms_irradiance,
+        cpu_ms_diffusion,
+        reference,
+        files,
+        notes,
+    };
+    crate::io::write_json(&cfg.out.join("report.json"), &report)?;
+    Ok(report)
+}
+
+/// Bilinear lookup of a texture-space RGB image at `uv`, over valid (alpha > 0) texels.
+fn lookup(tex: &[[f32; 4]], valid: &[[f32; 4]], size: u32, uv: Vec2) -> [f32; 3] {
+    let n = size as i64;
+    let t = uv * size as f32 - Vec2::splat(0.5);
+    let (x0, y0) = (t.x.floor() as i64, t.y.floor() as i64);
+    let (fx, fy) = (t.x - x0 as f32, t.y - y0 as f32);
+    let mut sum = [0f32; 3];
+    let mut wsum = 0f32;
+    for (dx, dy, w) in [
+        (0, 0, (1.0 - fx) * (1.0 - fy)),
+        (1, 0, fx * (1.0 - fy)),
+        (0, 1, (1.0 - fx) * fy),
+        (1, 1, fx * fy),
+    ] {
+        let (x, y) = ((x0 + dx).clamp(0, n - 1), (y0 + dy).clamp(0, n - 1));
+        let i = (y * n + x) as usize;
+        if valid[i][3] > 0.0 {
+            for c in 0..3 {
+                sum[c] += w * tex[i][c];
+            }
+            wsum += w;
+        }
+    }
+    if wsum > 0.0 {
+        sum.map(|s| s / wsum)
+    } else {
+        [0.0; 3]
+    }
+}
+
+/// render.png (SSS | Lambertian) and, with a truth, reference.png (result | truth | error).
+fn pictures(
+    cfg: &SssConfig,
+    geo: &TexGeometry,
+    profile: &Profile,
+    gpu: &SssOutput,
+    truth: Option<&[[f32; 4]]>,
+) -> Result<Vec<String>> {
+    use crate::render::{View, rasterize, shade_rgb, side_by_side, write_png};
+    // One vertex per triangle corner, carrying its atlas UV.
+    let mut positions = Vec::with_capacity(3 * geo.triangles.len());
+    let mut us = Vec::new();
+    let mut vs = Vec::new();
+    let mut tris = Vec::new();
+    for (t, tri) in geo.triangles.iter().enumerate() {
+        for (&v, uv) in tri.iter().zip(&geo.corner_uvs[t]) {
+            positions.push(geo.positions[v as usize]);
+            us.push(uv.x);
+            vs.push(uv.y);
+        }
+        let b = 3 * t as u32;
+        tris.push([b, b + 1, b + 2]);
+    }
+    let view = View {
+        direction: Vec3::new(-0.35, -0.25, -1.0).normalize(),
+        width: cfg.image.0,
+        height: cfg.image.1,
+        ..Default::default()
+    };
+    let u_img = rasterize(&positions, &tris, &us, &positions, &view);
+    let v_img = rasterize(&positions, &tris, &vs, &positions, &view);
+    let image_of = |f: &dyn Fn(Vec2) -> [f32; 3]| {
+        let mut ch = [u_img.clone(), u_img.clone(), u_img.clone()];
+        for p in 0..u_img.value.len() {
+            let (u, v) = (u_img.value[p], v_img.value[p]);
+            let rgb = if u.is_finite() && v.is_finite() {
+                f(Vec2::new(u, v))
+            } else {
+                [f32::NAN; 3]
+            };
+            for c in 0..3 {
+                ch[c].value[p] = rgb[c];
+            }
+        }
+        ch
+    };
+    // Exit radiance L = B / pi (Fresnel transmittance left out); the Lambertian comparison
+    // has the same total reflectance: L = R_tot E / pi.
+    let pi = std::f32::consts::PI;
+    let sss = image_of(&|uv| {
+        let b = lookup(&gpu.diffuse, &geo.pos, geo.size, uv);
+        let t = lookup(&gpu.transmission, &geo.pos, geo.size, uv);
+        [0, 1, 2].map(|c| (b[c] + t[c]) / pi)
+    });
+    let r_tot = profile.r_tot.map(|r| r as f32);
+    let lambert = image_of(&|uv| {
+        let e = lookup(&gpu.irradiance, &geo.pos, geo.size, uv);
+        [0, 1, 2].map(|c| r_tot[c] * e[c] / pi)
+    });
+    let exposure = {
+        let mut lum: Vec<f32> = sss[0]
+            .value
+            .iter()
+            .zip(&sss[1].value)
+            .zip(&sss[2].value)
+            .filter(|((r, _), _)| r.is_finite())
+            .map(|((r, g), b)| 0.2126 * r + 0.7152 * g + 0.0722 * b)
+            .collect();
+        lum.sort_by(f32::total_cmp);
+        let p99 = lum
+            .get(lum.len() * 99 / 100)
+            .copied()
+            .unwrap_or(1.0)
+            .max(1e-9);
+        0.9 / p99
+    };
+    let a = shade_rgb([&sss[0], &sss[1], &sss[2]], exposure)?;
+    let b = shade_rgb([&lambert[0], &lambert[1], &lambert[2]], exposure)?;
+    let mut rgb = Vec::with_capacity(a.rgb.len() * 2);
+    let w = a.width as usize;
+    for y in 0..a.height as usize {
+        rgb.extend_from_slice(&a.rgb[3 * w * y..3 * w * (y + 1)]);
+        rgb.extend_from_slice(&b.rgb[3 * w * y..3 * w * (y + 1)]);
+    }
+    let path = cfg.out.join("render.png");
+    write_png(&path, a.width * 2, a.height, &rgb)?;
+    let mut files = vec![path.display().to_string()];
+    if let Some(truth) = truth {
+        let d_img = image_of(&|uv| lookup(&gpu.diffuse, &geo.pos, geo.size, uv).map(|b| b / pi));
+        let a = shade_rgb([&d_img[0], &d_img[1], &d_img[2]], exposure)?;
+        let sss = d_img;
+        let t_img = image_of(&|uv| lookup(truth, &geo.pos, geo.size, uv).map(|b| b / pi));
+        let t_pic = shade_rgb([&t_img[0], &t_img[1], &t_img[2]], exposure)?;
+        let scale = truth
+            .iter()
+            .map(|t| t[0].max(t[1]).max(t[2]))
+            .fold(0f32, f32::max)
+            .max(1e-12)
+            / pi;
+        let err: Vec<f32> = (0..sss[0].value.len())
+            .map(|p| {
+                (0..3)
+                    .map(|c| (sss[c].value[p] - t_img[c].value[p]).abs())
+                    .fold(0f32, f32::max)
+                    / scale
+            })
+            .collect();
+        let pic = side_by_side(&a, &t_pic, &err, cfg.error_scale)?;
+        let path = cfg.out.join("reference.png");
+        write_png(&path, pic.width, pic.height, &pic.rgb)?;
+        files.push(path.display().to_string());
+    }
+    Ok(files)
+}

@@ -1,0 +1,381 @@
+//! The CPU twin of the GPU passes: the same irradiance (same rays through the same BVH) and
+//! the same diffusion sampler (same hash, same sample sequence, same f32 arithmetic as
+//! glsl/sss/diffusion.comp, in the same order).
+
+use super::profile::{Profile, ProfileKind};
+use super::texspace::TexGeometry;
+use crate::error::{Error, Result};
+use crate::geom::bvh::Bvh;
+use glam::{Vec2, Vec3};
+use rayon::prelude::*;
+
+/// A light (positions and directions in mm, after scaling by mm per unit).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Light {
+    /// Arriving from `toward` (the vector points to the light); irradiance `e` on a surface
+    /// facing it.
+    Directional { toward: Vec3, e: f32 },
+    /// At `pos` (mm) with intensity `i`: irradiance i cos / d^2 (d in mm).
+    Point { pos: Vec3, i: f32 },
+}
+
+/// At most this many lights per frame.
+pub const MAX_LIGHTS: usize = 16;
+
+impl Light {
+    /// Parses `dir:X,Y,Z[:E]` or `point:X,Y,Z:I` (point position in model units, scaled by
+    /// `mm_per_unit`).
+    pub fn parse(s: &str, mm_per_unit: f32) -> Result<Light> {
+        let bad = |m: &str| {
+            Error::InvalidArgument(format!(
+                "light '{s}': {m} (expected dir:X,Y,Z[:E] or point:X,Y,Z:I)"
+            ))
+        };
+        let parts: Vec<&str> = s.split(':').collect();
+        let xyz: Vec<f32> = parts
+            .get(1)
+            .ok_or_else(|| bad("no coordinates"))?
+            .split(',')
+            .map(|t| t.trim().parse::<f32>().map_err(|_| bad("not a number")))
+            .collect::<Result<_>>()?;
+        if xyz.len() != 3 || xyz.iter().any(|x| !x.is_finite()) {
+            return Err(bad("needs three finite coordinates"));
+        }
+        let v = Vec3::new(xyz[0], xyz[1], xyz[2]);
+        let value = match parts.get(2) {
+            Some(t) => t.trim().parse::<f32>().map_err(|_| bad("bad strength"))?,
+            None => 1.0,
+        };
+        if parts.len() > 3 || !(value.is_finite() && value >= 0.0) {
+            return Err(bad("strength must be finite and >= 0"));
+        }
+        let light = match parts[0] {
+            "dir" => {
+                if v.length() < 1e-6 {
+                    return Err(bad("zero direction"));
+                }
+                Light::Directional {
+                    toward: v.normalize(),
+                    e: value,
+                }
+            }
+            "point" if parts.len() == 3 => Light::Point {
+                pos: v * mm_per_unit,
+                i: value,
+            },
+            "point" => return Err(bad("a point light needs an intensity")),
+            _ => return Err(bad("unknown kind")),
+        };
+        Ok(light)
+    }
+
+    /// The GPU layout: (xyz, kind 0 directional / 1 point), (strength, 0, 0, 0).
+    pub fn gpu(&self) -> [[f32; 4]; 2] {
+        match *self {
+            Light::Directional { toward, e } => [toward.extend(0.0).into(), [e, 0.0, 0.0, 0.0]],
+            Light::Point { pos, i } => [pos.extend(1.0).into(), [i, 0.0, 0.0, 0.0]],
+        }
+    }
+}
+
+/// Checks a frame's lights.
+pub fn check_lights(lights: &[Light]) -> Result<()> {
+    if lights.len() > MAX_LIGHTS {
+        return Err(Error::InvalidArgument(format!(
+            "{} lights (at most {MAX_LIGHTS})",
+            lights.len()
+        )));
+    }
+    for l in lights {
+        let ok = match *l {
+            Light::Directional { toward, e } => {
+                toward.is_finite() && (toward.length() - 1.0).abs() < 1e-3 && e >= 0.0
+            }
+            Light::Point { pos, i } => pos.is_finite() && i.is_finite() && i >= 0.0,
+        };
+        if !ok {
+            return Err(Error::InvalidArgument(format!("bad light {l:?}")));
+        }
+    }
+    Ok(())
+}
+
+/// The shadow-ray offset along the normal (mm) for a mesh of this extent.
+pub fn shadow_bias(extent_mm: f32) -> f32 {
+    1e-3 * extent_mm
+}
+
+/// Irradiance of one point (white lights: the same E in every channel), shadow rays
+/// through `bvh` from `p + n * bias`.
+pub fn irradiance_at(bvh: &Bvh, p: Vec3, n: Vec3, lights: &[Light], bias: f32) -> f32 {
+    let mut e = 0.0;
+    let o = p + n * bias;
+    for l in lights {
+        let (dir, tmax, strength) = match *l {
+            Light::Directional { toward, e } => (toward, f32::INFINITY, e),
+            Light::Point { pos, i } => {
+                let d = pos - p;
+                let dist = d.length();
+                (d / dist, dist - bias, i / (dist * dist))
+            }
+        };
+        let c = n.dot(dir);
+        if c <= 0.0 || strength == 0.0 {
+            continue;
+        }
+        if bvh.any_hit(o, dir, tmax) {
+            continue;
+        }
+        e += strength * c;
+    }
+    e
+}
+
+/// The irradiance pass on the CPU: E per texel (rgb, alpha 1 where the texel is valid).
+pub fn irradiance(geo: &TexGeometry, bvh: &Bvh, lights: &[Light]) -> Vec<[f32; 4]> {
+    let bias = shadow_bias(geo.extent_mm());
+    (0..geo.texels())
+        .into_par_iter()
+        .map(|i| {
+            let p = geo.pos[i];
+            if p[3] == 0.0 {
+                return [0.0; 4];
+            }
+            let n = Vec3::new(geo.nrm[i][0], geo.nrm[i][1], geo.nrm[i][2]);
+            let e = irradiance_at(bvh, Vec3::new(p[0], p[1], p[2]), n, lights, bias);
+            [e, e, e, 1.0]
+        })
+        .collect()
+}
+
+/// The transmission through thin parts on the CPU (the shader's arithmetic): per texel, a ray
+/// from just inside the surface along -n finds the back surface at distance t (thickness);
+/// if t is below `max_thickness`, the back point's irradiance E_b (its own geometric normal,
+/// shadow rays as for the front) times R_tot - F(t) per channel ([`Profile::tail_f32`]):
+/// the diffuse transmission of a locally flat slab lit uniformly from behind. Alpha holds
+/// t (0 where no back surface counts).
+pub fn transmission(
+    geo: &TexGeometry,
+    bvh: &Bvh,
+    lights: &[Light],
+    profile: &Profile,
+) -> Vec<[f32; 4]> {
+    let bias = shadow_bias(geo.extent_mm());
+    let max_t = profile.max_radius() as f32;
+    (0..geo.texels())
+        .into_par_iter()
+        .map(|i| {
+            let p = geo.pos[i];
+            if p[3] == 0.0 {
+                return [0.0; 4];
+            }
+            let n = Vec3::from_slice(&geo.nrm[i][..3]);
+            let o = Vec3::new(p[0], p[1], p[2]) - n * bias;
+            let Some((t, nb)) = bvh.closest_hit(o, -n, max_t) else {
+                return [0.0; 4];
+            };
+            let nb = if nb.dot(n) > 0.0 { -nb } else { nb };
+            let xb = o - n * t;
+            let eb = irradiance_at(bvh, xb, nb, lights, bias);
+            let thick = t + bias;
+            let tr = [0, 1, 2].map(|c| eb * profile.tail_f32(c, thick));
+            [tr[0], tr[1], tr[2], thick]
+        })
+        .collect()
+}
+
+/// PCG hash (O'Neill), as in the shader.
+pub fn pcg(v: u32) -> u32 {
+    let state = v.wrapping_mul(747_796_405).wrapping_add(2_891_336_453);
+    let word = ((state >> ((state >> 28) + 4)) ^ state).wrapping_mul(277_803_737);
+    (word >> 22) ^ word
+}
+
+fn fract(x: f32) -> f32 {
+    x - x.floor()
+}
+
+/// Per-texel constants of the sampler: the offsets of channel `c`'s sequence.
+pub fn offsets(texel: u32, c: u32) -> (f32, f32) {
+    let h = pcg(texel.wrapping_mul(3).wrapping_add(c));
+    ((h >> 16) as f32 / 65536.0, (h & 0xffff) as f32 / 65536.0)
+}
+
+/// The radius variable of sample `i` of `n` (stratified, rotated by the texel's offset).
+pub fn sample_u(i: u32, n: u32, off_u: f32) -> f32 {
+    fract((i as f32 + 0.5) / n as f32 + off_u)
+}
+
+/// (cos, sin) of the golden angle 2 pi 0.618034: sample i's direction is the first one
+/// (angle 2 pi off_phi) rotated i times by it.
+pub const GOLDEN_STEP: (f32, f32) = (-0.737_368_8, -0.675_490_4);
+
+/// The 2x2 map from a tangent-plane offset (cos phi, sin phi) * r (mm) to a UV offset at
+/// texel `i`: (J^T J)^-1 J^T [t1 t2], columns (m00, m10), (m01, m11); None if degenerate.
+pub fn offset_map(geo: &TexGeometry, i: usize) -> Option<[f32; 4]> {
+    let a = Vec3::from_slice(&geo.dpdu[i][..3]);
+    let b = Vec3::from_slice(&geo.dpdv[i][..3]);
+    let n = Vec3::from_slice(&geo.nrm[i][..3]);
+    offset_map_of(a, b, n)
+}
+
+fn offset_map_of(a: Vec3, b: Vec3, n: Vec3) -> Option<[f32; 4]> {
+    let t1 = (a - n * n.dot(a)).normalize_or_zero();
+    let t2 = n.cross(t1);
+    let (aa, ab, bb) = (a.dot(a), a.dot(b), b.dot(b));
+    let det = aa * bb - ab * ab;
+    // (written so that a NaN determinant also counts as degenerate)
+    if det.partial_cmp(&(1e-20 * aa * bb)) != Some(std::cmp::Ordering::Greater) || t1 == Vec3::ZERO
+    {
+        return None;
+    }
+    // Ginv = [[bb, -ab], [-ab, aa]] / det; R = [[a.t1, a.t2], [b.t1, b.t2]].
+    let (r00, r01, r10, r11) = (a.dot(t1), a.dot(t2), b.dot(t1), b.dot(t2));
+    let m00 = (bb * r00 - ab * r10) / det;
+    let m01 = (bb * r01 - ab * r11) / det;
+    let m10 = (-ab * r00 + aa * r10) / det;
+    let m11 = (-ab * r01 + aa * r11) / det;
+    Some([m00, m01, m10, m11])
+}
+
+/// The diffusion sampler's settings.
+#[derive(Clone, Copy, Debug, serde::Serialize)]
+pub struct SamplerParams {
+    /// Samples per texel per channel.
+    pub samples: u32,
+    /// Seam test: accept a sample whose 3D distance d from the receiver has
+    /// |d - r| <= seam_rel * r + seam_texels * texel size.
+    pub seam_rel: f32,
+    pub seam_texels: f32,
+    /// Also compute the transmission through thin parts (in the irradiance pass).
+    pub transmission: bool,
+}
+
+impl Default for SamplerParams {
+    fn default() -> Self {
+        SamplerParams {
+            samples: 32,
+            seam_rel: 0.25,
+            seam_texels: 2.0,
+            transmission: true,
+        }
+    }
+}
+
+impl SamplerParams {
+    pub fn check(&self) -> Result<()> {
+        if !(1..=4096).contains(&self.samples) {
+            return Err(Error::InvalidArgument(format!(
+                "{} samples per texel (1..=4096)",
+                self.samples
+            )));
+        }
+        let ok = |x: f32| x.is_finite() && x >= 0.0;
+        if !ok(self.seam_rel) || !ok(self.seam_texels) {
+            return Err(Error::InvalidArgument(
+                "seam tolerances must be finite and >= 0".into(),
+            ));
+        }
+        Ok(())
+    }
+}
+
+/// The diffusion pass on the CPU: B per texel (rgb; alpha the accepted fraction of the
+/// samples), from irradiance `e` (rgba, as the irradiance pass writes it).
+pub fn diffusion(
+    geo: &TexGeometry,
+    profile: &Profile,
+    e: &[[f32; 4]],
+    params: &SamplerParams,
+) -> Vec<[f32; 4]> {
+    let n = geo.size as i32;
+    let nf = geo.size as f32;
+    let k = profile.k.map(|k| k as f32);
+    (0..geo.texels())
+        .into_par_iter()
+        .map(|i| {
+            if geo.pos[i][3] == 0.0 {
+                return [0.0; 4];
+            }
+            let po = Vec3::from_slice(&geo.pos[i][..3]);
+            let eo = e[i];
+            let Some(m) = offset_map(geo, i) else {
+                return [k[0] * eo[0], k[1] * eo[1], k[2] * eo[2], 0.0];
+            };
+            let a = Vec3::from_slice(&geo.dpdu[i][..3]);
+            let b = Vec3::from_slice(&geo.dpdv[i][..3]);
+            let texel_mm = a.cross(b).length().sqrt() / nf;
+            let (x, y) = ((i as i32 % n) as f32, (i as i32 / n) as f32);
+            let mut out = [0f32; 4];
+            let mut accepted_all = 0u32;
+            for c in 0..3u32 {
+                let off = offsets(i as u32, c);
+                let mut sum = 0f32;
+                let mut acc = 0u32;
+                let phi0 = std::f32::consts::TAU * off.1;
+                let mut dir = (phi0.cos(), phi0.sin());
+                let st = GOLDEN_STEP;
+                for s in 0..params.samples {
+                    let u = sample_u(s, params.samples, off.0);
+                    let r = profile.sample_radius(c as usize, u);
+                    let (cs, sn) = (dir.0 * r, dir.1 * r);
+                    dir = (dir.0 * st.0 - dir.1 * st.1, dir.0 * st.1 + dir.1 * st.0);
+                    let du = m[0] * cs + m[1] * sn;
+                    let dv = m[2] * cs + m[3] * sn;
+                    let tx = x + du * nf;
+                    let ty = y + dv * nf;
+                    if let Some((es, ps)) = nearest(geo, e, nf, tx, ty, c as usize) {
+                        let d = (ps - po).length();
+                        if (d - r).abs() <= params.seam_rel * r + params.seam_texels * texel_mm {
+                            sum += es;
+                            acc += 1;
+                        }
+                    }
+                }
+                out[c as usize] = if acc > 0 {
+                    k[c as usize] * (sum / acc as f32)
+                } else {
+                    k[c as usize] * eo[c as usize]
+                };
+                accepted_all += acc;
+            }
+            out[3] = accepted_all as f32 / (3 * params.samples) as f32;
+            out
+        })
+        .collect()
+}
+
+/// E (channel c) and position of the texel nearest to texel coordinates (tx, ty) (texel
+/// centres at integers); None when it is outside the texture or empty.
+fn nearest(
+    geo: &TexGeometry,
+    e: &[[f32; 4]],
+    nf: f32,
+    tx: f32,
+    ty: f32,
+    c: usize,
+) -> Option<(f32, Vec3)> {
+    let (fx, fy) = ((tx + 0.5).floor(), (ty + 0.5).floor());
+    if !(tx.is_finite() && ty.is_finite()) || fx < 0.0 || fy < 0.0 || fx >= nf || fy >= nf {
+        return None;
+    }
+    let t = fy as usize * nf as usize + fx as usize;
+    if geo.pos[t][3] == 0.0 {
+        return None;
+    }
+    Some((e[t][c], Vec3::from_slice(&geo.pos[t][..3])))
+}
+
+/// The UV of texel i's centre.
+pub fn texel_uv(size: u32, i: usize) -> Vec2 {
+    let n = size as usize;
+    Vec2::new(
+        ((i % n) as f32 + 0.5) / size as f32,
+        ((i / n) as f32 + 0.5) / size as f32,
+    )
+}
+
+/// Whether the profile needs the table (dipole) or the analytic inverse (Burley).
+pub fn uses_table(p: &Profile) -> bool {
+    p.kind == ProfileKind::Dipole
+}

@@ -1,0 +1,563 @@
+//! Diffusion profiles Rd(r) (mm, per channel) and their radial sampling.
+//!
+//! - Dipole (Jensen et al. 2001): from sigma_a, sigma_s' (per mm) and the relative index of
+//!   refraction eta (default [`DEFAULT_ETA`] = 1.3). Total diffuse reflectance in closed form
+//!   (the plane integral of the dipole); no analytic inverse CDF, so the radial CDF of
+//!   2 pi r Rd(r) is integrated numerically on log-spaced radii and inverted into a table.
+//! - Burley normalized diffusion (Christensen & Burley 2015): R(r) = A s (e^(-s r) +
+//!   e^(-s r/3)) / (8 pi r), integrating to A, with an analytic inverse CDF. From a material,
+//!   A is the dipole's R_tot and d = 1/s = l_d / (1.9 - A + 3.5 (A - 0.8)^2) with the diffuse
+//!   mean free path l_d = 1/sigma_tr (Christensen & Burley's fit for the diffuse mean free
+//!   path parameterisation).
+//!
+//! Truncation: each channel is sampled on [0, R_c], R_c the radius holding the fraction
+//! `energy` of the channel's R_tot; K(R) = int_0^R 2 pi r Rd(r) dr. Sampling p_A = Rd / K(R)
+//! gives every sample the weight K(R): B = K(R) * mean E.
+//!
+//! The sampling table (what the GPU reads): per channel [`TABLE_SIZE`] radii r_j with
+//! F(r_j) = t_j^2 K(R), t_j = j / (TABLE_SIZE - 1); a uniform u in [0, 1) maps to
+//! r = lerp over t = sqrt(u) (the square root follows F ~ r^2 near 0, so the
+//! lookup is accurate at small radii). Burley is sampled analytically instead.
+
+use crate::error::{Error, Result};
+use std::f64::consts::PI;
+
+/// The relative index of refraction used when none is given.
+pub const DEFAULT_ETA: f64 = 1.3;
+/// Entries of each channel's inverse-CDF table.
+pub const TABLE_SIZE: usize = 1024;
+/// The fraction of each channel's total reflectance inside the default sampling radius.
+pub const DEFAULT_ENERGY: f64 = 0.995;
+
+/// Scattering coefficients of a material (per mm).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct Material {
+    pub name: &'static str,
+    pub sigma_a: [f64; 3],
+    pub sigma_s_prime: [f64; 3],
+    pub eta: f64,
+}
+
+impl Material {
+    /// Jensen 2001, measured skin 1 (per mm).
+    pub const SKIN1: Material = Material {
+        name: "skin1",
+        sigma_a: [0.032, 0.17, 0.48],
+        sigma_s_prime: [0.74, 0.88, 1.01],
+        eta: DEFAULT_ETA,
+    };
+    /// Jensen 2001, measured skin 2 (per mm).
+    pub const SKIN2: Material = Material {
+        name: "skin2",
+        sigma_a: [0.013, 0.070, 0.145],
+        sigma_s_prime: [1.09, 1.59, 1.79],
+        eta: DEFAULT_ETA,
+    };
+
+    /// A named built-in material.
+    pub fn named(name: &str) -> Result<Material> {
+        match name.to_ascii_lowercase().as_str() {
+            "skin1" => Ok(Self::SKIN1),
+            "skin2" => Ok(Self::SKIN2),
+            _ => Err(Error::InvalidArgument(format!(
+                "unknown material '{name}' (built in: skin1, skin2; or give --sigma-a and \
+                 --sigma-s)"
+            ))),
+        }
+    }
+
+    /// A custom material; every coefficient finite and > 0, eta in (0.5, 3).
+    pub fn custom(sigma_a: [f64; 3], sigma_s_prime: [f64; 3], eta: f64) -> Result<Material> {
+        let m = Material {
+            name: "custom",
+            sigma_a,
+            sigma_s_prime,
+            eta,
+        };
+        m.check()?;
+        Ok(m)
+    }
+
+    pub fn with_eta(mut self, eta: f64) -> Result<Material> {
+        self.eta = eta;
+        self.check()?;
+        Ok(self)
+    }
+
+    pub fn check(&self) -> Result<()> {
+        let ok = |x: f64| x.is_finite() && x > 0.0;
+        if !self
+            .sigma_a
+            .iter()
+            .chain(&self.sigma_s_prime)
+            .all(|&x| ok(x))
+        {
+            return Err(Error::InvalidArgument(format!(
+                "material '{}': sigma_a {:?} and sigma_s' {:?} must be finite and > 0 (per mm)",
+                self.name, self.sigma_a, self.sigma_s_prime
+            )));
+        }
+        if !(self.eta.is_finite() && self.eta > 0.5 && self.eta < 3.0) {
+            return Err(Error::InvalidArgument(format!(
+                "material '{}': relative index of refraction {} is not in (0.5, 3)",
+                self.name, self.eta
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// Diffuse Fresnel reflectance (Jensen 2001's fit).
+pub fn fresnel_diffuse(eta: f64) -> f64 {
+    -1.440 / (eta * eta) + 0.710 / eta + 0.668 + 0.0636 * eta
+}
+
+/// One channel of the dipole.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct Dipole {
+    pub alpha_prime: f64,
+    pub sigma_tr: f64,
+    pub z_r: f64,
+    pub z_v: f64,
+}
+
+impl Dipole {
+    pub fn new(sigma_a: f64, sigma_s_prime: f64, eta: f64) -> Dipole {
+        let sigma_t = sigma_a + sigma_s_prime;
+        let fdr = fresnel_diffuse(eta);
+        let a = (1.0 + fdr) / (1.0 - fdr);
+        let z_r = 1.0 / sigma_t;
+        Dipole {
+            alpha_prime: sigma_s_prime / sigma_t,
+            sigma_tr: (3.0 * sigma_a * sigma_t).sqrt(),
+            z_r,
+            z_v: z_r * (1.0 + 4.0 * a / 3.0),
+        }
+    }
+
+    /// Rd(r), per mm^2.
+    pub fn rd(&self, r: f64) -> f64 {
+        let term = |z: f64| {
+            let d = (r * r + z * z).sqrt();
+            z * (self.sigma_tr * d + 1.0) * (-self.sigma_tr * d).exp() / (d * d * d)
+        };
+        self.alpha_prime / (4.0 * PI) * (term(self.z_r) + term(self.z_v))
+    }
+
+    /// int_0^r 2 pi s Rd(s) ds in closed form (the derivative of -e^(-sigma d)/d is
+    /// (sigma d + 1) e^(-sigma d)/d^2, d = sqrt(s^2 + z^2)).
+    pub fn cdf(&self, r: f64) -> f64 {
+        let part = |z: f64| {
+            let d = (r * r + z * z).sqrt();
+            z * ((-self.sigma_tr * z).exp() / z - (-self.sigma_tr * d).exp() / d)
+        };
+        self.alpha_prime / 2.0 * (part(self.z_r) + part(self.z_v))
+    }
+
+    /// Total diffuse reflectance, int_0^inf 2 pi r Rd(r) dr (Jensen 2001's closed form).
+    pub fn r_tot(&self) -> f64 {
+        let s = self.sigma_tr * self.z_r; // sqrt(3 (1 - alpha'))
+        self.alpha_prime / 2.0 * (1.0 + (-s * (self.z_v / self.z_r - 1.0)).exp()) * (-s).exp()
+    }
+}
+
+/// One channel of Burley's normalized diffusion.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct Burley {
+    /// Total reflectance (the profile integrates to it).
+    pub a: f64,
+    /// Shape parameter d = 1/s (mm).
+    pub d: f64,
+}
+
+impl Burley {
+    /// Matched to a dipole channel: same total reflectance, d from the diffuse mean free
+    /// path (see the module documentation).
+    pub fn from_dipole(dp: &Dipole) -> Burley {
+        let a = dp.r_tot();
+        let s = 1.9 - a + 3.5 * (a - 0.8) * (a - 0.8);
+        Burley {
+            a,
+            d: 1.0 / dp.sigma_tr / s,
+        }
+    }
+
+    pub fn rd(&self, r: f64) -> f64 {
+        let s = 1.0 / self.d;
+        self.a * s * ((-s * r).exp() + (-s * r / 3.0).exp()) / (8.0 * PI * r)
+    }
+
+    /// Normalised radial CDF P(r) (P(inf) = 1).
+    pub fn p(&self, r: f64) -> f64 {
+        let x = r / self.d;
+        1.0 - 0.25 * (-x).exp() - 0.75 * (-x / 3.0).exp()
+    }
+
+    /// Inverse of [`Burley::p`] (Christensen & Burley's closed form), for p in [0, 1).
+    pub fn p_inverse(&self, p: f64) -> f64 {
+        let u = 1.0 - p;
+        let g = 1.0 + 4.0 * u * (2.0 * u + (1.0 + 4.0 * u * u).sqrt());
+        let c = g.cbrt();
+        self.d * 3.0 * ((1.0 + 1.0 / c + c) / (4.0 * u)).ln()
+    }
+}
+
+/// Which profile a kernel uses.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ProfileKind {
+    Dipole,
+    Burley,
+}
+
+impl std::str::FromStr for ProfileKind {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        match s.to_ascii_lowercase().as_str() {
+            "dipole" => Ok(ProfileKind::Dipole),
+            "burley" => Ok(ProfileKind::Burley),
+            _ => Err(Error::InvalidArgument(format!(
+                "unknown profile '{s}' (dipole or burley)"
+            ))),
+        }
+    }
+}
+
+/// A material's three channels, truncated and ready to sample.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct Profile {
+    pub kind: ProfileKind,
+    pub material: Material,
+    pub dipole: [Dipole; 3],
+    pub burley: [Burley; 3],
+    /// Sampling radius per channel (mm).
+    pub radius: [f64; 3],
+    /// K(R) per channel.
+    pub k: [f64; 3],
+    /// Untruncated total reflectance per channel.
+    pub r_tot: [f64; 3],
+    /// Inverse-CDF tables, [`TABLE_SIZE`] radii per channel (dipole only; empty for Burley).
+    #[serde(skip)]
+    pub table: Vec<[f32; 3]>,
+}
+
+impl Profile {
+    /// The profile of `material` truncated at the radius holding `energy` (0.5..1) of each
+    /// channel's reflectance.
+    pub fn new(kind: ProfileKind, material: Material, energy: f64) -> Result<Profile> {
+        material.check()?;
+        if !(energy > 0.5 && energy < 1.0) {
+            return Err(Error::InvalidArgument(format!(
+                "energy fraction {energy} inside the sampling radius must be in (0.5, 1)"
+            )));
+        }
+        let dipole = [0, 1, 2]
+            .map(|c| Dipole::new(material.sigma_a[c], material.sigma_s_prime[c], material.eta));
+        let burley = dipole.map(|d| Burley::from_dipole(&d));
+        let (radius, k, r_tot) = match kind {
+            ProfileKind::Dipole => {
+                let r_tot = dipole.map(|d| d.r_tot());
+                let radius = [0, 1, 2].map(|c| {
+                    let d = &dipole[c];
+                    bisect(|r| d.cdf(r) - energy * r_tot[c], 0.0, 1e4)
+                });
+                let k = [0, 1, 2].map(|c| dipole[c].cdf(radius[c]));
+                (radius, k, r_tot)
+            }
+            ProfileKind::Burley => {
+                let radius = burley.map(|b| b.p_inverse(energy));
+                let k = [0, 1, 2].map(|c| burley[c].a * burley[c].p(radius[c]));
+                (radius, k, burley.map(|b| b.a))
+            }
+        };
+        let table = match kind {
+            ProfileKind::Dipole => dipole_table(&dipole, &radius),
+            ProfileKind::Burley => Vec::new(),
+        };
+        Ok(Profile {
+            kind,
+            material,
+            dipole,
+            burley,
+            radius,
+            k,
+            r_tot,
+            table,
+        })
+    }
+
+    /// Rd of channel `c` at r (mm).
+    pub fn rd(&self, c: usize, r: f64) -> f64 {
+        match self.kind {
+            ProfileKind::Dipole => self.dipole[c].rd(r),
+            ProfileKind::Burley => self.burley[c].rd(r),
+        }
+    }
+
+    /// The radius of channel `c` for a uniform `u` in [0, 1), in f32 exactly as the shader
+    /// computes it (the CPU twin's sampler).
+    pub fn sample_radius(&self, c: usize, u: f32) -> f32 {
+        match self.kind {
+            ProfileKind::Dipole => {
+                let t = u.max(0.0).sqrt() * (TABLE_SIZE - 1) as f32;
+                let j = (t as usize).min(TABLE_SIZE - 2);
+                let f = t - j as f32;
+                let a = self.table[j][c];
+                let b = self.table[j + 1][c];
+                a + (b - a) * f
+            }
+            ProfileKind::Burley => {
+                let g = self.burley_gpu(c);
+                burley_sample_f32(g[0], g[1], u)
+            }
+        }
+    }
+
+    /// (d, P(R)) of Burley channel `c` as f32 (what the shader gets).
+    pub fn burley_gpu(&self, c: usize) -> [f32; 2] {
+        let b = &self.burley[c];
+        [b.d as f32, b.p(self.radius[c]) as f32]
+    }
+
+    /// The transmission parameters of channel `c` as the shader gets them: dipole
+    /// (alpha'/2, sigma_tr, z_r, z_v), Burley (A, d, 0, 0).
+    pub fn tail_gpu(&self, c: usize) -> [f32; 4] {
+        match self.kind {
+            ProfileKind::Dipole => {
+                let d = &self.dipole[c];
+                [
+                    (d.alpha_prime / 2.0) as f32,
+                    d.sigma_tr as f32,
+                    d.z_r as f32,
+                    d.z_v as f32,
+                ]
+            }
+            ProfileKind::Burley => [self.burley[c].a as f32, self.burley[c].d as f32, 0.0, 0.0],
+        }
+    }
+
+    /// R_tot - F(t) = int_t^inf 2 pi s Rd(s) ds of channel `c` in f32, as the shader computes
+    /// it: the diffuse transmission of a locally flat slab of thickness t lit uniformly on
+    /// the other side (int over the plane of Rd(sqrt(r^2 + t^2))). Dipole:
+    /// alpha'/2 sum_z z e^(-sigma_tr d)/d, d = sqrt(t^2 + z^2); Burley: A (e^(-t/d)/4 +
+    /// 3 e^(-t/3d)/4).
+    pub fn tail_f32(&self, c: usize, t: f32) -> f32 {
+        let p = self.tail_gpu(c);
+        match self.kind {
+            ProfileKind::Dipole => {
+                let dr = (t * t + p[2] * p[2]).sqrt();
+                let dv = (t * t + p[3] * p[3]).sqrt();
+                p[0] * (p[2] * (-p[1] * dr).exp() / dr + p[3] * (-p[1] * dv).exp() / dv)
+            }
+            ProfileKind::Burley => {
+                p[0] * (0.25 * (-t / p[1]).exp() + 0.75 * (-t / (3.0 * p[1])).exp())
+            }
+        }
+    }
+
+    /// Largest sampling radius (mm).
+    pub fn max_radius(&self) -> f64 {
+        self.radius.iter().cloned().fold(0.0, f64::max)
+    }
+}
+
+/// Burley's truncated inverse CDF in f32, the shader's arithmetic: r = P^-1(u P(R)).
+pub fn burley_sample_f32(d: f32, p_r: f32, u: f32) -> f32 {
+    let uu = 1.0 - u * p_r;
+    let g = 1.0 + 4.0 * uu * (2.0 * uu + (1.0 + 4.0 * uu * uu).sqrt());
+    let c = g.powf(1.0 / 3.0);
+    // Rounding can give -1e-8 at u = 0.
+    (d * 3.0 * ((1.0 + 1.0 / c + c) / (4.0 * uu)).ln()).max(0.0)
+}
+
+/// Root of increasing `f` in [lo, hi] by bisection.
+fn bisect(f: impl Fn(f64) -> f64, mut lo: f64, mut hi: f64) -> f64 {
+    for _ in 0..200 {
+        let mid = 0.5 * (lo + hi);
+        if f(mid) < 0.0 {
+            lo = mid;
+        } else {
+            hi = mid;
+        }
+    }
+    0.5 * (lo + hi)
+}
+
+/// Radial CDF of 2 pi r Rd(r) integrated numerically (Simpson on log-spaced radii, from
+/// r_min where the CDF is ~ pi r^2 Rd(0)), inverted at F = t_j^2 K(R) by bisection on the
+/// tabulated CDF and interpolation. The closed-form CDF ([`Dipole::cdf`]) is used only to
+/// check this integration in the tests.
+fn dipole_table(dipole: &[Dipole; 3], radius: &[f64; 3]) -> Vec<[f32; 3]> {
+    let mut table = vec![[0f32; 3]; TABLE_SIZE];
+    for c in 0..3 {
+        let (rs, fs) = numeric_cdf(|r| dipole[c].rd(r), radius[c], 8192);
+        for (j, row) in table.iter_mut().enumerate() {
+            let t = j as f64 / (TABLE_SIZE - 1) as f64;
+            let target = t * t * fs[fs.len() - 1];
+            // First grid index with F >= target.
+            let i = fs.partition_point(|&f| f < target).clamp(1, fs.len() - 1);
+            let (f0, f1) = (fs[i - 1], fs[i]);
+            let w = if f1 > f0 {
+                (target - f0) / (f1 - f0)
+            } else {
+                0.0
+            };
+            row[c] = (rs[i - 1] + w * (rs[i] - rs[i - 1])) as f32;
+        }
+        table[0][c] = 0.0;
+        table[TABLE_SIZE - 1][c] = radius[c] as f32;
+    }
+    table
+}
+
+/// (radii, F(radii)) with F(r) = int_0^r 2 pi s rd(s) ds on `n` log-spaced radii up to
+/// `r_max` (plus 0).
+pub fn numeric_cdf(rd: impl Fn(f64) -> f64, r_max: f64, n: usize) -> (Vec<f64>, Vec<f64>) {
+    let r_min = r_max * 1e-7;
+    let mut rs = vec![0.0];
+    let mut fs = vec![0.0];
+    let g = |r: f64| 2.0 * PI * r * rd(r);
+    // [0, r_min]: 2 pi r Rd(r) ~ linear, trapezoid from 0 (Rd finite at 0 for the dipole;
+    // for Burley r Rd(r) is finite at 0 too).
+    let mut f = 0.5 * r_min * g(r_min);
+    rs.push(r_min);
+    fs.push(f);
+    let ratio = (r_max / r_min).powf(1.0 / (n - 1) as f64);
+    let mut a = r_min;
+    for i in 1..n {
+        let b = if i == n - 1 { r_max } else { a * ratio };
+        let m = 0.5 * (a + b);
+        f += (b - a) / 6.0 * (g(a) + 4.0 * g(m) + g(b));
+        rs.push(b);
+        fs.push(f);
+        a = b;
+    }
+    (rs, fs)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Gauss-Legendre (5 points) on n equal panels of [a, b] in sqrt(r) (an integration
+    /// independent of the table's Simpson on log-spaced radii).
+    fn integrate(f: impl Fn(f64) -> f64, a: f64, b: f64, n: usize) -> f64 {
+        let x = [
+            0.0,
+            -0.538_469_310_105_683,
+            0.538_469_310_105_683,
+            -0.906_179_845_938_664,
+            0.906_179_845_938_664,
+        ];
+        let w = [
+            0.568_888_888_888_889,
+            0.478_628_670_499_366,
+            0.478_628_670_499_366,
+            0.236_926_885_056_189,
+            0.236_926_885_056_189,
+        ];
+        let (sa, sb) = (a.sqrt(), b.sqrt());
+        let h = (sb - sa) / n as f64;
+        let mut s = 0.0;
+        for i in 0..n {
+            let c = sa + (i as f64 + 0.5) * h;
+            for k in 0..5 {
+                let q = c + 0.5 * h * x[k];
+                s += 0.5 * h * w[k] * f(q * q) * 2.0 * q;
+            }
+        }
+        s
+    }
+
+    #[test]
+    fn dipole_total_reflectance_is_the_plane_integral() {
+        for m in [Material::SKIN1, Material::SKIN2] {
+            for c in 0..3 {
+                let d = Dipole::new(m.sigma_a[c], m.sigma_s_prime[c], m.eta);
+                let num = integrate(|r| 2.0 * PI * r * d.rd(r), 0.0, 400.0, 20000);
+                let rel = (num - d.r_tot()).abs() / d.r_tot();
+                assert!(rel < 1e-6, "{} ch {c}: {num} vs {}", m.name, d.r_tot());
+                assert!((d.cdf(1e5) - d.r_tot()).abs() < 1e-9);
+            }
+        }
+    }
+
+    #[test]
+    fn skin1_energy_radii_match_the_notes() {
+        // kernels.md: 99% of skin1's energy within 13.7 / 5.8 / 3.0 mm at eta 1.3.
+        let p = Profile::new(ProfileKind::Dipole, Material::SKIN1, 0.99).unwrap();
+        for (r, want) in p.radius.iter().zip([13.7, 5.8, 3.0]) {
+            assert!((r - want).abs() < 0.06, "{r} vs {want}");
+        }
+    }
+
+    #[test]
+    fn inverse_cdf_table_inverts_the_numeric_integral() {
+        for m in [Material::SKIN1, Material::SKIN2] {
+            let p = Profile::new(ProfileKind::Dipole, m, DEFAULT_ENERGY).unwrap();
+            for c in 0..3 {
+                // K(R) from the table's radius, integrated independently.
+                let k = integrate(|r| 2.0 * PI * r * p.rd(c, r), 0.0, p.radius[c], 4000);
+                assert!((k - p.k[c]).abs() / p.k[c] < 1e-6);
+                for i in 1..40 {
+                    let u = i as f32 / 40.0;
+                    let r = p.sample_radius(c, u) as f64;
+                    let f = integrate(|s| 2.0 * PI * s * p.rd(c, s), 0.0, r, 400) / p.k[c];
+                    assert!(
+                        (f - u as f64).abs() < 2e-4,
+                        "{} ch {c}: F(r({u})) = {f}",
+                        m.name
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn burley_inverse_and_normalisation() {
+        let p = Profile::new(ProfileKind::Burley, Material::SKIN1, DEFAULT_ENERGY).unwrap();
+        for c in 0..3 {
+            let b = p.burley[c];
+            let total = integrate(|r| 2.0 * PI * r * b.rd(r), 0.0, 200.0 * b.d, 20000);
+            assert!((total - b.a).abs() / b.a < 1e-6, "{total} vs {}", b.a);
+            for i in 1..50 {
+                let q = i as f64 / 50.0;
+                let r = b.p_inverse(q);
+                assert!((b.p(r) - q).abs() < 1e-12);
+                let rf = p.sample_radius(c, q as f32) as f64;
+                let f = integrate(|s| 2.0 * PI * s * b.rd(s), 0.0, rf, 400) / p.k[c];
+                assert!((f - q).abs() < 1e-4, "ch {c} u {q}: {f}");
+            }
+            assert!((p.k[c] / p.r_tot[c] - DEFAULT_ENERGY).abs() < 1e-9);
+        }
+    }
+
+    #[test]
+    fn transmission_tail_is_the_profile_beyond_t() {
+        for kind in [ProfileKind::Dipole, ProfileKind::Burley] {
+            let p = Profile::new(kind, Material::SKIN1, DEFAULT_ENERGY).unwrap();
+            for c in 0..3 {
+                assert!((p.tail_f32(c, 0.0) as f64 - p.r_tot[c]).abs() < 1e-6 * p.r_tot[c]);
+                for t in [0.5, 2.0, 5.0] {
+                    let num = integrate(|s| 2.0 * PI * s * p.rd(c, s), t, 400.0, 20000);
+                    let got = p.tail_f32(c, t as f32) as f64;
+                    assert!(
+                        (got - num).abs() < 1e-5 * p.r_tot[c],
+                        "{kind:?} {c} {t}: {got} vs {num}"
+                    );
+                }
+            }
+            // Thin skin transmits red far more than blue.
+            assert!(p.tail_f32(0, 4.0) > 5.0 * p.tail_f32(2, 4.0));
+        }
+    }
+
+    #[test]
+    fn bad_materials_are_refused() {
+        assert!(Material::custom([0.0, 1.0, 1.0], [1.0; 3], 1.3).is_err());
+        assert!(Material::custom([0.1; 3], [f64::NAN, 1.0, 1.0], 1.3).is_err());
+        assert!(Material::custom([0.1; 3], [1.0; 3], 7.0).is_err());
+        assert!(Material::named("marble").is_err());
+        assert!(Profile::new(ProfileKind::Dipole, Material::SKIN1, 1.0).is_err());
+    }
+}

@@ -1,0 +1,569 @@
+//! Texture-space geometry: a mesh rasterised into its UV layout on the CPU.
+//!
+//! Per texel (row-major, v down the rows, texel (x, y) centred at ((x + 0.5)/N, (y + 0.5)/N)):
+//! surface position (mm), interpolated unit normal, and the Jacobian J = [dP/du dP/dv]
+//! (mm per UV unit, constant over a triangle, exact from the triangle's edges), from which
+//! the texel's surface area |dP/du x dP/dv| / N^2 follows. A texel belongs to the triangle
+//! whose UV footprint contains its centre (top-left fill rule, so neighbouring triangles of
+//! one chart never both claim a texel).
+//!
+//! Errors (naming the mesh): no UVs, a UV outside [0, 1], a triangle of zero UV area (it has
+//! surface but no texels), a chart that overlaps itself in UV space at more than 1% of its
+//! texels (fewer, e.g. one texel of a folded sliver, are counted and the texel keeps the
+//! first triangle).
+//!
+//! Repair (counted in [`TexReport`]): real meshes reuse UV space (mirrored halves). Triangles
+//! are grouped into charts (connected through shared vertices, split by the sign of their UV
+//! winding, so a mirrored half is its own chart); charts are placed greedily, largest first,
+//! into the first of L layers where their texels are free, and the layers are laid side by
+//! side: u' = (layer + u) / L. With one layer (no overlap) the layout is unchanged. L > 1
+//! halves the texel density along u per extra layer; the Jacobian carries the anisotropy.
+//!
+//! Gutters: texels within [`GUTTER`] texels of a covered one copy the geometry of the nearest
+//! covered texel (ring by ring), flagged as gutter (area 0): irradiance computed there
+//! repeats the chart's border, so bilinear lookups at chart borders stay on the surface.
+//!
+//! Computed on the CPU: once for a static mesh; for a skinned mesh once per frame from the
+//! mesh posed by [`posed`] (linear blend skinning on the CPU; the UV layout, and so the
+//! overlap repair, is the same in every pose), uploaded with `SssKernel::update_geometry`.
+
+use crate::error::{Error, Result};
+use crate::scene::Mesh;
+use glam::{DVec2, DVec3, Vec2, Vec3};
+use std::collections::HashMap;
+
+/// Gutter width in texels.
+pub const GUTTER: u32 = 4;
+
+/// Flag in `pos.w`.
+pub const COVERED: f32 = 1.0;
+pub const GUTTER_FLAG: f32 = 0.5;
+
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct TexReport {
+    pub size: u32,
+    pub triangles: usize,
+    pub charts: usize,
+    /// Charts whose UV winding is negative (mirrored).
+    pub mirrored_charts: usize,
+    /// Texel centres claimed by more than one triangle in the original layout.
+    pub overlapping_texels: usize,
+    /// Texel centres claimed twice inside one chart (a fold; up to 1% of the chart's texels
+    /// is accepted: the first triangle keeps the texel, the other loses that sample).
+    pub self_overlap_texels: usize,
+    /// Layers of the repaired layout (1: no repair).
+    pub layers: usize,
+    pub covered_texels: usize,
+    pub gutter_texels: usize,
+    /// Total surface area of the mesh (mm^2) and the area the covered texels account for.
+    pub mesh_area_mm2: f64,
+    pub texel_area_mm2: f64,
+}
+
+/// The rasterised texture-space geometry.
+#[derive(Clone, Debug)]
+pub struct TexGeometry {
+    pub size: u32,
+    /// xyz position (mm), w: [`COVERED`], [`GUTTER_FLAG`] or 0 (empty).
+    pub pos: Vec<[f32; 4]>,
+    /// xyz unit normal, w: texel surface area (mm^2; 0 in gutters and empty texels).
+    pub nrm: Vec<[f32; 4]>,
+    /// dP/du (mm per UV unit), w 0.
+    pub dpdu: Vec<[f32; 4]>,
+    /// dP/dv.
+    pub dpdv: Vec<[f32; 4]>,
+    /// The atlas UV of each triangle corner (after any repair).
+    pub corner_uvs: Vec<[Vec2; 3]>,
+    /// Positions (mm) and triangles the geometry was made from (for shadow rays and views).
+    pub positions: Vec<Vec3>,
+    pub normals: Vec<Vec3>,
+    pub triangles: Vec<[u32; 3]>,
+    pub report: TexReport,
+}
+
+fn edge(a: DVec2, b: DVec2, p: DVec2) -> f64 {
+    (b.x - a.x) * (p.y - a.y) - (b.y - a.y) * (p.x - a.x)
+}
+
+/// [`edge`] evaluated with the endpoints in a canonical order, so the two triangles sharing
+/// an edge get exactly opposite values (and the fill rule gives each centre one owner).
+fn edge_exact(a: DVec2, b: DVec2, p: DVec2) -> f64 {
+    if (a.x, a.y) <= (b.x, b.y) {
+        edge(a, b, p)
+    } else {
+        -edge(b, a, p)
+    }
+}
+
+/// Top-left rule for a counter-clockwise (positive-area) triangle in a y-down raster: an
+/// edge owns the centres exactly on it if it is a top edge or a left edge.
+fn owns(a: DVec2, b: DVec2) -> bool {
+    let d = b - a;
+    (d.y == 0.0 && d.x < 0.0) || d.y > 0.0
+}
+
+/// Texel centres (index, barycentrics) covered by the UV triangle `t` (in texel units).
+fn raster(t: [DVec2; 3], n: u32, mut out: impl FnMut(usize, [f64; 3])) {
+    let area = edge(t[0], t[1], t[2]);
+    // Orient counter-clockwise (positive area) for one fill rule.
+    let (t, flip) = if area < 0.0 {
+        ([t[0], t[2], t[1]], true)
+    } else {
+        (t, false)
+    };
+    let area = area.abs();
+    let lo = t[0].min(t[1]).min(t[2]);
+    let hi = t[0].max(t[1]).max(t[2]);
+    let x0 = (lo.x - 0.5).ceil().max(0.0) as i64;
+    let y0 = (lo.y - 0.5).ceil().max(0.0) as i64;
+    let x1 = ((hi.x - 0.5).floor() as i64).min(n as i64 - 1);
+    let y1 = ((hi.y - 0.5).floor() as i64).min(n as i64 - 1);
+    for y in y0..=y1 {
+        for x in x0..=x1 {
+            let p = DVec2::new(x as f64 + 0.5, y as f64 + 0.5);
+            let w = [
+                edge_exact(t[1], t[2], p),
+                edge_exact(t[2], t[0], p),
+                edge_exact(t[0], t[1], p),
+            ];
+            let inside = w
+                .iter()
+                .zip([(t[1], t[2]), (t[2], t[0]), (t[0], t[1])])
+                .all(|(&wi, (a, b))| wi > 0.0 || (wi == 0.0 && owns(a, b)));
+            if inside {
+                let mut b = w.map(|wi| wi / area);
+                if flip {
+                    b.swap(1, 2);
+                }
+                out((y as usize) * n as usize + x as usize, b);
+            }
+        }
+    }
+}
+
+struct Dsu(Vec<usize>);
+impl Dsu {
+    fn find(&mut self, i: usize) -> usize {
+        let mut r = i;
+        while self.0[r] != r {
+            r = self.0[r];
+        }
+        let mut i = i;
+        while self.0[i] != r {
+            let next = self.0[i];
+            self.0[i] = r;
+            i = next;
+        }
+        r
+    }
+    fn union(&mut self, a: usize, b: usize) {
+        let (a, b) = (self.find(a), self.find(b));
+        if a != b {
+            self.0[a.max(b)] = a.min(b);
+        }
+    }
+}
+
+impl TexGeometry {
+    /// Rasterises `mesh` (positions scaled by `mm_per_unit`) into an N x N layout.
+    pub fn build(mesh: &Mesh, size: u32, mm_per_unit: f64) -> Result<TexGeometry> {
+        let src = std::path::Path::new(&mesh.report.source);
+        let err = |m: String| Error::input(src, format!("mesh '{}': {m}", mesh.name));
+        if !(16..=8192).contains(&size) {
+            return Err(Error::InvalidArgument(format!(
+                "texture size {size} is not in 16..=8192"
+            )));
+        }
+        if !(mm_per_unit.is_finite() && mm_per_unit > 0.0) {
+            return Err(Error::InvalidArgument(format!(
+                "mm per model unit {mm_per_unit} must be finite and > 0"
+            )));
+        }
+        let uvs = mesh.uvs.as_ref().ok_or_else(|| {
+            err("has no texture coordinates (UVs); texture-space diffusion needs them".into())
+        })?;
+        if let Some(i) = uvs
+            .iter()
+            .position(|u| !u.is_finite() || u.x < 0.0 || u.x > 1.0 || u.y < 0.0 || u.y > 1.0)
+        {
+            return Err(err(format!(
+                "vertex {i} has UV {:?} outside [0, 1]^2 (wrapping UVs are not supported)",
+                uvs[i]
+            )));
+        }
+        let nt = mesh.triangles.len();
+        let nf = size as f64;
+        let tri_uv = |t: usize| mesh.triangles[t].map(|i| uvs[i as usize].as_dvec2() * nf);
+        let mut signs = vec![0i8; nt];
+        for (t, s) in signs.iter_mut().enumerate() {
+            let u = tri_uv(t);
+            let a = edge(u[0], u[1], u[2]);
+            if a.abs() < 1e-12 * nf * nf {
+                return Err(err(format!(
+                    "triangle {t} has zero area in UV space (it has surface but no texels)"
+                )));
+            }
+            *s = if a > 0.0 { 1 } else { -1 };
+        }
+        // Charts: triangles sharing a vertex (same index => same UV) with the same winding.
+        let mut dsu = Dsu((0..nt).collect());
+        let mut first_of: HashMap<(u32, i8), usize> = HashMap::new();
+        for (t, tri) in mesh.triangles.iter().enumerate() {
+            for &v in tri {
+                match first_of.get(&(v, signs[t])) {
+                    Some(&o) => dsu.union(o, t),
+                    None => {
+                        first_of.insert((v, signs[t]), t);
+                    }
+                }
+            }
+        }
+        let mut charts: HashMap<usize, Vec<usize>> = HashMap::new();
+        for t in 0..nt {
+            charts.entry(dsu.find(t)).or_default().push(t);
+        }
+        let mut charts: Vec<Vec<usize>> = charts.into_values().collect();
+        // Each chart's texels; a chart claiming a texel twice overlaps itself.
+        let mut chart_texels: Vec<Vec<usize>> = Vec::with_capacity(charts.len());
+        let mut count = vec![0u8; (size * size) as usize];
+        let mut self_overlap = 0;
+        for (ci, chart) in charts.iter().enumerate() {
+            let mut texels = Vec::new();
+            for &t in chart {
+                raster(tri_uv(t), size, |i, _| texels.push(i));
+            }
+            let mut sorted = texels.clone();
+            sorted.sort_unstable();
+            let twice = sorted.windows(2).filter(|w| w[0] == w[1]).count();
+            self_overlap += twice;
+            if twice * 100 > texels.len()
+                && let Some(w) = sorted.windows(2).find(|w| w[0] == w[1])
+            {
+                let (x, y) = (w[0] as u32 % size, w[0] as u32 / size);
+                return Err(err(format!(
+                    "UV chart {ci} ({} triangles) overlaps itself at {twice} texels, e.g. \
+                     ({x}, {y}) of {size}^2; it cannot be repaired by moving charts",
+                    chart.len()
+                )));
+            }
+            for &i in &texels {
+                count[i] = count[i].saturating_add(1);
+            }
+            chart_texels.push(texels);
+        }
+        let overlapping_texels = count.iter().filter(|&&c| c > 1).count();
+        // Greedy layering, largest chart first.
+        let mut order: Vec<usize> = (0..charts.len()).collect();
+        order.sort_by_key(|&c| (std::cmp::Reverse(chart_texels[c].len()), charts[c][0]));
+        let mut layers: Vec<Vec<bool>> = Vec::new();
+        let mut chart_layer = vec![0usize; charts.len()];
+        for &c in &order {
+            let l = (0..)
+                .find(|&l| l >= layers.len() || chart_texels[c].iter().all(|&i| !layers[l][i]))
+                .expect("unbounded search");
+            if l == layers.len() {
+                layers.push(vec![false; (size * size) as usize]);
+            }
+            for &i in &chart_texels[c] {
+                layers[l][i] = true;
+            }
+            chart_layer[c] = l;
+        }
+        let nl = layers.len().max(1);
+        let mut corner_uvs = vec![[Vec2::ZERO; 3]; nt];
+        for (c, chart) in charts.iter_mut().enumerate() {
+            chart.sort_unstable();
+            for &t in chart.iter() {
+                corner_uvs[t] = mesh.triangles[t].map(|i| {
+                    let u = uvs[i as usize];
+                    Vec2::new((chart_layer[c] as f32 + u.x) / nl as f32, u.y)
+                });
+            }
+        }
+        let mirrored_charts = charts.iter().filter(|c| signs[c[0]] < 0).count();
+
+        // Rasterise the (repaired) layout.
+        let positions: Vec<Vec3> = mesh
+            .positions
+            .iter()
+            .map(|p| (p.as_dvec3() * mm_per_unit).as_vec3())
+            .collect();
+        let npx = (size * size) as usize;
+        let mut pos = vec![[0f32; 4]; npx];
+        let mut nrm = vec![[0f32; 4]; npx];
+        let mut dpdu = vec![[0f32; 4]; npx];
+        let mut dpdv = vec![[0f32; 4]; npx];
+        let mut mesh_area = 0.0;
+        let mut texel_area = 0.0;
+        for (&tri, corners) in mesh.triangles.iter().zip(&corner_uvs) {
+            let p = tri.map(|i| positions[i as usize].as_dvec3());
+            let nv = tri.map(|i| mesh.normals[i as usize].as_dvec3());
+            let uv = corners.map(|u| u.as_dvec2());
+            let (e1, e2) = (p[1] - p[0], p[2] - p[0]);
+            let (d1, d2) = (uv[1] - uv[0], uv[2] - uv[0]);
+            let det = d1.x * d2.y - d2.x * d1.y;
+            let a = (e1 * d2.y - e2 * d1.y) / det;
+            let b = (e2 * d1.x - e1 * d2.x) / det;
+            let area = a.cross(b).length() / (nf * nf);
+            mesh_area += 0.5 * e1.cross(e2).length();
+            let face_n = e1.cross(e2).normalize_or_zero();
+            raster(uv.map(|u| u * nf), size, |i, w| {
+                if pos[i][3] == COVERED {
+                    return; // a chart's small self-overlap: the first triangle keeps it
+                }
+                let pp = p[0] * w[0] + p[1] * w[1] + p[2] * w[2];
+                let mut n = (nv[0] * w[0] + nv[1] * w[1] + nv[2] * w[2]).normalize_or_zero();
+                if n == DVec3::ZERO {
+                    n = face_n;
+                }
+                pos[i] = [pp.x as f32, pp.y as f32, pp.z as f32, COVERED];
+                nrm[i] = [n.x as f32, n.y as f32, n.z as f32, area as f32];
+                dpdu[i] = [a.x as f32, a.y as f32, a.z as f32, 0.0];
+                dpdv[i] = [b.x as f32, b.y as f32, b.z as f32, 0.0];
+                texel_area += area;
+            });
+        }
+        let covered_texels = pos.iter().filter(|p| p[3] == COVERED).count();
+        if covered_texels == 0 {
+            return Err(err(format!(
+                "no texel centre of the {size}^2 layout falls inside a triangle"
+            )));
+        }
+        let mut geo = TexGeometry {
+            size,
+            pos,
+            nrm,
+            dpdu,
+            dpdv,
+            corner_uvs,
+            positions,
+            normals: mesh.normals.clone(),
+            triangles: mesh.triangles.clone(),
+            report: TexReport {
+                size,
+                triangles: nt,
+                charts: charts.len(),
+                mirrored_charts,
+                overlapping_texels,
+                self_overlap_texels: self_overlap,
+                layers: nl,
+                covered_texels,
+                gutter_texels: 0,
+                mesh_area_mm2: mesh_area,
+                texel_area_mm2: texel_area,
+            },
+        };
+        geo.dilate();
+        Ok(geo)
+    }
+
+    /// Fills the gutters ring by ring from covered texels (see the module documentation).
+    fn dilate(&mut self) {
+        let n = self.size as i64;
+        let mut gutter = 0;
+        for _ in 0..GUTTER {
+            let mut fills = Vec::new();
+            for y in 0..n {
+                for x in 0..n {
+                    let i = (y * n + x) as usize;
+                    if self.pos[i][3] != 0.0 {
+                        continue;
+                    }
+                    let src = [
+                        (-1, 0),
+                        (1, 0),
+                        (0, -1),
+                        (0, 1),
+                        (-1, -1),
+                        (1, -1),
+                        (-1, 1),
+                        (1, 1),
+                    ]
+                    .iter()
+                    .map(|(dx, dy)| (x + dx, y + dy))
+                    .filter(|&(a, b)| a >= 0 && b >= 0 && a < n && b < n)
+                    .map(|(a, b)| (b * n + a) as usize)
+                    .find(|&j| self.pos[j][3] != 0.0);
+                    if let Some(j) = src {
+                        fills.push((i, j));
+                    }
+                }
+            }
+            for &(i, j) in &fills {
+                self.pos[i] = self.pos[j];
+                self.pos[i][3] = GUTTER_FLAG;
+                self.nrm[i] = self.nrm[j];
+                self.nrm[i][3] = 0.0;
+                self.dpdu[i] = self.dpdu[j];
+                self.dpdv[i] = self.dpdv[j];
+            }
+            gutter += fills.len();
+        }
+        self.report.gutter_texels = gutter;
+    }
+
+    /// Texel count.
+    pub fn texels(&self) -> usize {
+        (self.size * self.size) as usize
+    }
+
+    /// Length of the bounding-box diagonal of the mesh (mm).
+    pub fn extent_mm(&self) -> f32 {
+        let (lo, hi) = crate::scene::mesh::bounds(&self.positions);
+        (hi - lo).length()
+    }
+}
+
+/// `mesh` posed by linear blend skinning with `matrices` (one per joint of its skin):
+/// positions and normals move, triangles and UVs stay (so the UV layout, and with it the
+/// overlap repair, is the same in every pose).
+pub fn posed(mesh: &Mesh, matrices: &[glam::Mat4]) -> Result<Mesh> {
+    let skin = mesh.skin.as_ref().ok_or_else(|| {
+        Error::InvalidArgument(format!("mesh '{}' has no skin weights to pose", mesh.name))
+    })?;
+    let mut out = mesh.clone();
+    for (v, (j, w)) in skin.joints.iter().zip(&skin.weights).enumerate() {
+        let mut m = glam::Mat4::ZERO;
+        for k in 0..4 {
+            if w[k] > 0.0 {
+                let mat = matrices.get(j[k] as usize).ok_or_else(|| {
+                    Error::InvalidArgument(format!(
+                        "vertex {v} uses joint {} of {} skinning matrices",
+                        j[k],
+                        matrices.len()
+                    ))
+                })?;
+                m += *mat * w[k];
+            }
+        }
+        out.positions[v] = m.transform_point3(mesh.positions[v]);
+        out.normals[v] = m
+            .transform_vector3(mesh.normals[v])
+            .try_normalize()
+            .unwrap_or(mesh.normals[v]);
+    }
+    Ok(out)
+}
+
+/// A flat rectangle of `w` x `h` mm in the z = 0 plane, normal +z, UV (0,0)-(1,1) spanning
+/// it (a `w`:`h` stretch when w != h), split into `cells` x `cells` quads. For the analytic
+/// plane tests.
+pub fn plane_mesh(w: f32, h: f32, cells: u32) -> Result<Mesh> {
+    use crate::scene::mesh::MeshData;
+    let n = cells + 1;
+    let mut data = MeshData {
+        name: format!("plane {w}x{h} mm"),
+        ..Default::default()
+    };
+    let mut uvs = Vec::new();
+    let mut normals = Vec::new();
+    for j in 0..n {
+        for i in 0..n {
+            let (u, v) = (i as f32 / cells as f32, j as f32 / cells as f32);
+            data.positions.push([(u - 0.5) * w, (v - 0.5) * h, 0.0]);
+            uvs.push([u, v]);
+            normals.push([0.0, 0.0, 1.0]);
+        }
+    }
+    for j in 0..cells {
+        for i in 0..cells {
+            let a = j * n + i;
+            data.triangles.push([a, a + 1, a + n + 1]);
+            data.triangles.push([a, a + n + 1, a + n]);
+        }
+    }
+    data.uvs = Some(uvs);
+    data.normals = Some(normals);
+    Mesh::from_data(data, std::path::Path::new("<plane>"))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn plane_covers_every_texel_once_with_the_right_jacobian() {
+        let m = plane_mesh(40.0, 20.0, 7).unwrap();
+        let g = TexGeometry::build(&m, 64, 1.0).unwrap();
+        assert_eq!(g.report.covered_texels, 64 * 64);
+        assert_eq!(g.report.overlapping_texels, 0);
+        assert_eq!(g.report.layers, 1);
+        assert!((g.report.texel_area_mm2 - 800.0).abs() < 1e-3);
+        for i in 0..g.texels() {
+            assert!((g.dpdu[i][0] - 40.0).abs() < 1e-4 && (g.dpdv[i][1] - 20.0).abs() < 1e-4);
+            let (x, y) = (i % 64, i / 64);
+            assert!((g.pos[i][0] - ((x as f32 + 0.5) / 64.0 - 0.5) * 40.0).abs() < 1e-4);
+            assert!((g.pos[i][1] - ((y as f32 + 0.5) / 64.0 - 0.5) * 20.0).abs() < 1e-4);
+        }
+    }
+
+    #[test]
+    fn mirrored_overlap_is_repaired_into_layers() {
+        // Two squares side by side in 3D sharing one UV square, the second mirrored.
+        use crate::scene::mesh::MeshData;
+        let mut d = MeshData {
+            name: "mirror".into(),
+            ..Default::default()
+        };
+        for (ox, mirror) in [(0.0, false), (20.0, true)] {
+            let b = d.positions.len() as u32;
+            for (x, y) in [(0.0, 0.0), (10.0, 0.0), (10.0, 10.0), (0.0, 10.0)] {
+                d.positions.push([ox + x, y, 0.0]);
+                let u = x / 10.0;
+                d.uvs
+                    .get_or_insert_with(Vec::new)
+                    .push([if mirror { 1.0 - u } else { u }, y / 10.0]);
+            }
+            d.triangles.push([b, b + 1, b + 2]);
+            d.triangles.push([b, b + 2, b + 3]);
+        }
+        let m = Mesh::from_data(d, std::path::Path::new("<mirror>")).unwrap();
+        let g = TexGeometry::build(&m, 32, 1.0).unwrap();
+        assert_eq!(g.report.charts, 2);
+        assert_eq!(g.report.mirrored_charts, 1);
+        assert_eq!(g.report.overlapping_texels, 32 * 32);
+        assert_eq!(g.report.layers, 2);
+        assert_eq!(g.report.covered_texels, 32 * 32);
+        assert!((g.report.texel_area_mm2 - 200.0).abs() < 1e-3);
+    }
+
+    #[test]
+    fn posing_moves_positions_and_keeps_the_layout() {
+        let mut m = plane_mesh(10.0, 10.0, 2).unwrap();
+        let n = m.positions.len();
+        m.skin = Some(crate::scene::mesh::SkinWeights {
+            joints: vec![[0, 1, 0, 0]; n],
+            weights: vec![[0.5, 0.5, 0.0, 0.0]; n],
+        });
+        let t = glam::Mat4::from_translation(Vec3::new(0.0, 0.0, 4.0));
+        let p = posed(&m, &[glam::Mat4::IDENTITY, t]).unwrap();
+        for (a, b) in p.positions.iter().zip(&m.positions) {
+            assert!((*a - *b - Vec3::new(0.0, 0.0, 2.0)).length() < 1e-6);
+        }
+        let g0 = TexGeometry::build(&m, 32, 1.0).unwrap();
+        let g1 = TexGeometry::build(&p, 32, 1.0).unwrap();
+        assert_eq!(g0.corner_uvs, g1.corner_uvs);
+        assert!(posed(&m, &[glam::Mat4::IDENTITY]).is_err());
+    }
+
+    #[test]
+    fn bad_uvs_are_errors_naming_the_mesh() {
+        let mut m = plane_mesh(10.0, 10.0, 2).unwrap();
+        m.uvs = None;
+        let e = TexGeometry::build(&m, 32, 1.0).unwrap_err().to_string();
+        assert!(
+            e.contains("no texture coordinates") && e.contains("plane"),
+            "{e}"
+        );
+        let mut m = plane_mesh(10.0, 10.0, 2).unwrap();
+        m.uvs.as_mut().unwrap()[4] = Vec2::new(0.0, 0.0);
+        m.uvs.as_mut().unwrap()[0] = Vec2::new(0.0, 0.0);
+        m.uvs.as_mut().unwrap()[1] = Vec2::new(0.0, 0.0);
+        let e = TexGeometry::build(&m, 32, 1.0).unwrap_err().to_string();
+        assert!(e.contains("zero area in UV space"), "{e}");
+        let mut m = plane_mesh(10.0, 10.0, 2).unwrap();
+        m.uvs.as_mut().unwrap()[3] = Vec2::new(1.5, 0.0);
+        let e = TexGeometry::build(&m, 32, 1.0).unwrap_err().to_string();
+        assert!(e.contains("outside [0, 1]"), "{e}");
+    }
+}
