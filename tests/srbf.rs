@@ -4,7 +4,7 @@ mod common;
 
 use glam::{Mat3, Vec3};
 use vkshade::geom::Rng;
-use vkshade::kernels::srbf::cpca::{Cpca, CpcaConfig};
+use vkshade::kernels::srbf::cpca::{Cpca, CpcaConfig, half_round};
 use vkshade::kernels::srbf::gpu::{SrbfFrame, SrbfInputs, SrbfKernel};
 use vkshade::kernels::srbf::sg::{self, Lobe};
 use vkshade::kernels::srbf::transfer::{Basis, Transfer};
@@ -67,7 +67,7 @@ fn scene(lobes: usize, k: usize, vertices: usize, clusters: usize, components: u
 }
 
 /// The pipeline in f64: c_k = sum_j a_j <G_j(R xi_j), G_k>,
-/// L_v = albedo sum_k (m_ck + sum_i w_vi a_cik) c_k.
+/// L_v = albedo sum_k (m_ck + sum_i w_vi a_cik) c_k, with the weights w at half precision.
 fn cpu(s: &Scene, frame: &SrbfFrame) -> Vec<[f64; 3]> {
     let t = &s.transfer;
     let (k, m) = (t.basis.len(), t.components);
@@ -100,7 +100,8 @@ fn cpu(s: &Scene, frame: &SrbfFrame) -> Vec<[f64; 3]> {
             for (i, c) in coeffs.iter().enumerate() {
                 let mut tv = rows[i] as f64;
                 for (j, wj) in w.iter().enumerate() {
-                    tv += *wj as f64 * rows[(j + 1) * k + i] as f64;
+                    // The GPU holds the weights in half precision.
+                    tv += half_round(*wj) as f64 * rows[(j + 1) * k + i] as f64;
                 }
                 for (o, c) in out.iter_mut().zip(c) {
                     *o += tv * c;

@@ -5,18 +5,19 @@
 // (slots padded per cluster), so the cluster and every row index are uniform across the
 // workgroup: the projected rows come from a uniform buffer with uniform indices (scalar
 // loads on CPU implementations, broadcasts on GPUs) and only the weights are streamed, in
-// groups of four, group-major: w4[g * slots + slot], neighbouring invocations reading
-// neighbouring vec4s. A padding slot (vertex index ~0u) computes and writes nothing.
+// half precision, eight per uvec4, group-major: w8[g * slots + slot], neighbouring
+// invocations reading neighbouring uvec4s (half the loads of f32 weights: on lavapipe every
+// per-lane load is a gather). A padding slot (vertex index ~0u) computes and writes nothing.
 layout(local_size_x = 64) in;
 
 layout(push_constant) uniform Push {
     vec4 albedo;   // rgb
     uint slots;    // 64 x workgroups
-    uint groups;   // ceil(components / 4)
-    uint stride;   // projected rows per cluster: 1 + 4 * groups
+    uint groups;   // ceil(components / 8)
+    uint stride;   // projected rows per cluster: 1 + 8 * groups
 } pc;
 
-layout(std430, set = 0, binding = 0) readonly buffer Weights { vec4 w[]; } weights;
+layout(std430, set = 0, binding = 0) readonly buffer Weights { uvec4 w[]; } weights;
 layout(std430, set = 0, binding = 1) readonly buffer Slots { uint v[]; } slot_vertex;
 // The cluster of each workgroup, four per uvec4. A uniform buffer: read at a uniform index it
 // is a scalar load whose result the compiler knows is uniform, so the row indices derived
@@ -37,10 +38,16 @@ void main() {
     vec3 sum = projected.v[base].rgb;
     uint index = slot;
     for (uint g = 0u; g < pc.groups; g++) {
-        vec4 w = weights.w[index];
-        uint k = base + 1u + 4u * g;
-        sum += w.x * projected.v[k].rgb + w.y * projected.v[k + 1u].rgb
-            + w.z * projected.v[k + 2u].rgb + w.w * projected.v[k + 3u].rgb;
+        uvec4 h = weights.w[index];
+        vec2 a = unpackHalf2x16(h.x);
+        vec2 b = unpackHalf2x16(h.y);
+        vec2 c = unpackHalf2x16(h.z);
+        vec2 d = unpackHalf2x16(h.w);
+        uint k = base + 1u + 8u * g;
+        sum += a.x * projected.v[k].rgb + a.y * projected.v[k + 1u].rgb
+            + b.x * projected.v[k + 2u].rgb + b.y * projected.v[k + 3u].rgb
+            + c.x * projected.v[k + 4u].rgb + c.y * projected.v[k + 5u].rgb
+            + d.x * projected.v[k + 6u].rgb + d.y * projected.v[k + 7u].rgb;
         index += pc.slots;
     }
     if (vertex != 0xFFFFFFFFu) {

@@ -132,7 +132,7 @@ impl ShadeConfig {
             ));
         }
         let max_rows = crate::kernels::srbf::gpu::MAX_ROWS;
-        let rows = self.clusters * (1 + 4 * self.components.div_ceil(4));
+        let rows = crate::kernels::srbf::gpu::rows_needed(self.clusters, self.components);
         if self.clusters == 0 || (self.components > 0 && rows > max_rows) {
             return bad(format!(
                 "--clusters {} x --components {} need {rows} projected rows; the GPU path \

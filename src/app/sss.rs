@@ -18,27 +18,15 @@ use crate::kernels::sss::{Material, Profile, ProfileKind, SssKernel, SssOutput, 
 use crate::kernels::{Kernel, KernelInfo, run_frames};
 use crate::reference::sss::{ChannelError, Sources, brute_force};
 use crate::report::MachineInfo;
-use crate::scene::{self, Mesh};
 use glam::{DVec3, Vec2, Vec3};
 use serde::Serialize;
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::time::Instant;
 
-/// The head of BCN_Epileptic (assimp-testmodels, converted to glTF), in metres.
-pub const DEFAULT_MESH: &str = "data/bcn_epileptic.glb";
-/// Millimetres per unit of [`DEFAULT_MESH`] (it is modelled in metres).
-pub const DEFAULT_MESH_MM_PER_UNIT: f64 = 1000.0;
-
-/// The scale to use when none is given: [`DEFAULT_MESH_MM_PER_UNIT`] for the built-in mesh,
-/// 1 (millimetres) for any other.
-pub fn default_mm_per_unit(mesh: &std::path::Path) -> f64 {
-    if mesh == std::path::Path::new(DEFAULT_MESH) {
-        DEFAULT_MESH_MM_PER_UNIT
-    } else {
-        1.0
-    }
-}
-pub const DEFAULT_PART: &str = "Head";
+pub use crate::kernels::sss::{
+    DEFAULT_MESH, DEFAULT_MESH_MM_PER_UNIT, DEFAULT_PART, default_mm_per_unit, load_character,
+    load_mesh,
+};
 
 /// Everything `vkshade sss` can be told.
 #[derive(Clone, Debug)]
@@ -133,25 +121,6 @@ impl SssConfig {
             .collect::<Result<Vec<_>>>()?;
         cpu::check_lights(&lights)?;
         Ok(lights)
-    }
-}
-
-/// Loads `mesh` (the glTF part `part` alone when given).
-pub fn load_mesh(mesh: &Path, part: Option<&str>) -> Result<Mesh> {
-    Ok(load_character(mesh, part)?.mesh)
-}
-
-/// Loads `mesh` with its rig and animations (the glTF part `part` alone when given).
-pub fn load_character(mesh: &Path, part: Option<&str>) -> Result<scene::Character> {
-    match part {
-        #[cfg(feature = "gltf")]
-        Some(name) => scene::gltf_load::load_named(mesh, name),
-        #[cfg(not(feature = "gltf"))]
-        Some(_) => Err(Error::feature(
-            format!("selecting a part of {}", mesh.display()),
-            "gltf",
-        )),
-        None => scene::load(mesh),
     }
 }
 

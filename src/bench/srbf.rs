@@ -273,7 +273,7 @@ pub fn run(
     for &v in &cfg.vertices {
         for &k in &cfg.basis {
             let m = cfg.cpca.components.min(k);
-            let bytes = (m.div_ceil(4) * 4 * (v + 64 * cfg.cpca.clusters) * 4) as u64;
+            let bytes = (m.div_ceil(8) * 16 * (v + 64 * cfg.cpca.clusters)) as u64;
             if bytes > max_bytes {
                 skipped.push(format!(
                     "{k} basis x {v} vertices: the weights ({bytes} bytes) exceed \

@@ -5,12 +5,12 @@
 //! run, and the speed-up over the same sampler on the CPU and over the brute force.
 
 use super::{BenchConfig, MachineInfo, Stats, time_cpu};
-use crate::app::sss::load_mesh;
 use crate::error::Result;
 use crate::geom::bvh::Bvh;
 use crate::gpu::Context;
 use crate::kernels::sss::cpu::{self, Light, SamplerParams};
 use crate::kernels::sss::gpu::{PASS_DIFFUSION, PASS_IRRADIANCE};
+use crate::kernels::sss::load_mesh;
 use crate::kernels::sss::texspace::COVERED;
 use crate::kernels::sss::{Material, Profile, ProfileKind, SssKernel, TexGeometry};
 use crate::kernels::{Kernel, shape::time_passes};
@@ -45,8 +45,8 @@ pub struct SssBenchConfig {
 impl Default for SssBenchConfig {
     fn default() -> Self {
         SssBenchConfig {
-            mesh: PathBuf::from(crate::app::sss::DEFAULT_MESH),
-            part: crate::app::sss::DEFAULT_PART.into(),
+            mesh: PathBuf::from(crate::kernels::sss::DEFAULT_MESH),
+            part: crate::kernels::sss::DEFAULT_PART.into(),
             mm_per_unit: 1000.0,
             bench: BenchConfig {
                 warmup: 1,

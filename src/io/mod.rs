@@ -2,8 +2,8 @@
 //! benchmark harness, the shader tool, the scene writers): atomic writes, an up-front
 //! writability check, JSON, and (feature `exr`) linear float images.
 
-#[cfg(feature = "exr")]
 pub mod bc1;
+#[cfg(feature = "exr")]
 pub mod exr;
 
 use crate::error::{Error, Result};

@@ -7,7 +7,7 @@
 //! linear; EXR images are linear.
 
 use super::dirs::{self, Angles};
-use super::synth::{Btf, srgb_decode};
+use super::synth::Btf;
 use crate::error::{Error, Result};
 use rayon::prelude::*;
 use std::path::{Path, PathBuf};
@@ -80,7 +80,9 @@ fn read_image(path: &Path) -> Result<([u32; 2], Vec<[f32; 3]>)> {
         let img = image::open(path)
             .map_err(|e| Error::input(path, format!("cannot read the image: {e}")))?
             .to_rgb8();
-        let lut: Vec<f32> = (0..=255u8).map(|b| srgb_decode(b) as f32).collect();
+        let lut: Vec<f32> = (0..=255u8)
+            .map(|b| super::synth::srgb_decode(b) as f32)
+            .collect();
         Ok((
             [img.width(), img.height()],
             img.pixels().map(|p| p.0.map(|b| lut[b as usize])).collect(),

@@ -21,13 +21,24 @@ pub const PASS_SHADE: &str = "srbf shade";
 /// Most transfer basis functions (the size of the uniform coefficient array that `srbf
 /// project` reads; a 16 KiB uniform buffer, the smallest maxUniformBufferRange Vulkan allows).
 pub const MAX_BASIS: usize = 1024;
-/// Most projected rows, clusters x (1 + 4 ceil(M / 4)) (`srbf shade`'s uniform array: 64 KiB,
+/// Most projected rows, [`rows_needed`] (`srbf shade`'s uniform array: 64 KiB,
 /// the maxUniformBufferRange of lavapipe and of most desktop GPUs; checked at run time).
 pub const MAX_ROWS: usize = 4096;
 /// Invocations per workgroup of `srbf shade` (its local_size_x): one cluster per workgroup.
 const SHADE_GROUP: usize = 64;
 /// Most workgroups of `srbf shade` (its uniform workgroup-to-cluster table: 64 KiB).
 pub const MAX_SHADE_GROUPS: usize = 16384;
+/// Projected rows per cluster on the GPU: the mean, then the axes padded to whole groups of
+/// eight (one uvec4 of half weights).
+pub fn stride(components: usize) -> usize {
+    1 + 8 * components.div_ceil(8)
+}
+
+/// Projected rows the GPU needs for `clusters` x `components`.
+pub fn rows_needed(clusters: usize, components: usize) -> usize {
+    clusters * stride(components)
+}
+
 /// A padding slot of `srbf shade`.
 const NO_VERTEX: u32 = u32::MAX;
 
@@ -68,7 +79,7 @@ impl<'a> SrbfInputs<'a> {
         if k > MAX_BASIS {
             return bad(format!("{k} basis functions (1..={MAX_BASIS})"));
         }
-        let rows = t.clusters * (1 + 4 * t.components.div_ceil(4));
+        let rows = rows_needed(t.clusters, t.components);
         if rows > MAX_ROWS {
             return bad(format!(
                 "{} clusters x {} components need {rows} projected rows; the GPU path holds \
@@ -89,9 +100,9 @@ struct Layout {
     /// padded to whole workgroups.
     slot_vertex: Vec<u32>,
     group_cluster: Vec<u32>,
-    /// Weights, group-major vec4s over slots.
-    weights: Vec<[f32; 4]>,
-    /// Rows per cluster in `projected`: 1 + 4 ceil(M / 4).
+    /// Weights in half precision, eight per uvec4, group-major over slots.
+    weights: Vec<[u32; 4]>,
+    /// Rows per cluster in `projected`: [`stride`].
     stride: usize,
     /// Rows, group-major vec4s over clusters x stride rows.
     rows: Vec<[f32; 4]>,
@@ -100,8 +111,8 @@ struct Layout {
 impl Layout {
     fn of(t: &Cpca) -> Layout {
         let (k, m) = (t.basis.len(), t.components);
-        let m_groups = m.div_ceil(4);
-        let stride = 1 + 4 * m_groups;
+        let m_groups = m.div_ceil(8);
+        let stride = stride(m);
         let mut members: Vec<Vec<u32>> = vec![Vec::new(); t.clusters];
         for (v, &c) in t.cluster_of.iter().enumerate() {
             members[c as usize].push(v as u32);
@@ -116,14 +127,16 @@ impl Layout {
             }
         }
         let slots = slot_vertex.len();
-        let mut weights = vec![[0f32; 4]; m_groups * slots];
+        let mut weights = vec![[0u32; 4]; m_groups * slots];
         for (slot, &v) in slot_vertex.iter().enumerate() {
             if v == NO_VERTEX {
                 continue;
             }
             let w = &t.weights[v as usize * m..(v as usize + 1) * m];
             for (i, x) in w.iter().enumerate() {
-                weights[(i / 4) * slots + slot][i % 4] = *x;
+                // unpackHalf2x16: the first of a pair in the low 16 bits.
+                let word = &mut weights[(i / 8) * slots + slot][(i % 8) / 2];
+                *word |= (super::cpca::f16_bits(*x) as u32) << (16 * (i % 2));
             }
         }
         let k_groups = k.div_ceil(4);
@@ -396,7 +409,7 @@ impl SrbfKernel {
             .iter()
             .flat_map(|x| x.to_le_bytes())
             .chain(self.slots.to_le_bytes())
-            .chain(self.components.div_ceil(4).to_le_bytes())
+            .chain(self.components.div_ceil(8).to_le_bytes())
             .chain(self.stride.to_le_bytes())
             .collect();
         rec.dispatch_invocations_tracked(&self.shade, &self.shade_bind, &push, [self.slots, 1, 1])

@@ -25,3 +25,44 @@ pub use cpu::{Light, SamplerParams};
 pub use gpu::{SssKernel, SssOutput};
 pub use profile::{Material, Profile, ProfileKind};
 pub use texspace::TexGeometry;
+
+/// The head of BCN_Epileptic (assimp-testmodels, converted to glTF), in metres.
+pub const DEFAULT_MESH: &str = "data/bcn_epileptic.glb";
+/// Millimetres per unit of [`DEFAULT_MESH`] (it is modelled in metres).
+pub const DEFAULT_MESH_MM_PER_UNIT: f64 = 1000.0;
+
+/// The scale to use when none is given: [`DEFAULT_MESH_MM_PER_UNIT`] for the built-in mesh,
+/// 1 (millimetres) for any other.
+pub fn default_mm_per_unit(mesh: &std::path::Path) -> f64 {
+    if mesh == std::path::Path::new(DEFAULT_MESH) {
+        DEFAULT_MESH_MM_PER_UNIT
+    } else {
+        1.0
+    }
+}
+pub const DEFAULT_PART: &str = "Head";
+
+/// Loads `mesh` (the glTF part `part` alone when given).
+pub fn load_mesh(
+    mesh: &std::path::Path,
+    part: Option<&str>,
+) -> crate::error::Result<crate::scene::Mesh> {
+    Ok(load_character(mesh, part)?.mesh)
+}
+
+/// Loads `mesh` with its rig and animations (the glTF part `part` alone when given).
+pub fn load_character(
+    mesh: &std::path::Path,
+    part: Option<&str>,
+) -> crate::error::Result<crate::scene::Character> {
+    match part {
+        #[cfg(feature = "gltf")]
+        Some(name) => crate::scene::gltf_load::load_named(mesh, name),
+        #[cfg(not(feature = "gltf"))]
+        Some(_) => Err(crate::error::Error::feature(
+            format!("selecting a part of {}", mesh.display()),
+            "gltf",
+        )),
+        None => crate::scene::load(mesh),
+    }
+}
