@@ -300,19 +300,40 @@ fn transfer_for(
             .map(|t| format!("{t:?}"))
             .unwrap_or_default()
     );
-    if std::fs::read_to_string(&key_path).ok().as_deref() == Some(key.as_str())
-        && let Ok(t) = Transfer::load(&path)
-        && t.vertices == mesh.positions.len()
-        && t.basis.axes.len() == cfg.basis
+    cached(
+        &key_path,
+        &key,
+        || {
+            Transfer::load(&path)
+                .ok()
+                .filter(|t| t.vertices == mesh.positions.len() && t.basis.len() == cfg.basis)
+        },
+        || diffuse_transfer(&Basis::fibonacci(cfg.basis), dir_env, &mesh.normals, vis),
+        |t| t.save(&path),
+    )
+}
+
+/// A result kept in a file beside a key file: `load` is tried when the stored key equals
+/// `key`, else `compute` runs and `save` stores its result, then the key. Returns the value,
+/// whether it came from the cache, and the compute time in ms (0 when cached).
+fn cached<T>(
+    key_path: &Path,
+    key: &str,
+    load: impl FnOnce() -> Option<T>,
+    compute: impl FnOnce() -> Result<T>,
+    save: impl FnOnce(&T) -> Result<()>,
+) -> Result<(T, bool, f64)> {
+    if std::fs::read_to_string(key_path).ok().as_deref() == Some(key)
+        && let Some(v) = load()
     {
-        return Ok((t, true, 0.0));
+        return Ok((v, true, 0.0));
     }
     let t0 = Instant::now();
-    let t = diffuse_transfer(&Basis::fibonacci(cfg.basis), dir_env, &mesh.normals, vis)?;
+    let v = compute()?;
     let ms = t0.elapsed().as_secs_f64() * 1e3;
-    t.save(&path)?;
-    crate::io::write_atomic(&key_path, key.as_bytes())?;
-    Ok((t, false, ms))
+    save(&v)?;
+    crate::io::write_atomic(key_path, key.as_bytes())?;
+    Ok((v, false, ms))
 }
 
 /// The transfer in the form the GPU runs (clustered PCA, or uncompressed with
@@ -334,20 +355,18 @@ fn cpca_for(
         ..CpcaConfig::default()
     };
     let key = format!("{settings:?}");
-    if transfer_cached
-        && std::fs::read_to_string(&key_path).ok().as_deref() == Some(key.as_str())
-        && let Ok(c) = Cpca::load(&path)
-        && c.vertices == transfer.vertices
-        && c.basis == transfer.basis
-    {
-        return Ok((c, true, 0.0));
-    }
-    let t0 = Instant::now();
-    let c = Cpca::compress(transfer, &settings)?;
-    let ms = t0.elapsed().as_secs_f64() * 1e3;
-    c.save(&path)?;
-    crate::io::write_atomic(&key_path, key.as_bytes())?;
-    Ok((c, false, ms))
+    cached(
+        &key_path,
+        &key,
+        || {
+            // A recomputed transfer invalidates its compression.
+            Cpca::load(&path).ok().filter(|c| {
+                transfer_cached && c.vertices == transfer.vertices && c.basis == transfer.basis
+            })
+        },
+        || Cpca::compress(transfer, &settings),
+        |c| c.save(&path),
+    )
 }
 
 /// Runs `vkshade srbf shade`.

@@ -39,19 +39,16 @@ pub fn with_gpu_features<T>(
         Ok(ctx) => ctx,
         Err(e) => panic!("cannot create a validated context with {features:?}: {e}"),
     };
-    let result = f(&ctx);
-    let messages = shutdown(ctx);
-    let value = match result {
-        Ok(v) => v,
-        Err(e) => panic!("GPU test failed: {e}"),
-    };
-    assert_clean(&messages);
-    value
+    run_checked(ctx, f)
 }
 
 /// Runs `f` on a validated context; fails on any error, validation message or leak.
 pub fn with_gpu<T>(f: impl FnOnce(&Context) -> vkshade::Result<T>) -> T {
-    let ctx = context();
+    run_checked(context(), f)
+}
+
+/// Runs `f` on `ctx`, shuts it down and fails on any error, validation message or leak.
+fn run_checked<T>(ctx: Context, f: impl FnOnce(&Context) -> vkshade::Result<T>) -> T {
     let result = f(&ctx);
     let messages = shutdown(ctx);
     let value = match result {

@@ -539,45 +539,34 @@ fn solve_upper_transposed(l: &[f64], k: usize, b: &[f32]) -> Vec<f64> {
     x
 }
 
-/// Squared distance, in eight independent partial sums (so that it vectorises: a single
+/// sum_i term(a_i, b_i) in eight independent partial sums, so that it vectorises (a single
 /// running sum would have to keep the order of the additions).
+fn sum8(a: &[f32], b: &[f32], term: impl Fn(f32, f32) -> f32) -> f32 {
+    let mut acc = [0f32; 8];
+    let (ca, cb) = (a.chunks_exact(8), b.chunks_exact(8));
+    let tail: f32 = ca
+        .remainder()
+        .iter()
+        .zip(cb.remainder())
+        .map(|(x, y)| term(*x, *y))
+        .sum();
+    for (x, y) in ca.zip(cb) {
+        for i in 0..8 {
+            acc[i] += term(x[i], y[i]);
+        }
+    }
+    acc.iter().sum::<f32>() + tail
+}
+
 fn dist2(a: &[f32], b: &[f32]) -> f32 {
-    let mut acc = [0f32; 8];
-    let (ca, cb) = (a.chunks_exact(8), b.chunks_exact(8));
-    let tail: f32 = ca
-        .remainder()
-        .iter()
-        .zip(cb.remainder())
-        .map(|(x, y)| (x - y) * (x - y))
-        .sum();
-    for (x, y) in ca.zip(cb) {
-        for i in 0..8 {
-            let d = x[i] - y[i];
-            acc[i] += d * d;
-        }
-    }
-    acc.iter().sum::<f32>() + tail
+    sum8(a, b, |x, y| (x - y) * (x - y))
 }
 
-/// Dot product in eight partial sums (see [`dist2`]).
 fn dot_f32(a: &[f32], b: &[f32]) -> f32 {
-    let mut acc = [0f32; 8];
-    let (ca, cb) = (a.chunks_exact(8), b.chunks_exact(8));
-    let tail: f32 = ca
-        .remainder()
-        .iter()
-        .zip(cb.remainder())
-        .map(|(x, y)| x * y)
-        .sum();
-    for (x, y) in ca.zip(cb) {
-        for i in 0..8 {
-            acc[i] += x[i] * y[i];
-        }
-    }
-    acc.iter().sum::<f32>() + tail
+    sum8(a, b, |x, y| x * y)
 }
 
-/// Dot product in four partial sums (see [`dist2`]).
+/// Dot product in four partial sums (see [`sum8`]).
 fn dot_f64(a: &[f64], b: &[f64]) -> f64 {
     let mut acc = [0f64; 4];
     let (ca, cb) = (a.chunks_exact(4), b.chunks_exact(4));
@@ -758,33 +747,26 @@ fn pca(rows: &[&[f32]], k: usize, m: usize, seed: u64) -> ClusterModel {
     let mut rng = Rng::new(seed);
     let mut q: Vec<f64> = (0..b * k).map(|_| rng.f32() as f64 - 0.5).collect();
     orthonormalise(&mut q, k);
-    let mut z = vec![0f64; b * k];
-    for _ in 0..SUBSPACE_ITERATIONS {
-        for (zi, qi) in z.chunks_exact_mut(k).zip(q.chunks_exact(k)) {
-            for (r, out) in zi.iter_mut().enumerate() {
-                *out = dot_f64(&cov[r * k..(r + 1) * k], qi);
+    // The rows of `q` times the (symmetric) covariance.
+    let times_cov = |q: &[f64], out: &mut [f64]| {
+        for (zi, qi) in out.chunks_exact_mut(k).zip(q.chunks_exact(k)) {
+            for (r, o) in zi.iter_mut().enumerate() {
+                *o = dot_f64(&cov[r * k..(r + 1) * k], qi);
             }
         }
+    };
+    let mut z = vec![0f64; b * k];
+    for _ in 0..SUBSPACE_ITERATIONS {
+        times_cov(&q, &mut z);
         std::mem::swap(&mut q, &mut z);
         orthonormalise(&mut q, k);
     }
     // Rayleigh-Ritz: H = Q C Q^T (b x b), its eigenvectors rotate Q.
-    let cq: Vec<f64> = q
-        .chunks_exact(k)
-        .flat_map(|qi| {
-            (0..k)
-                .map(|r| dot_f64(&cov[r * k..(r + 1) * k], qi))
-                .collect::<Vec<_>>()
-        })
-        .collect();
+    times_cov(&q, &mut z);
     let mut h = vec![0f64; b * b];
     for i in 0..b {
         for j in 0..b {
-            h[i * b + j] = q[i * k..(i + 1) * k]
-                .iter()
-                .zip(&cq[j * k..(j + 1) * k])
-                .map(|(a, x)| a * x)
-                .sum();
+            h[i * b + j] = dot_f64(&q[i * k..(i + 1) * k], &z[j * k..(j + 1) * k]);
         }
     }
     let (values, vectors) = jacobi_eigen(h, b);
