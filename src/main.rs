@@ -737,15 +737,7 @@ fn cmd_bench_ao(
         r.gpu_memory_bytes as f64 / (1u64 << 20) as f64,
         r.headline.gpu_memory_reserved_bytes as f64 / (1u64 << 20) as f64
     );
-    for t in &r.targets {
-        println!(
-            "target {:<40} {:>10.4} (target {}) {}",
-            t.name,
-            t.measured,
-            t.target,
-            if t.pass { "PASS" } else { "MISS" }
-        );
-    }
+    print_targets(&r.targets);
     if let Some(path) = &opts.json {
         vkshade::io::write_json(path, &r)?;
         println!("wrote {}", path.display());
@@ -1436,15 +1428,7 @@ fn cmd_bench_btf(
             p.texture_mib
         );
     }
-    for t in &r.targets {
-        println!(
-            "target {:<58} {:>10.2} (target {}) {}",
-            t.name,
-            t.measured,
-            t.target,
-            if t.pass { "PASS" } else { "MISS" }
-        );
-    }
+    print_targets(&r.targets);
     if let Some(path) = &opts.json {
         vkshade::io::write_json(path, &r)?;
         println!("wrote {}", path.display());
@@ -1562,5 +1546,18 @@ fn main() -> ExitCode {
             eprintln!("error: {e}");
             ExitCode::FAILURE
         }
+    }
+}
+
+/// One line per bench target: name, measured, target, PASS or MISS.
+fn print_targets(targets: &[vkshade::bench::ao::TargetCheck]) {
+    for t in targets {
+        println!(
+            "target {:<58} {:>10.4} (target {}) {}",
+            t.name,
+            t.measured,
+            t.target,
+            if t.pass { "PASS" } else { "MISS" }
+        );
     }
 }

@@ -111,6 +111,23 @@ pub struct TargetCheck {
     pub pass: bool,
 }
 
+impl TargetCheck {
+    /// `measured` against `target` (none: no check), which is a floor when `at_least`,
+    /// else a ceiling.
+    pub fn of(name: &str, target: Option<f64>, measured: f64, at_least: bool) -> Option<Self> {
+        target.map(|target| TargetCheck {
+            name: name.to_string(),
+            target,
+            measured,
+            pass: if at_least {
+                measured >= target
+            } else {
+                measured <= target
+            },
+        })
+    }
+}
+
 /// What `bench ao` writes.
 #[derive(Clone, Debug, Serialize)]
 pub struct AoBenchReport {
@@ -543,18 +560,7 @@ fn check_targets(t: &serde_json::Value, headline: &Point, tau_sweep: &[Point]) -
         .find(|p| p.blend == defaults.blend && (p.tau - defaults.tau).abs() < 1e-6)
         .and_then(|p| p.mae)
         .unwrap_or(f64::NAN);
-    let check = |name: &str, target: Option<f64>, measured: f64, at_least: bool| {
-        target.map(|target| TargetCheck {
-            name: name.to_string(),
-            target,
-            measured,
-            pass: if at_least {
-                measured >= target
-            } else {
-                measured <= target
-            },
-        })
-    };
+    let check = TargetCheck::of;
     [
         check(
             "fps (skinning + AO, headline)",

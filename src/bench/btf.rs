@@ -394,18 +394,7 @@ pub fn run(
     let targets_json: serde_json::Value = serde_json::from_str(super::ao::TARGETS)
         .map_err(|e| Error::InvalidArgument(format!("bench/targets.json: {e}")))?;
     let t = &targets_json["btf"];
-    let check = |name: &str, target: Option<f64>, measured: f64, at_least: bool| {
-        target.map(|target| super::ao::TargetCheck {
-            name: name.to_string(),
-            target,
-            measured,
-            pass: if at_least {
-                measured >= target
-            } else {
-                measured <= target
-            },
-        })
-    };
+    let check = super::ao::TargetCheck::of;
     let targets = [
         check(
             "fps (512 x 512 sphere, 1 light, 32 x 32 tile, map 128)",
