@@ -18,6 +18,21 @@ use vkshade::kernels::btf::synth::{Btf, FileFormat, Pattern, SynthConfig, synthe
 use vkshade::kernels::btf::{cpu, load};
 
 /// An 8 x 8 weave, synthesised once per test binary.
+/// Every texture array of `k`, read back and concatenated (submits `rec` and waits).
+fn read_back_arrays(mut rec: vkshade::gpu::Recorder, k: &BtfKernel) -> vkshade::Result<Vec<u8>> {
+    let rbs: Vec<_> = k
+        .arrays()
+        .iter()
+        .map(|a| rec.read_back_image(a, ImageRegion::whole(a.desc())))
+        .collect::<vkshade::Result<_>>()?;
+    rec.submit_and_wait()?;
+    let mut back = Vec::new();
+    for rb in rbs {
+        back.extend(rb.bytes()?);
+    }
+    Ok(back)
+}
+
 fn weave() -> &'static (SynthConfig, Btf) {
     static B: OnceLock<(SynthConfig, Btf)> = OnceLock::new();
     B.get_or_init(|| {
@@ -105,16 +120,7 @@ fn packing_round_trips_through_the_array_textures() {
             if cap.is_some() {
                 assert_eq!((p.layers_per_array, p.arrays), (1700, 4));
             }
-            let rbs: Vec<_> = k
-                .arrays()
-                .iter()
-                .map(|a| rec.read_back_image(a, ImageRegion::whole(a.desc())))
-                .collect::<vkshade::Result<_>>()?;
-            rec.submit_and_wait()?;
-            let mut back = Vec::new();
-            for rb in rbs {
-                back.extend(rb.bytes()?);
-            }
+            let back = read_back_arrays(rec, &k)?;
             let want = p.arrange(&packed);
             assert_eq!(back.len(), want.len(), "{layout:?}");
             assert!(
@@ -153,16 +159,7 @@ fn packing_round_trips_through_the_array_textures() {
                 layer_cap: Some(1700),
             },
         )?;
-        let rbs: Vec<_> = k
-            .arrays()
-            .iter()
-            .map(|a| rec.read_back_image(a, ImageRegion::whole(a.desc())))
-            .collect::<vkshade::Result<_>>()?;
-        rec.submit_and_wait()?;
-        let mut back = Vec::new();
-        for rb in rbs {
-            back.extend(rb.bytes()?);
-        }
+        let back = read_back_arrays(rec, &k)?;
         let want = encode_bc1(btf);
         assert_eq!(want.len(), 6561 * 4 * 8);
         assert!(back == want, "BC1 blocks differ after the round trip");
