@@ -193,6 +193,13 @@ struct SrbfShadeArgs {
     /// Width of the downsampled map the lobes are fitted to.
     #[arg(long, default_value_t = 128)]
     fit_width: u32,
+    /// Lobes sharper than this factor x the basis sharpness (a sun, a lamp) are shaded from
+    /// the ray-cast visibility instead of through the smooth transfer basis (0: off).
+    #[arg(long, default_value_t = vkshade::kernels::srbf::sharp::DEFAULT_FACTOR)]
+    sharp_factor: f32,
+    /// The most compact lobes shaded from the visibility, the strongest first (0: off).
+    #[arg(long, default_value_t = vkshade::kernels::srbf::sharp::DEFAULT_MAX_LOBES)]
+    compact_lobes: usize,
     #[arg(long, default_value_t = 2)]
     in_flight: usize,
     #[arg(long, default_value = "out/srbf")]
@@ -882,8 +889,9 @@ fn cmd_bench_srbf(g: &Global, opts: &BenchOpts, quick: bool) -> Result<()> {
     let h = &r.headline;
     println!("device                 {}", r.machine.device);
     println!(
-        "headline               {} lobes x {} basis x {} vertices, {} clusters x {} components (compression error {:.4}): lighting {:.3} + project {:.3} + shade {:.3} ms (median GPU) = {:.0} fps",
+        "headline               {} lobes ({} compact) x {} basis x {} vertices, {} clusters x {} components (compression error {:.4}): lighting {:.3} + project {:.3} + sharp {:.3} + shade {:.3} ms (median GPU) = {:.0} fps",
         h.lobes,
+        h.compact_lobes,
         h.basis,
         h.vertices,
         h.clusters,
@@ -891,6 +899,7 @@ fn cmd_bench_srbf(g: &Global, opts: &BenchOpts, quick: bool) -> Result<()> {
         r.headline_cpca_rel_l2,
         h.lighting_ms.median,
         h.project_ms.median,
+        h.sharp_ms.median,
         h.shade_ms.median,
         h.fps
     );
@@ -1096,6 +1105,8 @@ fn cmd_srbf(g: &Global, cmd: &SrbfCommand) -> Result<()> {
                 reference: a.reference,
                 direction_width: a.directions,
                 fit_width: a.fit_width,
+                sharp_factor: a.sharp_factor,
+                compact_lobes: a.compact_lobes,
                 in_flight: a.in_flight,
                 out: a.out.clone(),
                 ..Default::default()
@@ -1104,16 +1115,18 @@ fn cmd_srbf(g: &Global, cmd: &SrbfCommand) -> Result<()> {
             eprintln!("vkshade srbf shade on {}", ctx.info().name);
             let r = srbf::shade(&ctx, &cfg, &mut |l| progress(l))?;
             println!(
-                "{} frames of {} ({} vertices), {} lobes x {} basis ({} clusters x {} components): lighting {:.3} + project {:.3} + shade {:.3} ms GPU (median) = {:.0} fps; fit error {:.4}, transfer projection error {:.4}, compression error {:.4}",
+                "{} frames of {} ({} vertices), {} lobes ({} compact) x {} basis ({} clusters x {} components): lighting {:.3} + project {:.3} + sharp {:.3} + shade {:.3} ms GPU (median) = {:.0} fps; fit error {:.4}, transfer projection error {:.4}, compression error {:.4}",
                 r.frames.len(),
                 r.mesh,
                 r.vertices,
                 r.lobes,
+                r.compact_lobes,
                 r.basis,
                 r.clusters,
                 r.components,
                 r.gpu_ms_lighting_median,
                 r.gpu_ms_project_median,
+                r.gpu_ms_sharp_median,
                 r.gpu_ms_shade_median,
                 r.fps,
                 r.fit_rel_l2,

@@ -8,6 +8,10 @@
 // half precision, eight per uvec4, group-major: w8[g * slots + slot], neighbouring
 // invocations reading neighbouring uvec4s (half the loads of f32 weights: on lavapipe every
 // per-lane load is a gather). A padding slot (vertex index ~0u) computes and writes nothing.
+// Compact lobes (src/kernels/srbf/sharp.rs) add sum_t weight_t V(w_t) max(0, n . w_t) over the
+// taps of pass `srbf sharp` (a uniform buffer read at uniform indices), from the vertex's
+// normal and visibility bits (word-major over slots: bits[word * slots + slot], so that a
+// workgroup reads 64 neighbouring words). Branch-free: a bit is a factor 0 or 1.
 layout(local_size_x = 64) in;
 
 layout(push_constant) uniform Push {
@@ -15,6 +19,7 @@ layout(push_constant) uniform Push {
     uint slots;    // 64 x workgroups
     uint groups;   // ceil(components / 8)
     uint stride;   // projected rows per cluster: 1 + 8 * groups
+    uint taps;     // compact lobes (one tap each)
 } pc;
 
 layout(std430, set = 0, binding = 0) readonly buffer Weights { uvec4 w[]; } weights;
@@ -28,6 +33,12 @@ layout(std140, set = 0, binding = 2) uniform Groups { uvec4 c[MAX_GROUPS / 4u]; 
 const uint MAX_ROWS = 4096u;
 layout(std140, set = 0, binding = 3) uniform Projected { vec4 v[MAX_ROWS]; } projected;
 layout(std430, set = 0, binding = 4) writeonly buffer Radiance { vec4 v[]; } radiance;
+layout(std430, set = 0, binding = 5) readonly buffer Normals { vec4 v[]; } normals;  // per slot
+layout(std430, set = 0, binding = 6) readonly buffer Visible { uint w[]; } visible;
+const uint MAX_TAPS = 32u;   // sharp::MAX_LOBES
+// Pass `srbf sharp`'s output, two vec4 per tap: (direction xyz, texel index as float bits),
+// (weight rgb, 0).
+layout(std140, set = 0, binding = 7) uniform Taps { vec4 v[2u * MAX_TAPS]; } taps;
 
 void main() {
     uint slot = gl_GlobalInvocationID.x;
@@ -49,6 +60,16 @@ void main() {
             + c.x * projected.v[k + 4u].rgb + c.y * projected.v[k + 5u].rgb
             + d.x * projected.v[k + 6u].rgb + d.y * projected.v[k + 7u].rgb;
         index += pc.slots;
+    }
+    if (pc.taps > 0u) {
+        vec3 n = normals.v[slot].xyz;
+        for (uint t = 0u; t < pc.taps; t++) {
+            vec4 d = taps.v[2u * t];
+            uint texel = floatBitsToUint(d.w);
+            uint bits = visible.w[(texel >> 5u) * pc.slots + slot];
+            float seen = float((bits >> (texel & 31u)) & 1u);
+            sum += taps.v[2u * t + 1u].rgb * (seen * max(dot(n, d.xyz), 0.0));
+        }
     }
     if (vertex != 0xFFFFFFFFu) {
         radiance.v[vertex] = vec4(pc.albedo.rgb * sum, 1.0);

@@ -9,13 +9,14 @@ use crate::kernels::srbf::cpca::{Cpca, CpcaConfig};
 use crate::kernels::srbf::diffuse_transfer;
 use crate::kernels::srbf::fit::{FitConfig, fit};
 use crate::kernels::srbf::gpu::{
-    PASS_LIGHTING, PASS_PROJECT, PASS_SHADE, SrbfFrame, SrbfInputs, SrbfKernel,
+    CompactInputs, PASS_LIGHTING, PASS_PROJECT, PASS_SHADE, PASS_SHARP, SrbfFrame, SrbfInputs,
+    SrbfKernel,
 };
 use crate::kernels::srbf::sg::{self, Lobe};
 use crate::kernels::srbf::transfer::{self, Basis, Transfer};
 use crate::kernels::{KernelInfo, run_frames};
 use crate::reference::srbf::{
-    Visibility, mesh_visibility, rasterise_lobes, shade_brute_force, shade_brute_force_radiance,
+    Visibility, mesh_visibility, rasterise_lobes, shade_brute_force_radiance, shade_ground_truth,
 };
 use crate::report::MachineInfo;
 use crate::scene::envmap::EnvMap;
@@ -87,6 +88,11 @@ pub struct ShadeConfig {
     /// Relative error at the top of the heat map.
     pub error_scale: f32,
     pub in_flight: usize,
+    /// Lobes sharper than this factor x the basis sharpness are shaded from the visibility
+    /// instead of through the basis ([`crate::kernels::srbf::sharp`]); 0 turns it off.
+    pub sharp_factor: f32,
+    /// The most compact lobes shaded directly (the strongest; 0 turns it off).
+    pub compact_lobes: usize,
 }
 
 impl Default for ShadeConfig {
@@ -108,6 +114,8 @@ impl Default for ShadeConfig {
             image: (640, 480),
             error_scale: 0.1,
             in_flight: 2,
+            sharp_factor: crate::kernels::srbf::sharp::DEFAULT_FACTOR,
+            compact_lobes: crate::kernels::srbf::sharp::DEFAULT_MAX_LOBES,
         }
     }
 }
@@ -156,6 +164,19 @@ impl ShadeConfig {
             return bad(format!(
                 "--in-flight must be in 1..=16, not {}",
                 self.in_flight
+            ));
+        }
+        if !(self.sharp_factor.is_finite() && self.sharp_factor >= 0.0) {
+            return bad(format!(
+                "--sharp-factor must be finite and >= 0 (0: off), not {}",
+                self.sharp_factor
+            ));
+        }
+        let max_compact = crate::kernels::srbf::sharp::MAX_LOBES;
+        if self.compact_lobes > max_compact {
+            return bad(format!(
+                "--compact-lobes must be in 0..={max_compact}, not {}",
+                self.compact_lobes
             ));
         }
         if !(self.error_scale.is_finite() && self.error_scale > 0.0) {
@@ -221,6 +242,8 @@ pub struct FrameReport {
     pub rotation: [f32; 9],
     pub gpu_ms_lighting: f64,
     pub gpu_ms_project: f64,
+    /// Taps of the compact lobes (see `compact_lobes`).
+    pub gpu_ms_sharp: f64,
     pub gpu_ms_shade: f64,
     /// GPU against the same pipeline on the CPU (f64).
     pub gpu_vs_cpu: RelL2,
@@ -250,6 +273,10 @@ pub struct ShadeReport {
     pub env: String,
     pub env_size: [u32; 2],
     pub lobes: usize,
+    /// Of the lobes, those sharper than `sharp_factor` x the basis sharpness: shaded from the
+    /// visibility at the grid's texel directions, not through the basis.
+    pub compact_lobes: usize,
+    pub sharp_factor: f32,
     pub basis: usize,
     pub basis_sharpness: f32,
     pub albedo: [f32; 3],
@@ -274,6 +301,7 @@ pub struct ShadeReport {
     pub frames: Vec<FrameReport>,
     pub gpu_ms_lighting_median: f64,
     pub gpu_ms_project_median: f64,
+    pub gpu_ms_sharp_median: f64,
     pub gpu_ms_shade_median: f64,
     pub fps: f64,
     pub notes: Vec<String>,
@@ -429,7 +457,27 @@ pub fn shade(
         ));
     }
     let mut setup = ctx.recorder("srbf setup")?;
-    let kernel = SrbfKernel::new(&mut setup, &SrbfInputs::new(&fitted.lobes, &cpca))?;
+    let compact = CompactInputs {
+        visibility: &vis,
+        normals: &mesh.normals,
+        width: dir_env.width,
+        height: dir_env.height,
+        factor: cfg.sharp_factor,
+        max_lobes: cfg.compact_lobes,
+    };
+    let inputs = SrbfInputs::new(&fitted.lobes, &cpca).with_compact(compact);
+    let (smooth, _) = inputs.split();
+    let kernel = SrbfKernel::new(&mut setup, &inputs)?;
+    if kernel.compact_count() > 0 {
+        progress(&format!(
+            "{} compact lobes (sharpness > {} x {:.1}, >= {}% of the energy) shaded from the \
+             visibility",
+            kernel.compact_count(),
+            cfg.sharp_factor,
+            transfer.basis.sharpness,
+            crate::kernels::srbf::sharp::MIN_SHARE * 100.0
+        ));
+    }
     setup.submit_and_wait()?;
     let rotations = cfg.rotations();
     let frames_in: Vec<SrbfFrame> = rotations
@@ -443,14 +491,14 @@ pub fn shade(
     let mut frames = Vec::with_capacity(frames_in.len());
     let in_flight = run_frames(ctx, &kernel, &frames_in, cfg.in_flight, |r| {
         let frame = &frames_in[r.index];
-        let cpu = cpu_pipeline(&fitted.lobes, &cpca, frame)?;
+        let cpu = inputs.cpu_pipeline(frame)?;
         let gpu: Vec<[f64; 3]> = r.output.iter().map(|c| c.map(|x| x as f64)).collect();
         let truth = if cfg.reference {
-            Some(shade_brute_force(
+            Some(shade_ground_truth(
                 &dir_env,
                 frame.rotation,
-                &mesh.normals,
-                &vis,
+                mesh,
+                Some(&vis),
                 cfg.albedo,
             )?)
         } else {
@@ -458,12 +506,13 @@ pub fn shade(
         };
         let (mut uncompressed, mut fit_share, mut transfer_share) = (None, None, None);
         if let Some(t) = &truth {
-            let coeffs =
-                transfer::lighting_coefficients(&fitted.lobes, frame.rotation, &transfer.basis);
-            let exact: Vec<[f64; 3]> = transfer::shade(&transfer, &coeffs, frame.albedo)?
+            // The uncompressed transfer: the basis path in f32, plus the compact lobes.
+            let coeffs = transfer::lighting_coefficients(&smooth, frame.rotation, &transfer.basis);
+            let mut exact: Vec<[f64; 3]> = transfer::shade(&transfer, &coeffs, frame.albedo)?
                 .iter()
                 .map(|c| c.map(|x| x as f64))
                 .collect();
+            inputs.add_compact(frame, &mut exact)?;
             let lobes = rasterise_lobes(&fitted.lobes, frame.rotation, &dir_env);
             let sg_truth =
                 shade_brute_force_radiance(&dir_env, &lobes, &mesh.normals, &vis, cfg.albedo)?;
@@ -476,6 +525,7 @@ pub fn shade(
             rotation: frame.rotation.to_cols_array(),
             gpu_ms_lighting: r.timings.get(PASS_LIGHTING).unwrap_or(f64::NAN),
             gpu_ms_project: r.timings.get(PASS_PROJECT).unwrap_or(f64::NAN),
+            gpu_ms_sharp: r.timings.get(PASS_SHARP).unwrap_or(f64::NAN),
             gpu_ms_shade: r.timings.get(PASS_SHADE).unwrap_or(f64::NAN),
             gpu_vs_cpu: RelL2::of(&gpu, &cpu),
             vs_ground_truth: truth.as_ref().map(|t| RelL2::of(&gpu, t)),
@@ -487,10 +537,12 @@ pub fn shade(
         };
         let report = pictures.write(report, &character.mesh, &gpu, truth.as_deref())?;
         progress(&format!(
-            "frame {}: lighting {:.3} + project {:.3} + shade {:.3} ms GPU; GPU vs CPU {:.1e}{}",
+            "frame {}: lighting {:.3} + project {:.3} + sharp {:.3} + shade {:.3} ms GPU; GPU vs \
+             CPU {:.1e}{}",
             r.index,
             report.gpu_ms_lighting,
             report.gpu_ms_project,
+            report.gpu_ms_sharp,
             report.gpu_ms_shade,
             report.gpu_vs_cpu.all,
             match (
@@ -517,6 +569,7 @@ pub fn shade(
     };
     let lighting = median(&|f| f.gpu_ms_lighting);
     let project_ms = median(&|f| f.gpu_ms_project);
+    let sharp_ms = median(&|f| f.gpu_ms_sharp);
     let shade_ms = median(&|f| f.gpu_ms_shade);
     let mut notes = Vec::new();
     if ctx.info().device_type == "CPU" {
@@ -536,6 +589,8 @@ pub fn shade(
         env: cfg.env.display().to_string(),
         env_size: [env.width, env.height],
         lobes: cfg.lobes,
+        compact_lobes: kernel.compact_count(),
+        sharp_factor: cfg.sharp_factor,
         basis: transfer.basis.axes.len(),
         basis_sharpness: transfer.basis.sharpness,
         albedo: cfg.albedo,
@@ -554,23 +609,14 @@ pub fn shade(
         kernel: KernelInfo::of(&kernel, in_flight),
         gpu_ms_lighting_median: lighting,
         gpu_ms_project_median: project_ms,
+        gpu_ms_sharp_median: sharp_ms,
         gpu_ms_shade_median: shade_ms,
-        fps: 1000.0 / (lighting + project_ms + shade_ms),
+        fps: 1000.0 / (lighting + project_ms + sharp_ms + shade_ms),
         frames,
         notes,
     };
     crate::io::write_json(&cfg.out.join("report.json"), &report)?;
     Ok(report)
-}
-
-/// The same pipeline as the GPU, on the CPU (f64 accumulation of the f32 inputs).
-pub fn cpu_pipeline(lobes: &[Lobe], transfer: &Cpca, frame: &SrbfFrame) -> Result<Vec<[f64; 3]>> {
-    let coeffs = transfer::lighting_coefficients(lobes, frame.rotation, &transfer.basis);
-    Ok(transfer
-        .shade(&coeffs, frame.albedo)?
-        .iter()
-        .map(|c| c.map(|x| x as f64))
-        .collect())
 }
 
 /// Writes each frame's PLY and PNG (result, or result | truth | relative error).

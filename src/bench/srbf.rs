@@ -12,10 +12,11 @@ use crate::kernels::srbf::cpca::{Cpca, CpcaConfig};
 use crate::kernels::srbf::diffuse_transfer;
 use crate::kernels::srbf::fit::{FitConfig, fit};
 use crate::kernels::srbf::gpu::{
-    PASS_LIGHTING, PASS_PROJECT, PASS_SHADE, SrbfFrame, SrbfInputs, SrbfKernel,
+    CompactInputs, PASS_LIGHTING, PASS_PROJECT, PASS_SHADE, PASS_SHARP, SrbfFrame, SrbfInputs,
+    SrbfKernel,
 };
 use crate::kernels::srbf::sg::{self, Lobe};
-use crate::kernels::srbf::transfer::{self, Basis};
+use crate::kernels::srbf::transfer::Basis;
 use crate::kernels::{Kernel, shape::time_passes};
 use crate::reference::srbf::{mesh_visibility, shade_brute_force};
 use crate::scene::envmap::EnvMap;
@@ -81,7 +82,11 @@ pub struct Point {
     pub components: usize,
     pub lighting_ms: Stats,
     pub project_ms: Stats,
+    /// Taps of the compact lobes (see `compact_lobes`).
+    pub sharp_ms: Stats,
     pub shade_ms: Stats,
+    /// Lobes shaded from the visibility instead of through the basis (0 without it).
+    pub compact_lobes: usize,
     pub total_ms: f64,
     pub fps: f64,
     pub gflop_per_frame: f64,
@@ -148,11 +153,14 @@ fn measure(
     cfg: &BenchConfig,
     lobes: &[Lobe],
     t: &Cpca,
+    compact: Option<CompactInputs<'_>>,
     compressed: bool,
     peak: f64,
 ) -> Result<Point> {
     let mut setup = ctx.recorder("srbf bench setup")?;
-    let kernel = SrbfKernel::new(&mut setup, &SrbfInputs::new(lobes, t))?;
+    let mut inputs = SrbfInputs::new(lobes, t);
+    inputs.compact = compact;
+    let kernel = SrbfKernel::new(&mut setup, &inputs)?;
     setup.submit_and_wait()?;
     let frame = SrbfFrame {
         rotation: sg::rotation(Vec3::Y, 30.0),
@@ -166,8 +174,13 @@ fn measure(
             .map(|(_, s)| s.clone())
             .unwrap_or_else(Stats::none)
     };
-    let (lighting, project, shade) = (get(PASS_LIGHTING), get(PASS_PROJECT), get(PASS_SHADE));
-    let total = lighting.median + project.median + shade.median;
+    let (lighting, project, sharp, shade) = (
+        get(PASS_LIGHTING),
+        get(PASS_PROJECT),
+        get(PASS_SHARP),
+        get(PASS_SHADE),
+    );
+    let total = lighting.median + project.median + sharp.median + shade.median;
     let k = t.basis.len() as f64;
     let rows = (t.clusters * (t.components + 1)) as f64;
     let flop = lobes.len() as f64 * k * flop_model::LIGHTING_PAIR
@@ -183,7 +196,9 @@ fn measure(
         components: if compressed { t.components } else { 0 },
         lighting_ms: lighting,
         project_ms: project,
+        sharp_ms: sharp,
         shade_ms: shade,
+        compact_lobes: kernel.compact_count(),
         total_ms: total,
         fps: 1000.0 / total,
         gflop_per_frame: flop * 1e-9,
@@ -223,13 +238,32 @@ pub fn run(
     let vis = mesh_visibility(mesh, &dir_env);
     let real = diffuse_transfer(&Basis::fibonacci(hk), &dir_env, &mesh.normals, &vis)?;
     let cpca = Cpca::compress(&real, &cfg.cpca)?;
-    let headline = measure(ctx, &cfg.bench, &fitted.lobes, &cpca, true, peak)?;
+    // The shipped default: compact lobes shaded from the visibility.
+    let compact = CompactInputs {
+        visibility: &vis,
+        normals: &mesh.normals,
+        width: dir_env.width,
+        height: dir_env.height,
+        factor: crate::kernels::srbf::sharp::DEFAULT_FACTOR,
+        max_lobes: crate::kernels::srbf::sharp::DEFAULT_MAX_LOBES,
+    };
+    let headline = measure(
+        ctx,
+        &cfg.bench,
+        &fitted.lobes,
+        &cpca,
+        Some(compact),
+        true,
+        peak,
+    )?;
     progress(&format!(
-        "headline: {hl} lobes x {hk} basis x {nv} vertices, {} clusters x {} components: lighting {:.3} + project {:.3} + shade {:.3} ms = {:.0} fps, {:.1} GFLOP/s ({:.1}% of peak)",
+        "headline: {hl} lobes ({} compact) x {hk} basis x {nv} vertices, {} clusters x {} components: lighting {:.3} + project {:.3} + sharp {:.3} + shade {:.3} ms = {:.0} fps, {:.1} GFLOP/s ({:.1}% of peak)",
+        headline.compact_lobes,
         cpca.clusters,
         cpca.components,
         headline.lighting_ms.median,
         headline.project_ms.median,
+        headline.sharp_ms.median,
         headline.shade_ms.median,
         headline.fps,
         headline.gflops,
@@ -240,6 +274,7 @@ pub fn run(
         &cfg.bench,
         &fitted.lobes,
         &Cpca::exact(&real),
+        Some(compact),
         false,
         peak,
     )?;
@@ -253,10 +288,8 @@ pub fn run(
         rotation: sg::rotation(Vec3::Y, 30.0),
         albedo: [1.0; 3],
     };
-    let cpu = time_cpu(cfg.cpu_runs, || {
-        let c = transfer::lighting_coefficients(&fitted.lobes, frame.rotation, &cpca.basis);
-        cpca.shade(&c, frame.albedo)
-    });
+    let cpu_inputs = SrbfInputs::new(&fitted.lobes, &cpca).with_compact(compact);
+    let cpu = time_cpu(cfg.cpu_runs, || cpu_inputs.cpu_pipeline(&frame));
     progress(&format!("CPU same method: {:.2} ms", cpu.median));
     let brute = time_cpu(1, || {
         shade_brute_force(&dir_env, frame.rotation, &mesh.normals, &vis, frame.albedo)
@@ -287,7 +320,15 @@ pub fn run(
             }
             let t = synthetic_cpca(k, v, &cfg.cpca, 2);
             for &l in &cfg.lobes {
-                let p = measure(ctx, &cfg.bench, &synthetic_lobes(l, 3), &t, true, peak)?;
+                let p = measure(
+                    ctx,
+                    &cfg.bench,
+                    &synthetic_lobes(l, 3),
+                    &t,
+                    None,
+                    true,
+                    peak,
+                )?;
                 progress(&format!(
                     "  {l} lobes x {k} basis x {v} vertices: {:.3} ms ({:.1} GFLOP/s)",
                     p.total_ms, p.gflops

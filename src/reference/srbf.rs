@@ -60,6 +60,15 @@ impl Visibility {
             .sum()
     }
 
+    /// Bits 32 w .. 32 w + 31 of `vertex`'s row (direction d is bit d % 32 of word d / 32);
+    /// 0 out of range.
+    pub fn word32(&self, vertex: usize, word: usize) -> u32 {
+        if vertex >= self.vertices || word >= self.words * 2 {
+            return 0;
+        }
+        (self.bits[vertex * self.words + word / 2] >> (32 * (word % 2))) as u32
+    }
+
     fn row(&self, vertex: usize) -> &[u64] {
         &self.bits[vertex * self.words..(vertex + 1) * self.words]
     }
@@ -158,8 +167,91 @@ pub fn shade_brute_force(
             vis.vertices
         )));
     }
+    check_rotation_and_albedo(rotation, albedo)?;
     let rt = rotation.transpose();
-    let gram = rt * rotation;
+    // The rotated radiance times the solid angle does not depend on the vertex.
+    let weighted: Vec<[f64; 3]> = samples
+        .par_iter()
+        .map(|(w, d_omega, _)| {
+            let l = env.lookup(rt * *w);
+            l.map(|c| c as f64 * d_omega)
+        })
+        .collect();
+    Ok(sum_visible(&samples, &weighted, normals, vis, albedo))
+}
+
+/// The ground truth under any rotation: the rotation moves the map's texel directions
+/// instead of resampling the map,
+///
+/// ```text
+/// B_v = (rho / pi) * sum_p L_p dOmega_p V_v(R w_p) max(0, n . R w_p)
+/// ```
+///
+/// (the change of variables w = R w' in the integral of L(R^-1 w) V(w) cos), with the
+/// visibility ray-cast along every rotated direction (BVH of `mesh`, rays from
+/// p + 1e-4 diagonal x n). Every texel keeps its radiance and exact solid angle, so a
+/// one-texel sun keeps its energy at any rotation; [`shade_brute_force`]'s nearest-texel
+/// lookup of the rotated map drops or doubles such a texel for rotations that do not map the
+/// grid onto itself (it equals this sum for rotations about +Y by multiples of 360 / W
+/// degrees). Costs a ray per (vertex, texel) per call, except for those rotations when
+/// `grid_visibility` (the visibility of `env`'s own texel directions, [`mesh_visibility`]) is
+/// given: then it is [`shade_brute_force`] with it, the same sum.
+pub fn shade_ground_truth(
+    env: &EnvMap,
+    rotation: Mat3,
+    mesh: &crate::scene::Mesh,
+    grid_visibility: Option<&Visibility>,
+    albedo: [f32; 3],
+) -> Result<Vec<[f64; 3]>> {
+    check_rotation_and_albedo(rotation, albedo)?;
+    if let Some(vis) = grid_visibility {
+        if maps_grid_onto_itself(env, rotation) {
+            // The rotated directions are the grid's own: the precomputed visibility is exact.
+            return shade_brute_force(env, rotation, &mesh.normals, vis, albedo);
+        }
+    }
+    let samples = env.samples();
+    let rotated: Vec<(Vec3, f64, [f32; 3])> = samples
+        .iter()
+        .map(|(w, d_omega, l)| ((rotation * *w).normalize(), *d_omega, *l))
+        .collect();
+    let directions: Vec<Vec3> = rotated.iter().map(|s| s.0).collect();
+    let (lo, hi) = mesh.bounds();
+    let bvh = Bvh::build(&mesh.positions, &mesh.triangles);
+    let vis = visibility(
+        &mesh.positions,
+        &mesh.normals,
+        &bvh,
+        &directions,
+        1e-4 * (hi - lo).length(),
+    );
+    let weighted: Vec<[f64; 3]> = rotated
+        .iter()
+        .map(|(_, d_omega, l)| l.map(|c| c as f64 * d_omega))
+        .collect();
+    Ok(sum_visible(
+        &rotated,
+        &weighted,
+        &mesh.normals,
+        &vis,
+        albedo,
+    ))
+}
+
+/// Whether `rotation` is about +Y by a multiple of 360 / W degrees (to 1e-4 of a column), so
+/// that it maps the texel centres of `env` onto texel centres.
+fn maps_grid_onto_itself(env: &EnvMap, rotation: Mat3) -> bool {
+    let x = rotation * Vec3::X;
+    if (rotation * Vec3::Y - Vec3::Y).length() > 1e-6 {
+        return false;
+    }
+    let angle = (-x.z as f64).atan2(x.x as f64);
+    let columns = angle * env.width as f64 / std::f64::consts::TAU;
+    (columns - columns.round()).abs() < 1e-4
+}
+
+fn check_rotation_and_albedo(rotation: Mat3, albedo: [f32; 3]) -> Result<()> {
+    let gram = rotation.transpose() * rotation;
     let off = (gram - Mat3::IDENTITY).to_cols_array().map(f32::abs);
     if !rotation.is_finite() || off.iter().any(|&e| e > 1e-4) || rotation.determinant() <= 0.0 {
         return Err(Error::InvalidArgument(format!(
@@ -171,15 +263,7 @@ pub fn shade_brute_force(
             "albedo {albedo:?} must be finite and non-negative"
         )));
     }
-    // The rotated radiance times the solid angle does not depend on the vertex.
-    let weighted: Vec<[f64; 3]> = samples
-        .par_iter()
-        .map(|(w, d_omega, _)| {
-            let l = env.lookup(rt * *w);
-            l.map(|c| c as f64 * d_omega)
-        })
-        .collect();
-    Ok(sum_visible(&samples, &weighted, normals, vis, albedo))
+    Ok(())
 }
 
 /// The same sum with the radiance of every texel of `env` given directly (`radiance[p]` for

@@ -6,17 +6,20 @@
 
 use super::cpca::Cpca;
 use super::sg::Lobe;
+use super::{sharp, transfer};
 use crate::error::{Error, Result};
 use crate::gpu::{
     AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context,
     MemoryReport, PlannedBarrier, Readback, Recorder, Resource,
 };
 use crate::kernels::{Kernel, PassInfo, UseInfo};
+use crate::reference::srbf::Visibility;
 use ash::vk;
-use glam::Mat3;
+use glam::{Mat3, Vec3};
 
 pub const PASS_LIGHTING: &str = "srbf lighting";
 pub const PASS_PROJECT: &str = "srbf project";
+pub const PASS_SHARP: &str = "srbf sharp";
 pub const PASS_SHADE: &str = "srbf shade";
 /// Most transfer basis functions (the size of the uniform coefficient array that `srbf
 /// project` reads; a 16 KiB uniform buffer, the smallest maxUniformBufferRange Vulkan allows).
@@ -50,17 +53,89 @@ pub struct SrbfFrame {
     pub albedo: [f32; 3],
 }
 
+/// Most compact-lobe taps (`srbf shade`'s uniform array).
+pub const MAX_TAPS: usize = 32;
+const _: () = assert!(sharp::MAX_LOBES <= MAX_TAPS);
+
 /// What the kernel is built from: the lighting lobes and the per-vertex transfer in
 /// clustered-PCA form on a basis of spherical Gaussians ([`Cpca::exact`] for the
-/// uncompressed transfer).
+/// uncompressed transfer), and optionally the visibility that compact lobes are shaded from
+/// ([`super::sharp`]).
 pub struct SrbfInputs<'a> {
     pub lobes: &'a [Lobe],
     pub transfer: &'a Cpca,
+    pub compact: Option<CompactInputs<'a>>,
+}
+
+/// The per-vertex data for shading compact lobes directly: the visibility cast for the
+/// texel centres of a `width` x `height` equirectangular grid, the vertex normals, and the
+/// sharpness factor and the most lobes to shade directly ([`super::sharp::split`]).
+#[derive(Clone, Copy)]
+pub struct CompactInputs<'a> {
+    pub visibility: &'a Visibility,
+    pub normals: &'a [Vec3],
+    pub width: u32,
+    pub height: u32,
+    pub factor: f32,
+    pub max_lobes: usize,
 }
 
 impl<'a> SrbfInputs<'a> {
     pub fn new(lobes: &'a [Lobe], transfer: &'a Cpca) -> Self {
-        SrbfInputs { lobes, transfer }
+        SrbfInputs {
+            lobes,
+            transfer,
+            compact: None,
+        }
+    }
+
+    /// The same, with compact lobes shaded from `compact`'s visibility.
+    pub fn with_compact(mut self, compact: CompactInputs<'a>) -> Self {
+        self.compact = Some(compact);
+        self
+    }
+
+    /// (lobes through the basis, compact lobes).
+    pub fn split(&self) -> (Vec<Lobe>, Vec<Lobe>) {
+        match &self.compact {
+            Some(c) => sharp::split(
+                self.lobes,
+                self.transfer.basis.sharpness,
+                c.factor,
+                c.max_lobes,
+            ),
+            None => (self.lobes.to_vec(), Vec::new()),
+        }
+    }
+
+    /// The CPU twin of the whole GPU pipeline for one frame (f32 inputs, f64 results).
+    pub fn cpu_pipeline(&self, frame: &SrbfFrame) -> Result<Vec<[f64; 3]>> {
+        let (smooth, _) = self.split();
+        let coeffs = transfer::lighting_coefficients(&smooth, frame.rotation, &self.transfer.basis);
+        let mut out: Vec<[f64; 3]> = self
+            .transfer
+            .shade(&coeffs, frame.albedo)?
+            .iter()
+            .map(|c| c.map(|x| x as f64))
+            .collect();
+        self.add_compact(frame, &mut out)?;
+        Ok(out)
+    }
+
+    /// Adds the compact lobes' radiance (albedo included) to `out` (one entry per vertex);
+    /// nothing when there are none.
+    pub fn add_compact(&self, frame: &SrbfFrame, out: &mut [[f64; 3]]) -> Result<()> {
+        let (_, compact) = self.split();
+        if let (Some(c), false) = (&self.compact, compact.is_empty()) {
+            let taps = sharp::taps(&compact, frame.rotation, c.width, c.height);
+            let direct = sharp::shade(&taps, c.normals, c.visibility)?;
+            for (o, d) in out.iter_mut().zip(direct) {
+                for ch in 0..3 {
+                    o[ch] += (frame.albedo[ch] * d[ch]) as f64;
+                }
+            }
+        }
+        Ok(())
     }
 
     /// Checks sizes and values (the shaders index with them; the GPU must never read out of
@@ -78,6 +153,24 @@ impl<'a> SrbfInputs<'a> {
         let k = t.basis.len();
         if k > MAX_BASIS {
             return bad(format!("{k} basis functions (1..={MAX_BASIS})"));
+        }
+        if let Some(c) = &self.compact {
+            sharp::check_grid(c.visibility, c.width, c.height)?;
+            if c.visibility.vertices != t.vertices || c.normals.len() != t.vertices {
+                return bad(format!(
+                    "compact lobes: visibility of {} vertices and {} normals for a transfer \
+                     of {}",
+                    c.visibility.vertices,
+                    c.normals.len(),
+                    t.vertices
+                ));
+            }
+            if let Some(i) = c.normals.iter().position(|n| !n.is_finite()) {
+                return bad(format!("normal {i} is not finite"));
+            }
+            if !(c.factor >= 0.0) {
+                return bad(format!("sharpness factor {} must be >= 0", c.factor));
+            }
         }
         let rows = rows_needed(t.clusters, t.components);
         if rows > MAX_ROWS {
@@ -161,6 +254,19 @@ impl Layout {
     }
 }
 
+/// The columns of a rotation as three vec4 (push-constant layout of `srbf lighting` and
+/// `srbf sharp`).
+fn rotation_push(r: Mat3) -> Vec<u8> {
+    let mut push: Vec<u8> = Vec::with_capacity(64);
+    for c in 0..3 {
+        let col = r.col(c);
+        for x in [col.x, col.y, col.z, 0.0] {
+            push.extend_from_slice(&x.to_le_bytes());
+        }
+    }
+    push
+}
+
 /// The GPU kernel: pipelines, the lobes, the transfer and the outputs of one mesh.
 pub struct SrbfKernel {
     ctx: Context,
@@ -170,9 +276,15 @@ pub struct SrbfKernel {
     project_bind: BindGroup,
     shade: ComputePipeline,
     shade_bind: BindGroup,
+    sharp: ComputePipeline,
+    sharp_bind: BindGroup,
     buffers: Vec<Buffer>,
     radiance: Buffer,
+    /// Lobes through the basis.
     lobes: u32,
+    /// Compact lobes (shaded from the visibility) and the visibility grid.
+    compact: u32,
+    grid: [u32; 2],
     basis: u32,
     basis_sharpness: f32,
     vertices: u32,
@@ -200,17 +312,35 @@ impl SrbfKernel {
         let lighting = ComputePipeline::from_spirv(&ctx, "srbf/lighting", spv("srbf/lighting")?)?;
         let project = ComputePipeline::from_spirv(&ctx, "srbf/project", spv("srbf/project")?)?;
         let shade = ComputePipeline::from_spirv(&ctx, "srbf/shade", spv("srbf/shade")?)?;
+        let sharp_pipe = ComputePipeline::from_spirv(&ctx, "srbf/sharp", spv("srbf/sharp")?)?;
         let t = inputs.transfer;
-        let axes: Vec<[f32; 4]> = inputs
-            .lobes
-            .iter()
-            .map(|l| [l.axis[0], l.axis[1], l.axis[2], l.sharpness])
-            .collect();
-        let amps: Vec<[f32; 4]> = inputs
-            .lobes
-            .iter()
-            .map(|l| [l.amplitude[0], l.amplitude[1], l.amplitude[2], 0.0])
-            .collect();
+        let (smooth, compact) = inputs.split();
+        // Zero-amplitude padding keeps every buffer non-empty.
+        let pad = |l: &[Lobe]| {
+            let mut v = l.to_vec();
+            if v.is_empty() {
+                v.push(Lobe {
+                    axis: [0.0, 1.0, 0.0],
+                    sharpness: 1.0,
+                    amplitude: [0.0; 3],
+                });
+            }
+            v
+        };
+        let axes_of = |l: &[Lobe]| -> Vec<[f32; 4]> {
+            pad(l)
+                .iter()
+                .map(|l| [l.axis[0], l.axis[1], l.axis[2], l.sharpness])
+                .collect()
+        };
+        let amps_of = |l: &[Lobe]| -> Vec<[f32; 4]> {
+            pad(l)
+                .iter()
+                .map(|l| [l.amplitude[0], l.amplitude[1], l.amplitude[2], 0.0])
+                .collect()
+        };
+        let axes = axes_of(&smooth);
+        let amps = amps_of(&smooth);
         let basis: Vec<[f32; 4]> = t
             .basis
             .axes
@@ -233,6 +363,36 @@ impl SrbfKernel {
         };
         let lobe_axes = upload("srbf lobe axes", bytemuck::cast_slice(&axes))?;
         let lobe_amps = upload("srbf lobe amplitudes", bytemuck::cast_slice(&amps))?;
+        let compact_axes = upload(
+            "srbf compact axes",
+            bytemuck::cast_slice(&axes_of(&compact)),
+        )?;
+        let compact_amps = upload(
+            "srbf compact amplitudes",
+            bytemuck::cast_slice(&amps_of(&compact)),
+        )?;
+        // Per slot: the normal and the visibility words (word-major); one zero word each
+        // when there are no compact lobes.
+        let (normals, visible, grid) = match (&inputs.compact, compact.is_empty()) {
+            (Some(c), false) => {
+                let words = c.visibility.directions.len().div_ceil(32);
+                let mut normals = vec![[0f32; 4]; slots];
+                let mut visible = vec![0u32; words * slots];
+                for (slot, &v) in layout.slot_vertex.iter().enumerate() {
+                    if v == NO_VERTEX {
+                        continue;
+                    }
+                    normals[slot] = c.normals[v as usize].extend(0.0).to_array();
+                    for w in 0..words {
+                        visible[w * slots + slot] = c.visibility.word32(v as usize, w);
+                    }
+                }
+                (normals, visible, [c.width, c.height])
+            }
+            _ => (vec![[0f32; 4]], vec![0u32; 4], [1, 1]),
+        };
+        let normals = upload("srbf slot normals", bytemuck::cast_slice(&normals))?;
+        let visible = upload("srbf slot visibility", bytemuck::cast_slice(&visible))?;
         let basis_axes = upload("srbf basis axes", bytemuck::cast_slice(&basis))?;
         let rows = upload("srbf cpca rows", bytemuck::cast_slice(&layout.rows))?;
         let weights = upload("srbf cpca weights", bytemuck::cast_slice(&layout.weights))?;
@@ -259,6 +419,7 @@ impl SrbfKernel {
         };
         let coeffs = ubo(rec, "srbf coefficients", MAX_BASIS)?;
         let projected = ubo(rec, "srbf projected rows", MAX_ROWS)?;
+        let taps = ubo(rec, "srbf compact taps", 2 * MAX_TAPS)?;
         let radiance = Buffer::new(
             &ctx,
             "srbf radiance",
@@ -282,6 +443,14 @@ impl SrbfKernel {
             ],
             &[("projected", w)],
         )?;
+        let sharp_bind = sharp_pipe.bind_declared(
+            &[
+                ("lobe_axes", Resource::Buffer(&compact_axes)),
+                ("lobe_amps", Resource::Buffer(&compact_amps)),
+                ("taps", Resource::Buffer(&taps)),
+            ],
+            &[("taps", w)],
+        )?;
         let shade_bind = shade.bind_declared(
             &[
                 ("weights", Resource::Buffer(&weights)),
@@ -289,6 +458,9 @@ impl SrbfKernel {
                 ("group_cluster", Resource::Buffer(&group_cluster)),
                 ("projected", Resource::Buffer(&projected)),
                 ("radiance", Resource::Buffer(&radiance)),
+                ("normals", Resource::Buffer(&normals)),
+                ("visible", Resource::Buffer(&visible)),
+                ("taps", Resource::Buffer(&taps)),
             ],
             &[("radiance", w)],
         )?;
@@ -300,7 +472,14 @@ impl SrbfKernel {
             project_bind,
             shade,
             shade_bind,
+            sharp: sharp_pipe,
+            sharp_bind,
             buffers: vec![
+                compact_axes,
+                compact_amps,
+                normals,
+                visible,
+                taps,
                 lobe_axes,
                 lobe_amps,
                 basis_axes,
@@ -312,7 +491,9 @@ impl SrbfKernel {
                 projected,
             ],
             radiance,
-            lobes: inputs.lobes.len() as u32,
+            lobes: smooth.len() as u32,
+            compact: compact.len() as u32,
+            grid,
             basis: t.basis.len() as u32,
             basis_sharpness: t.basis.sharpness,
             vertices: t.vertices as u32,
@@ -333,8 +514,14 @@ impl SrbfKernel {
         self.vertices as usize
     }
 
+    /// Lighting lobes: through the basis plus compact.
     pub fn lobe_count(&self) -> usize {
-        self.lobes as usize
+        (self.lobes + self.compact) as usize
+    }
+
+    /// Compact lobes (shaded from the visibility, not through the basis).
+    pub fn compact_count(&self) -> usize {
+        self.compact as usize
     }
 
     pub fn basis_count(&self) -> usize {
@@ -372,13 +559,7 @@ impl SrbfKernel {
     }
 
     fn record_lighting(&self, rec: &mut Recorder, frame: &SrbfFrame) -> Result<()> {
-        let mut push: Vec<u8> = Vec::with_capacity(64);
-        for c in 0..3 {
-            let col = frame.rotation.col(c);
-            for x in [col.x, col.y, col.z, 0.0] {
-                push.extend_from_slice(&x.to_le_bytes());
-            }
-        }
+        let mut push = rotation_push(frame.rotation);
         push.extend_from_slice(&self.lobes.to_le_bytes());
         push.extend_from_slice(&self.basis.to_le_bytes());
         push.extend_from_slice(&self.basis_sharpness.to_le_bytes());
@@ -387,6 +568,21 @@ impl SrbfKernel {
             &self.lighting_bind,
             &push,
             [self.basis, 1, 1],
+        )
+    }
+
+    fn record_sharp(&self, rec: &mut Recorder, frame: &SrbfFrame) -> Result<()> {
+        // With no compact lobes one invocation runs and writes nothing, so the declared uses
+        // are the same either way and a render graph's plan holds.
+        let mut push = rotation_push(frame.rotation);
+        for x in [self.compact, self.grid[0], self.grid[1]] {
+            push.extend_from_slice(&x.to_le_bytes());
+        }
+        rec.dispatch_invocations_tracked(
+            &self.sharp,
+            &self.sharp_bind,
+            &push,
+            [self.compact.max(1), 1, 1],
         )
     }
 
@@ -411,6 +607,7 @@ impl SrbfKernel {
             .chain(self.slots.to_le_bytes())
             .chain(self.components.div_ceil(8).to_le_bytes())
             .chain(self.stride.to_le_bytes())
+            .chain(self.compact.to_le_bytes())
             .collect();
         rec.dispatch_invocations_tracked(&self.shade, &self.shade_bind, &push, [self.slots, 1, 1])
     }
@@ -437,6 +634,10 @@ impl Kernel for SrbfKernel {
                 uses: uses(&self.project_bind),
             },
             PassInfo {
+                name: PASS_SHARP,
+                uses: uses(&self.sharp_bind),
+            },
+            PassInfo {
                 name: PASS_SHADE,
                 uses: uses(&self.shade_bind),
             },
@@ -445,15 +646,16 @@ impl Kernel for SrbfKernel {
 
     fn record_pass(&self, rec: &mut Recorder, pass: usize, input: &SrbfFrame) -> Result<()> {
         Self::check_frame(input)?;
-        let name = [PASS_LIGHTING, PASS_PROJECT, PASS_SHADE]
+        let name = [PASS_LIGHTING, PASS_PROJECT, PASS_SHARP, PASS_SHADE]
             .get(pass)
             .ok_or_else(|| {
-                Error::InvalidArgument(format!("SRBF has 3 passes, not {}", pass + 1))
+                Error::InvalidArgument(format!("SRBF has 4 passes, not {}", pass + 1))
             })?;
         rec.begin_pass(name);
         let r = match pass {
             0 => self.record_lighting(rec, input),
             1 => self.record_project(rec),
+            2 => self.record_sharp(rec, input),
             _ => self.record_shade(rec, input),
         };
         rec.end_pass();
@@ -464,9 +666,10 @@ impl Kernel for SrbfKernel {
         match pass {
             0 => Ok(rec.plan_dispatch(&self.lighting_bind)),
             1 => Ok(rec.plan_dispatch(&self.project_bind)),
-            2 => Ok(rec.plan_dispatch(&self.shade_bind)),
+            2 => Ok(rec.plan_dispatch(&self.sharp_bind)),
+            3 => Ok(rec.plan_dispatch(&self.shade_bind)),
             _ => Err(Error::InvalidArgument(format!(
-                "SRBF has 3 passes, not {}",
+                "SRBF has 4 passes, not {}",
                 pass + 1
             ))),
         }

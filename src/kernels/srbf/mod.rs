@@ -8,6 +8,7 @@ pub mod cpca;
 pub mod fit;
 pub mod gpu;
 pub mod sg;
+pub mod sharp;
 pub mod transfer;
 
 use crate::error::Result;
