@@ -17,7 +17,7 @@ use crate::kernels::btf::cpu;
 use crate::kernels::btf::dirs::{self, Maps, Triangulation};
 use crate::kernels::btf::gbuffer::{Camera, EYE, Frame, GBuffer, Light, Object, render_object};
 use crate::kernels::btf::gpu::{
-    BtfInputs, BtfKernel, FORMAT, Layout, Packing, Texture, pack, sampled_texels,
+    BtfInputs, BtfKernel, FORMAT, Layout, Packing, Sampled, Texture, pack,
 };
 use crate::kernels::btf::synth::Btf;
 use crate::kernels::shape::time_passes;
@@ -41,7 +41,7 @@ pub struct BtfBenchConfig {
     /// Texel format of the headline and sweeps (at its default layout).
     pub texture: Texture,
     /// Whether the device may store BC1 (the context has textureCompressionBC): the
-    /// headline is then also measured in the other format.
+    /// headline is then also measured in BC1 (it is always measured in every other format).
     pub bc1_available: bool,
 }
 
@@ -56,7 +56,7 @@ impl Default for BtfBenchConfig {
             object: Object::Sphere,
             cpu_runs: 3,
             probe_fetches: 16,
-            texture: Texture::Bc1,
+            texture: Texture::Block,
             bc1_available: true,
         }
     }
@@ -95,8 +95,8 @@ pub struct BtfBenchReport {
     pub probe_fetches_per_second: f64,
     pub probe_ms: Stats,
     pub headline: Point,
-    /// The headline configuration in each texel format the device can store (rgba8 at the
-    /// rows layout, bc1 at the layers layout), measured in this run.
+    /// The headline configuration in each texel format the device can store (each at its
+    /// default layout, 'rows'), measured in this run; the headline's own format first.
     pub formats: Vec<Point>,
     /// The same 9-tap interpolation on the CPU (f64, rayon), headline configuration.
     pub cpu_same_method_ms: Stats,
@@ -298,11 +298,10 @@ pub fn run(
     let fmt = (cfg.texture, cfg.texture.default_layout());
     let headline = measure(ctx, cfg, &head_btf, &head_setup, fmt, lights, probe_rate)?;
     let mut formats = vec![headline.clone()];
-    let other = match cfg.texture {
-        Texture::Rgba8 => Texture::Bc1,
-        Texture::Bc1 => Texture::Rgba8,
-    };
-    if other == Texture::Rgba8 || cfg.bc1_available {
+    for other in [Texture::Block, Texture::Bc1, Texture::Rgba8] {
+        if other == cfg.texture || (other == Texture::Bc1 && !cfg.bc1_available) {
+            continue;
+        }
         let p = measure(
             ctx,
             cfg,
@@ -380,11 +379,11 @@ pub fn run(
         progress,
     );
 
-    let packed = sampled_texels(&head_btf, cfg.texture);
+    let sampled = Sampled::of(&head_btf, cfg.texture);
     let f = frame(lights);
     let cpu_ms = time_cpu(cfg.cpu_runs, || {
         cpu::shade(
-            &cpu::Packed::new(head_btf.size, &packed),
+            &sampled.packed(head_btf.size),
             &head_setup.maps,
             &head_setup.gb,
             &f,
