@@ -19,7 +19,9 @@
 // The G-buffer and the maps are textures read with texelFetch: lavapipe gathers texel
 // fetches across lanes but loads from a storage buffer at a per-lane index one lane at a
 // time (three vec4 storage-buffer loads per pixel cost as much as the 9 taps of `block`).
-layout(local_size_x = 8, local_size_y = 8) in;
+// 16 x 4: on lavapipe (8 lanes along x) 20% less CPU time than 8 x 8 for `block` (4 x 8: 2x
+// more).
+layout(local_size_x = 16, local_size_y = 4) in;
 
 const uint MAX_LIGHTS = 2u;
 layout(push_constant) uniform Push {
@@ -158,15 +160,15 @@ void main() {
             vec3 wl;
             lookup(lt, il, wl);
             vec3 c = vec3(0.0);
-            // Zero weights (virtual directions past 75 deg) are skipped. The loops stay
-            // loops: unrolled, the sampling code (inlined per call site on lavapipe) made
-            // the pass 3x slower.
-            for (int a = 0; a < 3; a++) {
-                if (wv[a] == 0.0) continue;
-                for (int e = 0; e < 3; e++) {
-                    if (wl[e] == 0.0) continue;
-                    c += (wv[a] * wl[e]) * tap(iv[a], il[e], fp);
-                }
+            // One loop of 9 taps (a tap with zero weight, a virtual direction past 75 deg,
+            // adds 0): lavapipe runs 8 pixels in lock step, so skipping a tap saves nothing
+            // unless all 8 skip it, and one loop keeps one call site of the sampling code
+            // (inlined per call site: unrolled, the sampled paths ran 3x slower; two nested
+            // loops cost `block` 8% more).
+            for (int j = 0; j < 9; j++) {
+                int a = j / 3;
+                int e = j - 3 * a;
+                c += (wv[a] * wl[e]) * tap(iv[a], il[e], fp);
             }
             sum += pc.light_rgb[i].rgb * c;
         }
