@@ -1386,11 +1386,17 @@ fn cmd_bench_btf(
         h.gpu_ms.median,
         h.fps
     );
+    let (what, rate) = match h.texture {
+        vkshade::kernels::btf::gpu::Texture::Block => {
+            ("block fetches", r.probe_block_fetches_per_second)
+        }
+        _ => ("filtered fetches", r.probe_fetches_per_second),
+    };
     println!(
-        "fetches                {:.1} M filtered taps/s = {:.1}% of the {:.1} M/s the fetch probe sustains",
+        "fetches                {:.1} M taps/s = {:.1}% of the {:.1} M {what}/s the fetch probe sustains",
         h.taps_per_second / 1e6,
         100.0 * h.fraction_of_fetch_rate,
-        r.probe_fetches_per_second / 1e6
+        rate / 1e6
     );
     println!(
         "baseline               same interpolation on the CPU (f64, rayon) {:.1} ms: {:.2}x (speed-up of the GPU path)",
