@@ -54,7 +54,7 @@ impl<'a> Packed<'a> {
         (0..2).any(|i| {
             let x = uv[i].rem_euclid(1.0) * self.size[i] as f64 - 0.5;
             let f = x - x.floor();
-            f < AMBIGUOUS_MARGIN || f > 1.0 - AMBIGUOUS_MARGIN
+            !(AMBIGUOUS_MARGIN..=1.0 - AMBIGUOUS_MARGIN).contains(&f)
         })
     }
 
