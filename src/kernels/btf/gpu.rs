@@ -741,6 +741,19 @@ mod tests {
             ([81 * 34, 32], 81, 1)
         );
         assert!(Packing::for_limits(Layout::Rows, [32, 32], 2048, 2048, None).is_err());
+        // Block: 11 x 11 blocks of 16 bytes per 32 x 32 image, rows only.
+        let p =
+            Packing::for_format(Layout::Rows, Texture::Block, [32, 32], 16384, 2048, None).unwrap();
+        assert_eq!((p.layer_extent, p.gutter, p.arrays), ([81 * 11, 11], 0, 1));
+        assert_eq!(p.bytes(), 6561 * 121 * 16);
+        assert!(p.bytes() as f64 / (1u64 << 20) as f64 <= 17.2);
+        assert!(
+            Packing::for_format(Layout::Layers, Texture::Block, [32, 32], 16384, 2048, None)
+                .is_err()
+        );
+        assert!(
+            Packing::for_format(Layout::Rows, Texture::Block, [32, 32], 800, 2048, None).is_err()
+        );
     }
 
     #[test]
