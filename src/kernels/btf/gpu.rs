@@ -258,6 +258,15 @@ impl Packing {
             Layout::Layers => SLICES,
             Layout::Rows => COUNT,
         };
+        if layout == Layout::Rows && max_layers < COUNT {
+            // The shader reads the 81 view layers from one array (Vulkan guarantees 256).
+            return Err(Error::Limit {
+                what: "BTF packing (Rows): the 81 view layers in one array texture".into(),
+                requested: COUNT as u64,
+                limit_name: "maxImageArrayLayers",
+                limit: max_layers as u64,
+            });
+        }
         let layers = max_layers.min(total);
         let arrays = total.div_ceil(layers);
         if arrays > MAX_ARRAYS {
@@ -754,6 +763,8 @@ mod tests {
         assert!(
             Packing::for_format(Layout::Rows, Texture::Block, [32, 32], 800, 2048, None).is_err()
         );
+        // Rows read all 81 view layers from one array.
+        assert!(Packing::for_limits(Layout::Rows, [32, 32], 16384, 2048, Some(80)).is_err());
     }
 
     #[test]
