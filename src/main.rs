@@ -341,9 +341,10 @@ enum BtfCommand {
         /// Index/weight map resolution.
         #[arg(long, default_value_t = 128)]
         map_res: u32,
-        /// Texel format of the packed BTF: bc1 (4x4 blocks, 8x smaller; needs the device
-        /// feature textureCompressionBC) or rgba8.
-        #[arg(long, default_value = "bc1")]
+        /// Texel format of the packed BTF: block (overlapping 4x4 blocks of linear RGB,
+        /// 16 bytes each, decoded and filtered by the shader: the fast one on lavapipe),
+        /// bc1 (sRGB BC1, needs the device feature textureCompressionBC) or rgba8 (sRGB).
+        #[arg(long, default_value = "block")]
         texture: vkshade::kernels::btf::gpu::Texture,
         #[arg(short = 'o', long)]
         out: PathBuf,
@@ -369,13 +370,14 @@ enum BtfCommand {
         #[arg(long, default_value_t = 128)]
         map_res: u32,
         /// Texture layout: rows (one 81-layer array, images side by side with gutters) or
-        /// layers (one image per layer, split over arrays of maxImageArrayLayers). Default:
-        /// rows for rgba8, layers for bc1 (which needs it).
+        /// layers (one image per layer, split over arrays of maxImageArrayLayers; rgba8 and
+        /// bc1 only). Default: rows.
         #[arg(long)]
         layout: Option<vkshade::kernels::btf::gpu::Layout>,
-        /// Texel format of the packed BTF: bc1 (4x4 blocks, 8x smaller; needs the device
-        /// feature textureCompressionBC) or rgba8.
-        #[arg(long, default_value = "bc1")]
+        /// Texel format of the packed BTF: block (overlapping 4x4 blocks of linear RGB,
+        /// 16 bytes each, decoded and filtered by the shader: the fast one on lavapipe),
+        /// bc1 (sRGB BC1, needs the device feature textureCompressionBC) or rgba8 (sRGB).
+        #[arg(long, default_value = "block")]
         texture: vkshade::kernels::btf::gpu::Texture,
         /// Compare with the f64 CPU interpolation and with the heightfield ray-cast at the
         /// exact directions (needs the btf.json of `btf synth`).
@@ -456,8 +458,8 @@ enum BenchCommand {
         #[arg(long)]
         quick: bool,
         /// Texel format of the headline and sweeps (the headline is also measured in the
-        /// other format when the device supports BC1).
-        #[arg(long, default_value = "bc1")]
+        /// other formats; bc1 when the device supports it).
+        #[arg(long, default_value = "block")]
         texture: vkshade::kernels::btf::gpu::Texture,
     },
     /// Texture-space SSS on the BCN_Epileptic head: GPU time of irradiance and diffusion
@@ -555,7 +557,9 @@ fn btf_context(g: &Global, texture: vkshade::kernels::btf::gpu::Texture) -> Resu
     .map_err(|e| match e {
         Error::Unsupported { device, what } if bc1 => Error::Unsupported {
             device,
-            what: format!("{what} (the BTF's default --texture bc1 needs it; use --texture rgba8)"),
+            what: format!(
+                "{what} (the BTF's --texture bc1 needs it; use --texture block or rgba8)"
+            ),
         },
         e => e,
     })
@@ -1369,10 +1373,11 @@ fn cmd_bench_btf(
         cfg.cpu_runs = 1;
     }
     cfg.texture = texture;
-    // BC1 needs textureCompressionBC: without it an rgba8 run skips the bc1 comparison.
+    // BC1 needs textureCompressionBC: without it a block or rgba8 run skips the bc1
+    // comparison.
     let ctx = match btf_context(g, vkshade::kernels::btf::gpu::Texture::Bc1) {
         Ok(ctx) => ctx,
-        Err(e) if texture == vkshade::kernels::btf::gpu::Texture::Rgba8 => {
+        Err(e) if texture != vkshade::kernels::btf::gpu::Texture::Bc1 => {
             eprintln!("bench btf: no BC1 comparison ({e})");
             cfg.bc1_available = false;
             context(g)?
@@ -1394,11 +1399,17 @@ fn cmd_bench_btf(
         h.gpu_ms.median,
         h.fps
     );
+    let (what, rate) = match h.texture {
+        vkshade::kernels::btf::gpu::Texture::Block => {
+            ("block fetches", r.probe_block_fetches_per_second)
+        }
+        _ => ("filtered fetches", r.probe_fetches_per_second),
+    };
     println!(
-        "fetches                {:.1} M filtered taps/s = {:.1}% of the {:.1} M/s the fetch probe sustains",
+        "fetches                {:.1} M taps/s = {:.1}% of the {:.1} M {what}/s the fetch probe sustains",
         h.taps_per_second / 1e6,
         100.0 * h.fraction_of_fetch_rate,
-        r.probe_fetches_per_second / 1e6
+        rate / 1e6
     );
     println!(
         "baseline               same interpolation on the CPU (f64, rayon) {:.1} ms: {:.2}x (speed-up of the GPU path)",

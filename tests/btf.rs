@@ -12,7 +12,8 @@ use vkshade::kernels::Kernel;
 use vkshade::kernels::btf::dirs::{Maps, Triangulation};
 use vkshade::kernels::btf::gbuffer::{Camera, Frame, GBuffer, Light, Object, render_object};
 use vkshade::kernels::btf::gpu::{
-    BtfInputs, BtfKernel, Layout, Texture, encode_bc1, pack, sampled_texels,
+    BtfInputs, BtfKernel, GPU_CPU_BOUND_BLOCK, Layout, Sampled, Texture, encode_bc1, encode_blocks,
+    pack, sampled_texels,
 };
 use vkshade::kernels::btf::synth::{Btf, FileFormat, Pattern, SynthConfig, synthesize, write_dir};
 use vkshade::kernels::btf::{cpu, load};
@@ -196,6 +197,56 @@ fn packing_round_trips_through_the_array_textures() {
         );
         Ok(())
     });
+    // Block: one RGBA32UI texel per overlapping 4 x 4 block, rows of blocks per view layer;
+    // the 'layers' layout is refused.
+    with_gpu(|ctx| {
+        let mut rec = ctx.recorder("btf packing block")?;
+        let k = BtfKernel::new(
+            &mut rec,
+            &BtfInputs {
+                btf,
+                maps: &maps,
+                gbuffer: &gbuffer,
+                layout: Layout::Rows,
+                texture: Texture::Block,
+                layer_cap: None,
+            },
+        )?;
+        let p = k.packing();
+        // An 8 x 8 tile takes 3 x 3 blocks.
+        assert_eq!((p.gutter, p.layer_extent, p.arrays), (0, [81 * 3, 3], 1));
+        let back = read_back_arrays(rec, &k)?;
+        let blocks = encode_blocks(btf);
+        assert_eq!(blocks.len(), 6561 * 9);
+        let want = p.arrange_blocks(&blocks);
+        assert_eq!(back.len() as u64, p.bytes());
+        assert!(
+            back == bytemuck::cast_slice::<[u32; 4], u8>(&want),
+            "block texels differ after the round trip"
+        );
+        // Layer v, block row 1, image l: its blocks 3..6 of row 1 in the slice-major encoding.
+        for (v, l) in [(0usize, 0usize), (5, 80), (80, 3)] {
+            let at = ((v * 3 + 1) * 81 + l) * 3;
+            assert_eq!(&want[at..at + 3], &blocks[(v * 81 + l) * 9 + 3..][..3]);
+        }
+        let mut rec = ctx.recorder("btf block layers")?;
+        let e = BtfKernel::new(
+            &mut rec,
+            &BtfInputs {
+                btf,
+                maps: &maps,
+                gbuffer: &gbuffer,
+                layout: Layout::Layers,
+                texture: Texture::Block,
+                layer_cap: None,
+            },
+        )
+        .err()
+        .expect("block in the layers layout is refused");
+        assert!(e.to_string().contains("rows"), "{e}");
+        drop(rec);
+        Ok(())
+    });
     // Without textureCompressionBC the error names the feature.
     with_gpu(|ctx| {
         let mut rec = ctx.recorder("btf bc1 without feature")?;
@@ -249,29 +300,28 @@ fn gpu_matches_the_cpu_interpolation_and_the_direct_ray_cast() {
         (Object::Sphere, Texture::Rgba8, Layout::Layers),
         (Object::Sphere, Texture::Bc1, Layout::Rows),
         (Object::Sphere, Texture::Bc1, Layout::Layers),
+        (Object::Sphere, Texture::Block, Layout::Rows),
         (Object::Cylinder, Texture::Rgba8, Layout::Rows),
+        (Object::Cylinder, Texture::Block, Layout::Rows),
         (Object::Plane, Texture::Rgba8, Layout::Rows),
+        (Object::Plane, Texture::Block, Layout::Rows),
     ] {
         let gbuffer = render_object(object, 48, 40).unwrap();
         assert!(gbuffer.covered() > 300, "{object:?} covers too little");
         let run =
             |ctx: &vkshade::gpu::Context| run(ctx, btf, &maps, &gbuffer, &frame, (texture, layout));
         let out = match texture {
-            Texture::Rgba8 => with_gpu(run),
             Texture::Bc1 => with_gpu_features(BC, run),
+            _ => with_gpu(run),
         };
-        // The texels the GPU samples (BC1: the encoding decoded again).
-        let packed = sampled_texels(btf, texture);
+        // The data the GPU samples (BC1: the encoding decoded again; block: the blocks).
+        let sampled = Sampled::of(btf, texture);
         let bound = match texture {
             Texture::Rgba8 => GPU_CPU_BOUND,
             Texture::Bc1 => GPU_CPU_BOUND_BC1,
+            Texture::Block => GPU_CPU_BOUND_BLOCK,
         };
-        let (want, ambiguous) = cpu::shade(
-            &cpu::Packed::new(btf.size, &packed),
-            &maps,
-            &gbuffer,
-            &frame,
-        );
+        let (want, ambiguous) = cpu::shade(&sampled.packed(btf.size), &maps, &gbuffer, &frame);
         let mut max: f64 = 0.0;
         let mut compared = 0;
         for (k, (g, c)) in out.iter().zip(&want).enumerate() {

@@ -1,5 +1,5 @@
 #version 450
 #extension GL_EXT_samplerless_texture_functions : require
 // BTF shading, layout "layers" (one image per layer, up to four arrays); see common/btf_shade.glsl.
-#define BTF_ROWS 0
+#define BTF_MODE 0
 #include <common/btf_shade.glsl>

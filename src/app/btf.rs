@@ -9,7 +9,7 @@ use crate::kernels::btf::cpu;
 use crate::kernels::btf::dirs::{self, Angles, Maps, Triangulation};
 use crate::kernels::btf::gbuffer::{self, Camera, Frame, GBuffer, Light, Object};
 use crate::kernels::btf::gpu::{
-    BtfInputs, BtfKernel, Layout, PASS_SHADE, Packing, Texture, sampled_texels,
+    BtfInputs, BtfKernel, GPU_CPU_BOUND_BLOCK, Layout, PASS_SHADE, Packing, Sampled, Texture,
 };
 use crate::kernels::btf::load;
 use crate::kernels::btf::synth::{self, FileFormat, Pattern, SynthConfig, srgb_encode};
@@ -364,11 +364,11 @@ pub fn render(
     let mut vs_ray_cast = None;
     let mut truth_px = None;
     if let Some(meta) = &meta {
-        // The texels the GPU samples (for BC1: encoded and decoded again, see io::bc1).
-        let packed = sampled_texels(&btf, cfg.texture);
+        // The data the GPU samples (for BC1: encoded and decoded again, see io::bc1; for
+        // block: the blocks, decoded per tap as the shader does).
+        let sampled = Sampled::of(&btf, cfg.texture);
         let t = Instant::now();
-        let (want, ambiguous) =
-            cpu::shade(&cpu::Packed::new(btf.size, &packed), &maps, &gb, &frame);
+        let (want, ambiguous) = cpu::shade(&sampled.packed(btf.size), &maps, &gb, &frame);
         let cpu_ms = t.elapsed().as_secs_f64() * 1e3;
         let (mut max, mut se, mut n, mut amb) = (0.0f64, 0.0, 0usize, 0usize);
         for k in 0..out.len() {
@@ -395,6 +395,7 @@ pub fn render(
             bound: match cfg.texture {
                 Texture::Rgba8 => 5e-3,
                 Texture::Bc1 => 1.4e-2,
+                Texture::Block => GPU_CPU_BOUND_BLOCK,
             },
             cpu_ms,
         });

@@ -16,9 +16,7 @@ use crate::gpu::{
 use crate::kernels::btf::cpu;
 use crate::kernels::btf::dirs::{self, Maps, Triangulation};
 use crate::kernels::btf::gbuffer::{Camera, EYE, Frame, GBuffer, Light, Object, render_object};
-use crate::kernels::btf::gpu::{
-    BtfInputs, BtfKernel, FORMAT, Layout, Packing, Texture, pack, sampled_texels,
-};
+use crate::kernels::btf::gpu::{BtfInputs, BtfKernel, FORMAT, Layout, Packing, Sampled, Texture};
 use crate::kernels::btf::synth::Btf;
 use crate::kernels::shape::time_passes;
 use glam::Vec3;
@@ -41,7 +39,7 @@ pub struct BtfBenchConfig {
     /// Texel format of the headline and sweeps (at its default layout).
     pub texture: Texture,
     /// Whether the device may store BC1 (the context has textureCompressionBC): the
-    /// headline is then also measured in the other format.
+    /// headline is then also measured in BC1 (it is always measured in every other format).
     pub bc1_available: bool,
 }
 
@@ -56,7 +54,7 @@ impl Default for BtfBenchConfig {
             object: Object::Sphere,
             cpu_runs: 3,
             probe_fetches: 16,
-            texture: Texture::Bc1,
+            texture: Texture::Block,
             bc1_available: true,
         }
     }
@@ -78,7 +76,8 @@ pub struct Point {
     pub taps_per_frame: u64,
     pub map_fetches_per_frame: u64,
     pub taps_per_second: f64,
-    /// taps_per_second / the probe's sustained filtered fetches per second.
+    /// taps_per_second / the sustained fetch rate of the probe for this texture: filtered
+    /// fetches (rgba8, bc1), or block texel fetches (block: one per tap).
     pub fraction_of_fetch_rate: f64,
     pub texture_bytes: u64,
     pub texture_mib: f64,
@@ -91,12 +90,17 @@ pub struct BtfBenchReport {
     pub benchmark: &'static str,
     pub machine: MachineInfo,
     pub config: BtfBenchConfig,
-    /// Sustained filtered fetches per second from the rows-layout array texture (probe).
+    /// Sustained filtered fetches per second from the rows-layout RGBA8 sRGB array texture
+    /// (probe; the reference of rgba8 and bc1 points).
     pub probe_fetches_per_second: f64,
     pub probe_ms: Stats,
+    /// Sustained texelFetch of blocks per second from the `block` texture (probe; the
+    /// reference of block points).
+    pub probe_block_fetches_per_second: f64,
+    pub probe_block_ms: Stats,
     pub headline: Point,
-    /// The headline configuration in each texel format the device can store (rgba8 at the
-    /// rows layout, bc1 at the layers layout), measured in this run.
+    /// The headline configuration in each texel format the device can store (each at its
+    /// default layout, 'rows'), measured in this run; the headline's own format first.
     pub formats: Vec<Point>,
     /// The same 9-tap interpolation on the CPU (f64, rayon), headline configuration.
     pub cpu_same_method_ms: Stats,
@@ -172,8 +176,12 @@ fn measure(
     setup: &Setup,
     (texture, layout): (Texture, Layout),
     lights: usize,
-    probe_rate: f64,
+    probe_rates: (f64, f64),
 ) -> Result<Point> {
+    let probe_rate = match texture {
+        Texture::Block => probe_rates.1,
+        _ => probe_rates.0,
+    };
     let mut rec = ctx.recorder("bench btf setup")?;
     let kernel = BtfKernel::new(
         &mut rec,
@@ -212,17 +220,25 @@ fn measure(
     })
 }
 
-/// The fetch probe: sustained filtered fetches per second from a rows-layout texture.
-fn probe(ctx: &Context, cfg: &BtfBenchConfig, btf: &Btf) -> Result<(f64, Stats)> {
+/// The fetch probes: sustained filtered fetches per second from a rows-layout RGBA8 texture
+/// (`block` false), or texel fetches per second from the rows of blocks (`block` true).
+fn probe(ctx: &Context, cfg: &BtfBenchConfig, btf: &Btf, block: bool) -> Result<(f64, Stats)> {
     let l = ctx.limits();
-    let p = Packing::for_limits(
+    let texture = if block {
+        Texture::Block
+    } else {
+        Texture::Rgba8
+    };
+    let p = Packing::for_format(
         Layout::Rows,
+        texture,
         btf.size,
         l.max_image_dimension_2d,
         l.max_image_array_layers,
         None,
     )?;
-    let desc = ImageDesc::d2_array(FORMAT, p.layer_extent, p.layers(0));
+    let format = if block { texture.format() } else { FORMAT };
+    let desc = ImageDesc::d2_array(format, p.layer_extent, p.layers(0));
     let img = Image::new(ctx, "bench btf probe texture", desc)?;
     let sampler = Sampler::new(
         ctx,
@@ -237,31 +253,46 @@ fn probe(ctx: &Context, cfg: &BtfBenchConfig, btf: &Btf) -> Result<(f64, Stats)>
         "bench btf probe out",
         BufferDesc::storage(size as u64 * size as u64 * 16),
     )?;
-    let pipeline =
-        ComputePipeline::from_spirv(ctx, "btf/fetch", crate::shaders::spirv("btf/fetch")?)?;
-    let bind = pipeline.bind_declared(
-        &[
-            ("tex", Resource::texture(&img)),
-            ("smp", Resource::Sampler(&sampler)),
-            ("result", Resource::Buffer(&out)),
-        ],
-        &[("result", AccessSet::from(A::ComputeShaderWrite))],
-    )?;
+    let name = if block {
+        "btf/fetch_block"
+    } else {
+        "btf/fetch"
+    };
+    let pipeline = ComputePipeline::from_spirv(ctx, name, crate::shaders::spirv(name)?)?;
+    let mut res = vec![
+        ("tex", Resource::texture(&img)),
+        ("result", Resource::Buffer(&out)),
+    ];
+    if !block {
+        res.push(("smp", Resource::Sampler(&sampler)));
+    }
+    let bind =
+        pipeline.bind_declared(&res, &[("result", AccessSet::from(A::ComputeShaderWrite))])?;
     let mut rec = ctx.recorder("bench btf probe upload")?;
-    rec.upload_image(&img, ImageRegion::whole(&desc), &p.arrange(&pack(btf)))?;
+    rec.upload_image(&img, ImageRegion::whole(&desc), &p.upload_bytes(btf))?;
     rec.submit_and_wait()?;
     let fetches = cfg.probe_fetches;
     let mut push: Vec<u8> = [size, size, fetches, p.layers(0)]
         .iter()
         .flat_map(|v| v.to_le_bytes())
         .collect();
-    // About 8 pixels per texel, as the sphere shows the tile.
-    let s = 1.0 / (8.0 * btf.size[0] as f32);
+    // About 8 pixels per texel, as the sphere shows the tile (blocks: 3 texels each, and
+    // the probe's coordinates span the whole layer of 81 images).
+    let s = if block {
+        1.0 / (8.0 * 3.0 * p.layer_extent[0] as f32)
+    } else {
+        1.0 / (8.0 * btf.size[0] as f32)
+    };
     for v in [s, s, 0.0, 0.0] {
         push.extend_from_slice(&v.to_le_bytes());
     }
-    let stats = time_gpu(ctx, &cfg.bench, "btf fetch probe", |rec| {
-        rec.begin_pass("btf fetch probe");
+    let pass = if block {
+        "btf block fetch probe"
+    } else {
+        "btf fetch probe"
+    };
+    let stats = time_gpu(ctx, &cfg.bench, pass, |rec| {
+        rec.begin_pass(pass);
         let r = rec.dispatch_invocations_tracked(&pipeline, &bind, &push, [size, size, 1]);
         rec.end_pass();
         r
@@ -288,21 +319,27 @@ pub fn run(
         })
     };
     let head_btf = hashed_btf(tile);
-    let (probe_rate, probe_ms) = probe(ctx, cfg, &head_btf)?;
+    let (probe_rate, probe_ms) = probe(ctx, cfg, &head_btf, false)?;
     progress(&format!(
         "fetch probe: {:.1} M filtered fetches/s ({:.2} ms)",
         probe_rate / 1e6,
         probe_ms.median
     ));
+    let (probe_block_rate, probe_block_ms) = probe(ctx, cfg, &head_btf, true)?;
+    progress(&format!(
+        "block fetch probe: {:.1} M block fetches/s ({:.2} ms)",
+        probe_block_rate / 1e6,
+        probe_block_ms.median
+    ));
+    let probe_rates = (probe_rate, probe_block_rate);
     let head_setup = setup(res, map_res)?;
     let fmt = (cfg.texture, cfg.texture.default_layout());
-    let headline = measure(ctx, cfg, &head_btf, &head_setup, fmt, lights, probe_rate)?;
+    let headline = measure(ctx, cfg, &head_btf, &head_setup, fmt, lights, probe_rates)?;
     let mut formats = vec![headline.clone()];
-    let other = match cfg.texture {
-        Texture::Rgba8 => Texture::Bc1,
-        Texture::Bc1 => Texture::Rgba8,
-    };
-    if other == Texture::Rgba8 || cfg.bc1_available {
+    for other in [Texture::Block, Texture::Bc1, Texture::Rgba8] {
+        if other == cfg.texture || (other == Texture::Bc1 && !cfg.bc1_available) {
+            continue;
+        }
         let p = measure(
             ctx,
             cfg,
@@ -310,7 +347,7 @@ pub fn run(
             &head_setup,
             (other, other.default_layout()),
             lights,
-            probe_rate,
+            probe_rates,
         )?;
         progress(&format!(
             "headline in {other:?}: {:.2} ms = {:.1} fps, {:.2} MiB",
@@ -339,21 +376,21 @@ pub fn run(
     for &r in &cfg.resolutions {
         let s = setup(r, map_res)?;
         push(
-            measure(ctx, cfg, &head_btf, &s, fmt, lights, probe_rate)?,
+            measure(ctx, cfg, &head_btf, &s, fmt, lights, probe_rates)?,
             progress,
         );
     }
     for &m in &cfg.map_resolutions {
         let s = setup(res, m)?;
         push(
-            measure(ctx, cfg, &head_btf, &s, fmt, lights, probe_rate)?,
+            measure(ctx, cfg, &head_btf, &s, fmt, lights, probe_rates)?,
             progress,
         );
     }
     for &t in &cfg.tiles {
         let b = hashed_btf(t);
         push(
-            measure(ctx, cfg, &b, &head_setup, fmt, lights, probe_rate)?,
+            measure(ctx, cfg, &b, &head_setup, fmt, lights, probe_rates)?,
             progress,
         );
     }
@@ -371,20 +408,20 @@ pub fn run(
                 },
             ),
             lights,
-            probe_rate,
+            probe_rates,
         )?,
         progress,
     );
     push(
-        measure(ctx, cfg, &head_btf, &head_setup, fmt, 2, probe_rate)?,
+        measure(ctx, cfg, &head_btf, &head_setup, fmt, 2, probe_rates)?,
         progress,
     );
 
-    let packed = sampled_texels(&head_btf, cfg.texture);
+    let sampled = Sampled::of(&head_btf, cfg.texture);
     let f = frame(lights);
     let cpu_ms = time_cpu(cfg.cpu_runs, || {
         cpu::shade(
-            &cpu::Packed::new(head_btf.size, &packed),
+            &sampled.packed(head_btf.size),
             &head_setup.maps,
             &head_setup.gb,
             &f,
@@ -418,6 +455,8 @@ pub fn run(
         config: cfg.clone(),
         probe_fetches_per_second: probe_rate,
         probe_ms,
+        probe_block_fetches_per_second: probe_block_rate,
+        probe_block_ms,
         speedup_vs_cpu: cpu_ms.median / headline.gpu_ms.median,
         headline,
         formats,

@@ -33,7 +33,21 @@ pub enum Texture {
     /// decodes the palette colour from sRGB before filtering. Needs the device feature
     /// textureCompressionBC; in the 'rows' layout the gutters are 4 texels (one block).
     Bc1,
+    /// Overlapping 4 x 4 blocks of linear RGB, 16 bytes each (two 11:11:10 endpoints and
+    /// sixteen 4-bit indices; [`super::block`]), in an RGBA32UI array texture ([`BLOCK_FORMAT`])
+    /// and decoded and bilinearly filtered by the shader from one texelFetch per tap: no
+    /// sampler decode (lavapipe's sRGB and BC1 decode are software), 1.89 bytes per texel for
+    /// 32 x 32 tiles. 'rows' layout only.
+    Block,
 }
+
+/// GPU against the CPU twin for [`Texture::Block`], max absolute difference per channel:
+/// both decode the same blocks with the same footprint (pixels whose footprint f32 may
+/// place differently are left out as ambiguous), so only f32 rounding remains.
+pub const GPU_CPU_BOUND_BLOCK: f64 = 1e-4;
+
+/// The texel format of [`Texture::Block`]: one 4 x 4 block per texel.
+pub const BLOCK_FORMAT: vk::Format = vk::Format::R32G32B32A32_UINT;
 
 /// The BC1 format of [`Texture::Bc1`].
 pub const BC1_FORMAT: vk::Format = vk::Format::BC1_RGB_SRGB_BLOCK;
@@ -43,6 +57,7 @@ impl Texture {
         match self {
             Texture::Rgba8 => FORMAT,
             Texture::Bc1 => BC1_FORMAT,
+            Texture::Block => BLOCK_FORMAT,
         }
     }
 
@@ -58,17 +73,54 @@ impl std::str::FromStr for Texture {
         match s {
             "rgba8" => Ok(Texture::Rgba8),
             "bc1" => Ok(Texture::Bc1),
-            _ => Err(format!("unknown texture format '{s}' (rgba8, bc1)")),
+            "block" => Ok(Texture::Block),
+            _ => Err(format!("unknown texture format '{s}' (block, bc1, rgba8)")),
         }
     }
 }
 
+/// What the CPU twin reads: the data the GPU samples, in the texture's own terms.
+pub enum Sampled {
+    /// RGBA8 sRGB texels, slice-major (RGBA8; BC1 decoded again).
+    Texels(Vec<u8>),
+    /// The blocks of [`Texture::Block`], slice-major.
+    Blocks(Vec<[u32; 4]>),
+}
+
+impl Sampled {
+    pub fn of(btf: &Btf, texture: Texture) -> Sampled {
+        match texture {
+            Texture::Block => Sampled::Blocks(encode_blocks(btf)),
+            t => Sampled::Texels(sampled_texels(btf, t)),
+        }
+    }
+
+    /// The CPU twin's view of it.
+    pub fn packed(&self, size: [u32; 2]) -> super::cpu::Packed<'_> {
+        match self {
+            Sampled::Texels(t) => super::cpu::Packed::new(size, t),
+            Sampled::Blocks(b) => super::cpu::Packed::blocks(size, b),
+        }
+    }
+}
+
+/// The blocks of every slice for [`Texture::Block`] (slice-major, row-major blocks).
+pub fn encode_blocks(btf: &Btf) -> Vec<[u32; 4]> {
+    let [w, h] = btf.size;
+    btf.texels
+        .par_chunks((w * h) as usize)
+        .flat_map_iter(|img| super::block::encode_image(w, h, img))
+        .collect()
+}
+
 /// The texels the GPU samples, as RGBA8 sRGB slice-major (the CPU twin's input): the packed
-/// texels for RGBA8, the BC1 encoding decoded again (as `io::bc1` decodes) for BC1.
+/// texels for RGBA8, the BC1 encoding decoded again (as `io::bc1` decodes) for BC1. For
+/// [`Texture::Block`] (whose texels depend on the block read, see [`Sampled`]): the RGBA8
+/// texels.
 pub fn sampled_texels(btf: &Btf, texture: Texture) -> Vec<u8> {
     let packed = pack(btf);
     match texture {
-        Texture::Rgba8 => packed,
+        Texture::Rgba8 | Texture::Block => packed,
         Texture::Bc1 => {
             let [w, h] = btf.size;
             let n = (w * h) as usize * 4;
@@ -165,7 +217,14 @@ impl Packing {
     ) -> Result<Packing> {
         let max_layers = max_layers.min(layer_cap.unwrap_or(u32::MAX)).max(1);
         let gutter = match (layout, texture) {
+            (Layout::Layers, Texture::Block) => {
+                return Err(Error::InvalidArgument(
+                    "BTF texture 'block' is packed in the 'rows' layout only; use --layout rows"
+                        .into(),
+                ));
+            }
             (Layout::Layers, _) => 0,
+            (Layout::Rows, Texture::Block) => 0,
             (Layout::Rows, Texture::Rgba8) => 1,
             (Layout::Rows, Texture::Bc1) => {
                 if tile[0] % 4 != 0 {
@@ -178,9 +237,13 @@ impl Packing {
                 4
             }
         };
-        let layer_extent = match layout {
-            Layout::Layers => tile,
-            Layout::Rows => [COUNT * (tile[0] + 2 * gutter), tile[1]],
+        let layer_extent = match (layout, texture) {
+            (Layout::Layers, _) => tile,
+            (Layout::Rows, Texture::Block) => [
+                COUNT * super::block::blocks(tile[0]),
+                super::block::blocks(tile[1]),
+            ],
+            (Layout::Rows, _) => [COUNT * (tile[0] + 2 * gutter), tile[1]],
         };
         let side = layer_extent[0].max(layer_extent[1]);
         if side > max_dim_2d {
@@ -195,6 +258,15 @@ impl Packing {
             Layout::Layers => SLICES,
             Layout::Rows => COUNT,
         };
+        if layout == Layout::Rows && max_layers < COUNT {
+            // The shader reads the 81 view layers from one array (Vulkan guarantees 256).
+            return Err(Error::Limit {
+                what: "BTF packing (Rows): the 81 view layers in one array texture".into(),
+                requested: COUNT as u64,
+                limit_name: "maxImageArrayLayers",
+                limit: max_layers as u64,
+            });
+        }
         let layers = max_layers.min(total);
         let arrays = total.div_ceil(layers);
         if arrays > MAX_ARRAYS {
@@ -238,6 +310,7 @@ impl Packing {
             * match self.texture {
                 Texture::Rgba8 => w as u64 * h as u64 * 4,
                 Texture::Bc1 => crate::io::bc1::encoded_len(w, h) as u64,
+                Texture::Block => w as u64 * h as u64 * 16,
             }
     }
 
@@ -246,20 +319,43 @@ impl Packing {
         (self.bytes() / self.total_layers() as u64) as usize
     }
 
-    /// The bytes of all layers in order as uploaded: RGBA8 texels, or BC1 blocks of each
-    /// layer (row-major blocks) encoded from the arranged RGBA8 texels.
+    /// The bytes of all layers in order as uploaded: RGBA8 texels, BC1 blocks of each
+    /// layer (row-major blocks) encoded from the arranged RGBA8 texels, or the `block`
+    /// format's blocks ([`Packing::arrange_blocks`]).
     pub fn upload_bytes(&self, btf: &Btf) -> Vec<u8> {
-        let texels = self.arrange(&pack(btf));
         match self.texture {
-            Texture::Rgba8 => texels,
+            Texture::Rgba8 => self.arrange(&pack(btf)),
             Texture::Bc1 => {
                 let [w, h] = self.layer_extent;
-                texels
+                self.arrange(&pack(btf))
                     .par_chunks((w * h) as usize * 4)
                     .flat_map_iter(|layer| crate::io::bc1::encode_image(w, h, layer))
                     .collect()
             }
+            Texture::Block => {
+                bytemuck::cast_slice(&self.arrange_blocks(&encode_blocks(btf))).to_vec()
+            }
         }
+    }
+
+    /// The blocks of all layers in order ([`Texture::Block`], 'rows'), from the slice-major
+    /// [`encode_blocks`]: layer v, block row by holds block row by of images (v, 0..81).
+    pub fn arrange_blocks(&self, blocks: &[[u32; 4]]) -> Vec<[u32; 4]> {
+        let (bw, bh) = (
+            super::block::blocks(self.tile[0]) as usize,
+            super::block::blocks(self.tile[1]) as usize,
+        );
+        let n = COUNT as usize;
+        let mut out = Vec::with_capacity(blocks.len());
+        for v in 0..n {
+            for by in 0..bh {
+                for l in 0..n {
+                    let img = &blocks[(v * n + l) * bw * bh..][..bw * bh];
+                    out.extend_from_slice(&img[by * bw..(by + 1) * bw]);
+                }
+            }
+        }
+        out
     }
 
     /// The RGBA8 texels of all layers in order, from the slice-major [`pack`]ed images.
@@ -322,11 +418,36 @@ pub struct BtfKernel {
     arrays: Vec<Image>,
     packing: Packing,
     texture: Texture,
-    _sampler: Sampler,
-    maps: [Image; 2],
-    gbuffer: Buffer,
+    _sampler: Option<Sampler>,
+    map: Image,
+    gbuffer: Image,
     result: Buffer,
     size: [u32; 2],
+}
+
+/// The direction map as the shader reads it (RGBA32UI): per texel, the three sample
+/// indices in bits 0-7, 8-15, 16-23 of x and their f32 weights (bit patterns) in y, z, w.
+pub fn map_texels(maps: &Maps) -> Vec<[u32; 4]> {
+    maps.index
+        .iter()
+        .zip(&maps.weight)
+        .map(|(i, w)| {
+            [
+                i[0] as u32 | (i[1] as u32) << 8 | (i[2] as u32) << 16,
+                w[0].to_bits(),
+                w[1].to_bits(),
+                w[2].to_bits(),
+            ]
+        })
+        .collect()
+}
+
+/// The G-buffer as the shader reads it: three layers of RGBA32F, layer j holding vec4 j of
+/// every pixel.
+fn gbuffer_layers(gb: &GBuffer) -> Vec<[f32; 4]> {
+    (0..3)
+        .flat_map(|j| gb.texels.iter().skip(j).step_by(3).copied())
+        .collect()
 }
 
 impl BtfKernel {
@@ -342,8 +463,18 @@ impl BtfKernel {
                 btf.size[1]
             )));
         }
-        inputs.gbuffer.check()?;
+        let gb = inputs.gbuffer;
+        gb.check()?;
         let limits = ctx.limits();
+        let side = gb.width.max(gb.height);
+        if side > limits.max_image_dimension_2d {
+            return Err(Error::Limit {
+                what: "BTF G-buffer texture side".into(),
+                requested: side as u64,
+                limit_name: "maxImageDimension2D",
+                limit: limits.max_image_dimension_2d as u64,
+            });
+        }
         let packing = Packing::for_format(
             inputs.layout,
             inputs.texture,
@@ -355,16 +486,22 @@ impl BtfKernel {
         // One module per layout (not a specialization constant: lavapipe 22.3.6 ignored the
         // constant's value in this shader; and a runtime branch keeps all five sampling call
         // sites, which lavapipe inlines each: 3x slower).
-        let name = match packing.layout {
-            Layout::Rows => "btf/shade_rows",
-            Layout::Layers => "btf/shade_layers",
+        let name = match (packing.layout, packing.texture) {
+            (_, Texture::Block) => "btf/shade_block",
+            (Layout::Rows, _) => "btf/shade_rows",
+            (Layout::Layers, _) => "btf/shade_layers",
         };
         let pipeline = ComputePipeline::from_spirv(&ctx, name, crate::shaders::spirv(name)?)?;
         let texture = inputs.texture;
         let texels = packing.upload_bytes(btf);
         let per_layer = packing.layer_bytes();
         let mut arrays = Vec::new();
-        for a in 0..MAX_ARRAYS {
+        // The sampled formats bind four arrays (`btf[4]`), `block` one.
+        let bound = match texture {
+            Texture::Block => 1,
+            _ => MAX_ARRAYS,
+        };
+        for a in 0..bound {
             if a < packing.arrays {
                 let layers = packing.layers(a);
                 let desc = ImageDesc::d2_array(texture.format(), packing.layer_extent, layers);
@@ -383,58 +520,65 @@ impl BtfKernel {
                 let black: &[u8] = match texture {
                     Texture::Rgba8 => &[0, 0, 0, 255],
                     Texture::Bc1 => &[0; 8],
+                    Texture::Block => &[0; 16],
                 };
                 rec.upload_image(&img, ImageRegion::whole(&desc), black)?;
                 arrays.push(img);
             }
         }
         let m = inputs.maps;
-        let index_desc = ImageDesc::d2(vk::Format::R8G8B8A8_UINT, [m.res, m.res]);
-        let index = Image::new(&ctx, "btf index map", index_desc)?;
+        let map_desc = ImageDesc::d2(vk::Format::R32G32B32A32_UINT, [m.res, m.res]);
+        let map = Image::new(&ctx, "btf direction map", map_desc)?;
         rec.upload_image(
-            &index,
-            ImageRegion::whole(&index_desc),
-            bytemuck::cast_slice(&m.index),
+            &map,
+            ImageRegion::whole(&map_desc),
+            bytemuck::cast_slice(&map_texels(m)),
         )?;
-        let weight_desc = ImageDesc::d2(vk::Format::R32G32B32A32_SFLOAT, [m.res, m.res]);
-        let weight = Image::new(&ctx, "btf weight map", weight_desc)?;
+        let gb_desc =
+            ImageDesc::d2_array(vk::Format::R32G32B32A32_SFLOAT, [gb.width, gb.height], 3);
+        let gbuffer = Image::new(&ctx, "btf gbuffer", gb_desc)?;
         rec.upload_image(
-            &weight,
-            ImageRegion::whole(&weight_desc),
-            bytemuck::cast_slice(&m.weight),
-        )?;
-        let sampler = Sampler::new(
-            &ctx,
-            "btf tile sampler",
-            SamplerDesc::linear()
-                .address(vk::SamplerAddressMode::REPEAT)
-                .lod(0.0, 0.0),
-        )?;
-        let gb = inputs.gbuffer;
-        let gbuffer = rec.buffer_with(
-            "btf gbuffer",
-            BufferDesc::storage(gb.texels.len() as u64 * 16),
-            &gb.texels,
+            &gbuffer,
+            ImageRegion::whole(&gb_desc),
+            bytemuck::cast_slice(&gbuffer_layers(gb)),
         )?;
         let result = Buffer::new(
             &ctx,
             "btf result",
             BufferDesc::storage(gb.width as u64 * gb.height as u64 * 16),
         )?;
-        let bind = pipeline.bind_declared(
-            &[
-                (
-                    "btf",
-                    Resource::Array(arrays.iter().map(Resource::texture).collect()),
-                ),
-                ("tile_sampler", Resource::Sampler(&sampler)),
-                ("index_map", Resource::texture(&index)),
-                ("weight_map", Resource::texture(&weight)),
-                ("gbuffer", Resource::Buffer(&gbuffer)),
-                ("result", Resource::Buffer(&result)),
-            ],
-            &[("result", AccessSet::from(A::ComputeShaderWrite))],
-        )?;
+        let common = [
+            ("dir_map", Resource::texture(&map)),
+            ("gbuffer", Resource::texture(&gbuffer)),
+            ("result", Resource::Buffer(&result)),
+        ];
+        let writes = [("result", AccessSet::from(A::ComputeShaderWrite))];
+        let (bind, sampler) = match texture {
+            Texture::Block => {
+                let mut res = vec![("btf_blocks", Resource::texture(&arrays[0]))];
+                res.extend(common);
+                (pipeline.bind_declared(&res, &writes)?, None)
+            }
+            _ => {
+                let sampler = Sampler::new(
+                    &ctx,
+                    "btf tile sampler",
+                    SamplerDesc::linear()
+                        .address(vk::SamplerAddressMode::REPEAT)
+                        .lod(0.0, 0.0),
+                )?;
+                let mut res = vec![
+                    (
+                        "btf",
+                        Resource::Array(arrays.iter().map(Resource::texture).collect()),
+                    ),
+                    ("tile_sampler", Resource::Sampler(&sampler)),
+                ];
+                res.extend(common);
+                let bind = pipeline.bind_declared(&res, &writes)?;
+                (bind, Some(sampler))
+            }
+        };
         Ok(BtfKernel {
             ctx,
             pipeline,
@@ -443,7 +587,7 @@ impl BtfKernel {
             packing,
             texture,
             _sampler: sampler,
-            maps: [index, weight],
+            map,
             gbuffer,
             result,
             size: [gb.width, gb.height],
@@ -472,7 +616,7 @@ impl BtfKernel {
 
     /// Device bytes of the two maps.
     pub fn map_bytes(&self) -> u64 {
-        self.maps.iter().map(|i| i.allocation_size()).sum()
+        self.map.allocation_size()
     }
 
     /// Output width and height.
@@ -504,7 +648,7 @@ impl BtfKernel {
             p.gutter,
             p.tile[0],
             p.layer_extent[0],
-            0,
+            p.tile[1],
         ] {
             push.extend_from_slice(&u.to_le_bytes());
         }
@@ -574,10 +718,10 @@ impl Kernel for BtfKernel {
         let images: u64 = self
             .arrays
             .iter()
-            .chain(self.maps.iter())
+            .chain([&self.map, &self.gbuffer])
             .map(|i| i.allocation_size())
             .sum();
-        let buffers = self.ctx.memory_of(&[&self.gbuffer, &self.result]);
+        let buffers = self.ctx.memory_of(&[&self.result]);
         MemoryReport {
             used_bytes: buffers.used_bytes + images,
             allocations: buffers.allocations + (self.arrays.len() + 2) as u64,
@@ -606,6 +750,21 @@ mod tests {
             ([81 * 34, 32], 81, 1)
         );
         assert!(Packing::for_limits(Layout::Rows, [32, 32], 2048, 2048, None).is_err());
+        // Block: 11 x 11 blocks of 16 bytes per 32 x 32 image, rows only.
+        let p =
+            Packing::for_format(Layout::Rows, Texture::Block, [32, 32], 16384, 2048, None).unwrap();
+        assert_eq!((p.layer_extent, p.gutter, p.arrays), ([81 * 11, 11], 0, 1));
+        assert_eq!(p.bytes(), 6561 * 121 * 16);
+        assert!(p.bytes() as f64 / (1u64 << 20) as f64 <= 17.2);
+        assert!(
+            Packing::for_format(Layout::Layers, Texture::Block, [32, 32], 16384, 2048, None)
+                .is_err()
+        );
+        assert!(
+            Packing::for_format(Layout::Rows, Texture::Block, [32, 32], 800, 2048, None).is_err()
+        );
+        // Rows read all 81 view layers from one array.
+        assert!(Packing::for_limits(Layout::Rows, [32, 32], 16384, 2048, Some(80)).is_err());
     }
 
     #[test]

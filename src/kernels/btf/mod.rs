@@ -4,6 +4,7 @@
 //! synthetic BTFs ray-cast from periodic heightfields; `load`: UBO2003-style directories and
 //! the repeating-tile finder.
 
+pub mod block;
 pub mod cpu;
 pub mod dirs;
 pub mod gbuffer;
