@@ -46,8 +46,8 @@ pub struct SrbfBenchConfig {
     pub vertices: Vec<usize>,
     /// The headline: (lobes, basis, vertices = the mesh's).
     pub headline: (usize, usize),
-    /// Width of the direction map of the brute-force baseline (and of the headline's real
-    /// transfer).
+    /// Width of the direction map of the brute-force baseline and of the headline's real
+    /// transfer and visibility (64, as `vkshade srbf shade`).
     pub brute_force_width: u32,
     pub cpu_runs: usize,
     /// The transfer compression of every point (the headline's on the real transfer).
@@ -64,7 +64,7 @@ impl Default for SrbfBenchConfig {
             basis: vec![64, 256, 1024],
             vertices: vec![3205, 34835],
             headline: (64, 256),
-            brute_force_width: 32,
+            brute_force_width: 64,
             cpu_runs: 3,
             cpca: CpcaConfig::default(),
         }

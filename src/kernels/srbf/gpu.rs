@@ -168,7 +168,7 @@ impl<'a> SrbfInputs<'a> {
             if let Some(i) = c.normals.iter().position(|n| !n.is_finite()) {
                 return bad(format!("normal {i} is not finite"));
             }
-            if !(c.factor >= 0.0) {
+            if c.factor.is_nan() || c.factor < 0.0 {
                 return bad(format!("sharpness factor {} must be >= 0", c.factor));
             }
         }
