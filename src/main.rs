@@ -233,7 +233,7 @@ struct SssArgs {
     /// Fraction of each channel's reflectance inside its sampling radius.
     #[arg(long, default_value_t = vkshade::kernels::sss::profile::DEFAULT_ENERGY)]
     energy: f64,
-    /// Samples per texel per channel.
+    /// Samples per texel (one set shared by the three channels).
     #[arg(long, default_value_t = 32)]
     samples: u32,
     /// Texture size (N x N texels).
@@ -959,8 +959,8 @@ fn cmd_bench_sss(g: &Global, opts: &BenchOpts, quick: bool) -> Result<()> {
     let h = &r.headline;
     println!("device                 {}", r.machine.device);
     println!(
-        "headline               {}^2 texels x {} samples/texel/channel: irradiance {:.1} ms + diffusion {:.1} ms (median GPU) = {:.2} fps",
-        h.size, h.samples, h.irradiance_ms.median, h.diffusion_ms.median, h.fps
+        "headline               {}^2 texels x {} samples/texel: vertex light {:.1} ms + irradiance {:.1} ms + diffusion {:.1} ms (median GPU) = {:.2} fps",
+        h.size, h.samples, h.vertex_light_ms.median, h.irradiance_ms.median, h.diffusion_ms.median, h.fps
     );
     println!(
         "throughput             {:.2e} samples/s = {:.1}% of the {:.1} GFLOP/s FMA peak, {:.1}% of {:.1} GB/s (work model in bench/sss.rs)",

@@ -202,7 +202,9 @@ fn head_gpu_matches_the_cpu_twin_and_the_brute_force() {
         valid.iter().any(|&i| e[i][0] == 0.0),
         "no self-shadowing at all"
     );
-    // Transmission: the same thickness rays; a texel may differ where a ray grazes an edge.
+    // Transmission: the same thickness rays per vertex; a vertex may differ where its ray
+    // grazes an edge (f32 rounding differs), and its value spreads over the texels of its
+    // triangles (at 256^2 one vertex covers ~60 texels): at most 0.5% of the texels.
     let tr = cpu::transmission(
         &geo,
         &Bvh::build(&geo.positions, &geo.triangles),
@@ -217,8 +219,9 @@ fn head_gpu_matches_the_cpu_twin_and_the_brute_force() {
             (0..4).any(|c| (out.transmission[i][c] - tr[i][c]).abs() > 1e-4 * tmax.max(tr[i][3]))
         })
         .count();
+    eprintln!("transmission: {differ} of {} texels differ", valid.len());
     assert!(
-        differ * 1000 <= valid.len(),
+        differ * 200 <= valid.len(),
         "{differ} texels' transmission differ"
     );
     // Diffusion: the same sample sequence from the GPU's irradiance. Measured relative RMSE
@@ -257,11 +260,14 @@ fn head_gpu_matches_the_cpu_twin_and_the_brute_force() {
     let w: Vec<f64> = covered.iter().map(|&i| geo.nrm[i][3] as f64).collect();
     let err = truth::ChannelError::of(&est, &t, &w);
     eprintln!("head 256^2 x 32 vs brute force: {err:?}");
-    // Measured at 256^2 x 32 (2.5 mm texels, these two lights): relative RMSE 0.103 / 0.059 /
-    // 0.082, energy ratio 0.971 / 0.996 / 1.051 (seams, open boundaries and the coarse
-    // texels against the 3.5 mm blue radius). Bounds with margin:
+    // Measured at 256^2 x 32 shared samples (2.5 mm texels, these two lights, per-vertex
+    // shadowing): relative RMSE 0.138 / 0.085 / 0.102, energy ratio 0.960 / 0.989 / 1.051
+    // (seams, open boundaries and the coarse texels against the 3.5 mm blue radius; with
+    // per-texel shadow rays it was 0.103 / 0.059 / 0.082: the interpolated shadows light
+    // more of the eye, mouth and ear pockets, where texture space cannot reach across the
+    // gaps the Euclidean truth reaches across). Bounds with margin:
     for c in 0..3 {
-        assert!(err.rel_rmse[c] < 0.13, "channel {c}: {err:?}");
+        assert!(err.rel_rmse[c] < 0.16, "channel {c}: {err:?}");
         assert!(
             (err.energy_ratio[c] - 1.0).abs() < 0.07,
             "channel {c}: {err:?}"
@@ -322,8 +328,8 @@ fn bad_inputs_are_refused_with_clear_errors() {
         ];
         let e = kernel.record(&mut rec, &many).unwrap_err();
         assert!(e.to_string().contains("lights"), "{e}");
-        let e = kernel.record_pass(&mut rec, 3, &[]).unwrap_err();
-        assert!(e.to_string().contains("3 passes"), "{e}");
+        let e = kernel.record_pass(&mut rec, 4, &[]).unwrap_err();
+        assert!(e.to_string().contains("4 passes"), "{e}");
         rec.submit_and_wait()?;
         Ok(())
     });
@@ -342,17 +348,33 @@ fn back_lit_thin_slab_transmits_red() {
     };
     let mut uvs = Vec::new();
     let mut normals = Vec::new();
-    for (z, nz, u0) in [(0.0, 1.0, 0.0), (-t, -1.0, 0.5)] {
+    // Grids of cells (transmission is computed per vertex): the back plane is larger and
+    // offset, with another cell count, so no thickness ray from a front vertex grazes a back
+    // edge or vertex.
+    for (z, nz, u0, size, g, shift) in [
+        (0.0, 1.0, 0.0, w, 6u32, 0.0),
+        (-t, -1.0, 0.5, w + 20.0, 5, 3.7),
+    ] {
         let b = d.positions.len() as u32;
-        for (x, y) in [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)] {
-            d.positions.push([(x - 0.5) * w, (y - 0.5) * w, z]);
-            uvs.push([u0 + 0.5 * x, y]);
-            normals.push([0.0, 0.0, nz]);
+        for j in 0..=g {
+            for k in 0..=g {
+                let (x, y) = (k as f32 / g as f32, j as f32 / g as f32);
+                d.positions
+                    .push([(x - 0.5) * size + shift, (y - 0.5) * size + 0.8 * shift, z]);
+                uvs.push([u0 + 0.5 * x, y]);
+                normals.push([0.0, 0.0, nz]);
+            }
         }
-        if nz > 0.0 {
-            d.triangles.extend([[b, b + 1, b + 2], [b, b + 2, b + 3]]);
-        } else {
-            d.triangles.extend([[b, b + 2, b + 1], [b, b + 3, b + 2]]);
+        for j in 0..g {
+            for k in 0..g {
+                let q = b + j * (g + 1) + k;
+                let (q1, q2, q3) = (q + 1, q + g + 2, q + g + 1);
+                if nz > 0.0 {
+                    d.triangles.extend([[q, q1, q2], [q, q2, q3]]);
+                } else {
+                    d.triangles.extend([[q, q2, q1], [q, q3, q2]]);
+                }
+            }
         }
     }
     d.uvs = Some(uvs);

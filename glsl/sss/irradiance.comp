@@ -1,174 +1,31 @@
 #version 450
-// Texture-space irradiance: E per texel from directional and point lights, each shadowed by
-// a ray through the mesh's BVH (the CPU BVH flattened; the same traversal and two-sided
-// Moller-Trumbore test as src/geom/bvh.rs). White lights: E is written to rgb alike.
-// Transmission through thin parts (mode != 0): a ray from just inside along -n finds the back
-// surface at thickness t; its irradiance E_b times R_tot - F(t) per channel (the profile
-// beyond t: diffuse transmission of a locally flat slab lit from behind) goes to `trans`.
-// The CPU twin is src/kernels/sss/cpu.rs.
+// Texture-space irradiance: E per texel from directional and point lights, E =
+// sum_l strength_l max(n.l, 0) V_l, with the texel's own normal, position (point-light
+// distance) and cosine, and the visibility V_l interpolated over the texel's triangle from
+// the per-vertex shadow rays of pass `sss vertex light` (glsl/sss/vertex_light.comp) with the
+// texel centre's barycentrics. White lights: E is written to rgb alike. Transmission (mode
+// != 0): the per-vertex (rgb, thickness) interpolated the same way. Shadow boundaries are
+// therefore resolved at the mesh's vertex spacing, not per texel (the difference is measured
+// by `vkshade sss`, report.json shadowing). The CPU twin is src/kernels/sss/cpu.rs.
 layout(local_size_x = 8, local_size_y = 8) in;
 
 layout(push_constant) uniform Push {
-    vec4 tail[3];  // per channel: dipole (alpha'/2, sigma_tr, z_r, z_v), Burley (A, d, 0, 0)
     uint size;     // texture is size x size
     uint lights;
-    float bias;    // shadow-ray origin offset along the normal (mm)
-    uint mode;     // transmission: 0 off, 1 dipole, 2 Burley
-    float max_t;   // thickest part that transmits (mm)
+    uint mode;     // transmission: 0 off, else on
 } pc;
 
 layout(std430, set = 0, binding = 0) readonly buffer Pos { vec4 v[]; } pos;       // xyz, flag
 layout(std430, set = 0, binding = 1) readonly buffer Nrm { vec4 v[]; } nrm;       // xyz, area
-layout(std430, set = 0, binding = 2) readonly buffer Nodes { vec4 v[]; } nodes;   // 2 per node
-layout(std430, set = 0, binding = 3) readonly buffer Tris { vec4 v[]; } tris;     // 3 per tri
+layout(std430, set = 0, binding = 2) readonly buffer TexelTri { uvec4 v[]; } texel_tri;
+layout(std430, set = 0, binding = 3) readonly buffer TriIdx { uvec4 v[]; } tri_idx;
 layout(std430, set = 0, binding = 4) readonly buffer Lights { vec4 v[]; } lights; // 2 per light
-layout(std430, set = 0, binding = 5) writeonly buffer Irr { vec4 v[]; } irr;
-layout(std430, set = 0, binding = 6) writeonly buffer Trans { vec4 v[]; } trans; // rgb, t
-
-// Parameter of the hit of triangle t in (0, tmax], or -1.
-float hit_t(vec3 o, vec3 d, uint t, float tmax) {
-    vec3 a = tris.v[3u * t].xyz;
-    vec3 e1 = tris.v[3u * t + 1u].xyz;
-    vec3 e2 = tris.v[3u * t + 2u].xyz;
-    vec3 p = cross(d, e2);
-    float det = dot(e1, p);
-    if (abs(det) < 1e-12) return -1.0;
-    float inv = 1.0 / det;
-    vec3 s = o - a;
-    float u = dot(s, p) * inv;
-    if (u < 0.0 || u > 1.0) return -1.0;
-    vec3 q = cross(s, e1);
-    float v = dot(d, q) * inv;
-    if (v < 0.0 || u + v > 1.0) return -1.0;
-    float t_hit = dot(e2, q) * inv;
-    return (t_hit > 0.0 && t_hit <= tmax) ? t_hit : -1.0;
-}
-
-bool hit_tri(vec3 o, vec3 d, uint t, float tmax) {
-    vec3 a = tris.v[3u * t].xyz;
-    vec3 e1 = tris.v[3u * t + 1u].xyz;
-    vec3 e2 = tris.v[3u * t + 2u].xyz;
-    vec3 p = cross(d, e2);
-    float det = dot(e1, p);
-    if (abs(det) < 1e-12) return false;
-    float inv = 1.0 / det;
-    vec3 s = o - a;
-    float u = dot(s, p) * inv;
-    if (u < 0.0 || u > 1.0) return false;
-    vec3 q = cross(s, e1);
-    float v = dot(d, q) * inv;
-    if (v < 0.0 || u + v > 1.0) return false;
-    float t_hit = dot(e2, q) * inv;
-    return t_hit > 0.0 && t_hit <= tmax;
-}
-
-bool any_hit(vec3 o, vec3 d, float tmax) {
-    vec3 inv = 1.0 / d;
-    uint stack[64];
-    uint sp = 1u;
-    stack[0] = 0u;
-    while (sp > 0u) {
-        sp--;
-        uint ni = stack[sp];
-        vec4 lo = nodes.v[2u * ni];
-        vec4 hi = nodes.v[2u * ni + 1u];
-        vec3 t0 = (lo.xyz - o) * inv;
-        vec3 t1 = (hi.xyz - o) * inv;
-        vec3 tmin = min(t0, t1);
-        vec3 tmx = max(t0, t1);
-        float tnear = max(max(max(tmin.x, tmin.y), tmin.z), 0.0);
-        float tfar = min(min(min(tmx.x, tmx.y), tmx.z), tmax);
-        if (tnear > tfar) continue;
-        uint first = floatBitsToUint(lo.w);
-        uint count = floatBitsToUint(hi.w);
-        if (count > 0u) {
-            for (uint t = first; t < first + count; t++) {
-                if (hit_tri(o, d, t, tmax)) return true;
-            }
-        } else if (sp + 2u <= 64u) {
-            stack[sp] = first;
-            stack[sp + 1u] = first + 1u;
-            sp += 2u;
-        }
-    }
-    return false;
-}
-
-// Nearest hit in (0, tmax]: (t, triangle), or t < 0.
-vec2 closest_hit(vec3 o, vec3 d, float tmax) {
-    vec3 inv = 1.0 / d;
-    uint stack[64];
-    uint sp = 1u;
-    stack[0] = 0u;
-    float best = -1.0;
-    uint best_tri = 0u;
-    while (sp > 0u) {
-        sp--;
-        uint ni = stack[sp];
-        vec4 lo = nodes.v[2u * ni];
-        vec4 hi = nodes.v[2u * ni + 1u];
-        vec3 t0 = (lo.xyz - o) * inv;
-        vec3 t1 = (hi.xyz - o) * inv;
-        vec3 tmin = min(t0, t1);
-        vec3 tmx = max(t0, t1);
-        float tnear = max(max(max(tmin.x, tmin.y), tmin.z), 0.0);
-        float tfar = min(min(min(tmx.x, tmx.y), tmx.z), best >= 0.0 ? best : tmax);
-        if (tnear > tfar) continue;
-        uint first = floatBitsToUint(lo.w);
-        uint count = floatBitsToUint(hi.w);
-        if (count > 0u) {
-            for (uint t = first; t < first + count; t++) {
-                float th = hit_t(o, d, t, tmax);
-                if (th >= 0.0 && (best < 0.0 || th < best)) {
-                    best = th;
-                    best_tri = t;
-                }
-            }
-        } else if (sp + 2u <= 64u) {
-            stack[sp] = first;
-            stack[sp + 1u] = first + 1u;
-            sp += 2u;
-        }
-    }
-    return vec2(best, uintBitsToFloat(best_tri));
-}
-
-// Irradiance at p (normal n) from every light, shadow rays from p + n * bias.
-float irradiance_at(vec3 p, vec3 n) {
-    vec3 o = p + n * pc.bias;
-    float e = 0.0;
-    for (uint l = 0u; l < pc.lights; l++) {
-        vec4 a = lights.v[2u * l];
-        float strength = lights.v[2u * l + 1u].x;
-        vec3 dir;
-        float tmax;
-        if (a.w == 0.0) {
-            dir = a.xyz;
-            tmax = uintBitsToFloat(0x7f800000u);
-        } else {
-            vec3 dd = a.xyz - p;
-            float dist = length(dd);
-            dir = dd / dist;
-            tmax = dist - pc.bias;
-            strength = strength / (dist * dist);
-        }
-        float c = dot(n, dir);
-        if (c <= 0.0 || strength == 0.0) continue;
-        if (any_hit(o, dir, tmax)) continue;
-        e += strength * c;
-    }
-    return e;
-}
-
-float tail(uint c, float t) {
-    vec4 p = pc.tail[c];
-    if (pc.mode == 1u) {
-        float dr = sqrt(t * t + p.z * p.z);
-        float dv = sqrt(t * t + p.w * p.w);
-        return p.x * (p.z * exp(-p.y * dr) / dr + p.w * exp(-p.y * dv) / dv);
-    }
-    return p.x * (0.25 * exp(-t / p.y) + 0.75 * exp(-t / (3.0 * p.y)));
-}
+layout(std430, set = 0, binding = 5) readonly buffer Vis { uint v[]; } vis;
+layout(std430, set = 0, binding = 6) readonly buffer Vtrans { vec4 v[]; } vtrans;
+layout(std430, set = 0, binding = 7) writeonly buffer Irr { vec4 v[]; } irr;
+layout(std430, set = 0, binding = 8) writeonly buffer Trans { vec4 v[]; } trans; // rgb, t
+// A copy of irr for the diffusion's gathers (one texel fetch per sample on lavapipe).
+layout(set = 0, binding = 9, rgba32f) writeonly uniform image2D irr_img;
 
 void main() {
     uvec2 xy = gl_GlobalInvocationID.xy;
@@ -178,25 +35,42 @@ void main() {
     if (p4.w == 0.0) {
         irr.v[i] = vec4(0.0);
         trans.v[i] = vec4(0.0);
+        imageStore(irr_img, ivec2(xy), vec4(0.0));
         return;
     }
     vec3 p = p4.xyz;
     vec3 n = nrm.v[i].xyz;
-    float e = irradiance_at(p, n);
+    uvec4 tt = texel_tri.v[i];
+    float w1 = uintBitsToFloat(tt.y), w2 = uintBitsToFloat(tt.z);
+    float w0 = 1.0 - w1 - w2;
+    uvec3 ids = tri_idx.v[tt.x].xyz;
+    uint b0 = vis.v[ids.x], b1 = vis.v[ids.y], b2 = vis.v[ids.z];
+    float e = 0.0;
+    for (uint l = 0u; l < pc.lights; l++) {
+        vec4 a = lights.v[2u * l];
+        float strength = lights.v[2u * l + 1u].x;
+        vec3 dir;
+        if (a.w == 0.0) {
+            dir = a.xyz;
+        } else {
+            vec3 dd = a.xyz - p;
+            float dist = length(dd);
+            dir = dd / dist;
+            strength = strength / (dist * dist);
+        }
+        float c = dot(n, dir);
+        if (c <= 0.0 || strength == 0.0) continue;
+        uint c0 = (b0 >> l) & 1u, c1 = (b1 >> l) & 1u, c2 = (b2 >> l) & 1u;
+        // Exactly 0 or 1 when the corners agree (the barycentrics' sum may round off 1).
+        float v = (c0 == c1 && c1 == c2) ? float(c0)
+            : w0 * float(c0) + w1 * float(c1) + w2 * float(c2);
+        e += strength * c * v;
+    }
     irr.v[i] = vec4(e, e, e, 1.0);
+    imageStore(irr_img, ivec2(xy), vec4(e, e, e, 1.0));
     vec4 tr = vec4(0.0);
     if (pc.mode != 0u) {
-        vec3 o = p - n * pc.bias;
-        vec2 h = closest_hit(o, -n, pc.max_t);
-        if (h.x >= 0.0) {
-            uint k = floatBitsToUint(h.y);
-            vec3 nb = normalize(cross(tris.v[3u * k + 1u].xyz, tris.v[3u * k + 2u].xyz));
-            if (dot(nb, n) > 0.0) nb = -nb;
-            vec3 xb = o - n * h.x;
-            float eb = irradiance_at(xb, nb);
-            float thick = h.x + pc.bias;
-            tr = vec4(eb * tail(0u, thick), eb * tail(1u, thick), eb * tail(2u, thick), thick);
-        }
+        tr = w0 * vtrans.v[ids.x] + w1 * vtrans.v[ids.y] + w2 * vtrans.v[ids.z];
     }
     trans.v[i] = tr;
 }

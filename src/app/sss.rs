@@ -11,7 +11,7 @@ use crate::geom::bvh::Bvh;
 use crate::gpu::Context;
 use crate::io::FloatImage;
 use crate::kernels::sss::cpu::{self, Light, SamplerParams};
-use crate::kernels::sss::gpu::{PASS_DIFFUSION, PASS_IRRADIANCE};
+use crate::kernels::sss::gpu::{PASS_DIFFUSION, PASS_IRRADIANCE, PASS_VERTEX};
 use crate::kernels::sss::profile::DEFAULT_ENERGY;
 use crate::kernels::sss::texspace::{COVERED, TexReport};
 use crate::kernels::sss::{Material, Profile, ProfileKind, SssKernel, SssOutput, TexGeometry};
@@ -238,7 +238,7 @@ pub struct SssReport {
     pub lights: Vec<String>,
     pub profile: Profile,
     pub sampler: SamplerParams,
-    /// Samples per texel per channel.
+    /// Samples per texel (shared by the three channels).
     pub samples: u32,
     pub size: u32,
     pub texture: TexReport,
@@ -326,7 +326,8 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
             let inputs: Vec<&[Light]> = vec![&lights[..]; cfg.frames];
             run_frames(ctx, &kernel, inputs, 2, |r| {
                 times.push((
-                    r.timings.get(PASS_IRRADIANCE).unwrap_or(f64::NAN),
+                    r.timings.get(PASS_VERTEX).unwrap_or(f64::NAN)
+                        + r.timings.get(PASS_IRRADIANCE).unwrap_or(f64::NAN),
                     r.timings.get(PASS_DIFFUSION).unwrap_or(f64::NAN),
                 ));
                 last = Some(r.output);
@@ -354,7 +355,8 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
                 let rb = kernel.read_back(&mut rec)?;
                 let timings = rec.submit_and_wait()?;
                 times.push((
-                    timings.get(PASS_IRRADIANCE).unwrap_or(f64::NAN),
+                    timings.get(PASS_VERTEX).unwrap_or(f64::NAN)
+                        + timings.get(PASS_IRRADIANCE).unwrap_or(f64::NAN),
                     timings.get(PASS_DIFFUSION).unwrap_or(f64::NAN),
                 ));
                 last = Some(kernel.collect(&rb)?);
@@ -475,7 +477,8 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
         notes.push("the device is a CPU implementation (lavapipe): times measure the CPU".into());
     }
     notes.push(
-        "samples are per texel per channel (three sample sets); irradiance shadows are rays \
+        "samples are per texel, shared by the three channels (radii from the mixture of the \
+         channels' pdfs, one-sample MIS weights); irradiance shadows are rays \
          through a BVH of the mesh on the GPU; the texture-space geometry is rasterised on \
          the CPU (once; with --anim once per frame after CPU skinning, BVH rebuilt); \
          transmission: thickness along -n by a ray, \

@@ -4,21 +4,27 @@
 //! ([`SssKernel::upload_irradiance`], e.g. from another kernel) and diffused alone
 //! ([`SssKernel::record_diffusion`]).
 
-use super::cpu::{Light, MAX_LIGHTS, SamplerParams, check_lights, shadow_bias};
-use super::profile::{Profile, ProfileKind, TABLE_SIZE};
+use super::cpu::{Light, MAX_LIGHTS, SamplerParams, check_lights, shadow_bias, vertex_frames};
+use super::profile::{Profile, ProfileKind};
 use super::texspace::TexGeometry;
 use crate::error::{Error, Result};
 use crate::geom::bvh::Bvh;
 use crate::gpu::{
-    AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context,
-    MemoryReport, PlannedBarrier, Readback, Recorder, Resource,
+    AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context, Image,
+    ImageDesc, ImageRegion, MemoryReport, PlannedBarrier, Readback, Recorder, Resource,
 };
+use ash::vk;
 use crate::kernels::{Kernel, PassInfo, UseInfo};
 
 pub const PASS_LIGHTS: &str = "sss lights";
+pub const PASS_VERTEX: &str = "sss vertex light";
 pub const PASS_IRRADIANCE: &str = "sss irradiance";
 pub const PASS_DIFFUSION: &str = "sss diffusion";
-const PASSES: [&str; 3] = [PASS_LIGHTS, PASS_IRRADIANCE, PASS_DIFFUSION];
+const PASSES: [&str; 4] = [PASS_LIGHTS, PASS_VERTEX, PASS_IRRADIANCE, PASS_DIFFUSION];
+/// Most samples per texel (the shader's uniform sample sequence: 64 KiB, the
+/// maxUniformBufferRange of lavapipe and of most desktop GPUs; checked at run time).
+pub const MAX_SAMPLES: u32 = 4096;
+const SEQUENCE_BYTES: u64 = MAX_SAMPLES as u64 * 16;
 
 /// Host copies of a frame: irradiance, diffuse (rgba per texel; diffuse alpha is the
 /// accepted fraction of the samples) and transmission (rgb; alpha the thickness in mm, 0
@@ -38,11 +44,20 @@ pub struct SssReadback {
 
 pub struct SssKernel {
     ctx: Context,
+    vertex: ComputePipeline,
+    vertex_bind: BindGroup,
+    vertices: u32,
     irradiance: ComputePipeline,
     irradiance_bind: BindGroup,
     diffusion: ComputePipeline,
     diffusion_bind: BindGroup,
     inputs: Vec<Buffer>,
+    /// The shared sample sequence ([`Profile::mixture_sequence`]), a uniform buffer.
+    seq: Buffer,
+    /// Copies of the positions and the irradiance as RGBA32F storage images (the
+    /// diffusion's gathers).
+    pos_img: Image,
+    irr_img: Image,
     lights: Buffer,
     irr: Buffer,
     diffuse: Buffer,
@@ -64,19 +79,20 @@ impl SssKernel {
         params.check()?;
         let ctx = rec.context();
         let spv = |name| crate::shaders::spirv(name);
+        let vertex =
+            ComputePipeline::from_spirv(&ctx, "sss/vertex_light", spv("sss/vertex_light")?)?;
         let irradiance =
             ComputePipeline::from_spirv(&ctx, "sss/irradiance", spv("sss/irradiance")?)?;
         let diffusion = ComputePipeline::from_spirv(&ctx, "sss/diffusion", spv("sss/diffusion")?)?;
         let bvh = Bvh::build(&geo.positions, &geo.triangles);
         let (nodes, tris) = bvh.flat();
-        let table: Vec<[f32; 4]> = match profile.kind {
-            ProfileKind::Dipole => profile
-                .table
-                .iter()
-                .map(|r| [r[0], r[1], r[2], 0.0])
-                .collect(),
-            ProfileKind::Burley => vec![[0.0; 4]; TABLE_SIZE],
-        };
+        let ubo_limit = ctx.limits().max_uniform_buffer_range;
+        if ubo_limit < SEQUENCE_BYTES {
+            return Err(Error::InvalidArgument(format!(
+                "the SSS sampler needs a uniform buffer of {SEQUENCE_BYTES} bytes; the device \
+                 allows {ubo_limit} (maxUniformBufferRange)"
+            )));
+        }
         let mut upload = |name: &str, bytes: &[u8]| {
             rec.buffer_with(name, BufferDesc::storage(bytes.len() as u64), bytes)
         };
@@ -84,34 +100,67 @@ impl SssKernel {
         let nrm = upload("sss normals", bytemuck::cast_slice(&geo.nrm))?;
         let dpdu = upload("sss dP/du", bytemuck::cast_slice(&geo.dpdu))?;
         let dpdv = upload("sss dP/dv", bytemuck::cast_slice(&geo.dpdv))?;
+        let texel_tri = upload("sss texel triangles", bytemuck::cast_slice(&geo.texel_tri))?;
+        let verts = upload("sss vertices", bytemuck::cast_slice(&vertex_frames(geo)))?;
+        let tri_idx: Vec<[u32; 4]> = geo.triangles.iter().map(|t| [t[0], t[1], t[2], 0]).collect();
+        let tri_idx = upload("sss triangle corners", bytemuck::cast_slice(&tri_idx))?;
         // Room for any hierarchy over this many triangles (a rebuilt one may have more
         // nodes): at most 2 n - 1.
         let mut node_room = nodes.clone();
         node_room.resize((2 * geo.triangles.len()).max(nodes.len()), [0.0; 8]);
         let nodes = upload("sss bvh nodes", bytemuck::cast_slice(&node_room))?;
         let tris = upload("sss bvh triangles", bytemuck::cast_slice(&tris))?;
-        let table = upload("sss inverse cdf", bytemuck::cast_slice(&table))?;
+        let seq = rec.buffer_with(
+            "sss sample sequence",
+            BufferDesc::uniform(SEQUENCE_BYTES),
+            &profile.mixture_sequence(params.samples),
+        )?;
         let lights = Buffer::new(
             &ctx,
             "sss lights",
             BufferDesc::storage(MAX_LIGHTS as u64 * 32),
         )?;
         let texels = geo.texels() as u64;
+        // The diffusion's gathers read positions and irradiance from RGBA32F storage images
+        // (lavapipe fetches a texel's four channels at once; a storage-buffer load at a
+        // per-lane index runs a loop over the lanes for every component).
+        let img_desc = ImageDesc::d2(vk::Format::R32G32B32A32_SFLOAT, [geo.size, geo.size])
+            .usage(vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST);
+        let pos_img = Image::new(&ctx, "sss position image", img_desc)?;
+        rec.upload_image(&pos_img, ImageRegion::whole(&img_desc), bytemuck::cast_slice(&geo.pos))?;
+        let irr_img = Image::new(&ctx, "sss irradiance image", img_desc)?;
+        let nv = geo.positions.len() as u64;
+        let vis = Buffer::new(&ctx, "sss vertex visibility", BufferDesc::storage(nv * 4))?;
+        let vtrans = Buffer::new(&ctx, "sss vertex transmission", BufferDesc::storage(nv * 16))?;
         let irr = Buffer::new(&ctx, "sss irradiance", BufferDesc::storage(texels * 16))?;
         let diffuse = Buffer::new(&ctx, "sss diffuse", BufferDesc::storage(texels * 16))?;
         let trans = Buffer::new(&ctx, "sss transmission", BufferDesc::storage(texels * 16))?;
         let w = AccessSet::from(A::ComputeShaderWrite);
+        let vertex_bind = vertex.bind_declared(
+            &[
+                ("verts", Resource::Buffer(&verts)),
+                ("nodes", Resource::Buffer(&nodes)),
+                ("tris", Resource::Buffer(&tris)),
+                ("lights", Resource::Buffer(&lights)),
+                ("vis", Resource::Buffer(&vis)),
+                ("vtrans", Resource::Buffer(&vtrans)),
+            ],
+            &[("vis", w), ("vtrans", w)],
+        )?;
         let irradiance_bind = irradiance.bind_declared(
             &[
                 ("pos", Resource::Buffer(&pos)),
                 ("nrm", Resource::Buffer(&nrm)),
-                ("nodes", Resource::Buffer(&nodes)),
-                ("tris", Resource::Buffer(&tris)),
+                ("texel_tri", Resource::Buffer(&texel_tri)),
+                ("tri_idx", Resource::Buffer(&tri_idx)),
                 ("lights", Resource::Buffer(&lights)),
+                ("vis", Resource::Buffer(&vis)),
+                ("vtrans", Resource::Buffer(&vtrans)),
                 ("irr", Resource::Buffer(&irr)),
                 ("trans", Resource::Buffer(&trans)),
+                ("irr_img", Resource::storage_image(&irr_img)),
             ],
-            &[("irr", w), ("trans", w)],
+            &[("irr", w), ("trans", w), ("irr_img", w)],
         )?;
         let diffusion_bind = diffusion.bind_declared(
             &[
@@ -120,18 +169,28 @@ impl SssKernel {
                 ("dpdu", Resource::Buffer(&dpdu)),
                 ("dpdv", Resource::Buffer(&dpdv)),
                 ("irr", Resource::Buffer(&irr)),
-                ("table", Resource::Buffer(&table)),
+                ("seq", Resource::Buffer(&seq)),
+                ("pos_img", Resource::storage_image(&pos_img)),
+                ("irr_img", Resource::storage_image(&irr_img)),
                 ("diffuse", Resource::Buffer(&diffuse)),
             ],
             &[("diffuse", w)],
         )?;
         Ok(SssKernel {
             ctx,
+            vertex,
+            vertex_bind,
+            vertices: nv as u32,
             irradiance,
             irradiance_bind,
             diffusion,
             diffusion_bind,
-            inputs: vec![pos, nrm, dpdu, dpdv, nodes, tris, table],
+            inputs: vec![
+                pos, nrm, dpdu, dpdv, nodes, tris, texel_tri, verts, tri_idx, vis, vtrans,
+            ],
+            seq,
+            pos_img,
+            irr_img,
             lights,
             irr,
             diffuse,
@@ -151,12 +210,15 @@ impl SssKernel {
     /// and UV layout; e.g. the skinned mesh of the next frame re-rasterised): the texel
     /// geometry and a rebuilt BVH.
     pub fn update_geometry(&self, rec: &mut Recorder, geo: &TexGeometry) -> Result<()> {
-        let [pos, nrm, dpdu, dpdv, nodes, tris, _] = &self.inputs[..] else {
+        let [pos, nrm, dpdu, dpdv, nodes, tris, texel_tri, verts, ..] = &self.inputs[..] else {
             return Err(Error::InvalidArgument(
                 "SSS kernel without its inputs".into(),
             ));
         };
-        if geo.size != self.size || (tris.size() as usize) != geo.triangles.len() * 48 {
+        if geo.size != self.size
+            || (tris.size() as usize) != geo.triangles.len() * 48
+            || geo.positions.len() != self.vertices as usize
+        {
             return Err(Error::InvalidArgument(format!(
                 "new geometry ({}^2, {} triangles) does not match the kernel's ({}^2, {} \
                  triangles)",
@@ -175,6 +237,13 @@ impl SssKernel {
         rec.upload(nrm, 0, &geo.nrm)?;
         rec.upload(dpdu, 0, &geo.dpdu)?;
         rec.upload(dpdv, 0, &geo.dpdv)?;
+        rec.upload_image(
+            &self.pos_img,
+            ImageRegion::whole(self.pos_img.desc()),
+            bytemuck::cast_slice(&geo.pos),
+        )?;
+        rec.upload(texel_tri, 0, &geo.texel_tri)?;
+        rec.upload(verts, 0, &vertex_frames(geo))?;
         rec.upload(nodes, 0, &n)?;
         rec.upload(tris, 0, &t)
     }
@@ -183,9 +252,10 @@ impl SssKernel {
         &self.params
     }
 
-    /// Changes the sampler settings (push constants: free).
-    pub fn set_params(&mut self, params: SamplerParams) -> Result<()> {
+    /// Changes the sampler settings: records the upload of the new sample sequence.
+    pub fn set_params(&mut self, rec: &mut Recorder, params: SamplerParams) -> Result<()> {
         params.check()?;
+        rec.upload(&self.seq, 0, &self.profile.mixture_sequence(params.samples))?;
         self.params = params;
         Ok(())
     }
@@ -215,7 +285,12 @@ impl SssKernel {
                 "irradiance texel {i} is not finite"
             )));
         }
-        rec.upload(&self.irr, 0, e)
+        rec.upload(&self.irr, 0, e)?;
+        rec.upload_image(
+            &self.irr_img,
+            ImageRegion::whole(self.irr_img.desc()),
+            bytemuck::cast_slice(e),
+        )
     }
 
     /// The transmission buffer (rgb, alpha thickness), written by `sss irradiance`.
@@ -223,7 +298,7 @@ impl SssKernel {
         &self.trans
     }
 
-    fn record_irradiance(&self, rec: &mut Recorder, lights: usize) -> Result<()> {
+    fn record_vertex_light(&self, rec: &mut Recorder, lights: usize) -> Result<()> {
         let p = &self.profile;
         let mode = match (self.params.transmission, p.kind) {
             (false, _) => 0u32,
@@ -234,12 +309,23 @@ impl SssKernel {
             .flat_map(|c| p.tail_gpu(c).map(f32::to_bits))
             .collect();
         words.extend([
-            self.size,
+            self.vertices,
             lights as u32,
             self.bias.to_bits(),
             mode,
             (p.max_radius() as f32).to_bits(),
         ]);
+        let push: Vec<u8> = words.iter().flat_map(|x| x.to_le_bytes()).collect();
+        rec.dispatch_invocations_tracked(
+            &self.vertex,
+            &self.vertex_bind,
+            &push,
+            [self.vertices, 1, 1],
+        )
+    }
+
+    fn record_irradiance(&self, rec: &mut Recorder, lights: usize) -> Result<()> {
+        let words = [self.size, lights as u32, self.params.transmission as u32];
         let push: Vec<u8> = words.iter().flat_map(|x| x.to_le_bytes()).collect();
         rec.dispatch_invocations_tracked(
             &self.irradiance,
@@ -251,20 +337,14 @@ impl SssKernel {
 
     /// Records the diffusion dispatch alone (barriers from the declared accesses).
     pub fn record_diffusion(&self, rec: &mut Recorder) -> Result<()> {
-        let p = &self.profile;
-        let mut f = Vec::with_capacity(12);
-        f.extend(p.k.map(|k| k as f32));
-        f.push(0.0);
-        let b = [0, 1, 2].map(|c| p.burley_gpu(c));
-        f.extend(b.map(|x| x[0]));
-        f.push(0.0);
-        f.extend(b.map(|x| x[1]));
-        f.push(0.0);
-        let mut push: Vec<u8> = f.iter().flat_map(|x| x.to_le_bytes()).collect();
+        let k = self.profile.k.map(|k| k as f32);
+        let mut push: Vec<u8> = [k[0], k[1], k[2], 0.0]
+            .iter()
+            .flat_map(|x| x.to_le_bytes())
+            .collect();
         for u in [
             self.size,
             self.params.samples,
-            (p.kind == ProfileKind::Burley) as u32,
             self.params.seam_rel.to_bits(),
             self.params.seam_texels.to_bits(),
         ] {
@@ -300,6 +380,10 @@ impl Kernel for SssKernel {
                 }],
             },
             PassInfo {
+                name: PASS_VERTEX,
+                uses: uses(&self.vertex_bind),
+            },
+            PassInfo {
                 name: PASS_IRRADIANCE,
                 uses: uses(&self.irradiance_bind),
             },
@@ -314,7 +398,7 @@ impl Kernel for SssKernel {
         check_lights(lights)?;
         let name = PASSES
             .get(pass)
-            .ok_or_else(|| Error::InvalidArgument(format!("SSS has 3 passes, not {}", pass + 1)))?;
+            .ok_or_else(|| Error::InvalidArgument(format!("SSS has 4 passes, not {}", pass + 1)))?;
         rec.begin_pass(name);
         let r = match pass {
             0 => {
@@ -325,7 +409,8 @@ impl Kernel for SssKernel {
                     rec.upload(&self.lights, 0, &data)
                 }
             }
-            1 => self.record_irradiance(rec, lights.len()),
+            1 => self.record_vertex_light(rec, lights.len()),
+            2 => self.record_irradiance(rec, lights.len()),
             _ => self.record_diffusion(rec),
         };
         rec.end_pass();
@@ -338,10 +423,11 @@ impl Kernel for SssKernel {
                 &self.lights,
                 A::TransferWrite.into(),
             )]),
-            1 => Ok(rec.plan_dispatch(&self.irradiance_bind)),
-            2 => Ok(rec.plan_dispatch(&self.diffusion_bind)),
+            1 => Ok(rec.plan_dispatch(&self.vertex_bind)),
+            2 => Ok(rec.plan_dispatch(&self.irradiance_bind)),
+            3 => Ok(rec.plan_dispatch(&self.diffusion_bind)),
             _ => Err(Error::InvalidArgument(format!(
-                "SSS has 3 passes, not {}",
+                "SSS has 4 passes, not {}",
                 pass + 1
             ))),
         }
@@ -367,8 +453,15 @@ impl Kernel for SssKernel {
         let all: Vec<&Buffer> = self
             .inputs
             .iter()
-            .chain([&self.lights, &self.irr, &self.diffuse, &self.trans])
+            .chain([&self.seq, &self.lights, &self.irr, &self.diffuse, &self.trans])
             .collect();
-        self.ctx.memory_of(&all)
+        let buffers = self.ctx.memory_of(&all);
+        MemoryReport {
+            used_bytes: buffers.used_bytes
+                + self.pos_img.allocation_size()
+                + self.irr_img.allocation_size(),
+            allocations: buffers.allocations + 2,
+            ..buffers
+        }
     }
 }
