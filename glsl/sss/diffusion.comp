@@ -25,18 +25,15 @@ layout(push_constant) uniform Push {
 
 const uint MAX_SAMPLES = 4096u;
 
-layout(std430, set = 0, binding = 0) readonly buffer Pos { vec4 v[]; } pos;
-layout(std430, set = 0, binding = 1) readonly buffer Nrm { vec4 v[]; } nrm;
-layout(std430, set = 0, binding = 2) readonly buffer Dpdu { vec4 v[]; } dpdu;
-layout(std430, set = 0, binding = 3) readonly buffer Dpdv { vec4 v[]; } dpdv;
-layout(std430, set = 0, binding = 4) readonly buffer Irr { vec4 v[]; } irr;
+// Per texel, images (lavapipe fetches a texel's four channels at once; a storage-buffer load
+// at a per-lane index loops over the lanes for each component).
+layout(set = 0, binding = 0, rgba32f) readonly uniform image2D pos;   // xyz, flag
+layout(set = 0, binding = 1, rgba32f) readonly uniform image2D nrm;   // xyz, area
+layout(set = 0, binding = 2, rgba32f) readonly uniform image2D dpdu;
+layout(set = 0, binding = 3, rgba32f) readonly uniform image2D dpdv;
+layout(set = 0, binding = 4, rgba32f) readonly uniform image2D irr;
 layout(std140, set = 0, binding = 5) uniform Seq { vec4 v[MAX_SAMPLES]; } seq; // r, w_rgb
 layout(std430, set = 0, binding = 6) writeonly buffer Diffuse { vec4 v[]; } diffuse;
-// The positions and irradiance again, as images: the per-sample gathers (lavapipe fetches a
-// texel's four channels at once; a storage-buffer load at a per-lane index loops over the
-// lanes for each component).
-layout(set = 0, binding = 7, rgba32f) readonly uniform image2D pos_img;
-layout(set = 0, binding = 8, rgba32f) readonly uniform image2D irr_img;
 
 const float TAU = 6.28318530718;
 
@@ -51,16 +48,17 @@ void main() {
     if (xy.x >= pc.size || xy.y >= pc.size) return;
     float nf = float(pc.size);
     uint i = xy.y * pc.size + xy.x;
-    vec4 p4 = pos.v[i];
+    ivec2 at = ivec2(xy);
+    vec4 p4 = imageLoad(pos, at);
     if (p4.w == 0.0) {
         diffuse.v[i] = vec4(0.0);
         return;
     }
     vec3 po = p4.xyz;
-    vec3 eo = irr.v[i].rgb;
-    vec3 a = dpdu.v[i].xyz;
-    vec3 b = dpdv.v[i].xyz;
-    vec3 nn = nrm.v[i].xyz;
+    vec3 eo = imageLoad(irr, at).rgb;
+    vec3 a = imageLoad(dpdu, at).xyz;
+    vec3 b = imageLoad(dpdv, at).xyz;
+    vec3 nn = imageLoad(nrm, at).xyz;
     vec3 t1 = a - nn * dot(nn, a);
     float t1l = length(t1);
     t1 = t1l > 0.0 ? t1 / t1l : vec3(0.0);
@@ -96,12 +94,12 @@ void main() {
         if (isnan(tx) || isnan(ty) || isinf(tx) || isinf(ty) || fx < 0.0 || fy < 0.0
             || fx >= nf || fy >= nf) continue;
         ivec2 j = ivec2(fx, fy);
-        vec4 pj = imageLoad(pos_img, j);
+        vec4 pj = imageLoad(pos, j);
         if (pj.w == 0.0) continue;
         float d = length(pj.xyz - po);
         if (abs(d - r) <= pc.seam_rel * r + tol) {
             vec3 w = q.yzw;
-            sum += w * imageLoad(irr_img, j).rgb;
+            sum += w * imageLoad(irr, j).rgb;
             wsum += w;
             acc++;
         }

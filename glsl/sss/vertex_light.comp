@@ -26,8 +26,11 @@ layout(std430, set = 0, binding = 0) readonly buffer Verts { vec4 v[]; } verts; 
 layout(std430, set = 0, binding = 1) readonly buffer Nodes { vec4 v[]; } nodes;   // 2 per node
 layout(std430, set = 0, binding = 2) readonly buffer Tris { vec4 v[]; } tris;     // 3 per tri
 layout(std430, set = 0, binding = 3) readonly buffer Lights { vec4 v[]; } lights; // 2 per light
-layout(std430, set = 0, binding = 4) writeonly buffer Vis { uint v[]; } vis;
-layout(std430, set = 0, binding = 5) writeonly buffer Vtrans { vec4 v[]; } vtrans; // rgb, t
+// Outputs as images (vertex v at (v % VERTEX_ROW, v / VERTEX_ROW)): the irradiance pass
+// gathers them with one texel fetch each.
+const uint VERTEX_ROW = 1024u;
+layout(set = 0, binding = 4, r32ui) writeonly uniform uimage2D vis;
+layout(set = 0, binding = 5, rgba32f) writeonly uniform image2D vtrans; // rgb, t
 
 // Parameter of the hit of triangle t in (0, tmax], or -1.
 float hit_t(vec3 o, vec3 d, uint t, float tmax) {
@@ -201,7 +204,8 @@ void main() {
     if (v >= pc.vertices) return;
     vec3 p = verts.v[2u * v].xyz;
     vec3 n = verts.v[2u * v + 1u].xyz;
-    vis.v[v] = visibility(p, n);
+    ivec2 at = ivec2(v % VERTEX_ROW, v / VERTEX_ROW);
+    imageStore(vis, at, uvec4(visibility(p, n)));
     vec4 tr = vec4(0.0);
     if (pc.mode != 0u) {
         vec3 o = p - n * pc.bias;
@@ -216,5 +220,5 @@ void main() {
             tr = vec4(eb * tail(0u, thick), eb * tail(1u, thick), eb * tail(2u, thick), thick);
         }
     }
-    vtrans.v[v] = tr;
+    imageStore(vtrans, at, tr);
 }

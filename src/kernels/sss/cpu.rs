@@ -191,12 +191,29 @@ pub fn vertex_visibility(geo: &TexGeometry, bvh: &Bvh, lights: &[Light]) -> Vec<
         .collect()
 }
 
-/// The texel's triangle corners and barycentrics (w0 = 1 - w1 - w2 in f32, as the shader);
-/// None for empty texels.
+/// Per texel, what the irradiance pass reads (image `corners`): the vertex indices of the
+/// texel's triangle and its centre's barycentrics w1, w2 as 16-bit fractions of 2^16, packed
+/// w1 | w2 << 16 (resolution 1.5e-5); zero for empty texels.
+pub fn texel_corners_packed(geo: &TexGeometry) -> Vec<[u32; 4]> {
+    geo.texel_tri
+        .iter()
+        .map(|t| {
+            let Some(tri) = geo.triangles.get(t[0] as usize) else {
+                return [0; 4];
+            };
+            let q = |bits: u32| (f32::from_bits(bits) * 65536.0).round().clamp(0.0, 65535.0) as u32;
+            [tri[0], tri[1], tri[2], q(t[1]) | q(t[2]) << 16]
+        })
+        .collect()
+}
+
+/// The texel's triangle corners and barycentrics as the shader decodes them from
+/// [`texel_corners_packed`] (w0 = 1 - w1 - w2 in f32); None for empty texels.
 fn texel_corners(geo: &TexGeometry, i: usize) -> Option<([usize; 3], [f32; 3])> {
     let t = geo.texel_tri[i];
     let tri = geo.triangles.get(t[0] as usize)?;
-    let (w1, w2) = (f32::from_bits(t[1]), f32::from_bits(t[2]));
+    let q = |bits: u32| (f32::from_bits(bits) * 65536.0).round().clamp(0.0, 65535.0);
+    let (w1, w2) = (q(t[1]) * (1.0 / 65536.0), q(t[2]) * (1.0 / 65536.0));
     Some((tri.map(|v| v as usize), [1.0 - w1 - w2, w1, w2]))
 }
 

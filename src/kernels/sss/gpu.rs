@@ -4,7 +4,10 @@
 //! ([`SssKernel::upload_irradiance`], e.g. from another kernel) and diffused alone
 //! ([`SssKernel::record_diffusion`]).
 
-use super::cpu::{Light, MAX_LIGHTS, SamplerParams, check_lights, shadow_bias, vertex_frames};
+use super::cpu::{
+    Light, MAX_LIGHTS, SamplerParams, check_lights, shadow_bias, texel_corners_packed,
+    vertex_frames,
+};
 use super::profile::{Profile, ProfileKind};
 use super::texspace::TexGeometry;
 use crate::error::{Error, Result};
@@ -51,25 +54,44 @@ pub struct SssKernel {
     irradiance_bind: BindGroup,
     diffusion: ComputePipeline,
     diffusion_bind: BindGroup,
-    inputs: Vec<Buffer>,
+    /// Mesh vertices (position, normal) and the BVH (nodes, triangles): storage buffers.
+    verts: Buffer,
+    nodes: Buffer,
+    tris: Buffer,
     /// The shared sample sequence ([`Profile::mixture_sequence`]), a uniform buffer.
     seq: Buffer,
-    /// Copies of the positions and the irradiance as RGBA32F storage images (the
-    /// diffusion's gathers).
-    pos_img: Image,
-    irr_img: Image,
+    /// Per texel: position, normal, dP/du, dP/dv (RGBA32F) and triangle corners (RGBA32UI,
+    /// [`texel_corners_packed`]), storage images: lavapipe fetches a texel's four channels at
+    /// once, while a storage-buffer load at a per-lane index loops over the lanes for each
+    /// component, and the passes gather per sample.
+    geometry: [Image; 5],
+    /// Per vertex (vertex v at (v % VERTEX_ROW, v / VERTEX_ROW)): visibility bits (R32UI) and
+    /// transmission (RGBA32F).
+    vis: Image,
+    vtrans: Image,
     lights: Buffer,
-    irr: Buffer,
+    irr: Image,
+    trans: Image,
     diffuse: Buffer,
-    trans: Buffer,
     size: u32,
     bias: f32,
     profile: Profile,
     params: SamplerParams,
 }
 
+/// Vertices per row of the per-vertex images (the shaders' VERTEX_ROW).
+const VERTEX_ROW: u32 = 1024;
+
+fn rgba32f(size: [u32; 2]) -> ImageDesc {
+    ImageDesc::d2(vk::Format::R32G32B32A32_SFLOAT, size).usage(
+        vk::ImageUsageFlags::STORAGE
+            | vk::ImageUsageFlags::TRANSFER_DST
+            | vk::ImageUsageFlags::TRANSFER_SRC,
+    )
+}
+
 impl SssKernel {
-    /// Creates buffers and pipelines for `geo` and records the uploads into `rec`.
+    /// Creates buffers, images and pipelines for `geo` and records the uploads into `rec`.
     pub fn new(
         rec: &mut Recorder,
         geo: &TexGeometry,
@@ -96,14 +118,7 @@ impl SssKernel {
         let mut upload = |name: &str, bytes: &[u8]| {
             rec.buffer_with(name, BufferDesc::storage(bytes.len() as u64), bytes)
         };
-        let pos = upload("sss positions", bytemuck::cast_slice(&geo.pos))?;
-        let nrm = upload("sss normals", bytemuck::cast_slice(&geo.nrm))?;
-        let dpdu = upload("sss dP/du", bytemuck::cast_slice(&geo.dpdu))?;
-        let dpdv = upload("sss dP/dv", bytemuck::cast_slice(&geo.dpdv))?;
-        let texel_tri = upload("sss texel triangles", bytemuck::cast_slice(&geo.texel_tri))?;
         let verts = upload("sss vertices", bytemuck::cast_slice(&vertex_frames(geo)))?;
-        let tri_idx: Vec<[u32; 4]> = geo.triangles.iter().map(|t| [t[0], t[1], t[2], 0]).collect();
-        let tri_idx = upload("sss triangle corners", bytemuck::cast_slice(&tri_idx))?;
         // Room for any hierarchy over this many triangles (a rebuilt one may have more
         // nodes): at most 2 n - 1.
         let mut node_room = nodes.clone();
@@ -121,20 +136,24 @@ impl SssKernel {
             BufferDesc::storage(MAX_LIGHTS as u64 * 32),
         )?;
         let texels = geo.texels() as u64;
-        // The diffusion's gathers read positions and irradiance from RGBA32F storage images
-        // (lavapipe fetches a texel's four channels at once; a storage-buffer load at a
-        // per-lane index runs a loop over the lanes for every component).
-        let img_desc = ImageDesc::d2(vk::Format::R32G32B32A32_SFLOAT, [geo.size, geo.size])
+        let sz = [geo.size, geo.size];
+        let corners_desc = ImageDesc::d2(vk::Format::R32G32B32A32_UINT, sz)
             .usage(vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST);
-        let pos_img = Image::new(&ctx, "sss position image", img_desc)?;
-        rec.upload_image(&pos_img, ImageRegion::whole(&img_desc), bytemuck::cast_slice(&geo.pos))?;
-        let irr_img = Image::new(&ctx, "sss irradiance image", img_desc)?;
-        let nv = geo.positions.len() as u64;
-        let vis = Buffer::new(&ctx, "sss vertex visibility", BufferDesc::storage(nv * 4))?;
-        let vtrans = Buffer::new(&ctx, "sss vertex transmission", BufferDesc::storage(nv * 16))?;
-        let irr = Buffer::new(&ctx, "sss irradiance", BufferDesc::storage(texels * 16))?;
+        let geometry = [
+            Image::new(&ctx, "sss position", rgba32f(sz))?,
+            Image::new(&ctx, "sss normal", rgba32f(sz))?,
+            Image::new(&ctx, "sss dP/du", rgba32f(sz))?,
+            Image::new(&ctx, "sss dP/dv", rgba32f(sz))?,
+            Image::new(&ctx, "sss texel corners", corners_desc)?,
+        ];
+        let nv = geo.positions.len() as u32;
+        let vsz = [VERTEX_ROW, nv.div_ceil(VERTEX_ROW).max(1)];
+        let vis_desc = ImageDesc::d2(vk::Format::R32_UINT, vsz).usage(vk::ImageUsageFlags::STORAGE);
+        let vis = Image::new(&ctx, "sss vertex visibility", vis_desc)?;
+        let vtrans = Image::new(&ctx, "sss vertex transmission", rgba32f(vsz))?;
+        let irr = Image::new(&ctx, "sss irradiance", rgba32f(sz))?;
+        let trans = Image::new(&ctx, "sss transmission", rgba32f(sz))?;
         let diffuse = Buffer::new(&ctx, "sss diffuse", BufferDesc::storage(texels * 16))?;
-        let trans = Buffer::new(&ctx, "sss transmission", BufferDesc::storage(texels * 16))?;
         let w = AccessSet::from(A::ComputeShaderWrite);
         let vertex_bind = vertex.bind_declared(
             &[
@@ -142,110 +161,114 @@ impl SssKernel {
                 ("nodes", Resource::Buffer(&nodes)),
                 ("tris", Resource::Buffer(&tris)),
                 ("lights", Resource::Buffer(&lights)),
-                ("vis", Resource::Buffer(&vis)),
-                ("vtrans", Resource::Buffer(&vtrans)),
+                ("vis", Resource::storage_image(&vis)),
+                ("vtrans", Resource::storage_image(&vtrans)),
             ],
             &[("vis", w), ("vtrans", w)],
         )?;
+        let [g_pos, g_nrm, g_dpdu, g_dpdv, g_corners] = &geometry;
         let irradiance_bind = irradiance.bind_declared(
             &[
-                ("pos", Resource::Buffer(&pos)),
-                ("nrm", Resource::Buffer(&nrm)),
-                ("texel_tri", Resource::Buffer(&texel_tri)),
-                ("tri_idx", Resource::Buffer(&tri_idx)),
+                ("pos", Resource::storage_image(g_pos)),
+                ("nrm", Resource::storage_image(g_nrm)),
+                ("corners", Resource::storage_image(g_corners)),
                 ("lights", Resource::Buffer(&lights)),
-                ("vis", Resource::Buffer(&vis)),
-                ("vtrans", Resource::Buffer(&vtrans)),
-                ("irr", Resource::Buffer(&irr)),
-                ("trans", Resource::Buffer(&trans)),
-                ("irr_img", Resource::storage_image(&irr_img)),
+                ("vis", Resource::storage_image(&vis)),
+                ("vtrans", Resource::storage_image(&vtrans)),
+                ("irr", Resource::storage_image(&irr)),
+                ("trans", Resource::storage_image(&trans)),
             ],
-            &[("irr", w), ("trans", w), ("irr_img", w)],
+            &[("irr", w), ("trans", w)],
         )?;
         let diffusion_bind = diffusion.bind_declared(
             &[
-                ("pos", Resource::Buffer(&pos)),
-                ("nrm", Resource::Buffer(&nrm)),
-                ("dpdu", Resource::Buffer(&dpdu)),
-                ("dpdv", Resource::Buffer(&dpdv)),
-                ("irr", Resource::Buffer(&irr)),
+                ("pos", Resource::storage_image(g_pos)),
+                ("nrm", Resource::storage_image(g_nrm)),
+                ("dpdu", Resource::storage_image(g_dpdu)),
+                ("dpdv", Resource::storage_image(g_dpdv)),
+                ("irr", Resource::storage_image(&irr)),
                 ("seq", Resource::Buffer(&seq)),
-                ("pos_img", Resource::storage_image(&pos_img)),
-                ("irr_img", Resource::storage_image(&irr_img)),
                 ("diffuse", Resource::Buffer(&diffuse)),
             ],
             &[("diffuse", w)],
         )?;
-        Ok(SssKernel {
+        let kernel = SssKernel {
             ctx,
             vertex,
             vertex_bind,
-            vertices: nv as u32,
+            vertices: nv,
             irradiance,
             irradiance_bind,
             diffusion,
             diffusion_bind,
-            inputs: vec![
-                pos, nrm, dpdu, dpdv, nodes, tris, texel_tri, verts, tri_idx, vis, vtrans,
-            ],
+            verts,
+            nodes,
+            tris,
             seq,
-            pos_img,
-            irr_img,
+            geometry,
+            vis,
+            vtrans,
             lights,
             irr,
-            diffuse,
             trans,
+            diffuse,
             size: geo.size,
             bias: shadow_bias(geo.extent_mm()),
             profile: profile.clone(),
             params,
-        })
+        };
+        kernel.upload_texels(rec, geo)?;
+        Ok(kernel)
     }
 
     pub fn size(&self) -> u32 {
         self.size
     }
 
+    /// Records the upload of the per-texel geometry images.
+    fn upload_texels(&self, rec: &mut Recorder, geo: &TexGeometry) -> Result<()> {
+        let corners = texel_corners_packed(geo);
+        let data: [&[u8]; 5] = [
+            bytemuck::cast_slice(&geo.pos),
+            bytemuck::cast_slice(&geo.nrm),
+            bytemuck::cast_slice(&geo.dpdu),
+            bytemuck::cast_slice(&geo.dpdv),
+            bytemuck::cast_slice(&corners),
+        ];
+        for (img, bytes) in self.geometry.iter().zip(data) {
+            rec.upload_image(img, ImageRegion::whole(img.desc()), bytes)?;
+        }
+        Ok(())
+    }
+
     /// Records the upload of a new pose of the same mesh (same texture size, same triangles
     /// and UV layout; e.g. the skinned mesh of the next frame re-rasterised): the texel
-    /// geometry and a rebuilt BVH.
+    /// geometry, the vertices and a rebuilt BVH.
     pub fn update_geometry(&self, rec: &mut Recorder, geo: &TexGeometry) -> Result<()> {
-        let [pos, nrm, dpdu, dpdv, nodes, tris, texel_tri, verts, ..] = &self.inputs[..] else {
-            return Err(Error::InvalidArgument(
-                "SSS kernel without its inputs".into(),
-            ));
-        };
         if geo.size != self.size
-            || (tris.size() as usize) != geo.triangles.len() * 48
+            || (self.tris.size() as usize) != geo.triangles.len() * 48
             || geo.positions.len() != self.vertices as usize
         {
             return Err(Error::InvalidArgument(format!(
-                "new geometry ({}^2, {} triangles) does not match the kernel's ({}^2, {} \
-                 triangles)",
+                "new geometry ({}^2, {} triangles, {} vertices) does not match the kernel's \
+                 ({}^2, {} triangles, {} vertices)",
                 geo.size,
                 geo.triangles.len(),
+                geo.positions.len(),
                 self.size,
-                tris.size() / 48
+                self.tris.size() / 48,
+                self.vertices
             )));
         }
         let bvh = Bvh::build(&geo.positions, &geo.triangles);
         let (n, t) = bvh.flat();
-        if (n.len() * 32) as u64 > nodes.size() {
+        if (n.len() * 32) as u64 > self.nodes.size() {
             return Err(Error::InvalidArgument("BVH larger than its buffer".into()));
         }
-        rec.upload(pos, 0, &geo.pos)?;
-        rec.upload(nrm, 0, &geo.nrm)?;
-        rec.upload(dpdu, 0, &geo.dpdu)?;
-        rec.upload(dpdv, 0, &geo.dpdv)?;
-        rec.upload_image(
-            &self.pos_img,
-            ImageRegion::whole(self.pos_img.desc()),
-            bytemuck::cast_slice(&geo.pos),
-        )?;
-        rec.upload(texel_tri, 0, &geo.texel_tri)?;
-        rec.upload(verts, 0, &vertex_frames(geo))?;
-        rec.upload(nodes, 0, &n)?;
-        rec.upload(tris, 0, &t)
+        self.upload_texels(rec, geo)?;
+        rec.upload(&self.verts, 0, &vertex_frames(geo))?;
+        rec.upload(&self.nodes, 0, &n)?;
+        rec.upload(&self.tris, 0, &t)
     }
 
     pub fn params(&self) -> &SamplerParams {
@@ -260,8 +283,9 @@ impl SssKernel {
         Ok(())
     }
 
-    /// The irradiance buffer (rgba per texel, row-major), written by `sss irradiance`.
-    pub fn irradiance(&self) -> &Buffer {
+    /// The irradiance image (RGBA32F, rgb E, alpha 1 on the surface), written by
+    /// `sss irradiance`.
+    pub fn irradiance(&self) -> &Image {
         &self.irr
     }
 
@@ -285,16 +309,15 @@ impl SssKernel {
                 "irradiance texel {i} is not finite"
             )));
         }
-        rec.upload(&self.irr, 0, e)?;
         rec.upload_image(
-            &self.irr_img,
-            ImageRegion::whole(self.irr_img.desc()),
+            &self.irr,
+            ImageRegion::whole(self.irr.desc()),
             bytemuck::cast_slice(e),
         )
     }
 
-    /// The transmission buffer (rgb, alpha thickness), written by `sss irradiance`.
-    pub fn transmission(&self) -> &Buffer {
+    /// The transmission image (rgb, alpha thickness), written by `sss irradiance`.
+    pub fn transmission(&self) -> &Image {
         &self.trans
     }
 
@@ -435,9 +458,10 @@ impl Kernel for SssKernel {
 
     fn read_back(&self, rec: &mut Recorder) -> Result<SssReadback> {
         Ok(SssReadback {
-            irradiance: rec.read_back(&self.irr)?,
+            irradiance: rec.read_back_image(&self.irr, ImageRegion::whole(self.irr.desc()))?,
             diffuse: rec.read_back(&self.diffuse)?,
-            transmission: rec.read_back(&self.trans)?,
+            transmission: rec
+                .read_back_image(&self.trans, ImageRegion::whole(self.trans.desc()))?,
         })
     }
 
@@ -450,17 +474,23 @@ impl Kernel for SssKernel {
     }
 
     fn memory(&self) -> MemoryReport {
-        let all: Vec<&Buffer> = self
-            .inputs
+        let buffers = self.ctx.memory_of(&[
+            &self.verts,
+            &self.nodes,
+            &self.tris,
+            &self.seq,
+            &self.lights,
+            &self.diffuse,
+        ]);
+        let images: Vec<&Image> = self
+            .geometry
             .iter()
-            .chain([&self.seq, &self.lights, &self.irr, &self.diffuse, &self.trans])
+            .chain([&self.vis, &self.vtrans, &self.irr, &self.trans])
             .collect();
-        let buffers = self.ctx.memory_of(&all);
         MemoryReport {
             used_bytes: buffers.used_bytes
-                + self.pos_img.allocation_size()
-                + self.irr_img.allocation_size(),
-            allocations: buffers.allocations + 2,
+                + images.iter().map(|i| i.allocation_size()).sum::<u64>(),
+            allocations: buffers.allocations + images.len() as u64,
             ..buffers
         }
     }
