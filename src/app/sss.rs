@@ -16,7 +16,7 @@ use crate::kernels::sss::profile::DEFAULT_ENERGY;
 use crate::kernels::sss::texspace::{COVERED, TexReport};
 use crate::kernels::sss::{Material, Profile, ProfileKind, SssKernel, SssOutput, TexGeometry};
 use crate::kernels::{Kernel, KernelInfo, run_frames};
-use crate::reference::sss::{ChannelError, Sources, brute_force};
+use crate::reference::sss::{ChannelError, Sources, brute_force, brute_force_where};
 use crate::report::MachineInfo;
 use glam::{DVec3, Vec2, Vec3};
 use serde::Serialize;
@@ -224,6 +224,28 @@ pub struct ReferenceReport {
     /// 1 - K(R)/R_tot per channel: the bias truncation alone causes on a flat, uniformly lit
     /// surface (the truth is not truncated).
     pub truncation: [f64; 3],
+    /// Against the truth restricted to the sources a walk over the surface can reach without
+    /// crossing a gap (a heuristic: facing the receiver's side, n_j . n_o > 0, and within 30
+    /// degrees of its tangent plane, |(x_j - x_o) . n_o| < |x_j - x_o| / 2): what the
+    /// texture-space sampler estimates. The rest (the back of the ear, the other lip, the
+    /// other side of the nostril, light crossing the eye and mouth openings) the Euclidean
+    /// truth collects and texture space cannot.
+    pub reachable: ChannelError,
+    /// The same for the texels where every sample was accepted.
+    pub reachable_interior: ChannelError,
+    /// Share of the truth's (area-weighted) energy from the sources `reachable` leaves out.
+    pub cross_gap_share: [f64; 3],
+}
+
+/// What the per-vertex shadowing changes against a shadow ray per texel (CPU, same lights):
+/// area-weighted relative RMSE over covered texels of E, and of B from the CPU twin of the
+/// diffusion fed with each.
+#[derive(Clone, Debug, Serialize)]
+pub struct ShadowingReport {
+    pub method: &'static str,
+    pub irradiance_rel_rmse: f64,
+    pub diffuse_rel_rmse: [f64; 3],
+    pub diffuse_energy_ratio: [f64; 3],
 }
 
 /// What `report.json` holds.
@@ -249,6 +271,7 @@ pub struct SssReport {
     /// Mean accepted fraction of the samples over covered texels.
     pub accepted_fraction: f64,
     pub gpu_vs_cpu: TwinError,
+    pub shadowing: ShadowingReport,
     pub cpu_ms_irradiance: f64,
     pub cpu_ms_diffusion: f64,
     pub reference: Option<ReferenceReport>,
@@ -389,6 +412,31 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
     let cpu_ms_diffusion = t.elapsed().as_secs_f64() * 1e3;
     let cpu_t = cpu::transmission(&geo, &bvh, &lights, &profile);
     let twin = TwinError::of(&geo, &gpu, &cpu_e, &cpu_b, &cpu_t);
+    let shadowing = {
+        let e_ray = cpu::irradiance_per_texel_rays(&geo, &bvh, &lights);
+        let b_ray = cpu::diffusion(&geo, &profile, &e_ray, &params);
+        let w: Vec<f64> = (0..geo.texels())
+            .map(|i| if geo.pos[i][3] == COVERED { geo.nrm[i][3] as f64 } else { 0.0 })
+            .collect();
+        let as3 = |v: &[[f32; 4]]| {
+            v.iter()
+                .map(|x| [x[0] as f64, x[1] as f64, x[2] as f64])
+                .collect::<Vec<_>>()
+        };
+        let e_err = ChannelError::of(&as3(&cpu_e), &as3(&e_ray), &w);
+        let b_err = ChannelError::of(&as3(&cpu_b), &as3(&b_ray), &w);
+        ShadowingReport {
+            method: "shadow rays per mesh vertex, visibility interpolated over each triangle \
+                     (compared with a shadow ray per texel)",
+            irradiance_rel_rmse: e_err.rel_rmse[0],
+            diffuse_rel_rmse: b_err.rel_rmse,
+            diffuse_energy_ratio: b_err.energy_ratio,
+        }
+    };
+    progress(&format!(
+        "per-vertex shadowing against a ray per texel: E rel RMSE {:.4}, B rel RMSE {:.4?}",
+        shadowing.irradiance_rel_rmse, shadowing.diffuse_rel_rmse
+    ));
     progress(&format!(
         "CPU twin ({cpu_ms_irradiance:.0} + {cpu_ms_diffusion:.0} ms): irradiance max rel {:.1e}, \
          diffuse rel RMSE {:.1e} {:.1e} {:.1e}",
@@ -446,6 +494,20 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
                 &idx.iter().map(|&k| w[k]).collect::<Vec<_>>(),
             )
         };
+        let rn: Vec<DVec3> = covered
+            .iter()
+            .map(|&i| Vec3::from_slice(&geo.nrm[i][..3]).as_dvec3())
+            .collect();
+        let reach = brute_force_where(&sources, &receivers, &profile, |r, j| {
+            let d = sources.pos[j] - receivers[r];
+            let l = d.length();
+            l < 1e-9 || (sources.normal[j].dot(rn[r]) > 0.0 && d.dot(rn[r]).abs() < 0.5 * l)
+        });
+        let inner: Vec<usize> = (0..covered.len())
+            .filter(|&k| gpu.diffuse[covered[k]][3] >= 1.0)
+            .collect();
+        let pick = |v: &[[f64; 3]]| inner.iter().map(|&k| v[k]).collect::<Vec<_>>();
+        let energy = |v: &[[f64; 3]], c: usize| v.iter().zip(&w).map(|(x, a)| x[c] * a).sum::<f64>();
         let rep = ReferenceReport {
             sources: sources.pos.len(),
             ms,
@@ -453,7 +515,19 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
             interior: split(&|i| gpu.diffuse[i][3] >= 1.0),
             seam: split(&|i| gpu.diffuse[i][3] < 1.0),
             truncation: [0, 1, 2].map(|c| 1.0 - profile.k[c] / profile.r_tot[c]),
+            reachable: ChannelError::of(&est, &reach, &w),
+            reachable_interior: ChannelError::of(
+                &pick(&est),
+                &pick(&reach),
+                &inner.iter().map(|&k| w[k]).collect::<Vec<_>>(),
+            ),
+            cross_gap_share: [0, 1, 2].map(|c| 1.0 - energy(&reach, c) / energy(&truth, c)),
         };
+        progress(&format!(
+            "vs the truth from reachable sources: rel RMSE {:.4?}, energy ratio {:.4?} (the \
+             truth's energy from across gaps: {:.4?})",
+            rep.reachable.rel_rmse, rep.reachable.energy_ratio, rep.cross_gap_share
+        ));
         progress(&format!(
             "vs brute force ({} sources, {ms:.0} ms): rel RMSE {:.4?}, max rel {:.3?}, energy \
              ratio {:.4?}",
@@ -479,11 +553,12 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
     notes.push(
         "samples are per texel, shared by the three channels (radii from the mixture of the \
          channels' pdfs, one-sample MIS weights); irradiance shadows are rays \
-         through a BVH of the mesh on the GPU; the texture-space geometry is rasterised on \
-         the CPU (once; with --anim once per frame after CPU skinning, BVH rebuilt); \
-         transmission: thickness along -n by a ray, \
-         back irradiance times the profile beyond the thickness (flat-slab model), added in \
-         render.png, not in diffuse.exr"
+         through a BVH of the mesh on the GPU, one per mesh vertex and light, the visibility \
+         interpolated over each triangle (see `shadowing`); the texture-space geometry is \
+         rasterised on the CPU (once; with --anim once per frame after CPU skinning, BVH \
+         rebuilt); transmission: thickness along -n by a ray per vertex, \
+         back irradiance times the profile beyond the thickness (flat-slab model), \
+         interpolated per texel, added in render.png, not in diffuse.exr"
             .into(),
     );
     notes.push(
@@ -511,6 +586,7 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
         fps: 1000.0 / (ms_e + ms_b),
         accepted_fraction,
         gpu_vs_cpu: twin,
+        shadowing,
         cpu_ms_irradiance,
         cpu_ms_diffusion,
         reference,
