@@ -2,12 +2,14 @@
 // Texture-space irradiance: E per texel from directional and point lights, E =
 // sum_l strength_l max(n.l, 0) V_l, with the texel's own normal, position (point-light
 // distance) and cosine, and the visibility V_l interpolated over the texel's triangle from
-// the per-vertex shadow rays of pass `sss vertex light` (glsl/sss/vertex_light.comp) with the
-// texel centre's barycentrics (exactly 0 or 1 where the three corners agree). White lights: E
-// is written to rgb alike. Transmission (mode != 0): the per-vertex (rgb, thickness)
-// interpolated the same way. Shadow boundaries are therefore resolved at the mesh's vertex
-// spacing, not per texel (the difference is measured by `vkshade sss`, report.json
-// `shadowing`). Everything per texel is an image (lavapipe fetches a texel's four channels at
+// the per-vertex shadow rays of pass `sss vertex light` (glsl/sss/vertex_light.comp): where
+// the triangle's three corners agree, V is theirs (0 or 1); where they disagree (a shadow
+// boundary crosses the triangle) and refine is on, the texel casts its own shadow ray through
+// the BVH (the same traversal as the vertex pass), else V is interpolated with the texel
+// centre's barycentrics. White lights: E is written to rgb alike. Transmission (mode != 0):
+// the per-vertex (rgb, thickness) interpolated. What this changes against a ray per texel is
+// measured by `vkshade sss` (report.json `shadowing`): shadows smaller than a triangle that
+// touch none of its corners are missed. Everything per texel is an image (lavapipe fetches a texel's four channels at
 // once; a storage-buffer load at a per-lane index loops over the lanes for each component).
 // The CPU twin is src/kernels/sss/cpu.rs.
 layout(local_size_x = 8, local_size_y = 8) in;
@@ -16,6 +18,8 @@ layout(push_constant) uniform Push {
     uint size;     // texture is size x size
     uint lights;
     uint mode;     // transmission: 0 off, else on
+    uint refine;   // 1: a shadow ray per texel where the corners disagree
+    float bias;    // shadow-ray origin offset along the normal (mm)
 } pc;
 
 const uint VERTEX_ROW = 1024u;
@@ -30,6 +34,59 @@ layout(set = 0, binding = 4, r32ui) readonly uniform uimage2D vis;
 layout(set = 0, binding = 5, rgba32f) readonly uniform image2D vtrans;
 layout(set = 0, binding = 6, rgba32f) writeonly uniform image2D irr;
 layout(set = 0, binding = 7, rgba32f) writeonly uniform image2D trans;  // rgb, t
+layout(std430, set = 0, binding = 8) readonly buffer Nodes { vec4 v[]; } nodes;   // 2 per node
+layout(std430, set = 0, binding = 9) readonly buffer Tris { vec4 v[]; } tris;     // 3 per tri
+
+bool hit_tri(vec3 o, vec3 d, uint t, float tmax) {
+    vec3 a = tris.v[3u * t].xyz;
+    vec3 e1 = tris.v[3u * t + 1u].xyz;
+    vec3 e2 = tris.v[3u * t + 2u].xyz;
+    vec3 p = cross(d, e2);
+    float det = dot(e1, p);
+    if (abs(det) < 1e-12) return false;
+    float inv = 1.0 / det;
+    vec3 s = o - a;
+    float u = dot(s, p) * inv;
+    if (u < 0.0 || u > 1.0) return false;
+    vec3 q = cross(s, e1);
+    float v = dot(d, q) * inv;
+    if (v < 0.0 || u + v > 1.0) return false;
+    float t_hit = dot(e2, q) * inv;
+    return t_hit > 0.0 && t_hit <= tmax;
+}
+
+bool any_hit(vec3 o, vec3 d, float tmax) {
+    vec3 inv = 1.0 / d;
+    uint stack[64];
+    uint sp = 1u;
+    stack[0] = 0u;
+    while (sp > 0u) {
+        sp--;
+        uint ni = stack[sp];
+        vec4 lo = nodes.v[2u * ni];
+        vec4 hi = nodes.v[2u * ni + 1u];
+        vec3 t0 = (lo.xyz - o) * inv;
+        vec3 t1 = (hi.xyz - o) * inv;
+        vec3 tmin = min(t0, t1);
+        vec3 tmx = max(t0, t1);
+        float tnear = max(max(max(tmin.x, tmin.y), tmin.z), 0.0);
+        float tfar = min(min(min(tmx.x, tmx.y), tmx.z), tmax);
+        if (tnear > tfar) continue;
+        uint first = floatBitsToUint(lo.w);
+        uint count = floatBitsToUint(hi.w);
+        if (count > 0u) {
+            for (uint t = first; t < first + count; t++) {
+                if (hit_tri(o, d, t, tmax)) return true;
+            }
+        } else if (sp + 2u <= 64u) {
+            stack[sp] = first;
+            stack[sp + 1u] = first + 1u;
+            sp += 2u;
+        }
+    }
+    return false;
+}
+
 
 ivec2 vertex_at(uint v) {
     return ivec2(v % VERTEX_ROW, v / VERTEX_ROW);
@@ -58,20 +115,28 @@ void main() {
         vec4 a = lights.v[2u * l];
         float strength = lights.v[2u * l + 1u].x;
         vec3 dir;
+        float tmax;
         if (a.w == 0.0) {
             dir = a.xyz;
+            tmax = uintBitsToFloat(0x7f800000u);
         } else {
             vec3 dd = a.xyz - p;
             float dist = length(dd);
             dir = dd / dist;
+            tmax = dist - pc.bias;
             strength = strength / (dist * dist);
         }
         float c = dot(n, dir);
         if (c <= 0.0 || strength == 0.0) continue;
         uint c0 = (b0 >> l) & 1u, c1 = (b1 >> l) & 1u, c2 = (b2 >> l) & 1u;
-        // Exactly 0 or 1 when the corners agree.
-        float v = (c0 == c1 && c1 == c2) ? float(c0)
-            : w0 * float(c0) + w1 * float(c1) + w2 * float(c2);
+        float v;
+        if (c0 == c1 && c1 == c2) {
+            v = float(c0);
+        } else if (pc.refine != 0u) {
+            v = any_hit(p + n * pc.bias, dir, tmax) ? 0.0 : 1.0;
+        } else {
+            v = w0 * float(c0) + w1 * float(c1) + w2 * float(c2);
+        }
         e += strength * c * v;
     }
     imageStore(irr, at, vec4(e, e, e, 1.0));

@@ -42,6 +42,8 @@ pub struct SssConfig {
     /// Fraction of each channel's reflectance inside its sampling radius.
     pub energy: f64,
     pub samples: u32,
+    /// Shadow rays per texel where a triangle's corners disagree (else interpolated).
+    pub shadow_refine: bool,
     pub size: u32,
     /// With `anim`: frames spread over the animation (the mesh is posed and re-rasterised
     /// for each); without: the same frame repeated (timing).
@@ -66,6 +68,7 @@ impl Default for SssConfig {
             material: Material::SKIN1,
             energy: DEFAULT_ENERGY,
             samples: 32,
+            shadow_refine: true,
             size: 512,
             frames: 1,
             anim: None,
@@ -337,6 +340,7 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
     ));
     let params = SamplerParams {
         samples: cfg.samples,
+        shadow_refine: cfg.shadow_refine,
         ..SamplerParams::default()
     };
     let mut setup = ctx.recorder("sss setup")?;
@@ -405,7 +409,7 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
     // The CPU twin of both passes.
     let t = Instant::now();
     let bvh = Bvh::build(&geo.positions, &geo.triangles);
-    let cpu_e = cpu::irradiance(&geo, &bvh, &lights);
+    let cpu_e = cpu::irradiance(&geo, &bvh, &lights, params.shadow_refine);
     let cpu_ms_irradiance = t.elapsed().as_secs_f64() * 1e3;
     let t = Instant::now();
     let cpu_b = cpu::diffusion(&geo, &profile, &cpu_e, &params);
@@ -416,7 +420,13 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
         let e_ray = cpu::irradiance_per_texel_rays(&geo, &bvh, &lights);
         let b_ray = cpu::diffusion(&geo, &profile, &e_ray, &params);
         let w: Vec<f64> = (0..geo.texels())
-            .map(|i| if geo.pos[i][3] == COVERED { geo.nrm[i][3] as f64 } else { 0.0 })
+            .map(|i| {
+                if geo.pos[i][3] == COVERED {
+                    geo.nrm[i][3] as f64
+                } else {
+                    0.0
+                }
+            })
             .collect();
         let as3 = |v: &[[f32; 4]]| {
             v.iter()
@@ -426,8 +436,13 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
         let e_err = ChannelError::of(&as3(&cpu_e), &as3(&e_ray), &w);
         let b_err = ChannelError::of(&as3(&cpu_b), &as3(&b_ray), &w);
         ShadowingReport {
-            method: "shadow rays per mesh vertex, visibility interpolated over each triangle \
-                     (compared with a shadow ray per texel)",
+            method: if params.shadow_refine {
+                "shadow rays per mesh vertex; a ray per texel in triangles whose corners \
+                 disagree (compared with a shadow ray per texel everywhere)"
+            } else {
+                "shadow rays per mesh vertex, visibility interpolated over each triangle \
+                 (compared with a shadow ray per texel)"
+            },
             irradiance_rel_rmse: e_err.rel_rmse[0],
             diffuse_rel_rmse: b_err.rel_rmse,
             diffuse_energy_ratio: b_err.energy_ratio,
@@ -507,7 +522,8 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
             .filter(|&k| gpu.diffuse[covered[k]][3] >= 1.0)
             .collect();
         let pick = |v: &[[f64; 3]]| inner.iter().map(|&k| v[k]).collect::<Vec<_>>();
-        let energy = |v: &[[f64; 3]], c: usize| v.iter().zip(&w).map(|(x, a)| x[c] * a).sum::<f64>();
+        let energy =
+            |v: &[[f64; 3]], c: usize| v.iter().zip(&w).map(|(x, a)| x[c] * a).sum::<f64>();
         let rep = ReferenceReport {
             sources: sources.pos.len(),
             ms,

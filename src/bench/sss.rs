@@ -200,7 +200,12 @@ pub fn run(
     // (the same rays as the GPU's).
     let geo_e = TexGeometry::build(&mesh, cfg.error_size, cfg.mm_per_unit)?;
     let bvh = Bvh::build(&geo_e.positions, &geo_e.triangles);
-    let e = cpu::irradiance(&geo_e, &bvh, &lights());
+    let e = cpu::irradiance(
+        &geo_e,
+        &bvh,
+        &lights(),
+        SamplerParams::default().shadow_refine,
+    );
     let covered: Vec<usize> = (0..geo_e.texels())
         .filter(|&i| geo_e.pos[i][3] == COVERED)
         .collect();
@@ -266,7 +271,7 @@ pub fn run(
         ..SamplerParams::default()
     };
     let cpu_ms = time_cpu(cfg.cpu_runs, || {
-        let e = cpu::irradiance(&geo, &bvh, &lights());
+        let e = cpu::irradiance(&geo, &bvh, &lights(), params.shadow_refine);
         // The GPU's irradiance pass also computes the transmission.
         let t = params
             .transmission

@@ -220,17 +220,21 @@ fn texel_corners(geo: &TexGeometry, i: usize) -> Option<([usize; 3], [f32; 3])> 
 /// The irradiance pass on the CPU: E per texel (rgb, alpha 1 where the texel is valid), the
 /// shader's method: the texel's own cosine and point-light distance, the visibility of each
 /// light interpolated from the triangle's vertices ([`vertex_visibility`]).
-pub fn irradiance(geo: &TexGeometry, bvh: &Bvh, lights: &[Light]) -> Vec<[f32; 4]> {
+pub fn irradiance(geo: &TexGeometry, bvh: &Bvh, lights: &[Light], refine: bool) -> Vec<[f32; 4]> {
     let vis = vertex_visibility(geo, bvh, lights);
-    irradiance_from_visibility(geo, lights, &vis)
+    irradiance_from_visibility(geo, bvh, lights, &vis, refine)
 }
 
-/// [`irradiance`] from given per-vertex visibility bits.
+/// [`irradiance`] from given per-vertex visibility bits; `refine`: a shadow ray from the texel
+/// where the triangle's corners disagree (else their visibility interpolated).
 pub fn irradiance_from_visibility(
     geo: &TexGeometry,
+    bvh: &Bvh,
     lights: &[Light],
     vis: &[u32],
+    refine: bool,
 ) -> Vec<[f32; 4]> {
+    let bias = shadow_bias(geo.extent_mm());
     (0..geo.texels())
         .into_par_iter()
         .map(|i| {
@@ -246,12 +250,12 @@ pub fn irradiance_from_visibility(
             let b = ids.map(|v| vis[v]);
             let mut e = 0.0;
             for (l, light) in lights.iter().enumerate() {
-                let (dir, strength) = match *light {
-                    Light::Directional { toward, e } => (toward, e),
+                let (dir, tmax, strength) = match *light {
+                    Light::Directional { toward, e } => (toward, f32::INFINITY, e),
                     Light::Point { pos, i } => {
                         let d = pos - p;
                         let dist = d.length();
-                        (d / dist, i / (dist * dist))
+                        (d / dist, dist - bias, i / (dist * dist))
                     }
                 };
                 let c = n.dot(dir);
@@ -262,6 +266,12 @@ pub fn irradiance_from_visibility(
                 // Exactly 0 or 1 when the corners agree (as the shader).
                 let v = if cb[0] == cb[1] && cb[1] == cb[2] {
                     cb[0] as f32
+                } else if refine {
+                    if bvh.any_hit(p + n * bias, dir, tmax) {
+                        0.0
+                    } else {
+                        1.0
+                    }
                 } else {
                     w[0] * cb[0] as f32 + w[1] * cb[1] as f32 + w[2] * cb[2] as f32
                 };
@@ -401,6 +411,9 @@ pub struct SamplerParams {
     pub seam_texels: f32,
     /// Also compute the transmission through thin parts (in the irradiance pass).
     pub transmission: bool,
+    /// Shadows: a ray per texel where the triangle's corners disagree (true), or the corners'
+    /// visibility interpolated (false; faster, blurrier shadow edges).
+    pub shadow_refine: bool,
 }
 
 impl Default for SamplerParams {
@@ -410,6 +423,7 @@ impl Default for SamplerParams {
             seam_rel: 0.25,
             seam_texels: 2.0,
             transmission: true,
+            shadow_refine: true,
         }
     }
 }

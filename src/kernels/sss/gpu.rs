@@ -16,8 +16,8 @@ use crate::gpu::{
     AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context, Image,
     ImageDesc, ImageRegion, MemoryReport, PlannedBarrier, Readback, Recorder, Resource,
 };
-use ash::vk;
 use crate::kernels::{Kernel, PassInfo, UseInfo};
+use ash::vk;
 
 pub const PASS_LIGHTS: &str = "sss lights";
 pub const PASS_VERTEX: &str = "sss vertex light";
@@ -177,6 +177,8 @@ impl SssKernel {
                 ("vtrans", Resource::storage_image(&vtrans)),
                 ("irr", Resource::storage_image(&irr)),
                 ("trans", Resource::storage_image(&trans)),
+                ("nodes", Resource::Buffer(&nodes)),
+                ("tris", Resource::Buffer(&tris)),
             ],
             &[("irr", w), ("trans", w)],
         )?;
@@ -348,7 +350,13 @@ impl SssKernel {
     }
 
     fn record_irradiance(&self, rec: &mut Recorder, lights: usize) -> Result<()> {
-        let words = [self.size, lights as u32, self.params.transmission as u32];
+        let words = [
+            self.size,
+            lights as u32,
+            self.params.transmission as u32,
+            self.params.shadow_refine as u32,
+            self.bias.to_bits(),
+        ];
         let push: Vec<u8> = words.iter().flat_map(|x| x.to_le_bytes()).collect();
         rec.dispatch_invocations_tracked(
             &self.irradiance,

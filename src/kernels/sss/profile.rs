@@ -394,7 +394,12 @@ impl Profile {
                     }
                 });
                 let mean = (q[0] + q[1] + q[2]) / 3.0;
-                [r as f32, (q[0] / mean) as f32, (q[1] / mean) as f32, (q[2] / mean) as f32]
+                [
+                    r as f32,
+                    (q[0] / mean) as f32,
+                    (q[1] / mean) as f32,
+                    (q[2] / mean) as f32,
+                ]
             })
             .collect()
     }
@@ -579,11 +584,17 @@ mod tests {
             let p = Profile::new(kind, Material::SKIN1, DEFAULT_ENERGY).unwrap();
             let n = 4096;
             let seq = p.mixture_sequence(n);
-            assert!(seq.windows(2).all(|w| w[0][0] < w[1][0]), "radii not increasing");
+            assert!(
+                seq.windows(2).all(|w| w[0][0] < w[1][0]),
+                "radii not increasing"
+            );
             assert!(seq[n as usize - 1][0] as f64 <= p.max_radius());
             for c in 0..3 {
                 let mean = seq.iter().map(|q| q[c + 1] as f64).sum::<f64>() / n as f64;
-                assert!((mean - 1.0).abs() < 2e-3, "{kind:?} ch {c}: mean weight {mean}");
+                assert!(
+                    (mean - 1.0).abs() < 2e-3,
+                    "{kind:?} ch {c}: mean weight {mean}"
+                );
                 for frac in [0.1, 0.3, 0.5, 0.8] {
                     let x = frac * p.radius[c];
                     let got = seq
@@ -593,10 +604,16 @@ mod tests {
                         .sum::<f64>()
                         / n as f64;
                     let want = p.cdf_normalised(c, x);
-                    assert!((got - want).abs() < 3e-3, "{kind:?} ch {c} x {x}: {got} vs {want}");
+                    assert!(
+                        (got - want).abs() < 3e-3,
+                        "{kind:?} ch {c} x {x}: {got} vs {want}"
+                    );
                 }
                 // Beyond its radius a channel has no weight.
-                assert!(seq.iter().all(|q| q[0] as f64 <= p.radius[c] || q[c + 1] == 0.0));
+                assert!(
+                    seq.iter()
+                        .all(|q| q[0] as f64 <= p.radius[c] || q[c + 1] == 0.0)
+                );
             }
         }
     }

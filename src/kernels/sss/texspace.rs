@@ -327,7 +327,12 @@ impl TexGeometry {
                 nrm[i] = [n.x as f32, n.y as f32, n.z as f32, area as f32];
                 dpdu[i] = [a.x as f32, a.y as f32, a.z as f32, 0.0];
                 dpdv[i] = [b.x as f32, b.y as f32, b.z as f32, 0.0];
-                texel_tri[i] = [t as u32, (w[1] as f32).to_bits(), (w[2] as f32).to_bits(), 0];
+                texel_tri[i] = [
+                    t as u32,
+                    (w[1] as f32).to_bits(),
+                    (w[2] as f32).to_bits(),
+                    0,
+                ];
                 texel_area += area;
             });
         }
