@@ -34,13 +34,24 @@ layout(set = 0, binding = 4, r32ui) readonly uniform uimage2D vis;
 layout(set = 0, binding = 5, rgba32f) readonly uniform image2D vtrans;
 layout(set = 0, binding = 6, rgba32f) writeonly uniform image2D irr;
 layout(set = 0, binding = 7, rgba32f) writeonly uniform image2D trans;  // rgb, t
-layout(std430, set = 0, binding = 8) readonly buffer Nodes { vec4 v[]; } nodes;   // 2 per node
-layout(std430, set = 0, binding = 9) readonly buffer Tris { vec4 v[]; } tris;     // 3 per tri
+// The BVH as images (row BVH_ROW; lavapipe fetches a texel's four channels at once): nodes
+// 2 texels each (lo xyz, first; hi xyz, count), triangles 3 (a, e1, e2), float bits.
+const uint BVH_ROW = 1024u;
+layout(set = 0, binding = 8, rgba32ui) readonly uniform uimage2D nodes;
+layout(set = 0, binding = 9, rgba32ui) readonly uniform uimage2D tris;
+
+uvec4 bvh_node(uint k) {
+    return imageLoad(nodes, ivec2(k % BVH_ROW, k / BVH_ROW));
+}
+
+vec3 tri_row(uint k) {
+    return uintBitsToFloat(imageLoad(tris, ivec2(k % BVH_ROW, k / BVH_ROW)).xyz);
+}
 
 bool hit_tri(vec3 o, vec3 d, uint t, float tmax) {
-    vec3 a = tris.v[3u * t].xyz;
-    vec3 e1 = tris.v[3u * t + 1u].xyz;
-    vec3 e2 = tris.v[3u * t + 2u].xyz;
+    vec3 a = tri_row(3u * t);
+    vec3 e1 = tri_row(3u * t + 1u);
+    vec3 e2 = tri_row(3u * t + 2u);
     vec3 p = cross(d, e2);
     float det = dot(e1, p);
     if (abs(det) < 1e-12) return false;
@@ -63,17 +74,19 @@ bool any_hit(vec3 o, vec3 d, float tmax) {
     while (sp > 0u) {
         sp--;
         uint ni = stack[sp];
-        vec4 lo = nodes.v[2u * ni];
-        vec4 hi = nodes.v[2u * ni + 1u];
-        vec3 t0 = (lo.xyz - o) * inv;
-        vec3 t1 = (hi.xyz - o) * inv;
+        uvec4 lo_u = bvh_node(2u * ni);
+        uvec4 hi_u = bvh_node(2u * ni + 1u);
+        vec3 lo = uintBitsToFloat(lo_u.xyz);
+        vec3 hi = uintBitsToFloat(hi_u.xyz);
+        vec3 t0 = (lo - o) * inv;
+        vec3 t1 = (hi - o) * inv;
         vec3 tmin = min(t0, t1);
         vec3 tmx = max(t0, t1);
         float tnear = max(max(max(tmin.x, tmin.y), tmin.z), 0.0);
         float tfar = min(min(min(tmx.x, tmx.y), tmx.z), tmax);
         if (tnear > tfar) continue;
-        uint first = floatBitsToUint(lo.w);
-        uint count = floatBitsToUint(hi.w);
+        uint first = lo_u.w;
+        uint count = hi_u.w;
         if (count > 0u) {
             for (uint t = first; t < first + count; t++) {
                 if (hit_tri(o, d, t, tmax)) return true;

@@ -56,8 +56,11 @@ pub struct SssKernel {
     diffusion_bind: BindGroup,
     /// Mesh vertices (position, normal) and the BVH (nodes, triangles): storage buffers.
     verts: Buffer,
-    nodes: Buffer,
-    tris: Buffer,
+    /// The BVH as RGBA32UI images of [`BVH_ROW`] texels a row (float bits; nodes 2 texels,
+    /// triangles 3): the traversal's loads fetch a texel at once (see `geometry`).
+    nodes: Image,
+    tris: Image,
+    triangles: usize,
     /// The shared sample sequence ([`Profile::mixture_sequence`]), a uniform buffer.
     seq: Buffer,
     /// Per texel: position, normal, dP/du, dP/dv (RGBA32F) and triangle corners (RGBA32UI,
@@ -81,6 +84,36 @@ pub struct SssKernel {
 
 /// Vertices per row of the per-vertex images (the shaders' VERTEX_ROW).
 const VERTEX_ROW: u32 = 1024;
+/// Texels per row of the BVH images (the shaders' BVH_ROW).
+const BVH_ROW: u32 = 1024;
+
+/// An RGBA32UI image of at least `texels` texels, [`BVH_ROW`] a row.
+fn bvh_desc(texels: usize) -> ImageDesc {
+    let rows = (texels as u32).div_ceil(BVH_ROW).max(1);
+    ImageDesc::d2(vk::Format::R32G32B32A32_UINT, [BVH_ROW, rows])
+        .usage(vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST)
+}
+
+/// Records the upload of `data` (16-byte texels, row-major) into the first rows of `image`
+/// (zero-padded to whole rows).
+fn upload_rows(rec: &mut Recorder, image: &Image, data: &[[f32; 4]]) -> Result<()> {
+    let [w, h, _] = image.desc().extent;
+    let rows = (data.len() as u32).div_ceil(w).max(1);
+    if rows > h {
+        return Err(Error::InvalidArgument(format!(
+            "{} texels do not fit image '{}' ({w} x {h})",
+            data.len(),
+            image.name()
+        )));
+    }
+    let mut padded = data.to_vec();
+    padded.resize((rows * w) as usize, [0.0; 4]);
+    let region = ImageRegion {
+        extent: [w, rows, 1],
+        ..ImageRegion::whole(image.desc())
+    };
+    rec.upload_image(image, region, bytemuck::cast_slice(&padded))
+}
 
 fn rgba32f(size: [u32; 2]) -> ImageDesc {
     ImageDesc::d2(vk::Format::R32G32B32A32_SFLOAT, size).usage(
@@ -121,10 +154,12 @@ impl SssKernel {
         let verts = upload("sss vertices", bytemuck::cast_slice(&vertex_frames(geo)))?;
         // Room for any hierarchy over this many triangles (a rebuilt one may have more
         // nodes): at most 2 n - 1.
-        let mut node_room = nodes.clone();
-        node_room.resize((2 * geo.triangles.len()).max(nodes.len()), [0.0; 8]);
-        let nodes = upload("sss bvh nodes", bytemuck::cast_slice(&node_room))?;
-        let tris = upload("sss bvh triangles", bytemuck::cast_slice(&tris))?;
+        let node_room = (2 * geo.triangles.len()).max(nodes.len());
+        let nodes_img = Image::new(&ctx, "sss bvh nodes", bvh_desc(2 * node_room))?;
+        let tris_img = Image::new(&ctx, "sss bvh triangles", bvh_desc(3 * tris.len()))?;
+        upload_rows(rec, &nodes_img, bytemuck::cast_slice(&nodes))?;
+        upload_rows(rec, &tris_img, bytemuck::cast_slice(&tris))?;
+        let (nodes, tris) = (nodes_img, tris_img);
         let seq = rec.buffer_with(
             "sss sample sequence",
             BufferDesc::uniform(SEQUENCE_BYTES),
@@ -158,8 +193,8 @@ impl SssKernel {
         let vertex_bind = vertex.bind_declared(
             &[
                 ("verts", Resource::Buffer(&verts)),
-                ("nodes", Resource::Buffer(&nodes)),
-                ("tris", Resource::Buffer(&tris)),
+                ("nodes", Resource::storage_image(&nodes)),
+                ("tris", Resource::storage_image(&tris)),
                 ("lights", Resource::Buffer(&lights)),
                 ("vis", Resource::storage_image(&vis)),
                 ("vtrans", Resource::storage_image(&vtrans)),
@@ -177,8 +212,8 @@ impl SssKernel {
                 ("vtrans", Resource::storage_image(&vtrans)),
                 ("irr", Resource::storage_image(&irr)),
                 ("trans", Resource::storage_image(&trans)),
-                ("nodes", Resource::Buffer(&nodes)),
-                ("tris", Resource::Buffer(&tris)),
+                ("nodes", Resource::storage_image(&nodes)),
+                ("tris", Resource::storage_image(&tris)),
             ],
             &[("irr", w), ("trans", w)],
         )?;
@@ -206,6 +241,7 @@ impl SssKernel {
             verts,
             nodes,
             tris,
+            triangles: geo.triangles.len(),
             seq,
             geometry,
             vis,
@@ -248,7 +284,7 @@ impl SssKernel {
     /// geometry, the vertices and a rebuilt BVH.
     pub fn update_geometry(&self, rec: &mut Recorder, geo: &TexGeometry) -> Result<()> {
         if geo.size != self.size
-            || (self.tris.size() as usize) != geo.triangles.len() * 48
+            || self.triangles != geo.triangles.len()
             || geo.positions.len() != self.vertices as usize
         {
             return Err(Error::InvalidArgument(format!(
@@ -258,19 +294,20 @@ impl SssKernel {
                 geo.triangles.len(),
                 geo.positions.len(),
                 self.size,
-                self.tris.size() / 48,
+                self.triangles,
                 self.vertices
             )));
         }
         let bvh = Bvh::build(&geo.positions, &geo.triangles);
         let (n, t) = bvh.flat();
-        if (n.len() * 32) as u64 > self.nodes.size() {
-            return Err(Error::InvalidArgument("BVH larger than its buffer".into()));
+        let room = self.nodes.desc().extent[0] as usize * self.nodes.desc().extent[1] as usize;
+        if 2 * n.len() > room {
+            return Err(Error::InvalidArgument("BVH larger than its image".into()));
         }
         self.upload_texels(rec, geo)?;
         rec.upload(&self.verts, 0, &vertex_frames(geo))?;
-        rec.upload(&self.nodes, 0, &n)?;
-        rec.upload(&self.tris, 0, &t)
+        upload_rows(rec, &self.nodes, bytemuck::cast_slice(&n))?;
+        upload_rows(rec, &self.tris, bytemuck::cast_slice(&t))
     }
 
     pub fn params(&self) -> &SamplerParams {
@@ -482,18 +519,20 @@ impl Kernel for SssKernel {
     }
 
     fn memory(&self) -> MemoryReport {
-        let buffers = self.ctx.memory_of(&[
-            &self.verts,
-            &self.nodes,
-            &self.tris,
-            &self.seq,
-            &self.lights,
-            &self.diffuse,
-        ]);
+        let buffers = self
+            .ctx
+            .memory_of(&[&self.verts, &self.seq, &self.lights, &self.diffuse]);
         let images: Vec<&Image> = self
             .geometry
             .iter()
-            .chain([&self.vis, &self.vtrans, &self.irr, &self.trans])
+            .chain([
+                &self.vis,
+                &self.vtrans,
+                &self.irr,
+                &self.trans,
+                &self.nodes,
+                &self.tris,
+            ])
             .collect();
         MemoryReport {
             used_bytes: buffers.used_bytes
