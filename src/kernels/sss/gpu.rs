@@ -1,6 +1,11 @@
-//! The SSS kernel on the GPU: pass `sss lights` uploads the frame's lights, `sss irradiance`
-//! computes E per texel with BVH shadow rays, `sss diffusion` importance-samples the
-//! profile in texture space. The irradiance buffer can also be filled by the caller
+//! The SSS kernel on the GPU: pass `sss lights` uploads the frame's lights, `sss vertex light`
+//! casts shadow and thickness rays per mesh vertex through the BVH, `sss irradiance` computes
+//! E per texel (the vertices' shadowing, refined by a ray per texel where a triangle's corners
+//! disagree) and the transmission, `sss diffusion` importance-samples the profile in texture
+//! space with one sample set shared by the three channels. Per-texel data and the BVH live in
+//! storage images: on lavapipe an image load at a per-lane coordinate fetches the texel's four
+//! channels at once, while a storage-buffer load at a per-lane index loops over the lanes for
+//! every component (measured: the diffusion 3.7x faster, the irradiance 1.6x). The irradiance buffer can also be filled by the caller
 //! ([`SssKernel::upload_irradiance`], e.g. from another kernel) and diffused alone
 //! ([`SssKernel::record_diffusion`]).
 

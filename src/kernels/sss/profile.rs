@@ -14,7 +14,9 @@
 //! `energy` of the channel's R_tot; K(R) = int_0^R 2 pi r Rd(r) dr. Sampling p_A = Rd / K(R)
 //! gives every sample the weight K(R): B = K(R) * mean E.
 //!
-//! The sampling table (what the GPU reads): per channel [`TABLE_SIZE`] radii r_j with
+//! The diffusion sampler draws from the mixture of the three channels
+//! ([`Profile::mixture_sequence`], closed-form CDFs). The inverse-CDF table (per channel
+//! radii, kept for single-channel sampling and checked by the tests): [`TABLE_SIZE`] radii r_j with
 //! F(r_j) = t_j^2 K(R), t_j = j / (TABLE_SIZE - 1); a uniform u in [0, 1) maps to
 //! r = lerp over t = sqrt(u) (the square root follows F ~ r^2 near 0, so the
 //! lookup is accurate at small radii). Burley is sampled analytically instead.
