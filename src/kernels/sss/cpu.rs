@@ -2,7 +2,7 @@
 //! the same diffusion sampler (same hash, same sample sequence, same f32 arithmetic as
 //! glsl/sss/diffusion.comp, in the same order).
 
-use super::profile::{Profile, ProfileKind};
+use super::profile::Profile;
 use super::texspace::TexGeometry;
 use crate::error::{Error, Result};
 use crate::geom::bvh::Bvh;
@@ -532,9 +532,4 @@ pub fn texel_uv(size: u32, i: usize) -> Vec2 {
         ((i % n) as f32 + 0.5) / size as f32,
         ((i / n) as f32 + 0.5) / size as f32,
     )
-}
-
-/// Whether the profile needs the table (dipole) or the analytic inverse (Burley).
-pub fn uses_table(p: &Profile) -> bool {
-    p.kind == ProfileKind::Dipole
 }
