@@ -240,9 +240,13 @@ struct SssArgs {
     /// Fraction of each channel's reflectance inside its sampling radius.
     #[arg(long, default_value_t = vkshade::kernels::sss::profile::DEFAULT_ENERGY)]
     energy: f64,
-    /// Samples per texel per channel.
+    /// Samples per texel (one set shared by the three channels).
     #[arg(long, default_value_t = 32)]
     samples: u32,
+    /// Shadows from the mesh's vertices only, interpolated over each triangle (faster); by
+    /// default a texel casts its own shadow ray where its triangle's corners disagree.
+    #[arg(long)]
+    vertex_shadows: bool,
     /// Texture size (N x N texels).
     #[arg(long, default_value_t = 512)]
     size: u32,
@@ -972,8 +976,13 @@ fn cmd_bench_sss(g: &Global, opts: &BenchOpts, quick: bool) -> Result<()> {
     let h = &r.headline;
     println!("device                 {}", r.machine.device);
     println!(
-        "headline               {}^2 texels x {} samples/texel/channel: irradiance {:.1} ms + diffusion {:.1} ms (median GPU) = {:.2} fps",
-        h.size, h.samples, h.irradiance_ms.median, h.diffusion_ms.median, h.fps
+        "headline               {}^2 texels x {} samples/texel: vertex light {:.1} ms + irradiance {:.1} ms + diffusion {:.1} ms (median GPU) = {:.2} fps",
+        h.size,
+        h.samples,
+        h.vertex_light_ms.median,
+        h.irradiance_ms.median,
+        h.diffusion_ms.median,
+        h.fps
     );
     println!(
         "throughput             {:.2e} samples/s = {:.1}% of the {:.1} GFLOP/s FMA peak, {:.1}% of {:.1} GB/s (work model in bench/sss.rs)",
@@ -1047,6 +1056,7 @@ fn cmd_sss(g: &Global, a: &SssArgs) -> Result<()> {
         material,
         energy: a.energy,
         samples: a.samples,
+        shadow_refine: !a.vertex_shadows,
         size: a.size,
         frames: a.frames,
         anim: a.anim.clone(),

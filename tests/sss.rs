@@ -81,7 +81,8 @@ fn uniformly_lit_plane_gives_e_times_k_also_stretched_2_to_1() {
                 ..Default::default()
             };
             let out = common::with_gpu(|ctx| gpu_frame(ctx, &geo, &p, params, &lights, None));
-            let cpu_e = cpu::irradiance(&geo, &Bvh::build(&geo.positions, &geo.triangles), &lights);
+            let bvh = Bvh::build(&geo.positions, &geo.triangles);
+            let cpu_e = cpu::irradiance(&geo, &bvh, &lights, params.shadow_refine);
             let inner = interior(&geo, w, h, rmax * 1.02);
             assert!(inner.len() > 100);
             for &i in &inner {
@@ -188,7 +189,12 @@ fn head_gpu_matches_the_cpu_twin_and_the_brute_force() {
     let out = common::with_gpu(|ctx| gpu_frame(ctx, &geo, &p, params, &lights, None));
     // Irradiance: the same rays through the same BVH; a texel may flip where a shadow ray
     // grazes an edge (f32 rounding differs).
-    let e = cpu::irradiance(&geo, &Bvh::build(&geo.positions, &geo.triangles), &lights);
+    let e = cpu::irradiance(
+        &geo,
+        &Bvh::build(&geo.positions, &geo.triangles),
+        &lights,
+        params.shadow_refine,
+    );
     let valid: Vec<usize> = (0..geo.texels()).filter(|&i| geo.pos[i][3] > 0.0).collect();
     let flipped = valid
         .iter()
@@ -202,7 +208,23 @@ fn head_gpu_matches_the_cpu_twin_and_the_brute_force() {
         valid.iter().any(|&i| e[i][0] == 0.0),
         "no self-shadowing at all"
     );
-    // Transmission: the same thickness rays; a texel may differ where a ray grazes an edge.
+    // Shadows from the vertices, refined per texel where a triangle's corners disagree,
+    // against a shadow ray from every texel: only shadows that touch no corner of their
+    // triangle differ.
+    let rays =
+        cpu::irradiance_per_texel_rays(&geo, &Bvh::build(&geo.positions, &geo.triangles), &lights);
+    let (mut d2, mut t2) = (0f64, 0f64);
+    for &i in &valid {
+        d2 += ((e[i][0] - rays[i][0]) as f64).powi(2);
+        t2 += (rays[i][0] as f64).powi(2);
+    }
+    let shadow_rmse = (d2 / t2).sqrt();
+    // Measured 0.012 (256^2, these two lights).
+    eprintln!("refined vertex shadows vs a ray per texel: E rel RMSE {shadow_rmse:.4}");
+    assert!(shadow_rmse < 0.03, "E rel RMSE {shadow_rmse}");
+    // Transmission: the same thickness rays per vertex; a vertex may differ where its ray
+    // grazes an edge (f32 rounding differs), and its value spreads over the texels of its
+    // triangles (at 256^2 one vertex covers ~60 texels): at most 0.5% of the texels.
     let tr = cpu::transmission(
         &geo,
         &Bvh::build(&geo.positions, &geo.triangles),
@@ -217,8 +239,9 @@ fn head_gpu_matches_the_cpu_twin_and_the_brute_force() {
             (0..4).any(|c| (out.transmission[i][c] - tr[i][c]).abs() > 1e-4 * tmax.max(tr[i][3]))
         })
         .count();
+    eprintln!("transmission: {differ} of {} texels differ", valid.len());
     assert!(
-        differ * 1000 <= valid.len(),
+        differ * 200 <= valid.len(),
         "{differ} texels' transmission differ"
     );
     // Diffusion: the same sample sequence from the GPU's irradiance. Measured relative RMSE
@@ -257,9 +280,12 @@ fn head_gpu_matches_the_cpu_twin_and_the_brute_force() {
     let w: Vec<f64> = covered.iter().map(|&i| geo.nrm[i][3] as f64).collect();
     let err = truth::ChannelError::of(&est, &t, &w);
     eprintln!("head 256^2 x 32 vs brute force: {err:?}");
-    // Measured at 256^2 x 32 (2.5 mm texels, these two lights): relative RMSE 0.103 / 0.059 /
-    // 0.082, energy ratio 0.971 / 0.996 / 1.051 (seams, open boundaries and the coarse
-    // texels against the 3.5 mm blue radius). Bounds with margin:
+    // Measured at 256^2 x 32 shared samples (2.5 mm texels, these two lights, shadows from
+    // the vertices refined per texel): relative RMSE 0.106 / 0.063 / 0.083, energy ratio
+    // 0.969 / 0.993 / 1.049 (light the Euclidean truth collects across the eye, mouth and ear
+    // openings, seams, and the coarse texels against the 3.5 mm blue radius; with the
+    // vertices' shadows interpolated everywhere it is 0.138 / 0.085 / 0.102: smeared shadow
+    // edges light more of those pockets). Bounds with margin:
     for c in 0..3 {
         assert!(err.rel_rmse[c] < 0.13, "channel {c}: {err:?}");
         assert!(
@@ -322,8 +348,8 @@ fn bad_inputs_are_refused_with_clear_errors() {
         ];
         let e = kernel.record(&mut rec, &many).unwrap_err();
         assert!(e.to_string().contains("lights"), "{e}");
-        let e = kernel.record_pass(&mut rec, 3, &[]).unwrap_err();
-        assert!(e.to_string().contains("3 passes"), "{e}");
+        let e = kernel.record_pass(&mut rec, 4, &[]).unwrap_err();
+        assert!(e.to_string().contains("4 passes"), "{e}");
         rec.submit_and_wait()?;
         Ok(())
     });
@@ -342,17 +368,33 @@ fn back_lit_thin_slab_transmits_red() {
     };
     let mut uvs = Vec::new();
     let mut normals = Vec::new();
-    for (z, nz, u0) in [(0.0, 1.0, 0.0), (-t, -1.0, 0.5)] {
+    // Grids of cells (transmission is computed per vertex): the back plane is larger and
+    // offset, with another cell count, so no thickness ray from a front vertex grazes a back
+    // edge or vertex.
+    for (z, nz, u0, size, g, shift) in [
+        (0.0, 1.0, 0.0, w, 6u32, 0.0),
+        (-t, -1.0, 0.5, w + 20.0, 5, 3.7),
+    ] {
         let b = d.positions.len() as u32;
-        for (x, y) in [(0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0)] {
-            d.positions.push([(x - 0.5) * w, (y - 0.5) * w, z]);
-            uvs.push([u0 + 0.5 * x, y]);
-            normals.push([0.0, 0.0, nz]);
+        for j in 0..=g {
+            for k in 0..=g {
+                let (x, y) = (k as f32 / g as f32, j as f32 / g as f32);
+                d.positions
+                    .push([(x - 0.5) * size + shift, (y - 0.5) * size + 0.8 * shift, z]);
+                uvs.push([u0 + 0.5 * x, y]);
+                normals.push([0.0, 0.0, nz]);
+            }
         }
-        if nz > 0.0 {
-            d.triangles.extend([[b, b + 1, b + 2], [b, b + 2, b + 3]]);
-        } else {
-            d.triangles.extend([[b, b + 2, b + 1], [b, b + 3, b + 2]]);
+        for j in 0..g {
+            for k in 0..g {
+                let q = b + j * (g + 1) + k;
+                let (q1, q2, q3) = (q + 1, q + g + 2, q + g + 1);
+                if nz > 0.0 {
+                    d.triangles.extend([[q, q1, q2], [q, q2, q3]]);
+                } else {
+                    d.triangles.extend([[q, q2, q1], [q, q3, q2]]);
+                }
+            }
         }
     }
     d.uvs = Some(uvs);

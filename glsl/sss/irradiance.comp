@@ -1,53 +1,57 @@
 #version 450
-// Texture-space irradiance: E per texel from directional and point lights, each shadowed by
-// a ray through the mesh's BVH (the CPU BVH flattened; the same traversal and two-sided
-// Moller-Trumbore test as src/geom/bvh.rs). White lights: E is written to rgb alike.
-// Transmission through thin parts (mode != 0): a ray from just inside along -n finds the back
-// surface at thickness t; its irradiance E_b times R_tot - F(t) per channel (the profile
-// beyond t: diffuse transmission of a locally flat slab lit from behind) goes to `trans`.
+// Texture-space irradiance: E per texel from directional and point lights, E =
+// sum_l strength_l max(n.l, 0) V_l, with the texel's own normal, position (point-light
+// distance) and cosine, and the visibility V_l interpolated over the texel's triangle from
+// the per-vertex shadow rays of pass `sss vertex light` (glsl/sss/vertex_light.comp): where
+// the triangle's three corners agree, V is theirs (0 or 1); where they disagree (a shadow
+// boundary crosses the triangle) and refine is on, the texel casts its own shadow ray through
+// the BVH (the same traversal as the vertex pass), else V is interpolated with the texel
+// centre's barycentrics. White lights: E is written to rgb alike. Transmission (mode != 0):
+// the per-vertex (rgb, thickness) interpolated. What this changes against a ray per texel is
+// measured by `vkshade sss` (report.json `shadowing`): shadows smaller than a triangle that
+// touch none of its corners are missed. Everything per texel is an image (lavapipe fetches a texel's four channels at
+// once; a storage-buffer load at a per-lane index loops over the lanes for each component).
 // The CPU twin is src/kernels/sss/cpu.rs.
 layout(local_size_x = 8, local_size_y = 8) in;
 
 layout(push_constant) uniform Push {
-    vec4 tail[3];  // per channel: dipole (alpha'/2, sigma_tr, z_r, z_v), Burley (A, d, 0, 0)
     uint size;     // texture is size x size
     uint lights;
+    uint mode;     // transmission: 0 off, else on
+    uint refine;   // 1: a shadow ray per texel where the corners disagree
     float bias;    // shadow-ray origin offset along the normal (mm)
-    uint mode;     // transmission: 0 off, 1 dipole, 2 Burley
-    float max_t;   // thickest part that transmits (mm)
 } pc;
 
-layout(std430, set = 0, binding = 0) readonly buffer Pos { vec4 v[]; } pos;       // xyz, flag
-layout(std430, set = 0, binding = 1) readonly buffer Nrm { vec4 v[]; } nrm;       // xyz, area
-layout(std430, set = 0, binding = 2) readonly buffer Nodes { vec4 v[]; } nodes;   // 2 per node
-layout(std430, set = 0, binding = 3) readonly buffer Tris { vec4 v[]; } tris;     // 3 per tri
-layout(std430, set = 0, binding = 4) readonly buffer Lights { vec4 v[]; } lights; // 2 per light
-layout(std430, set = 0, binding = 5) writeonly buffer Irr { vec4 v[]; } irr;
-layout(std430, set = 0, binding = 6) writeonly buffer Trans { vec4 v[]; } trans; // rgb, t
+const uint VERTEX_ROW = 1024u;
 
-// Parameter of the hit of triangle t in (0, tmax], or -1.
-float hit_t(vec3 o, vec3 d, uint t, float tmax) {
-    vec3 a = tris.v[3u * t].xyz;
-    vec3 e1 = tris.v[3u * t + 1u].xyz;
-    vec3 e2 = tris.v[3u * t + 2u].xyz;
-    vec3 p = cross(d, e2);
-    float det = dot(e1, p);
-    if (abs(det) < 1e-12) return -1.0;
-    float inv = 1.0 / det;
-    vec3 s = o - a;
-    float u = dot(s, p) * inv;
-    if (u < 0.0 || u > 1.0) return -1.0;
-    vec3 q = cross(s, e1);
-    float v = dot(d, q) * inv;
-    if (v < 0.0 || u + v > 1.0) return -1.0;
-    float t_hit = dot(e2, q) * inv;
-    return (t_hit > 0.0 && t_hit <= tmax) ? t_hit : -1.0;
+layout(set = 0, binding = 0, rgba32f) readonly uniform image2D pos;     // xyz, flag
+layout(set = 0, binding = 1, rgba32f) readonly uniform image2D nrm;     // xyz, area
+// The texel's triangle corners (vertex indices) and barycentrics w1, w2 as 16-bit fractions
+// of 2^16 in w (cpu::texel_corners_packed).
+layout(set = 0, binding = 2, rgba32ui) readonly uniform uimage2D corners;
+layout(std430, set = 0, binding = 3) readonly buffer Lights { vec4 v[]; } lights; // 2 per light
+layout(set = 0, binding = 4, r32ui) readonly uniform uimage2D vis;
+layout(set = 0, binding = 5, rgba32f) readonly uniform image2D vtrans;
+layout(set = 0, binding = 6, rgba32f) writeonly uniform image2D irr;
+layout(set = 0, binding = 7, rgba32f) writeonly uniform image2D trans;  // rgb, t
+// The BVH as images (row BVH_ROW; lavapipe fetches a texel's four channels at once): nodes
+// 2 texels each (lo xyz, first; hi xyz, count), triangles 3 (a, e1, e2), float bits.
+const uint BVH_ROW = 1024u;
+layout(set = 0, binding = 8, rgba32ui) readonly uniform uimage2D nodes;
+layout(set = 0, binding = 9, rgba32ui) readonly uniform uimage2D tris;
+
+uvec4 bvh_node(uint k) {
+    return imageLoad(nodes, ivec2(k % BVH_ROW, k / BVH_ROW));
+}
+
+vec3 tri_row(uint k) {
+    return uintBitsToFloat(imageLoad(tris, ivec2(k % BVH_ROW, k / BVH_ROW)).xyz);
 }
 
 bool hit_tri(vec3 o, vec3 d, uint t, float tmax) {
-    vec3 a = tris.v[3u * t].xyz;
-    vec3 e1 = tris.v[3u * t + 1u].xyz;
-    vec3 e2 = tris.v[3u * t + 2u].xyz;
+    vec3 a = tri_row(3u * t);
+    vec3 e1 = tri_row(3u * t + 1u);
+    vec3 e2 = tri_row(3u * t + 2u);
     vec3 p = cross(d, e2);
     float det = dot(e1, p);
     if (abs(det) < 1e-12) return false;
@@ -70,17 +74,19 @@ bool any_hit(vec3 o, vec3 d, float tmax) {
     while (sp > 0u) {
         sp--;
         uint ni = stack[sp];
-        vec4 lo = nodes.v[2u * ni];
-        vec4 hi = nodes.v[2u * ni + 1u];
-        vec3 t0 = (lo.xyz - o) * inv;
-        vec3 t1 = (hi.xyz - o) * inv;
+        uvec4 lo_u = bvh_node(2u * ni);
+        uvec4 hi_u = bvh_node(2u * ni + 1u);
+        vec3 lo = uintBitsToFloat(lo_u.xyz);
+        vec3 hi = uintBitsToFloat(hi_u.xyz);
+        vec3 t0 = (lo - o) * inv;
+        vec3 t1 = (hi - o) * inv;
         vec3 tmin = min(t0, t1);
         vec3 tmx = max(t0, t1);
         float tnear = max(max(max(tmin.x, tmin.y), tmin.z), 0.0);
         float tfar = min(min(min(tmx.x, tmx.y), tmx.z), tmax);
         if (tnear > tfar) continue;
-        uint first = floatBitsToUint(lo.w);
-        uint count = floatBitsToUint(hi.w);
+        uint first = lo_u.w;
+        uint count = hi_u.w;
         if (count > 0u) {
             for (uint t = first; t < first + count; t++) {
                 if (hit_tri(o, d, t, tmax)) return true;
@@ -94,48 +100,29 @@ bool any_hit(vec3 o, vec3 d, float tmax) {
     return false;
 }
 
-// Nearest hit in (0, tmax]: (t, triangle), or t < 0.
-vec2 closest_hit(vec3 o, vec3 d, float tmax) {
-    vec3 inv = 1.0 / d;
-    uint stack[64];
-    uint sp = 1u;
-    stack[0] = 0u;
-    float best = -1.0;
-    uint best_tri = 0u;
-    while (sp > 0u) {
-        sp--;
-        uint ni = stack[sp];
-        vec4 lo = nodes.v[2u * ni];
-        vec4 hi = nodes.v[2u * ni + 1u];
-        vec3 t0 = (lo.xyz - o) * inv;
-        vec3 t1 = (hi.xyz - o) * inv;
-        vec3 tmin = min(t0, t1);
-        vec3 tmx = max(t0, t1);
-        float tnear = max(max(max(tmin.x, tmin.y), tmin.z), 0.0);
-        float tfar = min(min(min(tmx.x, tmx.y), tmx.z), best >= 0.0 ? best : tmax);
-        if (tnear > tfar) continue;
-        uint first = floatBitsToUint(lo.w);
-        uint count = floatBitsToUint(hi.w);
-        if (count > 0u) {
-            for (uint t = first; t < first + count; t++) {
-                float th = hit_t(o, d, t, tmax);
-                if (th >= 0.0 && (best < 0.0 || th < best)) {
-                    best = th;
-                    best_tri = t;
-                }
-            }
-        } else if (sp + 2u <= 64u) {
-            stack[sp] = first;
-            stack[sp + 1u] = first + 1u;
-            sp += 2u;
-        }
-    }
-    return vec2(best, uintBitsToFloat(best_tri));
+
+ivec2 vertex_at(uint v) {
+    return ivec2(v % VERTEX_ROW, v / VERTEX_ROW);
 }
 
-// Irradiance at p (normal n) from every light, shadow rays from p + n * bias.
-float irradiance_at(vec3 p, vec3 n) {
-    vec3 o = p + n * pc.bias;
+void main() {
+    uvec2 xy = gl_GlobalInvocationID.xy;
+    if (xy.x >= pc.size || xy.y >= pc.size) return;
+    ivec2 at = ivec2(xy);
+    vec4 p4 = imageLoad(pos, at);
+    if (p4.w == 0.0) {
+        imageStore(irr, at, vec4(0.0));
+        imageStore(trans, at, vec4(0.0));
+        return;
+    }
+    vec3 p = p4.xyz;
+    vec3 n = imageLoad(nrm, at).xyz;
+    uvec4 cr = imageLoad(corners, at);
+    const float Q = 1.0 / 65536.0;
+    float w1 = float(cr.w & 0xffffu) * Q, w2 = float(cr.w >> 16u) * Q;
+    float w0 = 1.0 - w1 - w2;
+    ivec2 a0 = vertex_at(cr.x), a1 = vertex_at(cr.y), a2 = vertex_at(cr.z);
+    uint b0 = imageLoad(vis, a0).x, b1 = imageLoad(vis, a1).x, b2 = imageLoad(vis, a2).x;
     float e = 0.0;
     for (uint l = 0u; l < pc.lights; l++) {
         vec4 a = lights.v[2u * l];
@@ -154,49 +141,21 @@ float irradiance_at(vec3 p, vec3 n) {
         }
         float c = dot(n, dir);
         if (c <= 0.0 || strength == 0.0) continue;
-        if (any_hit(o, dir, tmax)) continue;
-        e += strength * c;
+        uint c0 = (b0 >> l) & 1u, c1 = (b1 >> l) & 1u, c2 = (b2 >> l) & 1u;
+        float v;
+        if (c0 == c1 && c1 == c2) {
+            v = float(c0);
+        } else if (pc.refine != 0u) {
+            v = any_hit(p + n * pc.bias, dir, tmax) ? 0.0 : 1.0;
+        } else {
+            v = w0 * float(c0) + w1 * float(c1) + w2 * float(c2);
+        }
+        e += strength * c * v;
     }
-    return e;
-}
-
-float tail(uint c, float t) {
-    vec4 p = pc.tail[c];
-    if (pc.mode == 1u) {
-        float dr = sqrt(t * t + p.z * p.z);
-        float dv = sqrt(t * t + p.w * p.w);
-        return p.x * (p.z * exp(-p.y * dr) / dr + p.w * exp(-p.y * dv) / dv);
-    }
-    return p.x * (0.25 * exp(-t / p.y) + 0.75 * exp(-t / (3.0 * p.y)));
-}
-
-void main() {
-    uvec2 xy = gl_GlobalInvocationID.xy;
-    if (xy.x >= pc.size || xy.y >= pc.size) return;
-    uint i = xy.y * pc.size + xy.x;
-    vec4 p4 = pos.v[i];
-    if (p4.w == 0.0) {
-        irr.v[i] = vec4(0.0);
-        trans.v[i] = vec4(0.0);
-        return;
-    }
-    vec3 p = p4.xyz;
-    vec3 n = nrm.v[i].xyz;
-    float e = irradiance_at(p, n);
-    irr.v[i] = vec4(e, e, e, 1.0);
+    imageStore(irr, at, vec4(e, e, e, 1.0));
     vec4 tr = vec4(0.0);
     if (pc.mode != 0u) {
-        vec3 o = p - n * pc.bias;
-        vec2 h = closest_hit(o, -n, pc.max_t);
-        if (h.x >= 0.0) {
-            uint k = floatBitsToUint(h.y);
-            vec3 nb = normalize(cross(tris.v[3u * k + 1u].xyz, tris.v[3u * k + 2u].xyz));
-            if (dot(nb, n) > 0.0) nb = -nb;
-            vec3 xb = o - n * h.x;
-            float eb = irradiance_at(xb, nb);
-            float thick = h.x + pc.bias;
-            tr = vec4(eb * tail(0u, thick), eb * tail(1u, thick), eb * tail(2u, thick), thick);
-        }
+        tr = w0 * imageLoad(vtrans, a0) + w1 * imageLoad(vtrans, a1) + w2 * imageLoad(vtrans, a2);
     }
-    trans.v[i] = tr;
+    imageStore(trans, at, tr);
 }

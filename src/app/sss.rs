@@ -11,12 +11,12 @@ use crate::geom::bvh::Bvh;
 use crate::gpu::Context;
 use crate::io::FloatImage;
 use crate::kernels::sss::cpu::{self, Light, SamplerParams};
-use crate::kernels::sss::gpu::{PASS_DIFFUSION, PASS_IRRADIANCE};
+use crate::kernels::sss::gpu::{PASS_DIFFUSION, PASS_IRRADIANCE, PASS_VERTEX};
 use crate::kernels::sss::profile::DEFAULT_ENERGY;
 use crate::kernels::sss::texspace::{COVERED, TexReport};
 use crate::kernels::sss::{Material, Profile, ProfileKind, SssKernel, SssOutput, TexGeometry};
 use crate::kernels::{Kernel, KernelInfo, run_frames};
-use crate::reference::sss::{ChannelError, Sources, brute_force};
+use crate::reference::sss::{ChannelError, Sources, brute_force, brute_force_where};
 use crate::report::MachineInfo;
 use glam::{DVec3, Vec2, Vec3};
 use serde::Serialize;
@@ -42,6 +42,8 @@ pub struct SssConfig {
     /// Fraction of each channel's reflectance inside its sampling radius.
     pub energy: f64,
     pub samples: u32,
+    /// Shadow rays per texel where a triangle's corners disagree (else interpolated).
+    pub shadow_refine: bool,
     pub size: u32,
     /// With `anim`: frames spread over the animation (the mesh is posed and re-rasterised
     /// for each); without: the same frame repeated (timing).
@@ -66,6 +68,7 @@ impl Default for SssConfig {
             material: Material::SKIN1,
             energy: DEFAULT_ENERGY,
             samples: 32,
+            shadow_refine: true,
             size: 512,
             frames: 1,
             anim: None,
@@ -224,6 +227,28 @@ pub struct ReferenceReport {
     /// 1 - K(R)/R_tot per channel: the bias truncation alone causes on a flat, uniformly lit
     /// surface (the truth is not truncated).
     pub truncation: [f64; 3],
+    /// Against the truth restricted to the sources a walk over the surface can reach without
+    /// crossing a gap (a heuristic: facing the receiver's side, n_j . n_o > 0, and within 30
+    /// degrees of its tangent plane, |(x_j - x_o) . n_o| < |x_j - x_o| / 2): what the
+    /// texture-space sampler estimates. The rest (the back of the ear, the other lip, the
+    /// other side of the nostril, light crossing the eye and mouth openings) the Euclidean
+    /// truth collects and texture space cannot.
+    pub reachable: ChannelError,
+    /// The same for the texels where every sample was accepted.
+    pub reachable_interior: ChannelError,
+    /// Share of the truth's (area-weighted) energy from the sources `reachable` leaves out.
+    pub cross_gap_share: [f64; 3],
+}
+
+/// What the per-vertex shadowing changes against a shadow ray per texel (CPU, same lights):
+/// area-weighted relative RMSE over covered texels of E, and of B from the CPU twin of the
+/// diffusion fed with each.
+#[derive(Clone, Debug, Serialize)]
+pub struct ShadowingReport {
+    pub method: &'static str,
+    pub irradiance_rel_rmse: f64,
+    pub diffuse_rel_rmse: [f64; 3],
+    pub diffuse_energy_ratio: [f64; 3],
 }
 
 /// What `report.json` holds.
@@ -238,7 +263,7 @@ pub struct SssReport {
     pub lights: Vec<String>,
     pub profile: Profile,
     pub sampler: SamplerParams,
-    /// Samples per texel per channel.
+    /// Samples per texel (shared by the three channels).
     pub samples: u32,
     pub size: u32,
     pub texture: TexReport,
@@ -249,6 +274,7 @@ pub struct SssReport {
     /// Mean accepted fraction of the samples over covered texels.
     pub accepted_fraction: f64,
     pub gpu_vs_cpu: TwinError,
+    pub shadowing: ShadowingReport,
     pub cpu_ms_irradiance: f64,
     pub cpu_ms_diffusion: f64,
     pub reference: Option<ReferenceReport>,
@@ -314,6 +340,7 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
     ));
     let params = SamplerParams {
         samples: cfg.samples,
+        shadow_refine: cfg.shadow_refine,
         ..SamplerParams::default()
     };
     let mut setup = ctx.recorder("sss setup")?;
@@ -326,7 +353,8 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
             let inputs: Vec<&[Light]> = vec![&lights[..]; cfg.frames];
             run_frames(ctx, &kernel, inputs, 2, |r| {
                 times.push((
-                    r.timings.get(PASS_IRRADIANCE).unwrap_or(f64::NAN),
+                    r.timings.get(PASS_VERTEX).unwrap_or(f64::NAN)
+                        + r.timings.get(PASS_IRRADIANCE).unwrap_or(f64::NAN),
                     r.timings.get(PASS_DIFFUSION).unwrap_or(f64::NAN),
                 ));
                 last = Some(r.output);
@@ -354,7 +382,8 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
                 let rb = kernel.read_back(&mut rec)?;
                 let timings = rec.submit_and_wait()?;
                 times.push((
-                    timings.get(PASS_IRRADIANCE).unwrap_or(f64::NAN),
+                    timings.get(PASS_VERTEX).unwrap_or(f64::NAN)
+                        + timings.get(PASS_IRRADIANCE).unwrap_or(f64::NAN),
                     timings.get(PASS_DIFFUSION).unwrap_or(f64::NAN),
                 ));
                 last = Some(kernel.collect(&rb)?);
@@ -380,13 +409,49 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
     // The CPU twin of both passes.
     let t = Instant::now();
     let bvh = Bvh::build(&geo.positions, &geo.triangles);
-    let cpu_e = cpu::irradiance(&geo, &bvh, &lights);
+    let cpu_e = cpu::irradiance(&geo, &bvh, &lights, params.shadow_refine);
     let cpu_ms_irradiance = t.elapsed().as_secs_f64() * 1e3;
     let t = Instant::now();
     let cpu_b = cpu::diffusion(&geo, &profile, &cpu_e, &params);
     let cpu_ms_diffusion = t.elapsed().as_secs_f64() * 1e3;
     let cpu_t = cpu::transmission(&geo, &bvh, &lights, &profile);
     let twin = TwinError::of(&geo, &gpu, &cpu_e, &cpu_b, &cpu_t);
+    let shadowing = {
+        let e_ray = cpu::irradiance_per_texel_rays(&geo, &bvh, &lights);
+        let b_ray = cpu::diffusion(&geo, &profile, &e_ray, &params);
+        let w: Vec<f64> = (0..geo.texels())
+            .map(|i| {
+                if geo.pos[i][3] == COVERED {
+                    geo.nrm[i][3] as f64
+                } else {
+                    0.0
+                }
+            })
+            .collect();
+        let as3 = |v: &[[f32; 4]]| {
+            v.iter()
+                .map(|x| [x[0] as f64, x[1] as f64, x[2] as f64])
+                .collect::<Vec<_>>()
+        };
+        let e_err = ChannelError::of(&as3(&cpu_e), &as3(&e_ray), &w);
+        let b_err = ChannelError::of(&as3(&cpu_b), &as3(&b_ray), &w);
+        ShadowingReport {
+            method: if params.shadow_refine {
+                "shadow rays per mesh vertex; a ray per texel in triangles whose corners \
+                 disagree (compared with a shadow ray per texel everywhere)"
+            } else {
+                "shadow rays per mesh vertex, visibility interpolated over each triangle \
+                 (compared with a shadow ray per texel)"
+            },
+            irradiance_rel_rmse: e_err.rel_rmse[0],
+            diffuse_rel_rmse: b_err.rel_rmse,
+            diffuse_energy_ratio: b_err.energy_ratio,
+        }
+    };
+    progress(&format!(
+        "per-vertex shadowing against a ray per texel: E rel RMSE {:.4}, B rel RMSE {:.4?}",
+        shadowing.irradiance_rel_rmse, shadowing.diffuse_rel_rmse
+    ));
     progress(&format!(
         "CPU twin ({cpu_ms_irradiance:.0} + {cpu_ms_diffusion:.0} ms): irradiance max rel {:.1e}, \
          diffuse rel RMSE {:.1e} {:.1e} {:.1e}",
@@ -444,6 +509,21 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
                 &idx.iter().map(|&k| w[k]).collect::<Vec<_>>(),
             )
         };
+        let rn: Vec<DVec3> = covered
+            .iter()
+            .map(|&i| Vec3::from_slice(&geo.nrm[i][..3]).as_dvec3())
+            .collect();
+        let reach = brute_force_where(&sources, &receivers, &profile, |r, j| {
+            let d = sources.pos[j] - receivers[r];
+            let l = d.length();
+            l < 1e-9 || (sources.normal[j].dot(rn[r]) > 0.0 && d.dot(rn[r]).abs() < 0.5 * l)
+        });
+        let inner: Vec<usize> = (0..covered.len())
+            .filter(|&k| gpu.diffuse[covered[k]][3] >= 1.0)
+            .collect();
+        let pick = |v: &[[f64; 3]]| inner.iter().map(|&k| v[k]).collect::<Vec<_>>();
+        let energy =
+            |v: &[[f64; 3]], c: usize| v.iter().zip(&w).map(|(x, a)| x[c] * a).sum::<f64>();
         let rep = ReferenceReport {
             sources: sources.pos.len(),
             ms,
@@ -451,7 +531,19 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
             interior: split(&|i| gpu.diffuse[i][3] >= 1.0),
             seam: split(&|i| gpu.diffuse[i][3] < 1.0),
             truncation: [0, 1, 2].map(|c| 1.0 - profile.k[c] / profile.r_tot[c]),
+            reachable: ChannelError::of(&est, &reach, &w),
+            reachable_interior: ChannelError::of(
+                &pick(&est),
+                &pick(&reach),
+                &inner.iter().map(|&k| w[k]).collect::<Vec<_>>(),
+            ),
+            cross_gap_share: [0, 1, 2].map(|c| 1.0 - energy(&reach, c) / energy(&truth, c)),
         };
+        progress(&format!(
+            "vs the truth from reachable sources: rel RMSE {:.4?}, energy ratio {:.4?} (the \
+             truth's energy from across gaps: {:.4?})",
+            rep.reachable.rel_rmse, rep.reachable.energy_ratio, rep.cross_gap_share
+        ));
         progress(&format!(
             "vs brute force ({} sources, {ms:.0} ms): rel RMSE {:.4?}, max rel {:.3?}, energy \
              ratio {:.4?}",
@@ -475,12 +567,14 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
         notes.push("the device is a CPU implementation (lavapipe): times measure the CPU".into());
     }
     notes.push(
-        "samples are per texel per channel (three sample sets); irradiance shadows are rays \
-         through a BVH of the mesh on the GPU; the texture-space geometry is rasterised on \
-         the CPU (once; with --anim once per frame after CPU skinning, BVH rebuilt); \
-         transmission: thickness along -n by a ray, \
-         back irradiance times the profile beyond the thickness (flat-slab model), added in \
-         render.png, not in diffuse.exr"
+        "samples are per texel, shared by the three channels (radii from the mixture of the \
+         channels' pdfs, one-sample MIS weights); irradiance shadows are rays \
+         through a BVH of the mesh on the GPU, one per mesh vertex and light, the visibility \
+         interpolated over each triangle (see `shadowing`); the texture-space geometry is \
+         rasterised on the CPU (once; with --anim once per frame after CPU skinning, BVH \
+         rebuilt); transmission: thickness along -n by a ray per vertex, \
+         back irradiance times the profile beyond the thickness (flat-slab model), \
+         interpolated per texel, added in render.png, not in diffuse.exr"
             .into(),
     );
     notes.push(
@@ -508,6 +602,7 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
         fps: 1000.0 / (ms_e + ms_b),
         accepted_fraction,
         gpu_vs_cpu: twin,
+        shadowing,
         cpu_ms_irradiance,
         cpu_ms_diffusion,
         reference,

@@ -9,7 +9,7 @@ use crate::error::Result;
 use crate::geom::bvh::Bvh;
 use crate::gpu::Context;
 use crate::kernels::sss::cpu::{self, Light, SamplerParams};
-use crate::kernels::sss::gpu::{PASS_DIFFUSION, PASS_IRRADIANCE};
+use crate::kernels::sss::gpu::{PASS_DIFFUSION, PASS_IRRADIANCE, PASS_VERTEX};
 use crate::kernels::sss::load_mesh;
 use crate::kernels::sss::texspace::COVERED;
 use crate::kernels::sss::{Material, Profile, ProfileKind, SssKernel, TexGeometry};
@@ -19,12 +19,13 @@ use glam::{DVec3, Vec3};
 use serde::Serialize;
 use std::path::PathBuf;
 
-/// Work per diffusion sample (documented model, not a counter): ~30 FLOP (radius lookup,
-/// direction rotation, UV map, rounding to the nearest texel, 3D distance, seam test) and
-/// 4 vec4 loads (two table entries, the nearest texel's position and irradiance) = 64 bytes.
+/// Work per diffusion sample (documented model, not a counter; one sample serves the three
+/// channels): ~36 FLOP (direction rotation, UV map, rounding to the nearest texel, 3D
+/// distance, seam test, three weighted sums) and 2 gathered vec4 loads (the nearest texel's
+/// position and irradiance; the radius and weights are a uniform load) = 32 bytes.
 pub mod work_model {
-    pub const FLOP_PER_SAMPLE: f64 = 30.0;
-    pub const BYTES_PER_SAMPLE: f64 = 64.0;
+    pub const FLOP_PER_SAMPLE: f64 = 36.0;
+    pub const BYTES_PER_SAMPLE: f64 = 32.0;
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -66,11 +67,15 @@ impl Default for SssBenchConfig {
 pub struct Point {
     pub size: u32,
     pub samples: u32,
+    /// Pass `sss vertex light`: shadow and transmission rays per mesh vertex.
+    pub vertex_light_ms: Stats,
+    /// Pass `sss irradiance`: per texel, the vertices' shadowing interpolated.
     pub irradiance_ms: Stats,
     pub diffusion_ms: Stats,
     pub total_ms: f64,
     pub fps: f64,
-    /// Diffusion samples per second (covered and gutter texels x 3 channels x samples).
+    /// Diffusion samples per second (covered and gutter texels x samples; a sample serves the
+    /// three channels).
     pub samples_per_s: f64,
     pub fraction_of_fma_peak: f64,
     pub fraction_of_bandwidth: f64,
@@ -136,10 +141,10 @@ fn measure(
             .map(|(_, s)| s.clone())
             .unwrap_or_else(Stats::none)
     };
-    let (e, d) = (get(PASS_IRRADIANCE), get(PASS_DIFFUSION));
-    let total = e.median + d.median;
+    let (v, e, d) = (get(PASS_VERTEX), get(PASS_IRRADIANCE), get(PASS_DIFFUSION));
+    let total = v.median + e.median + d.median;
     let texels = geo.pos.iter().filter(|p| p[3] > 0.0).count() as f64;
-    let n = texels * 3.0 * samples as f64;
+    let n = texels * samples as f64;
     let per_s = n / (d.median * 1e-3);
     let error = match truth {
         None => None,
@@ -161,6 +166,7 @@ fn measure(
     Ok(Point {
         size: geo.size,
         samples,
+        vertex_light_ms: v,
         irradiance_ms: e,
         diffusion_ms: d,
         total_ms: total,
@@ -194,7 +200,12 @@ pub fn run(
     // (the same rays as the GPU's).
     let geo_e = TexGeometry::build(&mesh, cfg.error_size, cfg.mm_per_unit)?;
     let bvh = Bvh::build(&geo_e.positions, &geo_e.triangles);
-    let e = cpu::irradiance(&geo_e, &bvh, &lights());
+    let e = cpu::irradiance(
+        &geo_e,
+        &bvh,
+        &lights(),
+        SamplerParams::default().shadow_refine,
+    );
     let covered: Vec<usize> = (0..geo_e.texels())
         .filter(|&i| geo_e.pos[i][3] == COVERED)
         .collect();
@@ -225,7 +236,8 @@ pub fn run(
             let t = (size == cfg.error_size).then_some(&truth);
             let p = measure(ctx, cfg, &geo, &profile, s, peaks, t)?;
             progress(&format!(
-                "  {size}^2 x {s}: irradiance {:.1} + diffusion {:.1} ms = {:.2} fps{}",
+                "  {size}^2 x {s}: vertex light {:.1} + irradiance {:.1} + diffusion {:.1} ms = {:.2} fps{}",
+                p.vertex_light_ms.median,
                 p.irradiance_ms.median,
                 p.diffusion_ms.median,
                 p.fps,
@@ -259,7 +271,7 @@ pub fn run(
         ..SamplerParams::default()
     };
     let cpu_ms = time_cpu(cfg.cpu_runs, || {
-        let e = cpu::irradiance(&geo, &bvh, &lights());
+        let e = cpu::irradiance(&geo, &bvh, &lights(), params.shadow_refine);
         // The GPU's irradiance pass also computes the transmission.
         let t = params
             .transmission
@@ -334,7 +346,7 @@ pub fn panels(r: &SssBenchReport) -> Vec<super::plot::Panel> {
         },
         Panel {
             title: "GPU time per frame".into(),
-            x_label: "samples per texel per channel".into(),
+            x_label: "samples per texel".into(),
             y_label: "ms".into(),
             log_x: true,
             log_y: true,

@@ -25,6 +25,8 @@ pub struct Sources {
     pub edges: Vec<(DVec3, DVec3)>,
     pub e: Vec<[f64; 3]>,
     pub area: Vec<f64>,
+    /// Unit normals.
+    pub normal: Vec<DVec3>,
 }
 
 impl Sources {
@@ -36,6 +38,7 @@ impl Sources {
             edges: Vec::new(),
             e: Vec::new(),
             area: Vec::new(),
+            normal: Vec::new(),
         };
         for (i, ei) in e.iter().enumerate().take(geo.texels()) {
             if geo.pos[i][3] != COVERED {
@@ -46,6 +49,7 @@ impl Sources {
             s.edges.push((v(geo.dpdu[i]) / nf, v(geo.dpdv[i]) / nf));
             s.e.push([ei[0] as f64, ei[1] as f64, ei[2] as f64]);
             s.area.push(geo.nrm[i][3] as f64);
+            s.normal.push(v(geo.nrm[i]));
         }
         s
     }
@@ -72,6 +76,17 @@ fn cutoff(profile: &Profile, c: usize) -> f64 {
 
 /// B at each receiver position (rgb), brute force (see the module documentation).
 pub fn brute_force(sources: &Sources, receivers: &[DVec3], profile: &Profile) -> Vec<[f64; 3]> {
+    brute_force_where(sources, receivers, profile, |_, _| true)
+}
+
+/// [`brute_force`] over the sources `keep(receiver, source)` accepts (to split the truth by
+/// where its light comes from).
+pub fn brute_force_where(
+    sources: &Sources,
+    receivers: &[DVec3],
+    profile: &Profile,
+    keep: impl Fn(usize, usize) -> bool + Sync,
+) -> Vec<[f64; 3]> {
     let radius = [0, 1, 2].map(|c| cutoff(profile, c));
     let rmax = radius.iter().cloned().fold(0.0, f64::max);
     let cell = rmax;
@@ -85,7 +100,8 @@ pub fn brute_force(sources: &Sources, receivers: &[DVec3], profile: &Profile) ->
     }
     receivers
         .par_iter()
-        .map(|&xo| {
+        .enumerate()
+        .map(|(ri, &xo)| {
             let (kx, ky, kz) = key(xo);
             let mut b = [0f64; 3];
             for dz in -1..=1 {
@@ -97,7 +113,7 @@ pub fn brute_force(sources: &Sources, receivers: &[DVec3], profile: &Profile) ->
                         for &j in list {
                             let j = j as usize;
                             let r = (sources.pos[j] - xo).length();
-                            if r > rmax {
+                            if r > rmax || !keep(ri, j) {
                                 continue;
                             }
                             let (ea, eb) = sources.edges[j];

@@ -2,7 +2,7 @@
 //! the same diffusion sampler (same hash, same sample sequence, same f32 arithmetic as
 //! glsl/sss/diffusion.comp, in the same order).
 
-use super::profile::{Profile, ProfileKind};
+use super::profile::Profile;
 use super::texspace::TexGeometry;
 use crate::error::{Error, Result};
 use crate::geom::bvh::Bvh;
@@ -131,8 +131,160 @@ pub fn irradiance_at(bvh: &Bvh, p: Vec3, n: Vec3, lights: &[Light], bias: f32) -
     e
 }
 
-/// The irradiance pass on the CPU: E per texel (rgb, alpha 1 where the texel is valid).
-pub fn irradiance(geo: &TexGeometry, bvh: &Bvh, lights: &[Light]) -> Vec<[f32; 4]> {
+/// Per-vertex position (mm) and unit normal, as the GPU reads them (`verts`, two vec4 per
+/// vertex). A zero or missing normal falls back to the area-weighted normal of the vertex's
+/// triangles.
+pub fn vertex_frames(geo: &TexGeometry) -> Vec<[[f32; 4]; 2]> {
+    let mut face = vec![Vec3::ZERO; geo.positions.len()];
+    for t in &geo.triangles {
+        let p = t.map(|i| geo.positions[i as usize]);
+        let n = (p[1] - p[0]).cross(p[2] - p[0]);
+        for &i in t {
+            face[i as usize] += n;
+        }
+    }
+    geo.positions
+        .iter()
+        .enumerate()
+        .map(|(v, p)| {
+            let n = geo
+                .normals
+                .get(v)
+                .and_then(|n| n.try_normalize())
+                .unwrap_or_else(|| face[v].normalize_or_zero());
+            [p.extend(0.0).into(), n.extend(0.0).into()]
+        })
+        .collect()
+}
+
+/// Visibility bits of `lights` from `p` (bit l: light l not blocked along a ray from
+/// `p + n * bias`), as pass `sss vertex light` computes them per vertex.
+pub fn visibility(bvh: &Bvh, p: Vec3, n: Vec3, lights: &[Light], bias: f32) -> u32 {
+    let o = p + n * bias;
+    let mut bits = 0;
+    for (l, light) in lights.iter().enumerate() {
+        let (dir, tmax) = match *light {
+            Light::Directional { toward, .. } => (toward, f32::INFINITY),
+            Light::Point { pos, .. } => {
+                let d = pos - p;
+                let dist = d.length();
+                (d / dist, dist - bias)
+            }
+        };
+        if !bvh.any_hit(o, dir, tmax) {
+            bits |= 1 << l;
+        }
+    }
+    bits
+}
+
+/// The per-vertex visibility bits (pass `sss vertex light`).
+pub fn vertex_visibility(geo: &TexGeometry, bvh: &Bvh, lights: &[Light]) -> Vec<u32> {
+    let bias = shadow_bias(geo.extent_mm());
+    vertex_frames(geo)
+        .par_iter()
+        .map(|f| {
+            let p = Vec3::from_slice(&f[0][..3]);
+            let n = Vec3::from_slice(&f[1][..3]);
+            visibility(bvh, p, n, lights, bias)
+        })
+        .collect()
+}
+
+/// Per texel, what the irradiance pass reads (image `corners`): the vertex indices of the
+/// texel's triangle and its centre's barycentrics w1, w2 as 16-bit fractions of 2^16, packed
+/// w1 | w2 << 16 (resolution 1.5e-5); zero for empty texels.
+pub fn texel_corners_packed(geo: &TexGeometry) -> Vec<[u32; 4]> {
+    geo.texel_tri
+        .iter()
+        .map(|t| {
+            let Some(tri) = geo.triangles.get(t[0] as usize) else {
+                return [0; 4];
+            };
+            let q = |bits: u32| (f32::from_bits(bits) * 65536.0).round().clamp(0.0, 65535.0) as u32;
+            [tri[0], tri[1], tri[2], q(t[1]) | q(t[2]) << 16]
+        })
+        .collect()
+}
+
+/// The texel's triangle corners and barycentrics as the shader decodes them from
+/// [`texel_corners_packed`] (w0 = 1 - w1 - w2 in f32); None for empty texels.
+fn texel_corners(geo: &TexGeometry, i: usize) -> Option<([usize; 3], [f32; 3])> {
+    let t = geo.texel_tri[i];
+    let tri = geo.triangles.get(t[0] as usize)?;
+    let q = |bits: u32| (f32::from_bits(bits) * 65536.0).round().clamp(0.0, 65535.0);
+    let (w1, w2) = (q(t[1]) * (1.0 / 65536.0), q(t[2]) * (1.0 / 65536.0));
+    Some((tri.map(|v| v as usize), [1.0 - w1 - w2, w1, w2]))
+}
+
+/// The irradiance pass on the CPU: E per texel (rgb, alpha 1 where the texel is valid), the
+/// shader's method: the texel's own cosine and point-light distance, the visibility of each
+/// light interpolated from the triangle's vertices ([`vertex_visibility`]).
+pub fn irradiance(geo: &TexGeometry, bvh: &Bvh, lights: &[Light], refine: bool) -> Vec<[f32; 4]> {
+    let vis = vertex_visibility(geo, bvh, lights);
+    irradiance_from_visibility(geo, bvh, lights, &vis, refine)
+}
+
+/// [`irradiance`] from given per-vertex visibility bits; `refine`: a shadow ray from the texel
+/// where the triangle's corners disagree (else their visibility interpolated).
+pub fn irradiance_from_visibility(
+    geo: &TexGeometry,
+    bvh: &Bvh,
+    lights: &[Light],
+    vis: &[u32],
+    refine: bool,
+) -> Vec<[f32; 4]> {
+    let bias = shadow_bias(geo.extent_mm());
+    (0..geo.texels())
+        .into_par_iter()
+        .map(|i| {
+            let p = geo.pos[i];
+            if p[3] == 0.0 {
+                return [0.0; 4];
+            }
+            let Some((ids, w)) = texel_corners(geo, i) else {
+                return [0.0; 4];
+            };
+            let p = Vec3::new(p[0], p[1], p[2]);
+            let n = Vec3::from_slice(&geo.nrm[i][..3]);
+            let b = ids.map(|v| vis[v]);
+            let mut e = 0.0;
+            for (l, light) in lights.iter().enumerate() {
+                let (dir, tmax, strength) = match *light {
+                    Light::Directional { toward, e } => (toward, f32::INFINITY, e),
+                    Light::Point { pos, i } => {
+                        let d = pos - p;
+                        let dist = d.length();
+                        (d / dist, dist - bias, i / (dist * dist))
+                    }
+                };
+                let c = n.dot(dir);
+                if c <= 0.0 || strength == 0.0 {
+                    continue;
+                }
+                let cb = b.map(|x| (x >> l) & 1);
+                // Exactly 0 or 1 when the corners agree (as the shader).
+                let v = if cb[0] == cb[1] && cb[1] == cb[2] {
+                    cb[0] as f32
+                } else if refine {
+                    if bvh.any_hit(p + n * bias, dir, tmax) {
+                        0.0
+                    } else {
+                        1.0
+                    }
+                } else {
+                    w[0] * cb[0] as f32 + w[1] * cb[1] as f32 + w[2] * cb[2] as f32
+                };
+                e += strength * c * v;
+            }
+            [e, e, e, 1.0]
+        })
+        .collect()
+}
+
+/// Irradiance with a shadow ray from every texel (the method before per-vertex shadowing;
+/// kept to measure what the interpolation changes, report.json `shadowing`).
+pub fn irradiance_per_texel_rays(geo: &TexGeometry, bvh: &Bvh, lights: &[Light]) -> Vec<[f32; 4]> {
     let bias = shadow_bias(geo.extent_mm());
     (0..geo.texels())
         .into_par_iter()
@@ -148,13 +300,36 @@ pub fn irradiance(geo: &TexGeometry, bvh: &Bvh, lights: &[Light]) -> Vec<[f32; 4
         .collect()
 }
 
-/// The transmission through thin parts on the CPU (the shader's arithmetic): per texel, a ray
-/// from just inside the surface along -n finds the back surface at distance t (thickness);
-/// if t is below `max_thickness`, the back point's irradiance E_b (its own geometric normal,
-/// shadow rays as for the front) times R_tot - F(t) per channel ([`Profile::tail_f32`]):
-/// the diffuse transmission of a locally flat slab lit uniformly from behind. Alpha holds
-/// t (0 where no back surface counts).
+/// The transmission through thin parts on the CPU (the shaders' arithmetic): per vertex, a
+/// ray from just inside the surface along -n finds the back surface at distance t
+/// (thickness); if t is below `max_thickness`, the back point's irradiance E_b (its own
+/// geometric normal, shadow rays as for the front) times R_tot - F(t) per channel
+/// ([`Profile::tail_f32`]): the diffuse transmission of a locally flat slab lit uniformly
+/// from behind. Per texel, the vertices' (rgb, t) interpolated with the texel's barycentrics
+/// (alpha: the interpolated thickness; 0 where no vertex of the triangle transmits).
 pub fn transmission(
+    geo: &TexGeometry,
+    bvh: &Bvh,
+    lights: &[Light],
+    profile: &Profile,
+) -> Vec<[f32; 4]> {
+    let vt = vertex_transmission(geo, bvh, lights, profile);
+    (0..geo.texels())
+        .into_par_iter()
+        .map(|i| {
+            if geo.pos[i][3] == 0.0 {
+                return [0.0; 4];
+            }
+            let Some((ids, w)) = texel_corners(geo, i) else {
+                return [0.0; 4];
+            };
+            [0, 1, 2, 3].map(|c| w[0] * vt[ids[0]][c] + w[1] * vt[ids[1]][c] + w[2] * vt[ids[2]][c])
+        })
+        .collect()
+}
+
+/// The per-vertex transmission (rgb, thickness) of [`transmission`].
+pub fn vertex_transmission(
     geo: &TexGeometry,
     bvh: &Bvh,
     lights: &[Light],
@@ -162,15 +337,12 @@ pub fn transmission(
 ) -> Vec<[f32; 4]> {
     let bias = shadow_bias(geo.extent_mm());
     let max_t = profile.max_radius() as f32;
-    (0..geo.texels())
-        .into_par_iter()
-        .map(|i| {
-            let p = geo.pos[i];
-            if p[3] == 0.0 {
-                return [0.0; 4];
-            }
-            let n = Vec3::from_slice(&geo.nrm[i][..3]);
-            let o = Vec3::new(p[0], p[1], p[2]) - n * bias;
+    vertex_frames(geo)
+        .par_iter()
+        .map(|f| {
+            let p = Vec3::from_slice(&f[0][..3]);
+            let n = Vec3::from_slice(&f[1][..3]);
+            let o = p - n * bias;
             let Some((t, nb)) = bvh.closest_hit(o, -n, max_t) else {
                 return [0.0; 4];
             };
@@ -191,19 +363,9 @@ pub fn pcg(v: u32) -> u32 {
     (word >> 22) ^ word
 }
 
-fn fract(x: f32) -> f32 {
-    x - x.floor()
-}
-
-/// Per-texel constants of the sampler: the offsets of channel `c`'s sequence.
-pub fn offsets(texel: u32, c: u32) -> (f32, f32) {
-    let h = pcg(texel.wrapping_mul(3).wrapping_add(c));
-    ((h >> 16) as f32 / 65536.0, (h & 0xffff) as f32 / 65536.0)
-}
-
-/// The radius variable of sample `i` of `n` (stratified, rotated by the texel's offset).
-pub fn sample_u(i: u32, n: u32, off_u: f32) -> f32 {
-    fract((i as f32 + 0.5) / n as f32 + off_u)
+/// The texel's rotation of the shared sample pattern (radians), as the shader computes it.
+pub fn rotation(texel: u32) -> f32 {
+    std::f32::consts::TAU * ((pcg(texel) >> 8) as f32 / 16_777_216.0)
 }
 
 /// (cos, sin) of the golden angle 2 pi 0.618034: sample i's direction is the first one
@@ -241,7 +403,7 @@ fn offset_map_of(a: Vec3, b: Vec3, n: Vec3) -> Option<[f32; 4]> {
 /// The diffusion sampler's settings.
 #[derive(Clone, Copy, Debug, serde::Serialize)]
 pub struct SamplerParams {
-    /// Samples per texel per channel.
+    /// Samples per texel, shared by the three channels (one-sample MIS over channels).
     pub samples: u32,
     /// Seam test: accept a sample whose 3D distance d from the receiver has
     /// |d - r| <= seam_rel * r + seam_texels * texel size.
@@ -249,6 +411,9 @@ pub struct SamplerParams {
     pub seam_texels: f32,
     /// Also compute the transmission through thin parts (in the irradiance pass).
     pub transmission: bool,
+    /// Shadows: a ray per texel where the triangle's corners disagree (true), or the corners'
+    /// visibility interpolated (false; faster, blurrier shadow edges).
+    pub shadow_refine: bool,
 }
 
 impl Default for SamplerParams {
@@ -258,6 +423,7 @@ impl Default for SamplerParams {
             seam_rel: 0.25,
             seam_texels: 2.0,
             transmission: true,
+            shadow_refine: true,
         }
     }
 }
@@ -281,7 +447,8 @@ impl SamplerParams {
 }
 
 /// The diffusion pass on the CPU: B per texel (rgb; alpha the accepted fraction of the
-/// samples), from irradiance `e` (rgba, as the irradiance pass writes it).
+/// samples), from irradiance `e` (rgba, as the irradiance pass writes it). One sample set
+/// for the three channels ([`Profile::mixture_sequence`]), as the shader.
 pub fn diffusion(
     geo: &TexGeometry,
     profile: &Profile,
@@ -291,6 +458,7 @@ pub fn diffusion(
     let n = geo.size as i32;
     let nf = geo.size as f32;
     let k = profile.k.map(|k| k as f32);
+    let seq = profile.mixture_sequence(params.samples);
     (0..geo.texels())
         .into_par_iter()
         .map(|i| {
@@ -305,56 +473,47 @@ pub fn diffusion(
             let a = Vec3::from_slice(&geo.dpdu[i][..3]);
             let b = Vec3::from_slice(&geo.dpdv[i][..3]);
             let texel_mm = a.cross(b).length().sqrt() / nf;
+            let tol = params.seam_texels * texel_mm;
             let (x, y) = ((i as i32 % n) as f32, (i as i32 / n) as f32);
-            let mut out = [0f32; 4];
-            let mut accepted_all = 0u32;
-            for c in 0..3u32 {
-                let off = offsets(i as u32, c);
-                let mut sum = 0f32;
-                let mut acc = 0u32;
-                let phi0 = std::f32::consts::TAU * off.1;
-                let mut dir = (phi0.cos(), phi0.sin());
-                let st = GOLDEN_STEP;
-                for s in 0..params.samples {
-                    let u = sample_u(s, params.samples, off.0);
-                    let r = profile.sample_radius(c as usize, u);
-                    let (cs, sn) = (dir.0 * r, dir.1 * r);
-                    dir = (dir.0 * st.0 - dir.1 * st.1, dir.0 * st.1 + dir.1 * st.0);
-                    let du = m[0] * cs + m[1] * sn;
-                    let dv = m[2] * cs + m[3] * sn;
-                    let tx = x + du * nf;
-                    let ty = y + dv * nf;
-                    if let Some((es, ps)) = nearest(geo, e, nf, tx, ty, c as usize) {
-                        let d = (ps - po).length();
-                        if (d - r).abs() <= params.seam_rel * r + params.seam_texels * texel_mm {
-                            sum += es;
-                            acc += 1;
-                        }
+            let phi0 = rotation(i as u32);
+            let mut dir = (phi0.cos(), phi0.sin());
+            let st = GOLDEN_STEP;
+            let mut sum = Vec3::ZERO;
+            let mut wsum = Vec3::ZERO;
+            let mut acc = 0u32;
+            for q in &seq {
+                let r = q[0];
+                let (cs, sn) = (dir.0 * r, dir.1 * r);
+                dir = (dir.0 * st.0 - dir.1 * st.1, dir.0 * st.1 + dir.1 * st.0);
+                let tx = x + (m[0] * cs + m[1] * sn) * nf;
+                let ty = y + (m[2] * cs + m[3] * sn) * nf;
+                if let Some(t) = nearest(geo, nf, tx, ty) {
+                    let d = (Vec3::from_slice(&geo.pos[t][..3]) - po).length();
+                    if (d - r).abs() <= params.seam_rel * r + tol {
+                        let w = Vec3::new(q[1], q[2], q[3]);
+                        sum += w * Vec3::new(e[t][0], e[t][1], e[t][2]);
+                        wsum += w;
+                        acc += 1;
                     }
                 }
-                out[c as usize] = if acc > 0 {
-                    k[c as usize] * (sum / acc as f32)
-                } else {
-                    k[c as usize] * eo[c as usize]
-                };
-                accepted_all += acc;
             }
-            out[3] = accepted_all as f32 / (3 * params.samples) as f32;
+            let mut out = [0f32; 4];
+            for c in 0..3 {
+                out[c] = if wsum[c] > 0.0 {
+                    k[c] * (sum[c] / wsum[c])
+                } else {
+                    k[c] * eo[c]
+                };
+            }
+            out[3] = acc as f32 / params.samples as f32;
             out
         })
         .collect()
 }
 
-/// E (channel c) and position of the texel nearest to texel coordinates (tx, ty) (texel
-/// centres at integers); None when it is outside the texture or empty.
-fn nearest(
-    geo: &TexGeometry,
-    e: &[[f32; 4]],
-    nf: f32,
-    tx: f32,
-    ty: f32,
-    c: usize,
-) -> Option<(f32, Vec3)> {
+/// The texel nearest to texel coordinates (tx, ty) (texel centres at integers); None when it
+/// is outside the texture or empty.
+fn nearest(geo: &TexGeometry, nf: f32, tx: f32, ty: f32) -> Option<usize> {
     let (fx, fy) = ((tx + 0.5).floor(), (ty + 0.5).floor());
     if !(tx.is_finite() && ty.is_finite()) || fx < 0.0 || fy < 0.0 || fx >= nf || fy >= nf {
         return None;
@@ -363,7 +522,7 @@ fn nearest(
     if geo.pos[t][3] == 0.0 {
         return None;
     }
-    Some((e[t][c], Vec3::from_slice(&geo.pos[t][..3])))
+    Some(t)
 }
 
 /// The UV of texel i's centre.
@@ -373,9 +532,4 @@ pub fn texel_uv(size: u32, i: usize) -> Vec2 {
         ((i % n) as f32 + 0.5) / size as f32,
         ((i / n) as f32 + 0.5) / size as f32,
     )
-}
-
-/// Whether the profile needs the table (dipole) or the analytic inverse (Burley).
-pub fn uses_table(p: &Profile) -> bool {
-    p.kind == ProfileKind::Dipole
 }

@@ -14,7 +14,9 @@
 //! `energy` of the channel's R_tot; K(R) = int_0^R 2 pi r Rd(r) dr. Sampling p_A = Rd / K(R)
 //! gives every sample the weight K(R): B = K(R) * mean E.
 //!
-//! The sampling table (what the GPU reads): per channel [`TABLE_SIZE`] radii r_j with
+//! The diffusion sampler draws from the mixture of the three channels
+//! ([`Profile::mixture_sequence`], closed-form CDFs). The inverse-CDF table (per channel
+//! radii, kept for single-channel sampling and checked by the tests): [`TABLE_SIZE`] radii r_j with
 //! F(r_j) = t_j^2 K(R), t_j = j / (TABLE_SIZE - 1); a uniform u in [0, 1) maps to
 //! r = lerp over t = sqrt(u) (the square root follows F ~ r^2 near 0, so the
 //! lookup is accurate at small radii). Burley is sampled analytically instead.
@@ -359,6 +361,50 @@ impl Profile {
     pub fn max_radius(&self) -> f64 {
         self.radius.iter().cloned().fold(0.0, f64::max)
     }
+
+    /// F_c(r): channel `c`'s truncated, normalised radial CDF (int_0^min(r, R) 2 pi s Rd / K),
+    /// closed form for both profiles.
+    pub fn cdf_normalised(&self, c: usize, r: f64) -> f64 {
+        let r = r.min(self.radius[c]).max(0.0);
+        let f = match self.kind {
+            ProfileKind::Dipole => self.dipole[c].cdf(r),
+            ProfileKind::Burley => self.burley[c].a * self.burley[c].p(r),
+        };
+        (f / self.k[c]).min(1.0)
+    }
+
+    /// The sample sequence of the diffusion sampler: `n` samples shared by the three channels
+    /// (one-sample MIS over channels, as pbrt-v3's BSSRDF sampling). Radii are drawn from the
+    /// mixture of the channels' radial pdfs, F(r) = mean_c F_c(r) ([`Profile::cdf_normalised`]),
+    /// stratified: r_s = F^-1((s + 1/2) / n) (bisection in f64). Each sample carries the
+    /// weights w_c = p_c(r_s) / p(r_s) (radial pdfs; the 2 pi r cancels, so w_c = (Rd_c / K_c)
+    /// / mean_j (Rd_j / K_j) over the channels whose radius R_j >= r_s); E_p[w_c] = 1, and the
+    /// sampler's self-normalised estimate K_c sum w_c E / sum w_c is exact on uniform E.
+    /// Rows (r_s mm, w_r, w_g, w_b) as f32 (what the shader and the CPU twin read).
+    pub fn mixture_sequence(&self, n: u32) -> Vec<[f32; 4]> {
+        let rmax = self.max_radius();
+        let mix = |r: f64| (0..3).map(|c| self.cdf_normalised(c, r)).sum::<f64>() / 3.0;
+        (0..n)
+            .map(|s| {
+                let u = (s as f64 + 0.5) / n as f64;
+                let r = bisect(|r| mix(r) - u, 0.0, rmax);
+                let q = [0, 1, 2].map(|c| {
+                    if r <= self.radius[c] {
+                        self.rd(c, r) / self.k[c]
+                    } else {
+                        0.0
+                    }
+                });
+                let mean = (q[0] + q[1] + q[2]) / 3.0;
+                [
+                    r as f32,
+                    (q[0] / mean) as f32,
+                    (q[1] / mean) as f32,
+                    (q[2] / mean) as f32,
+                ]
+            })
+            .collect()
+    }
 }
 
 /// Burley's truncated inverse CDF in f32, the shader's arithmetic: r = P^-1(u P(R)).
@@ -529,6 +575,48 @@ mod tests {
                 assert!((f - q).abs() < 1e-4, "ch {c} u {q}: {f}");
             }
             assert!((p.k[c] / p.r_tot[c] - DEFAULT_ENERGY).abs() < 1e-9);
+        }
+    }
+
+    #[test]
+    fn mixture_sequence_reweights_to_each_channel() {
+        // The weighted radii of the shared sequence follow each channel's own truncated CDF:
+        // (1/n) sum_s w_c(r_s) [r_s <= x] ~ F_c(x), and the weights average to 1.
+        for kind in [ProfileKind::Dipole, ProfileKind::Burley] {
+            let p = Profile::new(kind, Material::SKIN1, DEFAULT_ENERGY).unwrap();
+            let n = 4096;
+            let seq = p.mixture_sequence(n);
+            assert!(
+                seq.windows(2).all(|w| w[0][0] < w[1][0]),
+                "radii not increasing"
+            );
+            assert!(seq[n as usize - 1][0] as f64 <= p.max_radius());
+            for c in 0..3 {
+                let mean = seq.iter().map(|q| q[c + 1] as f64).sum::<f64>() / n as f64;
+                assert!(
+                    (mean - 1.0).abs() < 2e-3,
+                    "{kind:?} ch {c}: mean weight {mean}"
+                );
+                for frac in [0.1, 0.3, 0.5, 0.8] {
+                    let x = frac * p.radius[c];
+                    let got = seq
+                        .iter()
+                        .filter(|q| (q[0] as f64) <= x)
+                        .map(|q| q[c + 1] as f64)
+                        .sum::<f64>()
+                        / n as f64;
+                    let want = p.cdf_normalised(c, x);
+                    assert!(
+                        (got - want).abs() < 3e-3,
+                        "{kind:?} ch {c} x {x}: {got} vs {want}"
+                    );
+                }
+                // Beyond its radius a channel has no weight.
+                assert!(
+                    seq.iter()
+                        .all(|q| q[0] as f64 <= p.radius[c] || q[c + 1] == 0.0)
+                );
+            }
         }
     }
 

@@ -32,6 +32,8 @@ use crate::scene::Mesh;
 use glam::{DVec2, DVec3, Vec2, Vec3};
 use std::collections::HashMap;
 
+/// [`TexGeometry::texel_tri`] of an empty texel.
+pub const NO_TRIANGLE: u32 = u32::MAX;
 /// Gutter width in texels.
 pub const GUTTER: u32 = 4;
 
@@ -72,6 +74,10 @@ pub struct TexGeometry {
     pub dpdu: Vec<[f32; 4]>,
     /// dP/dv.
     pub dpdv: Vec<[f32; 4]>,
+    /// The triangle under the texel and the barycentrics of its centre: (triangle, w1 bits,
+    /// w2 bits, 0) with w0 = 1 - w1 - w2; [`NO_TRIANGLE`] in empty texels; gutters copy
+    /// their source texel's. The irradiance pass interpolates per-vertex shadowing with it.
+    pub texel_tri: Vec<[u32; 4]>,
     /// The atlas UV of each triangle corner (after any repair).
     pub corner_uvs: Vec<[Vec2; 3]>,
     /// Positions (mm) and triangles the geometry was made from (for shadow rays and views).
@@ -293,9 +299,10 @@ impl TexGeometry {
         let mut nrm = vec![[0f32; 4]; npx];
         let mut dpdu = vec![[0f32; 4]; npx];
         let mut dpdv = vec![[0f32; 4]; npx];
+        let mut texel_tri = vec![[NO_TRIANGLE, 0, 0, 0]; npx];
         let mut mesh_area = 0.0;
         let mut texel_area = 0.0;
-        for (&tri, corners) in mesh.triangles.iter().zip(&corner_uvs) {
+        for (t, (&tri, corners)) in mesh.triangles.iter().zip(&corner_uvs).enumerate() {
             let p = tri.map(|i| positions[i as usize].as_dvec3());
             let nv = tri.map(|i| mesh.normals[i as usize].as_dvec3());
             let uv = corners.map(|u| u.as_dvec2());
@@ -320,6 +327,12 @@ impl TexGeometry {
                 nrm[i] = [n.x as f32, n.y as f32, n.z as f32, area as f32];
                 dpdu[i] = [a.x as f32, a.y as f32, a.z as f32, 0.0];
                 dpdv[i] = [b.x as f32, b.y as f32, b.z as f32, 0.0];
+                texel_tri[i] = [
+                    t as u32,
+                    (w[1] as f32).to_bits(),
+                    (w[2] as f32).to_bits(),
+                    0,
+                ];
                 texel_area += area;
             });
         }
@@ -335,6 +348,7 @@ impl TexGeometry {
             nrm,
             dpdu,
             dpdv,
+            texel_tri,
             corner_uvs,
             positions,
             normals: mesh.normals.clone(),
@@ -396,6 +410,7 @@ impl TexGeometry {
                 self.nrm[i][3] = 0.0;
                 self.dpdu[i] = self.dpdu[j];
                 self.dpdv[i] = self.dpdv[j];
+                self.texel_tri[i] = self.texel_tri[j];
             }
             gutter += fills.len();
         }
