@@ -342,7 +342,15 @@ fn srbf_shade_writes_ply_png_and_report_and_refuses_bad_input() {
     assert!(v["frames"][0]["gpu_ms_shade"].as_f64().unwrap() > 0.0);
     assert_eq!(v["kernel"]["passes"][0]["name"], "srbf lighting");
     assert_eq!(v["kernel"]["passes"][1]["name"], "srbf project");
+    assert_eq!(v["kernel"]["passes"][2]["name"], "srbf sharp");
     assert!(v["frames"][0]["gpu_ms_project"].as_f64().unwrap() > 0.0);
+    assert!(v["frames"][0]["gpu_ms_sharp"].as_f64().unwrap() > 0.0);
+    // Forest's strongest compact lobe holds 6% of its energy: it is shaded directly.
+    assert!(
+        v["compact_lobes"].as_u64().unwrap() >= 1,
+        "{}",
+        v["compact_lobes"]
+    );
     // The compressed transfer (64 clusters x 16 components by default) and the share of the
     // error it adds, against the same lobes with the uncompressed transfer.
     assert_eq!(v["components"], 16);
@@ -372,6 +380,8 @@ fn srbf_shade_writes_ply_png_and_report_and_refuses_bad_input() {
         dir.to_str().unwrap(),
     ]);
     assert!(!ok && stderr.contains("projected rows"), "{stderr}");
+    let (ok, _, stderr) = vkshade(&["srbf", "shade", "--compact-lobes", "99"]);
+    assert!(!ok && stderr.contains("--compact-lobes"), "{stderr}");
     // Bad input: a missing map, a bad rotation, a non-2:1 map.
     let (ok, _, stderr) = vkshade(&["srbf", "fit", "--env", "/nonexistent/map.exr"]);
     assert!(!ok && stderr.contains("/nonexistent/map.exr"), "{stderr}");

@@ -294,6 +294,36 @@ fn bad_srbf_inputs_and_frames_are_refused() {
         .err()
         .unwrap();
         assert!(e.to_string().contains("lobe 2"), "{e}");
+        // Compact lobes with a visibility cast for another grid, or for other vertices.
+        let c = scene(4, 16, 10, 1, 0).with_compact();
+        let cs = c.compact.as_ref().unwrap();
+        let wrong_grid = CompactInputs {
+            visibility: &cs.vis,
+            normals: &cs.normals,
+            width: 32,
+            height: 16,
+            factor: sharp::DEFAULT_FACTOR,
+            max_lobes: 4,
+        };
+        let e = SrbfKernel::new(
+            &mut rec,
+            &SrbfInputs::new(&c.lobes, &c.transfer).with_compact(wrong_grid),
+        )
+        .err()
+        .unwrap();
+        assert!(e.to_string().contains("32 x 16 grid"), "{e}");
+        let e = SrbfKernel::new(
+            &mut rec,
+            &SrbfInputs::new(&c.lobes, &c.transfer).with_compact(CompactInputs {
+                normals: &cs.normals[1..],
+                width: 64,
+                height: 32,
+                ..wrong_grid
+            }),
+        )
+        .err()
+        .unwrap();
+        assert!(e.to_string().contains("9 normals"), "{e}");
         let kernel = SrbfKernel::new(&mut rec, &inputs(&s))?;
         let e = kernel
             .record(
