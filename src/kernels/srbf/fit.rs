@@ -880,20 +880,12 @@ pub(crate) mod tests {
         out
     }
 
-    fn lobe(axis: Vec3, sharpness: f32, amplitude: [f32; 3]) -> Lobe {
-        Lobe {
-            axis: axis.normalize().to_array(),
-            sharpness,
-            amplitude,
-        }
-    }
-
     #[test]
     fn recovers_three_known_lobes() {
         let truth = [
-            lobe(Vec3::new(0.3, 0.9, 0.1), 12.0, [2.0, 1.5, 1.0]),
-            lobe(Vec3::new(-0.7, 0.2, 0.5), 40.0, [0.5, 0.8, 3.0]),
-            lobe(Vec3::new(0.1, -0.6, -0.8), 4.0, [0.7, 0.2, 0.3]),
+            Lobe::new(Vec3::new(0.3, 0.9, 0.1), 12.0, [2.0, 1.5, 1.0]),
+            Lobe::new(Vec3::new(-0.7, 0.2, 0.5), 40.0, [0.5, 0.8, 3.0]),
+            Lobe::new(Vec3::new(0.1, -0.6, -0.8), 4.0, [0.7, 0.2, 0.3]),
         ];
         let samples = equirect(128, 64, |w| evaluate(&truth, w));
         for lobes in [3, 6] {
@@ -1062,7 +1054,7 @@ pub(crate) mod tests {
             .map(|_| {
                 let axis = Vec3::new(rnd() as f32 - 0.5, rnd() as f32 - 0.5, rnd() as f32 - 0.5);
                 let amp = [rnd() as f32, rnd() as f32, rnd() as f32];
-                lobe(axis, 1.0 + 30.0 * rnd() as f32, amp)
+                Lobe::new(axis, 1.0 + 30.0 * rnd() as f32, amp)
             })
             .collect();
         let samples = equirect(96, 48, |w| {

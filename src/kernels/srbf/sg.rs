@@ -13,6 +13,15 @@ pub struct Lobe {
 }
 
 impl Lobe {
+    /// A lobe about `axis` (normalised here).
+    pub fn new(axis: Vec3, sharpness: f32, amplitude: [f32; 3]) -> Lobe {
+        Lobe {
+            axis: axis.normalize().to_array(),
+            sharpness,
+            amplitude,
+        }
+    }
+
     pub fn axis(&self) -> Vec3 {
         Vec3::from_array(self.axis)
     }

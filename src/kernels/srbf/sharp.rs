@@ -188,19 +188,11 @@ mod tests {
     use super::*;
     use crate::kernels::srbf::sg;
 
-    fn lobe(axis: Vec3, sharpness: f32, amplitude: [f32; 3]) -> Lobe {
-        Lobe {
-            axis: axis.normalize().to_array(),
-            sharpness,
-            amplitude,
-        }
-    }
-
     #[test]
     fn split_takes_the_sharpest_above_the_threshold() {
         let lobes: Vec<Lobe> = [10.0, 5000.0, 900.0, 1200.0, 30.0]
             .iter()
-            .map(|&s| lobe(Vec3::Y, s, [1.0; 3]))
+            .map(|&s| Lobe::new(Vec3::Y, s, [1.0; 3]))
             .collect();
         // Energies (2 pi / lambda x amplitude): the 5000 lobe holds 0.7% of the total, below
         // MIN_SHARE; the 1200 lobe (x 100) the most.
@@ -224,7 +216,7 @@ mod tests {
         assert_eq!(split(&lobes, 30.0, 32.0, 0).1.len(), 0);
         // Equal lobes: the strongest first, at most max_lobes (and never above MAX_LOBES).
         let many: Vec<Lobe> = (0..10)
-            .map(|i| lobe(Vec3::X, 2000.0, [1.0 + i as f32; 3]))
+            .map(|i| Lobe::new(Vec3::X, 2000.0, [1.0 + i as f32; 3]))
             .collect();
         let (smooth, compact) = split(&many, 30.0, 32.0, 3);
         assert_eq!((smooth.len(), compact.len()), (7, 3));
@@ -233,7 +225,9 @@ mod tests {
                 .iter()
                 .all(|l| l.amplitude[0] < compact[2].amplitude[0])
         );
-        let all: Vec<Lobe> = (0..40).map(|_| lobe(Vec3::X, 2000.0, [1.0; 3])).collect();
+        let all: Vec<Lobe> = (0..40)
+            .map(|_| Lobe::new(Vec3::X, 2000.0, [1.0; 3]))
+            .collect();
         assert_eq!(split(&all, 30.0, 32.0, 1000).1.len(), MAX_LOBES);
     }
 
@@ -250,7 +244,7 @@ mod tests {
             Vec3::new(0.0, 0.1, 1.0),
             Vec3::new(-1e-4, -0.2, -1.0),
         ] {
-            let l = lobe(axis, 2500.0, [2.0, 1.0, 0.5]);
+            let l = Lobe::new(axis, 2500.0, [2.0, 1.0, 0.5]);
             let t = taps(&[l], r, 64, 32);
             assert_eq!(t.len(), 1);
             let want = sg::integral(2500.0) / std::f64::consts::PI;
@@ -280,7 +274,7 @@ mod tests {
         let positions = vec![Vec3::ZERO; normals.len()];
         let vis = visibility(&positions, &normals, &bvh, &dirs, 0.0);
         check_grid(&vis, 64, 32).unwrap();
-        let l = lobe(Vec3::new(0.4, 0.6, 0.7), 2.0e6, [1.0e3, 2.0e3, 3.0e3]);
+        let l = Lobe::new(Vec3::new(0.4, 0.6, 0.7), 2.0e6, [1.0e3, 2.0e3, 3.0e3]);
         let r = sg::rotation(Vec3::Z, 20.0);
         let t = taps(&[l], r, 64, 32);
         let got = shade(&t, &normals, &vis).unwrap();
