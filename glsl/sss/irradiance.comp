@@ -29,7 +29,10 @@ layout(set = 0, binding = 1, rgba32f) readonly uniform image2D nrm;     // xyz, 
 // The texel's triangle corners (vertex indices) and barycentrics w1, w2 as 16-bit fractions
 // of 2^16 in w (cpu::texel_corners_packed).
 layout(set = 0, binding = 2, rgba32ui) readonly uniform uimage2D corners;
-layout(std430, set = 0, binding = 3) readonly buffer Lights { vec4 v[]; } lights; // 2 per light
+const uint MAX_LIGHTS = 16u; // cpu::MAX_LIGHTS
+// A uniform buffer: lavapipe reads it at the loop's uniform index as a scalar (a storage
+// buffer would be loaded lane by lane, component by component).
+layout(std140, set = 0, binding = 3) uniform Lights { vec4 v[2 * MAX_LIGHTS]; } lights; // 2 per light
 layout(set = 0, binding = 4, r32ui) readonly uniform uimage2D vis;
 layout(set = 0, binding = 5, rgba32f) readonly uniform image2D vtrans;
 layout(set = 0, binding = 6, rgba32f) writeonly uniform image2D irr;

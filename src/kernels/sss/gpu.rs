@@ -170,10 +170,12 @@ impl SssKernel {
             BufferDesc::uniform(SEQUENCE_BYTES),
             &profile.mixture_sequence(params.samples),
         )?;
+        // A uniform buffer (the shaders' MAX_LIGHTS x 2 vec4): lavapipe loads it at the
+        // light loop's uniform index as a scalar.
         let lights = Buffer::new(
             &ctx,
             "sss lights",
-            BufferDesc::storage(MAX_LIGHTS as u64 * 32),
+            BufferDesc::uniform(MAX_LIGHTS as u64 * 32),
         )?;
         let texels = geo.texels() as u64;
         let sz = [geo.size, geo.size];
