@@ -11,7 +11,7 @@ layout(push_constant) uniform Push {
     uint samples;
     float seam_rel;
     float seam_texels;
-    uint tiles;      // occupied tiles
+    uint tiles;      // occupied row segments
 } pc;
 
 const uint MAX_SAMPLES = 4096u;
@@ -31,9 +31,10 @@ layout(set = 0, binding = 2, rgba32f) readonly uniform image2D dpdu;
 layout(set = 0, binding = 3, rgba32f) readonly uniform image2D dpdv;
 layout(std140, set = 0, binding = 5) uniform Seq { vec4 v[MAX_SAMPLES]; } seq; // r, w_rgb
 layout(std430, set = 0, binding = 6) writeonly buffer Diffuse { vec4 v[]; } diffuse;
-// The occupied 8x8 tiles of the atlas (x | y << 16, built once per mesh: the UV layout does
-// not change when it is skinned): workgroup (x, y) shades tile y * TILE_ROW + x; texels of
-// empty tiles are never touched (the kernel clears the outputs there once).
+// The occupied 8x1 row segments of the atlas (x / 8 | y << 16, built once per mesh: the UV
+// layout does not change when it is skinned): workgroup (x, y) shades segments
+// 8 (y * TILE_ROW + x) + local y, a SIMD step of 8 lanes per segment; texels of empty
+// segments are never touched (the kernel clears the outputs there once).
 const uint TILE_ROW = 256u;
 layout(std430, set = 0, binding = 7) readonly buffer Tiles { uint v[]; } tiles;
 
@@ -46,10 +47,10 @@ uint pcg(uint v) {
 }
 
 void main() {
-    uint ti = gl_WorkGroupID.y * TILE_ROW + gl_WorkGroupID.x;
+    uint ti = 8u * (gl_WorkGroupID.y * TILE_ROW + gl_WorkGroupID.x) + gl_LocalInvocationID.y;
     if (ti >= pc.tiles) return;
     uint tile = tiles.v[ti];
-    uvec2 xy = uvec2(tile & 0xffffu, tile >> 16u) * 8u + gl_LocalInvocationID.xy;
+    uvec2 xy = uvec2((tile & 0xffffu) * 8u + gl_LocalInvocationID.x, tile >> 16u);
     if (xy.x >= pc.size || xy.y >= pc.size) return;
     float nf = float(pc.size);
     uint i = xy.y * pc.size + xy.x;

@@ -20,7 +20,7 @@ layout(push_constant) uniform Push {
     uint mode;     // transmission: 0 off, else on
     uint refine;   // 1: a shadow ray per texel where the corners disagree
     float bias;    // shadow-ray origin offset along the normal (mm)
-    uint tiles;    // occupied tiles
+    uint tiles;    // occupied row segments
 } pc;
 
 const uint VERTEX_ROW = 1024u;
@@ -49,9 +49,10 @@ layout(set = 0, binding = 9, rgba32ui) readonly uniform uimage2D tris;
 // w = E (white lights: the same in r, g, b; E >= 0), -1 where no surface. The kernel reads
 // the irradiance back from it (rgb = w, alpha 1; 0 where w < 0).
 layout(set = 0, binding = 10, rgba32f) writeonly uniform image2D pe;
-// The occupied 8x8 tiles of the atlas (x | y << 16, built once per mesh: the UV layout does
-// not change when it is skinned): workgroup (x, y) shades tile y * TILE_ROW + x; texels of
-// empty tiles are never touched (the kernel clears the outputs there once).
+// The occupied 8x1 row segments of the atlas (x / 8 | y << 16, built once per mesh: the UV
+// layout does not change when it is skinned): workgroup (x, y) shades segments
+// 8 (y * TILE_ROW + x) + local y, a SIMD step of 8 lanes per segment; texels of empty
+// segments are never touched (the kernel clears the outputs there once).
 const uint TILE_ROW = 256u;
 layout(std430, set = 0, binding = 11) readonly buffer Tiles { uint v[]; } tiles;
 
@@ -121,10 +122,10 @@ ivec2 vertex_at(uint v) {
 }
 
 void main() {
-    uint ti = gl_WorkGroupID.y * TILE_ROW + gl_WorkGroupID.x;
+    uint ti = 8u * (gl_WorkGroupID.y * TILE_ROW + gl_WorkGroupID.x) + gl_LocalInvocationID.y;
     if (ti >= pc.tiles) return;
     uint tile = tiles.v[ti];
-    uvec2 xy = uvec2(tile & 0xffffu, tile >> 16u) * 8u + gl_LocalInvocationID.xy;
+    uvec2 xy = uvec2((tile & 0xffffu) * 8u + gl_LocalInvocationID.x, tile >> 16u);
     if (xy.x >= pc.size || xy.y >= pc.size) return;
     ivec2 at = ivec2(xy);
     vec4 p4 = imageLoad(pos, at);

@@ -8,7 +8,7 @@
 //! every component (measured: the diffusion 3.7x faster, the irradiance 1.6x). The lights are a
 //! uniform buffer (read as scalars at the light loop's uniform index). The irradiance pass
 //! writes position and E into one image, so the diffusion gathers one texel per sample
-//! instead of two. Both passes run over the atlas's occupied 8x8 tiles only (a list built once
+//! instead of two. Both passes run over the atlas's occupied 8x1 row segments only (a list built once
 //! per UV layout; about half a head's atlas is empty), the outputs cleared once in the empty
 //! ones. The irradiance can also be filled by the caller
 //! ([`SssKernel::upload_irradiance`], e.g. from another kernel, rgb) and diffused alone
@@ -110,33 +110,35 @@ pub struct SssKernel {
     params: SamplerParams,
 }
 
-/// Tiles (8 x 8 texels) per row of workgroups in the irradiance and diffusion dispatches
-/// (the shaders' TILE_ROW).
+/// Workgroups (8 x 8 invocations: 8 row segments) per row of the irradiance and diffusion
+/// dispatches (the shaders' TILE_ROW).
 const TILE_ROW: u32 = 256;
 
-/// The 8 x 8 tiles of the atlas with at least one texel on the surface (covered or gutter),
-/// as x | y << 16: the irradiance and diffusion passes run over these only (about half of a
-/// head's atlas is empty).
+/// The 8 x 1 row segments of the atlas with at least one texel on the surface (covered or
+/// gutter), as x / 8 | y << 16: the irradiance and diffusion passes run over these only
+/// (about half of a head's atlas is empty; a segment is one 8-lane SIMD step on lavapipe).
 fn occupied_tiles(geo: &TexGeometry) -> Vec<u32> {
     let n = geo.size as usize;
-    let t = n.div_ceil(8);
     let mut tiles = Vec::new();
-    for ty in 0..t {
-        for tx in 0..t {
-            let any = (ty * 8..(ty * 8 + 8).min(n))
-                .any(|y| (tx * 8..(tx * 8 + 8).min(n)).any(|x| geo.pos[y * n + x][3] != 0.0));
-            if any {
-                tiles.push(tx as u32 | (ty as u32) << 16);
+    for y in 0..n {
+        for tx in 0..n.div_ceil(8) {
+            if (tx * 8..(tx * 8 + 8).min(n)).any(|x| geo.pos[y * n + x][3] != 0.0) {
+                tiles.push(tx as u32 | (y as u32) << 16);
             }
         }
     }
     tiles
 }
 
-/// Workgroups for `tiles` tiles ([`TILE_ROW`] a row; at least one, which returns at once
-/// when there are none).
+/// Workgroups for `tiles` row segments (8 a workgroup, [`TILE_ROW`] workgroups a row; at
+/// least one, which returns at once when there are none).
 fn tile_groups(tiles: u32) -> [u32; 3] {
-    [tiles.clamp(1, TILE_ROW), tiles.div_ceil(TILE_ROW).max(1), 1]
+    let groups = tiles.div_ceil(8);
+    [
+        groups.clamp(1, TILE_ROW),
+        groups.div_ceil(TILE_ROW).max(1),
+        1,
+    ]
 }
 
 /// Vertices per row of the per-vertex images (the shaders' VERTEX_ROW).
@@ -251,7 +253,7 @@ impl SssKernel {
         let trans = Image::new(&ctx, "sss transmission", rgba32f(sz))?;
         let pe = Image::new(&ctx, "sss position and E", rgba32f(sz))?;
         let diffuse = Buffer::new(&ctx, "sss diffuse", BufferDesc::storage(texels * 16))?;
-        let all_tiles = (geo.size as u64).div_ceil(8).pow(2);
+        let all_tiles = (geo.size as u64).div_ceil(8) * geo.size as u64;
         let tiles = Buffer::new(&ctx, "sss tiles", BufferDesc::storage(all_tiles * 4))?;
         let w = AccessSet::from(A::ComputeShaderWrite);
         let vertex_bind = vertex.bind_declared(
