@@ -20,6 +20,7 @@ layout(push_constant) uniform Push {
     uint mode;     // transmission: 0 off, else on
     uint refine;   // 1: a shadow ray per texel where the corners disagree
     float bias;    // shadow-ray origin offset along the normal (mm)
+    uint tiles;    // occupied row segments
 } pc;
 
 const uint VERTEX_ROW = 1024u;
@@ -29,16 +30,31 @@ layout(set = 0, binding = 1, rgba32f) readonly uniform image2D nrm;     // xyz, 
 // The texel's triangle corners (vertex indices) and barycentrics w1, w2 as 16-bit fractions
 // of 2^16 in w (cpu::texel_corners_packed).
 layout(set = 0, binding = 2, rgba32ui) readonly uniform uimage2D corners;
-layout(std430, set = 0, binding = 3) readonly buffer Lights { vec4 v[]; } lights; // 2 per light
+const uint MAX_LIGHTS = 16u; // cpu::MAX_LIGHTS
+// A uniform buffer: lavapipe reads it at the loop's uniform index as a scalar (a storage
+// buffer would be loaded lane by lane, component by component).
+layout(std140, set = 0, binding = 3) uniform Lights { vec4 v[2 * MAX_LIGHTS]; } lights; // 2 per light
 layout(set = 0, binding = 4, r32ui) readonly uniform uimage2D vis;
 layout(set = 0, binding = 5, rgba32f) readonly uniform image2D vtrans;
-layout(set = 0, binding = 6, rgba32f) writeonly uniform image2D irr;
+// Transmission: written only when mode != 0 (the kernel clears it when transmission is off;
+// lavapipe stores a texel lane by lane, and a store per texel costs ~2.5 ms at 512^2).
 layout(set = 0, binding = 7, rgba32f) writeonly uniform image2D trans;  // rgb, t
 // The BVH as images (row BVH_ROW; lavapipe fetches a texel's four channels at once): nodes
 // 2 texels each (lo xyz, first; hi xyz, count), triangles 3 (a, e1, e2), float bits.
 const uint BVH_ROW = 1024u;
 layout(set = 0, binding = 8, rgba32ui) readonly uniform uimage2D nodes;
 layout(set = 0, binding = 9, rgba32ui) readonly uniform uimage2D tris;
+// The output: position and E together for the diffusion's gathers
+// (glsl/sss/diffusion_grey.comp: one texel load per sample instead of two): xyz position,
+// w = E (white lights: the same in r, g, b; E >= 0), -1 where no surface. The kernel reads
+// the irradiance back from it (rgb = w, alpha 1; 0 where w < 0).
+layout(set = 0, binding = 10, rgba32f) writeonly uniform image2D pe;
+// The occupied 8x1 row segments of the atlas (x / 8 | y << 16, built once per mesh: the UV
+// layout does not change when it is skinned): workgroup (x, y) shades segments
+// 8 (y * TILE_ROW + x) + local y, a SIMD step of 8 lanes per segment; texels of empty
+// segments are never touched (the kernel clears the outputs there once).
+const uint TILE_ROW = 256u;
+layout(std430, set = 0, binding = 11) readonly buffer Tiles { uint v[]; } tiles;
 
 uvec4 bvh_node(uint k) {
     return imageLoad(nodes, ivec2(k % BVH_ROW, k / BVH_ROW));
@@ -106,13 +122,16 @@ ivec2 vertex_at(uint v) {
 }
 
 void main() {
-    uvec2 xy = gl_GlobalInvocationID.xy;
+    uint ti = 8u * (gl_WorkGroupID.y * TILE_ROW + gl_WorkGroupID.x) + gl_LocalInvocationID.y;
+    if (ti >= pc.tiles) return;
+    uint tile = tiles.v[ti];
+    uvec2 xy = uvec2((tile & 0xffffu) * 8u + gl_LocalInvocationID.x, tile >> 16u);
     if (xy.x >= pc.size || xy.y >= pc.size) return;
     ivec2 at = ivec2(xy);
     vec4 p4 = imageLoad(pos, at);
     if (p4.w == 0.0) {
-        imageStore(irr, at, vec4(0.0));
-        imageStore(trans, at, vec4(0.0));
+        if (pc.mode != 0u) imageStore(trans, at, vec4(0.0));
+        imageStore(pe, at, vec4(0.0, 0.0, 0.0, -1.0));
         return;
     }
     vec3 p = p4.xyz;
@@ -152,10 +171,9 @@ void main() {
         }
         e += strength * c * v;
     }
-    imageStore(irr, at, vec4(e, e, e, 1.0));
-    vec4 tr = vec4(0.0);
+    imageStore(pe, at, vec4(p, e));
     if (pc.mode != 0u) {
-        tr = w0 * imageLoad(vtrans, a0) + w1 * imageLoad(vtrans, a1) + w2 * imageLoad(vtrans, a2);
+        vec4 tr = w0 * imageLoad(vtrans, a0) + w1 * imageLoad(vtrans, a1) + w2 * imageLoad(vtrans, a2);
+        imageStore(trans, at, tr);
     }
-    imageStore(trans, at, tr);
 }

@@ -36,7 +36,10 @@ uvec4 bvh_node(uint k) {
 vec3 tri_row(uint k) {
     return uintBitsToFloat(imageLoad(tris, ivec2(k % BVH_ROW, k / BVH_ROW)).xyz);
 }
-layout(std430, set = 0, binding = 3) readonly buffer Lights { vec4 v[]; } lights; // 2 per light
+const uint MAX_LIGHTS = 16u; // cpu::MAX_LIGHTS
+// A uniform buffer: lavapipe reads it at the loop's uniform index as a scalar (a storage
+// buffer would be loaded lane by lane, component by component).
+layout(std140, set = 0, binding = 3) uniform Lights { vec4 v[2 * MAX_LIGHTS]; } lights; // 2 per light
 // Outputs as images (vertex v at (v % VERTEX_ROW, v / VERTEX_ROW)): the irradiance pass
 // gathers them with one texel fetch each.
 const uint VERTEX_ROW = 1024u;

@@ -21,11 +21,12 @@ use std::path::PathBuf;
 
 /// Work per diffusion sample (documented model, not a counter; one sample serves the three
 /// channels): ~36 FLOP (direction rotation, UV map, rounding to the nearest texel, 3D
-/// distance, seam test, three weighted sums) and 2 gathered vec4 loads (the nearest texel's
-/// position and irradiance; the radius and weights are a uniform load) = 32 bytes.
+/// distance, seam test, three weighted sums) and 1 gathered vec4 load (the nearest texel's
+/// position and grey irradiance, one image written by the irradiance pass; the radius and
+/// weights are a uniform load) = 16 bytes.
 pub mod work_model {
     pub const FLOP_PER_SAMPLE: f64 = 36.0;
-    pub const BYTES_PER_SAMPLE: f64 = 32.0;
+    pub const BYTES_PER_SAMPLE: f64 = 16.0;
 }
 
 #[derive(Clone, Debug, Serialize)]

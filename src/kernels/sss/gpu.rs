@@ -5,9 +5,14 @@
 //! space with one sample set shared by the three channels. Per-texel data and the BVH live in
 //! storage images: on lavapipe an image load at a per-lane coordinate fetches the texel's four
 //! channels at once, while a storage-buffer load at a per-lane index loops over the lanes for
-//! every component (measured: the diffusion 3.7x faster, the irradiance 1.6x). The irradiance buffer can also be filled by the caller
-//! ([`SssKernel::upload_irradiance`], e.g. from another kernel) and diffused alone
-//! ([`SssKernel::record_diffusion`]).
+//! every component (measured: the diffusion 3.7x faster, the irradiance 1.6x). The lights are a
+//! uniform buffer (read as scalars at the light loop's uniform index). The irradiance pass
+//! writes position and E into one image, so the diffusion gathers one texel per sample
+//! instead of two. Both passes run over the atlas's occupied 8x1 row segments only (a list built once
+//! per UV layout; about half a head's atlas is empty), the outputs cleared once in the empty
+//! ones. The irradiance can also be filled by the caller
+//! ([`SssKernel::upload_irradiance`], e.g. from another kernel, rgb) and diffused alone
+//! ([`SssKernel::record_diffusion`], then with the two-gather rgb pipeline).
 
 use super::cpu::{
     Light, MAX_LIGHTS, SamplerParams, check_lights, shadow_bias, texel_corners_packed,
@@ -20,9 +25,12 @@ use crate::geom::bvh::Bvh;
 use crate::gpu::{
     AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context, Image,
     ImageDesc, ImageRegion, MemoryReport, PlannedBarrier, Readback, Recorder, Resource,
+    Subresources,
 };
 use crate::kernels::{Kernel, PassInfo, UseInfo};
 use ash::vk;
+use std::sync::Mutex;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 pub const PASS_LIGHTS: &str = "sss lights";
 pub const PASS_VERTEX: &str = "sss vertex light";
@@ -45,6 +53,8 @@ pub struct SssOutput {
 }
 
 pub struct SssReadback {
+    /// `irradiance` is the `pe` image (xyz, grey E) rather than a caller's rgb upload.
+    grey: bool,
     irradiance: Readback,
     diffuse: Readback,
     transmission: Readback,
@@ -59,6 +69,12 @@ pub struct SssKernel {
     irradiance_bind: BindGroup,
     diffusion: ComputePipeline,
     diffusion_bind: BindGroup,
+    /// The diffusion of the irradiance pass's grey E: one gather per sample from `pe`.
+    diffusion_grey: ComputePipeline,
+    diffusion_grey_bind: BindGroup,
+    /// Whether the irradiance image last recorded came from the irradiance pass (grey, also
+    /// in `pe`: the diffusion uses `diffusion_grey`) rather than [`SssKernel::upload_irradiance`].
+    grey: AtomicBool,
     /// Mesh vertices (position, normal) and the BVH (nodes, triangles): storage buffers.
     verts: Buffer,
     /// The BVH as RGBA32UI images of [`BVH_ROW`] texels a row (float bits; nodes 2 texels,
@@ -79,12 +95,50 @@ pub struct SssKernel {
     vtrans: Image,
     lights: Buffer,
     irr: Image,
+    /// Position and grey E per texel (xyz, E; w -1 where no surface), written by the
+    /// irradiance pass for the grey diffusion's gathers.
+    pe: Image,
     trans: Image,
     diffuse: Buffer,
+    /// The occupied tiles ([`occupied_tiles`]), a storage buffer with room for every tile,
+    /// and the list on the host (compared on a geometry update).
+    tiles: Buffer,
+    tile_list: Mutex<Vec<u32>>,
     size: u32,
     bias: f32,
     profile: Profile,
     params: SamplerParams,
+}
+
+/// Workgroups (8 x 8 invocations: 8 row segments) per row of the irradiance and diffusion
+/// dispatches (the shaders' TILE_ROW).
+const TILE_ROW: u32 = 256;
+
+/// The 8 x 1 row segments of the atlas with at least one texel on the surface (covered or
+/// gutter), as x / 8 | y << 16: the irradiance and diffusion passes run over these only
+/// (about half of a head's atlas is empty; a segment is one 8-lane SIMD step on lavapipe).
+fn occupied_tiles(geo: &TexGeometry) -> Vec<u32> {
+    let n = geo.size as usize;
+    let mut tiles = Vec::new();
+    for y in 0..n {
+        for tx in 0..n.div_ceil(8) {
+            if (tx * 8..(tx * 8 + 8).min(n)).any(|x| geo.pos[y * n + x][3] != 0.0) {
+                tiles.push(tx as u32 | (y as u32) << 16);
+            }
+        }
+    }
+    tiles
+}
+
+/// Workgroups for `tiles` row segments (8 a workgroup, [`TILE_ROW`] workgroups a row; at
+/// least one, which returns at once when there are none).
+fn tile_groups(tiles: u32) -> [u32; 3] {
+    let groups = tiles.div_ceil(8);
+    [
+        groups.clamp(1, TILE_ROW),
+        groups.div_ceil(TILE_ROW).max(1),
+        1,
+    ]
 }
 
 /// Vertices per row of the per-vertex images (the shaders' VERTEX_ROW).
@@ -144,6 +198,8 @@ impl SssKernel {
         let irradiance =
             ComputePipeline::from_spirv(&ctx, "sss/irradiance", spv("sss/irradiance")?)?;
         let diffusion = ComputePipeline::from_spirv(&ctx, "sss/diffusion", spv("sss/diffusion")?)?;
+        let diffusion_grey =
+            ComputePipeline::from_spirv(&ctx, "sss/diffusion_grey", spv("sss/diffusion_grey")?)?;
         let bvh = Bvh::build(&geo.positions, &geo.triangles);
         let (nodes, tris) = bvh.flat();
         let ubo_limit = ctx.limits().max_uniform_buffer_range;
@@ -170,10 +226,12 @@ impl SssKernel {
             BufferDesc::uniform(SEQUENCE_BYTES),
             &profile.mixture_sequence(params.samples),
         )?;
+        // A uniform buffer (the shaders' MAX_LIGHTS x 2 vec4): lavapipe loads it at the
+        // light loop's uniform index as a scalar.
         let lights = Buffer::new(
             &ctx,
             "sss lights",
-            BufferDesc::storage(MAX_LIGHTS as u64 * 32),
+            BufferDesc::uniform(MAX_LIGHTS as u64 * 32),
         )?;
         let texels = geo.texels() as u64;
         let sz = [geo.size, geo.size];
@@ -193,7 +251,10 @@ impl SssKernel {
         let vtrans = Image::new(&ctx, "sss vertex transmission", rgba32f(vsz))?;
         let irr = Image::new(&ctx, "sss irradiance", rgba32f(sz))?;
         let trans = Image::new(&ctx, "sss transmission", rgba32f(sz))?;
+        let pe = Image::new(&ctx, "sss position and E", rgba32f(sz))?;
         let diffuse = Buffer::new(&ctx, "sss diffuse", BufferDesc::storage(texels * 16))?;
+        let all_tiles = (geo.size as u64).div_ceil(8) * geo.size as u64;
+        let tiles = Buffer::new(&ctx, "sss tiles", BufferDesc::storage(all_tiles * 4))?;
         let w = AccessSet::from(A::ComputeShaderWrite);
         let vertex_bind = vertex.bind_declared(
             &[
@@ -215,12 +276,13 @@ impl SssKernel {
                 ("lights", Resource::Buffer(&lights)),
                 ("vis", Resource::storage_image(&vis)),
                 ("vtrans", Resource::storage_image(&vtrans)),
-                ("irr", Resource::storage_image(&irr)),
                 ("trans", Resource::storage_image(&trans)),
                 ("nodes", Resource::storage_image(&nodes)),
                 ("tris", Resource::storage_image(&tris)),
+                ("pe", Resource::storage_image(&pe)),
+                ("tiles", Resource::Buffer(&tiles)),
             ],
-            &[("irr", w), ("trans", w)],
+            &[("trans", w), ("pe", w)],
         )?;
         let diffusion_bind = diffusion.bind_declared(
             &[
@@ -231,6 +293,19 @@ impl SssKernel {
                 ("irr", Resource::storage_image(&irr)),
                 ("seq", Resource::Buffer(&seq)),
                 ("diffuse", Resource::Buffer(&diffuse)),
+                ("tiles", Resource::Buffer(&tiles)),
+            ],
+            &[("diffuse", w)],
+        )?;
+        let diffusion_grey_bind = diffusion_grey.bind_declared(
+            &[
+                ("pe", Resource::storage_image(&pe)),
+                ("nrm", Resource::storage_image(g_nrm)),
+                ("dpdu", Resource::storage_image(g_dpdu)),
+                ("dpdv", Resource::storage_image(g_dpdv)),
+                ("seq", Resource::Buffer(&seq)),
+                ("diffuse", Resource::Buffer(&diffuse)),
+                ("tiles", Resource::Buffer(&tiles)),
             ],
             &[("diffuse", w)],
         )?;
@@ -243,6 +318,9 @@ impl SssKernel {
             irradiance_bind,
             diffusion,
             diffusion_bind,
+            diffusion_grey,
+            diffusion_grey_bind,
+            grey: AtomicBool::new(false),
             verts,
             nodes,
             tris,
@@ -253,19 +331,60 @@ impl SssKernel {
             vtrans,
             lights,
             irr,
+            pe,
             trans,
             diffuse,
+            tiles,
+            tile_list: Mutex::new(Vec::new()),
             size: geo.size,
             bias: shadow_bias(geo.extent_mm()),
             profile: profile.clone(),
             params,
         };
         kernel.upload_texels(rec, geo)?;
+        kernel.set_tiles(rec, occupied_tiles(geo))?;
         Ok(kernel)
     }
 
     pub fn size(&self) -> u32 {
         self.size
+    }
+
+    /// Records the clearing of the transmission image (the irradiance pass leaves it alone
+    /// while transmission is off, and in empty tiles).
+    fn clear_transmission(&self, rec: &mut Recorder) -> Result<()> {
+        rec.clear_image(
+            &self.trans,
+            Subresources::mip(self.trans.desc(), 0),
+            [0.0; 4],
+        )
+    }
+
+    /// Records the upload of the occupied tiles and the clearing of the outputs the passes
+    /// do not write in empty tiles (position and E: -1, no surface; diffuse and transmission:
+    /// 0), unless the list is the one already in use.
+    fn set_tiles(&self, rec: &mut Recorder, list: Vec<u32>) -> Result<()> {
+        let mut current = self
+            .tile_list
+            .lock()
+            .map_err(|_| Error::InvalidArgument("SSS tile list lock poisoned".into()))?;
+        if *current == list && !list.is_empty() {
+            return Ok(());
+        }
+        if !list.is_empty() {
+            rec.upload(&self.tiles, 0, &list)?;
+        }
+        let pe = Subresources::mip(self.pe.desc(), 0);
+        rec.clear_image(&self.pe, pe, [0.0, 0.0, 0.0, -1.0])?;
+        rec.fill_buffer(&self.diffuse, 0)?;
+        self.clear_transmission(rec)?;
+        *current = list;
+        Ok(())
+    }
+
+    /// The number of occupied tiles.
+    fn tile_count(&self) -> u32 {
+        self.tile_list.lock().map(|l| l.len() as u32).unwrap_or(0)
     }
 
     /// Records the upload of the per-texel geometry images.
@@ -310,6 +429,7 @@ impl SssKernel {
             return Err(Error::InvalidArgument("BVH larger than its image".into()));
         }
         self.upload_texels(rec, geo)?;
+        self.set_tiles(rec, occupied_tiles(geo))?;
         rec.upload(&self.verts, 0, &vertex_frames(geo))?;
         upload_rows(rec, &self.nodes, bytemuck::cast_slice(&n))?;
         upload_rows(rec, &self.tris, bytemuck::cast_slice(&t))
@@ -323,14 +443,23 @@ impl SssKernel {
     pub fn set_params(&mut self, rec: &mut Recorder, params: SamplerParams) -> Result<()> {
         params.check()?;
         rec.upload(&self.seq, 0, &self.profile.mixture_sequence(params.samples))?;
+        if self.params.transmission && !params.transmission {
+            self.clear_transmission(rec)?;
+        }
         self.params = params;
         Ok(())
     }
 
-    /// The irradiance image (RGBA32F, rgb E, alpha 1 on the surface), written by
-    /// `sss irradiance`.
+    /// The irradiance image of [`SssKernel::upload_irradiance`] (RGBA32F, rgb E). The
+    /// irradiance pass writes [`SssKernel::position_and_irradiance`] instead.
     pub fn irradiance(&self) -> &Image {
         &self.irr
+    }
+
+    /// Position and irradiance per texel (RGBA32F: xyz position, w the grey E of the white
+    /// lights, -1 where no surface), written by `sss irradiance`.
+    pub fn position_and_irradiance(&self) -> &Image {
+        &self.pe
     }
 
     /// The diffuse buffer, written by `sss diffusion`.
@@ -357,7 +486,9 @@ impl SssKernel {
             &self.irr,
             ImageRegion::whole(self.irr.desc()),
             bytemuck::cast_slice(e),
-        )
+        )?;
+        self.grey.store(false, Ordering::Relaxed);
+        Ok(())
     }
 
     /// The transmission image (rgb, alpha thickness), written by `sss irradiance`.
@@ -398,14 +529,27 @@ impl SssKernel {
             self.params.transmission as u32,
             self.params.shadow_refine as u32,
             self.bias.to_bits(),
+            self.tile_count(),
         ];
         let push: Vec<u8> = words.iter().flat_map(|x| x.to_le_bytes()).collect();
-        rec.dispatch_invocations_tracked(
+        rec.dispatch_tracked(
             &self.irradiance,
             &self.irradiance_bind,
             &push,
-            [self.size, self.size, 1],
-        )
+            tile_groups(self.tile_count()),
+        )?;
+        self.grey.store(true, Ordering::Relaxed);
+        Ok(())
+    }
+
+    /// The diffusion pipeline and bindings for the irradiance last recorded: the grey one
+    /// (one gather per sample) after the irradiance pass, the rgb one after an upload.
+    fn diffusion_pipeline(&self) -> (&ComputePipeline, &BindGroup) {
+        if self.grey.load(Ordering::Relaxed) {
+            (&self.diffusion_grey, &self.diffusion_grey_bind)
+        } else {
+            (&self.diffusion, &self.diffusion_bind)
+        }
     }
 
     /// Records the diffusion dispatch alone (barriers from the declared accesses).
@@ -420,15 +564,12 @@ impl SssKernel {
             self.params.samples,
             self.params.seam_rel.to_bits(),
             self.params.seam_texels.to_bits(),
+            self.tile_count(),
         ] {
             push.extend_from_slice(&u.to_le_bytes());
         }
-        rec.dispatch_invocations_tracked(
-            &self.diffusion,
-            &self.diffusion_bind,
-            &push,
-            [self.size, self.size, 1],
-        )
+        let (pipeline, bind) = self.diffusion_pipeline();
+        rec.dispatch_tracked(pipeline, bind, &push, tile_groups(self.tile_count()))
     }
 }
 
@@ -462,7 +603,7 @@ impl Kernel for SssKernel {
             },
             PassInfo {
                 name: PASS_DIFFUSION,
-                uses: uses(&self.diffusion_bind),
+                uses: uses(self.diffusion_pipeline().1),
             },
         ]
     }
@@ -498,7 +639,7 @@ impl Kernel for SssKernel {
             )]),
             1 => Ok(rec.plan_dispatch(&self.vertex_bind)),
             2 => Ok(rec.plan_dispatch(&self.irradiance_bind)),
-            3 => Ok(rec.plan_dispatch(&self.diffusion_bind)),
+            3 => Ok(rec.plan_dispatch(self.diffusion_pipeline().1)),
             _ => Err(Error::InvalidArgument(format!(
                 "SSS has 4 passes, not {}",
                 pass + 1
@@ -507,8 +648,11 @@ impl Kernel for SssKernel {
     }
 
     fn read_back(&self, rec: &mut Recorder) -> Result<SssReadback> {
+        let grey = self.grey.load(Ordering::Relaxed);
+        let e = if grey { &self.pe } else { &self.irr };
         Ok(SssReadback {
-            irradiance: rec.read_back_image(&self.irr, ImageRegion::whole(self.irr.desc()))?,
+            grey,
+            irradiance: rec.read_back_image(e, ImageRegion::whole(e.desc()))?,
             diffuse: rec.read_back(&self.diffuse)?,
             transmission: rec
                 .read_back_image(&self.trans, ImageRegion::whole(self.trans.desc()))?,
@@ -516,17 +660,32 @@ impl Kernel for SssKernel {
     }
 
     fn collect(&self, rb: &SssReadback) -> Result<SssOutput> {
+        let mut irradiance: Vec<[f32; 4]> = rb.irradiance.to_vec()?;
+        if rb.grey {
+            // (x, y, z, E) -> (E, E, E, 1); -1 marks no surface.
+            for t in &mut irradiance {
+                *t = if t[3] < 0.0 {
+                    [0.0; 4]
+                } else {
+                    [t[3], t[3], t[3], 1.0]
+                };
+            }
+        }
         Ok(SssOutput {
-            irradiance: rb.irradiance.to_vec()?,
+            irradiance,
             diffuse: rb.diffuse.to_vec()?,
             transmission: rb.transmission.to_vec()?,
         })
     }
 
     fn memory(&self) -> MemoryReport {
-        let buffers = self
-            .ctx
-            .memory_of(&[&self.verts, &self.seq, &self.lights, &self.diffuse]);
+        let buffers = self.ctx.memory_of(&[
+            &self.verts,
+            &self.seq,
+            &self.lights,
+            &self.diffuse,
+            &self.tiles,
+        ]);
         let images: Vec<&Image> = self
             .geometry
             .iter()
@@ -534,6 +693,7 @@ impl Kernel for SssKernel {
                 &self.vis,
                 &self.vtrans,
                 &self.irr,
+                &self.pe,
                 &self.trans,
                 &self.nodes,
                 &self.tris,
