@@ -482,10 +482,16 @@ fn ground_truth_case(env_path: &str, off_grid_bound: f64) {
                 rotations[i].0
             );
         }
-        // Not growing with the angle about +Y: every rotation within 1.5x of the unrotated
-        // error (plus a floor for quadrature noise).
+        // Not growing with the angle: every rotation within 1.5x of the unrotated error
+        // (plus a floor for quadrature noise); off the grid too where the off-grid bound is
+        // the (forest: no sun between the grid's directions).
+        let held: Vec<f64> = if off_grid_bound <= 0.05 {
+            errors.clone()
+        } else {
+            on_grid.clone()
+        };
         assert!(
-            on_grid.iter().all(|e| *e <= 1.5 * errors[0] + 0.005),
+            held.iter().all(|e| *e <= 1.5 * errors[0] + 0.005),
             "{errors:?}"
         );
         Ok(())

@@ -36,7 +36,7 @@ layout(std430, set = 0, binding = 4) writeonly buffer Radiance { vec4 v[]; } rad
 layout(std430, set = 0, binding = 5) readonly buffer Normals { vec4 v[]; } normals;  // per slot
 layout(std430, set = 0, binding = 6) readonly buffer Visible { uint w[]; } visible;
 const uint MAX_TAPS = 32u;   // sharp::MAX_LOBES
-// Pass `srbf sharp`'s output, two vec4 per tap: (direction xyz, texel index as float bits),
+// Pass `srbf sharp`'s output, two vec4 per tap: (direction xyz, texel index as a float),
 // (weight rgb, 0).
 layout(std140, set = 0, binding = 7) uniform Taps { vec4 v[2u * MAX_TAPS]; } taps;
 
@@ -65,7 +65,7 @@ void main() {
         vec3 n = normals.v[slot].xyz;
         for (uint t = 0u; t < pc.taps; t++) {
             vec4 d = taps.v[2u * t];
-            uint texel = floatBitsToUint(d.w);
+            uint texel = uint(d.w);
             uint bits = visible.w[(texel >> 5u) * pc.slots + slot];
             float seen = float((bits >> (texel & 31u)) & 1u);
             sum += taps.v[2u * t + 1u].rgb * (seen * max(dot(n, d.xyz), 0.0));

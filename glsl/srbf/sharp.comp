@@ -2,7 +2,7 @@
 // Taps of the compact lighting lobes (src/kernels/srbf/sharp.rs; its `taps` is the CPU twin):
 // lobe j, rotated by R, puts its whole integral / pi at the texel of the W x H visibility
 // grid that holds its axis. Output per lobe: two vec4, (texel centre direction xyz, texel
-// index as float bits), (weight rgb, 0).
+// index as a float), (weight rgb, 0).
 layout(local_size_x = 64) in;
 
 layout(push_constant) uniform Push {
@@ -37,6 +37,6 @@ void main() {
     // The lobe's integral 2 pi (1 - e^(-2 lambda)) / lambda, over pi.
     float scale = 2.0 * (1.0 - exp(-2.0 * a.w)) / a.w;
     vec3 dir = direction((float(x) + 0.5) / float(pc.width), (float(y) + 0.5) / float(pc.height));
-    taps.v[2u * j] = vec4(dir, uintBitsToFloat(y * pc.width + x));
+    taps.v[2u * j] = vec4(dir, float(y * pc.width + x));  // exact below 2^24 texels
     taps.v[2u * j + 1u] = vec4(lobe_amps.v[j].rgb * scale, 0.0);
 }

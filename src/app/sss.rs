@@ -569,8 +569,9 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
     notes.push(
         "samples are per texel, shared by the three channels (radii from the mixture of the \
          channels' pdfs, one-sample MIS weights); irradiance shadows are rays \
-         through a BVH of the mesh on the GPU, one per mesh vertex and light, the visibility \
-         interpolated over each triangle (see `shadowing`); the texture-space geometry is \
+         through a BVH of the mesh on the GPU, one per mesh vertex and light, refined by a \
+         ray per texel where a triangle's corners disagree (interpolated over the triangle \
+         with --vertex-shadows; see `shadowing`); the texture-space geometry is \
          rasterised on the CPU (once; with --anim once per frame after CPU skinning, BVH \
          rebuilt); transmission: thickness along -n by a ray per vertex, \
          back irradiance times the profile beyond the thickness (flat-slab model), \

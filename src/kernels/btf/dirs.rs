@@ -283,6 +283,43 @@ pub struct Maps {
 pub const MAP_RES: std::ops::RangeInclusive<u32> = 4..=4096;
 
 impl Maps {
+    /// Checks what the shader indexes with: `res` in [`MAP_RES`], res^2 texels of each map,
+    /// sample indices < 81, finite non-negative weights (the fields are public, so a
+    /// hand-built map must not make the GPU fetch outside the packed BTF).
+    pub fn check(&self) -> Result<()> {
+        let n = self.res as usize * self.res as usize;
+        if !MAP_RES.contains(&self.res) || self.index.len() != n || self.weight.len() != n {
+            return Err(Error::InvalidArgument(format!(
+                "BTF maps: resolution {} ({:?}) with {} index and {} weight texels (need res^2)",
+                self.res,
+                MAP_RES,
+                self.index.len(),
+                self.weight.len()
+            )));
+        }
+        if let Some(t) = self
+            .index
+            .iter()
+            .position(|i| i[..3].iter().any(|&k| k >= 81))
+        {
+            return Err(Error::InvalidArgument(format!(
+                "BTF maps: texel {t} names sample {:?}; there are 81 directions",
+                self.index[t]
+            )));
+        }
+        if let Some(t) = self
+            .weight
+            .iter()
+            .position(|w| w.iter().any(|x| !x.is_finite() || *x < 0.0))
+        {
+            return Err(Error::InvalidArgument(format!(
+                "BTF maps: texel {t} has weights {:?} (need finite, >= 0)",
+                self.weight[t]
+            )));
+        }
+        Ok(())
+    }
+
     /// Builds the maps at `res` x `res` from `tri`.
     pub fn build(tri: &Triangulation, res: u32) -> Result<Maps> {
         if !MAP_RES.contains(&res) {
@@ -357,6 +394,25 @@ impl Maps {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn maps_the_shader_could_misread_are_refused() {
+        let ok = Maps {
+            res: 4,
+            index: vec![[0, 1, 80, 0]; 16],
+            weight: vec![[0.5, 0.25, 0.25, 0.0]; 16],
+        };
+        ok.check().unwrap();
+        let mut bad = ok.clone();
+        bad.index[5][2] = 81;
+        assert!(bad.check().unwrap_err().to_string().contains("texel 5"));
+        let mut bad = ok.clone();
+        bad.weight[3][0] = f32::NAN;
+        assert!(bad.check().unwrap_err().to_string().contains("texel 3"));
+        let mut bad = ok.clone();
+        bad.weight.pop();
+        assert!(bad.check().unwrap_err().to_string().contains("15 weight"));
+    }
 
     #[test]
     fn directions_are_the_ubo2003_set() {

@@ -527,6 +527,7 @@ impl BtfKernel {
             }
         }
         let m = inputs.maps;
+        m.check()?;
         let map_desc = ImageDesc::d2(vk::Format::R32G32B32A32_UINT, [m.res, m.res]);
         let map = Image::new(&ctx, "btf direction map", map_desc)?;
         rec.upload_image(

@@ -110,6 +110,7 @@ impl<'a> SrbfInputs<'a> {
 
     /// The CPU twin of the whole GPU pipeline for one frame (f32 inputs, f64 results).
     pub fn cpu_pipeline(&self, frame: &SrbfFrame) -> Result<Vec<[f64; 3]>> {
+        self.check()?;
         let (smooth, _) = self.split();
         let coeffs = transfer::lighting_coefficients(&smooth, frame.rotation, &self.transfer.basis);
         let mut out: Vec<[f64; 3]> = self
@@ -125,6 +126,7 @@ impl<'a> SrbfInputs<'a> {
     /// Adds the compact lobes' radiance (albedo included) to `out` (one entry per vertex);
     /// nothing when there are none.
     pub fn add_compact(&self, frame: &SrbfFrame, out: &mut [[f64; 3]]) -> Result<()> {
+        self.check()?;
         let (_, compact) = self.split();
         if let (Some(c), false) = (&self.compact, compact.is_empty()) {
             let taps = sharp::taps(&compact, frame.rotation, c.width, c.height);
@@ -156,6 +158,12 @@ impl<'a> SrbfInputs<'a> {
         }
         if let Some(c) = &self.compact {
             sharp::check_grid(c.visibility, c.width, c.height)?;
+            if c.width as u64 * c.height as u64 > 1 << 24 {
+                return bad(format!(
+                    "compact lobes: a {} x {} grid has more texels than a float holds exactly",
+                    c.width, c.height
+                ));
+            }
             if c.visibility.vertices != t.vertices || c.normals.len() != t.vertices {
                 return bad(format!(
                     "compact lobes: visibility of {} vertices and {} normals for a transfer \

@@ -320,7 +320,10 @@ impl SssKernel {
             diffusion_bind,
             diffusion_grey,
             diffusion_grey_bind,
-            grey: AtomicBool::new(false),
+            // The frame path (irradiance pass, then the grey diffusion) until a caller uploads
+            // an irradiance: so that `passes` and `plan_pass` describe it before the first
+            // frame is recorded, and a graph planned then has the barrier for `pe`.
+            grey: AtomicBool::new(true),
             verts,
             nodes,
             tris,
