@@ -23,6 +23,19 @@ pub enum Light {
 pub const MAX_LIGHTS: usize = 16;
 
 impl Light {
+    /// At point `p`: the unit direction towards the light, the shadow ray's length (a point
+    /// light's distance less `bias`) and the irradiance on a surface facing it.
+    pub fn arriving_at(&self, p: Vec3, bias: f32) -> (Vec3, f32, f32) {
+        match *self {
+            Light::Directional { toward, e } => (toward, f32::INFINITY, e),
+            Light::Point { pos, i } => {
+                let d = pos - p;
+                let dist = d.length();
+                (d / dist, dist - bias, i / (dist * dist))
+            }
+        }
+    }
+
     /// Parses `dir:X,Y,Z[:E]` or `point:X,Y,Z:I` (point position in model units, scaled by
     /// `mm_per_unit`).
     pub fn parse(s: &str, mm_per_unit: f32) -> Result<Light> {
@@ -111,14 +124,7 @@ pub fn irradiance_at(bvh: &Bvh, p: Vec3, n: Vec3, lights: &[Light], bias: f32) -
     let mut e = 0.0;
     let o = p + n * bias;
     for l in lights {
-        let (dir, tmax, strength) = match *l {
-            Light::Directional { toward, e } => (toward, f32::INFINITY, e),
-            Light::Point { pos, i } => {
-                let d = pos - p;
-                let dist = d.length();
-                (d / dist, dist - bias, i / (dist * dist))
-            }
-        };
+        let (dir, tmax, strength) = l.arriving_at(p, bias);
         let c = n.dot(dir);
         if c <= 0.0 || strength == 0.0 {
             continue;
@@ -250,14 +256,7 @@ pub fn irradiance_from_visibility(
             let b = ids.map(|v| vis[v]);
             let mut e = 0.0;
             for (l, light) in lights.iter().enumerate() {
-                let (dir, tmax, strength) = match *light {
-                    Light::Directional { toward, e } => (toward, f32::INFINITY, e),
-                    Light::Point { pos, i } => {
-                        let d = pos - p;
-                        let dist = d.length();
-                        (d / dist, dist - bias, i / (dist * dist))
-                    }
-                };
+                let (dir, tmax, strength) = light.arriving_at(p, bias);
                 let c = n.dot(dir);
                 if c <= 0.0 || strength == 0.0 {
                     continue;
