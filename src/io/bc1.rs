@@ -101,11 +101,21 @@ fn order(c0: u16, c1: u16) -> (u16, u16) {
 /// Least-squares endpoints for fixed indices (weights of c0 per 4-colour index).
 fn refit(texels: &[[f64; 3]; 16], idx: &[u8; 16]) -> Option<([f64; 3], [f64; 3])> {
     const W: [f64; 4] = [1.0, 0.0, 2.0 / 3.0, 1.0 / 3.0];
+    fit_endpoints(texels, idx.map(|i| W[i as usize]), 1e-9)
+}
+
+/// Two endpoints by least squares when texel i is w_i e0 + (1 - w_i) e1 (the normal
+/// equations in (e0, e1)); None when their determinant is below `min_det` (all weights
+/// alike). Shared by the BC1 encoder and the BTF `block` encoder.
+pub fn fit_endpoints(
+    texels: &[[f64; 3]; 16],
+    w0: [f64; 16],
+    min_det: f64,
+) -> Option<([f64; 3], [f64; 3])> {
     let (mut aa, mut ab, mut bb) = (0.0, 0.0, 0.0);
     let mut ax = [0.0; 3];
     let mut bx = [0.0; 3];
-    for (t, &i) in texels.iter().zip(idx) {
-        let a = W[i as usize];
+    for (t, a) in texels.iter().zip(w0) {
         let b = 1.0 - a;
         aa += a * a;
         ab += a * b;
@@ -116,7 +126,7 @@ fn refit(texels: &[[f64; 3]; 16], idx: &[u8; 16]) -> Option<([f64; 3], [f64; 3])
         }
     }
     let det = aa * bb - ab * ab;
-    if det.abs() < 1e-9 {
+    if det.abs() < min_det {
         return None;
     }
     let e0 = [0, 1, 2].map(|k| (bb * ax[k] - ab * bx[k]) / det);

@@ -92,29 +92,10 @@ fn assign(px: &[[f64; 3]; 16], q0: [u32; 3], q1: [u32; 3]) -> ([u32; 16], f64) {
     (idx, err)
 }
 
-/// Endpoints by least squares for fixed indices (None when all indices are equal).
+/// Endpoints by least squares for fixed indices (None when all indices are equal):
+/// p = e0 (1 - t) + e1 t with t = index / 15.
 fn refit(px: &[[f64; 3]; 16], idx: &[u32; 16]) -> Option<([f64; 3], [f64; 3])> {
-    // p = e0 (1 - t) + e1 t: normal equations in (e0, e1).
-    let (mut aa, mut ab, mut bb) = (0.0, 0.0, 0.0);
-    let (mut pa, mut pb) = ([0.0; 3], [0.0; 3]);
-    for (p, &i) in px.iter().zip(idx) {
-        let t = i as f64 / 15.0;
-        let s = 1.0 - t;
-        aa += s * s;
-        ab += s * t;
-        bb += t * t;
-        for c in 0..3 {
-            pa[c] += s * p[c];
-            pb[c] += t * p[c];
-        }
-    }
-    let det = aa * bb - ab * ab;
-    if det.abs() < 1e-12 {
-        return None;
-    }
-    let e0 = [0, 1, 2].map(|c| (bb * pa[c] - ab * pb[c]) / det);
-    let e1 = [0, 1, 2].map(|c| (aa * pb[c] - ab * pa[c]) / det);
-    Some((e0, e1))
+    crate::io::bc1::fit_endpoints(px, idx.map(|i| 1.0 - i as f64 / 15.0), 1e-12)
 }
 
 /// Encodes 16 linear RGB texels (row-major 4 x 4, values clamped to [0, 1]).
