@@ -111,7 +111,7 @@ impl<'a> SrbfInputs<'a> {
     /// The CPU twin of the whole GPU pipeline for one frame (f32 inputs, f64 results).
     pub fn cpu_pipeline(&self, frame: &SrbfFrame) -> Result<Vec<[f64; 3]>> {
         self.check()?;
-        let (smooth, _) = self.split();
+        let (smooth, compact) = self.split();
         let coeffs = transfer::lighting_coefficients(&smooth, frame.rotation, &self.transfer.basis);
         let mut out: Vec<[f64; 3]> = self
             .transfer
@@ -119,23 +119,59 @@ impl<'a> SrbfInputs<'a> {
             .iter()
             .map(|c| c.map(|x| x as f64))
             .collect();
-        self.add_compact(frame, &mut out)?;
+        self.add_taps(&compact, frame, &mut out)?;
         Ok(out)
     }
 
     /// Adds the compact lobes' radiance (albedo included) to `out` (one entry per vertex);
     /// nothing when there are none.
     pub fn add_compact(&self, frame: &SrbfFrame, out: &mut [[f64; 3]]) -> Result<()> {
-        self.check()?;
+        self.check_compact()?;
         let (_, compact) = self.split();
+        self.add_taps(&compact, frame, out)
+    }
+
+    /// [`Self::add_compact`] for the compact lobes `compact` of checked inputs.
+    fn add_taps(&self, compact: &[Lobe], frame: &SrbfFrame, out: &mut [[f64; 3]]) -> Result<()> {
         if let (Some(c), false) = (&self.compact, compact.is_empty()) {
-            let taps = sharp::taps(&compact, frame.rotation, c.width, c.height);
+            let taps = sharp::taps(compact, frame.rotation, c.width, c.height);
             let direct = sharp::shade(&taps, c.normals, c.visibility)?;
             for (o, d) in out.iter_mut().zip(direct) {
                 for ch in 0..3 {
                     o[ch] += (frame.albedo[ch] * d[ch]) as f64;
                 }
             }
+        }
+        Ok(())
+    }
+
+    /// Checks the compact-lobe inputs, if any (part of [`Self::check`]).
+    fn check_compact(&self) -> Result<()> {
+        let bad = |what: String| Err(Error::InvalidArgument(format!("SRBF input: {what}")));
+        let Some(c) = &self.compact else {
+            return Ok(());
+        };
+        sharp::check_grid(c.visibility, c.width, c.height)?;
+        if c.width as u64 * c.height as u64 > 1 << 24 {
+            return bad(format!(
+                "compact lobes: a {} x {} grid has more texels than a float holds exactly",
+                c.width, c.height
+            ));
+        }
+        let vertices = self.transfer.vertices;
+        if c.visibility.vertices != vertices || c.normals.len() != vertices {
+            return bad(format!(
+                "compact lobes: visibility of {} vertices and {} normals for a transfer of \
+                 {vertices}",
+                c.visibility.vertices,
+                c.normals.len(),
+            ));
+        }
+        if let Some(i) = c.normals.iter().position(|n| !n.is_finite()) {
+            return bad(format!("normal {i} is not finite"));
+        }
+        if c.factor.is_nan() || c.factor < 0.0 {
+            return bad(format!("sharpness factor {} must be >= 0", c.factor));
         }
         Ok(())
     }
@@ -156,30 +192,7 @@ impl<'a> SrbfInputs<'a> {
         if k > MAX_BASIS {
             return bad(format!("{k} basis functions (1..={MAX_BASIS})"));
         }
-        if let Some(c) = &self.compact {
-            sharp::check_grid(c.visibility, c.width, c.height)?;
-            if c.width as u64 * c.height as u64 > 1 << 24 {
-                return bad(format!(
-                    "compact lobes: a {} x {} grid has more texels than a float holds exactly",
-                    c.width, c.height
-                ));
-            }
-            if c.visibility.vertices != t.vertices || c.normals.len() != t.vertices {
-                return bad(format!(
-                    "compact lobes: visibility of {} vertices and {} normals for a transfer \
-                     of {}",
-                    c.visibility.vertices,
-                    c.normals.len(),
-                    t.vertices
-                ));
-            }
-            if let Some(i) = c.normals.iter().position(|n| !n.is_finite()) {
-                return bad(format!("normal {i} is not finite"));
-            }
-            if c.factor.is_nan() || c.factor < 0.0 {
-                return bad(format!("sharpness factor {} must be >= 0", c.factor));
-            }
-        }
+        self.check_compact()?;
         let rows = rows_needed(t.clusters, t.components);
         if rows > MAX_ROWS {
             return bad(format!(
