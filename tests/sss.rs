@@ -65,7 +65,10 @@ fn interior(geo: &TexGeometry, w: f32, h: f32, margin: f32) -> Vec<usize> {
 }
 
 #[test]
-fn uniformly_lit_plane_gives_e_times_k_also_stretched_2_to_1() {
+fn uniformly_lit_plane_gives_e_times_r_tot_also_stretched_2_to_1() {
+    // The sampler draws radii up to each channel's truncation radius and scales by the
+    // untruncated R_tot (the tail taken at the sampled mean): a uniformly lit plane gives
+    // E R_tot exactly.
     for kind in [ProfileKind::Dipole, ProfileKind::Burley] {
         let p = profile(kind);
         let rmax = p.max_radius() as f32;
@@ -89,15 +92,15 @@ fn uniformly_lit_plane_gives_e_times_k_also_stretched_2_to_1() {
                 for c in 0..3 {
                     assert!((out.irradiance[i][c] - 2.0).abs() < 1e-6);
                     assert_eq!(cpu_e[i][c], 2.0);
-                    let want = 2.0 * p.k[c] as f32;
+                    let want = 2.0 * p.r_tot[c] as f32;
                     assert!(
                         (out.diffuse[i][c] - want).abs() <= 1e-5 * want,
                         "{kind:?} {w}x{h} texel {i} ch {c}: {} vs {want}",
                         out.diffuse[i][c]
                     );
                 }
-                // Every sample lands on the plane at the distance it was drawn for.
-                assert_eq!(out.diffuse[i][3], 1.0, "texel {i} rejected samples");
+                // Every sample lands on the plane.
+                assert_eq!(out.diffuse[i][3], 1.0, "texel {i} lost samples");
             }
         }
     }
@@ -106,7 +109,8 @@ fn uniformly_lit_plane_gives_e_times_k_also_stretched_2_to_1() {
 #[test]
 fn shadow_edge_follows_the_half_plane_integral() {
     // Half plane x < 0 lit (E = 1), uploaded as the irradiance: the sampler's estimate
-    // against the analytic truncated integral, across the edge, on a 2:1 stretched plane.
+    // against the analytic truncated integral (scaled by R_tot / K(R), as the sampler
+    // scales), across the edge, on a 2:1 stretched plane.
     let p = profile(ProfileKind::Dipole);
     let rmax = p.max_radius() as f32;
     let (w, h) = (6.0 * rmax, 3.0 * rmax);
@@ -141,7 +145,7 @@ fn shadow_edge_follows_the_half_plane_integral() {
         for c in 0..3 {
             col.1[c] += out.diffuse[i][c] as f64;
             // GPU and CPU run the same sampler: agreement to float rounding.
-            assert!((out.diffuse[i][c] - cpu[i][c]).abs() <= 1e-5 * p.k[c] as f32 + 1e-7);
+            assert!((out.diffuse[i][c] - cpu[i][c]).abs() <= 1e-5 * p.r_tot[c] as f32 + 1e-7);
         }
         col.2 += 1;
     }
@@ -149,15 +153,15 @@ fn shadow_edge_follows_the_half_plane_integral() {
         for c in 0..3 {
             // The sampler reads E at the nearest texel centre; the centres lie at +-texel/2
             // about x = 0, so the E it sees is the step itself.
-            let want = truth::shadow_edge(&p, c, x);
+            let want = truth::shadow_edge(&p, c, x) * p.r_tot[c] / p.k[c];
             let got = sum[c] / n as f64;
-            worst = worst.max((got - want).abs() / p.k[c]);
+            worst = worst.max((got - want).abs() / p.r_tot[c]);
         }
     }
-    eprintln!("shadow edge: worst {worst:.5} of K");
+    eprintln!("shadow edge: worst {worst:.5} of R_tot");
     // Measured: 2.3e-3 of K with nearest-texel lookups (9e-4 with bilinear ones) (256
     // samples per texel per channel, averaged over a column).
-    assert!(worst < 3e-3, "shadow edge off by {worst} of K");
+    assert!(worst < 3e-3, "shadow edge off by {worst} of R_tot");
 }
 
 fn head(size: u32) -> TexGeometry {
@@ -219,7 +223,8 @@ fn head_gpu_matches_the_cpu_twin_and_the_brute_force() {
         t2 += (rays[i][0] as f64).powi(2);
     }
     let shadow_rmse = (d2 / t2).sqrt();
-    // Measured 0.012 (256^2, these two lights).
+    // Measured 0.020 (256^2, these two lights; gutter texels interpolate, they are not
+    // surface).
     eprintln!("refined vertex shadows vs a ray per texel: E rel RMSE {shadow_rmse:.4}");
     assert!(shadow_rmse < 0.03, "E rel RMSE {shadow_rmse}");
     // Transmission: the same thickness rays per vertex; a vertex may differ where its ray
@@ -280,16 +285,62 @@ fn head_gpu_matches_the_cpu_twin_and_the_brute_force() {
     let w: Vec<f64> = covered.iter().map(|&i| geo.nrm[i][3] as f64).collect();
     let err = truth::ChannelError::of(&est, &t, &w);
     eprintln!("head 256^2 x 32 vs brute force: {err:?}");
-    // Measured at 256^2 x 32 shared samples (2.5 mm texels, these two lights, shadows from
-    // the vertices refined per texel): relative RMSE 0.106 / 0.063 / 0.083, energy ratio
-    // 0.969 / 0.993 / 1.049 (light the Euclidean truth collects across the eye, mouth and ear
-    // openings, seams, and the coarse texels against the 3.5 mm blue radius; with the
-    // vertices' shadows interpolated everywhere it is 0.138 / 0.085 / 0.102: smeared shadow
-    // edges light more of those pockets). Bounds with margin:
+    // Measured at 256^2 x 32 shared samples (2.5 mm texels, these two lights): relative RMSE
+    // 0.056 / 0.040 / 0.083, energy ratio 0.987 / 1.003 / 1.056. Blue is coarse against its
+    // 3.5 mm radius: most of its light comes from within a texel or two of the receiver,
+    // which the truth integrates with 4 x 4 points per texel. The 512^2 test below holds
+    // the target. Bounds with margin:
+    let bound = [0.07, 0.05, 0.10];
+    let energy = [0.03, 0.03, 0.07];
     for c in 0..3 {
-        assert!(err.rel_rmse[c] < 0.13, "channel {c}: {err:?}");
+        assert!(err.rel_rmse[c] < bound[c], "channel {c}: {err:?}");
         assert!(
-            (err.energy_ratio[c] - 1.0).abs() < 0.07,
+            (err.energy_ratio[c] - 1.0).abs() < energy[c],
+            "channel {c}: {err:?}"
+        );
+    }
+}
+
+#[test]
+fn head_512_meets_the_accuracy_target() {
+    // The target on the real head: 512^2, 64 samples per texel, relative RMSE <= 5%
+    // per channel and energy within 2% of the brute force (every 3rd covered texel as a
+    // receiver, every covered texel as a source), under the default light.
+    let geo = head(512);
+    let p = Profile::new(ProfileKind::Dipole, Material::SKIN1, 0.995).unwrap();
+    let lights = [Light::Directional {
+        toward: Vec3::new(0.3, 0.4, 1.0).normalize(),
+        e: 1.0,
+    }];
+    let params = SamplerParams {
+        samples: 64,
+        ..Default::default()
+    };
+    let out = common::with_gpu(|ctx| gpu_frame(ctx, &geo, &p, params, &lights, None));
+    let covered: Vec<usize> = (0..geo.texels())
+        .filter(|&i| geo.pos[i][3] == COVERED)
+        .step_by(3)
+        .collect();
+    let receivers: Vec<DVec3> = covered
+        .iter()
+        .map(|&i| Vec3::from_slice(&geo.pos[i][..3]).as_dvec3())
+        .collect();
+    let t = truth::brute_force(
+        &truth::Sources::from_texels(&geo, &out.irradiance),
+        &receivers,
+        &p,
+    );
+    let est: Vec<[f64; 3]> = covered
+        .iter()
+        .map(|&i| [0, 1, 2].map(|c| out.diffuse[i][c] as f64))
+        .collect();
+    let w: Vec<f64> = covered.iter().map(|&i| geo.nrm[i][3] as f64).collect();
+    let err = truth::ChannelError::of(&est, &t, &w);
+    eprintln!("head 512^2 x 64 vs brute force: {err:?}");
+    for c in 0..3 {
+        assert!(err.rel_rmse[c] <= 0.05, "channel {c}: {err:?}");
+        assert!(
+            (err.energy_ratio[c] - 1.0).abs() <= 0.02,
             "channel {c}: {err:?}"
         );
     }
@@ -440,7 +491,7 @@ fn back_lit_thin_slab_transmits_red() {
 fn a_frame_that_stretches_the_mesh_keeps_the_plane_result() {
     // The kernel is built for a square plane, then the next frame's geometry (the same
     // triangles and UVs, stretched 2:1 in 3D) is uploaded: the uniformly lit result is still
-    // E K(R) per channel (the ellipse follows the new Jacobian), and it matches the CPU twin.
+    // E R_tot per channel (the samples follow the new triangles), and it matches the CPU twin.
     let p = profile(ProfileKind::Dipole);
     let rmax = p.max_radius() as f32;
     let square =
@@ -477,7 +528,7 @@ fn a_frame_that_stretches_the_mesh_keeps_the_plane_result() {
     assert!(inner.len() > 50);
     for &i in &inner {
         for c in 0..3 {
-            let want = 1.5 * p.k[c] as f32;
+            let want = 1.5 * p.r_tot[c] as f32;
             assert!((out.diffuse[i][c] - want).abs() <= 1e-5 * want, "{i} {c}");
             assert!((out.diffuse[i][c] - cpu_b[i][c]).abs() <= 1e-5 * want);
         }

@@ -6,11 +6,10 @@
 layout(local_size_x = 8, local_size_y = 8) in;
 
 layout(push_constant) uniform Push {
-    vec4 k;          // K(R) per channel (rgb)
+    vec4 k;          // the scale per channel (rgb): R_tot (the untruncated total)
+    vec4 total;      // the sum of each channel's weights over the pattern (rgb)
     uint size;
     uint samples;
-    float seam_rel;
-    float seam_texels;
     uint tiles;      // occupied row segments
 } pc;
 
@@ -19,17 +18,27 @@ const uint MAX_SAMPLES = 4096u;
 // Per texel, images (lavapipe fetches a texel's four channels at once; a storage-buffer load
 // at a per-lane index loops over the lanes for each component).
 #ifdef SSS_GREY
-// Position and E in one texel (written by glsl/sss/irradiance.comp): xyz, w = E or -1 where
-// no surface.
-layout(set = 0, binding = 0, rgba32f) readonly uniform image2D pe;
+// The grey E (written by glsl/sss/irradiance.comp), -1 where no surface: one channel, the
+// cheapest gather.
+layout(set = 0, binding = 0, r32f) readonly uniform image2D pe;
 #else
 layout(set = 0, binding = 0, rgba32f) readonly uniform image2D pos;   // xyz, flag
 layout(set = 0, binding = 4, rgba32f) readonly uniform image2D irr;
 #endif
-layout(set = 0, binding = 1, rgba32f) readonly uniform image2D nrm;   // xyz, area
-layout(set = 0, binding = 2, rgba32f) readonly uniform image2D dpdu;
-layout(set = 0, binding = 3, rgba32f) readonly uniform image2D dpdv;
-layout(std140, set = 0, binding = 5) uniform Seq { vec4 v[MAX_SAMPLES]; } seq; // r, w_rgb
+// Per texel: its triangle, the barycentrics w1, w2 of its centre (float bits), and its contact
+// entries (first << 5 | count) (src/kernels/sss/walk.rs, contact.rs).
+layout(set = 0, binding = 1, rgba32ui) readonly uniform uimage2D start;
+// Per triangle, WALK_RECORD texels, WALK_ROW texels a row (src/kernels/sss/walk.rs,
+// SurfaceWalk::records): (1 / l1, x2, 1 / y2, edge kinds), (uv0, uv1 - uv0), (uv2 - uv0, 0, 0),
+// then per edge the map from this triangle's barycentrics to the atlas through the neighbour
+// unfolded across that edge (V as f16 rows, s).
+layout(set = 0, binding = 2, rgba32ui) readonly uniform uimage2D walk;
+// Contact entries, WALK_ROW a row: (source texel, f_r, f_g, f_b bits).
+layout(set = 0, binding = 3, rgba32ui) readonly uniform uimage2D contact;
+// The shared pattern (cpu::sample_pattern), one texel per sample: (ux, uy, w_r, w_g), and
+// w_b = 3 - w_r - w_g (the MIS weights sum to 3). An image: lavapipe loads a uniform buffer
+// at the loop index lane by lane, component by component.
+layout(set = 0, binding = 5, rgba32f) readonly uniform image2D seq;
 layout(std430, set = 0, binding = 6) writeonly buffer Diffuse { vec4 v[]; } diffuse;
 // The occupied 8x1 row segments of the atlas (x / 8 | y << 16, built once per mesh: the UV
 // layout does not change when it is skinned): workgroup (x, y) shades segments
@@ -39,11 +48,33 @@ const uint TILE_ROW = 256u;
 layout(std430, set = 0, binding = 7) readonly buffer Tiles { uint v[]; } tiles;
 
 const float TAU = 6.28318530718;
+const uint WALK_ROW = 1024u;
+const uint WALK_RECORD = 9u;
+const uint EDGE_SHARED = 0u; // walk::EDGE_*
+const uint EDGE_OPEN = 1u;
 
 uint pcg(uint v) {
     uint state = v * 747796405u + 2891336453u;
     uint word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
     return (word >> 22u) ^ word;
+}
+
+uvec4 record(uint tri, uint k) {
+    uint i = tri * WALK_RECORD + k;
+    return imageLoad(walk, ivec2(i % WALK_ROW, i / WALK_ROW));
+}
+
+// E at texel j (rgb); false where no surface.
+bool source(ivec2 j, out vec3 e) {
+#ifdef SSS_GREY
+    float ej = imageLoad(pe, j).x;
+    e = vec3(ej);
+    return ej >= 0.0;
+#else
+    vec4 pj = imageLoad(pos, j);
+    e = imageLoad(irr, j).rgb;
+    return pj.w != 0.0;
+#endif
 }
 
 void main() {
@@ -55,83 +86,107 @@ void main() {
     float nf = float(pc.size);
     uint i = xy.y * pc.size + xy.x;
     ivec2 at = ivec2(xy);
-#ifdef SSS_GREY
-    vec4 p4 = imageLoad(pe, at);
-    if (p4.w < 0.0) {
+    vec3 eo;
+    if (!source(at, eo)) {
         diffuse.v[i] = vec4(0.0);
         return;
     }
-    vec3 eo = vec3(p4.w);
-#else
-    vec4 p4 = imageLoad(pos, at);
-    if (p4.w == 0.0) {
-        diffuse.v[i] = vec4(0.0);
-        return;
-    }
-    vec3 eo = imageLoad(irr, at).rgb;
-#endif
-    vec3 po = p4.xyz;
-    vec3 a = imageLoad(dpdu, at).xyz;
-    vec3 b = imageLoad(dpdv, at).xyz;
-    vec3 nn = imageLoad(nrm, at).xyz;
-    vec3 t1 = a - nn * dot(nn, a);
-    float t1l = length(t1);
-    t1 = t1l > 0.0 ? t1 / t1l : vec3(0.0);
-    vec3 t2 = cross(nn, t1);
-    float aa = dot(a, a), ab = dot(a, b), bb = dot(b, b);
-    float det = aa * bb - ab * ab;
-    if (!(det > 1e-20 * aa * bb) || t1l == 0.0) {
-        diffuse.v[i] = vec4(pc.k.rgb * eo, 0.0);
-        return;
-    }
-    float r00 = dot(a, t1), r01 = dot(a, t2), r10 = dot(b, t1), r11 = dot(b, t2);
-    float m00 = (bb * r00 - ab * r10) / det;
-    float m01 = (bb * r01 - ab * r11) / det;
-    float m10 = (-ab * r00 + aa * r10) / det;
-    float m11 = (-ab * r01 + aa * r11) / det;
-    float texel_mm = sqrt(length(cross(a, b))) / nf;
-    float tol = pc.seam_texels * texel_mm;
-    float x = float(xy.x), y = float(xy.y);
-    // The texel's rotation of the shared pattern.
+    uvec4 st = imageLoad(start, at);
+    uint tri0 = st.x;
+    float w1 = uintBitsToFloat(st.y), w2 = uintBitsToFloat(st.z);
+    float w0 = 1.0 - w1 - w2;
+    // The triangle's record: its frame (for the barycentric rates of an offset), edge kinds,
+    // UV map and the three crossing maps (src/kernels/sss/walk.rs), loaded once per texel.
+    uvec4 ra = record(tri0, 0u);
+    uvec4 rb = record(tri0, 1u);
+    uvec4 rc = record(tri0, 2u);
+    vec3 sh = uintBitsToFloat(ra.xyz); // 1 / l1, x2, 1 / y2
+    uint kinds = ra.w;
+    vec2 uv0 = uintBitsToFloat(rb.xy), du1 = uintBitsToFloat(rb.zw), du2 = uintBitsToFloat(rc.xy);
+    vec4 v0 = uintBitsToFloat(record(tri0, 3u)), v1 = uintBitsToFloat(record(tri0, 5u));
+    vec4 v2 = uintBitsToFloat(record(tri0, 7u));
+    vec2 s0 = uintBitsToFloat(record(tri0, 4u).xy), s1 = uintBitsToFloat(record(tri0, 6u).xy);
+    vec2 s2 = uintBitsToFloat(record(tri0, 8u).xy);
+    // The texel's rotation of the shared pattern, folded into the rates and the atlas map
+    // (walk::TexelSampler): per sample, d2 = a ux + b uy, d1 = c ux + d uy, and inside the
+    // triangle uv = uvt + ux * mx + uy * my.
     float phi0 = TAU * (float(pcg(i) >> 8u) / 16777216.0);
-    vec2 dir = vec2(cos(phi0), sin(phi0));
-    const vec2 STEP = vec2(-0.73736883, -0.67549035); // (cos, sin) of 2 pi 0.618034
-    vec3 sum = vec3(0.0), wsum = vec3(0.0);
-    uint acc = 0u;
+    float cs = cos(phi0), sn = sin(phi0);
+    float ra_ = sn * sh.z;
+    float rb_ = cs * sh.z;
+    float rc_ = (cs - sh.y * ra_) * sh.x;
+    float rd_ = (-sn - sh.y * rb_) * sh.x;
+    vec2 uvt = uv0 + du1 * w1 + du2 * w2;
+    vec2 mx = du1 * rc_ + du2 * ra_;
+    vec2 my = du1 * rd_ + du2 * rb_;
+    // Off the surface (past an open border): no light, the sample counts. Lost (a
+    // non-manifold edge, outside the texture, no surface there): it leaves the sum and the
+    // others renormalise (rare: their weights are subtracted from the pattern's total).
+    vec3 sum = vec3(0.0), lost_w = vec3(0.0);
+    uint lost = 0u;
     for (uint s = 0u; s < pc.samples; s++) {
-        vec4 q = seq.v[s];
-        float r = q.x;
-        float cs = dir.x * r, sn = dir.y * r;
-        dir = vec2(dir.x * STEP.x - dir.y * STEP.y, dir.x * STEP.y + dir.y * STEP.x);
-        float tx = x + (m00 * cs + m01 * sn) * nf;
-        float ty = y + (m10 * cs + m11 * sn) * nf;
-        float fx = floor(tx + 0.5), fy = floor(ty + 0.5);
-        if (isnan(tx) || isnan(ty) || isinf(tx) || isinf(ty) || fx < 0.0 || fy < 0.0
-            || fx >= nf || fy >= nf) continue;
-        ivec2 j = ivec2(fx, fy);
-#ifdef SSS_GREY
-        vec4 pj = imageLoad(pe, j);
-        if (pj.w < 0.0) continue;
-#else
-        vec4 pj = imageLoad(pos, j);
-        if (pj.w == 0.0) continue;
-#endif
-        float d = length(pj.xyz - po);
-        if (abs(d - r) <= pc.seam_rel * r + tol) {
-            vec3 w = q.yzw;
-#ifdef SSS_GREY
-            sum += w * vec3(pj.w);
-#else
-            sum += w * imageLoad(irr, j).rgb;
-#endif
-            wsum += w;
-            acc++;
+        vec4 q = imageLoad(seq, ivec2(s, 0));
+        vec3 w = vec3(q.z, q.w, 3.0 - q.z - q.w);
+        float d2 = ra_ * q.x + rb_ * q.y;
+        float d1 = rc_ * q.x + rd_ * q.y;
+        float b1 = w1 + d1, b2 = w2 + d2;
+        float bz = 1.0 - b1 - b2;
+        vec2 uv;
+        if (min(bz, min(b1, b2)) >= 0.0) {
+            // In the triangle: its own map.
+            uv = uvt + mx * q.x + my * q.y;
+        } else {
+            // Leaving it: through the edge it leaves by, the first whose barycentric
+            // reaches 0 along the way. Barycentrics are linear along the offset, so that edge
+            // is one the end point lies beyond (b_k < 0); of two such, edge i comes first
+            // when w_i / -d_i < w_j / -d_j, i.e. w_i d_j > w_j d_i (no division).
+            float d0 = -(d1 + d2);
+            uint exit;
+            if (bz < 0.0 && (b1 >= 0.0 || w0 * d1 > w1 * d0) && (b2 >= 0.0 || w0 * d2 > w2 * d0)) {
+                exit = 0u;
+            } else if (b1 < 0.0 && (b2 >= 0.0 || w1 * d2 > w2 * d1)) {
+                exit = 1u;
+            } else {
+                exit = 2u;
+            }
+            uint kind = (kinds >> (2u * exit)) & 3u;
+            if (kind == EDGE_OPEN) continue;
+            if (kind != EDGE_SHARED) {
+                lost_w += w;
+                lost++;
+                continue;
+            }
+            vec4 m = exit == 0u ? v0 : (exit == 1u ? v1 : v2);
+            vec2 t = exit == 0u ? s0 : (exit == 1u ? s1 : s2);
+            uv = vec2(t.x + m.x * b1 + m.y * b2, t.y + m.z * b1 + m.w * b2);
         }
+        float fx = floor(uv.x + 0.5), fy = floor(uv.y + 0.5);
+        vec3 ej;
+        // (written so that NaN and infinities fail it)
+        if (!(fx >= 0.0 && fy >= 0.0 && fx < nf && fy < nf) || !source(ivec2(fx, fy), ej)) {
+            lost_w += w;
+            lost++;
+            continue;
+        }
+        sum += w * ej;
     }
     vec3 k3 = pc.k.rgb;
-    vec3 outv = vec3(
-        wsum.r > 0.0 ? k3.r * (sum.r / wsum.r) : k3.r * eo.r,
-        wsum.g > 0.0 ? k3.g * (sum.g / wsum.g) : k3.g * eo.g,
-        wsum.b > 0.0 ? k3.b * (sum.b / wsum.b) : k3.b * eo.b);
-    diffuse.v[i] = vec4(outv, float(acc) / float(pc.samples));
+    vec3 wsum = pc.total.rgb - lost_w;
+    // (every sample lost, rare: the texel's own E)
+    vec3 own = vec3(
+        wsum.r > 0.0 ? sum.r / wsum.r : eo.r,
+        wsum.g > 0.0 ? sum.g / wsum.g : eo.g,
+        wsum.b > 0.0 ? sum.b / wsum.b : eo.b);
+    // Contact: light from other pieces of the mesh within reach (src/kernels/sss/contact.rs).
+    vec3 touch = vec3(0.0);
+    uint first = st.w >> 5u, count = st.w & 31u;
+    for (uint c = 0u; c < count; c++) {
+        uint ci = first + c;
+        uvec4 en = imageLoad(contact, ivec2(ci % WALK_ROW, ci / WALK_ROW));
+        vec3 ej;
+        if (source(ivec2(en.x % pc.size, en.x / pc.size), ej)) {
+            touch += uintBitsToFloat(en.yzw) * ej;
+        }
+    }
+    diffuse.v[i] = vec4(k3 * own + touch, float(pc.samples - lost) / float(pc.samples));
 }

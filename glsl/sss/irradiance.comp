@@ -48,7 +48,7 @@ layout(set = 0, binding = 9, rgba32ui) readonly uniform uimage2D tris;
 // (glsl/sss/diffusion_grey.comp: one texel load per sample instead of two): xyz position,
 // w = E (white lights: the same in r, g, b; E >= 0), -1 where no surface. The kernel reads
 // the irradiance back from it (rgb = w, alpha 1; 0 where w < 0).
-layout(set = 0, binding = 10, rgba32f) writeonly uniform image2D pe;
+layout(set = 0, binding = 10, r32f) writeonly uniform image2D pe;
 // The occupied 8x1 row segments of the atlas (x / 8 | y << 16, built once per mesh: the UV
 // layout does not change when it is skinned): workgroup (x, y) shades segments
 // 8 (y * TILE_ROW + x) + local y, a SIMD step of 8 lanes per segment; texels of empty
@@ -131,7 +131,7 @@ void main() {
     vec4 p4 = imageLoad(pos, at);
     if (p4.w == 0.0) {
         if (pc.mode != 0u) imageStore(trans, at, vec4(0.0));
-        imageStore(pe, at, vec4(0.0, 0.0, 0.0, -1.0));
+        imageStore(pe, at, vec4(-1.0));
         return;
     }
     vec3 p = p4.xyz;
@@ -164,14 +164,14 @@ void main() {
         float v;
         if (c0 == c1 && c1 == c2) {
             v = float(c0);
-        } else if (pc.refine != 0u) {
+        } else if (pc.refine != 0u && p4.w == 1.0) { // gutters (0.5) interpolate
             v = any_hit(p + n * pc.bias, dir, tmax) ? 0.0 : 1.0;
         } else {
             v = w0 * float(c0) + w1 * float(c1) + w2 * float(c2);
         }
         e += strength * c * v;
     }
-    imageStore(pe, at, vec4(p, e));
+    imageStore(pe, at, vec4(e));
     if (pc.mode != 0u) {
         vec4 tr = w0 * imageLoad(vtrans, a0) + w1 * imageLoad(vtrans, a1) + w2 * imageLoad(vtrans, a2);
         imageStore(trans, at, tr);

@@ -2,8 +2,10 @@
 //! the same diffusion sampler (same hash, same sample sequence, same f32 arithmetic as
 //! glsl/sss/diffusion.comp, in the same order).
 
+use super::contact::Contact;
 use super::profile::Profile;
-use super::texspace::TexGeometry;
+use super::texspace::{COVERED, NO_TRIANGLE, TexGeometry};
+use super::walk::{Landing, SurfaceWalk};
 use crate::error::{Error, Result};
 use crate::geom::bvh::Bvh;
 use glam::{Vec2, Vec3};
@@ -232,7 +234,8 @@ pub fn irradiance(geo: &TexGeometry, bvh: &Bvh, lights: &[Light], refine: bool) 
 }
 
 /// [`irradiance`] from given per-vertex visibility bits; `refine`: a shadow ray from the texel
-/// where the triangle's corners disagree (else their visibility interpolated).
+/// where the triangle's corners disagree (else, and in gutter texels, their visibility
+/// interpolated).
 pub fn irradiance_from_visibility(
     geo: &TexGeometry,
     bvh: &Bvh,
@@ -251,6 +254,9 @@ pub fn irradiance_from_visibility(
             let Some((ids, w)) = texel_corners(geo, i) else {
                 return [0.0; 4];
             };
+            // Gutter texels (no surface of their own: they repeat a chart's border for
+            // filtering) interpolate instead of casting a ray.
+            let refine = refine && p[3] == COVERED;
             let p = Vec3::new(p[0], p[1], p[2]);
             let n = Vec3::from_slice(&geo.nrm[i][..3]);
             let b = ids.map(|v| vis[v]);
@@ -367,9 +373,41 @@ pub fn rotation(texel: u32) -> f32 {
     std::f32::consts::TAU * ((pcg(texel) >> 8) as f32 / 16_777_216.0)
 }
 
-/// (cos, sin) of the golden angle 2 pi 0.618034: sample i's direction is the first one
-/// (angle 2 pi off_phi) rotated i times by it.
-pub const GOLDEN_STEP: (f32, f32) = (-0.737_368_8, -0.675_490_4);
+/// The shared sample pattern the GPU reads from a uniform buffer, one vec4 per sample:
+/// (ux, uy, w_r, w_g); w_b = 3 - w_r - w_g (the one-sample MIS weights p_c / mean p sum to 3).
+/// Radii r from [`Profile::mixture_sequence`] (stratified over the mixture of the channels'
+/// pdfs), directions on the golden-angle spiral: (ux, uy) = r (cos 2 pi 0.618034 s,
+/// sin 2 pi 0.618034 s). Each texel turns the whole pattern by its own angle ([`rotation`]).
+pub fn sample_pattern(profile: &Profile, n: u32) -> Vec<[f32; 4]> {
+    let golden = std::f64::consts::TAU * 0.618_034;
+    profile
+        .mixture_sequence(n)
+        .iter()
+        .enumerate()
+        .map(|(s, q)| {
+            let r = q[0] as f64;
+            let a = golden * s as f64;
+            [(r * a.cos()) as f32, (r * a.sin()) as f32, q[1], q[2]]
+        })
+        .collect()
+}
+
+/// Sample `q`'s weights per channel (the blue one as the shader derives it).
+pub fn pattern_weights(q: &[f32; 4]) -> [f32; 3] {
+    [q[2], q[3], 3.0 - q[2] - q[3]]
+}
+
+/// The sum of each channel's weights over a pattern, in order (f32, as both sides use it).
+pub fn pattern_totals(pattern: &[[f32; 4]]) -> [f32; 3] {
+    let mut t = [0f32; 3];
+    for q in pattern {
+        let w = pattern_weights(q);
+        for c in 0..3 {
+            t[c] += w[c];
+        }
+    }
+    t
+}
 
 /// The 2x2 map from a tangent-plane offset (cos phi, sin phi) * r (mm) to a UV offset at
 /// texel `i`: (J^T J)^-1 J^T [t1 t2], columns (m00, m10), (m01, m11); None if degenerate.
@@ -404,10 +442,6 @@ fn offset_map_of(a: Vec3, b: Vec3, n: Vec3) -> Option<[f32; 4]> {
 pub struct SamplerParams {
     /// Samples per texel, shared by the three channels (one-sample MIS over channels).
     pub samples: u32,
-    /// Seam test: accept a sample whose 3D distance d from the receiver has
-    /// |d - r| <= seam_rel * r + seam_texels * texel size.
-    pub seam_rel: f32,
-    pub seam_texels: f32,
     /// Also compute the transmission through thin parts (in the irradiance pass).
     pub transmission: bool,
     /// Shadows: a ray per texel where the triangle's corners disagree (true), or the corners'
@@ -419,8 +453,6 @@ impl Default for SamplerParams {
     fn default() -> Self {
         SamplerParams {
             samples: 32,
-            seam_rel: 0.25,
-            seam_texels: 2.0,
             transmission: true,
             shadow_refine: true,
         }
@@ -435,76 +467,104 @@ impl SamplerParams {
                 self.samples
             )));
         }
-        let ok = |x: f32| x.is_finite() && x >= 0.0;
-        if !ok(self.seam_rel) || !ok(self.seam_texels) {
-            return Err(Error::InvalidArgument(
-                "seam tolerances must be finite and >= 0".into(),
-            ));
-        }
         Ok(())
     }
 }
 
-/// The diffusion pass on the CPU: B per texel (rgb; alpha the accepted fraction of the
-/// samples), from irradiance `e` (rgba, as the irradiance pass writes it). One sample set
-/// for the three channels ([`Profile::mixture_sequence`]), as the shader.
+/// What the diffusion reads besides the texels: the surface walk and the contact sums.
+pub struct DiffusionGeometry {
+    pub walk: SurfaceWalk,
+    pub contact: Contact,
+}
+
+impl DiffusionGeometry {
+    pub fn build(geo: &TexGeometry, profile: &Profile) -> DiffusionGeometry {
+        DiffusionGeometry {
+            walk: SurfaceWalk::build(geo),
+            contact: Contact::build(geo, profile),
+        }
+    }
+}
+
+/// The diffusion pass on the CPU: B per texel (rgb; alpha the fraction of the samples not
+/// lost), from irradiance `e` (rgba, as the irradiance pass writes it). One sample set for
+/// the three channels ([`Profile::mixture_sequence`]), as the shader.
 pub fn diffusion(
     geo: &TexGeometry,
     profile: &Profile,
     e: &[[f32; 4]],
     params: &SamplerParams,
 ) -> Vec<[f32; 4]> {
-    let n = geo.size as i32;
+    diffusion_with(
+        &DiffusionGeometry::build(geo, profile),
+        geo,
+        profile,
+        e,
+        params,
+    )
+}
+
+/// [`diffusion`] with the walk and contact sums built once.
+pub fn diffusion_with(
+    dg: &DiffusionGeometry,
+    geo: &TexGeometry,
+    profile: &Profile,
+    e: &[[f32; 4]],
+    params: &SamplerParams,
+) -> Vec<[f32; 4]> {
     let nf = geo.size as f32;
-    let k = profile.k.map(|k| k as f32);
-    let seq = profile.mixture_sequence(params.samples);
+    let scale = profile.r_tot.map(|k| k as f32);
+    let pattern = sample_pattern(profile, params.samples);
+    let total = pattern_totals(&pattern);
+    let contact = dg.contact.apply(e);
+    let walk = &dg.walk;
     (0..geo.texels())
         .into_par_iter()
         .map(|i| {
-            if geo.pos[i][3] == 0.0 {
+            let tt = geo.texel_tri[i];
+            if geo.pos[i][3] == 0.0 || tt[0] == NO_TRIANGLE {
                 return [0.0; 4];
             }
-            let po = Vec3::from_slice(&geo.pos[i][..3]);
-            let eo = e[i];
-            let Some(m) = offset_map(geo, i) else {
-                return [k[0] * eo[0], k[1] * eo[1], k[2] * eo[2], 0.0];
-            };
-            let a = Vec3::from_slice(&geo.dpdu[i][..3]);
-            let b = Vec3::from_slice(&geo.dpdv[i][..3]);
-            let texel_mm = a.cross(b).length().sqrt() / nf;
-            let tol = params.seam_texels * texel_mm;
-            let (x, y) = ((i as i32 % n) as f32, (i as i32 / n) as f32);
-            let phi0 = rotation(i as u32);
-            let mut dir = (phi0.cos(), phi0.sin());
-            let st = GOLDEN_STEP;
-            let mut sum = Vec3::ZERO;
-            let mut wsum = Vec3::ZERO;
-            let mut acc = 0u32;
-            for q in &seq {
-                let r = q[0];
-                let (cs, sn) = (dir.0 * r, dir.1 * r);
-                dir = (dir.0 * st.0 - dir.1 * st.1, dir.0 * st.1 + dir.1 * st.0);
-                let tx = x + (m[0] * cs + m[1] * sn) * nf;
-                let ty = y + (m[2] * cs + m[3] * sn) * nf;
-                if let Some(t) = nearest(geo, nf, tx, ty) {
-                    let d = (Vec3::from_slice(&geo.pos[t][..3]) - po).length();
-                    if (d - r).abs() <= params.seam_rel * r + tol {
-                        let w = Vec3::new(q[1], q[2], q[3]);
-                        sum += w * Vec3::new(e[t][0], e[t][1], e[t][2]);
-                        wsum += w;
-                        acc += 1;
+            let texel = walk.texel(
+                tt[0],
+                f32::from_bits(tt[1]),
+                f32::from_bits(tt[2]),
+                rotation(i as u32),
+            );
+            // Samples off the surface (past an open border) count with no light; lost ones
+            // (a non-manifold edge, outside the texture, no surface there) leave the sum and
+            // the rest renormalise.
+            let mut sum = [0f32; 3];
+            let mut lost_w = [0f32; 3];
+            let mut lost = 0u32;
+            for q in &pattern {
+                let w = pattern_weights(q);
+                let ej = match texel.land(q[0], q[1]) {
+                    Landing::Atlas(uv) => nearest(geo, nf, uv.x, uv.y).map(|j| e[j]),
+                    Landing::Off => Some([0.0; 4]),
+                    Landing::Lost => None,
+                };
+                match ej {
+                    Some(ej) => {
+                        for c in 0..3 {
+                            sum[c] += w[c] * ej[c];
+                        }
+                    }
+                    None => {
+                        for c in 0..3 {
+                            lost_w[c] += w[c];
+                        }
+                        lost += 1;
                     }
                 }
             }
             let mut out = [0f32; 4];
             for c in 0..3 {
-                out[c] = if wsum[c] > 0.0 {
-                    k[c] * (sum[c] / wsum[c])
-                } else {
-                    k[c] * eo[c]
-                };
+                let wsum = total[c] - lost_w[c];
+                let own = if wsum > 0.0 { sum[c] / wsum } else { e[i][c] };
+                out[c] = scale[c] * own + contact[i][c];
             }
-            out[3] = acc as f32 / params.samples as f32;
+            out[3] = (params.samples - lost) as f32 / params.samples as f32;
             out
         })
         .collect()

@@ -14,9 +14,10 @@
 //! ([`SssKernel::upload_irradiance`], e.g. from another kernel, rgb) and diffused alone
 //! ([`SssKernel::record_diffusion`], then with the two-gather rgb pipeline).
 
+use super::contact::Contact;
 use super::cpu::{
-    Light, MAX_LIGHTS, SamplerParams, check_lights, shadow_bias, texel_corners_packed,
-    vertex_frames,
+    DiffusionGeometry, Light, MAX_LIGHTS, SamplerParams, check_lights, pattern_totals,
+    sample_pattern, shadow_bias, texel_corners_packed, vertex_frames,
 };
 use super::profile::{Profile, ProfileKind};
 use super::texspace::TexGeometry;
@@ -40,7 +41,6 @@ const PASSES: [&str; 4] = [PASS_LIGHTS, PASS_VERTEX, PASS_IRRADIANCE, PASS_DIFFU
 /// Most samples per texel (the shader's uniform sample sequence: 64 KiB, the
 /// maxUniformBufferRange of lavapipe and of most desktop GPUs; checked at run time).
 pub const MAX_SAMPLES: u32 = 4096;
-const SEQUENCE_BYTES: u64 = MAX_SAMPLES as u64 * 16;
 
 /// Host copies of a frame: irradiance, diffuse (rgba per texel; diffuse alpha is the
 /// accepted fraction of the samples) and transmission (rgb; alpha the thickness in mm, 0
@@ -82,13 +82,21 @@ pub struct SssKernel {
     nodes: Image,
     tris: Image,
     triangles: usize,
-    /// The shared sample sequence ([`Profile::mixture_sequence`]), a uniform buffer.
-    seq: Buffer,
-    /// Per texel: position, normal, dP/du, dP/dv (RGBA32F) and triangle corners (RGBA32UI,
-    /// [`texel_corners_packed`]), storage images: lavapipe fetches a texel's four channels at
-    /// once, while a storage-buffer load at a per-lane index loops over the lanes for each
-    /// component, and the passes gather per sample.
-    geometry: [Image; 5],
+    walk_records: usize,
+    /// The shared sample pattern ([`sample_pattern`]), an RGBA32F image one texel per sample
+    /// (lavapipe loads a uniform buffer at a loop index lane by lane: a vec4 from it cost
+    /// more than the irradiance gather of a sample).
+    seq: Image,
+    /// Per texel: position, normal (RGBA32F), triangle corners (RGBA32UI,
+    /// [`texel_corners_packed`]) and the diffusion's start ([`start_texels`]), storage images:
+    /// lavapipe fetches a texel's four channels at once, while a storage-buffer load at a
+    /// per-lane index loops over the lanes for each component, and the passes gather per
+    /// sample.
+    geometry: [Image; 4],
+    /// The surface walk's triangle records ([`super::walk::SurfaceWalk::records`]) and the contact entries
+    /// ([`Contact`]), RGBA32UI, [`BVH_ROW`] texels a row.
+    walk: Image,
+    contact: Image,
     /// Per vertex (vertex v at (v % VERTEX_ROW, v / VERTEX_ROW)): visibility bits (R32UI) and
     /// transmission (RGBA32F).
     vis: Image,
@@ -174,6 +182,31 @@ fn upload_rows(rec: &mut Recorder, image: &Image, data: &[[f32; 4]]) -> Result<(
     rec.upload_image(image, region, bytemuck::cast_slice(&padded))
 }
 
+/// Per texel, what the diffusion starts from: (triangle, w1 bits, w2 bits, first contact
+/// entry << 5 | entry count).
+fn start_texels(geo: &TexGeometry, contact: &Contact) -> Result<Vec<[u32; 4]>> {
+    if contact.entries.len() >= 1 << 27 {
+        return Err(Error::InvalidArgument(format!(
+            "{} contact entries: more than the 2^27 the diffusion can index",
+            contact.entries.len()
+        )));
+    }
+    Ok(geo
+        .texel_tri
+        .iter()
+        .zip(&contact.range)
+        .map(|(t, &[first, count])| [t[0], t[1], t[2], first << 5 | count])
+        .collect())
+}
+
+fn r32f(size: [u32; 2]) -> ImageDesc {
+    ImageDesc::d2(vk::Format::R32_SFLOAT, size).usage(
+        vk::ImageUsageFlags::STORAGE
+            | vk::ImageUsageFlags::TRANSFER_DST
+            | vk::ImageUsageFlags::TRANSFER_SRC,
+    )
+}
+
 fn rgba32f(size: [u32; 2]) -> ImageDesc {
     ImageDesc::d2(vk::Format::R32G32B32A32_SFLOAT, size).usage(
         vk::ImageUsageFlags::STORAGE
@@ -202,11 +235,11 @@ impl SssKernel {
             ComputePipeline::from_spirv(&ctx, "sss/diffusion_grey", spv("sss/diffusion_grey")?)?;
         let bvh = Bvh::build(&geo.positions, &geo.triangles);
         let (nodes, tris) = bvh.flat();
-        let ubo_limit = ctx.limits().max_uniform_buffer_range;
-        if ubo_limit < SEQUENCE_BYTES {
+        let width_limit = ctx.limits().max_image_dimension_2d;
+        if width_limit < MAX_SAMPLES {
             return Err(Error::InvalidArgument(format!(
-                "the SSS sampler needs a uniform buffer of {SEQUENCE_BYTES} bytes; the device \
-                 allows {ubo_limit} (maxUniformBufferRange)"
+                "the SSS sampler keeps its pattern in an image {MAX_SAMPLES} texels wide; the \
+                 device allows {width_limit} (maxImageDimension2D)"
             )));
         }
         let mut upload = |name: &str, bytes: &[u8]| {
@@ -221,11 +254,8 @@ impl SssKernel {
         upload_rows(rec, &nodes_img, bytemuck::cast_slice(&nodes))?;
         upload_rows(rec, &tris_img, bytemuck::cast_slice(&tris))?;
         let (nodes, tris) = (nodes_img, tris_img);
-        let seq = rec.buffer_with(
-            "sss sample sequence",
-            BufferDesc::uniform(SEQUENCE_BYTES),
-            &profile.mixture_sequence(params.samples),
-        )?;
+        let seq = Image::new(&ctx, "sss sample pattern", rgba32f([MAX_SAMPLES, 1]))?;
+        upload_rows(rec, &seq, &sample_pattern(profile, params.samples))?;
         // A uniform buffer (the shaders' MAX_LIGHTS x 2 vec4): lavapipe loads it at the
         // light loop's uniform index as a scalar.
         let lights = Buffer::new(
@@ -240,10 +270,15 @@ impl SssKernel {
         let geometry = [
             Image::new(&ctx, "sss position", rgba32f(sz))?,
             Image::new(&ctx, "sss normal", rgba32f(sz))?,
-            Image::new(&ctx, "sss dP/du", rgba32f(sz))?,
-            Image::new(&ctx, "sss dP/dv", rgba32f(sz))?,
             Image::new(&ctx, "sss texel corners", corners_desc)?,
+            Image::new(&ctx, "sss diffusion start", corners_desc)?,
         ];
+        let dg = DiffusionGeometry::build(geo, profile);
+        let records = dg.walk.records();
+        let walk = Image::new(&ctx, "sss walk", bvh_desc(records.len()))?;
+        // Room for the contact entries of other poses of the mesh.
+        let contact_room = (2 * dg.contact.entries.len()).max(4096);
+        let contact = Image::new(&ctx, "sss contact", bvh_desc(contact_room))?;
         let nv = geo.positions.len() as u32;
         let vsz = [VERTEX_ROW, nv.div_ceil(VERTEX_ROW).max(1)];
         let vis_desc = ImageDesc::d2(vk::Format::R32_UINT, vsz).usage(vk::ImageUsageFlags::STORAGE);
@@ -251,7 +286,7 @@ impl SssKernel {
         let vtrans = Image::new(&ctx, "sss vertex transmission", rgba32f(vsz))?;
         let irr = Image::new(&ctx, "sss irradiance", rgba32f(sz))?;
         let trans = Image::new(&ctx, "sss transmission", rgba32f(sz))?;
-        let pe = Image::new(&ctx, "sss position and E", rgba32f(sz))?;
+        let pe = Image::new(&ctx, "sss grey E", r32f(sz))?;
         let diffuse = Buffer::new(&ctx, "sss diffuse", BufferDesc::storage(texels * 16))?;
         let all_tiles = (geo.size as u64).div_ceil(8) * geo.size as u64;
         let tiles = Buffer::new(&ctx, "sss tiles", BufferDesc::storage(all_tiles * 4))?;
@@ -267,7 +302,7 @@ impl SssKernel {
             ],
             &[("vis", w), ("vtrans", w)],
         )?;
-        let [g_pos, g_nrm, g_dpdu, g_dpdv, g_corners] = &geometry;
+        let [g_pos, g_nrm, g_corners, g_start] = &geometry;
         let irradiance_bind = irradiance.bind_declared(
             &[
                 ("pos", Resource::storage_image(g_pos)),
@@ -287,11 +322,11 @@ impl SssKernel {
         let diffusion_bind = diffusion.bind_declared(
             &[
                 ("pos", Resource::storage_image(g_pos)),
-                ("nrm", Resource::storage_image(g_nrm)),
-                ("dpdu", Resource::storage_image(g_dpdu)),
-                ("dpdv", Resource::storage_image(g_dpdv)),
+                ("start", Resource::storage_image(g_start)),
+                ("walk", Resource::storage_image(&walk)),
+                ("contact", Resource::storage_image(&contact)),
                 ("irr", Resource::storage_image(&irr)),
-                ("seq", Resource::Buffer(&seq)),
+                ("seq", Resource::storage_image(&seq)),
                 ("diffuse", Resource::Buffer(&diffuse)),
                 ("tiles", Resource::Buffer(&tiles)),
             ],
@@ -300,10 +335,10 @@ impl SssKernel {
         let diffusion_grey_bind = diffusion_grey.bind_declared(
             &[
                 ("pe", Resource::storage_image(&pe)),
-                ("nrm", Resource::storage_image(g_nrm)),
-                ("dpdu", Resource::storage_image(g_dpdu)),
-                ("dpdv", Resource::storage_image(g_dpdv)),
-                ("seq", Resource::Buffer(&seq)),
+                ("start", Resource::storage_image(g_start)),
+                ("walk", Resource::storage_image(&walk)),
+                ("contact", Resource::storage_image(&contact)),
+                ("seq", Resource::storage_image(&seq)),
                 ("diffuse", Resource::Buffer(&diffuse)),
                 ("tiles", Resource::Buffer(&tiles)),
             ],
@@ -330,6 +365,9 @@ impl SssKernel {
             triangles: geo.triangles.len(),
             seq,
             geometry,
+            walk,
+            contact,
+            walk_records: records.len(),
             vis,
             vtrans,
             lights,
@@ -344,7 +382,7 @@ impl SssKernel {
             profile: profile.clone(),
             params,
         };
-        kernel.upload_texels(rec, geo)?;
+        kernel.upload_texels(rec, geo, &dg)?;
         kernel.set_tiles(rec, occupied_tiles(geo))?;
         Ok(kernel)
     }
@@ -378,7 +416,7 @@ impl SssKernel {
             rec.upload(&self.tiles, 0, &list)?;
         }
         let pe = Subresources::mip(self.pe.desc(), 0);
-        rec.clear_image(&self.pe, pe, [0.0, 0.0, 0.0, -1.0])?;
+        rec.clear_image(&self.pe, pe, [-1.0, 0.0, 0.0, 0.0])?;
         rec.fill_buffer(&self.diffuse, 0)?;
         self.clear_transmission(rec)?;
         *current = list;
@@ -390,18 +428,48 @@ impl SssKernel {
         self.tile_list.lock().map(|l| l.len() as u32).unwrap_or(0)
     }
 
-    /// Records the upload of the per-texel geometry images.
-    fn upload_texels(&self, rec: &mut Recorder, geo: &TexGeometry) -> Result<()> {
+    /// Records the upload of the per-texel geometry images, the walk and the contact entries.
+    fn upload_texels(
+        &self,
+        rec: &mut Recorder,
+        geo: &TexGeometry,
+        dg: &DiffusionGeometry,
+    ) -> Result<()> {
+        let records = dg.walk.records();
+        if records.len() != self.walk_records {
+            return Err(Error::InvalidArgument(format!(
+                "the surface walk of the new geometry has {} records, the kernel's {} (a                  different mesh?)",
+                records.len(),
+                self.walk_records
+            )));
+        }
+        let room = self.contact.desc().extent[0] as usize * self.contact.desc().extent[1] as usize;
+        if dg.contact.entries.len() > room {
+            return Err(Error::InvalidArgument(format!(
+                "this pose has {} contact entries (pieces of the mesh within reach of each                  other), more than the {room} the kernel made room for at its first pose",
+                dg.contact.entries.len()
+            )));
+        }
         let corners = texel_corners_packed(geo);
-        let data: [&[u8]; 5] = [
+        let start = start_texels(geo, &dg.contact)?;
+        let data: [&[u8]; 4] = [
             bytemuck::cast_slice(&geo.pos),
             bytemuck::cast_slice(&geo.nrm),
-            bytemuck::cast_slice(&geo.dpdu),
-            bytemuck::cast_slice(&geo.dpdv),
             bytemuck::cast_slice(&corners),
+            bytemuck::cast_slice(&start),
         ];
         for (img, bytes) in self.geometry.iter().zip(data) {
             rec.upload_image(img, ImageRegion::whole(img.desc()), bytes)?;
+        }
+        upload_rows(rec, &self.walk, bytemuck::cast_slice(&records))?;
+        let entries: Vec<[u32; 4]> = dg
+            .contact
+            .entries
+            .iter()
+            .map(|(j, f)| [*j, f[0].to_bits(), f[1].to_bits(), f[2].to_bits()])
+            .collect();
+        if !entries.is_empty() {
+            upload_rows(rec, &self.contact, bytemuck::cast_slice(&entries))?;
         }
         Ok(())
     }
@@ -431,7 +499,7 @@ impl SssKernel {
         if 2 * n.len() > room {
             return Err(Error::InvalidArgument("BVH larger than its image".into()));
         }
-        self.upload_texels(rec, geo)?;
+        self.upload_texels(rec, geo, &DiffusionGeometry::build(geo, &self.profile))?;
         self.set_tiles(rec, occupied_tiles(geo))?;
         rec.upload(&self.verts, 0, &vertex_frames(geo))?;
         upload_rows(rec, &self.nodes, bytemuck::cast_slice(&n))?;
@@ -445,7 +513,11 @@ impl SssKernel {
     /// Changes the sampler settings: records the upload of the new sample sequence.
     pub fn set_params(&mut self, rec: &mut Recorder, params: SamplerParams) -> Result<()> {
         params.check()?;
-        rec.upload(&self.seq, 0, &self.profile.mixture_sequence(params.samples))?;
+        upload_rows(
+            rec,
+            &self.seq,
+            &sample_pattern(&self.profile, params.samples),
+        )?;
         if self.params.transmission && !params.transmission {
             self.clear_transmission(rec)?;
         }
@@ -454,14 +526,14 @@ impl SssKernel {
     }
 
     /// The irradiance image of [`SssKernel::upload_irradiance`] (RGBA32F, rgb E). The
-    /// irradiance pass writes [`SssKernel::position_and_irradiance`] instead.
+    /// irradiance pass writes [`SssKernel::grey_irradiance`] instead.
     pub fn irradiance(&self) -> &Image {
         &self.irr
     }
 
-    /// Position and irradiance per texel (RGBA32F: xyz position, w the grey E of the white
-    /// lights, -1 where no surface), written by `sss irradiance`.
-    pub fn position_and_irradiance(&self) -> &Image {
+    /// The grey irradiance per texel (R32F: E of the white lights, -1 where no surface),
+    /// written by `sss irradiance`.
+    pub fn grey_irradiance(&self) -> &Image {
         &self.pe
     }
 
@@ -557,18 +629,13 @@ impl SssKernel {
 
     /// Records the diffusion dispatch alone (barriers from the declared accesses).
     pub fn record_diffusion(&self, rec: &mut Recorder) -> Result<()> {
-        let k = self.profile.k.map(|k| k as f32);
-        let mut push: Vec<u8> = [k[0], k[1], k[2], 0.0]
+        let k = self.profile.r_tot.map(|k| k as f32);
+        let total = pattern_totals(&sample_pattern(&self.profile, self.params.samples));
+        let mut push: Vec<u8> = [k[0], k[1], k[2], 0.0, total[0], total[1], total[2], 0.0]
             .iter()
             .flat_map(|x| x.to_le_bytes())
             .collect();
-        for u in [
-            self.size,
-            self.params.samples,
-            self.params.seam_rel.to_bits(),
-            self.params.seam_texels.to_bits(),
-            self.tile_count(),
-        ] {
+        for u in [self.size, self.params.samples, self.tile_count()] {
             push.extend_from_slice(&u.to_le_bytes());
         }
         let (pipeline, bind) = self.diffusion_pipeline();
@@ -663,17 +730,15 @@ impl Kernel for SssKernel {
     }
 
     fn collect(&self, rb: &SssReadback) -> Result<SssOutput> {
-        let mut irradiance: Vec<[f32; 4]> = rb.irradiance.to_vec()?;
-        if rb.grey {
-            // (x, y, z, E) -> (E, E, E, 1); -1 marks no surface.
-            for t in &mut irradiance {
-                *t = if t[3] < 0.0 {
-                    [0.0; 4]
-                } else {
-                    [t[3], t[3], t[3], 1.0]
-                };
-            }
-        }
+        let irradiance: Vec<[f32; 4]> = if rb.grey {
+            // E -> (E, E, E, 1); -1 marks no surface.
+            let grey: Vec<f32> = rb.irradiance.to_vec()?;
+            grey.iter()
+                .map(|&e| if e < 0.0 { [0.0; 4] } else { [e, e, e, 1.0] })
+                .collect()
+        } else {
+            rb.irradiance.to_vec()?
+        };
         Ok(SssOutput {
             irradiance,
             diffuse: rb.diffuse.to_vec()?,
@@ -682,13 +747,9 @@ impl Kernel for SssKernel {
     }
 
     fn memory(&self) -> MemoryReport {
-        let buffers = self.ctx.memory_of(&[
-            &self.verts,
-            &self.seq,
-            &self.lights,
-            &self.diffuse,
-            &self.tiles,
-        ]);
+        let buffers = self
+            .ctx
+            .memory_of(&[&self.verts, &self.lights, &self.diffuse, &self.tiles]);
         let images: Vec<&Image> = self
             .geometry
             .iter()
@@ -700,6 +761,9 @@ impl Kernel for SssKernel {
                 &self.trans,
                 &self.nodes,
                 &self.tris,
+                &self.walk,
+                &self.contact,
+                &self.seq,
             ])
             .collect();
         MemoryReport {

@@ -17,10 +17,12 @@
 //! Skinned meshes: posed and re-rasterised on the CPU each frame, uploaded with
 //! [`SssKernel::update_geometry`] (`vkshade sss --anim`).
 
+pub mod contact;
 pub mod cpu;
 pub mod gpu;
 pub mod profile;
 pub mod texspace;
+pub mod walk;
 
 pub use cpu::{Light, SamplerParams};
 pub use gpu::{SssKernel, SssOutput};

@@ -1,0 +1,243 @@
+//! Contact transfer: light that diffuses between separate pieces of a mesh that touch.
+//!
+//! A head mesh often holds more than one surface: eyeballs sitting in the lids, the inside of
+//! the mouth. Texture-space sampling (and any walk over the surface) only reaches the piece
+//! the receiver lies on, while the diffusion integral B(xo) = sum Rd(|xj - xo|) E_j A_j runs
+//! over every surface point within reach in 3D. Where pieces touch, that part is large: an
+//! eyelid texel 0.4 mm from the eyeball receives a sixth of its light from it.
+//!
+//! For each covered texel this gathers the texels of *other* connected pieces within the
+//! sampling radius (a uniform grid over their positions) and keeps an explicit sum over them:
+//! all of them when there are at most [`MAX_ENTRIES`], otherwise [`MAX_ENTRIES`] picked by
+//! systematic sampling of q_j = sum_c Rd_c(d_j) A_j / K_c (the channels balanced by their
+//! own totals), each weighted by its count / (MAX_ENTRIES q_j / sum q). An entry holds the
+//! source texel and its per-channel factor f_c, so that the contact term is
+//! sum_entries f_c E_c(source): it follows the frame's irradiance exactly and the geometry it
+//! was built for (rebuilt with the texture-space geometry, per frame for a skinned mesh).
+//!
+//! Pieces are the connected components of the mesh with vertices welded by position (so a UV
+//! seam does not split a piece).
+
+use super::Profile;
+use super::texspace::{COVERED, TexGeometry};
+use glam::Vec3;
+use rayon::prelude::*;
+use std::collections::HashMap;
+
+/// Entries kept per receiver at most.
+pub const MAX_ENTRIES: usize = 16;
+
+/// The contact sums of a texture-space geometry.
+#[derive(Clone, Debug, Default)]
+pub struct Contact {
+    /// Per texel: (first entry, entry count).
+    pub range: Vec<[u32; 2]>,
+    /// Source texel index and its factor per channel.
+    pub entries: Vec<(u32, [f32; 3])>,
+    /// Connected pieces of the mesh.
+    pub pieces: usize,
+    /// Covered texels with at least one entry.
+    pub receivers: usize,
+}
+
+/// The connected piece of each triangle, with vertices welded by position; and the count.
+pub fn pieces(geo: &TexGeometry) -> (Vec<u32>, usize) {
+    let mut ids: HashMap<[u32; 3], u32> = HashMap::new();
+    let weld: Vec<u32> = geo
+        .positions
+        .iter()
+        .map(|p| {
+            let key = [p.x, p.y, p.z].map(|c| (c + 0.0).to_bits());
+            let next = ids.len() as u32;
+            *ids.entry(key).or_insert(next)
+        })
+        .collect();
+    let mut parent: Vec<u32> = (0..ids.len() as u32).collect();
+    fn find(p: &mut [u32], mut i: u32) -> u32 {
+        while p[i as usize] != i {
+            p[i as usize] = p[p[i as usize] as usize];
+            i = p[i as usize];
+        }
+        i
+    }
+    for t in &geo.triangles {
+        let a = find(&mut parent, weld[t[0] as usize]);
+        for &v in &t[1..] {
+            let b = find(&mut parent, weld[v as usize]);
+            if a != b {
+                let (lo, hi) = (a.min(b), a.max(b));
+                parent[hi as usize] = lo;
+            }
+        }
+    }
+    let mut label: HashMap<u32, u32> = HashMap::new();
+    let of_tri: Vec<u32> = geo
+        .triangles
+        .iter()
+        .map(|t| {
+            let root = find(&mut parent, weld[t[0] as usize]);
+            let next = label.len() as u32;
+            *label.entry(root).or_insert(next)
+        })
+        .collect();
+    (of_tri, label.len())
+}
+
+/// sum over source texel j's area of Rd_c(|x - xo|) per channel (0 beyond the channel's
+/// radius): the texel's centre, or 4 x 4 points of its parallelogram when it is within three
+/// texel sides (Rd peaks as 1/r there).
+fn source_factor(
+    geo: &TexGeometry,
+    profile: &Profile,
+    radius: &[f32; 3],
+    po: Vec3,
+    j: usize,
+    area: f32,
+) -> [f32; 3] {
+    let nf = geo.size as f32;
+    let pj = Vec3::from_slice(&geo.pos[j][..3]);
+    let ea = Vec3::from_slice(&geo.dpdu[j][..3]) / nf;
+    let eb = Vec3::from_slice(&geo.dpdv[j][..3]) / nf;
+    let d = (pj - po).length();
+    let h = ea.length().max(eb.length());
+    let mut f = [0f64; 3];
+    if d < 3.0 * h {
+        for s in 0..4 {
+            for t in 0..4 {
+                let p =
+                    pj + ea * ((s as f32 + 0.5) / 4.0 - 0.5) + eb * ((t as f32 + 0.5) / 4.0 - 0.5);
+                let r = (p - po).length().max(1e-6) as f64;
+                for (c, fc) in f.iter_mut().enumerate() {
+                    *fc += profile.rd(c, r) * area as f64 / 16.0;
+                }
+            }
+        }
+    } else {
+        for (c, fc) in f.iter_mut().enumerate() {
+            *fc = profile.rd(c, d as f64) * area as f64;
+        }
+    }
+    [0, 1, 2].map(|c| if d <= radius[c] { f[c] as f32 } else { 0.0 })
+}
+
+impl Contact {
+    /// The contact sums for `geo` and `profile` (none when the mesh is one piece).
+    pub fn build(geo: &TexGeometry, profile: &Profile) -> Contact {
+        Contact::build_with(geo, profile, MAX_ENTRIES)
+    }
+
+    /// [`Contact::build`] keeping at most `max_entries` (1..=31) per receiver.
+    pub fn build_with(geo: &TexGeometry, profile: &Profile, max_entries: usize) -> Contact {
+        let max_entries = max_entries.clamp(1, 31);
+        let n = geo.texels();
+        let (piece, count) = pieces(geo);
+        let mut out = Contact {
+            range: vec![[0, 0]; n],
+            pieces: count,
+            ..Default::default()
+        };
+        if count < 2 {
+            return out;
+        }
+        let radius = profile.radius.map(|r| r as f32);
+        let rmax = radius.iter().cloned().fold(0.0, f32::max);
+        let covered: Vec<usize> = (0..n).filter(|&i| geo.pos[i][3] == COVERED).collect();
+        let pos = |i: usize| Vec3::from_slice(&geo.pos[i][..3]);
+        let piece_of = |i: usize| piece[geo.texel_tri[i][0] as usize];
+        let key = |p: Vec3| {
+            let q = (p / rmax).floor();
+            (q.x as i32, q.y as i32, q.z as i32)
+        };
+        let mut grid: HashMap<(i32, i32, i32), Vec<u32>> = HashMap::new();
+        for &i in &covered {
+            grid.entry(key(pos(i))).or_default().push(i as u32);
+        }
+        let k = profile.k.map(|k| k as f32);
+        let lists: Vec<Vec<(u32, [f32; 3])>> = covered
+            .par_iter()
+            .map(|&o| {
+                let po = pos(o);
+                let me = piece_of(o);
+                let (kx, ky, kz) = key(po);
+                // (source, q, per-channel Rd A)
+                let mut cand: Vec<(u32, f32, [f32; 3])> = Vec::new();
+                for dz in -1..=1 {
+                    for dy in -1..=1 {
+                        for dx in -1..=1 {
+                            let Some(list) = grid.get(&(kx + dx, ky + dy, kz + dz)) else {
+                                continue;
+                            };
+                            for &j in list {
+                                let j = j as usize;
+                                if piece_of(j) == me {
+                                    continue;
+                                }
+                                let d = (pos(j) - po).length();
+                                if d > rmax {
+                                    continue;
+                                }
+                                let a = geo.nrm[j][3];
+                                let f = source_factor(geo, profile, &radius, po, j, a);
+                                let q = (0..3).map(|c| f[c] / k[c]).sum::<f32>();
+                                if q > 0.0 && q.is_finite() {
+                                    cand.push((j as u32, q, f));
+                                }
+                            }
+                        }
+                    }
+                }
+                if cand.len() <= max_entries {
+                    return cand.into_iter().map(|(j, _, f)| (j, f)).collect();
+                }
+                cand.sort_by_key(|c| c.0);
+                let total: f64 = cand.iter().map(|c| c.1 as f64).sum();
+                let step = total / max_entries as f64;
+                // Systematic sampling: picks at (m + 0.5) step along the cumulative q.
+                let mut picked: Vec<(u32, [f32; 3])> = Vec::new();
+                let mut acc = 0.0f64;
+                let mut m = 0usize;
+                for &(j, q, f) in &cand {
+                    let lo = acc;
+                    acc += q as f64;
+                    let mut hits = 0u32;
+                    while m < max_entries && (m as f64 + 0.5) * step < acc {
+                        if (m as f64 + 0.5) * step >= lo {
+                            hits += 1;
+                        }
+                        m += 1;
+                    }
+                    if hits > 0 {
+                        let w = hits as f64 * step / q as f64;
+                        picked.push((j, f.map(|x| (x as f64 * w) as f32)));
+                    }
+                }
+                picked
+            })
+            .collect();
+        for (&o, list) in covered.iter().zip(lists) {
+            if list.is_empty() {
+                continue;
+            }
+            out.range[o] = [out.entries.len() as u32, list.len() as u32];
+            out.receivers += 1;
+            out.entries.extend(list);
+        }
+        out
+    }
+
+    /// The contact term per texel (rgb) for irradiance `e`.
+    pub fn apply(&self, e: &[[f32; 4]]) -> Vec<[f32; 3]> {
+        self.range
+            .iter()
+            .map(|&[first, count]| {
+                let mut s = [0f32; 3];
+                for &(j, f) in &self.entries[first as usize..(first + count) as usize] {
+                    for c in 0..3 {
+                        s[c] += f[c] * e[j as usize][c];
+                    }
+                }
+                s
+            })
+            .collect()
+    }
+}
