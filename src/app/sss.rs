@@ -1,6 +1,6 @@
 //! `vkshade sss`: texture-space subsurface diffusion of a mesh. Writes `irradiance.exr`,
-//! `diffuse.exr` (texture space, linear float RGB; diffuse alpha = accepted fraction of the
-//! samples) and `transmission.exr` (light through thin parts; alpha = thickness in mm),
+//! `diffuse.exr` (texture space, linear float RGB; diffuse alpha = the fraction of the samples
+//! not lost) and `transmission.exr` (light through thin parts; alpha = thickness in mm),
 //! `render.png` (the mesh lit with subsurface diffusion + transmission | the same irradiance
 //! shaded as plain Lambertian with the same total reflectance, same camera), with
 //! `--reference` `reference.png` (diffusion alone | brute-force truth | error heat map), and
@@ -220,24 +220,25 @@ pub struct ReferenceReport {
     pub ms: f64,
     /// Every covered texel.
     pub all: ChannelError,
-    /// Texels where every sample was accepted (no seam or border nearby).
+    /// Texels none of whose samples leaves their triangle through a seam or an open edge.
     pub interior: ChannelError,
-    /// Texels where samples were rejected (seams, chart borders, texture edge).
+    /// Texels some of whose samples leave their triangle through a seam (the surface goes on
+    /// elsewhere in the atlas) or an open edge (no surface).
     pub seam: ChannelError,
-    /// 1 - K(R)/R_tot per channel: the bias truncation alone causes on a flat, uniformly lit
-    /// surface (the truth is not truncated).
+    /// Share of the covered texels in `seam`.
+    pub seam_texels: f64,
+    /// 1 - K(R)/R_tot per channel: the reflectance beyond the sampling radius. The sampler
+    /// scales by R_tot (the tail taken at the sampled mean), so on a uniformly lit surface
+    /// truncation costs nothing; elsewhere the tail sees other light than the disc.
     pub truncation: [f64; 3],
-    /// Against the truth restricted to the sources a walk over the surface can reach without
-    /// crossing a gap (a heuristic: facing the receiver's side, n_j . n_o > 0, and within 30
-    /// degrees of its tangent plane, |(x_j - x_o) . n_o| < |x_j - x_o| / 2): what the
-    /// texture-space sampler estimates. The rest (the back of the ear, the other lip, the
-    /// other side of the nostril, light crossing the eye and mouth openings) the Euclidean
-    /// truth collects and texture space cannot.
-    pub reachable: ChannelError,
-    /// The same for the texels where every sample was accepted.
-    pub reachable_interior: ChannelError,
-    /// Share of the truth's (area-weighted) energy from the sources `reachable` leaves out.
-    pub cross_gap_share: [f64; 3],
+    /// Share of the truth's (area-weighted) energy that comes from other pieces of the mesh
+    /// (eyeballs, the inside of the mouth: separate connected pieces that touch the skin).
+    pub contact_share: [f64; 3],
+    /// The method without its contact term against the truth from the receiver's own piece.
+    pub own_piece: ChannelError,
+    /// The contact term against the truth from the other pieces, over the texels that have
+    /// contact entries (relative to the whole truth there).
+    pub contact: ChannelError,
 }
 
 /// What the per-vertex shadowing changes against a shadow ray per texel (CPU, same lights):
@@ -271,7 +272,8 @@ pub struct SssReport {
     pub gpu_ms_irradiance: f64,
     pub gpu_ms_diffusion: f64,
     pub fps: f64,
-    /// Mean accepted fraction of the samples over covered texels.
+    /// Mean fraction of the samples not lost (a non-manifold edge, outside the texture or no
+    /// surface where one lands) over covered texels.
     pub accepted_fraction: f64,
     pub gpu_vs_cpu: TwinError,
     pub shadowing: ShadowingReport,
@@ -502,47 +504,90 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
             .collect();
         let w: Vec<f64> = covered.iter().map(|&i| geo.nrm[i][3] as f64).collect();
         let split = |keep: &dyn Fn(usize) -> bool| {
-            let idx: Vec<usize> = (0..covered.len()).filter(|&k| keep(covered[k])).collect();
+            let idx: Vec<usize> = (0..covered.len()).filter(|&k| keep(k)).collect();
             ChannelError::of(
                 &idx.iter().map(|&k| est[k]).collect::<Vec<_>>(),
                 &idx.iter().map(|&k| truth[k]).collect::<Vec<_>>(),
                 &idx.iter().map(|&k| w[k]).collect::<Vec<_>>(),
             )
         };
-        let rn: Vec<DVec3> = covered
+        // The same pattern on the CPU: which texels have samples leaving their triangle by
+        // a seam or an open edge, and the contact term alone.
+        let dg = cpu::DiffusionGeometry::build(&geo, &profile);
+        let pattern = cpu::sample_pattern(&profile, params.samples);
+        let near_seam: Vec<bool> = covered
             .iter()
-            .map(|&i| Vec3::from_slice(&geo.nrm[i][..3]).as_dvec3())
+            .map(|&i| {
+                let tt = geo.texel_tri[i];
+                let texel = dg.walk.texel(
+                    tt[0],
+                    f32::from_bits(tt[1]),
+                    f32::from_bits(tt[2]),
+                    cpu::rotation(i as u32),
+                );
+                pattern.iter().any(|q| {
+                    texel
+                        .exit(q[0], q[1])
+                        .is_some_and(|k| dg.walk.is_seam(texel.triangle(), k))
+                })
+            })
             .collect();
-        let reach = brute_force_where(&sources, &receivers, &profile, |r, j| {
-            let d = sources.pos[j] - receivers[r];
-            let l = d.length();
-            l < 1e-9 || (sources.normal[j].dot(rn[r]) > 0.0 && d.dot(rn[r]).abs() < 0.5 * l)
+        let (piece, _) = crate::kernels::sss::contact::pieces(&geo);
+        let piece_of = |i: usize| piece[geo.texel_tri[i][0] as usize];
+        let source_piece: Vec<u32> = (0..geo.texels())
+            .filter(|&i| geo.pos[i][3] == COVERED)
+            .map(piece_of)
+            .collect();
+        let own = brute_force_where(&sources, &receivers, &profile, |r, j| {
+            source_piece[j] == piece_of(covered[r])
         });
-        let inner: Vec<usize> = (0..covered.len())
-            .filter(|&k| gpu.diffuse[covered[k]][3] >= 1.0)
-            .collect();
-        let pick = |v: &[[f64; 3]]| inner.iter().map(|&k| v[k]).collect::<Vec<_>>();
+        let touch = dg.contact.apply(&gpu.irradiance);
         let energy =
             |v: &[[f64; 3]], c: usize| v.iter().zip(&w).map(|(x, a)| x[c] * a).sum::<f64>();
+        let without: Vec<[f64; 3]> = covered
+            .iter()
+            .zip(&est)
+            .map(|(&i, b)| [0, 1, 2].map(|c| b[c] - touch[i][c] as f64))
+            .collect();
+        // The contact term's error, relative to the whole truth at the texels that have
+        // contact entries: the truth plus (contact term - light from other pieces).
+        let touched: Vec<usize> = (0..covered.len())
+            .filter(|&k| dg.contact.range[covered[k]][1] > 0)
+            .collect();
+        let contact = {
+            let shifted: Vec<[f64; 3]> = touched
+                .iter()
+                .map(|&k| {
+                    let i = covered[k];
+                    [0, 1, 2].map(|c| own[k][c] + touch[i][c] as f64)
+                })
+                .collect();
+            let full: Vec<[f64; 3]> = touched.iter().map(|&k| truth[k]).collect();
+            let ww: Vec<f64> = touched.iter().map(|&k| w[k]).collect();
+            ChannelError::of(&shifted, &full, &ww)
+        };
+        let seam_texels = near_seam.iter().filter(|&&b| b).count() as f64 / covered.len() as f64;
         let rep = ReferenceReport {
             sources: sources.pos.len(),
             ms,
             all: ChannelError::of(&est, &truth, &w),
-            interior: split(&|i| gpu.diffuse[i][3] >= 1.0),
-            seam: split(&|i| gpu.diffuse[i][3] < 1.0),
+            interior: split(&|k| !near_seam[k]),
+            seam: split(&|k| near_seam[k]),
+            seam_texels,
             truncation: [0, 1, 2].map(|c| 1.0 - profile.k[c] / profile.r_tot[c]),
-            reachable: ChannelError::of(&est, &reach, &w),
-            reachable_interior: ChannelError::of(
-                &pick(&est),
-                &pick(&reach),
-                &inner.iter().map(|&k| w[k]).collect::<Vec<_>>(),
-            ),
-            cross_gap_share: [0, 1, 2].map(|c| 1.0 - energy(&reach, c) / energy(&truth, c)),
+            contact_share: [0, 1, 2].map(|c| 1.0 - energy(&own, c) / energy(&truth, c)),
+            own_piece: ChannelError::of(&without, &own, &w),
+            contact,
         };
         progress(&format!(
-            "vs the truth from reachable sources: rel RMSE {:.4?}, energy ratio {:.4?} (the \
-             truth's energy from across gaps: {:.4?})",
-            rep.reachable.rel_rmse, rep.reachable.energy_ratio, rep.cross_gap_share
+            "{:.0}% of the texels sample across a seam or border: rel RMSE there {:.4?}, \
+             elsewhere {:.4?}; light from other pieces of the mesh: {:.4?} of the truth; \
+             without the contact term vs the own-piece truth: rel RMSE {:.4?}",
+            100.0 * rep.seam_texels,
+            rep.seam.rel_rmse,
+            rep.interior.rel_rmse,
+            rep.contact_share,
+            rep.own_piece.rel_rmse
         ));
         progress(&format!(
             "vs brute force ({} sources, {ms:.0} ms): rel RMSE {:.4?}, max rel {:.3?}, energy \
@@ -580,8 +625,9 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
     );
     notes.push(
         "reference: brute force over every covered texel (position, GPU irradiance, area) \
-         with the untruncated profile and Euclidean distances; `seam` = texels where samples \
-         were rejected"
+         with the untruncated profile and Euclidean distances; `seam` = texels some of whose \
+         samples leave their triangle through a seam or an open edge; `own_piece` / \
+         `contact`: the truth split by the connected piece of the mesh its light comes from"
             .into(),
     );
     let report = SssReport {

@@ -304,6 +304,23 @@ impl SurfaceWalk {
         }
     }
 
+    /// Whether edge k of triangle `tri` ends its UV chart: an open or non-manifold edge, or
+    /// a seam (the neighbour's UVs at the shared corners differ from this triangle's).
+    pub fn is_seam(&self, tri: u32, k: usize) -> bool {
+        let t = &self.tris[tri as usize];
+        let nb = t.nbr[k];
+        if nb >= NON_MANIFOLD {
+            return true;
+        }
+        let n = &self.tris[nb as usize];
+        [(k + 1) % 3, (k + 2) % 3]
+            .iter()
+            .any(|&c| match (0..3).find(|&j| n.p[j] == t.p[c]) {
+                Some(j) => n.uv[j] != t.uv[c],
+                None => true,
+            })
+    }
+
     /// Follows the offset `v` (mm, in the frame of `tri`) from barycentrics (w1, w2) across
     /// as many triangles as it takes (a reference for [`SurfaceWalk::sample`]).
     pub fn walk(&self, mut tri: u32, w1: f32, w2: f32, mut v: Vec2) -> WalkEnd {
@@ -432,8 +449,14 @@ pub struct TexelSampler<'a> {
 }
 
 impl TexelSampler<'_> {
-    /// Where the pattern offset (ux, uy) (mm, before the receiver's rotation) lands.
-    pub fn land(&self, ux: f32, uy: f32) -> Landing {
+    /// The receiver's triangle.
+    pub fn triangle(&self) -> u32 {
+        self.tri
+    }
+
+    /// The edge of the receiver's triangle that the pattern offset (ux, uy) leaves by; None
+    /// when it stays in the triangle.
+    pub fn exit(&self, ux: f32, uy: f32) -> Option<usize> {
         let [a, b, c, d] = self.rate;
         let d2 = a * ux + b * uy;
         let d1 = c * ux + d * uy;
@@ -442,25 +465,32 @@ impl TexelSampler<'_> {
         let b2 = w2 + d2;
         let b0 = 1.0 - b1 - b2;
         if b0.min(b1).min(b2) >= 0.0 {
-            return Landing::Atlas(self.uvt + self.ux * ux + self.uy * uy);
+            return None;
         }
-        // The edge the offset leaves through: the first whose barycentric reaches 0 along
-        // the way. Barycentrics are linear along the offset, so it is one the end point lies
-        // beyond (b_k < 0); of two such, edge i comes first when w_i / -d_i < w_j / -d_j,
-        // i.e. w_i d_j > w_j d_i.
         let d0 = -(d1 + d2);
-        let exit =
+        Some(
             if b0 < 0.0 && (b1 >= 0.0 || w0 * d1 > w1 * d0) && (b2 >= 0.0 || w0 * d2 > w2 * d0) {
                 0
             } else if b1 < 0.0 && (b2 >= 0.0 || w1 * d2 > w2 * d1) {
                 1
             } else {
                 2
-            };
+            },
+        )
+    }
+
+    /// Where the pattern offset (ux, uy) (mm, before the receiver's rotation) lands.
+    pub fn land(&self, ux: f32, uy: f32) -> Landing {
+        let Some(exit) = self.exit(ux, uy) else {
+            return Landing::Atlas(self.uvt + self.ux * ux + self.uy * uy);
+        };
         match self.walk.edge_kind(self.tri, exit) {
             EDGE_OPEN => Landing::Off,
             EDGE_LOST => Landing::Lost,
             _ => {
+                let [a, b, c, d] = self.rate;
+                let b2 = self.w[2] + (a * ux + b * uy);
+                let b1 = self.w[1] + (c * ux + d * uy);
                 let t = &self.walk.tris[self.tri as usize];
                 let v = t.cross_v[exit];
                 let s = t.cross_s[exit];
