@@ -502,3 +502,150 @@ impl TexelSampler<'_> {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::scene::Mesh;
+    use crate::scene::mesh::MeshData;
+
+    /// Two 10 x 10 mm squares side by side (x in [0, 10] and [10, 20]), the second bent about
+    /// x = 10 by `bend` radians (rising in z), its vertices duplicated along the shared edge;
+    /// the first square at UV [0.05, 0.45] x [0.3, 0.7], the second (a seam) at
+    /// [0.55, 0.95] x [0.3, 0.7].
+    fn two_squares(bend: f32) -> TexGeometry {
+        let (c, s) = (bend.cos(), bend.sin());
+        let far = |x: f32, y: f32| [10.0 + (x - 10.0) * c, y, (x - 10.0) * s];
+        let mut data = MeshData {
+            name: "two squares".into(),
+            ..Default::default()
+        };
+        let mut uvs = Vec::new();
+        for (p, uv) in [
+            ([0.0, 0.0, 0.0], [0.05, 0.3]),
+            ([10.0, 0.0, 0.0], [0.45, 0.3]),
+            ([10.0, 10.0, 0.0], [0.45, 0.7]),
+            ([0.0, 10.0, 0.0], [0.05, 0.7]),
+            (far(10.0, 0.0), [0.55, 0.3]),
+            (far(20.0, 0.0), [0.95, 0.3]),
+            (far(20.0, 10.0), [0.95, 0.7]),
+            (far(10.0, 10.0), [0.55, 0.7]),
+        ] {
+            data.positions.push(p);
+            uvs.push(uv);
+        }
+        data.triangles = vec![[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]];
+        data.uvs = Some(uvs);
+        let mesh = Mesh::from_data(data, std::path::Path::new("<two squares>")).unwrap();
+        TexGeometry::build(&mesh, 64, 1.0).unwrap()
+    }
+
+    /// A texel's sampler at the 3D point nearest `at` (on the first square).
+    fn texel_at(geo: &TexGeometry, walk: &SurfaceWalk, at: Vec3) -> (usize, u32, f32, f32) {
+        let i = (0..geo.texels())
+            .filter(|&i| geo.pos[i][3] == crate::kernels::sss::texspace::COVERED)
+            .min_by(|&a, &b| {
+                let d = |i: usize| (Vec3::from_slice(&geo.pos[i][..3]) - at).length();
+                d(a).total_cmp(&d(b))
+            })
+            .unwrap();
+        let t = geo.texel_tri[i];
+        let _ = walk;
+        (i, t[0], f32::from_bits(t[1]), f32::from_bits(t[2]))
+    }
+
+    #[test]
+    fn adjacency_is_welded_across_the_seam() {
+        let geo = two_squares(0.0);
+        let walk = SurfaceWalk::build(&geo);
+        // 4 triangles: 2 diagonals, the seam edge shared; 6 border edges open.
+        assert_eq!(walk.shared_edges, 3);
+        assert_eq!(walk.open_edges, 6);
+        assert_eq!(walk.non_manifold_edges, 0);
+        let seams: usize = (0..4u32)
+            .map(|t| (0..3).filter(|&k| walk.is_seam(t, k)).count())
+            .sum();
+        // 6 open edges and the seam seen from both sides; the diagonals are not seams.
+        assert_eq!(seams, 8);
+    }
+
+    #[test]
+    fn a_sample_crossing_the_seam_lands_where_the_neighbour_maps_it() {
+        for bend in [0.0f32, 0.5, std::f32::consts::FRAC_PI_2] {
+            let geo = two_squares(bend);
+            let walk = SurfaceWalk::build(&geo);
+            let (i, tri, w1, w2) = texel_at(&geo, &walk, Vec3::new(8.0, 5.0, 0.0));
+            let po = walk.point(tri, w1, w2);
+            let n = geo.size as f32;
+            let mut crossed = 0;
+            // Offsets in every direction, 1 to 5 mm: the one-crossing map against the full
+            // walk, and against where the unfolded surface puts the point.
+            for step in 0..24 {
+                let phi = step as f32 * 0.2618;
+                for r in [1.0f32, 3.0, 5.0] {
+                    let texel = walk.texel(tri, w1, w2, phi);
+                    let landing = texel.land(r, 0.0);
+                    let full = walk.walk(tri, w1, w2, {
+                        let (s, c) = phi.sin_cos();
+                        Vec2::new(c * r, s * r)
+                    });
+                    match (landing, full) {
+                        (Landing::Atlas(uv), WalkEnd::Surface { tri: t, b1, b2 }) => {
+                            let want = walk.atlas(t, b1, b2);
+                            assert!(
+                                (uv - want).length() < 1e-3,
+                                "bend {bend} phi {phi} r {r}: {uv} vs {want}"
+                            );
+                            // Geodesic distance r on the (developable) strip: the point lies
+                            // r from the start once the bend is unrolled.
+                            let q = walk.point(t, b1, b2);
+                            let unrolled = |p: Vec3| {
+                                if p.x <= 10.0 + 1e-4 && p.z.abs() < 1e-4 {
+                                    Vec2::new(p.x, p.y)
+                                } else {
+                                    let d = Vec2::new(p.x - 10.0, p.z).length();
+                                    Vec2::new(10.0 + d, p.y)
+                                }
+                            };
+                            let dist = (unrolled(q) - unrolled(po)).length();
+                            assert!((dist - r).abs() < 1e-3, "bend {bend}: {dist} vs {r}");
+                            // The atlas position is that point's UV on its square.
+                            let u = unrolled(q);
+                            crossed += (u.x > 10.0) as usize;
+                            let want_uv = if u.x <= 10.0 {
+                                Vec2::new(0.05 + 0.04 * u.x, 0.3 + 0.04 * u.y)
+                            } else {
+                                Vec2::new(0.55 + 0.04 * (u.x - 10.0), 0.3 + 0.04 * u.y)
+                            } * n
+                                - Vec2::splat(0.5);
+                            assert!((uv - want_uv).length() < 1e-2, "{uv} vs {want_uv}");
+                        }
+                        (Landing::Off, WalkEnd::Off) => {}
+                        other => panic!("texel {i} phi {phi} r {r}: {other:?}"),
+                    }
+                }
+            }
+            assert!(
+                crossed >= 10,
+                "bend {bend}: only {crossed} samples crossed the seam"
+            );
+        }
+    }
+
+    #[test]
+    fn a_sample_past_an_open_edge_is_off_the_surface() {
+        let geo = two_squares(0.0);
+        let walk = SurfaceWalk::build(&geo);
+        let (_, tri, w1, w2) = texel_at(&geo, &walk, Vec3::new(1.0, 5.0, 0.0));
+        // Toward -x (in the world) is the open edge x = 0, 1 mm away.
+        let off = (0..64)
+            .map(|k| k as f32 * std::f32::consts::TAU / 64.0)
+            .filter(|&phi| walk.texel(tri, w1, w2, phi).land(3.0, 0.0) == Landing::Off)
+            .count();
+        // Offsets of 3 mm leave through x = 0 over an arc of 2 acos(1/3) = 141 degrees.
+        assert!(
+            (22..=28).contains(&off),
+            "{off} of 64 directions off the surface"
+        );
+    }
+}
