@@ -985,11 +985,11 @@ fn cmd_bench_sss(g: &Global, opts: &BenchOpts, quick: bool) -> Result<()> {
         h.fps
     );
     println!(
-        "throughput             {:.2e} samples/s = {:.1}% of the {:.1} GFLOP/s FMA peak, {:.1}% of {:.1} GB/s (work model in bench/sss.rs)",
+        "throughput             {:.2e} samples/s = {:.1}% of the {:.1} GFLOP/s FMA peak; gathered bytes {:.1}% of the {:.1} GB/s stream bandwidth (mostly cache hits; work model in bench/sss.rs)",
         h.samples_per_s,
         100.0 * h.fraction_of_fma_peak,
         r.peak_fma_gflops,
-        100.0 * h.fraction_of_bandwidth,
+        100.0 * h.gathered_vs_stream_bandwidth,
         r.bandwidth_gb_s
     );
     println!(

@@ -1,8 +1,8 @@
-// The texture-space diffusion (glsl/sss/diffusion.comp, glsl/sss/diffusion_grey.comp).
-// SSS_GREY: the gathers read position and a grey E from one image (`pe`, written by the
-// irradiance pass for white lights), one texel load per sample instead of two (lavapipe runs
-// a per-lane load one lane at a time); otherwise position and rgb E from two images (any
-// irradiance, e.g. a caller's upload). The arithmetic is the same (w * vec3(E)).
+// The texture-space diffusion (glsl/sss/diffusion.comp, glsl/sss/diffusion_grey.comp; the
+// method is described in diffusion.comp). SSS_GREY: the gathers read the grey E from one
+// single-channel image (`pe`, written by the irradiance pass for white lights), one load per
+// sample; otherwise the surface flag and rgb E from two images (any irradiance, e.g. a
+// caller's upload). The arithmetic is the same (w * vec3(E)).
 layout(local_size_x = 8, local_size_y = 8) in;
 
 layout(push_constant) uniform Push {

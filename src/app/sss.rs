@@ -234,6 +234,9 @@ pub struct ReferenceReport {
     /// Share of the truth's (area-weighted) energy that comes from other pieces of the mesh
     /// (eyeballs, the inside of the mouth: separate connected pieces that touch the skin).
     pub contact_share: [f64; 3],
+    /// The largest share of one texel's truth from other pieces (texels whose truth is at
+    /// least 1e-3 of the largest).
+    pub contact_max_share: [f64; 3],
     /// The method without its contact term against the truth from the receiver's own piece.
     pub own_piece: ChannelError,
     /// The contact term against the truth from the other pieces, over the texels that have
@@ -576,6 +579,15 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
             seam_texels,
             truncation: [0, 1, 2].map(|c| 1.0 - profile.k[c] / profile.r_tot[c]),
             contact_share: [0, 1, 2].map(|c| 1.0 - energy(&own, c) / energy(&truth, c)),
+            contact_max_share: [0, 1, 2].map(|c| {
+                let top = truth.iter().map(|t| t[c]).fold(0.0, f64::max);
+                truth
+                    .iter()
+                    .zip(&own)
+                    .filter(|(t, _)| t[c] > 1e-3 * top)
+                    .map(|(t, o)| 1.0 - o[c] / t[c])
+                    .fold(0.0, f64::max)
+            }),
             own_piece: ChannelError::of(&without, &own, &w),
             contact,
         };

@@ -3,8 +3,9 @@
 //! A head mesh often holds more than one surface: eyeballs sitting in the lids, the inside of
 //! the mouth. Texture-space sampling (and any walk over the surface) only reaches the piece
 //! the receiver lies on, while the diffusion integral B(xo) = sum Rd(|xj - xo|) E_j A_j runs
-//! over every surface point within reach in 3D. Where pieces touch, that part is large: an
-//! eyelid texel 0.4 mm from the eyeball receives a sixth of its light from it.
+//! over every surface point within reach in 3D. Where pieces touch, that part is large: on
+//! the BCN_Epileptic head, a shaded lid texel next to the lit eyeball gets nearly all of its
+//! light from it (`vkshade sss --reference`: `contact_max_share`).
 //!
 //! For each covered texel this gathers the texels of *other* connected pieces within the
 //! sampling radius (a uniform grid over their positions) and keeps an explicit sum over them:
@@ -148,9 +149,13 @@ impl Contact {
             let q = (p / rmax).floor();
             (q.x as i32, q.y as i32, q.z as i32)
         };
-        let mut grid: HashMap<(i32, i32, i32), Vec<u32>> = HashMap::new();
+        // One grid per piece: a receiver visits the other pieces' cells only.
+        let mut grid: HashMap<(u32, i32, i32, i32), Vec<u32>> = HashMap::new();
         for &i in &covered {
-            grid.entry(key(pos(i))).or_default().push(i as u32);
+            let (x, y, z) = key(pos(i));
+            grid.entry((piece_of(i), x, y, z))
+                .or_default()
+                .push(i as u32);
         }
         let k = profile.k.map(|k| k as f32);
         let lists: Vec<Vec<(u32, [f32; 3])>> = covered
@@ -161,28 +166,24 @@ impl Contact {
                 let (kx, ky, kz) = key(po);
                 // (source, q, per-channel Rd A)
                 let mut cand: Vec<(u32, f32, [f32; 3])> = Vec::new();
-                for dz in -1..=1 {
-                    for dy in -1..=1 {
-                        for dx in -1..=1 {
-                            let Some(list) = grid.get(&(kx + dx, ky + dy, kz + dz)) else {
-                                continue;
-                            };
-                            for &j in list {
-                                let j = j as usize;
-                                if piece_of(j) == me {
-                                    continue;
-                                }
-                                let d = (pos(j) - po).length();
-                                if d > rmax {
-                                    continue;
-                                }
-                                let a = geo.nrm[j][3];
-                                let f = source_factor(geo, profile, &radius, po, j, a);
-                                let q = (0..3).map(|c| f[c] / k[c]).sum::<f32>();
-                                if q > 0.0 && q.is_finite() {
-                                    cand.push((j as u32, q, f));
-                                }
-                            }
+                let cells = (0..count as u32).filter(|&p| p != me).flat_map(|p| {
+                    (0..27).map(move |c| (p, kx + c % 3 - 1, ky + c / 3 % 3 - 1, kz + c / 9 - 1))
+                });
+                for cell in cells {
+                    let Some(list) = grid.get(&cell) else {
+                        continue;
+                    };
+                    for &j in list {
+                        let j = j as usize;
+                        let d = (pos(j) - po).length();
+                        if d > rmax {
+                            continue;
+                        }
+                        let a = geo.nrm[j][3];
+                        let f = source_factor(geo, profile, &radius, po, j, a);
+                        let q = (0..3).map(|c| f[c] / k[c]).sum::<f32>();
+                        if q > 0.0 && q.is_finite() {
+                            cand.push((j as u32, q, f));
                         }
                     }
                 }

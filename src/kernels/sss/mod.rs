@@ -3,14 +3,18 @@
 //! - [`profile`]: diffusion profiles (dipole, Burley), truncation radius, sampling tables.
 //! - [`texspace`]: the mesh rasterised into its UV layout (position, normal, Jacobian per
 //!   texel; overlap repair; gutters), on the CPU.
+//! - [`walk`]: where a sample lands when it leaves the receiver's triangle (across the edge
+//!   it leaves by, seams included; off the surface past an open edge).
+//! - [`contact`]: light between separate pieces of the mesh that touch (eyeballs, mouth).
 //! - [`gpu`]: the kernel (passes `sss lights`, `sss vertex light`, `sss irradiance`,
 //!   `sss diffusion`).
-//! - [`cpu`]: the CPU twin of both passes (same rays, same sample sequence).
+//! - [`cpu`]: the CPU twin of both passes (same rays, same sample pattern).
 //! - The brute-force ground truth is `reference::sss`.
 //!
 //! Conventions: model units are scaled to mm (`mm_per_unit`); scattering coefficients are
 //! per mm; `diffuse` holds B(xo) = int E(xi) Rd(|xi - xo|) dA(xi) before the exit Fresnel
-//! and 1/pi factors, so a uniformly lit plane gives B = E K(R) (E R_tot untruncated).
+//! and 1/pi factors, so a uniformly lit plane gives B = E R_tot (samples reach the radius
+//! holding `energy` of each channel's reflectance, K(R); the rest is taken at their mean).
 //! Transmission through thin parts (ears): per mesh vertex, the thickness along -n and the
 //! back surface's irradiance give E_b (R_tot - F(t)) per channel (a locally flat slab lit
 //! from behind; [`cpu::transmission`]), interpolated per texel into its own image.
