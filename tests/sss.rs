@@ -381,6 +381,23 @@ fn bad_inputs_are_refused_with_clear_errors() {
         };
         let e = SssKernel::new(&mut rec, &geo, &p, zero).err().unwrap();
         assert!(e.to_string().contains("samples"), "{e}");
+        // A hand-built geometry whose texel names a triangle the mesh does not have (the
+        // shaders would index past the triangle records), or a triangle a missing vertex.
+        let mut broken = geo.clone();
+        let on = (0..broken.texels())
+            .find(|&i| broken.pos[i][3] != 0.0)
+            .unwrap();
+        broken.texel_tri[on][0] = 99;
+        let e = SssKernel::new(&mut rec, &broken, &p, SamplerParams::default())
+            .err()
+            .unwrap();
+        assert!(e.to_string().contains("triangle 99"), "{e}");
+        let mut broken = geo.clone();
+        broken.triangles[1][2] = 1000;
+        let e = SssKernel::new(&mut rec, &broken, &p, SamplerParams::default())
+            .err()
+            .unwrap();
+        assert!(e.to_string().contains("triangle 1 names a vertex"), "{e}");
         let kernel = SssKernel::new(&mut rec, &geo, &p, SamplerParams::default())?;
         let e = kernel
             .upload_irradiance(&mut rec, &[[0.0; 4]; 7])

@@ -182,6 +182,40 @@ fn upload_rows(rec: &mut Recorder, image: &Image, data: &[[f32; 4]]) -> Result<(
     rec.upload_image(image, region, bytemuck::cast_slice(&padded))
 }
 
+/// Checks what the shaders index with (TexGeometry's fields are public): a texel on the
+/// surface names a triangle of the mesh, a triangle names vertices of the mesh, and the
+/// per-texel arrays have size^2 entries.
+fn check_geometry(geo: &TexGeometry) -> Result<()> {
+    let n = geo.texels();
+    if [geo.pos.len(), geo.nrm.len(), geo.texel_tri.len()]
+        .iter()
+        .any(|&l| l != n)
+    {
+        return Err(Error::InvalidArgument(format!(
+            "texture-space geometry of {}^2 texels has per-texel arrays of other lengths",
+            geo.size
+        )));
+    }
+    let triangles = geo.triangles.len() as u32;
+    if let Some(i) = (0..n).find(|&i| geo.pos[i][3] != 0.0 && geo.texel_tri[i][0] >= triangles) {
+        return Err(Error::InvalidArgument(format!(
+            "texel {i} is on the surface but names triangle {} of {triangles}",
+            geo.texel_tri[i][0]
+        )));
+    }
+    let vertices = geo.positions.len() as u32;
+    if let Some(t) = geo
+        .triangles
+        .iter()
+        .position(|t| t.iter().any(|&v| v >= vertices))
+    {
+        return Err(Error::InvalidArgument(format!(
+            "triangle {t} names a vertex beyond the mesh's {vertices}"
+        )));
+    }
+    Ok(())
+}
+
 /// Per texel, what the diffusion starts from: (triangle, w1 bits, w2 bits, first contact
 /// entry << 5 | entry count).
 fn start_texels(geo: &TexGeometry, contact: &Contact) -> Result<Vec<[u32; 4]>> {
@@ -224,6 +258,7 @@ impl SssKernel {
         params: SamplerParams,
     ) -> Result<SssKernel> {
         params.check()?;
+        check_geometry(geo)?;
         let ctx = rec.context();
         let spv = |name| crate::shaders::spirv(name);
         let vertex =
@@ -435,6 +470,7 @@ impl SssKernel {
         geo: &TexGeometry,
         dg: &DiffusionGeometry,
     ) -> Result<()> {
+        check_geometry(geo)?;
         let records = dg.walk.records();
         if records.len() != self.walk_records {
             return Err(Error::InvalidArgument(format!(
@@ -493,6 +529,7 @@ impl SssKernel {
                 self.vertices
             )));
         }
+        check_geometry(geo)?;
         let bvh = Bvh::build(&geo.positions, &geo.triangles);
         let (n, t) = bvh.flat();
         let room = self.nodes.desc().extent[0] as usize * self.nodes.desc().extent[1] as usize;
