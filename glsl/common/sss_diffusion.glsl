@@ -13,7 +13,6 @@ layout(push_constant) uniform Push {
     uint tiles;      // occupied row segments
 } pc;
 
-const uint MAX_SAMPLES = 4096u;
 
 // Per texel, images (lavapipe fetches a texel's four channels at once; a storage-buffer load
 // at a per-lane index loops over the lanes for each component).
@@ -31,7 +30,7 @@ layout(set = 0, binding = 1, rgba32ui) readonly uniform uimage2D start;
 // Per triangle, WALK_RECORD texels, WALK_ROW texels a row (src/kernels/sss/walk.rs,
 // SurfaceWalk::records): (1 / l1, x2, 1 / y2, edge kinds), (uv0, uv1 - uv0), (uv2 - uv0, 0, 0),
 // then per edge the map from this triangle's barycentrics to the atlas through the neighbour
-// unfolded across that edge (V as f16 rows, s).
+// unfolded across that edge: uv = s + V (b1, b2), (V row-major), (s, 0, 0).
 layout(set = 0, binding = 2, rgba32ui) readonly uniform uimage2D walk;
 // Contact entries, WALK_ROW a row: (source texel, f_r, f_g, f_b bits).
 layout(set = 0, binding = 3, rgba32ui) readonly uniform uimage2D contact;

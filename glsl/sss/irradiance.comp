@@ -6,7 +6,7 @@
 // the triangle's three corners agree, V is theirs (0 or 1); where they disagree (a shadow
 // boundary crosses the triangle) and refine is on, the texel casts its own shadow ray through
 // the BVH (the same traversal as the vertex pass), else V is interpolated with the texel
-// centre's barycentrics. White lights: E is written to rgb alike. Transmission (mode != 0):
+// centre's barycentrics. White lights: one grey E. Transmission (mode != 0):
 // the per-vertex (rgb, thickness) interpolated. What this changes against a ray per texel is
 // measured by `vkshade sss` (report.json `shadowing`): shadows smaller than a triangle that
 // touch none of its corners are missed. Everything per texel is an image (lavapipe fetches a texel's four channels at
@@ -44,10 +44,9 @@ layout(set = 0, binding = 7, rgba32f) writeonly uniform image2D trans;  // rgb, 
 const uint BVH_ROW = 1024u;
 layout(set = 0, binding = 8, rgba32ui) readonly uniform uimage2D nodes;
 layout(set = 0, binding = 9, rgba32ui) readonly uniform uimage2D tris;
-// The output: position and E together for the diffusion's gathers
-// (glsl/sss/diffusion_grey.comp: one texel load per sample instead of two): xyz position,
-// w = E (white lights: the same in r, g, b; E >= 0), -1 where no surface. The kernel reads
-// the irradiance back from it (rgb = w, alpha 1; 0 where w < 0).
+// The output: the grey E for the diffusion's gathers (glsl/sss/diffusion_grey.comp: one
+// channel, the cheapest gather), E >= 0, -1 where no surface. The kernel reads the
+// irradiance back from it (rgb = E, alpha 1; 0 where E < 0).
 layout(set = 0, binding = 10, r32f) writeonly uniform image2D pe;
 // The occupied 8x1 row segments of the atlas (x / 8 | y << 16, built once per mesh: the UV
 // layout does not change when it is skinned): workgroup (x, y) shades segments

@@ -8,7 +8,7 @@ use super::texspace::{COVERED, NO_TRIANGLE, TexGeometry};
 use super::walk::{Landing, SurfaceWalk};
 use crate::error::{Error, Result};
 use crate::geom::bvh::Bvh;
-use glam::{Vec2, Vec3};
+use glam::Vec3;
 use rayon::prelude::*;
 
 /// A light (positions and directions in mm, after scaling by mm per unit).
@@ -373,7 +373,7 @@ pub fn rotation(texel: u32) -> f32 {
     std::f32::consts::TAU * ((pcg(texel) >> 8) as f32 / 16_777_216.0)
 }
 
-/// The shared sample pattern the GPU reads from a uniform buffer, one vec4 per sample:
+/// The shared sample pattern the GPU reads from an image, one texel per sample:
 /// (ux, uy, w_r, w_g); w_b = 3 - w_r - w_g (the one-sample MIS weights p_c / mean p sum to 3).
 /// Radii r from [`Profile::mixture_sequence`] (stratified over the mixture of the channels'
 /// pdfs), directions on the golden-angle spiral: (ux, uy) = r (cos 2 pi 0.618034 s,
@@ -407,34 +407,6 @@ pub fn pattern_totals(pattern: &[[f32; 4]]) -> [f32; 3] {
         }
     }
     t
-}
-
-/// The 2x2 map from a tangent-plane offset (cos phi, sin phi) * r (mm) to a UV offset at
-/// texel `i`: (J^T J)^-1 J^T [t1 t2], columns (m00, m10), (m01, m11); None if degenerate.
-pub fn offset_map(geo: &TexGeometry, i: usize) -> Option<[f32; 4]> {
-    let a = Vec3::from_slice(&geo.dpdu[i][..3]);
-    let b = Vec3::from_slice(&geo.dpdv[i][..3]);
-    let n = Vec3::from_slice(&geo.nrm[i][..3]);
-    offset_map_of(a, b, n)
-}
-
-fn offset_map_of(a: Vec3, b: Vec3, n: Vec3) -> Option<[f32; 4]> {
-    let t1 = (a - n * n.dot(a)).normalize_or_zero();
-    let t2 = n.cross(t1);
-    let (aa, ab, bb) = (a.dot(a), a.dot(b), b.dot(b));
-    let det = aa * bb - ab * ab;
-    // (written so that a NaN determinant also counts as degenerate)
-    if det.partial_cmp(&(1e-20 * aa * bb)) != Some(std::cmp::Ordering::Greater) || t1 == Vec3::ZERO
-    {
-        return None;
-    }
-    // Ginv = [[bb, -ab], [-ab, aa]] / det; R = [[a.t1, a.t2], [b.t1, b.t2]].
-    let (r00, r01, r10, r11) = (a.dot(t1), a.dot(t2), b.dot(t1), b.dot(t2));
-    let m00 = (bb * r00 - ab * r10) / det;
-    let m01 = (bb * r01 - ab * r11) / det;
-    let m10 = (-ab * r00 + aa * r10) / det;
-    let m11 = (-ab * r01 + aa * r11) / det;
-    Some([m00, m01, m10, m11])
 }
 
 /// The diffusion sampler's settings.
@@ -582,13 +554,4 @@ fn nearest(geo: &TexGeometry, nf: f32, tx: f32, ty: f32) -> Option<usize> {
         return None;
     }
     Some(t)
-}
-
-/// The UV of texel i's centre.
-pub fn texel_uv(size: u32, i: usize) -> Vec2 {
-    let n = size as usize;
-    Vec2::new(
-        ((i % n) as f32 + 0.5) / size as f32,
-        ((i / n) as f32 + 0.5) / size as f32,
-    )
 }

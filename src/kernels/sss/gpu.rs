@@ -7,8 +7,8 @@
 //! channels at once, while a storage-buffer load at a per-lane index loops over the lanes for
 //! every component (measured: the diffusion 3.7x faster, the irradiance 1.6x). The lights are a
 //! uniform buffer (read as scalars at the light loop's uniform index). The irradiance pass
-//! writes position and E into one image, so the diffusion gathers one texel per sample
-//! instead of two. Both passes run over the atlas's occupied 8x1 row segments only (a list built once
+//! writes the grey E into a one-channel image, so the diffusion gathers one channel per
+//! sample. Both passes run over the atlas's occupied 8x1 row segments only (a list built once
 //! per UV layout; about half a head's atlas is empty), the outputs cleared once in the empty
 //! ones. The irradiance can also be filled by the caller
 //! ([`SssKernel::upload_irradiance`], e.g. from another kernel, rgb) and diffused alone
@@ -38,12 +38,12 @@ pub const PASS_VERTEX: &str = "sss vertex light";
 pub const PASS_IRRADIANCE: &str = "sss irradiance";
 pub const PASS_DIFFUSION: &str = "sss diffusion";
 const PASSES: [&str; 4] = [PASS_LIGHTS, PASS_VERTEX, PASS_IRRADIANCE, PASS_DIFFUSION];
-/// Most samples per texel (the shader's uniform sample sequence: 64 KiB, the
-/// maxUniformBufferRange of lavapipe and of most desktop GPUs; checked at run time).
+/// Most samples per texel (the width of the pattern image; Vulkan guarantees 4096 texels,
+/// checked at run time).
 pub const MAX_SAMPLES: u32 = 4096;
 
 /// Host copies of a frame: irradiance, diffuse (rgba per texel; diffuse alpha is the
-/// accepted fraction of the samples) and transmission (rgb; alpha the thickness in mm, 0
+/// fraction of the samples not lost) and transmission (rgb; alpha the thickness in mm, 0
 /// where nothing transmits).
 #[derive(Clone, Debug)]
 pub struct SssOutput {
@@ -83,6 +83,8 @@ pub struct SssKernel {
     tris: Image,
     triangles: usize,
     walk_records: usize,
+    /// The pattern's weight totals ([`pattern_totals`]), pushed with each diffusion.
+    totals: [f32; 3],
     /// The shared sample pattern ([`sample_pattern`]), an RGBA32F image one texel per sample
     /// (lavapipe loads a uniform buffer at a loop index lane by lane: a vec4 from it cost
     /// more than the irradiance gather of a sample).
@@ -103,7 +105,7 @@ pub struct SssKernel {
     vtrans: Image,
     lights: Buffer,
     irr: Image,
-    /// Position and grey E per texel (xyz, E; w -1 where no surface), written by the
+    /// Grey E per texel (R32F; -1 where no surface), written by the
     /// irradiance pass for the grey diffusion's gathers.
     pe: Image,
     trans: Image,
@@ -290,7 +292,8 @@ impl SssKernel {
         upload_rows(rec, &tris_img, bytemuck::cast_slice(&tris))?;
         let (nodes, tris) = (nodes_img, tris_img);
         let seq = Image::new(&ctx, "sss sample pattern", rgba32f([MAX_SAMPLES, 1]))?;
-        upload_rows(rec, &seq, &sample_pattern(profile, params.samples))?;
+        let pattern = sample_pattern(profile, params.samples);
+        upload_rows(rec, &seq, &pattern)?;
         // A uniform buffer (the shaders' MAX_LIGHTS x 2 vec4): lavapipe loads it at the
         // light loop's uniform index as a scalar.
         let lights = Buffer::new(
@@ -403,6 +406,7 @@ impl SssKernel {
             walk,
             contact,
             walk_records: records.len(),
+            totals: pattern_totals(&pattern),
             vis,
             vtrans,
             lights,
@@ -437,7 +441,7 @@ impl SssKernel {
     }
 
     /// Records the upload of the occupied tiles and the clearing of the outputs the passes
-    /// do not write in empty tiles (position and E: -1, no surface; diffuse and transmission:
+    /// do not write in empty tiles (grey E: -1, no surface; diffuse and transmission:
     /// 0), unless the list is the one already in use.
     fn set_tiles(&self, rec: &mut Recorder, list: Vec<u32>) -> Result<()> {
         let mut current = self
@@ -474,7 +478,8 @@ impl SssKernel {
         let records = dg.walk.records();
         if records.len() != self.walk_records {
             return Err(Error::InvalidArgument(format!(
-                "the surface walk of the new geometry has {} records, the kernel's {} (a                  different mesh?)",
+                "the surface walk of the new geometry has {} records, the kernel's {} (a \
+                 different mesh?)",
                 records.len(),
                 self.walk_records
             )));
@@ -482,7 +487,8 @@ impl SssKernel {
         let room = self.contact.desc().extent[0] as usize * self.contact.desc().extent[1] as usize;
         if dg.contact.entries.len() > room {
             return Err(Error::InvalidArgument(format!(
-                "this pose has {} contact entries (pieces of the mesh within reach of each                  other), more than the {room} the kernel made room for at its first pose",
+                "this pose has {} contact entries (pieces of the mesh within reach of each \
+                 other), more than the {room} the kernel made room for at its first pose",
                 dg.contact.entries.len()
             )));
         }
@@ -550,11 +556,9 @@ impl SssKernel {
     /// Changes the sampler settings: records the upload of the new sample sequence.
     pub fn set_params(&mut self, rec: &mut Recorder, params: SamplerParams) -> Result<()> {
         params.check()?;
-        upload_rows(
-            rec,
-            &self.seq,
-            &sample_pattern(&self.profile, params.samples),
-        )?;
+        let pattern = sample_pattern(&self.profile, params.samples);
+        upload_rows(rec, &self.seq, &pattern)?;
+        self.totals = pattern_totals(&pattern);
         if self.params.transmission && !params.transmission {
             self.clear_transmission(rec)?;
         }
@@ -667,7 +671,7 @@ impl SssKernel {
     /// Records the diffusion dispatch alone (barriers from the declared accesses).
     pub fn record_diffusion(&self, rec: &mut Recorder) -> Result<()> {
         let k = self.profile.r_tot.map(|k| k as f32);
-        let total = pattern_totals(&sample_pattern(&self.profile, self.params.samples));
+        let total = self.totals;
         let mut push: Vec<u8> = [k[0], k[1], k[2], 0.0, total[0], total[1], total[2], 0.0]
             .iter()
             .flat_map(|x| x.to_le_bytes())
@@ -808,6 +812,31 @@ impl Kernel for SssKernel {
                 + images.iter().map(|i| i.allocation_size()).sum::<u64>(),
             allocations: buffers.allocations + images.len() as u64,
             ..buffers
+        }
+    }
+}
+
+#[cfg(test)]
+mod shader_constants {
+    use super::*;
+    use crate::kernels::sss::walk;
+
+    /// The diffusion shader's layout constants are the ones the host writes with.
+    #[test]
+    fn diffusion_shader_agrees_with_the_host() {
+        let src = include_str!("../../../glsl/common/sss_diffusion.glsl");
+        for (name, value) in [
+            ("WALK_RECORD", walk::RECORD_TEXELS as u32),
+            ("WALK_ROW", BVH_ROW),
+            ("TILE_ROW", TILE_ROW),
+            ("EDGE_SHARED", walk::EDGE_SHARED),
+            ("EDGE_OPEN", walk::EDGE_OPEN),
+        ] {
+            let line = format!("const uint {name} = {value}u;");
+            assert!(
+                src.contains(&line),
+                "glsl/common/sss_diffusion.glsl lacks `{line}`"
+            );
         }
     }
 }

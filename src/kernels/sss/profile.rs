@@ -12,7 +12,8 @@
 //!
 //! Truncation: each channel is sampled on [0, R_c], R_c the radius holding the fraction
 //! `energy` of the channel's R_tot; K(R) = int_0^R 2 pi r Rd(r) dr. Sampling p_A = Rd / K(R)
-//! gives every sample the weight K(R): B = K(R) * mean E.
+//! gives every sample the weight K(R): B = K(R) * mean E over the disc. The diffusion scales
+//! by R_tot instead (the tail beyond R taken at the disc's mean).
 //!
 //! The diffusion sampler draws from the mixture of the three channels
 //! ([`Profile::mixture_sequence`], closed-form CDFs). The inverse-CDF table (per channel
@@ -379,7 +380,7 @@ impl Profile {
     /// stratified: r_s = F^-1((s + 1/2) / n) (bisection in f64). Each sample carries the
     /// weights w_c = p_c(r_s) / p(r_s) (radial pdfs; the 2 pi r cancels, so w_c = (Rd_c / K_c)
     /// / mean_j (Rd_j / K_j) over the channels whose radius R_j >= r_s); E_p[w_c] = 1, and the
-    /// sampler's self-normalised estimate K_c sum w_c E / sum w_c is exact on uniform E.
+    /// sampler's self-normalised estimate sum w_c E / sum w_c is exact on uniform E.
     /// Rows (r_s mm, w_r, w_g, w_b) as f32 (what the shader and the CPU twin read).
     pub fn mixture_sequence(&self, n: u32) -> Vec<[f32; 4]> {
         let rmax = self.max_radius();

@@ -457,6 +457,15 @@ pub fn posed(mesh: &Mesh, matrices: &[glam::Mat4]) -> Result<Mesh> {
             .try_normalize()
             .unwrap_or(mesh.normals[v]);
     }
+    // Vertices that share a position at rest (split along UV seams) share it posed: the
+    // diffusion welds by position, and copies skinned with their weights in another order
+    // could differ in the last bit (the seam would open).
+    let mut first: HashMap<[u32; 3], usize> = HashMap::new();
+    for (v, p) in mesh.positions.iter().enumerate() {
+        let key = [p.x, p.y, p.z].map(|c| (c + 0.0).to_bits());
+        let f = *first.entry(key).or_insert(v);
+        out.positions[v] = out.positions[f];
+    }
     Ok(out)
 }
 

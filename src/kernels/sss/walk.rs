@@ -322,7 +322,8 @@ impl SurfaceWalk {
     }
 
     /// Follows the offset `v` (mm, in the frame of `tri`) from barycentrics (w1, w2) across
-    /// as many triangles as it takes (a reference for [`SurfaceWalk::sample`]).
+    /// as many triangles as it takes (a reference for [`TexelSampler::land`], which follows
+    /// one crossing).
     pub fn walk(&self, mut tri: u32, w1: f32, w2: f32, mut v: Vec2) -> WalkEnd {
         let [l1, x2, y2] = self.tris[tri as usize].shape;
         let mut p = Vec2::new(w1 * l1 + w2 * x2, w2 * y2);
@@ -540,8 +541,8 @@ mod tests {
         TexGeometry::build(&mesh, 64, 1.0).unwrap()
     }
 
-    /// A texel's sampler at the 3D point nearest `at` (on the first square).
-    fn texel_at(geo: &TexGeometry, walk: &SurfaceWalk, at: Vec3) -> (usize, u32, f32, f32) {
+    /// The covered texel nearest the 3D point `at`, its triangle and barycentrics.
+    fn texel_at(geo: &TexGeometry, at: Vec3) -> (usize, u32, f32, f32) {
         let i = (0..geo.texels())
             .filter(|&i| geo.pos[i][3] == crate::kernels::sss::texspace::COVERED)
             .min_by(|&a, &b| {
@@ -550,7 +551,6 @@ mod tests {
             })
             .unwrap();
         let t = geo.texel_tri[i];
-        let _ = walk;
         (i, t[0], f32::from_bits(t[1]), f32::from_bits(t[2]))
     }
 
@@ -574,7 +574,7 @@ mod tests {
         for bend in [0.0f32, 0.5, std::f32::consts::FRAC_PI_2] {
             let geo = two_squares(bend);
             let walk = SurfaceWalk::build(&geo);
-            let (i, tri, w1, w2) = texel_at(&geo, &walk, Vec3::new(8.0, 5.0, 0.0));
+            let (i, tri, w1, w2) = texel_at(&geo, Vec3::new(8.0, 5.0, 0.0));
             let po = walk.point(tri, w1, w2);
             let n = geo.size as f32;
             let mut crossed = 0;
@@ -636,7 +636,7 @@ mod tests {
     fn a_sample_past_an_open_edge_is_off_the_surface() {
         let geo = two_squares(0.0);
         let walk = SurfaceWalk::build(&geo);
-        let (_, tri, w1, w2) = texel_at(&geo, &walk, Vec3::new(1.0, 5.0, 0.0));
+        let (_, tri, w1, w2) = texel_at(&geo, Vec3::new(1.0, 5.0, 0.0));
         // Toward -x (in the world) is the open edge x = 0, 1 mm away.
         let off = (0..64)
             .map(|k| k as f32 * std::f32::consts::TAU / 64.0)
