@@ -170,6 +170,30 @@ fn head(size: u32) -> TexGeometry {
     TexGeometry::build(&mesh, size, 1000.0).unwrap()
 }
 
+/// The GPU's diffusion against the brute force from its own irradiance: every 3rd covered
+/// texel as a receiver, every covered texel as a source.
+fn against_brute_force(geo: &TexGeometry, out: &SssOutput, p: &Profile) -> truth::ChannelError {
+    let covered: Vec<usize> = (0..geo.texels())
+        .filter(|&i| geo.pos[i][3] == COVERED)
+        .step_by(3)
+        .collect();
+    let receivers: Vec<DVec3> = covered
+        .iter()
+        .map(|&i| Vec3::from_slice(&geo.pos[i][..3]).as_dvec3())
+        .collect();
+    let t = truth::brute_force(
+        &truth::Sources::from_texels(geo, &out.irradiance),
+        &receivers,
+        p,
+    );
+    let est: Vec<[f64; 3]> = covered
+        .iter()
+        .map(|&i| [0, 1, 2].map(|c| out.diffuse[i][c] as f64))
+        .collect();
+    let w: Vec<f64> = covered.iter().map(|&i| geo.nrm[i][3] as f64).collect();
+    truth::ChannelError::of(&est, &t, &w)
+}
+
 #[test]
 fn head_gpu_matches_the_cpu_twin_and_the_brute_force() {
     let geo = head(256);
@@ -265,26 +289,7 @@ fn head_gpu_matches_the_cpu_twin_and_the_brute_force() {
             "channel {c}: GPU vs CPU twin relative RMSE {rel}"
         );
     }
-    // Against the brute force (every 3rd covered texel as a receiver, all as sources).
-    let covered: Vec<usize> = (0..geo.texels())
-        .filter(|&i| geo.pos[i][3] == COVERED)
-        .step_by(3)
-        .collect();
-    let receivers: Vec<DVec3> = covered
-        .iter()
-        .map(|&i| Vec3::from_slice(&geo.pos[i][..3]).as_dvec3())
-        .collect();
-    let t = truth::brute_force(
-        &truth::Sources::from_texels(&geo, &out.irradiance),
-        &receivers,
-        &p,
-    );
-    let est: Vec<[f64; 3]> = covered
-        .iter()
-        .map(|&i| [0, 1, 2].map(|c| out.diffuse[i][c] as f64))
-        .collect();
-    let w: Vec<f64> = covered.iter().map(|&i| geo.nrm[i][3] as f64).collect();
-    let err = truth::ChannelError::of(&est, &t, &w);
+    let err = against_brute_force(&geo, &out, &p);
     eprintln!("head 256^2 x 32 vs brute force: {err:?}");
     // Measured at 256^2 x 32 shared samples (2.5 mm texels, these two lights): relative RMSE
     // 0.056 / 0.040 / 0.083, energy ratio 0.987 / 1.003 / 1.056. Blue is coarse against its
@@ -318,25 +323,7 @@ fn head_512_meets_the_accuracy_target() {
         ..Default::default()
     };
     let out = common::with_gpu(|ctx| gpu_frame(ctx, &geo, &p, params, &lights, None));
-    let covered: Vec<usize> = (0..geo.texels())
-        .filter(|&i| geo.pos[i][3] == COVERED)
-        .step_by(3)
-        .collect();
-    let receivers: Vec<DVec3> = covered
-        .iter()
-        .map(|&i| Vec3::from_slice(&geo.pos[i][..3]).as_dvec3())
-        .collect();
-    let t = truth::brute_force(
-        &truth::Sources::from_texels(&geo, &out.irradiance),
-        &receivers,
-        &p,
-    );
-    let est: Vec<[f64; 3]> = covered
-        .iter()
-        .map(|&i| [0, 1, 2].map(|c| out.diffuse[i][c] as f64))
-        .collect();
-    let w: Vec<f64> = covered.iter().map(|&i| geo.nrm[i][3] as f64).collect();
-    let err = truth::ChannelError::of(&est, &t, &w);
+    let err = against_brute_force(&geo, &out, &p);
     eprintln!("head 512^2 x 64 vs brute force: {err:?}");
     for c in 0..3 {
         assert!(err.rel_rmse[c] <= 0.05, "channel {c}: {err:?}");

@@ -43,17 +43,8 @@ pub struct Contact {
 
 /// The connected piece of each triangle, with vertices welded by position; and the count.
 pub fn pieces(geo: &TexGeometry) -> (Vec<u32>, usize) {
-    let mut ids: HashMap<[u32; 3], u32> = HashMap::new();
-    let weld: Vec<u32> = geo
-        .positions
-        .iter()
-        .map(|p| {
-            let key = [p.x, p.y, p.z].map(|c| (c + 0.0).to_bits());
-            let next = ids.len() as u32;
-            *ids.entry(key).or_insert(next)
-        })
-        .collect();
-    let mut parent: Vec<u32> = (0..ids.len() as u32).collect();
+    let (weld, ids) = super::walk::weld(&geo.positions);
+    let mut parent: Vec<u32> = (0..ids as u32).collect();
     fn find(p: &mut [u32], mut i: u32) -> u32 {
         while p[i as usize] != i {
             p[i as usize] = p[p[i as usize] as usize];

@@ -102,6 +102,21 @@ pub struct SurfaceWalk {
     pub non_manifold_edges: usize,
 }
 
+/// One id per distinct position (bitwise; -0.0 and 0.0 are the same point) for each vertex,
+/// and the number of ids: vertices split along UV seams get the same id.
+pub fn weld(positions: &[Vec3]) -> (Vec<u32>, usize) {
+    let mut ids: HashMap<[u32; 3], u32> = HashMap::new();
+    let weld = positions
+        .iter()
+        .map(|p| {
+            let key = [p.x, p.y, p.z].map(|c| (c + 0.0).to_bits());
+            let next = ids.len() as u32;
+            *ids.entry(key).or_insert(next)
+        })
+        .collect();
+    (weld, ids.len())
+}
+
 /// 1 / l1 and 1 / y2 of a shape (0 for a degenerate one).
 fn inverses(shape: [f32; 3]) -> (f32, f32) {
     if shape[0] > 0.0 && shape[2] > 0.0 {
@@ -186,17 +201,7 @@ impl SurfaceWalk {
     /// Adjacency, frames and crossing maps of `geo`'s triangles (positions welded exactly).
     pub fn build(geo: &TexGeometry) -> SurfaceWalk {
         let nf = geo.size as f32;
-        // Weld: one id per distinct position (bitwise; -0.0 and 0.0 are the same point).
-        let mut ids: HashMap<[u32; 3], u32> = HashMap::new();
-        let weld: Vec<u32> = geo
-            .positions
-            .iter()
-            .map(|p| {
-                let key = [p.x, p.y, p.z].map(|c| (c + 0.0).to_bits());
-                let next = ids.len() as u32;
-                *ids.entry(key).or_insert(next)
-            })
-            .collect();
+        let (weld, _) = weld(&geo.positions);
         let mut tris: Vec<WalkTri> = geo
             .triangles
             .iter()
