@@ -20,7 +20,7 @@
 //! seam does not split a piece).
 
 use super::Profile;
-use super::texspace::{COVERED, TexGeometry};
+use super::texspace::{COVERED, Dsu, TexGeometry};
 use glam::Vec3;
 use rayon::prelude::*;
 use std::collections::HashMap;
@@ -44,40 +44,26 @@ pub struct Contact {
 /// The connected piece of each triangle, with vertices welded by position; and the count.
 pub fn pieces(geo: &TexGeometry) -> (Vec<u32>, usize) {
     let (weld, ids) = super::walk::weld(&geo.positions);
-    let mut parent: Vec<u32> = (0..ids as u32).collect();
-    fn find(p: &mut [u32], mut i: u32) -> u32 {
-        while p[i as usize] != i {
-            p[i as usize] = p[p[i as usize] as usize];
-            i = p[i as usize];
-        }
-        i
-    }
+    let mut sets = Dsu::new(ids);
     for t in &geo.triangles {
-        let a = find(&mut parent, weld[t[0] as usize]);
-        for &v in &t[1..] {
-            let b = find(&mut parent, weld[v as usize]);
-            if a != b {
-                let (lo, hi) = (a.min(b), a.max(b));
-                parent[hi as usize] = lo;
-            }
-        }
+        sets.union(weld[t[0] as usize] as usize, weld[t[1] as usize] as usize);
+        sets.union(weld[t[0] as usize] as usize, weld[t[2] as usize] as usize);
     }
     let mut label: HashMap<u32, u32> = HashMap::new();
     let of_tri: Vec<u32> = geo
         .triangles
         .iter()
         .map(|t| {
-            let root = find(&mut parent, weld[t[0] as usize]);
+            let root = sets.find(weld[t[0] as usize] as usize);
             let next = label.len() as u32;
-            *label.entry(root).or_insert(next)
+            *label.entry(root as u32).or_insert(next)
         })
         .collect();
     (of_tri, label.len())
 }
 
-/// sum over source texel j's area of Rd_c(|x - xo|) per channel (0 beyond the channel's
-/// radius): the texel's centre, or 4 x 4 points of its parallelogram when it is within three
-/// texel sides (Rd peaks as 1/r there).
+/// Source texel j's factor per channel: [`Profile::rd_over_texel`] from receiver `po`, 0
+/// beyond the channel's sampling radius.
 fn source_factor(
     geo: &TexGeometry,
     profile: &Profile,
@@ -86,30 +72,24 @@ fn source_factor(
     j: usize,
     area: f32,
 ) -> [f32; 3] {
-    let nf = geo.size as f32;
-    let pj = Vec3::from_slice(&geo.pos[j][..3]);
-    let ea = Vec3::from_slice(&geo.dpdu[j][..3]) / nf;
-    let eb = Vec3::from_slice(&geo.dpdv[j][..3]) / nf;
-    let d = (pj - po).length();
-    let h = ea.length().max(eb.length());
-    let mut f = [0f64; 3];
-    if d < 3.0 * h {
-        for s in 0..4 {
-            for t in 0..4 {
-                let p =
-                    pj + ea * ((s as f32 + 0.5) / 4.0 - 0.5) + eb * ((t as f32 + 0.5) / 4.0 - 0.5);
-                let r = (p - po).length().max(1e-6) as f64;
-                for (c, fc) in f.iter_mut().enumerate() {
-                    *fc += profile.rd(c, r) * area as f64 / 16.0;
-                }
-            }
+    let nf = geo.size as f64;
+    let v = |a: &[f32; 4]| Vec3::from_slice(&a[..3]).as_dvec3();
+    let pj = v(&geo.pos[j]);
+    let f = profile.rd_over_texel(
+        po.as_dvec3(),
+        pj,
+        v(&geo.dpdu[j]) / nf,
+        v(&geo.dpdv[j]) / nf,
+        area as f64,
+    );
+    let d = (pj - po.as_dvec3()).length();
+    [0, 1, 2].map(|c| {
+        if d <= radius[c] as f64 {
+            f[c] as f32
+        } else {
+            0.0
         }
-    } else {
-        for (c, fc) in f.iter_mut().enumerate() {
-            *fc = profile.rd(c, d as f64) * area as f64;
-        }
-    }
-    [0, 1, 2].map(|c| if d <= radius[c] { f[c] as f32 } else { 0.0 })
+    })
 }
 
 impl Contact {

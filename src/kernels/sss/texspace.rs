@@ -147,9 +147,14 @@ fn raster(t: [DVec2; 3], n: u32, mut out: impl FnMut(usize, [f64; 3])) {
     }
 }
 
-struct Dsu(Vec<usize>);
+/// Disjoint sets (union-find with path compression) over 0..n.
+pub(crate) struct Dsu(pub(crate) Vec<usize>);
 impl Dsu {
-    fn find(&mut self, i: usize) -> usize {
+    pub(crate) fn new(n: usize) -> Dsu {
+        Dsu((0..n).collect())
+    }
+
+    pub(crate) fn find(&mut self, i: usize) -> usize {
         let mut r = i;
         while self.0[r] != r {
             r = self.0[r];
@@ -162,7 +167,7 @@ impl Dsu {
         }
         r
     }
-    fn union(&mut self, a: usize, b: usize) {
+    pub(crate) fn union(&mut self, a: usize, b: usize) {
         let (a, b) = (self.find(a), self.find(b));
         if a != b {
             self.0[a.max(b)] = a.min(b);
@@ -212,7 +217,7 @@ impl TexGeometry {
             *s = if a > 0.0 { 1 } else { -1 };
         }
         // Charts: triangles sharing a vertex (same index => same UV) with the same winding.
-        let mut dsu = Dsu((0..nt).collect());
+        let mut dsu = Dsu::new(nt);
         let mut first_of: HashMap<(u32, i8), usize> = HashMap::new();
         for (t, tri) in mesh.triangles.iter().enumerate() {
             for &v in tri {
