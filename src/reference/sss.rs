@@ -117,27 +117,12 @@ pub fn brute_force_where(
                                 continue;
                             }
                             let (ea, eb) = sources.edges[j];
-                            let h = ea.length().max(eb.length());
+                            let f =
+                                profile.rd_over_texel(xo, sources.pos[j], ea, eb, sources.area[j]);
                             let e = sources.e[j];
-                            if r < 3.0 * h {
-                                // 4 x 4 sub-samples of the texel parallelogram.
-                                for s in 0..4 {
-                                    for t in 0..4 {
-                                        let fs = (s as f64 + 0.5) / 4.0 - 0.5;
-                                        let ft = (t as f64 + 0.5) / 4.0 - 0.5;
-                                        let p = sources.pos[j] + ea * fs + eb * ft;
-                                        let rr = (p - xo).length();
-                                        let a = sources.area[j] / 16.0;
-                                        for c in 0..3 {
-                                            b[c] += profile.rd(c, rr) * e[c] * a;
-                                        }
-                                    }
-                                }
-                            } else {
-                                for c in 0..3 {
-                                    if r <= radius[c] {
-                                        b[c] += profile.rd(c, r) * e[c] * sources.area[j];
-                                    }
+                            for c in 0..3 {
+                                if r <= radius[c] {
+                                    b[c] += f[c] * e[c];
                                 }
                             }
                         }

@@ -245,6 +245,40 @@ pub struct Profile {
 }
 
 impl Profile {
+    /// The integral of Rd_c(|x - xo|) over a source texel (centre `centre`, edge vectors
+    /// `ea`, `eb`, area `area`), per channel: the centre's value times the area, or 4 x 4
+    /// points of the texel's parallelogram when it lies within three texel sides of `xo`
+    /// (Rd peaks as 1/r there). The brute-force truth and the contact sums integrate alike.
+    pub fn rd_over_texel(
+        &self,
+        xo: glam::DVec3,
+        centre: glam::DVec3,
+        ea: glam::DVec3,
+        eb: glam::DVec3,
+        area: f64,
+    ) -> [f64; 3] {
+        let r = (centre - xo).length();
+        let h = ea.length().max(eb.length());
+        let mut f = [0f64; 3];
+        if r < 3.0 * h {
+            for s in 0..4 {
+                for t in 0..4 {
+                    let fs = (s as f64 + 0.5) / 4.0 - 0.5;
+                    let ft = (t as f64 + 0.5) / 4.0 - 0.5;
+                    let rr = (centre + ea * fs + eb * ft - xo).length();
+                    for (c, fc) in f.iter_mut().enumerate() {
+                        *fc += self.rd(c, rr) * area / 16.0;
+                    }
+                }
+            }
+        } else {
+            for (c, fc) in f.iter_mut().enumerate() {
+                *fc = self.rd(c, r) * area;
+            }
+        }
+        f
+    }
+
     /// The profile of `material` truncated at the radius holding `energy` (0.5..1) of each
     /// channel's reflectance.
     pub fn new(kind: ProfileKind, material: Material, energy: f64) -> Result<Profile> {
