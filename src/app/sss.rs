@@ -416,14 +416,17 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
     let bvh = Bvh::build(&geo.positions, &geo.triangles);
     let cpu_e = cpu::irradiance(&geo, &bvh, &lights, params.shadow_refine);
     let cpu_ms_irradiance = t.elapsed().as_secs_f64() * 1e3;
+    // The walk maps and contact sums of the last pose, built once for every CPU diffusion
+    // below (the kernel built its own with the geometry upload).
+    let dg = cpu::DiffusionGeometry::build(&geo, &profile);
     let t = Instant::now();
-    let cpu_b = cpu::diffusion(&geo, &profile, &cpu_e, &params);
+    let cpu_b = cpu::diffusion_with(&dg, &geo, &profile, &cpu_e, &params);
     let cpu_ms_diffusion = t.elapsed().as_secs_f64() * 1e3;
     let cpu_t = cpu::transmission(&geo, &bvh, &lights, &profile);
     let twin = TwinError::of(&geo, &gpu, &cpu_e, &cpu_b, &cpu_t);
     let shadowing = {
         let e_ray = cpu::irradiance_per_texel_rays(&geo, &bvh, &lights);
-        let b_ray = cpu::diffusion(&geo, &profile, &e_ray, &params);
+        let b_ray = cpu::diffusion_with(&dg, &geo, &profile, &e_ray, &params);
         let w: Vec<f64> = (0..geo.texels())
             .map(|i| {
                 if geo.pos[i][3] == COVERED {
@@ -516,7 +519,6 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
         };
         // The same pattern on the CPU: which texels have samples leaving their triangle by
         // a seam or an open edge, and the contact term alone.
-        let dg = cpu::DiffusionGeometry::build(&geo, &profile);
         let pattern = cpu::sample_pattern(&profile, params.samples);
         let near_seam: Vec<bool> = covered
             .iter()

@@ -474,7 +474,7 @@ impl SssKernel {
         geo: &TexGeometry,
         dg: &DiffusionGeometry,
     ) -> Result<()> {
-        check_geometry(geo)?;
+        // (the geometry was checked by the caller, before anything was built from it)
         let records = dg.walk.records();
         if records.len() != self.walk_records {
             return Err(Error::InvalidArgument(format!(

@@ -22,8 +22,8 @@
 //!
 //! Adjacency is found from 3D positions (vertices are welded by position, since meshes split
 //! vertices along UV seams), so seams of the layout and of the overlap repair are crossed
-//! like any other edge. [`SurfaceWalk::walk`] follows an offset across any number of
-//! triangles (a reference: the tests check the one-crossing maps against it).
+//! like any other edge. The unit tests check the one-crossing maps against a walk across any
+//! number of triangles.
 //!
 //! The arithmetic is f32 and written as the shader does it (`glsl/common/sss_diffusion.glsl`).
 
@@ -35,8 +35,6 @@ use std::collections::HashMap;
 pub const OPEN: u32 = u32::MAX;
 /// Neighbour code: the edge is shared by more than two triangles (not crossed).
 pub const NON_MANIFOLD: u32 = u32::MAX - 1;
-/// Triangles [`SurfaceWalk::walk`] may cross before it gives up.
-pub const MAX_STEPS: u32 = 64;
 /// Texels per triangle record in [`SurfaceWalk::records`].
 pub const RECORD_TEXELS: usize = 9;
 
@@ -76,19 +74,6 @@ pub enum Landing {
     /// Past an open border: no surface there (no light).
     Off,
     /// Not followed (a non-manifold edge or a degenerate triangle).
-    Lost,
-}
-
-/// Where [`SurfaceWalk::walk`] ends.
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum WalkEnd {
-    /// On triangle `tri` at barycentrics (1 - b1 - b2, b1, b2).
-    Surface {
-        tri: u32,
-        b1: f32,
-        b2: f32,
-    },
-    Off,
     Lost,
 }
 
@@ -326,70 +311,6 @@ impl SurfaceWalk {
             })
     }
 
-    /// Follows the offset `v` (mm, in the frame of `tri`) from barycentrics (w1, w2) across
-    /// as many triangles as it takes (a reference for [`TexelSampler::land`], which follows
-    /// one crossing).
-    pub fn walk(&self, mut tri: u32, w1: f32, w2: f32, mut v: Vec2) -> WalkEnd {
-        let [l1, x2, y2] = self.tris[tri as usize].shape;
-        let mut p = Vec2::new(w1 * l1 + w2 * x2, w2 * y2);
-        for _ in 0..MAX_STEPS {
-            let t = &self.tris[tri as usize];
-            let x2 = t.shape[1];
-            let (il1, iy2) = inverses(t.shape);
-            if !(il1 > 0.0 && iy2 > 0.0) {
-                return WalkEnd::Lost;
-            }
-            let b2 = p.y * iy2;
-            let b1 = (p.x - x2 * b2) * il1;
-            let b = [1.0 - b1 - b2, b1, b2];
-            let d2 = v.y * iy2;
-            let d1 = (v.x - x2 * d2) * il1;
-            let d = [-(d1 + d2), d1, d2];
-            let mut s = 1.0f32;
-            let mut exit = 3usize;
-            for k in 0..3 {
-                if d[k] < 0.0 {
-                    let sk = b[k].max(0.0) / -d[k];
-                    if sk < s {
-                        s = sk;
-                        exit = k;
-                    }
-                }
-            }
-            if exit == 3 {
-                let q = p + v;
-                let b2 = q.y * iy2;
-                let b1 = (q.x - x2 * b2) * il1;
-                return WalkEnd::Surface { tri, b1, b2 };
-            }
-            let nb = t.nbr[exit];
-            if nb == OPEN {
-                return WalkEnd::Off;
-            }
-            if nb == NON_MANIFOLD {
-                return WalkEnd::Lost;
-            }
-            let flip = t.flip >> exit & 1 == 1;
-            p = apply(t.map[exit], flip, p + v * s, true);
-            v = apply(t.map[exit], flip, v * (1.0 - s), false);
-            tri = nb;
-        }
-        WalkEnd::Lost
-    }
-
-    /// The atlas position (texel units, centres at integers) of barycentrics (b1, b2) of
-    /// triangle `tri`.
-    pub fn atlas(&self, tri: u32, b1: f32, b2: f32) -> Vec2 {
-        let t = &self.tris[tri as usize];
-        t.uv[0] + (t.uv[1] - t.uv[0]) * b1 + (t.uv[2] - t.uv[0]) * b2
-    }
-
-    /// The 3D point at barycentrics (b1, b2) of triangle `tri`.
-    pub fn point(&self, tri: u32, b1: f32, b2: f32) -> Vec3 {
-        let p = self.tris[tri as usize].p;
-        p[0] + (p[1] - p[0]) * b1 + (p[2] - p[0]) * b2
-    }
-
     /// The records the shader reads, [`RECORD_TEXELS`] RGBA32UI texels per triangle:
     /// (1 / l1, x2, 1 / y2, edge kinds: 2 bits per edge), (uv0, uv1 - uv0), (uv2 - uv0, 0, 0),
     /// then per edge the crossing map (V row-major), (s, 0, 0); floats as bits.
@@ -463,6 +384,12 @@ impl TexelSampler<'_> {
     /// The edge of the receiver's triangle that the pattern offset (ux, uy) leaves by; None
     /// when it stays in the triangle.
     pub fn exit(&self, ux: f32, uy: f32) -> Option<usize> {
+        self.step(ux, uy).0
+    }
+
+    /// The exit edge (if any) and the end point's barycentrics (b1, b2) in the receiver's
+    /// triangle (the shader's arithmetic).
+    fn step(&self, ux: f32, uy: f32) -> (Option<usize>, f32, f32) {
         let [a, b, c, d] = self.rate;
         let d2 = a * ux + b * uy;
         let d1 = c * ux + d * uy;
@@ -471,32 +398,33 @@ impl TexelSampler<'_> {
         let b2 = w2 + d2;
         let b0 = 1.0 - b1 - b2;
         if b0.min(b1).min(b2) >= 0.0 {
-            return None;
+            return (None, b1, b2);
         }
+        // The first edge whose barycentric reaches 0 along the way. Barycentrics are linear
+        // along the offset, so it is one the end point lies beyond (b_k < 0); of two such,
+        // edge i comes first when w_i / -d_i < w_j / -d_j, i.e. w_i d_j > w_j d_i.
         let d0 = -(d1 + d2);
-        Some(
+        let exit =
             if b0 < 0.0 && (b1 >= 0.0 || w0 * d1 > w1 * d0) && (b2 >= 0.0 || w0 * d2 > w2 * d0) {
                 0
             } else if b1 < 0.0 && (b2 >= 0.0 || w1 * d2 > w2 * d1) {
                 1
             } else {
                 2
-            },
-        )
+            };
+        (Some(exit), b1, b2)
     }
 
     /// Where the pattern offset (ux, uy) (mm, before the receiver's rotation) lands.
     pub fn land(&self, ux: f32, uy: f32) -> Landing {
-        let Some(exit) = self.exit(ux, uy) else {
+        let (exit, b1, b2) = self.step(ux, uy);
+        let Some(exit) = exit else {
             return Landing::Atlas(self.uvt + self.ux * ux + self.uy * uy);
         };
         match self.walk.edge_kind(self.tri, exit) {
             EDGE_OPEN => Landing::Off,
             EDGE_LOST => Landing::Lost,
             _ => {
-                let [a, b, c, d] = self.rate;
-                let b2 = self.w[2] + (a * ux + b * uy);
-                let b1 = self.w[1] + (c * ux + d * uy);
                 let t = &self.walk.tris[self.tri as usize];
                 let v = t.cross_v[exit];
                 let s = t.cross_s[exit];
@@ -514,6 +442,90 @@ mod tests {
     use super::*;
     use crate::scene::Mesh;
     use crate::scene::mesh::MeshData;
+
+    /// Triangles [`SurfaceWalk::walk`] may cross before it gives up.
+    const MAX_STEPS: u32 = 64;
+
+    /// Where [`SurfaceWalk::walk`] ends.
+    #[derive(Clone, Copy, Debug, PartialEq)]
+    enum WalkEnd {
+        /// On triangle `tri` at barycentrics (1 - b1 - b2, b1, b2).
+        Surface {
+            tri: u32,
+            b1: f32,
+            b2: f32,
+        },
+        Off,
+        Lost,
+    }
+
+    /// The reference the one-crossing sampler is checked against: a walk across as many
+    /// triangles as it takes.
+    impl SurfaceWalk {
+        /// Follows the offset `v` (mm, in the frame of `tri`) from barycentrics (w1, w2) across
+        /// as many triangles as it takes (a reference for [`TexelSampler::land`], which follows
+        /// one crossing).
+        fn walk(&self, mut tri: u32, w1: f32, w2: f32, mut v: Vec2) -> WalkEnd {
+            let [l1, x2, y2] = self.tris[tri as usize].shape;
+            let mut p = Vec2::new(w1 * l1 + w2 * x2, w2 * y2);
+            for _ in 0..MAX_STEPS {
+                let t = &self.tris[tri as usize];
+                let x2 = t.shape[1];
+                let (il1, iy2) = inverses(t.shape);
+                if !(il1 > 0.0 && iy2 > 0.0) {
+                    return WalkEnd::Lost;
+                }
+                let b2 = p.y * iy2;
+                let b1 = (p.x - x2 * b2) * il1;
+                let b = [1.0 - b1 - b2, b1, b2];
+                let d2 = v.y * iy2;
+                let d1 = (v.x - x2 * d2) * il1;
+                let d = [-(d1 + d2), d1, d2];
+                let mut s = 1.0f32;
+                let mut exit = 3usize;
+                for k in 0..3 {
+                    if d[k] < 0.0 {
+                        let sk = b[k].max(0.0) / -d[k];
+                        if sk < s {
+                            s = sk;
+                            exit = k;
+                        }
+                    }
+                }
+                if exit == 3 {
+                    let q = p + v;
+                    let b2 = q.y * iy2;
+                    let b1 = (q.x - x2 * b2) * il1;
+                    return WalkEnd::Surface { tri, b1, b2 };
+                }
+                let nb = t.nbr[exit];
+                if nb == OPEN {
+                    return WalkEnd::Off;
+                }
+                if nb == NON_MANIFOLD {
+                    return WalkEnd::Lost;
+                }
+                let flip = t.flip >> exit & 1 == 1;
+                p = apply(t.map[exit], flip, p + v * s, true);
+                v = apply(t.map[exit], flip, v * (1.0 - s), false);
+                tri = nb;
+            }
+            WalkEnd::Lost
+        }
+
+        /// The atlas position (texel units, centres at integers) of barycentrics (b1, b2) of
+        /// triangle `tri`.
+        fn atlas(&self, tri: u32, b1: f32, b2: f32) -> Vec2 {
+            let t = &self.tris[tri as usize];
+            t.uv[0] + (t.uv[1] - t.uv[0]) * b1 + (t.uv[2] - t.uv[0]) * b2
+        }
+
+        /// The 3D point at barycentrics (b1, b2) of triangle `tri`.
+        fn point(&self, tri: u32, b1: f32, b2: f32) -> Vec3 {
+            let p = self.tris[tri as usize].p;
+            p[0] + (p[1] - p[0]) * b1 + (p[2] - p[0]) * b2
+        }
+    }
 
     /// Two 10 x 10 mm squares side by side (x in [0, 10] and [10, 20]), the second bent about
     /// x = 10 by `bend` radians (rising in z), its vertices duplicated along the shared edge;
