@@ -76,12 +76,8 @@ fn run(
     let k = BtfKernel::new(
         &mut rec,
         &BtfInputs {
-            btf,
-            maps,
-            gbuffer,
             layout,
-            texture,
-            layer_cap: None,
+            ..BtfInputs::new(btf, maps, gbuffer, texture)
         },
     )?;
     k.record(&mut rec, frame)?;
@@ -108,12 +104,9 @@ fn packing_round_trips_through_the_array_textures() {
             let k = BtfKernel::new(
                 &mut rec,
                 &BtfInputs {
-                    btf,
-                    maps: &maps,
-                    gbuffer: &gbuffer,
                     layout,
-                    texture: Texture::Rgba8,
                     layer_cap: cap,
+                    ..BtfInputs::new(btf, &maps, &gbuffer, Texture::Rgba8)
                 },
             )?;
             let p = k.packing();
@@ -152,12 +145,9 @@ fn packing_round_trips_through_the_array_textures() {
         let k = BtfKernel::new(
             &mut rec,
             &BtfInputs {
-                btf,
-                maps: &maps,
-                gbuffer: &gbuffer,
                 layout: Layout::Layers,
-                texture: Texture::Bc1,
                 layer_cap: Some(1700),
+                ..BtfInputs::new(btf, &maps, &gbuffer, Texture::Bc1)
             },
         )?;
         let back = read_back_arrays(rec, &k)?;
@@ -171,14 +161,7 @@ fn packing_round_trips_through_the_array_textures() {
         let mut rec = ctx.recorder("btf packing bc1 rows")?;
         let k = BtfKernel::new(
             &mut rec,
-            &BtfInputs {
-                btf,
-                maps: &maps,
-                gbuffer: &gbuffer,
-                layout: Layout::Rows,
-                texture: Texture::Bc1,
-                layer_cap: None,
-            },
+            &BtfInputs::new(btf, &maps, &gbuffer, Texture::Bc1),
         )?;
         let p = k.packing();
         assert_eq!((p.gutter, p.layer_extent), (4, [81 * 16, 8]));
@@ -203,14 +186,7 @@ fn packing_round_trips_through_the_array_textures() {
         let mut rec = ctx.recorder("btf packing block")?;
         let k = BtfKernel::new(
             &mut rec,
-            &BtfInputs {
-                btf,
-                maps: &maps,
-                gbuffer: &gbuffer,
-                layout: Layout::Rows,
-                texture: Texture::Block,
-                layer_cap: None,
-            },
+            &BtfInputs::new(btf, &maps, &gbuffer, Texture::Block),
         )?;
         let p = k.packing();
         // An 8 x 8 tile takes 3 x 3 blocks.
@@ -233,12 +209,8 @@ fn packing_round_trips_through_the_array_textures() {
         let e = BtfKernel::new(
             &mut rec,
             &BtfInputs {
-                btf,
-                maps: &maps,
-                gbuffer: &gbuffer,
                 layout: Layout::Layers,
-                texture: Texture::Block,
-                layer_cap: None,
+                ..BtfInputs::new(btf, &maps, &gbuffer, Texture::Block)
             },
         )
         .err()
@@ -253,12 +225,8 @@ fn packing_round_trips_through_the_array_textures() {
         let e = BtfKernel::new(
             &mut rec,
             &BtfInputs {
-                btf,
-                maps: &maps,
-                gbuffer: &gbuffer,
                 layout: Layout::Layers,
-                texture: Texture::Bc1,
-                layer_cap: None,
+                ..BtfInputs::new(btf, &maps, &gbuffer, Texture::Bc1)
             },
         )
         .err()
@@ -525,40 +493,23 @@ fn bad_kernel_inputs_are_errors() {
         };
         let r = BtfKernel::new(
             &mut rec,
-            &BtfInputs {
-                btf: &short,
-                maps: &maps,
-                gbuffer: &gbuffer,
-                layout: Layout::Rows,
-                texture: Texture::Rgba8,
-                layer_cap: None,
-            },
+            &BtfInputs::new(&short, &maps, &gbuffer, Texture::Rgba8),
         );
         assert!(r.is_err());
         // A layer cap needing more than the shader's four arrays is a limit error.
         let r = BtfKernel::new(
             &mut rec,
             &BtfInputs {
-                btf,
-                maps: &maps,
-                gbuffer: &gbuffer,
                 layout: Layout::Layers,
-                texture: Texture::Rgba8,
                 layer_cap: Some(1000),
+                ..BtfInputs::new(btf, &maps, &gbuffer, Texture::Rgba8)
             },
         );
         let e = r.err().expect("7 arrays accepted").to_string();
         assert!(e.contains("maxImageArrayLayers"), "{e}");
         let k = BtfKernel::new(
             &mut rec,
-            &BtfInputs {
-                btf,
-                maps: &maps,
-                gbuffer: &gbuffer,
-                layout: Layout::Rows,
-                texture: Texture::Rgba8,
-                layer_cap: None,
-            },
+            &BtfInputs::new(btf, &maps, &gbuffer, Texture::Rgba8),
         )?;
         let mut f = frame();
         f.lights.push(f.lights[0]);

@@ -134,17 +134,7 @@ pub fn eval_command(
         }],
     };
     let mut rec = ctx.recorder("btf eval")?;
-    let kernel = BtfKernel::new(
-        &mut rec,
-        &BtfInputs {
-            btf: &btf,
-            maps: &maps,
-            gbuffer: &gb,
-            layout: texture.default_layout(),
-            texture,
-            layer_cap: None,
-        },
-    )?;
+    let kernel = BtfKernel::new(&mut rec, &BtfInputs::new(&btf, &maps, &gb, texture))?;
     kernel.record(&mut rec, &frame)?;
     let rb = kernel.read_back(&mut rec)?;
     let t = rec.submit_and_wait()?;
@@ -341,12 +331,8 @@ pub fn render(
     let kernel = BtfKernel::new(
         &mut rec,
         &BtfInputs {
-            btf: &btf,
-            maps: &maps,
-            gbuffer: &gb,
             layout: cfg.layout,
-            texture: cfg.texture,
-            layer_cap: None,
+            ..BtfInputs::new(&btf, &maps, &gb, cfg.texture)
         },
     )?;
     kernel.record(&mut rec, &frame)?;

@@ -186,12 +186,8 @@ fn measure(
     let kernel = BtfKernel::new(
         &mut rec,
         &BtfInputs {
-            btf,
-            maps: &setup.maps,
-            gbuffer: &setup.gb,
             layout,
-            texture,
-            layer_cap: None,
+            ..BtfInputs::new(btf, &setup.maps, &setup.gb, texture)
         },
     )?;
     rec.submit_and_wait()?;

@@ -407,6 +407,20 @@ pub struct BtfInputs<'a> {
     pub layer_cap: Option<u32>,
 }
 
+impl<'a> BtfInputs<'a> {
+    /// `texture` texels in their default layout, within the device's layer limit.
+    pub fn new(btf: &'a Btf, maps: &'a Maps, gbuffer: &'a GBuffer, texture: Texture) -> Self {
+        BtfInputs {
+            btf,
+            maps,
+            gbuffer,
+            layout: texture.default_layout(),
+            texture,
+            layer_cap: None,
+        }
+    }
+}
+
 /// Host copy of one frame: linear RGBA per pixel (alpha 0 where the G-buffer is empty).
 pub type BtfOutput = Vec<[f32; 4]>;
 
