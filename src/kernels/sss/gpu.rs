@@ -235,8 +235,9 @@ fn start_texels(geo: &TexGeometry, contact: &Contact) -> Result<Vec<[u32; 4]>> {
         .collect())
 }
 
-fn r32f(size: [u32; 2]) -> ImageDesc {
-    ImageDesc::d2(vk::Format::R32_SFLOAT, size).usage(
+/// A float storage image the host can fill and read back.
+fn float_image(format: vk::Format, size: [u32; 2]) -> ImageDesc {
+    ImageDesc::d2(format, size).usage(
         vk::ImageUsageFlags::STORAGE
             | vk::ImageUsageFlags::TRANSFER_DST
             | vk::ImageUsageFlags::TRANSFER_SRC,
@@ -244,11 +245,7 @@ fn r32f(size: [u32; 2]) -> ImageDesc {
 }
 
 fn rgba32f(size: [u32; 2]) -> ImageDesc {
-    ImageDesc::d2(vk::Format::R32G32B32A32_SFLOAT, size).usage(
-        vk::ImageUsageFlags::STORAGE
-            | vk::ImageUsageFlags::TRANSFER_DST
-            | vk::ImageUsageFlags::TRANSFER_SRC,
-    )
+    float_image(vk::Format::R32G32B32A32_SFLOAT, size)
 }
 
 impl SssKernel {
@@ -324,7 +321,7 @@ impl SssKernel {
         let vtrans = Image::new(&ctx, "sss vertex transmission", rgba32f(vsz))?;
         let irr = Image::new(&ctx, "sss irradiance", rgba32f(sz))?;
         let trans = Image::new(&ctx, "sss transmission", rgba32f(sz))?;
-        let pe = Image::new(&ctx, "sss grey E", r32f(sz))?;
+        let pe = Image::new(&ctx, "sss grey E", float_image(vk::Format::R32_SFLOAT, sz))?;
         let diffuse = Buffer::new(&ctx, "sss diffuse", BufferDesc::storage(texels * 16))?;
         let all_tiles = (geo.size as u64).div_ceil(8) * geo.size as u64;
         let tiles = Buffer::new(&ctx, "sss tiles", BufferDesc::storage(all_tiles * 4))?;
