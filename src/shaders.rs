@@ -30,6 +30,12 @@ pub fn spirv(name: &str) -> Result<&'static [u8]> {
         })
 }
 
+/// The compute pipeline of the embedded module `name` (e.g. `"srbf/shade"`), its bindings
+/// and push constants reflected; the pipeline carries `name` as its debug name.
+pub fn pipeline(ctx: &crate::gpu::Context, name: &str) -> Result<crate::gpu::ComputePipeline> {
+    crate::gpu::ComputePipeline::from_spirv(ctx, name, spirv(name)?)
+}
+
 /// shaderc settings shared by the build tool and the freshness check.
 fn options<'a>(
     root: &Path,

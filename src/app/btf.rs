@@ -2,6 +2,7 @@
 //! the GPU path, and cloth-covered objects with (optionally) the CPU interpolation and the
 //! direct ray-cast as references.
 
+use crate::bench::time_passes;
 use crate::error::{Error, Result};
 use crate::gpu::Context;
 use crate::io::FloatImage;
@@ -13,7 +14,6 @@ use crate::kernels::btf::gpu::{
 };
 use crate::kernels::btf::load;
 use crate::kernels::btf::synth::{self, FileFormat, Pattern, SynthConfig, srgb_encode};
-use crate::kernels::shape::time_passes;
 use crate::kernels::{Kernel, KernelInfo};
 use crate::report::MachineInfo;
 use glam::Vec3;

@@ -179,7 +179,7 @@ fn measure(
         kernel.set_correction(&mut setup, f)?;
     }
     setup.submit_and_wait()?;
-    let passes = crate::kernels::shape::time_passes(ctx, cfg, &kernel, matrices)?;
+    let passes = super::time_passes(ctx, cfg, &kernel, matrices)?;
     let pass = |name: &str| {
         passes
             .iter()

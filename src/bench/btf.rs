@@ -8,6 +8,7 @@
 //! the real ones.
 
 use super::{BenchConfig, MachineInfo, Stats, time_cpu, time_gpu};
+use crate::bench::time_passes;
 use crate::error::{Error, Result};
 use crate::gpu::{
     AccessSet, AccessType as A, Buffer, BufferDesc, ComputePipeline, Context, Image, ImageDesc,
@@ -18,7 +19,6 @@ use crate::kernels::btf::dirs::{self, Maps, Triangulation};
 use crate::kernels::btf::gbuffer::{Camera, EYE, Frame, GBuffer, Light, Object, render_object};
 use crate::kernels::btf::gpu::{BtfInputs, BtfKernel, FORMAT, Layout, Packing, Sampled, Texture};
 use crate::kernels::btf::synth::Btf;
-use crate::kernels::shape::time_passes;
 use glam::Vec3;
 use serde::Serialize;
 

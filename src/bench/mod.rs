@@ -46,6 +46,19 @@ pub fn time_gpu(
     Ok(time_gpu_passes(ctx, cfg, &[pass], record)?.remove(0))
 }
 
+/// GPU time of each of `kernel`'s passes over `warmup + samples` submissions of one frame
+/// (median and spread in each [`Stats`]), in the order of [`crate::kernels::Kernel::passes`].
+pub fn time_passes<K: crate::kernels::Kernel>(
+    ctx: &Context,
+    cfg: &BenchConfig,
+    kernel: &K,
+    input: &K::Input,
+) -> Result<Vec<(&'static str, Stats)>> {
+    let names: Vec<&'static str> = kernel.passes().iter().map(|p| p.name).collect();
+    let stats = time_gpu_passes(ctx, cfg, &names, |rec| kernel.record(rec, input))?;
+    Ok(names.into_iter().zip(stats).collect())
+}
+
 /// As [`time_gpu`], for several passes of the same submissions (one `Stats` per pass, in
 /// the order of `passes`).
 pub fn time_gpu_passes(

@@ -5,9 +5,11 @@
 //! Blender studio light.
 
 use super::{BenchConfig, MachineInfo, Stats, time_cpu};
+use crate::bench::time_passes;
 use crate::error::Result;
 use crate::geom::Rng;
 use crate::gpu::Context;
+use crate::kernels::Kernel;
 use crate::kernels::srbf::cpca::{Cpca, CpcaConfig};
 use crate::kernels::srbf::diffuse_transfer;
 use crate::kernels::srbf::fit::{FitConfig, fit};
@@ -17,7 +19,6 @@ use crate::kernels::srbf::gpu::{
 };
 use crate::kernels::srbf::sg::{self, Lobe};
 use crate::kernels::srbf::transfer::Basis;
-use crate::kernels::{Kernel, shape::time_passes};
 use crate::reference::srbf::{mesh_visibility, shade_brute_force};
 use crate::scene::envmap::EnvMap;
 use glam::Vec3;

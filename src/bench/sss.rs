@@ -5,15 +5,16 @@
 //! run, and the speed-up over the same sampler on the CPU and over the brute force.
 
 use super::{BenchConfig, MachineInfo, Stats, time_cpu};
+use crate::bench::time_passes;
 use crate::error::Result;
 use crate::geom::bvh::Bvh;
 use crate::gpu::Context;
+use crate::kernels::Kernel;
 use crate::kernels::sss::cpu::{self, Light, SamplerParams};
 use crate::kernels::sss::gpu::{PASS_DIFFUSION, PASS_IRRADIANCE, PASS_VERTEX};
 use crate::kernels::sss::load_mesh;
 use crate::kernels::sss::texspace::COVERED;
 use crate::kernels::sss::{Material, Profile, ProfileKind, SssKernel, TexGeometry};
-use crate::kernels::{Kernel, shape::time_passes};
 use crate::reference::sss::{ChannelError, Sources, brute_force};
 use glam::{DVec3, Vec3};
 use serde::Serialize;

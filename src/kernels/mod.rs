@@ -3,11 +3,14 @@
 
 pub mod ao;
 pub mod btf;
-pub mod shape;
+pub mod contract;
 pub mod srbf;
 pub mod sss;
 
-pub use shape::{FrameResult, Kernel, KernelInfo, PassInfo, UseInfo, record_as_graph, run_frames};
+pub use contract::{
+    Dispatch, FrameResult, Grid, Kernel, KernelInfo, Pass, PassInfo, Step, UseInfo,
+    record_as_graph, run_frames,
+};
 
 /// A GLSL include generated from Rust: (path under glsl/, generator of its text).
 pub type GeneratedInclude = (&'static str, fn() -> String);

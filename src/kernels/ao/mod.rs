@@ -14,10 +14,10 @@ pub use registry::{DEFAULT_ANIMATION, DEFAULT_MESH, GENERATED_INCLUDES};
 
 use crate::error::{Error, Result};
 use crate::gpu::{
-    AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context,
-    PlannedBarrier, Readback, Recorder, Resource, Use,
+    AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context, Readback,
+    Recorder, Resource,
 };
-use crate::kernels::{Kernel, PassInfo, UseInfo};
+use crate::kernels::{Dispatch, Grid, Kernel, Pass};
 use crate::scene::{Mesh, SphereTree};
 use ash::vk;
 use formula::{OcclusionTable, TABLE_SIZE};
@@ -560,10 +560,7 @@ impl AoKernel {
     /// tracking (or are planned by the caller, see [`Kernel::plan_pass`]). The matrices are
     /// staged through the context's ring, so frames in flight never overwrite each other's.
     pub fn record(&self, rec: &mut Recorder, matrices: &[Mat4]) -> Result<()> {
-        for pass in 0..3 {
-            self.record_pass(rec, pass, matrices)?;
-        }
-        Ok(())
+        Kernel::record(self, rec, matrices)
     }
 
     fn check_matrices(&self, matrices: &[Mat4]) -> Result<()> {
@@ -582,63 +579,46 @@ impl AoKernel {
         Ok(())
     }
 
-    /// Records pass `pass` (0 joints, 1 skin, 2 occlusion) in its labelled, timed pass.
-    pub fn record_pass(&self, rec: &mut Recorder, pass: usize, matrices: &[Mat4]) -> Result<()> {
-        if pass == 0 {
-            self.check_matrices(matrices)?;
-        }
-        let name = [PASS_JOINTS, PASS_SKIN, PASS_OCCLUSION]
-            .get(pass)
-            .ok_or_else(|| Error::InvalidArgument(format!("AO has 3 passes, not {}", pass + 1)))?;
-        rec.begin_pass(name);
-        let r = match pass {
-            0 => {
-                let cols: Vec<[f32; 16]> = matrices.iter().map(|m| m.to_cols_array()).collect();
-                rec.upload(&self.joints, 0, &cols)
-            }
-            1 => self.record_skin_dispatch(rec),
-            _ => self.record_occlusion(rec),
-        };
-        rec.end_pass();
-        r
+    fn joint_bytes(&self, matrices: &[Mat4]) -> Result<Vec<u8>> {
+        let cols: Vec<[f32; 16]> = matrices.iter().map(|m| m.to_cols_array()).collect();
+        Ok(bytemuck::cast_slice(&cols).to_vec())
     }
 
-    fn record_skin_dispatch(&self, rec: &mut Recorder) -> Result<()> {
+    fn skin_args(&self, _matrices: &[Mat4]) -> Result<Dispatch> {
         let ns = self.shape.node_count;
-        let push = [
-            self.vertex_count,
-            ns,
-            self.shape.branch,
-            self.shape.first_leaf,
-        ];
-        rec.dispatch_invocations_tracked(
-            &self.skin,
-            &self.skin_bind,
-            bytemuck::cast_slice(&push),
-            [self.vertex_count + ns, 1, 1],
-        )
+        Ok(Dispatch::words(
+            &[
+                self.vertex_count,
+                ns,
+                self.shape.branch,
+                self.shape.first_leaf,
+            ],
+            Grid::Invocations([self.vertex_count + ns, 1, 1]),
+        ))
+    }
+
+    fn occlusion_args(&self, _matrices: &[Mat4]) -> Result<Dispatch> {
+        self.params.validate()?;
+        let p = &self.params;
+        Ok(Dispatch::words(
+            &[
+                self.vertex_count,
+                self.shape.node_count,
+                self.shape.branch,
+                self.shape.first_leaf,
+                p.tau.to_bits(),
+                self.table.n_psi,
+                self.table.n_theta,
+            ],
+            Grid::Invocations([self.vertex_count, 1, 1]),
+        ))
     }
 
     /// Records the occlusion dispatch alone (no labelled pass), e.g. to re-evaluate with
     /// other parameters after a frame was skinned (barriers from the declared accesses).
     pub fn record_occlusion(&self, rec: &mut Recorder) -> Result<()> {
-        self.params.validate()?;
-        let p = &self.params;
-        let push: [u32; 7] = [
-            self.vertex_count,
-            self.shape.node_count,
-            self.shape.branch,
-            self.shape.first_leaf,
-            p.tau.to_bits(),
-            self.table.n_psi,
-            self.table.n_theta,
-        ];
-        rec.dispatch_invocations_tracked(
-            &self.occlusion,
-            &self.occlusion_bind,
-            bytemuck::cast_slice(&push),
-            [self.vertex_count, 1, 1],
-        )
+        self.occlusion_args(&[])?
+            .record(rec, &self.occlusion, &self.occlusion_bind)
     }
 
     /// Records copies of the outputs back to the host (after [`AoKernel::record`]).
@@ -702,42 +682,21 @@ impl Kernel for AoKernel {
         "ao"
     }
 
-    fn passes(&self) -> Vec<PassInfo> {
-        let uses = |b: &BindGroup| b.accesses().into_iter().map(UseInfo::from).collect();
+    fn pass_table(&self) -> Vec<Pass<'_, Self>> {
         vec![
-            PassInfo {
-                name: PASS_JOINTS,
-                uses: vec![UseInfo {
-                    binding: "(upload)".into(),
-                    resource: self.joints.name().to_string(),
-                    access: format!("{:?}", AccessSet::from(A::TransferWrite)),
-                }],
-            },
-            PassInfo {
-                name: PASS_SKIN,
-                uses: uses(&self.skin_bind),
-            },
-            PassInfo {
-                name: PASS_OCCLUSION,
-                uses: uses(&self.occlusion_bind),
-            },
+            Pass::upload(PASS_JOINTS, &self.joints, Self::joint_bytes),
+            Pass::dispatch(PASS_SKIN, &self.skin, &self.skin_bind, Self::skin_args),
+            Pass::dispatch(
+                PASS_OCCLUSION,
+                &self.occlusion,
+                &self.occlusion_bind,
+                Self::occlusion_args,
+            ),
         ]
     }
 
-    fn record_pass(&self, rec: &mut Recorder, pass: usize, input: &[Mat4]) -> Result<()> {
-        AoKernel::record_pass(self, rec, pass, input)
-    }
-
-    fn plan_pass(&self, rec: &mut Recorder, pass: usize) -> Result<Vec<PlannedBarrier>> {
-        match pass {
-            0 => rec.plan(&[Use::Buffer(&self.joints, A::TransferWrite.into())]),
-            1 => Ok(rec.plan_dispatch(&self.skin_bind)),
-            2 => Ok(rec.plan_dispatch(&self.occlusion_bind)),
-            _ => Err(Error::InvalidArgument(format!(
-                "AO has 3 passes, not {}",
-                pass + 1
-            ))),
-        }
+    fn check_input(&self, matrices: &[Mat4]) -> Result<()> {
+        self.check_matrices(matrices)
     }
 
     fn read_back(&self, rec: &mut Recorder) -> Result<FrameReadback> {

@@ -8,10 +8,9 @@ use super::synth::{Btf, srgb_encode};
 use crate::error::{Error, Result};
 use crate::gpu::{
     AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context, Image,
-    ImageDesc, ImageRegion, MemoryReport, PlannedBarrier, Readback, Recorder, Resource, Sampler,
-    SamplerDesc,
+    ImageDesc, ImageRegion, MemoryReport, Readback, Recorder, Resource, Sampler, SamplerDesc,
 };
-use crate::kernels::{Kernel, PassInfo, UseInfo};
+use crate::kernels::{Dispatch, Grid, Kernel, Pass};
 use ash::vk;
 use rayon::prelude::*;
 
@@ -680,45 +679,22 @@ impl Kernel for BtfKernel {
         "btf"
     }
 
-    fn passes(&self) -> Vec<PassInfo> {
-        vec![PassInfo {
-            name: PASS_SHADE,
-            uses: self
-                .bind
-                .accesses()
-                .into_iter()
-                .map(UseInfo::from)
-                .collect(),
-        }]
-    }
-
-    fn record_pass(&self, rec: &mut Recorder, pass: usize, input: &Frame) -> Result<()> {
-        if pass != 0 {
-            return Err(Error::InvalidArgument(format!(
-                "BTF has 1 pass, not {}",
-                pass + 1
-            )));
-        }
-        let push = self.push(input)?;
-        rec.begin_pass(PASS_SHADE);
-        let r = rec.dispatch_invocations_tracked(
+    fn pass_table(&self) -> Vec<Pass<'_, Self>> {
+        vec![Pass::dispatch(
+            PASS_SHADE,
             &self.pipeline,
             &self.bind,
-            &push,
-            [self.size[0], self.size[1], 1],
-        );
-        rec.end_pass();
-        r
+            |k, frame| {
+                Ok(Dispatch {
+                    push: k.push(frame)?,
+                    grid: Grid::Invocations([k.size[0], k.size[1], 1]),
+                })
+            },
+        )]
     }
 
-    fn plan_pass(&self, rec: &mut Recorder, pass: usize) -> Result<Vec<PlannedBarrier>> {
-        match pass {
-            0 => Ok(rec.plan_dispatch(&self.bind)),
-            _ => Err(Error::InvalidArgument(format!(
-                "BTF has 1 pass, not {}",
-                pass + 1
-            ))),
-        }
+    fn check_input(&self, frame: &Frame) -> Result<()> {
+        frame.check()
     }
 
     fn read_back(&self, rec: &mut Recorder) -> Result<Readback> {

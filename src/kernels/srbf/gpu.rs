@@ -10,9 +10,9 @@ use super::{sharp, transfer};
 use crate::error::{Error, Result};
 use crate::gpu::{
     AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context,
-    MemoryReport, PlannedBarrier, Readback, Recorder, Resource,
+    MemoryReport, Readback, Recorder, Resource,
 };
-use crate::kernels::{Kernel, PassInfo, UseInfo};
+use crate::kernels::{Dispatch, Grid, Kernel, Pass};
 use crate::reference::srbf::Visibility;
 use ash::vk;
 use glam::{Mat3, Vec3};
@@ -579,48 +579,38 @@ impl SrbfKernel {
         Ok(())
     }
 
-    fn record_lighting(&self, rec: &mut Recorder, frame: &SrbfFrame) -> Result<()> {
+    fn lighting_args(&self, frame: &SrbfFrame) -> Result<Dispatch> {
         let mut push = rotation_push(frame.rotation);
         push.extend_from_slice(&self.lobes.to_le_bytes());
         push.extend_from_slice(&self.basis.to_le_bytes());
         push.extend_from_slice(&self.basis_sharpness.to_le_bytes());
-        rec.dispatch_invocations_tracked(
-            &self.lighting,
-            &self.lighting_bind,
-            &push,
-            [self.basis, 1, 1],
-        )
+        Ok(Dispatch {
+            push,
+            grid: Grid::Invocations([self.basis, 1, 1]),
+        })
     }
 
-    fn record_sharp(&self, rec: &mut Recorder, frame: &SrbfFrame) -> Result<()> {
+    fn sharp_args(&self, frame: &SrbfFrame) -> Result<Dispatch> {
         // With no compact lobes one invocation runs and writes nothing, so the declared uses
         // are the same either way and a render graph's plan holds.
         let mut push = rotation_push(frame.rotation);
         for x in [self.compact, self.grid[0], self.grid[1]] {
             push.extend_from_slice(&x.to_le_bytes());
         }
-        rec.dispatch_invocations_tracked(
-            &self.sharp,
-            &self.sharp_bind,
-            &push,
-            [self.compact.max(1), 1, 1],
-        )
+        Ok(Dispatch {
+            push,
+            grid: Grid::Invocations([self.compact.max(1), 1, 1]),
+        })
     }
 
-    fn record_project(&self, rec: &mut Recorder) -> Result<()> {
-        let push: Vec<u8> = [self.rows, self.basis.div_ceil(4)]
-            .iter()
-            .flat_map(|x| x.to_le_bytes())
-            .collect();
-        rec.dispatch_invocations_tracked(
-            &self.project,
-            &self.project_bind,
-            &push,
-            [self.rows, 1, 1],
-        )
+    fn project_args(&self, _frame: &SrbfFrame) -> Result<Dispatch> {
+        Ok(Dispatch::words(
+            &[self.rows, self.basis.div_ceil(4)],
+            Grid::Invocations([self.rows, 1, 1]),
+        ))
     }
 
-    fn record_shade(&self, rec: &mut Recorder, frame: &SrbfFrame) -> Result<()> {
+    fn shade_args(&self, frame: &SrbfFrame) -> Result<Dispatch> {
         let a = frame.albedo;
         let push: Vec<u8> = [a[0], a[1], a[2], 0.0]
             .iter()
@@ -630,7 +620,10 @@ impl SrbfKernel {
             .chain(self.stride.to_le_bytes())
             .chain(self.compact.to_le_bytes())
             .collect();
-        rec.dispatch_invocations_tracked(&self.shade, &self.shade_bind, &push, [self.slots, 1, 1])
+        Ok(Dispatch {
+            push,
+            grid: Grid::Invocations([self.slots, 1, 1]),
+        })
     }
 }
 
@@ -643,57 +636,27 @@ impl Kernel for SrbfKernel {
         "srbf"
     }
 
-    fn passes(&self) -> Vec<PassInfo> {
-        let uses = |b: &BindGroup| b.accesses().into_iter().map(UseInfo::from).collect();
+    fn pass_table(&self) -> Vec<Pass<'_, Self>> {
         vec![
-            PassInfo {
-                name: PASS_LIGHTING,
-                uses: uses(&self.lighting_bind),
-            },
-            PassInfo {
-                name: PASS_PROJECT,
-                uses: uses(&self.project_bind),
-            },
-            PassInfo {
-                name: PASS_SHARP,
-                uses: uses(&self.sharp_bind),
-            },
-            PassInfo {
-                name: PASS_SHADE,
-                uses: uses(&self.shade_bind),
-            },
+            Pass::dispatch(
+                PASS_LIGHTING,
+                &self.lighting,
+                &self.lighting_bind,
+                Self::lighting_args,
+            ),
+            Pass::dispatch(
+                PASS_PROJECT,
+                &self.project,
+                &self.project_bind,
+                Self::project_args,
+            ),
+            Pass::dispatch(PASS_SHARP, &self.sharp, &self.sharp_bind, Self::sharp_args),
+            Pass::dispatch(PASS_SHADE, &self.shade, &self.shade_bind, Self::shade_args),
         ]
     }
 
-    fn record_pass(&self, rec: &mut Recorder, pass: usize, input: &SrbfFrame) -> Result<()> {
-        Self::check_frame(input)?;
-        let name = [PASS_LIGHTING, PASS_PROJECT, PASS_SHARP, PASS_SHADE]
-            .get(pass)
-            .ok_or_else(|| {
-                Error::InvalidArgument(format!("SRBF has 4 passes, not {}", pass + 1))
-            })?;
-        rec.begin_pass(name);
-        let r = match pass {
-            0 => self.record_lighting(rec, input),
-            1 => self.record_project(rec),
-            2 => self.record_sharp(rec, input),
-            _ => self.record_shade(rec, input),
-        };
-        rec.end_pass();
-        r
-    }
-
-    fn plan_pass(&self, rec: &mut Recorder, pass: usize) -> Result<Vec<PlannedBarrier>> {
-        match pass {
-            0 => Ok(rec.plan_dispatch(&self.lighting_bind)),
-            1 => Ok(rec.plan_dispatch(&self.project_bind)),
-            2 => Ok(rec.plan_dispatch(&self.sharp_bind)),
-            3 => Ok(rec.plan_dispatch(&self.shade_bind)),
-            _ => Err(Error::InvalidArgument(format!(
-                "SRBF has 4 passes, not {}",
-                pass + 1
-            ))),
-        }
+    fn check_input(&self, frame: &SrbfFrame) -> Result<()> {
+        Self::check_frame(frame)
     }
 
     fn read_back(&self, rec: &mut Recorder) -> Result<Readback> {

@@ -25,10 +25,9 @@ use crate::error::{Error, Result};
 use crate::geom::bvh::Bvh;
 use crate::gpu::{
     AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context, Image,
-    ImageDesc, ImageRegion, MemoryReport, PlannedBarrier, Readback, Recorder, Resource,
-    Subresources,
+    ImageDesc, ImageRegion, MemoryReport, Readback, Recorder, Resource, Subresources,
 };
-use crate::kernels::{Kernel, PassInfo, UseInfo};
+use crate::kernels::{Dispatch, Grid, Kernel, Pass};
 use ash::vk;
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -37,7 +36,6 @@ pub const PASS_LIGHTS: &str = "sss lights";
 pub const PASS_VERTEX: &str = "sss vertex light";
 pub const PASS_IRRADIANCE: &str = "sss irradiance";
 pub const PASS_DIFFUSION: &str = "sss diffusion";
-const PASSES: [&str; 4] = [PASS_LIGHTS, PASS_VERTEX, PASS_IRRADIANCE, PASS_DIFFUSION];
 /// Most samples per texel (the width of the pattern image; Vulkan guarantees 4096 texels,
 /// checked at run time).
 pub const MAX_SAMPLES: u32 = 4096;
@@ -609,7 +607,13 @@ impl SssKernel {
         &self.trans
     }
 
-    fn record_vertex_light(&self, rec: &mut Recorder, lights: usize) -> Result<()> {
+    fn light_bytes(&self, lights: &[Light]) -> Result<Vec<u8>> {
+        let data: Vec<[[f32; 4]; 2]> = lights.iter().map(|l| l.gpu()).collect();
+        Ok(bytemuck::cast_slice(&data).to_vec())
+    }
+
+    fn vertex_light_args(&self, lights: &[Light]) -> Result<Dispatch> {
+        let lights = lights.len();
         let p = &self.profile;
         let mode = match (self.params.transmission, p.kind) {
             (false, _) => 0u32,
@@ -626,16 +630,16 @@ impl SssKernel {
             mode,
             (p.max_radius() as f32).to_bits(),
         ]);
-        let push: Vec<u8> = words.iter().flat_map(|x| x.to_le_bytes()).collect();
-        rec.dispatch_invocations_tracked(
-            &self.vertex,
-            &self.vertex_bind,
-            &push,
-            [self.vertices, 1, 1],
-        )
+        Ok(Dispatch::words(
+            &words,
+            Grid::Invocations([self.vertices, 1, 1]),
+        ))
     }
 
-    fn record_irradiance(&self, rec: &mut Recorder, lights: usize) -> Result<()> {
+    /// The irradiance pass's arguments; the diffusion that follows it in a frame reads the
+    /// grey E it writes.
+    fn irradiance_args(&self, lights: &[Light]) -> Result<Dispatch> {
+        let lights = lights.len();
         let words = [
             self.size,
             lights as u32,
@@ -644,15 +648,11 @@ impl SssKernel {
             self.bias.to_bits(),
             self.tile_count(),
         ];
-        let push: Vec<u8> = words.iter().flat_map(|x| x.to_le_bytes()).collect();
-        rec.dispatch_tracked(
-            &self.irradiance,
-            &self.irradiance_bind,
-            &push,
-            tile_groups(self.tile_count()),
-        )?;
         self.grey.store(true, Ordering::Relaxed);
-        Ok(())
+        Ok(Dispatch::words(
+            &words,
+            Grid::Groups(tile_groups(self.tile_count())),
+        ))
     }
 
     /// The diffusion pipeline and bindings for the irradiance last recorded: the grey one
@@ -667,6 +667,11 @@ impl SssKernel {
 
     /// Records the diffusion dispatch alone (barriers from the declared accesses).
     pub fn record_diffusion(&self, rec: &mut Recorder) -> Result<()> {
+        let (pipeline, bind) = self.diffusion_pipeline();
+        self.diffusion_args(&[])?.record(rec, pipeline, bind)
+    }
+
+    fn diffusion_args(&self, _lights: &[Light]) -> Result<Dispatch> {
         let k = self.profile.r_tot.map(|k| k as f32);
         let total = self.totals;
         let mut push: Vec<u8> = [k[0], k[1], k[2], 0.0, total[0], total[1], total[2], 0.0]
@@ -676,8 +681,10 @@ impl SssKernel {
         for u in [self.size, self.params.samples, self.tile_count()] {
             push.extend_from_slice(&u.to_le_bytes());
         }
-        let (pipeline, bind) = self.diffusion_pipeline();
-        rec.dispatch_tracked(pipeline, bind, &push, tile_groups(self.tile_count()))
+        Ok(Dispatch {
+            push,
+            grid: Grid::Groups(tile_groups(self.tile_count())),
+        })
     }
 }
 
@@ -690,69 +697,34 @@ impl Kernel for SssKernel {
         "sss"
     }
 
-    fn passes(&self) -> Vec<PassInfo> {
-        let uses = |b: &BindGroup| b.accesses().into_iter().map(UseInfo::from).collect();
+    /// A frame: the lights' upload, per-vertex light, texture-space irradiance (grey E),
+    /// then the diffusion of that grey E.
+    fn pass_table(&self) -> Vec<Pass<'_, Self>> {
         vec![
-            PassInfo {
-                name: PASS_LIGHTS,
-                uses: vec![UseInfo {
-                    binding: "(upload)".into(),
-                    resource: self.lights.name().to_string(),
-                    access: format!("{:?}", AccessSet::from(A::TransferWrite)),
-                }],
-            },
-            PassInfo {
-                name: PASS_VERTEX,
-                uses: uses(&self.vertex_bind),
-            },
-            PassInfo {
-                name: PASS_IRRADIANCE,
-                uses: uses(&self.irradiance_bind),
-            },
-            PassInfo {
-                name: PASS_DIFFUSION,
-                uses: uses(self.diffusion_pipeline().1),
-            },
+            Pass::upload(PASS_LIGHTS, &self.lights, Self::light_bytes),
+            Pass::dispatch(
+                PASS_VERTEX,
+                &self.vertex,
+                &self.vertex_bind,
+                Self::vertex_light_args,
+            ),
+            Pass::dispatch(
+                PASS_IRRADIANCE,
+                &self.irradiance,
+                &self.irradiance_bind,
+                Self::irradiance_args,
+            ),
+            Pass::dispatch(
+                PASS_DIFFUSION,
+                &self.diffusion_grey,
+                &self.diffusion_grey_bind,
+                Self::diffusion_args,
+            ),
         ]
     }
 
-    fn record_pass(&self, rec: &mut Recorder, pass: usize, lights: &[Light]) -> Result<()> {
-        check_lights(lights)?;
-        let name = PASSES
-            .get(pass)
-            .ok_or_else(|| Error::InvalidArgument(format!("SSS has 4 passes, not {}", pass + 1)))?;
-        rec.begin_pass(name);
-        let r = match pass {
-            0 => {
-                let data: Vec<[[f32; 4]; 2]> = lights.iter().map(|l| l.gpu()).collect();
-                if data.is_empty() {
-                    Ok(())
-                } else {
-                    rec.upload(&self.lights, 0, &data)
-                }
-            }
-            1 => self.record_vertex_light(rec, lights.len()),
-            2 => self.record_irradiance(rec, lights.len()),
-            _ => self.record_diffusion(rec),
-        };
-        rec.end_pass();
-        r
-    }
-
-    fn plan_pass(&self, rec: &mut Recorder, pass: usize) -> Result<Vec<PlannedBarrier>> {
-        match pass {
-            0 => rec.plan(&[crate::gpu::Use::Buffer(
-                &self.lights,
-                A::TransferWrite.into(),
-            )]),
-            1 => Ok(rec.plan_dispatch(&self.vertex_bind)),
-            2 => Ok(rec.plan_dispatch(&self.irradiance_bind)),
-            3 => Ok(rec.plan_dispatch(self.diffusion_pipeline().1)),
-            _ => Err(Error::InvalidArgument(format!(
-                "SSS has 4 passes, not {}",
-                pass + 1
-            ))),
-        }
+    fn check_input(&self, lights: &[Light]) -> Result<()> {
+        check_lights(lights)
     }
 
     fn read_back(&self, rec: &mut Recorder) -> Result<SssReadback> {

@@ -1,0 +1,370 @@
+//! The kernel contract: what every kernel provides, and the code written once for all of them.
+//!
+//! A kernel is shaders + the method's code + this small glue. It is *prepared* from a scene
+//! (packed on the CPU, then created on the GPU with its uploads recorded into a caller's
+//! recording), *records* a frame into a caller's recording, *reads back* its outputs, and
+//! reports its memory. Its CPU twin lives beside it (`kernels::NAME::cpu`) and its ground
+//! truth in `reference::NAME`.
+//!
+//! A kernel states its passes once, in [`Kernel::pass_table`]: each [`Pass`] names itself,
+//! holds what it touches (a pipeline with its bind group, whose declared accesses are the
+//! pass's uses, or a buffer it uploads into) and a function that gives the frame's arguments
+//! (push constants and grid, or the bytes to upload). Everything else is derived from that
+//! table, so what a pass declares and what it records cannot drift apart:
+//! [`Kernel::passes`] (names and uses for reports), [`Kernel::plan_pass`] (barriers for a
+//! render graph, [`record_as_graph`]), [`Kernel::record_pass`] (a labelled, timed pass with
+//! barriers from the tracker) and [`Kernel::record`]. The frame runner ([`run_frames`]) and
+//! the pass timer (`bench::time_passes`) work for any kernel.
+
+use crate::error::{Error, Result};
+use crate::gpu::{
+    AccessSet, AccessType, BarrierMode, BindGroup, Buffer, ComputePipeline, Context, DeclaredUse,
+    MemoryReport, PlannedBarrier, Recorder, Submission, Timings, Use,
+};
+use std::collections::VecDeque;
+
+/// One pass of a kernel's frame and the accesses it declares.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct PassInfo {
+    /// The pass's label (debug label and timing name).
+    pub name: &'static str,
+    /// (binding, resource, access) of every resource the pass touches.
+    pub uses: Vec<UseInfo>,
+}
+
+/// One declared use, in a serialisable form.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct UseInfo {
+    pub binding: String,
+    pub resource: String,
+    /// The access types, e.g. `{ComputeShaderReadOther}`.
+    pub access: String,
+}
+
+impl From<DeclaredUse> for UseInfo {
+    fn from(u: DeclaredUse) -> Self {
+        UseInfo {
+            binding: u.binding,
+            resource: u.resource,
+            access: format!("{:?}", u.access),
+        }
+    }
+}
+
+/// The size of a dispatch.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Grid {
+    /// Invocations per axis; the recorder rounds up to whole workgroups.
+    Invocations([u32; 3]),
+    /// Workgroups per axis.
+    Groups([u32; 3]),
+}
+
+/// One frame's arguments of a dispatch pass.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Dispatch {
+    /// Push-constant bytes (the pipeline's reflected block).
+    pub push: Vec<u8>,
+    pub grid: Grid,
+}
+
+impl Dispatch {
+    /// Push constants from 32-bit words (`u32`, or `f32` through `to_bits`), little-endian.
+    pub fn words(words: &[u32], grid: Grid) -> Dispatch {
+        Dispatch {
+            push: words.iter().flat_map(|w| w.to_le_bytes()).collect(),
+            grid,
+        }
+    }
+
+    /// Records the dispatch of `pipeline` with `bind`, barriers from its declared accesses
+    /// (no pass label: [`Pass::record`] adds one).
+    pub fn record(
+        &self,
+        rec: &mut Recorder,
+        pipeline: &ComputePipeline,
+        bind: &BindGroup,
+    ) -> Result<()> {
+        match self.grid {
+            Grid::Invocations(n) => rec.dispatch_invocations_tracked(pipeline, bind, &self.push, n),
+            Grid::Groups(g) => rec.dispatch_tracked(pipeline, bind, &self.push, g),
+        }
+    }
+}
+
+/// Gives a dispatch pass's arguments for one frame.
+pub type DispatchArgs<K> = fn(&K, &<K as Kernel>::Input) -> Result<Dispatch>;
+/// Gives the bytes an upload pass writes for one frame (nothing is recorded when empty).
+pub type UploadBytes<K> = fn(&K, &<K as Kernel>::Input) -> Result<Vec<u8>>;
+
+/// What a pass touches and how it is recorded.
+pub enum Step<'k, K: Kernel + ?Sized> {
+    /// A compute dispatch. Its uses are `bind`'s declared accesses (reflection defaults plus
+    /// the kernel's overrides, [`ComputePipeline::bind_declared`]).
+    Dispatch {
+        pipeline: &'k ComputePipeline,
+        bind: &'k BindGroup,
+        args: DispatchArgs<K>,
+    },
+    /// A host-to-device upload into `buffer` at offset 0 (a transfer write).
+    Upload {
+        buffer: &'k Buffer,
+        bytes: UploadBytes<K>,
+    },
+}
+
+/// One pass as a kernel declares it in [`Kernel::pass_table`].
+pub struct Pass<'k, K: Kernel + ?Sized> {
+    /// Debug label and timing name.
+    pub name: &'static str,
+    pub step: Step<'k, K>,
+}
+
+impl<'k, K: Kernel + ?Sized> Pass<'k, K> {
+    /// A dispatch pass.
+    pub fn dispatch(
+        name: &'static str,
+        pipeline: &'k ComputePipeline,
+        bind: &'k BindGroup,
+        args: DispatchArgs<K>,
+    ) -> Self {
+        Pass {
+            name,
+            step: Step::Dispatch {
+                pipeline,
+                bind,
+                args,
+            },
+        }
+    }
+
+    /// An upload pass.
+    pub fn upload(name: &'static str, buffer: &'k Buffer, bytes: UploadBytes<K>) -> Self {
+        Pass {
+            name,
+            step: Step::Upload { buffer, bytes },
+        }
+    }
+
+    /// The pass's name and declared uses, for reports.
+    pub fn info(&self) -> PassInfo {
+        let uses = match &self.step {
+            Step::Dispatch { bind, .. } => bind.accesses().into_iter().map(UseInfo::from).collect(),
+            Step::Upload { buffer, .. } => vec![UseInfo {
+                binding: "(upload)".into(),
+                resource: buffer.name().to_string(),
+                access: format!("{:?}", AccessSet::from(AccessType::TransferWrite)),
+            }],
+        };
+        PassInfo {
+            name: self.name,
+            uses,
+        }
+    }
+
+    /// Plans the barriers the pass needs from its declared uses, recording nothing.
+    pub fn plan(&self, rec: &mut Recorder) -> Result<Vec<PlannedBarrier>> {
+        match &self.step {
+            Step::Dispatch { bind, .. } => Ok(rec.plan_dispatch(bind)),
+            Step::Upload { buffer, .. } => {
+                rec.plan(&[Use::Buffer(buffer, AccessType::TransferWrite.into())])
+            }
+        }
+    }
+
+    /// Records the pass for one frame in a labelled, timed pass, barriers from the tracker
+    /// (or collected, in [`BarrierMode::Collect`]).
+    pub fn record(&self, kernel: &K, rec: &mut Recorder, input: &K::Input) -> Result<()> {
+        rec.begin_pass(self.name);
+        let result = match &self.step {
+            Step::Dispatch {
+                pipeline,
+                bind,
+                args,
+            } => args(kernel, input).and_then(|d| d.record(rec, pipeline, bind)),
+            Step::Upload { buffer, bytes } => bytes(kernel, input).and_then(|b| {
+                if b.is_empty() {
+                    Ok(())
+                } else {
+                    rec.upload(buffer, 0, &b)
+                }
+            }),
+        };
+        rec.end_pass();
+        result
+    }
+}
+
+/// What every kernel provides (see the module documentation). A kernel implements
+/// [`Kernel::pass_table`] and the readback; the per-pass methods are derived from the table.
+pub trait Kernel {
+    /// What one frame takes (AO: the joint matrices).
+    type Input: ?Sized;
+    /// The readbacks recorded for a frame.
+    type Readback;
+    /// Host copies of a frame's outputs.
+    type Output;
+
+    /// Short name (`ao`), used in labels and reports.
+    fn name(&self) -> &'static str;
+    /// The passes of one frame, in order: the one place a kernel declares them.
+    fn pass_table(&self) -> Vec<Pass<'_, Self>>;
+    /// Checks one frame's input before any of it is recorded (default: nothing to check).
+    fn check_input(&self, _input: &Self::Input) -> Result<()> {
+        Ok(())
+    }
+    /// Records copies of the frame's outputs to the host.
+    fn read_back(&self, rec: &mut Recorder) -> Result<Self::Readback>;
+    /// The outputs, once the submission holding the readback is complete.
+    fn collect(&self, readback: &Self::Readback) -> Result<Self::Output>;
+    /// Device memory of the kernel's resources.
+    fn memory(&self) -> MemoryReport;
+
+    /// The passes [`Kernel::record`] records, in order, with declared accesses.
+    fn passes(&self) -> Vec<PassInfo> {
+        self.pass_table().iter().map(Pass::info).collect()
+    }
+    /// Records pass `pass` (an index into [`Kernel::passes`]) in its labelled, timed pass;
+    /// barriers come from the declared accesses through the recorder's tracking. The input
+    /// is checked ([`Kernel::check_input`]) before anything is recorded.
+    fn record_pass(&self, rec: &mut Recorder, pass: usize, input: &Self::Input) -> Result<()> {
+        self.check_input(input)?;
+        let table = self.pass_table();
+        let p = table
+            .get(pass)
+            .ok_or_else(|| no_such_pass(self.name(), table.len(), pass))?;
+        p.record(self, rec, input)
+    }
+    /// Plans the barriers pass `pass` needs from its declared accesses, without recording
+    /// them (see [`Recorder::plan`]); a render graph records them merged with its own.
+    fn plan_pass(&self, rec: &mut Recorder, pass: usize) -> Result<Vec<PlannedBarrier>> {
+        let table = self.pass_table();
+        let p = table
+            .get(pass)
+            .ok_or_else(|| no_such_pass(self.name(), table.len(), pass))?;
+        p.plan(rec)
+    }
+    /// Records one frame: the input checked once, then every pass in order.
+    fn record(&self, rec: &mut Recorder, input: &Self::Input) -> Result<()> {
+        self.check_input(input)?;
+        for pass in self.pass_table() {
+            pass.record(self, rec, input)?;
+        }
+        Ok(())
+    }
+}
+
+fn no_such_pass(kernel: &str, passes: usize, pass: usize) -> Error {
+    Error::InvalidArgument(format!(
+        "kernel '{kernel}' has {passes} passes; pass index {pass} is out of range"
+    ))
+}
+
+/// Records one frame the way a render graph drives a kernel: for each pass, plan its
+/// barriers from the declared accesses, hand them to `merge` (the graph adds its own and
+/// may reorder), record them, then record the pass with vkshade emitting no barriers.
+pub fn record_as_graph<K: Kernel>(
+    rec: &mut Recorder,
+    kernel: &K,
+    input: &K::Input,
+    mut merge: impl FnMut(&'static str, Vec<PlannedBarrier>) -> Vec<PlannedBarrier>,
+) -> Result<()> {
+    kernel.check_input(input)?;
+    let table = kernel.pass_table();
+    rec.set_barrier_mode(BarrierMode::Collect);
+    let mut result = Ok(());
+    for pass in &table {
+        let planned = match pass.plan(rec) {
+            Ok(p) => merge(pass.name, p),
+            Err(e) => {
+                result = Err(e);
+                break;
+            }
+        };
+        rec.record_planned(&planned);
+        if let Err(e) = pass.record(kernel, rec, input) {
+            result = Err(e);
+            break;
+        }
+    }
+    rec.set_barrier_mode(BarrierMode::Emit);
+    result
+}
+
+/// One completed frame from [`run_frames`].
+pub struct FrameResult<O> {
+    pub index: usize,
+    pub output: O,
+    pub timings: Timings,
+}
+
+/// Runs `kernel` over `inputs`, keeping up to `in_flight` frames submitted at once (each
+/// frame is recorded and submitted before the oldest is waited for), and hands each
+/// completed frame to `on_frame` in order. Returns the largest number of frames that were
+/// in flight together.
+pub fn run_frames<K, I>(
+    ctx: &Context,
+    kernel: &K,
+    inputs: impl IntoIterator<Item = I>,
+    in_flight: usize,
+    mut on_frame: impl FnMut(FrameResult<K::Output>) -> Result<()>,
+) -> Result<usize>
+where
+    K: Kernel,
+    I: std::borrow::Borrow<K::Input>,
+{
+    if in_flight == 0 {
+        return Err(Error::InvalidArgument(
+            "frames in flight must be at least 1".into(),
+        ));
+    }
+    let mut pending: VecDeque<(usize, Submission, K::Readback)> = VecDeque::new();
+    let mut most = 0;
+    let mut finish = |(index, submission, readback): (usize, Submission, K::Readback)| {
+        let timings = submission.wait()?;
+        let output = kernel.collect(&readback)?;
+        on_frame(FrameResult {
+            index,
+            output,
+            timings,
+        })
+    };
+    for (index, input) in inputs.into_iter().enumerate() {
+        let mut rec = ctx.recorder(&format!("{} frame {index}", kernel.name()))?;
+        kernel.record(&mut rec, input.borrow())?;
+        let readback = kernel.read_back(&mut rec)?;
+        pending.push_back((index, rec.submit()?, readback));
+        most = most.max(pending.len());
+        if pending.len() >= in_flight
+            && let Some(oldest) = pending.pop_front()
+        {
+            finish(oldest)?;
+        }
+    }
+    while let Some(oldest) = pending.pop_front() {
+        finish(oldest)?;
+    }
+    Ok(most)
+}
+
+/// What every kernel's report.json carries about the kernel itself: its passes with their
+/// declared accesses, its memory (used by its resources, reserved by the context) and how
+/// many frames were in flight together.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct KernelInfo {
+    pub name: &'static str,
+    pub passes: Vec<PassInfo>,
+    pub memory: MemoryReport,
+    pub frames_in_flight: usize,
+}
+
+impl KernelInfo {
+    pub fn of<K: Kernel>(kernel: &K, frames_in_flight: usize) -> Self {
+        KernelInfo {
+            name: kernel.name(),
+            passes: kernel.passes(),
+            memory: kernel.memory(),
+            frames_in_flight,
+        }
+    }
+}
