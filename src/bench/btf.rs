@@ -11,8 +11,8 @@ use super::{BenchConfig, MachineInfo, Stats, time_cpu, time_gpu};
 use crate::bench::time_passes;
 use crate::error::{Error, Result};
 use crate::gpu::{
-    AccessSet, AccessType as A, Buffer, BufferDesc, ComputePipeline, Context, Image, ImageDesc,
-    ImageRegion, Resource, Sampler, SamplerDesc,
+    AccessSet, AccessType as A, Buffer, BufferDesc, Context, Image, ImageDesc, ImageRegion,
+    Resource, Sampler, SamplerDesc,
 };
 use crate::kernels::btf::cpu;
 use crate::kernels::btf::dirs::{self, Maps, Triangulation};
@@ -254,7 +254,7 @@ fn probe(ctx: &Context, cfg: &BtfBenchConfig, btf: &Btf, block: bool) -> Result<
     } else {
         "btf/fetch"
     };
-    let pipeline = ComputePipeline::from_spirv(ctx, name, crate::shaders::spirv(name)?)?;
+    let pipeline = crate::shaders::pipeline(ctx, name)?;
     let mut res = vec![
         ("tex", Resource::texture(&img)),
         ("result", Resource::Buffer(&out)),

@@ -2,11 +2,15 @@
 //! the environment as a sum of spherical Gaussians (`fit`), each vertex's visibility x
 //! cosine projected onto a fixed SG basis (`transfer`), and per frame on the GPU: rotate the
 //! lighting lobes, compute the lighting's coefficients in the transfer basis from the
-//! closed-form SG inner products, shade every vertex.
+//! closed-form SG inner products, shade every vertex. `inputs`: what the kernel is built
+//! from and checks; `pack`: its data as the GPU holds it; `gpu`: the kernel; `cpu`: its twin.
 
 pub mod cpca;
+pub mod cpu;
 pub mod fit;
 pub mod gpu;
+pub mod inputs;
+pub mod pack;
 pub mod sg;
 pub mod sharp;
 pub mod transfer;

@@ -1,0 +1,152 @@
+//! What the SRBF kernel is built from and what one frame takes, and their checks (the
+//! shaders index with these sizes; the GPU must never read out of bounds or produce NaN).
+
+use super::cpca::Cpca;
+use super::pack::{MAX_BASIS, MAX_ROWS, rows_needed};
+use super::sg::Lobe;
+use super::sharp;
+use crate::error::{Error, Result};
+use crate::reference::srbf::Visibility;
+use glam::{Mat3, Vec3};
+
+/// One frame's input: the environment's rotation and the surface albedo.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct SrbfFrame {
+    /// L_R(w) = L(R^-1 w).
+    pub rotation: Mat3,
+    pub albedo: [f32; 3],
+}
+
+impl SrbfFrame {
+    /// Checks that the rotation is one and the albedo finite and >= 0.
+    pub fn check(&self) -> Result<()> {
+        let r = self.rotation;
+        let orthonormal = (r.transpose() * r - Mat3::IDENTITY)
+            .to_cols_array()
+            .iter()
+            .all(|x| x.abs() < 1e-4);
+        if !r.is_finite() || !orthonormal || r.determinant() < 0.0 {
+            return Err(Error::InvalidArgument(format!(
+                "the environment rotation is not a rotation matrix: {r:?}"
+            )));
+        }
+        if self.albedo.iter().any(|a| !a.is_finite() || *a < 0.0) {
+            return Err(Error::InvalidArgument(format!(
+                "albedo {:?} must be finite and >= 0",
+                self.albedo
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// What the kernel is built from: the lighting lobes and the per-vertex transfer in
+/// clustered-PCA form on a basis of spherical Gaussians ([`Cpca::exact`] for the
+/// uncompressed transfer), and optionally the visibility that compact lobes are shaded from
+/// ([`super::sharp`]).
+pub struct SrbfInputs<'a> {
+    pub lobes: &'a [Lobe],
+    pub transfer: &'a Cpca,
+    pub compact: Option<CompactInputs<'a>>,
+}
+
+/// The per-vertex data for shading compact lobes directly: the visibility cast for the
+/// texel centres of a `width` x `height` equirectangular grid, the vertex normals, and the
+/// sharpness factor and the most lobes to shade directly ([`super::sharp::split`]).
+#[derive(Clone, Copy)]
+pub struct CompactInputs<'a> {
+    pub visibility: &'a Visibility,
+    pub normals: &'a [Vec3],
+    pub width: u32,
+    pub height: u32,
+    pub factor: f32,
+    pub max_lobes: usize,
+}
+
+impl<'a> SrbfInputs<'a> {
+    pub fn new(lobes: &'a [Lobe], transfer: &'a Cpca) -> Self {
+        SrbfInputs {
+            lobes,
+            transfer,
+            compact: None,
+        }
+    }
+
+    /// The same, with compact lobes shaded from `compact`'s visibility.
+    pub fn with_compact(mut self, compact: CompactInputs<'a>) -> Self {
+        self.compact = Some(compact);
+        self
+    }
+
+    /// (lobes through the basis, compact lobes).
+    pub fn split(&self) -> (Vec<Lobe>, Vec<Lobe>) {
+        match &self.compact {
+            Some(c) => sharp::split(
+                self.lobes,
+                self.transfer.basis.sharpness,
+                c.factor,
+                c.max_lobes,
+            ),
+            None => (self.lobes.to_vec(), Vec::new()),
+        }
+    }
+
+    /// Checks the compact-lobe inputs, if any (part of [`Self::check`]).
+    pub(super) fn check_compact(&self) -> Result<()> {
+        let bad = |what: String| Err(Error::InvalidArgument(format!("SRBF input: {what}")));
+        let Some(c) = &self.compact else {
+            return Ok(());
+        };
+        sharp::check_grid(c.visibility, c.width, c.height)?;
+        if c.width as u64 * c.height as u64 > 1 << 24 {
+            return bad(format!(
+                "compact lobes: a {} x {} grid has more texels than a float holds exactly",
+                c.width, c.height
+            ));
+        }
+        let vertices = self.transfer.vertices;
+        if c.visibility.vertices != vertices || c.normals.len() != vertices {
+            return bad(format!(
+                "compact lobes: visibility of {} vertices and {} normals for a transfer of \
+                 {vertices}",
+                c.visibility.vertices,
+                c.normals.len(),
+            ));
+        }
+        if let Some(i) = c.normals.iter().position(|n| !n.is_finite()) {
+            return bad(format!("normal {i} is not finite"));
+        }
+        if c.factor.is_nan() || c.factor < 0.0 {
+            return bad(format!("sharpness factor {} must be >= 0", c.factor));
+        }
+        Ok(())
+    }
+
+    /// Checks sizes and values (the shaders index with them; the GPU must never read out of
+    /// bounds or produce NaN from bad input).
+    pub fn check(&self) -> Result<()> {
+        let bad = |what: String| Err(Error::InvalidArgument(format!("SRBF input: {what}")));
+        if self.lobes.is_empty() || self.lobes.len() > 65_536 {
+            return bad(format!("{} lighting lobes (1..=65536)", self.lobes.len()));
+        }
+        if let Some(i) = self.lobes.iter().position(|l| !l.is_valid()) {
+            return bad(format!("lobe {i} is not a valid SG: {:?}", self.lobes[i]));
+        }
+        let t = self.transfer;
+        t.check()?;
+        let k = t.basis.len();
+        if k > MAX_BASIS {
+            return bad(format!("{k} basis functions (1..={MAX_BASIS})"));
+        }
+        self.check_compact()?;
+        let rows = rows_needed(t.clusters, t.components);
+        if rows > MAX_ROWS {
+            return bad(format!(
+                "{} clusters x {} components need {rows} projected rows; the GPU path holds \
+                 {MAX_ROWS} (fewer clusters or components)",
+                t.clusters, t.components
+            ));
+        }
+        Ok(())
+    }
+}
