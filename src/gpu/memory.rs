@@ -40,6 +40,7 @@ impl Location {
         }
     }
 
+    /// Whether the host can map the memory (upload and readback memory).
     pub fn host_visible(self) -> bool {
         self != Location::Device
     }
@@ -52,6 +53,7 @@ pub enum Dedicated {
     /// otherwise sub-allocated from the allocator's blocks.
     #[default]
     Auto,
+    /// Always a dedicated allocation.
     Always,
     /// Sub-allocated unless the driver *requires* a dedicated allocation.
     Never,
@@ -60,24 +62,30 @@ pub enum Dedicated {
 /// Where and how a resource's memory is allocated.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize)]
 pub struct Placement {
+    /// Where the memory lives.
     pub location: Location,
+    /// Whether it gets a `VkDeviceMemory` of its own.
     pub dedicated: Dedicated,
 }
 
 impl Placement {
+    /// Device-local, dedicated when the driver prefers it.
     pub const DEVICE: Placement = Placement {
         location: Location::Device,
         dedicated: Dedicated::Auto,
     };
+    /// Host-visible for host writes, dedicated when the driver prefers it.
     pub const UPLOAD: Placement = Placement {
         location: Location::Upload,
         dedicated: Dedicated::Auto,
     };
+    /// Host-visible for device writes the host reads, dedicated when the driver prefers it.
     pub const READBACK: Placement = Placement {
         location: Location::Readback,
         dedicated: Dedicated::Auto,
     };
 
+    /// The same location with dedicated-allocation policy `d`.
     pub const fn dedicated(mut self, d: Dedicated) -> Placement {
         self.dedicated = d;
         self
@@ -87,8 +95,11 @@ impl Placement {
 /// What a buffer is: size, usage and placement (the name is given separately).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct BufferDesc {
+    /// Size in bytes.
     pub size: u64,
+    /// How the buffer may be used (checked by each command that uses it).
     pub usage: vk::BufferUsageFlags,
+    /// Where its memory lives and whether it gets an allocation of its own.
     pub placement: Placement,
 }
 
@@ -145,11 +156,13 @@ impl BufferDesc {
         }
     }
 
+    /// Adds `usage` to the buffer's usages.
     pub const fn usage(mut self, usage: vk::BufferUsageFlags) -> Self {
         self.usage = vk::BufferUsageFlags::from_raw(self.usage.as_raw() | usage.as_raw());
         self
     }
 
+    /// Sets where the buffer's memory lives.
     pub const fn placement(mut self, placement: Placement) -> Self {
         self.placement = placement;
         self
@@ -320,7 +333,9 @@ pub(crate) struct AliasInner {
 /// One future member of an alias group, to size the group's memory.
 #[derive(Clone, Copy, Debug)]
 pub enum AliasMember<'a> {
+    /// A buffer that will be created from this description.
     Buffer(&'a BufferDesc),
+    /// An image that will be created from this description.
     Image(&'a super::image::ImageDesc),
 }
 
@@ -386,10 +401,12 @@ impl AliasGroup {
         })
     }
 
+    /// Bytes of the group's memory (enough for its largest member).
     pub fn size(&self) -> u64 {
         self.inner.size
     }
 
+    /// The name given at creation.
     pub fn name(&self) -> &str {
         &self.inner.name
     }
@@ -691,26 +708,32 @@ impl Buffer {
         self.inner.clone()
     }
 
+    /// The Vulkan buffer, for callers that record their own commands with it.
     pub fn raw(&self) -> vk::Buffer {
         self.inner.raw
     }
 
+    /// Size in bytes.
     pub fn size(&self) -> u64 {
         self.inner.desc.size
     }
 
+    /// The name given at creation (also its debug-utils name).
     pub fn name(&self) -> &str {
         &self.inner.name
     }
 
+    /// The usages the buffer was created with.
     pub fn usage(&self) -> vk::BufferUsageFlags {
         self.inner.desc.usage
     }
 
+    /// What the buffer is (size, usage, placement).
     pub fn desc(&self) -> &BufferDesc {
         &self.inner.desc
     }
 
+    /// Where the buffer's memory lives.
     pub fn placement(&self) -> Placement {
         self.inner.desc.placement
     }

@@ -1,3 +1,5 @@
+#![warn(missing_docs)]
+
 //! The Vulkan layer. Nothing here knows about ambient occlusion, skin or BTFs.
 //!
 //! - [`context`]: instance, device, queue, allocator, validation, the timeline.

@@ -69,15 +69,22 @@ pub fn validate_spirv(words: &[u32]) -> std::result::Result<(), String> {
 /// The kind of a descriptor binding, as a pipeline expects it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum DescriptorKind {
+    /// A storage buffer (`buffer` block).
     StorageBuffer,
+    /// A uniform buffer (`uniform` block).
     UniformBuffer,
+    /// A storage image (`image2D`...).
     StorageImage,
+    /// A sampled image without sampler (`texture2D`...).
     SampledImage,
+    /// A sampled image with its sampler (`sampler2D`...).
     CombinedImageSampler,
+    /// A sampler alone (`sampler`).
     Sampler,
 }
 
 impl DescriptorKind {
+    /// The Vulkan descriptor type.
     pub fn vk(self) -> vk::DescriptorType {
         match self {
             DescriptorKind::StorageBuffer => vk::DescriptorType::STORAGE_BUFFER,
@@ -120,10 +127,13 @@ fn image_view_type(
 /// One descriptor binding of a shader, as reflected.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct BindingInfo {
+    /// Descriptor set index.
     pub set: u32,
+    /// Binding index within the set.
     pub binding: u32,
     /// Variable name, or the block's type name when the variable has none.
     pub name: String,
+    /// What kind of descriptor the shader expects.
     pub kind: DescriptorKind,
     /// Array size (1 for a single descriptor).
     pub count: u32,
@@ -141,6 +151,7 @@ pub struct BindingInfo {
 pub struct SpecConstant {
     /// `constant_id` in GLSL, `SpecId` in SPIR-V.
     pub id: u32,
+    /// The constant's name in the shader (`id<N>` for an unnamed one, e.g. `local_size_x_id`).
     pub name: String,
     /// The default value's bits (VkBool32 0/1 for booleans).
     pub default: u32,
@@ -149,8 +160,11 @@ pub struct SpecConstant {
 /// A compute shader: SPIR-V words plus everything needed to build its pipeline.
 #[derive(Clone, Debug)]
 pub struct Shader {
+    /// The name given to [`Shader::from_spirv`] (used in error messages and debug names).
     pub name: String,
+    /// The SPIR-V module, as 32-bit words.
     pub words: Vec<u32>,
+    /// The compute entry point's name.
     pub entry_point: String,
     /// Workgroup size with the specialization constants' defaults.
     pub local_size: [u32; 3],

@@ -32,23 +32,41 @@ impl std::str::FromStr for DeviceSelector {
 /// The device limits that matter to the kernels.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct DeviceLimits {
+    /// `maxStorageBufferRange`: the most bytes one storage-buffer binding may cover.
     pub max_storage_buffer_range: u64,
+    /// `maxUniformBufferRange`: the most bytes one uniform-buffer binding may cover.
     pub max_uniform_buffer_range: u64,
+    /// `maxMemoryAllocationSize` (Vulkan 1.1): the largest single allocation.
     pub max_memory_allocation_size: u64,
+    /// `maxPushConstantsSize`: bytes of push constants a pipeline may declare.
     pub max_push_constants_size: u32,
+    /// `maxImageDimension2D`: the largest width or height of a 2D image.
     pub max_image_dimension_2d: u32,
+    /// `maxImageDimension3D`: the largest extent along any axis of a 3D image.
     pub max_image_dimension_3d: u32,
+    /// `maxImageDimensionCube`: the largest face size of a cube-compatible image.
     pub max_image_dimension_cube: u32,
+    /// `maxImageArrayLayers`: the most array layers of an image.
     pub max_image_array_layers: u32,
+    /// `maxSamplerAnisotropy`: the highest anisotropy a sampler may ask for.
     pub max_sampler_anisotropy: f32,
+    /// `maxSamplerLodBias`: the largest absolute mip LOD bias of a sampler.
     pub max_sampler_lod_bias: f32,
+    /// `maxComputeSharedMemorySize`: bytes of workgroup-shared memory a compute shader may use.
     pub max_compute_shared_memory_size: u32,
+    /// `maxComputeWorkGroupInvocations`: the most invocations in one workgroup.
     pub max_compute_work_group_invocations: u32,
+    /// `maxComputeWorkGroupSize`: the largest workgroup size per axis.
     pub max_compute_work_group_size: [u32; 3],
+    /// `maxComputeWorkGroupCount`: the most workgroups one dispatch may launch per axis.
     pub max_compute_work_group_count: [u32; 3],
+    /// `maxBoundDescriptorSets`: the most descriptor sets a pipeline layout may use.
     pub max_bound_descriptor_sets: u32,
+    /// `minStorageBufferOffsetAlignment`: what a storage-buffer binding's offset must be a multiple of.
     pub min_storage_buffer_offset_alignment: u64,
+    /// `minUniformBufferOffsetAlignment`: what a uniform-buffer binding's offset must be a multiple of.
     pub min_uniform_buffer_offset_alignment: u64,
+    /// Invocations per subgroup (Vulkan 1.1 subgroup properties).
     pub subgroup_size: u32,
     /// Nanoseconds per timestamp tick.
     pub timestamp_period_ns: f32,
@@ -61,18 +79,25 @@ pub struct DeviceLimits {
 pub struct DeviceInfo {
     /// Position in the enumeration order (what `--device N` selects).
     pub index: usize,
+    /// The device name the driver reports (`<unnamed>` if it reports none).
     pub name: String,
+    /// Discrete GPU, integrated GPU, virtual GPU, CPU or other, in words.
     pub device_type: String,
     #[serde(skip)]
     pub(crate) kind: vk::PhysicalDeviceType,
+    /// The Vulkan version the device supports, as `major.minor.patch`.
     pub api_version: String,
+    /// The driver's name and version information (Vulkan 1.2 driver properties).
     pub driver: String,
+    /// PCI vendor id (a Khronos vendor id for a vendor without one).
     pub vendor_id: u32,
+    /// The vendor's device id.
     pub device_id: u32,
     /// Device-local heap size in bytes (largest device-local heap).
     pub device_local_bytes: u64,
     /// Whether the device meets vkshade's requirements, and if not why.
     pub usable: std::result::Result<(), String>,
+    /// The limits vkshade checks its work against.
     pub limits: DeviceLimits,
     /// Optional features the device supports.
     pub features: Features,
@@ -259,8 +284,11 @@ impl DeviceInfo {
 /// What `vkshade info` reports: every device, and whether validation is available.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct SystemInfo {
+    /// The Vulkan loader's instance version, as `major.minor.patch`.
     pub loader_version: String,
+    /// Whether the Khronos validation layer is installed.
     pub validation_layer: bool,
+    /// Every physical device, in enumeration order.
     pub devices: Vec<DeviceInfo>,
 }
 

@@ -100,6 +100,7 @@ impl MemoryConfig {
 /// How to create a [`Context`].
 #[derive(Clone, Debug, Default)]
 pub struct ContextDesc {
+    /// Which physical device to use.
     pub device: DeviceSelector,
     /// `None`: no validation layer. `Some`: the layer is required and an error if missing.
     pub validation: Option<ValidationConfig>,
@@ -107,6 +108,7 @@ pub struct ContextDesc {
     pub features: Features,
     /// Device extensions to enable, e.g. `"VK_EXT_shader_atomic_float"` (an error if missing).
     pub extensions: Vec<String>,
+    /// Allocator block sizes and the staging ring's size.
     pub memory: MemoryConfig,
 }
 
@@ -123,13 +125,18 @@ impl ContextDesc {
 /// A device created outside vkshade (see [`Context::from_external`]).
 #[derive(Clone)]
 pub struct ExternalDevice {
+    /// The loader the instance was created with.
     pub entry: ash::Entry,
+    /// The caller's instance (Vulkan 1.3).
     pub instance: ash::Instance,
+    /// The physical device `device` was created on.
     pub physical_device: vk::PhysicalDevice,
+    /// The caller's logical device.
     pub device: ash::Device,
     /// The queue vkshade submits to, behind the caller's lock (vkshade locks it for each
     /// submission; the caller locks it for its own).
     pub queue: Arc<Mutex<vk::Queue>>,
+    /// The family of `queue` (compute-capable).
     pub queue_family: u32,
     /// Whether the instance has VK_EXT_debug_utils enabled.
     pub debug_utils: bool,

@@ -14,6 +14,7 @@ pub enum ImageDim {
     D2,
     /// 2D with a multiple of six layers, viewable as cube maps.
     Cube,
+    /// 3D, one layer; depth slices are addressed by offset and extent.
     D3,
 }
 
@@ -21,15 +22,21 @@ pub enum ImageDim {
 /// array layers, usage, whether views may use other formats, and placement.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct ImageDesc {
+    /// Dimension: 2D (array), cube-compatible 2D, or 3D.
     pub dim: ImageDim,
+    /// The texel format (a colour format; checked against the device at creation).
     pub format: vk::Format,
     /// Width, height, depth (depth 1 unless 3D).
     pub extent: [u32; 3],
+    /// Mip levels (1 to a full chain).
     pub mips: u32,
+    /// Array layers (six per cube for [`ImageDim::Cube`], 1 for 3D).
     pub layers: u32,
+    /// How the image may be used; each usage needs the matching format feature.
     pub usage: vk::ImageUsageFlags,
     /// Views may use other compatible formats (e.g. sRGB and UNORM views of one image).
     pub mutable_format: bool,
+    /// Where its memory lives and whether it gets an allocation of its own.
     pub placement: Placement,
 }
 
@@ -100,16 +107,19 @@ impl ImageDesc {
         self
     }
 
+    /// Lets views use other formats of the same texel size (e.g. sRGB and UNORM views).
     pub fn mutable_format(mut self) -> Self {
         self.mutable_format = true;
         self
     }
 
+    /// Sets where the image's memory lives.
     pub fn placement(mut self, placement: Placement) -> Self {
         self.placement = placement;
         self
     }
 
+    /// The Vulkan image type: 3D for [`ImageDim::D3`], else 2D.
     pub fn image_type(&self) -> vk::ImageType {
         match self.dim {
             ImageDim::D3 => vk::ImageType::TYPE_3D,
@@ -180,9 +190,13 @@ impl ImageDesc {
 /// A range of mip levels and array layers.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct Subresources {
+    /// First mip level.
     pub base_mip: u32,
+    /// Number of mip levels from `base_mip`.
     pub mip_count: u32,
+    /// First array layer.
     pub base_layer: u32,
+    /// Number of array layers from `base_layer`.
     pub layer_count: u32,
 }
 
@@ -207,6 +221,7 @@ impl Subresources {
         }
     }
 
+    /// The range as Vulkan spells it (colour aspect).
     pub fn vk(&self) -> vk::ImageSubresourceRange {
         vk::ImageSubresourceRange {
             aspect_mask: vk::ImageAspectFlags::COLOR,
@@ -244,10 +259,15 @@ impl Subresources {
 /// `extent` (depth 1 unless 3D).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct ImageRegion {
+    /// The mip level.
     pub mip: u32,
+    /// First array layer.
     pub base_layer: u32,
+    /// Number of array layers from `base_layer`.
     pub layers: u32,
+    /// Texel offset of the region's corner within the mip level.
     pub offset: [u32; 3],
+    /// Width, height and depth in texels.
     pub extent: [u32; 3],
 }
 
@@ -268,6 +288,7 @@ impl ImageRegion {
         Self::mip(desc, 0)
     }
 
+    /// Texels in the region, over all its layers.
     pub fn texels(&self) -> u64 {
         self.extent.iter().map(|&e| e as u64).product::<u64>() * self.layers as u64
     }
@@ -277,6 +298,7 @@ impl ImageRegion {
         Ok(desc.block()?.bytes_for(self.extent) * self.layers as u64)
     }
 
+    /// The subresources the region touches: its mip level and layers.
     pub fn subresources(&self) -> Subresources {
         Subresources {
             base_mip: self.mip,

@@ -10,8 +10,11 @@ use ash::vk;
 /// whole blocks: regions start on a block boundary and end on one or at the mip edge.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct FormatBlock {
+    /// Block width in texels.
     pub width: u32,
+    /// Block height in texels.
     pub height: u32,
+    /// Bytes one block takes.
     pub bytes: u64,
 }
 

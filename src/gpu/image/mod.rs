@@ -382,18 +382,22 @@ impl Image {
         self.inner.clone()
     }
 
+    /// The Vulkan image, for callers that record their own commands with it.
     pub fn raw(&self) -> vk::Image {
         self.inner.raw
     }
 
+    /// What the image is (shape, format, usage, placement).
     pub fn desc(&self) -> &ImageDesc {
         &self.inner.desc
     }
 
+    /// The name given at creation (also its debug-utils name).
     pub fn name(&self) -> &str {
         &self.inner.name
     }
 
+    /// Bytes of the image's own allocation (0 for an alias-group member or a caller's image).
     pub fn allocation_size(&self) -> u64 {
         self.inner.alloc_size
     }

@@ -10,13 +10,19 @@ use std::sync::Arc;
 /// Filtering, addressing and level-of-detail of a sampler.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct SamplerDesc {
+    /// Filter when magnifying.
     pub mag_filter: vk::Filter,
+    /// Filter when minifying.
     pub min_filter: vk::Filter,
+    /// Nearest mip level, or linear interpolation between two.
     pub mipmap_mode: vk::SamplerMipmapMode,
     /// Address modes for u, v, w.
     pub address: [vk::SamplerAddressMode; 3],
+    /// Colour outside the image for the clamp-to-border address mode.
     pub border: vk::BorderColor,
+    /// Added to the computed level of detail (at most `maxSamplerLodBias` in magnitude).
     pub mip_lod_bias: f32,
+    /// Lowest level of detail used (clamps the computed one).
     pub min_lod: f32,
     /// `vk::LOD_CLAMP_NONE` for every level.
     pub max_lod: f32,
@@ -53,11 +59,13 @@ impl SamplerDesc {
         }
     }
 
+    /// The same address mode on every axis.
     pub fn address(mut self, mode: vk::SamplerAddressMode) -> Self {
         self.address = [mode; 3];
         self
     }
 
+    /// An address mode per axis.
     pub fn address_uvw(
         mut self,
         u: vk::SamplerAddressMode,
@@ -68,22 +76,27 @@ impl SamplerDesc {
         self
     }
 
+    /// Sets the border colour.
     pub fn border(mut self, border: vk::BorderColor) -> Self {
         self.border = border;
         self
     }
 
+    /// Clamps the level of detail to `min..=max`.
     pub fn lod(mut self, min: f32, max: f32) -> Self {
         self.min_lod = min;
         self.max_lod = max;
         self
     }
 
+    /// Anisotropic filtering up to `max` (needs the `sampler_anisotropy` feature).
     pub fn anisotropy(mut self, max: f32) -> Self {
         self.anisotropy = Some(max);
         self
     }
 
+    /// Unnormalized (texel) coordinates: level 0 only, nearest mip mode, and the
+    /// minification filter set to the magnification filter (as Vulkan requires).
     pub fn unnormalized(mut self) -> Self {
         self.unnormalized = true;
         self.mipmap_mode = vk::SamplerMipmapMode::NEAREST;
@@ -197,6 +210,8 @@ impl std::fmt::Debug for Sampler {
 }
 
 impl Sampler {
+    /// Creates a sampler, checking LOD range, bias, anisotropy and the unnormalized-coordinate
+    /// rules against the device.
     pub fn new(ctx: &Context, name: &str, desc: SamplerDesc) -> Result<Sampler> {
         desc.check(ctx, name)?;
         let mut info = vk::SamplerCreateInfo::default()
@@ -228,14 +243,17 @@ impl Sampler {
         })
     }
 
+    /// The Vulkan sampler.
     pub fn raw(&self) -> vk::Sampler {
         self.inner.raw
     }
 
+    /// What the sampler does.
     pub fn desc(&self) -> &SamplerDesc {
         &self.inner.desc
     }
 
+    /// The name given at creation (also its debug-utils name).
     pub fn name(&self) -> &str {
         &self.inner.name
     }

@@ -10,22 +10,28 @@ use ash::vk;
 /// them when `None`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub struct ViewDesc {
+    /// The view type; `None` picks one from the image and the subresources.
     pub view_type: Option<vk::ImageViewType>,
+    /// The view's format; `None` is the image's (another needs `mutable_format`).
     pub format: Option<vk::Format>,
+    /// The mips and layers seen; `None` is all of them.
     pub subresources: Option<Subresources>,
 }
 
 impl ViewDesc {
+    /// Views the image as `format` (same texel size; the image needs `mutable_format`).
     pub fn format(mut self, format: vk::Format) -> Self {
         self.format = Some(format);
         self
     }
 
+    /// Sets the view type (checked against the image and the layer count).
     pub fn view_type(mut self, t: vk::ImageViewType) -> Self {
         self.view_type = Some(t);
         self
     }
 
+    /// Restricts the view to `s`.
     pub fn subresources(mut self, s: Subresources) -> Self {
         self.subresources = Some(s);
         self

@@ -14,24 +14,39 @@ use std::sync::Arc;
 #[derive(Clone, Copy)]
 pub enum Barrier<'a> {
     /// All memory: every resource accessed as `prev` before and as `next` after.
-    Global { prev: AccessSet, next: AccessSet },
-    Buffer {
-        buffer: &'a Buffer,
+    Global {
+        /// The accesses to wait for.
         prev: AccessSet,
+        /// The accesses that wait.
+        next: AccessSet,
+    },
+    /// A whole buffer.
+    Buffer {
+        /// The buffer.
+        buffer: &'a Buffer,
+        /// How it was accessed before.
+        prev: AccessSet,
+        /// How it is accessed after.
         next: AccessSet,
     },
     /// Subresources of an image; with `discard` their old contents are dropped (old layout
     /// UNDEFINED).
     Image {
+        /// The image.
         image: &'a Image,
+        /// The mips and layers the barrier covers.
         range: Subresources,
+        /// How they were accessed before (their layout included).
         prev: AccessSet,
+        /// How they are accessed after (their layout included).
         next: AccessSet,
+        /// Whether the old contents may be dropped.
         discard: bool,
     },
 }
 
 impl<'a> Barrier<'a> {
+    /// A global barrier: every resource accessed as `prev` before and as `next` after.
     pub fn global(prev: impl Into<AccessSet>, next: impl Into<AccessSet>) -> Self {
         Barrier::Global {
             prev: prev.into(),
@@ -39,6 +54,7 @@ impl<'a> Barrier<'a> {
         }
     }
 
+    /// A barrier on a whole buffer.
     pub fn buffer(
         buffer: &'a Buffer,
         prev: impl Into<AccessSet>,
@@ -103,11 +119,15 @@ pub struct PlannedBarrier {
     pub(super) buffer: Option<vk::Buffer>,
     pub(super) image: Option<(vk::Image, Subresources)>,
     pub(super) target: Arc<dyn crate::gpu::lifetime::Used>,
+    /// The accesses the barrier waits for.
     pub prev: AccessSet,
+    /// The accesses that wait.
     pub next: AccessSet,
     /// Make `prev`'s (already available) writes visible to `next`.
     pub force_visible: bool,
+    /// An image's layout before (UNDEFINED for a buffer, or to discard the contents).
     pub old_layout: vk::ImageLayout,
+    /// An image's layout after (UNDEFINED for a buffer).
     pub new_layout: vk::ImageLayout,
 }
 

@@ -9,15 +9,18 @@ use ash::vk;
 /// GPU time of one named pass.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct PassTiming {
+    /// The name given to [`Recorder::begin_pass`].
     pub name: String,
     /// Nesting depth (0 = outermost).
     pub depth: usize,
+    /// GPU time between the pass's two timestamps, in milliseconds.
     pub ms: f64,
 }
 
 /// GPU times of the passes of one submission, from timestamp queries.
 #[derive(Clone, Debug, Default, serde::Serialize)]
 pub struct Timings {
+    /// The timed passes, in the order they were opened.
     pub passes: Vec<PassTiming>,
     /// Passes that got no timing: beyond the query capacity (`MAX_PASSES`), or no
     /// timestamps on this queue.

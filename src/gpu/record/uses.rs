@@ -30,13 +30,17 @@ pub enum BarrierMode {
 /// A declared use of a resource, for [`Recorder::plan`].
 #[derive(Clone, Copy)]
 pub enum Use<'a> {
+    /// A whole buffer, and how it is accessed next.
     Buffer(&'a Buffer, AccessSet),
+    /// Subresources of an image, and how they are accessed next (layout included).
     Image(&'a Image, Subresources, AccessSet),
 }
 
 /// A member of an alias group starting to be used (see [`Recorder::alias_switch`]).
 pub enum AliasUse<'a> {
+    /// A buffer member, and how it is accessed first.
     Buffer(&'a Buffer, AccessSet),
+    /// An image member (all of it), and how it is accessed first.
     Image(&'a Image, AccessSet),
 }
 
