@@ -1,5 +1,3 @@
-#![warn(missing_docs)]
-
 //! The Vulkan layer. Nothing here knows about ambient occlusion, skin or BTFs.
 //!
 //! - [`context`]: instance, device, queue, allocator, validation, the timeline.
@@ -10,6 +8,8 @@
 //! - [`shader`], [`pipeline`]: reflection, pipelines, bind groups with declared accesses.
 //! - [`record`]: recordings, submissions, staged uploads and readbacks, timestamps.
 //! - `lifetime`, `staging`: deferred destruction and the staging ring.
+
+#![warn(missing_docs)]
 
 pub mod context;
 pub mod image;

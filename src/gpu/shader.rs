@@ -210,50 +210,10 @@ impl Shader {
         let reflected = module
             .enumerate_descriptor_bindings(None)
             .map_err(|e| err(format!("reflection of bindings failed: {e}")))?;
-        let mut bindings = Vec::with_capacity(reflected.len());
-        for b in reflected {
-            use spirv_reflect::types::ReflectDescriptorType as R;
-            let kind = match b.descriptor_type {
-                R::StorageBuffer => DescriptorKind::StorageBuffer,
-                R::UniformBuffer => DescriptorKind::UniformBuffer,
-                R::StorageImage => DescriptorKind::StorageImage,
-                R::SampledImage => DescriptorKind::SampledImage,
-                R::CombinedImageSampler => DescriptorKind::CombinedImageSampler,
-                R::Sampler => DescriptorKind::Sampler,
-                other => {
-                    return Err(err(format!(
-                        "binding {}.{} '{}' has descriptor type {other:?}, which vkshade does not bind",
-                        b.set, b.binding, b.name
-                    )));
-                }
-            };
-            let type_name = b
-                .type_description
-                .as_ref()
-                .map(|t| t.type_name.clone())
-                .unwrap_or_default();
-            let non_writable = |f: spirv_reflect::types::ReflectDecorationFlags| {
-                f.contains(spirv_reflect::types::ReflectDecorationFlags::NON_WRITABLE)
-            };
-            let members = &b.block.members;
-            let read_only = non_writable(b.block.decoration_flags)
-                || (!members.is_empty()
-                    && members.iter().all(|m| non_writable(m.decoration_flags)));
-            bindings.push(BindingInfo {
-                set: b.set,
-                binding: b.binding,
-                name: match (b.name.is_empty(), type_name.is_empty()) {
-                    (false, _) => b.name,
-                    (true, false) => type_name,
-                    (true, true) => format!("set{}_binding{}", b.set, b.binding),
-                },
-                kind,
-                count: b.count.max(1),
-                min_size: b.block.size as u64,
-                read_only,
-                view_type: image_view_type(kind, &b.image),
-            });
-        }
+        let mut bindings = reflected
+            .into_iter()
+            .map(|b| binding_info(b).map_err(err))
+            .collect::<Result<Vec<_>>>()?;
         bindings.sort_by_key(|b| (b.set, b.binding));
         let reflected: Vec<(u32, u32)> = bindings.iter().map(|b| (b.set, b.binding)).collect();
         let declared = decorated_bindings(&words);
@@ -295,6 +255,53 @@ impl Shader {
     pub fn invocations(&self) -> u32 {
         self.local_size.iter().product()
     }
+}
+
+/// One reflected binding as vkshade describes it; an error for a descriptor type vkshade
+/// does not bind.
+fn binding_info(
+    b: spirv_reflect::types::ReflectDescriptorBinding,
+) -> std::result::Result<BindingInfo, String> {
+    use spirv_reflect::types::ReflectDescriptorType as R;
+    let kind = match b.descriptor_type {
+        R::StorageBuffer => DescriptorKind::StorageBuffer,
+        R::UniformBuffer => DescriptorKind::UniformBuffer,
+        R::StorageImage => DescriptorKind::StorageImage,
+        R::SampledImage => DescriptorKind::SampledImage,
+        R::CombinedImageSampler => DescriptorKind::CombinedImageSampler,
+        R::Sampler => DescriptorKind::Sampler,
+        other => {
+            return Err(format!(
+                "binding {}.{} '{}' has descriptor type {other:?}, which vkshade does not bind",
+                b.set, b.binding, b.name
+            ));
+        }
+    };
+    let type_name = b
+        .type_description
+        .as_ref()
+        .map(|t| t.type_name.clone())
+        .unwrap_or_default();
+    let non_writable = |f: spirv_reflect::types::ReflectDecorationFlags| {
+        f.contains(spirv_reflect::types::ReflectDecorationFlags::NON_WRITABLE)
+    };
+    let members = &b.block.members;
+    let read_only = non_writable(b.block.decoration_flags)
+        || (!members.is_empty() && members.iter().all(|m| non_writable(m.decoration_flags)));
+    Ok(BindingInfo {
+        set: b.set,
+        binding: b.binding,
+        name: match (b.name.is_empty(), type_name.is_empty()) {
+            (false, _) => b.name,
+            (true, false) => type_name,
+            (true, true) => format!("set{}_binding{}", b.set, b.binding),
+        },
+        kind,
+        count: b.count.max(1),
+        min_size: b.block.size as u64,
+        read_only,
+        view_type: image_view_type(kind, &b.image),
+    })
 }
 
 /// The entry point's name, its workgroup size (default values), and per axis the SpecId of

@@ -1,5 +1,3 @@
-#![warn(missing_docs)]
-
 //! The kernel contract: what every kernel provides, and the code written once for all of them.
 //!
 //! A kernel is shaders + the method's code + this small glue. It is *prepared* from a scene
@@ -17,6 +15,8 @@
 //! render graph, [`record_as_graph`]), [`Kernel::record_pass`] (a labelled, timed pass with
 //! barriers from the tracker) and [`Kernel::record`]. The frame runner ([`run_frames`]) and
 //! the pass timer (`bench::time_passes`) work for any kernel.
+
+#![warn(missing_docs)]
 
 use crate::error::{Error, Result};
 use crate::gpu::{
