@@ -91,7 +91,7 @@ impl Recorder {
     ///
     /// # Safety
     /// Every semaphore must be a live semaphore of this device, other than the context's
-    /// own timeline ([`Context::timeline`], refused with an error); a binary semaphore waited
+    /// own timeline ([`Context::timeline`](crate::gpu::Context::timeline), refused with an error); a binary semaphore waited
     /// on must have a signal submitted before (or with) this submission and no other wait
     /// on it, one signalled must not be signalled already; timeline values must follow the
     /// Vulkan rules (signals increase). The semaphores must stay alive until the submission
@@ -160,7 +160,7 @@ impl Recorder {
         self.submit()?.wait()
     }
 
-    /// Finishes a recorder made by [`Context::record_into`]: closes its passes and returns
+    /// Finishes a recorder made by [`Context::record_into`](crate::gpu::Context::record_into): closes its passes and returns
     /// what the caller's submission needs ([`Recorded::signal`]).
     pub fn finish(mut self) -> Result<Recorded> {
         if !self.is_external() {
@@ -214,7 +214,7 @@ impl Drop for Submission {
     }
 }
 
-/// Commands recorded into a caller's command buffer ([`Context::record_into`]) and what
+/// Commands recorded into a caller's command buffer ([`Context::record_into`](crate::gpu::Context::record_into)) and what
 /// they use (staging, readbacks, timestamps).
 pub struct Recorded {
     finished: Option<Finished>,
@@ -224,7 +224,7 @@ pub struct Recorded {
 impl Recorded {
     /// Reserves this recording's timeline value, stamps what it uses, and returns the
     /// signal to add to the caller's `vkQueueSubmit2` of the command buffer (see the
-    /// contract of [`Context::record_into`]). Calling it again returns the same signal.
+    /// contract of [`Context::record_into`](crate::gpu::Context::record_into)). Calling it again returns the same signal.
     pub fn signal(&mut self) -> vk::SemaphoreSubmitInfo<'static> {
         let shared = self
             .finished
