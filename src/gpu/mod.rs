@@ -9,6 +9,8 @@
 //! - [`record`]: recordings, submissions, staged uploads and readbacks, timestamps.
 //! - `lifetime`, `staging`: deferred destruction and the staging ring.
 
+#![warn(missing_docs)]
+
 pub mod context;
 pub mod image;
 mod lifetime;

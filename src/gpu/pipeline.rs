@@ -17,11 +17,14 @@ use std::sync::atomic::{AtomicU64, Ordering};
 /// An image (through a view) given for a binding.
 #[derive(Clone, Copy, Debug)]
 pub struct ImageRef<'a> {
+    /// The image bound.
     pub image: &'a Image,
+    /// The view of it the binding sees (by default every subresource, its own format).
     pub view: ViewDesc,
 }
 
 impl<'a> ImageRef<'a> {
+    /// The default view of `image`: every subresource, its own format.
     pub fn new(image: &'a Image) -> Self {
         ImageRef {
             image,
@@ -29,6 +32,7 @@ impl<'a> ImageRef<'a> {
         }
     }
 
+    /// Binds the view `view` describes instead.
     pub fn view(mut self, view: ViewDesc) -> Self {
         self.view = view;
         self
@@ -48,8 +52,11 @@ pub enum Resource<'a> {
     Buffer(&'a Buffer),
     /// Part of a buffer: `size` bytes from `offset`.
     BufferRange {
+        /// The buffer.
         buffer: &'a Buffer,
+        /// Byte offset of the range (a multiple of the binding kind's offset alignment).
         offset: u64,
+        /// Bytes in the range.
         size: u64,
     },
     /// A storage image (`image2D`...; GENERAL layout when dispatched).
@@ -65,14 +72,17 @@ pub enum Resource<'a> {
 }
 
 impl<'a> Resource<'a> {
+    /// The default view of `image` as a storage image.
     pub fn storage_image(image: &'a Image) -> Self {
         Resource::StorageImage(image.into())
     }
 
+    /// The default view of `image` as a sampled image without sampler.
     pub fn texture(image: &'a Image) -> Self {
         Resource::Texture(image.into())
     }
 
+    /// The default view of `image` with `sampler`, for a combined image sampler.
     pub fn sampled(image: &'a Image, sampler: &'a Sampler) -> Self {
         Resource::Sampled(image.into(), sampler)
     }
@@ -388,26 +398,32 @@ impl ComputePipeline {
         self.inner.clone()
     }
 
+    /// The name given at creation (also its debug-utils name).
     pub fn name(&self) -> &str {
         &self.inner.name
     }
 
+    /// Workgroup size, after specialization constants.
     pub fn local_size(&self) -> [u32; 3] {
         self.inner.local_size
     }
 
+    /// Bytes of push constants the shader declares (what a dispatch must pass).
     pub fn push_constant_size(&self) -> u32 {
         self.inner.push_constant_size
     }
 
+    /// The shader's bindings, sorted by set and binding.
     pub fn bindings(&self) -> &[BindingInfo] {
         &self.inner.bindings
     }
 
+    /// The Vulkan pipeline.
     pub fn raw(&self) -> vk::Pipeline {
         self.inner.raw
     }
 
+    /// The Vulkan pipeline layout (set layouts and push-constant range from reflection).
     pub fn layout(&self) -> vk::PipelineLayout {
         self.inner.layout
     }
@@ -735,8 +751,11 @@ pub(crate) struct BoundUse {
 /// How one binding of a bind group is accessed (for inspection, e.g. by a render graph).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct DeclaredUse {
+    /// The binding's name in the shader.
     pub binding: String,
+    /// The name of the buffer or image bound to it.
     pub resource: String,
+    /// How the dispatch accesses it.
     pub access: AccessSet,
 }
 

@@ -69,15 +69,22 @@ pub fn validate_spirv(words: &[u32]) -> std::result::Result<(), String> {
 /// The kind of a descriptor binding, as a pipeline expects it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum DescriptorKind {
+    /// A storage buffer (`buffer` block).
     StorageBuffer,
+    /// A uniform buffer (`uniform` block).
     UniformBuffer,
+    /// A storage image (`image2D`...).
     StorageImage,
+    /// A sampled image without sampler (`texture2D`...).
     SampledImage,
+    /// A sampled image with its sampler (`sampler2D`...).
     CombinedImageSampler,
+    /// A sampler alone (`sampler`).
     Sampler,
 }
 
 impl DescriptorKind {
+    /// The Vulkan descriptor type.
     pub fn vk(self) -> vk::DescriptorType {
         match self {
             DescriptorKind::StorageBuffer => vk::DescriptorType::STORAGE_BUFFER,
@@ -120,10 +127,13 @@ fn image_view_type(
 /// One descriptor binding of a shader, as reflected.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct BindingInfo {
+    /// Descriptor set index.
     pub set: u32,
+    /// Binding index within the set.
     pub binding: u32,
     /// Variable name, or the block's type name when the variable has none.
     pub name: String,
+    /// What kind of descriptor the shader expects.
     pub kind: DescriptorKind,
     /// Array size (1 for a single descriptor).
     pub count: u32,
@@ -141,6 +151,7 @@ pub struct BindingInfo {
 pub struct SpecConstant {
     /// `constant_id` in GLSL, `SpecId` in SPIR-V.
     pub id: u32,
+    /// The constant's name in the shader (`id<N>` for an unnamed one, e.g. `local_size_x_id`).
     pub name: String,
     /// The default value's bits (VkBool32 0/1 for booleans).
     pub default: u32,
@@ -149,8 +160,11 @@ pub struct SpecConstant {
 /// A compute shader: SPIR-V words plus everything needed to build its pipeline.
 #[derive(Clone, Debug)]
 pub struct Shader {
+    /// The name given to [`Shader::from_spirv`] (used in error messages and debug names).
     pub name: String,
+    /// The SPIR-V module, as 32-bit words.
     pub words: Vec<u32>,
+    /// The compute entry point's name.
     pub entry_point: String,
     /// Workgroup size with the specialization constants' defaults.
     pub local_size: [u32; 3],
@@ -196,50 +210,10 @@ impl Shader {
         let reflected = module
             .enumerate_descriptor_bindings(None)
             .map_err(|e| err(format!("reflection of bindings failed: {e}")))?;
-        let mut bindings = Vec::with_capacity(reflected.len());
-        for b in reflected {
-            use spirv_reflect::types::ReflectDescriptorType as R;
-            let kind = match b.descriptor_type {
-                R::StorageBuffer => DescriptorKind::StorageBuffer,
-                R::UniformBuffer => DescriptorKind::UniformBuffer,
-                R::StorageImage => DescriptorKind::StorageImage,
-                R::SampledImage => DescriptorKind::SampledImage,
-                R::CombinedImageSampler => DescriptorKind::CombinedImageSampler,
-                R::Sampler => DescriptorKind::Sampler,
-                other => {
-                    return Err(err(format!(
-                        "binding {}.{} '{}' has descriptor type {other:?}, which vkshade does not bind",
-                        b.set, b.binding, b.name
-                    )));
-                }
-            };
-            let type_name = b
-                .type_description
-                .as_ref()
-                .map(|t| t.type_name.clone())
-                .unwrap_or_default();
-            let non_writable = |f: spirv_reflect::types::ReflectDecorationFlags| {
-                f.contains(spirv_reflect::types::ReflectDecorationFlags::NON_WRITABLE)
-            };
-            let members = &b.block.members;
-            let read_only = non_writable(b.block.decoration_flags)
-                || (!members.is_empty()
-                    && members.iter().all(|m| non_writable(m.decoration_flags)));
-            bindings.push(BindingInfo {
-                set: b.set,
-                binding: b.binding,
-                name: match (b.name.is_empty(), type_name.is_empty()) {
-                    (false, _) => b.name,
-                    (true, false) => type_name,
-                    (true, true) => format!("set{}_binding{}", b.set, b.binding),
-                },
-                kind,
-                count: b.count.max(1),
-                min_size: b.block.size as u64,
-                read_only,
-                view_type: image_view_type(kind, &b.image),
-            });
-        }
+        let mut bindings = reflected
+            .into_iter()
+            .map(|b| binding_info(b).map_err(err))
+            .collect::<Result<Vec<_>>>()?;
         bindings.sort_by_key(|b| (b.set, b.binding));
         let reflected: Vec<(u32, u32)> = bindings.iter().map(|b| (b.set, b.binding)).collect();
         let declared = decorated_bindings(&words);
@@ -281,6 +255,53 @@ impl Shader {
     pub fn invocations(&self) -> u32 {
         self.local_size.iter().product()
     }
+}
+
+/// One reflected binding as vkshade describes it; an error for a descriptor type vkshade
+/// does not bind.
+fn binding_info(
+    b: spirv_reflect::types::ReflectDescriptorBinding,
+) -> std::result::Result<BindingInfo, String> {
+    use spirv_reflect::types::ReflectDescriptorType as R;
+    let kind = match b.descriptor_type {
+        R::StorageBuffer => DescriptorKind::StorageBuffer,
+        R::UniformBuffer => DescriptorKind::UniformBuffer,
+        R::StorageImage => DescriptorKind::StorageImage,
+        R::SampledImage => DescriptorKind::SampledImage,
+        R::CombinedImageSampler => DescriptorKind::CombinedImageSampler,
+        R::Sampler => DescriptorKind::Sampler,
+        other => {
+            return Err(format!(
+                "binding {}.{} '{}' has descriptor type {other:?}, which vkshade does not bind",
+                b.set, b.binding, b.name
+            ));
+        }
+    };
+    let type_name = b
+        .type_description
+        .as_ref()
+        .map(|t| t.type_name.clone())
+        .unwrap_or_default();
+    let non_writable = |f: spirv_reflect::types::ReflectDecorationFlags| {
+        f.contains(spirv_reflect::types::ReflectDecorationFlags::NON_WRITABLE)
+    };
+    let members = &b.block.members;
+    let read_only = non_writable(b.block.decoration_flags)
+        || (!members.is_empty() && members.iter().all(|m| non_writable(m.decoration_flags)));
+    Ok(BindingInfo {
+        set: b.set,
+        binding: b.binding,
+        name: match (b.name.is_empty(), type_name.is_empty()) {
+            (false, _) => b.name,
+            (true, false) => type_name,
+            (true, true) => format!("set{}_binding{}", b.set, b.binding),
+        },
+        kind,
+        count: b.count.max(1),
+        min_size: b.block.size as u64,
+        read_only,
+        view_type: image_view_type(kind, &b.image),
+    })
 }
 
 /// The entry point's name, its workgroup size (default values), and per axis the SpecId of

@@ -23,30 +23,51 @@ use std::ops::BitOr;
 pub enum AccessType {
     /// No access: the resource's contents are undefined or irrelevant.
     Nothing,
+    /// Indirect draw or dispatch arguments read from a buffer.
     IndirectBuffer,
+    /// An index buffer read by a draw.
     IndexBuffer,
+    /// A vertex buffer read by a draw.
     VertexBuffer,
+    /// Uniform buffer read in a vertex shader.
     VertexShaderReadUniformBuffer,
+    /// Sampled image read in a vertex shader (SHADER_READ_ONLY_OPTIMAL).
     VertexShaderReadSampledImage,
+    /// Storage buffer or storage image read in a vertex shader.
     VertexShaderReadOther,
+    /// Uniform buffer read in a fragment shader.
     FragmentShaderReadUniformBuffer,
+    /// Sampled image read in a fragment shader (SHADER_READ_ONLY_OPTIMAL).
     FragmentShaderReadSampledImage,
+    /// Storage buffer or storage image read in a fragment shader.
     FragmentShaderReadOther,
+    /// Colour attachment read (blending; COLOR_ATTACHMENT_OPTIMAL).
     ColorAttachmentRead,
+    /// Depth/stencil attachment read by the fragment tests (read-only layout).
     DepthStencilAttachmentRead,
+    /// Uniform buffer read in a compute shader.
     ComputeShaderReadUniformBuffer,
+    /// Sampled image read in a compute shader (SHADER_READ_ONLY_OPTIMAL).
     ComputeShaderReadSampledImage,
     /// Storage buffer or storage image read in a compute shader.
     ComputeShaderReadOther,
+    /// Source of a copy or blit (TRANSFER_SRC_OPTIMAL).
     TransferRead,
+    /// Read by the host through mapped memory.
     HostRead,
+    /// Storage buffer or storage image write in a vertex shader.
     VertexShaderWrite,
+    /// Storage buffer or storage image write in a fragment shader.
     FragmentShaderWrite,
+    /// Colour attachment write (COLOR_ATTACHMENT_OPTIMAL).
     ColorAttachmentWrite,
+    /// Depth/stencil attachment write by the fragment tests.
     DepthStencilAttachmentWrite,
     /// Storage buffer or storage image write in a compute shader.
     ComputeShaderWrite,
+    /// Destination of a copy, blit, clear or fill (TRANSFER_DST_OPTIMAL).
     TransferWrite,
+    /// Written by the host through mapped memory.
     HostWrite,
     /// Any access by any command (a full barrier; GENERAL layout).
     General,
@@ -55,7 +76,9 @@ pub enum AccessType {
 /// Stage, access and layout of one [`AccessType`].
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct AccessInfo {
+    /// The pipeline stages the access happens in.
     pub stages: vk::PipelineStageFlags2,
+    /// The access flags it uses.
     pub access: vk::AccessFlags2,
     /// Layout for images; `UNDEFINED` for accesses that never touch images.
     pub layout: vk::ImageLayout,
@@ -73,6 +96,7 @@ pub const COMPUTE_OR_TRANSFER: AccessSet = AccessSet(
 );
 
 impl AccessType {
+    /// Every access type, in declaration order (bit `i` of an [`AccessSet`] is `ALL[i]`).
     pub const ALL: [AccessType; 25] = [
         AccessType::Nothing,
         AccessType::IndirectBuffer,
@@ -201,6 +225,7 @@ impl AccessType {
 pub struct AccessSet(u32);
 
 impl AccessSet {
+    /// No access.
     pub const EMPTY: AccessSet = AccessSet(0);
 
     /// The raw bit set (bit `i` = `AccessType::ALL[i]`).
@@ -213,16 +238,19 @@ impl AccessSet {
         AccessSet(bits & ((1 << AccessType::ALL.len()) - 1))
     }
 
+    /// Whether `a` is in the set.
     pub fn contains(self, a: AccessType) -> bool {
         self.0 & (1 << a as u8) != 0
     }
 
+    /// The access types in the set, in declaration order.
     pub fn iter(self) -> impl Iterator<Item = AccessType> {
         AccessType::ALL
             .into_iter()
             .filter(move |a| self.contains(*a))
     }
 
+    /// Whether the set holds no access (only `Nothing`, or nothing at all).
     pub fn is_empty(self) -> bool {
         self.iter().all(|a| a == AccessType::Nothing)
     }
@@ -270,9 +298,13 @@ impl<T: Into<AccessSet>> BitOr<T> for AccessSet {
 /// Source and destination scopes of one dependency.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct BarrierMasks {
+    /// Stages to wait for.
     pub src_stages: vk::PipelineStageFlags2,
+    /// Writes to make available.
     pub src_access: vk::AccessFlags2,
+    /// Stages that wait.
     pub dst_stages: vk::PipelineStageFlags2,
+    /// Accesses the available writes are made visible to.
     pub dst_access: vk::AccessFlags2,
 }
 

@@ -34,11 +34,15 @@ pub struct AccessState {
 /// One dependency the tracker wants recorded.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct Transition {
+    /// The accesses to wait for.
     pub prev: AccessSet,
+    /// The accesses that wait.
     pub next: AccessSet,
     /// Force visibility to `next` (the source wrote only through a layout transition).
     pub force_visible: bool,
+    /// The layout before (UNDEFINED for buffers, or to discard an image's contents).
     pub old_layout: vk::ImageLayout,
+    /// The layout after (UNDEFINED for buffers).
     pub new_layout: vk::ImageLayout,
 }
 
@@ -126,6 +130,7 @@ impl AccessState {
 pub type BufferState = AccessState;
 
 impl BufferState {
+    /// [`AccessState::apply`] for a buffer: no layouts, nothing to discard.
     pub fn apply_buffer(&mut self, next: AccessSet) -> Option<Transition> {
         self.apply(next, false, false)
     }
@@ -142,11 +147,14 @@ pub struct ImageState {
 /// A transition for a range of subresources.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct RangeTransition {
+    /// The subresources it covers.
     pub range: Subresources,
+    /// The dependency they need.
     pub transition: Transition,
 }
 
 impl ImageState {
+    /// Every subresource of a `mips` x `layers` image unused (UNDEFINED layout).
     pub fn new(mips: u32, layers: u32) -> Self {
         ImageState {
             mips,
@@ -160,10 +168,12 @@ impl ImageState {
         self.subs[(layer * self.mips + mip) as usize]
     }
 
+    /// Replaces the state of one subresource.
     pub fn set(&mut self, mip: u32, layer: u32, s: AccessState) {
         self.subs[(layer * self.mips + mip) as usize] = s;
     }
 
+    /// Declares `range` last accessed as `access` (outside tracking), with nothing to wait for.
     pub fn assume(&mut self, range: &Subresources, access: AccessSet) {
         for layer in range.base_layer..range.base_layer + range.layer_count {
             for mip in range.base_mip..range.base_mip + range.mip_count {

@@ -12,13 +12,16 @@ use std::sync::{Arc, Mutex};
 /// Severity of a collected message.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, serde::Serialize)]
 pub enum Severity {
+    /// A warning, performance and best-practices warnings included.
     Warning,
+    /// An error: invalid Vulkan use reported by a layer, or a leak vkshade reports at shutdown.
     Error,
 }
 
 /// One message from the validation layers or the loader.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct ValidationMessage {
+    /// Warning or error.
     pub severity: Severity,
     /// GENERAL / VALIDATION / PERFORMANCE, as reported by the layer.
     pub kind: String,
@@ -26,6 +29,7 @@ pub struct ValidationMessage {
     pub id_number: i32,
     /// `pMessageIdName`, e.g. `SYNC-HAZARD-READ-AFTER-WRITE`.
     pub id_name: String,
+    /// The message text as the layer wrote it.
     pub text: String,
     /// Debug-utils names of the objects involved, where they were named.
     pub objects: Vec<String>,
@@ -87,6 +91,7 @@ impl MessageSink {
         lock(&self.messages).len()
     }
 
+    /// Whether no message is stored.
     pub fn is_empty(&self) -> bool {
         self.len() == 0
     }
@@ -141,7 +146,7 @@ pub(crate) unsafe extern "system" fn debug_callback(
         };
         // SAFETY: non-null, provided by the layer for the duration of the call.
         let data = unsafe { &*data };
-        // SAFETY: `user_data` is the pointer registered at messenger creation (see context.rs).
+        // SAFETY: `user_data` is the pointer registered at messenger creation (see context/instance.rs).
         let sink = unsafe { &*(user_data as *const MessageSink) };
         let objects = if data.p_objects.is_null() {
             Vec::new()

@@ -16,6 +16,8 @@
 //! barriers from the tracker) and [`Kernel::record`]. The frame runner ([`run_frames`]) and
 //! the pass timer (`bench::time_passes`) work for any kernel.
 
+#![warn(missing_docs)]
+
 use crate::error::{Error, Result};
 use crate::gpu::{
     AccessSet, AccessType, BarrierMode, BindGroup, Buffer, ComputePipeline, Context, DeclaredUse,
@@ -35,7 +37,9 @@ pub struct PassInfo {
 /// One declared use, in a serialisable form.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct UseInfo {
+    /// The binding's name in the shader (`(upload)` for an upload pass).
     pub binding: String,
+    /// The name of the buffer or image used.
     pub resource: String,
     /// The access types, e.g. `{ComputeShaderReadOther}`.
     pub access: String,
@@ -65,6 +69,7 @@ pub enum Grid {
 pub struct Dispatch {
     /// Push-constant bytes (the pipeline's reflected block).
     pub push: Vec<u8>,
+    /// How many invocations or workgroups to dispatch.
     pub grid: Grid,
 }
 
@@ -102,13 +107,18 @@ pub enum Step<'k, K: Kernel + ?Sized> {
     /// A compute dispatch. Its uses are `bind`'s declared accesses (reflection defaults plus
     /// the kernel's overrides, [`ComputePipeline::bind_declared`]).
     Dispatch {
+        /// The pipeline dispatched.
         pipeline: &'k ComputePipeline,
+        /// Its bind group; the pass's uses are its declared accesses.
         bind: &'k BindGroup,
+        /// Gives the frame's push constants and grid.
         args: DispatchArgs<K>,
     },
     /// A host-to-device upload into `buffer` at offset 0 (a transfer write).
     Upload {
+        /// The buffer written.
         buffer: &'k Buffer,
+        /// Gives the frame's bytes.
         bytes: UploadBytes<K>,
     },
 }
@@ -117,6 +127,7 @@ pub enum Step<'k, K: Kernel + ?Sized> {
 pub struct Pass<'k, K: Kernel + ?Sized> {
     /// Debug label and timing name.
     pub name: &'static str,
+    /// What the pass touches and how it is recorded.
     pub step: Step<'k, K>,
 }
 
@@ -293,8 +304,11 @@ pub fn record_as_graph<K: Kernel>(
 
 /// One completed frame from [`run_frames`].
 pub struct FrameResult<O> {
+    /// Position of the frame's input in the sequence given to [`run_frames`].
     pub index: usize,
+    /// The kernel's output for the frame, read back.
     pub output: O,
+    /// GPU times of the frame's passes.
     pub timings: Timings,
 }
 
@@ -352,13 +366,18 @@ where
 /// many frames were in flight together.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct KernelInfo {
+    /// The kernel's name ([`Kernel::name`]).
     pub name: &'static str,
+    /// Its passes in recording order, with their declared uses.
     pub passes: Vec<PassInfo>,
+    /// Device memory of its resources ([`Kernel::memory`]).
     pub memory: MemoryReport,
+    /// The most frames that were in flight together.
     pub frames_in_flight: usize,
 }
 
 impl KernelInfo {
+    /// Describes `kernel` for a report, with the frames in flight that [`run_frames`] returned.
     pub fn of<K: Kernel>(kernel: &K, frames_in_flight: usize) -> Self {
         KernelInfo {
             name: kernel.name(),

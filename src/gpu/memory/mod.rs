@@ -8,6 +8,20 @@
 //! Host access to mapped memory is by copy ([`Buffer::write`], [`Buffer::read`]): each waits
 //! for the last submission that used the buffer, and submissions that use the buffer wait for
 //! a copy in progress, so the host never touches bytes the device is reading or writing.
+//!
+//! Here: buffers (creation, host copies, the owning handle). Beside them: `desc` (where
+//! memory lives, and what a buffer is), `allocation` (allocating through gpu-allocator,
+//! memory reports, the backing of a resource) and `alias` (alias groups).
+
+mod alias;
+mod allocation;
+mod desc;
+
+pub(crate) use alias::AliasInner;
+pub use alias::{AliasGroup, AliasMember};
+pub use allocation::MemoryReport;
+pub(crate) use allocation::{Backing, MemoryStats, back};
+pub use desc::{BufferDesc, Dedicated, Location, Placement};
 
 use super::context::{Context, Shared};
 use super::lifetime::{Retired, Stamp, Used};
@@ -15,461 +29,8 @@ use super::sync::AccessSet;
 use super::validation::lock;
 use crate::error::{Error, Result, VkResultExt};
 use ash::vk;
-use gpu_allocator::MemoryLocation;
-use gpu_allocator::vulkan::{Allocation, AllocationCreateDesc, AllocationScheme};
-use std::sync::atomic::Ordering;
+use gpu_allocator::vulkan::AllocationScheme;
 use std::sync::{Arc, Mutex};
-
-/// Where a resource's memory lives.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize)]
-pub enum Location {
-    /// Device-local; reached from the host only through staging copies.
-    Device,
-    /// Host-visible, written by the host, read by the device (staging, per-frame data).
-    Upload,
-    /// Host-visible and cached where possible, written by the device, read by the host.
-    Readback,
-}
-
-impl Location {
-    fn gpu_allocator(self) -> MemoryLocation {
-        match self {
-            Location::Device => MemoryLocation::GpuOnly,
-            Location::Upload => MemoryLocation::CpuToGpu,
-            Location::Readback => MemoryLocation::GpuToCpu,
-        }
-    }
-
-    pub fn host_visible(self) -> bool {
-        self != Location::Device
-    }
-}
-
-/// Whether a resource gets a `VkDeviceMemory` of its own.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize)]
-pub enum Dedicated {
-    /// Dedicated when the driver prefers or requires it (VkMemoryDedicatedRequirements),
-    /// otherwise sub-allocated from the allocator's blocks.
-    #[default]
-    Auto,
-    Always,
-    /// Sub-allocated unless the driver *requires* a dedicated allocation.
-    Never,
-}
-
-/// Where and how a resource's memory is allocated.
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize)]
-pub struct Placement {
-    pub location: Location,
-    pub dedicated: Dedicated,
-}
-
-impl Placement {
-    pub const DEVICE: Placement = Placement {
-        location: Location::Device,
-        dedicated: Dedicated::Auto,
-    };
-    pub const UPLOAD: Placement = Placement {
-        location: Location::Upload,
-        dedicated: Dedicated::Auto,
-    };
-    pub const READBACK: Placement = Placement {
-        location: Location::Readback,
-        dedicated: Dedicated::Auto,
-    };
-
-    pub const fn dedicated(mut self, d: Dedicated) -> Placement {
-        self.dedicated = d;
-        self
-    }
-}
-
-/// What a buffer is: size, usage and placement (the name is given separately).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
-pub struct BufferDesc {
-    pub size: u64,
-    pub usage: vk::BufferUsageFlags,
-    pub placement: Placement,
-}
-
-impl BufferDesc {
-    /// A device-local storage buffer that can be copied to and from.
-    pub const fn storage(size: u64) -> Self {
-        BufferDesc {
-            size,
-            usage: vk::BufferUsageFlags::from_raw(
-                vk::BufferUsageFlags::STORAGE_BUFFER.as_raw()
-                    | vk::BufferUsageFlags::TRANSFER_DST.as_raw()
-                    | vk::BufferUsageFlags::TRANSFER_SRC.as_raw(),
-            ),
-            placement: Placement::DEVICE,
-        }
-    }
-
-    /// A device-local uniform buffer that can be copied to and from.
-    pub const fn uniform(size: u64) -> Self {
-        BufferDesc {
-            size,
-            usage: vk::BufferUsageFlags::from_raw(
-                vk::BufferUsageFlags::UNIFORM_BUFFER.as_raw()
-                    | vk::BufferUsageFlags::TRANSFER_DST.as_raw()
-                    | vk::BufferUsageFlags::TRANSFER_SRC.as_raw(),
-            ),
-            placement: Placement::DEVICE,
-        }
-    }
-
-    /// A host-visible buffer the host writes and the device reads (copy source, storage).
-    pub const fn upload(size: u64) -> Self {
-        BufferDesc {
-            size,
-            usage: vk::BufferUsageFlags::from_raw(
-                vk::BufferUsageFlags::TRANSFER_SRC.as_raw()
-                    | vk::BufferUsageFlags::TRANSFER_DST.as_raw()
-                    | vk::BufferUsageFlags::STORAGE_BUFFER.as_raw(),
-            ),
-            placement: Placement::UPLOAD,
-        }
-    }
-
-    /// A host-visible buffer the device writes and the host reads.
-    pub const fn readback(size: u64) -> Self {
-        BufferDesc {
-            size,
-            usage: vk::BufferUsageFlags::from_raw(
-                vk::BufferUsageFlags::TRANSFER_DST.as_raw()
-                    | vk::BufferUsageFlags::TRANSFER_SRC.as_raw()
-                    | vk::BufferUsageFlags::STORAGE_BUFFER.as_raw(),
-            ),
-            placement: Placement::READBACK,
-        }
-    }
-
-    pub const fn usage(mut self, usage: vk::BufferUsageFlags) -> Self {
-        self.usage = vk::BufferUsageFlags::from_raw(self.usage.as_raw() | usage.as_raw());
-        self
-    }
-
-    pub const fn placement(mut self, placement: Placement) -> Self {
-        self.placement = placement;
-        self
-    }
-}
-
-/// Memory statistics of a context (all its resources) or a kernel.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
-pub struct MemoryReport {
-    /// Bytes of live allocations (sub-allocations and dedicated ones).
-    pub used_bytes: u64,
-    /// Bytes of device memory reserved in the allocator's blocks (used or not). For an
-    /// allocator shared with a renderer this covers the renderer's allocations too.
-    pub reserved_bytes: u64,
-    /// Live allocations.
-    pub allocations: u64,
-    /// Highest `used_bytes` seen since the context was created.
-    pub peak_used_bytes: u64,
-    /// Bytes of the staging ring (included in the numbers above).
-    pub staging_ring_bytes: u64,
-}
-
-/// Counters kept by the context (the allocator's own report gives the reserved bytes).
-#[derive(Debug, Default)]
-pub(crate) struct MemoryStats {
-    used: std::sync::atomic::AtomicU64,
-    peak: std::sync::atomic::AtomicU64,
-    count: std::sync::atomic::AtomicU64,
-}
-
-impl Shared {
-    /// Allocates memory for `requirements` with `placement`. `dedicated_for` names the object
-    /// a dedicated allocation is made for; `prefers_dedicated` comes from the driver.
-    pub(crate) fn allocate(
-        &self,
-        name: &str,
-        requirements: vk::MemoryRequirements,
-        placement: Placement,
-        linear: bool,
-        dedicated: (AllocationScheme, bool, bool),
-    ) -> Result<Allocation> {
-        let (scheme, prefers, requires) = dedicated;
-        let use_dedicated = match placement.dedicated {
-            Dedicated::Always => true,
-            Dedicated::Auto => prefers || requires,
-            Dedicated::Never => requires,
-        };
-        let allocation = lock(&self.allocator)
-            .allocate(&AllocationCreateDesc {
-                name,
-                requirements,
-                location: placement.location.gpu_allocator(),
-                linear,
-                allocation_scheme: if use_dedicated {
-                    scheme
-                } else {
-                    AllocationScheme::GpuAllocatorManaged
-                },
-            })
-            .map_err(|source| Error::Alloc {
-                name: name.to_string(),
-                source,
-            })?;
-        let size = allocation.size();
-        let used = self.stats.used.fetch_add(size, Ordering::AcqRel) + size;
-        self.stats.peak.fetch_max(used, Ordering::AcqRel);
-        self.stats.count.fetch_add(1, Ordering::AcqRel);
-        Ok(allocation)
-    }
-
-    /// Frees memory from [`Shared::allocate`].
-    ///
-    /// # Safety
-    /// No pending GPU work may use the memory.
-    pub(crate) unsafe fn free_memory(&self, allocation: Allocation) {
-        self.stats
-            .used
-            .fetch_sub(allocation.size(), Ordering::AcqRel);
-        self.stats.count.fetch_sub(1, Ordering::AcqRel);
-        let _ = lock(&self.allocator).free(allocation);
-    }
-
-    pub(crate) fn memory_report(&self) -> MemoryReport {
-        let report = lock(&self.allocator).generate_report();
-        MemoryReport {
-            used_bytes: self.stats.used.load(Ordering::Acquire),
-            reserved_bytes: report.total_capacity_bytes,
-            allocations: self.stats.count.load(Ordering::Acquire),
-            peak_used_bytes: self.stats.peak.load(Ordering::Acquire),
-            staging_ring_bytes: lock(&self.staging).capacity(),
-        }
-    }
-}
-
-impl Context {
-    /// Memory used and reserved by this context's resources.
-    pub fn memory_report(&self) -> MemoryReport {
-        self.shared.memory_report()
-    }
-
-    /// The memory of a set of buffers (a kernel's): their allocations' bytes and count; the
-    /// reserved, peak and ring bytes are the context's (blocks are shared).
-    pub fn memory_of(&self, buffers: &[&Buffer]) -> MemoryReport {
-        MemoryReport {
-            used_bytes: buffers.iter().map(|b| b.allocation_size()).sum(),
-            allocations: buffers.len() as u64,
-            ..self.memory_report()
-        }
-    }
-}
-
-/// Where a resource's memory comes from.
-pub(crate) enum Backing {
-    /// Its own allocation (sub-allocated or dedicated), freed with it.
-    Own(Allocation),
-    /// Memory of an alias group, freed with the group.
-    Group(Arc<AliasInner>),
-    /// Memory owned by the caller ([`Buffer::from_raw`], [`super::Image::from_raw`]).
-    External,
-}
-
-impl Backing {
-    pub fn size(&self) -> u64 {
-        match self {
-            Backing::Own(a) => a.size(),
-            _ => 0,
-        }
-    }
-
-    /// Stamps an alias group's memory with a use of one of its members.
-    pub fn stamp(&self, value: u64) {
-        if let Backing::Group(g) = self {
-            g.stamp.raise(value);
-        }
-    }
-
-    /// The objects to retire with the resource.
-    pub fn retire(self) -> Option<Retired> {
-        match self {
-            Backing::Own(a) => Some(Retired::Memory(a)),
-            _ => None,
-        }
-    }
-}
-
-/// Memory shared by transient resources that are never live at the same time (aliasing).
-///
-/// Each member is bound at offset 0. Switching from one member to another needs a barrier
-/// from every access of the previous member to the first access of the next, and an image
-/// member starts from `discard` (its contents are undefined): see
-/// [`super::Recorder::alias_switch`].
-pub struct AliasGroup {
-    inner: Arc<AliasInner>,
-}
-
-pub(crate) struct AliasInner {
-    shared: Arc<Shared>,
-    name: String,
-    allocation: Mutex<Option<Allocation>>,
-    memory: vk::DeviceMemory,
-    offset: u64,
-    size: u64,
-    type_bits: u32,
-    location: Location,
-    stamp: Stamp,
-}
-
-/// One future member of an alias group, to size the group's memory.
-#[derive(Clone, Copy, Debug)]
-pub enum AliasMember<'a> {
-    Buffer(&'a BufferDesc),
-    Image(&'a super::image::ImageDesc),
-}
-
-impl AliasGroup {
-    /// Memory large and aligned enough for each of `members` (one at a time), in the memory
-    /// types all of them accept.
-    pub fn new(
-        ctx: &Context,
-        name: &str,
-        location: Location,
-        members: &[AliasMember<'_>],
-    ) -> Result<AliasGroup> {
-        let shared = &ctx.shared;
-        if members.is_empty() {
-            return Err(Error::InvalidArgument(format!(
-                "alias group '{name}' has no members"
-            )));
-        }
-        let mut req = vk::MemoryRequirements {
-            size: 0,
-            alignment: 1,
-            memory_type_bits: !0,
-        };
-        for m in members {
-            let r = match m {
-                AliasMember::Buffer(d) => buffer_requirements(shared, d)?,
-                AliasMember::Image(d) => super::image::image_requirements(shared, name, d)?,
-            };
-            req.size = req.size.max(r.size);
-            req.alignment = req.alignment.max(r.alignment);
-            req.memory_type_bits &= r.memory_type_bits;
-        }
-        if req.memory_type_bits == 0 {
-            return Err(Error::Unsupported {
-                device: shared.info.name.clone(),
-                what: format!("one memory type for all members of alias group '{name}'"),
-            });
-        }
-        let allocation = shared.allocate(
-            name,
-            req,
-            Placement {
-                location,
-                dedicated: Dedicated::Never,
-            },
-            false,
-            (AllocationScheme::GpuAllocatorManaged, false, false),
-        )?;
-        // SAFETY: reading the handle of a live allocation.
-        let memory = unsafe { allocation.memory() };
-        Ok(AliasGroup {
-            inner: Arc::new(AliasInner {
-                shared: shared.clone(),
-                name: name.to_string(),
-                memory,
-                offset: allocation.offset(),
-                size: req.size,
-                type_bits: req.memory_type_bits,
-                allocation: Mutex::new(Some(allocation)),
-                location,
-                stamp: Stamp::default(),
-            }),
-        })
-    }
-
-    pub fn size(&self) -> u64 {
-        self.inner.size
-    }
-
-    pub fn name(&self) -> &str {
-        &self.inner.name
-    }
-
-    pub(crate) fn keep(&self) -> Arc<AliasInner> {
-        self.inner.clone()
-    }
-}
-
-impl AliasInner {
-    /// Checks that a member with `req` fits; returns (memory, offset) to bind at.
-    pub(crate) fn bind_point(
-        &self,
-        member: &str,
-        req: &vk::MemoryRequirements,
-    ) -> Result<(vk::DeviceMemory, u64)> {
-        if req.size > self.size
-            || self.offset % req.alignment.max(1) != 0
-            || req.memory_type_bits & self.type_bits != self.type_bits
-        {
-            return Err(Error::InvalidArgument(format!(
-                "'{member}' ({} bytes, alignment {}, memory types {:#x}) does not fit alias group \
-                 '{}' ({} bytes, memory types {:#x}); list it among the group's members",
-                req.size, req.alignment, req.memory_type_bits, self.name, self.size, self.type_bits
-            )));
-        }
-        Ok((self.memory, self.offset))
-    }
-
-    pub(crate) fn location(&self) -> Location {
-        self.location
-    }
-}
-
-impl Drop for AliasInner {
-    fn drop(&mut self) {
-        if let Some(a) = lock(&self.allocation).take() {
-            self.shared.retire(self.stamp.get(), [Retired::Memory(a)]);
-        }
-    }
-}
-
-fn buffer_requirements(shared: &Shared, desc: &BufferDesc) -> Result<vk::MemoryRequirements> {
-    let info = vk::BufferCreateInfo::default()
-        .size(desc.size.max(1))
-        .usage(desc.usage)
-        .sharing_mode(vk::SharingMode::EXCLUSIVE);
-    let query = vk::DeviceBufferMemoryRequirements::default().create_info(&info);
-    let mut out = vk::MemoryRequirements2::default();
-    // SAFETY: valid create info; maintenance4 (core 1.3) is enabled on every vkshade device.
-    unsafe {
-        shared
-            .device
-            .get_device_buffer_memory_requirements(&query, &mut out)
-    };
-    Ok(out.memory_requirements)
-}
-
-/// Memory for a new buffer or image: bound in `group`, or an allocation of its own per
-/// `placement` (dedicated when the policy and the driver's `dedicated` answer say so).
-/// Returns the backing and where to bind.
-pub(crate) fn back(
-    shared: &Shared,
-    name: &str,
-    requirements: vk::MemoryRequirements,
-    dedicated: (AllocationScheme, bool, bool),
-    placement: Placement,
-    linear: bool,
-    group: Option<&AliasGroup>,
-) -> Result<(Backing, vk::DeviceMemory, u64)> {
-    if let Some(g) = group {
-        let (m, o) = g.inner.bind_point(name, &requirements)?;
-        return Ok((Backing::Group(g.keep()), m, o));
-    }
-    let a = shared.allocate(name, requirements, placement, linear, dedicated)?;
-    // SAFETY: reading the handle of a live allocation.
-    let memory = unsafe { a.memory() };
-    let offset = a.offset();
-    Ok((Backing::Own(a), memory, offset))
-}
 
 /// Pointer to mapped memory; the allocation it points into is owned by the same object.
 #[derive(Clone, Copy)]
@@ -691,26 +252,32 @@ impl Buffer {
         self.inner.clone()
     }
 
+    /// The Vulkan buffer, for callers that record their own commands with it.
     pub fn raw(&self) -> vk::Buffer {
         self.inner.raw
     }
 
+    /// Size in bytes.
     pub fn size(&self) -> u64 {
         self.inner.desc.size
     }
 
+    /// The name given at creation (also its debug-utils name).
     pub fn name(&self) -> &str {
         &self.inner.name
     }
 
+    /// The usages the buffer was created with.
     pub fn usage(&self) -> vk::BufferUsageFlags {
         self.inner.desc.usage
     }
 
+    /// What the buffer is (size, usage, placement).
     pub fn desc(&self) -> &BufferDesc {
         &self.inner.desc
     }
 
+    /// Where the buffer's memory lives.
     pub fn placement(&self) -> Placement {
         self.inner.desc.placement
     }

@@ -1,0 +1,220 @@
+//! Command recording: passes (debug labels + timestamps), barriers (explicit or derived from
+//! declared uses), dispatches, copies, staged uploads and readbacks, then a submission.
+//!
+//! A [`Recorder`] keeps everything it records alive (reference counts) until it is
+//! submitted; submitting stamps each object with the timeline value the submission signals,
+//! so dropping a resource afterwards only retires it behind that value. Nothing borrows:
+//! kernels, resources and recordings can be dropped in any order, and a leaked
+//! [`Submission`] or [`Recorded`] leaks memory, never frees it early.
+//!
+//! The recorder's commands live beside it, one file per concern: `barrier` (explicit and
+//! planned barriers), `uses` (declared uses and the barriers they queue), `dispatch`,
+//! `transfer` and `image_transfer` (copies, uploads, readbacks, blits), `timing`
+//! (timestamp queries) and `submit` (submission and what it hands back).
+
+mod barrier;
+mod dispatch;
+mod image_transfer;
+mod submit;
+mod timing;
+mod transfer;
+mod uses;
+
+pub use barrier::{Barrier, PlannedBarrier};
+pub use submit::{Recorded, Submission};
+pub use timing::{MAX_PASSES, PassTiming, Timings};
+pub use transfer::Readback;
+pub use uses::{AliasUse, BarrierMode, Use};
+
+use super::context::{Context, Shared};
+use super::image::Subresources;
+use super::lifetime::KeepAlive;
+use super::sync::AccessSet;
+use crate::error::{Result, VkResultExt};
+use ash::vk;
+use std::ffi::CString;
+use std::sync::Arc;
+use timing::{Pass, Queries};
+
+/// Records one command buffer (its own, or a caller's).
+pub struct Recorder {
+    shared: Arc<Shared>,
+    name: String,
+    /// Null for a caller's command buffer.
+    pool: vk::CommandPool,
+    cmd: vk::CommandBuffer,
+    queries: Queries,
+    open: Vec<usize>,
+    keep: KeepAlive,
+    ring_chunks: Vec<u64>,
+    /// Barriers queued by declared uses, recorded before the next command.
+    pending: Vec<PlannedBarrier>,
+    mode: BarrierMode,
+    collected: Vec<PlannedBarrier>,
+    /// Uses already applied by `plan`/`plan_dispatch` (resource address, image range,
+    /// access): the tracked command that makes them consumes the entry instead of applying
+    /// the use twice.
+    planned_uses: Vec<(usize, Option<Subresources>, AccessSet)>,
+    /// Set while `plan`/`plan_dispatch` apply uses (they record markers, not consume them).
+    planning: bool,
+    needs_host_barrier: bool,
+    done: bool,
+}
+
+impl Context {
+    /// Starts recording a command buffer named `name` (shown in validation messages).
+    pub fn recorder(&self, name: &str) -> Result<Recorder> {
+        Recorder::new(self, name)
+    }
+
+    /// Records into a command buffer of the caller's (a renderer's frame), which the caller
+    /// submits. Pass timestamps work as usual; [`Recorder::finish`] returns a [`Recorded`]
+    /// whose [`Recorded::signal`] gives the timeline signal the submission must carry.
+    ///
+    /// # Safety
+    /// `cmd` must be a primary command buffer of this device in the recording state, for a
+    /// queue of this context's queue family, and must not be reset or freed while vkshade
+    /// records. The caller must submit `cmd` only with the semaphore signal returned by
+    /// [`Recorded::signal`] in the same batch, and must make that submission before any
+    /// later vkshade submission or `signal` on this context (timeline values are signalled
+    /// in the order they are handed out); until it is submitted, the resources it uses stay
+    /// alive (a `Recorded` that is never signalled is treated as never submitted).
+    pub unsafe fn record_into(&self, cmd: vk::CommandBuffer, name: &str) -> Result<Recorder> {
+        let mut rec = Recorder::empty(self, name, vk::CommandPool::null(), cmd);
+        rec.start_queries()?;
+        Ok(rec)
+    }
+}
+
+impl Recorder {
+    fn new(ctx: &Context, name: &str) -> Result<Recorder> {
+        ctx.shared.collect();
+        let device = &ctx.shared.device;
+        let info = vk::CommandPoolCreateInfo::default()
+            .flags(vk::CommandPoolCreateFlags::TRANSIENT)
+            .queue_family_index(ctx.shared.queue_family);
+        // SAFETY: valid device and create info.
+        let pool = unsafe { device.create_command_pool(&info, None) }.vk("vkCreateCommandPool")?;
+        // From here `rec` owns the pool: its Drop retires it on any failure.
+        let mut rec = Recorder::empty(ctx, name, pool, vk::CommandBuffer::null());
+        let alloc = vk::CommandBufferAllocateInfo::default()
+            .command_pool(pool)
+            .level(vk::CommandBufferLevel::PRIMARY)
+            .command_buffer_count(1);
+        // SAFETY: valid pool.
+        rec.cmd =
+            unsafe { device.allocate_command_buffers(&alloc) }.vk("vkAllocateCommandBuffers")?[0];
+        ctx.shared.set_name(rec.cmd, name);
+        let begin = vk::CommandBufferBeginInfo::default()
+            .flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT);
+        // SAFETY: fresh command buffer.
+        unsafe { device.begin_command_buffer(rec.cmd, &begin) }.vk("vkBeginCommandBuffer")?;
+        rec.start_queries()?;
+        Ok(rec)
+    }
+
+    fn empty(ctx: &Context, name: &str, pool: vk::CommandPool, cmd: vk::CommandBuffer) -> Recorder {
+        Recorder {
+            shared: ctx.shared.clone(),
+            name: name.to_string(),
+            pool,
+            cmd,
+            queries: Queries {
+                pool: vk::QueryPool::null(),
+                used: 0,
+                passes: Vec::new(),
+            },
+            open: Vec::new(),
+            keep: KeepAlive::default(),
+            ring_chunks: Vec::new(),
+            pending: Vec::new(),
+            mode: BarrierMode::Emit,
+            collected: Vec::new(),
+            planned_uses: Vec::new(),
+            planning: false,
+            needs_host_barrier: false,
+            done: false,
+        }
+    }
+
+    /// Whether this recorder writes into a caller's command buffer ([`Context::record_into`]).
+    pub fn is_external(&self) -> bool {
+        self.pool == vk::CommandPool::null()
+    }
+
+    /// The command buffer being recorded, for callers that add their own commands (call
+    /// [`Recorder::flush_barriers`] first so pending barriers precede them).
+    pub fn raw(&self) -> vk::CommandBuffer {
+        self.cmd
+    }
+
+    /// The recorder's name.
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// The context this recorder records for.
+    pub fn context(&self) -> Context {
+        Context {
+            shared: self.shared.clone(),
+        }
+    }
+
+    fn device(&self) -> &ash::Device {
+        &self.shared.device
+    }
+
+    /// Opens a named pass: a debug label, and a timestamp when the queue supports them.
+    /// Passes nest; each must be closed with [`Recorder::end_pass`].
+    pub fn begin_pass(&mut self, name: &str) {
+        self.flush_barriers();
+        if let Some(du) = &self.shared.debug_device {
+            let cname = CString::new(name.replace('\0', " ")).unwrap_or_default();
+            let label = vk::DebugUtilsLabelEXT::default()
+                .label_name(&cname)
+                .color([0.2, 0.6, 1.0, 1.0]);
+            // SAFETY: recording.
+            unsafe { du.cmd_begin_debug_utils_label(self.cmd, &label) };
+        }
+        // BOTTOM_OF_PIPE: the value is written once every earlier command has completed, so
+        // a pass's time never includes the tail of the previous one (a TOP_OF_PIPE value can
+        // be written early). ALL_COMMANDS means the same but draws a best-practices warning.
+        let begin = self.timestamp(vk::PipelineStageFlags2::BOTTOM_OF_PIPE);
+        self.open.push(self.queries.passes.len());
+        self.queries.passes.push(Pass {
+            name: name.to_string(),
+            depth: self.open.len() - 1,
+            begin,
+            end: None,
+        });
+    }
+
+    /// Closes the innermost open pass.
+    pub fn end_pass(&mut self) {
+        let Some(i) = self.open.pop() else {
+            return;
+        };
+        self.flush_barriers();
+        let end = if self.queries.passes[i].begin.is_some() {
+            self.timestamp(vk::PipelineStageFlags2::BOTTOM_OF_PIPE)
+        } else {
+            None
+        };
+        self.queries.passes[i].end = end;
+        if let Some(du) = &self.shared.debug_device {
+            // SAFETY: matches the label opened in begin_pass.
+            unsafe { du.cmd_end_debug_utils_label(self.cmd) };
+        }
+    }
+}
+
+impl Drop for Recorder {
+    fn drop(&mut self) {
+        if self.done {
+            return;
+        }
+        // Never submitted: nothing recorded runs. Give back ring space and pools.
+        let mut f = self.take_finished();
+        f.retire(0);
+    }
+}
