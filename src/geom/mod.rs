@@ -1,6 +1,11 @@
-//! Geometry shared by the CPU parts: a BVH, sampling, a small deterministic RNG.
+//! Geometry and shared physical models of the CPU parts, used alike by the methods and by
+//! the ground truths that judge them: a BVH and ray-cast visibility ([`visibility`]), the
+//! spherical-Gaussian algebra ([`sg`]), sampling, bilinear texture filtering, a small
+//! deterministic RNG.
 
 pub mod bvh;
+pub mod sg;
+pub mod visibility;
 
 pub use bvh::Bvh;
 use glam::Vec3;

@@ -8,12 +8,12 @@ use super::cpca::Cpca;
 use super::sg::Lobe;
 use super::{sharp, transfer};
 use crate::error::{Error, Result};
+use crate::geom::visibility::Visibility;
 use crate::gpu::{
     AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context,
     MemoryReport, Readback, Recorder, Resource,
 };
 use crate::kernels::{Dispatch, Grid, Kernel, Pass};
-use crate::reference::srbf::Visibility;
 use ash::vk;
 use glam::{Mat3, Vec3};
 
