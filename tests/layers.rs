@@ -731,8 +731,8 @@ fn a_kernel_using_its_truth_is_caught() {
     assert_eq!(
         check("src/kernels/ao/mod.rs", src),
         [
-            "src/kernels/ao/mod.rs:3: imports crate::reference::ao::RayConfig::for_scene, which layer \
-          `kernels` may not use"
+            "src/kernels/ao/mod.rs:3: imports crate::reference::ao::RayConfig::for_scene, \
+             which layer `kernels` may not use"
         ]
     );
     let src = "use crate::{gpu::Context, reference::srbf::Visibility};\n";
@@ -740,14 +740,15 @@ fn a_kernel_using_its_truth_is_caught() {
         check("src/kernels/srbf/gpu.rs", src),
         [
             "src/kernels/srbf/gpu.rs:1: imports crate::reference::srbf::Visibility, which layer \
-          `kernels` may not use"
+             `kernels` may not use"
         ]
     );
     // From kernels::ao, super::super is the crate root.
     let src = "use super::super::reference::ErrorStats;\n";
     assert_eq!(check("src/kernels/ao/mod.rs", src).len(), 1);
     // In a test, a kernel may compare against its truth.
-    let src = "fn f() {}\n#[cfg(test)]\nmod tests {\n    use crate::reference::sss::brute_force;\n}\n\
+    let src = "fn f() {}\n#[cfg(test)]\nmod tests {\n    \
+               use crate::reference::sss::brute_force;\n}\n\
                #[cfg(test)]\nuse crate::reference::ErrorStats;\n";
     assert!(check("src/kernels/sss/contact.rs", src).is_empty());
     // Comments, documentation and strings are not imports.
@@ -804,7 +805,7 @@ fn a_truth_using_a_method_is_caught() {
         check("src/kernels/btf/cloth.rs", "use super::dirs::Angles;\n"),
         [
             "src/kernels/btf/cloth.rs:1: imports crate::kernels::btf::dirs::Angles, which layer \
-          `kernels::btf::cloth` may not use"
+             `kernels::btf::cloth` may not use"
         ]
     );
     assert_eq!(
@@ -826,7 +827,7 @@ fn lower_layers_using_higher_ones_are_caught() {
         ),
         [
             "src/shaders.rs:2: imports crate::kernels::generated_includes, which layer `shaders` \
-          may not use"
+             may not use"
         ]
     );
     // A kernel timing its passes through the benchmark harness.
@@ -837,7 +838,7 @@ fn lower_layers_using_higher_ones_are_caught() {
         ),
         [
             "src/kernels/shape.rs:1: imports crate::bench::median, which layer `kernels` may not \
-          use"
+             use"
         ]
     );
     assert_eq!(
@@ -855,7 +856,7 @@ fn lower_layers_using_higher_ones_are_caught() {
         check("src/reference/ao.rs", src),
         [
             "src/reference/ao.rs:2: imports crate::kernels::Kernel, which layer `reference` may \
-          not use"
+             not use"
         ]
     );
     // main.rs names the library vkshade::, and may use anything.

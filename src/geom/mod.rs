@@ -64,7 +64,9 @@ pub fn orthonormal_basis(n: Vec3) -> (Vec3, Vec3) {
     )
 }
 
-/// Bilinear filtering with REPEAT wrapping of the texels given by `texel(c, r)`.
+/// Bilinear filtering with REPEAT wrapping of the texels given by `texel(c, r)` (texel
+/// centres at (i + 0.5) / size), as a sampler with linear filtering does: how the BTF's CPU
+/// twin filters the stored images and its ground truth the ray-cast texels.
 pub fn bilinear(size: [u32; 2], uv: [f64; 2], texel: impl Fn(u32, u32) -> [f64; 3]) -> [f64; 3] {
     let (w, h) = (size[0] as i64, size[1] as i64);
     let x = uv[0] * w as f64 - 0.5;
