@@ -6,10 +6,10 @@
 //! recording, timing), [`io`] (files), [`geom`] (CPU geometry and the physics methods and
 //! truths share: BVH, ray-cast visibility, spherical Gaussians), [`shaders`] (GLSL -> SPIR-V
 //! and the embedded modules), [`scene`] (inputs), [`kernels`] (one module per kernel),
-//! [`reference`] (CPU ground truths, independent of the methods: they use geom, scene and the
-//! kernels' model modules alone), [`report`] (the JSON pieces every command shares),
-//! [`render`] (pictures), [`bench`] (the benchmark harness), `app` (the runs behind the CLI);
-//! the binary, main.rs, on top.
+//! [`reference`](mod@reference) (CPU ground truths, independent of the methods: they use
+//! geom, scene and the kernels' model modules alone), [`report`] (the JSON pieces every
+//! command shares), [`render`] (pictures), [`bench`](mod@bench) (the benchmark harness),
+//! `app` (the runs behind the CLI); the binary, main.rs, on top.
 //!
 //! Cargo features (all on by default): `cli` (the `vkshade` tool and `app`), `plots`
 //! (benchmark plots, plotters), `gltf` (glTF characters), `png` (PNG pictures), `exr` (linear
