@@ -9,14 +9,15 @@ use glam::Vec3;
 use std::sync::OnceLock;
 use vkshade::gpu::ImageRegion;
 use vkshade::kernels::Kernel;
+use vkshade::kernels::btf::cloth::{Pattern, SynthConfig};
 use vkshade::kernels::btf::dirs::{Maps, Triangulation};
-use vkshade::kernels::btf::gbuffer::{Camera, Frame, GBuffer, Light, Object, render_object};
 use vkshade::kernels::btf::gpu::{
     BtfInputs, BtfKernel, GPU_CPU_BOUND_BLOCK, Layout, Sampled, Texture, encode_bc1, encode_blocks,
     pack, sampled_texels,
 };
-use vkshade::kernels::btf::synth::{Btf, FileFormat, Pattern, SynthConfig, synthesize, write_dir};
+use vkshade::kernels::btf::synth::{Btf, FileFormat, synthesize, write_dir};
 use vkshade::kernels::btf::{cpu, load};
+use vkshade::scene::gbuffer::{Camera, Frame, GBuffer, Light, Object, render_object};
 
 /// An 8 x 8 weave, synthesised once per test binary.
 /// Every texture array of `k`, read back and concatenated (submits `rec` and waits).
@@ -49,7 +50,7 @@ fn maps() -> Maps {
 
 fn frame() -> Frame {
     Frame {
-        camera: Camera::Perspective(Vec3::from(vkshade::kernels::btf::gbuffer::EYE)),
+        camera: Camera::Perspective(Vec3::from(vkshade::scene::gbuffer::EYE)),
         lights: vec![
             Light {
                 direction: Vec3::new(0.5, 0.8, 0.6),
@@ -528,7 +529,7 @@ fn a_mesh_with_uvs_is_shaded_like_the_cpu_and_one_without_is_refused() {
     let frame = frame();
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/testwuson.glb");
     let character = vkshade::scene::load(&path).unwrap();
-    let gbuffer = vkshade::kernels::btf::gbuffer::render_mesh(&character.mesh, 64, 64).unwrap();
+    let gbuffer = vkshade::scene::gbuffer::render_mesh(&character.mesh, 64, 64).unwrap();
     assert!(gbuffer.covered() > 100, "{} px", gbuffer.covered());
     let out = with_gpu(|ctx| {
         run(
@@ -559,7 +560,7 @@ fn a_mesh_with_uvs_is_shaded_like_the_cpu_and_one_without_is_refused() {
     assert!(max < GPU_CPU_BOUND, "|GPU - CPU| = {max}");
     assert!(want.iter().filter(|c| c[0] > 0.01).count() > 50);
     // The test ball has no texture coordinates.
-    let e = vkshade::kernels::btf::gbuffer::render_mesh(&common::ball().mesh, 8, 8)
+    let e = vkshade::scene::gbuffer::render_mesh(&common::ball().mesh, 8, 8)
         .err()
         .map(|e| e.to_string())
         .unwrap_or_default();

@@ -6,8 +6,9 @@ mod common;
 use glam::{Mat3, Vec3};
 use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
+use vkshade::geom::visibility::direction_visibility;
 use vkshade::geom::{Bvh, Rng};
-use vkshade::reference::srbf::{shade_brute_force, visibility};
+use vkshade::reference::srbf::shade_brute_force;
 use vkshade::scene::EnvMap;
 
 fn dir() -> PathBuf {
@@ -526,7 +527,7 @@ fn constant_environment_on_an_open_plane() {
     let bvh = Bvh::build(&quad, &[[0, 1, 2], [0, 2, 3]]);
     let pos = vec![Vec3::ZERO, Vec3::new(1.0, 0.0, -2.0)];
     let nrm = vec![Vec3::Y; 2];
-    let vis = visibility(&pos, &nrm, &bvh, &d, 1e-4);
+    let vis = direction_visibility(&pos, &nrm, &bvh, &d, 1e-4);
     assert_eq!(
         vis.visible_count(0),
         64 * 16,
@@ -562,7 +563,7 @@ fn constant_environment_on_an_open_plane() {
         .map(|_| vkshade::geom::uniform_sphere(rng.f32(), rng.f32()))
         .collect();
     let pos = vec![Vec3::ZERO; nrm.len()];
-    let vis = visibility(&pos, &nrm, &empty, &d, 1e-4);
+    let vis = direction_visibility(&pos, &nrm, &empty, &d, 1e-4);
     let out = shade_brute_force(&env, Mat3::IDENTITY, &nrm, &vis, [1.0; 3]).unwrap();
     let worst = out
         .iter()
@@ -579,7 +580,7 @@ fn closed_sphere_does_not_shadow_its_own_hemisphere() {
     let bvh = Bvh::build(&pos, &tris);
     let env = EnvMap::from_texels(64, 32, vec![[1.0; 3]; 64 * 32], "c").unwrap();
     let d = dirs(&env);
-    let vis = visibility(&pos, &nrm, &bvh, &d, 1e-4);
+    let vis = direction_visibility(&pos, &nrm, &bvh, &d, 1e-4);
     assert_eq!(vis.vertices, pos.len());
     for (v, n) in nrm.iter().enumerate() {
         for (k, w) in d.iter().enumerate() {
@@ -610,7 +611,7 @@ fn quad_overhead_occludes_the_sky() {
     let bvh = Bvh::build(&quad, &[[0, 1, 2], [0, 2, 3]]);
     let env = random_map(64, 9);
     let d = dirs(&env);
-    let vis = visibility(&[Vec3::ZERO], &[Vec3::Y], &bvh, &d, 1e-4);
+    let vis = direction_visibility(&[Vec3::ZERO], &[Vec3::Y], &bvh, &d, 1e-4);
     let mut open = 0;
     for (k, w) in d.iter().enumerate() {
         if w.y > 0.15 {
@@ -625,7 +626,7 @@ fn quad_overhead_occludes_the_sky() {
     assert!(open > 0 && open <= 64, "{open} directions open");
     // Fully blocked receiver (quad above, sky only near the horizon) is darker than open.
     let empty = Bvh::build(&[], &[]);
-    let free = visibility(&[Vec3::ZERO], &[Vec3::Y], &empty, &d, 1e-4);
+    let free = direction_visibility(&[Vec3::ZERO], &[Vec3::Y], &empty, &d, 1e-4);
     let a = shade_brute_force(&env, Mat3::IDENTITY, &[Vec3::Y], &vis, [1.0; 3]).unwrap();
     let b = shade_brute_force(&env, Mat3::IDENTITY, &[Vec3::Y], &free, [1.0; 3]).unwrap();
     for c in 0..3 {
@@ -653,7 +654,7 @@ fn rotation_by_whole_texels_and_full_turns() {
     t.push([n, n + 1, n + 2]);
     t.push([n, n + 2, n + 3]);
     let bvh = Bvh::build(&all, &t);
-    let vis = visibility(&pos, &nrm, &bvh, &d, 1e-4);
+    let vis = direction_visibility(&pos, &nrm, &bvh, &d, 1e-4);
     let albedo = [0.9, 0.6, 0.3];
     let base = shade_brute_force(&env, Mat3::IDENTITY, &nrm, &vis, albedo).unwrap();
     let full = std::f32::consts::TAU;
@@ -685,12 +686,12 @@ fn brute_force_rejects_mismatched_inputs() {
     let env = random_map(16, 1);
     let d = dirs(&env);
     let empty = Bvh::build(&[], &[]);
-    let vis = visibility(&[Vec3::ZERO], &[Vec3::Y], &empty, &d, 1e-4);
+    let vis = direction_visibility(&[Vec3::ZERO], &[Vec3::Y], &empty, &d, 1e-4);
     let other = random_map(32, 1);
     assert!(shade_brute_force(&other, Mat3::IDENTITY, &[Vec3::Y], &vis, [1.0; 3]).is_err());
     let mut wrong = d.clone();
     wrong.swap(0, 1);
-    let vis2 = visibility(&[Vec3::ZERO], &[Vec3::Y], &empty, &wrong, 1e-4);
+    let vis2 = direction_visibility(&[Vec3::ZERO], &[Vec3::Y], &empty, &wrong, 1e-4);
     assert!(shade_brute_force(&env, Mat3::IDENTITY, &[Vec3::Y], &vis2, [1.0; 3]).is_err());
     assert!(shade_brute_force(&env, Mat3::IDENTITY, &[Vec3::Y, Vec3::X], &vis, [1.0; 3]).is_err());
     assert!(

@@ -4,13 +4,13 @@ mod common;
 
 use glam::{Mat3, Vec3};
 use vkshade::geom::Rng;
+use vkshade::geom::sg::{self, Lobe};
+use vkshade::geom::visibility::Visibility;
 use vkshade::kernels::srbf::cpca::{Cpca, CpcaConfig, half_round};
 use vkshade::kernels::srbf::gpu::{CompactInputs, SrbfFrame, SrbfInputs, SrbfKernel};
-use vkshade::kernels::srbf::sg::{self, Lobe};
 use vkshade::kernels::srbf::sharp;
 use vkshade::kernels::srbf::transfer::{Basis, Transfer};
 use vkshade::kernels::{Kernel, run_frames};
-use vkshade::reference::srbf::Visibility;
 use vkshade::scene::envmap::EnvMap;
 
 struct Scene {
@@ -60,7 +60,9 @@ impl Scene {
             triangles.push([3 * t, 3 * t + 1, 3 * t + 2]);
         }
         let bvh = vkshade::geom::Bvh::build(&tri_points, &triangles);
-        let vis = vkshade::reference::srbf::visibility(&positions, &normals, &bvh, &dirs, 1e-4);
+        let vis = vkshade::geom::visibility::direction_visibility(
+            &positions, &normals, &bvh, &dirs, 1e-4,
+        );
         self.compact = Some(Compact { grid, normals, vis });
         self
     }
@@ -380,7 +382,8 @@ fn ground_truth_case(env_path: &str, off_grid_bound: f64) {
     use vkshade::app::srbf::RelL2;
     use vkshade::kernels::srbf::diffuse_transfer;
     use vkshade::kernels::srbf::fit::{FitConfig, fit};
-    use vkshade::reference::srbf::{mesh_visibility, shade_ground_truth};
+    use vkshade::reference::srbf::shade_ground_truth;
+    use vkshade::scene::envmap::texel_visibility;
     let env_path = std::path::Path::new(env_path);
     let env = EnvMap::load(env_path).unwrap_or_else(|e| {
         panic!("{e}\nThe Blender studio lights come from `apt-get install blender-data` (tools/setup.sh).")
@@ -398,7 +401,7 @@ fn ground_truth_case(env_path: &str, off_grid_bound: f64) {
     )
     .unwrap();
     let dir_env = env.downsampled(64).unwrap();
-    let vis = mesh_visibility(mesh, &dir_env);
+    let vis = texel_visibility(mesh, &dir_env);
     let transfer = diffuse_transfer(&Basis::fibonacci(256), &dir_env, &mesh.normals, &vis).unwrap();
     // The shipped default: 64 clusters x 16 components.
     let cpca = Cpca::compress(&transfer, &CpcaConfig::default()).unwrap();

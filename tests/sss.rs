@@ -10,10 +10,10 @@ mod common;
 use glam::{DVec3, Vec3};
 use vkshade::geom::bvh::Bvh;
 use vkshade::kernels::sss::cpu::{self, Light, SamplerParams};
-use vkshade::kernels::sss::texspace::{COVERED, TexGeometry, plane_mesh};
 use vkshade::kernels::sss::{Material, Profile, ProfileKind, SssKernel, SssOutput};
 use vkshade::kernels::{Kernel, run_frames};
 use vkshade::reference::sss as truth;
+use vkshade::scene::texspace::{COVERED, TexGeometry, plane_mesh};
 
 fn profile(kind: ProfileKind) -> Profile {
     Profile::new(kind, Material::SKIN1, 0.99).unwrap()

@@ -2,6 +2,7 @@
 //! and EXR output per frame, a JSON report and (optionally) the ray-traced ground truth.
 
 use crate::error::{Error, Result};
+use crate::geom::visibility::{RayConfig, ambient_visibility};
 use crate::gpu::{Context, Timings};
 use crate::kernels::ao::cpu::{self, CpuAo, Posed};
 use crate::kernels::ao::formula::{OcclusionTable, TABLE_SIZE};
@@ -12,7 +13,7 @@ use crate::kernels::ao::{
 use crate::kernels::{KernelInfo, run_frames};
 use crate::progress::Progress;
 use crate::reference::ErrorStats;
-use crate::reference::ao::{RayConfig, mesh_visibility, spheres_visibility};
+use crate::reference::ao::spheres_visibility;
 use crate::report::{MachineInfo, Stats};
 use crate::scene::spheretree::{BuildConfig, FitReport, SphereTree};
 use crate::scene::{self, Animation, Character, Mesh, MeshReport};
@@ -633,7 +634,7 @@ impl<'a> Session<'a> {
         let posed = cpu::skin(prep, matrices);
         let bvh = crate::geom::Bvh::build(&posed.positions, &self.character.mesh.triangles);
         let all: Vec<usize> = (0..posed.positions.len()).collect();
-        let truth = mesh_visibility(&posed.positions, &posed.normals, &bvh, &all, &self.ray_cfg);
+        let truth = ambient_visibility(&posed.positions, &posed.normals, &bvh, &all, &self.ray_cfg);
         let ray_ms = t.elapsed().as_secs_f64() * 1e3;
         let exposed: Vec<usize> = (0..truth.len()).filter(|&i| truth[i] >= 0.05).collect();
         let pick = |v: &[f32]| exposed.iter().map(|&i| v[i]).collect::<Vec<f32>>();

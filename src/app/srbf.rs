@@ -4,6 +4,7 @@
 //! stage.
 
 use crate::error::{Error, Result};
+use crate::geom::visibility::Visibility;
 use crate::gpu::Context;
 use crate::kernels::srbf::cpca::{Cpca, CpcaConfig};
 use crate::kernels::srbf::diffuse_transfer;
@@ -15,9 +16,7 @@ use crate::kernels::srbf::gpu::{
 use crate::kernels::srbf::sg::{self, Lobe};
 use crate::kernels::srbf::transfer::{self, Basis, Transfer};
 use crate::kernels::{KernelInfo, run_frames};
-use crate::reference::srbf::{
-    Visibility, mesh_visibility, rasterise_lobes, shade_brute_force_radiance, shade_ground_truth,
-};
+use crate::reference::srbf::{rasterise_lobes, shade_brute_force_radiance, shade_ground_truth};
 use crate::report::MachineInfo;
 use crate::scene::envmap::EnvMap;
 use crate::scene::{self, Mesh};
@@ -429,7 +428,7 @@ pub fn shade(
         cfg.lobes, fit_env.width, fit_env.height, fitted.rel_l2
     ));
     let dir_env = env.downsampled(cfg.direction_width.min(env.width))?;
-    let vis = mesh_visibility(mesh, &dir_env);
+    let vis = scene::envmap::texel_visibility(mesh, &dir_env);
     let (transfer, cached, transfer_ms) = transfer_for(cfg, mesh, &dir_env, &vis)?;
     progress(&format!(
         "transfer: {} basis SGs (sharpness {:.1}), projection relative L2 {:.4}{}",

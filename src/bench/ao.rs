@@ -5,6 +5,7 @@
 use super::plot::{Panel, Series};
 use super::{BenchConfig, MachineInfo, Stats, time_cpu};
 use crate::error::{Error, Result};
+use crate::geom::visibility::{RayConfig, ambient_visibility};
 use crate::gpu::Context;
 use crate::kernels::ao::cpu::{self, CpuAo};
 use crate::kernels::ao::formula::{OcclusionTable, TABLE_SIZE};
@@ -12,7 +13,6 @@ use crate::kernels::ao::{AoKernel, AoParams, Blend, Correction, Occlusion, Prepa
 use crate::kernels::ao::{PASS_OCCLUSION, PASS_SKIN};
 use crate::progress::Progress;
 use crate::reference::ErrorStats;
-use crate::reference::ao::{RayConfig, mesh_visibility};
 use crate::scene::spheretree::{BuildConfig, SphereTree};
 use crate::scene::{self, Character, Mesh};
 use glam::Mat4;
@@ -401,7 +401,7 @@ impl<'a> Setup<'a> {
         let _p = Progress::start("ray-tracing baseline", ((runs + 1) * all.len()) as u64);
         let raytrace_ms = time_cpu(runs, || {
             let bvh = crate::geom::Bvh::build(&posed.positions, &self.character.mesh.triangles);
-            mesh_visibility(
+            ambient_visibility(
                 &posed.positions,
                 &posed.normals,
                 &bvh,
@@ -502,7 +502,8 @@ impl<'a> Setup<'a> {
                 let matrices = self.character.rig.skinning_matrices(anim, t);
                 let posed = cpu::skin(&self.prep, &matrices);
                 let bvh = crate::geom::Bvh::build(&posed.positions, &self.character.mesh.triangles);
-                let truth = mesh_visibility(&posed.positions, &posed.normals, &bvh, &all, &ray_cfg);
+                let truth =
+                    ambient_visibility(&posed.positions, &posed.normals, &bvh, &all, &ray_cfg);
                 ReferenceFrame { matrices, truth }
             })
             .collect()

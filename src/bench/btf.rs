@@ -16,9 +16,9 @@ use crate::gpu::{
 };
 use crate::kernels::btf::cpu;
 use crate::kernels::btf::dirs::{self, Maps, Triangulation};
-use crate::kernels::btf::gbuffer::{Camera, EYE, Frame, GBuffer, Light, Object, render_object};
 use crate::kernels::btf::gpu::{BtfInputs, BtfKernel, FORMAT, Layout, Packing, Sampled, Texture};
 use crate::kernels::btf::synth::Btf;
+use crate::scene::gbuffer::{Camera, EYE, Frame, GBuffer, Light, Object, render_object};
 use glam::Vec3;
 use serde::Serialize;
 
@@ -128,7 +128,7 @@ fn hashed_btf(tile: u32) -> Btf {
 }
 
 fn frame(lights: usize) -> Frame {
-    let all = crate::kernels::btf::gbuffer::default_lights();
+    let all = crate::scene::gbuffer::default_lights();
     Frame {
         camera: Camera::Perspective(Vec3::from(EYE)),
         lights: all.into_iter().take(lights.max(1)).collect::<Vec<Light>>(),
@@ -137,7 +137,7 @@ fn frame(lights: usize) -> Frame {
 
 /// Taps (non-zero weight pairs per lit light) and map fetches of one frame.
 fn count_work(maps: &Maps, gb: &GBuffer, frame: &Frame) -> (u64, u64) {
-    use crate::kernels::btf::gbuffer::{frame_of, to_tangent};
+    use crate::scene::gbuffer::{frame_of, to_tangent};
     let (mut taps, mut map) = (0u64, 0u64);
     for k in 0..(gb.width * gb.height) as usize {
         let Some(px) = gb.pixel(k) else { continue };

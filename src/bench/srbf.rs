@@ -8,6 +8,7 @@ use super::{BenchConfig, MachineInfo, Stats, time_cpu};
 use crate::bench::time_passes;
 use crate::error::Result;
 use crate::geom::Rng;
+use crate::geom::sg::{self, Lobe};
 use crate::gpu::Context;
 use crate::kernels::Kernel;
 use crate::kernels::srbf::cpca::{Cpca, CpcaConfig};
@@ -17,10 +18,10 @@ use crate::kernels::srbf::gpu::{
     CompactInputs, PASS_LIGHTING, PASS_PROJECT, PASS_SHADE, PASS_SHARP, SrbfFrame, SrbfInputs,
     SrbfKernel,
 };
-use crate::kernels::srbf::sg::{self, Lobe};
 use crate::kernels::srbf::transfer::Basis;
-use crate::reference::srbf::{mesh_visibility, shade_brute_force};
+use crate::reference::srbf::shade_brute_force;
 use crate::scene::envmap::EnvMap;
+use crate::scene::envmap::texel_visibility;
 use glam::Vec3;
 use serde::Serialize;
 use std::path::PathBuf;
@@ -236,7 +237,7 @@ pub fn run(
     )?;
     let dir_env = env.downsampled(cfg.brute_force_width.min(env.width))?;
     progress("transfer of the mesh (visibility, projection, compression)");
-    let vis = mesh_visibility(mesh, &dir_env);
+    let vis = texel_visibility(mesh, &dir_env);
     let real = diffuse_transfer(&Basis::fibonacci(hk), &dir_env, &mesh.normals, &vis)?;
     let cpca = Cpca::compress(&real, &cfg.cpca)?;
     // The shipped default: compact lobes shaded from the visibility.

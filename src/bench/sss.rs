@@ -13,9 +13,9 @@ use crate::kernels::Kernel;
 use crate::kernels::sss::cpu::{self, Light, SamplerParams};
 use crate::kernels::sss::gpu::{PASS_DIFFUSION, PASS_IRRADIANCE, PASS_VERTEX};
 use crate::kernels::sss::load_mesh;
-use crate::kernels::sss::texspace::COVERED;
 use crate::kernels::sss::{Material, Profile, ProfileKind, SssKernel, TexGeometry};
 use crate::reference::sss::{ChannelError, Sources, brute_force};
+use crate::scene::texspace::COVERED;
 use glam::{DVec3, Vec3};
 use serde::Serialize;
 use std::path::PathBuf;
@@ -192,7 +192,7 @@ pub fn run(
     let profile = Profile::new(
         ProfileKind::Dipole,
         Material::SKIN1,
-        super::super::kernels::sss::profile::DEFAULT_ENERGY,
+        crate::kernels::sss::profile::DEFAULT_ENERGY,
     )?;
     progress("device peaks (FMA, streaming) for the roofline");
     let fma = super::peak::run_fma(ctx, &cfg.bench, &mut |_| {})?.throughput_median;

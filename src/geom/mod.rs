@@ -1,6 +1,11 @@
-//! Geometry shared by the CPU parts: a BVH, sampling, a small deterministic RNG.
+//! Geometry and shared physical models of the CPU parts, used alike by the methods and by
+//! the ground truths that judge them: a BVH and ray-cast visibility ([`visibility`]), the
+//! spherical-Gaussian algebra ([`sg`]), sampling, bilinear texture filtering, a small
+//! deterministic RNG.
 
 pub mod bvh;
+pub mod sg;
+pub mod visibility;
 
 pub use bvh::Bvh;
 use glam::Vec3;
@@ -57,4 +62,28 @@ pub fn orthonormal_basis(n: Vec3) -> (Vec3, Vec3) {
         Vec3::new(1.0 + sign * n.x * n.x * a, sign * b, -sign * n.x),
         Vec3::new(b, sign + n.y * n.y * a, -n.y),
     )
+}
+
+/// Bilinear filtering with REPEAT wrapping of the texels given by `texel(c, r)` (texel
+/// centres at (i + 0.5) / size), as a sampler with linear filtering does: how the BTF's CPU
+/// twin filters the stored images and its ground truth the ray-cast texels.
+pub fn bilinear(size: [u32; 2], uv: [f64; 2], texel: impl Fn(u32, u32) -> [f64; 3]) -> [f64; 3] {
+    let (w, h) = (size[0] as i64, size[1] as i64);
+    let x = uv[0] * w as f64 - 0.5;
+    let y = uv[1] * h as f64 - 0.5;
+    let (x0, y0) = (x.floor(), y.floor());
+    let (fx, fy) = (x - x0, y - y0);
+    let (x0, y0) = (x0 as i64, y0 as i64);
+    let mut out = [0.0; 3];
+    for (dy, wy) in [(0, 1.0 - fy), (1, fy)] {
+        for (dx, wx) in [(0, 1.0 - fx), (1, fx)] {
+            let c = (x0 + dx).rem_euclid(w) as u32;
+            let r = (y0 + dy).rem_euclid(h) as u32;
+            let t = texel(c, r);
+            for k in 0..3 {
+                out[k] += wx * wy * t[k];
+            }
+        }
+    }
+    out
 }

@@ -3,9 +3,9 @@
 //! tile texels the way the GPU filters the stored images, so the difference to the GPU is
 //! the interpolation error (plus the 8-bit storage).
 
-use crate::kernels::btf::cpu::bilinear;
-use crate::kernels::btf::gbuffer::{Frame, GBuffer, frame_of, to_tangent};
-use crate::kernels::btf::synth::SynthConfig;
+use crate::geom::bilinear;
+use crate::kernels::btf::cloth::SynthConfig;
+use crate::scene::gbuffer::{Frame, GBuffer, frame_of, to_tangent};
 use rayon::prelude::*;
 
 /// Per pixel: linear RGBA (alpha 0 outside the object) and the larger polar angle (degrees)

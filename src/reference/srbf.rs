@@ -23,104 +23,11 @@
 
 use crate::error::{Error, Result};
 use crate::geom::Bvh;
-use crate::kernels::srbf::sg::Lobe;
+use crate::geom::sg::{self, Lobe};
+use crate::geom::visibility::{Visibility, direction_visibility};
 use crate::scene::EnvMap;
 use glam::{Mat3, Vec3};
 use rayon::prelude::*;
-
-/// Visibility of a direction set from every vertex: one bit per (vertex, direction);
-/// directions with n . w <= 0 are invisible without casting a ray.
-#[derive(Clone, Debug)]
-pub struct Visibility {
-    pub directions: Vec<Vec3>,
-    pub vertices: usize,
-    /// `words` u64 per vertex; bit d of vertex v: word v * words + d / 64, bit d % 64.
-    bits: Vec<u64>,
-    words: usize,
-}
-
-impl Visibility {
-    /// Whether `dir` (an index into `directions`) is visible from `vertex`. Indices out of
-    /// range are not visible.
-    pub fn visible(&self, vertex: usize, dir: usize) -> bool {
-        if vertex >= self.vertices || dir >= self.directions.len() {
-            return false;
-        }
-        self.bits[vertex * self.words + dir / 64] >> (dir % 64) & 1 == 1
-    }
-
-    /// How many directions `vertex` sees.
-    pub fn visible_count(&self, vertex: usize) -> usize {
-        if vertex >= self.vertices {
-            return 0;
-        }
-        self.row(vertex)
-            .iter()
-            .map(|w| w.count_ones() as usize)
-            .sum()
-    }
-
-    /// Bits 32 w .. 32 w + 31 of `vertex`'s row (direction d is bit d % 32 of word d / 32);
-    /// 0 out of range.
-    pub fn word32(&self, vertex: usize, word: usize) -> u32 {
-        if vertex >= self.vertices || word >= self.words * 2 {
-            return 0;
-        }
-        (self.bits[vertex * self.words + word / 2] >> (32 * (word % 2))) as u32
-    }
-
-    fn row(&self, vertex: usize) -> &[u64] {
-        &self.bits[vertex * self.words..(vertex + 1) * self.words]
-    }
-}
-
-/// Casts a ray from every vertex (from p + offset * n) along every direction with n . w > 0;
-/// rayon over vertices. `directions` should be unit vectors. Vertices are the first
-/// `min(positions.len(), normals.len())` (the two should be equally long).
-pub fn visibility(
-    positions: &[Vec3],
-    normals: &[Vec3],
-    bvh: &Bvh,
-    directions: &[Vec3],
-    offset: f32,
-) -> Visibility {
-    let vertices = positions.len().min(normals.len());
-    let words = directions.len().div_ceil(64);
-    let mut bits = vec![0u64; vertices * words];
-    if words > 0 {
-        bits.par_chunks_mut(words).enumerate().for_each(|(v, row)| {
-            let (p, n) = (positions[v], normals[v]);
-            let origin = p + offset * n;
-            for (d, &w) in directions.iter().enumerate() {
-                if n.dot(w) > 0.0 && !bvh.any_hit(origin, w, f32::INFINITY) {
-                    row[d / 64] |= 1 << (d % 64);
-                }
-            }
-        });
-    }
-    Visibility {
-        directions: directions.to_vec(),
-        vertices,
-        bits,
-        words,
-    }
-}
-
-/// Visibility of every texel direction of `dir_env` from every vertex of `mesh` (BVH built
-/// here; rays start 1e-4 of the mesh's diagonal along the normal). What the transfer
-/// projection and the brute-force ground truth both read.
-pub fn mesh_visibility(mesh: &crate::scene::Mesh, dir_env: &EnvMap) -> Visibility {
-    let directions: Vec<Vec3> = dir_env.samples().iter().map(|s| s.0).collect();
-    let (lo, hi) = mesh.bounds();
-    let bvh = Bvh::build(&mesh.positions, &mesh.triangles);
-    visibility(
-        &mesh.positions,
-        &mesh.normals,
-        &bvh,
-        &directions,
-        1e-4 * (hi - lo).length(),
-    )
-}
 
 /// Brute-force outgoing radiance per vertex, f64: (albedo / pi) * sum over the env's texels p
 /// of L(R^-1 w_p) * V(w_p) * max(0, n . w_p) * dOmega_p, where w_p is texel p's direction and
@@ -194,7 +101,8 @@ pub fn shade_brute_force(
 /// lookup of the rotated map drops or doubles such a texel for rotations that do not map the
 /// grid onto itself (it equals this sum for rotations about +Y by multiples of 360 / W
 /// degrees). Costs a ray per (vertex, texel) per call, except for those rotations when
-/// `grid_visibility` (the visibility of `env`'s own texel directions, [`mesh_visibility`]) is
+/// `grid_visibility` (the visibility of `env`'s own texel directions,
+/// [`crate::scene::envmap::texel_visibility`]) is
 /// given: then it is [`shade_brute_force`] with it, the same sum.
 pub fn shade_ground_truth(
     env: &EnvMap,
@@ -218,7 +126,7 @@ pub fn shade_ground_truth(
     let directions: Vec<Vec3> = rotated.iter().map(|s| s.0).collect();
     let (lo, hi) = mesh.bounds();
     let bvh = Bvh::build(&mesh.positions, &mesh.triangles);
-    let vis = visibility(
+    let vis = direction_visibility(
         &mesh.positions,
         &mesh.normals,
         &bvh,
@@ -339,7 +247,7 @@ pub fn rasterise_lobes(lobes: &[Lobe], rotation: Mat3, env: &EnvMap) -> Vec<[f64
         .collect();
     for l in &sharp {
         let (x, y) = env.texel_of(l.axis());
-        let total = crate::kernels::srbf::sg::integral(l.sharpness as f64) / env.solid_angle(y);
+        let total = sg::integral(l.sharpness as f64) / env.solid_angle(y);
         let t = &mut out[(y * w + x) as usize];
         for (tc, a) in t.iter_mut().zip(l.amplitude) {
             *tc += a as f64 * total;
@@ -409,16 +317,14 @@ mod tests {
                 amplitude: [1.0e4, 0.0, 3.0e3],
             },
         ];
-        let r = crate::kernels::srbf::sg::rotation(Vec3::new(1.0, 2.0, 0.5), 40.0);
+        let r = sg::rotation(Vec3::new(1.0, 2.0, 0.5), 40.0);
         let raster = rasterise_lobes(&lobes, r, &env);
         let samples = env.samples();
         for c in 0..3 {
             let got: f64 = raster.iter().zip(&samples).map(|(l, s)| l[c] * s.1).sum();
             let want: f64 = lobes
                 .iter()
-                .map(|l| {
-                    l.amplitude[c] as f64 * crate::kernels::srbf::sg::integral(l.sharpness as f64)
-                })
+                .map(|l| l.amplitude[c] as f64 * sg::integral(l.sharpness as f64))
                 .sum();
             assert!(
                 (got - want).abs() <= 2e-3 * want,
@@ -427,7 +333,7 @@ mod tests {
         }
         // The sharp lobe lands in the texel of its rotated axis.
         let (x, y) = env.texel_of(r * lobes[1].axis());
-        let sharp = 1.0e4 * crate::kernels::srbf::sg::integral(2.0e6);
+        let sharp = 1.0e4 * sg::integral(2.0e6);
         assert!(raster[(y * 64 + x) as usize][0] * env.solid_angle(y) > sharp);
     }
 

@@ -21,6 +21,8 @@
 //! 0: see [`NEGATIVE_TOLERANCE`]); every error names the file.
 
 use crate::error::{Error, Result};
+use crate::geom::Bvh;
+use crate::geom::visibility::{Visibility, direction_visibility};
 use glam::{Mat3, Vec3};
 use std::f64::consts::PI;
 use std::path::{Path, PathBuf};
@@ -265,6 +267,22 @@ impl EnvMap {
         }
         sum
     }
+}
+
+/// Visibility of every texel direction of `dir_env` from every vertex of `mesh` (BVH built
+/// here; rays start 1e-4 of the mesh's diagonal along the normal). What the transfer
+/// projection and the brute-force ground truth both read.
+pub fn texel_visibility(mesh: &super::Mesh, dir_env: &EnvMap) -> Visibility {
+    let directions: Vec<Vec3> = dir_env.samples().iter().map(|s| s.0).collect();
+    let (lo, hi) = mesh.bounds();
+    let bvh = Bvh::build(&mesh.positions, &mesh.triangles);
+    direction_visibility(
+        &mesh.positions,
+        &mesh.normals,
+        &bvh,
+        &directions,
+        1e-4 * (hi - lo).length(),
+    )
 }
 
 /// Negative samples of an EXR map down to `-NEGATIVE_TOLERANCE` times the map's mean sample

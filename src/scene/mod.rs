@@ -1,7 +1,10 @@
-//! CPU-side inputs: meshes, skeletons and animations, sphere trees. Loaders validate their
-//! input and name the file in every error.
+//! CPU-side inputs: meshes, skeletons and animations, sphere trees, environment maps, and
+//! what is derived from them alone: a mesh rasterised into its UV layout ([`texspace`]), the
+//! G-buffer of an object seen by a camera under lights ([`gbuffer`]).
+//! Loaders validate their input and name the file in every error.
 
 pub mod envmap;
+pub mod gbuffer;
 #[cfg(feature = "gltf")]
 pub mod gltf_load;
 pub mod mesh;
@@ -9,6 +12,7 @@ pub mod ply_write;
 pub mod rig;
 pub mod spheretree;
 pub mod static_load;
+pub mod texspace;
 
 pub use envmap::EnvMap;
 pub use mesh::{Mesh, MeshData, MeshReport, SkinWeights};

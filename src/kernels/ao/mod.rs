@@ -734,15 +734,15 @@ impl Correction {
     /// reference the result is later compared with).
     pub fn bake(mesh: &Mesh, rays: usize) -> Correction {
         let (lo, hi) = mesh.bounds();
-        let cfg = crate::reference::ao::RayConfig {
+        let cfg = crate::geom::visibility::RayConfig {
             rays,
             seed: 0xba4e_d0ff,
-            ..crate::reference::ao::RayConfig::for_scene((hi - lo).length())
+            ..crate::geom::visibility::RayConfig::for_scene((hi - lo).length())
         };
         let bvh = crate::geom::Bvh::build(&mesh.positions, &mesh.triangles);
         let all: Vec<usize> = (0..mesh.positions.len()).collect();
         Correction {
-            bind_visibility: crate::reference::ao::mesh_visibility(
+            bind_visibility: crate::geom::visibility::ambient_visibility(
                 &mesh.positions,
                 &mesh.normals,
                 &bvh,

@@ -261,7 +261,7 @@ mod tests {
             .collect();
         let blocks_of = encode_image(w, h, &texels);
         for uv in [[0.01, 0.5], [0.5, 0.99], [0.3, 0.7], [0.999, 0.001]] {
-            let want = crate::kernels::btf::cpu::bilinear([w, h], uv, |c, r| {
+            let want = crate::geom::bilinear([w, h], uv, |c, r| {
                 texels[(r * w + c) as usize].map(|v| v as f64)
             });
             let got = bilinear([w, h], &blocks_of, uv);

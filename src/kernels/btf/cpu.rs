@@ -2,8 +2,9 @@
 //! and maps, in f64 (sRGB decoded exactly, bilinear filtering with exact weights).
 
 use super::dirs::{self, Maps};
-use super::gbuffer::{Frame, GBuffer, frame_of, to_tangent};
 use super::synth::srgb_decode;
+use crate::geom::bilinear;
+use crate::scene::gbuffer::{Frame, GBuffer, frame_of, to_tangent};
 use rayon::prelude::*;
 
 /// A map texel border closer than this (in texels) to a pixel's continuous map coordinate
@@ -74,28 +75,6 @@ impl<'a> Packed<'a> {
             }
         }
     }
-}
-
-/// Bilinear filtering with REPEAT wrapping of the texels given by `texel(c, r)`.
-pub fn bilinear(size: [u32; 2], uv: [f64; 2], texel: impl Fn(u32, u32) -> [f64; 3]) -> [f64; 3] {
-    let (w, h) = (size[0] as i64, size[1] as i64);
-    let x = uv[0] * w as f64 - 0.5;
-    let y = uv[1] * h as f64 - 0.5;
-    let (x0, y0) = (x.floor(), y.floor());
-    let (fx, fy) = (x - x0, y - y0);
-    let (x0, y0) = (x0 as i64, y0 as i64);
-    let mut out = [0.0; 3];
-    for (dy, wy) in [(0, 1.0 - fy), (1, fy)] {
-        for (dx, wx) in [(0, 1.0 - fx), (1, fx)] {
-            let c = (x0 + dx).rem_euclid(w) as u32;
-            let r = (y0 + dy).rem_euclid(h) as u32;
-            let t = texel(c, r);
-            for k in 0..3 {
-                out[k] += wx * wy * t[k];
-            }
-        }
-    }
-    out
 }
 
 /// One frame shaded on the CPU: linear RGBA per pixel (alpha 0 outside the object) and

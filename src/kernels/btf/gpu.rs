@@ -8,13 +8,13 @@ pub use super::pack::{
     Prepared, Sampled, Texture, encode_bc1, encode_blocks, map_texels, pack, sampled_texels,
 };
 
-use super::gbuffer::{Frame, MAX_LIGHTS};
 use crate::error::Result;
 use crate::gpu::{
     AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context, Image,
     ImageDesc, ImageRegion, MemoryReport, Readback, Recorder, Resource, Sampler, SamplerDesc,
 };
 use crate::kernels::{Dispatch, Grid, Kernel, Pass};
+use crate::scene::gbuffer::{Frame, MAX_LIGHTS};
 use ash::vk;
 
 pub const PASS_SHADE: &str = "btf shade";

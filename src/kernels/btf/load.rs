@@ -359,7 +359,7 @@ mod tests {
 
     #[test]
     fn the_tile_finder_recovers_the_period_of_a_larger_sample() {
-        use super::super::synth::{Pattern, SynthConfig};
+        use super::super::cloth::{Pattern, SynthConfig};
         // The knit tile holds 2 x 2 stitches: its true period is half the tile.
         for (pattern, period, expect) in [(Pattern::Weave, 7, 7), (Pattern::Knit, 12, 6)] {
             // Only the images the finder and the check below read are rendered (the full

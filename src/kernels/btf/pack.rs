@@ -5,9 +5,9 @@
 //! order ([`Sampled`]).
 
 use super::dirs::{self, Maps};
-use super::gbuffer::GBuffer;
 use super::synth::{Btf, srgb_encode};
 use crate::error::{Error, Result};
+use crate::scene::gbuffer::GBuffer;
 use ash::vk;
 use rayon::prelude::*;
 

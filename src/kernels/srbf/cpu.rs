@@ -3,9 +3,9 @@
 //! visibility (f32 inputs, f64 results).
 
 use super::inputs::{SrbfFrame, SrbfInputs};
-use super::sg::Lobe;
 use super::{sharp, transfer};
 use crate::error::Result;
+use crate::geom::sg::Lobe;
 
 impl SrbfInputs<'_> {
     /// The CPU twin of the whole GPU pipeline for one frame (f32 inputs, f64 results).

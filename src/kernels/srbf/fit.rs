@@ -33,8 +33,8 @@
 //! the fit roughly doubles the sun's energy. The cap makes the sampled and the true
 //! integral agree for the sharpest lobes, which is what the lighting integrals need.
 
-use super::sg::{self, Lobe};
 use crate::error::{Error, Result};
+use crate::geom::sg::{self, Lobe};
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 

@@ -3,10 +3,10 @@
 
 use super::cpca::Cpca;
 use super::pack::{MAX_BASIS, MAX_ROWS, rows_needed};
-use super::sg::Lobe;
 use super::sharp;
 use crate::error::{Error, Result};
-use crate::reference::srbf::Visibility;
+use crate::geom::sg::Lobe;
+use crate::geom::visibility::Visibility;
 use glam::{Mat3, Vec3};
 
 /// One frame's input: the environment's rotation and the surface albedo.

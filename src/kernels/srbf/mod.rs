@@ -11,12 +11,15 @@ pub mod fit;
 pub mod gpu;
 pub mod inputs;
 pub mod pack;
-pub mod sg;
 pub mod sharp;
 pub mod transfer;
 
+/// The spherical-Gaussian algebra moved to [`crate::geom::sg`] (the truth shares it); this
+/// path stays while `fit` and `transfer` are rewritten in parallel.
+pub use crate::geom::sg;
+
 use crate::error::Result;
-use crate::reference::srbf::Visibility;
+use crate::geom::visibility::Visibility;
 use crate::scene::EnvMap;
 use transfer::{Basis, Transfer};
 

@@ -5,9 +5,9 @@
 
 use super::cpca::Cpca;
 use super::inputs::SrbfInputs;
-use super::sg::Lobe;
 use super::sharp;
 use crate::error::{Error, Result};
+use crate::geom::sg::Lobe;
 
 /// Most transfer basis functions (the size of the uniform coefficient array that `srbf
 /// project` reads; a 16 KiB uniform buffer, the smallest maxUniformBufferRange Vulkan allows).
@@ -381,7 +381,8 @@ mod tests {
             Vec3::Y,
         ];
         let bvh = crate::geom::Bvh::build(&tri, &[[0, 1, 2]]);
-        let vis = crate::reference::srbf::visibility(&positions, &normals, &bvh, &dirs, 1e-4);
+        let vis =
+            crate::geom::visibility::direction_visibility(&positions, &normals, &bvh, &dirs, 1e-4);
         let compact = CompactInputs {
             visibility: &vis,
             normals: &normals,

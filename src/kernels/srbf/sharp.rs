@@ -26,9 +26,9 @@
 //! `srbf shade` adds them from the visibility bits: one visibility load per compact lobe and
 //! vertex.
 
-use super::sg::Lobe;
 use crate::error::{Error, Result};
-use crate::reference::srbf::Visibility;
+use crate::geom::sg::{self, Lobe};
+use crate::geom::visibility::Visibility;
 use glam::{Mat3, Vec3};
 
 /// Lobes sharper than this factor times the basis sharpness are compact candidates.
@@ -56,8 +56,7 @@ pub fn split(
     }
     let energy = |l: &Lobe| {
         let a = l.amplitude;
-        (0.2126 * a[0] + 0.7152 * a[1] + 0.0722 * a[2]) as f64
-            * super::sg::integral(l.sharpness as f64)
+        (0.2126 * a[0] + 0.7152 * a[1] + 0.0722 * a[2]) as f64 * sg::integral(l.sharpness as f64)
     };
     let total: f64 = lobes.iter().map(energy).sum();
     let threshold = factor * basis_sharpness;
@@ -103,7 +102,7 @@ pub fn taps(compact: &[Lobe], rotation: Mat3, width: u32, height: u32) -> Vec<Ta
         .map(|lobe| {
             let axis = (rotation * lobe.axis()).normalize();
             let (x, y) = texel_of(axis, width, height);
-            let scale = super::sg::integral(lobe.sharpness as f64) as f32 / std::f32::consts::PI;
+            let scale = sg::integral(lobe.sharpness as f64) as f32 / std::f32::consts::PI;
             Tap {
                 texel: y * width + x,
                 dir: direction(
@@ -186,7 +185,6 @@ pub fn check_grid(vis: &Visibility, width: u32, height: u32) -> Result<()> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::kernels::srbf::sg;
 
     #[test]
     fn split_takes_the_sharpest_above_the_threshold() {
@@ -264,7 +262,8 @@ mod tests {
     /// agree to rounding (texel indexing, the cosine at the texel centre, the scale).
     #[test]
     fn shading_matches_the_grid_sum_of_the_rasterised_lobe() {
-        use crate::reference::srbf::{rasterise_lobes, shade_brute_force_radiance, visibility};
+        use crate::geom::visibility::direction_visibility;
+        use crate::reference::srbf::{rasterise_lobes, shade_brute_force_radiance};
         let env =
             crate::scene::EnvMap::from_texels(64, 32, vec![[0.0; 3]; 64 * 32], "grid").unwrap();
         let dirs: Vec<Vec3> = env.samples().iter().map(|s| s.0).collect();
@@ -272,7 +271,7 @@ mod tests {
         let bvh = crate::geom::Bvh::build(&[], &[]);
         let normals = sg::fibonacci_sphere(50);
         let positions = vec![Vec3::ZERO; normals.len()];
-        let vis = visibility(&positions, &normals, &bvh, &dirs, 0.0);
+        let vis = direction_visibility(&positions, &normals, &bvh, &dirs, 0.0);
         check_grid(&vis, 64, 32).unwrap();
         let l = Lobe::new(Vec3::new(0.4, 0.6, 0.7), 2.0e6, [1.0e3, 2.0e3, 3.0e3]);
         let r = sg::rotation(Vec3::Z, 20.0);

@@ -7,8 +7,8 @@
 //! inner products), so the only approximations are the two fits.
 
 use super::fit::{cholesky, cholesky_solve};
-use super::sg::{self, Lobe};
 use crate::error::{Error, Result};
+use crate::geom::sg::{self, Lobe};
 use glam::{DVec3, Mat3, Vec3};
 use rayon::prelude::*;
 use std::path::Path;

@@ -20,7 +20,7 @@
 //! seam does not split a piece).
 
 use super::Profile;
-use super::texspace::{COVERED, Dsu, TexGeometry};
+use crate::scene::texspace::{COVERED, Dsu, TexGeometry};
 use glam::Vec3;
 use rayon::prelude::*;
 use std::collections::HashMap;
@@ -299,7 +299,7 @@ mod tests {
     #[test]
     fn one_piece_has_no_contact() {
         let geo = TexGeometry::build(
-            &crate::kernels::sss::texspace::plane_mesh(20.0, 20.0, 3).unwrap(),
+            &crate::scene::texspace::plane_mesh(20.0, 20.0, 3).unwrap(),
             32,
             1.0,
         )

@@ -4,10 +4,10 @@
 
 use super::contact::Contact;
 use super::profile::Profile;
-use super::texspace::{COVERED, NO_TRIANGLE, TexGeometry};
 use super::walk::{Landing, SurfaceWalk};
 use crate::error::{Error, Result};
 use crate::geom::bvh::Bvh;
+use crate::scene::texspace::{COVERED, NO_TRIANGLE, TexGeometry};
 use glam::Vec3;
 use rayon::prelude::*;
 

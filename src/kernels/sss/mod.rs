@@ -1,8 +1,12 @@
 //! Texture-space importance-sampled subsurface diffusion for skin (kernels.md section 2).
 //!
-//! - [`profile`]: diffusion profiles (dipole, Burley), truncation radius, sampling tables.
-//! - [`texspace`]: the mesh rasterised into its UV layout (position, normal, Jacobian per
-//!   texel; overlap repair; gutters), on the CPU.
+//! - [`profile`]: the material model, diffusion profiles Rd(r) (dipole, Burley) and their
+//!   truncation radii; the brute-force truth reads it too.
+//! - [`sampler`]: how the method samples a profile (the mixture sequence, inverse-CDF
+//!   tables) and the profile's parameters as the shader gets them.
+//! - [`crate::scene::texspace`]: the mesh rasterised into its UV layout (position, normal,
+//!   Jacobian per texel; overlap repair; gutters), on the CPU; a scene input the brute-force
+//!   truth reads too.
 //! - [`walk`]: where a sample lands when it leaves the receiver's triangle (across the edge
 //!   it leaves by, seams included; off the surface past an open edge).
 //! - [`contact`]: light between separate pieces of the mesh that touch (eyeballs, mouth).
@@ -25,13 +29,17 @@ pub mod contact;
 pub mod cpu;
 pub mod gpu;
 pub mod profile;
-pub mod texspace;
+pub mod sampler;
 pub mod walk;
 
+/// Moved to [`crate::scene::texspace`] (the truth reads it too); this path stays while the
+/// GPU glue and the CLI are rewritten in parallel.
+pub use crate::scene::texspace;
+
+pub use crate::scene::texspace::TexGeometry;
 pub use cpu::{Light, SamplerParams};
 pub use gpu::{SssKernel, SssOutput};
 pub use profile::{Material, Profile, ProfileKind};
-pub use texspace::TexGeometry;
 
 /// The head of BCN_Epileptic (assimp-testmodels, converted to glTF), in metres.
 pub const DEFAULT_MESH: &str = "data/bcn_epileptic.glb";

@@ -27,7 +27,7 @@
 //!
 //! The arithmetic is f32 and written as the shader does it (`glsl/common/sss_diffusion.glsl`).
 
-use super::texspace::TexGeometry;
+use crate::scene::texspace::TexGeometry;
 use glam::{DVec2, Vec2, Vec3};
 use std::collections::HashMap;
 
@@ -561,7 +561,7 @@ mod tests {
     /// The covered texel nearest the 3D point `at`, its triangle and barycentrics.
     fn texel_at(geo: &TexGeometry, at: Vec3) -> (usize, u32, f32, f32) {
         let i = (0..geo.texels())
-            .filter(|&i| geo.pos[i][3] == crate::kernels::sss::texspace::COVERED)
+            .filter(|&i| geo.pos[i][3] == crate::scene::texspace::COVERED)
             .min_by(|&a, &b| {
                 let d = |i: usize| (Vec3::from_slice(&geo.pos[i][..3]) - at).length();
                 d(a).total_cmp(&d(b))
