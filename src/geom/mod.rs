@@ -1,6 +1,8 @@
-//! Geometry shared by the CPU parts: a BVH, sampling, a small deterministic RNG.
+//! Geometry and math shared by the CPU parts: a BVH, sampling, a small deterministic RNG,
+//! small dense linear algebra.
 
 pub mod bvh;
+pub mod linalg;
 
 pub use bvh::Bvh;
 use glam::Vec3;

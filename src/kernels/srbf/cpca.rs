@@ -18,6 +18,7 @@
 use super::transfer::{Basis, RIDGE, Transfer, fnv1a};
 use crate::error::{Error, Result};
 use crate::geom::Rng;
+use crate::geom::linalg::{cholesky, dot, jacobi_eigen, orthonormalise, solve_upper_transposed};
 use rayon::prelude::*;
 use std::path::Path;
 
@@ -512,7 +513,7 @@ fn gram_factor(t: &Transfer) -> Result<Vec<f64>> {
     for i in 0..k {
         g[i * k + i] += RIDGE * mean_diag;
     }
-    super::fit::cholesky(&mut g, k).ok_or_else(|| {
+    cholesky(&mut g, k).ok_or_else(|| {
         Error::InvalidArgument(format!(
             "CPCA: the Gram matrix of the {k}-function basis is not positive definite"
         ))
@@ -524,19 +525,6 @@ fn gram_factor(t: &Transfer) -> Result<Vec<f64>> {
         }
     }
     Ok(g)
-}
-
-/// x with L^T x = b, L lower triangular (row-major, k x k).
-fn solve_upper_transposed(l: &[f64], k: usize, b: &[f32]) -> Vec<f64> {
-    let mut x = vec![0.0f64; k];
-    for i in (0..k).rev() {
-        let mut s = b[i] as f64;
-        for (j, xj) in x.iter().enumerate().skip(i + 1) {
-            s -= l[j * k + i] * xj;
-        }
-        x[i] = s / l[i * k + i];
-    }
-    x
 }
 
 /// sum_i term(a_i, b_i) in eight independent partial sums, so that it vectorises (a single
@@ -564,24 +552,6 @@ fn dist2(a: &[f32], b: &[f32]) -> f32 {
 
 fn dot_f32(a: &[f32], b: &[f32]) -> f32 {
     sum8(a, b, |x, y| x * y)
-}
-
-/// Dot product in four partial sums (see [`sum8`]).
-fn dot_f64(a: &[f64], b: &[f64]) -> f64 {
-    let mut acc = [0f64; 4];
-    let (ca, cb) = (a.chunks_exact(4), b.chunks_exact(4));
-    let tail: f64 = ca
-        .remainder()
-        .iter()
-        .zip(cb.remainder())
-        .map(|(x, y)| x * y)
-        .sum();
-    for (x, y) in ca.zip(cb) {
-        for i in 0..4 {
-            acc[i] += x[i] * y[i];
-        }
-    }
-    acc.iter().sum::<f64>() + tail
 }
 
 /// k-means (k-means++ seeding, Lloyd iterations) of the rows of `y` (dimension `k`).
@@ -751,7 +721,7 @@ fn pca(rows: &[&[f32]], k: usize, m: usize, seed: u64) -> ClusterModel {
     let times_cov = |q: &[f64], out: &mut [f64]| {
         for (zi, qi) in out.chunks_exact_mut(k).zip(q.chunks_exact(k)) {
             for (r, o) in zi.iter_mut().enumerate() {
-                *o = dot_f64(&cov[r * k..(r + 1) * k], qi);
+                *o = dot(&cov[r * k..(r + 1) * k], qi);
             }
         }
     };
@@ -766,7 +736,7 @@ fn pca(rows: &[&[f32]], k: usize, m: usize, seed: u64) -> ClusterModel {
     let mut h = vec![0f64; b * b];
     for i in 0..b {
         for j in 0..b {
-            h[i * b + j] = dot_f64(&q[i * k..(i + 1) * k], &z[j * k..(j + 1) * k]);
+            h[i * b + j] = dot(&q[i * k..(i + 1) * k], &z[j * k..(j + 1) * k]);
         }
     }
     let (values, vectors) = jacobi_eigen(h, b);
@@ -790,80 +760,6 @@ fn pca(rows: &[&[f32]], k: usize, m: usize, seed: u64) -> ClusterModel {
         axes,
         k,
     }
-}
-
-/// Modified Gram-Schmidt on the rows of `q` (dimension `k`); a row that vanishes is replaced
-/// by a unit vector orthogonal to the others.
-fn orthonormalise(q: &mut [f64], k: usize) {
-    let rows = q.len() / k;
-    for i in 0..rows {
-        for attempt in 0..=k {
-            for j in 0..i {
-                let (head, tail) = q.split_at_mut(i * k);
-                let qj = &head[j * k..(j + 1) * k];
-                let qi = &mut tail[..k];
-                let d: f64 = qi.iter().zip(qj).map(|(a, b)| a * b).sum();
-                qi.iter_mut().zip(qj).for_each(|(a, b)| *a -= d * b);
-            }
-            let qi = &mut q[i * k..(i + 1) * k];
-            let norm = qi.iter().map(|x| x * x).sum::<f64>().sqrt();
-            if norm > 1e-12 {
-                qi.iter_mut().for_each(|x| *x /= norm);
-                break;
-            }
-            // Degenerate: try the next coordinate axis.
-            qi.iter_mut().for_each(|x| *x = 0.0);
-            qi[(i + attempt) % k] = 1.0;
-        }
-    }
-}
-
-/// Eigen-decomposition of a symmetric n x n matrix by cyclic Jacobi rotations: (eigenvalues,
-/// eigenvectors as columns, row-major).
-fn jacobi_eigen(mut a: Vec<f64>, n: usize) -> (Vec<f64>, Vec<f64>) {
-    let mut v = vec![0f64; n * n];
-    for i in 0..n {
-        v[i * n + i] = 1.0;
-    }
-    for _sweep in 0..64 {
-        let off: f64 = (0..n)
-            .flat_map(|i| (0..n).filter(move |&j| j != i).map(move |j| (i, j)))
-            .map(|(i, j)| a[i * n + j].powi(2))
-            .sum();
-        let scale: f64 = (0..n).map(|i| a[i * n + i].powi(2)).sum::<f64>();
-        if off <= 1e-24 * scale.max(1e-300) {
-            break;
-        }
-        for p in 0..n {
-            for q in p + 1..n {
-                let apq = a[p * n + q];
-                if apq == 0.0 {
-                    continue;
-                }
-                let theta = (a[q * n + q] - a[p * n + p]) / (2.0 * apq);
-                let t = theta.signum().max(0.0) * 2.0 - 1.0;
-                let t = t / (theta.abs() + (theta * theta + 1.0).sqrt());
-                let c = 1.0 / (t * t + 1.0).sqrt();
-                let s = t * c;
-                for r in 0..n {
-                    let (arp, arq) = (a[r * n + p], a[r * n + q]);
-                    a[r * n + p] = c * arp - s * arq;
-                    a[r * n + q] = s * arp + c * arq;
-                }
-                for r in 0..n {
-                    let (apr, aqr) = (a[p * n + r], a[q * n + r]);
-                    a[p * n + r] = c * apr - s * aqr;
-                    a[q * n + r] = s * apr + c * aqr;
-                }
-                for r in 0..n {
-                    let (vrp, vrq) = (v[r * n + p], v[r * n + q]);
-                    v[r * n + p] = c * vrp - s * vrq;
-                    v[r * n + q] = s * vrp + c * vrq;
-                }
-            }
-        }
-    }
-    ((0..n).map(|i| a[i * n + i]).collect(), v)
 }
 
 #[cfg(test)]
@@ -923,18 +819,6 @@ mod tests {
                 assert!((r - x).abs() <= x.abs() * 4.9e-4 + 1e-12, "{x} -> {r}");
             } else {
                 assert!((r - x).abs() <= 3.0e-8, "{x} -> {r}");
-            }
-        }
-    }
-
-    #[test]
-    fn jacobi_diagonalises() {
-        let a = vec![4.0, 1.0, 0.5, 1.0, 3.0, 0.2, 0.5, 0.2, 1.0];
-        let (vals, vecs) = jacobi_eigen(a.clone(), 3);
-        for e in 0..3 {
-            for i in 0..3 {
-                let av: f64 = (0..3).map(|j| a[i * 3 + j] * vecs[j * 3 + e]).sum();
-                assert!((av - vals[e] * vecs[i * 3 + e]).abs() < 1e-10);
             }
         }
     }

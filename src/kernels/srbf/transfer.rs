@@ -6,9 +6,9 @@
 //! L_o,v = albedo * sum_k t_vk c^_k = albedo * integral L_R(w) T~_v(w) dw exactly (closed-form
 //! inner products), so the only approximations are the two fits.
 
-use super::fit::{cholesky, cholesky_solve};
 use super::sg::{self, Lobe};
 use crate::error::{Error, Result};
+use crate::geom::linalg::{cholesky, cholesky_solve};
 use glam::{DVec3, Mat3, Vec3};
 use rayon::prelude::*;
 use std::path::Path;
