@@ -4,7 +4,8 @@ mod common;
 
 use glam::{Mat3, Vec3};
 use vkshade::geom::Rng;
-use vkshade::kernels::srbf::cpca::{Cpca, CpcaConfig, half_round};
+use vkshade::io::f16::half_round;
+use vkshade::kernels::srbf::cpca::{Cpca, CpcaConfig};
 use vkshade::kernels::srbf::gpu::{CompactInputs, SrbfFrame, SrbfInputs, SrbfKernel};
 use vkshade::kernels::srbf::sg::{self, Lobe};
 use vkshade::kernels::srbf::sharp;

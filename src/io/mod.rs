@@ -1,10 +1,12 @@
 //! Writing results to disk, shared by every layer that writes files (the CLI runs, the
 //! benchmark harness, the shader tool, the scene writers): atomic writes, an up-front
-//! writability check, JSON, and (feature `exr`) linear float images.
+//! writability check, JSON, (feature `exr`) linear float images, and the encodings behind
+//! them (BC1 textures, half floats).
 
 pub mod bc1;
 #[cfg(feature = "exr")]
 pub mod exr;
+pub mod f16;
 
 use crate::error::{Error, Result};
 use serde::Serialize;

@@ -250,7 +250,7 @@ impl Layout {
             for (i, x) in w.iter().enumerate() {
                 // unpackHalf2x16: the first of a pair in the low 16 bits.
                 let word = &mut weights[(i / 8) * slots + slot][(i % 8) / 2];
-                *word |= (super::cpca::f16_bits(*x) as u32) << (16 * (i % 2));
+                *word |= (crate::io::f16::f16_bits(*x) as u32) << (16 * (i % 2));
             }
         }
         let k_groups = k.div_ceil(4);
