@@ -15,12 +15,14 @@
 //! [`Cpca::exact`] is the uncompressed transfer in the same form (one cluster, zero mean, the
 //! identity as its axes), so the GPU has one code path.
 
-use super::transfer::{Basis, RIDGE, Transfer, fnv1a};
+use super::transfer::{Basis, RIDGE, Transfer};
 use crate::error::{Error, Result};
 use crate::geom::Rng;
 use crate::geom::linalg::{cholesky, dot, jacobi_eigen, orthonormalise, solve_upper_transposed};
 use crate::io::f16::half_round;
+use crate::io::transfer_cache::CpcaFile;
 use rayon::prelude::*;
+use std::borrow::Cow;
 use std::path::Path;
 
 /// How to compress.
@@ -329,119 +331,46 @@ impl Cpca {
     }
 }
 
-const MAGIC: &[u8; 8] = b"VKSGCPC\0";
-const VERSION: u32 = 1;
-/// magic, version, K, M, clusters, sharpness, vertices (u64), rel_l2 (f64).
-const HEADER: usize = 8 + 4 * 5 + 8 + 8;
-
 impl Cpca {
-    /// Writes the compressed transfer (little endian): magic "VKSGCPC\0", version u32, K u32,
-    /// M u32, clusters u32, sharpness f32, vertices u64, rel_l2 f64, K basis axes (3 f32
-    /// each), a u32 cluster per vertex, the rows and the weights (f32), then an FNV-1a 64
-    /// checksum of everything before it. Atomic.
+    /// Writes the compressed transfer as a cache file ([`CpcaFile`]), atomically.
     pub fn save(&self, path: &Path) -> Result<()> {
         self.check()
             .map_err(|e| Error::input(path, e.to_string()))?;
-        let words = 3 * self.basis.len() + self.vertices + self.rows.len() + self.weights.len();
-        let mut b = Vec::with_capacity(HEADER + 4 * words + 8);
-        b.extend_from_slice(MAGIC);
-        for x in [
-            VERSION,
-            self.basis.len() as u32,
-            self.components as u32,
-            self.clusters as u32,
-            self.basis.sharpness.to_bits(),
-        ] {
-            b.extend_from_slice(&x.to_le_bytes());
+        CpcaFile {
+            axes: Cow::Borrowed(&self.basis.axes),
+            sharpness: self.basis.sharpness,
+            vertices: self.vertices,
+            components: self.components,
+            clusters: self.clusters,
+            cluster_of: Cow::Borrowed(&self.cluster_of),
+            rows: Cow::Borrowed(&self.rows),
+            weights: Cow::Borrowed(&self.weights),
+            rel_l2: self.rel_l2,
         }
-        b.extend_from_slice(&(self.vertices as u64).to_le_bytes());
-        b.extend_from_slice(&self.rel_l2.to_le_bytes());
-        let floats = self.basis.axes.iter().flat_map(|a| a.to_array());
-        let words = floats
-            .map(f32::to_bits)
-            .chain(self.cluster_of.iter().copied())
-            .chain(self.rows.iter().map(|x| x.to_bits()))
-            .chain(self.weights.iter().map(|x| x.to_bits()));
-        for w in words {
-            b.extend_from_slice(&w.to_le_bytes());
-        }
-        let sum = fnv1a(&b);
-        b.extend_from_slice(&sum.to_le_bytes());
-        crate::io::write_atomic(path, &b)
+        .save(path)
     }
 
-    /// Reads a file written by [`Cpca::save`], checking magic, version, sizes, checksum and
-    /// values; every error names the file.
+    /// Reads a file written by [`Cpca::save`], checking the file ([`CpcaFile::load`]) and
+    /// the values; every error names the file.
     pub fn load(path: &Path) -> Result<Cpca> {
-        let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+        let file = CpcaFile::load(path)?;
         let bad = |m: String| Error::input(path, format!("CPCA transfer file: {m}"));
-        if bytes.len() < HEADER + 8 || &bytes[..8] != MAGIC {
-            return Err(bad(
-                "not a vkshade CPCA transfer file (bad magic or too short)".into(),
-            ));
-        }
-        let u32_at = |o: usize| u32::from_le_bytes(bytes[o..o + 4].try_into().unwrap_or([0; 4]));
-        let u64_at = |o: usize| u64::from_le_bytes(bytes[o..o + 8].try_into().unwrap_or([0; 8]));
-        if u32_at(8) != VERSION {
-            return Err(bad(format!(
-                "version {}, this build reads {VERSION}",
-                u32_at(8)
-            )));
-        }
-        let (k, m, clusters) = (u32_at(12) as u128, u32_at(16) as u128, u32_at(20) as u128);
-        let sharpness = f32::from_bits(u32_at(24));
-        let vertices = u64_at(28) as u128;
-        let rel_l2 = f64::from_bits(u64_at(36));
-        let words = 3 * k + vertices + clusters * (m + 1) * k + vertices * m;
-        let expected = HEADER as u128 + 4 * words + 8;
-        if expected != bytes.len() as u128 {
-            return Err(bad(format!(
-                "{} bytes, but K = {k}, M = {m}, {clusters} clusters and {vertices} vertices \
-                 need {expected}",
-                bytes.len()
-            )));
-        }
-        let body = bytes.len() - 8;
-        if fnv1a(&bytes[..body]) != u64_at(body) {
-            return Err(bad("checksum mismatch (the file is corrupted)".into()));
-        }
-        let (k, m, clusters, vertices) =
-            (k as usize, m as usize, clusters as usize, vertices as usize);
-        let mut at = HEADER;
-        let mut take = |count: usize| -> Vec<u32> {
-            let v = (0..count).map(|i| u32_at(at + 4 * i)).collect();
-            at += 4 * count;
-            v
-        };
-        let axes: Vec<glam::Vec3> = take(3 * k)
-            .chunks_exact(3)
-            .map(|a| {
-                glam::Vec3::new(
-                    f32::from_bits(a[0]),
-                    f32::from_bits(a[1]),
-                    f32::from_bits(a[2]),
-                )
-            })
-            .collect();
-        let cluster_of = take(vertices);
-        let rows = take(clusters * (m + 1) * k)
-            .into_iter()
-            .map(f32::from_bits)
-            .collect();
-        let weights = take(vertices * m).into_iter().map(f32::from_bits).collect();
         let c = Cpca {
-            basis: Basis { axes, sharpness },
-            vertices,
-            clusters,
-            components: m,
-            cluster_of,
-            rows,
-            weights,
-            rel_l2,
+            basis: Basis {
+                axes: file.axes.into_owned(),
+                sharpness: file.sharpness,
+            },
+            vertices: file.vertices,
+            clusters: file.clusters,
+            components: file.components,
+            cluster_of: file.cluster_of.into_owned(),
+            rows: file.rows.into_owned(),
+            weights: file.weights.into_owned(),
+            rel_l2: file.rel_l2,
         };
         c.check().map_err(|e| bad(e.to_string()))?;
-        if !rel_l2.is_finite() {
-            return Err(bad(format!("error {rel_l2}")));
+        if !c.rel_l2.is_finite() {
+            return Err(bad(format!("error {}", c.rel_l2)));
         }
         Ok(c)
     }
@@ -836,7 +765,7 @@ mod tests {
         c.save(&path).unwrap();
         assert_eq!(Cpca::load(&path).unwrap(), c);
         let mut bytes = std::fs::read(&path).unwrap();
-        bytes[HEADER + 5] ^= 1;
+        bytes[crate::io::transfer_cache::CPCA_HEADER + 5] ^= 1;
         std::fs::write(&path, &bytes).unwrap();
         let e = Cpca::load(&path).unwrap_err().to_string();
         assert!(e.contains("checksum") && e.contains("t.cpca"), "{e}");
