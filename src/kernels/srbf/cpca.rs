@@ -15,10 +15,10 @@
 //! [`Cpca::exact`] is the uncompressed transfer in the same form (one cluster, zero mean, the
 //! identity as its axes), so the GPU has one code path.
 
-use super::transfer::{Basis, RIDGE, Transfer};
+use super::transfer::{Basis, Transfer};
 use crate::error::{Error, Result};
 use crate::geom::Rng;
-use crate::geom::linalg::{cholesky, dot, jacobi_eigen, orthonormalise, solve_upper_transposed};
+use crate::geom::linalg::{dot, jacobi_eigen, orthonormalise, solve_upper_transposed};
 use crate::io::f16::half_round;
 use crate::io::transfer_cache::CpcaFile;
 use rayon::prelude::*;
@@ -117,7 +117,11 @@ impl Cpca {
             )));
         }
         let clusters = cfg.clusters.min(n);
-        let l = gram_factor(t)?;
+        let l = t.basis.gram_factor().ok_or_else(|| {
+            Error::InvalidArgument(format!(
+                "CPCA: the Gram matrix of the {k}-function basis is not positive definite"
+            ))
+        })?;
         let l = &l;
         // y_v = L^T t_v (L lower triangular, row-major): row i of L^T, contiguous.
         let lt: Vec<f64> = (0..k * k).map(|x| l[(x % k) * k + x / k]).collect();
@@ -374,29 +378,6 @@ impl Cpca {
         }
         Ok(c)
     }
-}
-
-/// The lower Cholesky factor of the basis's regularised Gram matrix (the same matrix the
-/// projection solves with).
-fn gram_factor(t: &Transfer) -> Result<Vec<f64>> {
-    let k = t.basis.len();
-    let mut g = t.basis.gram();
-    let mean_diag = (0..k).map(|i| g[i * k + i]).sum::<f64>() / k as f64;
-    for i in 0..k {
-        g[i * k + i] += RIDGE * mean_diag;
-    }
-    cholesky(&mut g, k).ok_or_else(|| {
-        Error::InvalidArgument(format!(
-            "CPCA: the Gram matrix of the {k}-function basis is not positive definite"
-        ))
-    })?;
-    // Keep only the lower triangle (the factorisation leaves the upper one as it was).
-    for i in 0..k {
-        for j in i + 1..k {
-            g[i * k + j] = 0.0;
-        }
-    }
-    Ok(g)
 }
 
 /// sum_i term(a_i, b_i) in eight independent partial sums, so that it vectorises (a single

@@ -75,6 +75,20 @@ impl Basis {
         g
     }
 
+    /// The lower Cholesky factor (row-major, upper triangle zero) of the regularised Gram
+    /// matrix gram + RIDGE * mean(diag) * I, the matrix [`project`] solves with; `None` if
+    /// it is not positive definite.
+    pub fn gram_factor(&self) -> Option<Vec<f64>> {
+        let k = self.len();
+        let mut factor = self.gram();
+        let mean_diag = (0..k).map(|i| factor[i * k + i]).sum::<f64>() / k as f64;
+        for i in 0..k {
+            factor[i * k + i] += RIDGE * mean_diag;
+        }
+        cholesky(&mut factor, k)?;
+        Some(factor)
+    }
+
     pub fn check(&self) -> Result<()> {
         let k = self.len();
         if k == 0 || k > MAX_BASIS {
@@ -168,12 +182,7 @@ pub fn project(
             "transfer projection: {vertices} vertices x {k} coefficients is too large"
         )));
     }
-    let mut factor = basis.gram();
-    let mean_diag = (0..k).map(|i| factor[i * k + i]).sum::<f64>() / k as f64;
-    for i in 0..k {
-        factor[i * k + i] += RIDGE * mean_diag;
-    }
-    cholesky(&mut factor, k).ok_or_else(|| {
+    let factor = basis.gram_factor().ok_or_else(|| {
         Error::InvalidArgument("transfer projection: the basis Gram matrix is singular".into())
     })?;
 
