@@ -1,9 +1,10 @@
 //! Geometry and shared physical models of the CPU parts, used alike by the methods and by
 //! the ground truths that judge them: a BVH and ray-cast visibility ([`visibility`]), the
-//! spherical-Gaussian algebra ([`sg`]), sampling, bilinear texture filtering, a small
-//! deterministic RNG.
+//! spherical-Gaussian algebra ([`sg`]), small dense linear algebra ([`linalg`]), sampling,
+//! bilinear texture filtering, a small deterministic RNG.
 
 pub mod bvh;
+pub mod linalg;
 pub mod sg;
 pub mod visibility;
 

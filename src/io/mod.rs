@@ -1,10 +1,13 @@
 //! Writing results to disk, shared by every layer that writes files (the CLI runs, the
 //! benchmark harness, the shader tool, the scene writers): atomic writes, an up-front
-//! writability check, JSON, and (feature `exr`) linear float images.
+//! writability check, JSON, (feature `exr`) linear float images, and the encodings and
+//! cache formats behind them (BC1 textures, half floats, the SRBF transfer cache).
 
 pub mod bc1;
 #[cfg(feature = "exr")]
 pub mod exr;
+pub mod f16;
+pub mod transfer_cache;
 
 use crate::error::{Error, Result};
 use serde::Serialize;

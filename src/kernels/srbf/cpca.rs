@@ -15,10 +15,14 @@
 //! [`Cpca::exact`] is the uncompressed transfer in the same form (one cluster, zero mean, the
 //! identity as its axes), so the GPU has one code path.
 
-use super::transfer::{Basis, RIDGE, Transfer, fnv1a};
+use super::transfer::{Basis, Transfer};
 use crate::error::{Error, Result};
 use crate::geom::Rng;
+use crate::geom::linalg::{dot, jacobi_eigen, orthonormalise, solve_upper_transposed};
+use crate::io::f16::half_round;
+use crate::io::transfer_cache::CpcaFile;
 use rayon::prelude::*;
+use std::borrow::Cow;
 use std::path::Path;
 
 /// How to compress.
@@ -113,7 +117,11 @@ impl Cpca {
             )));
         }
         let clusters = cfg.clusters.min(n);
-        let l = gram_factor(t)?;
+        let l = t.basis.gram_factor().ok_or_else(|| {
+            Error::InvalidArgument(format!(
+                "CPCA: the Gram matrix of the {k}-function basis is not positive definite"
+            ))
+        })?;
         let l = &l;
         // y_v = L^T t_v (L lower triangular, row-major): row i of L^T, contiguous.
         let lt: Vec<f64> = (0..k * k).map(|x| l[(x % k) * k + x / k]).collect();
@@ -327,216 +335,49 @@ impl Cpca {
     }
 }
 
-/// IEEE binary16 bits of `x`, rounded to nearest even (overflow to infinity, NaN kept).
-pub fn f16_bits(x: f32) -> u16 {
-    let b = x.to_bits();
-    let sign = ((b >> 16) & 0x8000) as u16;
-    let exp = ((b >> 23) & 0xff) as i32;
-    let man = b & 0x7f_ffff;
-    if exp == 0xff {
-        return sign | 0x7c00 | if man != 0 { 0x200 } else { 0 };
-    }
-    let e = exp - 127 + 15;
-    if e >= 0x1f {
-        return sign | 0x7c00;
-    }
-    if e <= 0 {
-        // Subnormal (or zero): the implicit bit joins the mantissa, shifted into place.
-        if e < -10 {
-            return sign;
-        }
-        let m = man | 0x80_0000;
-        let shift = (14 - e) as u32;
-        let half = 1u32 << (shift - 1);
-        let rest = m & ((1u32 << shift) - 1);
-        let mut h = m >> shift;
-        if rest > half || (rest == half && h & 1 == 1) {
-            h += 1;
-        }
-        return sign | h as u16;
-    }
-    let rest = man & 0x1fff;
-    let mut h = ((e as u32) << 10) | (man >> 13);
-    if rest > 0x1000 || (rest == 0x1000 && h & 1 == 1) {
-        h += 1; // may carry into the exponent, which is the correct rounding
-    }
-    sign | h as u16
-}
-
-/// The f32 value of binary16 bits (exact).
-pub fn f16_value(h: u16) -> f32 {
-    let sign = ((h & 0x8000) as u32) << 16;
-    let exp = ((h >> 10) & 0x1f) as u32;
-    let man = (h & 0x3ff) as u32;
-    match exp {
-        // Subnormal: man x 2^-24, exact in f32.
-        0 => f32::from_bits(sign) + (man as f32) * f32::from_bits(0x3380_0000) * sign_of(sign),
-        0x1f => f32::from_bits(sign | 0x7f80_0000 | (man << 13)),
-        _ => f32::from_bits(sign | ((exp + 127 - 15) << 23) | (man << 13)),
-    }
-}
-
-fn sign_of(sign_bit: u32) -> f32 {
-    if sign_bit != 0 { -1.0 } else { 1.0 }
-}
-
-/// `x` rounded to the nearest half-precision value (what the GPU's weights hold).
-pub fn half_round(x: f32) -> f32 {
-    f16_value(f16_bits(x))
-}
-
-const MAGIC: &[u8; 8] = b"VKSGCPC\0";
-const VERSION: u32 = 1;
-/// magic, version, K, M, clusters, sharpness, vertices (u64), rel_l2 (f64).
-const HEADER: usize = 8 + 4 * 5 + 8 + 8;
-
 impl Cpca {
-    /// Writes the compressed transfer (little endian): magic "VKSGCPC\0", version u32, K u32,
-    /// M u32, clusters u32, sharpness f32, vertices u64, rel_l2 f64, K basis axes (3 f32
-    /// each), a u32 cluster per vertex, the rows and the weights (f32), then an FNV-1a 64
-    /// checksum of everything before it. Atomic.
+    /// Writes the compressed transfer as a cache file ([`CpcaFile`]), atomically.
     pub fn save(&self, path: &Path) -> Result<()> {
         self.check()
             .map_err(|e| Error::input(path, e.to_string()))?;
-        let words = 3 * self.basis.len() + self.vertices + self.rows.len() + self.weights.len();
-        let mut b = Vec::with_capacity(HEADER + 4 * words + 8);
-        b.extend_from_slice(MAGIC);
-        for x in [
-            VERSION,
-            self.basis.len() as u32,
-            self.components as u32,
-            self.clusters as u32,
-            self.basis.sharpness.to_bits(),
-        ] {
-            b.extend_from_slice(&x.to_le_bytes());
+        CpcaFile {
+            axes: Cow::Borrowed(&self.basis.axes),
+            sharpness: self.basis.sharpness,
+            vertices: self.vertices,
+            components: self.components,
+            clusters: self.clusters,
+            cluster_of: Cow::Borrowed(&self.cluster_of),
+            rows: Cow::Borrowed(&self.rows),
+            weights: Cow::Borrowed(&self.weights),
+            rel_l2: self.rel_l2,
         }
-        b.extend_from_slice(&(self.vertices as u64).to_le_bytes());
-        b.extend_from_slice(&self.rel_l2.to_le_bytes());
-        let floats = self.basis.axes.iter().flat_map(|a| a.to_array());
-        let words = floats
-            .map(f32::to_bits)
-            .chain(self.cluster_of.iter().copied())
-            .chain(self.rows.iter().map(|x| x.to_bits()))
-            .chain(self.weights.iter().map(|x| x.to_bits()));
-        for w in words {
-            b.extend_from_slice(&w.to_le_bytes());
-        }
-        let sum = fnv1a(&b);
-        b.extend_from_slice(&sum.to_le_bytes());
-        crate::io::write_atomic(path, &b)
+        .save(path)
     }
 
-    /// Reads a file written by [`Cpca::save`], checking magic, version, sizes, checksum and
-    /// values; every error names the file.
+    /// Reads a file written by [`Cpca::save`], checking the file ([`CpcaFile::load`]) and
+    /// the values; every error names the file.
     pub fn load(path: &Path) -> Result<Cpca> {
-        let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+        let file = CpcaFile::load(path)?;
         let bad = |m: String| Error::input(path, format!("CPCA transfer file: {m}"));
-        if bytes.len() < HEADER + 8 || &bytes[..8] != MAGIC {
-            return Err(bad(
-                "not a vkshade CPCA transfer file (bad magic or too short)".into(),
-            ));
-        }
-        let u32_at = |o: usize| u32::from_le_bytes(bytes[o..o + 4].try_into().unwrap_or([0; 4]));
-        let u64_at = |o: usize| u64::from_le_bytes(bytes[o..o + 8].try_into().unwrap_or([0; 8]));
-        if u32_at(8) != VERSION {
-            return Err(bad(format!(
-                "version {}, this build reads {VERSION}",
-                u32_at(8)
-            )));
-        }
-        let (k, m, clusters) = (u32_at(12) as u128, u32_at(16) as u128, u32_at(20) as u128);
-        let sharpness = f32::from_bits(u32_at(24));
-        let vertices = u64_at(28) as u128;
-        let rel_l2 = f64::from_bits(u64_at(36));
-        let words = 3 * k + vertices + clusters * (m + 1) * k + vertices * m;
-        let expected = HEADER as u128 + 4 * words + 8;
-        if expected != bytes.len() as u128 {
-            return Err(bad(format!(
-                "{} bytes, but K = {k}, M = {m}, {clusters} clusters and {vertices} vertices \
-                 need {expected}",
-                bytes.len()
-            )));
-        }
-        let body = bytes.len() - 8;
-        if fnv1a(&bytes[..body]) != u64_at(body) {
-            return Err(bad("checksum mismatch (the file is corrupted)".into()));
-        }
-        let (k, m, clusters, vertices) =
-            (k as usize, m as usize, clusters as usize, vertices as usize);
-        let mut at = HEADER;
-        let mut take = |count: usize| -> Vec<u32> {
-            let v = (0..count).map(|i| u32_at(at + 4 * i)).collect();
-            at += 4 * count;
-            v
-        };
-        let axes: Vec<glam::Vec3> = take(3 * k)
-            .chunks_exact(3)
-            .map(|a| {
-                glam::Vec3::new(
-                    f32::from_bits(a[0]),
-                    f32::from_bits(a[1]),
-                    f32::from_bits(a[2]),
-                )
-            })
-            .collect();
-        let cluster_of = take(vertices);
-        let rows = take(clusters * (m + 1) * k)
-            .into_iter()
-            .map(f32::from_bits)
-            .collect();
-        let weights = take(vertices * m).into_iter().map(f32::from_bits).collect();
         let c = Cpca {
-            basis: Basis { axes, sharpness },
-            vertices,
-            clusters,
-            components: m,
-            cluster_of,
-            rows,
-            weights,
-            rel_l2,
+            basis: Basis {
+                axes: file.axes.into_owned(),
+                sharpness: file.sharpness,
+            },
+            vertices: file.vertices,
+            clusters: file.clusters,
+            components: file.components,
+            cluster_of: file.cluster_of.into_owned(),
+            rows: file.rows.into_owned(),
+            weights: file.weights.into_owned(),
+            rel_l2: file.rel_l2,
         };
         c.check().map_err(|e| bad(e.to_string()))?;
-        if !rel_l2.is_finite() {
-            return Err(bad(format!("error {rel_l2}")));
+        if !c.rel_l2.is_finite() {
+            return Err(bad(format!("error {}", c.rel_l2)));
         }
         Ok(c)
     }
-}
-
-/// The lower Cholesky factor of the basis's regularised Gram matrix (the same matrix the
-/// projection solves with).
-fn gram_factor(t: &Transfer) -> Result<Vec<f64>> {
-    let k = t.basis.len();
-    let mut g = t.basis.gram();
-    let mean_diag = (0..k).map(|i| g[i * k + i]).sum::<f64>() / k as f64;
-    for i in 0..k {
-        g[i * k + i] += RIDGE * mean_diag;
-    }
-    super::fit::cholesky(&mut g, k).ok_or_else(|| {
-        Error::InvalidArgument(format!(
-            "CPCA: the Gram matrix of the {k}-function basis is not positive definite"
-        ))
-    })?;
-    // Keep only the lower triangle (the factorisation leaves the upper one as it was).
-    for i in 0..k {
-        for j in i + 1..k {
-            g[i * k + j] = 0.0;
-        }
-    }
-    Ok(g)
-}
-
-/// x with L^T x = b, L lower triangular (row-major, k x k).
-fn solve_upper_transposed(l: &[f64], k: usize, b: &[f32]) -> Vec<f64> {
-    let mut x = vec![0.0f64; k];
-    for i in (0..k).rev() {
-        let mut s = b[i] as f64;
-        for (j, xj) in x.iter().enumerate().skip(i + 1) {
-            s -= l[j * k + i] * xj;
-        }
-        x[i] = s / l[i * k + i];
-    }
-    x
 }
 
 /// sum_i term(a_i, b_i) in eight independent partial sums, so that it vectorises (a single
@@ -564,24 +405,6 @@ fn dist2(a: &[f32], b: &[f32]) -> f32 {
 
 fn dot_f32(a: &[f32], b: &[f32]) -> f32 {
     sum8(a, b, |x, y| x * y)
-}
-
-/// Dot product in four partial sums (see [`sum8`]).
-fn dot_f64(a: &[f64], b: &[f64]) -> f64 {
-    let mut acc = [0f64; 4];
-    let (ca, cb) = (a.chunks_exact(4), b.chunks_exact(4));
-    let tail: f64 = ca
-        .remainder()
-        .iter()
-        .zip(cb.remainder())
-        .map(|(x, y)| x * y)
-        .sum();
-    for (x, y) in ca.zip(cb) {
-        for i in 0..4 {
-            acc[i] += x[i] * y[i];
-        }
-    }
-    acc.iter().sum::<f64>() + tail
 }
 
 /// k-means (k-means++ seeding, Lloyd iterations) of the rows of `y` (dimension `k`).
@@ -751,7 +574,7 @@ fn pca(rows: &[&[f32]], k: usize, m: usize, seed: u64) -> ClusterModel {
     let times_cov = |q: &[f64], out: &mut [f64]| {
         for (zi, qi) in out.chunks_exact_mut(k).zip(q.chunks_exact(k)) {
             for (r, o) in zi.iter_mut().enumerate() {
-                *o = dot_f64(&cov[r * k..(r + 1) * k], qi);
+                *o = dot(&cov[r * k..(r + 1) * k], qi);
             }
         }
     };
@@ -766,7 +589,7 @@ fn pca(rows: &[&[f32]], k: usize, m: usize, seed: u64) -> ClusterModel {
     let mut h = vec![0f64; b * b];
     for i in 0..b {
         for j in 0..b {
-            h[i * b + j] = dot_f64(&q[i * k..(i + 1) * k], &z[j * k..(j + 1) * k]);
+            h[i * b + j] = dot(&q[i * k..(i + 1) * k], &z[j * k..(j + 1) * k]);
         }
     }
     let (values, vectors) = jacobi_eigen(h, b);
@@ -790,80 +613,6 @@ fn pca(rows: &[&[f32]], k: usize, m: usize, seed: u64) -> ClusterModel {
         axes,
         k,
     }
-}
-
-/// Modified Gram-Schmidt on the rows of `q` (dimension `k`); a row that vanishes is replaced
-/// by a unit vector orthogonal to the others.
-fn orthonormalise(q: &mut [f64], k: usize) {
-    let rows = q.len() / k;
-    for i in 0..rows {
-        for attempt in 0..=k {
-            for j in 0..i {
-                let (head, tail) = q.split_at_mut(i * k);
-                let qj = &head[j * k..(j + 1) * k];
-                let qi = &mut tail[..k];
-                let d: f64 = qi.iter().zip(qj).map(|(a, b)| a * b).sum();
-                qi.iter_mut().zip(qj).for_each(|(a, b)| *a -= d * b);
-            }
-            let qi = &mut q[i * k..(i + 1) * k];
-            let norm = qi.iter().map(|x| x * x).sum::<f64>().sqrt();
-            if norm > 1e-12 {
-                qi.iter_mut().for_each(|x| *x /= norm);
-                break;
-            }
-            // Degenerate: try the next coordinate axis.
-            qi.iter_mut().for_each(|x| *x = 0.0);
-            qi[(i + attempt) % k] = 1.0;
-        }
-    }
-}
-
-/// Eigen-decomposition of a symmetric n x n matrix by cyclic Jacobi rotations: (eigenvalues,
-/// eigenvectors as columns, row-major).
-fn jacobi_eigen(mut a: Vec<f64>, n: usize) -> (Vec<f64>, Vec<f64>) {
-    let mut v = vec![0f64; n * n];
-    for i in 0..n {
-        v[i * n + i] = 1.0;
-    }
-    for _sweep in 0..64 {
-        let off: f64 = (0..n)
-            .flat_map(|i| (0..n).filter(move |&j| j != i).map(move |j| (i, j)))
-            .map(|(i, j)| a[i * n + j].powi(2))
-            .sum();
-        let scale: f64 = (0..n).map(|i| a[i * n + i].powi(2)).sum::<f64>();
-        if off <= 1e-24 * scale.max(1e-300) {
-            break;
-        }
-        for p in 0..n {
-            for q in p + 1..n {
-                let apq = a[p * n + q];
-                if apq == 0.0 {
-                    continue;
-                }
-                let theta = (a[q * n + q] - a[p * n + p]) / (2.0 * apq);
-                let t = theta.signum().max(0.0) * 2.0 - 1.0;
-                let t = t / (theta.abs() + (theta * theta + 1.0).sqrt());
-                let c = 1.0 / (t * t + 1.0).sqrt();
-                let s = t * c;
-                for r in 0..n {
-                    let (arp, arq) = (a[r * n + p], a[r * n + q]);
-                    a[r * n + p] = c * arp - s * arq;
-                    a[r * n + q] = s * arp + c * arq;
-                }
-                for r in 0..n {
-                    let (apr, aqr) = (a[p * n + r], a[q * n + r]);
-                    a[p * n + r] = c * apr - s * aqr;
-                    a[q * n + r] = s * apr + c * aqr;
-                }
-                for r in 0..n {
-                    let (vrp, vrq) = (v[r * n + p], v[r * n + q]);
-                    v[r * n + p] = c * vrp - s * vrq;
-                    v[r * n + q] = s * vrp + c * vrq;
-                }
-            }
-        }
-    }
-    ((0..n).map(|i| a[i * n + i]).collect(), v)
 }
 
 #[cfg(test)]
@@ -890,52 +639,6 @@ mod tests {
             vertices: n,
             coeffs,
             projection_rel_l2: 0.0,
-        }
-    }
-
-    #[test]
-    fn half_precision_round_trip() {
-        // Exact values survive; others land on the nearest half (ties to even).
-        for x in [
-            0.0f32,
-            -0.0,
-            1.0,
-            -2.5,
-            65504.0,
-            6.1035156e-5,
-            5.9604645e-8,
-            0.33325195,
-        ] {
-            assert_eq!(half_round(x), x, "{x}");
-        }
-        assert_eq!(f16_bits(1.0), 0x3c00);
-        assert_eq!(f16_bits(-2.0), 0xc000);
-        assert_eq!(f16_bits(1.0 + 1.0 / 2048.0), 0x3c00); // tie: to even
-        assert_eq!(f16_bits(1.0 + 3.0 / 2048.0), 0x3c02); // tie: to even (up)
-        assert_eq!(f16_bits(70000.0), 0x7c00);
-        assert!(half_round(f32::NAN).is_nan());
-        let mut rng = Rng::new(3);
-        for _ in 0..10_000 {
-            let x = (rng.f32() - 0.5) * 10f32.powi((rng.f32() * 8.0) as i32 - 4);
-            let r = half_round(x);
-            // Within half an ulp of binary16 (relative 2^-11) for normal values.
-            if x.abs() > 6.2e-5 {
-                assert!((r - x).abs() <= x.abs() * 4.9e-4 + 1e-12, "{x} -> {r}");
-            } else {
-                assert!((r - x).abs() <= 3.0e-8, "{x} -> {r}");
-            }
-        }
-    }
-
-    #[test]
-    fn jacobi_diagonalises() {
-        let a = vec![4.0, 1.0, 0.5, 1.0, 3.0, 0.2, 0.5, 0.2, 1.0];
-        let (vals, vecs) = jacobi_eigen(a.clone(), 3);
-        for e in 0..3 {
-            for i in 0..3 {
-                let av: f64 = (0..3).map(|j| a[i * 3 + j] * vecs[j * 3 + e]).sum();
-                assert!((av - vals[e] * vecs[i * 3 + e]).abs() < 1e-10);
-            }
         }
     }
 
@@ -1043,7 +746,7 @@ mod tests {
         c.save(&path).unwrap();
         assert_eq!(Cpca::load(&path).unwrap(), c);
         let mut bytes = std::fs::read(&path).unwrap();
-        bytes[HEADER + 5] ^= 1;
+        bytes[crate::io::transfer_cache::CPCA_HEADER + 5] ^= 1;
         std::fs::write(&path, &bytes).unwrap();
         let e = Cpca::load(&path).unwrap_err().to_string();
         assert!(e.contains("checksum") && e.contains("t.cpca"), "{e}");

@@ -34,6 +34,7 @@
 //! integral agree for the sharpest lobes, which is what the lighting integrals need.
 
 use crate::error::{Error, Result};
+use crate::geom::linalg::{dot, nnls};
 use crate::geom::sg::{self, Lobe};
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
@@ -691,165 +692,6 @@ fn initial_lobes(
     (axes, lams)
 }
 
-fn dot(a: &[f64], b: &[f64]) -> f64 {
-    // Four accumulators so the compiler vectorises the sum.
-    let mut acc = [0.0f64; 4];
-    let (ca, cb) = (a.chunks_exact(4), b.chunks_exact(4));
-    let (ra, rb) = (ca.remainder(), cb.remainder());
-    for (x, y) in ca.zip(cb) {
-        for k in 0..4 {
-            acc[k] += x[k] * y[k];
-        }
-    }
-    let tail: f64 = ra.iter().zip(rb).map(|(x, y)| x * y).sum();
-    acc[0] + acc[1] + acc[2] + acc[3] + tail
-}
-
-/// In-place Cholesky factor (lower, row-major) of the symmetric positive definite `m`
-/// (n x n). `None` if a pivot is not positive.
-pub(crate) fn cholesky(m: &mut [f64], n: usize) -> Option<()> {
-    for j in 0..n {
-        let mut d = m[j * n + j];
-        for k in 0..j {
-            d -= m[j * n + k] * m[j * n + k];
-        }
-        if d.is_nan() || d <= 0.0 || d.is_infinite() {
-            return None;
-        }
-        let d = d.sqrt();
-        m[j * n + j] = d;
-        for i in j + 1..n {
-            let mut s = m[i * n + j];
-            for k in 0..j {
-                s -= m[i * n + k] * m[j * n + k];
-            }
-            m[i * n + j] = s / d;
-        }
-        for i in 0..j {
-            m[i * n + j] = 0.0;
-        }
-    }
-    Some(())
-}
-
-/// Solves L L^T x = b for the factor from [`cholesky`].
-pub(crate) fn cholesky_solve(l: &[f64], n: usize, b: &mut [f64]) {
-    for i in 0..n {
-        let mut s = b[i];
-        for k in 0..i {
-            s -= l[i * n + k] * b[k];
-        }
-        b[i] = s / l[i * n + i];
-    }
-    for i in (0..n).rev() {
-        let mut s = b[i];
-        for k in i + 1..n {
-            s -= l[k * n + i] * b[k];
-        }
-        b[i] = s / l[i * n + i];
-    }
-}
-
-/// Solves the SPD system `m x = b` (n x n), adding a growing ridge if the factorisation
-/// fails. `None` if even the largest ridge fails (non-finite input).
-fn solve_spd(m: &[f64], n: usize, b: &[f64]) -> Option<Vec<f64>> {
-    let scale = (0..n)
-        .map(|i| m[i * n + i])
-        .fold(0.0f64, f64::max)
-        .max(1e-300);
-    let mut ridge = 1e-13 * scale;
-    for _ in 0..10 {
-        let mut l = m.to_vec();
-        for i in 0..n {
-            l[i * n + i] += ridge;
-        }
-        if cholesky(&mut l, n).is_some() {
-            let mut x = b.to_vec();
-            cholesky_solve(&l, n, &mut x);
-            if x.iter().all(|v| v.is_finite()) {
-                return Some(x);
-            }
-        }
-        ridge *= 100.0;
-    }
-    None
-}
-
-/// Non-negative least squares in normal-equation form: min 1/2 x^T G x - b^T x, x >= 0
-/// (Lawson-Hanson active set). `g` is n x n symmetric positive semi-definite.
-pub(crate) fn nnls(g: &[f64], b: &[f64], n: usize) -> Vec<f64> {
-    let mut x = vec![0.0f64; n];
-    let mut passive = vec![false; n];
-    let bmax = b.iter().fold(0.0f64, |m, v| m.max(v.abs()));
-    if bmax == 0.0 {
-        return x;
-    }
-    let tol = 1e-12 * bmax;
-    for _ in 0..3 * n + 10 {
-        let grad: Vec<f64> = (0..n)
-            .map(|i| b[i] - dot(&g[i * n..(i + 1) * n], &x))
-            .collect();
-        let Some(enter) = (0..n)
-            .filter(|&i| !passive[i] && grad[i] > tol)
-            .max_by(|&i, &k| grad[i].total_cmp(&grad[k]))
-        else {
-            break;
-        };
-        passive[enter] = true;
-        for _ in 0..n + 1 {
-            let idx: Vec<usize> = (0..n).filter(|&i| passive[i]).collect();
-            if idx.is_empty() {
-                break;
-            }
-            let m = idx.len();
-            let sub: Vec<f64> = idx
-                .iter()
-                .flat_map(|&i| idx.iter().map(move |&k| g[i * n + k]))
-                .collect();
-            let rhs: Vec<f64> = idx.iter().map(|&i| b[i]).collect();
-            let Some(z) = solve_spd(&sub, m, &rhs) else {
-                passive[enter] = false;
-                break;
-            };
-            if z.iter().all(|v| *v > 0.0) {
-                for (&i, v) in idx.iter().zip(&z) {
-                    x[i] = *v;
-                }
-                break;
-            }
-            // Step from x towards z until the first passive variable hits zero; that one
-            // (and any other at or below zero) leaves the passive set.
-            let mut alpha = 1.0f64;
-            let mut blocking = None;
-            for (&i, &zi) in idx.iter().zip(&z) {
-                if zi <= 0.0 {
-                    let denom = x[i] - zi;
-                    let a = if denom > 0.0 { x[i] / denom } else { 0.0 };
-                    if a < alpha || blocking.is_none() {
-                        alpha = alpha.min(a);
-                        blocking = Some(i);
-                    }
-                }
-            }
-            for (&i, &zi) in idx.iter().zip(&z) {
-                x[i] += alpha * (zi - x[i]);
-                if x[i] <= 0.0 {
-                    passive[i] = false;
-                }
-            }
-            if let Some(k) = blocking {
-                passive[k] = false;
-            }
-            for i in 0..n {
-                if !passive[i] {
-                    x[i] = 0.0;
-                }
-            }
-        }
-    }
-    x
-}
-
 #[cfg(test)]
 pub(crate) mod tests {
     use super::*;
@@ -1118,16 +960,5 @@ pub(crate) mod tests {
         let black = equirect(16, 8, |_| [0.0; 3]);
         let f = fit(&black, &FitConfig { lobes: 4, ..cfg }).unwrap();
         assert!(f.lobes.iter().all(|l| l.amplitude == [0.0; 3]) && f.rel_l2 == 0.0);
-    }
-
-    #[test]
-    fn nnls_matches_a_known_solution() {
-        // G = A^T A with A = I + small; b chosen so the unconstrained optimum has a
-        // negative entry: the NNLS answer clamps it and re-solves.
-        let g = [4.0, 1.0, 0.0, 1.0, 3.0, 1.0, 0.0, 1.0, 2.0];
-        let x = nnls(&g, &[1.0, 2.0, -3.0], 3);
-        // With x2 = 0: [[4,1],[1,3]] x = [1,2] -> x = (1/11, 7/11).
-        assert!((x[0] - 1.0 / 11.0).abs() < 1e-12 && (x[1] - 7.0 / 11.0).abs() < 1e-12);
-        assert_eq!(x[2], 0.0);
     }
 }

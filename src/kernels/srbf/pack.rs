@@ -238,7 +238,7 @@ impl Layout {
             for (i, x) in w.iter().enumerate() {
                 // unpackHalf2x16: the first of a pair in the low 16 bits.
                 let word = &mut weights[(i / 8) * slots + slot][(i % 8) / 2];
-                *word |= (super::cpca::f16_bits(*x) as u32) << (16 * (i % 2));
+                *word |= (crate::io::f16::f16_bits(*x) as u32) << (16 * (i % 2));
             }
         }
         let k_groups = k.div_ceil(4);
@@ -266,7 +266,7 @@ impl Layout {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::kernels::srbf::cpca::f16_bits;
+    use crate::io::f16::f16_bits;
     use crate::kernels::srbf::inputs::CompactInputs;
     use crate::kernels::srbf::transfer::Basis;
     use glam::Vec3;

@@ -6,11 +6,13 @@
 //! L_o,v = albedo * sum_k t_vk c^_k = albedo * integral L_R(w) T~_v(w) dw exactly (closed-form
 //! inner products), so the only approximations are the two fits.
 
-use super::fit::{cholesky, cholesky_solve};
 use crate::error::{Error, Result};
+use crate::geom::linalg::{cholesky, cholesky_solve};
 use crate::geom::sg::{self, Lobe};
+use crate::io::transfer_cache::TransferFile;
 use glam::{DVec3, Mat3, Vec3};
 use rayon::prelude::*;
+use std::borrow::Cow;
 use std::path::Path;
 
 /// The most basis functions a [`Basis`] may have.
@@ -71,6 +73,20 @@ impl Basis {
             }
         });
         g
+    }
+
+    /// The lower Cholesky factor (row-major, upper triangle zero) of the regularised Gram
+    /// matrix gram + RIDGE * mean(diag) * I, the matrix [`project`] solves with; `None` if
+    /// it is not positive definite.
+    pub fn gram_factor(&self) -> Option<Vec<f64>> {
+        let k = self.len();
+        let mut factor = self.gram();
+        let mean_diag = (0..k).map(|i| factor[i * k + i]).sum::<f64>() / k as f64;
+        for i in 0..k {
+            factor[i * k + i] += RIDGE * mean_diag;
+        }
+        cholesky(&mut factor, k)?;
+        Some(factor)
     }
 
     pub fn check(&self) -> Result<()> {
@@ -166,12 +182,7 @@ pub fn project(
             "transfer projection: {vertices} vertices x {k} coefficients is too large"
         )));
     }
-    let mut factor = basis.gram();
-    let mean_diag = (0..k).map(|i| factor[i * k + i]).sum::<f64>() / k as f64;
-    for i in 0..k {
-        factor[i * k + i] += RIDGE * mean_diag;
-    }
-    cholesky(&mut factor, k).ok_or_else(|| {
+    let factor = basis.gram_factor().ok_or_else(|| {
         Error::InvalidArgument("transfer projection: the basis Gram matrix is singular".into())
     })?;
 
@@ -316,113 +327,41 @@ pub fn shade(transfer: &Transfer, coeffs: &[[f32; 3]], albedo: [f32; 3]) -> Resu
         .collect())
 }
 
-const MAGIC: &[u8; 8] = b"VKSGTRF\0";
-const VERSION: u32 = 1;
-/// magic, version, K, sharpness, vertices (u64), projection_rel_l2 (f64).
-const HEADER: usize = 8 + 4 + 4 + 4 + 8 + 8;
-
-/// FNV-1a, 64 bit: the file's trailing checksum.
-pub(crate) fn fnv1a(bytes: &[u8]) -> u64 {
-    bytes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, b| {
-        (h ^ *b as u64).wrapping_mul(0x0000_0100_0000_01b3)
-    })
-}
-
 impl Transfer {
-    /// Writes the transfer (little endian): magic "VKSGTRF\0", version u32, K u32,
-    /// sharpness f32, vertices u64, projection_rel_l2 f64, K axes (3 f32 each),
-    /// vertices x K coefficients f32, then an FNV-1a 64 checksum of everything before it.
-    /// Atomic: readers see the old file or the whole new one.
+    /// Writes the transfer as a cache file ([`TransferFile`]), atomically: readers see the
+    /// old file or the whole new one.
     pub fn save(&self, path: &Path) -> Result<()> {
-        let k = self.basis.len();
-        if self.coeffs.len() != self.vertices.saturating_mul(k) {
-            return Err(Error::input(
-                path,
-                format!(
-                    "transfer to save has {} coefficients for {} vertices x {k}",
-                    self.coeffs.len(),
-                    self.vertices
-                ),
-            ));
-        }
         self.basis
             .check()
             .map_err(|e| Error::input(path, e.to_string()))?;
-        let mut b = Vec::with_capacity(HEADER + 12 * k + 4 * self.coeffs.len() + 8);
-        b.extend_from_slice(MAGIC);
-        b.extend_from_slice(&VERSION.to_le_bytes());
-        b.extend_from_slice(&(k as u32).to_le_bytes());
-        b.extend_from_slice(&self.basis.sharpness.to_le_bytes());
-        b.extend_from_slice(&(self.vertices as u64).to_le_bytes());
-        b.extend_from_slice(&self.projection_rel_l2.to_le_bytes());
-        for a in &self.basis.axes {
-            for c in a.to_array() {
-                b.extend_from_slice(&c.to_le_bytes());
-            }
+        TransferFile {
+            axes: Cow::Borrowed(&self.basis.axes),
+            sharpness: self.basis.sharpness,
+            vertices: self.vertices,
+            coeffs: Cow::Borrowed(&self.coeffs),
+            projection_rel_l2: self.projection_rel_l2,
         }
-        for c in &self.coeffs {
-            b.extend_from_slice(&c.to_le_bytes());
-        }
-        let sum = fnv1a(&b);
-        b.extend_from_slice(&sum.to_le_bytes());
-        crate::io::write_atomic(path, &b)
+        .save(path)
     }
 
-    /// Reads a file written by [`Transfer::save`], checking magic, version, sizes, checksum
-    /// and values; every error names the file.
+    /// Reads a file written by [`Transfer::save`], checking the file ([`TransferFile::load`])
+    /// and the values; every error names the file.
     pub fn load(path: &Path) -> Result<Transfer> {
-        let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+        let file = TransferFile::load(path)?;
         let bad = |m: String| Error::input(path, format!("SG transfer file: {m}"));
-        if bytes.len() < HEADER + 8 || &bytes[..8] != MAGIC {
-            return Err(bad(
-                "not a vkshade SG transfer file (bad magic or too short)".into(),
-            ));
-        }
-        let u32_at = |o: usize| u32::from_le_bytes(bytes[o..o + 4].try_into().unwrap_or([0; 4]));
-        let u64_at = |o: usize| u64::from_le_bytes(bytes[o..o + 8].try_into().unwrap_or([0; 8]));
-        let version = u32_at(8);
-        if version != VERSION {
-            return Err(bad(format!(
-                "version {version}, this build reads {VERSION}"
-            )));
-        }
-        let k = u32_at(12) as usize;
-        let sharpness = f32::from_bits(u32_at(16));
-        let vertices = u64_at(20);
-        let projection_rel_l2 = f64::from_bits(u64_at(28));
-        let expected = (vertices as u128) * (k as u128) * 4 + (k as u128) * 12 + HEADER as u128 + 8;
-        if expected != bytes.len() as u128 {
-            return Err(bad(format!(
-                "{} bytes, but K = {k} and {vertices} vertices need {expected}",
-                bytes.len()
-            )));
-        }
-        let body = bytes.len() - 8;
-        if fnv1a(&bytes[..body]) != u64_at(body) {
-            return Err(bad("checksum mismatch (the file is corrupted)".into()));
-        }
-        let floats = |from: usize, count: usize| -> Vec<f32> {
-            bytes[from..from + 4 * count]
-                .chunks_exact(4)
-                .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-                .collect()
+        let basis = Basis {
+            axes: file.axes.into_owned(),
+            sharpness: file.sharpness,
         };
-        let axes: Vec<Vec3> = floats(HEADER, 3 * k)
-            .chunks_exact(3)
-            .map(|a| Vec3::new(a[0], a[1], a[2]))
-            .collect();
-        let basis = Basis { axes, sharpness };
         basis.check().map_err(|e| bad(e.to_string()))?;
-        let vertices = vertices as usize;
-        let coeffs = floats(HEADER + 12 * k, vertices * k);
-        if coeffs.iter().any(|c| !c.is_finite()) || !projection_rel_l2.is_finite() {
+        if file.coeffs.iter().any(|c| !c.is_finite()) || !file.projection_rel_l2.is_finite() {
             return Err(bad("non-finite coefficient or error".into()));
         }
         Ok(Transfer {
             basis,
-            vertices,
-            coeffs,
-            projection_rel_l2,
+            vertices: file.vertices,
+            coeffs: file.coeffs.into_owned(),
+            projection_rel_l2: file.projection_rel_l2,
         })
     }
 }

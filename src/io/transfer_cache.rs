@@ -1,0 +1,458 @@
+//! The SRBF transfer cache files that `vkshade srbf shade` keeps beside its outputs: the
+//! projected transfer (`transfer.bin`) and its clustered-PCA form (`transfer.cpca`).
+//!
+//! Both are little endian: an 8-byte magic, a version (u32), a fixed header, the arrays as
+//! 32-bit words, then an FNV-1a 64 checksum of everything before it. Writes are atomic; a
+//! read checks the magic, version, size and checksum, and every error names the file. What
+//! the values mean (unit axes, cluster ids in range, finite numbers) is checked by the types
+//! that own them (`kernels::srbf::transfer::Transfer`, `kernels::srbf::cpca::Cpca`).
+
+use crate::error::{Error, Result};
+use glam::Vec3;
+use std::borrow::Cow;
+use std::path::Path;
+
+/// A projected transfer as `transfer.bin` holds it: magic "VKSGTRF\0", version u32, K u32,
+/// sharpness f32, vertices u64, projection_rel_l2 f64, K axes (3 f32 each), vertices x K
+/// coefficients f32, checksum.
+#[derive(Clone, Debug, PartialEq)]
+pub struct TransferFile<'a> {
+    /// The K axes of the SG basis.
+    pub axes: Cow<'a, [Vec3]>,
+    /// The basis's one sharpness.
+    pub sharpness: f32,
+    pub vertices: usize,
+    /// Vertex-major, K per vertex.
+    pub coeffs: Cow<'a, [f32]>,
+    pub projection_rel_l2: f64,
+}
+
+/// A clustered-PCA transfer as `transfer.cpca` holds it: magic "VKSGCPC\0", version u32,
+/// K u32, M u32, clusters u32, sharpness f32, vertices u64, rel_l2 f64, K axes (3 f32 each),
+/// a u32 cluster per vertex, clusters x (M + 1) x K rows and vertices x M weights (f32),
+/// checksum.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CpcaFile<'a> {
+    /// The K axes of the SG basis.
+    pub axes: Cow<'a, [Vec3]>,
+    /// The basis's one sharpness.
+    pub sharpness: f32,
+    pub vertices: usize,
+    /// M: weights per vertex.
+    pub components: usize,
+    pub clusters: usize,
+    pub cluster_of: Cow<'a, [u32]>,
+    pub rows: Cow<'a, [f32]>,
+    pub weights: Cow<'a, [f32]>,
+    pub rel_l2: f64,
+}
+
+const TRANSFER_MAGIC: &[u8; 8] = b"VKSGTRF\0";
+const TRANSFER_VERSION: u32 = 1;
+/// magic, version, K, sharpness, vertices (u64), projection_rel_l2 (f64).
+const TRANSFER_HEADER: usize = 8 + 4 + 4 + 4 + 8 + 8;
+
+const CPCA_MAGIC: &[u8; 8] = b"VKSGCPC\0";
+const CPCA_VERSION: u32 = 1;
+/// magic, version, K, M, clusters, sharpness, vertices (u64), rel_l2 (f64).
+pub(crate) const CPCA_HEADER: usize = 8 + 4 * 5 + 8 + 8;
+
+/// FNV-1a, 64 bit: the files' trailing checksum.
+fn fnv1a(bytes: &[u8]) -> u64 {
+    bytes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, b| {
+        (h ^ *b as u64).wrapping_mul(0x0000_0100_0000_01b3)
+    })
+}
+
+/// `n` as a u32 header field; an error naming `path` if it does not fit.
+fn header_u32(path: &Path, n: usize, what: &str) -> Result<u32> {
+    u32::try_from(n).map_err(|_| Error::input(path, format!("{n} {what} do not fit the file")))
+}
+
+/// Appends the checksum of `b` and writes it to `path` atomically.
+fn seal_and_write(path: &Path, mut b: Vec<u8>) -> Result<()> {
+    let sum = fnv1a(&b);
+    b.extend_from_slice(&sum.to_le_bytes());
+    super::write_atomic(path, &b)
+}
+
+/// A file read whole, its magic and version checked; the size and checksum are checked by
+/// [`Sealed::check_size`] once the header says what the size must be.
+struct Sealed<'p> {
+    path: &'p Path,
+    /// What the file holds, for messages ("SG transfer").
+    what: &'static str,
+    bytes: Vec<u8>,
+}
+
+impl<'p> Sealed<'p> {
+    fn open(
+        path: &'p Path,
+        what: &'static str,
+        magic: &[u8; 8],
+        version: u32,
+        header: usize,
+    ) -> Result<Sealed<'p>> {
+        let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+        let file = Sealed { path, what, bytes };
+        if file.bytes.len() < header + 8 || &file.bytes[..8] != magic {
+            return Err(file.bad(format!(
+                "not a vkshade {what} file (bad magic or too short)"
+            )));
+        }
+        let found = file.u32_at(8);
+        if found != version {
+            return Err(file.bad(format!("version {found}, this build reads {version}")));
+        }
+        Ok(file)
+    }
+
+    fn bad(&self, m: String) -> Error {
+        Error::input(self.path, format!("{} file: {m}", self.what))
+    }
+
+    fn u32_at(&self, o: usize) -> u32 {
+        u32::from_le_bytes(self.bytes[o..o + 4].try_into().unwrap_or([0; 4]))
+    }
+
+    fn u64_at(&self, o: usize) -> u64 {
+        u64::from_le_bytes(self.bytes[o..o + 8].try_into().unwrap_or([0; 8]))
+    }
+
+    /// Checks that the file is `expected` bytes long (else the error says `needs`, which
+    /// names the header's counts) and that its checksum matches.
+    fn check_size(&self, expected: u128, needs: impl FnOnce() -> String) -> Result<()> {
+        if expected != self.bytes.len() as u128 {
+            return Err(self.bad(format!(
+                "{} bytes, but {} need {expected}",
+                self.bytes.len(),
+                needs()
+            )));
+        }
+        let body = self.bytes.len() - 8;
+        if fnv1a(&self.bytes[..body]) != self.u64_at(body) {
+            return Err(self.bad("checksum mismatch (the file is corrupted)".into()));
+        }
+        Ok(())
+    }
+
+    /// `count` words from byte `from`.
+    fn words(&self, from: usize, count: usize) -> Vec<u32> {
+        (0..count).map(|i| self.u32_at(from + 4 * i)).collect()
+    }
+
+    fn floats(&self, from: usize, count: usize) -> Vec<f32> {
+        self.bytes[from..from + 4 * count]
+            .chunks_exact(4)
+            .map(|c| f32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect()
+    }
+
+    fn axes(&self, from: usize, k: usize) -> Vec<Vec3> {
+        self.floats(from, 3 * k)
+            .chunks_exact(3)
+            .map(|a| Vec3::new(a[0], a[1], a[2]))
+            .collect()
+    }
+}
+
+impl TransferFile<'_> {
+    /// Writes the file (see the type), atomically: readers see the old file or the whole
+    /// new one. An error if the coefficients are not `vertices` x K.
+    pub fn save(&self, path: &Path) -> Result<()> {
+        let k = self.axes.len();
+        if self.coeffs.len() != self.vertices.saturating_mul(k) {
+            return Err(Error::input(
+                path,
+                format!(
+                    "transfer to save has {} coefficients for {} vertices x {k}",
+                    self.coeffs.len(),
+                    self.vertices
+                ),
+            ));
+        }
+        let k32 = header_u32(path, k, "basis functions")?;
+        let mut b = Vec::with_capacity(TRANSFER_HEADER + 12 * k + 4 * self.coeffs.len() + 8);
+        b.extend_from_slice(TRANSFER_MAGIC);
+        b.extend_from_slice(&TRANSFER_VERSION.to_le_bytes());
+        b.extend_from_slice(&k32.to_le_bytes());
+        b.extend_from_slice(&self.sharpness.to_le_bytes());
+        b.extend_from_slice(&(self.vertices as u64).to_le_bytes());
+        b.extend_from_slice(&self.projection_rel_l2.to_le_bytes());
+        for a in self.axes.iter() {
+            for c in a.to_array() {
+                b.extend_from_slice(&c.to_le_bytes());
+            }
+        }
+        for c in self.coeffs.iter() {
+            b.extend_from_slice(&c.to_le_bytes());
+        }
+        seal_and_write(path, b)
+    }
+}
+
+impl TransferFile<'static> {
+    /// Reads a file written by [`TransferFile::save`], checking magic, version, size and
+    /// checksum; every error names the file.
+    pub fn load(path: &Path) -> Result<TransferFile<'static>> {
+        let file = Sealed::open(
+            path,
+            "SG transfer",
+            TRANSFER_MAGIC,
+            TRANSFER_VERSION,
+            TRANSFER_HEADER,
+        )?;
+        let k = file.u32_at(12) as usize;
+        let sharpness = f32::from_bits(file.u32_at(16));
+        let vertices = file.u64_at(20);
+        let projection_rel_l2 = f64::from_bits(file.u64_at(28));
+        let expected =
+            (vertices as u128) * (k as u128) * 4 + (k as u128) * 12 + TRANSFER_HEADER as u128 + 8;
+        file.check_size(expected, || format!("K = {k} and {vertices} vertices"))?;
+        let vertices = vertices as usize;
+        Ok(TransferFile {
+            axes: file.axes(TRANSFER_HEADER, k).into(),
+            sharpness,
+            vertices,
+            coeffs: file.floats(TRANSFER_HEADER + 12 * k, vertices * k).into(),
+            projection_rel_l2,
+        })
+    }
+}
+
+impl CpcaFile<'_> {
+    /// Writes the file (see the type), atomically. An error if the arrays' lengths do not
+    /// match the counts.
+    pub fn save(&self, path: &Path) -> Result<()> {
+        let (k, m) = (self.axes.len(), self.components);
+        let rows = self
+            .clusters
+            .checked_mul(m + 1)
+            .and_then(|r| r.checked_mul(k));
+        if rows != Some(self.rows.len())
+            || Some(self.weights.len()) != self.vertices.checked_mul(m)
+            || self.cluster_of.len() != self.vertices
+        {
+            return Err(Error::input(
+                path,
+                format!(
+                    "CPCA transfer to save has {} rows, {} weights and {} cluster ids for {} \
+                     vertices x {} clusters x {m} components x {k}",
+                    self.rows.len(),
+                    self.weights.len(),
+                    self.cluster_of.len(),
+                    self.vertices,
+                    self.clusters
+                ),
+            ));
+        }
+        let header = [
+            CPCA_VERSION,
+            header_u32(path, k, "basis functions")?,
+            header_u32(path, m, "components")?,
+            header_u32(path, self.clusters, "clusters")?,
+            self.sharpness.to_bits(),
+        ];
+        let words = 3 * k + self.vertices + self.rows.len() + self.weights.len();
+        let mut b = Vec::with_capacity(CPCA_HEADER + 4 * words + 8);
+        b.extend_from_slice(CPCA_MAGIC);
+        for x in header {
+            b.extend_from_slice(&x.to_le_bytes());
+        }
+        b.extend_from_slice(&(self.vertices as u64).to_le_bytes());
+        b.extend_from_slice(&self.rel_l2.to_le_bytes());
+        let floats = self.axes.iter().flat_map(|a| a.to_array());
+        let words = floats
+            .map(f32::to_bits)
+            .chain(self.cluster_of.iter().copied())
+            .chain(self.rows.iter().map(|x| x.to_bits()))
+            .chain(self.weights.iter().map(|x| x.to_bits()));
+        for w in words {
+            b.extend_from_slice(&w.to_le_bytes());
+        }
+        seal_and_write(path, b)
+    }
+}
+
+impl CpcaFile<'static> {
+    /// Reads a file written by [`CpcaFile::save`], checking magic, version, size and
+    /// checksum; every error names the file.
+    pub fn load(path: &Path) -> Result<CpcaFile<'static>> {
+        let file = Sealed::open(path, "CPCA transfer", CPCA_MAGIC, CPCA_VERSION, CPCA_HEADER)?;
+        let (k, m, clusters) = (
+            file.u32_at(12) as u128,
+            file.u32_at(16) as u128,
+            file.u32_at(20) as u128,
+        );
+        let sharpness = f32::from_bits(file.u32_at(24));
+        let vertices = file.u64_at(28) as u128;
+        let rel_l2 = f64::from_bits(file.u64_at(36));
+        let words = 3 * k + vertices + clusters * (m + 1) * k + vertices * m;
+        let expected = CPCA_HEADER as u128 + 4 * words + 8;
+        file.check_size(expected, || {
+            format!("K = {k}, M = {m}, {clusters} clusters and {vertices} vertices")
+        })?;
+        let (k, m, clusters, vertices) =
+            (k as usize, m as usize, clusters as usize, vertices as usize);
+        let mut at = CPCA_HEADER;
+        let mut take = |count: usize| {
+            let from = at;
+            at += 4 * count;
+            from
+        };
+        let axes = file.axes(take(3 * k), k);
+        let cluster_of = file.words(take(vertices), vertices);
+        let rows = file.floats(take(clusters * (m + 1) * k), clusters * (m + 1) * k);
+        let weights = file.floats(take(vertices * m), vertices * m);
+        Ok(CpcaFile {
+            axes: axes.into(),
+            sharpness,
+            vertices,
+            components: m,
+            clusters,
+            cluster_of: cluster_of.into(),
+            rows: rows.into(),
+            weights: weights.into(),
+            rel_l2,
+        })
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// `name` in a folder of its own (the tests run in parallel and each removes its folder).
+    fn temp(name: &str) -> std::path::PathBuf {
+        std::env::temp_dir()
+            .join(format!(
+                "vkshade-transfer-cache-{}-{name}",
+                std::process::id()
+            ))
+            .join(name)
+    }
+
+    #[test]
+    fn fnv1a_known_answers() {
+        assert_eq!(fnv1a(b""), 0xcbf2_9ce4_8422_2325);
+        assert_eq!(fnv1a(b"a"), 0xaf63_dc4c_8601_ec8c);
+        assert_eq!(fnv1a(b"foobar"), 0x8594_4171_f739_67e8);
+    }
+
+    fn le(words: &[u32]) -> Vec<u8> {
+        words.iter().flat_map(|w| w.to_le_bytes()).collect()
+    }
+
+    /// The bytes of a small transfer, assembled field by field from the documented layout
+    /// (what every cache written so far holds) with its checksum: the writer produces them
+    /// and the reader takes them back.
+    #[test]
+    fn transfer_file_layout() {
+        let file = TransferFile {
+            axes: vec![Vec3::Y, Vec3::new(0.6, 0.0, -0.8)].into(),
+            sharpness: 1.5,
+            vertices: 3,
+            coeffs: vec![1.0, -2.0, 0.25, 3.5, 0.0, -0.125].into(),
+            projection_rel_l2: 0.0625,
+        };
+        let mut want = b"VKSGTRF\0".to_vec();
+        want.extend(le(&[1, 2, 1.5f32.to_bits()]));
+        want.extend(3u64.to_le_bytes());
+        want.extend(0.0625f64.to_le_bytes());
+        let floats = [
+            0.0f32, 1.0, 0.0, 0.6, 0.0, -0.8, 1.0, -2.0, 0.25, 3.5, 0.0, -0.125,
+        ];
+        want.extend(le(&floats.map(f32::to_bits)));
+        // FNV-1a 64 of the bytes above (computed independently).
+        want.extend(0x041d_b115_458f_e975u64.to_le_bytes());
+        let path = temp("t.bin");
+        file.save(&path).unwrap();
+        assert_eq!(std::fs::read(&path).unwrap(), want);
+        assert_eq!(TransferFile::load(&path).unwrap(), file);
+        // Coefficients that are not vertices x K are refused.
+        let short = TransferFile {
+            vertices: 4,
+            ..file.clone()
+        };
+        assert!(short.save(&path).is_err());
+        let _ = std::fs::remove_dir_all(path.parent().unwrap());
+    }
+
+    #[test]
+    fn cpca_file_layout() {
+        // K = 2, M = 1, 1 cluster, 2 vertices.
+        let file = CpcaFile {
+            axes: vec![Vec3::X, Vec3::Z].into(),
+            sharpness: 0.75,
+            vertices: 2,
+            components: 1,
+            clusters: 1,
+            cluster_of: vec![0, 0].into(),
+            rows: vec![0.5, -0.5, 1.0, 2.0].into(),
+            weights: vec![3.0, -4.0].into(),
+            rel_l2: 0.01,
+        };
+        let mut want = b"VKSGCPC\0".to_vec();
+        want.extend(le(&[1, 2, 1, 1, 0.75f32.to_bits()]));
+        want.extend(2u64.to_le_bytes());
+        want.extend(0.01f64.to_le_bytes());
+        let axes = [1.0f32, 0.0, 0.0, 0.0, 0.0, 1.0];
+        want.extend(le(&axes.map(f32::to_bits)));
+        want.extend(le(&[0, 0]));
+        let floats = [0.5f32, -0.5, 1.0, 2.0, 3.0, -4.0];
+        want.extend(le(&floats.map(f32::to_bits)));
+        want.extend(0x9f24_43b9_9567_a623u64.to_le_bytes());
+        assert_eq!(want.len(), CPCA_HEADER + 4 * (6 + 2 + 4 + 2) + 8);
+        let path = temp("t.cpca");
+        file.save(&path).unwrap();
+        assert_eq!(std::fs::read(&path).unwrap(), want);
+        assert_eq!(CpcaFile::load(&path).unwrap(), file);
+        let wrong = CpcaFile {
+            components: 2,
+            ..file.clone()
+        };
+        assert!(wrong.save(&path).is_err());
+        let _ = std::fs::remove_dir_all(path.parent().unwrap());
+    }
+
+    /// A wrong version, a wrong magic, a flipped bit, a truncated or a longer file: errors
+    /// that name the file and say what is wrong.
+    #[test]
+    fn damaged_files_are_refused() {
+        let path = temp("damaged.bin");
+        let file = TransferFile {
+            axes: vec![Vec3::Y].into(),
+            sharpness: 2.0,
+            vertices: 2,
+            coeffs: vec![1.0, 2.0].into(),
+            projection_rel_l2: 0.0,
+        };
+        file.save(&path).unwrap();
+        let good = std::fs::read(&path).unwrap();
+        let name = path.display().to_string();
+        let mut version = good.clone();
+        version[8] = 2;
+        let mut magic = good.clone();
+        magic[3] = b'X';
+        let mut flipped = good.clone();
+        flipped[TRANSFER_HEADER + 13] ^= 0x04;
+        let truncated = good[..good.len() - 4].to_vec();
+        let mut longer = good.clone();
+        longer.extend([0; 4]);
+        for (bytes, says) in [
+            (version, "version 2, this build reads 1"),
+            (magic, "bad magic"),
+            (flipped, "checksum mismatch"),
+            (truncated, "bytes, but K = 1 and 2 vertices need"),
+            (longer, "bytes, but K = 1 and 2 vertices need"),
+        ] {
+            std::fs::write(&path, &bytes).unwrap();
+            let e = TransferFile::load(&path).unwrap_err().to_string();
+            assert!(e.contains(&name) && e.contains(says), "{e}");
+            // The CPCA reader refuses a transfer file for its magic.
+            let e = CpcaFile::load(&path).unwrap_err().to_string();
+            assert!(e.contains("not a vkshade CPCA transfer file"), "{e}");
+        }
+        let _ = std::fs::remove_dir_all(path.parent().unwrap());
+    }
+}
