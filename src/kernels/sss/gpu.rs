@@ -13,20 +13,19 @@
 //! ones. The irradiance can also be filled by the caller
 //! ([`SssKernel::upload_irradiance`], e.g. from another kernel, rgb) and diffused alone
 //! ([`SssKernel::record_diffusion`], then with the two-gather rgb pipeline).
+//!
+//! The data is packed and checked on the CPU ([`super::pack`]); this module creates the images
+//! and buffers from it, records their uploads, binds the pipelines and declares the passes.
 
-use super::contact::Contact;
-use super::cpu::{
-    DiffusionGeometry, Light, MAX_LIGHTS, SamplerParams, check_lights, pattern_totals,
-    sample_pattern, shadow_bias, texel_corners_packed, vertex_frames,
-};
-use super::profile::{Profile, ProfileKind};
-use super::texspace::TexGeometry;
+use super::cpu::{Light, MAX_LIGHTS, SamplerParams, check_lights, shadow_bias};
+use super::pack::{self, BVH_ROW, Packed, Pattern, Room, Settings, VERTEX_ROW, tile_groups};
+use super::{Profile, TexGeometry};
 use crate::error::{Error, Result};
-use crate::geom::bvh::Bvh;
 use crate::gpu::{
     AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context, Image,
     ImageDesc, ImageRegion, MemoryReport, Readback, Recorder, Resource, Subresources,
 };
+use crate::kernels::contract::DispatchArgs;
 use crate::kernels::{Dispatch, Grid, Kernel, Pass};
 use ash::vk;
 use std::sync::Mutex;
@@ -51,186 +50,60 @@ pub struct SssOutput {
 }
 
 pub struct SssReadback {
-    /// `irradiance` is the `pe` image (xyz, grey E) rather than a caller's rgb upload.
-    grey: bool,
+    /// `irradiance` is the grey E of the irradiance pass rather than a caller's rgb upload.
+    irradiance_is_grey: bool,
     irradiance: Readback,
     diffuse: Readback,
     transmission: Readback,
 }
 
-pub struct SssKernel {
-    ctx: Context,
-    vertex: ComputePipeline,
-    vertex_bind: BindGroup,
-    vertices: u32,
-    irradiance: ComputePipeline,
-    irradiance_bind: BindGroup,
-    diffusion: ComputePipeline,
-    diffusion_bind: BindGroup,
-    /// The diffusion of the irradiance pass's grey E: one gather per sample from `pe`.
-    diffusion_grey: ComputePipeline,
-    diffusion_grey_bind: BindGroup,
-    /// Whether the irradiance image last recorded came from the irradiance pass (grey, also
-    /// in `pe`: the diffusion uses `diffusion_grey`) rather than [`SssKernel::upload_irradiance`].
-    grey: AtomicBool,
-    /// Mesh vertices (position, normal) and the BVH (nodes, triangles): storage buffers.
-    verts: Buffer,
-    /// The BVH as RGBA32UI images of [`BVH_ROW`] texels a row (float bits; nodes 2 texels,
-    /// triangles 3): the traversal's loads fetch a texel at once (see `geometry`).
-    nodes: Image,
-    tris: Image,
-    triangles: usize,
-    walk_records: usize,
-    /// The pattern's weight totals ([`pattern_totals`]), pushed with each diffusion.
-    totals: [f32; 3],
-    /// The shared sample pattern ([`sample_pattern`]), an RGBA32F image one texel per sample
-    /// (lavapipe loads a uniform buffer at a loop index lane by lane: a vec4 from it cost
-    /// more than the irradiance gather of a sample).
-    seq: Image,
-    /// Per texel: position, normal (RGBA32F), triangle corners (RGBA32UI,
-    /// [`texel_corners_packed`]) and the diffusion's start ([`start_texels`]), storage images:
-    /// lavapipe fetches a texel's four channels at once, while a storage-buffer load at a
-    /// per-lane index loops over the lanes for each component, and the passes gather per
-    /// sample.
-    geometry: [Image; 4],
-    /// The surface walk's triangle records ([`super::walk::SurfaceWalk::records`]) and the contact entries
-    /// ([`Contact`]), RGBA32UI, [`BVH_ROW`] texels a row.
-    walk: Image,
-    contact: Image,
-    /// Per vertex (vertex v at (v % VERTEX_ROW, v / VERTEX_ROW)): visibility bits (R32UI) and
-    /// transmission (RGBA32F).
-    vis: Image,
-    vtrans: Image,
+/// The kernel's images and buffers. Per-texel data, the BVH and the per-vertex results are
+/// storage images: lavapipe fetches a texel's four channels at once, while a storage-buffer
+/// load at a per-lane index loops over the lanes for each component.
+struct Resources {
+    /// Per mesh vertex: position, normal (two vec4).
+    vertex_frames: Buffer,
+    /// The BVH, RGBA32UI, [`BVH_ROW`] texels a row (float bits; nodes 2 texels, triangles 3).
+    bvh_nodes: Image,
+    bvh_triangles: Image,
+    /// The shared sample pattern, RGBA32F, one texel per sample (lavapipe loads a uniform
+    /// buffer at a loop index lane by lane: a vec4 from it cost more than the irradiance
+    /// gather of a sample).
+    sample_pattern: Image,
+    /// The frame's lights: a uniform buffer (the shaders' MAX_LIGHTS x 2 vec4), which
+    /// lavapipe loads at the light loop's uniform index as a scalar.
     lights: Buffer,
-    irr: Image,
-    /// Grey E per texel (R32F; -1 where no surface), written by the
-    /// irradiance pass for the grey diffusion's gathers.
-    pe: Image,
-    trans: Image,
+    /// Per texel: position and flag, normal and area (RGBA32F), triangle corners and
+    /// barycentrics, where the diffusion starts (RGBA32UI).
+    texel_positions: Image,
+    texel_normals: Image,
+    texel_corners: Image,
+    diffusion_start: Image,
+    /// The surface walk's triangle records and the contact entries, RGBA32UI, [`BVH_ROW`]
+    /// texels a row.
+    walk_records: Image,
+    contact_entries: Image,
+    /// Per vertex (vertex v at (v % VERTEX_ROW, v / VERTEX_ROW)), written by `sss vertex
+    /// light`: a bit per unshadowed light (R32UI), transmission rgb and thickness (RGBA32F).
+    vertex_visibility: Image,
+    vertex_transmission: Image,
+    /// Per texel: a caller's rgb irradiance ([`SssKernel::upload_irradiance`]), the
+    /// transmission and the grey E of the irradiance pass (R32F; -1 where no surface).
+    irradiance_rgb: Image,
+    transmission: Image,
+    irradiance_grey: Image,
+    /// The diffusion's output, rgba per texel.
     diffuse: Buffer,
-    /// The occupied tiles ([`occupied_tiles`]), a storage buffer with room for every tile,
-    /// and the list on the host (compared on a geometry update).
-    tiles: Buffer,
+    /// The occupied tiles ([`pack::occupied_tiles`]), with room for every tile, and the
+    /// list on the host (compared on a geometry update).
+    occupied_tiles: Buffer,
     tile_list: Mutex<Vec<u32>>,
-    size: u32,
-    bias: f32,
-    profile: Profile,
-    params: SamplerParams,
 }
 
-/// Workgroups (8 x 8 invocations: 8 row segments) per row of the irradiance and diffusion
-/// dispatches (the shaders' TILE_ROW).
-const TILE_ROW: u32 = 256;
-
-/// The 8 x 1 row segments of the atlas with at least one texel on the surface (covered or
-/// gutter), as x / 8 | y << 16: the irradiance and diffusion passes run over these only
-/// (about half of a head's atlas is empty; a segment is one 8-lane SIMD step on lavapipe).
-fn occupied_tiles(geo: &TexGeometry) -> Vec<u32> {
-    let n = geo.size as usize;
-    let mut tiles = Vec::new();
-    for y in 0..n {
-        for tx in 0..n.div_ceil(8) {
-            if (tx * 8..(tx * 8 + 8).min(n)).any(|x| geo.pos[y * n + x][3] != 0.0) {
-                tiles.push(tx as u32 | (y as u32) << 16);
-            }
-        }
-    }
-    tiles
-}
-
-/// Workgroups for `tiles` row segments (8 a workgroup, [`TILE_ROW`] workgroups a row; at
-/// least one, which returns at once when there are none).
-fn tile_groups(tiles: u32) -> [u32; 3] {
-    let groups = tiles.div_ceil(8);
-    [
-        groups.clamp(1, TILE_ROW),
-        groups.div_ceil(TILE_ROW).max(1),
-        1,
-    ]
-}
-
-/// Vertices per row of the per-vertex images (the shaders' VERTEX_ROW).
-const VERTEX_ROW: u32 = 1024;
-/// Texels per row of the BVH images (the shaders' BVH_ROW).
-const BVH_ROW: u32 = 1024;
-
-/// An RGBA32UI image of at least `texels` texels, [`BVH_ROW`] a row.
-fn bvh_desc(texels: usize) -> ImageDesc {
-    let rows = (texels as u32).div_ceil(BVH_ROW).max(1);
-    ImageDesc::d2(vk::Format::R32G32B32A32_UINT, [BVH_ROW, rows])
+/// An RGBA32UI storage image the host fills.
+fn uint_image(size: [u32; 2]) -> ImageDesc {
+    ImageDesc::d2(vk::Format::R32G32B32A32_UINT, size)
         .usage(vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST)
-}
-
-/// Records the upload of `data` (16-byte texels, row-major) into the first rows of `image`
-/// (zero-padded to whole rows).
-fn upload_rows(rec: &mut Recorder, image: &Image, data: &[[f32; 4]]) -> Result<()> {
-    let [w, h, _] = image.desc().extent;
-    let rows = (data.len() as u32).div_ceil(w).max(1);
-    if rows > h {
-        return Err(Error::InvalidArgument(format!(
-            "{} texels do not fit image '{}' ({w} x {h})",
-            data.len(),
-            image.name()
-        )));
-    }
-    let mut padded = data.to_vec();
-    padded.resize((rows * w) as usize, [0.0; 4]);
-    let region = ImageRegion {
-        extent: [w, rows, 1],
-        ..ImageRegion::whole(image.desc())
-    };
-    rec.upload_image(image, region, bytemuck::cast_slice(&padded))
-}
-
-/// Checks what the shaders index with (TexGeometry's fields are public): a texel on the
-/// surface names a triangle of the mesh, a triangle names vertices of the mesh, and the
-/// per-texel arrays have size^2 entries.
-fn check_geometry(geo: &TexGeometry) -> Result<()> {
-    let n = geo.texels();
-    if [geo.pos.len(), geo.nrm.len(), geo.texel_tri.len()]
-        .iter()
-        .any(|&l| l != n)
-    {
-        return Err(Error::InvalidArgument(format!(
-            "texture-space geometry of {}^2 texels has per-texel arrays of other lengths",
-            geo.size
-        )));
-    }
-    let triangles = geo.triangles.len() as u32;
-    if let Some(i) = (0..n).find(|&i| geo.pos[i][3] != 0.0 && geo.texel_tri[i][0] >= triangles) {
-        return Err(Error::InvalidArgument(format!(
-            "texel {i} is on the surface but names triangle {} of {triangles}",
-            geo.texel_tri[i][0]
-        )));
-    }
-    let vertices = geo.positions.len() as u32;
-    if let Some(t) = geo
-        .triangles
-        .iter()
-        .position(|t| t.iter().any(|&v| v >= vertices))
-    {
-        return Err(Error::InvalidArgument(format!(
-            "triangle {t} names a vertex beyond the mesh's {vertices}"
-        )));
-    }
-    Ok(())
-}
-
-/// Per texel, what the diffusion starts from: (triangle, w1 bits, w2 bits, first contact
-/// entry << 5 | entry count).
-fn start_texels(geo: &TexGeometry, contact: &Contact) -> Result<Vec<[u32; 4]>> {
-    if contact.entries.len() >= 1 << 27 {
-        return Err(Error::InvalidArgument(format!(
-            "{} contact entries: more than the 2^27 the diffusion can index",
-            contact.entries.len()
-        )));
-    }
-    Ok(geo
-        .texel_tri
-        .iter()
-        .zip(&contact.range)
-        .map(|(t, &[first, count])| [t[0], t[1], t[2], first << 5 | count])
-        .collect())
 }
 
 /// A float storage image the host can fill and read back.
@@ -246,193 +119,125 @@ fn rgba32f(size: [u32; 2]) -> ImageDesc {
     float_image(vk::Format::R32G32B32A32_SFLOAT, size)
 }
 
-impl SssKernel {
-    /// Creates buffers, images and pipelines for `geo` and records the uploads into `rec`.
-    pub fn new(
-        rec: &mut Recorder,
-        geo: &TexGeometry,
-        profile: &Profile,
-        params: SamplerParams,
-    ) -> Result<SssKernel> {
-        params.check()?;
-        check_geometry(geo)?;
-        let ctx = rec.context();
-        let spv = |name| crate::shaders::spirv(name);
-        let vertex =
-            ComputePipeline::from_spirv(&ctx, "sss/vertex_light", spv("sss/vertex_light")?)?;
-        let irradiance =
-            ComputePipeline::from_spirv(&ctx, "sss/irradiance", spv("sss/irradiance")?)?;
-        let diffusion = ComputePipeline::from_spirv(&ctx, "sss/diffusion", spv("sss/diffusion")?)?;
-        let diffusion_grey =
-            ComputePipeline::from_spirv(&ctx, "sss/diffusion_grey", spv("sss/diffusion_grey")?)?;
-        let bvh = Bvh::build(&geo.positions, &geo.triangles);
-        let (nodes, tris) = bvh.flat();
-        let width_limit = ctx.limits().max_image_dimension_2d;
-        if width_limit < MAX_SAMPLES {
-            return Err(Error::InvalidArgument(format!(
-                "the SSS sampler keeps its pattern in an image {MAX_SAMPLES} texels wide; the \
-                 device allows {width_limit} (maxImageDimension2D)"
-            )));
-        }
-        let mut upload = |name: &str, bytes: &[u8]| {
-            rec.buffer_with(name, BufferDesc::storage(bytes.len() as u64), bytes)
-        };
-        let verts = upload("sss vertices", bytemuck::cast_slice(&vertex_frames(geo)))?;
-        // Room for any hierarchy over this many triangles (a rebuilt one may have more
-        // nodes): at most 2 n - 1.
-        let node_room = (2 * geo.triangles.len()).max(nodes.len());
-        let nodes_img = Image::new(&ctx, "sss bvh nodes", bvh_desc(2 * node_room))?;
-        let tris_img = Image::new(&ctx, "sss bvh triangles", bvh_desc(3 * tris.len()))?;
-        upload_rows(rec, &nodes_img, bytemuck::cast_slice(&nodes))?;
-        upload_rows(rec, &tris_img, bytemuck::cast_slice(&tris))?;
-        let (nodes, tris) = (nodes_img, tris_img);
-        let seq = Image::new(&ctx, "sss sample pattern", rgba32f([MAX_SAMPLES, 1]))?;
-        let pattern = sample_pattern(profile, params.samples);
-        upload_rows(rec, &seq, &pattern)?;
-        // A uniform buffer (the shaders' MAX_LIGHTS x 2 vec4): lavapipe loads it at the
-        // light loop's uniform index as a scalar.
-        let lights = Buffer::new(
-            &ctx,
-            "sss lights",
-            BufferDesc::uniform(MAX_LIGHTS as u64 * 32),
-        )?;
-        let texels = geo.texels() as u64;
-        let sz = [geo.size, geo.size];
-        let corners_desc = ImageDesc::d2(vk::Format::R32G32B32A32_UINT, sz)
-            .usage(vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST);
-        let geometry = [
-            Image::new(&ctx, "sss position", rgba32f(sz))?,
-            Image::new(&ctx, "sss normal", rgba32f(sz))?,
-            Image::new(&ctx, "sss texel corners", corners_desc)?,
-            Image::new(&ctx, "sss diffusion start", corners_desc)?,
-        ];
-        let dg = DiffusionGeometry::build(geo, profile);
-        let records = dg.walk.records();
-        let walk = Image::new(&ctx, "sss walk", bvh_desc(records.len()))?;
-        // Room for the contact entries of other poses of the mesh.
-        let contact_room = (2 * dg.contact.entries.len()).max(4096);
-        let contact = Image::new(&ctx, "sss contact", bvh_desc(contact_room))?;
-        let nv = geo.positions.len() as u32;
-        let vsz = [VERTEX_ROW, nv.div_ceil(VERTEX_ROW).max(1)];
-        let vis_desc = ImageDesc::d2(vk::Format::R32_UINT, vsz).usage(vk::ImageUsageFlags::STORAGE);
-        let vis = Image::new(&ctx, "sss vertex visibility", vis_desc)?;
-        let vtrans = Image::new(&ctx, "sss vertex transmission", rgba32f(vsz))?;
-        let irr = Image::new(&ctx, "sss irradiance", rgba32f(sz))?;
-        let trans = Image::new(&ctx, "sss transmission", rgba32f(sz))?;
-        let pe = Image::new(&ctx, "sss grey E", float_image(vk::Format::R32_SFLOAT, sz))?;
-        let diffuse = Buffer::new(&ctx, "sss diffuse", BufferDesc::storage(texels * 16))?;
-        let all_tiles = (geo.size as u64).div_ceil(8) * geo.size as u64;
-        let tiles = Buffer::new(&ctx, "sss tiles", BufferDesc::storage(all_tiles * 4))?;
-        let w = AccessSet::from(A::ComputeShaderWrite);
-        let vertex_bind = vertex.bind_declared(
-            &[
-                ("verts", Resource::Buffer(&verts)),
-                ("nodes", Resource::storage_image(&nodes)),
-                ("tris", Resource::storage_image(&tris)),
-                ("lights", Resource::Buffer(&lights)),
-                ("vis", Resource::storage_image(&vis)),
-                ("vtrans", Resource::storage_image(&vtrans)),
-            ],
-            &[("vis", w), ("vtrans", w)],
-        )?;
-        let [g_pos, g_nrm, g_corners, g_start] = &geometry;
-        let irradiance_bind = irradiance.bind_declared(
-            &[
-                ("pos", Resource::storage_image(g_pos)),
-                ("nrm", Resource::storage_image(g_nrm)),
-                ("corners", Resource::storage_image(g_corners)),
-                ("lights", Resource::Buffer(&lights)),
-                ("vis", Resource::storage_image(&vis)),
-                ("vtrans", Resource::storage_image(&vtrans)),
-                ("trans", Resource::storage_image(&trans)),
-                ("nodes", Resource::storage_image(&nodes)),
-                ("tris", Resource::storage_image(&tris)),
-                ("pe", Resource::storage_image(&pe)),
-                ("tiles", Resource::Buffer(&tiles)),
-            ],
-            &[("trans", w), ("pe", w)],
-        )?;
-        let diffusion_bind = diffusion.bind_declared(
-            &[
-                ("pos", Resource::storage_image(g_pos)),
-                ("start", Resource::storage_image(g_start)),
-                ("walk", Resource::storage_image(&walk)),
-                ("contact", Resource::storage_image(&contact)),
-                ("irr", Resource::storage_image(&irr)),
-                ("seq", Resource::storage_image(&seq)),
-                ("diffuse", Resource::Buffer(&diffuse)),
-                ("tiles", Resource::Buffer(&tiles)),
-            ],
-            &[("diffuse", w)],
-        )?;
-        let diffusion_grey_bind = diffusion_grey.bind_declared(
-            &[
-                ("pe", Resource::storage_image(&pe)),
-                ("start", Resource::storage_image(g_start)),
-                ("walk", Resource::storage_image(&walk)),
-                ("contact", Resource::storage_image(&contact)),
-                ("seq", Resource::storage_image(&seq)),
-                ("diffuse", Resource::Buffer(&diffuse)),
-                ("tiles", Resource::Buffer(&tiles)),
-            ],
-            &[("diffuse", w)],
-        )?;
-        let kernel = SssKernel {
-            ctx,
-            vertex,
-            vertex_bind,
-            vertices: nv,
-            irradiance,
-            irradiance_bind,
-            diffusion,
-            diffusion_bind,
-            diffusion_grey,
-            diffusion_grey_bind,
-            // The frame path (irradiance pass, then the grey diffusion) until a caller uploads
-            // an irradiance: so that `passes` and `plan_pass` describe it before the first
-            // frame is recorded, and a graph planned then has the barrier for `pe`.
-            grey: AtomicBool::new(true),
-            verts,
-            nodes,
-            tris,
-            triangles: geo.triangles.len(),
-            seq,
-            geometry,
-            walk,
-            contact,
-            walk_records: records.len(),
-            totals: pattern_totals(&pattern),
-            vis,
-            vtrans,
-            lights,
-            irr,
-            pe,
-            trans,
-            diffuse,
-            tiles,
+/// Records the upload of `data` into all of `image`.
+fn upload_whole<T: bytemuck::Pod>(rec: &mut Recorder, image: &Image, data: &[T]) -> Result<()> {
+    rec.upload_image(
+        image,
+        ImageRegion::whole(image.desc()),
+        bytemuck::cast_slice(data),
+    )
+}
+
+/// Records the upload of `data` (16-byte texels, row-major) into the first rows of `image`
+/// (zero-padded to whole rows).
+fn upload_rows<T: bytemuck::Pod>(rec: &mut Recorder, image: &Image, data: &[T]) -> Result<()> {
+    let bytes: &[u8] = bytemuck::cast_slice(data);
+    let [w, h, _] = image.desc().extent;
+    let rows = pack::rows(bytes.len() / 16, w);
+    if rows > h {
+        return Err(Error::InvalidArgument(format!(
+            "{} texels do not fit image '{}' ({w} x {h})",
+            bytes.len() / 16,
+            image.name()
+        )));
+    }
+    let mut padded = bytes.to_vec();
+    padded.resize((rows * w) as usize * 16, 0);
+    let extent = [w, rows, 1];
+    let region = ImageRegion {
+        extent,
+        ..ImageRegion::whole(image.desc())
+    };
+    rec.upload_image(image, region, &padded)
+}
+
+impl Resources {
+    /// Creates the images and buffers `room` asks for (nothing uploaded).
+    fn new(ctx: &Context, room: &Room) -> Result<Resources> {
+        let image = |name: &str, desc: ImageDesc| Image::new(ctx, name, desc);
+        let buffer = |name: &str, desc: BufferDesc| Buffer::new(ctx, name, desc);
+        let rows = |rows: u32| uint_image([BVH_ROW, rows]);
+        let texels = [room.size, room.size];
+        let per_vertex = [VERTEX_ROW, pack::rows(room.vertices as usize, VERTEX_ROW)];
+        let visibility =
+            ImageDesc::d2(vk::Format::R32_UINT, per_vertex).usage(vk::ImageUsageFlags::STORAGE);
+        let walk_rows = pack::rows(room.walk_records, BVH_ROW);
+        let tiles = (room.size as u64).div_ceil(8) * room.size as u64;
+        let texel_bytes = room.size as u64 * room.size as u64 * 16;
+        Ok(Resources {
+            vertex_frames: buffer(
+                "sss vertices",
+                BufferDesc::storage(room.vertices as u64 * 32),
+            )?,
+            bvh_nodes: image("sss bvh nodes", rows(room.bvh_node_rows))?,
+            bvh_triangles: image("sss bvh triangles", rows(room.bvh_triangle_rows))?,
+            sample_pattern: image("sss sample pattern", rgba32f([MAX_SAMPLES, 1]))?,
+            lights: buffer("sss lights", BufferDesc::uniform(MAX_LIGHTS as u64 * 32))?,
+            texel_positions: image("sss position", rgba32f(texels))?,
+            texel_normals: image("sss normal", rgba32f(texels))?,
+            texel_corners: image("sss texel corners", uint_image(texels))?,
+            diffusion_start: image("sss diffusion start", uint_image(texels))?,
+            walk_records: image("sss walk", rows(walk_rows))?,
+            contact_entries: image("sss contact", rows(room.contact_rows))?,
+            vertex_visibility: image("sss vertex visibility", visibility)?,
+            vertex_transmission: image("sss vertex transmission", rgba32f(per_vertex))?,
+            irradiance_rgb: image("sss irradiance", rgba32f(texels))?,
+            transmission: image("sss transmission", rgba32f(texels))?,
+            irradiance_grey: image("sss grey E", float_image(vk::Format::R32_SFLOAT, texels))?,
+            diffuse: buffer("sss diffuse", BufferDesc::storage(texel_bytes))?,
+            occupied_tiles: buffer("sss tiles", BufferDesc::storage(tiles * 4))?,
             tile_list: Mutex::new(Vec::new()),
-            size: geo.size,
-            bias: shadow_bias(geo.extent_mm()),
-            profile: profile.clone(),
-            params,
-        };
-        kernel.upload_texels(rec, geo, &dg)?;
-        kernel.set_tiles(rec, occupied_tiles(geo))?;
-        Ok(kernel)
+        })
     }
 
-    pub fn size(&self) -> u32 {
-        self.size
+    /// Every resource, with the name the shaders bind it by: the passes bind by these names,
+    /// and the memory report counts them all.
+    fn by_binding(&self) -> [(&'static str, Resource<'_>); 18] {
+        let image = Resource::storage_image;
+        [
+            ("verts", Resource::Buffer(&self.vertex_frames)),
+            ("nodes", image(&self.bvh_nodes)),
+            ("tris", image(&self.bvh_triangles)),
+            ("seq", image(&self.sample_pattern)),
+            ("lights", Resource::Buffer(&self.lights)),
+            ("pos", image(&self.texel_positions)),
+            ("nrm", image(&self.texel_normals)),
+            ("corners", image(&self.texel_corners)),
+            ("start", image(&self.diffusion_start)),
+            ("walk", image(&self.walk_records)),
+            ("contact", image(&self.contact_entries)),
+            ("vis", image(&self.vertex_visibility)),
+            ("vtrans", image(&self.vertex_transmission)),
+            ("irr", image(&self.irradiance_rgb)),
+            ("trans", image(&self.transmission)),
+            ("pe", image(&self.irradiance_grey)),
+            ("diffuse", Resource::Buffer(&self.diffuse)),
+            ("tiles", Resource::Buffer(&self.occupied_tiles)),
+        ]
+    }
+
+    /// Records the upload of a packed pose: per texel, the walk, the contact entries, the
+    /// occupied tiles ([`Resources::set_tiles`]), the vertices and the BVH.
+    fn upload(&self, rec: &mut Recorder, p: Packed) -> Result<()> {
+        upload_whole(rec, &self.texel_positions, p.texel_positions)?;
+        upload_whole(rec, &self.texel_normals, p.texel_normals)?;
+        upload_whole(rec, &self.texel_corners, &p.texel_corners)?;
+        upload_whole(rec, &self.diffusion_start, &p.diffusion_start)?;
+        upload_rows(rec, &self.walk_records, &p.walk_records)?;
+        if !p.contact_entries.is_empty() {
+            upload_rows(rec, &self.contact_entries, &p.contact_entries)?;
+        }
+        self.set_tiles(rec, p.tiles)?;
+        rec.upload(&self.vertex_frames, 0, &p.vertex_frames)?;
+        upload_rows(rec, &self.bvh_nodes, &p.bvh_nodes)?;
+        upload_rows(rec, &self.bvh_triangles, &p.bvh_triangles)
     }
 
     /// Records the clearing of the transmission image (the irradiance pass leaves it alone
     /// while transmission is off, and in empty tiles).
     fn clear_transmission(&self, rec: &mut Recorder) -> Result<()> {
-        rec.clear_image(
-            &self.trans,
-            Subresources::mip(self.trans.desc(), 0),
-            [0.0; 4],
-        )
+        let all = Subresources::mip(self.transmission.desc(), 0);
+        rec.clear_image(&self.transmission, all, [0.0; 4])
     }
 
     /// Records the upload of the occupied tiles and the clearing of the outputs the passes
@@ -447,10 +252,10 @@ impl SssKernel {
             return Ok(());
         }
         if !list.is_empty() {
-            rec.upload(&self.tiles, 0, &list)?;
+            rec.upload(&self.occupied_tiles, 0, &list)?;
         }
-        let pe = Subresources::mip(self.pe.desc(), 0);
-        rec.clear_image(&self.pe, pe, [-1.0, 0.0, 0.0, 0.0])?;
+        let grey = Subresources::mip(self.irradiance_grey.desc(), 0);
+        rec.clear_image(&self.irradiance_grey, grey, [-1.0, 0.0, 0.0, 0.0])?;
         rec.fill_buffer(&self.diffuse, 0)?;
         self.clear_transmission(rec)?;
         *current = list;
@@ -462,149 +267,195 @@ impl SssKernel {
         self.tile_list.lock().map(|l| l.len() as u32).unwrap_or(0)
     }
 
-    /// Records the upload of the per-texel geometry images, the walk and the contact entries.
-    fn upload_texels(
-        &self,
+    /// Device memory of the buffers and images.
+    fn memory(&self, ctx: &Context) -> MemoryReport {
+        let (mut buffers, mut images) = (Vec::new(), Vec::new());
+        for (_, resource) in self.by_binding() {
+            match resource {
+                Resource::Buffer(b) => buffers.push(b),
+                Resource::StorageImage(i) => images.push(i.image),
+                _ => {}
+            }
+        }
+        let buffers = ctx.memory_of(&buffers);
+        MemoryReport {
+            used_bytes: buffers.used_bytes
+                + images.iter().map(|i| i.allocation_size()).sum::<u64>(),
+            allocations: buffers.allocations + images.len() as u64,
+            ..buffers
+        }
+    }
+}
+
+/// A compute pipeline built from an embedded shader, and its bindings.
+struct Stage {
+    pipeline: ComputePipeline,
+    bind: BindGroup,
+}
+
+impl Stage {
+    /// The embedded shader `name`, each of its bindings bound to the kernel's resource of
+    /// that name; those in `writes` are declared as written only (`writeonly` in GLSL).
+    fn new(ctx: &Context, name: &str, res: &Resources, writes: &[&str]) -> Result<Stage> {
+        let pipeline = crate::shaders::pipeline(ctx, name)?;
+        let table = res.by_binding();
+        let resources = (pipeline.bindings().iter())
+            .map(|b| match table.iter().find(|(n, _)| *n == b.name) {
+                Some((n, r)) => Ok((*n, r.clone())),
+                None => Err(Error::InvalidArgument(format!(
+                    "the SSS kernel has no resource for binding '{}' of {name}",
+                    b.name
+                ))),
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let w = AccessSet::from(A::ComputeShaderWrite);
+        let writes: Vec<(&str, AccessSet)> = writes.iter().map(|&b| (b, w)).collect();
+        let bind = pipeline.bind_declared(&resources, &writes)?;
+        Ok(Stage { pipeline, bind })
+    }
+
+    fn pass(&self, name: &'static str, args: DispatchArgs<SssKernel>) -> Pass<'_, SssKernel> {
+        Pass::dispatch(name, &self.pipeline, &self.bind, args)
+    }
+}
+
+pub struct SssKernel {
+    ctx: Context,
+    res: Resources,
+    vertex_light: Stage,
+    irradiance: Stage,
+    /// The diffusion of a caller's rgb irradiance: two gathers a sample.
+    diffusion_rgb: Stage,
+    /// The diffusion of the irradiance pass's grey E: one gather a sample.
+    diffusion_grey: Stage,
+    /// Whether the irradiance last recorded is the irradiance pass's grey E (in
+    /// `irradiance_grey`) rather than a caller's upload (in `irradiance_rgb`): picks the
+    /// pipeline of [`SssKernel::record_diffusion`] and the image [`Kernel::read_back`] reads.
+    /// A frame's own diffusion pass always gathers the grey E its irradiance pass wrote.
+    irradiance_is_grey: AtomicBool,
+    settings: Settings,
+}
+
+impl SssKernel {
+    /// Creates buffers, images and pipelines for `geo` and records the uploads into `rec`.
+    pub fn new(
         rec: &mut Recorder,
         geo: &TexGeometry,
-        dg: &DiffusionGeometry,
-    ) -> Result<()> {
-        // (the geometry was checked by the caller, before anything was built from it)
-        let records = dg.walk.records();
-        if records.len() != self.walk_records {
+        profile: &Profile,
+        params: SamplerParams,
+    ) -> Result<SssKernel> {
+        params.check()?;
+        let packed = Packed::new(geo, profile)?;
+        let ctx = rec.context();
+        let width_limit = ctx.limits().max_image_dimension_2d;
+        if width_limit < MAX_SAMPLES {
             return Err(Error::InvalidArgument(format!(
-                "the surface walk of the new geometry has {} records, the kernel's {} (a \
-                 different mesh?)",
-                records.len(),
-                self.walk_records
+                "the SSS sampler keeps its pattern in an image {MAX_SAMPLES} texels wide; the \
+                 device allows {width_limit} (maxImageDimension2D)"
             )));
         }
-        let room = self.contact.desc().extent[0] as usize * self.contact.desc().extent[1] as usize;
-        if dg.contact.entries.len() > room {
-            return Err(Error::InvalidArgument(format!(
-                "this pose has {} contact entries (pieces of the mesh within reach of each \
-                 other), more than the {room} the kernel made room for at its first pose",
-                dg.contact.entries.len()
-            )));
-        }
-        let corners = texel_corners_packed(geo);
-        let start = start_texels(geo, &dg.contact)?;
-        let data: [&[u8]; 4] = [
-            bytemuck::cast_slice(&geo.pos),
-            bytemuck::cast_slice(&geo.nrm),
-            bytemuck::cast_slice(&corners),
-            bytemuck::cast_slice(&start),
-        ];
-        for (img, bytes) in self.geometry.iter().zip(data) {
-            rec.upload_image(img, ImageRegion::whole(img.desc()), bytes)?;
-        }
-        upload_rows(rec, &self.walk, bytemuck::cast_slice(&records))?;
-        let entries: Vec<[u32; 4]> = dg
-            .contact
-            .entries
-            .iter()
-            .map(|(j, f)| [*j, f[0].to_bits(), f[1].to_bits(), f[2].to_bits()])
-            .collect();
-        if !entries.is_empty() {
-            upload_rows(rec, &self.contact, bytemuck::cast_slice(&entries))?;
-        }
-        Ok(())
+        let room = Room::of(&packed);
+        let res = Resources::new(&ctx, &room)?;
+        let stage = |name, writes: &[&str]| Stage::new(&ctx, name, &res, writes);
+        let vertex_light = stage("sss/vertex_light", &["vis", "vtrans"])?;
+        let irradiance = stage("sss/irradiance", &["trans", "pe"])?;
+        let diffusion_rgb = stage("sss/diffusion", &["diffuse"])?;
+        let diffusion_grey = stage("sss/diffusion_grey", &["diffuse"])?;
+        let pattern = Pattern::new(profile, params.samples);
+        upload_rows(rec, &res.sample_pattern, &pattern.texels)?;
+        res.upload(rec, packed)?;
+        Ok(SssKernel {
+            ctx,
+            res,
+            vertex_light,
+            irradiance,
+            diffusion_rgb,
+            diffusion_grey,
+            // The frame path (irradiance pass, then the grey diffusion) until a caller uploads
+            // an irradiance.
+            irradiance_is_grey: AtomicBool::new(true),
+            settings: Settings {
+                profile: profile.clone(),
+                params,
+                pattern_totals: pattern.totals,
+                shadow_bias: shadow_bias(geo.extent_mm()),
+                room,
+            },
+        })
+    }
+
+    pub fn size(&self) -> u32 {
+        self.settings.room.size
     }
 
     /// Records the upload of a new pose of the same mesh (same texture size, same triangles
     /// and UV layout; e.g. the skinned mesh of the next frame re-rasterised): the texel
     /// geometry, the vertices and a rebuilt BVH.
     pub fn update_geometry(&self, rec: &mut Recorder, geo: &TexGeometry) -> Result<()> {
-        if geo.size != self.size
-            || self.triangles != geo.triangles.len()
-            || geo.positions.len() != self.vertices as usize
-        {
-            return Err(Error::InvalidArgument(format!(
-                "new geometry ({}^2, {} triangles, {} vertices) does not match the kernel's \
-                 ({}^2, {} triangles, {} vertices)",
-                geo.size,
-                geo.triangles.len(),
-                geo.positions.len(),
-                self.size,
-                self.triangles,
-                self.vertices
-            )));
-        }
-        check_geometry(geo)?;
-        let bvh = Bvh::build(&geo.positions, &geo.triangles);
-        let (n, t) = bvh.flat();
-        let room = self.nodes.desc().extent[0] as usize * self.nodes.desc().extent[1] as usize;
-        if 2 * n.len() > room {
-            return Err(Error::InvalidArgument("BVH larger than its image".into()));
-        }
-        self.upload_texels(rec, geo, &DiffusionGeometry::build(geo, &self.profile))?;
-        self.set_tiles(rec, occupied_tiles(geo))?;
-        rec.upload(&self.verts, 0, &vertex_frames(geo))?;
-        upload_rows(rec, &self.nodes, bytemuck::cast_slice(&n))?;
-        upload_rows(rec, &self.tris, bytemuck::cast_slice(&t))
+        let s = &self.settings;
+        self.res.upload(rec, s.room.pack(geo, &s.profile)?)
     }
 
     pub fn params(&self) -> &SamplerParams {
-        &self.params
+        &self.settings.params
     }
 
     /// Changes the sampler settings: records the upload of the new sample sequence.
     pub fn set_params(&mut self, rec: &mut Recorder, params: SamplerParams) -> Result<()> {
         params.check()?;
-        let pattern = sample_pattern(&self.profile, params.samples);
-        upload_rows(rec, &self.seq, &pattern)?;
-        self.totals = pattern_totals(&pattern);
-        if self.params.transmission && !params.transmission {
-            self.clear_transmission(rec)?;
+        let s = &mut self.settings;
+        let pattern = Pattern::new(&s.profile, params.samples);
+        upload_rows(rec, &self.res.sample_pattern, &pattern.texels)?;
+        s.pattern_totals = pattern.totals;
+        if s.params.transmission && !params.transmission {
+            self.res.clear_transmission(rec)?;
         }
-        self.params = params;
+        s.params = params;
         Ok(())
     }
 
     /// The irradiance image of [`SssKernel::upload_irradiance`] (RGBA32F, rgb E). The
     /// irradiance pass writes [`SssKernel::grey_irradiance`] instead.
     pub fn irradiance(&self) -> &Image {
-        &self.irr
+        &self.res.irradiance_rgb
     }
 
     /// The grey irradiance per texel (R32F: E of the white lights, -1 where no surface),
     /// written by `sss irradiance`.
     pub fn grey_irradiance(&self) -> &Image {
-        &self.pe
+        &self.res.irradiance_grey
     }
 
     /// The diffuse buffer, written by `sss diffusion`.
     pub fn diffuse(&self) -> &Buffer {
-        &self.diffuse
+        &self.res.diffuse
+    }
+
+    /// The transmission image (rgb, alpha thickness), written by `sss irradiance`.
+    pub fn transmission(&self) -> &Image {
+        &self.res.transmission
     }
 
     /// Records the upload of a caller's irradiance (rgba per texel; alpha ignored) in place of
     /// the irradiance pass.
     pub fn upload_irradiance(&self, rec: &mut Recorder, e: &[[f32; 4]]) -> Result<()> {
-        if e.len() != (self.size * self.size) as usize {
-            return Err(Error::InvalidArgument(format!(
-                "{} irradiance texels for a {}^2 texture",
-                e.len(),
-                self.size
-            )));
-        }
-        if let Some(i) = e.iter().position(|t| t.iter().any(|x| !x.is_finite())) {
-            return Err(Error::InvalidArgument(format!(
-                "irradiance texel {i} is not finite"
-            )));
-        }
-        rec.upload_image(
-            &self.irr,
-            ImageRegion::whole(self.irr.desc()),
-            bytemuck::cast_slice(e),
-        )?;
-        self.grey.store(false, Ordering::Relaxed);
+        pack::check_irradiance(self.size(), e)?;
+        upload_whole(rec, &self.res.irradiance_rgb, e)?;
+        self.irradiance_is_grey.store(false, Ordering::Relaxed);
         Ok(())
     }
 
-    /// The transmission image (rgb, alpha thickness), written by `sss irradiance`.
-    pub fn transmission(&self) -> &Image {
-        &self.trans
+    /// Records the diffusion dispatch alone (barriers from the declared accesses), of the
+    /// irradiance last recorded: the grey one (one gather per sample) after the irradiance
+    /// pass, the rgb one after an upload.
+    pub fn record_diffusion(&self, rec: &mut Recorder) -> Result<()> {
+        let stage = if self.irradiance_is_grey.load(Ordering::Relaxed) {
+            &self.diffusion_grey
+        } else {
+            &self.diffusion_rgb
+        };
+        self.diffusion_args(&[])?
+            .record(rec, &stage.pipeline, &stage.bind)
     }
 
     fn light_bytes(&self, lights: &[Light]) -> Result<Vec<u8>> {
@@ -613,78 +464,24 @@ impl SssKernel {
     }
 
     fn vertex_light_args(&self, lights: &[Light]) -> Result<Dispatch> {
-        let lights = lights.len();
-        let p = &self.profile;
-        let mode = match (self.params.transmission, p.kind) {
-            (false, _) => 0u32,
-            (true, ProfileKind::Dipole) => 1,
-            (true, ProfileKind::Burley) => 2,
-        };
-        let mut words: Vec<u32> = (0..3)
-            .flat_map(|c| p.tail_gpu(c).map(f32::to_bits))
-            .collect();
-        words.extend([
-            self.vertices,
-            lights as u32,
-            self.bias.to_bits(),
-            mode,
-            (p.max_radius() as f32).to_bits(),
-        ]);
-        Ok(Dispatch::words(
-            &words,
-            Grid::Invocations([self.vertices, 1, 1]),
-        ))
+        let words = self.settings.vertex_light_push(lights.len() as u32);
+        let grid = Grid::Invocations([self.settings.room.vertices, 1, 1]);
+        Ok(Dispatch::words(&words, grid))
     }
 
     /// The irradiance pass's arguments; the diffusion that follows it in a frame reads the
     /// grey E it writes.
     fn irradiance_args(&self, lights: &[Light]) -> Result<Dispatch> {
-        let lights = lights.len();
-        let words = [
-            self.size,
-            lights as u32,
-            self.params.transmission as u32,
-            self.params.shadow_refine as u32,
-            self.bias.to_bits(),
-            self.tile_count(),
-        ];
-        self.grey.store(true, Ordering::Relaxed);
-        Ok(Dispatch::words(
-            &words,
-            Grid::Groups(tile_groups(self.tile_count())),
-        ))
-    }
-
-    /// The diffusion pipeline and bindings for the irradiance last recorded: the grey one
-    /// (one gather per sample) after the irradiance pass, the rgb one after an upload.
-    fn diffusion_pipeline(&self) -> (&ComputePipeline, &BindGroup) {
-        if self.grey.load(Ordering::Relaxed) {
-            (&self.diffusion_grey, &self.diffusion_grey_bind)
-        } else {
-            (&self.diffusion, &self.diffusion_bind)
-        }
-    }
-
-    /// Records the diffusion dispatch alone (barriers from the declared accesses).
-    pub fn record_diffusion(&self, rec: &mut Recorder) -> Result<()> {
-        let (pipeline, bind) = self.diffusion_pipeline();
-        self.diffusion_args(&[])?.record(rec, pipeline, bind)
+        let tiles = self.res.tile_count();
+        let words = self.settings.irradiance_push(lights.len() as u32, tiles);
+        self.irradiance_is_grey.store(true, Ordering::Relaxed);
+        Ok(Dispatch::words(&words, Grid::Groups(tile_groups(tiles))))
     }
 
     fn diffusion_args(&self, _lights: &[Light]) -> Result<Dispatch> {
-        let k = self.profile.r_tot.map(|k| k as f32);
-        let total = self.totals;
-        let mut push: Vec<u8> = [k[0], k[1], k[2], 0.0, total[0], total[1], total[2], 0.0]
-            .iter()
-            .flat_map(|x| x.to_le_bytes())
-            .collect();
-        for u in [self.size, self.params.samples, self.tile_count()] {
-            push.extend_from_slice(&u.to_le_bytes());
-        }
-        Ok(Dispatch {
-            push,
-            grid: Grid::Groups(tile_groups(self.tile_count())),
-        })
+        let tiles = self.res.tile_count();
+        let words = self.settings.diffusion_push(tiles);
+        Ok(Dispatch::words(&words, Grid::Groups(tile_groups(tiles))))
     }
 }
 
@@ -701,25 +498,11 @@ impl Kernel for SssKernel {
     /// then the diffusion of that grey E.
     fn pass_table(&self) -> Vec<Pass<'_, Self>> {
         vec![
-            Pass::upload(PASS_LIGHTS, &self.lights, Self::light_bytes),
-            Pass::dispatch(
-                PASS_VERTEX,
-                &self.vertex,
-                &self.vertex_bind,
-                Self::vertex_light_args,
-            ),
-            Pass::dispatch(
-                PASS_IRRADIANCE,
-                &self.irradiance,
-                &self.irradiance_bind,
-                Self::irradiance_args,
-            ),
-            Pass::dispatch(
-                PASS_DIFFUSION,
-                &self.diffusion_grey,
-                &self.diffusion_grey_bind,
-                Self::diffusion_args,
-            ),
+            Pass::upload(PASS_LIGHTS, &self.res.lights, Self::light_bytes),
+            self.vertex_light.pass(PASS_VERTEX, Self::vertex_light_args),
+            self.irradiance.pass(PASS_IRRADIANCE, Self::irradiance_args),
+            self.diffusion_grey
+                .pass(PASS_DIFFUSION, Self::diffusion_args),
         ]
     }
 
@@ -728,84 +511,35 @@ impl Kernel for SssKernel {
     }
 
     fn read_back(&self, rec: &mut Recorder) -> Result<SssReadback> {
-        let grey = self.grey.load(Ordering::Relaxed);
-        let e = if grey { &self.pe } else { &self.irr };
+        let grey = self.irradiance_is_grey.load(Ordering::Relaxed);
+        let r = &self.res;
+        let e = if grey {
+            &r.irradiance_grey
+        } else {
+            &r.irradiance_rgb
+        };
+        let whole = |image: &Image| ImageRegion::whole(image.desc());
         Ok(SssReadback {
-            grey,
-            irradiance: rec.read_back_image(e, ImageRegion::whole(e.desc()))?,
-            diffuse: rec.read_back(&self.diffuse)?,
-            transmission: rec
-                .read_back_image(&self.trans, ImageRegion::whole(self.trans.desc()))?,
+            irradiance_is_grey: grey,
+            irradiance: rec.read_back_image(e, whole(e))?,
+            diffuse: rec.read_back(&r.diffuse)?,
+            transmission: rec.read_back_image(&r.transmission, whole(&r.transmission))?,
         })
     }
 
     fn collect(&self, rb: &SssReadback) -> Result<SssOutput> {
-        let irradiance: Vec<[f32; 4]> = if rb.grey {
-            // E -> (E, E, E, 1); -1 marks no surface.
-            let grey: Vec<f32> = rb.irradiance.to_vec()?;
-            grey.iter()
-                .map(|&e| if e < 0.0 { [0.0; 4] } else { [e, e, e, 1.0] })
-                .collect()
-        } else {
-            rb.irradiance.to_vec()?
-        };
         Ok(SssOutput {
-            irradiance,
+            irradiance: if rb.irradiance_is_grey {
+                pack::grey_to_rgba(&rb.irradiance.to_vec()?)
+            } else {
+                rb.irradiance.to_vec()?
+            },
             diffuse: rb.diffuse.to_vec()?,
             transmission: rb.transmission.to_vec()?,
         })
     }
 
     fn memory(&self) -> MemoryReport {
-        let buffers = self
-            .ctx
-            .memory_of(&[&self.verts, &self.lights, &self.diffuse, &self.tiles]);
-        let images: Vec<&Image> = self
-            .geometry
-            .iter()
-            .chain([
-                &self.vis,
-                &self.vtrans,
-                &self.irr,
-                &self.pe,
-                &self.trans,
-                &self.nodes,
-                &self.tris,
-                &self.walk,
-                &self.contact,
-                &self.seq,
-            ])
-            .collect();
-        MemoryReport {
-            used_bytes: buffers.used_bytes
-                + images.iter().map(|i| i.allocation_size()).sum::<u64>(),
-            allocations: buffers.allocations + images.len() as u64,
-            ..buffers
-        }
-    }
-}
-
-#[cfg(test)]
-mod shader_constants {
-    use super::*;
-    use crate::kernels::sss::walk;
-
-    /// The diffusion shader's layout constants are the ones the host writes with.
-    #[test]
-    fn diffusion_shader_agrees_with_the_host() {
-        let src = include_str!("../../../glsl/common/sss_diffusion.glsl");
-        for (name, value) in [
-            ("WALK_RECORD", walk::RECORD_TEXELS as u32),
-            ("WALK_ROW", BVH_ROW),
-            ("TILE_ROW", TILE_ROW),
-            ("EDGE_SHARED", walk::EDGE_SHARED),
-            ("EDGE_OPEN", walk::EDGE_OPEN),
-        ] {
-            let line = format!("const uint {name} = {value}u;");
-            assert!(
-                src.contains(&line),
-                "glsl/common/sss_diffusion.glsl lacks `{line}`"
-            );
-        }
+        self.res.memory(&self.ctx)
     }
 }

@@ -10,6 +10,7 @@
 //! - [`walk`]: where a sample lands when it leaves the receiver's triangle (across the edge
 //!   it leaves by, seams included; off the surface past an open edge).
 //! - [`contact`]: light between separate pieces of the mesh that touch (eyeballs, mouth).
+//! - [`pack`]: what the kernel uploads, packed and checked on the CPU.
 //! - [`gpu`]: the kernel (passes `sss lights`, `sss vertex light`, `sss irradiance`,
 //!   `sss diffusion`).
 //! - [`cpu`]: the CPU twin of both passes (same rays, same sample pattern).
@@ -28,6 +29,7 @@
 pub mod contact;
 pub mod cpu;
 pub mod gpu;
+pub mod pack;
 pub mod profile;
 pub mod sampler;
 pub mod walk;

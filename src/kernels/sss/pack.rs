@@ -1,0 +1,546 @@
+//! What the SSS kernel uploads, packed and checked on the CPU (no Vulkan here): per texel the
+//! geometry and where the diffusion starts, per vertex its frame, the BVH, the surface walk's
+//! records, the contact entries, the occupied tiles ([`Packed`]); the room the kernel makes
+//! for them ([`Room`]); the shared sample pattern ([`Pattern`]) and the push constants
+//! ([`Settings`]). The GPU wrapper (`gpu.rs`) creates its images and buffers from these and
+//! records their uploads; a later pose of the mesh is packed the same way ([`Room::pack`]).
+
+use super::contact::Contact;
+use super::cpu::{
+    DiffusionGeometry, SamplerParams, pattern_totals, sample_pattern, texel_corners_packed,
+    vertex_frames,
+};
+use super::{Profile, ProfileKind, TexGeometry};
+use crate::error::{Error, Result};
+use crate::geom::bvh::Bvh;
+
+/// Vertices per row of the per-vertex images (the shaders' VERTEX_ROW).
+pub const VERTEX_ROW: u32 = 1024;
+/// Texels per row of the BVH, walk and contact images (the shaders' BVH_ROW and WALK_ROW).
+pub const BVH_ROW: u32 = 1024;
+/// Workgroups (8 x 8 invocations: 8 row segments) per row of the irradiance and diffusion
+/// dispatches (the shaders' TILE_ROW).
+pub const TILE_ROW: u32 = 256;
+
+/// One pose of a mesh in the layout the shaders read, checked so that they never index out
+/// of bounds.
+pub struct Packed<'g> {
+    /// Texture size (size x size texels).
+    pub size: u32,
+    /// Triangles of the mesh.
+    pub triangles: usize,
+    /// Per texel: position and coverage flag, normal and area (the geometry's own arrays).
+    pub texel_positions: &'g [[f32; 4]],
+    pub texel_normals: &'g [[f32; 4]],
+    /// Per texel: its triangle's corners and barycentrics ([`texel_corners_packed`]).
+    pub texel_corners: Vec<[u32; 4]>,
+    /// Per texel: where the diffusion starts ([`start_texels`]).
+    pub diffusion_start: Vec<[u32; 4]>,
+    /// Per vertex: position and unit normal ([`vertex_frames`]).
+    pub vertex_frames: Vec<[[f32; 4]; 2]>,
+    /// The BVH over the posed mesh ([`Bvh::flat`]): 2 texels a node, 3 a triangle.
+    pub bvh_nodes: Vec<[f32; 8]>,
+    pub bvh_triangles: Vec<[f32; 12]>,
+    /// The surface walk's triangle records ([`super::walk::SurfaceWalk::records`]).
+    pub walk_records: Vec<[u32; 4]>,
+    /// The contact entries ([`contact_entries`]).
+    pub contact_entries: Vec<[u32; 4]>,
+    /// The occupied 8 x 1 row segments ([`occupied_tiles`]).
+    pub tiles: Vec<u32>,
+}
+
+impl<'g> Packed<'g> {
+    /// Checks `geo` ([`check_geometry`]) and packs it, building the BVH, the surface walk and
+    /// the contact sums for `profile`.
+    pub fn new(geo: &'g TexGeometry, profile: &Profile) -> Result<Packed<'g>> {
+        check_geometry(geo)?;
+        let (bvh_nodes, bvh_triangles) = Bvh::build(&geo.positions, &geo.triangles).flat();
+        let dg = DiffusionGeometry::build(geo, profile);
+        Ok(Packed {
+            size: geo.size,
+            triangles: geo.triangles.len(),
+            texel_positions: &geo.pos,
+            texel_normals: &geo.nrm,
+            texel_corners: texel_corners_packed(geo),
+            diffusion_start: start_texels(geo, &dg.contact)?,
+            vertex_frames: vertex_frames(geo),
+            bvh_nodes,
+            bvh_triangles,
+            walk_records: dg.walk.records(),
+            contact_entries: contact_entries(&dg.contact),
+            tiles: occupied_tiles(geo),
+        })
+    }
+
+    /// Vertices of the mesh.
+    pub fn vertices(&self) -> u32 {
+        self.vertex_frames.len() as u32
+    }
+}
+
+/// The texels the kernel's images and buffers make room for, fixed by the first pose of the
+/// mesh: a later pose ([`Room::pack`]) must fit them.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Room {
+    /// Texture size, mesh vertices and triangles, surface-walk records: a later pose has the
+    /// same.
+    pub size: u32,
+    pub vertices: u32,
+    pub triangles: usize,
+    pub walk_records: usize,
+    /// Rows of [`BVH_ROW`] texels of the BVH images (nodes, triangles) and the contact
+    /// entries.
+    pub bvh_node_rows: u32,
+    pub bvh_triangle_rows: u32,
+    pub contact_rows: u32,
+}
+
+/// Rows of `row` texels that hold `texels` (at least one).
+pub fn rows(texels: usize, row: u32) -> u32 {
+    (texels as u32).div_ceil(row).max(1)
+}
+
+impl Room {
+    /// The room for the first pose `p`, with some for other poses.
+    pub fn of(p: &Packed) -> Room {
+        // Any hierarchy over this many triangles (a rebuilt one may have more nodes): at
+        // most 2 n - 1 nodes.
+        let nodes = (2 * p.triangles).max(p.bvh_nodes.len());
+        // The contact entries of other poses of the mesh.
+        let contact = (2 * p.contact_entries.len()).max(4096);
+        Room {
+            size: p.size,
+            vertices: p.vertices(),
+            triangles: p.triangles,
+            walk_records: p.walk_records.len(),
+            bvh_node_rows: rows(2 * nodes, BVH_ROW),
+            bvh_triangle_rows: rows(3 * p.bvh_triangles.len(), BVH_ROW),
+            contact_rows: rows(contact, BVH_ROW),
+        }
+    }
+
+    /// Checks and packs `geo`, a later pose of the mesh (same texture size, same triangles
+    /// and UV layout), refusing one that does not fit.
+    pub fn pack<'g>(&self, geo: &'g TexGeometry, profile: &Profile) -> Result<Packed<'g>> {
+        if geo.size != self.size
+            || self.triangles != geo.triangles.len()
+            || geo.positions.len() != self.vertices as usize
+        {
+            return Err(Error::InvalidArgument(format!(
+                "new geometry ({}^2, {} triangles, {} vertices) does not match the kernel's \
+                 ({}^2, {} triangles, {} vertices)",
+                geo.size,
+                geo.triangles.len(),
+                geo.positions.len(),
+                self.size,
+                self.triangles,
+                self.vertices
+            )));
+        }
+        let p = Packed::new(geo, profile)?;
+        if 2 * p.bvh_nodes.len() > (self.bvh_node_rows * BVH_ROW) as usize {
+            return Err(Error::InvalidArgument("BVH larger than its image".into()));
+        }
+        if p.walk_records.len() != self.walk_records {
+            return Err(Error::InvalidArgument(format!(
+                "the surface walk of the new geometry has {} records, the kernel's {} (a \
+                 different mesh?)",
+                p.walk_records.len(),
+                self.walk_records
+            )));
+        }
+        let room = (self.contact_rows * BVH_ROW) as usize;
+        if p.contact_entries.len() > room {
+            return Err(Error::InvalidArgument(format!(
+                "this pose has {} contact entries (pieces of the mesh within reach of each \
+                 other), more than the {room} the kernel made room for at its first pose",
+                p.contact_entries.len()
+            )));
+        }
+        Ok(p)
+    }
+}
+
+/// The shared sample pattern ([`sample_pattern`]), one texel per sample, and its weight totals
+/// ([`pattern_totals`]), pushed with each diffusion.
+pub struct Pattern {
+    pub texels: Vec<[f32; 4]>,
+    pub totals: [f32; 3],
+}
+
+impl Pattern {
+    pub fn new(profile: &Profile, samples: u32) -> Pattern {
+        let texels = sample_pattern(profile, samples);
+        let totals = pattern_totals(&texels);
+        Pattern { texels, totals }
+    }
+}
+
+/// The sampler's settings for one mesh, and the push constants they give each pass (word by
+/// word as the shaders' `Push` blocks lay them out).
+#[derive(Clone, Debug)]
+pub struct Settings {
+    pub profile: Profile,
+    pub params: SamplerParams,
+    /// The sample pattern's weight totals ([`Pattern::totals`]).
+    pub pattern_totals: [f32; 3],
+    /// Shadow-ray origin offset along the normal (mm), from the first pose's extent.
+    pub shadow_bias: f32,
+    /// The texture and mesh the kernel was made for.
+    pub room: Room,
+}
+
+impl Settings {
+    /// `glsl/sss/vertex_light.comp`: the profile's tails, vertices, lights, bias, the
+    /// transmission mode (0 off, 1 dipole, 2 Burley), the thickest part that transmits.
+    pub fn vertex_light_push(&self, lights: u32) -> Vec<u32> {
+        let p = &self.profile;
+        let mode = match (self.params.transmission, p.kind) {
+            (false, _) => 0u32,
+            (true, ProfileKind::Dipole) => 1,
+            (true, ProfileKind::Burley) => 2,
+        };
+        let mut words: Vec<u32> = (0..3)
+            .flat_map(|c| p.tail_gpu(c).map(f32::to_bits))
+            .collect();
+        words.extend([
+            self.room.vertices,
+            lights,
+            self.shadow_bias.to_bits(),
+            mode,
+            (p.max_radius() as f32).to_bits(),
+        ]);
+        words
+    }
+
+    /// `glsl/sss/irradiance.comp`: size, lights, transmission, shadow refinement, bias,
+    /// occupied tiles.
+    pub fn irradiance_push(&self, lights: u32, tiles: u32) -> Vec<u32> {
+        vec![
+            self.room.size,
+            lights,
+            self.params.transmission as u32,
+            self.params.shadow_refine as u32,
+            self.shadow_bias.to_bits(),
+            tiles,
+        ]
+    }
+
+    /// `glsl/common/sss_diffusion.glsl`: R_tot and the pattern's totals per channel (vec4
+    /// each), size, samples, occupied tiles.
+    pub fn diffusion_push(&self, tiles: u32) -> Vec<u32> {
+        let k = self.profile.r_tot.map(|k| k as f32);
+        let t = self.pattern_totals;
+        let floats = [k[0], k[1], k[2], 0.0, t[0], t[1], t[2], 0.0].map(f32::to_bits);
+        let words = [self.room.size, self.params.samples, tiles];
+        floats.into_iter().chain(words).collect()
+    }
+}
+
+/// Checks a caller's irradiance for a `size`^2 texture: one finite rgba per texel.
+pub fn check_irradiance(size: u32, e: &[[f32; 4]]) -> Result<()> {
+    if e.len() != (size * size) as usize {
+        return Err(Error::InvalidArgument(format!(
+            "{} irradiance texels for a {size}^2 texture",
+            e.len()
+        )));
+    }
+    if let Some(i) = e.iter().position(|t| t.iter().any(|x| !x.is_finite())) {
+        return Err(Error::InvalidArgument(format!(
+            "irradiance texel {i} is not finite"
+        )));
+    }
+    Ok(())
+}
+
+/// The irradiance pass's grey E as rgba: (E, E, E, 1), 0 where no surface (E < 0).
+pub fn grey_to_rgba(grey: &[f32]) -> Vec<[f32; 4]> {
+    grey.iter()
+        .map(|&e| if e < 0.0 { [0.0; 4] } else { [e, e, e, 1.0] })
+        .collect()
+}
+
+/// Checks what the shaders index with (TexGeometry's fields are public): a texel on the
+/// surface names a triangle of the mesh, a triangle names vertices of the mesh, and the
+/// per-texel arrays have size^2 entries.
+pub fn check_geometry(geo: &TexGeometry) -> Result<()> {
+    let n = geo.texels();
+    if [geo.pos.len(), geo.nrm.len(), geo.texel_tri.len()]
+        .iter()
+        .any(|&l| l != n)
+    {
+        return Err(Error::InvalidArgument(format!(
+            "texture-space geometry of {}^2 texels has per-texel arrays of other lengths",
+            geo.size
+        )));
+    }
+    let triangles = geo.triangles.len() as u32;
+    if let Some(i) = (0..n).find(|&i| geo.pos[i][3] != 0.0 && geo.texel_tri[i][0] >= triangles) {
+        return Err(Error::InvalidArgument(format!(
+            "texel {i} is on the surface but names triangle {} of {triangles}",
+            geo.texel_tri[i][0]
+        )));
+    }
+    let vertices = geo.positions.len() as u32;
+    if let Some(t) = geo
+        .triangles
+        .iter()
+        .position(|t| t.iter().any(|&v| v >= vertices))
+    {
+        return Err(Error::InvalidArgument(format!(
+            "triangle {t} names a vertex beyond the mesh's {vertices}"
+        )));
+    }
+    Ok(())
+}
+
+/// The 8 x 1 row segments of the atlas with at least one texel on the surface (covered or
+/// gutter), as x / 8 | y << 16: the irradiance and diffusion passes run over these only
+/// (about half of a head's atlas is empty; a segment is one 8-lane SIMD step on lavapipe).
+pub fn occupied_tiles(geo: &TexGeometry) -> Vec<u32> {
+    let n = geo.size as usize;
+    let mut tiles = Vec::new();
+    for y in 0..n {
+        for tx in 0..n.div_ceil(8) {
+            if (tx * 8..(tx * 8 + 8).min(n)).any(|x| geo.pos[y * n + x][3] != 0.0) {
+                tiles.push(tx as u32 | (y as u32) << 16);
+            }
+        }
+    }
+    tiles
+}
+
+/// Workgroups for `tiles` row segments (8 a workgroup, [`TILE_ROW`] workgroups a row; at
+/// least one, which returns at once when there are none).
+pub fn tile_groups(tiles: u32) -> [u32; 3] {
+    let groups = tiles.div_ceil(8);
+    [
+        groups.clamp(1, TILE_ROW),
+        groups.div_ceil(TILE_ROW).max(1),
+        1,
+    ]
+}
+
+/// Per texel, what the diffusion starts from: (triangle, w1 bits, w2 bits, first contact
+/// entry << 5 | entry count).
+pub fn start_texels(geo: &TexGeometry, contact: &Contact) -> Result<Vec<[u32; 4]>> {
+    if contact.entries.len() >= 1 << 27 {
+        return Err(Error::InvalidArgument(format!(
+            "{} contact entries: more than the 2^27 the diffusion can index",
+            contact.entries.len()
+        )));
+    }
+    Ok(geo
+        .texel_tri
+        .iter()
+        .zip(&contact.range)
+        .map(|(t, &[first, count])| [t[0], t[1], t[2], first << 5 | count])
+        .collect())
+}
+
+/// The contact entries as the diffusion reads them: (source texel, factor per channel as
+/// bits).
+pub fn contact_entries(contact: &Contact) -> Vec<[u32; 4]> {
+    contact
+        .entries
+        .iter()
+        .map(|(j, f)| [*j, f[0].to_bits(), f[1].to_bits(), f[2].to_bits()])
+        .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::kernels::sss::texspace::plane_mesh;
+    use crate::kernels::sss::{Material, ProfileKind, walk};
+
+    fn plane(size: u32) -> TexGeometry {
+        TexGeometry::build(&plane_mesh(10.0, 10.0, 2).unwrap(), size, 1.0).unwrap()
+    }
+
+    fn profile() -> Profile {
+        Profile::new(ProfileKind::Burley, Material::SKIN1, 0.99).unwrap()
+    }
+
+    /// The diffusion shader's layout constants are the ones the host writes with.
+    #[test]
+    fn diffusion_shader_agrees_with_the_host() {
+        let src = include_str!("../../../glsl/common/sss_diffusion.glsl");
+        for (name, value) in [
+            ("WALK_RECORD", walk::RECORD_TEXELS as u32),
+            ("WALK_ROW", BVH_ROW),
+            ("TILE_ROW", TILE_ROW),
+            ("EDGE_SHARED", walk::EDGE_SHARED),
+            ("EDGE_OPEN", walk::EDGE_OPEN),
+        ] {
+            let line = format!("const uint {name} = {value}u;");
+            assert!(
+                src.contains(&line),
+                "glsl/common/sss_diffusion.glsl lacks `{line}`"
+            );
+        }
+    }
+
+    /// The per-vertex and BVH shaders read with the same rows as the host writes.
+    #[test]
+    fn texel_shaders_agree_with_the_host() {
+        for (path, src) in [
+            (
+                "irradiance",
+                include_str!("../../../glsl/sss/irradiance.comp"),
+            ),
+            (
+                "vertex_light",
+                include_str!("../../../glsl/sss/vertex_light.comp"),
+            ),
+        ] {
+            for (name, value) in [("VERTEX_ROW", VERTEX_ROW), ("BVH_ROW", BVH_ROW)] {
+                let line = format!("const uint {name} = {value}u;");
+                assert!(src.contains(&line), "glsl/sss/{path}.comp lacks `{line}`");
+            }
+        }
+    }
+
+    #[test]
+    fn a_plane_packs_every_array_at_its_length() {
+        let geo = plane(32);
+        let p = Packed::new(&geo, &profile()).unwrap();
+        assert_eq!(p.size, 32);
+        assert_eq!(p.triangles, geo.triangles.len());
+        assert_eq!(p.vertices() as usize, geo.positions.len());
+        for len in [
+            p.texel_positions.len(),
+            p.texel_normals.len(),
+            p.texel_corners.len(),
+            p.diffusion_start.len(),
+        ] {
+            assert_eq!(len, geo.texels());
+        }
+        assert_eq!(p.bvh_triangles.len(), geo.triangles.len());
+        assert_eq!(
+            p.walk_records.len(),
+            geo.triangles.len() * walk::RECORD_TEXELS
+        );
+        // A start texel carries its triangle and barycentrics; the contact range of a single
+        // plane is empty.
+        for (s, t) in p.diffusion_start.iter().zip(&geo.texel_tri) {
+            assert_eq!(s[..3], t[..3]);
+            assert_eq!(s[3], 0);
+        }
+        assert!(p.contact_entries.is_empty());
+    }
+
+    #[test]
+    fn tiles_are_the_occupied_row_segments() {
+        let geo = plane(32);
+        let tiles = occupied_tiles(&geo);
+        let n = geo.size as usize;
+        for y in 0..n {
+            for tx in 0..n / 8 {
+                let occupied = (tx * 8..tx * 8 + 8).any(|x| geo.pos[y * n + x][3] != 0.0);
+                let listed = tiles.contains(&(tx as u32 | (y as u32) << 16));
+                assert_eq!(occupied, listed, "segment {tx} of row {y}");
+            }
+        }
+        assert_eq!(tile_groups(0), [1, 1, 1]);
+        assert_eq!(tile_groups(8 * TILE_ROW + 1), [TILE_ROW, 2, 1]);
+    }
+
+    #[test]
+    fn a_broken_geometry_is_refused_before_anything_is_built() {
+        let geo = plane(32);
+        let on = (0..geo.texels()).find(|&i| geo.pos[i][3] != 0.0).unwrap();
+        let mut broken = geo.clone();
+        broken.texel_tri[on][0] = 99;
+        let e = Packed::new(&broken, &profile()).err().unwrap();
+        assert!(e.to_string().contains("triangle 99"), "{e}");
+        let mut broken = geo.clone();
+        broken.triangles[1][2] = 1000;
+        let e = Packed::new(&broken, &profile()).err().unwrap();
+        assert!(e.to_string().contains("triangle 1 names a vertex"), "{e}");
+        let mut broken = geo;
+        broken.nrm.pop();
+        assert!(check_geometry(&broken).is_err());
+    }
+
+    /// The push constants have the size of each shader's reflected `Push` block.
+    #[test]
+    fn push_constants_match_the_shaders() {
+        let geo = plane(32);
+        let packed = Packed::new(&geo, &profile()).unwrap();
+        let s = Settings {
+            profile: profile(),
+            params: SamplerParams::default(),
+            pattern_totals: [1.0; 3],
+            shadow_bias: 0.01,
+            room: Room::of(&packed),
+        };
+        for (name, words) in [
+            ("sss/vertex_light", s.vertex_light_push(2)),
+            ("sss/irradiance", s.irradiance_push(2, 7)),
+            ("sss/diffusion", s.diffusion_push(7)),
+            ("sss/diffusion_grey", s.diffusion_push(7)),
+        ] {
+            let spirv = crate::shaders::spirv(name).unwrap();
+            let shader = crate::gpu::Shader::from_spirv(name, spirv).unwrap();
+            assert_eq!(
+                shader.push_constant_size as usize,
+                4 * words.len(),
+                "{name}"
+            );
+        }
+    }
+
+    /// A later pose must be of the same mesh and texture, and fit the room of the first.
+    #[test]
+    fn a_later_pose_must_fit_the_room_of_the_first() {
+        let geo = plane(32);
+        let room = Room::of(&Packed::new(&geo, &profile()).unwrap());
+        assert_eq!(room.size, 32);
+        assert!(room.pack(&geo, &profile()).is_ok());
+        let e = room.pack(&plane(64), &profile()).err().unwrap();
+        assert!(e.to_string().contains("does not match"), "{e}");
+        let tight = Room {
+            contact_rows: 0,
+            ..room
+        };
+        assert!(
+            tight.pack(&geo, &profile()).is_ok(),
+            "no contact entries fit no room"
+        );
+        let tight = Room {
+            bvh_node_rows: 0,
+            ..room
+        };
+        let e = tight.pack(&geo, &profile()).err().unwrap();
+        assert!(e.to_string().contains("BVH larger"), "{e}");
+        let other = Room {
+            walk_records: room.walk_records + 1,
+            ..room
+        };
+        let e = other.pack(&geo, &profile()).err().unwrap();
+        assert!(e.to_string().contains("surface walk"), "{e}");
+    }
+
+    #[test]
+    fn irradiance_is_checked_and_grey_widened() {
+        assert!(check_irradiance(2, &[[1.0; 4]; 4]).is_ok());
+        let e = check_irradiance(2, &[[1.0; 4]; 3]).unwrap_err();
+        assert!(e.to_string().contains("3 irradiance texels"), "{e}");
+        let mut nan = [[1.0; 4]; 4];
+        nan[2][0] = f32::INFINITY;
+        let e = check_irradiance(2, &nan).unwrap_err();
+        assert!(e.to_string().contains("texel 2"), "{e}");
+        assert_eq!(
+            grey_to_rgba(&[-1.0, 0.5]),
+            vec![[0.0; 4], [0.5, 0.5, 0.5, 1.0]]
+        );
+    }
+
+    #[test]
+    fn the_pattern_totals_are_its_weights_summed() {
+        let pattern = Pattern::new(&profile(), 16);
+        assert_eq!(pattern.texels.len(), 16);
+        assert_eq!(pattern.totals, pattern_totals(&pattern.texels));
+    }
+}
