@@ -386,6 +386,13 @@ fn bad_inputs_are_refused_with_clear_errors() {
             .err()
             .unwrap();
         assert!(e.to_string().contains("triangle 1 names a vertex"), "{e}");
+        // Fewer UV corner triples than triangles: the walk would read past its records.
+        let mut broken = geo.clone();
+        broken.corner_uvs.pop();
+        let e = SssKernel::new(&mut rec, &broken, &p, SamplerParams::default())
+            .err()
+            .unwrap();
+        assert!(e.to_string().contains("UV corner triples"), "{e}");
         let kernel = SssKernel::new(&mut rec, &geo, &p, SamplerParams::default())?;
         let e = kernel
             .upload_irradiance(&mut rec, &[[0.0; 4]; 7])

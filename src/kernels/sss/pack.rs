@@ -281,6 +281,16 @@ pub fn check_geometry(geo: &TexGeometry) -> Result<()> {
             geo.texel_tri[i][0]
         )));
     }
+    if geo.corner_uvs.len() != geo.triangles.len() || geo.normals.len() != geo.positions.len() {
+        return Err(Error::InvalidArgument(format!(
+            "texture-space geometry has {} triangles but {} UV corner triples, {} vertices but \
+             {} normals (the walk and vertex passes index them together)",
+            geo.triangles.len(),
+            geo.corner_uvs.len(),
+            geo.positions.len(),
+            geo.normals.len()
+        )));
+    }
     let vertices = geo.positions.len() as u32;
     if let Some(t) = geo
         .triangles
