@@ -6,10 +6,12 @@
 //! ground truths), [`bench`] (the benchmark harness), [`io`] and [`report`] (files and the
 //! JSON pieces every command shares), [`render`] (pictures).
 //!
-//! Cargo features (all on by default): `cli` (the `vkshade` tool and `app`), `plots`
-//! (benchmark plots, plotters), `gltf` (glTF characters), `png` (PNG pictures), `exr` (linear
-//! float images). A renderer can link the library with `default-features = false`; calling
-//! something compiled out is an [`Error::FeatureDisabled`] naming the feature.
+//! Cargo features (all on by default): `cli` (the `vkshade` tool and `app`), `glsl` (compiling
+//! GLSL with shaderc; without it only the embedded SPIR-V, and neither shaderc nor glslang is
+//! needed to build), `plots` (benchmark plots, plotters), `gltf` (glTF characters), `png` (PNG
+//! pictures), `exr` (linear float images). A renderer can link the library with
+//! `default-features = false`; calling something compiled out is an
+//! [`Error::FeatureDisabled`] naming the feature.
 
 #[cfg(feature = "cli")]
 pub mod app;
