@@ -1,6 +1,7 @@
-//! Regression tests for the independent review of core v2: each case once reached the
-//! driver (a validation error, a panic, or use-after-free) from safe code. Each must now be
-//! a clear error, or run clean under validation.
+//! Misuse of the GPU layer from safe code: wrong buffer or image usage, barriers outside an
+//! image, conflicting bindings and view types, the context's own timeline. Each case once
+//! reached the driver (a validation error, a panic, or use-after-free; found by the core v2
+//! review) and must now be a clear error, or run clean under validation.
 
 mod common;
 
