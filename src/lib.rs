@@ -2,9 +2,10 @@
 //!
 //! Layers, each using only those above it: [`gpu`] (Vulkan: context, memory, barriers,
 //! shaders, pipelines, recording, timing), [`shaders`] (GLSL -> SPIR-V and the embedded
-//! modules), [`scene`] (inputs), [`kernels`] (one module per kernel), [`reference`] (CPU
-//! ground truths), [`bench`] (the benchmark harness), [`io`] and [`report`] (files and the
-//! JSON pieces every command shares), [`render`] (pictures).
+//! modules), [`scene`] (inputs), [`kernels`] (one module per kernel),
+//! [`reference`](mod@reference) (CPU ground truths), [`bench`](mod@bench) (the benchmark
+//! harness), [`io`] and [`report`] (files and the JSON pieces every command shares),
+//! [`render`] (pictures).
 //!
 //! Cargo features (all on by default): `cli` (the `vkshade` tool and `app`), `glsl` (compiling
 //! GLSL with shaderc; without it only the embedded SPIR-V, and neither shaderc nor glslang is
