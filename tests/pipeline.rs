@@ -491,6 +491,7 @@ fn unknown_device_selector_names_the_devices_present() {
     assert!(s.contains("no-such-gpu-xyz") && s.contains("0:"), "{s}");
 }
 
+#[cfg(feature = "cli")] // runs the vkshade binary
 #[test]
 fn missing_driver_fails_with_install_hint() {
     // In a child process, so the environment change cannot affect other tests.
