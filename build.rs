@@ -1,9 +1,12 @@
-//! 1. Links the static glslang and SPIRV-Tools archives that Debian's `libshaderc_combined.a`
-//!    leaves undefined (order matters for static linking; see README "Building notes"). The
-//!    folder holding them: `VKSHADE_SHADERC_LIB_DIR` if set; else pkg-config's libdir for
-//!    SPIRV-Tools / glslang / shaderc; else the first of the target's multiarch folder
-//!    (`/usr/lib/<arch>-linux-gnu`), /usr/lib64, /usr/lib, /usr/local/lib holding both
-//!    `libglslang.a` and `libSPIRV-Tools.a`. None: the build fails saying what to install.
+//! 1. Links the static SPIRV-Tools archive (`gpu::shader` validates every module in-process
+//!    with it; Debian package spirv-tools) and, with the `glsl` feature only, the glslang and
+//!    SPIRV-Tools-opt archives that Debian's `libshaderc_combined.a` leaves undefined (order
+//!    matters for static linking; see README "Building notes"). The folder holding them:
+//!    `VKSHADE_SHADERC_LIB_DIR` if set; else pkg-config's libdir for SPIRV-Tools / glslang /
+//!    shaderc; else the first of the target's multiarch folder (`/usr/lib/<arch>-linux-gnu`),
+//!    /usr/lib64, /usr/lib, /usr/local/lib holding `libSPIRV-Tools.a` (and, with `glsl`,
+//!    `libglslang.a`). None: the build fails saying what to install. Without `glsl` neither
+//!    shaderc nor glslang is needed: the library uses only the embedded SPIR-V.
 //! 2. Embeds every committed SPIR-V module under spv/ into the library (`shaders::EMBEDDED`).
 
 use std::path::{Path, PathBuf};
@@ -23,10 +26,35 @@ fn walk(dir: &Path, out: &mut Vec<PathBuf>) {
 }
 
 /// Archives that must be present in the chosen folder (the rest come with them).
-const REQUIRED: &[&str] = &["libglslang.a", "libSPIRV-Tools.a"];
+fn required(glsl: bool) -> &'static [&'static str] {
+    if glsl {
+        &["libglslang.a", "libSPIRV-Tools.a"]
+    } else {
+        &["libSPIRV-Tools.a"]
+    }
+}
 
-fn has_archives(dir: &Path) -> bool {
-    REQUIRED.iter().all(|a| dir.join(a).is_file())
+/// The static archives to link, in link order (each resolves only what those before it need).
+fn archives(glsl: bool) -> &'static [&'static str] {
+    if glsl {
+        &[
+            "SPIRV",
+            "glslang",
+            "MachineIndependent",
+            "GenericCodeGen",
+            "OSDependent",
+            "OGLCompiler",
+            "glslang-default-resource-limits",
+            "SPIRV-Tools-opt",
+            "SPIRV-Tools",
+        ]
+    } else {
+        &["SPIRV-Tools"]
+    }
+}
+
+fn has_archives(dir: &Path, required: &[&str]) -> bool {
+    required.iter().all(|a| dir.join(a).is_file())
 }
 
 /// `pkg-config --variable=libdir PKG`, if pkg-config is installed and knows PKG.
@@ -61,18 +89,17 @@ fn multiarch() -> Option<String> {
     ))
 }
 
-/// Finds the folder of the static glslang and SPIRV-Tools archives, or explains how to get
-/// them.
-fn find_lib_dir() -> Result<PathBuf, String> {
+/// Finds the folder holding the `required` static archives, or says where it looked.
+fn find_lib_dir(required: &[&str]) -> Result<PathBuf, String> {
     if let Ok(dir) = std::env::var("VKSHADE_SHADERC_LIB_DIR") {
         let dir = PathBuf::from(dir);
-        return if has_archives(&dir) {
+        return if has_archives(&dir, required) {
             Ok(dir)
         } else {
             Err(format!(
                 "VKSHADE_SHADERC_LIB_DIR={} does not hold {}",
                 dir.display(),
-                REQUIRED.join(" and ")
+                required.join(" and ")
             ))
         };
     }
@@ -86,7 +113,7 @@ fn find_lib_dir() -> Result<PathBuf, String> {
         if tried.contains(&dir) {
             continue;
         }
-        if has_archives(&dir) {
+        if has_archives(&dir, required) {
             return Ok(dir);
         }
         tried.push(dir);
@@ -98,42 +125,61 @@ fn find_lib_dir() -> Result<PathBuf, String> {
             .map(|d| d.display().to_string())
             .collect::<Vec<_>>()
             .join(", "),
-        REQUIRED.join(" and ")
+        required.join(" and ")
     ))
 }
 
-fn main() {
-    println!("cargo:rerun-if-changed=build.rs");
+/// The C++ runtime the static archives need, if the target names one.
+fn cxx_runtime() -> Option<&'static str> {
+    let os = std::env::var("CARGO_CFG_TARGET_OS").unwrap_or_default();
+    let env = std::env::var("CARGO_CFG_TARGET_ENV").unwrap_or_default();
+    match (os.as_str(), env.as_str()) {
+        (_, "msvc") => None,
+        ("macos" | "ios" | "freebsd" | "openbsd", _) => Some("c++"),
+        _ => Some("stdc++"),
+    }
+}
+
+/// Links the static SPIRV-Tools (and with `glsl` the glslang) archives, or exits explaining
+/// what to install.
+fn link_archives(glsl: bool) {
     println!("cargo:rerun-if-env-changed=VKSHADE_SHADERC_LIB_DIR");
     println!("cargo:rerun-if-env-changed=PKG_CONFIG_PATH");
-    let dir = match find_lib_dir() {
+    let dir = match find_lib_dir(required(glsl)) {
         Ok(dir) => dir,
-        Err(why) => {
+        Err(why) if glsl => {
             eprintln!(
                 "vkshade needs the static glslang and SPIRV-Tools libraries ({why}).\n\
                  On Debian/Ubuntu: apt-get install libshaderc-dev glslang-dev spirv-tools \
                  (libglslang.a is in glslang-dev, libSPIRV-Tools.a in spirv-tools, \
                  libshaderc_combined.a in libshaderc-dev; tools/setup.sh installs them).\n\
-                 Elsewhere: set VKSHADE_SHADERC_LIB_DIR to the folder holding them."
+                 Elsewhere: set VKSHADE_SHADERC_LIB_DIR to the folder holding them.\n\
+                 A renderer using only the embedded SPIR-V can leave out the `glsl` feature \
+                 (`default-features = false`): then only SPIRV-Tools is needed."
+            );
+            std::process::exit(1);
+        }
+        Err(why) => {
+            eprintln!(
+                "vkshade needs the static SPIRV-Tools library, which validates every SPIR-V \
+                 module ({why}).\n\
+                 On Debian/Ubuntu: apt-get install spirv-tools (libSPIRV-Tools.a).\n\
+                 Elsewhere: set VKSHADE_SHADERC_LIB_DIR to the folder holding it."
             );
             std::process::exit(1);
         }
     };
     println!("cargo:rustc-link-search=native={}", dir.display());
-    for lib in [
-        "SPIRV",
-        "glslang",
-        "MachineIndependent",
-        "GenericCodeGen",
-        "OSDependent",
-        "OGLCompiler",
-        "glslang-default-resource-limits",
-        "SPIRV-Tools-opt",
-        "SPIRV-Tools",
-    ] {
+    for lib in archives(glsl) {
         println!("cargo:rustc-link-lib=static={lib}");
     }
+    if let Some(cxx) = cxx_runtime() {
+        println!("cargo:rustc-link-lib={cxx}");
+    }
+}
 
+/// Writes `embedded_spv.rs`: every committed module under spv/, included as bytes.
+fn embed_spirv() {
     let root = PathBuf::from(std::env::var("CARGO_MANIFEST_DIR").expect("set by cargo"));
     let spv = root.join("spv");
     println!("cargo:rerun-if-changed={}", spv.display());
@@ -159,4 +205,10 @@ fn main() {
     let out =
         PathBuf::from(std::env::var("OUT_DIR").expect("set by cargo")).join("embedded_spv.rs");
     std::fs::write(out, code).expect("write embedded_spv.rs");
+}
+
+fn main() {
+    println!("cargo:rerun-if-changed=build.rs");
+    link_archives(std::env::var_os("CARGO_FEATURE_GLSL").is_some());
+    embed_spirv();
 }

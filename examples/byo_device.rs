@@ -757,7 +757,7 @@ fn frames(inst: &InstanceGuard, dev: &DeviceGuard) -> Result<Summary, String> {
         ..AoParams::default()
     };
 
-    // SAFETY (from_external's contract): the handles are valid and stay so until `ext` and
+    // SAFETY: from_external's contract: the handles are valid and stay so until `ext` and
     // everything made from it are gone: `frames` shuts `ext` down (or drops it) before
     // returning, and the caller destroys the device and instance only after that. The
     // device is Vulkan 1.3 with synchronization2, maintenance4 and timelineSemaphore
@@ -784,7 +784,7 @@ fn frames(inst: &InstanceGuard, dev: &DeviceGuard) -> Result<Summary, String> {
     // The kernel: buffers and pipelines are created now, the uploads of the mesh, tree and
     // table are recorded into our slot-0 command buffer and run when we submit it.
     begin(dev, &slots.slots[0])?;
-    // SAFETY (record_into's contract): slot 0's buffer is a primary command buffer of this
+    // SAFETY: record_into's contract: slot 0's buffer is a primary command buffer of this
     // device for `queue_family`, recording, and neither reset nor freed until it has been
     // submitted and its fence waited for. It is submitted (`submit`) with the signal of
     // this very Recorded, before any other vkshade submission or signal.
@@ -828,7 +828,7 @@ fn frames(inst: &InstanceGuard, dev: &DeviceGuard) -> Result<Summary, String> {
         let time = duration * index as f32 / FRAMES as f32;
         let matrices = character.rig.skinning_matrices(anim, time);
         begin(dev, &slots.slots[slot])?;
-        // SAFETY (record_into's contract): as for the setup above: this slot's buffer is
+        // SAFETY: record_into's contract: as for the setup above: this slot's buffer is
         // recording, its previous submission completed, and it is submitted right below
         // with this Recorded's signal before any other vkshade submission or signal.
         let mut rec =

@@ -11,10 +11,12 @@
 //! command shares), [`render`] (pictures), [`bench`](mod@bench) (the benchmark harness),
 //! `app` (the runs behind the CLI); the binary, main.rs, on top.
 //!
-//! Cargo features (all on by default): `cli` (the `vkshade` tool and `app`), `plots`
-//! (benchmark plots, plotters), `gltf` (glTF characters), `png` (PNG pictures), `exr` (linear
-//! float images). A renderer can link the library with `default-features = false`; calling
-//! something compiled out is an [`Error::FeatureDisabled`] naming the feature.
+//! Cargo features (all on by default): `cli` (the `vkshade` tool and `app`), `glsl` (compiling
+//! GLSL with shaderc; without it only the embedded SPIR-V, and neither shaderc nor glslang is
+//! needed to build), `plots` (benchmark plots, plotters), `gltf` (glTF characters), `png` (PNG
+//! pictures), `exr` (linear float images). A renderer can link the library with
+//! `default-features = false`; calling something compiled out is an
+//! [`Error::FeatureDisabled`] naming the feature.
 //!
 //! # A guide for a renderer author
 //!

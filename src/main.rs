@@ -770,7 +770,8 @@ fn cmd_shaders(cmd: &ShaderCommand) -> Result<()> {
         ShaderCommand::Check { root } => (root, false),
     };
     let root = root.clone().unwrap_or_else(vkshade::shaders::source_root);
-    let statuses = vkshade::shaders::build_all(&root, write)?;
+    let statuses =
+        vkshade::shaders::build_all(&root, write, vkshade::kernels::generated_includes())?;
     let mut bad = Vec::new();
     for s in &statuses {
         println!("{:<10} {}", format!("{:?}", s.state).to_lowercase(), s.name);

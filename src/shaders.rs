@@ -3,11 +3,21 @@
 //!
 //! `vkshade shaders build` regenerates spv/; `vkshade shaders check` (and the test suite)
 //! fails when any module is missing, stale or orphaned.
+//!
+//! Compiling GLSL needs the cargo feature `glsl` (on by default, and part of `cli`). Without
+//! it the library uses only the embedded modules and links neither shaderc nor glslang;
+//! [`compile_glsl`], [`compile_source`] and [`build_all`] return [`Error::FeatureDisabled`].
 
 use crate::error::{Error, Result};
-use std::cell::RefCell;
 use std::path::{Path, PathBuf};
-use std::rc::Rc;
+
+/// The shaderc crate vkshade compiles with, for [`compile_options`] and its types.
+#[cfg(feature = "glsl")]
+pub use shaderc;
+
+/// A GLSL include generated from Rust: (path under glsl/, generator of its text). The kernels
+/// list theirs (`kernels::generated_includes`); [`build_all`] writes and checks them.
+pub type GeneratedInclude = (&'static str, fn() -> String);
 
 /// The source tree this crate was built from (the default root for the shader tool).
 pub fn source_root() -> PathBuf {
@@ -36,15 +46,15 @@ pub fn pipeline(ctx: &crate::gpu::Context, name: &str) -> Result<crate::gpu::Com
     crate::gpu::ComputePipeline::from_spirv(ctx, name, spirv(name)?)
 }
 
-/// shaderc settings shared by the build tool and the freshness check.
-fn options<'a>(
-    root: &Path,
-    included: Rc<RefCell<Vec<PathBuf>>>,
-) -> Result<shaderc::CompileOptions<'a>> {
-    let mut o = shaderc::CompileOptions::new().map_err(|e| Error::ShaderCompile {
-        path: root.to_path_buf(),
-        message: format!("shaderc options: {e}"),
-    })?;
+/// The cargo feature that compiling GLSL needs.
+const GLSL: &str = "glsl";
+
+/// The shaderc settings of every GLSL compile in vkshade: the spv/ build and its freshness
+/// check, [`compile_glsl`], [`compile_source`], the tests. A renderer compiling its own compute
+/// shaders for vkshade's pipelines can start from these too.
+#[cfg(feature = "glsl")]
+pub fn compile_options<'a>() -> shaderc::Result<shaderc::CompileOptions<'a>> {
+    let mut o = shaderc::CompileOptions::new()?;
     // Vulkan 1.3 is what vkshade requires; SPIR-V 1.6 also drops the WorkgroupSize built-in
     // that glslang otherwise emits (deprecated; flagged by best-practices validation).
     o.set_target_env(
@@ -57,6 +67,17 @@ fn options<'a>(
     // driver optimises the module again anyway.
     o.set_optimization_level(shaderc::OptimizationLevel::Zero);
     o.set_warnings_as_errors();
+    Ok(o)
+}
+
+/// [`compile_options`] resolving `#include`s under `root` (`<...>`) or beside the includer
+/// (`"..."`).
+#[cfg(feature = "glsl")]
+fn options_with_includes<'a>(root: &Path) -> Result<shaderc::CompileOptions<'a>> {
+    let mut o = compile_options().map_err(|e| Error::ShaderCompile {
+        path: root.to_path_buf(),
+        message: format!("shaderc options: {e}"),
+    })?;
     let root = root.to_path_buf();
     o.set_include_callback(move |requested, kind, requester, _depth| {
         let base = match kind {
@@ -69,7 +90,6 @@ fn options<'a>(
         let path = base.join(requested);
         let content = std::fs::read_to_string(&path)
             .map_err(|e| format!("cannot include {}: {e}", path.display()))?;
-        included.borrow_mut().push(path.clone());
         Ok(shaderc::ResolvedInclude {
             resolved_name: path.to_string_lossy().into_owned(),
             content,
@@ -78,28 +98,67 @@ fn options<'a>(
     Ok(o)
 }
 
-/// Compiles one compute shader; `root` is the glsl/ directory (for `#include <...>`).
-pub fn compile_glsl(path: &Path, root: &Path) -> Result<Vec<u8>> {
-    let source = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+/// Compiles the compute shader `source` with `opts`; `path` names it in errors.
+#[cfg(feature = "glsl")]
+fn compile_compute(
+    source: &str,
+    path: &Path,
+    opts: &shaderc::CompileOptions<'_>,
+) -> Result<Vec<u8>> {
     let compiler = shaderc::Compiler::new().map_err(|e| Error::ShaderCompile {
         path: path.to_path_buf(),
         message: format!("shaderc unavailable: {e}"),
     })?;
-    let included = Rc::new(RefCell::new(Vec::new()));
-    let opts = options(root, included)?;
     let artifact = compiler
         .compile_into_spirv(
-            &source,
+            source,
             shaderc::ShaderKind::Compute,
             &path.to_string_lossy(),
             "main",
-            Some(&opts),
+            Some(opts),
         )
         .map_err(|e| Error::ShaderCompile {
             path: path.to_path_buf(),
             message: e.to_string(),
         })?;
     Ok(artifact.as_binary_u8().to_vec())
+}
+
+/// Compiles one compute shader; `root` is the glsl/ directory (for `#include <...>`).
+/// Without the `glsl` feature: [`Error::FeatureDisabled`].
+pub fn compile_glsl(path: &Path, root: &Path) -> Result<Vec<u8>> {
+    #[cfg(feature = "glsl")]
+    {
+        let source = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let opts = options_with_includes(root)?;
+        compile_compute(&source, path, &opts)
+    }
+    #[cfg(not(feature = "glsl"))]
+    {
+        let _ = root;
+        Err(Error::feature(
+            format!("compiling {}", path.display()),
+            GLSL,
+        ))
+    }
+}
+
+/// Compiles the compute shader `source` (no `#include`s); `name` names it in errors.
+/// Without the `glsl` feature: [`Error::FeatureDisabled`].
+pub fn compile_source(source: &str, name: &str) -> Result<Vec<u8>> {
+    #[cfg(feature = "glsl")]
+    {
+        let opts = compile_options().map_err(|e| Error::ShaderCompile {
+            path: PathBuf::from(name),
+            message: format!("shaderc options: {e}"),
+        })?;
+        compile_compute(source, Path::new(name), &opts)
+    }
+    #[cfg(not(feature = "glsl"))]
+    {
+        let _ = source;
+        Err(Error::feature(format!("compiling {name}"), GLSL))
+    }
 }
 
 /// State of one module after a build or check.
@@ -168,13 +227,27 @@ fn sync_file(path: &Path, wanted: &[u8], write: bool) -> Result<ModuleState> {
     })
 }
 
-/// Compiles every glsl/**/*.comp under `root` and compares with spv/. With `write`, stale or
-/// missing modules are rewritten and orphans deleted; otherwise they are only reported.
-pub fn build_all(root: &Path, write: bool) -> Result<Vec<ModuleStatus>> {
+/// Compiles every glsl/**/*.comp under `root` and compares with spv/; first writes or checks
+/// the `generated` includes (the caller passes `kernels::generated_includes()`). With `write`,
+/// stale or missing modules are rewritten and orphans deleted; otherwise they are only
+/// reported. Without the `glsl` feature: [`Error::FeatureDisabled`], before touching anything.
+pub fn build_all(
+    root: &Path,
+    write: bool,
+    generated: impl IntoIterator<Item = GeneratedInclude>,
+) -> Result<Vec<ModuleStatus>> {
+    if !cfg!(feature = "glsl") {
+        let what = if write {
+            "building spv/"
+        } else {
+            "checking spv/"
+        };
+        return Err(Error::feature(what, GLSL));
+    }
     let glsl = root.join("glsl");
     let spv = root.join("spv");
     let mut statuses = Vec::new();
-    for (rel, generate) in crate::kernels::generated_includes() {
+    for (rel, generate) in generated {
         statuses.push(ModuleStatus {
             name: format!("glsl/{rel} (generated)"),
             state: sync_file(&glsl.join(rel), generate().as_bytes(), write)?,

@@ -113,10 +113,7 @@ const LAYERS: &[(&str, &[&str])] = &[
 
 /// Imports the table does not allow that are being removed in parallel work: (file, path).
 /// Each must still occur (the check says when one can be deleted).
-const PENDING: &[(&str, &str)] = &[
-    // The shader build is to take the generated includes as an argument (issue 15, part 2).
-    ("src/shaders.rs", "kernels::generated_includes"),
-];
+const PENDING: &[(&str, &str)] = &[];
 
 fn segments(path: &str) -> Vec<&str> {
     path.split("::").collect()

@@ -288,8 +288,10 @@ fn garbage_spirv_is_rejected_with_its_name() {
     }
 }
 
+#[cfg(feature = "glsl")]
 #[test]
 fn non_compute_shader_is_rejected() {
+    use vkshade::shaders::{compile_options, shaderc};
     let compiler = shaderc::Compiler::new().unwrap();
     let frag = compiler
         .compile_into_spirv(
@@ -297,7 +299,7 @@ fn non_compute_shader_is_rejected() {
             shaderc::ShaderKind::Fragment,
             "f.frag",
             "main",
-            None,
+            Some(&compile_options().unwrap()),
         )
         .unwrap();
     let err = Shader::from_spirv("f.frag", frag.as_binary_u8()).unwrap_err();
@@ -489,6 +491,7 @@ fn unknown_device_selector_names_the_devices_present() {
     assert!(s.contains("no-such-gpu-xyz") && s.contains("0:"), "{s}");
 }
 
+#[cfg(feature = "cli")] // runs the vkshade binary
 #[test]
 fn missing_driver_fails_with_install_hint() {
     // In a child process, so the environment change cannot affect other tests.

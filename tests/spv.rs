@@ -4,11 +4,15 @@
 mod common;
 
 use vkshade::gpu::{ComputePipeline, Shader};
-use vkshade::shaders::{EMBEDDED, ModuleState, build_all, source_modules, source_root};
+use vkshade::kernels::generated_includes;
+#[cfg(feature = "glsl")]
+use vkshade::shaders::ModuleState;
+use vkshade::shaders::{EMBEDDED, build_all, source_modules, source_root};
 
+#[cfg(feature = "glsl")]
 #[test]
 fn spv_is_fresh_against_glsl() {
-    let statuses = build_all(&source_root(), false).expect("compile glsl/");
+    let statuses = build_all(&source_root(), false, generated_includes()).expect("compile glsl/");
     assert!(!statuses.is_empty(), "no shaders found under glsl/");
     let bad: Vec<_> = statuses
         .iter()
@@ -82,6 +86,7 @@ fn every_module_reflects_and_builds_a_pipeline() {
     });
 }
 
+#[cfg(feature = "glsl")]
 fn copy_dir(from: &std::path::Path, to: &std::path::Path) {
     std::fs::create_dir_all(to).unwrap();
     for entry in std::fs::read_dir(from).unwrap() {
@@ -95,6 +100,7 @@ fn copy_dir(from: &std::path::Path, to: &std::path::Path) {
     }
 }
 
+#[cfg(feature = "glsl")]
 #[test]
 fn build_tool_detects_and_repairs_stale_missing_and_orphaned_modules() {
     let root = std::env::temp_dir().join(format!("vkshade-spv-test-{}", std::process::id()));
@@ -119,7 +125,7 @@ fn build_tool_detects_and_repairs_stale_missing_and_orphaned_modules() {
             .find(|s| s.name == name)
             .map(|s| s.state.clone())
     };
-    let checked = build_all(&root, false).unwrap();
+    let checked = build_all(&root, false, generated_includes()).unwrap();
     assert_eq!(
         state(&checked, "test/chain_scale"),
         Some(ModuleState::Stale)
@@ -131,14 +137,14 @@ fn build_tool_detects_and_repairs_stale_missing_and_orphaned_modules() {
     assert_eq!(state(&checked, "test/gone"), Some(ModuleState::Orphan));
     assert_eq!(state(&checked, "bench/fma"), Some(ModuleState::Fresh));
 
-    let built = build_all(&root, true).unwrap();
+    let built = build_all(&root, true, generated_includes()).unwrap();
     assert_eq!(
         state(&built, "test/chain_scale"),
         Some(ModuleState::Updated)
     );
     assert_eq!(state(&built, "test/chain_add"), Some(ModuleState::Updated));
     assert!(!root.join("spv/test/gone.spv").exists());
-    let again = build_all(&root, false).unwrap();
+    let again = build_all(&root, false, generated_includes()).unwrap();
     assert!(
         again.iter().all(|s| s.state == ModuleState::Fresh),
         "{again:?}"
@@ -150,7 +156,32 @@ fn build_tool_detects_and_repairs_stale_missing_and_orphaned_modules() {
         "#version 450\nlayout(local_size_x=1) in;\nvoid main() { nope(); }\n",
     )
     .unwrap();
-    let e = build_all(&root, false).unwrap_err().to_string();
+    let e = build_all(&root, false, generated_includes())
+        .unwrap_err()
+        .to_string();
     assert!(e.contains("chain_scale.comp") && e.contains("nope"), "{e}");
     std::fs::remove_dir_all(&root).unwrap();
+}
+
+#[cfg(not(feature = "glsl"))]
+#[test]
+fn without_glsl_compiling_is_a_feature_error_and_nothing_is_written() {
+    use vkshade::Error;
+    let root = source_root();
+    for write in [false, true] {
+        match build_all(&root, write, generated_includes()) {
+            Err(Error::FeatureDisabled {
+                feature: "glsl", ..
+            }) => {}
+            other => panic!("expected FeatureDisabled(glsl), got {other:?}"),
+        }
+    }
+    let src = root.join("glsl/test/chain_add.comp");
+    for r in [
+        vkshade::shaders::compile_glsl(&src, &root.join("glsl")),
+        vkshade::shaders::compile_source("#version 450\nvoid main() {}\n", "t.comp"),
+    ] {
+        let e = r.unwrap_err();
+        assert!(e.to_string().contains("`glsl`"), "{e}");
+    }
 }

@@ -73,7 +73,8 @@ pub fn write_json(path: &Path, value: &impl Serialize) -> Result<()> {
     write_atomic(path, format!("{text}\n").as_bytes())
 }
 
-/// A linear floating-point RGBA image, rows top to bottom (what [`exr`] reads and writes).
+/// A linear floating-point RGBA image, rows top to bottom (what `io::exr` reads and writes,
+/// with the `exr` feature).
 #[derive(Clone, Debug, PartialEq)]
 pub struct FloatImage {
     pub width: u32,

@@ -12,8 +12,7 @@ pub use contract::{
     record_as_graph, run_frames,
 };
 
-/// A GLSL include generated from Rust: (path under glsl/, generator of its text).
-pub type GeneratedInclude = (&'static str, fn() -> String);
+pub use crate::shaders::GeneratedInclude;
 
 /// Every kernel's generated GLSL includes; a new kernel adds its list here. The shader tool
 /// writes and checks them without knowing any kernel.

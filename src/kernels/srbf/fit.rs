@@ -72,7 +72,7 @@ pub struct FitConfig {
     pub energy_weight: f64,
     /// After the refinement, rescale the lobes at the sharpness cap (compact sources: a sun,
     /// a lamp) so that the energy around each group of them matches the map's
-    /// ([`match_compact_energy`]).
+    /// (`match_compact_energy`).
     pub match_compact_energy: bool,
 }
 

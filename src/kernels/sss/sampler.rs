@@ -101,7 +101,7 @@ impl Profile {
     /// mixture of the channels' radial pdfs, F(r) = mean_c F_c(r) ([`Profile::cdf_normalised`]),
     /// stratified: r_s = F^-1((s + 1/2) / n) (bisection in f64). Each sample carries the
     /// weights w_c = p_c(r_s) / p(r_s) (radial pdfs; the 2 pi r cancels, so w_c = (Rd_c / K_c)
-    /// / mean_j (Rd_j / K_j) over the channels whose radius R_j >= r_s); E_p[w_c] = 1, and the
+    /// / mean_j (Rd_j / K_j) over the channels whose radius R_j >= r_s); `E_p[w_c] = 1`, and the
     /// sampler's self-normalised estimate sum w_c E / sum w_c is exact on uniform E.
     /// Rows (r_s mm, w_r, w_g, w_b) as f32 (what the shader and the CPU twin read).
     pub fn mixture_sequence(&self, n: u32) -> Vec<[f32; 4]> {

@@ -1,31 +1,24 @@
-//! Regression tests for the independent review of core v2: each case once reached the
-//! driver (a validation error, a panic, or use-after-free) from safe code. Each must now be
-//! a clear error, or run clean under validation.
+//! Misuse of the GPU layer from safe code: wrong buffer or image usage, barriers outside an
+//! image, conflicting bindings and view types, the context's own timeline. Each case once
+//! reached the driver (a validation error, a panic, or use-after-free; found by the core v2
+//! review) and must now be a clear error, or run clean under validation.
 
 mod common;
 
 use ash::vk;
 use common::with_gpu;
 use vkshade::gpu::{
-    AccessType as A, Barrier, Buffer, BufferDesc, ComputePipeline, Context, Image, ImageDesc,
-    Resource, Sampler, SamplerDesc, Subresources, Use, ViewDesc,
+    AccessType as A, Barrier, Buffer, BufferDesc, Image, ImageDesc, Subresources, Use,
 };
+#[cfg(feature = "glsl")]
+use vkshade::gpu::{ComputePipeline, Context, Resource, Sampler, SamplerDesc, ViewDesc};
 
 const RGBA32F: vk::Format = vk::Format::R32G32B32A32_SFLOAT;
 
+#[cfg(feature = "glsl")]
 fn compile(ctx: &Context, name: &str, src: &str) -> vkshade::Result<ComputePipeline> {
-    // The project's settings: Vulkan 1.3, SPIR-V 1.6 (no deprecated WorkgroupSize).
-    let mut o = shaderc::CompileOptions::new().unwrap();
-    o.set_target_env(
-        shaderc::TargetEnv::Vulkan,
-        shaderc::EnvVersion::Vulkan1_3 as u32,
-    );
-    o.set_target_spirv(shaderc::SpirvVersion::V1_6);
-    let spirv = shaderc::Compiler::new()
-        .unwrap()
-        .compile_into_spirv(src, shaderc::ShaderKind::Compute, name, "main", Some(&o))
-        .unwrap();
-    ComputePipeline::from_spirv(ctx, name, spirv.as_binary_u8())
+    let spirv = vkshade::shaders::compile_source(src, name)?;
+    ComputePipeline::from_spirv(ctx, name, &spirv)
 }
 
 fn expect_err<T>(r: vkshade::Result<T>, needle: &str) {
@@ -101,6 +94,7 @@ fn image_barriers_and_uses_are_checked() {
     });
 }
 
+#[cfg(feature = "glsl")]
 const TEX_AND_STORE: &str = r#"#version 450
 layout(local_size_x = 1) in;
 layout(set = 0, binding = 0) uniform texture2D tex;
@@ -108,6 +102,7 @@ layout(set = 0, binding = 1) uniform sampler smp;
 layout(set = 0, binding = 2, rgba32f) uniform writeonly image2D img;
 void main() { imageStore(img, ivec2(1, 1), textureLod(sampler2D(tex, smp), vec2(0.5), 0.0)); }"#;
 
+#[cfg(feature = "glsl")]
 #[test]
 fn conflicting_bindings_overrides_and_view_types_are_refused() {
     with_gpu(|ctx| {
