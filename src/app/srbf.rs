@@ -3,6 +3,7 @@
 //! report per run, and (optionally) the brute-force ground truth with the error split by
 //! stage.
 
+use super::Gpu;
 use crate::error::{Error, Result};
 use crate::gpu::Context;
 use crate::kernels::srbf::cpca::{Cpca, CpcaConfig};
@@ -782,4 +783,181 @@ pub fn fit_command(
     };
     crate::io::write_json(out, &report)?;
     Ok(report)
+}
+
+/// The subcommands of `vkshade srbf`.
+#[derive(clap::Subcommand, Clone, Debug)]
+pub enum Command {
+    /// Fit spherical Gaussians to an equirectangular HDR environment (EXR or .hdr); reports
+    /// the fit error for 8, 16, ... up to --lobes lobes and writes the largest fit as JSON.
+    Fit {
+        #[arg(long, default_value = DEFAULT_ENV)]
+        env: PathBuf,
+        #[arg(long, default_value_t = 64)]
+        lobes: usize,
+        /// Width of the downsampled map the lobes are fitted to.
+        #[arg(long, default_value_t = 128)]
+        fit_width: u32,
+        #[arg(short = 'o', long, default_value = "out/srbf/fit.json")]
+        out: PathBuf,
+    },
+    /// Shade a mesh under a rotated environment: per frame DIR/shade_NNNN.ply (per-vertex
+    /// linear RGB radiance r, g, b) and DIR/shade_NNNN.png (with --reference: result |
+    /// brute-force truth | error), and DIR/report.json.
+    Shade(ShadeArgs),
+}
+
+/// The arguments of `vkshade srbf shade`.
+#[derive(clap::Args, Clone, Debug)]
+pub struct ShadeArgs {
+    /// Mesh (.obj .ply .off .glb/.gltf; a skinned mesh is shaded in its bind pose).
+    #[arg(long, default_value = DEFAULT_MESH)]
+    pub mesh: PathBuf,
+    /// Equirectangular environment (EXR, including DWAB, or Radiance .hdr).
+    #[arg(long, default_value = DEFAULT_ENV)]
+    pub env: PathBuf,
+    #[arg(long, default_value_t = 64)]
+    pub lobes: usize,
+    /// Transfer basis functions (spherical Gaussians on a Fibonacci lattice).
+    #[arg(long, default_value_t = 256)]
+    pub basis: usize,
+    /// Clusters of the clustered-PCA transfer compression.
+    #[arg(long, default_value_t = 64)]
+    pub clusters: usize,
+    /// Principal components per cluster (0: the uncompressed transfer).
+    #[arg(long, default_value_t = 16)]
+    pub components: usize,
+    /// Rotate the environment, e.g. y:30 (L_R(w) = L(R^-1 w)); with --frames, the start of a
+    /// spin about that axis.
+    #[arg(long)]
+    pub rotate: Option<AxisAngle>,
+    /// Frames of a continuous 360-degree spin (about +Y, or --rotate's axis).
+    #[arg(long, default_value_t = 1)]
+    pub frames: usize,
+    /// Diffuse albedo R,G,B (default 1,1,1).
+    #[arg(long, value_delimiter = ',', num_args = 3, default_values_t = [1.0f32, 1.0, 1.0])]
+    pub albedo: Vec<f32>,
+    /// Compare each frame with the brute-force integration of the rotated map (f64).
+    #[arg(long)]
+    pub reference: bool,
+    /// Width of the map whose texel directions carry the transfer and the ground truth.
+    #[arg(long, default_value_t = 64)]
+    pub directions: u32,
+    /// Width of the downsampled map the lobes are fitted to.
+    #[arg(long, default_value_t = 128)]
+    pub fit_width: u32,
+    /// Lobes sharper than this factor x the basis sharpness (a sun, a lamp) are shaded from
+    /// the ray-cast visibility instead of through the smooth transfer basis (0: off).
+    #[arg(long, default_value_t = crate::kernels::srbf::sharp::DEFAULT_FACTOR)]
+    pub sharp_factor: f32,
+    /// The most compact lobes shaded from the visibility, the strongest first (0: off).
+    #[arg(long, default_value_t = crate::kernels::srbf::sharp::DEFAULT_MAX_LOBES)]
+    pub compact_lobes: usize,
+    #[arg(long, default_value_t = 2)]
+    pub in_flight: usize,
+    #[arg(long, default_value = "out/srbf")]
+    pub out: PathBuf,
+}
+
+impl Command {
+    /// Runs `vkshade srbf fit|shade` and prints its summary.
+    pub fn run(&self, gpu: &Gpu) -> Result<()> {
+        match self {
+            Command::Fit {
+                env,
+                lobes,
+                fit_width,
+                out,
+            } => {
+                let r = fit_command(env, *lobes, *fit_width, out, &mut |l| super::progress(l))?;
+                println!(
+                    "fitted {} lobes to {} ({}x{}): relative L2 {:.4}; wrote {}",
+                    r.lobes.len(),
+                    r.env,
+                    r.fit_size[0],
+                    r.fit_size[1],
+                    r.errors.last().map(|e| e.1).unwrap_or(f64::NAN),
+                    out.display()
+                );
+                Ok(())
+            }
+            Command::Shade(a) => a.run(gpu),
+        }
+    }
+}
+
+impl ShadeArgs {
+    /// The run these arguments describe.
+    pub fn config(&self) -> Result<ShadeConfig> {
+        let albedo: [f32; 3] = self
+            .albedo
+            .as_slice()
+            .try_into()
+            .map_err(|_| Error::InvalidArgument("--albedo takes three values R,G,B".into()))?;
+        Ok(ShadeConfig {
+            mesh: self.mesh.clone(),
+            env: self.env.clone(),
+            lobes: self.lobes,
+            basis: self.basis,
+            clusters: self.clusters,
+            components: self.components,
+            rotate: self.rotate,
+            frames: self.frames,
+            albedo,
+            reference: self.reference,
+            direction_width: self.directions,
+            fit_width: self.fit_width,
+            sharp_factor: self.sharp_factor,
+            compact_lobes: self.compact_lobes,
+            in_flight: self.in_flight,
+            out: self.out.clone(),
+            ..Default::default()
+        })
+    }
+
+    /// `vkshade srbf shade`: shades the frames and prints the summary.
+    pub fn run(&self, gpu: &Gpu) -> Result<()> {
+        let cfg = self.config()?;
+        let ctx = gpu.context()?;
+        eprintln!("vkshade srbf shade on {}", ctx.info().name);
+        let r = shade(&ctx, &cfg, &mut |l| super::progress(l))?;
+        display(&r, &cfg);
+        super::finish(ctx)
+    }
+}
+
+/// The summary `vkshade srbf shade` prints: timings, the error of each stage, the worst
+/// frame against the ground truth (with `--reference`) and what was written.
+pub fn display(r: &ShadeReport, cfg: &ShadeConfig) {
+    println!(
+        "{} frames of {} ({} vertices), {} lobes ({} compact) x {} basis ({} clusters x {} components): lighting {:.3} + project {:.3} + sharp {:.3} + shade {:.3} ms GPU (median) = {:.0} fps; fit error {:.4}, transfer projection error {:.4}, compression error {:.4}",
+        r.frames.len(),
+        r.mesh,
+        r.vertices,
+        r.lobes,
+        r.compact_lobes,
+        r.basis,
+        r.clusters,
+        r.components,
+        r.gpu_ms_lighting_median,
+        r.gpu_ms_project_median,
+        r.gpu_ms_sharp_median,
+        r.gpu_ms_shade_median,
+        r.fps,
+        r.fit_rel_l2,
+        r.transfer_rel_l2,
+        r.cpca_rel_l2
+    );
+    if let Some(worst) = r
+        .frames
+        .iter()
+        .filter_map(|f| f.vs_ground_truth.map(|e| e.all))
+        .reduce(f64::max)
+    {
+        println!("vs brute-force ground truth: relative L2 at most {worst:.4} over the frames");
+    }
+    println!(
+        "wrote shade_NNNN.ply, shade_NNNN.png and report.json to {}",
+        cfg.out.display()
+    );
 }

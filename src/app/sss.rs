@@ -6,6 +6,7 @@
 //! `--reference` `reference.png` (diffusion alone | brute-force truth | error heat map), and
 //! `report.json`.
 
+use super::Gpu;
 use crate::error::{Error, Result};
 use crate::geom::bvh::Bvh;
 use crate::gpu::Context;
@@ -817,4 +818,143 @@ fn pictures(
         files.push(path.display().to_string());
     }
     Ok(files)
+}
+
+/// The arguments of `vkshade sss`.
+#[derive(clap::Args, Clone, Debug)]
+pub struct Args {
+    /// Mesh with UVs (.glb/.gltf .obj .ply; a skinned mesh is used in its bind pose).
+    #[arg(long, default_value = DEFAULT_MESH)]
+    pub mesh: PathBuf,
+    /// Use only this glTF mesh (node or mesh name); `--part ''` uses the whole file.
+    #[arg(long, default_value = DEFAULT_PART)]
+    pub part: String,
+    /// Millimetres per model unit (scattering coefficients are per mm). Default: 1, or
+    /// 1000 for the built-in BCN_Epileptic mesh (modelled in metres).
+    #[arg(long)]
+    pub mm_per_unit: Option<f64>,
+    /// dir:X,Y,Z[:E] (arriving from X,Y,Z; irradiance E, default 1) or point:X,Y,Z:I
+    /// (position in model units, intensity I). Repeatable.
+    #[arg(long = "light")]
+    pub lights: Vec<String>,
+    /// dipole (tabulated inverse CDF) or burley (analytic inverse CDF).
+    #[arg(
+        long,
+        default_value = "dipole",
+        ignore_case = true,
+        value_parser = super::choice::<ProfileKind>("profile")
+    )]
+    pub profile: ProfileKind,
+    /// skin1 or skin2 (Jensen 2001), or custom with --sigma-a and --sigma-s.
+    #[arg(long, default_value = "skin1")]
+    pub material: String,
+    /// Absorption coefficients R,G,B per mm (custom material).
+    #[arg(long, value_delimiter = ',', num_args = 3)]
+    pub sigma_a: Option<Vec<f64>>,
+    /// Reduced scattering coefficients R,G,B per mm (custom material).
+    #[arg(long, value_delimiter = ',', num_args = 3)]
+    pub sigma_s: Option<Vec<f64>>,
+    /// Relative index of refraction (default 1.3).
+    #[arg(long, default_value_t = crate::kernels::sss::profile::DEFAULT_ETA)]
+    pub eta: f64,
+    /// Fraction of each channel's reflectance inside its sampling radius.
+    #[arg(long, default_value_t = crate::kernels::sss::profile::DEFAULT_ENERGY)]
+    pub energy: f64,
+    /// Samples per texel (one set shared by the three channels).
+    #[arg(long, default_value_t = 32)]
+    pub samples: u32,
+    /// Shadows from the mesh's vertices only, interpolated over each triangle (faster); by
+    /// default a texel casts its own shadow ray where its triangle's corners disagree.
+    #[arg(long)]
+    pub vertex_shadows: bool,
+    /// Texture size (N x N texels).
+    #[arg(long, default_value_t = 512)]
+    pub size: u32,
+    /// Frames to run: spread over --anim (posed and re-rasterised each frame), or the same
+    /// frame repeated; timings are medians, the last frame is written.
+    #[arg(long, default_value_t = 1)]
+    pub frames: usize,
+    /// Animation of the mesh's skeleton (glTF; name or unique substring).
+    #[arg(long)]
+    pub anim: Option<String>,
+    /// Compare with the brute-force ground truth (f64, every covered texel).
+    #[arg(long)]
+    pub reference: bool,
+    #[arg(long, default_value = "out/sss")]
+    pub out: PathBuf,
+}
+
+impl Args {
+    /// The run these arguments describe: the material (named, or custom from both
+    /// coefficient triples), the scale and the lights (the default light when none is given).
+    pub fn config(&self) -> Result<SssConfig> {
+        let three = |v: &Option<Vec<f64>>, what: &str| -> Result<Option<[f64; 3]>> {
+            v.as_ref()
+                .map(|v| {
+                    v.as_slice().try_into().map_err(|_| {
+                        Error::InvalidArgument(format!("{what} takes three values R,G,B"))
+                    })
+                })
+                .transpose()
+        };
+        let material = match (
+            three(&self.sigma_a, "--sigma-a")?,
+            three(&self.sigma_s, "--sigma-s")?,
+        ) {
+            (Some(sa), Some(ss)) => Material::custom(sa, ss, self.eta)?,
+            (None, None) => Material::named(&self.material)?.with_eta(self.eta)?,
+            _ => {
+                return Err(Error::InvalidArgument(
+                    "a custom material needs both --sigma-a and --sigma-s".into(),
+                ));
+            }
+        };
+        Ok(SssConfig {
+            mesh: self.mesh.clone(),
+            part: (!self.part.is_empty()).then(|| self.part.clone()),
+            mm_per_unit: self
+                .mm_per_unit
+                .unwrap_or_else(|| default_mm_per_unit(&self.mesh)),
+            lights: if self.lights.is_empty() {
+                SssConfig::default().lights
+            } else {
+                self.lights.clone()
+            },
+            profile: self.profile,
+            material,
+            energy: self.energy,
+            samples: self.samples,
+            shadow_refine: !self.vertex_shadows,
+            size: self.size,
+            frames: self.frames,
+            anim: self.anim.clone(),
+            reference: self.reference,
+            out: self.out.clone(),
+            ..Default::default()
+        })
+    }
+
+    /// `vkshade sss`: runs the frames and prints the summary.
+    pub fn run(&self, gpu: &Gpu) -> Result<()> {
+        let cfg = self.config()?;
+        let ctx = gpu.context()?;
+        eprintln!("vkshade sss on {}", ctx.info().name);
+        let r = run(&ctx, &cfg, &mut |l| super::progress(l))?;
+        display(&r, &cfg);
+        super::finish(ctx)
+    }
+}
+
+/// The line `vkshade sss` prints: the timings of the two passes and where the files went.
+pub fn display(r: &SssReport, cfg: &SssConfig) {
+    println!(
+        "{} {}^2 texels x {} samples: irradiance {:.2} ms + diffusion {:.2} ms GPU = {:.1} fps; wrote {}",
+        r.mesh,
+        r.size,
+        r.samples,
+        r.gpu_ms_irradiance,
+        r.gpu_ms_diffusion,
+        r.fps,
+        cfg.out.display()
+    );
 }

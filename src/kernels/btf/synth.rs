@@ -16,6 +16,7 @@ use rayon::prelude::*;
 
 /// The cloth patterns `btf synth` knows.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum Pattern {
     /// Plain weave: two warp and two weft threads per tile, alternating over and under.
@@ -24,18 +25,6 @@ pub enum Pattern {
     Knit,
     /// Corduroy: three wales (ridges along v) per tile with a fine pile across them.
     Rib,
-}
-
-impl std::str::FromStr for Pattern {
-    type Err = String;
-    fn from_str(s: &str) -> std::result::Result<Self, String> {
-        match s {
-            "weave" => Ok(Pattern::Weave),
-            "knit" => Ok(Pattern::Knit),
-            "rib" => Ok(Pattern::Rib),
-            _ => Err(format!("unknown pattern '{s}' (weave, knit, rib)")),
-        }
-    }
 }
 
 impl Pattern {
@@ -333,22 +322,12 @@ pub fn srgb_decode(b: u8) -> f64 {
 
 /// Image format of a written BTF directory.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 pub enum FileFormat {
     /// 8-bit sRGB-encoded PNG (values above 1 clip).
     Png,
     /// Linear 32-bit float EXR.
     Exr,
-}
-
-impl std::str::FromStr for FileFormat {
-    type Err = String;
-    fn from_str(s: &str) -> std::result::Result<Self, String> {
-        match s {
-            "png" => Ok(FileFormat::Png),
-            "exr" => Ok(FileFormat::Exr),
-            _ => Err(format!("unknown image format '{s}' (png, exr)")),
-        }
-    }
 }
 
 /// Writes `btf` as a UBO2003-style directory `dir` (one image per (light, view) pair, the
