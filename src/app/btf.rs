@@ -305,57 +305,111 @@ pub fn render(
     } else {
         None
     };
-    let t = Instant::now();
-    let btf = load::load_dir(&cfg.btf)?;
-    let load_ms = t.elapsed().as_secs_f64() * 1e3;
-    progress(&format!(
-        "loaded {} ({} x {} texels x 6561 images) in {load_ms:.0} ms",
-        cfg.btf.display(),
-        btf.size[0],
-        btf.size[1]
-    ));
-    let maps = Maps::build(&Triangulation::new()?, cfg.map_res)?;
-    let gb = match &cfg.mesh {
-        Some(path) => {
-            let character = crate::scene::load(path)?;
-            gbuffer::render_mesh(&character.mesh, cfg.width, cfg.height)
-                .map_err(|e| Error::input(path, e.to_string()))?
+    let session = Session::new(ctx, cfg, progress)?;
+    let (vs_cpu, vs_ray_cast, truth) = match &meta {
+        Some(meta) => {
+            let vs_cpu = session.vs_cpu();
+            let (vs_ray_cast, truth) = session.vs_ray_cast(meta, progress)?;
+            (Some(vs_cpu), Some(vs_ray_cast), Some(truth))
         }
-        None => gbuffer::render_object(cfg.object, cfg.width, cfg.height)?,
+        None => (None, None, None),
     };
-    let frame = Frame {
-        camera: Camera::Perspective(Vec3::from(gbuffer::EYE)),
-        lights: cfg.lights.clone(),
-    };
-    frame.check()?;
-    let mut rec = ctx.recorder("btf render")?;
-    let kernel = BtfKernel::new(
-        &mut rec,
-        &BtfInputs {
-            layout: cfg.layout,
-            ..BtfInputs::new(&btf, &maps, &gb, cfg.texture)
-        },
-    )?;
-    kernel.record(&mut rec, &frame)?;
-    let rb = kernel.read_back(&mut rec)?;
-    rec.submit_and_wait()?;
-    let out = kernel.collect(&rb)?;
-    let timed = time_passes(ctx, &cfg.bench, &kernel, &frame)?;
-    let gpu_ms = timed[0].1.clone();
-    progress(&format!(
-        "btf shade {} x {}: {:.3} ms (median GPU)",
-        cfg.width, cfg.height, gpu_ms.median
-    ));
+    let (png, exr) = session.pictures(truth.as_deref())?;
+    let report = session.report(vs_cpu, vs_ray_cast, &png, &exr);
+    crate::io::write_json(&report_path, &report)?;
+    Ok(report)
+}
 
-    let mut vs_cpu = None;
-    let mut vs_ray_cast = None;
-    let mut truth_px = None;
-    if let Some(meta) = &meta {
-        // The data the GPU samples (for BC1: encoded and decoded again, see io::bc1; for
-        // block: the blocks, decoded per tap as the shader does).
-        let sampled = Sampled::of(&btf, cfg.texture);
+/// A render: the loaded BTF, the maps, the G-buffer, the kernel and its output.
+struct Session<'a> {
+    ctx: &'a Context,
+    cfg: &'a RenderConfig,
+    btf: synth::Btf,
+    load_ms: f64,
+    maps: Maps,
+    gb: GBuffer,
+    frame: Frame,
+    kernel: BtfKernel,
+    /// Linear RGBA per pixel, as the GPU shaded it.
+    out: Vec<[f32; 4]>,
+    gpu_ms: crate::report::Stats,
+}
+
+impl<'a> Session<'a> {
+    /// Loads the BTF, builds the maps and the G-buffer, shades once, and times the pass.
+    fn new(
+        ctx: &'a Context,
+        cfg: &'a RenderConfig,
+        progress: &mut dyn FnMut(&str),
+    ) -> Result<Session<'a>> {
         let t = Instant::now();
-        let (want, ambiguous) = cpu::shade(&sampled.packed(btf.size), &maps, &gb, &frame);
+        let btf = load::load_dir(&cfg.btf)?;
+        let load_ms = t.elapsed().as_secs_f64() * 1e3;
+        progress(&format!(
+            "loaded {} ({} x {} texels x 6561 images) in {load_ms:.0} ms",
+            cfg.btf.display(),
+            btf.size[0],
+            btf.size[1]
+        ));
+        let maps = Maps::build(&Triangulation::new()?, cfg.map_res)?;
+        let gb = match &cfg.mesh {
+            Some(path) => {
+                let character = crate::scene::load(path)?;
+                gbuffer::render_mesh(&character.mesh, cfg.width, cfg.height)
+                    .map_err(|e| Error::input(path, e.to_string()))?
+            }
+            None => gbuffer::render_object(cfg.object, cfg.width, cfg.height)?,
+        };
+        let frame = Frame {
+            camera: Camera::Perspective(Vec3::from(gbuffer::EYE)),
+            lights: cfg.lights.clone(),
+        };
+        frame.check()?;
+        let mut rec = ctx.recorder("btf render")?;
+        let kernel = BtfKernel::new(
+            &mut rec,
+            &BtfInputs {
+                layout: cfg.layout,
+                ..BtfInputs::new(&btf, &maps, &gb, cfg.texture)
+            },
+        )?;
+        kernel.record(&mut rec, &frame)?;
+        let rb = kernel.read_back(&mut rec)?;
+        rec.submit_and_wait()?;
+        let out = kernel.collect(&rb)?;
+        let timed = time_passes(ctx, &cfg.bench, &kernel, &frame)?;
+        let gpu_ms = timed[0].1.clone();
+        progress(&format!(
+            "btf shade {} x {}: {:.3} ms (median GPU)",
+            cfg.width, cfg.height, gpu_ms.median
+        ));
+        Ok(Session {
+            ctx,
+            cfg,
+            btf,
+            load_ms,
+            maps,
+            gb,
+            frame,
+            kernel,
+            out,
+            gpu_ms,
+        })
+    }
+
+    /// The GPU against the CPU interpolation (f64) of the data the GPU samples (for BC1:
+    /// encoded and decoded again, see io::bc1; for block: the blocks, decoded per tap as the
+    /// shader does).
+    fn vs_cpu(&self) -> VsCpu {
+        let (cfg, out) = (self.cfg, &self.out);
+        let sampled = Sampled::of(&self.btf, cfg.texture);
+        let t = Instant::now();
+        let (want, ambiguous) = cpu::shade(
+            &sampled.packed(self.btf.size),
+            &self.maps,
+            &self.gb,
+            &self.frame,
+        );
         let cpu_ms = t.elapsed().as_secs_f64() * 1e3;
         let (mut max, mut se, mut n, mut amb) = (0.0f64, 0.0, 0usize, 0usize);
         for k in 0..out.len() {
@@ -373,7 +427,7 @@ pub fn render(
             }
             n += 1;
         }
-        vs_cpu = Some(VsCpu {
+        VsCpu {
             max_abs: max,
             rms: (se / (3 * n.max(1)) as f64).sqrt(),
             pixels: n,
@@ -385,10 +439,20 @@ pub fn render(
                 Texture::Block => GPU_CPU_BOUND_BLOCK,
             },
             cpu_ms,
-        });
+        }
+    }
+
+    /// The GPU against the heightfield `meta` describes, ray-cast at every pixel's exact
+    /// directions; and that truth per pixel.
+    fn vs_ray_cast(
+        &self,
+        meta: &SynthMeta,
+        progress: &mut dyn FnMut(&str),
+    ) -> Result<(VsRayCast, Vec<[f64; 4]>)> {
+        let (btf, out) = (&self.btf, &self.out);
         if meta.synth.size != btf.size || meta.synth.period != btf.size[0] {
             return Err(Error::input(
-                cfg.btf.join(META),
+                self.cfg.btf.join(META),
                 format!(
                     "describes a {:?} sample of period {}, but the images are {:?}",
                     meta.synth.size, meta.synth.period, btf.size
@@ -397,7 +461,7 @@ pub fn render(
         }
         progress("ray-casting the heightfield at every pixel's exact directions");
         let t = Instant::now();
-        let (truth, theta) = crate::reference::btf::ray_cast(&meta.synth, &gb, &frame);
+        let (truth, theta) = crate::reference::btf::ray_cast(&meta.synth, &self.gb, &self.frame);
         let ray_cast_ms = t.elapsed().as_secs_f64() * 1e3;
         let covered = |k: &usize| truth[*k][3] > 0.0;
         let band = |f: &dyn Fn(usize) -> bool| {
@@ -408,117 +472,155 @@ pub fn render(
                     .map(|k| (out[k], truth[k])),
             )
         };
-        vs_ray_cast = Some(VsRayCast {
+        let vs = VsRayCast {
             within_75: band(&|k| theta[k] <= 75.0),
             grazing: band(&|k| theta[k] > 75.0),
             all: band(&|_| true),
             ray_cast_ms,
-        });
-        truth_px = Some(truth);
+        };
+        Ok((vs, truth))
     }
 
-    // Pictures: render.exr (linear; with --reference result | truth | error), render.png.
-    let png = cfg.out.join("render.png");
-    let exr = cfg.out.join("render.exr");
-    let to_picture = |px: &dyn Fn(usize) -> [f64; 3]| crate::render::Picture {
-        width: gb.width,
-        height: gb.height,
-        rgb: (0..out.len())
-            .flat_map(|k| px(k).map(|x| srgb_encode(x as f32)))
-            .collect(),
-    };
-    let result_pic = to_picture(&|k| out[k].map(|x| x as f64)[..3].try_into().unwrap_or([0.0; 3]));
-    let result_float = FloatImage {
-        width: gb.width,
-        height: gb.height,
-        pixels: out.clone(),
-    };
-    match &truth_px {
-        None => {
-            crate::render::write_png(&png, result_pic.width, result_pic.height, &result_pic.rgb)?;
-            write_exr(&exr, &result_float)?;
+    /// render.png and render.exr (linear): the result, or with a truth result | truth |
+    /// error. Returns their paths.
+    fn pictures(&self, truth: Option<&[[f64; 4]]>) -> Result<(PathBuf, PathBuf)> {
+        let (gb, out) = (&self.gb, &self.out);
+        let png = self.cfg.out.join("render.png");
+        let exr = self.cfg.out.join("render.exr");
+        let result_pic =
+            self.picture(&|k| out[k].map(|x| x as f64)[..3].try_into().unwrap_or([0.0; 3]));
+        let result_float = FloatImage {
+            width: gb.width,
+            height: gb.height,
+            pixels: out.clone(),
+        };
+        match truth {
+            None => {
+                crate::render::write_png(
+                    &png,
+                    result_pic.width,
+                    result_pic.height,
+                    &result_pic.rgb,
+                )?;
+                write_exr(&exr, &result_float)?;
+            }
+            Some(truth) => {
+                let truth_pic = self.picture(&|k| [truth[k][0], truth[k][1], truth[k][2]]);
+                let error = self.error(truth);
+                let pic = crate::render::side_by_side(
+                    &result_pic,
+                    &truth_pic,
+                    &error,
+                    self.cfg.error_scale,
+                )?;
+                crate::render::write_png(&png, pic.width, pic.height, &pic.rgb)?;
+                let truth_float = FloatImage {
+                    width: gb.width,
+                    height: gb.height,
+                    pixels: truth.iter().map(|t| t.map(|x| x as f32)).collect(),
+                };
+                let err_float = FloatImage {
+                    width: gb.width,
+                    height: gb.height,
+                    pixels: error
+                        .iter()
+                        .map(|&e| {
+                            let e = if e.is_finite() { e } else { 0.0 };
+                            [e, e, e, 1.0]
+                        })
+                        .collect(),
+                };
+                write_exr(
+                    &exr,
+                    &crate::render::side_by_side_linear(&result_float, &truth_float, &err_float)?,
+                )?;
+            }
         }
-        Some(truth) => {
-            let truth_pic = to_picture(&|k| [truth[k][0], truth[k][1], truth[k][2]]);
-            let error: Vec<f32> = (0..out.len())
-                .map(|k| {
-                    if truth[k][3] > 0.0 {
-                        (0..3)
-                            .map(|i| (out[k][i] as f64 - truth[k][i]).abs())
-                            .fold(0.0, f64::max) as f32
-                    } else {
-                        f32::NAN
-                    }
-                })
-                .collect();
-            let pic =
-                crate::render::side_by_side(&result_pic, &truth_pic, &error, cfg.error_scale)?;
-            crate::render::write_png(&png, pic.width, pic.height, &pic.rgb)?;
-            let truth_float = FloatImage {
-                width: gb.width,
-                height: gb.height,
-                pixels: truth.iter().map(|t| t.map(|x| x as f32)).collect(),
-            };
-            let err_float = FloatImage {
-                width: gb.width,
-                height: gb.height,
-                pixels: error
-                    .iter()
-                    .map(|&e| {
-                        let e = if e.is_finite() { e } else { 0.0 };
-                        [e, e, e, 1.0]
-                    })
-                    .collect(),
-            };
-            write_exr(
-                &exr,
-                &crate::render::side_by_side_linear(&result_float, &truth_float, &err_float)?,
-            )?;
+        Ok((png, exr))
+    }
+
+    /// An 8-bit sRGB picture of the linear RGB `px` gives per pixel.
+    fn picture(&self, px: &dyn Fn(usize) -> [f64; 3]) -> crate::render::Picture {
+        crate::render::Picture {
+            width: self.gb.width,
+            height: self.gb.height,
+            rgb: (0..self.out.len())
+                .flat_map(|k| px(k).map(|x| srgb_encode(x as f32)))
+                .collect(),
         }
     }
-    let texture_bytes = kernel.texture_bytes();
-    let report = RenderReport {
-        tool: "vkshade btf render",
-        machine: MachineInfo::of(ctx),
-        btf: cfg.btf.display().to_string(),
-        tile: btf.size,
-        object: match &cfg.mesh {
-            Some(p) => p.display().to_string(),
-            None => format!("{:?}", cfg.object).to_lowercase(),
-        },
-        size: [cfg.width, cfg.height],
-        covered_pixels: gb.covered(),
-        map_resolution: cfg.map_res,
-        lights: cfg
-            .lights
-            .iter()
-            .map(|l| {
-                let d = l.direction.normalize();
-                [d.x, d.y, d.z, l.rgb[0], l.rgb[1], l.rgb[2]]
+
+    /// The largest channel error against `truth` per pixel (NaN where the truth sees no
+    /// surface).
+    fn error(&self, truth: &[[f64; 4]]) -> Vec<f32> {
+        let out = &self.out;
+        (0..out.len())
+            .map(|k| {
+                if truth[k][3] > 0.0 {
+                    (0..3)
+                        .map(|i| (out[k][i] as f64 - truth[k][i]).abs())
+                        .fold(0.0, f64::max) as f32
+                } else {
+                    f32::NAN
+                }
             })
-            .collect(),
-        packing: kernel.packing(),
-        texture: kernel.texture(),
-        texture_bytes,
-        texture_mib: texture_bytes as f64 / (1u64 << 20) as f64,
-        map_bytes: kernel.map_bytes(),
-        fps: 1000.0 / gpu_ms.median,
-        gpu_ms,
-        load_ms,
-        kernel: KernelInfo::of(&kernel, 1),
-        vs_cpu,
-        vs_ray_cast,
-        png: png.display().to_string(),
-        exr: exr.display().to_string(),
-        notes: vec![
-            "Directions are interpolated through nearest-texel parabolic index/weight maps (Delaunay triangulation of the 81 UBO2003 directions); beyond 75 deg btflib's zero-weight virtual ring fades the BTF towards 0 at the horizon.".into(),
-            "The packed BTF is RGBA8 sRGB (decoded to linear by the sampler, bilinear inside a tile, repeat in uv); RGB8 is not a sampled format on most devices.".into(),
-            "vs_ray_cast: the heightfield ray-cast at each pixel's exact tangent-space directions, filtered over the tile texels like the GPU, clipped at 1 like the 8-bit images; its error includes the 8-bit storage. Bands by the larger polar angle of view and lights.".into(),
-        ],
-    };
-    crate::io::write_json(&report_path, &report)?;
-    Ok(report)
+            .collect()
+    }
+
+    /// The report of the render.
+    fn report(
+        &self,
+        vs_cpu: Option<VsCpu>,
+        vs_ray_cast: Option<VsRayCast>,
+        png: &Path,
+        exr: &Path,
+    ) -> RenderReport {
+        let (cfg, kernel) = (self.cfg, &self.kernel);
+        let texture_bytes = kernel.texture_bytes();
+        RenderReport {
+            tool: "vkshade btf render",
+            machine: MachineInfo::of(self.ctx),
+            btf: cfg.btf.display().to_string(),
+            tile: self.btf.size,
+            object: match &cfg.mesh {
+                Some(p) => p.display().to_string(),
+                None => format!("{:?}", cfg.object).to_lowercase(),
+            },
+            size: [cfg.width, cfg.height],
+            covered_pixels: self.gb.covered(),
+            map_resolution: cfg.map_res,
+            lights: cfg
+                .lights
+                .iter()
+                .map(|l| {
+                    let d = l.direction.normalize();
+                    [d.x, d.y, d.z, l.rgb[0], l.rgb[1], l.rgb[2]]
+                })
+                .collect(),
+            packing: kernel.packing(),
+            texture: kernel.texture(),
+            texture_bytes,
+            texture_mib: texture_bytes as f64 / (1u64 << 20) as f64,
+            map_bytes: kernel.map_bytes(),
+            fps: 1000.0 / self.gpu_ms.median,
+            gpu_ms: self.gpu_ms.clone(),
+            load_ms: self.load_ms,
+            kernel: KernelInfo::of(kernel, 1),
+            vs_cpu,
+            vs_ray_cast,
+            png: png.display().to_string(),
+            exr: exr.display().to_string(),
+            notes: RENDER_NOTES.iter().map(|n| n.to_string()).collect(),
+        }
+    }
 }
+
+/// The notes of every `btf render` report.
+const RENDER_NOTES: [&str; 3] = [
+    "Directions are interpolated through nearest-texel parabolic index/weight maps (Delaunay triangulation of the 81 UBO2003 directions); beyond 75 deg btflib's zero-weight virtual ring fades the BTF towards 0 at the horizon.",
+    "The packed BTF is RGBA8 sRGB (decoded to linear by the sampler, bilinear inside a tile, repeat in uv); RGB8 is not a sampled format on most devices.",
+    "vs_ray_cast: the heightfield ray-cast at each pixel's exact tangent-space directions, filtered over the tile texels like the GPU, clipped at 1 like the 8-bit images; its error includes the 8-bit storage. Bands by the larger polar angle of view and lights.",
+];
 
 /// What `btf tile` reports.
 #[derive(Clone, Debug, Serialize)]

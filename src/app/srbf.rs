@@ -11,11 +11,11 @@ use crate::kernels::srbf::diffuse_transfer;
 use crate::kernels::srbf::fit::{FitConfig, fit};
 use crate::kernels::srbf::gpu::{
     CompactInputs, PASS_LIGHTING, PASS_PROJECT, PASS_SHADE, PASS_SHARP, SrbfFrame, SrbfInputs,
-    SrbfKernel,
+    SrbfKernel, SrbfOutput,
 };
 use crate::kernels::srbf::sg::{self, Lobe};
 use crate::kernels::srbf::transfer::{self, Basis, Transfer};
-use crate::kernels::{KernelInfo, run_frames};
+use crate::kernels::{FrameResult, KernelInfo, run_frames};
 use crate::reference::srbf::{
     Visibility, mesh_visibility, rasterise_lobes, shade_brute_force_radiance, shade_ground_truth,
 };
@@ -417,110 +417,188 @@ pub fn shade(
         env.width,
         env.height
     ));
-    let t = Instant::now();
-    let fit_env = env.downsampled(cfg.fit_width.min(env.width))?;
-    let fit_cfg = FitConfig {
-        lobes: cfg.lobes,
-        ..FitConfig::default()
-    };
-    let fitted = fit(&fit_env.samples(), &fit_cfg)?;
-    let fit_ms = t.elapsed().as_secs_f64() * 1e3;
-    progress(&format!(
-        "fit {} lobes to {}x{}: relative L2 {:.4} ({fit_ms:.0} ms)",
-        cfg.lobes, fit_env.width, fit_env.height, fitted.rel_l2
-    ));
-    let dir_env = env.downsampled(cfg.direction_width.min(env.width))?;
-    let vis = mesh_visibility(mesh, &dir_env);
-    let (transfer, cached, transfer_ms) = transfer_for(cfg, mesh, &dir_env, &vis)?;
-    progress(&format!(
-        "transfer: {} basis SGs (sharpness {:.1}), projection relative L2 {:.4}{}",
-        transfer.basis.axes.len(),
-        transfer.basis.sharpness,
-        transfer.projection_rel_l2,
-        if cached {
-            " (cached)".to_string()
-        } else {
-            format!(" ({transfer_ms:.0} ms)")
-        }
-    ));
-    let (cpca, cpca_cached, cpca_ms) = cpca_for(cfg, &transfer, cached)?;
-    if cfg.components > 0 {
-        progress(&format!(
-            "clustered PCA: {} clusters x {} components, relative L2 {:.4}{}",
-            cpca.clusters,
-            cpca.components,
-            cpca.rel_l2,
-            if cpca_cached {
-                " (cached)".to_string()
-            } else {
-                format!(" ({cpca_ms:.0} ms)")
-            }
-        ));
-    }
-    let mut setup = ctx.recorder("srbf setup")?;
-    let compact = CompactInputs {
-        visibility: &vis,
-        normals: &mesh.normals,
-        width: dir_env.width,
-        height: dir_env.height,
-        factor: cfg.sharp_factor,
-        max_lobes: cfg.compact_lobes,
-    };
-    let inputs = SrbfInputs::new(&fitted.lobes, &cpca).with_compact(compact);
-    let (smooth, _) = inputs.split();
-    let kernel = SrbfKernel::new(&mut setup, &inputs)?;
-    if kernel.compact_count() > 0 {
-        progress(&format!(
-            "{} compact lobes (sharpness > {} x {:.1}, >= {}% of the energy) shaded from the \
-             visibility",
-            kernel.compact_count(),
-            cfg.sharp_factor,
-            transfer.basis.sharpness,
-            crate::kernels::srbf::sharp::MIN_SHARE * 100.0
-        ));
-    }
-    setup.submit_and_wait()?;
-    let rotations = cfg.rotations();
-    let frames_in: Vec<SrbfFrame> = rotations
+    let pre = Precomputed::new(cfg, mesh, &env, progress)?;
+    let session = Session::new(ctx, cfg, mesh, &pre, progress)?;
+    let frames_in: Vec<SrbfFrame> = cfg
+        .rotations()
         .iter()
         .map(|&rotation| SrbfFrame {
             rotation,
             albedo: cfg.albedo,
         })
         .collect();
-    let pictures = Pictures::new(cfg, mesh);
     let mut frames = Vec::with_capacity(frames_in.len());
-    let in_flight = run_frames(ctx, &kernel, &frames_in, cfg.in_flight, |r| {
-        let frame = &frames_in[r.index];
-        let cpu = inputs.cpu_pipeline(frame)?;
+    let in_flight = run_frames(ctx, &session.kernel, &frames_in, cfg.in_flight, |r| {
+        let report = session.frame(&frames_in[r.index], r)?;
+        progress(&frame_line(&report));
+        frames.push(report);
+        Ok(())
+    })?;
+    let report = session.report(&env, frames, in_flight);
+    crate::io::write_json(&cfg.out.join("report.json"), &report)?;
+    Ok(report)
+}
+
+/// What a run's lighting and transfer are made of, computed (or read from the cache) once
+/// before any frame.
+struct Precomputed {
+    /// The lobes fitted to the environment.
+    fitted: crate::kernels::srbf::fit::Fit,
+    fit_ms: f64,
+    /// The environment at the direction width: its texel directions carry the transfer, the
+    /// compact lobes' visibility and the ground truth.
+    dir_env: EnvMap,
+    vis: Visibility,
+    transfer: Transfer,
+    transfer_cached: bool,
+    transfer_ms: f64,
+    cpca: Cpca,
+    cpca_cached: bool,
+    cpca_ms: f64,
+}
+
+impl Precomputed {
+    /// Fits the lobes, casts the visibility, projects and compresses the transfer.
+    fn new(
+        cfg: &ShadeConfig,
+        mesh: &Mesh,
+        env: &EnvMap,
+        progress: &mut dyn FnMut(&str),
+    ) -> Result<Precomputed> {
+        let t = Instant::now();
+        let fit_env = env.downsampled(cfg.fit_width.min(env.width))?;
+        let fit_cfg = FitConfig {
+            lobes: cfg.lobes,
+            ..FitConfig::default()
+        };
+        let fitted = fit(&fit_env.samples(), &fit_cfg)?;
+        let fit_ms = t.elapsed().as_secs_f64() * 1e3;
+        progress(&format!(
+            "fit {} lobes to {}x{}: relative L2 {:.4} ({fit_ms:.0} ms)",
+            cfg.lobes, fit_env.width, fit_env.height, fitted.rel_l2
+        ));
+        let dir_env = env.downsampled(cfg.direction_width.min(env.width))?;
+        let vis = mesh_visibility(mesh, &dir_env);
+        let (transfer, cached, transfer_ms) = transfer_for(cfg, mesh, &dir_env, &vis)?;
+        progress(&format!(
+            "transfer: {} basis SGs (sharpness {:.1}), projection relative L2 {:.4}{}",
+            transfer.basis.axes.len(),
+            transfer.basis.sharpness,
+            transfer.projection_rel_l2,
+            cost(cached, transfer_ms)
+        ));
+        let (cpca, cpca_cached, cpca_ms) = cpca_for(cfg, &transfer, cached)?;
+        if cfg.components > 0 {
+            progress(&format!(
+                "clustered PCA: {} clusters x {} components, relative L2 {:.4}{}",
+                cpca.clusters,
+                cpca.components,
+                cpca.rel_l2,
+                cost(cpca_cached, cpca_ms)
+            ));
+        }
+        Ok(Precomputed {
+            fitted,
+            fit_ms,
+            dir_env,
+            vis,
+            transfer,
+            transfer_cached: cached,
+            transfer_ms,
+            cpca,
+            cpca_cached,
+            cpca_ms,
+        })
+    }
+}
+
+/// " (cached)" or " (N ms)": where a precomputed result came from.
+fn cost(cached: bool, ms: f64) -> String {
+    if cached {
+        " (cached)".to_string()
+    } else {
+        format!(" ({ms:.0} ms)")
+    }
+}
+
+/// The kernel over a run's precomputed inputs, and what each frame needs besides.
+struct Session<'a> {
+    ctx: &'a Context,
+    cfg: &'a ShadeConfig,
+    mesh: &'a Mesh,
+    pre: &'a Precomputed,
+    inputs: SrbfInputs<'a>,
+    /// The lobes shaded through the basis (the others are compact).
+    smooth: Vec<Lobe>,
+    kernel: SrbfKernel,
+    pictures: Pictures,
+}
+
+impl<'a> Session<'a> {
+    /// Uploads the kernel's inputs (one submission).
+    fn new(
+        ctx: &'a Context,
+        cfg: &'a ShadeConfig,
+        mesh: &'a Mesh,
+        pre: &'a Precomputed,
+        progress: &mut dyn FnMut(&str),
+    ) -> Result<Session<'a>> {
+        let mut setup = ctx.recorder("srbf setup")?;
+        let compact = CompactInputs {
+            visibility: &pre.vis,
+            normals: &mesh.normals,
+            width: pre.dir_env.width,
+            height: pre.dir_env.height,
+            factor: cfg.sharp_factor,
+            max_lobes: cfg.compact_lobes,
+        };
+        let inputs = SrbfInputs::new(&pre.fitted.lobes, &pre.cpca).with_compact(compact);
+        let (smooth, _) = inputs.split();
+        let kernel = SrbfKernel::new(&mut setup, &inputs)?;
+        if kernel.compact_count() > 0 {
+            progress(&format!(
+                "{} compact lobes (sharpness > {} x {:.1}, >= {}% of the energy) shaded from the \
+                 visibility",
+                kernel.compact_count(),
+                cfg.sharp_factor,
+                pre.transfer.basis.sharpness,
+                crate::kernels::srbf::sharp::MIN_SHARE * 100.0
+            ));
+        }
+        setup.submit_and_wait()?;
+        Ok(Session {
+            ctx,
+            cfg,
+            mesh,
+            pre,
+            inputs,
+            smooth,
+            kernel,
+            pictures: Pictures::new(cfg, mesh),
+        })
+    }
+
+    /// One frame the GPU completed: against the CPU pipeline and (with `--reference`) the
+    /// ground truth split by stage; PLY and picture written.
+    fn frame(&self, frame: &SrbfFrame, r: FrameResult<SrbfOutput>) -> Result<FrameReport> {
+        let cfg = self.cfg;
+        let cpu = self.inputs.cpu_pipeline(frame)?;
         let gpu: Vec<[f64; 3]> = r.output.iter().map(|c| c.map(|x| x as f64)).collect();
         let truth = if cfg.reference {
             Some(shade_ground_truth(
-                &dir_env,
+                &self.pre.dir_env,
                 frame.rotation,
-                mesh,
-                Some(&vis),
+                self.mesh,
+                Some(&self.pre.vis),
                 cfg.albedo,
             )?)
         } else {
             None
         };
-        let (mut uncompressed, mut fit_share, mut transfer_share) = (None, None, None);
-        if let Some(t) = &truth {
-            // The uncompressed transfer: the basis path in f32, plus the compact lobes.
-            let coeffs = transfer::lighting_coefficients(&smooth, frame.rotation, &transfer.basis);
-            let mut exact: Vec<[f64; 3]> = transfer::shade(&transfer, &coeffs, frame.albedo)?
-                .iter()
-                .map(|c| c.map(|x| x as f64))
-                .collect();
-            inputs.add_compact(frame, &mut exact)?;
-            let lobes = rasterise_lobes(&fitted.lobes, frame.rotation, &dir_env);
-            let sg_truth =
-                shade_brute_force_radiance(&dir_env, &lobes, &mesh.normals, &vis, cfg.albedo)?;
-            uncompressed = Some(RelL2::of(&exact, t));
-            fit_share = Some(RelL2::of(&sg_truth, t));
-            transfer_share = Some(RelL2::of(&exact, &sg_truth));
-        }
+        let stages = match &truth {
+            Some(t) => Some(self.stage_errors(frame, t)?),
+            None => None,
+        };
         let report = FrameReport {
             index: r.index,
             rotation: frame.rotation.to_cols_array(),
@@ -530,94 +608,147 @@ pub fn shade(
             gpu_ms_shade: r.timings.get(PASS_SHADE).unwrap_or(f64::NAN),
             gpu_vs_cpu: RelL2::of(&gpu, &cpu),
             vs_ground_truth: truth.as_ref().map(|t| RelL2::of(&gpu, t)),
-            uncompressed_vs_ground_truth: uncompressed,
-            fit_share,
-            transfer_share,
+            uncompressed_vs_ground_truth: stages.map(|s| s.uncompressed),
+            fit_share: stages.map(|s| s.fit),
+            transfer_share: stages.map(|s| s.transfer),
             ply: String::new(),
             png: String::new(),
         };
-        let report = pictures.write(report, &character.mesh, &gpu, truth.as_deref())?;
-        progress(&format!(
-            "frame {}: lighting {:.3} + project {:.3} + sharp {:.3} + shade {:.3} ms GPU; GPU vs \
-             CPU {:.1e}{}",
-            r.index,
-            report.gpu_ms_lighting,
-            report.gpu_ms_project,
-            report.gpu_ms_sharp,
-            report.gpu_ms_shade,
-            report.gpu_vs_cpu.all,
-            match (
-                report.vs_ground_truth,
-                report.fit_share,
-                report.transfer_share,
-                report.uncompressed_vs_ground_truth
-            ) {
-                (Some(e), Some(f), Some(t), Some(u)) => format!(
-                    ", vs ground truth {:.4} (rgb {:.4} {:.4} {:.4}; by stage: fit {:.4}, \
-                     transfer {:.4}, uncompressed {:.4})",
-                    e.all, e.rgb[0], e.rgb[1], e.rgb[2], f.all, t.all, u.all
-                ),
-                _ => String::new(),
-            }
-        ));
-        frames.push(report);
-        Ok(())
-    })?;
-    let median = |f: &dyn Fn(&FrameReport) -> f64| {
-        let mut v: Vec<f64> = frames.iter().map(f).collect();
-        v.sort_by(f64::total_cmp);
-        v[v.len() / 2]
-    };
-    let lighting = median(&|f| f.gpu_ms_lighting);
-    let project_ms = median(&|f| f.gpu_ms_project);
-    let sharp_ms = median(&|f| f.gpu_ms_sharp);
-    let shade_ms = median(&|f| f.gpu_ms_shade);
-    let mut notes = Vec::new();
-    if ctx.info().device_type == "CPU" {
-        notes.push("the device is a CPU implementation (lavapipe): times measure the CPU".into());
+        self.pictures
+            .write(report, self.mesh, &gpu, truth.as_deref())
     }
-    notes.push(format!(
-        "ground truth: {}x{} texel directions of the environment (solid-angle-weighted \
-         downsampling of the original), visibility ray-cast per direction; L(R^-1 w) is \
-         looked up in that map",
-        dir_env.width, dir_env.height
-    ));
-    let report = ShadeReport {
-        tool: "vkshade srbf shade",
-        machine: MachineInfo::of(ctx),
-        mesh: cfg.mesh.display().to_string(),
-        vertices: mesh.positions.len(),
-        env: cfg.env.display().to_string(),
-        env_size: [env.width, env.height],
-        lobes: cfg.lobes,
-        compact_lobes: kernel.compact_count(),
-        sharp_factor: cfg.sharp_factor,
-        basis: transfer.basis.axes.len(),
-        basis_sharpness: transfer.basis.sharpness,
-        albedo: cfg.albedo,
-        fit_rel_l2: fitted.rel_l2,
-        fit_ms,
-        transfer_rel_l2: transfer.projection_rel_l2,
-        transfer_ms,
-        transfer_cached: cached,
-        clusters: if cfg.components > 0 { cpca.clusters } else { 0 },
-        components: cfg.components,
-        cpca_rel_l2: cpca.rel_l2,
-        cpca_ms,
-        cpca_cached,
-        transfer_bytes_per_vertex: cpca.bytes_per_vertex(),
-        directions: vis.directions.len(),
-        kernel: KernelInfo::of(&kernel, in_flight),
-        gpu_ms_lighting_median: lighting,
-        gpu_ms_project_median: project_ms,
-        gpu_ms_sharp_median: sharp_ms,
-        gpu_ms_shade_median: shade_ms,
-        fps: 1000.0 / (lighting + project_ms + sharp_ms + shade_ms),
-        frames,
-        notes,
-    };
-    crate::io::write_json(&cfg.out.join("report.json"), &report)?;
-    Ok(report)
+
+    /// The error against the ground truth `truth` split by stage: the fit (the brute-force
+    /// sum over the fitted lobes), the transfer projection and the compression.
+    fn stage_errors(&self, frame: &SrbfFrame, truth: &[[f64; 3]]) -> Result<StageErrors> {
+        let (pre, cfg) = (self.pre, self.cfg);
+        // The uncompressed transfer: the basis path in f32, plus the compact lobes.
+        let coeffs =
+            transfer::lighting_coefficients(&self.smooth, frame.rotation, &pre.transfer.basis);
+        let mut exact: Vec<[f64; 3]> = transfer::shade(&pre.transfer, &coeffs, frame.albedo)?
+            .iter()
+            .map(|c| c.map(|x| x as f64))
+            .collect();
+        self.inputs.add_compact(frame, &mut exact)?;
+        let lobes = rasterise_lobes(&pre.fitted.lobes, frame.rotation, &pre.dir_env);
+        let sg_truth = shade_brute_force_radiance(
+            &pre.dir_env,
+            &lobes,
+            &self.mesh.normals,
+            &pre.vis,
+            cfg.albedo,
+        )?;
+        Ok(StageErrors {
+            uncompressed: RelL2::of(&exact, truth),
+            fit: RelL2::of(&sg_truth, truth),
+            transfer: RelL2::of(&exact, &sg_truth),
+        })
+    }
+
+    /// The report of the run: inputs, precomputation, per-frame results and their medians.
+    fn report(&self, env: &EnvMap, frames: Vec<FrameReport>, in_flight: usize) -> ShadeReport {
+        let (cfg, pre) = (self.cfg, self.pre);
+        let median = |f: &dyn Fn(&FrameReport) -> f64| {
+            let mut v: Vec<f64> = frames.iter().map(f).collect();
+            v.sort_by(f64::total_cmp);
+            v[v.len() / 2]
+        };
+        let lighting = median(&|f| f.gpu_ms_lighting);
+        let project_ms = median(&|f| f.gpu_ms_project);
+        let sharp_ms = median(&|f| f.gpu_ms_sharp);
+        let shade_ms = median(&|f| f.gpu_ms_shade);
+        ShadeReport {
+            tool: "vkshade srbf shade",
+            machine: MachineInfo::of(self.ctx),
+            mesh: cfg.mesh.display().to_string(),
+            vertices: self.mesh.positions.len(),
+            env: cfg.env.display().to_string(),
+            env_size: [env.width, env.height],
+            lobes: cfg.lobes,
+            compact_lobes: self.kernel.compact_count(),
+            sharp_factor: cfg.sharp_factor,
+            basis: pre.transfer.basis.axes.len(),
+            basis_sharpness: pre.transfer.basis.sharpness,
+            albedo: cfg.albedo,
+            fit_rel_l2: pre.fitted.rel_l2,
+            fit_ms: pre.fit_ms,
+            transfer_rel_l2: pre.transfer.projection_rel_l2,
+            transfer_ms: pre.transfer_ms,
+            transfer_cached: pre.transfer_cached,
+            clusters: if cfg.components > 0 {
+                pre.cpca.clusters
+            } else {
+                0
+            },
+            components: cfg.components,
+            cpca_rel_l2: pre.cpca.rel_l2,
+            cpca_ms: pre.cpca_ms,
+            cpca_cached: pre.cpca_cached,
+            transfer_bytes_per_vertex: pre.cpca.bytes_per_vertex(),
+            directions: pre.vis.directions.len(),
+            kernel: KernelInfo::of(&self.kernel, in_flight),
+            gpu_ms_lighting_median: lighting,
+            gpu_ms_project_median: project_ms,
+            gpu_ms_sharp_median: sharp_ms,
+            gpu_ms_shade_median: shade_ms,
+            fps: 1000.0 / (lighting + project_ms + sharp_ms + shade_ms),
+            frames,
+            notes: self.notes(),
+        }
+    }
+
+    fn notes(&self) -> Vec<String> {
+        let dir_env = &self.pre.dir_env;
+        let mut notes = Vec::new();
+        if self.ctx.info().device_type == "CPU" {
+            notes.push(
+                "the device is a CPU implementation (lavapipe): times measure the CPU".into(),
+            );
+        }
+        notes.push(format!(
+            "ground truth: {}x{} texel directions of the environment (solid-angle-weighted \
+             downsampling of the original), visibility ray-cast per direction; L(R^-1 w) is \
+             looked up in that map",
+            dir_env.width, dir_env.height
+        ));
+        notes
+    }
+}
+
+/// A frame's error against the ground truth by stage (see [`FrameReport`]).
+#[derive(Clone, Copy)]
+struct StageErrors {
+    uncompressed: RelL2,
+    fit: RelL2,
+    transfer: RelL2,
+}
+
+/// The progress line of a frame: GPU times, GPU against CPU, and the errors against the
+/// ground truth where there is one.
+fn frame_line(report: &FrameReport) -> String {
+    format!(
+        "frame {}: lighting {:.3} + project {:.3} + sharp {:.3} + shade {:.3} ms GPU; GPU vs \
+         CPU {:.1e}{}",
+        report.index,
+        report.gpu_ms_lighting,
+        report.gpu_ms_project,
+        report.gpu_ms_sharp,
+        report.gpu_ms_shade,
+        report.gpu_vs_cpu.all,
+        match (
+            report.vs_ground_truth,
+            report.fit_share,
+            report.transfer_share,
+            report.uncompressed_vs_ground_truth
+        ) {
+            (Some(e), Some(f), Some(t), Some(u)) => format!(
+                ", vs ground truth {:.4} (rgb {:.4} {:.4} {:.4}; by stage: fit {:.4}, \
+                 transfer {:.4}, uncompressed {:.4})",
+                e.all, e.rgb[0], e.rgb[1], e.rgb[2], f.all, t.all, u.all
+            ),
+            _ => String::new(),
+        }
+    )
 }
 
 /// Writes each frame's PLY and PNG (result, or result | truth | relative error).
