@@ -141,3 +141,56 @@ impl<E: ValueEnum + Send + Sync + 'static> TypedValueParser for Choice<E> {
         ))
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::choice;
+    use crate::kernels::ao::Blend;
+    use crate::kernels::sss::ProfileKind;
+
+    fn command() -> clap::Command {
+        clap::Command::new("t")
+            .arg(
+                clap::Arg::new("blend")
+                    .long("blend")
+                    .value_parser(choice::<Blend>("blend")),
+            )
+            .arg(
+                clap::Arg::new("profile")
+                    .long("profile")
+                    .ignore_case(true)
+                    .value_parser(choice::<ProfileKind>("profile")),
+            )
+    }
+
+    #[test]
+    fn a_choice_parses_its_values_and_names_what_it_refuses() {
+        let m = command()
+            .try_get_matches_from(["t", "--blend", "sum", "--profile", "BURLEY"])
+            .unwrap();
+        assert_eq!(m.get_one::<Blend>("blend"), Some(&Blend::Sum));
+        assert_eq!(
+            m.get_one::<ProfileKind>("profile"),
+            Some(&ProfileKind::Burley)
+        );
+        let e = command()
+            .try_get_matches_from(["t", "--blend", "max"])
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("unknown blend 'max' (product, sum or mask)"),
+            "{e}"
+        );
+        // Case matters unless the option says otherwise.
+        assert!(
+            command()
+                .try_get_matches_from(["t", "--blend", "SUM"])
+                .is_err()
+        );
+        let help = command().render_help().to_string();
+        assert!(
+            help.contains("[possible values: product, sum, mask]"),
+            "{help}"
+        );
+    }
+}
