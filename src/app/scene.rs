@@ -53,6 +53,7 @@ pub enum TreeCommand {
 }
 
 impl TreeCommand {
+    /// Runs `vkshade spheretree build`.
     pub fn run(&self) -> Result<()> {
         match self {
             TreeCommand::Build {
@@ -115,6 +116,7 @@ pub enum MeshCommand {
 }
 
 impl MeshCommand {
+    /// Runs `vkshade mesh info`.
     pub fn run(&self) -> Result<()> {
         match self {
             MeshCommand::Info { mesh } => mesh_info(mesh),
