@@ -1,14 +1,15 @@
 //! `vkshade ao`: sphere-tree ambient occlusion over the frames of an animation, with PLY, PNG
 //! and EXR output per frame, a JSON report and (optionally) the ray-traced ground truth.
 
+use super::Gpu;
 use crate::error::{Error, Result};
 use crate::geom::visibility::{RayConfig, ambient_visibility};
 use crate::gpu::{Context, Timings};
 use crate::kernels::ao::cpu::{self, CpuAo, Posed};
 use crate::kernels::ao::formula::{OcclusionTable, TABLE_SIZE};
 use crate::kernels::ao::{
-    AoKernel, AoParams, Correction, DEFAULT_MESH, FrameData, Occlusion, PASS_OCCLUSION, PASS_SKIN,
-    Prepared,
+    AoKernel, AoParams, Blend, Correction, DEFAULT_ANIMATION, DEFAULT_MESH, FrameData, Occlusion,
+    PASS_OCCLUSION, PASS_SKIN, Prepared, Refine,
 };
 use crate::kernels::{KernelInfo, run_frames};
 use crate::progress::Progress;
@@ -808,4 +809,154 @@ fn summarize(frames: &[FrameReport]) -> Summary {
 /// Path of frame `index`'s picture in `dir`.
 pub fn frame_png(dir: &Path, index: usize) -> PathBuf {
     dir.join(format!("ao_{index:04}.png"))
+}
+
+/// The arguments of `vkshade ao` (and, at their defaults plus `--reference`, `vkshade demo`).
+#[derive(clap::Args, Clone, Debug)]
+pub struct Args {
+    /// Character (.glb/.gltf with skin and animations) or static mesh (.obj .ply .off).
+    #[arg(long, default_value = DEFAULT_MESH)]
+    pub mesh: PathBuf,
+    /// Animation to play (default: Run for the built-in character, else the first that moves).
+    #[arg(long)]
+    pub anim: Option<String>,
+    /// Frames, evenly spaced over the animation.
+    #[arg(long, default_value_t = 8)]
+    pub frames: usize,
+    /// Use this .sph sphere tree (Dublin toolkit format) instead of building one.
+    #[arg(long)]
+    pub tree: Option<PathBuf>,
+    /// Refine a tree node when size / distance > tau (0 < tau <= 1; smaller = finer cut).
+    #[arg(long, default_value_t = 0.8)]
+    pub tau: f32,
+    /// A node's size for refinement: `extent` (reach of its skinned leaves) or `radius`.
+    #[arg(long, default_value = "extent", value_parser = super::choice::<Refine>("refinement"))]
+    pub refine: Refine,
+    /// Per-sphere occlusion: `table` (2D lookup) or `exact` (closed form).
+    #[arg(long, default_value = "table", value_parser = super::choice::<Occlusion>("occlusion"))]
+    pub occlusion: Occlusion,
+    /// Overlap handling: `mask` (cone-mask union), `product`, or `sum`.
+    #[arg(long, default_value = "mask", value_parser = super::choice::<Blend>("blend"))]
+    pub blend: Blend,
+    /// The published method alone: no static correction baked in the bind pose.
+    #[arg(long)]
+    pub no_correction: bool,
+    /// A receiver inside a leaf sphere clamps h to 1 instead of leaving that sphere out.
+    #[arg(long)]
+    pub clamp_inside: bool,
+    /// Compare every frame with the ray-traced mesh (MAE, RMSE, p95, max; error decomposition);
+    /// pictures become result | truth | error side by side.
+    #[arg(long)]
+    pub reference: bool,
+    /// Error at the top of the heat map in the --reference pictures (larger errors saturate).
+    #[arg(long, default_value_t = 0.2)]
+    pub error_scale: f32,
+    /// Frames submitted before the oldest is waited for (frames in flight).
+    #[arg(long, default_value_t = 2)]
+    pub in_flight: usize,
+    /// Rays per vertex of the ground truth.
+    #[arg(long, default_value_t = 4096)]
+    pub rays: usize,
+    /// Rays per vertex of the bind-pose bake of the static correction.
+    #[arg(long, default_value_t = 4096)]
+    pub correction_rays: usize,
+    #[command(flatten)]
+    pub tree_opts: super::scene::TreeOpts,
+    /// Output directory.
+    #[arg(long, default_value = "out/ao")]
+    pub out: PathBuf,
+}
+
+impl Args {
+    /// The run these arguments describe; refuses a missing built-in character up front.
+    pub fn config(&self) -> Result<AoRunConfig> {
+        let default_mesh = self.mesh == Path::new(DEFAULT_MESH);
+        if default_mesh && !self.mesh.exists() {
+            return Err(Error::input(
+                &self.mesh,
+                "the built-in character is missing: run tools/setup.sh (it converts assimp's Testwuson.X)",
+            ));
+        }
+        Ok(AoRunConfig {
+            mesh: self.mesh.clone(),
+            animation: self
+                .anim
+                .clone()
+                .or_else(|| default_mesh.then(|| DEFAULT_ANIMATION.to_string())),
+            frames: self.frames,
+            tree: self.tree.clone(),
+            build: self.tree_opts.config(),
+            params: AoParams {
+                tau: self.tau,
+                refine: self.refine,
+                occlusion: self.occlusion,
+                blend: self.blend,
+                clamp_inside: self.clamp_inside,
+                correct: !self.no_correction,
+            },
+            reference: self.reference,
+            rays: self.rays,
+            correction_rays: self.correction_rays,
+            error_scale: self.error_scale,
+            in_flight: self.in_flight,
+            out: self.out.clone(),
+            ..Default::default()
+        })
+    }
+
+    /// `vkshade ao`: runs the frames and prints the summary.
+    pub fn run(&self, gpu: &Gpu) -> Result<()> {
+        self.command(gpu, false)
+    }
+
+    /// The run, its summary, and with `demo` where the first picture is.
+    fn command(&self, gpu: &Gpu, demo: bool) -> Result<()> {
+        let cfg = self.config()?;
+        let ctx = gpu.context()?;
+        eprintln!("vkshade ao on {}", ctx.info().name);
+        let report = run(&ctx, &cfg, &mut |l| super::progress(l))?;
+        display(&report, &cfg);
+        if demo {
+            println!("pictures: {}", frame_png(&cfg.out, 0).display());
+        }
+        super::finish(ctx)
+    }
+}
+
+/// `vkshade demo`: `ao --reference` with every other option at its default.
+pub fn demo(gpu: &Gpu) -> Result<()> {
+    use clap::{Args as _, FromArgMatches};
+    let matches =
+        Args::augment_args(clap::Command::new("ao")).get_matches_from(["ao", "--reference"]);
+    let args =
+        Args::from_arg_matches(&matches).map_err(|e| Error::InvalidArgument(e.to_string()))?;
+    args.command(gpu, true)
+}
+
+/// The summary `vkshade ao` prints: timings, errors against the truth (with `--reference`)
+/// and what was written.
+pub fn display(report: &AoReport, cfg: &AoRunConfig) {
+    let s = &report.summary;
+    println!(
+        "{} frames of {}: skin {:.3} ms + ao {:.3} ms GPU (median) = {:.0} fps; {:.1} spheres/vertex",
+        s.frames,
+        report.mesh.path,
+        s.skin_ms_median,
+        s.ao_ms_median,
+        s.fps,
+        s.spheres_used_per_vertex_mean
+    );
+    if let (Some(mae), Some(p95), Some(max)) = (s.mae_mean, s.p95_mean, s.max_max) {
+        println!(
+            "vs ray-traced mesh: MAE {mae:.4}, p95 {p95:.3}, max {max:.3} (mean over frames); \
+             without the static correction MAE {:.4}; bind-pose AO held static MAE {:.4}",
+            s.mae_uncorrected_mean.unwrap_or(f64::NAN),
+            s.mae_static_bind_pose_mean.unwrap_or(f64::NAN)
+        );
+    }
+    println!(
+        "wrote {} frames (ao_NNNN.ply, ao_NNNN.png, ao_NNNN.exr) and report.json to {}",
+        report.frames.len(),
+        cfg.out.display()
+    );
 }

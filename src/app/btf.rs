@@ -2,6 +2,7 @@
 //! the GPU path, and cloth-covered objects with (optionally) the CPU interpolation and the
 //! direct ray-cast as references.
 
+use super::Gpu;
 use crate::bench::time_passes;
 use crate::error::{Error, Result};
 use crate::gpu::Context;
@@ -304,57 +305,111 @@ pub fn render(
     } else {
         None
     };
-    let t = Instant::now();
-    let btf = load::load_dir(&cfg.btf)?;
-    let load_ms = t.elapsed().as_secs_f64() * 1e3;
-    progress(&format!(
-        "loaded {} ({} x {} texels x 6561 images) in {load_ms:.0} ms",
-        cfg.btf.display(),
-        btf.size[0],
-        btf.size[1]
-    ));
-    let maps = Maps::build(&Triangulation::new()?, cfg.map_res)?;
-    let gb = match &cfg.mesh {
-        Some(path) => {
-            let character = crate::scene::load(path)?;
-            gbuffer::render_mesh(&character.mesh, cfg.width, cfg.height)
-                .map_err(|e| Error::input(path, e.to_string()))?
+    let session = Session::new(ctx, cfg, progress)?;
+    let (vs_cpu, vs_ray_cast, truth) = match &meta {
+        Some(meta) => {
+            let vs_cpu = session.vs_cpu();
+            let (vs_ray_cast, truth) = session.vs_ray_cast(meta, progress)?;
+            (Some(vs_cpu), Some(vs_ray_cast), Some(truth))
         }
-        None => gbuffer::render_object(cfg.object, cfg.width, cfg.height)?,
+        None => (None, None, None),
     };
-    let frame = Frame {
-        camera: Camera::Perspective(Vec3::from(gbuffer::EYE)),
-        lights: cfg.lights.clone(),
-    };
-    frame.check()?;
-    let mut rec = ctx.recorder("btf render")?;
-    let kernel = BtfKernel::new(
-        &mut rec,
-        &BtfInputs {
-            layout: cfg.layout,
-            ..BtfInputs::new(&btf, &maps, &gb, cfg.texture)
-        },
-    )?;
-    kernel.record(&mut rec, &frame)?;
-    let rb = kernel.read_back(&mut rec)?;
-    rec.submit_and_wait()?;
-    let out = kernel.collect(&rb)?;
-    let timed = time_passes(ctx, &cfg.bench, &kernel, &frame)?;
-    let gpu_ms = timed[0].1.clone();
-    progress(&format!(
-        "btf shade {} x {}: {:.3} ms (median GPU)",
-        cfg.width, cfg.height, gpu_ms.median
-    ));
+    let (png, exr) = session.pictures(truth.as_deref())?;
+    let report = session.report(vs_cpu, vs_ray_cast, &png, &exr);
+    crate::io::write_json(&report_path, &report)?;
+    Ok(report)
+}
 
-    let mut vs_cpu = None;
-    let mut vs_ray_cast = None;
-    let mut truth_px = None;
-    if let Some(meta) = &meta {
-        // The data the GPU samples (for BC1: encoded and decoded again, see io::bc1; for
-        // block: the blocks, decoded per tap as the shader does).
-        let sampled = Sampled::of(&btf, cfg.texture);
+/// A render: the loaded BTF, the maps, the G-buffer, the kernel and its output.
+struct Session<'a> {
+    ctx: &'a Context,
+    cfg: &'a RenderConfig,
+    btf: synth::Btf,
+    load_ms: f64,
+    maps: Maps,
+    gb: GBuffer,
+    frame: Frame,
+    kernel: BtfKernel,
+    /// Linear RGBA per pixel, as the GPU shaded it.
+    out: Vec<[f32; 4]>,
+    gpu_ms: crate::report::Stats,
+}
+
+impl<'a> Session<'a> {
+    /// Loads the BTF, builds the maps and the G-buffer, shades once, and times the pass.
+    fn new(
+        ctx: &'a Context,
+        cfg: &'a RenderConfig,
+        progress: &mut dyn FnMut(&str),
+    ) -> Result<Session<'a>> {
         let t = Instant::now();
-        let (want, ambiguous) = cpu::shade(&sampled.packed(btf.size), &maps, &gb, &frame);
+        let btf = load::load_dir(&cfg.btf)?;
+        let load_ms = t.elapsed().as_secs_f64() * 1e3;
+        progress(&format!(
+            "loaded {} ({} x {} texels x 6561 images) in {load_ms:.0} ms",
+            cfg.btf.display(),
+            btf.size[0],
+            btf.size[1]
+        ));
+        let maps = Maps::build(&Triangulation::new()?, cfg.map_res)?;
+        let gb = match &cfg.mesh {
+            Some(path) => {
+                let character = crate::scene::load(path)?;
+                gbuffer::render_mesh(&character.mesh, cfg.width, cfg.height)
+                    .map_err(|e| Error::input(path, e.to_string()))?
+            }
+            None => gbuffer::render_object(cfg.object, cfg.width, cfg.height)?,
+        };
+        let frame = Frame {
+            camera: Camera::Perspective(Vec3::from(gbuffer::EYE)),
+            lights: cfg.lights.clone(),
+        };
+        frame.check()?;
+        let mut rec = ctx.recorder("btf render")?;
+        let kernel = BtfKernel::new(
+            &mut rec,
+            &BtfInputs {
+                layout: cfg.layout,
+                ..BtfInputs::new(&btf, &maps, &gb, cfg.texture)
+            },
+        )?;
+        kernel.record(&mut rec, &frame)?;
+        let rb = kernel.read_back(&mut rec)?;
+        rec.submit_and_wait()?;
+        let out = kernel.collect(&rb)?;
+        let timed = time_passes(ctx, &cfg.bench, &kernel, &frame)?;
+        let gpu_ms = timed[0].1.clone();
+        progress(&format!(
+            "btf shade {} x {}: {:.3} ms (median GPU)",
+            cfg.width, cfg.height, gpu_ms.median
+        ));
+        Ok(Session {
+            ctx,
+            cfg,
+            btf,
+            load_ms,
+            maps,
+            gb,
+            frame,
+            kernel,
+            out,
+            gpu_ms,
+        })
+    }
+
+    /// The GPU against the CPU interpolation (f64) of the data the GPU samples (for BC1:
+    /// encoded and decoded again, see io::bc1; for block: the blocks, decoded per tap as the
+    /// shader does).
+    fn vs_cpu(&self) -> VsCpu {
+        let (cfg, out) = (self.cfg, &self.out);
+        let sampled = Sampled::of(&self.btf, cfg.texture);
+        let t = Instant::now();
+        let (want, ambiguous) = cpu::shade(
+            &sampled.packed(self.btf.size),
+            &self.maps,
+            &self.gb,
+            &self.frame,
+        );
         let cpu_ms = t.elapsed().as_secs_f64() * 1e3;
         let (mut max, mut se, mut n, mut amb) = (0.0f64, 0.0, 0usize, 0usize);
         for k in 0..out.len() {
@@ -372,7 +427,7 @@ pub fn render(
             }
             n += 1;
         }
-        vs_cpu = Some(VsCpu {
+        VsCpu {
             max_abs: max,
             rms: (se / (3 * n.max(1)) as f64).sqrt(),
             pixels: n,
@@ -384,10 +439,20 @@ pub fn render(
                 Texture::Block => GPU_CPU_BOUND_BLOCK,
             },
             cpu_ms,
-        });
+        }
+    }
+
+    /// The GPU against the heightfield `meta` describes, ray-cast at every pixel's exact
+    /// directions; and that truth per pixel.
+    fn vs_ray_cast(
+        &self,
+        meta: &SynthMeta,
+        progress: &mut dyn FnMut(&str),
+    ) -> Result<(VsRayCast, Vec<[f64; 4]>)> {
+        let (btf, out) = (&self.btf, &self.out);
         if meta.synth.size != btf.size || meta.synth.period != btf.size[0] {
             return Err(Error::input(
-                cfg.btf.join(META),
+                self.cfg.btf.join(META),
                 format!(
                     "describes a {:?} sample of period {}, but the images are {:?}",
                     meta.synth.size, meta.synth.period, btf.size
@@ -396,7 +461,7 @@ pub fn render(
         }
         progress("ray-casting the heightfield at every pixel's exact directions");
         let t = Instant::now();
-        let (truth, theta) = crate::reference::btf::ray_cast(&meta.synth, &gb, &frame);
+        let (truth, theta) = crate::reference::btf::ray_cast(&meta.synth, &self.gb, &self.frame);
         let ray_cast_ms = t.elapsed().as_secs_f64() * 1e3;
         let covered = |k: &usize| truth[*k][3] > 0.0;
         let band = |f: &dyn Fn(usize) -> bool| {
@@ -407,117 +472,155 @@ pub fn render(
                     .map(|k| (out[k], truth[k])),
             )
         };
-        vs_ray_cast = Some(VsRayCast {
+        let vs = VsRayCast {
             within_75: band(&|k| theta[k] <= 75.0),
             grazing: band(&|k| theta[k] > 75.0),
             all: band(&|_| true),
             ray_cast_ms,
-        });
-        truth_px = Some(truth);
+        };
+        Ok((vs, truth))
     }
 
-    // Pictures: render.exr (linear; with --reference result | truth | error), render.png.
-    let png = cfg.out.join("render.png");
-    let exr = cfg.out.join("render.exr");
-    let to_picture = |px: &dyn Fn(usize) -> [f64; 3]| crate::render::Picture {
-        width: gb.width,
-        height: gb.height,
-        rgb: (0..out.len())
-            .flat_map(|k| px(k).map(|x| srgb_encode(x as f32)))
-            .collect(),
-    };
-    let result_pic = to_picture(&|k| out[k].map(|x| x as f64)[..3].try_into().unwrap_or([0.0; 3]));
-    let result_float = FloatImage {
-        width: gb.width,
-        height: gb.height,
-        pixels: out.clone(),
-    };
-    match &truth_px {
-        None => {
-            crate::render::write_png(&png, result_pic.width, result_pic.height, &result_pic.rgb)?;
-            write_exr(&exr, &result_float)?;
+    /// render.png and render.exr (linear): the result, or with a truth result | truth |
+    /// error. Returns their paths.
+    fn pictures(&self, truth: Option<&[[f64; 4]]>) -> Result<(PathBuf, PathBuf)> {
+        let (gb, out) = (&self.gb, &self.out);
+        let png = self.cfg.out.join("render.png");
+        let exr = self.cfg.out.join("render.exr");
+        let result_pic =
+            self.picture(&|k| out[k].map(|x| x as f64)[..3].try_into().unwrap_or([0.0; 3]));
+        let result_float = FloatImage {
+            width: gb.width,
+            height: gb.height,
+            pixels: out.clone(),
+        };
+        match truth {
+            None => {
+                crate::render::write_png(
+                    &png,
+                    result_pic.width,
+                    result_pic.height,
+                    &result_pic.rgb,
+                )?;
+                write_exr(&exr, &result_float)?;
+            }
+            Some(truth) => {
+                let truth_pic = self.picture(&|k| [truth[k][0], truth[k][1], truth[k][2]]);
+                let error = self.error(truth);
+                let pic = crate::render::side_by_side(
+                    &result_pic,
+                    &truth_pic,
+                    &error,
+                    self.cfg.error_scale,
+                )?;
+                crate::render::write_png(&png, pic.width, pic.height, &pic.rgb)?;
+                let truth_float = FloatImage {
+                    width: gb.width,
+                    height: gb.height,
+                    pixels: truth.iter().map(|t| t.map(|x| x as f32)).collect(),
+                };
+                let err_float = FloatImage {
+                    width: gb.width,
+                    height: gb.height,
+                    pixels: error
+                        .iter()
+                        .map(|&e| {
+                            let e = if e.is_finite() { e } else { 0.0 };
+                            [e, e, e, 1.0]
+                        })
+                        .collect(),
+                };
+                write_exr(
+                    &exr,
+                    &crate::render::side_by_side_linear(&result_float, &truth_float, &err_float)?,
+                )?;
+            }
         }
-        Some(truth) => {
-            let truth_pic = to_picture(&|k| [truth[k][0], truth[k][1], truth[k][2]]);
-            let error: Vec<f32> = (0..out.len())
-                .map(|k| {
-                    if truth[k][3] > 0.0 {
-                        (0..3)
-                            .map(|i| (out[k][i] as f64 - truth[k][i]).abs())
-                            .fold(0.0, f64::max) as f32
-                    } else {
-                        f32::NAN
-                    }
-                })
-                .collect();
-            let pic =
-                crate::render::side_by_side(&result_pic, &truth_pic, &error, cfg.error_scale)?;
-            crate::render::write_png(&png, pic.width, pic.height, &pic.rgb)?;
-            let truth_float = FloatImage {
-                width: gb.width,
-                height: gb.height,
-                pixels: truth.iter().map(|t| t.map(|x| x as f32)).collect(),
-            };
-            let err_float = FloatImage {
-                width: gb.width,
-                height: gb.height,
-                pixels: error
-                    .iter()
-                    .map(|&e| {
-                        let e = if e.is_finite() { e } else { 0.0 };
-                        [e, e, e, 1.0]
-                    })
-                    .collect(),
-            };
-            write_exr(
-                &exr,
-                &crate::render::side_by_side_linear(&result_float, &truth_float, &err_float)?,
-            )?;
+        Ok((png, exr))
+    }
+
+    /// An 8-bit sRGB picture of the linear RGB `px` gives per pixel.
+    fn picture(&self, px: &dyn Fn(usize) -> [f64; 3]) -> crate::render::Picture {
+        crate::render::Picture {
+            width: self.gb.width,
+            height: self.gb.height,
+            rgb: (0..self.out.len())
+                .flat_map(|k| px(k).map(|x| srgb_encode(x as f32)))
+                .collect(),
         }
     }
-    let texture_bytes = kernel.texture_bytes();
-    let report = RenderReport {
-        tool: "vkshade btf render",
-        machine: MachineInfo::of(ctx),
-        btf: cfg.btf.display().to_string(),
-        tile: btf.size,
-        object: match &cfg.mesh {
-            Some(p) => p.display().to_string(),
-            None => format!("{:?}", cfg.object).to_lowercase(),
-        },
-        size: [cfg.width, cfg.height],
-        covered_pixels: gb.covered(),
-        map_resolution: cfg.map_res,
-        lights: cfg
-            .lights
-            .iter()
-            .map(|l| {
-                let d = l.direction.normalize();
-                [d.x, d.y, d.z, l.rgb[0], l.rgb[1], l.rgb[2]]
+
+    /// The largest channel error against `truth` per pixel (NaN where the truth sees no
+    /// surface).
+    fn error(&self, truth: &[[f64; 4]]) -> Vec<f32> {
+        let out = &self.out;
+        (0..out.len())
+            .map(|k| {
+                if truth[k][3] > 0.0 {
+                    (0..3)
+                        .map(|i| (out[k][i] as f64 - truth[k][i]).abs())
+                        .fold(0.0, f64::max) as f32
+                } else {
+                    f32::NAN
+                }
             })
-            .collect(),
-        packing: kernel.packing(),
-        texture: kernel.texture(),
-        texture_bytes,
-        texture_mib: texture_bytes as f64 / (1u64 << 20) as f64,
-        map_bytes: kernel.map_bytes(),
-        fps: 1000.0 / gpu_ms.median,
-        gpu_ms,
-        load_ms,
-        kernel: KernelInfo::of(&kernel, 1),
-        vs_cpu,
-        vs_ray_cast,
-        png: png.display().to_string(),
-        exr: exr.display().to_string(),
-        notes: vec![
-            "Directions are interpolated through nearest-texel parabolic index/weight maps (Delaunay triangulation of the 81 UBO2003 directions); beyond 75 deg btflib's zero-weight virtual ring fades the BTF towards 0 at the horizon.".into(),
-            "The packed BTF is RGBA8 sRGB (decoded to linear by the sampler, bilinear inside a tile, repeat in uv); RGB8 is not a sampled format on most devices.".into(),
-            "vs_ray_cast: the heightfield ray-cast at each pixel's exact tangent-space directions, filtered over the tile texels like the GPU, clipped at 1 like the 8-bit images; its error includes the 8-bit storage. Bands by the larger polar angle of view and lights.".into(),
-        ],
-    };
-    crate::io::write_json(&report_path, &report)?;
-    Ok(report)
+            .collect()
+    }
+
+    /// The report of the render.
+    fn report(
+        &self,
+        vs_cpu: Option<VsCpu>,
+        vs_ray_cast: Option<VsRayCast>,
+        png: &Path,
+        exr: &Path,
+    ) -> RenderReport {
+        let (cfg, kernel) = (self.cfg, &self.kernel);
+        let texture_bytes = kernel.texture_bytes();
+        RenderReport {
+            tool: "vkshade btf render",
+            machine: MachineInfo::of(self.ctx),
+            btf: cfg.btf.display().to_string(),
+            tile: self.btf.size,
+            object: match &cfg.mesh {
+                Some(p) => p.display().to_string(),
+                None => format!("{:?}", cfg.object).to_lowercase(),
+            },
+            size: [cfg.width, cfg.height],
+            covered_pixels: self.gb.covered(),
+            map_resolution: cfg.map_res,
+            lights: cfg
+                .lights
+                .iter()
+                .map(|l| {
+                    let d = l.direction.normalize();
+                    [d.x, d.y, d.z, l.rgb[0], l.rgb[1], l.rgb[2]]
+                })
+                .collect(),
+            packing: kernel.packing(),
+            texture: kernel.texture(),
+            texture_bytes,
+            texture_mib: texture_bytes as f64 / (1u64 << 20) as f64,
+            map_bytes: kernel.map_bytes(),
+            fps: 1000.0 / self.gpu_ms.median,
+            gpu_ms: self.gpu_ms.clone(),
+            load_ms: self.load_ms,
+            kernel: KernelInfo::of(kernel, 1),
+            vs_cpu,
+            vs_ray_cast,
+            png: png.display().to_string(),
+            exr: exr.display().to_string(),
+            notes: RENDER_NOTES.iter().map(|n| n.to_string()).collect(),
+        }
+    }
 }
+
+/// The notes of every `btf render` report.
+const RENDER_NOTES: [&str; 3] = [
+    "Directions are interpolated through nearest-texel parabolic index/weight maps (Delaunay triangulation of the 81 UBO2003 directions); beyond 75 deg btflib's zero-weight virtual ring fades the BTF towards 0 at the horizon.",
+    "The packed BTF is RGBA8 sRGB (decoded to linear by the sampler, bilinear inside a tile, repeat in uv); RGB8 is not a sampled format on most devices.",
+    "vs_ray_cast: the heightfield ray-cast at each pixel's exact tangent-space directions, filtered over the tile texels like the GPU, clipped at 1 like the 8-bit images; its error includes the 8-bit storage. Bands by the larger polar angle of view and lights.",
+];
 
 /// What `btf tile` reports.
 #[derive(Clone, Debug, Serialize)]
@@ -545,4 +648,351 @@ pub fn tile_command(
     };
     synth::write_dir(&tile, out, format, &report)?;
     Ok(report)
+}
+
+/// The subcommands of `vkshade btf`.
+#[derive(clap::Subcommand, Clone, Debug)]
+pub enum Command {
+    /// Ray-cast a periodic cloth heightfield (known BRDF, shadowing, masking) at the 81 x 81
+    /// UBO2003 directions and write a UBO2003-style directory (one image per (light, view),
+    /// angles in the names: btf_tlTTT_plPPP_tvTTT_pvPPP.png) plus btf.json.
+    Synth {
+        /// weave, knit or rib.
+        #[arg(long, value_parser = super::choice::<Pattern>("pattern"))]
+        pattern: Pattern,
+        /// Tile side in texels.
+        #[arg(long, default_value_t = 32)]
+        size: u32,
+        /// Texels per pattern repeat (default: the size, one tile); a smaller period makes a
+        /// larger sample for `btf tile`.
+        #[arg(long)]
+        period: Option<u32>,
+        /// Rays per texel along each axis.
+        #[arg(long, default_value_t = 1)]
+        samples: u32,
+        /// png (8-bit sRGB) or exr (linear float).
+        #[arg(long, default_value = "png", value_parser = super::choice::<FileFormat>("image format"))]
+        format: FileFormat,
+        #[arg(short = 'o', long)]
+        out: PathBuf,
+    },
+    /// Find the repeat period of a larger BTF sample (local minima of a 2D offset cost over
+    /// a few of its images) and write one tile of it as a new directory.
+    Tile {
+        #[arg(long)]
+        btf: PathBuf,
+        /// Texel where the tile starts (X,Y).
+        #[arg(long, default_value = "0,0")]
+        origin: String,
+        /// png (8-bit sRGB) or exr (linear float; slower to write).
+        #[arg(long, default_value = "png", value_parser = super::choice::<FileFormat>("image format"))]
+        format: FileFormat,
+        #[arg(short = 'o', long)]
+        out: PathBuf,
+    },
+    /// The tile interpolated at one (light, view) pair through the GPU path, as linear EXR.
+    Eval {
+        /// A UBO2003-style directory (from `btf synth`, or your own in PNG/EXR).
+        #[arg(long)]
+        btf: PathBuf,
+        /// THETA,PHI in degrees in the tile's tangent frame (as in the file names).
+        #[arg(long, value_parser = parse_angles)]
+        light: [f64; 2],
+        /// THETA,PHI in degrees.
+        #[arg(long, value_parser = parse_angles)]
+        view: [f64; 2],
+        /// Index/weight map resolution.
+        #[arg(long, default_value_t = 128)]
+        map_res: u32,
+        /// Texel format of the packed BTF: block (overlapping 4x4 blocks of linear RGB,
+        /// 16 bytes each, decoded and filtered by the shader: the fast one on lavapipe),
+        /// bc1 (sRGB BC1, needs the device feature textureCompressionBC) or rgba8 (sRGB).
+        #[arg(long, default_value = "block", value_parser = super::choice::<Texture>("texture format"))]
+        texture: Texture,
+        #[arg(short = 'o', long)]
+        out: PathBuf,
+    },
+    /// A cloth-covered object: DIR/render.png (with --reference: result | direct ray-cast |
+    /// error), DIR/render.exr (linear) and DIR/report.json (GPU time, texture memory, map
+    /// resolution, errors).
+    Render(RenderArgs),
+}
+
+/// The arguments of `vkshade btf render`.
+#[derive(clap::Args, Clone, Debug)]
+pub struct RenderArgs {
+    #[arg(long)]
+    pub btf: PathBuf,
+    /// sphere, cylinder, plane, or a mesh file with UVs (.glb/.gltf/.obj/.ply/.off;
+    /// centred, scaled to radius 1.2, uv x 8).
+    #[arg(long, default_value = "sphere")]
+    pub object: String,
+    /// A directional light X,Y,Z[,R,G,B] (towards the light, world space; y up, camera
+    /// on +z); up to 2 (default: a warm key light and a cool grazing fill).
+    #[arg(long)]
+    pub light: Vec<String>,
+    #[arg(long, default_value_t = 512)]
+    pub width: u32,
+    #[arg(long, default_value_t = 512)]
+    pub height: u32,
+    #[arg(long, default_value_t = 128)]
+    pub map_res: u32,
+    /// Texture layout: rows (one 81-layer array, images side by side with gutters) or
+    /// layers (one image per layer, split over arrays of maxImageArrayLayers; rgba8 and
+    /// bc1 only). Default: rows.
+    #[arg(long, value_parser = super::choice::<Layout>("layout"))]
+    pub layout: Option<Layout>,
+    /// Texel format of the packed BTF: block (overlapping 4x4 blocks of linear RGB,
+    /// 16 bytes each, decoded and filtered by the shader: the fast one on lavapipe),
+    /// bc1 (sRGB BC1, needs the device feature textureCompressionBC) or rgba8 (sRGB).
+    #[arg(long, default_value = "block", value_parser = super::choice::<Texture>("texture format"))]
+    pub texture: Texture,
+    /// Compare with the f64 CPU interpolation and with the heightfield ray-cast at the
+    /// exact directions (needs the btf.json of `btf synth`).
+    #[arg(long)]
+    pub reference: bool,
+    #[arg(long, default_value_t = 0.1)]
+    pub error_scale: f32,
+    #[arg(long, default_value = "out/btf")]
+    pub out: PathBuf,
+}
+
+impl Command {
+    /// Runs `vkshade btf synth|tile|eval|render` and prints its summary.
+    pub fn run(&self, gpu: &Gpu) -> Result<()> {
+        match self {
+            Command::Synth {
+                pattern,
+                size,
+                period,
+                samples,
+                format,
+                out,
+            } => run_synth(*pattern, *size, *period, *samples, *format, out),
+            Command::Tile {
+                btf,
+                origin,
+                format,
+                out,
+            } => run_tile(btf, origin, *format, out),
+            Command::Eval {
+                btf,
+                light,
+                view,
+                map_res,
+                texture,
+                out,
+            } => run_eval(gpu, btf, *light, *view, *map_res, *texture, out),
+            Command::Render(a) => a.run(gpu),
+        }
+    }
+}
+
+/// The context a BTF command storing its texture as `texture` needs (BC1 asks for the
+/// device feature textureCompressionBC, and says which option needs it when it is missing).
+pub fn context(gpu: &Gpu, texture: Texture) -> Result<Context> {
+    let bc1 = texture == Texture::Bc1;
+    gpu.context_with(crate::gpu::Features {
+        texture_compression_bc: bc1,
+        ..Default::default()
+    })
+    .map_err(|e| match e {
+        Error::Unsupported { device, what } if bc1 => Error::Unsupported {
+            device,
+            what: format!(
+                "{what} (the BTF's --texture bc1 needs it; use --texture block or rgba8)"
+            ),
+        },
+        e => e,
+    })
+}
+
+/// `vkshade btf synth`.
+fn run_synth(
+    pattern: Pattern,
+    size: u32,
+    period: Option<u32>,
+    samples: u32,
+    format: FileFormat,
+    out: &Path,
+) -> Result<()> {
+    eprintln!(
+        "synthesising {} x {size} x 6561 images of {pattern:?}",
+        size
+    );
+    let m = synth_command(pattern, size, period, samples, format, out)?;
+    println!(
+        "wrote 6561 {} images of {size} x {size} texels ({:?}) and {} to {} in {:.1} s",
+        m.format,
+        pattern,
+        META,
+        out.display(),
+        m.ms / 1e3
+    );
+    Ok(())
+}
+
+/// `vkshade btf tile`: `origin` is X,Y.
+fn run_tile(dir: &Path, origin: &str, format: FileFormat, out: &Path) -> Result<()> {
+    let bad = || Error::InvalidArgument(format!("--origin '{origin}': expected X,Y"));
+    let v: Vec<u32> = origin
+        .split(',')
+        .map(|x| x.trim().parse::<u32>().map_err(|_| bad()))
+        .collect::<Result<_>>()?;
+    let origin: [u32; 2] = v.as_slice().try_into().map_err(|_| bad())?;
+    let r = tile_command(dir, origin, format, out)?;
+    println!(
+        "{} x {} sample: repeat period {} x {} (cost {:.2e} against a median of {:.2e}); wrote the tile at {:?} to {}",
+        r.sample_size[0],
+        r.sample_size[1],
+        r.period.period[0],
+        r.period.period[1],
+        r.period.cost,
+        r.period.median_cost,
+        r.origin,
+        out.display()
+    );
+    Ok(())
+}
+
+/// `vkshade btf eval`: the taps of each direction and the GPU time.
+fn run_eval(
+    gpu: &Gpu,
+    dir: &Path,
+    light: [f64; 2],
+    view: [f64; 2],
+    map_res: u32,
+    texture: Texture,
+    out: &Path,
+) -> Result<()> {
+    let ctx = context(gpu, texture)?;
+    let r = eval_command(&ctx, dir, light, view, map_res, texture, out)?;
+    let taps = |t: &[(Angles, f64)]| {
+        t.iter()
+            .map(|(a, w)| format!("({},{}) x {w:.3}", a.theta, a.phi))
+            .collect::<Vec<_>>()
+            .join(" + ")
+    };
+    println!("light taps: {}", taps(&r.light_taps));
+    println!("view taps:  {}", taps(&r.view_taps));
+    println!(
+        "wrote the {} x {} tile to {} ({:.3} ms GPU)",
+        r.size[0],
+        r.size[1],
+        out.display(),
+        r.gpu_ms
+    );
+    super::finish(ctx)
+}
+
+/// A `--light` of `btf render`: X,Y,Z[,R,G,B].
+fn parse_light(s: &str) -> Result<Light> {
+    let v: Vec<f32> = s
+        .split(',')
+        .map(|x| x.trim().parse::<f32>())
+        .collect::<std::result::Result<_, _>>()
+        .map_err(|_| Error::InvalidArgument(format!("--light '{s}': expected X,Y,Z[,R,G,B]")))?;
+    let (d, rgb) = match v[..] {
+        [x, y, z] => ([x, y, z], [1.0; 3]),
+        [x, y, z, r, g, b] => ([x, y, z], [r, g, b]),
+        _ => {
+            return Err(Error::InvalidArgument(format!(
+                "--light '{s}': expected X,Y,Z[,R,G,B]"
+            )));
+        }
+    };
+    Ok(Light {
+        direction: Vec3::from(d),
+        rgb,
+    })
+}
+
+impl RenderArgs {
+    /// The render these arguments describe: the lights (the default pair when none is
+    /// given) and the object, a built-in shape or a mesh file.
+    pub fn config(&self) -> Result<RenderConfig> {
+        let lights = if self.light.is_empty() {
+            default_lights()
+        } else {
+            self.light
+                .iter()
+                .map(|s| parse_light(s))
+                .collect::<Result<_>>()?
+        };
+        if !(self.error_scale.is_finite() && self.error_scale > 0.0) {
+            return Err(Error::InvalidArgument(format!(
+                "--error-scale must be > 0, not {}",
+                self.error_scale
+            )));
+        }
+        let (object, mesh) = match <Object as clap::ValueEnum>::from_str(&self.object, false) {
+            Ok(o) => (o, None),
+            Err(_) => (Object::Sphere, Some(PathBuf::from(&self.object))),
+        };
+        Ok(RenderConfig {
+            btf: self.btf.clone(),
+            object,
+            mesh,
+            lights,
+            width: self.width,
+            height: self.height,
+            map_res: self.map_res,
+            layout: self.layout.unwrap_or(self.texture.default_layout()),
+            texture: self.texture,
+            reference: self.reference,
+            error_scale: self.error_scale,
+            out: self.out.clone(),
+            bench: crate::bench::BenchConfig::default(),
+        })
+    }
+
+    /// `vkshade btf render`: renders, compares (with `--reference`) and prints the summary.
+    pub fn run(&self, gpu: &Gpu) -> Result<()> {
+        let cfg = self.config()?;
+        let ctx = context(gpu, self.texture)?;
+        eprintln!("vkshade btf render on {}", ctx.info().name);
+        let r = render(&ctx, &cfg, &mut |l| super::progress(l))?;
+        display(&r);
+        super::finish(ctx)
+    }
+}
+
+/// The summary `vkshade btf render` prints: GPU time and memory, the errors against the
+/// references (with `--reference`) and what was written.
+pub fn display(r: &RenderReport) {
+    println!(
+        "{} {} x {} ({} px covered), {} x {} tile, map {}: {:.3} ms GPU (median) = {:.1} fps; BTF textures {:.2} MiB in {} array(s) of {} layers, maps {:.2} MiB",
+        r.object,
+        r.size[0],
+        r.size[1],
+        r.covered_pixels,
+        r.tile[0],
+        r.tile[1],
+        r.map_resolution,
+        r.gpu_ms.median,
+        r.fps,
+        r.texture_mib,
+        r.packing.arrays,
+        r.packing.layers_per_array,
+        r.map_bytes as f64 / (1u64 << 20) as f64
+    );
+    if let Some(c) = &r.vs_cpu {
+        println!(
+            "vs CPU interpolation (f64): max {:.2e}, RMS {:.2e} over {} px ({} ambiguous left out); bound {:.0e}; CPU {:.0} ms",
+            c.max_abs, c.rms, c.pixels, c.ambiguous_pixels, c.bound, c.cpu_ms
+        );
+    }
+    if let Some(t) = &r.vs_ray_cast {
+        println!(
+            "vs direct ray-cast: PSNR {:.1} dB (RMSE {:.4}, {} px) within 75 deg, {:.1} dB (RMSE {:.4}, {} px) grazing, {:.1} dB all",
+            t.within_75.psnr_db,
+            t.within_75.rmse,
+            t.within_75.pixels,
+            t.grazing.psnr_db,
+            t.grazing.rmse,
+            t.grazing.pixels,
+            t.all.psnr_db
+        );
+    }
+    println!("wrote {}, {} and report.json", r.png, r.exr);
 }

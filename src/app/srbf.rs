@@ -3,7 +3,9 @@
 //! report per run, and (optionally) the brute-force ground truth with the error split by
 //! stage.
 
+use super::Gpu;
 use crate::error::{Error, Result};
+use crate::geom::sg::{self, Lobe};
 use crate::geom::visibility::Visibility;
 use crate::gpu::Context;
 use crate::kernels::srbf::cpca::{Cpca, CpcaConfig};
@@ -11,11 +13,10 @@ use crate::kernels::srbf::diffuse_transfer;
 use crate::kernels::srbf::fit::{FitConfig, fit};
 use crate::kernels::srbf::gpu::{
     CompactInputs, PASS_LIGHTING, PASS_PROJECT, PASS_SHADE, PASS_SHARP, SrbfFrame, SrbfInputs,
-    SrbfKernel,
+    SrbfKernel, SrbfOutput,
 };
-use crate::kernels::srbf::sg::{self, Lobe};
 use crate::kernels::srbf::transfer::{self, Basis, Transfer};
-use crate::kernels::{KernelInfo, run_frames};
+use crate::kernels::{FrameResult, KernelInfo, run_frames};
 use crate::reference::srbf::{rasterise_lobes, shade_brute_force_radiance, shade_ground_truth};
 use crate::report::MachineInfo;
 use crate::scene::envmap::EnvMap;
@@ -415,110 +416,188 @@ pub fn shade(
         env.width,
         env.height
     ));
-    let t = Instant::now();
-    let fit_env = env.downsampled(cfg.fit_width.min(env.width))?;
-    let fit_cfg = FitConfig {
-        lobes: cfg.lobes,
-        ..FitConfig::default()
-    };
-    let fitted = fit(&fit_env.samples(), &fit_cfg)?;
-    let fit_ms = t.elapsed().as_secs_f64() * 1e3;
-    progress(&format!(
-        "fit {} lobes to {}x{}: relative L2 {:.4} ({fit_ms:.0} ms)",
-        cfg.lobes, fit_env.width, fit_env.height, fitted.rel_l2
-    ));
-    let dir_env = env.downsampled(cfg.direction_width.min(env.width))?;
-    let vis = scene::envmap::texel_visibility(mesh, &dir_env);
-    let (transfer, cached, transfer_ms) = transfer_for(cfg, mesh, &dir_env, &vis)?;
-    progress(&format!(
-        "transfer: {} basis SGs (sharpness {:.1}), projection relative L2 {:.4}{}",
-        transfer.basis.axes.len(),
-        transfer.basis.sharpness,
-        transfer.projection_rel_l2,
-        if cached {
-            " (cached)".to_string()
-        } else {
-            format!(" ({transfer_ms:.0} ms)")
-        }
-    ));
-    let (cpca, cpca_cached, cpca_ms) = cpca_for(cfg, &transfer, cached)?;
-    if cfg.components > 0 {
-        progress(&format!(
-            "clustered PCA: {} clusters x {} components, relative L2 {:.4}{}",
-            cpca.clusters,
-            cpca.components,
-            cpca.rel_l2,
-            if cpca_cached {
-                " (cached)".to_string()
-            } else {
-                format!(" ({cpca_ms:.0} ms)")
-            }
-        ));
-    }
-    let mut setup = ctx.recorder("srbf setup")?;
-    let compact = CompactInputs {
-        visibility: &vis,
-        normals: &mesh.normals,
-        width: dir_env.width,
-        height: dir_env.height,
-        factor: cfg.sharp_factor,
-        max_lobes: cfg.compact_lobes,
-    };
-    let inputs = SrbfInputs::new(&fitted.lobes, &cpca).with_compact(compact);
-    let (smooth, _) = inputs.split();
-    let kernel = SrbfKernel::new(&mut setup, &inputs)?;
-    if kernel.compact_count() > 0 {
-        progress(&format!(
-            "{} compact lobes (sharpness > {} x {:.1}, >= {}% of the energy) shaded from the \
-             visibility",
-            kernel.compact_count(),
-            cfg.sharp_factor,
-            transfer.basis.sharpness,
-            crate::kernels::srbf::sharp::MIN_SHARE * 100.0
-        ));
-    }
-    setup.submit_and_wait()?;
-    let rotations = cfg.rotations();
-    let frames_in: Vec<SrbfFrame> = rotations
+    let pre = Precomputed::new(cfg, mesh, &env, progress)?;
+    let session = Session::new(ctx, cfg, mesh, &pre, progress)?;
+    let frames_in: Vec<SrbfFrame> = cfg
+        .rotations()
         .iter()
         .map(|&rotation| SrbfFrame {
             rotation,
             albedo: cfg.albedo,
         })
         .collect();
-    let pictures = Pictures::new(cfg, mesh);
     let mut frames = Vec::with_capacity(frames_in.len());
-    let in_flight = run_frames(ctx, &kernel, &frames_in, cfg.in_flight, |r| {
-        let frame = &frames_in[r.index];
-        let cpu = inputs.cpu_pipeline(frame)?;
+    let in_flight = run_frames(ctx, &session.kernel, &frames_in, cfg.in_flight, |r| {
+        let report = session.frame(&frames_in[r.index], r)?;
+        progress(&frame_line(&report));
+        frames.push(report);
+        Ok(())
+    })?;
+    let report = session.report(&env, frames, in_flight);
+    crate::io::write_json(&cfg.out.join("report.json"), &report)?;
+    Ok(report)
+}
+
+/// What a run's lighting and transfer are made of, computed (or read from the cache) once
+/// before any frame.
+struct Precomputed {
+    /// The lobes fitted to the environment.
+    fitted: crate::kernels::srbf::fit::Fit,
+    fit_ms: f64,
+    /// The environment at the direction width: its texel directions carry the transfer, the
+    /// compact lobes' visibility and the ground truth.
+    dir_env: EnvMap,
+    vis: Visibility,
+    transfer: Transfer,
+    transfer_cached: bool,
+    transfer_ms: f64,
+    cpca: Cpca,
+    cpca_cached: bool,
+    cpca_ms: f64,
+}
+
+impl Precomputed {
+    /// Fits the lobes, casts the visibility, projects and compresses the transfer.
+    fn new(
+        cfg: &ShadeConfig,
+        mesh: &Mesh,
+        env: &EnvMap,
+        progress: &mut dyn FnMut(&str),
+    ) -> Result<Precomputed> {
+        let t = Instant::now();
+        let fit_env = env.downsampled(cfg.fit_width.min(env.width))?;
+        let fit_cfg = FitConfig {
+            lobes: cfg.lobes,
+            ..FitConfig::default()
+        };
+        let fitted = fit(&fit_env.samples(), &fit_cfg)?;
+        let fit_ms = t.elapsed().as_secs_f64() * 1e3;
+        progress(&format!(
+            "fit {} lobes to {}x{}: relative L2 {:.4} ({fit_ms:.0} ms)",
+            cfg.lobes, fit_env.width, fit_env.height, fitted.rel_l2
+        ));
+        let dir_env = env.downsampled(cfg.direction_width.min(env.width))?;
+        let vis = crate::scene::envmap::texel_visibility(mesh, &dir_env);
+        let (transfer, cached, transfer_ms) = transfer_for(cfg, mesh, &dir_env, &vis)?;
+        progress(&format!(
+            "transfer: {} basis SGs (sharpness {:.1}), projection relative L2 {:.4}{}",
+            transfer.basis.axes.len(),
+            transfer.basis.sharpness,
+            transfer.projection_rel_l2,
+            cost(cached, transfer_ms)
+        ));
+        let (cpca, cpca_cached, cpca_ms) = cpca_for(cfg, &transfer, cached)?;
+        if cfg.components > 0 {
+            progress(&format!(
+                "clustered PCA: {} clusters x {} components, relative L2 {:.4}{}",
+                cpca.clusters,
+                cpca.components,
+                cpca.rel_l2,
+                cost(cpca_cached, cpca_ms)
+            ));
+        }
+        Ok(Precomputed {
+            fitted,
+            fit_ms,
+            dir_env,
+            vis,
+            transfer,
+            transfer_cached: cached,
+            transfer_ms,
+            cpca,
+            cpca_cached,
+            cpca_ms,
+        })
+    }
+}
+
+/// " (cached)" or " (N ms)": where a precomputed result came from.
+fn cost(cached: bool, ms: f64) -> String {
+    if cached {
+        " (cached)".to_string()
+    } else {
+        format!(" ({ms:.0} ms)")
+    }
+}
+
+/// The kernel over a run's precomputed inputs, and what each frame needs besides.
+struct Session<'a> {
+    ctx: &'a Context,
+    cfg: &'a ShadeConfig,
+    mesh: &'a Mesh,
+    pre: &'a Precomputed,
+    inputs: SrbfInputs<'a>,
+    /// The lobes shaded through the basis (the others are compact).
+    smooth: Vec<Lobe>,
+    kernel: SrbfKernel,
+    pictures: Pictures,
+}
+
+impl<'a> Session<'a> {
+    /// Uploads the kernel's inputs (one submission).
+    fn new(
+        ctx: &'a Context,
+        cfg: &'a ShadeConfig,
+        mesh: &'a Mesh,
+        pre: &'a Precomputed,
+        progress: &mut dyn FnMut(&str),
+    ) -> Result<Session<'a>> {
+        let mut setup = ctx.recorder("srbf setup")?;
+        let compact = CompactInputs {
+            visibility: &pre.vis,
+            normals: &mesh.normals,
+            width: pre.dir_env.width,
+            height: pre.dir_env.height,
+            factor: cfg.sharp_factor,
+            max_lobes: cfg.compact_lobes,
+        };
+        let inputs = SrbfInputs::new(&pre.fitted.lobes, &pre.cpca).with_compact(compact);
+        let (smooth, _) = inputs.split();
+        let kernel = SrbfKernel::new(&mut setup, &inputs)?;
+        if kernel.compact_count() > 0 {
+            progress(&format!(
+                "{} compact lobes (sharpness > {} x {:.1}, >= {}% of the energy) shaded from the \
+                 visibility",
+                kernel.compact_count(),
+                cfg.sharp_factor,
+                pre.transfer.basis.sharpness,
+                crate::kernels::srbf::sharp::MIN_SHARE * 100.0
+            ));
+        }
+        setup.submit_and_wait()?;
+        Ok(Session {
+            ctx,
+            cfg,
+            mesh,
+            pre,
+            inputs,
+            smooth,
+            kernel,
+            pictures: Pictures::new(cfg, mesh),
+        })
+    }
+
+    /// One frame the GPU completed: against the CPU pipeline and (with `--reference`) the
+    /// ground truth split by stage; PLY and picture written.
+    fn frame(&self, frame: &SrbfFrame, r: FrameResult<SrbfOutput>) -> Result<FrameReport> {
+        let cfg = self.cfg;
+        let cpu = self.inputs.cpu_pipeline(frame)?;
         let gpu: Vec<[f64; 3]> = r.output.iter().map(|c| c.map(|x| x as f64)).collect();
         let truth = if cfg.reference {
             Some(shade_ground_truth(
-                &dir_env,
+                &self.pre.dir_env,
                 frame.rotation,
-                mesh,
-                Some(&vis),
+                self.mesh,
+                Some(&self.pre.vis),
                 cfg.albedo,
             )?)
         } else {
             None
         };
-        let (mut uncompressed, mut fit_share, mut transfer_share) = (None, None, None);
-        if let Some(t) = &truth {
-            // The uncompressed transfer: the basis path in f32, plus the compact lobes.
-            let coeffs = transfer::lighting_coefficients(&smooth, frame.rotation, &transfer.basis);
-            let mut exact: Vec<[f64; 3]> = transfer::shade(&transfer, &coeffs, frame.albedo)?
-                .iter()
-                .map(|c| c.map(|x| x as f64))
-                .collect();
-            inputs.add_compact(frame, &mut exact)?;
-            let lobes = rasterise_lobes(&fitted.lobes, frame.rotation, &dir_env);
-            let sg_truth =
-                shade_brute_force_radiance(&dir_env, &lobes, &mesh.normals, &vis, cfg.albedo)?;
-            uncompressed = Some(RelL2::of(&exact, t));
-            fit_share = Some(RelL2::of(&sg_truth, t));
-            transfer_share = Some(RelL2::of(&exact, &sg_truth));
-        }
+        let stages = match &truth {
+            Some(t) => Some(self.stage_errors(frame, t)?),
+            None => None,
+        };
         let report = FrameReport {
             index: r.index,
             rotation: frame.rotation.to_cols_array(),
@@ -528,94 +607,147 @@ pub fn shade(
             gpu_ms_shade: r.timings.get(PASS_SHADE).unwrap_or(f64::NAN),
             gpu_vs_cpu: RelL2::of(&gpu, &cpu),
             vs_ground_truth: truth.as_ref().map(|t| RelL2::of(&gpu, t)),
-            uncompressed_vs_ground_truth: uncompressed,
-            fit_share,
-            transfer_share,
+            uncompressed_vs_ground_truth: stages.map(|s| s.uncompressed),
+            fit_share: stages.map(|s| s.fit),
+            transfer_share: stages.map(|s| s.transfer),
             ply: String::new(),
             png: String::new(),
         };
-        let report = pictures.write(report, &character.mesh, &gpu, truth.as_deref())?;
-        progress(&format!(
-            "frame {}: lighting {:.3} + project {:.3} + sharp {:.3} + shade {:.3} ms GPU; GPU vs \
-             CPU {:.1e}{}",
-            r.index,
-            report.gpu_ms_lighting,
-            report.gpu_ms_project,
-            report.gpu_ms_sharp,
-            report.gpu_ms_shade,
-            report.gpu_vs_cpu.all,
-            match (
-                report.vs_ground_truth,
-                report.fit_share,
-                report.transfer_share,
-                report.uncompressed_vs_ground_truth
-            ) {
-                (Some(e), Some(f), Some(t), Some(u)) => format!(
-                    ", vs ground truth {:.4} (rgb {:.4} {:.4} {:.4}; by stage: fit {:.4}, \
-                     transfer {:.4}, uncompressed {:.4})",
-                    e.all, e.rgb[0], e.rgb[1], e.rgb[2], f.all, t.all, u.all
-                ),
-                _ => String::new(),
-            }
-        ));
-        frames.push(report);
-        Ok(())
-    })?;
-    let median = |f: &dyn Fn(&FrameReport) -> f64| {
-        let mut v: Vec<f64> = frames.iter().map(f).collect();
-        v.sort_by(f64::total_cmp);
-        v[v.len() / 2]
-    };
-    let lighting = median(&|f| f.gpu_ms_lighting);
-    let project_ms = median(&|f| f.gpu_ms_project);
-    let sharp_ms = median(&|f| f.gpu_ms_sharp);
-    let shade_ms = median(&|f| f.gpu_ms_shade);
-    let mut notes = Vec::new();
-    if ctx.info().device_type == "CPU" {
-        notes.push("the device is a CPU implementation (lavapipe): times measure the CPU".into());
+        self.pictures
+            .write(report, self.mesh, &gpu, truth.as_deref())
     }
-    notes.push(format!(
-        "ground truth: {}x{} texel directions of the environment (solid-angle-weighted \
-         downsampling of the original), visibility ray-cast per direction; L(R^-1 w) is \
-         looked up in that map",
-        dir_env.width, dir_env.height
-    ));
-    let report = ShadeReport {
-        tool: "vkshade srbf shade",
-        machine: MachineInfo::of(ctx),
-        mesh: cfg.mesh.display().to_string(),
-        vertices: mesh.positions.len(),
-        env: cfg.env.display().to_string(),
-        env_size: [env.width, env.height],
-        lobes: cfg.lobes,
-        compact_lobes: kernel.compact_count(),
-        sharp_factor: cfg.sharp_factor,
-        basis: transfer.basis.axes.len(),
-        basis_sharpness: transfer.basis.sharpness,
-        albedo: cfg.albedo,
-        fit_rel_l2: fitted.rel_l2,
-        fit_ms,
-        transfer_rel_l2: transfer.projection_rel_l2,
-        transfer_ms,
-        transfer_cached: cached,
-        clusters: if cfg.components > 0 { cpca.clusters } else { 0 },
-        components: cfg.components,
-        cpca_rel_l2: cpca.rel_l2,
-        cpca_ms,
-        cpca_cached,
-        transfer_bytes_per_vertex: cpca.bytes_per_vertex(),
-        directions: vis.directions.len(),
-        kernel: KernelInfo::of(&kernel, in_flight),
-        gpu_ms_lighting_median: lighting,
-        gpu_ms_project_median: project_ms,
-        gpu_ms_sharp_median: sharp_ms,
-        gpu_ms_shade_median: shade_ms,
-        fps: 1000.0 / (lighting + project_ms + sharp_ms + shade_ms),
-        frames,
-        notes,
-    };
-    crate::io::write_json(&cfg.out.join("report.json"), &report)?;
-    Ok(report)
+
+    /// The error against the ground truth `truth` split by stage: the fit (the brute-force
+    /// sum over the fitted lobes), the transfer projection and the compression.
+    fn stage_errors(&self, frame: &SrbfFrame, truth: &[[f64; 3]]) -> Result<StageErrors> {
+        let (pre, cfg) = (self.pre, self.cfg);
+        // The uncompressed transfer: the basis path in f32, plus the compact lobes.
+        let coeffs =
+            transfer::lighting_coefficients(&self.smooth, frame.rotation, &pre.transfer.basis);
+        let mut exact: Vec<[f64; 3]> = transfer::shade(&pre.transfer, &coeffs, frame.albedo)?
+            .iter()
+            .map(|c| c.map(|x| x as f64))
+            .collect();
+        self.inputs.add_compact(frame, &mut exact)?;
+        let lobes = rasterise_lobes(&pre.fitted.lobes, frame.rotation, &pre.dir_env);
+        let sg_truth = shade_brute_force_radiance(
+            &pre.dir_env,
+            &lobes,
+            &self.mesh.normals,
+            &pre.vis,
+            cfg.albedo,
+        )?;
+        Ok(StageErrors {
+            uncompressed: RelL2::of(&exact, truth),
+            fit: RelL2::of(&sg_truth, truth),
+            transfer: RelL2::of(&exact, &sg_truth),
+        })
+    }
+
+    /// The report of the run: inputs, precomputation, per-frame results and their medians.
+    fn report(&self, env: &EnvMap, frames: Vec<FrameReport>, in_flight: usize) -> ShadeReport {
+        let (cfg, pre) = (self.cfg, self.pre);
+        let median = |f: &dyn Fn(&FrameReport) -> f64| {
+            let mut v: Vec<f64> = frames.iter().map(f).collect();
+            v.sort_by(f64::total_cmp);
+            v[v.len() / 2]
+        };
+        let lighting = median(&|f| f.gpu_ms_lighting);
+        let project_ms = median(&|f| f.gpu_ms_project);
+        let sharp_ms = median(&|f| f.gpu_ms_sharp);
+        let shade_ms = median(&|f| f.gpu_ms_shade);
+        ShadeReport {
+            tool: "vkshade srbf shade",
+            machine: MachineInfo::of(self.ctx),
+            mesh: cfg.mesh.display().to_string(),
+            vertices: self.mesh.positions.len(),
+            env: cfg.env.display().to_string(),
+            env_size: [env.width, env.height],
+            lobes: cfg.lobes,
+            compact_lobes: self.kernel.compact_count(),
+            sharp_factor: cfg.sharp_factor,
+            basis: pre.transfer.basis.axes.len(),
+            basis_sharpness: pre.transfer.basis.sharpness,
+            albedo: cfg.albedo,
+            fit_rel_l2: pre.fitted.rel_l2,
+            fit_ms: pre.fit_ms,
+            transfer_rel_l2: pre.transfer.projection_rel_l2,
+            transfer_ms: pre.transfer_ms,
+            transfer_cached: pre.transfer_cached,
+            clusters: if cfg.components > 0 {
+                pre.cpca.clusters
+            } else {
+                0
+            },
+            components: cfg.components,
+            cpca_rel_l2: pre.cpca.rel_l2,
+            cpca_ms: pre.cpca_ms,
+            cpca_cached: pre.cpca_cached,
+            transfer_bytes_per_vertex: pre.cpca.bytes_per_vertex(),
+            directions: pre.vis.directions.len(),
+            kernel: KernelInfo::of(&self.kernel, in_flight),
+            gpu_ms_lighting_median: lighting,
+            gpu_ms_project_median: project_ms,
+            gpu_ms_sharp_median: sharp_ms,
+            gpu_ms_shade_median: shade_ms,
+            fps: 1000.0 / (lighting + project_ms + sharp_ms + shade_ms),
+            frames,
+            notes: self.notes(),
+        }
+    }
+
+    fn notes(&self) -> Vec<String> {
+        let dir_env = &self.pre.dir_env;
+        let mut notes = Vec::new();
+        if self.ctx.info().device_type == "CPU" {
+            notes.push(
+                "the device is a CPU implementation (lavapipe): times measure the CPU".into(),
+            );
+        }
+        notes.push(format!(
+            "ground truth: {}x{} texel directions of the environment (solid-angle-weighted \
+             downsampling of the original), visibility ray-cast per direction; L(R^-1 w) is \
+             looked up in that map",
+            dir_env.width, dir_env.height
+        ));
+        notes
+    }
+}
+
+/// A frame's error against the ground truth by stage (see [`FrameReport`]).
+#[derive(Clone, Copy)]
+struct StageErrors {
+    uncompressed: RelL2,
+    fit: RelL2,
+    transfer: RelL2,
+}
+
+/// The progress line of a frame: GPU times, GPU against CPU, and the errors against the
+/// ground truth where there is one.
+fn frame_line(report: &FrameReport) -> String {
+    format!(
+        "frame {}: lighting {:.3} + project {:.3} + sharp {:.3} + shade {:.3} ms GPU; GPU vs \
+         CPU {:.1e}{}",
+        report.index,
+        report.gpu_ms_lighting,
+        report.gpu_ms_project,
+        report.gpu_ms_sharp,
+        report.gpu_ms_shade,
+        report.gpu_vs_cpu.all,
+        match (
+            report.vs_ground_truth,
+            report.fit_share,
+            report.transfer_share,
+            report.uncompressed_vs_ground_truth
+        ) {
+            (Some(e), Some(f), Some(t), Some(u)) => format!(
+                ", vs ground truth {:.4} (rgb {:.4} {:.4} {:.4}; by stage: fit {:.4}, \
+                 transfer {:.4}, uncompressed {:.4})",
+                e.all, e.rgb[0], e.rgb[1], e.rgb[2], f.all, t.all, u.all
+            ),
+            _ => String::new(),
+        }
+    )
 }
 
 /// Writes each frame's PLY and PNG (result, or result | truth | relative error).
@@ -781,4 +913,181 @@ pub fn fit_command(
     };
     crate::io::write_json(out, &report)?;
     Ok(report)
+}
+
+/// The subcommands of `vkshade srbf`.
+#[derive(clap::Subcommand, Clone, Debug)]
+pub enum Command {
+    /// Fit spherical Gaussians to an equirectangular HDR environment (EXR or .hdr); reports
+    /// the fit error for 8, 16, ... up to --lobes lobes and writes the largest fit as JSON.
+    Fit {
+        #[arg(long, default_value = DEFAULT_ENV)]
+        env: PathBuf,
+        #[arg(long, default_value_t = 64)]
+        lobes: usize,
+        /// Width of the downsampled map the lobes are fitted to.
+        #[arg(long, default_value_t = 128)]
+        fit_width: u32,
+        #[arg(short = 'o', long, default_value = "out/srbf/fit.json")]
+        out: PathBuf,
+    },
+    /// Shade a mesh under a rotated environment: per frame DIR/shade_NNNN.ply (per-vertex
+    /// linear RGB radiance r, g, b) and DIR/shade_NNNN.png (with --reference: result |
+    /// brute-force truth | error), and DIR/report.json.
+    Shade(ShadeArgs),
+}
+
+/// The arguments of `vkshade srbf shade`.
+#[derive(clap::Args, Clone, Debug)]
+pub struct ShadeArgs {
+    /// Mesh (.obj .ply .off .glb/.gltf; a skinned mesh is shaded in its bind pose).
+    #[arg(long, default_value = DEFAULT_MESH)]
+    pub mesh: PathBuf,
+    /// Equirectangular environment (EXR, including DWAB, or Radiance .hdr).
+    #[arg(long, default_value = DEFAULT_ENV)]
+    pub env: PathBuf,
+    #[arg(long, default_value_t = 64)]
+    pub lobes: usize,
+    /// Transfer basis functions (spherical Gaussians on a Fibonacci lattice).
+    #[arg(long, default_value_t = 256)]
+    pub basis: usize,
+    /// Clusters of the clustered-PCA transfer compression.
+    #[arg(long, default_value_t = 64)]
+    pub clusters: usize,
+    /// Principal components per cluster (0: the uncompressed transfer).
+    #[arg(long, default_value_t = 16)]
+    pub components: usize,
+    /// Rotate the environment, e.g. y:30 (L_R(w) = L(R^-1 w)); with --frames, the start of a
+    /// spin about that axis.
+    #[arg(long)]
+    pub rotate: Option<AxisAngle>,
+    /// Frames of a continuous 360-degree spin (about +Y, or --rotate's axis).
+    #[arg(long, default_value_t = 1)]
+    pub frames: usize,
+    /// Diffuse albedo R,G,B (default 1,1,1).
+    #[arg(long, value_delimiter = ',', num_args = 3, default_values_t = [1.0f32, 1.0, 1.0])]
+    pub albedo: Vec<f32>,
+    /// Compare each frame with the brute-force integration of the rotated map (f64).
+    #[arg(long)]
+    pub reference: bool,
+    /// Width of the map whose texel directions carry the transfer and the ground truth.
+    #[arg(long, default_value_t = 64)]
+    pub directions: u32,
+    /// Width of the downsampled map the lobes are fitted to.
+    #[arg(long, default_value_t = 128)]
+    pub fit_width: u32,
+    /// Lobes sharper than this factor x the basis sharpness (a sun, a lamp) are shaded from
+    /// the ray-cast visibility instead of through the smooth transfer basis (0: off).
+    #[arg(long, default_value_t = crate::kernels::srbf::sharp::DEFAULT_FACTOR)]
+    pub sharp_factor: f32,
+    /// The most compact lobes shaded from the visibility, the strongest first (0: off).
+    #[arg(long, default_value_t = crate::kernels::srbf::sharp::DEFAULT_MAX_LOBES)]
+    pub compact_lobes: usize,
+    #[arg(long, default_value_t = 2)]
+    pub in_flight: usize,
+    #[arg(long, default_value = "out/srbf")]
+    pub out: PathBuf,
+}
+
+impl Command {
+    /// Runs `vkshade srbf fit|shade` and prints its summary.
+    pub fn run(&self, gpu: &Gpu) -> Result<()> {
+        match self {
+            Command::Fit {
+                env,
+                lobes,
+                fit_width,
+                out,
+            } => {
+                let r = fit_command(env, *lobes, *fit_width, out, &mut |l| super::progress(l))?;
+                println!(
+                    "fitted {} lobes to {} ({}x{}): relative L2 {:.4}; wrote {}",
+                    r.lobes.len(),
+                    r.env,
+                    r.fit_size[0],
+                    r.fit_size[1],
+                    r.errors.last().map(|e| e.1).unwrap_or(f64::NAN),
+                    out.display()
+                );
+                Ok(())
+            }
+            Command::Shade(a) => a.run(gpu),
+        }
+    }
+}
+
+impl ShadeArgs {
+    /// The run these arguments describe.
+    pub fn config(&self) -> Result<ShadeConfig> {
+        let albedo: [f32; 3] = self
+            .albedo
+            .as_slice()
+            .try_into()
+            .map_err(|_| Error::InvalidArgument("--albedo takes three values R,G,B".into()))?;
+        Ok(ShadeConfig {
+            mesh: self.mesh.clone(),
+            env: self.env.clone(),
+            lobes: self.lobes,
+            basis: self.basis,
+            clusters: self.clusters,
+            components: self.components,
+            rotate: self.rotate,
+            frames: self.frames,
+            albedo,
+            reference: self.reference,
+            direction_width: self.directions,
+            fit_width: self.fit_width,
+            sharp_factor: self.sharp_factor,
+            compact_lobes: self.compact_lobes,
+            in_flight: self.in_flight,
+            out: self.out.clone(),
+            ..Default::default()
+        })
+    }
+
+    /// `vkshade srbf shade`: shades the frames and prints the summary.
+    pub fn run(&self, gpu: &Gpu) -> Result<()> {
+        let cfg = self.config()?;
+        let ctx = gpu.context()?;
+        eprintln!("vkshade srbf shade on {}", ctx.info().name);
+        let r = shade(&ctx, &cfg, &mut |l| super::progress(l))?;
+        display(&r, &cfg);
+        super::finish(ctx)
+    }
+}
+
+/// The summary `vkshade srbf shade` prints: timings, the error of each stage, the worst
+/// frame against the ground truth (with `--reference`) and what was written.
+pub fn display(r: &ShadeReport, cfg: &ShadeConfig) {
+    println!(
+        "{} frames of {} ({} vertices), {} lobes ({} compact) x {} basis ({} clusters x {} components): lighting {:.3} + project {:.3} + sharp {:.3} + shade {:.3} ms GPU (median) = {:.0} fps; fit error {:.4}, transfer projection error {:.4}, compression error {:.4}",
+        r.frames.len(),
+        r.mesh,
+        r.vertices,
+        r.lobes,
+        r.compact_lobes,
+        r.basis,
+        r.clusters,
+        r.components,
+        r.gpu_ms_lighting_median,
+        r.gpu_ms_project_median,
+        r.gpu_ms_sharp_median,
+        r.gpu_ms_shade_median,
+        r.fps,
+        r.fit_rel_l2,
+        r.transfer_rel_l2,
+        r.cpca_rel_l2
+    );
+    if let Some(worst) = r
+        .frames
+        .iter()
+        .filter_map(|f| f.vs_ground_truth.map(|e| e.all))
+        .reduce(f64::max)
+    {
+        println!("vs brute-force ground truth: relative L2 at most {worst:.4} over the frames");
+    }
+    println!(
+        "wrote shade_NNNN.ply, shade_NNNN.png and report.json to {}",
+        cfg.out.display()
+    );
 }

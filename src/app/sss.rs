@@ -6,21 +6,24 @@
 //! `--reference` `reference.png` (diffusion alone | brute-force truth | error heat map), and
 //! `report.json`.
 
+use super::Gpu;
 use crate::error::{Error, Result};
 use crate::geom::bvh::Bvh;
-use crate::gpu::Context;
+use crate::gpu::{Context, Timings};
 use crate::io::FloatImage;
-use crate::kernels::sss::cpu::{self, Light, SamplerParams};
+use crate::kernels::sss::cpu::{self, DiffusionGeometry, Light, SamplerParams};
 use crate::kernels::sss::gpu::{PASS_DIFFUSION, PASS_IRRADIANCE, PASS_VERTEX};
 use crate::kernels::sss::profile::DEFAULT_ENERGY;
 use crate::kernels::sss::texspace::{COVERED, TexReport};
 use crate::kernels::sss::{Material, Profile, ProfileKind, SssKernel, SssOutput, TexGeometry};
 use crate::kernels::{Kernel, KernelInfo, run_frames};
 use crate::reference::sss::{ChannelError, Sources, brute_force, brute_force_where};
+use crate::render::ValueImage;
 use crate::report::MachineInfo;
+use crate::scene::{Animation, Character, Mesh};
 use glam::{DVec3, Vec2, Vec3};
 use serde::Serialize;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::time::Instant;
 
 pub use crate::kernels::sss::{
@@ -297,136 +300,283 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
         Some(name) => Some(character.animation(name)?),
         None => None,
     };
-    let mesh = &character.mesh;
-    // A scale that makes the mesh smaller than a fingertip or larger than a room is almost
-    // always a units mistake (the coefficients are per mm): say so, in the report too.
-    let mut scale_warning = None;
-    if let Some((lo, hi)) =
-        mesh.positions
-            .iter()
-            .fold(None, |acc: Option<(glam::Vec3, glam::Vec3)>, p| {
-                Some(acc.map_or((*p, *p), |(lo, hi)| (lo.min(*p), hi.max(*p))))
-            })
-    {
-        let extent_mm = (hi - lo).length() as f64 * cfg.mm_per_unit;
-        if !(10.0..=10_000.0).contains(&extent_mm) {
-            let w = format!(
-                "{} is {extent_mm:.3} mm across at --mm-per-unit {}: scattering lengths are \
-                 in mm, so the result is unlikely to mean anything; check the model's units",
-                cfg.mesh.display(),
-                cfg.mm_per_unit
-            );
-            progress(&format!("warning: {w}"));
-            scale_warning = Some(w);
+    let scale_warning = scale_warning(cfg, &character.mesh);
+    if let Some(w) = &scale_warning {
+        progress(&format!("warning: {w}"));
+    }
+    let mut session = Session::new(ctx, cfg, &character, anim, lights, progress)?;
+    let frames = session.frames(progress)?;
+    let twin = session.cpu_twin(&frames.gpu, progress);
+    let covered = session.covered();
+    let mut files = session.write_textures(&frames.gpu)?;
+    let (reference, truth) = match cfg.reference {
+        true => {
+            let (r, t) = session.reference(&frames.gpu, &twin.dg, &covered, progress);
+            (Some(r), Some(t))
+        }
+        false => (None, None),
+    };
+    files.extend(pictures(
+        cfg,
+        &session.geo,
+        &session.profile,
+        &frames.gpu,
+        truth.as_deref(),
+    )?);
+    let notes = session.notes(scale_warning);
+    let report = session.report(frames, twin, &covered, reference, files, notes);
+    crate::io::write_json(&cfg.out.join("report.json"), &report)?;
+    Ok(report)
+}
+
+/// A scale that makes the mesh smaller than a fingertip or larger than a room is almost
+/// always a units mistake (the coefficients are per mm): the warning saying so, if it is.
+fn scale_warning(cfg: &SssConfig, mesh: &Mesh) -> Option<String> {
+    let (lo, hi) = mesh
+        .positions
+        .iter()
+        .fold(None, |acc: Option<(Vec3, Vec3)>, p| {
+            Some(acc.map_or((*p, *p), |(lo, hi)| (lo.min(*p), hi.max(*p))))
+        })?;
+    let extent_mm = (hi - lo).length() as f64 * cfg.mm_per_unit;
+    (!(10.0..=10_000.0).contains(&extent_mm)).then(|| {
+        format!(
+            "{} is {extent_mm:.3} mm across at --mm-per-unit {}: scattering lengths are \
+             in mm, so the result is unlikely to mean anything; check the model's units",
+            cfg.mesh.display(),
+            cfg.mm_per_unit
+        )
+    })
+}
+
+/// The texture-space geometry, the profile and the kernel of a run.
+struct Session<'a> {
+    ctx: &'a Context,
+    cfg: &'a SssConfig,
+    character: &'a Character,
+    anim: Option<&'a Animation>,
+    lights: Vec<Light>,
+    /// The geometry of the last frame run (the rest pose, or the last pose of `anim`).
+    geo: TexGeometry,
+    profile: Profile,
+    params: SamplerParams,
+    kernel: SssKernel,
+}
+
+/// What the frames gave: the last frame's outputs and the median pass times.
+struct Frames {
+    gpu: SssOutput,
+    /// Median GPU ms of the vertex and irradiance passes, and of the diffusion pass.
+    ms_irradiance: f64,
+    ms_diffusion: f64,
+    in_flight: usize,
+}
+
+/// The CPU twin of both passes on the last frame's geometry, and what the per-vertex
+/// shadowing changes.
+struct CpuTwin {
+    /// The walk maps and contact sums of the last pose, built once for every CPU diffusion
+    /// (the kernel built its own with the geometry upload).
+    dg: DiffusionGeometry,
+    error: TwinError,
+    shadowing: ShadowingReport,
+    ms_irradiance: f64,
+    ms_diffusion: f64,
+}
+
+/// The GPU times of a frame: (vertex + irradiance passes, diffusion pass).
+fn pass_times(timings: &Timings) -> (f64, f64) {
+    (
+        timings.get(PASS_VERTEX).unwrap_or(f64::NAN)
+            + timings.get(PASS_IRRADIANCE).unwrap_or(f64::NAN),
+        timings.get(PASS_DIFFUSION).unwrap_or(f64::NAN),
+    )
+}
+
+impl<'a> Session<'a> {
+    /// Rasterises the texture-space geometry, tabulates the profile and uploads the kernel.
+    fn new(
+        ctx: &'a Context,
+        cfg: &'a SssConfig,
+        character: &'a Character,
+        anim: Option<&'a Animation>,
+        lights: Vec<Light>,
+        progress: &mut dyn FnMut(&str),
+    ) -> Result<Session<'a>> {
+        let mesh = &character.mesh;
+        let t = Instant::now();
+        let geo = TexGeometry::build(mesh, cfg.size, cfg.mm_per_unit)?;
+        let r = &geo.report;
+        progress(&format!(
+            "{}: {} triangles, {:.0} mm^2; {}^2 texture: {} charts ({} mirrored), {} overlapping \
+             texels -> {} layer(s), {} covered + {} gutter texels ({:.0} ms)",
+            mesh.name,
+            r.triangles,
+            r.mesh_area_mm2,
+            cfg.size,
+            r.charts,
+            r.mirrored_charts,
+            r.overlapping_texels,
+            r.layers,
+            r.covered_texels,
+            r.gutter_texels,
+            t.elapsed().as_secs_f64() * 1e3
+        ));
+        let profile = Profile::new(cfg.profile, cfg.material, cfg.energy)?;
+        progress(&format!(
+            "{:?} {} (eta {}): R_tot {:.4?}, radius {:.2?} mm, K(R) {:.4?}",
+            cfg.profile,
+            cfg.material.name,
+            cfg.material.eta,
+            profile.r_tot,
+            profile.radius,
+            profile.k
+        ));
+        let params = SamplerParams {
+            samples: cfg.samples,
+            shadow_refine: cfg.shadow_refine,
+            ..SamplerParams::default()
+        };
+        let mut setup = ctx.recorder("sss setup")?;
+        let kernel = SssKernel::new(&mut setup, &geo, &profile, params)?;
+        setup.submit_and_wait()?;
+        Ok(Session {
+            ctx,
+            cfg,
+            character,
+            anim,
+            lights,
+            geo,
+            profile,
+            params,
+            kernel,
+        })
+    }
+
+    /// Runs the frames (repeated, or over the animation) and takes the medians of their
+    /// times.
+    fn frames(&mut self, progress: &mut dyn FnMut(&str)) -> Result<Frames> {
+        let mut times: Vec<(f64, f64)> = Vec::new();
+        let (last, in_flight) = match self.anim {
+            None => self.repeated_frames(&mut times)?,
+            Some(a) => self.animated_frames(a, &mut times, progress)?,
+        };
+        let gpu = last.ok_or_else(|| Error::InvalidArgument("no frame ran".into()))?;
+        let median = |f: &dyn Fn(&(f64, f64)) -> f64| {
+            let mut v: Vec<f64> = times.iter().map(f).collect();
+            v.sort_by(f64::total_cmp);
+            v[v.len() / 2]
+        };
+        let (ms_e, ms_b) = (median(&|t| t.0), median(&|t| t.1));
+        progress(&format!(
+            "GPU: irradiance {ms_e:.2} ms + diffusion {ms_b:.2} ms ({:.1} fps)",
+            1000.0 / (ms_e + ms_b)
+        ));
+        Ok(Frames {
+            gpu,
+            ms_irradiance: ms_e,
+            ms_diffusion: ms_b,
+            in_flight,
+        })
+    }
+
+    /// The same frame `cfg.frames` times, two in flight: the last one's outputs.
+    fn repeated_frames(&self, times: &mut Vec<(f64, f64)>) -> Result<(Option<SssOutput>, usize)> {
+        let mut last = None;
+        let inputs: Vec<&[Light]> = vec![&self.lights[..]; self.cfg.frames];
+        let in_flight = run_frames(self.ctx, &self.kernel, inputs, 2, |r| {
+            times.push(pass_times(&r.timings));
+            last = Some(r.output);
+            Ok(())
+        })?;
+        Ok((last, in_flight))
+    }
+
+    /// Each frame: pose on the CPU, re-rasterise the texture-space geometry (same UV
+    /// layout), upload it, run the passes. The geometry and outputs of the last frame stay.
+    fn animated_frames(
+        &mut self,
+        a: &Animation,
+        times: &mut Vec<(f64, f64)>,
+        progress: &mut dyn FnMut(&str),
+    ) -> Result<(Option<SssOutput>, usize)> {
+        let (cfg, mesh) = (self.cfg, &self.character.mesh);
+        let mut last = None;
+        for f in 0..cfg.frames {
+            let time = a.duration * f as f32 / cfg.frames.max(2).saturating_sub(1) as f32;
+            let m = self.character.rig.skinning_matrices(Some(a), time);
+            let posed = crate::kernels::sss::texspace::posed(mesh, &m)?;
+            let moved = posed
+                .positions
+                .iter()
+                .zip(&mesh.positions)
+                .map(|(p, q)| (*p - *q).length())
+                .fold(0f32, f32::max) as f64
+                * cfg.mm_per_unit;
+            self.geo = TexGeometry::build(&posed, cfg.size, cfg.mm_per_unit)?;
+            let mut rec = self.ctx.recorder(&format!("sss frame {f}"))?;
+            self.kernel.update_geometry(&mut rec, &self.geo)?;
+            self.kernel.record(&mut rec, &self.lights[..])?;
+            let rb = self.kernel.read_back(&mut rec)?;
+            let timings = rec.submit_and_wait()?;
+            times.push(pass_times(&timings));
+            last = Some(self.kernel.collect(&rb)?);
+            progress(&format!(
+                "frame {f} ({} at {time:.2} s): vertices moved up to {moved:.1} mm",
+                a.name
+            ));
+        }
+        Ok((last, 1))
+    }
+
+    /// The CPU twin of both passes and of the transmission on the last frame's geometry,
+    /// compared with the GPU's outputs `gpu`.
+    fn cpu_twin(&self, gpu: &SssOutput, progress: &mut dyn FnMut(&str)) -> CpuTwin {
+        let (geo, lights, profile, params) = (&self.geo, &self.lights, &self.profile, &self.params);
+        let t = Instant::now();
+        let bvh = Bvh::build(&geo.positions, &geo.triangles);
+        let cpu_e = cpu::irradiance(geo, &bvh, lights, params.shadow_refine);
+        let ms_irradiance = t.elapsed().as_secs_f64() * 1e3;
+        let dg = DiffusionGeometry::build(geo, profile);
+        let t = Instant::now();
+        let cpu_b = cpu::diffusion_with(&dg, geo, profile, &cpu_e, params);
+        let ms_diffusion = t.elapsed().as_secs_f64() * 1e3;
+        let cpu_t = cpu::transmission(geo, &bvh, lights, profile);
+        let error = TwinError::of(geo, gpu, &cpu_e, &cpu_b, &cpu_t);
+        let shadowing = self.shadowing(&bvh, &dg, &cpu_e, &cpu_b);
+        progress(&format!(
+            "per-vertex shadowing against a ray per texel: E rel RMSE {:.4}, B rel RMSE {:.4?}",
+            shadowing.irradiance_rel_rmse, shadowing.diffuse_rel_rmse
+        ));
+        progress(&format!(
+            "CPU twin ({ms_irradiance:.0} + {ms_diffusion:.0} ms): irradiance max rel {:.1e}, \
+             diffuse rel RMSE {:.1e} {:.1e} {:.1e}",
+            error.irradiance_max_rel,
+            error.diffuse_rel_rmse[0],
+            error.diffuse_rel_rmse[1],
+            error.diffuse_rel_rmse[2]
+        ));
+        CpuTwin {
+            dg,
+            error,
+            shadowing,
+            ms_irradiance,
+            ms_diffusion,
         }
     }
-    let t = Instant::now();
-    let mut geo = TexGeometry::build(mesh, cfg.size, cfg.mm_per_unit)?;
-    let r = &geo.report;
-    progress(&format!(
-        "{}: {} triangles, {:.0} mm^2; {}^2 texture: {} charts ({} mirrored), {} overlapping \
-         texels -> {} layer(s), {} covered + {} gutter texels ({:.0} ms)",
-        mesh.name,
-        r.triangles,
-        r.mesh_area_mm2,
-        cfg.size,
-        r.charts,
-        r.mirrored_charts,
-        r.overlapping_texels,
-        r.layers,
-        r.covered_texels,
-        r.gutter_texels,
-        t.elapsed().as_secs_f64() * 1e3
-    ));
-    let profile = Profile::new(cfg.profile, cfg.material, cfg.energy)?;
-    progress(&format!(
-        "{:?} {} (eta {}): R_tot {:.4?}, radius {:.2?} mm, K(R) {:.4?}",
-        cfg.profile, cfg.material.name, cfg.material.eta, profile.r_tot, profile.radius, profile.k
-    ));
-    let params = SamplerParams {
-        samples: cfg.samples,
-        shadow_refine: cfg.shadow_refine,
-        ..SamplerParams::default()
-    };
-    let mut setup = ctx.recorder("sss setup")?;
-    let kernel = SssKernel::new(&mut setup, &geo, &profile, params)?;
-    setup.submit_and_wait()?;
-    let mut times: Vec<(f64, f64)> = Vec::new();
-    let mut last = None;
-    let in_flight = match anim {
-        None => {
-            let inputs: Vec<&[Light]> = vec![&lights[..]; cfg.frames];
-            run_frames(ctx, &kernel, inputs, 2, |r| {
-                times.push((
-                    r.timings.get(PASS_VERTEX).unwrap_or(f64::NAN)
-                        + r.timings.get(PASS_IRRADIANCE).unwrap_or(f64::NAN),
-                    r.timings.get(PASS_DIFFUSION).unwrap_or(f64::NAN),
-                ));
-                last = Some(r.output);
-                Ok(())
-            })?
-        }
-        Some(a) => {
-            // Each frame: pose on the CPU, re-rasterise the texture-space geometry (same UV
-            // layout), upload it, run the passes. The last frame's outputs are written.
-            for f in 0..cfg.frames {
-                let time = a.duration * f as f32 / cfg.frames.max(2).saturating_sub(1) as f32;
-                let m = character.rig.skinning_matrices(Some(a), time);
-                let posed = crate::kernels::sss::texspace::posed(mesh, &m)?;
-                let moved = posed
-                    .positions
-                    .iter()
-                    .zip(&mesh.positions)
-                    .map(|(p, q)| (*p - *q).length())
-                    .fold(0f32, f32::max) as f64
-                    * cfg.mm_per_unit;
-                geo = TexGeometry::build(&posed, cfg.size, cfg.mm_per_unit)?;
-                let mut rec = ctx.recorder(&format!("sss frame {f}"))?;
-                kernel.update_geometry(&mut rec, &geo)?;
-                kernel.record(&mut rec, &lights[..])?;
-                let rb = kernel.read_back(&mut rec)?;
-                let timings = rec.submit_and_wait()?;
-                times.push((
-                    timings.get(PASS_VERTEX).unwrap_or(f64::NAN)
-                        + timings.get(PASS_IRRADIANCE).unwrap_or(f64::NAN),
-                    timings.get(PASS_DIFFUSION).unwrap_or(f64::NAN),
-                ));
-                last = Some(kernel.collect(&rb)?);
-                progress(&format!(
-                    "frame {f} ({} at {time:.2} s): vertices moved up to {moved:.1} mm",
-                    a.name
-                ));
-            }
-            1
-        }
-    };
-    let gpu = last.ok_or_else(|| Error::InvalidArgument("no frame ran".into()))?;
-    let median = |f: &dyn Fn(&(f64, f64)) -> f64| {
-        let mut v: Vec<f64> = times.iter().map(f).collect();
-        v.sort_by(f64::total_cmp);
-        v[v.len() / 2]
-    };
-    let (ms_e, ms_b) = (median(&|t| t.0), median(&|t| t.1));
-    progress(&format!(
-        "GPU: irradiance {ms_e:.2} ms + diffusion {ms_b:.2} ms ({:.1} fps)",
-        1000.0 / (ms_e + ms_b)
-    ));
-    // The CPU twin of both passes.
-    let t = Instant::now();
-    let bvh = Bvh::build(&geo.positions, &geo.triangles);
-    let cpu_e = cpu::irradiance(&geo, &bvh, &lights, params.shadow_refine);
-    let cpu_ms_irradiance = t.elapsed().as_secs_f64() * 1e3;
-    // The walk maps and contact sums of the last pose, built once for every CPU diffusion
-    // below (the kernel built its own with the geometry upload).
-    let dg = cpu::DiffusionGeometry::build(&geo, &profile);
-    let t = Instant::now();
-    let cpu_b = cpu::diffusion_with(&dg, &geo, &profile, &cpu_e, &params);
-    let cpu_ms_diffusion = t.elapsed().as_secs_f64() * 1e3;
-    let cpu_t = cpu::transmission(&geo, &bvh, &lights, &profile);
-    let twin = TwinError::of(&geo, &gpu, &cpu_e, &cpu_b, &cpu_t);
-    let shadowing = {
-        let e_ray = cpu::irradiance_per_texel_rays(&geo, &bvh, &lights);
-        let b_ray = cpu::diffusion_with(&dg, &geo, &profile, &e_ray, &params);
+
+    /// The CPU irradiance `cpu_e` and diffusion `cpu_b` against the same with a shadow ray
+    /// per texel everywhere.
+    fn shadowing(
+        &self,
+        bvh: &Bvh,
+        dg: &DiffusionGeometry,
+        cpu_e: &[[f32; 4]],
+        cpu_b: &[[f32; 4]],
+    ) -> ShadowingReport {
+        let (geo, profile, params) = (&self.geo, &self.profile, &self.params);
+        let e_ray = cpu::irradiance_per_texel_rays(geo, bvh, &self.lights);
+        let b_ray = cpu::diffusion_with(dg, geo, profile, &e_ray, params);
         let w: Vec<f64> = (0..geo.texels())
             .map(|i| {
                 if geo.pos[i][3] == COVERED {
@@ -436,13 +586,8 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
                 }
             })
             .collect();
-        let as3 = |v: &[[f32; 4]]| {
-            v.iter()
-                .map(|x| [x[0] as f64, x[1] as f64, x[2] as f64])
-                .collect::<Vec<_>>()
-        };
-        let e_err = ChannelError::of(&as3(&cpu_e), &as3(&e_ray), &w);
-        let b_err = ChannelError::of(&as3(&cpu_b), &as3(&b_ray), &w);
+        let e_err = ChannelError::of(&as3(cpu_e), &as3(&e_ray), &w);
+        let b_err = ChannelError::of(&as3(cpu_b), &as3(&b_ray), &w);
         ShadowingReport {
             method: if params.shadow_refine {
                 "shadow rays per mesh vertex; a ray per texel in triangles whose corners \
@@ -455,54 +600,53 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
             diffuse_rel_rmse: b_err.rel_rmse,
             diffuse_energy_ratio: b_err.energy_ratio,
         }
-    };
-    progress(&format!(
-        "per-vertex shadowing against a ray per texel: E rel RMSE {:.4}, B rel RMSE {:.4?}",
-        shadowing.irradiance_rel_rmse, shadowing.diffuse_rel_rmse
-    ));
-    progress(&format!(
-        "CPU twin ({cpu_ms_irradiance:.0} + {cpu_ms_diffusion:.0} ms): irradiance max rel {:.1e}, \
-         diffuse rel RMSE {:.1e} {:.1e} {:.1e}",
-        twin.irradiance_max_rel,
-        twin.diffuse_rel_rmse[0],
-        twin.diffuse_rel_rmse[1],
-        twin.diffuse_rel_rmse[2]
-    ));
-    let covered: Vec<usize> = (0..geo.texels())
-        .filter(|&i| geo.pos[i][3] == COVERED)
-        .collect();
-    let accepted_fraction = covered
-        .iter()
-        .map(|&i| gpu.diffuse[i][3] as f64)
-        .sum::<f64>()
-        / covered.len() as f64;
-
-    let mut files = Vec::new();
-    let texture = |v: &[[f32; 4]]| FloatImage {
-        width: geo.size,
-        height: geo.size,
-        pixels: v.to_vec(),
-    };
-    for (name, data) in [
-        ("irradiance.exr", &gpu.irradiance),
-        ("diffuse.exr", &gpu.diffuse),
-        ("transmission.exr", &gpu.transmission),
-    ] {
-        let path = cfg.out.join(name);
-        crate::io::exr::write(&path, &texture(data), crate::io::exr::Channels::Rgba)?;
-        files.push(path.display().to_string());
     }
 
-    let mut reference = None;
-    let mut truth_tex = None;
-    if cfg.reference {
+    /// The covered texels of the last frame's geometry.
+    fn covered(&self) -> Vec<usize> {
+        let geo = &self.geo;
+        (0..geo.texels())
+            .filter(|&i| geo.pos[i][3] == COVERED)
+            .collect()
+    }
+
+    /// irradiance.exr, diffuse.exr and transmission.exr (texture space, linear float).
+    fn write_textures(&self, gpu: &SssOutput) -> Result<Vec<String>> {
+        let mut files = Vec::new();
+        let texture = |v: &[[f32; 4]]| FloatImage {
+            width: self.geo.size,
+            height: self.geo.size,
+            pixels: v.to_vec(),
+        };
+        for (name, data) in [
+            ("irradiance.exr", &gpu.irradiance),
+            ("diffuse.exr", &gpu.diffuse),
+            ("transmission.exr", &gpu.transmission),
+        ] {
+            let path = self.cfg.out.join(name);
+            crate::io::exr::write(&path, &texture(data), crate::io::exr::Channels::Rgba)?;
+            files.push(path.display().to_string());
+        }
+        Ok(files)
+    }
+
+    /// The GPU diffusion against the brute-force truth over the `covered` texels, split by
+    /// where the error comes from; and the truth as a texture (for reference.png).
+    fn reference(
+        &self,
+        gpu: &SssOutput,
+        dg: &DiffusionGeometry,
+        covered: &[usize],
+        progress: &mut dyn FnMut(&str),
+    ) -> (ReferenceReport, Vec<[f32; 4]>) {
+        let (geo, profile) = (&self.geo, &self.profile);
         let t = Instant::now();
-        let sources = Sources::from_texels(&geo, &gpu.irradiance);
+        let sources = Sources::from_texels(geo, &gpu.irradiance);
         let receivers: Vec<DVec3> = covered
             .iter()
             .map(|&i| Vec3::from_slice(&geo.pos[i][..3]).as_dvec3())
             .collect();
-        let truth = brute_force(&sources, &receivers, &profile);
+        let truth = brute_force(&sources, &receivers, profile);
         let ms = t.elapsed().as_secs_f64() * 1e3;
         let est: Vec<[f64; 3]> = covered
             .iter()
@@ -517,10 +661,43 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
                 &idx.iter().map(|&k| w[k]).collect::<Vec<_>>(),
             )
         };
-        // The same pattern on the CPU: which texels have samples leaving their triangle by
-        // a seam or an open edge, and the contact term alone.
-        let pattern = cpu::sample_pattern(&profile, params.samples);
-        let near_seam: Vec<bool> = covered
+        let near_seam = self.near_seam(dg, covered);
+        let own = self.own_piece_truth(&sources, &receivers, covered);
+        let touch = dg.contact.apply(&gpu.irradiance);
+        let energy =
+            |v: &[[f64; 3]], c: usize| v.iter().zip(&w).map(|(x, a)| x[c] * a).sum::<f64>();
+        let without: Vec<[f64; 3]> = covered
+            .iter()
+            .zip(&est)
+            .map(|(&i, b)| [0, 1, 2].map(|c| b[c] - touch[i][c] as f64))
+            .collect();
+        let contact = contact_error(dg, covered, &own, &touch, &truth, &w);
+        let seam_texels = near_seam.iter().filter(|&&b| b).count() as f64 / covered.len() as f64;
+        let rep = ReferenceReport {
+            sources: sources.pos.len(),
+            ms,
+            all: ChannelError::of(&est, &truth, &w),
+            interior: split(&|k| !near_seam[k]),
+            seam: split(&|k| near_seam[k]),
+            seam_texels,
+            truncation: [0, 1, 2].map(|c| 1.0 - profile.k[c] / profile.r_tot[c]),
+            contact_share: [0, 1, 2].map(|c| 1.0 - energy(&own, c) / energy(&truth, c)),
+            contact_max_share: [0, 1, 2].map(|c| contact_max_share(&truth, &own, c)),
+            own_piece: ChannelError::of(&without, &own, &w),
+            contact,
+        };
+        for line in reference_lines(&rep) {
+            progress(&line);
+        }
+        (rep, self.truth_texture(covered, &truth))
+    }
+
+    /// Which `covered` texels have samples (the same pattern as the CPU twin's) leaving
+    /// their triangle by a seam or an open edge.
+    fn near_seam(&self, dg: &DiffusionGeometry, covered: &[usize]) -> Vec<bool> {
+        let geo = &self.geo;
+        let pattern = cpu::sample_pattern(&self.profile, self.params.samples);
+        covered
             .iter()
             .map(|&i| {
                 let tt = geo.texel_tri[i];
@@ -536,79 +713,32 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
                         .is_some_and(|k| dg.walk.is_seam(texel.triangle(), k))
                 })
             })
-            .collect();
-        let (piece, _) = crate::kernels::sss::contact::pieces(&geo);
+            .collect()
+    }
+
+    /// The brute-force truth at `receivers` from the sources on each receiver's own
+    /// connected piece of the mesh only.
+    fn own_piece_truth(
+        &self,
+        sources: &Sources,
+        receivers: &[DVec3],
+        covered: &[usize],
+    ) -> Vec<[f64; 3]> {
+        let geo = &self.geo;
+        let (piece, _) = crate::kernels::sss::contact::pieces(geo);
         let piece_of = |i: usize| piece[geo.texel_tri[i][0] as usize];
         let source_piece: Vec<u32> = (0..geo.texels())
             .filter(|&i| geo.pos[i][3] == COVERED)
             .map(piece_of)
             .collect();
-        let own = brute_force_where(&sources, &receivers, &profile, |r, j| {
+        brute_force_where(sources, receivers, &self.profile, |r, j| {
             source_piece[j] == piece_of(covered[r])
-        });
-        let touch = dg.contact.apply(&gpu.irradiance);
-        let energy =
-            |v: &[[f64; 3]], c: usize| v.iter().zip(&w).map(|(x, a)| x[c] * a).sum::<f64>();
-        let without: Vec<[f64; 3]> = covered
-            .iter()
-            .zip(&est)
-            .map(|(&i, b)| [0, 1, 2].map(|c| b[c] - touch[i][c] as f64))
-            .collect();
-        // The contact term's error, relative to the whole truth at the texels that have
-        // contact entries: the truth plus (contact term - light from other pieces).
-        let touched: Vec<usize> = (0..covered.len())
-            .filter(|&k| dg.contact.range[covered[k]][1] > 0)
-            .collect();
-        let contact = {
-            let shifted: Vec<[f64; 3]> = touched
-                .iter()
-                .map(|&k| {
-                    let i = covered[k];
-                    [0, 1, 2].map(|c| own[k][c] + touch[i][c] as f64)
-                })
-                .collect();
-            let full: Vec<[f64; 3]> = touched.iter().map(|&k| truth[k]).collect();
-            let ww: Vec<f64> = touched.iter().map(|&k| w[k]).collect();
-            ChannelError::of(&shifted, &full, &ww)
-        };
-        let seam_texels = near_seam.iter().filter(|&&b| b).count() as f64 / covered.len() as f64;
-        let rep = ReferenceReport {
-            sources: sources.pos.len(),
-            ms,
-            all: ChannelError::of(&est, &truth, &w),
-            interior: split(&|k| !near_seam[k]),
-            seam: split(&|k| near_seam[k]),
-            seam_texels,
-            truncation: [0, 1, 2].map(|c| 1.0 - profile.k[c] / profile.r_tot[c]),
-            contact_share: [0, 1, 2].map(|c| 1.0 - energy(&own, c) / energy(&truth, c)),
-            contact_max_share: [0, 1, 2].map(|c| {
-                let top = truth.iter().map(|t| t[c]).fold(0.0, f64::max);
-                truth
-                    .iter()
-                    .zip(&own)
-                    .filter(|(t, _)| t[c] > 1e-3 * top)
-                    .map(|(t, o)| 1.0 - o[c] / t[c])
-                    .fold(0.0, f64::max)
-            }),
-            own_piece: ChannelError::of(&without, &own, &w),
-            contact,
-        };
-        progress(&format!(
-            "{:.0}% of the texels sample across a seam or border: rel RMSE there {:.4?}, \
-             elsewhere {:.4?}; light from other pieces of the mesh: {:.4?} of the truth; \
-             without the contact term vs the own-piece truth: rel RMSE {:.4?}",
-            100.0 * rep.seam_texels,
-            rep.seam.rel_rmse,
-            rep.interior.rel_rmse,
-            rep.contact_share,
-            rep.own_piece.rel_rmse
-        ));
-        progress(&format!(
-            "vs brute force ({} sources, {ms:.0} ms): rel RMSE {:.4?}, max rel {:.3?}, energy \
-             ratio {:.4?}",
-            rep.sources, rep.all.rel_rmse, rep.all.max_rel, rep.all.energy_ratio
-        ));
-        let mut tex = vec![[0f32; 4]; geo.texels()];
+        })
+    }
+
+    /// The truth at the `covered` texels as an RGBA texture (alpha 1 where covered).
+    fn truth_texture(&self, covered: &[usize], truth: &[[f64; 3]]) -> Vec<[f32; 4]> {
+        let mut tex = vec![[0f32; 4]; self.geo.texels()];
         for (k, &i) in covered.iter().enumerate() {
             tex[i] = [
                 truth[k][0] as f32,
@@ -617,61 +747,148 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
                 1.0,
             ];
         }
-        truth_tex = Some(tex);
-        reference = Some(rep);
+        tex
     }
-    files.extend(pictures(cfg, &geo, &profile, &gpu, truth_tex.as_deref())?);
-    let mut notes: Vec<String> = scale_warning.into_iter().collect();
-    if ctx.info().device_type == "CPU" {
-        notes.push("the device is a CPU implementation (lavapipe): times measure the CPU".into());
+
+    fn notes(&self, scale_warning: Option<String>) -> Vec<String> {
+        let mut notes: Vec<String> = scale_warning.into_iter().collect();
+        if self.ctx.info().device_type == "CPU" {
+            notes.push(
+                "the device is a CPU implementation (lavapipe): times measure the CPU".into(),
+            );
+        }
+        notes.push(
+            "samples are per texel, shared by the three channels (radii from the mixture of the \
+             channels' pdfs, one-sample MIS weights); irradiance shadows are rays \
+             through a BVH of the mesh on the GPU, one per mesh vertex and light, refined by a \
+             ray per texel where a triangle's corners disagree (interpolated over the triangle \
+             with --vertex-shadows; see `shadowing`); the texture-space geometry is \
+             rasterised on the CPU (once; with --anim once per frame after CPU skinning, BVH \
+             rebuilt); transmission: thickness along -n by a ray per vertex, \
+             back irradiance times the profile beyond the thickness (flat-slab model), \
+             interpolated per texel, added in render.png, not in diffuse.exr"
+                .into(),
+        );
+        notes.push(
+            "reference: brute force over every covered texel (position, GPU irradiance, area) \
+             with the untruncated profile and Euclidean distances; `seam` = texels some of whose \
+             samples leave their triangle through a seam or an open edge; `own_piece` / \
+             `contact`: the truth split by the connected piece of the mesh its light comes from"
+                .into(),
+        );
+        notes
     }
-    notes.push(
-        "samples are per texel, shared by the three channels (radii from the mixture of the \
-         channels' pdfs, one-sample MIS weights); irradiance shadows are rays \
-         through a BVH of the mesh on the GPU, one per mesh vertex and light, refined by a \
-         ray per texel where a triangle's corners disagree (interpolated over the triangle \
-         with --vertex-shadows; see `shadowing`); the texture-space geometry is \
-         rasterised on the CPU (once; with --anim once per frame after CPU skinning, BVH \
-         rebuilt); transmission: thickness along -n by a ray per vertex, \
-         back irradiance times the profile beyond the thickness (flat-slab model), \
-         interpolated per texel, added in render.png, not in diffuse.exr"
-            .into(),
-    );
-    notes.push(
-        "reference: brute force over every covered texel (position, GPU irradiance, area) \
-         with the untruncated profile and Euclidean distances; `seam` = texels some of whose \
-         samples leave their triangle through a seam or an open edge; `own_piece` / \
-         `contact`: the truth split by the connected piece of the mesh its light comes from"
-            .into(),
-    );
-    let report = SssReport {
-        tool: "vkshade sss",
-        machine: MachineInfo::of(ctx),
-        mesh: cfg.mesh.display().to_string(),
-        part: cfg.part.clone(),
-        anim: anim.map(|a| a.name.clone()),
-        mm_per_unit: cfg.mm_per_unit,
-        lights: cfg.lights.clone(),
-        profile,
-        sampler: params,
-        samples: cfg.samples,
-        size: cfg.size,
-        texture: geo.report.clone(),
-        kernel: KernelInfo::of(&kernel, in_flight),
-        gpu_ms_irradiance: ms_e,
-        gpu_ms_diffusion: ms_b,
-        fps: 1000.0 / (ms_e + ms_b),
-        accepted_fraction,
-        gpu_vs_cpu: twin,
-        shadowing,
-        cpu_ms_irradiance,
-        cpu_ms_diffusion,
-        reference,
-        files,
-        notes,
-    };
-    crate::io::write_json(&cfg.out.join("report.json"), &report)?;
-    Ok(report)
+
+    /// The report of the run.
+    fn report(
+        &self,
+        frames: Frames,
+        twin: CpuTwin,
+        covered: &[usize],
+        reference: Option<ReferenceReport>,
+        files: Vec<String>,
+        notes: Vec<String>,
+    ) -> SssReport {
+        let cfg = self.cfg;
+        let (ms_e, ms_b) = (frames.ms_irradiance, frames.ms_diffusion);
+        let accepted_fraction = covered
+            .iter()
+            .map(|&i| frames.gpu.diffuse[i][3] as f64)
+            .sum::<f64>()
+            / covered.len() as f64;
+        SssReport {
+            tool: "vkshade sss",
+            machine: MachineInfo::of(self.ctx),
+            mesh: cfg.mesh.display().to_string(),
+            part: cfg.part.clone(),
+            anim: self.anim.map(|a| a.name.clone()),
+            mm_per_unit: cfg.mm_per_unit,
+            lights: cfg.lights.clone(),
+            profile: self.profile.clone(),
+            sampler: self.params,
+            samples: cfg.samples,
+            size: cfg.size,
+            texture: self.geo.report.clone(),
+            kernel: KernelInfo::of(&self.kernel, frames.in_flight),
+            gpu_ms_irradiance: ms_e,
+            gpu_ms_diffusion: ms_b,
+            fps: 1000.0 / (ms_e + ms_b),
+            accepted_fraction,
+            gpu_vs_cpu: twin.error,
+            shadowing: twin.shadowing,
+            cpu_ms_irradiance: twin.ms_irradiance,
+            cpu_ms_diffusion: twin.ms_diffusion,
+            reference,
+            files,
+            notes,
+        }
+    }
+}
+
+/// RGB of RGBA texels, in f64.
+fn as3(v: &[[f32; 4]]) -> Vec<[f64; 3]> {
+    v.iter()
+        .map(|x| [x[0] as f64, x[1] as f64, x[2] as f64])
+        .collect()
+}
+
+/// The contact term's error, relative to the whole truth at the texels that have contact
+/// entries: the truth plus (contact term - light from other pieces), i.e. the own-piece
+/// truth `own` plus the contact term `touch`, against the whole truth.
+fn contact_error(
+    dg: &DiffusionGeometry,
+    covered: &[usize],
+    own: &[[f64; 3]],
+    touch: &[[f32; 3]],
+    truth: &[[f64; 3]],
+    w: &[f64],
+) -> ChannelError {
+    let touched: Vec<usize> = (0..covered.len())
+        .filter(|&k| dg.contact.range[covered[k]][1] > 0)
+        .collect();
+    let shifted: Vec<[f64; 3]> = touched
+        .iter()
+        .map(|&k| {
+            let i = covered[k];
+            [0, 1, 2].map(|c| own[k][c] + touch[i][c] as f64)
+        })
+        .collect();
+    let full: Vec<[f64; 3]> = touched.iter().map(|&k| truth[k]).collect();
+    let ww: Vec<f64> = touched.iter().map(|&k| w[k]).collect();
+    ChannelError::of(&shifted, &full, &ww)
+}
+
+/// The largest share of one texel's truth in channel `c` from other pieces of the mesh,
+/// over the texels whose truth is at least 1e-3 of the largest.
+fn contact_max_share(truth: &[[f64; 3]], own: &[[f64; 3]], c: usize) -> f64 {
+    let top = truth.iter().map(|t| t[c]).fold(0.0, f64::max);
+    truth
+        .iter()
+        .zip(own)
+        .filter(|(t, _)| t[c] > 1e-3 * top)
+        .map(|(t, o)| 1.0 - o[c] / t[c])
+        .fold(0.0, f64::max)
+}
+
+/// The progress lines of the reference: where the error comes from, and the totals.
+fn reference_lines(rep: &ReferenceReport) -> [String; 2] {
+    [
+        format!(
+            "{:.0}% of the texels sample across a seam or border: rel RMSE there {:.4?}, \
+             elsewhere {:.4?}; light from other pieces of the mesh: {:.4?} of the truth; \
+             without the contact term vs the own-piece truth: rel RMSE {:.4?}",
+            100.0 * rep.seam_texels,
+            rep.seam.rel_rmse,
+            rep.interior.rel_rmse,
+            rep.contact_share,
+            rep.own_piece.rel_rmse
+        ),
+        format!(
+            "vs brute force ({} sources, {:.0} ms): rel RMSE {:.4?}, max rel {:.3?}, energy \
+             ratio {:.4?}",
+            rep.sources, rep.ms, rep.all.rel_rmse, rep.all.max_rel, rep.all.energy_ratio
+        ),
+    ]
 }
 
 /// Bilinear lookup of a texture-space RGB image at `uv`, over valid (alpha > 0) texels.
@@ -712,74 +929,22 @@ fn pictures(
     gpu: &SssOutput,
     truth: Option<&[[f32; 4]]>,
 ) -> Result<Vec<String>> {
-    use crate::render::{View, rasterize, shade_rgb, side_by_side, write_png};
-    // One vertex per triangle corner, carrying its atlas UV.
-    let mut positions = Vec::with_capacity(3 * geo.triangles.len());
-    let mut us = Vec::new();
-    let mut vs = Vec::new();
-    let mut tris = Vec::new();
-    for (t, tri) in geo.triangles.iter().enumerate() {
-        for (&v, uv) in tri.iter().zip(&geo.corner_uvs[t]) {
-            positions.push(geo.positions[v as usize]);
-            us.push(uv.x);
-            vs.push(uv.y);
-        }
-        let b = 3 * t as u32;
-        tris.push([b, b + 1, b + 2]);
-    }
-    let view = View {
-        direction: Vec3::new(-0.35, -0.25, -1.0).normalize(),
-        width: cfg.image.0,
-        height: cfg.image.1,
-        ..Default::default()
-    };
-    let u_img = rasterize(&positions, &tris, &us, &positions, &view);
-    let v_img = rasterize(&positions, &tris, &vs, &positions, &view);
-    let image_of = |f: &dyn Fn(Vec2) -> [f32; 3]| {
-        let mut ch = [u_img.clone(), u_img.clone(), u_img.clone()];
-        for p in 0..u_img.value.len() {
-            let (u, v) = (u_img.value[p], v_img.value[p]);
-            let rgb = if u.is_finite() && v.is_finite() {
-                f(Vec2::new(u, v))
-            } else {
-                [f32::NAN; 3]
-            };
-            for c in 0..3 {
-                ch[c].value[p] = rgb[c];
-            }
-        }
-        ch
-    };
+    use crate::render::{shade_rgb, write_png};
+    let atlas = AtlasView::new(cfg, geo);
     // Exit radiance L = B / pi (Fresnel transmittance left out); the Lambertian comparison
     // has the same total reflectance: L = R_tot E / pi.
     let pi = std::f32::consts::PI;
-    let sss = image_of(&|uv| {
+    let sss = atlas.image(&|uv| {
         let b = lookup(&gpu.diffuse, &geo.pos, geo.size, uv);
         let t = lookup(&gpu.transmission, &geo.pos, geo.size, uv);
         [0, 1, 2].map(|c| (b[c] + t[c]) / pi)
     });
     let r_tot = profile.r_tot.map(|r| r as f32);
-    let lambert = image_of(&|uv| {
+    let lambert = atlas.image(&|uv| {
         let e = lookup(&gpu.irradiance, &geo.pos, geo.size, uv);
         [0, 1, 2].map(|c| r_tot[c] * e[c] / pi)
     });
-    let exposure = {
-        let mut lum: Vec<f32> = sss[0]
-            .value
-            .iter()
-            .zip(&sss[1].value)
-            .zip(&sss[2].value)
-            .filter(|((r, _), _)| r.is_finite())
-            .map(|((r, g), b)| 0.2126 * r + 0.7152 * g + 0.0722 * b)
-            .collect();
-        lum.sort_by(f32::total_cmp);
-        let p99 = lum
-            .get(lum.len() * 99 / 100)
-            .copied()
-            .unwrap_or(1.0)
-            .max(1e-9);
-        0.9 / p99
-    };
+    let exposure = exposure(&sss);
     let a = shade_rgb([&sss[0], &sss[1], &sss[2]], exposure)?;
     let b = shade_rgb([&lambert[0], &lambert[1], &lambert[2]], exposure)?;
     let mut rgb = Vec::with_capacity(a.rgb.len() * 2);
@@ -792,29 +957,255 @@ fn pictures(
     write_png(&path, a.width * 2, a.height, &rgb)?;
     let mut files = vec![path.display().to_string()];
     if let Some(truth) = truth {
-        let d_img = image_of(&|uv| lookup(&gpu.diffuse, &geo.pos, geo.size, uv).map(|b| b / pi));
-        let a = shade_rgb([&d_img[0], &d_img[1], &d_img[2]], exposure)?;
-        let sss = d_img;
-        let t_img = image_of(&|uv| lookup(truth, &geo.pos, geo.size, uv).map(|b| b / pi));
-        let t_pic = shade_rgb([&t_img[0], &t_img[1], &t_img[2]], exposure)?;
-        let scale = truth
-            .iter()
-            .map(|t| t[0].max(t[1]).max(t[2]))
-            .fold(0f32, f32::max)
-            .max(1e-12)
-            / pi;
-        let err: Vec<f32> = (0..sss[0].value.len())
-            .map(|p| {
-                (0..3)
-                    .map(|c| (sss[c].value[p] - t_img[c].value[p]).abs())
-                    .fold(0f32, f32::max)
-                    / scale
-            })
-            .collect();
-        let pic = side_by_side(&a, &t_pic, &err, cfg.error_scale)?;
         let path = cfg.out.join("reference.png");
-        write_png(&path, pic.width, pic.height, &pic.rgb)?;
+        reference_picture(&path, cfg, geo, &atlas, gpu, truth, exposure)?;
         files.push(path.display().to_string());
     }
     Ok(files)
+}
+
+/// The mesh seen from the pictures' camera, each pixel holding the atlas UV it shows.
+struct AtlasView {
+    u: ValueImage,
+    v: ValueImage,
+}
+
+impl AtlasView {
+    fn new(cfg: &SssConfig, geo: &TexGeometry) -> AtlasView {
+        use crate::render::{View, rasterize};
+        // One vertex per triangle corner, carrying its atlas UV.
+        let mut positions = Vec::with_capacity(3 * geo.triangles.len());
+        let mut us = Vec::new();
+        let mut vs = Vec::new();
+        let mut tris = Vec::new();
+        for (t, tri) in geo.triangles.iter().enumerate() {
+            for (&v, uv) in tri.iter().zip(&geo.corner_uvs[t]) {
+                positions.push(geo.positions[v as usize]);
+                us.push(uv.x);
+                vs.push(uv.y);
+            }
+            let b = 3 * t as u32;
+            tris.push([b, b + 1, b + 2]);
+        }
+        let view = View {
+            direction: Vec3::new(-0.35, -0.25, -1.0).normalize(),
+            width: cfg.image.0,
+            height: cfg.image.1,
+            ..Default::default()
+        };
+        AtlasView {
+            u: rasterize(&positions, &tris, &us, &positions, &view),
+            v: rasterize(&positions, &tris, &vs, &positions, &view),
+        }
+    }
+
+    /// Three channel images of `f` at each pixel's UV (NaN where no surface is seen).
+    fn image(&self, f: &dyn Fn(Vec2) -> [f32; 3]) -> [ValueImage; 3] {
+        let mut ch = [self.u.clone(), self.u.clone(), self.u.clone()];
+        for p in 0..self.u.value.len() {
+            let (u, v) = (self.u.value[p], self.v.value[p]);
+            let rgb = if u.is_finite() && v.is_finite() {
+                f(Vec2::new(u, v))
+            } else {
+                [f32::NAN; 3]
+            };
+            for c in 0..3 {
+                ch[c].value[p] = rgb[c];
+            }
+        }
+        ch
+    }
+}
+
+/// The exposure that maps the 99th percentile of the luminance of `rgb` to 0.9.
+fn exposure(rgb: &[ValueImage; 3]) -> f32 {
+    let mut lum: Vec<f32> = rgb[0]
+        .value
+        .iter()
+        .zip(&rgb[1].value)
+        .zip(&rgb[2].value)
+        .filter(|((r, _), _)| r.is_finite())
+        .map(|((r, g), b)| 0.2126 * r + 0.7152 * g + 0.0722 * b)
+        .collect();
+    lum.sort_by(f32::total_cmp);
+    let p99 = lum
+        .get(lum.len() * 99 / 100)
+        .copied()
+        .unwrap_or(1.0)
+        .max(1e-9);
+    0.9 / p99
+}
+
+/// reference.png: the diffusion alone | the truth | the error relative to the brightest
+/// truth texel, at the exposure of render.png.
+fn reference_picture(
+    path: &Path,
+    cfg: &SssConfig,
+    geo: &TexGeometry,
+    atlas: &AtlasView,
+    gpu: &SssOutput,
+    truth: &[[f32; 4]],
+    exposure: f32,
+) -> Result<()> {
+    use crate::render::{shade_rgb, side_by_side, write_png};
+    let pi = std::f32::consts::PI;
+    let sss = atlas.image(&|uv| lookup(&gpu.diffuse, &geo.pos, geo.size, uv).map(|b| b / pi));
+    let a = shade_rgb([&sss[0], &sss[1], &sss[2]], exposure)?;
+    let t_img = atlas.image(&|uv| lookup(truth, &geo.pos, geo.size, uv).map(|b| b / pi));
+    let t_pic = shade_rgb([&t_img[0], &t_img[1], &t_img[2]], exposure)?;
+    let scale = truth
+        .iter()
+        .map(|t| t[0].max(t[1]).max(t[2]))
+        .fold(0f32, f32::max)
+        .max(1e-12)
+        / pi;
+    let err: Vec<f32> = (0..sss[0].value.len())
+        .map(|p| {
+            (0..3)
+                .map(|c| (sss[c].value[p] - t_img[c].value[p]).abs())
+                .fold(0f32, f32::max)
+                / scale
+        })
+        .collect();
+    let pic = side_by_side(&a, &t_pic, &err, cfg.error_scale)?;
+    write_png(path, pic.width, pic.height, &pic.rgb)
+}
+
+/// The arguments of `vkshade sss`.
+#[derive(clap::Args, Clone, Debug)]
+pub struct Args {
+    /// Mesh with UVs (.glb/.gltf .obj .ply; a skinned mesh is used in its bind pose).
+    #[arg(long, default_value = DEFAULT_MESH)]
+    pub mesh: PathBuf,
+    /// Use only this glTF mesh (node or mesh name); `--part ''` uses the whole file.
+    #[arg(long, default_value = DEFAULT_PART)]
+    pub part: String,
+    /// Millimetres per model unit (scattering coefficients are per mm). Default: 1, or
+    /// 1000 for the built-in BCN_Epileptic mesh (modelled in metres).
+    #[arg(long)]
+    pub mm_per_unit: Option<f64>,
+    /// dir:X,Y,Z[:E] (arriving from X,Y,Z; irradiance E, default 1) or point:X,Y,Z:I
+    /// (position in model units, intensity I). Repeatable.
+    #[arg(long = "light")]
+    pub lights: Vec<String>,
+    /// dipole (tabulated inverse CDF) or burley (analytic inverse CDF).
+    #[arg(
+        long,
+        default_value = "dipole",
+        ignore_case = true,
+        value_parser = super::choice::<ProfileKind>("profile")
+    )]
+    pub profile: ProfileKind,
+    /// skin1 or skin2 (Jensen 2001), or custom with --sigma-a and --sigma-s.
+    #[arg(long, default_value = "skin1")]
+    pub material: String,
+    /// Absorption coefficients R,G,B per mm (custom material).
+    #[arg(long, value_delimiter = ',', num_args = 3)]
+    pub sigma_a: Option<Vec<f64>>,
+    /// Reduced scattering coefficients R,G,B per mm (custom material).
+    #[arg(long, value_delimiter = ',', num_args = 3)]
+    pub sigma_s: Option<Vec<f64>>,
+    /// Relative index of refraction (default 1.3).
+    #[arg(long, default_value_t = crate::kernels::sss::profile::DEFAULT_ETA)]
+    pub eta: f64,
+    /// Fraction of each channel's reflectance inside its sampling radius.
+    #[arg(long, default_value_t = crate::kernels::sss::profile::DEFAULT_ENERGY)]
+    pub energy: f64,
+    /// Samples per texel (one set shared by the three channels).
+    #[arg(long, default_value_t = 32)]
+    pub samples: u32,
+    /// Shadows from the mesh's vertices only, interpolated over each triangle (faster); by
+    /// default a texel casts its own shadow ray where its triangle's corners disagree.
+    #[arg(long)]
+    pub vertex_shadows: bool,
+    /// Texture size (N x N texels).
+    #[arg(long, default_value_t = 512)]
+    pub size: u32,
+    /// Frames to run: spread over --anim (posed and re-rasterised each frame), or the same
+    /// frame repeated; timings are medians, the last frame is written.
+    #[arg(long, default_value_t = 1)]
+    pub frames: usize,
+    /// Animation of the mesh's skeleton (glTF; name or unique substring).
+    #[arg(long)]
+    pub anim: Option<String>,
+    /// Compare with the brute-force ground truth (f64, every covered texel).
+    #[arg(long)]
+    pub reference: bool,
+    #[arg(long, default_value = "out/sss")]
+    pub out: PathBuf,
+}
+
+impl Args {
+    /// The run these arguments describe: the material (named, or custom from both
+    /// coefficient triples), the scale and the lights (the default light when none is given).
+    pub fn config(&self) -> Result<SssConfig> {
+        let three = |v: &Option<Vec<f64>>, what: &str| -> Result<Option<[f64; 3]>> {
+            v.as_ref()
+                .map(|v| {
+                    v.as_slice().try_into().map_err(|_| {
+                        Error::InvalidArgument(format!("{what} takes three values R,G,B"))
+                    })
+                })
+                .transpose()
+        };
+        let material = match (
+            three(&self.sigma_a, "--sigma-a")?,
+            three(&self.sigma_s, "--sigma-s")?,
+        ) {
+            (Some(sa), Some(ss)) => Material::custom(sa, ss, self.eta)?,
+            (None, None) => Material::named(&self.material)?.with_eta(self.eta)?,
+            _ => {
+                return Err(Error::InvalidArgument(
+                    "a custom material needs both --sigma-a and --sigma-s".into(),
+                ));
+            }
+        };
+        Ok(SssConfig {
+            mesh: self.mesh.clone(),
+            part: (!self.part.is_empty()).then(|| self.part.clone()),
+            mm_per_unit: self
+                .mm_per_unit
+                .unwrap_or_else(|| default_mm_per_unit(&self.mesh)),
+            lights: if self.lights.is_empty() {
+                SssConfig::default().lights
+            } else {
+                self.lights.clone()
+            },
+            profile: self.profile,
+            material,
+            energy: self.energy,
+            samples: self.samples,
+            shadow_refine: !self.vertex_shadows,
+            size: self.size,
+            frames: self.frames,
+            anim: self.anim.clone(),
+            reference: self.reference,
+            out: self.out.clone(),
+            ..Default::default()
+        })
+    }
+
+    /// `vkshade sss`: runs the frames and prints the summary.
+    pub fn run(&self, gpu: &Gpu) -> Result<()> {
+        let cfg = self.config()?;
+        let ctx = gpu.context()?;
+        eprintln!("vkshade sss on {}", ctx.info().name);
+        let r = run(&ctx, &cfg, &mut |l| super::progress(l))?;
+        display(&r, &cfg);
+        super::finish(ctx)
+    }
+}
+
+/// The line `vkshade sss` prints: the timings of the two passes and where the files went.
+pub fn display(r: &SssReport, cfg: &SssConfig) {
+    println!(
+        "{} {}^2 texels x {} samples: irradiance {:.2} ms + diffusion {:.2} ms GPU = {:.1} fps; wrote {}",
+        r.mesh,
+        r.size,
+        r.samples,
+        r.gpu_ms_irradiance,
+        r.gpu_ms_diffusion,
+        r.fps,
+        cfg.out.display()
+    );
 }

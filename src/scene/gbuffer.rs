@@ -99,6 +99,7 @@ impl GBuffer {
 
 /// The test objects.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 pub enum Object {
     /// Unit sphere, 8 x 4 tiles over (phi, theta).
     Sphere,
@@ -107,18 +108,6 @@ pub enum Object {
     Cylinder,
     /// A 3 x 3 square tilted 60 deg back from the camera, 5 x 5 tiles: the grazing band.
     Plane,
-}
-
-impl std::str::FromStr for Object {
-    type Err = String;
-    fn from_str(s: &str) -> std::result::Result<Self, String> {
-        match s {
-            "sphere" => Ok(Object::Sphere),
-            "cylinder" => Ok(Object::Cylinder),
-            "plane" => Ok(Object::Plane),
-            _ => Err(format!("unknown object '{s}' (sphere, cylinder, plane)")),
-        }
-    }
 }
 
 /// The pinhole camera of the object renders: at `EYE`, looking at the origin, y up.

@@ -53,22 +53,12 @@ pub struct SphereTree {
 
 /// How spheres are fitted to clusters.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 pub enum Fit {
     /// Same volume as the cluster: approximates the matter (default, best for occlusion).
     Volume,
     /// Covers the cluster: conservative, over-occludes.
     Bounding,
-}
-
-impl std::str::FromStr for Fit {
-    type Err = String;
-    fn from_str(s: &str) -> std::result::Result<Self, String> {
-        match s {
-            "volume" => Ok(Fit::Volume),
-            "bounding" => Ok(Fit::Bounding),
-            _ => Err(format!("unknown fit '{s}' (volume or bounding)")),
-        }
-    }
 }
 
 /// Builder settings.

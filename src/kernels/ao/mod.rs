@@ -27,6 +27,7 @@ use crate::scene::Mesh;
 
 /// How each sphere's occlusion is evaluated.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 pub enum Occlusion {
     /// Bilinear lookup in the precomputed (solid angle, angle to normal) table.
     Table,
@@ -36,6 +37,7 @@ pub enum Occlusion {
 
 /// How the occlusion of several spheres combines.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 pub enum Blend {
     /// V = prod(1 - I_i): right for independent caps, wrong for overlapping ones.
     Product,
@@ -46,31 +48,9 @@ pub enum Blend {
     Mask,
 }
 
-impl std::str::FromStr for Occlusion {
-    type Err = String;
-    fn from_str(s: &str) -> std::result::Result<Self, String> {
-        match s {
-            "table" => Ok(Occlusion::Table),
-            "exact" => Ok(Occlusion::Exact),
-            _ => Err(format!("unknown occlusion '{s}' (table or exact)")),
-        }
-    }
-}
-
-impl std::str::FromStr for Blend {
-    type Err = String;
-    fn from_str(s: &str) -> std::result::Result<Self, String> {
-        match s {
-            "product" => Ok(Blend::Product),
-            "sum" => Ok(Blend::Sum),
-            "mask" => Ok(Blend::Mask),
-            _ => Err(format!("unknown blend '{s}' (product, sum or mask)")),
-        }
-    }
-}
-
 /// How the cut decides to refine an inner node: when size > tau * distance.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 pub enum Refine {
     /// size = the node's radius (the published test).
     Radius,
@@ -78,17 +58,6 @@ pub enum Refine {
     /// An elongated cluster (an arm) is refined when its leaves come near, not only when its
     /// compact sphere does.
     Extent,
-}
-
-impl std::str::FromStr for Refine {
-    type Err = String;
-    fn from_str(s: &str) -> std::result::Result<Self, String> {
-        match s {
-            "radius" => Ok(Refine::Radius),
-            "extent" => Ok(Refine::Extent),
-            _ => Err(format!("unknown refinement '{s}' (radius or extent)")),
-        }
-    }
 }
 
 /// Method parameters. tau is a push constant; the modes are specialization constants of

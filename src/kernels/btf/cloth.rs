@@ -15,6 +15,7 @@ use crate::error::{Error, Result};
 
 /// The cloth patterns `btf synth` knows.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum Pattern {
     /// Plain weave: two warp and two weft threads per tile, alternating over and under.
@@ -23,18 +24,6 @@ pub enum Pattern {
     Knit,
     /// Corduroy: three wales (ridges along v) per tile with a fine pile across them.
     Rib,
-}
-
-impl std::str::FromStr for Pattern {
-    type Err = String;
-    fn from_str(s: &str) -> std::result::Result<Self, String> {
-        match s {
-            "weave" => Ok(Pattern::Weave),
-            "knit" => Ok(Pattern::Knit),
-            "rib" => Ok(Pattern::Rib),
-            _ => Err(format!("unknown pattern '{s}' (weave, knit, rib)")),
-        }
-    }
 }
 
 impl Pattern {

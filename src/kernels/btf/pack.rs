@@ -20,6 +20,7 @@ const SLICES: u32 = COUNT * COUNT;
 
 /// The texel format the BTF is stored in.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum Texture {
     /// RGBA8 sRGB, 4 bytes per texel ([`FORMAT`]).
@@ -76,18 +77,6 @@ impl Texture {
             Texture::Rgba8 => &[0, 0, 0, 255],
             Texture::Bc1 => &[0; 8],
             Texture::Block => &[0; 16],
-        }
-    }
-}
-
-impl std::str::FromStr for Texture {
-    type Err = String;
-    fn from_str(s: &str) -> std::result::Result<Self, String> {
-        match s {
-            "rgba8" => Ok(Texture::Rgba8),
-            "bc1" => Ok(Texture::Bc1),
-            "block" => Ok(Texture::Block),
-            _ => Err(format!("unknown texture format '{s}' (block, bc1, rgba8)")),
         }
     }
 }
@@ -158,6 +147,7 @@ pub fn encode_bc1(btf: &Btf) -> Vec<u8> {
 
 /// How the images are arranged in the array textures.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum Layout {
     /// One image per layer, 6561 layers split over up to four array textures of at most
@@ -169,17 +159,6 @@ pub enum Layout {
     /// bilinear filtering never reaches a neighbouring image (REPEAT wraps rows). Needs
     /// 81 (w + 2 gutter) <= maxImageDimension2D.
     Rows,
-}
-
-impl std::str::FromStr for Layout {
-    type Err = String;
-    fn from_str(s: &str) -> std::result::Result<Self, String> {
-        match s {
-            "layers" => Ok(Layout::Layers),
-            "rows" => Ok(Layout::Rows),
-            _ => Err(format!("unknown layout '{s}' (rows, layers)")),
-        }
-    }
 }
 
 /// How the 6561 images are laid out on a device: `arrays` 2D array textures of

@@ -78,22 +78,12 @@ pub fn srgb_decode(b: u8) -> f64 {
 
 /// Image format of a written BTF directory.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 pub enum FileFormat {
     /// 8-bit sRGB-encoded PNG (values above 1 clip).
     Png,
     /// Linear 32-bit float EXR.
     Exr,
-}
-
-impl std::str::FromStr for FileFormat {
-    type Err = String;
-    fn from_str(s: &str) -> std::result::Result<Self, String> {
-        match s {
-            "png" => Ok(FileFormat::Png),
-            "exr" => Ok(FileFormat::Exr),
-            _ => Err(format!("unknown image format '{s}' (png, exr)")),
-        }
-    }
 }
 
 /// Writes `btf` as a UBO2003-style directory `dir` (one image per (light, view) pair, the

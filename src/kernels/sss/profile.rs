@@ -199,23 +199,11 @@ impl Burley {
 
 /// Which profile a kernel uses.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
 #[serde(rename_all = "lowercase")]
 pub enum ProfileKind {
     Dipole,
     Burley,
-}
-
-impl std::str::FromStr for ProfileKind {
-    type Err = Error;
-    fn from_str(s: &str) -> Result<Self> {
-        match s.to_ascii_lowercase().as_str() {
-            "dipole" => Ok(ProfileKind::Dipole),
-            "burley" => Ok(ProfileKind::Burley),
-            _ => Err(Error::InvalidArgument(format!(
-                "unknown profile '{s}' (dipole or burley)"
-            ))),
-        }
-    }
 }
 
 /// A material's three channels, truncated and ready to sample.

@@ -1,0 +1,508 @@
+//! `vkshade bench peak|ao|srbf|btf|sss`: the benchmarks' options, runs and printed summaries
+//! (the sweeps themselves are in [`crate::bench`]).
+
+use super::{Gpu, finish, progress};
+use crate::bench::{self, BenchConfig};
+use crate::error::{Error, Result};
+use crate::kernels::btf::gpu::Texture;
+use std::path::{Path, PathBuf};
+
+/// The subcommands of `vkshade bench`.
+#[derive(clap::Subcommand, Clone, Debug)]
+pub enum Command {
+    /// Device peak: f32 FMA throughput (GFLOP/s) and streaming bandwidth (GB/s), each grown
+    /// until one submission takes --min-ms; the roofline the kernels are judged against.
+    Peak {
+        #[command(flatten)]
+        opts: Opts,
+    },
+    /// Sphere-tree AO: sweeps vertex count (subdivision), sphere count (tree depth) and the
+    /// refinement threshold tau (error against the ray-traced mesh vs time); reports ms per
+    /// frame, spheres per vertex, GFLOP/s as a fraction of the measured FMA peak, and the
+    /// speed-up over the same method on the CPU and over ray tracing, all in the same run;
+    /// checks bench/targets.json.
+    Ao {
+        #[command(flatten)]
+        opts: Opts,
+        /// Character to benchmark.
+        #[arg(long, default_value = crate::kernels::ao::DEFAULT_MESH)]
+        mesh: PathBuf,
+        /// Animation (default: Run for the built-in character).
+        #[arg(long)]
+        anim: Option<String>,
+        /// Smaller sweeps (for a quick check).
+        #[arg(long)]
+        quick: bool,
+    },
+    /// SRBF lighting: GPU time of rotation (`srbf lighting`) and shading (`srbf shade`)
+    /// over lobes x basis size x vertices, GFLOP/s against the FMA peak measured in the same
+    /// run, and the speed-up over the same method on the CPU and over brute force.
+    Srbf {
+        #[command(flatten)]
+        opts: Opts,
+        /// Smaller sweeps (for a quick check).
+        #[arg(long)]
+        quick: bool,
+    },
+    /// BTF shading: GPU time over resolution x map resolution x tile size, texel fetches
+    /// per second against the fetch rate the device sustains (measured in the same run), the
+    /// speed-up over the CPU interpolation, texture memory; checks bench/targets.json.
+    Btf {
+        #[command(flatten)]
+        opts: Opts,
+        /// Smaller sweeps (for a quick check).
+        #[arg(long)]
+        quick: bool,
+        /// Texel format of the headline and sweeps (the headline is also measured in the
+        /// other formats; bc1 when the device supports it).
+        #[arg(long, default_value = "block", value_parser = super::choice::<Texture>("texture format"))]
+        texture: Texture,
+    },
+    /// Texture-space SSS on the BCN_Epileptic head: GPU time of irradiance and diffusion
+    /// over texture size x samples per texel, error against the brute-force ground truth vs
+    /// time, throughput against the FMA and bandwidth peaks, and the speed-up over the same
+    /// sampler on the CPU and over the brute force.
+    Sss {
+        #[command(flatten)]
+        opts: Opts,
+        /// Smaller sweeps (for a quick check).
+        #[arg(long)]
+        quick: bool,
+    },
+}
+
+/// What every benchmark is told: where its results go and how it measures.
+#[derive(clap::Args, Clone, Debug)]
+pub struct Opts {
+    /// Write the results as JSON to this file.
+    #[arg(long)]
+    pub json: Option<PathBuf>,
+    /// Write a PNG plot of the sweeps to this file.
+    #[arg(long)]
+    pub plot: Option<PathBuf>,
+    /// Timed submissions per measurement (the median is reported).
+    #[arg(long, default_value_t = 10)]
+    pub samples: usize,
+    /// Untimed warm-up submissions per measurement.
+    #[arg(long, default_value_t = 2)]
+    pub warmup: usize,
+    /// Grow the work until one submission takes at least this many milliseconds.
+    #[arg(long, default_value_t = 100.0)]
+    pub min_ms: f64,
+}
+
+impl Opts {
+    /// The measurement settings, refused outside their ranges.
+    pub fn config(&self) -> Result<BenchConfig> {
+        if !(1..=100_000).contains(&self.samples)
+            || self.warmup > 100_000
+            || !self.min_ms.is_finite()
+            || self.min_ms <= 0.0
+            || self.min_ms > 60_000.0
+        {
+            return Err(Error::InvalidArgument(
+                "--samples must be in 1..=100000, --warmup <= 100000, --min-ms in (0, 60000]"
+                    .into(),
+            ));
+        }
+        Ok(BenchConfig {
+            warmup: self.warmup,
+            samples: self.samples,
+            min_submit_ms: self.min_ms,
+        })
+    }
+}
+
+impl Command {
+    /// Runs the benchmark and prints its summary (and writes the JSON and plot asked for).
+    pub fn run(&self, gpu: &Gpu) -> Result<()> {
+        match self {
+            Command::Peak { opts } => peak(gpu, opts),
+            Command::Ao {
+                opts,
+                mesh,
+                anim,
+                quick,
+            } => ao(gpu, opts, mesh, anim.as_deref(), *quick),
+            Command::Srbf { opts, quick } => srbf(gpu, opts, *quick),
+            Command::Btf {
+                opts,
+                quick,
+                texture,
+            } => btf(gpu, opts, *quick, *texture),
+            Command::Sss { opts, quick } => sss(gpu, opts, *quick),
+        }
+    }
+}
+
+/// Refuses unwritable output paths before anything runs (the plot's only where the
+/// benchmark draws one).
+fn check_outputs(opts: &Opts, plots: bool) -> Result<()> {
+    let plot = opts.plot.iter().filter(|_| plots);
+    for path in opts.json.iter().chain(plot) {
+        crate::io::check_writable(path)?;
+    }
+    if plots && opts.plot.is_some() {
+        bench::plot::ensure_available()?;
+    }
+    Ok(())
+}
+
+/// Writes the report as JSON where `--json` asks for it.
+fn write_json<R: serde::Serialize>(opts: &Opts, report: &R) -> Result<()> {
+    if let Some(path) = &opts.json {
+        crate::io::write_json(path, report)?;
+        println!("wrote {}", path.display());
+    }
+    Ok(())
+}
+
+/// Draws the plot where `--plot` asks for it.
+fn write_plot(opts: &Opts, panels: impl FnOnce() -> Vec<bench::plot::Panel>) -> Result<()> {
+    if let Some(path) = &opts.plot {
+        bench::plot::draw(path, &panels())?;
+        println!("wrote {}", path.display());
+    }
+    Ok(())
+}
+
+/// `bench peak`.
+fn peak(gpu: &Gpu, opts: &Opts) -> Result<()> {
+    let cfg = opts.config()?;
+    check_outputs(opts, true)?;
+    let ctx = gpu.context()?;
+    eprintln!(
+        "bench peak on {} (min {} ms per submission, {} samples)",
+        ctx.info().name,
+        cfg.min_submit_ms,
+        cfg.samples
+    );
+    let report = bench::peak::run(&ctx, &cfg, &mut |l| progress(l))?;
+    println!("device           {}", report.machine.device);
+    println!(
+        "f32 FMA          {:.1} GFLOP/s (median of {}; best {:.1}); {}",
+        report.fma_gflops, report.fma.gpu_ms.n, report.fma.throughput_best, report.fma.problem
+    );
+    println!(
+        "stream bandwidth {:.2} GB/s (median of {}; best {:.2}); {}",
+        report.bandwidth_gb_s,
+        report.stream.gpu_ms.n,
+        report.stream.throughput_best,
+        report.stream.problem
+    );
+    write_json(opts, &report)?;
+    write_plot(opts, || bench::peak::panels(&report))?;
+    finish(ctx)
+}
+
+/// `bench ao`.
+fn ao(gpu: &Gpu, opts: &Opts, mesh: &Path, anim: Option<&str>, quick: bool) -> Result<()> {
+    use crate::bench::ao::{AoBenchConfig, panels, run};
+    check_outputs(opts, true)?;
+    let mut cfg = AoBenchConfig {
+        mesh: mesh.to_path_buf(),
+        bench: opts.config()?,
+        ..Default::default()
+    };
+    cfg.bench.min_submit_ms = opts.min_ms.min(cfg.bench.min_submit_ms);
+    if anim.is_some() || mesh != Path::new(crate::kernels::ao::DEFAULT_MESH) {
+        cfg.animation = anim.map(str::to_string);
+    }
+    if quick {
+        cfg.subdivisions = vec![0, 1];
+        cfg.depths = vec![2, 3];
+        cfg.taus = vec![0.3, 0.5, 0.8];
+        cfg.reference_frames = 1;
+        cfg.rays = 256;
+        cfg.cpu_runs = 2;
+    }
+    let ctx = gpu.context()?;
+    eprintln!("bench ao on {}", ctx.info().name);
+    let r = run(&ctx, &cfg, &mut |l| progress(l))?;
+    print_ao(&r);
+    write_json(opts, &r)?;
+    write_plot(opts, || panels(&r))?;
+    finish(ctx)
+}
+
+fn print_ao(r: &bench::ao::AoBenchReport) {
+    let h = &r.headline;
+    println!("device                 {}", r.machine.device);
+    println!(
+        "headline               {} vertices, {} spheres, tau {}: skin {:.3} ms + AO {:.3} ms (median GPU) = {:.0} fps",
+        h.vertices, h.spheres, h.tau, h.skin_ms.median, h.ao_ms.median, h.fps
+    );
+    println!(
+        "work                   {:.1} spheres tested, {:.1} used per vertex; {:.2} GFLOP/s = {:.1}% of the {:.1} GFLOP/s FMA peak",
+        h.spheres_tested_per_vertex,
+        h.spheres_used_per_vertex,
+        h.gflops,
+        100.0 * h.fraction_of_peak,
+        r.peak_fma_gflops
+    );
+    println!(
+        "baselines              same method on the CPU (rayon) {:.2} ms: {:.1}x; ray-traced truth {:.0} ms: {:.0}x",
+        r.cpu_same_method_ms.median, r.speedup_vs_cpu, r.raytrace_ms.median, r.speedup_vs_raytrace
+    );
+    println!(
+        "gpu memory             {:.2} MiB in the kernel's buffers; {:.1} MiB reserved by the context's allocator",
+        r.gpu_memory_bytes as f64 / (1u64 << 20) as f64,
+        r.headline.gpu_memory_reserved_bytes as f64 / (1u64 << 20) as f64
+    );
+    print_targets(&r.targets);
+}
+
+/// `bench srbf` (draws no plot).
+fn srbf(gpu: &Gpu, opts: &Opts, quick: bool) -> Result<()> {
+    use crate::bench::srbf::{SrbfBenchConfig, run};
+    check_outputs(opts, false)?;
+    let mut cfg = SrbfBenchConfig {
+        bench: opts.config()?,
+        ..Default::default()
+    };
+    cfg.bench.min_submit_ms = opts.min_ms.min(cfg.bench.min_submit_ms);
+    if quick {
+        cfg.lobes = vec![16, 64];
+        cfg.basis = vec![64, 256];
+        cfg.vertices = vec![3205];
+        cfg.cpu_runs = 1;
+    }
+    let ctx = gpu.context()?;
+    eprintln!("bench srbf on {}", ctx.info().name);
+    let r = run(&ctx, &cfg, &mut |l| progress(l))?;
+    print_srbf(&r);
+    write_json(opts, &r)?;
+    finish(ctx)
+}
+
+fn print_srbf(r: &bench::srbf::SrbfBenchReport) {
+    let h = &r.headline;
+    println!("device                 {}", r.machine.device);
+    println!(
+        "headline               {} lobes ({} compact) x {} basis x {} vertices, {} clusters x {} components (compression error {:.4}): lighting {:.3} + project {:.3} + sharp {:.3} + shade {:.3} ms (median GPU) = {:.0} fps",
+        h.lobes,
+        h.compact_lobes,
+        h.basis,
+        h.vertices,
+        h.clusters,
+        h.components,
+        r.headline_cpca_rel_l2,
+        h.lighting_ms.median,
+        h.project_ms.median,
+        h.sharp_ms.median,
+        h.shade_ms.median,
+        h.fps
+    );
+    println!(
+        "uncompressed           {:.3} ms = {:.0} fps",
+        r.uncompressed.total_ms, r.uncompressed.fps
+    );
+    println!(
+        "work                   {:.3} GFLOP/frame; {:.2} GFLOP/s = {:.1}% of the {:.1} GFLOP/s FMA peak",
+        h.gflop_per_frame,
+        h.gflops,
+        100.0 * h.fraction_of_peak,
+        r.peak_fma_gflops
+    );
+    println!(
+        "baselines              same method on the CPU {:.2} ms: {:.3}x; brute force {:.1} ms: {:.3}x (speed-up of the GPU path)",
+        r.cpu_same_method_ms.median,
+        r.speedup_vs_cpu,
+        r.brute_force_ms.median,
+        r.speedup_vs_brute_force
+    );
+    println!(
+        "gpu memory             {:.2} MiB in the kernel's buffers; {:.1} MiB reserved by the context's allocator",
+        h.gpu_memory_bytes as f64 / (1u64 << 20) as f64,
+        h.gpu_memory_reserved_bytes as f64 / (1u64 << 20) as f64
+    );
+    let target = 200.0;
+    println!(
+        "target fps (bunny, 64 lobes, 256 basis)         {:>10.1} (target {target}) {}",
+        h.fps,
+        if h.fps >= target { "PASS" } else { "MISS" }
+    );
+}
+
+/// `bench sss`.
+fn sss(gpu: &Gpu, opts: &Opts, quick: bool) -> Result<()> {
+    use crate::bench::sss::{SssBenchConfig, panels, run};
+    check_outputs(opts, true)?;
+    let mut cfg = SssBenchConfig::default();
+    // This benchmark's passes take seconds on lavapipe: its own defaults (1 warm-up, 3 timed
+    // submissions) unless the options were changed.
+    let given = opts.config()?;
+    if given.samples != BenchConfig::default().samples
+        || given.warmup != BenchConfig::default().warmup
+    {
+        cfg.bench = given;
+    }
+    if quick {
+        cfg.sizes = vec![128, 256];
+        cfg.samples = vec![8, 32];
+        cfg.headline = (256, 32);
+        cfg.error_size = 128;
+    }
+    let ctx = gpu.context()?;
+    eprintln!("bench sss on {}", ctx.info().name);
+    let r = run(&ctx, &cfg, &mut |l| progress(l))?;
+    print_sss(&r);
+    write_json(opts, &r)?;
+    write_plot(opts, || panels(&r))?;
+    finish(ctx)
+}
+
+fn print_sss(r: &bench::sss::SssBenchReport) {
+    let h = &r.headline;
+    println!("device                 {}", r.machine.device);
+    println!(
+        "headline               {}^2 texels x {} samples/texel: vertex light {:.1} ms + irradiance {:.1} ms + diffusion {:.1} ms (median GPU) = {:.2} fps",
+        h.size,
+        h.samples,
+        h.vertex_light_ms.median,
+        h.irradiance_ms.median,
+        h.diffusion_ms.median,
+        h.fps
+    );
+    println!(
+        "throughput             {:.2e} samples/s = {:.1}% of the {:.1} GFLOP/s FMA peak; gathered bytes {:.1}% of the {:.1} GB/s stream bandwidth (mostly cache hits; work model in bench/sss.rs)",
+        h.samples_per_s,
+        100.0 * h.fraction_of_fma_peak,
+        r.peak_fma_gflops,
+        100.0 * h.gathered_vs_stream_bandwidth,
+        r.bandwidth_gb_s
+    );
+    println!(
+        "baselines              same sampler on the CPU {:.0} ms: {:.2}x; brute force at {}^2 {:.0} ms: {:.1}x (speed-up of the GPU path)",
+        r.cpu_same_method_ms.median,
+        r.speedup_vs_cpu,
+        r.brute_force_size,
+        r.brute_force_ms.median,
+        r.speedup_vs_brute_force
+    );
+    let target = 30.0;
+    println!(
+        "target fps (head, 512^2, 32 samples)            {:>10.2} (target {target}) {}",
+        h.fps,
+        if h.fps >= target { "PASS" } else { "MISS" }
+    );
+}
+
+/// `bench btf` (draws no plot yet).
+fn btf(gpu: &Gpu, opts: &Opts, quick: bool, texture: Texture) -> Result<()> {
+    use crate::bench::btf::{BtfBenchConfig, run};
+    if opts.plot.is_some() {
+        return Err(Error::InvalidArgument(
+            "bench btf writes no plot yet (its sweeps are in the --json report)".into(),
+        ));
+    }
+    check_outputs(opts, false)?;
+    let mut cfg = BtfBenchConfig {
+        bench: opts.config()?,
+        ..Default::default()
+    };
+    if quick {
+        cfg.resolutions = vec![256, 512];
+        cfg.map_resolutions = vec![32, 128];
+        cfg.tiles = vec![8, 32];
+        cfg.cpu_runs = 1;
+    }
+    cfg.texture = texture;
+    // BC1 needs textureCompressionBC: without it a block or rgba8 run skips the bc1
+    // comparison.
+    let ctx = match super::btf::context(gpu, Texture::Bc1) {
+        Ok(ctx) => ctx,
+        Err(e) if texture != Texture::Bc1 => {
+            eprintln!("bench btf: no BC1 comparison ({e})");
+            cfg.bc1_available = false;
+            gpu.context()?
+        }
+        Err(e) => return Err(e),
+    };
+    eprintln!("bench btf on {}", ctx.info().name);
+    let r = run(&ctx, &cfg, &mut |l| progress(l))?;
+    print_btf(&r);
+    write_json(opts, &r)?;
+    finish(ctx)
+}
+
+fn print_btf(r: &bench::btf::BtfBenchReport) {
+    let h = &r.headline;
+    println!("device                 {}", r.machine.device);
+    println!(
+        "headline               {}^2 sphere ({} px covered), map {}, tile {}, {} light(s), {:?}: {:.2} ms (median GPU) = {:.1} fps",
+        h.resolution,
+        h.covered_pixels,
+        h.map_resolution,
+        h.tile,
+        h.lights,
+        h.layout,
+        h.gpu_ms.median,
+        h.fps
+    );
+    let (what, rate) = match h.texture {
+        Texture::Block => ("block fetches", r.probe_block_fetches_per_second),
+        _ => ("filtered fetches", r.probe_fetches_per_second),
+    };
+    println!(
+        "fetches                {:.1} M taps/s = {:.1}% of the {:.1} M {what}/s the fetch probe sustains",
+        h.taps_per_second / 1e6,
+        100.0 * h.fraction_of_fetch_rate,
+        rate / 1e6
+    );
+    println!(
+        "baseline               same interpolation on the CPU (f64, rayon) {:.1} ms: {:.2}x (speed-up of the GPU path)",
+        r.cpu_same_method_ms.median, r.speedup_vs_cpu
+    );
+    println!(
+        "texture memory         {:.2} MiB ({:?} layout, {} array(s) of {} layers of {}x{})",
+        h.texture_mib,
+        h.packing.layout,
+        h.packing.arrays,
+        h.packing.layers_per_array,
+        h.packing.layer_extent[0],
+        h.packing.layer_extent[1]
+    );
+    for p in &r.formats {
+        println!(
+            "format {:<6} {:<7}  {:.2} ms = {:.1} fps, {:.2} MiB of texture",
+            format!("{:?}", p.texture).to_lowercase(),
+            format!("{:?}", p.layout),
+            p.gpu_ms.median,
+            p.fps,
+            p.texture_mib
+        );
+    }
+    println!(
+        "sweep (resolution, map, tile, texture, layout, lights: ms, fps, % of fetch rate, MiB)"
+    );
+    for p in &r.sweep {
+        println!(
+            "  {:>5} {:>4} {:>3} {:<5} {:<7} {}: {:>9.2} ms {:>8.1} fps {:>6.1}% {:>7.2}",
+            p.resolution,
+            p.map_resolution,
+            p.tile,
+            format!("{:?}", p.texture).to_lowercase(),
+            format!("{:?}", p.layout),
+            p.lights,
+            p.gpu_ms.median,
+            p.fps,
+            100.0 * p.fraction_of_fetch_rate,
+            p.texture_mib
+        );
+    }
+    print_targets(&r.targets);
+}
+
+/// One line per bench target: name, measured, target, PASS or MISS.
+fn print_targets(targets: &[crate::bench::ao::TargetCheck]) {
+    for t in targets {
+        println!(
+            "target {:<58} {:>10.4} (target {}) {}",
+            t.name,
+            t.measured,
+            t.target,
+            if t.pass { "PASS" } else { "MISS" }
+        );
+    }
+}
