@@ -7,16 +7,17 @@ use crate::bench::time_passes;
 use crate::error::{Error, Result};
 use crate::gpu::Context;
 use crate::io::FloatImage;
+use crate::kernels::btf::cloth::{self, Pattern, SynthConfig};
 use crate::kernels::btf::cpu;
 use crate::kernels::btf::dirs::{self, Angles, Maps, Triangulation};
-use crate::kernels::btf::gbuffer::{self, Camera, Frame, GBuffer, Light, Object};
 use crate::kernels::btf::gpu::{
     BtfInputs, BtfKernel, GPU_CPU_BOUND_BLOCK, Layout, PASS_SHADE, Packing, Sampled, Texture,
 };
 use crate::kernels::btf::load;
-use crate::kernels::btf::synth::{self, FileFormat, Pattern, SynthConfig, srgb_encode};
+use crate::kernels::btf::synth::{self, FileFormat, srgb_encode};
 use crate::kernels::{Kernel, KernelInfo};
 use crate::report::MachineInfo;
+use crate::scene::gbuffer::{self, Camera, Frame, GBuffer, Light, Object};
 use glam::Vec3;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -59,9 +60,9 @@ pub fn synth_command(
         format: format!("{format:?}").to_lowercase(),
         brdf: format!(
             "Lambert (KD {} x albedo) + normalised Blinn-Phong (KS {}, exponent {}), value = radiance under irradiance pi, shadowing and masking by ray-casting",
-            synth::KD,
-            synth::KS,
-            synth::EXPONENT
+            cloth::KD,
+            cloth::KS,
+            cloth::EXPONENT
         ),
         ms: t.elapsed().as_secs_f64() * 1e3,
     };
@@ -197,7 +198,7 @@ pub struct RenderConfig {
     pub bench: crate::bench::BenchConfig,
 }
 
-pub use crate::kernels::btf::gbuffer::default_lights;
+pub use crate::scene::gbuffer::default_lights;
 
 /// Errors against one reference.
 #[derive(Clone, Debug, Serialize)]

@@ -14,12 +14,12 @@ use crate::io::FloatImage;
 use crate::kernels::sss::cpu::{self, DiffusionGeometry, Light, SamplerParams};
 use crate::kernels::sss::gpu::{PASS_DIFFUSION, PASS_IRRADIANCE, PASS_VERTEX};
 use crate::kernels::sss::profile::DEFAULT_ENERGY;
-use crate::kernels::sss::texspace::{COVERED, TexReport};
 use crate::kernels::sss::{Material, Profile, ProfileKind, SssKernel, SssOutput, TexGeometry};
 use crate::kernels::{Kernel, KernelInfo, run_frames};
 use crate::reference::sss::{ChannelError, Sources, brute_force, brute_force_where};
 use crate::render::ValueImage;
 use crate::report::MachineInfo;
+use crate::scene::texspace::{COVERED, TexReport};
 use crate::scene::{Animation, Character, Mesh};
 use glam::{DVec3, Vec2, Vec3};
 use serde::Serialize;
@@ -505,7 +505,7 @@ impl<'a> Session<'a> {
         for f in 0..cfg.frames {
             let time = a.duration * f as f32 / cfg.frames.max(2).saturating_sub(1) as f32;
             let m = self.character.rig.skinning_matrices(Some(a), time);
-            let posed = crate::kernels::sss::texspace::posed(mesh, &m)?;
+            let posed = crate::scene::texspace::posed(mesh, &m)?;
             let moved = posed
                 .positions
                 .iter()

@@ -15,7 +15,3 @@ pub mod gpu;
 pub mod load;
 pub mod pack;
 pub mod synth;
-
-/// Moved to [`crate::scene::gbuffer`] (the truth reads it too); this path stays while the GPU
-/// glue and the CLI are rewritten in parallel.
-pub use crate::scene::gbuffer;

@@ -1,13 +1,10 @@
 //! Synthetic BTFs: the cloth model of [`super::cloth`] tabulated at the 81 x 81 sampled
 //! light and view directions, sRGB coding, and UBO2003-style directories on disk.
 
+use super::cloth::SynthConfig;
 use super::dirs::{self, Angles};
 use crate::error::{Error, Result};
 use rayon::prelude::*;
-
-/// The cloth model moved to [`super::cloth`] (the truth reads it too); these paths stay while
-/// the CLI is rewritten in parallel.
-pub use super::cloth::{EXPONENT, KD, KS, Pattern, SynthConfig};
 
 /// A BTF in memory: for each (view, light) pair of the 81 x 81 sampled directions an image
 /// of `size` texels, linear RGB.

@@ -14,10 +14,6 @@ pub mod pack;
 pub mod sharp;
 pub mod transfer;
 
-/// The spherical-Gaussian algebra moved to [`crate::geom::sg`] (the truth shares it); this
-/// path stays while `fit` and `transfer` are rewritten in parallel.
-pub use crate::geom::sg;
-
 use crate::error::Result;
 use crate::geom::visibility::Visibility;
 use crate::scene::EnvMap;

@@ -34,10 +34,6 @@ pub mod profile;
 pub mod sampler;
 pub mod walk;
 
-/// Moved to [`crate::scene::texspace`] (the truth reads it too); this path stays while the
-/// GPU glue and the CLI are rewritten in parallel.
-pub use crate::scene::texspace;
-
 pub use crate::scene::texspace::TexGeometry;
 pub use cpu::{Light, SamplerParams};
 pub use gpu::{SssKernel, SssOutput};

@@ -361,8 +361,8 @@ pub fn contact_entries(contact: &Contact) -> Vec<[u32; 4]> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::kernels::sss::texspace::plane_mesh;
     use crate::kernels::sss::{Material, ProfileKind, walk};
+    use crate::scene::texspace::plane_mesh;
 
     fn plane(size: u32) -> TexGeometry {
         TexGeometry::build(&plane_mesh(10.0, 10.0, 2).unwrap(), size, 1.0).unwrap()
