@@ -6,8 +6,10 @@
 # SPIR-V embedded at build time. SPIRV-Tools (package spirv-tools) stays: the library
 # validates every module with it.
 #
-# Needs root (unshare -m). Builds into target/no-shaderc and always re-runs vkshade's build
-# script there, so nothing built while the libraries were visible is reused.
+# Needs root (unshare -m). Cleans vkshade's own release artifacts first, so its build script
+# runs again while the libraries are hidden (nothing of vkshade built while they were visible
+# is reused); the dependencies' artifacts are shared with the other release builds (none of
+# them is shaderc: the check below says so).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -55,7 +57,7 @@ for f in /usr/lib/*-linux-gnu/libglslang.a /usr/lib/*-linux-gnu/libSPIRV.a \
   fi
 done
 
-target=target/no-shaderc
+target=target
 if cargo tree --no-default-features -e normal,build --prefix none | grep -E '^shaderc'; then
   echo "check-no-shaderc: the no-default-features library depends on shaderc" >&2
   exit 1
