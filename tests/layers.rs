@@ -523,10 +523,10 @@ fn check_source(rel: &str, src: &str, reexports: &BTreeMap<String, Vec<String>>)
         if path.is_empty() {
             continue;
         }
-        if !LAYERS.iter().any(|(name, _)| *name == path[0]) {
-            if let Some(full) = reexports.get(&path[0]) {
-                path.splice(0..1, full.iter().cloned());
-            }
+        if !LAYERS.iter().any(|(name, _)| *name == path[0])
+            && let Some(full) = reexports.get(&path[0])
+        {
+            path.splice(0..1, full.iter().cloned());
         }
         let ok = starts_with(&path, layer) || allowed.iter().any(|a| starts_with(&path, a));
         if !ok {

@@ -186,7 +186,7 @@ impl Shader {
             name: name.to_string(),
             reason,
         };
-        if bytes.len() < 20 || bytes.len() % 4 != 0 {
+        if bytes.len() < 20 || !bytes.len().is_multiple_of(4) {
             return Err(err(format!(
                 "{} bytes is not a SPIR-V module (needs a 5-word header and whole 32-bit words)",
                 bytes.len()

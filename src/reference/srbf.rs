@@ -112,11 +112,11 @@ pub fn shade_ground_truth(
     albedo: [f32; 3],
 ) -> Result<Vec<[f64; 3]>> {
     check_rotation_and_albedo(rotation, albedo)?;
-    if let Some(vis) = grid_visibility {
-        if maps_grid_onto_itself(env, rotation) {
-            // The rotated directions are the grid's own: the precomputed visibility is exact.
-            return shade_brute_force(env, rotation, &mesh.normals, vis, albedo);
-        }
+    if let Some(vis) = grid_visibility
+        && maps_grid_onto_itself(env, rotation)
+    {
+        // The rotated directions are the grid's own: the precomputed visibility is exact.
+        return shade_brute_force(env, rotation, &mesh.normals, vis, albedo);
     }
     let samples = env.samples();
     let rotated: Vec<(Vec3, f64, [f32; 3])> = samples

@@ -203,7 +203,11 @@ impl EnvMap {
     /// rows of their block, so their solid angles add up). `width` must be even and divide
     /// `self.width`.
     pub fn downsampled(&self, width: u32) -> Result<EnvMap> {
-        if width < 2 || width % 2 != 0 || width > self.width || self.width % width != 0 {
+        if width < 2
+            || !width.is_multiple_of(2)
+            || width > self.width
+            || !self.width.is_multiple_of(width)
+        {
             return Err(Error::InvalidArgument(format!(
                 "cannot downsample {} ({} x {}) to width {width}: the width must be even and \
                  divide {}",
@@ -374,13 +378,13 @@ fn decode_rgbe(bytes: &[u8]) -> std::result::Result<(u32, u32, Vec<[f32; 3]>), S
         if l.is_empty() {
             break;
         }
-        if let Some(fmt) = l.strip_prefix("FORMAT=") {
-            if fmt.trim() != "32-bit_rle_rgbe" {
-                return Err(format!(
-                    "unsupported pixel format '{}' (only 32-bit_rle_rgbe)",
-                    fmt.trim()
-                ));
-            }
+        if let Some(fmt) = l.strip_prefix("FORMAT=")
+            && fmt.trim() != "32-bit_rle_rgbe"
+        {
+            return Err(format!(
+                "unsupported pixel format '{}' (only 32-bit_rle_rgbe)",
+                fmt.trim()
+            ));
         }
     }
     let res = line(&mut pos)?;

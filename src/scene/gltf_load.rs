@@ -180,7 +180,7 @@ fn load_filtered(path: &Path, only: Option<&str>) -> Result<Character> {
                 Some(i) => i.into_u32().collect(),
                 None => (0..count as u32).collect(),
             };
-            if indices.len() % 3 != 0 {
+            if !indices.len().is_multiple_of(3) {
                 return Err(err(format!(
                     "{what}: {} indices is not a whole number of triangles",
                     indices.len()

@@ -336,8 +336,9 @@ impl ImageRegion {
         if let Some(b) = format_block(desc.format).filter(FormatBlock::compressed) {
             let aligned = (0..2).all(|i| {
                 let bw = [b.width, b.height][i];
-                self.offset[i] % bw == 0
-                    && (self.extent[i] % bw == 0 || self.offset[i] + self.extent[i] == e[i])
+                self.offset[i].is_multiple_of(bw)
+                    && (self.extent[i].is_multiple_of(bw)
+                        || self.offset[i] + self.extent[i] == e[i])
             });
             if !aligned {
                 return Err(Error::InvalidArgument(format!(

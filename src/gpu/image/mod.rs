@@ -141,7 +141,7 @@ fn check_shape(shared: &Shared, name: &str, desc: &ImageDesc) -> Result<()> {
         ImageDim::D2 | ImageDim::Cube if d > 1 => {
             return bad(format!("depth {d} needs a 3D image"));
         }
-        ImageDim::Cube if w != h || desc.layers % 6 != 0 => {
+        ImageDim::Cube if w != h || !desc.layers.is_multiple_of(6) => {
             return bad(format!(
                 "a cube map needs square faces and a multiple of 6 layers, not {w}x{h} x {}",
                 desc.layers

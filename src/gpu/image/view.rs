@@ -94,7 +94,7 @@ impl ImageInner {
                 layers: range.layer_count,
                 ..self.desc
             };
-            if d.dim == ImageDim::Cube && range.layer_count % 6 != 0 {
+            if d.dim == ImageDim::Cube && !range.layer_count.is_multiple_of(6) {
                 if range.layer_count == 1 {
                     vk::ImageViewType::TYPE_2D
                 } else {
@@ -160,7 +160,7 @@ fn check_view_type(
         (_, T::TYPE_2D) => n == 1,
         (_, T::TYPE_2D_ARRAY) => true,
         (ImageDim::Cube, T::CUBE) => n == 6,
-        (ImageDim::Cube, T::CUBE_ARRAY) => n % 6 == 0,
+        (ImageDim::Cube, T::CUBE_ARRAY) => n.is_multiple_of(6),
         _ => false,
     };
     if !ok {

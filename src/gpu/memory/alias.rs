@@ -126,7 +126,7 @@ impl AliasInner {
         req: &vk::MemoryRequirements,
     ) -> Result<(vk::DeviceMemory, u64)> {
         if req.size > self.size
-            || self.offset % req.alignment.max(1) != 0
+            || !self.offset.is_multiple_of(req.alignment.max(1))
             || req.memory_type_bits & self.type_bits != self.type_bits
         {
             return Err(Error::InvalidArgument(format!(

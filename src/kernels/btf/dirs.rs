@@ -65,7 +65,9 @@ pub fn index_of(a: Angles) -> Option<usize> {
                 return Some(0);
             }
             let step = 360 / n;
-            return (phi % step == 0).then_some(base + (phi / step) as usize);
+            return phi
+                .is_multiple_of(step)
+                .then_some(base + (phi / step) as usize);
         }
         base += n as usize;
     }

@@ -219,7 +219,7 @@ impl Packing {
             (Layout::Rows, Texture::Block) => 0,
             (Layout::Rows, Texture::Rgba8) => 1,
             (Layout::Rows, Texture::Bc1) => {
-                if tile[0] % 4 != 0 {
+                if !tile[0].is_multiple_of(4) {
                     return Err(Error::InvalidArgument(format!(
                         "BTF texture bc1 in the 'rows' layout needs a tile width that is a \
                          multiple of 4 (BC1 blocks are 4 x 4), not {}; use --layout layers",
