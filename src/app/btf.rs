@@ -728,6 +728,8 @@ pub struct RenderArgs {
     /// centred, scaled to radius 1.2, uv x 8).
     #[arg(long, default_value = "sphere")]
     pub object: String,
+    // The brackets are the help text's notation for an optional part, not doc links.
+    #[allow(rustdoc::broken_intra_doc_links)]
     /// A directional light X,Y,Z[,R,G,B] (towards the light, world space; y up, camera
     /// on +z); up to 2 (default: a warm key light and a cool grazing fill).
     #[arg(long)]

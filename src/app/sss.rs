@@ -1084,6 +1084,8 @@ pub struct Args {
     /// 1000 for the built-in BCN_Epileptic mesh (modelled in metres).
     #[arg(long)]
     pub mm_per_unit: Option<f64>,
+    // The brackets are the help text's notation for an optional part, not doc links.
+    #[allow(rustdoc::broken_intra_doc_links)]
     /// dir:X,Y,Z[:E] (arriving from X,Y,Z; irradiance E, default 1) or point:X,Y,Z:I
     /// (position in model units, intensity I). Repeatable.
     #[arg(long = "light")]

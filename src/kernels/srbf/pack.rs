@@ -131,7 +131,7 @@ impl Prepared {
     }
 
     /// Checks that a device with maxUniformBufferRange `max_uniform_range` and
-    /// maxComputeWorkGroupCount[0] `max_group_count` holds the uniform arrays and
+    /// `maxComputeWorkGroupCount[0]` `max_group_count` holds the uniform arrays and
     /// dispatches the shade slots.
     pub fn check_device(&self, max_uniform_range: u64, max_group_count: u32) -> Result<()> {
         let ubo_limit = max_uniform_range as usize;
