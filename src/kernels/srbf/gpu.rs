@@ -16,6 +16,7 @@ use crate::gpu::{
     AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context,
     MemoryReport, Readback, Recorder, Resource,
 };
+use crate::kernels::contract::DispatchArgs;
 use crate::kernels::{Dispatch, Grid, Kernel, Pass};
 use ash::vk;
 use glam::Mat3;
@@ -31,16 +32,24 @@ pub type SrbfOutput = Vec<[f32; 3]>;
 /// The GPU kernel: pipelines, the lobes, the transfer and the outputs of one mesh.
 pub struct SrbfKernel {
     ctx: Context,
-    lighting: ComputePipeline,
-    lighting_bind: BindGroup,
-    project: ComputePipeline,
-    project_bind: BindGroup,
-    shade: ComputePipeline,
-    shade_bind: BindGroup,
-    sharp: ComputePipeline,
-    sharp_bind: BindGroup,
+    lighting: Stage,
+    project: Stage,
+    shade: Stage,
+    sharp: Stage,
     buffers: Buffers,
     shape: Shape,
+}
+
+/// A pass's pipeline and its bindings.
+struct Stage {
+    pipeline: ComputePipeline,
+    bind: BindGroup,
+}
+
+impl Stage {
+    fn pass(&self, name: &'static str, args: DispatchArgs<SrbfKernel>) -> Pass<'_, SrbfKernel> {
+        Pass::dispatch(name, &self.pipeline, &self.bind, args)
+    }
 }
 
 /// The kernel's buffers: the inputs, the intermediates one pass writes for the next, and
@@ -118,16 +127,13 @@ impl SrbfKernel {
         let buffers = Self::buffers(rec, prep)?;
         let [lighting_bind, project_bind, sharp_bind, shade_bind] =
             Self::binds([&lighting, &project, &sharp, &shade], &buffers)?;
+        let stage = |pipeline, bind| Stage { pipeline, bind };
         Ok(SrbfKernel {
             ctx,
-            lighting,
-            lighting_bind,
-            project,
-            project_bind,
-            shade,
-            shade_bind,
-            sharp,
-            sharp_bind,
+            lighting: stage(lighting, lighting_bind),
+            project: stage(project, project_bind),
+            shade: stage(shade, shade_bind),
+            sharp: stage(sharp, sharp_bind),
             buffers,
             shape: prep.shape,
         })
@@ -336,20 +342,10 @@ impl Kernel for SrbfKernel {
 
     fn pass_table(&self) -> Vec<Pass<'_, Self>> {
         vec![
-            Pass::dispatch(
-                PASS_LIGHTING,
-                &self.lighting,
-                &self.lighting_bind,
-                Self::lighting_args,
-            ),
-            Pass::dispatch(
-                PASS_PROJECT,
-                &self.project,
-                &self.project_bind,
-                Self::project_args,
-            ),
-            Pass::dispatch(PASS_SHARP, &self.sharp, &self.sharp_bind, Self::sharp_args),
-            Pass::dispatch(PASS_SHADE, &self.shade, &self.shade_bind, Self::shade_args),
+            self.lighting.pass(PASS_LIGHTING, Self::lighting_args),
+            self.project.pass(PASS_PROJECT, Self::project_args),
+            self.sharp.pass(PASS_SHARP, Self::sharp_args),
+            self.shade.pass(PASS_SHADE, Self::shade_args),
         ]
     }
 
