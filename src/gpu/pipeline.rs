@@ -487,6 +487,26 @@ impl ComputePipeline {
         BindGroup::new(self, &by_binding, &overrides)
     }
 
+    /// As [`ComputePipeline::bind_declared`], taking each reflected binding's resource from
+    /// `lookup` by the binding's name (e.g. a kernel's table of its resources by the names
+    /// the shaders use); a name `lookup` does not know is an error naming the binding.
+    pub fn bind_from<'a>(
+        &self,
+        lookup: impl Fn(&str) -> Option<Resource<'a>>,
+        accesses: &[(&str, AccessSet)],
+    ) -> Result<BindGroup> {
+        let resources = (self.inner.bindings.iter())
+            .map(|b| match lookup(&b.name) {
+                Some(res) => Ok((b.name.as_str(), res)),
+                None => Err(self.interface_err(format!(
+                    "no resource for binding '{}' ({:?}, set {} binding {})",
+                    b.name, b.kind, b.set, b.binding
+                ))),
+            })
+            .collect::<Result<Vec<_>>>()?;
+        self.bind_declared(&resources, accesses)
+    }
+
     /// An override must be an access the descriptor allows: non-empty, the same image
     /// layout as the default (the descriptor is written with it), and no writes through a
     /// sampled image or a uniform buffer.

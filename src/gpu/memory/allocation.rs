@@ -5,6 +5,7 @@ use super::{AliasGroup, AliasInner, Buffer, Dedicated, Placement};
 use crate::error::{Error, Result};
 use crate::gpu::context::{Context, Shared};
 use crate::gpu::lifetime::Retired;
+use crate::gpu::pipeline::Resource;
 use crate::gpu::validation::lock;
 use ash::vk;
 use gpu_allocator::vulkan::{Allocation, AllocationCreateDesc, AllocationScheme};
@@ -111,6 +112,40 @@ impl Context {
         MemoryReport {
             used_bytes: buffers.iter().map(|b| b.allocation_size()).sum(),
             allocations: buffers.len() as u64,
+            ..self.memory_report()
+        }
+    }
+
+    /// As [`Context::memory_of`], over the buffers and images of `resources` (a kernel's
+    /// bindings): each buffer, buffer range and image counts as given (give each resource
+    /// once), the elements of an array each, a sampler not at all.
+    pub fn memory_of_resources<'a>(
+        &self,
+        resources: impl IntoIterator<Item = Resource<'a>>,
+    ) -> MemoryReport {
+        fn add(res: &Resource<'_>, bytes: &mut u64, count: &mut u64) {
+            let size = match res {
+                Resource::Buffer(b) | Resource::BufferRange { buffer: b, .. } => {
+                    b.allocation_size()
+                }
+                Resource::StorageImage(i) | Resource::Texture(i) | Resource::Sampled(i, _) => {
+                    i.image.allocation_size()
+                }
+                Resource::Sampler(_) => return,
+                Resource::Array(items) => {
+                    return items.iter().for_each(|r| add(r, bytes, count));
+                }
+            };
+            *bytes += size;
+            *count += 1;
+        }
+        let (mut used_bytes, mut allocations) = (0, 0);
+        for res in resources {
+            add(&res, &mut used_bytes, &mut allocations);
+        }
+        MemoryReport {
+            used_bytes,
+            allocations,
             ..self.memory_report()
         }
     }

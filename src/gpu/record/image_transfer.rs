@@ -48,6 +48,37 @@ impl Recorder {
         Ok(())
     }
 
+    /// Copies tightly packed texels, row after row, into the first rows of mip 0 of
+    /// `image` (a 2D image, layer 0, uncompressed format), the last row padded with zero
+    /// texels; records nothing for empty `data`. An error if the texels need more rows
+    /// than the image has.
+    pub fn upload_image_rows<T: bytemuck::Pod>(&mut self, image: &Image, data: &[T]) -> Result<()> {
+        let data: &[u8] = bytemuck::cast_slice(data);
+        let texel = image.desc().texel_size()?;
+        let [width, height, _] = image.desc().extent;
+        let row_bytes = width as u64 * texel;
+        let bytes = data.len() as u64;
+        let rows = bytes.div_ceil(row_bytes);
+        if bytes % texel != 0 || rows > height as u64 {
+            return Err(Error::InvalidArgument(format!(
+                "{bytes} bytes of texels do not fill whole texels of image '{}' or do not fit \
+                 it ({width} x {height}, {texel} bytes a texel)",
+                image.name()
+            )));
+        }
+        if rows == 0 {
+            return Ok(());
+        }
+        let mut padded = data.to_vec();
+        padded.resize((rows * row_bytes) as usize, 0);
+        let region = ImageRegion {
+            layers: 1,
+            extent: [width, rows as u32, 1],
+            ..ImageRegion::whole(image.desc())
+        };
+        self.upload_image(image, region, &padded)
+    }
+
     /// Copies `region` of `image` back to the host, tightly packed (a tracked `TransferRead`).
     pub fn read_back_image(&mut self, image: &Image, region: ImageRegion) -> Result<Readback> {
         region.check(image.name(), image.desc())?;

@@ -6,7 +6,7 @@
 use super::formula::{OcclusionTable, TABLE_SIZE};
 use super::pack::{check_correction, check_matrices};
 use super::{AoParams, Prepared, cpu};
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::gpu::{
     AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context,
     MemoryReport, Readback, Recorder, Resource, Shader,
@@ -138,19 +138,15 @@ impl Buffers {
     /// declared as written only (`writeonly` in GLSL).
     fn bind(&self, pipeline: &ComputePipeline, writes: &[&str]) -> Result<BindGroup> {
         let table = self.by_binding();
-        let resources = (pipeline.bindings().iter())
-            .map(|b| match table.iter().find(|(n, _)| *n == b.name) {
-                Some((n, buffer)) => Ok((*n, Resource::Buffer(buffer))),
-                None => Err(Error::InvalidArgument(format!(
-                    "the AO kernel has no buffer for binding '{}' of {}",
-                    b.name,
-                    pipeline.name()
-                ))),
-            })
-            .collect::<Result<Vec<_>>>()?;
+        let lookup = |b: &str| {
+            table
+                .iter()
+                .find(|(n, _)| *n == b)
+                .map(|(_, r)| Resource::Buffer(r))
+        };
         let w = AccessSet::from(A::ComputeShaderWrite);
         let writes: Vec<(&str, AccessSet)> = writes.iter().map(|&b| (b, w)).collect();
-        pipeline.bind_declared(&resources, &writes)
+        pipeline.bind_from(lookup, &writes)
     }
 }
 

@@ -259,17 +259,9 @@ impl Kernel for BtfKernel {
     }
 
     fn memory(&self) -> MemoryReport {
-        let images: u64 = self
-            .arrays
-            .iter()
-            .chain([&self.map, &self.gbuffer])
-            .map(|i| i.allocation_size())
-            .sum();
-        let buffers = self.ctx.memory_of(&[&self.result]);
-        MemoryReport {
-            used_bytes: buffers.used_bytes + images,
-            allocations: buffers.allocations + (self.arrays.len() + 2) as u64,
-            ..buffers
-        }
+        let images = self.arrays.iter().chain([&self.map, &self.gbuffer]);
+        let result = Resource::Buffer(&self.result);
+        self.ctx
+            .memory_of_resources(images.map(Resource::texture).chain([result]))
     }
 }

@@ -16,6 +16,7 @@ use crate::gpu::{
     AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context,
     MemoryReport, Readback, Recorder, Resource,
 };
+use crate::kernels::contract::DispatchArgs;
 use crate::kernels::{Dispatch, Grid, Kernel, Pass};
 use ash::vk;
 use glam::Mat3;
@@ -31,17 +32,75 @@ pub type SrbfOutput = Vec<[f32; 3]>;
 /// The GPU kernel: pipelines, the lobes, the transfer and the outputs of one mesh.
 pub struct SrbfKernel {
     ctx: Context,
-    lighting: ComputePipeline,
-    lighting_bind: BindGroup,
-    project: ComputePipeline,
-    project_bind: BindGroup,
-    shade: ComputePipeline,
-    shade_bind: BindGroup,
-    sharp: ComputePipeline,
-    sharp_bind: BindGroup,
-    buffers: [Buffer; 14],
-    radiance: Buffer,
+    lighting: Stage,
+    project: Stage,
+    shade: Stage,
+    sharp: Stage,
+    buffers: Buffers,
     shape: Shape,
+}
+
+/// A pass's pipeline and its bindings.
+struct Stage {
+    pipeline: ComputePipeline,
+    bind: BindGroup,
+}
+
+impl Stage {
+    fn pass(&self, name: &'static str, args: DispatchArgs<SrbfKernel>) -> Pass<'_, SrbfKernel> {
+        Pass::dispatch(name, &self.pipeline, &self.bind, args)
+    }
+}
+
+/// The kernel's buffers: the inputs, the intermediates one pass writes for the next, and
+/// the per-vertex radiance.
+struct Buffers {
+    /// Lighting lobes through the basis: axes and amplitudes.
+    lobe_axes: Buffer,
+    lobe_amps: Buffer,
+    /// Compact lobes (shaded from the visibility): axes and amplitudes.
+    compact_axes: Buffer,
+    compact_amps: Buffer,
+    /// Per shade slot: normal and visibility.
+    normals: Buffer,
+    visible: Buffer,
+    basis_axes: Buffer,
+    /// The clustered-PCA transfer: rows and weights.
+    rows: Buffer,
+    weights: Buffer,
+    slot_vertex: Buffer,
+    /// The cluster of each shade workgroup (a uniform buffer).
+    group_cluster: Buffer,
+    /// Written by one pass, read as a uniform buffer by the next: the lighting
+    /// coefficients, the projected rows and the compact taps.
+    coeffs: Buffer,
+    projected: Buffer,
+    taps: Buffer,
+    /// Per-vertex RGB radiance, written by `srbf shade`.
+    radiance: Buffer,
+}
+
+impl Buffers {
+    /// Every buffer (for the memory report).
+    fn all(&self) -> [&Buffer; 15] {
+        [
+            &self.lobe_axes,
+            &self.lobe_amps,
+            &self.compact_axes,
+            &self.compact_amps,
+            &self.normals,
+            &self.visible,
+            &self.basis_axes,
+            &self.rows,
+            &self.weights,
+            &self.slot_vertex,
+            &self.group_cluster,
+            &self.coeffs,
+            &self.projected,
+            &self.taps,
+            &self.radiance,
+        ]
+    }
 }
 
 impl SrbfKernel {
@@ -66,101 +125,71 @@ impl SrbfKernel {
         let shade = pipeline("srbf/shade")?;
         let sharp = pipeline("srbf/sharp")?;
         let buffers = Self::buffers(rec, prep)?;
-        let radiance = Buffer::new(
-            &ctx,
-            "srbf radiance",
-            BufferDesc::storage(prep.shape.vertices as u64 * 16)
-                .usage(vk::BufferUsageFlags::VERTEX_BUFFER),
-        )?;
         let [lighting_bind, project_bind, sharp_bind, shade_bind] =
-            Self::binds([&lighting, &project, &sharp, &shade], &buffers, &radiance)?;
+            Self::binds([&lighting, &project, &sharp, &shade], &buffers)?;
+        let stage = |pipeline, bind| Stage { pipeline, bind };
         Ok(SrbfKernel {
             ctx,
-            lighting,
-            lighting_bind,
-            project,
-            project_bind,
-            shade,
-            shade_bind,
-            sharp,
-            sharp_bind,
+            lighting: stage(lighting, lighting_bind),
+            project: stage(project, project_bind),
+            shade: stage(shade, shade_bind),
+            sharp: stage(sharp, sharp_bind),
             buffers,
-            radiance,
             shape: prep.shape,
         })
     }
 
     /// The bind groups of `srbf lighting`, `srbf project`, `srbf sharp` and `srbf shade`
-    /// (pipelines in that order) over [`Self::buffers`] and the radiance.
+    /// (pipelines in that order) over the kernel's buffers.
     fn binds(
         [lighting, project, sharp, shade]: [&ComputePipeline; 4],
-        buffers: &[Buffer; 14],
-        radiance: &Buffer,
+        buffers: &Buffers,
     ) -> Result<[BindGroup; 4]> {
-        let [
-            lobe_axes,
-            lobe_amps,
-            compact_axes,
-            compact_amps,
-            normals,
-            visible,
-            basis_axes,
-            rows,
-            weights,
-            slot_vertex,
-            group_cluster,
-            coeffs,
-            projected,
-            taps,
-        ] = buffers;
         let (b, w) = (Resource::Buffer, AccessSet::from(A::ComputeShaderWrite));
         let lighting = lighting.bind_declared(
             &[
-                ("lobe_axes", b(lobe_axes)),
-                ("lobe_amps", b(lobe_amps)),
-                ("basis_axes", b(basis_axes)),
-                ("coeffs", b(coeffs)),
+                ("lobe_axes", b(&buffers.lobe_axes)),
+                ("lobe_amps", b(&buffers.lobe_amps)),
+                ("basis_axes", b(&buffers.basis_axes)),
+                ("coeffs", b(&buffers.coeffs)),
             ],
             &[("coeffs", w)],
         )?;
         let project = project.bind_declared(
             &[
-                ("rows", b(rows)),
-                ("coeffs", b(coeffs)),
-                ("projected", b(projected)),
+                ("rows", b(&buffers.rows)),
+                ("coeffs", b(&buffers.coeffs)),
+                ("projected", b(&buffers.projected)),
             ],
             &[("projected", w)],
         )?;
         let sharp = sharp.bind_declared(
             &[
-                ("lobe_axes", b(compact_axes)),
-                ("lobe_amps", b(compact_amps)),
-                ("taps", b(taps)),
+                ("lobe_axes", b(&buffers.compact_axes)),
+                ("lobe_amps", b(&buffers.compact_amps)),
+                ("taps", b(&buffers.taps)),
             ],
             &[("taps", w)],
         )?;
         let shade = shade.bind_declared(
             &[
-                ("weights", b(weights)),
-                ("slot_vertex", b(slot_vertex)),
-                ("group_cluster", b(group_cluster)),
-                ("projected", b(projected)),
-                ("radiance", b(radiance)),
-                ("normals", b(normals)),
-                ("visible", b(visible)),
-                ("taps", b(taps)),
+                ("weights", b(&buffers.weights)),
+                ("slot_vertex", b(&buffers.slot_vertex)),
+                ("group_cluster", b(&buffers.group_cluster)),
+                ("projected", b(&buffers.projected)),
+                ("radiance", b(&buffers.radiance)),
+                ("normals", b(&buffers.normals)),
+                ("visible", b(&buffers.visible)),
+                ("taps", b(&buffers.taps)),
             ],
             &[("radiance", w)],
         )?;
         Ok([lighting, project, sharp, shade])
     }
 
-    /// The input and intermediate buffers, their uploads recorded: lobe axes and
-    /// amplitudes (through the basis, then compact), slot normals and visibility, basis
-    /// axes, CPCA rows and weights, slot vertices, the workgroup table, then the
-    /// coefficients, projected rows and compact taps that one pass writes for the next (the
-    /// order [`Self::binds`] names them in).
-    fn buffers(rec: &mut Recorder, prep: &Prepared) -> Result<[Buffer; 14]> {
+    /// The kernel's buffers, the uploads of the inputs recorded and the intermediates
+    /// zeroed.
+    fn buffers(rec: &mut Recorder, prep: &Prepared) -> Result<Buffers> {
         fn storage<T: bytemuck::Pod>(rec: &mut Recorder, name: &str, data: &[T]) -> Result<Buffer> {
             let bytes: &[u8] = bytemuck::cast_slice(data);
             rec.buffer_with(name, BufferDesc::storage(bytes.len() as u64), bytes)
@@ -176,32 +205,38 @@ impl SrbfKernel {
         };
         let layout = &prep.layout;
         let groups = prep.group_table();
-        Ok([
-            storage(rec, "srbf lobe axes", &prep.lobe_axes)?,
-            storage(rec, "srbf lobe amplitudes", &prep.lobe_amps)?,
-            storage(rec, "srbf compact axes", &prep.compact_axes)?,
-            storage(rec, "srbf compact amplitudes", &prep.compact_amps)?,
-            storage(rec, "srbf slot normals", &prep.normals)?,
-            storage(rec, "srbf slot visibility", &prep.visible)?,
-            storage(rec, "srbf basis axes", &prep.basis_axes)?,
-            storage(rec, "srbf cpca rows", &layout.rows)?,
-            storage(rec, "srbf cpca weights", &layout.weights)?,
-            storage(rec, "srbf slot vertices", &layout.slot_vertex)?,
+        Ok(Buffers {
+            lobe_axes: storage(rec, "srbf lobe axes", &prep.lobe_axes)?,
+            lobe_amps: storage(rec, "srbf lobe amplitudes", &prep.lobe_amps)?,
+            compact_axes: storage(rec, "srbf compact axes", &prep.compact_axes)?,
+            compact_amps: storage(rec, "srbf compact amplitudes", &prep.compact_amps)?,
+            normals: storage(rec, "srbf slot normals", &prep.normals)?,
+            visible: storage(rec, "srbf slot visibility", &prep.visible)?,
+            basis_axes: storage(rec, "srbf basis axes", &prep.basis_axes)?,
+            rows: storage(rec, "srbf cpca rows", &layout.rows)?,
+            weights: storage(rec, "srbf cpca weights", &layout.weights)?,
+            slot_vertex: storage(rec, "srbf slot vertices", &layout.slot_vertex)?,
             // A uniform buffer sized for shade.comp's fixed array.
-            rec.buffer_with(
+            group_cluster: rec.buffer_with(
                 "srbf workgroup clusters",
                 BufferDesc::uniform(groups.len() as u64 * 4),
                 &groups,
             )?,
-            ubo(rec, "srbf coefficients", MAX_BASIS)?,
-            ubo(rec, "srbf projected rows", MAX_ROWS)?,
-            ubo(rec, "srbf compact taps", 2 * MAX_TAPS)?,
-        ])
+            coeffs: ubo(rec, "srbf coefficients", MAX_BASIS)?,
+            projected: ubo(rec, "srbf projected rows", MAX_ROWS)?,
+            taps: ubo(rec, "srbf compact taps", 2 * MAX_TAPS)?,
+            radiance: Buffer::new(
+                &rec.context(),
+                "srbf radiance",
+                BufferDesc::storage(prep.shape.vertices as u64 * 16)
+                    .usage(vk::BufferUsageFlags::VERTEX_BUFFER),
+            )?,
+        })
     }
 
     /// Per-vertex RGB radiance (vec4, alpha 1), written by pass `srbf shade`.
     pub fn radiance(&self) -> &Buffer {
-        &self.radiance
+        &self.buffers.radiance
     }
 
     pub fn vertex_count(&self) -> usize {
@@ -307,20 +342,10 @@ impl Kernel for SrbfKernel {
 
     fn pass_table(&self) -> Vec<Pass<'_, Self>> {
         vec![
-            Pass::dispatch(
-                PASS_LIGHTING,
-                &self.lighting,
-                &self.lighting_bind,
-                Self::lighting_args,
-            ),
-            Pass::dispatch(
-                PASS_PROJECT,
-                &self.project,
-                &self.project_bind,
-                Self::project_args,
-            ),
-            Pass::dispatch(PASS_SHARP, &self.sharp, &self.sharp_bind, Self::sharp_args),
-            Pass::dispatch(PASS_SHADE, &self.shade, &self.shade_bind, Self::shade_args),
+            self.lighting.pass(PASS_LIGHTING, Self::lighting_args),
+            self.project.pass(PASS_PROJECT, Self::project_args),
+            self.sharp.pass(PASS_SHARP, Self::sharp_args),
+            self.shade.pass(PASS_SHADE, Self::shade_args),
         ]
     }
 
@@ -329,7 +354,7 @@ impl Kernel for SrbfKernel {
     }
 
     fn read_back(&self, rec: &mut Recorder) -> Result<Readback> {
-        rec.read_back(&self.radiance)
+        rec.read_back(&self.buffers.radiance)
     }
 
     fn collect(&self, readback: &Readback) -> Result<SrbfOutput> {
@@ -338,7 +363,6 @@ impl Kernel for SrbfKernel {
     }
 
     fn memory(&self) -> MemoryReport {
-        let all: Vec<&Buffer> = self.buffers.iter().chain([&self.radiance]).collect();
-        self.ctx.memory_of(&all)
+        self.ctx.memory_of(&self.buffers.all())
     }
 }

@@ -119,38 +119,6 @@ fn rgba32f(size: [u32; 2]) -> ImageDesc {
     float_image(vk::Format::R32G32B32A32_SFLOAT, size)
 }
 
-/// Records the upload of `data` into all of `image`.
-fn upload_whole<T: bytemuck::Pod>(rec: &mut Recorder, image: &Image, data: &[T]) -> Result<()> {
-    rec.upload_image(
-        image,
-        ImageRegion::whole(image.desc()),
-        bytemuck::cast_slice(data),
-    )
-}
-
-/// Records the upload of `data` (16-byte texels, row-major) into the first rows of `image`
-/// (zero-padded to whole rows).
-fn upload_rows<T: bytemuck::Pod>(rec: &mut Recorder, image: &Image, data: &[T]) -> Result<()> {
-    let bytes: &[u8] = bytemuck::cast_slice(data);
-    let [w, h, _] = image.desc().extent;
-    let rows = pack::rows(bytes.len() / 16, w);
-    if rows > h {
-        return Err(Error::InvalidArgument(format!(
-            "{} texels do not fit image '{}' ({w} x {h})",
-            bytes.len() / 16,
-            image.name()
-        )));
-    }
-    let mut padded = bytes.to_vec();
-    padded.resize((rows * w) as usize * 16, 0);
-    let extent = [w, rows, 1];
-    let region = ImageRegion {
-        extent,
-        ..ImageRegion::whole(image.desc())
-    };
-    rec.upload_image(image, region, &padded)
-}
-
 impl Resources {
     /// Creates the images and buffers `room` asks for (nothing uploaded).
     fn new(ctx: &Context, room: &Room) -> Result<Resources> {
@@ -219,18 +187,16 @@ impl Resources {
     /// Records the upload of a packed pose: per texel, the walk, the contact entries, the
     /// occupied tiles ([`Resources::set_tiles`]), the vertices and the BVH.
     fn upload(&self, rec: &mut Recorder, p: Packed) -> Result<()> {
-        upload_whole(rec, &self.texel_positions, p.texel_positions)?;
-        upload_whole(rec, &self.texel_normals, p.texel_normals)?;
-        upload_whole(rec, &self.texel_corners, &p.texel_corners)?;
-        upload_whole(rec, &self.diffusion_start, &p.diffusion_start)?;
-        upload_rows(rec, &self.walk_records, &p.walk_records)?;
-        if !p.contact_entries.is_empty() {
-            upload_rows(rec, &self.contact_entries, &p.contact_entries)?;
-        }
+        rec.upload_image_rows(&self.texel_positions, p.texel_positions)?;
+        rec.upload_image_rows(&self.texel_normals, p.texel_normals)?;
+        rec.upload_image_rows(&self.texel_corners, &p.texel_corners)?;
+        rec.upload_image_rows(&self.diffusion_start, &p.diffusion_start)?;
+        rec.upload_image_rows(&self.walk_records, &p.walk_records)?;
+        rec.upload_image_rows(&self.contact_entries, &p.contact_entries)?;
         self.set_tiles(rec, p.tiles)?;
         rec.upload(&self.vertex_frames, 0, &p.vertex_frames)?;
-        upload_rows(rec, &self.bvh_nodes, &p.bvh_nodes)?;
-        upload_rows(rec, &self.bvh_triangles, &p.bvh_triangles)
+        rec.upload_image_rows(&self.bvh_nodes, &p.bvh_nodes)?;
+        rec.upload_image_rows(&self.bvh_triangles, &p.bvh_triangles)
     }
 
     /// Records the clearing of the transmission image (the irradiance pass leaves it alone
@@ -266,25 +232,6 @@ impl Resources {
     fn tile_count(&self) -> u32 {
         self.tile_list.lock().map(|l| l.len() as u32).unwrap_or(0)
     }
-
-    /// Device memory of the buffers and images.
-    fn memory(&self, ctx: &Context) -> MemoryReport {
-        let (mut buffers, mut images) = (Vec::new(), Vec::new());
-        for (_, resource) in self.by_binding() {
-            match resource {
-                Resource::Buffer(b) => buffers.push(b),
-                Resource::StorageImage(i) => images.push(i.image),
-                _ => {}
-            }
-        }
-        let buffers = ctx.memory_of(&buffers);
-        MemoryReport {
-            used_bytes: buffers.used_bytes
-                + images.iter().map(|i| i.allocation_size()).sum::<u64>(),
-            allocations: buffers.allocations + images.len() as u64,
-            ..buffers
-        }
-    }
 }
 
 /// A compute pipeline built from an embedded shader, and its bindings.
@@ -299,18 +246,10 @@ impl Stage {
     fn new(ctx: &Context, name: &str, res: &Resources, writes: &[&str]) -> Result<Stage> {
         let pipeline = crate::shaders::pipeline(ctx, name)?;
         let table = res.by_binding();
-        let resources = (pipeline.bindings().iter())
-            .map(|b| match table.iter().find(|(n, _)| *n == b.name) {
-                Some((n, r)) => Ok((*n, r.clone())),
-                None => Err(Error::InvalidArgument(format!(
-                    "the SSS kernel has no resource for binding '{}' of {name}",
-                    b.name
-                ))),
-            })
-            .collect::<Result<Vec<_>>>()?;
+        let lookup = |b: &str| table.iter().find(|(n, _)| *n == b).map(|(_, r)| r.clone());
         let w = AccessSet::from(A::ComputeShaderWrite);
         let writes: Vec<(&str, AccessSet)> = writes.iter().map(|&b| (b, w)).collect();
-        let bind = pipeline.bind_declared(&resources, &writes)?;
+        let bind = pipeline.bind_from(lookup, &writes)?;
         Ok(Stage { pipeline, bind })
     }
 
@@ -362,7 +301,7 @@ impl SssKernel {
         let diffusion_rgb = stage("sss/diffusion", &["diffuse"])?;
         let diffusion_grey = stage("sss/diffusion_grey", &["diffuse"])?;
         let pattern = Pattern::new(profile, params.samples);
-        upload_rows(rec, &res.sample_pattern, &pattern.texels)?;
+        rec.upload_image_rows(&res.sample_pattern, &pattern.texels)?;
         res.upload(rec, packed)?;
         Ok(SssKernel {
             ctx,
@@ -405,7 +344,7 @@ impl SssKernel {
         params.check()?;
         let s = &mut self.settings;
         let pattern = Pattern::new(&s.profile, params.samples);
-        upload_rows(rec, &self.res.sample_pattern, &pattern.texels)?;
+        rec.upload_image_rows(&self.res.sample_pattern, &pattern.texels)?;
         s.pattern_totals = pattern.totals;
         if s.params.transmission && !params.transmission {
             self.res.clear_transmission(rec)?;
@@ -440,7 +379,7 @@ impl SssKernel {
     /// the irradiance pass.
     pub fn upload_irradiance(&self, rec: &mut Recorder, e: &[[f32; 4]]) -> Result<()> {
         pack::check_irradiance(self.size(), e)?;
-        upload_whole(rec, &self.res.irradiance_rgb, e)?;
+        rec.upload_image_rows(&self.res.irradiance_rgb, e)?;
         self.irradiance_is_grey.store(false, Ordering::Relaxed);
         Ok(())
     }
@@ -540,6 +479,7 @@ impl Kernel for SssKernel {
     }
 
     fn memory(&self) -> MemoryReport {
-        self.res.memory(&self.ctx)
+        self.ctx
+            .memory_of_resources(self.res.by_binding().map(|(_, r)| r))
     }
 }
