@@ -59,7 +59,7 @@ impl Recorder {
         let row_bytes = width as u64 * texel;
         let bytes = data.len() as u64;
         let rows = bytes.div_ceil(row_bytes);
-        if bytes % texel != 0 || rows > height as u64 {
+        if !bytes.is_multiple_of(texel) || rows > height as u64 {
             return Err(Error::InvalidArgument(format!(
                 "{bytes} bytes of texels do not fill whole texels of image '{}' or do not fit \
                  it ({width} x {height}, {texel} bytes a texel)",
