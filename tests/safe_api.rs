@@ -401,3 +401,74 @@ fn a_steady_frame_loop_creates_nothing_after_warm_up() {
         Ok(())
     });
 }
+
+/// Found by tests/fuzz_api.rs: a sampled read of an image nothing had written transitioned it
+/// from UNDEFINED to SHADER_READ_ONLY (UNASSIGNED-BestPractices-TransitionUndefinedToReadOnly,
+/// and the read sees garbage). The submission is refused, changing no tracked state; after a
+/// clear the same read is clean.
+#[test]
+fn reading_an_image_nothing_wrote_is_refused_at_submission() {
+    with_gpu(|ctx| {
+        let img = rgba32f(ctx, "never written")?;
+        let mut rec = ctx.recorder("reads garbage")?;
+        rec.use_image(&img, img.all(), A::ComputeShaderReadSampledImage)?;
+        let e = rec.submit().expect_err("a read of undefined contents");
+        assert!(e.to_string().contains("'never written'"), "{e}");
+        let mut rec = ctx.recorder("discards for a read")?;
+        rec.discard_image(&img, img.all(), A::ComputeShaderReadSampledImage)
+            .expect_err("discarding for a read");
+        drop(rec);
+        clear(ctx, &img, 4.0)?;
+        let mut rec = ctx.recorder("reads the clear")?;
+        rec.use_image(&img, img.all(), A::ComputeShaderReadSampledImage)?;
+        rec.submit_and_wait()?;
+        assert_eq!(read(ctx, &img)?, 4.0);
+        Ok(())
+    });
+}
+
+/// Found by tests/fuzz_api.rs: write, read, write of one buffer in one recording. The second
+/// write waited for the read with an execution-only barrier, so the first write was never
+/// made visible to it: SYNC-HAZARD-WRITE-AFTER-WRITE. The barrier now carries the memory
+/// dependency along the chain.
+#[test]
+fn write_read_write_of_a_buffer_is_hazard_free() {
+    with_gpu(|ctx| {
+        let buf = Buffer::new(
+            ctx,
+            "buf",
+            BufferDesc::storage(1024)
+                .usage(vk::BufferUsageFlags::TRANSFER_DST | vk::BufferUsageFlags::TRANSFER_SRC),
+        )?;
+        let mut rec = ctx.recorder("w r w")?;
+        rec.fill_buffer(&buf, 1)?;
+        let first = rec.read_back(&buf)?;
+        rec.fill_buffer(&buf, 2)?;
+        let second = rec.read_back(&buf)?;
+        rec.submit_and_wait()?;
+        assert_eq!(first.to_vec::<u32>()?[0], 1);
+        assert_eq!(second.to_vec::<u32>()?[255], 2);
+        Ok(())
+    });
+}
+
+/// Found by tests/fuzz_api.rs: two declared uses of one image with no command between them
+/// (a storage write by a dispatch, then a sampled read, then a storage read) queued both
+/// barriers into one vkCmdPipelineBarrier2, where barriers do not chain: the second
+/// transition did not wait for the first (SYNC-HAZARD-WRITE-AFTER-WRITE on the layout
+/// transition). A second barrier on a resource now starts a new barrier command.
+#[test]
+fn back_to_back_uses_of_one_image_are_chained() {
+    with_gpu(|ctx| {
+        let img = rgba32f(ctx, "img")?;
+        let mut rec = ctx.recorder("back to back")?;
+        rec.clear_image(&img, img.all(), [1.0; 4])?;
+        rec.use_image(&img, img.all(), A::ComputeShaderReadSampledImage)?;
+        rec.use_image(&img, img.all(), A::TransferRead)?;
+        rec.use_image(&img, img.all(), A::ComputeShaderReadSampledImage)?;
+        let rb = rec.read_back_image(&img, ImageRegion::whole(img.desc()))?;
+        rec.submit_and_wait()?;
+        assert_eq!(rb.to_vec::<f32>()?[0], 1.0);
+        Ok(())
+    });
+}

@@ -78,6 +78,10 @@ impl AccessState {
         let layout_change = image && old_layout != new_layout;
         if has_write(next) || layout_change || discard {
             let prev = self.last | self.reads;
+            // A write after an earlier write that was made visible only to reads in between
+            // still needs that write visible to it (synchronization validation reports a
+            // write-after-write hazard otherwise): the chain carries the memory dependency.
+            let after_write = self.wrote;
             // After a transition to a read-only access, those reads already see it.
             let reads = if has_write(next) {
                 AccessSet::EMPTY
@@ -97,7 +101,7 @@ impl AccessState {
             return Some(Transition {
                 prev,
                 next,
-                force_visible: false,
+                force_visible: after_write && has_write(next),
                 old_layout,
                 new_layout,
             });

@@ -123,13 +123,19 @@ impl Shared {
             .stage_mask(vk::PipelineStageFlags2::ALL_COMMANDS)
     }
 
-    /// Locks the queue, reserves the next timeline value and runs `submit` with both. If
-    /// `submit` fails, the value is signalled from the host (after earlier work) so nothing
-    /// waits for it forever.
-    pub fn submit_locked(&self, submit: impl FnOnce(vk::Queue, u64) -> Result<()>) -> Result<u64> {
+    /// Locks the queue, runs `prepare` (whose failure submits nothing and reserves no
+    /// value), reserves the next timeline value and runs `submit` with the queue, the value
+    /// and what `prepare` made. If `submit` fails, the value is signalled from the host
+    /// (after earlier work) so nothing waits for it forever.
+    pub fn submit_locked<P>(
+        &self,
+        prepare: impl FnOnce() -> Result<P>,
+        submit: impl FnOnce(vk::Queue, u64, P) -> Result<()>,
+    ) -> Result<u64> {
         let queue = lock(&self.queue);
+        let prepared = prepare()?;
         let value = self.reserve_value();
-        if let Err(e) = submit(*queue, value) {
+        if let Err(e) = submit(*queue, value, prepared) {
             if self.wait_value(value - 1, 10_000_000_000).unwrap_or(false)
                 && self.completed() < value
             {

@@ -222,6 +222,13 @@ impl Recorder {
             {
                 range.check(image.name(), image.desc())?;
                 check_image_access(image, next)?;
+                if discard && !next.iter().any(AccessType::is_write) {
+                    return Err(Error::InvalidArgument(format!(
+                        "a barrier discarding the contents of image '{}' for a read ({next:?}) \
+                         would read undefined contents",
+                        image.name()
+                    )));
+                }
                 if !discard && !prev.is_empty() {
                     check_image_access(image, prev)?;
                 }

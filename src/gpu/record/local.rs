@@ -336,8 +336,30 @@ impl LocalTracker {
 
     /// Joins every entry to the true state, in submission order (the caller holds the queue
     /// lock): returns the prologue's barriers, and the tracked states become this recording's
-    /// end states.
-    pub fn resolve(&self) -> Resolved {
+    /// end states. Fails, changing nothing, if the recording reads image subresources that
+    /// nothing has written (their layout is still UNDEFINED: the contents are garbage, and
+    /// the transition would be one the validation layer warns about).
+    pub fn resolve(&self, recorder: &str) -> Result<Resolved> {
+        let out = self.resolve_unchecked();
+        if let Some(name) = out.images.iter().find_map(|(img, t)| {
+            let t = &t.transition;
+            let reads_garbage = t.old_layout == vk::ImageLayout::UNDEFINED
+                && !has_write(t.next)
+                && t.new_layout != vk::ImageLayout::UNDEFINED
+                && t.prev.is_empty();
+            reads_garbage.then(|| img.name.clone())
+        }) {
+            out.undo();
+            return Err(Error::InvalidArgument(format!(
+                "recording '{recorder}' reads image '{name}' before anything wrote it (its \
+                 contents are undefined): clear or upload it first, or declare its state with \
+                 Image::assume_access"
+            )));
+        }
+        Ok(out)
+    }
+
+    fn resolve_unchecked(&self) -> Resolved {
         let mut out = Resolved {
             buffers: Vec::new(),
             images: Vec::new(),
@@ -402,7 +424,7 @@ impl LocalTracker {
                 return Err(stale(&img.inner.name));
             }
         }
-        let resolved = self.resolve();
+        let resolved = self.resolve_unchecked();
         debug_assert!(
             resolved.is_empty(),
             "joined recordings have no prologue barriers"

@@ -134,45 +134,51 @@ impl Recorder {
         let mut finished = self.take_finished();
         let shared = finished.shared.clone();
         let mut resolved = None;
-        let value = shared.submit_locked(|queue, value| {
-            // Join this recording to the tracked state as of the submissions before it.
-            let joins = resolved.insert(local.resolve());
-            let prologue = if joins.is_empty() {
-                None
-            } else {
+        let mut pool_cmds = std::mem::take(&mut finished.cmds);
+        let value = shared.submit_locked(
+            || {
+                // Join this recording to the tracked state as of the submissions before it
+                // (under the queue lock, so in submission order).
+                let joins = resolved.insert(local.resolve(&recorder)?);
+                if joins.is_empty() {
+                    return Ok(None);
+                }
                 // The pool's second command buffer, allocated the first time it is needed.
-                let spare = match finished.cmds.get(1) {
+                let spare = match pool_cmds.get(1) {
                     Some(&c) => c,
                     None => {
                         let c = allocate_command_buffer(&shared, pool)?;
-                        finished.cmds.push(c);
+                        pool_cmds.push(c);
                         c
                     }
                 };
                 record_prologue(&shared, spare, &recorder, joins)?;
-                Some(spare)
-            };
-            finished.stamp(value);
-            let cmds: Vec<_> = prologue
-                .into_iter()
-                .chain([cmd])
-                .map(|c| vk::CommandBufferSubmitInfo::default().command_buffer(c))
-                .collect();
-            let mut all_signals: Vec<vk::SemaphoreSubmitInfo<'_>> = signals.to_vec();
-            all_signals.push(shared.timeline_signal(value));
-            let submit = vk::SubmitInfo2::default()
-                .wait_semaphore_infos(waits)
-                .command_buffer_infos(&cmds)
-                .signal_semaphore_infos(&all_signals);
-            // SAFETY: the command buffer is executable and everything it uses is kept alive
-            // until `value`; the queue is externally synchronised by the caller's lock.
-            unsafe {
-                shared
-                    .device
-                    .queue_submit2(queue, &[submit], vk::Fence::null())
-            }
-            .vk("vkQueueSubmit2")
-        });
+                Ok(Some(spare))
+            },
+            |queue, value, prologue| {
+                finished.stamp(value);
+                let cmds: Vec<_> = prologue
+                    .into_iter()
+                    .chain([cmd])
+                    .map(|c| vk::CommandBufferSubmitInfo::default().command_buffer(c))
+                    .collect();
+                let mut all_signals: Vec<vk::SemaphoreSubmitInfo<'_>> = signals.to_vec();
+                all_signals.push(shared.timeline_signal(value));
+                let submit = vk::SubmitInfo2::default()
+                    .wait_semaphore_infos(waits)
+                    .command_buffer_infos(&cmds)
+                    .signal_semaphore_infos(&all_signals);
+                // SAFETY: the command buffers are executable and everything they use is kept
+                // alive until `value`; the queue is externally synchronised by the lock held.
+                unsafe {
+                    shared
+                        .device
+                        .queue_submit2(queue, &[submit], vk::Fence::null())
+                }
+                .vk("vkQueueSubmit2")
+            },
+        );
+        finished.cmds = pool_cmds;
         let value = match value {
             Ok(v) => v,
             Err(e) => {

@@ -203,6 +203,13 @@ impl Recorder {
         self.check_owner(&inner.shared, || format!("image '{}'", inner.name))?;
         range.check(image.name(), image.desc())?;
         check_image_access(image, next)?;
+        if discard && !next.iter().any(AccessType::is_write) {
+            return Err(Error::InvalidArgument(format!(
+                "discarding the contents of image '{}' for a read ({next:?}) would read \
+                 undefined contents",
+                image.name()
+            )));
+        }
         self.use_image_inner(&inner, range, next, discard);
         Ok(())
     }
@@ -276,7 +283,19 @@ impl Recorder {
 
     fn queue(&mut self, planned: PlannedBarrier) {
         match self.mode {
-            BarrierMode::Emit => self.pending.push(planned),
+            BarrierMode::Emit => {
+                // Barriers in one vkCmdPipelineBarrier2 do not chain: a second barrier on the
+                // same resource must come in a later call, or it would not wait for the
+                // first (its layout transition included).
+                let same = |p: &PlannedBarrier| {
+                    (p.buffer.is_some() && p.buffer == planned.buffer)
+                        || matches!((p.image, planned.image), (Some((a, _)), Some((b, _))) if a == b)
+                };
+                if self.pending.iter().any(same) {
+                    self.flush_barriers();
+                }
+                self.pending.push(planned)
+            }
             BarrierMode::Collect => self.collected.push(planned),
         }
     }
