@@ -72,6 +72,16 @@ pub enum Error {
     #[error("invalid argument: {0}")]
     InvalidArgument(String),
 
+    /// A resource used with a context other than the one that created it (contexts never
+    /// share resources, even on one device: each has its own lifetime timeline).
+    #[error("{resource} belongs to {owner}, but {user} is of {context}")]
+    WrongContext {
+        resource: String,
+        owner: String,
+        user: String,
+        context: String,
+    },
+
     #[error("shutdown found leaks: {0}")]
     Leak(String),
 

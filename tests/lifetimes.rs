@@ -383,17 +383,17 @@ fn chain_with_declared(ctx: &Context, declare_y: AccessSet, collect: bool) -> vk
         // A render graph: plan each pass from its declared uses, record the barriers,
         // then record the pass with vkshade emitting none.
         rec.set_barrier_mode(BarrierMode::Collect);
-        let planned = rec.plan_dispatch(&sb);
-        rec.record_planned(&planned);
+        let planned = rec.plan_dispatch(&sb)?;
+        rec.record_planned(&planned)?;
         rec.dispatch_invocations_tracked(&scale, &sb, &scale_push(2.0, 1.0, N), [N, 1, 1])?;
-        let planned = rec.plan_dispatch(&ab);
+        let planned = rec.plan_dispatch(&ab)?;
         assert!(
             planned
                 .iter()
                 .any(|p| p.resource == "y" && p.prev.contains(A::ComputeShaderWrite)),
             "the read-after-write on y is planned: {planned:?}"
         );
-        rec.record_planned(&planned);
+        rec.record_planned(&planned)?;
         rec.dispatch_invocations_tracked(&add, &ab, &add_push(1.0, N), [N, 1, 1])?;
         let unplanned = rec.take_collected();
         assert!(unplanned.is_empty(), "nothing unplanned: {unplanned:?}");

@@ -198,7 +198,7 @@ fn the_timeline_stays_vkshades_and_planned_barriers_keep_their_resource() {
         drop(planner);
         drop(b); // the planned barrier still holds it
         let mut r = ctx.recorder("replayer")?;
-        r.record_planned(&planned);
+        r.record_planned(&planned)?;
         drop(planned);
         r.submit_and_wait()?;
         Ok(())

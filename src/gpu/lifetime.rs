@@ -28,8 +28,12 @@ pub(crate) enum Retired {
     PipelineLayout(vk::PipelineLayout),
     SetLayout(vk::DescriptorSetLayout),
     DescriptorPool(vk::DescriptorPool),
-    CommandPool(vk::CommandPool),
+    /// A command pool with the command buffers allocated from it (pooled for reuse).
+    CommandPool(vk::CommandPool, Vec<vk::CommandBuffer>),
+    /// A timestamp query pool (pooled for reuse).
     QueryPool(vk::QueryPool),
+    /// A readback staging buffer (pooled for reuse).
+    Readback(super::recycle::PooledBuffer),
 }
 
 /// The timeline value of the last submission that used a resource (0: none).
@@ -121,7 +125,7 @@ impl Shared {
         for item in items {
             if value <= done {
                 // SAFETY: every submission that used the object has completed.
-                unsafe { self.destroy(item) };
+                unsafe { self.reuse_or_destroy(item) };
             } else {
                 grave.push((value, item));
             }
@@ -137,7 +141,7 @@ impl Shared {
         drop(grave);
         for (_, item) in ready {
             // SAFETY: as in `retire`: the GPU is done with it.
-            unsafe { self.destroy(item) };
+            unsafe { self.reuse_or_destroy(item) };
         }
     }
 
@@ -164,8 +168,13 @@ impl Shared {
                 Retired::PipelineLayout(l) => d.destroy_pipeline_layout(l, None),
                 Retired::SetLayout(l) => d.destroy_descriptor_set_layout(l, None),
                 Retired::DescriptorPool(p) => d.destroy_descriptor_pool(p, None),
-                Retired::CommandPool(p) => d.destroy_command_pool(p, None),
+                // Destroying a pool frees its command buffers.
+                Retired::CommandPool(p, _) => d.destroy_command_pool(p, None),
                 Retired::QueryPool(q) => d.destroy_query_pool(q, None),
+                Retired::Readback(b) => {
+                    d.destroy_buffer(b.raw, None);
+                    self.free_memory(b.allocation);
+                }
             }
         }
     }

@@ -7,7 +7,8 @@
 //! - [`track`]: per-resource (and per-subresource) state tracking for declared uses.
 //! - [`shader`], [`pipeline`]: reflection, pipelines, bind groups with declared accesses.
 //! - [`record`]: recordings, submissions, staged uploads and readbacks, timestamps.
-//! - `lifetime`, `staging`: deferred destruction and the staging ring.
+//! - `lifetime`, `staging`, `recycle`: deferred destruction, the staging ring, and reuse of
+//!   per-frame objects (command pools, query pools, readback buffers).
 
 #![warn(missing_docs)]
 
@@ -17,6 +18,7 @@ mod lifetime;
 pub mod memory;
 pub mod pipeline;
 pub mod record;
+mod recycle;
 pub mod shader;
 mod staging;
 pub mod sync;
@@ -39,6 +41,7 @@ pub use record::{
     AliasUse, Barrier, BarrierMode, PassTiming, PlannedBarrier, Readback, Recorded, Recorder,
     Submission, Timings, Use,
 };
+pub use recycle::CreationCounts;
 pub use shader::{BindingInfo, DescriptorKind, Shader};
 pub use sync::{AccessSet, AccessType};
 pub use validation::{MessageSink, Severity, ValidationMessage};

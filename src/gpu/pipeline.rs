@@ -242,6 +242,11 @@ fn checked_local_size(
 }
 
 impl PipelineInner {
+    /// The context that made the pipeline.
+    pub(crate) fn shared(&self) -> &Arc<Shared> {
+        &self.shared
+    }
+
     /// Creates the set layouts and the pipeline layout.
     fn create_layouts(&mut self) -> Result<()> {
         let device = &self.shared.device;
@@ -789,6 +794,13 @@ pub(crate) struct BindGroupInner {
     stamp: Stamp,
 }
 
+impl BindGroupInner {
+    /// The context of the pipeline the group was made for.
+    pub(crate) fn shared(&self) -> &Arc<Shared> {
+        &self.shared
+    }
+}
+
 impl Used for BindGroupInner {
     fn stamp(&self, value: u64) {
         self.stamp.raise(value);
@@ -815,6 +827,42 @@ pub struct BindGroup {
     inner: Arc<BindGroupInner>,
 }
 
+/// Fails unless every resource bound (and sampler) belongs to the pipeline's context.
+fn check_contexts(
+    pipeline: &ComputePipeline,
+    bound: &BTreeMap<(u32, u32), (&BindingInfo, Resource<'_>)>,
+) -> Result<()> {
+    let p = &pipeline.inner;
+    let user = || format!("pipeline '{}'", p.name);
+    for (info, res) in bound.values() {
+        for r in elements(res) {
+            let (owner, what) = match r {
+                Resource::Buffer(b) | Resource::BufferRange { buffer: b, .. } => {
+                    (b.keep().shared.clone(), format!("buffer '{}'", b.name()))
+                }
+                Resource::StorageImage(i) | Resource::Texture(i) | Resource::Sampled(i, _) => (
+                    i.image.keep().shared.clone(),
+                    format!("image '{}'", i.image.name()),
+                ),
+                Resource::Sampler(s) => {
+                    (s.keep().shared.clone(), format!("sampler '{}'", s.name()))
+                }
+                Resource::Array(_) => continue,
+            };
+            p.shared
+                .check_owner(&owner, || format!("{what} (binding '{}')", info.name), user)?;
+            if let Resource::Sampled(_, s) = r {
+                p.shared.check_owner(
+                    &s.keep().shared,
+                    || format!("sampler '{}' (binding '{}')", s.name(), info.name),
+                    user,
+                )?;
+            }
+        }
+    }
+    Ok(())
+}
+
 /// Flattens a binding's resource into its elements.
 fn elements<'r, 'a>(res: &'r Resource<'a>) -> Vec<&'r Resource<'a>> {
     match res {
@@ -830,6 +878,7 @@ impl BindGroup {
         overrides: &BTreeMap<(u32, u32), AccessSet>,
     ) -> Result<BindGroup> {
         let p = &pipeline.inner;
+        check_contexts(pipeline, bound)?;
         let device = &p.shared.device;
         let mut counts: BTreeMap<i32, u32> = BTreeMap::new();
         let mut resources: Vec<Arc<dyn Used>> = Vec::new();
@@ -899,6 +948,7 @@ impl BindGroup {
             // SAFETY: valid device and create info.
             group.pool = unsafe { device.create_descriptor_pool(&info, None) }
                 .vk("vkCreateDescriptorPool")?;
+            super::recycle::Counters::bump(&p.shared.counters.descriptor_pools);
             let alloc = vk::DescriptorSetAllocateInfo::default()
                 .descriptor_pool(group.pool)
                 .set_layouts(&p.set_layouts);
@@ -1064,4 +1114,14 @@ fn write_sets(
     // are alive (cached by their images, which the group keeps).
     unsafe { group.shared.device.update_descriptor_sets(&writes, &[]) };
     Ok(())
+}
+
+impl std::fmt::Debug for BindGroup {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let uses: Vec<&str> = self.inner.uses.iter().map(|u| u.binding.as_str()).collect();
+        f.debug_struct("BindGroup")
+            .field("pipeline_id", &self.inner.pipeline_id)
+            .field("uses", &uses)
+            .finish()
+    }
 }

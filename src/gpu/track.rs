@@ -10,8 +10,9 @@
 //! - a read after a write (or a layout transition): a barrier from the write to the reads not
 //!   yet made visible; reads already covered need nothing.
 //!
-//! The state is updated when a use is *recorded*: recordings are assumed to be submitted in
-//! the order they were recorded (as one queue executes them).
+//! This is the state of each resource as of the last *submitted* recording. A recording tracks
+//! its own uses apart from it and joins them to it when it is submitted (see
+//! `record::local`), so recordings may be submitted in any order, or dropped.
 
 use super::image::Subresources;
 use super::sync::{AccessSet, AccessType};
@@ -77,6 +78,10 @@ impl AccessState {
         let layout_change = image && old_layout != new_layout;
         if has_write(next) || layout_change || discard {
             let prev = self.last | self.reads;
+            // A write after an earlier write that was made visible only to reads in between
+            // still needs that write visible to it (synchronization validation reports a
+            // write-after-write hazard otherwise): the chain carries the memory dependency.
+            let after_write = self.wrote;
             // After a transition to a read-only access, those reads already see it.
             let reads = if has_write(next) {
                 AccessSet::EMPTY
@@ -96,7 +101,7 @@ impl AccessState {
             return Some(Transition {
                 prev,
                 next,
-                force_visible: false,
+                force_visible: after_write && has_write(next),
                 old_layout,
                 new_layout,
             });
@@ -129,6 +134,16 @@ impl AccessState {
 /// Tracked state of a buffer.
 pub type BufferState = AccessState;
 
+/// A buffer's tracked state and how many submissions have changed it (recordings into a
+/// caller's command buffer check that nothing changed it between their join and commit).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct BufferTrack {
+    /// The state after the last submitted recording.
+    pub state: BufferState,
+    /// Bumped by every commit.
+    pub version: u64,
+}
+
 impl BufferState {
     /// [`AccessState::apply`] for a buffer: no layouts, nothing to discard.
     pub fn apply_buffer(&mut self, next: AccessSet) -> Option<Transition> {
@@ -142,6 +157,8 @@ pub struct ImageState {
     mips: u32,
     layers: u32,
     subs: Vec<AccessState>,
+    /// Bumped by every commit (see [`BufferTrack::version`]).
+    version: u64,
 }
 
 /// A transition for a range of subresources.
@@ -160,7 +177,18 @@ impl ImageState {
             mips,
             layers,
             subs: vec![AccessState::default(); (mips * layers) as usize],
+            version: 0,
         }
+    }
+
+    /// How many commits have changed this image's state.
+    pub fn version(&self) -> u64 {
+        self.version
+    }
+
+    /// Marks a commit.
+    pub fn bump_version(&mut self) {
+        self.version += 1;
     }
 
     /// The state of one subresource.
@@ -175,11 +203,10 @@ impl ImageState {
 
     /// Declares `range` last accessed as `access` (outside tracking), with nothing to wait for.
     pub fn assume(&mut self, range: &Subresources, access: AccessSet) {
-        for layer in range.base_layer..range.base_layer + range.layer_count {
-            for mip in range.base_mip..range.base_mip + range.mip_count {
-                self.subs[(layer * self.mips + mip) as usize] = AccessState::after(access);
-            }
+        for (mip, layer) in range.iter() {
+            self.subs[(layer * self.mips + mip) as usize] = AccessState::after(access);
         }
+        self.version += 1;
     }
 
     /// Applies `next` to `range` (checked by the caller); returns the transitions needed,
@@ -197,53 +224,64 @@ impl ImageState {
                 && range.base_layer + range.layer_count <= self.layers,
             "unchecked subresource range {range:?}"
         );
-        // Per mip: runs of layers.
-        let mut per_mip: Vec<Vec<RangeTransition>> = Vec::new();
-        for mip in range.base_mip..range.base_mip + range.mip_count {
-            let mut runs: Vec<RangeTransition> = Vec::new();
-            for layer in range.base_layer..range.base_layer + range.layer_count {
-                let sub = &mut self.subs[(layer * self.mips + mip) as usize];
-                let Some(t) = sub.apply(next, true, discard) else {
-                    continue;
-                };
-                match runs.last_mut() {
-                    Some(r)
-                        if r.transition == t
-                            && r.range.base_layer + r.range.layer_count == layer =>
-                    {
-                        r.range.layer_count += 1
-                    }
-                    _ => runs.push(RangeTransition {
-                        range: Subresources {
-                            base_mip: mip,
-                            mip_count: 1,
-                            base_layer: layer,
-                            layer_count: 1,
-                        },
-                        transition: t,
-                    }),
-                }
-            }
-            per_mip.push(runs);
-        }
-        // Merge identical runs of consecutive mips.
-        let mut out: Vec<RangeTransition> = Vec::new();
-        for runs in per_mip {
-            for r in runs {
-                let merged = out.iter_mut().rev().find(|o| {
-                    o.transition == r.transition
-                        && o.range.base_layer == r.range.base_layer
-                        && o.range.layer_count == r.range.layer_count
-                        && o.range.base_mip + o.range.mip_count == r.range.base_mip
-                });
-                match merged {
-                    Some(o) => o.range.mip_count += 1,
-                    None => out.push(r),
-                }
-            }
-        }
-        out
+        let mips = self.mips;
+        merge_runs(range, |mip, layer| {
+            self.subs[(layer * mips + mip) as usize].apply(next, true, discard)
+        })
     }
+}
+
+/// Collects per-subresource transitions over `range` into merged ranges: per mip, runs of
+/// consecutive layers with the same transition become one range, then equal layer runs of
+/// consecutive mips merge. `f(mip, layer)` is called once per subresource, mip-major.
+pub fn merge_runs(
+    range: &Subresources,
+    mut f: impl FnMut(u32, u32) -> Option<Transition>,
+) -> Vec<RangeTransition> {
+    // Per mip: runs of layers.
+    let mut per_mip: Vec<Vec<RangeTransition>> = Vec::new();
+    for mip in range.base_mip..range.base_mip + range.mip_count {
+        let mut runs: Vec<RangeTransition> = Vec::new();
+        for layer in range.base_layer..range.base_layer + range.layer_count {
+            let Some(t) = f(mip, layer) else {
+                continue;
+            };
+            match runs.last_mut() {
+                Some(r)
+                    if r.transition == t && r.range.base_layer + r.range.layer_count == layer =>
+                {
+                    r.range.layer_count += 1
+                }
+                _ => runs.push(RangeTransition {
+                    range: Subresources {
+                        base_mip: mip,
+                        mip_count: 1,
+                        base_layer: layer,
+                        layer_count: 1,
+                    },
+                    transition: t,
+                }),
+            }
+        }
+        per_mip.push(runs);
+    }
+    // Merge identical runs of consecutive mips.
+    let mut out: Vec<RangeTransition> = Vec::new();
+    for runs in per_mip {
+        for r in runs {
+            let merged = out.iter_mut().rev().find(|o| {
+                o.transition == r.transition
+                    && o.range.base_layer == r.range.base_layer
+                    && o.range.layer_count == r.range.layer_count
+                    && o.range.base_mip + o.range.mip_count == r.range.base_mip
+            });
+            match merged {
+                Some(o) => o.range.mip_count += 1,
+                None => out.push(r),
+            }
+        }
+    }
+    out
 }
 
 #[cfg(test)]

@@ -176,7 +176,7 @@ impl<'k, K: Kernel + ?Sized> Pass<'k, K> {
     /// Plans the barriers the pass needs from its declared uses, recording nothing.
     pub fn plan(&self, rec: &mut Recorder) -> Result<Vec<PlannedBarrier>> {
         match &self.step {
-            Step::Dispatch { bind, .. } => Ok(rec.plan_dispatch(bind)),
+            Step::Dispatch { bind, .. } => rec.plan_dispatch(bind),
             Step::Upload { buffer, .. } => {
                 rec.plan(&[Use::Buffer(buffer, AccessType::TransferWrite.into())])
             }
@@ -292,8 +292,10 @@ pub fn record_as_graph<K: Kernel>(
                 break;
             }
         };
-        rec.record_planned(&planned);
-        if let Err(e) = pass.record(kernel, rec, input) {
+        if let Err(e) = rec
+            .record_planned(&planned)
+            .and_then(|_| pass.record(kernel, rec, input))
+        {
             result = Err(e);
             break;
         }

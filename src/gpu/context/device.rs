@@ -310,6 +310,7 @@ impl Context {
             .then(|| ash::ext::debug_utils::Device::new(&instance, &device));
         parts.partial.instance = None; // ownership moves into Shared
         let shared = Shared {
+            id: super::next_context_id(),
             _entry: parts.entry,
             instance,
             debug_instance: parts.debug_instance,
@@ -331,6 +332,8 @@ impl Context {
             graveyard: Mutex::new(Vec::new()),
             staging: Mutex::new(StagingRing::new(desc.memory.staging_ring_bytes)),
             stats: MemoryStats::default(),
+            recycled: Default::default(),
+            counters: Default::default(),
         };
         shared.set_name(queue, "vkshade queue");
         shared.set_name(timeline, "vkshade timeline");
@@ -397,6 +400,7 @@ impl Context {
         let timeline = create_timeline(&ext.device)?;
         Ok(Context {
             shared: Arc::new(Shared {
+                id: super::next_context_id(),
                 _entry: ext.entry,
                 instance: ext.instance,
                 debug_instance: None,
@@ -418,6 +422,8 @@ impl Context {
                 graveyard: Mutex::new(Vec::new()),
                 staging: Mutex::new(StagingRing::new(ext.memory.staging_ring_bytes)),
                 stats: MemoryStats::default(),
+                recycled: Default::default(),
+                counters: Default::default(),
             }),
         })
     }

@@ -31,6 +31,9 @@ pub const REQUIRED_API: u32 = vk::API_VERSION_1_3;
 /// Everything that must outlive every resource: resources hold an `Arc` of it.
 pub(crate) struct Shared {
     // Field order is irrelevant: Drop below destroys explicitly.
+    /// This context's number in the process (for error messages: resources are checked
+    /// against the context they are used with).
+    pub id: u64,
     _entry: ash::Entry,
     pub instance: ash::Instance,
     debug_instance: Option<ash::ext::debug_utils::Instance>,
@@ -60,9 +63,45 @@ pub(crate) struct Shared {
     pub graveyard: Mutex<Vec<(u64, Retired)>>,
     pub staging: Mutex<StagingRing>,
     pub stats: MemoryStats,
+    /// Idle pools and readback buffers for reuse (see `recycle`).
+    pub recycled: Mutex<super::recycle::Recycled>,
+    /// Objects created so far, per kind.
+    pub counters: super::recycle::Counters,
+}
+
+/// The id the next context gets.
+static NEXT_CONTEXT_ID: AtomicU64 = AtomicU64::new(1);
+
+/// A fresh context id.
+pub(crate) fn next_context_id() -> u64 {
+    NEXT_CONTEXT_ID.fetch_add(1, std::sync::atomic::Ordering::Relaxed)
 }
 
 impl Shared {
+    /// How errors name this context.
+    pub fn label(&self) -> String {
+        format!("context #{} ({})", self.id, self.info.name)
+    }
+
+    /// Fails unless `owner` (the context that made `resource`) is this context. `user`
+    /// names what uses the resource (a recorder, a pipeline, an alias group).
+    pub fn check_owner(
+        self: &Arc<Self>,
+        owner: &Arc<Shared>,
+        resource: impl FnOnce() -> String,
+        user: impl FnOnce() -> String,
+    ) -> Result<()> {
+        if Arc::ptr_eq(self, owner) {
+            return Ok(());
+        }
+        Err(Error::WrongContext {
+            resource: resource(),
+            owner: owner.label(),
+            user: user(),
+            context: self.label(),
+        })
+    }
+
     /// Names a Vulkan object for validation messages and debuggers (no-op without debug-utils).
     pub fn set_name<H: vk::Handle>(&self, handle: H, name: &str) {
         if let Some(du) = &self.debug_device {
@@ -84,13 +123,19 @@ impl Shared {
             .stage_mask(vk::PipelineStageFlags2::ALL_COMMANDS)
     }
 
-    /// Locks the queue, reserves the next timeline value and runs `submit` with both. If
-    /// `submit` fails, the value is signalled from the host (after earlier work) so nothing
-    /// waits for it forever.
-    pub fn submit_locked(&self, submit: impl FnOnce(vk::Queue, u64) -> Result<()>) -> Result<u64> {
+    /// Locks the queue, runs `prepare` (whose failure submits nothing and reserves no
+    /// value), reserves the next timeline value and runs `submit` with the queue, the value
+    /// and what `prepare` made. If `submit` fails, the value is signalled from the host
+    /// (after earlier work) so nothing waits for it forever.
+    pub fn submit_locked<P>(
+        &self,
+        prepare: impl FnOnce() -> Result<P>,
+        submit: impl FnOnce(vk::Queue, u64, P) -> Result<()>,
+    ) -> Result<u64> {
         let queue = lock(&self.queue);
+        let prepared = prepare()?;
         let value = self.reserve_value();
-        if let Err(e) = submit(*queue, value) {
+        if let Err(e) = submit(*queue, value, prepared) {
             if self.wait_value(value - 1, 10_000_000_000).unwrap_or(false)
                 && self.completed() < value
             {
@@ -150,6 +195,7 @@ impl Drop for Shared {
             for (_, item) in std::mem::take(&mut *lock(&self.graveyard)) {
                 self.destroy(item);
             }
+            self.destroy_recycled();
             let (buffer, allocation) = {
                 let mut st = lock(&self.staging);
                 (st.buffer, st.allocation.take())
@@ -224,6 +270,20 @@ impl std::fmt::Debug for Context {
 }
 
 impl Context {
+    /// This context's number in the process (as errors name it: `context #N`). Every
+    /// resource belongs to the context that made it; using it with another context, even
+    /// one on the same device, is an error.
+    pub fn id(&self) -> u64 {
+        self.shared.id
+    }
+
+    /// How many Vulkan objects of each kind this context has created so far. A steady frame
+    /// loop (same work each frame) creates none after its first frames: command pools,
+    /// query pools and readback buffers are reused once the GPU is done with them.
+    pub fn creation_counts(&self) -> super::recycle::CreationCounts {
+        self.shared.counters.snapshot()
+    }
+
     /// Identity and limits of the chosen device.
     pub fn info(&self) -> &DeviceInfo {
         &self.shared.info

@@ -201,6 +201,13 @@ pub struct Subresources {
 }
 
 impl Subresources {
+    /// Every (mip, layer) in the range, mip-major.
+    pub fn iter(&self) -> impl Iterator<Item = (u32, u32)> + use<> {
+        let (layers, base_layer) = (self.layer_count, self.base_layer);
+        (self.base_mip..self.base_mip + self.mip_count)
+            .flat_map(move |mip| (base_layer..base_layer + layers).map(move |layer| (mip, layer)))
+    }
+
     /// One mip level, every layer of `desc`.
     pub fn mip(desc: &ImageDesc, mip: u32) -> Self {
         Subresources {

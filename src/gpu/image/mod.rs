@@ -292,9 +292,17 @@ impl Image {
         let shared = &ctx.shared;
         shared.collect();
         check_image_desc(shared, name, &desc)?;
+        if let Some(g) = group {
+            shared.check_owner(
+                &g.inner.shared,
+                || format!("alias group '{}'", g.name()),
+                || format!("image '{name}'"),
+            )?;
+        }
         let info = create_info(&desc);
         // SAFETY: valid device and create info (checked above).
         let raw = unsafe { shared.device.create_image(&info, None) }.vk("vkCreateImage")?;
+        super::recycle::Counters::bump(&shared.counters.images);
         let mut dedicated_req = vk::MemoryDedicatedRequirements::default();
         let mut req2 = vk::MemoryRequirements2::default().push_next(&mut dedicated_req);
         let req_info = vk::ImageMemoryRequirementsInfo2::default().image(raw);

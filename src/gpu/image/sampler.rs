@@ -175,7 +175,7 @@ impl SamplerDesc {
 }
 
 pub(crate) struct SamplerInner {
-    shared: Arc<Shared>,
+    pub(crate) shared: Arc<Shared>,
     pub(crate) raw: vk::Sampler,
     pub(crate) desc: SamplerDesc,
     pub(crate) name: String,

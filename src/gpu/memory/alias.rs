@@ -17,11 +17,11 @@ use std::sync::{Arc, Mutex};
 /// member starts from `discard` (its contents are undefined): see
 /// [`Recorder::alias_switch`](crate::gpu::Recorder::alias_switch).
 pub struct AliasGroup {
-    pub(super) inner: Arc<AliasInner>,
+    pub(crate) inner: Arc<AliasInner>,
 }
 
 pub(crate) struct AliasInner {
-    shared: Arc<Shared>,
+    pub(crate) shared: Arc<Shared>,
     name: String,
     allocation: Mutex<Option<Allocation>>,
     memory: vk::DeviceMemory,
@@ -165,4 +165,13 @@ fn buffer_requirements(shared: &Shared, desc: &BufferDesc) -> Result<vk::MemoryR
             .get_device_buffer_memory_requirements(&query, &mut out)
     };
     Ok(out.memory_requirements)
+}
+
+impl std::fmt::Debug for AliasGroup {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("AliasGroup")
+            .field("name", &self.inner.name)
+            .field("size", &self.inner.size)
+            .finish()
+    }
 }

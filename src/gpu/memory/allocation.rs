@@ -73,6 +73,7 @@ impl Shared {
         let used = self.stats.used.fetch_add(size, Ordering::AcqRel) + size;
         self.stats.peak.fetch_max(used, Ordering::AcqRel);
         self.stats.count.fetch_add(1, Ordering::AcqRel);
+        super::super::recycle::Counters::bump(&self.counters.memory_allocations);
         Ok(allocation)
     }
 

@@ -55,7 +55,9 @@ pub(crate) struct BufferInner {
     /// buffer: the two never overlap.
     host: Mutex<()>,
     /// Last access, for state tracking (see `track`).
-    pub(crate) state: Mutex<super::track::BufferState>,
+    pub(crate) state: Mutex<super::track::BufferTrack>,
+    /// A readback staging buffer: pooled for reuse when dropped (see `recycle`).
+    pooled: bool,
 }
 
 impl Used for BufferInner {
@@ -79,6 +81,20 @@ impl Drop for BufferInner {
         if matches!(backing, Some(Backing::External)) {
             return;
         }
+        let backing = match (backing, self.mapped) {
+            (Some(Backing::Own(allocation)), Some(mapped)) if self.pooled => {
+                let pooled = super::recycle::PooledBuffer {
+                    raw: self.raw,
+                    allocation,
+                    size: self.desc.size,
+                    mapped,
+                };
+                self.shared
+                    .retire(self.stamp.get(), [Retired::Readback(pooled)]);
+                return;
+            }
+            (backing, _) => backing,
+        };
         let mut items = vec![Retired::Buffer(self.raw)];
         items.extend(backing.and_then(Backing::retire));
         self.shared.retire(self.stamp.get(), items);
@@ -130,6 +146,13 @@ impl Buffer {
         let shared = &ctx.shared;
         shared.collect();
         check_buffer_desc(shared, name, &desc)?;
+        if let Some(g) = group {
+            shared.check_owner(
+                &g.inner.shared,
+                || format!("alias group '{}'", g.name()),
+                || format!("buffer '{name}'"),
+            )?;
+        }
         if let Some(g) = group
             && g.inner.location() != desc.placement.location
         {
@@ -146,6 +169,7 @@ impl Buffer {
             .sharing_mode(vk::SharingMode::EXCLUSIVE);
         // SAFETY: valid device and create info.
         let raw = unsafe { shared.device.create_buffer(&info, None) }.vk("vkCreateBuffer")?;
+        super::recycle::Counters::bump(&shared.counters.buffers);
         let mut dedicated_req = vk::MemoryDedicatedRequirements::default();
         let mut req2 = vk::MemoryRequirements2::default().push_next(&mut dedicated_req);
         let req_info = vk::BufferMemoryRequirementsInfo2::default().buffer(raw);
@@ -196,6 +220,7 @@ impl Buffer {
             mapped,
             host: Mutex::new(()),
             state: Mutex::default(),
+            pooled: false,
         });
         // SAFETY: memory of this device, sized and aligned by the requirements (checked for
         // alias groups); on failure `inner` is dropped and destroys the buffer.
@@ -233,8 +258,43 @@ impl Buffer {
                 mapped: None,
                 host: Mutex::new(()),
                 state: Mutex::default(),
+                pooled: false,
             }),
         })
+    }
+
+    /// A readback staging buffer of at least `size` bytes: a pooled one whose last use has
+    /// completed, else a new one (its size rounded up to a power of two, so later readbacks
+    /// of similar sizes can reuse it). Dropped, it goes back to the pool.
+    pub(crate) fn readback_staging(ctx: &Context, name: &str, size: u64) -> Result<Buffer> {
+        let shared = &ctx.shared;
+        shared.collect();
+        if let Some(p) = shared.take_readback(size) {
+            shared.set_name(p.raw, name);
+            let alloc_size = p.allocation.size();
+            return Ok(Buffer {
+                inner: Arc::new(BufferInner {
+                    shared: shared.clone(),
+                    raw: p.raw,
+                    backing: Mutex::new(Some(Backing::Own(p.allocation))),
+                    desc: BufferDesc::readback(p.size),
+                    name: name.to_string(),
+                    alloc_size,
+                    stamp: Stamp::default(),
+                    mapped: Some(p.mapped),
+                    host: Mutex::new(()),
+                    state: Mutex::default(),
+                    pooled: true,
+                }),
+            });
+        }
+        let rounded = size.max(4096).next_power_of_two();
+        let mut buffer = Buffer::new(ctx, name, BufferDesc::readback(rounded))?;
+        // Pool it only if it is mapped (always, for READBACK placement) and not shared.
+        if let Some(inner) = Arc::get_mut(&mut buffer.inner) {
+            inner.pooled = inner.mapped.is_some();
+        }
+        Ok(buffer)
     }
 
     /// Whether the buffer is bound to an alias group's memory.
@@ -293,9 +353,12 @@ impl Buffer {
     }
 
     /// Declares how the buffer was last accessed outside vkshade's tracking (e.g. by a
-    /// renderer's draw), so the next tracked use waits for it.
+    /// renderer's draw), so the next tracked use waits for it. It applies to recordings
+    /// submitted from now on (each joins its first use to the state at its submission).
     pub fn assume_access(&self, access: impl Into<AccessSet>) {
-        *lock(&self.inner.state) = super::track::BufferState::after(access.into());
+        let mut g = lock(&self.inner.state);
+        g.state = super::track::BufferState::after(access.into());
+        g.version += 1;
     }
 
     fn host_range(&self, offset: u64, len: u64, what: &str) -> Result<MappedPtr> {

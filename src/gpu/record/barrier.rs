@@ -6,7 +6,6 @@ use crate::error::{Error, Result};
 use crate::gpu::image::{Image, Subresources};
 use crate::gpu::memory::Buffer;
 use crate::gpu::sync::{AccessSet, AccessType, barrier_masks};
-use crate::gpu::validation::lock;
 use ash::vk;
 use std::sync::Arc;
 
@@ -119,6 +118,8 @@ pub struct PlannedBarrier {
     pub(super) buffer: Option<vk::Buffer>,
     pub(super) image: Option<(vk::Image, Subresources)>,
     pub(super) target: Arc<dyn crate::gpu::lifetime::Used>,
+    /// The context of the resource.
+    pub(super) owner: Arc<crate::gpu::context::Shared>,
     /// The accesses the barrier waits for.
     pub prev: AccessSet,
     /// The accesses that wait.
@@ -200,6 +201,17 @@ impl Recorder {
     /// is reported by the validation layer, not checked here.
     pub fn barrier(&mut self, barriers: &[Barrier<'_>]) -> Result<()> {
         for b in barriers {
+            match *b {
+                Barrier::Buffer { buffer, .. } => {
+                    let inner = buffer.keep();
+                    self.check_owner(&inner.shared, || format!("buffer '{}'", inner.name))?;
+                }
+                Barrier::Image { image, .. } => {
+                    let inner = image.keep();
+                    self.check_owner(&inner.shared, || format!("image '{}'", inner.name))?;
+                }
+                Barrier::Global { .. } => {}
+            }
             if let Barrier::Image {
                 image,
                 range,
@@ -210,6 +222,13 @@ impl Recorder {
             {
                 range.check(image.name(), image.desc())?;
                 check_image_access(image, next)?;
+                if discard && !next.iter().any(AccessType::is_write) {
+                    return Err(Error::InvalidArgument(format!(
+                        "a barrier discarding the contents of image '{}' for a read ({next:?}) \
+                         would read undefined contents",
+                        image.name()
+                    )));
+                }
                 if !discard && !prev.is_empty() {
                     check_image_access(image, prev)?;
                 }
@@ -225,8 +244,10 @@ impl Recorder {
                     memory.push(crate::gpu::sync::memory_barrier(prev, next))
                 }
                 Barrier::Buffer { buffer, prev, next } => {
-                    self.keep.add(buffer.keep());
-                    declare_barrier(&mut lock(&buffer.keep().state), prev, next, false);
+                    let inner = buffer.keep();
+                    self.local
+                        .declare_buffer(&inner, |s| declare_barrier(s, prev, next, false));
+                    self.keep.add(inner);
                     buffers.push(crate::gpu::sync::buffer_barrier(
                         buffer.raw(),
                         0,
@@ -243,16 +264,9 @@ impl Recorder {
                     discard,
                 } => {
                     let inner = image.keep();
-                    self.keep.add(inner.clone());
-                    let mut state = lock(&inner.state);
-                    for layer in range.base_layer..range.base_layer + range.layer_count {
-                        for mip in range.base_mip..range.base_mip + range.mip_count {
-                            let mut s = state.get(mip, layer);
-                            declare_barrier(&mut s, prev, next, true);
-                            state.set(mip, layer, s);
-                        }
-                    }
-                    drop(state);
+                    self.local
+                        .declare_image(&inner, &range, |s| declare_barrier(s, prev, next, true));
+                    self.keep.add(inner);
                     images.push(crate::gpu::sync::image_barrier(
                         image.raw(),
                         range.vk(),
@@ -275,7 +289,12 @@ impl Recorder {
     /// Records planned barriers (e.g. collected from several kernels and merged by a render
     /// graph) as one `vkCmdPipelineBarrier2`. The resources they name must be alive: they
     /// are the ones the collecting recorder keeps.
-    pub fn record_planned(&mut self, planned: &[PlannedBarrier]) {
+    pub fn record_planned(&mut self, planned: &[PlannedBarrier]) -> Result<()> {
+        for p in planned {
+            self.check_owner(&p.owner, || {
+                format!("the planned barrier of '{}'", p.resource)
+            })?;
+        }
         self.flush_barriers();
         let (mut buffers, mut images) = (Vec::new(), Vec::new());
         for p in planned {
@@ -286,8 +305,9 @@ impl Recorder {
             .buffer_memory_barriers(&buffers)
             .image_memory_barriers(&images);
         // SAFETY: recording; each planned barrier keeps its resource alive, and this recorder
-        // now keeps them too.
+        // now keeps them too; all belong to this device (checked).
         unsafe { self.shared.device.cmd_pipeline_barrier2(self.cmd, &dep) };
+        Ok(())
     }
 
     /// Records the barriers queued by declared uses, as one `vkCmdPipelineBarrier2`.

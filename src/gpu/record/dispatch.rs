@@ -5,7 +5,6 @@ use super::Recorder;
 use crate::error::{Error, Result};
 use crate::gpu::pipeline::{BindGroup, ComputePipeline, Target};
 use crate::gpu::sync::AccessType;
-use crate::gpu::validation::lock;
 use ash::vk;
 
 impl Recorder {
@@ -16,6 +15,9 @@ impl Recorder {
         push: &[u8],
         groups: [u32; 3],
     ) -> Result<()> {
+        let p = pipeline.keep();
+        self.check_owner(p.shared(), || format!("pipeline '{}'", pipeline.name()))?;
+        self.check_bind_group(bind)?;
         let interface_err = |reason: String| Error::Interface {
             pipeline: pipeline.name().to_string(),
             reason,
@@ -64,12 +66,13 @@ impl Recorder {
         let inner = bind.keep();
         for u in &inner.uses {
             match &u.target {
+                // The caller's barriers stand in for the ones these uses would need.
                 Target::Buffer(b) => {
-                    let _ = lock(&b.state).apply_buffer(u.access);
+                    let _ = self.local.use_buffer(b, u.access);
                     self.keep.add(b.clone());
                 }
                 Target::Image(i, range) => {
-                    let _ = lock(&i.state).apply(range, u.access, false);
+                    let _ = self.local.use_image(i, range, u.access, false);
                     self.keep.add(i.clone());
                 }
             }

@@ -6,13 +6,13 @@ use crate::error::{Error, Result};
 use crate::gpu::context::Context;
 use crate::gpu::image::{Image, ImageRegion, Subresources};
 use crate::gpu::sync::AccessType;
-use crate::gpu::validation::lock;
 use ash::vk;
 
 impl Recorder {
     /// Copies tightly packed texels into `region` of `image` through staging (a tracked
     /// `TransferWrite`; a region covering the whole mip level discards its old contents).
     pub fn upload_image(&mut self, image: &Image, region: ImageRegion, data: &[u8]) -> Result<()> {
+        self.owns_image(image)?;
         region.check(image.name(), image.desc())?;
         image.require_usage(vk::ImageUsageFlags::TRANSFER_DST, "an upload to it")?;
         let block = image.desc().block()?;
@@ -86,8 +86,9 @@ impl Recorder {
         let size = region.byte_size(image.desc())?;
         let (staging, readback) = self.readback_buffer(image.name(), size)?;
         self.use_image(image, region.subresources(), AccessType::TransferRead)?;
-        *lock(&staging.keep().state) =
-            crate::gpu::track::BufferState::after(AccessType::TransferWrite.into());
+        self.local.declare_buffer(&staging.keep(), |s| {
+            *s = crate::gpu::track::BufferState::after(AccessType::TransferWrite.into())
+        });
         self.flush_barriers();
         // SAFETY: recording; the subresources are in TRANSFER_SRC_OPTIMAL after the barrier.
         unsafe {
@@ -112,6 +113,8 @@ impl Recorder {
         dst: &Image,
         dst_region: &ImageRegion,
     ) -> Result<()> {
+        self.owns_image(src)?;
+        self.owns_image(dst)?;
         src.require_usage(vk::ImageUsageFlags::TRANSFER_SRC, "a transfer from it")?;
         dst.require_usage(vk::ImageUsageFlags::TRANSFER_DST, "a transfer to it")?;
         self.use_image(src, src_region.subresources(), AccessType::TransferRead)?;
@@ -203,6 +206,7 @@ impl Recorder {
         range: Subresources,
         color: [f32; 4],
     ) -> Result<()> {
+        self.owns_image(image)?;
         range.check(image.name(), image.desc())?;
         if !image
             .desc()

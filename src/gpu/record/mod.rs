@@ -7,6 +7,13 @@
 //! kernels, resources and recordings can be dropped in any order, and a leaked
 //! [`Submission`] or [`Recorded`] leaks memory, never frees it early.
 //!
+//! Tracked state follows submissions, not recordings (`local`): a recording keeps its uses
+//! to itself and joins them to each resource's state when it is submitted, with the joining
+//! barriers in a prologue command buffer submitted just before it. Recordings may be
+//! submitted in any order, from any thread, or dropped unsubmitted (then they change
+//! nothing). Every resource must belong to the recorder's context
+//! ([`Error::WrongContext`](crate::error::Error::WrongContext) otherwise).
+//!
 //! The recorder's commands live beside it, one file per concern: `barrier` (explicit and
 //! planned barriers), `uses` (declared uses and the barriers they queue), `dispatch`,
 //! `transfer` and `image_transfer` (copies, uploads, readbacks, blits), `timing`
@@ -15,6 +22,7 @@
 mod barrier;
 mod dispatch;
 mod image_transfer;
+mod local;
 mod submit;
 mod timing;
 mod transfer;
@@ -42,6 +50,8 @@ pub struct Recorder {
     name: String,
     /// Null for a caller's command buffer.
     pool: vk::CommandPool,
+    /// Every command buffer allocated from `pool` (the first is `cmd`).
+    cmds: Vec<vk::CommandBuffer>,
     cmd: vk::CommandBuffer,
     queries: Queries,
     open: Vec<usize>,
@@ -59,6 +69,8 @@ pub struct Recorder {
     planning: bool,
     needs_host_barrier: bool,
     done: bool,
+    /// This recording's own view of the resources it uses (see `local`).
+    local: local::LocalTracker,
 }
 
 impl Context {
@@ -79,8 +91,16 @@ impl Context {
     /// later vkshade submission or `signal` on this context (timeline values are signalled
     /// in the order they are handed out); until it is submitted, the resources it uses stay
     /// alive (a `Recorded` that is never signalled is treated as never submitted).
+    ///
+    /// Tracking: vkshade cannot put barriers before this recording when the caller submits
+    /// it, so it joins each resource to its tracked state at the resource's first use here
+    /// (the barrier goes in `cmd` there), and commits the recording's end state at
+    /// [`Recorder::finish`]. If another recording is submitted or finished with one of the
+    /// same resources in between, `finish` refuses with an error naming the resource (record
+    /// in the order you submit); dropping the recorder unfinished changes no tracked state.
     pub unsafe fn record_into(&self, cmd: vk::CommandBuffer, name: &str) -> Result<Recorder> {
         let mut rec = Recorder::empty(self, name, vk::CommandPool::null(), cmd);
+        rec.local = local::LocalTracker::joining();
         rec.start_queries()?;
         Ok(rec)
     }
@@ -89,25 +109,38 @@ impl Context {
 impl Recorder {
     fn new(ctx: &Context, name: &str) -> Result<Recorder> {
         ctx.shared.collect();
-        let device = &ctx.shared.device;
-        let info = vk::CommandPoolCreateInfo::default()
-            .flags(vk::CommandPoolCreateFlags::TRANSIENT)
-            .queue_family_index(ctx.shared.queue_family);
-        // SAFETY: valid device and create info.
-        let pool = unsafe { device.create_command_pool(&info, None) }.vk("vkCreateCommandPool")?;
-        // From here `rec` owns the pool: its Drop retires it on any failure.
+        let shared = &ctx.shared;
+        let device = &shared.device;
+        let (pool, cmds) = match shared.take_command_pool() {
+            Some(reused) => reused,
+            None => {
+                let info = vk::CommandPoolCreateInfo::default()
+                    .flags(vk::CommandPoolCreateFlags::TRANSIENT)
+                    .queue_family_index(shared.queue_family);
+                // SAFETY: valid device and create info.
+                let pool =
+                    unsafe { device.create_command_pool(&info, None) }.vk("vkCreateCommandPool")?;
+                super::recycle::Counters::bump(&shared.counters.command_pools);
+                (pool, Vec::new())
+            }
+        };
+        // From here `rec` owns the pool and its command buffers: its Drop retires them on
+        // any failure.
         let mut rec = Recorder::empty(ctx, name, pool, vk::CommandBuffer::null());
-        let alloc = vk::CommandBufferAllocateInfo::default()
-            .command_pool(pool)
-            .level(vk::CommandBufferLevel::PRIMARY)
-            .command_buffer_count(1);
-        // SAFETY: valid pool.
-        rec.cmd =
-            unsafe { device.allocate_command_buffers(&alloc) }.vk("vkAllocateCommandBuffers")?[0];
-        ctx.shared.set_name(rec.cmd, name);
+        rec.cmds = cmds;
+        rec.cmd = match rec.cmds.first() {
+            Some(&c) => c,
+            None => {
+                let c = submit::allocate_command_buffer(shared, pool)?;
+                rec.cmds.push(c);
+                c
+            }
+        };
+        shared.set_name(rec.cmd, name);
         let begin = vk::CommandBufferBeginInfo::default()
             .flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT);
-        // SAFETY: fresh command buffer.
+        // SAFETY: a fresh command buffer, or one of a pool reset after its work completed
+        // (initial state).
         unsafe { device.begin_command_buffer(rec.cmd, &begin) }.vk("vkBeginCommandBuffer")?;
         rec.start_queries()?;
         Ok(rec)
@@ -118,6 +151,7 @@ impl Recorder {
             shared: ctx.shared.clone(),
             name: name.to_string(),
             pool,
+            cmds: Vec::new(),
             cmd,
             queries: Queries {
                 pool: vk::QueryPool::null(),
@@ -134,6 +168,7 @@ impl Recorder {
             planning: false,
             needs_host_barrier: false,
             done: false,
+            local: local::LocalTracker::default(),
         }
     }
 
@@ -151,6 +186,16 @@ impl Recorder {
     /// The recorder's name.
     pub fn name(&self) -> &str {
         &self.name
+    }
+
+    /// Fails unless `owner` is this recorder's context (`what` names the resource).
+    fn check_owner(
+        &self,
+        owner: &Arc<super::context::Shared>,
+        what: impl FnOnce() -> String,
+    ) -> Result<()> {
+        self.shared
+            .check_owner(owner, what, || format!("recorder '{}'", self.name))
     }
 
     /// The context this recorder records for.
@@ -216,5 +261,16 @@ impl Drop for Recorder {
         // Never submitted: nothing recorded runs. Give back ring space and pools.
         let mut f = self.take_finished();
         f.retire(0);
+    }
+}
+
+impl std::fmt::Debug for Recorder {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Recorder")
+            .field("name", &self.name)
+            .field("context", &self.shared.id)
+            .field("external", &self.is_external())
+            .field("passes", &self.queries.passes.len())
+            .finish()
     }
 }

@@ -18,6 +18,8 @@ pub(super) struct Finished {
     shared: Arc<Shared>,
     queries: Queries,
     pool: vk::CommandPool,
+    /// Every command buffer allocated from `pool` (pooled with it).
+    cmds: Vec<vk::CommandBuffer>,
     keep: KeepAlive,
     ring_chunks: Vec<u64>,
 }
@@ -40,7 +42,10 @@ impl Finished {
         }
         let pools = [
             Retired::QueryPool(std::mem::take(&mut self.queries.pool)),
-            Retired::CommandPool(std::mem::take(&mut self.pool)),
+            Retired::CommandPool(
+                std::mem::take(&mut self.pool),
+                std::mem::take(&mut self.cmds),
+            ),
         ];
         self.shared.retire(value, pools);
     }
@@ -74,6 +79,7 @@ impl Recorder {
                 passes: std::mem::take(&mut self.queries.passes),
             },
             pool: std::mem::take(&mut self.pool),
+            cmds: std::mem::take(&mut self.cmds),
             keep: std::mem::take(&mut self.keep),
             ring_chunks: std::mem::take(&mut self.ring_chunks),
         }
@@ -122,29 +128,64 @@ impl Recorder {
         // SAFETY: recording state; ends it.
         unsafe { self.shared.device.end_command_buffer(self.cmd) }.vk("vkEndCommandBuffer")?;
         let cmd = self.cmd;
+        let pool = self.pool;
+        let local = std::mem::take(&mut self.local);
+        let recorder = self.name.clone();
         let mut finished = self.take_finished();
         let shared = finished.shared.clone();
-        let value = shared.submit_locked(|queue, value| {
-            finished.stamp(value);
-            let cmds = [vk::CommandBufferSubmitInfo::default().command_buffer(cmd)];
-            let mut all_signals: Vec<vk::SemaphoreSubmitInfo<'_>> = signals.to_vec();
-            all_signals.push(shared.timeline_signal(value));
-            let submit = vk::SubmitInfo2::default()
-                .wait_semaphore_infos(waits)
-                .command_buffer_infos(&cmds)
-                .signal_semaphore_infos(&all_signals);
-            // SAFETY: the command buffer is executable and everything it uses is kept alive
-            // until `value`; the queue is externally synchronised by the caller's lock.
-            unsafe {
-                shared
-                    .device
-                    .queue_submit2(queue, &[submit], vk::Fence::null())
-            }
-            .vk("vkQueueSubmit2")
-        });
+        let mut resolved = None;
+        let mut pool_cmds = std::mem::take(&mut finished.cmds);
+        let value = shared.submit_locked(
+            || {
+                // Join this recording to the tracked state as of the submissions before it
+                // (under the queue lock, so in submission order).
+                let joins = resolved.insert(local.resolve(&recorder)?);
+                if joins.is_empty() {
+                    return Ok(None);
+                }
+                // The pool's second command buffer, allocated the first time it is needed.
+                let spare = match pool_cmds.get(1) {
+                    Some(&c) => c,
+                    None => {
+                        let c = allocate_command_buffer(&shared, pool)?;
+                        pool_cmds.push(c);
+                        c
+                    }
+                };
+                record_prologue(&shared, spare, &recorder, joins)?;
+                Ok(Some(spare))
+            },
+            |queue, value, prologue| {
+                finished.stamp(value);
+                let cmds: Vec<_> = prologue
+                    .into_iter()
+                    .chain([cmd])
+                    .map(|c| vk::CommandBufferSubmitInfo::default().command_buffer(c))
+                    .collect();
+                let mut all_signals: Vec<vk::SemaphoreSubmitInfo<'_>> = signals.to_vec();
+                all_signals.push(shared.timeline_signal(value));
+                let submit = vk::SubmitInfo2::default()
+                    .wait_semaphore_infos(waits)
+                    .command_buffer_infos(&cmds)
+                    .signal_semaphore_infos(&all_signals);
+                // SAFETY: the command buffers are executable and everything they use is kept
+                // alive until `value`; the queue is externally synchronised by the lock held.
+                unsafe {
+                    shared
+                        .device
+                        .queue_submit2(queue, &[submit], vk::Fence::null())
+                }
+                .vk("vkQueueSubmit2")
+            },
+        );
+        finished.cmds = pool_cmds;
         let value = match value {
             Ok(v) => v,
             Err(e) => {
+                // Nothing ran: the tracked state goes back to what it was.
+                if let Some(r) = resolved {
+                    r.undo();
+                }
                 finished.retire(0);
                 return Err(e);
             }
@@ -170,11 +211,81 @@ impl Recorder {
             )));
         }
         self.close();
+        self.local.commit_joined(&self.name)?;
         Ok(Recorded {
             finished: Some(self.take_finished()),
             value: 0,
         })
     }
+}
+
+/// Allocates one primary command buffer from `pool`, which the caller alone uses.
+pub(super) fn allocate_command_buffer(
+    shared: &Shared,
+    pool: vk::CommandPool,
+) -> Result<vk::CommandBuffer> {
+    let alloc = vk::CommandBufferAllocateInfo::default()
+        .command_pool(pool)
+        .level(vk::CommandBufferLevel::PRIMARY)
+        .command_buffer_count(1);
+    // SAFETY: a pool of this device, externally synchronised by its one user.
+    let cmd = unsafe { shared.device.allocate_command_buffers(&alloc) }
+        .vk("vkAllocateCommandBuffers")?[0];
+    crate::gpu::recycle::Counters::bump(&shared.counters.command_buffers);
+    Ok(cmd)
+}
+
+/// Records the barriers that join a recording to the tracked state into `cmd`, a command
+/// buffer of its pool in the initial state (submitted just before it, in the same batch).
+fn record_prologue(
+    shared: &Shared,
+    cmd: vk::CommandBuffer,
+    recorder: &str,
+    joins: &super::local::Resolved,
+) -> Result<()> {
+    let device = &shared.device;
+    shared.set_name(cmd, &format!("{recorder} (joins)"));
+    let begin =
+        vk::CommandBufferBeginInfo::default().flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT);
+    let mut buffers = Vec::new();
+    let mut images = Vec::new();
+    for (b, t) in &joins.buffers {
+        let m = crate::gpu::sync::barrier_masks(t.prev, t.next, t.force_visible);
+        buffers.push(crate::gpu::sync::buffer_barrier_masks(
+            b.raw,
+            0,
+            vk::WHOLE_SIZE,
+            m,
+        ));
+    }
+    for (i, r) in &joins.images {
+        let t = &r.transition;
+        let m = crate::gpu::sync::barrier_masks(
+            t.prev,
+            t.next,
+            t.force_visible || t.old_layout != t.new_layout,
+        );
+        images.push(crate::gpu::sync::image_barrier_masks(
+            i.raw,
+            r.range.vk(),
+            m,
+            t.old_layout,
+            t.new_layout,
+        ));
+    }
+    let dep = vk::DependencyInfo::default()
+        .buffer_memory_barriers(&buffers)
+        .image_memory_barriers(&images);
+    // SAFETY: a fresh command buffer; every handle named is alive (the recording keeps them
+    // until its submission completes) and of this device.
+    unsafe {
+        device
+            .begin_command_buffer(cmd, &begin)
+            .vk("vkBeginCommandBuffer")?;
+        device.cmd_pipeline_barrier2(cmd, &dep);
+        device.end_command_buffer(cmd).vk("vkEndCommandBuffer")?;
+    }
+    Ok(())
 }
 
 /// Work submitted by [`Recorder::submit`]. Dropping it does not wait; the work's resources
@@ -281,5 +392,21 @@ impl Drop for Recorded {
         if let Some(mut f) = self.finished.take() {
             f.retire(self.value);
         }
+    }
+}
+
+impl std::fmt::Debug for Submission {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Submission")
+            .field("value", &self.value)
+            .finish()
+    }
+}
+
+impl std::fmt::Debug for Recorded {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Recorded")
+            .field("value", &self.value)
+            .finish()
     }
 }

@@ -108,13 +108,21 @@ impl Recorder {
         if self.shared.info.limits.timestamp_valid_bits == 0 {
             return Ok(());
         }
-        let qinfo = vk::QueryPoolCreateInfo::default()
-            .query_type(vk::QueryType::TIMESTAMP)
-            .query_count(2 * MAX_PASSES);
-        // SAFETY: valid device and create info.
-        self.queries.pool = unsafe { self.shared.device.create_query_pool(&qinfo, None) }
-            .vk("vkCreateQueryPool")?;
-        // SAFETY: recording; the pool is new.
+        self.queries.pool = match self.shared.take_query_pool() {
+            Some(pool) => pool,
+            None => {
+                let qinfo = vk::QueryPoolCreateInfo::default()
+                    .query_type(vk::QueryType::TIMESTAMP)
+                    .query_count(2 * MAX_PASSES);
+                // SAFETY: valid device and create info.
+                let pool = unsafe { self.shared.device.create_query_pool(&qinfo, None) }
+                    .vk("vkCreateQueryPool")?;
+                crate::gpu::recycle::Counters::bump(&self.shared.counters.query_pools);
+                pool
+            }
+        };
+        // SAFETY: recording; the pool is new, or pooled after its last use completed; every
+        // query is reset before this recording writes it.
         unsafe {
             self.shared
                 .device

@@ -6,15 +6,16 @@ use crate::error::{Error, Result};
 use crate::gpu::context::Context;
 use crate::gpu::memory::{Buffer, BufferDesc, require_buffer_usage};
 use crate::gpu::sync::AccessType;
-use crate::gpu::validation::lock;
 use ash::vk;
 
 /// Data copied back to the host by a recording; readable once the recording is submitted
 /// (reading waits for the submission to complete).
 pub struct Readback {
     /// Stamped with the submission's timeline value when the recording is submitted (0
-    /// until then).
+    /// until then). May be larger than the data (pooled staging is reused).
     staging: Buffer,
+    /// Bytes read back.
+    len: u64,
 }
 
 impl Readback {
@@ -33,7 +34,10 @@ impl Readback {
                 self.staging.name()
             )));
         }
-        self.staging.read()
+        let n = self.len as usize / std::mem::size_of::<T>();
+        let mut out = vec![T::zeroed(); n];
+        self.staging.read_into(0, &mut out)?;
+        Ok(out)
     }
 }
 
@@ -64,8 +68,8 @@ impl Recorder {
         }
         require_buffer_usage(src, vk::BufferUsageFlags::TRANSFER_SRC, "a copy from it")?;
         require_buffer_usage(dst, vk::BufferUsageFlags::TRANSFER_DST, "a copy to it")?;
-        self.use_buffer(src, AccessType::TransferRead);
-        self.use_buffer(dst, AccessType::TransferWrite);
+        self.use_buffer(src, AccessType::TransferRead)?;
+        self.use_buffer(dst, AccessType::TransferWrite)?;
         self.flush_barriers();
         let region = vk::BufferCopy {
             src_offset,
@@ -83,7 +87,7 @@ impl Recorder {
     /// Fills a whole buffer with a repeated 32-bit value (a tracked `TransferWrite`).
     pub fn fill_buffer(&mut self, buffer: &Buffer, value: u32) -> Result<()> {
         require_buffer_usage(buffer, vk::BufferUsageFlags::TRANSFER_DST, "fill_buffer")?;
-        self.use_buffer(buffer, AccessType::TransferWrite);
+        self.use_buffer(buffer, AccessType::TransferWrite)?;
         self.flush_barriers();
         // SAFETY: recording; kept alive.
         unsafe {
@@ -144,7 +148,7 @@ impl Recorder {
             )));
         }
         let (src, src_offset) = self.stage(dst.name(), bytes, 4)?;
-        self.use_buffer(dst, AccessType::TransferWrite);
+        self.use_buffer(dst, AccessType::TransferWrite)?;
         self.flush_barriers();
         let region = vk::BufferCopy {
             src_offset,
@@ -161,15 +165,17 @@ impl Recorder {
 
     pub(super) fn readback_buffer(&mut self, what: &str, size: u64) -> Result<(Buffer, Readback)> {
         let ctx = self.context();
-        let staging = Buffer::new(
-            &ctx,
-            &format!("{what} readback"),
-            BufferDesc::readback(size),
-        )?;
+        let staging = Buffer::readback_staging(&ctx, &format!("{what} readback"), size)?;
         self.keep.add(staging.keep());
         self.needs_host_barrier = true;
         let handle = Buffer::from_keep(staging.keep());
-        Ok((staging, Readback { staging: handle }))
+        Ok((
+            staging,
+            Readback {
+                staging: handle,
+                len: size,
+            },
+        ))
     }
 
     /// Copies a whole buffer back to the host (a tracked `TransferRead`).
@@ -192,9 +198,10 @@ impl Recorder {
         }
         require_buffer_usage(buffer, vk::BufferUsageFlags::TRANSFER_SRC, "a readback")?;
         let (staging, readback) = self.readback_buffer(buffer.name(), size)?;
-        self.use_buffer(buffer, AccessType::TransferRead);
-        *lock(&staging.keep().state) =
-            crate::gpu::track::BufferState::after(AccessType::TransferWrite.into());
+        self.use_buffer(buffer, AccessType::TransferRead)?;
+        self.local.declare_buffer(&staging.keep(), |s| {
+            *s = crate::gpu::track::BufferState::after(AccessType::TransferWrite.into())
+        });
         self.flush_barriers();
         let region = vk::BufferCopy {
             src_offset: offset,
@@ -254,5 +261,14 @@ impl Context {
         let rb = rec.read_back(buffer)?;
         rec.submit_and_wait()?;
         rb.to_vec()
+    }
+}
+
+impl std::fmt::Debug for Readback {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("Readback")
+            .field("staging", &self.staging.name())
+            .field("len", &self.len)
+            .finish()
     }
 }

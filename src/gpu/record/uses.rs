@@ -10,7 +10,6 @@ use crate::gpu::memory::{Buffer, BufferInner};
 use crate::gpu::pipeline::{BindGroup, Target};
 use crate::gpu::sync::{AccessSet, AccessType};
 use crate::gpu::track::{RangeTransition, Transition};
-use crate::gpu::validation::lock;
 use ash::vk;
 use std::sync::Arc;
 
@@ -71,14 +70,13 @@ impl Recorder {
         let earlier = std::mem::take(&mut self.collected);
         let mut result = Ok(());
         for u in uses {
-            match *u {
+            let r = match *u {
                 Use::Buffer(b, access) => self.use_buffer(b, access),
-                Use::Image(i, range, access) => {
-                    if let Err(e) = self.use_image(i, range, access) {
-                        result = Err(e);
-                        break;
-                    }
-                }
+                Use::Image(i, range, access) => self.use_image(i, range, access),
+            };
+            if let Err(e) = r {
+                result = Err(e);
+                break;
             }
         }
         let planned = std::mem::replace(&mut self.collected, earlier);
@@ -89,7 +87,8 @@ impl Recorder {
 
     /// [`Recorder::plan`] for the declared accesses of a bind group (what a tracked
     /// dispatch with it would use).
-    pub fn plan_dispatch(&mut self, bind: &BindGroup) -> Vec<PlannedBarrier> {
+    pub fn plan_dispatch(&mut self, bind: &BindGroup) -> Result<Vec<PlannedBarrier>> {
+        self.check_bind_group(bind)?;
         self.flush_barriers();
         self.planning = true;
         let mode = std::mem::replace(&mut self.mode, BarrierMode::Collect);
@@ -105,13 +104,29 @@ impl Recorder {
         let planned = std::mem::replace(&mut self.collected, earlier);
         self.mode = mode;
         self.planning = false;
-        planned
+        Ok(planned)
     }
 
     /// Declares that `buffer` is accessed as `next` from here on; queues the barrier the
-    /// tracked state calls for (none for a read after reads).
-    pub fn use_buffer(&mut self, buffer: &Buffer, next: impl Into<AccessSet>) {
-        self.use_buffer_inner(&buffer.keep(), next.into());
+    /// tracked state calls for (none for a read after reads). Fails for a buffer of another
+    /// context.
+    pub fn use_buffer(&mut self, buffer: &Buffer, next: impl Into<AccessSet>) -> Result<()> {
+        let inner = buffer.keep();
+        self.check_owner(&inner.shared, || format!("buffer '{}'", inner.name))?;
+        self.use_buffer_inner(&inner, next.into());
+        Ok(())
+    }
+
+    /// Fails unless `image` belongs to this recorder's context.
+    pub(super) fn owns_image(&self, image: &Image) -> Result<()> {
+        let inner = image.keep();
+        self.check_owner(&inner.shared, || format!("image '{}'", inner.name))
+    }
+
+    /// Fails unless `bind` (its pipeline) belongs to this recorder's context.
+    pub(super) fn check_bind_group(&self, bind: &BindGroup) -> Result<()> {
+        let inner = bind.keep();
+        self.check_owner(inner.shared(), || "a bind group".to_string())
     }
 
     /// In planning, records a marker; in Collect mode, consumes a matching marker. Returns
@@ -150,8 +165,7 @@ impl Recorder {
         if next.iter().any(AccessType::is_write) && inner.desc.placement.location.host_visible() {
             self.needs_host_barrier = true;
         }
-        let t = lock(&inner.state).apply_buffer(next);
-        if let Some(t) = t {
+        if let Some(t) = self.local.use_buffer(inner, next) {
             self.queue_buffer(inner, t);
         }
     }
@@ -185,9 +199,18 @@ impl Recorder {
         next: AccessSet,
         discard: bool,
     ) -> Result<()> {
+        let inner = image.keep();
+        self.check_owner(&inner.shared, || format!("image '{}'", inner.name))?;
         range.check(image.name(), image.desc())?;
         check_image_access(image, next)?;
-        self.use_image_inner(&image.keep(), range, next, discard);
+        if discard && !next.iter().any(AccessType::is_write) {
+            return Err(Error::InvalidArgument(format!(
+                "discarding the contents of image '{}' for a read ({next:?}) would read \
+                 undefined contents",
+                image.name()
+            )));
+        }
+        self.use_image_inner(&inner, range, next, discard);
         Ok(())
     }
 
@@ -202,8 +225,7 @@ impl Recorder {
         if self.planned_already(Arc::as_ptr(inner) as usize, Some(range), next) {
             return;
         }
-        let transitions = lock(&inner.state).apply(&range, next, discard);
-        for t in transitions {
+        for t in self.local.use_image(inner, &range, next, discard) {
             self.queue_image(inner, t);
         }
     }
@@ -218,8 +240,16 @@ impl Recorder {
     ) -> Result<()> {
         let prev = prev.into();
         let member = match next_member {
-            AliasUse::Buffer(b, _) => b.is_alias_member(),
-            AliasUse::Image(i, _) => i.is_alias_member(),
+            AliasUse::Buffer(b, _) => {
+                let inner = b.keep();
+                self.check_owner(&inner.shared, || format!("buffer '{}'", inner.name))?;
+                b.is_alias_member()
+            }
+            AliasUse::Image(i, _) => {
+                let inner = i.keep();
+                self.check_owner(&inner.shared, || format!("image '{}'", inner.name))?;
+                i.is_alias_member()
+            }
         };
         if !member {
             return Err(Error::InvalidArgument(
@@ -230,12 +260,15 @@ impl Recorder {
             AliasUse::Buffer(b, next) => {
                 self.flush_barriers();
                 self.barrier(&[Barrier::global(prev, next)])?;
-                *lock(&b.keep().state) = crate::gpu::track::BufferState::after(next);
-                self.keep.add(b.keep());
+                let inner = b.keep();
+                self.local
+                    .declare_buffer(&inner, |s| *s = crate::gpu::track::BufferState::after(next));
+                self.keep.add(inner);
             }
             AliasUse::Image(img, next) => {
                 let inner = img.keep();
-                lock(&inner.state).assume(&img.all(), AccessSet::EMPTY);
+                self.local
+                    .declare_image(&inner, &img.all(), |s| *s = Default::default());
                 self.barrier(&[Barrier::Image {
                     image: img,
                     range: img.all(),
@@ -250,7 +283,19 @@ impl Recorder {
 
     fn queue(&mut self, planned: PlannedBarrier) {
         match self.mode {
-            BarrierMode::Emit => self.pending.push(planned),
+            BarrierMode::Emit => {
+                // Barriers in one vkCmdPipelineBarrier2 do not chain: a second barrier on the
+                // same resource must come in a later call, or it would not wait for the
+                // first (its layout transition included).
+                let same = |p: &PlannedBarrier| {
+                    (p.buffer.is_some() && p.buffer == planned.buffer)
+                        || matches!((p.image, planned.image), (Some((a, _)), Some((b, _))) if a == b)
+                };
+                if self.pending.iter().any(same) {
+                    self.flush_barriers();
+                }
+                self.pending.push(planned)
+            }
             BarrierMode::Collect => self.collected.push(planned),
         }
     }
@@ -261,6 +306,7 @@ impl Recorder {
             buffer: Some(inner.raw),
             image: None,
             target: inner.clone(),
+            owner: inner.shared.clone(),
             prev: t.prev,
             next: t.next,
             force_visible: t.force_visible,
@@ -276,6 +322,7 @@ impl Recorder {
             buffer: None,
             image: Some((inner.raw, r.range)),
             target: inner.clone(),
+            owner: inner.shared.clone(),
             prev: t.prev,
             next: t.next,
             force_visible: t.force_visible,
