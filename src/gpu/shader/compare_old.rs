@@ -285,6 +285,14 @@ fn own_reflection_agrees_with_spirv_reflect() {
             crate::shaders::compile_source(src, "t.comp").unwrap(),
         ));
     }
+    modules.push((
+        "hand-written EDGES".into(),
+        super::tests::assemble(super::tests::EDGES, "vulkan1.3"),
+    ));
+    modules.push((
+        "hand-written BUFFER_BLOCK".into(),
+        super::tests::assemble(super::tests::BUFFER_BLOCK, "vulkan1.0"),
+    ));
     let mut differences = Vec::new();
     let (mut n_bindings, mut n_modules) = (0, 0);
     for (name, bytes) in &modules {

@@ -9,6 +9,8 @@ use std::ffi::{CStr, c_char, c_int, c_void};
 #[cfg(test)]
 mod compare_old;
 mod reflect;
+#[cfg(test)]
+mod tests;
 
 const SPIRV_MAGIC: u32 = 0x0723_0203;
 
@@ -239,7 +241,10 @@ impl Shader {
 
     /// Invocations per workgroup.
     pub fn invocations(&self) -> u32 {
-        self.local_size.iter().product()
+        // Saturating: a module may declare any size; the device limits refuse it later.
+        self.local_size
+            .iter()
+            .fold(1u32, |n, &s| n.saturating_mul(s))
     }
 }
 

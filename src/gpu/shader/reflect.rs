@@ -558,7 +558,8 @@ pub(super) fn reflect(words: &[u32]) -> Result<(Vec<BindingInfo>, u32), String> 
                 let end = m
                     .size(v.pointee, None, 0)
                     .map_err(|e| format!("push constants: {e}"))?;
-                push_constant_size = push_constant_size.max(end.next_multiple_of(4));
+                // Rounded up to whole words (saturating: a garbage size is refused below).
+                push_constant_size = push_constant_size.max(end.saturating_add(3) & !3);
             }
             _ => {}
         }
