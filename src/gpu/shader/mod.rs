@@ -6,8 +6,6 @@ use crate::error::{Error, Result};
 use ash::vk;
 use std::ffi::{CStr, c_char, c_int, c_void};
 
-#[cfg(test)]
-mod compare_old;
 mod reflect;
 #[cfg(test)]
 mod tests;

@@ -25,7 +25,7 @@ unsafe extern "C" {
 
 /// Assembles `text` for target environment `env` (e.g. "vulkan1.0" gives a SPIR-V 1.0
 /// header) into the bytes `Shader::from_spirv` takes.
-pub(super) fn assemble(text: &str, env: &str) -> Vec<u8> {
+fn assemble(text: &str, env: &str) -> Vec<u8> {
     let env_name = CString::new(env).unwrap();
     let mut target: c_int = 0;
     // SAFETY: NUL-terminated string, valid out pointer.
@@ -73,7 +73,7 @@ fn words(bytes: &[u8]) -> Vec<u32> {
 /// textures (one through a function's parameters) and a second with a fourth, NonWritable
 /// on every member, on one member and on an image variable, an array of storage buffers,
 /// set numbers from a decoration group, unnamed variables.
-pub(super) const EDGES: &str = r#"               OpCapability Shader
+const EDGES: &str = r#"               OpCapability Shader
                OpCapability RuntimeDescriptorArray
                OpMemoryModel Logical GLSL450
                OpEntryPoint GLCompute %main "main" %data %params %texs %smp %a %b %pair %smp2 %img %many %comb %partial %anon %pc
@@ -249,7 +249,7 @@ pub(super) const EDGES: &str = r#"               OpCapability Shader
 "#;
 
 /// SPIR-V 1.0's spelling of a storage buffer: Uniform storage class, BufferBlock.
-pub(super) const BUFFER_BLOCK: &str = r#"               OpCapability Shader
+const BUFFER_BLOCK: &str = r#"               OpCapability Shader
                OpMemoryModel Logical GLSL450
                OpEntryPoint GLCompute %main "main"
                OpExecutionMode %main LocalSize 8 8 1
