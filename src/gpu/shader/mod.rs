@@ -1,6 +1,11 @@
 //! SPIR-V loading: structural validation (SPIRV-Tools, linked statically), workgroup size and
-//! reflection of descriptor bindings and push constants (vkshade's own, [`reflect`]: see
-//! there why).
+//! reflection of descriptor bindings and push constants.
+//!
+//! Reflection is vkshade's own (`shader/reflect.rs`), read from the validated words: the
+//! spirv-reflect crate (0.2.3, its newest release) builds slices from null pointers in its C
+//! bindings, undefined behaviour that debug builds abort on at the first pipeline, and
+//! rspirv-reflect does not report an image's dimension or sampled type, which view types and
+//! the binding checks need.
 
 use crate::error::{Error, Result};
 use ash::vk;
