@@ -6,7 +6,7 @@ use super::context::{Context, Shared};
 use super::image::{Image, ImageInner, Sampler, SamplerInner, Subresources, ViewDesc};
 use super::lifetime::{Retired, Stamp, Used};
 use super::memory::{Buffer, BufferInner};
-use super::shader::{BindingInfo, DescriptorKind, Shader};
+use super::shader::{BindingInfo, DescriptorKind, SampledType, Shader};
 use super::sync::{AccessSet, AccessType};
 use crate::error::{Error, Result, VkResultExt};
 use ash::vk;
@@ -483,6 +483,7 @@ impl ComputePipeline {
         if !missing.is_empty() {
             return Err(self.interface_err(format!("no resource given for {}", missing.join(", "))));
         }
+        self.check_separate_samplers(&by_binding)?;
         let mut overrides = BTreeMap::new();
         for (name, access) in accesses {
             let info = self.binding_named(name)?;
@@ -647,31 +648,112 @@ impl ComputePipeline {
                 Resource::Buffer(_) | Resource::BufferRange { .. },
             ) => self.check_buffer(info, res),
             (DescriptorKind::StorageImage, Resource::StorageImage(img)) => {
-                needs_usage(img, vk::ImageUsageFlags::STORAGE)
+                needs_usage(img, vk::ImageUsageFlags::STORAGE)?;
+                self.check_sampled_type(info, img)
             }
             (DescriptorKind::SampledImage, Resource::Texture(img)) => {
-                needs_usage(img, vk::ImageUsageFlags::SAMPLED)
+                needs_usage(img, vk::ImageUsageFlags::SAMPLED)?;
+                self.check_sampled_type(info, img)
             }
             (DescriptorKind::CombinedImageSampler, Resource::Sampled(img, sampler)) => {
                 needs_usage(img, vk::ImageUsageFlags::SAMPLED)?;
-                if sampler.desc().filters_linearly() {
-                    let format = img.view.format.unwrap_or(img.image.desc().format);
-                    self.inner.shared.require_format(
-                        format,
-                        vk::FormatFeatureFlags::SAMPLED_IMAGE_FILTER_LINEAR,
-                        &format!(
-                            "linear filtering of image '{}' by sampler '{}' (use nearest \
-                             filtering or another format)",
-                            img.image.name(),
-                            sampler.name()
-                        ),
-                    )?;
-                }
-                Ok(())
+                self.check_filter(info, img, sampler, None)?;
+                self.check_sampled_type(info, img)
             }
             (DescriptorKind::Sampler, Resource::Sampler(_)) => Ok(()),
             _ => Err(mismatch()),
         }
+    }
+
+    /// The view's format must have the numeric class the shader reads (a float `texture3D`
+    /// cannot read an `R32_UINT` image, nor a `utexture3D` a float one:
+    /// VUID-vkCmdDispatch-format-07753).
+    fn check_sampled_type(&self, info: &BindingInfo, img: &ImageRef<'_>) -> Result<()> {
+        let format = img.view.format.unwrap_or(img.image.desc().format);
+        let (Some(reads), Some(has)) = (info.sampled_type, SampledType::of_format(format)) else {
+            return Ok(());
+        };
+        if reads == has {
+            return Ok(());
+        }
+        let what = |t: SampledType| match t {
+            SampledType::Float => ("float", "without prefix (texture*, image*, sampler*)"),
+            SampledType::SignedInt => {
+                ("signed integer", "with `i` (itexture*, iimage*, isampler*)")
+            }
+            SampledType::UnsignedInt => (
+                "unsigned integer",
+                "with `u` (utexture*, uimage*, usampler*)",
+            ),
+        };
+        Err(self.interface_err(format!(
+            "binding {} reads {} texels, but image '{}' is bound with format {format:?}, whose \
+             texels are {}: declare the image type {} or bind a {} format",
+            binding_label(info),
+            what(reads).0,
+            img.image.name(),
+            what(has).0,
+            what(has).1,
+            what(reads).0
+        )))
+    }
+
+    /// A sampler that filters linearly (LINEAR magnification or minification filter, or
+    /// LINEAR mipmap mode) needs a view format the device filters linearly
+    /// (VUID-vkCmdDispatch-magFilter-04553, VUID-vkCmdDispatch-mipmapMode-04770).
+    /// `sampler_binding` is the separate sampler's binding, `None` for a combined one.
+    fn check_filter(
+        &self,
+        info: &BindingInfo,
+        img: &ImageRef<'_>,
+        sampler: &Sampler,
+        sampler_binding: Option<&BindingInfo>,
+    ) -> Result<()> {
+        let format = img.view.format.unwrap_or(img.image.desc().format);
+        let needed = vk::FormatFeatureFlags::SAMPLED_IMAGE_FILTER_LINEAR;
+        if !sampler.desc().filters_linearly()
+            || self.inner.shared.format_features(format).contains(needed)
+        {
+            return Ok(());
+        }
+        Err(self.interface_err(format!(
+            "binding {}: sampler '{}'{} filters linearly, but image '{}' has format \
+             {format:?}, which device '{}' cannot filter linearly ({needed:?}); use a nearest \
+             sampler or another format",
+            binding_label(info),
+            sampler.name(),
+            sampler_binding
+                .map(|s| format!(" (binding {})", binding_label(s)))
+                .unwrap_or_default(),
+            img.image.name(),
+            self.inner.shared.info.name
+        )))
+    }
+
+    /// The filter check of combined image samplers for separate textures: each texture
+    /// against every sampler bound to a binding the shader combines it with.
+    fn check_separate_samplers(
+        &self,
+        bound: &BTreeMap<(u32, u32), (&BindingInfo, Resource<'_>)>,
+    ) -> Result<()> {
+        for (info, res) in bound.values() {
+            for key in &info.sampled_with {
+                let Some((sampler_info, samplers)) = bound.get(key) else {
+                    continue;
+                };
+                for s in elements(samplers) {
+                    let Resource::Sampler(sampler) = s else {
+                        continue;
+                    };
+                    for t in elements(res) {
+                        if let Resource::Texture(img) = t {
+                            self.check_filter(info, img, sampler, Some(sampler_info))?;
+                        }
+                    }
+                }
+            }
+        }
+        Ok(())
     }
 
     fn check_buffer(&self, info: &BindingInfo, res: &Resource<'_>) -> Result<()> {
@@ -697,12 +779,23 @@ impl ComputePipeline {
                 info.name
             )));
         }
-        if offset
-            .checked_add(size)
-            .is_none_or(|end| end > buffer.size())
+        // VUID-VkDescriptorBufferInfo-range-00341 (a range of 0), -offset-00340 (an offset
+        // at or past the end), -range-00342 (a range past the end).
+        if size == 0 {
+            return Err(self.interface_err(format!(
+                "binding {}: the range of buffer '{}' at offset {offset} is empty (size 0)",
+                binding_label(info),
+                buffer.name()
+            )));
+        }
+        if offset >= buffer.size()
+            || offset
+                .checked_add(size)
+                .is_none_or(|end| end > buffer.size())
         {
             return Err(self.interface_err(format!(
-                "range {offset}+{size} is outside buffer '{}' of {} bytes",
+                "binding {}: range {offset}+{size} is outside buffer '{}' of {} bytes",
+                binding_label(info),
                 buffer.name(),
                 buffer.size()
             )));
@@ -721,7 +814,9 @@ impl ComputePipeline {
         };
         if offset % align.max(1) != 0 {
             return Err(self.interface_err(format!(
-                "offset {offset} into buffer '{}' is not a multiple of {align_name} = {align}",
+                "binding {}: offset {offset} into buffer '{}' is not a multiple of \
+                 {align_name} = {align}",
+                binding_label(info),
                 buffer.name()
             )));
         }
@@ -735,6 +830,14 @@ impl ComputePipeline {
         }
         Ok(())
     }
+}
+
+/// A binding as errors name it: `'name' (set S binding B)`.
+fn binding_label(info: &BindingInfo) -> String {
+    format!(
+        "'{}' (set {} binding {})",
+        info.name, info.set, info.binding
+    )
 }
 
 /// The access a binding gets unless declared otherwise: `readonly` storage buffers and

@@ -1,9 +1,19 @@
 //! SPIR-V loading: structural validation (SPIRV-Tools, linked statically), workgroup size and
-//! reflection of descriptor bindings and push constants (spirv-reflect).
+//! reflection of descriptor bindings and push constants.
+//!
+//! Reflection is vkshade's own (`shader/reflect.rs`), read from the validated words: the
+//! spirv-reflect crate (0.2.3, its newest release) builds slices from null pointers in its C
+//! bindings, undefined behaviour that debug builds abort on at the first pipeline, and
+//! rspirv-reflect does not report an image's dimension or sampled type, which view types and
+//! the binding checks need.
 
 use crate::error::{Error, Result};
 use ash::vk;
 use std::ffi::{CStr, c_char, c_int, c_void};
+
+mod reflect;
+#[cfg(test)]
+mod tests;
 
 const SPIRV_MAGIC: u32 = 0x0723_0203;
 
@@ -97,33 +107,6 @@ impl DescriptorKind {
     }
 }
 
-/// The view type an image binding needs, from its reflected dimension and arrayed flag.
-fn image_view_type(
-    kind: DescriptorKind,
-    image: &spirv_reflect::types::ReflectImageTraits,
-) -> Option<vk::ImageViewType> {
-    use spirv_reflect::types::ReflectDimension as D;
-    if !matches!(
-        kind,
-        DescriptorKind::StorageImage
-            | DescriptorKind::SampledImage
-            | DescriptorKind::CombinedImageSampler
-    ) {
-        return None;
-    }
-    let arrayed = image.arrayed != 0;
-    Some(match (image.dim, arrayed) {
-        (D::Type1d, false) => vk::ImageViewType::TYPE_1D,
-        (D::Type1d, true) => vk::ImageViewType::TYPE_1D_ARRAY,
-        (D::Type2d, false) => vk::ImageViewType::TYPE_2D,
-        (D::Type2d, true) => vk::ImageViewType::TYPE_2D_ARRAY,
-        (D::Type3d, _) => vk::ImageViewType::TYPE_3D,
-        (D::Cube, false) => vk::ImageViewType::CUBE,
-        (D::Cube, true) => vk::ImageViewType::CUBE_ARRAY,
-        _ => return None,
-    })
-}
-
 /// One descriptor binding of a shader, as reflected.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct BindingInfo {
@@ -135,15 +118,55 @@ pub struct BindingInfo {
     pub name: String,
     /// What kind of descriptor the shader expects.
     pub kind: DescriptorKind,
-    /// Array size (1 for a single descriptor).
+    /// Array size (1 for a single descriptor; 0 for a runtime-sized array, which pipelines
+    /// refuse).
     pub count: u32,
-    /// Minimum byte size a buffer must have (the fixed part of the block).
+    /// Minimum byte size a buffer must have: the fixed part of the block, up to the end of
+    /// its furthest member (a trailing runtime array counts up to its offset). 0 for images
+    /// and samplers.
     pub min_size: u64,
     /// Whether the shader declares the binding `readonly` (storage buffers/images).
     pub read_only: bool,
     /// For images: the view type the shader's image type needs (`image2D` -> 2D,
     /// `texture2DArray` -> 2D_ARRAY, `samplerCube` -> CUBE, ...).
     pub view_type: Option<vk::ImageViewType>,
+    /// For images: the numeric class of the image type's sampled type (`texture2D`,
+    /// `image2D` -> float, `itexture3D` -> signed, `usampler2D` -> unsigned), which the
+    /// bound view's format must share.
+    pub sampled_type: Option<SampledType>,
+    /// For a sampled image without sampler (`texture2D`): the (set, binding) of every
+    /// sampler binding the shader combines it with (`sampler2D(tex, smp)`), sorted. Empty for
+    /// other kinds.
+    pub sampled_with: Vec<(u32, u32)>,
+}
+
+/// The numeric class of an image's texels as a shader reads them, and of a format.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SampledType {
+    /// Floating point, and the normalized, scaled and sRGB formats read as floats.
+    Float,
+    /// Signed integer (`itexture`, `iimage`; `*_SINT` formats).
+    SignedInt,
+    /// Unsigned integer (`utexture`, `uimage`; `*_UINT` formats).
+    UnsignedInt,
+}
+
+impl SampledType {
+    /// The class a view of `format` reads as, from the numeric type the format's name
+    /// spells (`R32_UINT` -> unsigned, `R8G8B8A8_SRGB` -> float; a depth/stencil format by
+    /// its depth part); `None` for a format whose name has none (an extension's without a
+    /// name in ash), which the binding checks then leave alone.
+    pub fn of_format(format: vk::Format) -> Option<SampledType> {
+        let name = format!("{format:?}");
+        name.split('_').find_map(|part| match part {
+            "UNORM" | "SNORM" | "USCALED" | "SSCALED" | "UFLOAT" | "SFLOAT" | "SRGB" => {
+                Some(SampledType::Float)
+            }
+            "UINT" => Some(SampledType::UnsignedInt),
+            "SINT" => Some(SampledType::SignedInt),
+            _ => None,
+        })
+    }
 }
 
 /// A specialization constant of a shader (32-bit: bool, int, uint or float).
@@ -205,39 +228,7 @@ impl Shader {
         validate_spirv(&words).map_err(|e| err(format!("spirv-val: {e}")))?;
         let (entry_point, local_size, local_size_spec) = compute_entry(&words).map_err(err)?;
 
-        let module = spirv_reflect::ShaderModule::load_u32_data(&normalize_for_reflection(&words))
-            .map_err(|e| err(format!("reflection failed: {e}")))?;
-        let reflected = module
-            .enumerate_descriptor_bindings(None)
-            .map_err(|e| err(format!("reflection of bindings failed: {e}")))?;
-        let mut bindings = reflected
-            .into_iter()
-            .map(|b| binding_info(b).map_err(err))
-            .collect::<Result<Vec<_>>>()?;
-        bindings.sort_by_key(|b| (b.set, b.binding));
-        let reflected: Vec<(u32, u32)> = bindings.iter().map(|b| (b.set, b.binding)).collect();
-        let declared = decorated_bindings(&words);
-        if reflected != declared {
-            return Err(err(format!(
-                "reflection found bindings {reflected:?} but the module declares {declared:?}"
-            )));
-        }
-        let push_constant_size = module
-            .enumerate_push_constant_blocks(None)
-            .map_err(|e| err(format!("reflection of push constants failed: {e}")))?
-            .iter()
-            .map(|p| {
-                // The block's own size is padded to 16 bytes; the members give the real end.
-                let end = p
-                    .members
-                    .iter()
-                    .map(|m| m.offset + m.size)
-                    .max()
-                    .unwrap_or(p.size);
-                (p.offset + end).next_multiple_of(4)
-            })
-            .max()
-            .unwrap_or(0);
+        let (bindings, push_constant_size) = reflect::reflect(&words).map_err(err)?;
         let spec_constants = spec_constants(&words).map_err(err)?;
         Ok(Shader {
             name: name.to_string(),
@@ -253,55 +244,11 @@ impl Shader {
 
     /// Invocations per workgroup.
     pub fn invocations(&self) -> u32 {
-        self.local_size.iter().product()
+        // Saturating: a module may declare any size; the device limits refuse it later.
+        self.local_size
+            .iter()
+            .fold(1u32, |n, &s| n.saturating_mul(s))
     }
-}
-
-/// One reflected binding as vkshade describes it; an error for a descriptor type vkshade
-/// does not bind.
-fn binding_info(
-    b: spirv_reflect::types::ReflectDescriptorBinding,
-) -> std::result::Result<BindingInfo, String> {
-    use spirv_reflect::types::ReflectDescriptorType as R;
-    let kind = match b.descriptor_type {
-        R::StorageBuffer => DescriptorKind::StorageBuffer,
-        R::UniformBuffer => DescriptorKind::UniformBuffer,
-        R::StorageImage => DescriptorKind::StorageImage,
-        R::SampledImage => DescriptorKind::SampledImage,
-        R::CombinedImageSampler => DescriptorKind::CombinedImageSampler,
-        R::Sampler => DescriptorKind::Sampler,
-        other => {
-            return Err(format!(
-                "binding {}.{} '{}' has descriptor type {other:?}, which vkshade does not bind",
-                b.set, b.binding, b.name
-            ));
-        }
-    };
-    let type_name = b
-        .type_description
-        .as_ref()
-        .map(|t| t.type_name.clone())
-        .unwrap_or_default();
-    let non_writable = |f: spirv_reflect::types::ReflectDecorationFlags| {
-        f.contains(spirv_reflect::types::ReflectDecorationFlags::NON_WRITABLE)
-    };
-    let members = &b.block.members;
-    let read_only = non_writable(b.block.decoration_flags)
-        || (!members.is_empty() && members.iter().all(|m| non_writable(m.decoration_flags)));
-    Ok(BindingInfo {
-        set: b.set,
-        binding: b.binding,
-        name: match (b.name.is_empty(), type_name.is_empty()) {
-            (false, _) => b.name,
-            (true, false) => type_name,
-            (true, true) => format!("set{}_binding{}", b.set, b.binding),
-        },
-        kind,
-        count: b.count.max(1),
-        min_size: b.block.size as u64,
-        read_only,
-        view_type: image_view_type(kind, &b.image),
-    })
 }
 
 /// The entry point's name, its workgroup size (default values), and per axis the SpecId of
@@ -417,90 +364,7 @@ fn instructions(words: &[u32]) -> impl Iterator<Item = (u32, &[u32])> {
 }
 
 const OP_ENTRY_POINT: u32 = 15;
-const OP_TYPE_POINTER: u32 = 32;
-const OP_VARIABLE: u32 = 59;
 const OP_DECORATE: u32 = 71;
-const DECORATION_BLOCK: u32 = 2;
-const DECORATION_BUFFER_BLOCK: u32 = 3;
-const DECORATION_BINDING: u32 = 33;
-const DECORATION_DESCRIPTOR_SET: u32 = 34;
-const STORAGE_CLASS_UNIFORM: u32 = 2;
-const STORAGE_CLASS_STORAGE_BUFFER: u32 = 12;
-
-/// A copy of a validated module in the form the SPIRV-Reflect C code of spirv-reflect 0.2
-/// understands (it predates SPIR-V 1.3's StorageBuffer storage class):
-/// - OpEntryPoint lists no interface variables (SPIR-V 1.4+ lists every global there, and
-///   the C code aborts the process with an `assert` on storage buffers);
-/// - StorageBuffer-class pointers and variables become Uniform-class with the struct
-///   decorated BufferBlock, the SPIR-V 1.0 spelling of the same storage buffer.
-///
-/// Only descriptor bindings and push constants are reflected from the copy; it never reaches
-/// the driver.
-fn normalize_for_reflection(words: &[u32]) -> Vec<u32> {
-    let ssbo_structs: Vec<u32> = instructions(words)
-        .filter(|(op, ops)| {
-            *op == OP_TYPE_POINTER && ops.len() == 3 && ops[1] == STORAGE_CLASS_STORAGE_BUFFER
-        })
-        .map(|(_, ops)| ops[2])
-        .collect();
-    let mut out = words[..5].to_vec();
-    for (op, ops) in instructions(words) {
-        let mut ops = ops.to_vec();
-        match op {
-            OP_ENTRY_POINT if ops.len() > 2 => {
-                // Operands: execution model, function id, then the NUL-terminated name.
-                let name_words = ops[2..]
-                    .iter()
-                    .position(|w| w.to_le_bytes().contains(&0))
-                    .map_or(ops.len() - 2, |p| p + 1);
-                ops.truncate(2 + name_words);
-            }
-            OP_TYPE_POINTER if ops.len() == 3 && ops[1] == STORAGE_CLASS_STORAGE_BUFFER => {
-                ops[1] = STORAGE_CLASS_UNIFORM;
-            }
-            OP_VARIABLE if ops.len() >= 3 && ops[2] == STORAGE_CLASS_STORAGE_BUFFER => {
-                ops[2] = STORAGE_CLASS_UNIFORM;
-            }
-            OP_DECORATE
-                if ops.len() == 2
-                    && ops[1] == DECORATION_BLOCK
-                    && ssbo_structs.contains(&ops[0]) =>
-            {
-                ops[1] = DECORATION_BUFFER_BLOCK;
-            }
-            _ => {}
-        }
-        out.push((((ops.len() + 1) as u32) << 16) | op);
-        out.extend_from_slice(&ops);
-    }
-    out
-}
-
-/// (set, binding) of every variable decorated with both, found by a plain scan of the module:
-/// the independent check that reflection saw every resource.
-fn decorated_bindings(words: &[u32]) -> Vec<(u32, u32)> {
-    let mut sets = std::collections::HashMap::new();
-    let mut bindings = std::collections::HashMap::new();
-    for (op, ops) in instructions(words) {
-        if op == OP_DECORATE && ops.len() == 3 {
-            match ops[1] {
-                DECORATION_DESCRIPTOR_SET => {
-                    sets.insert(ops[0], ops[2]);
-                }
-                DECORATION_BINDING => {
-                    bindings.insert(ops[0], ops[2]);
-                }
-                _ => {}
-            }
-        }
-    }
-    let mut out: Vec<(u32, u32)> = bindings
-        .iter()
-        .filter_map(|(id, b)| sets.get(id).map(|s| (*s, *b)))
-        .collect();
-    out.sort();
-    out
-}
 
 /// Specialization constants: `SpecId` decorations with their OpSpecConstant* defaults.
 fn spec_constants(words: &[u32]) -> std::result::Result<Vec<SpecConstant>, String> {
