@@ -165,7 +165,7 @@ impl Voxels {
             .collect();
         let [nx, ny, _] = self.dims;
         let strides = [1, nx, nx * ny];
-        for axis in 0..3 {
+        for (axis, &stride) in strides.iter().enumerate() {
             let n = self.dims[axis];
             let (a, b) = ((axis + 1) % 3, (axis + 2) % 3);
             let lines: Vec<usize> = (0..self.dims[a] * self.dims[b])
@@ -176,7 +176,6 @@ impl Voxels {
                     self.index(c[0], c[1], c[2])
                 })
                 .collect();
-            let stride = strides[axis];
             let out: Vec<(usize, Vec<f32>)> = lines
                 .par_iter()
                 .map(|&start| {
