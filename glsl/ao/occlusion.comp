@@ -2,17 +2,22 @@
 // Per-vertex ambient visibility from a cut through a skinned sphere tree.
 //
 // Cut: preorder walk of the implicit B-ary tree (children of n: n*B+1 .. n*B+B), starting at
-// level 1. An inner node is refined when size > tau * distance, where size is its radius
+// level 1. An inner node is refined when size >= tau * distance, where size is its radius
 // (REFINE = 0, the published test) or its extent, the reach of its skinned leaves
 // (REFINE = 1: an elongated cluster, an arm, is refined when its leaves come near, not when
 // its compact volume sphere does); otherwise it (or a leaf) contributes, so a parent and its
-// children never both count. A receiver inside a leaf
+// children never both count. Between size = tau * d and size = tau * d / (1 + band) the node
+// blends into its children: they are morphed from its sphere towards their own and weighted
+// so that the family equals the node at the far end (src/kernels/ao/cpu.rs, walk_cut): the
+// cut changes without popping. A receiver inside a
 // sphere either skips it or clamps h to 1 (CLAMP_INSIDE).
 //
 // Per sphere: the exact formula or a bilinear lookup in the (solid angle, angle) table.
 // Blending: product of (1 - I); clamped sum; or the cone-mask union: the analytic sum of I,
 // scaled by |union of cone masks| / sum of mask counts over 128 fixed cosine-distributed
-// directions (exact for coincident and for disjoint caps).
+// directions (exact for coincident and for disjoint caps); a cap too small to hold a
+// direction is left out when its nearest direction is covered already (without that, the
+// small caps hidden behind nearer ones added up, and the error grew as the cut refined).
 //
 // Optional static correction: visibility times a per-vertex factor baked in the bind pose
 // (ray-traced mesh visibility / this method's visibility, capped), which restores detail no
@@ -38,6 +43,7 @@ layout(push_constant) uniform Push {
     float tau;
     uint table_n_psi;
     uint table_n_theta;
+    float band;
 } pc;
 
 layout(std430, set = 0, binding = 0) readonly buffer Positions { vec4 p[]; } pos;
@@ -49,9 +55,23 @@ layout(std430, set = 0, binding = 5) writeonly buffer Visibility { float v[]; } 
 layout(std430, set = 0, binding = 6) writeonly buffer Stats { uvec2 tested_used[]; } stats;
 layout(std430, set = 0, binding = 7) readonly buffer Extents { float e[]; } ext;
 
+// Deepest tree walked (levels below the root); cpu::MAX_DEPTH, checked by Prepared::check.
+const uint MAX_DEPTH = 8u;
+// cpu::INSIDE_FADE.
+const float INSIDE_FADE = 0.25;
+
 const uint BLEND_PRODUCT = 0u;
 const uint BLEND_SUM = 1u;
 const uint BLEND_MASK = 2u;
+
+// How far a node is refined, in [0, 1] (0: itself, 1: its children); as
+// kernels::ao::cpu::refinement.
+float ao_refinement(float size, float d, float tau, float band) {
+    if (size <= 0.0) return 0.0;
+    float t = tau * d / size;
+    if (band > 0.0) return clamp((1.0 + band - t) / band, 0.0, 1.0);
+    return t < 1.0 ? 1.0 : 0.0;
+}
 
 float table_lookup(float cos_t, float h) {
     vec2 uv = ao_table_coords(cos_t, h);
@@ -77,12 +97,25 @@ void main() {
     ao_basis(n, t, b);
 
     float product = 1.0;
-    float sum_all = 0.0;      // sum of I over all contributing spheres
-    float sum_masked = 0.0;   // sum of I over spheres with a non-empty mask
-    uint count_sum = 0u;      // sum of mask counts
+    float sum_all = 0.0;      // weighted sum of I over all contributing spheres
+    float sum_masked = 0.0;   // weighted sum of I over spheres with a non-empty mask
+    float count_sum = 0.0;    // weighted sum of mask counts
     uvec4 uni = uvec4(0u);    // union of masks
+    uvec4 small = uvec4(0u);  // nearest directions taken by caps too small to hold one
+    float hidden = 0.0;       // weighted I of small caps hidden behind others
     uint tested = 0u;
     uint used = 0u;
+
+    // Per depth (1 = the root's children): the parent's effective sphere, its weight, its
+    // alpha and one child's weight share at alpha = 0 (see cpu::walk_cut).
+    vec4 parent_sph[MAX_DEPTH + 1];
+    float parent_w[MAX_DEPTH + 1];
+    float parent_a[MAX_DEPTH + 1];
+    float parent_share[MAX_DEPTH + 1];
+    parent_w[1] = 1.0;
+    parent_a[1] = 1.0;
+    parent_share[1] = 1.0;
+    uint depth = 1u;
 
     uint node = 1u;
     uint B = pc.branch;
@@ -91,29 +124,63 @@ void main() {
         bool descend = false;
         if (s.w >= 0.0) {
             tested++;
-            vec3 dv = s.xyz - p;
-            float d = length(dv);
-            bool leaf = node >= pc.first_leaf;
-            float size = REFINE == 1u ? ext.e[node] : s.w;
-            if (!leaf && size > pc.tau * d) {
+            float a_p = parent_a[depth];
+            vec4 eff = s;
+            float w = parent_w[depth];
+            if (a_p < 1.0) {
+                eff = parent_sph[depth] + (s - parent_sph[depth]) * a_p;
+                w *= parent_share[depth] + (1.0 - parent_share[depth]) * a_p;
+            }
+            float a = 0.0;
+            if (node < pc.first_leaf) {
+                float d = length(s.xyz - p);
+                float size = REFINE == 1u ? ext.e[node] : s.w;
+                a = min(ao_refinement(size, d, pc.tau, pc.band), a_p);
+            }
+            if (a > 0.0) {
                 descend = true;
-            } else if (d > s.w || CLAMP_INSIDE) {
-                float h = d / s.w;
-                float cos_t = d > 0.0 ? dot(n, dv) / d : 1.0;
-                float occ = EXACT ? sphere_occlusion(cos_t, h) : table_lookup(cos_t, h);
-                used++;
-                product *= 1.0 - occ;
-                sum_all += occ;
-                if (BLEND == BLEND_MASK && occ > 0.0) {
-                    vec3 w = d > 0.0 ? dv / d : n;
-                    vec3 wl = vec3(dot(w, t), dot(w, b), dot(w, n));
-                    float cos_a = sqrt(max(1.0 - 1.0 / max(h * h, 1.0), 0.0));
-                    uvec4 m = ao_cap_mask(wl, cos_a);
-                    uint c = uint(bitCount(m.x) + bitCount(m.y) + bitCount(m.z) + bitCount(m.w));
-                    if (c > 0u) {
-                        sum_masked += occ;
-                        count_sum += c;
-                        uni |= m;
+                uint first = node * B + 1u;
+                uint used_children = 0u;
+                for (uint c = first; c < first + B; ++c) used_children += uint(sph.s[c].w >= 0.0);
+                depth++;
+                parent_sph[depth] = eff;
+                parent_w[depth] = w;
+                parent_a[depth] = a;
+                parent_share[depth] = 1.0 / float(max(used_children, 1u));
+            } else {
+                vec3 dv = eff.xyz - p;
+                float d = length(dv);
+                if (d > eff.w || CLAMP_INSIDE) {
+                    float h = d / eff.w;
+                    // Shrink to nothing over INSIDE_FADE radii outside the sphere (cpu.rs):
+                    // skipping it the moment it holds the receiver would pop.
+                    if (!CLAMP_INSIDE && h < 1.0 + INSIDE_FADE) h /= max((h - 1.0) / INSIDE_FADE, 1e-6);
+                    float cos_t = d > 0.0 ? dot(n, dv) / d : 1.0;
+                    float occ = EXACT ? sphere_occlusion(cos_t, h) : table_lookup(cos_t, h);
+                    used++;
+                    product *= w >= 1.0 ? 1.0 - occ : pow(1.0 - occ, w);
+                    sum_all += w * occ;
+                    if (BLEND == BLEND_MASK && occ > 0.0) {
+                        vec3 wd = d > 0.0 ? dv / d : n;
+                        vec3 wl = vec3(dot(wd, t), dot(wd, b), dot(wd, n));
+                        float cos_a = sqrt(max(1.0 - 1.0 / max(h * h, 1.0), 0.0));
+                        uvec4 m = ao_cap_mask(wl, cos_a);
+                        uint c = uint(bitCount(m.x) + bitCount(m.y) + bitCount(m.z) + bitCount(m.w));
+                        if (c > 0u) {
+                            sum_masked += w * occ;
+                            count_sum += w * float(c);
+                            uni |= m;
+                        } else {
+                            // A cap between the directions: hidden when its nearest direction
+                            // is covered already (see cpu.rs).
+                            uint k = ao_nearest_direction(wl);
+                            uint bit = 1u << (k & 31u);
+                            if (((uni[k >> 5u] | small[k >> 5u]) & bit) == 0u) {
+                                small[k >> 5u] |= bit;
+                            } else {
+                                hidden += w * occ;
+                            }
+                        }
                     }
                 }
             }
@@ -122,7 +189,10 @@ void main() {
             node = node * B + 1u;
         } else {
             // Next in preorder: climb while this is the last child, then step to the sibling.
-            while (node != 0u && (node - 1u) % B == B - 1u) node = (node - 1u) / B;
+            while (node != 0u && (node - 1u) % B == B - 1u) {
+                node = (node - 1u) / B;
+                depth--;
+            }
             if (node != 0u) node += 1u;
         }
     }
@@ -134,8 +204,8 @@ void main() {
         occlusion = sum_all;
     } else {
         uint u = uint(bitCount(uni.x) + bitCount(uni.y) + bitCount(uni.z) + bitCount(uni.w));
-        float scale = count_sum > 0u ? float(u) / float(count_sum) : 1.0;
-        occlusion = (sum_all - sum_masked) + sum_masked * scale;
+        float scale = count_sum > 0.0 ? float(u) / count_sum : 1.0;
+        occlusion = (sum_all - sum_masked - hidden) + sum_masked * scale;
     }
     float visibility = clamp(1.0 - occlusion, 0.0, 1.0);
     if (CORRECT) visibility = min(visibility * correction.c[vi], 1.0);

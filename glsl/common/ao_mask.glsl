@@ -137,4 +137,267 @@ uvec4 ao_cap_mask(vec3 wl, float cos_a) {
     m[3] |= uint(dot(vec3(-9.9619895e-1, -6.067484e-2, 6.25e-2), wl) >= cos_a) << 31u;
     return m;
 }
+
+uint ao_nearest_direction(vec3 wl) {
+    float best = -3.0;
+    uint k = 0u;
+    float c;
+    c = dot(vec3(6.25e-2, 0e0, 9.9804497e-1), wl);
+    if (c > best) { best = c; k = 0u; }
+    c = dot(vec3(-7.982252e-2, 7.312398e-2, 9.9412334e-1), wl);
+    if (c > best) { best = c; k = 1u; }
+    c = dot(vec3(1.2218092e-2, -1.3921914e-1, 9.901862e-1), wl);
+    if (c > best) { best = c; k = 2u; }
+    c = dot(vec3(1.0061119e-1, 1.3122934e-1, 9.8623335e-1), wl);
+    if (c > best) { best = c; k = 3u; }
+    c = dot(vec3(-1.8463379e-1, -3.265905e-2, 9.822646e-1), wl);
+    if (c > best) { best = c; k = 4u; }
+    c = dot(vec3(1.7490122e-1, -1.1125788e-1, 9.7827977e-1), wl);
+    if (c > best) { best = c; k = 5u; }
+    c = dot(vec3(-5.850082e-2, 2.1762101e-1, 9.7427857e-1), wl);
+    if (c > best) { best = c; k = 6u; }
+    c = dot(vec3(-1.1156801e-1, -2.1481697e-1, 9.702609e-1), wl);
+    if (c > best) { best = c; k = 7u; }
+    c = dot(vec3(2.420576e-1, 8.839886e-2, 9.662266e-1), wl);
+    if (c > best) { best = c; k = 8u; }
+    c = dot(vec3(-2.518205e-1, 1.0394801e-1, 9.6217525e-1), wl);
+    if (c > best) { best = c; k = 9u; }
+    c = dot(vec3(1.21394046e-1, -2.594123e-1, 9.581069e-1), wl);
+    if (c > best) { best = c; k = 10u; }
+    c = dot(vec3(8.970727e-2, 2.8600064e-1, 9.540211e-1), wl);
+    if (c > best) { best = c; k = 11u; }
+    c = dot(vec3(-2.7037883e-1, -1.5668932e-1, 9.4991773e-1), wl);
+    if (c > best) { best = c; k = 12u; }
+    c = dot(vec3(3.1718463e-1, -6.973277e-2, 9.457966e-1), wl);
+    if (c > best) { best = c; k = 13u; }
+    c = dot(vec3(-1.9357245e-1, 2.753379e-1, 9.416574e-1), wl);
+    if (c > best) { best = c; k = 14u; }
+    c = dot(vec3(-4.472037e-2, -3.4509975e-1, 9.375e-1), wl);
+    if (c > best) { best = c; k = 15u; }
+    c = dot(vec3(2.7453622e-1, 2.3137873e-1, 9.3332404e-1), wl);
+    if (c > best) { best = c; k = 16u; }
+    c = dot(vec3(-3.694392e-1, 1.52779445e-2, 9.291293e-1), wl);
+    if (c > best) { best = c; k = 17u; }
+    c = dot(vec3(2.6947728e-1, -2.6816648e-1, 9.2491555e-1), wl);
+    if (c > best) { best = c; k = 18u; }
+    c = dot(vec3(-1.802871e-2, 3.8989577e-1, 9.206825e-1), wl);
+    if (c > best) { best = c; k = 19u; }
+    c = dot(vec3(-2.5640902e-1, -3.072632e-1, 9.164299e-1), wl);
+    if (c > best) { best = c; k = 20u; }
+    c = dot(vec3(4.0617982e-1, 5.4650642e-2, 9.121575e-1), wl);
+    if (c > best) { best = c; k = 21u; }
+    c = dot(vec3(-3.441552e-1, 2.394545e-1, 9.078649e-1), wl);
+    if (c > best) { best = c; k = 22u; }
+    c = dot(vec3(9.404287e-2, -4.1803074e-1, 9.03552e-1), wl);
+    if (c > best) { best = c; k = 23u; }
+    c = dot(vec3(2.1751818e-1, 3.7959465e-1, 8.9921844e-1), wl);
+    if (c > best) { best = c; k = 24u; }
+    c = dot(vec3(-4.2522472e-1, -1.3565646e-1, 8.9486384e-1), wl);
+    if (c > best) { best = c; k = 25u; }
+    c = dot(vec3(4.130505e-1, -1.9084167e-1, 8.904879e-1), wl);
+    if (c > best) { best = c; k = 26u; }
+    c = dot(vec3(-1.7894256e-1, 4.2757842e-1, 8.8609046e-1), wl);
+    if (c > best) { best = c; k = 27u; }
+    c = dot(vec3(-1.5970519e-1, -4.4401634e-1, 8.81671e-1), wl);
+    if (c > best) { best = c; k = 28u; }
+    c = dot(vec3(4.2495504e-1, 2.2334267e-1, 8.772293e-1), wl);
+    if (c > best) { best = c; k = 29u; }
+    c = dot(vec3(-4.7201693e-1, 1.2442374e-1, 8.72765e-1), wl);
+    if (c > best) { best = c; k = 30u; }
+    c = dot(vec3(2.6829666e-1, -4.172657e-1, 8.682777e-1), wl);
+    if (c > best) { best = c; k = 31u; }
+    c = dot(vec3(8.534856e-2, 4.9661037e-1, 8.637672e-1), wl);
+    if (c > best) { best = c; k = 32u; }
+    c = dot(vec3(-4.0447143e-1, -3.1324366e-1, 8.5923296e-1), wl);
+    if (c > best) { best = c; k = 33u; }
+    c = dot(vec3(5.1739126e-1, -4.286614e-2, 8.5467464e-1), wl);
+    if (c > best) { best = c; k = 34u; }
+    c = dot(vec3(-3.5762557e-1, 3.865846e-1, 8.5009193e-1), wl);
+    if (c > best) { best = c; k = 35u; }
+    c = dot(vec3(2.6037947e-3, -5.339939e-1, 8.454843e-1), wl);
+    if (c > best) { best = c; k = 36u; }
+    c = dot(vec3(3.636694e-1, 4.008907e-1, 8.408515e-1), wl);
+    if (c > best) { best = c; k = 37u; }
+    c = dot(vec3(-5.460951e-1, -5.0610885e-2, 8.36193e-1), wl);
+    if (c > best) { best = c; k = 38u; }
+    c = dot(vec3(4.4249782e-1, -3.3584136e-1, 8.315084e-1), wl);
+    if (c > best) { best = c; k = 39u; }
+    c = dot(vec3(-1.0067734e-1, 5.5341697e-1, 8.267973e-1), wl);
+    if (c > best) { best = c; k = 40u; }
+    c = dot(vec3(-3.0326748e-1, -4.8192075e-1, 8.2205915e-1), wl);
+    if (c > best) { best = c; k = 41u; }
+    c = dot(vec3(5.557297e-1, 1.5230164e-1, 8.172935e-1), wl);
+    if (c > best) { best = c; k = 42u; }
+    c = dot(vec3(-5.1865226e-1, 2.6616457e-1, 8.125e-1), wl);
+    if (c > best) { best = c; k = 43u; }
+    c = dot(vec3(2.0496255e-1, -5.528531e-1, 8.07678e-1), wl);
+    if (c > best) { best = c; k = 44u; }
+    c = dot(vec3(2.2479787e-1, 5.5220896e-1, 8.0282706e-1), wl);
+    if (c > best) { best = c; k = 45u; }
+    c = dot(vec3(-5.446591e-1, -2.5812358e-1, 7.979466e-1), wl);
+    if (c > best) { best = c; k = 46u; }
+    c = dot(vec3(5.8213496e-1, -1.7947882e-1, 7.930361e-1), wl);
+    if (c > best) { best = c; k = 47u; }
+    c = dot(vec3(-3.1123337e-1, 5.310744e-1, 7.88095e-1), wl);
+    if (c > best) { best = c; k = 48u; }
+    c = dot(vec3(-1.3056731e-1, -6.0800564e-1, 7.831228e-1), wl);
+    if (c > best) { best = c; k = 49u; }
+    c = dot(vec3(5.120736e-1, 3.6374706e-1, 7.781187e-1), wl);
+    if (c > best) { best = c; k = 50u; }
+    c = dot(vec3(-6.2943566e-1, 7.845025e-2, 7.730823e-1), wl);
+    if (c > best) { best = c; k = 51u; }
+    c = dot(vec3(4.1510642e-1, -4.8769143e-1, 7.680129e-1), wl);
+    if (c > best) { best = c; k = 52u; }
+    c = dot(vec3(2.3565477e-2, 6.4607537e-1, 7.629097e-1), wl);
+    if (c > best) { best = c; k = 53u; }
+    c = dot(vec3(-4.580155e-1, -4.6476132e-1, 7.577722e-1), wl);
+    if (c > best) { best = c; k = 54u; }
+    c = dot(vec3(6.5761954e-1, 3.361988e-2, 7.5259966e-1), wl);
+    if (c > best) { best = c; k = 55u; }
+    c = dot(vec3(-5.1217085e-1, 4.2318705e-1, 7.473913e-1), wl);
+    if (c > best) { best = c; k = 56u; }
+    c = dot(vec3(9.2609055e-2, -6.6380894e-1, 7.421464e-1), wl);
+    if (c > best) { best = c; k = 57u; }
+    c = dot(vec3(3.8340044e-1, 5.5680823e-1, 7.3686415e-1), wl);
+    if (c > best) { best = c; k = 58u; }
+    c = dot(vec3(-6.644332e-1, -1.5288001e-1, 7.315437e-1), wl);
+    if (c > best) { best = c; k = 59u; }
+    c = dot(vec3(5.981655e-1, -3.3890164e-1, 7.2618437e-1), wl);
+    if (c > best) { best = c; k = 60u; }
+    c = dot(vec3(-2.1389e-1, 6.593328e-1, 7.2078514e-1), wl);
+    if (c > best) { best = c; k = 61u; }
+    c = dot(vec3(-2.8998625e-1, -6.3575876e-1, 7.153452e-1), wl);
+    if (c > best) { best = c; k = 62u; }
+    c = dot(vec3(6.4840144e-1, 2.750805e-1, 7.0986354e-1), wl);
+    if (c > best) { best = c; k = 63u; }
+    c = dot(vec3(-6.6913265e-1, 2.3699735e-1, 7.043392e-1), wl);
+    if (c > best) { best = c; k = 64u; }
+    c = dot(vec3(3.3588213e-1, -6.3158685e-1, 6.9877124e-1), wl);
+    if (c > best) { best = c; k = 65u; }
+    c = dot(vec3(1.8032259e-1, 6.978646e-1, 6.931585e-1), wl);
+    if (c > best) { best = c; k = 66u; }
+    c = dot(vec3(-6.088921e-1, -3.9571977e-1, 6.875e-1), wl);
+    if (c > best) { best = c; k = 67u; }
+    c = dot(vec3(7.2156924e-1, -1.20391175e-1, 6.817945e-1), wl);
+    if (c > best) { best = c; k = 68u; }
+    c = dot(vec3(-4.540179e-1, 5.803762e-1, 6.760409e-1), wl);
+    if (c > best) { best = c; k = 69u; }
+    c = dot(vec3(-5.767018e-2, -7.3990226e-1, 6.7023784e-1), wl);
+    if (c > best) { best = c; k = 70u; }
+    c = dot(vec3(5.461536e-1, 5.102058e-1, 6.643841e-1), wl);
+    if (c > best) { best = c; k = 71u; }
+    c = dot(vec3(-7.5256383e-1, -7.339292e-3, 6.584784e-1), wl);
+    if (c > best) { best = c; k = 72u; }
+    c = dot(vec3(5.6372285e-1, -5.063944e-1, 6.5251917e-1), wl);
+    if (c > best) { best = c; k = 73u; }
+    c = dot(vec3(-7.4106336e-2, 7.5930196e-1, 6.46505e-1), wl);
+    if (c > best) { best = c; k = 74u; }
+    c = dot(vec3(-4.6132264e-1, -6.1402375e-1, 6.4043444e-1), wl);
+    if (c > best) { best = c; k = 75u; }
+    c = dot(vec3(7.599152e-1, 1.4207484e-1, 6.343057e-1), wl);
+    if (c > best) { best = c; k = 76u; }
+    c = dot(vec3(-6.605836e-1, 4.1121528e-1, 6.281172e-1), wl);
+    if (c > best) { best = c; k = 77u; }
+    c = dot(vec3(2.1066816e-1, -7.5425476e-1, 6.218671e-1), wl);
+    if (c > best) { best = c; k = 78u; }
+    c = dot(vec3(3.564001e-1, 7.0290303e-1, 6.155536e-1), wl);
+    if (c > best) { best = c; k = 79u; }
+    c = dot(vec3(-7.42227e-1, -2.792943e-1, 6.0917467e-1), wl);
+    if (c > best) { best = c; k = 80u; }
+    c = dot(vec3(7.405127e-1, -2.9725334e-1, 6.027282e-1), wl);
+    if (c > best) { best = c; k = 81u; }
+    c = dot(vec3(-3.47351e-1, 7.237946e-1, 5.96212e-1), wl);
+    if (c > best) { best = c; k = 82u; }
+    c = dot(vec3(-2.3419683e-1, -7.7297837e-1, 5.896238e-1), wl);
+    if (c > best) { best = c; k = 83u; }
+    c = dot(vec3(6.9897705e-1, 4.1423097e-1, 5.829612e-1), wl);
+    if (c > best) { best = c; k = 84u; }
+    c = dot(vec3(-7.999045e-1, 1.6769461e-1, 5.762215e-1), wl);
+    if (c > best) { best = c; k = 85u; }
+    c = dot(vec3(4.7932747e-1, -6.678521e-1, 5.694021e-1), wl);
+    if (c > best) { best = c; k = 86u; }
+    c = dot(vec3(9.82494e-2, 8.20939e-1, 5.625e-1), wl);
+    if (c > best) { best = c; k = 87u; }
+    c = dot(vec3(-6.3055485e-1, -5.420395e-1, 5.5551213e-1), wl);
+    if (c > best) { best = c; k = 88u; }
+    c = dot(vec3(8.357762e-1, -2.6398392e-2, 5.484353e-1), wl);
+    if (c > best) { best = c; k = 89u; }
+    c = dot(vec3(-6.0177755e-1, 5.872776e-1, 5.412659e-1), wl);
+    if (c > best) { best = c; k = 90u; }
+    c = dot(vec3(4.7290973e-2, -8.441607e-1, 5.340002e-1), wl);
+    if (c > best) { best = c; k = 91u; }
+    c = dot(vec3(5.3826886e-1, 6.5796876e-1, 5.2663434e-1), wl);
+    if (c > best) { best = c; k = 92u; }
+    c = dot(vec3(-8.4588987e-1, -1.222258e-1, 5.1916397e-1), wl);
+    if (c > best) { best = c; k = 93u; }
+    c = dot(vec3(7.100622e-1, -4.8383155e-1, 5.115845e-1), wl);
+    if (c > best) { best = c; k = 94u; }
+    c = dot(vec3(-1.9779268e-1, 8.408162e-1, 5.038911e-1), wl);
+    if (c > best) { best = c; k = 95u; }
+    c = dot(vec3(-4.243327e-1, -7.5752753e-1, 4.9607837e-1), wl);
+    if (c > best) { best = c; k = 96u; }
+    c = dot(vec3(8.2885367e-1, 2.7335015e-1, 4.881406e-1), wl);
+    if (c > best) { best = c; k = 97u; }
+    c = dot(vec3(-7.99887e-1, 3.6015546e-1, 4.800716e-1), wl);
+    if (c > best) { best = c; k = 98u; }
+    c = dot(vec3(3.48285e-1, -8.0996376e-1, 4.7186464e-1), wl);
+    if (c > best) { best = c; k = 99u; }
+    c = dot(vec3(2.9176322e-1, 8.3667827e-1, 4.635124e-1), wl);
+    if (c > best) { best = c; k = 100u; }
+    c = dot(vec3(-7.841776e-1, -4.2194104e-1, 4.5500687e-1), wl);
+    if (c > best) { best = c; k = 101u; }
+    c = dot(vec3(8.674873e-1, -2.1965212e-1, 4.4633928e-1), wl);
+    if (c > best) { best = c; k = 102u; }
+    c = dot(vec3(-4.936761e-1, 7.515835e-1, 4.375e-1), wl);
+    if (c > best) { best = c; k = 103u; }
+    c = dot(vec3(-1.443582e-1, -8.9194554e-1, 4.2847842e-1), wl);
+    if (c > best) { best = c; k = 104u; }
+    c = dot(vec3(7.123298e-1, 5.628544e-1, 4.1926274e-1), wl);
+    if (c > best) { best = c; k = 105u; }
+    c = dot(vec3(-9.097336e-1, 6.645313e-2, 4.098399e-1), wl);
+    if (c > best) { best = c; k = 106u; }
+    c = dot(vec3(6.288526e-1, -6.666244e-1, 4.0019527e-1), wl);
+    if (c > best) { best = c; k = 107u; }
+    c = dot(vec3(-1.3460344e-2, 9.205841e-1, 3.9031237e-1), wl);
+    if (c > best) { best = c; k = 108u; }
+    c = dot(vec3(-6.1473376e-1, -6.9106525e-1, 3.8017267e-1), wl);
+    if (c > best) { best = c; k = 109u; }
+    c = dot(vec3(9.242852e-1, 9.475322e-2, 3.69755e-1), wl);
+    if (c > best) { best = c; k = 110u; }
+    c = dot(vec3(-7.4891e-1, 5.569808e-1, 3.5903516e-1), wl);
+    if (c > best) { best = c; k = 111u; }
+    c = dot(vec3(1.7677537e-1, -9.206828e-1, 3.4798527e-1), wl);
+    if (c > best) { best = c; k = 112u; }
+    c = dot(vec3(4.9374336e-1, 8.01833e-1, 3.365728e-1), wl);
+    if (c > best) { best = c; k = 113u; }
+    c = dot(vec3(-9.096825e-1, -2.5886086e-1, 3.247595e-1), wl);
+    if (c > best) { best = c; k = 114u; }
+    c = dot(vec3(8.4931433e-1, -4.254514e-1, 3.125e-1), wl);
+    if (c > best) { best = c; k = 115u; }
+    c = dot(vec3(-3.4033358e-1, 8.9125156e-1, 2.9973948e-1), wl);
+    if (c > best) { best = c; k = 116u; }
+    c = dot(vec3(-3.525838e-1, -8.908723e-1, 2.86411e-1), wl);
+    if (c > best) { best = c; k = 117u; }
+    c = dot(vec3(8.6541915e-1, 4.2051277e-1, 2.724312e-1), wl);
+    if (c > best) { best = c; k = 118u; }
+    c = dot(vec3(-9.260684e-1, 2.756649e-1, 2.576941e-1), wl);
+    if (c > best) { best = c; k = 119u; }
+    c = dot(vec3(4.9871886e-1, -8.322774e-1, 2.4206147e-1), wl);
+    if (c > best) { best = c; k = 120u; }
+    c = dot(vec3(1.9526063e-1, 9.545114e-1, 2.2534695e-1), wl);
+    if (c > best) { best = c; k = 121u; }
+    c = dot(vec3(-7.9198146e-1, -5.7427925e-1, 2.0728905e-1), wl);
+    if (c > best) { best = c; k = 122u; }
+    c = dot(vec3(9.7586143e-1, -1.1197423e-1, 1.875e-1), wl);
+    if (c > best) { best = c; k = 123u; }
+    c = dot(vec3(-6.465342e-1, 7.447481e-1, 1.6535945e-1), wl);
+    if (c > best) { best = c; k = 124u; }
+    c = dot(vec3(-2.6441336e-2, -9.898331e-1, 1.3975425e-1), wl);
+    if (c > best) { best = c; k = 125u; }
+    c = dot(vec3(6.908556e-1, 7.1484244e-1, 1.0825317e-1), wl);
+    if (c > best) { best = c; k = 126u; }
+    c = dot(vec3(-9.9619895e-1, -6.067484e-2, 6.25e-2), wl);
+    if (c > best) { best = c; k = 127u; }
+    return k;
+}
 #endif

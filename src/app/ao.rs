@@ -6,6 +6,7 @@ use crate::error::{Error, Result};
 use crate::geom::visibility::{RayConfig, ambient_visibility};
 use crate::gpu::{Context, Timings};
 use crate::kernels::ao::cpu::{self, CpuAo, Posed};
+use crate::kernels::ao::fit::{FitConfig, FitSummary, Proxy, fit_tree};
 use crate::kernels::ao::formula::{OcclusionTable, TABLE_SIZE};
 use crate::kernels::ao::{
     AoKernel, AoParams, Blend, Correction, DEFAULT_ANIMATION, DEFAULT_MESH, FrameData, Occlusion,
@@ -14,7 +15,7 @@ use crate::kernels::ao::{
 use crate::kernels::{KernelInfo, run_frames};
 use crate::progress::Progress;
 use crate::reference::ErrorStats;
-use crate::reference::ao::spheres_visibility;
+use crate::reference::ao::{JumpCount, count_jumps, proxy_visibility, spheres_visibility};
 use crate::report::{MachineInfo, Stats};
 use crate::scene::spheretree::{BuildConfig, FitReport, SphereTree};
 use crate::scene::{self, Animation, Character, Mesh, MeshReport};
@@ -38,6 +39,11 @@ pub struct AoRunConfig {
     /// A `.sph` tree to use instead of building one.
     pub tree: Option<PathBuf>,
     pub build: BuildConfig,
+    /// Volume spheres as built, or refitted to the mesh (a `.sph` tree is used as it is).
+    pub proxy: Proxy,
+    /// Sample this many vertices of every frame for the popping count (0: none): the GPU's
+    /// result and the ray-traced truth (common random rays) between consecutive frames.
+    pub jump_vertices: usize,
     pub params: AoParams,
     /// Rays per vertex of the bind-pose bake of the static correction.
     pub correction_rays: usize,
@@ -63,6 +69,8 @@ impl Default for AoRunConfig {
             frames: 8,
             tree: None,
             build: BuildConfig::default(),
+            proxy: Proxy::Volume,
+            jump_vertices: 0,
             params: AoParams::default(),
             correction_rays: 4096,
             reference: false,
@@ -97,6 +105,8 @@ pub struct TreeInfo {
     pub spheres_total: usize,
     pub build_ms: f64,
     pub fit: Option<FitReport>,
+    /// The refit of the spheres to the mesh (`--proxy fitted`).
+    pub proxy_fit: Option<FitSummary>,
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -132,6 +142,9 @@ pub struct Decomposition {
     pub cut: f64,
     /// |union of all leaf spheres - ray-traced mesh|.
     pub proxy: f64,
+    /// Per level below the root: |union of that level's spheres - ray-traced mesh| (rays
+    /// against the spheres vs rays against the mesh, the same rays).
+    pub proxy_per_level: Vec<f64>,
     /// The method without the static correction against the mesh.
     pub method_uncorrected: f64,
     /// The method as configured against the mesh (same subset).
@@ -183,6 +196,9 @@ pub struct Summary {
     pub mae_exposed_mean: Option<f64>,
     pub mae_uncorrected_mean: Option<f64>,
     pub mae_static_bind_pose_mean: Option<f64>,
+    /// Popping between consecutive frames (`--jumps`): steps where the GPU's result changed
+    /// by more than 0.1 while the ray-traced truth changed by less than 0.02.
+    pub jumps: Option<JumpCount>,
 }
 
 /// What `report.json` holds.
@@ -220,6 +236,13 @@ pub fn tree_for(c: &Character, cfg: &AoRunConfig) -> Result<(SphereTree, TreeInf
             (tree, "built".to_string(), Some(fit))
         }
     };
+    let (tree, proxy_fit) = match (cfg.proxy, &cfg.tree) {
+        (Proxy::Fitted, None) => {
+            let (tree, summary) = fit_tree(&c.mesh, &tree, &FitConfig::default())?;
+            (tree, Some(summary))
+        }
+        _ => (tree, None),
+    };
     let spheres_per_level: Vec<usize> = (1..tree.levels).map(|l| tree.used_at(l)).collect();
     let info = TreeInfo {
         source,
@@ -229,12 +252,26 @@ pub fn tree_for(c: &Character, cfg: &AoRunConfig) -> Result<(SphereTree, TreeInf
         spheres_per_level,
         build_ms: t.elapsed().as_secs_f64() * 1e3,
         fit,
+        proxy_fit,
     };
     Ok((tree, info))
 }
 
 fn to_vec3(v: &[[f32; 4]]) -> Vec<Vec3> {
     v.iter().map(|p| Vec4::from_array(*p).truncate()).collect()
+}
+
+/// Node ranges of the levels below the root of a complete tree.
+fn level_ranges(shape: cpu::TreeShape) -> Vec<std::ops::Range<usize>> {
+    let b = shape.branch as usize;
+    let (mut start, mut width) = (1usize, b);
+    let mut out = Vec::new();
+    while start < shape.node_count as usize {
+        out.push(start..(start + width).min(shape.node_count as usize));
+        start += width;
+        width *= b;
+    }
+    out
 }
 
 /// Error decomposition on every `stride`-th vertex of a CPU-posed frame.
@@ -276,7 +313,12 @@ fn decompose(
                 &posed.extents,
                 prep.shape,
                 &exact,
-                |node, _, _| cut.push(posed.spheres[node as usize]),
+                |_, s, _| {
+                    // As for the leaves: a sphere holding the receiver is left out.
+                    if s.truncate().distance(p) > s.w {
+                        cut.push(s)
+                    }
+                },
             );
             let union_cut = spheres_visibility(p, n, i, &cut, &cfg);
             let leaves: Vec<Vec4> = posed.spheres[first_leaf..]
@@ -302,6 +344,24 @@ fn decompose(
     let mean = |f: &dyn Fn(&[f32; 6]) -> f32| {
         rows.iter().map(|r| f(r).abs() as f64).sum::<f64>() / rows.len().max(1) as f64
     };
+    let shape = prep.shape;
+    let proxy_per_level = level_ranges(shape)
+        .into_iter()
+        .map(|range| {
+            let v = proxy_visibility(
+                &posed.positions,
+                &posed.normals,
+                &subset,
+                &posed.spheres[range],
+                &cfg,
+            );
+            v.iter()
+                .zip(&subset)
+                .map(|(v, &i)| (v - truth[i]).abs() as f64)
+                .sum::<f64>()
+                / subset.len().max(1) as f64
+        })
+        .collect();
     Decomposition {
         vertices: rows.len(),
         rays: cfg.rays,
@@ -309,6 +369,7 @@ fn decompose(
         overlap: mean(&|r| r[1] - r[2]),
         cut: mean(&|r| r[2] - r[3]),
         proxy: mean(&|r| r[3] - r[5]),
+        proxy_per_level,
         method_uncorrected: mean(&|r| r[0] - r[5]),
         method: mean(&|r| r[4] - r[5]),
     }
@@ -459,8 +520,21 @@ pub fn run(ctx: &Context, cfg: &AoRunConfig, progress: &mut dyn FnMut(&str)) -> 
     } else {
         cfg.in_flight
     };
+    let sampled: Vec<usize> = if cfg.jump_vertices > 0 {
+        let nv = mesh.positions.len();
+        (0..nv)
+            .step_by(nv.div_ceil(cfg.jump_vertices).max(1))
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let (mut jump_method, mut jump_truth) = (Vec::new(), Vec::new());
     let in_flight = run_frames(ctx, &session.kernel, inputs, limit, |r| {
         let (index, time) = (r.index, times[r.index]);
+        if !sampled.is_empty() {
+            jump_method.push(sampled.iter().map(|&i| r.output.visibility[i]).collect());
+            jump_truth.push(session.sampled_truth(&matrices[index], &sampled));
+        }
         let f = GpuFrame::new(r.output, &r.timings);
         frames.push(session.frame(index, time, &matrices[index], f, progress)?);
         if !cfg.reference {
@@ -469,7 +543,15 @@ pub fn run(ctx: &Context, cfg: &AoRunConfig, progress: &mut dyn FnMut(&str)) -> 
         Ok(())
     })?;
     drop(counter);
-    let report = session.report(tree_info, frames, in_flight);
+    let mut report = session.report(tree_info, frames, in_flight);
+    if !sampled.is_empty() {
+        let jumps = count_jumps(&jump_method, &jump_truth, 0.1, 0.02);
+        progress(&format!(
+            "popping: {} of {} vertex-steps jumped by more than 0.1 where the truth moved less than 0.02 (largest calm step {:.3})",
+            jumps.jumps, jumps.steps, jumps.largest_calm_step
+        ));
+        report.summary.jumps = Some(jumps);
+    }
     crate::io::write_json(&cfg.out.join("report.json"), &report)?;
     Ok(report)
 }
@@ -625,6 +707,20 @@ impl<'a> Session<'a> {
             png: png.display().to_string(),
             exr: exr.display().to_string(),
         })
+    }
+
+    /// The ray-traced truth of `receivers` in a frame (CPU skinning; the rays of a receiver
+    /// are the same in every frame).
+    fn sampled_truth(&self, matrices: &[Mat4], receivers: &[usize]) -> Vec<f32> {
+        let posed = cpu::skin(&self.prep, matrices);
+        let bvh = crate::geom::Bvh::build(&posed.positions, &self.character.mesh.triangles);
+        ambient_visibility(
+            &posed.positions,
+            &posed.normals,
+            &bvh,
+            receivers,
+            &self.ray_cfg,
+        )
     }
 
     /// The ray-traced truth of a frame (from the CPU's own skinning, independent of the
@@ -803,6 +899,7 @@ fn summarize(frames: &[FrameReport]) -> Summary {
         mae_exposed_mean: mean_of(&|r| r.error_exposed.mae),
         mae_uncorrected_mean: mean_of(&|r| r.error_uncorrected.mae),
         mae_static_bind_pose_mean: mean_of(&|r| r.error_static_bind_pose.mae),
+        jumps: None,
     }
 }
 
@@ -826,9 +923,21 @@ pub struct Args {
     /// Use this .sph sphere tree (Dublin toolkit format) instead of building one.
     #[arg(long)]
     pub tree: Option<PathBuf>,
+    /// The spheres of a built tree: `volume` (volume-equivalent at cluster centroids) or
+    /// `fitted` (refitted to the mesh).
+    #[arg(long, default_value = "volume", value_parser = super::choice::<Proxy>("proxy"))]
+    pub proxy: Proxy,
+    /// Count popping over this many sampled vertices: steps between consecutive frames where
+    /// the result jumps by more than 0.1 while the ray-traced truth moves less than 0.02.
+    #[arg(long, default_value_t = 0)]
+    pub jumps: usize,
     /// Refine a tree node when size / distance > tau (0 < tau <= 1; smaller = finer cut).
     #[arg(long, default_value_t = 0.8)]
     pub tau: f32,
+    /// Blend a node into its children over this fraction of its refinement distance
+    /// (0 = the hard cut, which pops when it changes).
+    #[arg(long, default_value_t = 0.5)]
+    pub band: f32,
     /// A node's size for refinement: `extent` (reach of its skinned leaves) or `radius`.
     #[arg(long, default_value = "extent", value_parser = super::choice::<Refine>("refinement"))]
     pub refine: Refine,
@@ -886,8 +995,11 @@ impl Args {
             frames: self.frames,
             tree: self.tree.clone(),
             build: self.tree_opts.config(),
+            proxy: self.proxy,
+            jump_vertices: self.jumps,
             params: AoParams {
                 tau: self.tau,
+                band: self.band,
                 refine: self.refine,
                 occlusion: self.occlusion,
                 blend: self.blend,
@@ -946,6 +1058,12 @@ pub fn display(report: &AoReport, cfg: &AoRunConfig) {
         s.fps,
         s.spheres_used_per_vertex_mean
     );
+    if let Some(j) = &s.jumps {
+        println!(
+            "popping: {} jumps in {} vertex-steps (> 0.1 where the truth moved < 0.02)",
+            j.jumps, j.steps
+        );
+    }
     if let (Some(mae), Some(p95), Some(max)) = (s.mae_mean, s.p95_mean, s.max_max) {
         println!(
             "vs ray-traced mesh: MAE {mae:.4}, p95 {p95:.3}, max {max:.3} (mean over frames); \

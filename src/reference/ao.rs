@@ -42,3 +42,65 @@ pub fn spheres_visibility(
     }
     escaped as f32 / total as f32
 }
+
+/// Visibility of `receivers` against the exact union of `spheres` (rayon), each receiver with
+/// its own rays (those of [`crate::geom::visibility::ambient_visibility`] for the same index
+/// and configuration, so the two compare ray for ray). Spheres that contain the receiver are
+/// left out, as the method leaves them out: a receiver slightly inside a sphere of its own
+/// surface would otherwise see nothing.
+pub fn proxy_visibility(
+    positions: &[Vec3],
+    normals: &[Vec3],
+    receivers: &[usize],
+    spheres: &[Vec4],
+    cfg: &RayConfig,
+) -> Vec<f32> {
+    use rayon::prelude::*;
+    receivers
+        .par_iter()
+        .map(|&i| {
+            let p = positions[i];
+            let outside: Vec<Vec4> = spheres
+                .iter()
+                .copied()
+                .filter(|s| s.w >= 0.0 && s.truncate().distance(p) > s.w)
+                .collect();
+            spheres_visibility(p, normals[i], i, &outside, cfg)
+        })
+        .collect()
+}
+
+/// Popping: how often a method's per-vertex result changes by more than `jump` between
+/// consecutive frames while the ray-traced truth (common random rays: the same directions
+/// per receiver in every frame) changes by less than `calm`. `method[f][k]` and
+/// `truth[f][k]` are frame f's values of the k-th sampled receiver.
+pub fn count_jumps(method: &[Vec<f32>], truth: &[Vec<f32>], jump: f32, calm: f32) -> JumpCount {
+    let mut count = JumpCount::default();
+    for f in 1..method.len().min(truth.len()) {
+        let now = method[f].iter().zip(&truth[f]);
+        let before = method[f - 1].iter().zip(&truth[f - 1]);
+        for ((m1, t1), (m0, t0)) in now.zip(before) {
+            let dm = (m1 - m0).abs();
+            let dt = (t1 - t0).abs();
+            count.steps += 1;
+            count.largest_calm_step = count
+                .largest_calm_step
+                .max(if dt < calm { dm } else { 0.0 });
+            if dm > jump && dt < calm {
+                count.jumps += 1;
+            }
+        }
+    }
+    count
+}
+
+/// What [`count_jumps`] found.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct JumpCount {
+    /// Vertex-steps compared (sampled receivers x (frames - 1)).
+    pub steps: usize,
+    /// Steps where the method jumped and the truth did not.
+    pub jumps: usize,
+    /// The method's largest change over the steps where the truth was calm.
+    pub largest_calm_step: f32,
+}

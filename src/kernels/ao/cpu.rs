@@ -95,35 +95,98 @@ pub struct TreeShape {
     pub first_leaf: u32,
 }
 
-/// Walks the cut for receiver `p`: calls `contribute(node, d)` for every contributing sphere
-/// (in the shader's order) and returns the number of spheres tested.
+/// Without `clamp_inside`, a sphere's radius grows from 0 to its own as the receiver's
+/// distance from its centre goes from 1 to 1 + INSIDE_FADE radii (no jump when it starts or
+/// stops holding the receiver).
+pub const INSIDE_FADE: f32 = 0.25;
+
+/// Deepest tree the walk handles (levels below the root); `Prepared::check` refuses deeper.
+pub const MAX_DEPTH: usize = 8;
+
+/// How far a node is refined, in [0, 1]: 0 = the node itself, 1 = its children. A node is
+/// fully refined when size >= tau * d (the published test) and starts to blend into its
+/// children `band` (as a fraction of that distance) farther out, so the cut changes
+/// continuously as a receiver moves: alpha = clamp((1 + band - tau * d / size) / band, 0, 1).
+pub fn refinement(size: f32, d: f32, tau: f32, band: f32) -> f32 {
+    if size <= 0.0 {
+        return 0.0;
+    }
+    let t = tau * d / size;
+    if band > 0.0 {
+        ((1.0 + band - t) / band).clamp(0.0, 1.0)
+    } else if t < 1.0 {
+        1.0
+    } else {
+        0.0
+    }
+}
+
+/// Walks the cut for receiver `p`: calls `contribute(node, sphere, weight)` for every
+/// contributing node (in the shader's order) and returns the number of nodes tested.
+///
+/// A node that is partly refined (0 < alpha < 1, see [`refinement`]) is replaced by its used
+/// children, each morphed from the node's (effective) sphere towards its own by alpha and
+/// weighted by `mix(1 / used children, 1, alpha)`: at alpha = 0 the children coincide with
+/// the node and together weigh what it weighs, so every blend mode gives the node's own
+/// occlusion, and at alpha = 1 they are themselves. A child's alpha never exceeds its
+/// parent's, so a whole subtree folds back continuously. No node counts together with an
+/// ancestor or a descendant.
 pub fn walk_cut(
     p: Vec3,
     spheres: &[Vec4],
     extents: &[f32],
     shape: TreeShape,
     params: &AoParams,
-    mut contribute: impl FnMut(u32, Vec3, f32),
+    mut contribute: impl FnMut(u32, Vec4, f32),
 ) -> u32 {
     let b = shape.branch;
     let mut tested = 0;
+    // Per depth (1 = the root's children): the parent's effective sphere, its weight, its
+    // alpha and the weight share of one of its children at alpha = 0.
+    let mut parent = [Vec4::ZERO; MAX_DEPTH + 1];
+    let mut weight = [1.0f32; MAX_DEPTH + 1];
+    let mut alpha = [1.0f32; MAX_DEPTH + 1];
+    let mut share = [1.0f32; MAX_DEPTH + 1];
+    let mut depth = 1usize;
     let mut node = 1u32;
     while node != 0 && node < shape.node_count {
         let s = spheres[node as usize];
         let mut descend = false;
         if s.w >= 0.0 {
             tested += 1;
-            let dv = s.truncate() - p;
-            let d = dv.length();
-            let leaf = node >= shape.first_leaf;
-            let size = match params.refine {
-                Refine::Radius => s.w,
-                Refine::Extent => extents[node as usize],
+            let a_p = alpha[depth];
+            let (eff, w) = if a_p >= 1.0 {
+                (s, weight[depth])
+            } else {
+                (
+                    parent[depth] + (s - parent[depth]) * a_p,
+                    weight[depth] * (share[depth] + (1.0 - share[depth]) * a_p),
+                )
             };
-            if !leaf && size > params.tau * d {
+            let leaf = node >= shape.first_leaf;
+            let mut a = 0.0;
+            if !leaf {
+                let d = (s.truncate() - p).length();
+                let size = match params.refine {
+                    Refine::Radius => s.w,
+                    Refine::Extent => extents[node as usize],
+                };
+                a = refinement(size, d, params.tau, params.band).min(a_p);
+            }
+            if a > 0.0 {
                 descend = true;
-            } else if d > s.w || params.clamp_inside {
-                contribute(node, dv, d);
+                let first = node * b + 1;
+                let used = (first..first + b)
+                    .filter(|&c| spheres[c as usize].w >= 0.0)
+                    .count()
+                    .max(1);
+                depth += 1;
+                parent[depth] = eff;
+                weight[depth] = w;
+                alpha[depth] = a;
+                share[depth] = 1.0 / used as f32;
+            } else {
+                contribute(node, eff, w);
             }
         }
         if descend {
@@ -131,6 +194,7 @@ pub fn walk_cut(
         } else {
             while node != 0 && (node - 1) % b == b - 1 {
                 node = (node - 1) / b;
+                depth -= 1;
             }
             if node != 0 {
                 node += 1;
@@ -180,23 +244,40 @@ impl CpuAo {
         let mut product = 1.0f32;
         let mut sum_all = 0.0f32;
         let mut sum_masked = 0.0f32;
-        let mut count_sum = 0u32;
         let mut uni = [0u32; 4];
+        // Caps too small to hold a direction: the directions they took, and the occlusion
+        // of those hidden behind others (left out of the mask blend).
+        let mut small = [0u32; 4];
+        let mut hidden = 0.0f32;
         let mut used = 0;
-        let tested = walk_cut(p, spheres, &posed.extents, shape, params, |node, dv, d| {
-            let r = spheres[node as usize].w;
-            let h = d / r;
+        let mut count_sum = 0.0f32;
+        let tested = walk_cut(p, spheres, &posed.extents, shape, params, |_, s, w| {
+            let dv = s.truncate() - p;
+            let d = dv.length();
+            if !(d > s.w || params.clamp_inside) {
+                return;
+            }
+            let mut h = d / s.w;
+            // Skipping a sphere the moment it holds the receiver would pop: it shrinks to
+            // nothing over the first INSIDE_FADE radii outside it instead.
+            if !params.clamp_inside && h < 1.0 + INSIDE_FADE {
+                h /= ((h - 1.0) / INSIDE_FADE).max(1e-6);
+            }
             let cos_t = if d > 0.0 { n.dot(dv) / d } else { 1.0 };
             let occ = match params.occlusion {
                 Occlusion::Exact => sphere_occlusion(cos_t, h),
                 Occlusion::Table => self.table.lookup(cos_t, h),
             };
             used += 1;
-            product *= 1.0 - occ;
-            sum_all += occ;
+            product *= if w >= 1.0 {
+                1.0 - occ
+            } else {
+                (1.0 - occ).powf(w)
+            };
+            sum_all += w * occ;
             if params.blend == Blend::Mask && occ > 0.0 {
-                let w = if d > 0.0 { dv / d } else { n };
-                let wl = Vec3::new(w.dot(t), w.dot(b), w.dot(n));
+                let wd = if d > 0.0 { dv / d } else { n };
+                let wl = Vec3::new(wd.dot(t), wd.dot(b), wd.dot(n));
                 let cos_a = (1.0 - 1.0 / (h * h).max(1.0)).max(0.0).sqrt();
                 let mut m = [0u32; 4];
                 for (k, dir) in self.dirs.iter().enumerate() {
@@ -206,10 +287,27 @@ impl CpuAo {
                 }
                 let c: u32 = m.iter().map(|x| x.count_ones()).sum();
                 if c > 0 {
-                    sum_masked += occ;
-                    count_sum += c;
+                    sum_masked += w * occ;
+                    count_sum += w * c as f32;
                     for k in 0..4 {
                         uni[k] |= m[k];
+                    }
+                } else {
+                    // A cap between the directions: hidden when its nearest direction is
+                    // already covered (by the union so far or an earlier such cap), else it
+                    // counts as it is and covers that direction for the next.
+                    let mut best = (f32::NEG_INFINITY, 0usize);
+                    for (k, dir) in self.dirs.iter().enumerate() {
+                        let c = dir.dot(wl);
+                        if c > best.0 {
+                            best = (c, k);
+                        }
+                    }
+                    let (word, bit) = (best.1 >> 5, 1u32 << (best.1 & 31));
+                    if (uni[word] | small[word]) & bit == 0 {
+                        small[word] |= bit;
+                    } else {
+                        hidden += w * occ;
                     }
                 }
             }
@@ -219,12 +317,12 @@ impl CpuAo {
             Blend::Sum => sum_all,
             Blend::Mask => {
                 let u: u32 = uni.iter().map(|x| x.count_ones()).sum();
-                let scale = if count_sum > 0 {
-                    u as f32 / count_sum as f32
+                let scale = if count_sum > 0.0 {
+                    u as f32 / count_sum
                 } else {
                     1.0
                 };
-                (sum_all - sum_masked) + sum_masked * scale
+                (sum_all - sum_masked - hidden) + sum_masked * scale
             }
         };
         VertexAo {

@@ -318,6 +318,7 @@ impl AoKernel {
             self.params.tau.to_bits(),
             self.table.n_psi,
             self.table.n_theta,
+            self.params.band.to_bits(),
         ];
         let grid = Grid::Invocations([self.vertex_count, 1, 1]);
         Ok(Dispatch::words(&words, grid))

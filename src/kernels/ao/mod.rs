@@ -13,6 +13,7 @@
 //! - The ray-traced ground truth is `reference::ao`.
 
 pub mod cpu;
+pub mod fit;
 pub mod formula;
 pub mod gpu;
 pub mod pack;
@@ -66,6 +67,9 @@ pub enum Refine {
 pub struct AoParams {
     /// Refine an inner node when size / distance > tau; in (0, 1].
     pub tau: f32,
+    /// Width of the blend of a node into its children, as a fraction of the refinement
+    /// distance (see [`cpu::refinement`]); 0 = the hard cut, which pops when it changes.
+    pub band: f32,
     pub refine: Refine,
     pub occlusion: Occlusion,
     pub blend: Blend,
@@ -79,6 +83,7 @@ impl Default for AoParams {
     fn default() -> Self {
         AoParams {
             tau: 0.8,
+            band: 0.5,
             refine: Refine::Extent,
             occlusion: Occlusion::Table,
             blend: Blend::Mask,
@@ -94,6 +99,12 @@ impl AoParams {
             return Err(Error::InvalidArgument(format!(
                 "tau = {} is outside (0, 1]",
                 self.tau
+            )));
+        }
+        if !(0.0..=4.0).contains(&self.band) {
+            return Err(Error::InvalidArgument(format!(
+                "band = {} is outside [0, 4]",
+                self.band
             )));
         }
         Ok(())

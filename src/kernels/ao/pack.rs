@@ -103,10 +103,18 @@ impl Prepared {
         let mut expected = 0u64;
         let mut width = 1u64;
         let mut first_leaf = 0u64;
+        let mut levels = 0usize;
         while expected < shape.node_count as u64 {
             first_leaf = expected;
             expected += width;
             width *= shape.branch.max(1) as u64;
+            levels += 1;
+        }
+        if levels > cpu::MAX_DEPTH + 1 {
+            return bad(format!(
+                "{levels} levels; the cut walks at most {} below the root",
+                cpu::MAX_DEPTH
+            ));
         }
         if shape.branch < 2
             || expected != shape.node_count as u64

@@ -36,6 +36,15 @@ fn mask_glsl() -> String {
             k % 32
         ));
     }
-    s.push_str("    return m;\n}\n#endif\n");
+    s.push_str("    return m;\n}\n\n");
+    // The nearest direction (first of equals), for caps too small to hold one.
+    s.push_str("uint ao_nearest_direction(vec3 wl) {\n    float best = -3.0;\n    uint k = 0u;\n    float c;\n");
+    for (k, d) in dirs.iter().enumerate() {
+        s.push_str(&format!(
+            "    c = dot(vec3({:e}, {:e}, {:e}), wl);\n    if (c > best) {{ best = c; k = {k}u; }}\n",
+            d[0], d[1], d[2]
+        ));
+    }
+    s.push_str("    return k;\n}\n#endif\n");
     s
 }
