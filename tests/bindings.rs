@@ -10,12 +10,12 @@
 
 mod common;
 
+#[cfg(feature = "glsl")]
 use ash::vk;
 use common::with_gpu;
-use vkshade::gpu::{
-    BindGroup, Buffer, BufferDesc, ComputePipeline, Context, Image, ImageDesc, Resource, Sampler,
-    SamplerDesc,
-};
+use vkshade::gpu::{BindGroup, Buffer, BufferDesc, ComputePipeline, Context, Resource};
+#[cfg(feature = "glsl")]
+use vkshade::gpu::{Image, ImageDesc, Sampler, SamplerDesc};
 
 /// The error of a refused binding; an accepted one is dispatched and submitted (so that
 /// validation reports what the device makes of it) and gives an empty message.

@@ -442,8 +442,11 @@ impl ComputePipeline {
 
     /// Creates descriptor sets holding `resources`, given by the shader's variable names.
     /// Every binding of the shader must be given exactly once, with a resource of the right
-    /// kind, usage and size; anything else is an error naming the binding. Accesses are
-    /// the defaults of [`default_access`].
+    /// kind, usage and size: a buffer range non-empty, inside its buffer and aligned; an
+    /// image's view format of the numeric class the shader reads (float, signed or unsigned
+    /// integer); a format the device filters linearly wherever the shader samples it with a
+    /// sampler bound with linear filtering. Anything else is an error naming the binding.
+    /// Accesses are the defaults of [`default_access`].
     pub fn bind(&self, resources: &[(&str, Resource<'_>)]) -> Result<BindGroup> {
         self.bind_declared(resources, &[])
     }
