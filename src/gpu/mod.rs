@@ -42,6 +42,6 @@ pub use record::{
     Submission, Timings, Use,
 };
 pub use recycle::CreationCounts;
-pub use shader::{BindingInfo, DescriptorKind, Shader};
+pub use shader::{BindingInfo, DescriptorKind, SampledType, Shader};
 pub use sync::{AccessSet, AccessType};
 pub use validation::{MessageSink, Severity, ValidationMessage};
