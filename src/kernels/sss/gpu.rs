@@ -191,12 +191,12 @@ impl Resources {
         rec.upload_image_rows(&self.texel_normals, p.texel_normals)?;
         rec.upload_image_rows(&self.texel_corners, &p.texel_corners)?;
         rec.upload_image_rows(&self.diffusion_start, &p.diffusion_start)?;
-        rec.upload_image_rows(&self.walk_records, &p.walk_records)?;
-        rec.upload_image_rows(&self.contact_entries, &p.contact_entries)?;
+        rec.upload_image_rows(&self.walk_records, &at_least_one(&p.walk_records))?;
+        rec.upload_image_rows(&self.contact_entries, &at_least_one(&p.contact_entries))?;
         self.set_tiles(rec, p.tiles)?;
         rec.upload(&self.vertex_frames, 0, &p.vertex_frames)?;
-        rec.upload_image_rows(&self.bvh_nodes, &p.bvh_nodes)?;
-        rec.upload_image_rows(&self.bvh_triangles, &p.bvh_triangles)
+        rec.upload_image_rows(&self.bvh_nodes, &at_least_one(&p.bvh_nodes))?;
+        rec.upload_image_rows(&self.bvh_triangles, &at_least_one(&p.bvh_triangles))
     }
 
     /// Records the clearing of the transmission image (the irradiance pass leaves it alone
@@ -481,5 +481,15 @@ impl Kernel for SssKernel {
     fn memory(&self) -> MemoryReport {
         self.ctx
             .memory_of_resources(self.res.by_binding().map(|(_, r)| r))
+    }
+}
+
+/// `v`, or one zero texel when it is empty: an image bound to a pass must hold defined data
+/// (a plane has no contact entries, but the pass still binds the image).
+fn at_least_one<T: bytemuck::Pod>(v: &[T]) -> std::borrow::Cow<'_, [T]> {
+    if v.is_empty() {
+        std::borrow::Cow::Owned(vec![T::zeroed()])
+    } else {
+        std::borrow::Cow::Borrowed(v)
     }
 }
