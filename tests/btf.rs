@@ -566,3 +566,94 @@ fn a_mesh_with_uvs_is_shaded_like_the_cpu_and_one_without_is_refused() {
         .unwrap_or_default();
     assert!(e.contains("no texture coordinates"), "{e}");
 }
+
+/// Catches: the direction interpolation replaced by the nearest direction (one-hot map
+/// weights, planted in `Maps::build`: this fails at the first texel). Barycentric weights
+/// in the parabolic plane reproduce any affine function of the projected point exactly, so
+/// every map texel whose centre lies inside the sampled range (the 75 deg ring's 24-gon)
+/// must return f(p) = a + b . p of its own centre from the 81 samples' values f(p_i) (f32
+/// weights: within 1e-6 of values ~1). The nearest sample is off by up to half a ring's
+/// spacing times |b|, ~0.1 here.
+#[test]
+fn map_lookups_between_sample_directions_interpolate_an_affine_function_exactly() {
+    use vkshade::kernels::btf::dirs::{COUNT, in_sampled_hull, points, project, unproject};
+    let res = 64;
+    let maps = Maps::build(&Triangulation::new().unwrap(), res).unwrap();
+    let f = |p: [f64; 2]| 0.6 + 0.25 * p[0] - 0.4 * p[1];
+    let samples: Vec<f64> = points()[..COUNT].iter().map(|&p| f(p)).collect();
+    let (mut checked, mut between) = (0, 0);
+    for j in 0..res {
+        for i in 0..res {
+            let p = Maps::texel_point(res, i, j);
+            if !in_sampled_hull(p) {
+                continue;
+            }
+            let d = unproject(p);
+            let q = project(d);
+            let taps = maps.lookup(d);
+            let got: f64 = (0..3)
+                .map(|k| taps.weight[k] * samples[taps.index[k]])
+                .sum();
+            assert!(
+                (got - f(q)).abs() < 1e-6,
+                "texel ({i}, {j}) at {p:?}: {got} vs {} ({taps:?})",
+                f(q)
+            );
+            checked += 1;
+            between += (taps.weight.iter().filter(|&&w| w > 0.01).count() >= 2) as usize;
+        }
+    }
+    // Most texels lie between samples, not on one.
+    assert!(
+        checked > 1500 && between * 10 > checked * 9,
+        "{checked} texels, {between} between"
+    );
+}
+
+/// Catches: the direction interpolation replaced by the nearest direction (one-hot map
+/// weights, planted in `Maps::build`: the maps equal their nearest-direction version). The CPU twin (the
+/// GPU's arithmetic in f64, matched by the test above) with the maps against the same with
+/// nearest-direction maps, both against the heightfield ray cast of the woven tile on a
+/// sphere: interpolating between the 81 directions must be closer to the truth.
+#[test]
+fn interpolating_directions_beats_the_nearest_direction_against_the_ray_cast() {
+    let (cfg, btf) = weave();
+    let maps = maps();
+    let mut nearest = maps.clone();
+    for w in &mut nearest.weight {
+        // All of the texel's weight (below 1 towards the horizon) on its largest tap.
+        let k = (0..3).max_by(|&a, &b| w[a].total_cmp(&w[b])).unwrap();
+        let sum = w[0] + w[1] + w[2];
+        *w = [0.0; 4];
+        w[k] = sum;
+    }
+    assert!(
+        maps.weight != nearest.weight,
+        "the maps do not interpolate: each texel's weight is on one direction already"
+    );
+    let frame = frame();
+    let gbuffer = render_object(Object::Sphere, 48, 40).unwrap();
+    let sampled = Sampled::of(btf, Texture::Rgba8);
+    let (truth, theta) = vkshade::reference::btf::ray_cast(cfg, &gbuffer, &frame);
+    let psnr = |m: &Maps| {
+        let (out, _) = cpu::shade(&sampled.packed(btf.size), m, &gbuffer, &frame);
+        let (mut se, mut n) = (0.0, 0usize);
+        for k in 0..out.len() {
+            if truth[k][3] > 0.0 && theta[k] <= 75.0 {
+                for i in 0..3 {
+                    se += (out[k][i] - truth[k][i]).powi(2);
+                }
+                n += 3;
+            }
+        }
+        assert!(n > 900, "{} pixels within 75 deg", n / 3);
+        10.0 * (1.0 / (se / n as f64)).log10()
+    };
+    let (interpolated, nearest) = (psnr(&maps), psnr(&nearest));
+    eprintln!("PSNR vs ray cast: interpolated {interpolated:.2} dB, nearest {nearest:.2} dB");
+    // Measured 27.97 dB against 23.97 dB (48 x 40 pixels, two lights).
+    assert!(
+        interpolated > nearest + 2.0,
+        "interpolated {interpolated:.2} dB, nearest {nearest:.2} dB"
+    );
+}
