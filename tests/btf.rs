@@ -238,17 +238,31 @@ fn packing_round_trips_through_the_array_textures() {
     });
 }
 
-/// Largest difference between GPU and the f64 CPU interpolation allowed: the sampler's
-/// bilinear weights are fixed point (subTexelPrecisionBits, 8 on lavapipe: weights within
-/// 2^-9) and its sRGB decode within ~0.5 ulp of 8 bits; over 9 taps whose weights sum to 1,
-/// |GPU - CPU| <= 2 * 2^-9 * (max texel) + decode + f32 rounding < 5e-3 per light of
-/// strength 1. Measured on lavapipe: 1.2e-3 (two lights, sums up to ~1.3).
-const GPU_CPU_BOUND: f64 = 5e-3;
+/// Largest difference between GPU and the f64 CPU interpolation allowed, for a device whose
+/// bilinear weights are fixed point with `bits` = subTexelPrecisionBits (8 on lavapipe; the
+/// spec allows 4): weights within 2^-(bits + 1) of exact, so over taps whose weights sum to 1
+/// the filter is off by at most 2 * 2^-(bits + 1) = 2^-bits of the largest texel (1); the
+/// sRGB decode (within ~0.5 ulp of 8 bits) and f32 rounding add 1.1e-3. Per light of
+/// strength 1: 5e-3 for 8 bits. Measured on lavapipe: 1.2e-3 (two lights, sums up to ~1.3).
+fn gpu_cpu_bound(bits: u32) -> f64 {
+    2f64.powi(-(bits as i32)) + 1.1e-3
+}
 /// BC1: the device may round the palette's 1/3 and 2/3 entries one 8-bit step away from
 /// io::bc1's decoder (bc1::PALETTE_TOLERANCE), at most srgb(255) - srgb(254) = 4.5e-3 in
 /// linear per texel; over taps whose weights sum to 1, per light of strength 1, added to
-/// the RGBA8 bound (the two lights here sum to < 2): 5e-3 + 2 * 4.5e-3.
-const GPU_CPU_BOUND_BC1: f64 = 1.4e-2;
+/// the RGBA8 bound (the two lights here sum to < 2): [`gpu_cpu_bound`] + 2 * 4.5e-3.
+fn gpu_cpu_bound_bc1(bits: u32) -> f64 {
+    gpu_cpu_bound(bits) + 9e-3
+}
+
+/// The subTexelPrecisionBits of the device `ctx` selected.
+fn sub_texel_bits(ctx: &vkshade::gpu::Context) -> u32 {
+    let h = ctx.external_handles();
+    // SAFETY: the context's own instance and physical device, alive while `ctx` is.
+    unsafe { h.instance.get_physical_device_properties(h.physical_device) }
+        .limits
+        .sub_texel_precision_bits
+}
 
 const BC: vkshade::gpu::Features = vkshade::gpu::Features {
     shader_float16: false,
@@ -277,17 +291,19 @@ fn gpu_matches_the_cpu_interpolation_and_the_direct_ray_cast() {
     ] {
         let gbuffer = render_object(object, 48, 40).unwrap();
         assert!(gbuffer.covered() > 300, "{object:?} covers too little");
-        let run =
-            |ctx: &vkshade::gpu::Context| run(ctx, btf, &maps, &gbuffer, &frame, (texture, layout));
-        let out = match texture {
+        let run = |ctx: &vkshade::gpu::Context| {
+            let out = run(ctx, btf, &maps, &gbuffer, &frame, (texture, layout))?;
+            Ok((out, sub_texel_bits(ctx)))
+        };
+        let (out, bits) = match texture {
             Texture::Bc1 => with_gpu_features(BC, run),
             _ => with_gpu(run),
         };
         // The data the GPU samples (BC1: the encoding decoded again; block: the blocks).
         let sampled = Sampled::of(btf, texture);
         let bound = match texture {
-            Texture::Rgba8 => GPU_CPU_BOUND,
-            Texture::Bc1 => GPU_CPU_BOUND_BC1,
+            Texture::Rgba8 => gpu_cpu_bound(bits),
+            Texture::Bc1 => gpu_cpu_bound_bc1(bits),
             Texture::Block => GPU_CPU_BOUND_BLOCK,
         };
         let (want, ambiguous) = cpu::shade(&sampled.packed(btf.size), &maps, &gbuffer, &frame);
@@ -332,8 +348,10 @@ fn gpu_matches_the_cpu_interpolation_and_the_direct_ray_cast() {
             psnr(1),
             n[1] / 3
         );
+        // Measured 24.4 dB (plane, block, all grazing) to 28.0 dB (sphere, RGBA8); the
+        // nearest direction instead of the interpolation gives 21.9 - 24.0 dB.
         let psnr = if n[0] > 300 { psnr(0) } else { psnr(1) };
-        assert!(psnr > 20.0, "{object:?}: PSNR {psnr:.1} dB");
+        assert!(psnr > 23.0, "{object:?}: PSNR {psnr:.1} dB");
     }
 }
 
@@ -531,15 +549,16 @@ fn a_mesh_with_uvs_is_shaded_like_the_cpu_and_one_without_is_refused() {
     let character = vkshade::scene::load(&path).unwrap();
     let gbuffer = vkshade::scene::gbuffer::render_mesh(&character.mesh, 64, 64).unwrap();
     assert!(gbuffer.covered() > 100, "{} px", gbuffer.covered());
-    let out = with_gpu(|ctx| {
-        run(
+    let (out, bits) = with_gpu(|ctx| {
+        let out = run(
             ctx,
             btf,
             &maps,
             &gbuffer,
             &frame,
             (Texture::Rgba8, Layout::Rows),
-        )
+        )?;
+        Ok((out, sub_texel_bits(ctx)))
     });
     let packed = pack(btf);
     let (want, ambiguous) = cpu::shade(
@@ -557,7 +576,7 @@ fn a_mesh_with_uvs_is_shaded_like_the_cpu_and_one_without_is_refused() {
             }
         }
     }
-    assert!(max < GPU_CPU_BOUND, "|GPU - CPU| = {max}");
+    assert!(max < gpu_cpu_bound(bits), "|GPU - CPU| = {max}");
     assert!(want.iter().filter(|c| c[0] > 0.01).count() > 50);
     // The test ball has no texture coordinates.
     let e = vkshade::scene::gbuffer::render_mesh(&common::ball().mesh, 8, 8)
