@@ -120,6 +120,8 @@ fn mapped_reads_see_every_device_write() {
 /// signals, so it cannot have finished when `write` is called: a `write` that does not wait
 /// returns while the gate is still closed and fails here (before, on a fast device the
 /// dispatches finished before the write and the check held whether or not it waited).
+/// Catches: `Buffer::write` without its wait (planted: "write returned before the work that
+/// reads the buffer").
 #[test]
 fn host_writes_wait_for_submitted_work_that_uses_the_buffer() {
     with_gpu(|ctx| {
