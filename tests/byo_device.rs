@@ -30,9 +30,7 @@ fn bring_your_own_device_runs_ao_frames_in_flight() {
         summary.frames.iter().all(|f| f.gpu_ms > 0.0),
         "every frame has GPU timings"
     );
-    assert!(
-        summary.validation_messages.is_empty(),
-        "{:?}",
-        summary.validation_messages
-    );
+    // No assertion on `summary.validation_messages`: `run()` returns an error on any
+    // message, so the list is empty by construction whenever this line is reached (the
+    // unwrap above is the check).
 }

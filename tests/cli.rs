@@ -171,6 +171,7 @@ fn ao_with_a_prebuilt_tree_and_a_static_mesh() {
     );
     let out = temp("ao-tree");
     let (ok, _, stderr) = vkshade(&[
+        "--validate",
         "ao",
         "--tree",
         sph.to_str().unwrap(),
@@ -182,6 +183,10 @@ fn ao_with_a_prebuilt_tree_and_a_static_mesh() {
         out.to_str().unwrap(),
     ]);
     assert!(ok, "{stderr}");
+    assert!(
+        stderr.contains("validation: clean (0 messages)"),
+        "{stderr}"
+    );
     let v: serde_json::Value =
         serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
     assert_eq!(v["tree"]["spheres_per_level"], serde_json::json!([8, 64]));
@@ -194,6 +199,7 @@ fn ao_with_a_prebuilt_tree_and_a_static_mesh() {
     .unwrap();
     let out = temp("ao-static");
     let (ok, _, stderr) = vkshade(&[
+        "--validate",
         "ao",
         "--mesh",
         obj.to_str().unwrap(),
@@ -205,6 +211,10 @@ fn ao_with_a_prebuilt_tree_and_a_static_mesh() {
         out.to_str().unwrap(),
     ]);
     assert!(ok, "{stderr}");
+    assert!(
+        stderr.contains("validation: clean (0 messages)"),
+        "{stderr}"
+    );
     assert!(out.join("ao_0000.ply").is_file() && !out.join("ao_0001.ply").exists());
 }
 
@@ -338,7 +348,14 @@ fn srbf_shade_writes_ply_png_and_report_and_refuses_bad_input() {
     let v: serde_json::Value =
         serde_json::from_slice(&std::fs::read(dir.join("report.json")).unwrap()).unwrap();
     assert_eq!(v["frames"].as_array().map(Vec::len), Some(2));
-    assert!(v["frames"][1]["vs_ground_truth"]["all"].as_f64().unwrap() < 0.1);
+    eprintln!(
+        "srbf vs ground truth: {}",
+        v["frames"][1]["vs_ground_truth"]
+    );
+    // Measured 0.030 (0.024 / 0.022 / 0.039 per channel): the fit, the transfer and its
+    // compression are deterministic, so the margin only covers the GPU's f32 shading and a
+    // changed default; the old bound (0.1) let the error triple unnoticed.
+    assert!(v["frames"][1]["vs_ground_truth"]["all"].as_f64().unwrap() < 0.04);
     assert!(v["frames"][0]["gpu_ms_shade"].as_f64().unwrap() > 0.0);
     assert_eq!(v["kernel"]["passes"][0]["name"], "srbf lighting");
     assert_eq!(v["kernel"]["passes"][1]["name"], "srbf project");
@@ -469,7 +486,10 @@ fn btf_synth_eval_render_write_their_files_and_refuse_bad_input() {
     assert_eq!(v["map_resolution"], 32);
     assert!(v["vs_cpu"]["max_abs"].as_f64().unwrap() < v["vs_cpu"]["bound"].as_f64().unwrap());
     assert!(v["vs_cpu"]["bound"].as_f64().unwrap() <= 1.4e-2);
-    assert!(v["vs_ray_cast"]["all"]["psnr_db"].as_f64().unwrap() > 15.0);
+    eprintln!("btf vs ray cast: {}", v["vs_ray_cast"]);
+    // Measured 30.0 dB (rib 4 x 4 on a cylinder, 32^2 maps, deterministic synthesis); the
+    // old bound of 15 dB allowed an error 5.6 times larger.
+    assert!(v["vs_ray_cast"]["all"]["psnr_db"].as_f64().unwrap() > 27.0);
     // Bad input: a light below the horizon, a missing directory, a bad pattern.
     let (ok, _, stderr) = vkshade(&[
         "btf", "eval", "--btf", "x", "--light", "95,0", "--view", "0,0", "-o", "t.exr",
@@ -550,6 +570,7 @@ fn sss_writes_texture_space_exrs_render_and_report_and_refuses_bad_input() {
     assert!(v["reference"].is_object(), "{}", v["reference"]);
     // A scale that makes the head 0.3 mm across is reported, not silently used.
     let (ok, _, stderr) = vkshade(&[
+        "--validate",
         "sss",
         "--size",
         "32",
@@ -561,6 +582,7 @@ fn sss_writes_texture_space_exrs_render_and_report_and_refuses_bad_input() {
         dir.to_str().unwrap(),
     ]);
     assert!(ok && stderr.contains("check the model's units"), "{stderr}");
+    assert!(stderr.contains("validation: clean"), "{stderr}");
     // Bad input names the file or the option.
     let (ok, _, stderr) = vkshade(&["sss", "--mesh", "/nonexistent/head.glb"]);
     assert!(!ok && stderr.contains("/nonexistent/head.glb"), "{stderr}");

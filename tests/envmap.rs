@@ -98,8 +98,18 @@ fn convention() {
     assert_eq!(env.texel_of(Vec3::Z), (0, 16));
     let d = env.direction(48, 10);
     assert!(d.x > 0.0 && d.z.abs() < 0.05 && d.y > 0.0, "{d}");
-    // Right-handed, +Y up: X x Y = Z.
-    assert!((Vec3::X.cross(Vec3::Y) - Vec3::Z).length() < 1e-7);
+    // Right-handed, +Y up: the map's own +X (u = 0.75) cross its +Y (the top) is its +Z
+    // (the seam), within the texel centres' half-texel offsets (a mirrored map gives -Z).
+    let (mx, my, mz) = (
+        env.direction(48, 16),
+        env.direction(5, 0),
+        env.direction(0, 16),
+    );
+    let z = mx.cross(my).normalize();
+    assert!(
+        (z - mz).length() < 0.15,
+        "{mx} x {my} = {z}, +Z texel at {mz}"
+    );
     // Degenerate directions give some texel, no panic.
     let _ = env.lookup(Vec3::ZERO);
     let _ = env.lookup(Vec3::NAN);
@@ -154,7 +164,8 @@ fn downsampling_preserves_the_integral() {
     }
     assert_eq!(env.downsampled(128).unwrap().texels, env.texels);
     for bad in [0u32, 1, 3, 24, 256] {
-        assert!(env.downsampled(bad).is_err(), "width {bad} accepted");
+        let e = env.downsampled(bad).expect_err("width accepted");
+        assert!(e.to_string().contains(&format!("to width {bad}")), "{e}");
     }
 }
 
@@ -340,9 +351,13 @@ fn malformed_files_are_errors_naming_them() {
             "{e}"
         );
     }
-    assert!(EnvMap::from_texels(4, 2, vec![[0.0; 3]; 7], "m").is_err());
-    assert!(EnvMap::from_texels(0, 0, vec![], "m").is_err());
-    assert!(EnvMap::from_texels(6, 2, vec![[0.0; 3]; 12], "m").is_err());
+    let err = |r: vkshade::Result<EnvMap>| r.expect_err("a bad map accepted").to_string();
+    let e = err(EnvMap::from_texels(4, 2, vec![[0.0; 3]; 7], "m"));
+    assert!(e.contains("7 texels given for a 4 x 2 map"), "{e}");
+    let e = err(EnvMap::from_texels(0, 0, vec![], "m"));
+    assert!(e.contains("must be 2:1") && e.contains("0 x 0"), "{e}");
+    let e = err(EnvMap::from_texels(6, 2, vec![[0.0; 3]; 12], "m"));
+    assert!(e.contains("must be 2:1") && e.contains("6 x 2"), "{e}");
 }
 
 #[cfg(feature = "exr")]
@@ -688,34 +703,51 @@ fn brute_force_rejects_mismatched_inputs() {
     let empty = Bvh::build(&[], &[]);
     let vis = direction_visibility(&[Vec3::ZERO], &[Vec3::Y], &empty, &d, 1e-4);
     let other = random_map(32, 1);
-    assert!(shade_brute_force(&other, Mat3::IDENTITY, &[Vec3::Y], &vis, [1.0; 3]).is_err());
+    let err = |r: vkshade::Result<Vec<[f64; 3]>>| r.expect_err("bad input accepted").to_string();
+    let e = err(shade_brute_force(
+        &other,
+        Mat3::IDENTITY,
+        &[Vec3::Y],
+        &vis,
+        [1.0; 3],
+    ));
+    assert!(e.contains("the visibility has"), "{e}");
     let mut wrong = d.clone();
     wrong.swap(0, 1);
     let vis2 = direction_visibility(&[Vec3::ZERO], &[Vec3::Y], &empty, &wrong, 1e-4);
-    assert!(shade_brute_force(&env, Mat3::IDENTITY, &[Vec3::Y], &vis2, [1.0; 3]).is_err());
-    assert!(shade_brute_force(&env, Mat3::IDENTITY, &[Vec3::Y, Vec3::X], &vis, [1.0; 3]).is_err());
+    let e = err(shade_brute_force(
+        &env,
+        Mat3::IDENTITY,
+        &[Vec3::Y],
+        &vis2,
+        [1.0; 3],
+    ));
+    assert!(e.contains("visibility direction 0"), "{e}");
+    let e = err(shade_brute_force(
+        &env,
+        Mat3::IDENTITY,
+        &[Vec3::Y, Vec3::X],
+        &vis,
+        [1.0; 3],
+    ));
     assert!(
-        shade_brute_force(
-            &env,
-            Mat3::from_diagonal(Vec3::splat(2.0)),
-            &[Vec3::Y],
-            &vis,
-            [1.0; 3]
-        )
-        .is_err()
+        e.contains("2 normals for a visibility of 1 vertices"),
+        "{e}"
     );
-    assert!(
-        shade_brute_force(
-            &env,
-            Mat3::from_diagonal(Vec3::new(1.0, 1.0, -1.0)),
-            &[Vec3::Y],
-            &vis,
-            [1.0; 3]
-        )
-        .is_err()
-    );
-    assert!(
-        shade_brute_force(&env, Mat3::IDENTITY, &[Vec3::Y], &vis, [f32::NAN, 1.0, 1.0]).is_err()
-    );
+    for (name, m) in [
+        ("scaled", Mat3::from_diagonal(Vec3::splat(2.0))),
+        ("mirrored", Mat3::from_diagonal(Vec3::new(1.0, 1.0, -1.0))),
+    ] {
+        let e = err(shade_brute_force(&env, m, &[Vec3::Y], &vis, [1.0; 3]));
+        assert!(e.contains("not a rotation matrix"), "{name}: {e}");
+    }
+    let e = err(shade_brute_force(
+        &env,
+        Mat3::IDENTITY,
+        &[Vec3::Y],
+        &vis,
+        [f32::NAN, 1.0, 1.0],
+    ));
+    assert!(e.contains("albedo"), "{e}");
     assert!(shade_brute_force(&env, Mat3::IDENTITY, &[Vec3::Y], &vis, [1.0; 3]).is_ok());
 }

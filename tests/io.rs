@@ -5,8 +5,10 @@ use vkshade::io::FloatImage;
 use vkshade::io::exr::{self, Channels};
 use vkshade::render::{Picture, SideBySideLayout, heat, label, side_by_side, side_by_side_linear};
 
-fn dir() -> std::path::PathBuf {
-    let d = std::env::temp_dir().join(format!("vkshade-io-{}", std::process::id()));
+/// A scratch folder of its own for test `test` (tests run in parallel: a shared one let one
+/// test see another's temporary files, as the leftover check below did).
+fn dir(test: &str) -> std::path::PathBuf {
+    let d = std::env::temp_dir().join(format!("vkshade-io-{test}-{}", std::process::id()));
     std::fs::create_dir_all(&d).unwrap();
     d
 }
@@ -26,18 +28,19 @@ fn gradient(w: u32, h: u32) -> FloatImage {
 #[test]
 fn exr_round_trips_linear_floats_exactly() {
     let img = gradient(37, 11);
-    let path = dir().join("round.exr");
+    let d = dir("round-trip");
+    let path = d.join("round.exr");
     exr::write(&path, &img, Channels::Rgba).unwrap();
     assert_eq!(exr::read_rgba(&path).unwrap(), img);
     // RGB only: alpha reads back as 1.
-    let rgb = dir().join("round_rgb.exr");
+    let rgb = d.join("round_rgb.exr");
     exr::write(&rgb, &img, Channels::Rgb).unwrap();
     let back = exr::read_rgba(&rgb).unwrap();
     for (a, b) in img.pixels.iter().zip(&back.pixels) {
         assert_eq!((a[0], a[1], a[2], b[3]), (b[0], b[1], b[2], 1.0));
     }
     // No temporary files are left beside the outputs.
-    let leftovers: Vec<_> = std::fs::read_dir(dir())
+    let leftovers: Vec<_> = std::fs::read_dir(&d)
         .unwrap()
         .flatten()
         .filter(|e| e.file_name().to_string_lossy().contains(".tmp"))
@@ -47,7 +50,7 @@ fn exr_round_trips_linear_floats_exactly() {
 
 #[test]
 fn bad_exr_files_and_shapes_give_errors_naming_the_file() {
-    let d = dir();
+    let d = dir("bad-files");
     let missing = d.join("missing.exr");
     let e = exr::read_rgba(&missing).unwrap_err().to_string();
     assert!(e.contains("missing.exr"), "{e}");

@@ -116,10 +116,16 @@ fn mapped_reads_see_every_device_write() {
     });
 }
 
+/// The work that reads the buffer is held back by a timeline semaphore that only the host
+/// signals, so it cannot have finished when `write` is called: a `write` that does not wait
+/// returns while the gate is still closed and fails here (before, on a fast device the
+/// dispatches finished before the write and the check held whether or not it waited).
+/// Catches: `Buffer::write` without its wait (planted: "write returned before the work that
+/// reads the buffer").
 #[test]
 fn host_writes_wait_for_submitted_work_that_uses_the_buffer() {
     with_gpu(|ctx| {
-        let n = 1u32 << 20;
+        let n = 1u32 << 16;
         let upload = Buffer::new(ctx, "upload", BufferDesc::upload(n as u64 * 4))?;
         let a: Vec<f32> = (0..n).map(|i| i as f32).collect();
         upload.write(0, &a)?;
@@ -130,21 +136,73 @@ fn host_writes_wait_for_submitted_work_that_uses_the_buffer() {
             ("src", Resource::Buffer(&upload)),
             ("dst", Resource::Buffer(&out)),
         ])?;
-        let mut rec = ctx.recorder("reads the upload buffer")?;
-        for _ in 0..8 {
-            rec.dispatch_invocations_tracked(&scale, &bind, &scale_push(1.0, 0.0, n), [n, 1, 1])?;
+        let device = ctx.raw_device().clone();
+        let mut kind = vk::SemaphoreTypeCreateInfo::default()
+            .semaphore_type(vk::SemaphoreType::TIMELINE)
+            .initial_value(0);
+        // SAFETY: a valid device; the semaphore is destroyed below, after the work that
+        // waits on it has completed.
+        let gate = unsafe {
+            device.create_semaphore(
+                &vk::SemaphoreCreateInfo::default().push_next(&mut kind),
+                None,
+            )
         }
+        .map_err(|result| vkshade::Error::Vk {
+            call: "vkCreateSemaphore",
+            result,
+        })?;
+        let wait = [vk::SemaphoreSubmitInfo::default()
+            .semaphore(gate)
+            .value(1)
+            .stage_mask(vk::PipelineStageFlags2::COMPUTE_SHADER)];
+        let mut rec = ctx.recorder("reads the upload buffer")?;
+        rec.dispatch_invocations_tracked(&scale, &bind, &scale_push(1.0, 0.0, n), [n, 1, 1])?;
         let rb = rec.read_back(&out)?;
-        let submission = rec.submit()?;
-        // While the dispatches may still run, overwrite the input: write() waits for them.
-        upload.write(0, &vec![-1.0f32; n as usize])?;
+        // SAFETY: `gate` is a live timeline semaphore of this device, not the context's;
+        // its value 1 is signalled from the host below (wait-before-signal is allowed for
+        // timeline semaphores), and it outlives the submission.
+        let submission = unsafe { rec.submit_with(&wait, &[])? };
+        let written = std::sync::atomic::AtomicBool::new(false);
+        std::thread::scope(|scope| -> vkshade::Result<()> {
+            let writer = scope.spawn(|| {
+                let r = upload.write(0, &vec![-1.0f32; n as usize]);
+                written.store(true, std::sync::atomic::Ordering::SeqCst);
+                r
+            });
+            // The writer has had ample time to copy 256 KiB if it does not wait; the gate is
+            // still closed, so the work cannot have run and a waiting write cannot be done.
+            std::thread::sleep(std::time::Duration::from_millis(200));
+            let early = written.load(std::sync::atomic::Ordering::SeqCst);
+            assert!(
+                !submission.is_complete(),
+                "the gated work ran before the gate opened"
+            );
+            // SAFETY: signals our own timeline semaphore from 0 to 1.
+            unsafe {
+                device
+                    .signal_semaphore(&vk::SemaphoreSignalInfo::default().semaphore(gate).value(1))
+            }
+            .map_err(|result| vkshade::Error::Vk {
+                call: "vkSignalSemaphore",
+                result,
+            })?;
+            writer.join().expect("writer thread")?;
+            assert!(
+                !early,
+                "write returned before the work that reads the buffer"
+            );
+            Ok(())
+        })?;
         assert!(
             submission.is_complete(),
-            "write returned before the work that reads it"
+            "write returned before the work completed"
         );
         submission.wait()?;
+        // SAFETY: the only submission waiting on `gate` has completed.
+        unsafe { device.destroy_semaphore(gate, None) };
         let got: Vec<f32> = rb.to_vec()?;
-        assert_eq!(got, a, "the dispatches saw the old contents only");
+        assert_eq!(got, a, "the dispatch saw the new contents");
         Ok(())
     });
 }

@@ -404,20 +404,18 @@ fn sph_files_round_trip_and_malformed_ones_are_rejected() {
     }
 }
 
+/// A header promising 4e9 vertices (48 GB) over a 2-byte body is refused from the sizes
+/// alone, naming both: a loader that allocated or read what the header promised first would
+/// abort the test process instead (no wall-clock limit needed to see it).
 #[test]
 fn ply_headers_that_promise_more_than_the_file_holds_fail_fast() {
-    let t = std::time::Instant::now();
     let e2 = load_err(&write(
         "too-many.ply",
         b"ply\nformat binary_little_endian 1.0\nelement vertex 4000000000\nproperty float x\nproperty float y\nproperty float z\nend_header\n\x00\x00",
     ));
     assert!(
-        e2.contains("needing at least") && e2.contains("bytes"),
+        e2.contains("needing at least 48000000000 bytes") && e2.contains("the body has 2"),
         "{e2}"
-    );
-    assert!(
-        t.elapsed().as_secs_f64() < 5.0,
-        "malformed headers must fail fast"
     );
 }
 

@@ -368,12 +368,14 @@ fn method_against_the_brute_force_ground_truth_on_a_real_map_and_mesh() {
 /// visibility the method holds, while the ground truth casts rays at its exact rotated
 /// direction: measured 0.120 here (and 0.06-0.09 at x:60 / z:30 from the CLI, with or without
 /// compact lobes: the grid's visibility alone, the "fit" share, is 0.05-0.07 there). The
-/// bound 0.15 holds that; the 5% holds on the grid.
+/// whole pipeline is deterministic (fit, transfer, compression; the GPU matches the CPU to
+/// 1e-4), so the bound is that plus a small margin: 0.13 (it was 0.15, which let the error
+/// grow by a quarter unnoticed); the 5% holds on the grid.
 #[test]
 fn a_sun_against_the_brute_force_ground_truth() {
     ground_truth_case(
         "/usr/share/blender/datafiles/studiolights/world/sunrise.exr",
-        0.15,
+        0.13,
     );
 }
 

@@ -132,3 +132,32 @@ pub fn error_naming<T>(path: &std::path::Path, result: vkshade::Result<T>) -> St
         }
     }
 }
+
+/// Runs `f` on a validated context with GPU-assisted validation on as well (shaders
+/// instrumented to report out-of-bounds descriptor and buffer accesses; slow, so for small
+/// cases); fails on any error, validation message or leak. With the layer 1.3.239 on lavapipe
+/// the first submission under it never completes (see tests/pipeline.rs,
+/// `gpu_assisted_validation_starts_and_shuts_down_clean`).
+pub fn with_gpu_assisted<T>(f: impl FnOnce(&Context) -> vkshade::Result<T>) -> T {
+    with_gpu_assisted_features(vkshade::gpu::Features::default(), f)
+}
+
+/// [`with_gpu_assisted`] with optional device `features`.
+pub fn with_gpu_assisted_features<T>(
+    features: vkshade::gpu::Features,
+    f: impl FnOnce(&Context) -> vkshade::Result<T>,
+) -> T {
+    let desc = ContextDesc {
+        features,
+        validation: Some(vkshade::gpu::ValidationConfig {
+            gpu_assisted: true,
+            ..Default::default()
+        }),
+        ..ContextDesc::validated()
+    };
+    let ctx = match Context::new(&desc) {
+        Ok(ctx) => ctx,
+        Err(e) => panic!("cannot create a context with GPU-assisted validation: {e}"),
+    };
+    run_checked(ctx, f)
+}
