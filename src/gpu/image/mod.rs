@@ -293,11 +293,7 @@ impl Image {
         shared.collect();
         check_image_desc(shared, name, &desc)?;
         if let Some(g) = group {
-            shared.check_owner(
-                &g.inner.shared,
-                || format!("alias group '{}'", g.name()),
-                || format!("image '{name}'"),
-            )?;
+            g.check_member_context(shared, || format!("image '{name}'"))?;
         }
         let info = create_info(&desc);
         // SAFETY: valid device and create info (checked above).

@@ -42,6 +42,20 @@ pub enum AliasMember<'a> {
 }
 
 impl AliasGroup {
+    /// Fails unless a member made by `member_ctx` (named by `member`) may join this group:
+    /// both must belong to one context.
+    pub(crate) fn check_member_context(
+        &self,
+        member_ctx: &Arc<Shared>,
+        member: impl FnOnce() -> String,
+    ) -> Result<()> {
+        member_ctx.check_owner(
+            &self.inner.shared,
+            || format!("alias group '{}'", self.name()),
+            member,
+        )
+    }
+
     /// Memory large and aligned enough for each of `members` (one at a time), in the memory
     /// types all of them accept.
     pub fn new(

@@ -147,11 +147,7 @@ impl Buffer {
         shared.collect();
         check_buffer_desc(shared, name, &desc)?;
         if let Some(g) = group {
-            shared.check_owner(
-                &g.inner.shared,
-                || format!("alias group '{}'", g.name()),
-                || format!("buffer '{name}'"),
-            )?;
+            g.check_member_context(shared, || format!("buffer '{name}'"))?;
         }
         if let Some(g) = group
             && g.inner.location() != desc.placement.location
