@@ -27,8 +27,8 @@ use std::sync::{Arc, Mutex, MutexGuard};
 use vkshade::gpu::{Context, ExternalDevice, Recorded};
 use vkshade::kernels::ao::cpu::{self, CpuAo};
 use vkshade::kernels::ao::{
-    AoKernel, AoParams, DEFAULT_ANIMATION, DEFAULT_MESH, FrameReadback, PASS_OCCLUSION, PASS_SKIN,
-    Prepared,
+    AoKernel, AoParams, DEFAULT_ANIMATION, DEFAULT_MESH, FrameReadback, PASS_OCCLUSION, PASS_POSE,
+    PASS_SKIN, Prepared,
 };
 use vkshade::reference::ErrorStats;
 use vkshade::scene::spheretree::{BuildConfig, SphereTree};
@@ -682,7 +682,9 @@ fn check(done: Completed, twin: &Twin<'_>) -> Result<FrameResult, String> {
         .zip(&cpu)
         .filter(|(g, c)| **g == [c.tested, c.used])
         .count();
-    let skin_ms = timings.get(PASS_SKIN).unwrap_or(f64::NAN);
+    // The vertices' skinning (the pose pass) and the spheres'.
+    let skin_ms =
+        timings.get(PASS_POSE).unwrap_or(f64::NAN) + timings.get(PASS_SKIN).unwrap_or(f64::NAN);
     let occlusion_ms = timings.get(PASS_OCCLUSION).unwrap_or(f64::NAN);
     Ok(FrameResult {
         index: frame.index,

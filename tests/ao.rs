@@ -624,7 +624,10 @@ fn frames_in_flight_and_render_graph_driving_match_the_cpu_twin() {
         let kernel = AoKernel::new(&mut setup, &prep, params)?;
         setup.submit_and_wait()?;
         let names: Vec<&str> = kernel.passes().iter().map(|p| p.name).collect();
-        assert_eq!(names, ["ao joints", "ao skin", "ao occlusion"]);
+        assert_eq!(
+            names,
+            ["pose joints", "pose skin", "ao skin", "ao occlusion"]
+        );
         let mut seen = 0;
         let inputs = matrices.iter().map(Vec::as_slice);
         let most = run_frames(ctx, &kernel, inputs, 3, |r| {
@@ -649,7 +652,7 @@ fn frames_in_flight_and_render_graph_driving_match_the_cpu_twin() {
             planned_passes
                 .iter()
                 .any(|(pass, p)| *pass == "ao occlusion"
-                    && p.iter().any(|b| b.resource == "ao posed positions")),
+                    && p.iter().any(|b| b.resource == "pose positions")),
             "skin -> occlusion needs a barrier on the posed positions: {planned_passes:?}"
         );
         let rb = kernel.read_back(&mut rec)?;

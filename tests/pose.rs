@@ -203,3 +203,50 @@ fn bad_frames_and_bad_rest_poses_are_refused() {
         Ok(())
     });
 }
+
+#[test]
+fn ao_on_the_shared_pose_equals_ao_posing_its_own() {
+    use vkshade::kernels::ao::{AoKernel, AoParams, Prepared as AoPrepared};
+    use vkshade::scene::spheretree::{BuildConfig, SphereTree};
+    let c = bcn();
+    let (tree, _) = SphereTree::build(&c.mesh, &BuildConfig::default()).unwrap();
+    let joints = c.rig.joints.len();
+    let ao_prep = AoPrepared::new(&c.mesh, &tree, joints).unwrap();
+    let pose_prep = Prepared::new(&c.mesh, joints).unwrap();
+    let (matrices, _) = farthest_pose(&c, &pose_prep, "Epileptisch");
+    common::with_gpu(|ctx| {
+        let mut rec = ctx.recorder("shared pose")?;
+        let pose = PoseKernel::new(&mut rec, &pose_prep)?;
+        let shared = AoKernel::on_pose(&mut rec, &ao_prep, AoParams::default(), &pose)?;
+        let own = AoKernel::new(&mut rec, &ao_prep, AoParams::default())?;
+        // The shared kernel records no pose of its own: the caller records it first.
+        let names: Vec<&str> = vkshade::kernels::Kernel::passes(&shared)
+            .iter()
+            .map(|p| p.name)
+            .collect();
+        assert_eq!(names, ["ao skin", "ao occlusion"]);
+        // A pose of another mesh is refused.
+        let g = grid(false);
+        let other = PoseKernel::new(&mut rec, &Prepared::new(&g.mesh, 1)?)?;
+        assert!(AoKernel::on_pose(&mut rec, &ao_prep, AoParams::default(), &other).is_err());
+        pose.record(&mut rec, &matrices)?;
+        shared.record(&mut rec, &matrices)?;
+        own.record(&mut rec, &matrices)?;
+        let (a, b) = (shared.read_back(&mut rec)?, own.read_back(&mut rec)?);
+        rec.submit_and_wait()?;
+        let (a, b) = (a.data()?, b.data()?);
+        // The same shaders on the same posed vertices: bit for bit the same visibility.
+        assert_eq!(a.positions, b.positions);
+        assert_eq!(a.visibility, b.visibility);
+        let mean = a.visibility.iter().sum::<f32>() / a.visibility.len() as f32;
+        eprintln!(
+            "mean visibility {mean:.4} over {} vertices",
+            a.visibility.len()
+        );
+        assert!(
+            mean > 0.3 && mean < 0.99,
+            "not a real occlusion result: {mean}"
+        );
+        Ok(())
+    });
+}

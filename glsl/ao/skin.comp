@@ -1,30 +1,22 @@
 #version 450
-// Linear-blend skinning of the mesh vertices (position and normal) and of the sphere-tree
-// centres (radii are rigid): invocations [0, vertex_count) skin vertices, the next
-// sphere_count invocations skin spheres. Each node also gets its extent: the farthest reach
-// of its skinned leaf spheres from its own skinned centre (a leaf's extent is its radius),
-// computed by the node itself so that no second pass is needed.
+// Linear-blend skinning of the sphere-tree centres (radii are rigid), with the frame's joint
+// matrices (the pose kernel's; the vertices are posed there). Each node also gets its
+// extent: the farthest reach of its skinned leaf spheres from its own skinned centre (a
+// leaf's extent is its radius), computed by the node itself so that no second pass is needed.
 layout(local_size_x = 64) in;
 
 layout(push_constant) uniform Push {
-    uint vertex_count;
     uint sphere_count;
     uint branch;
     uint first_leaf;
 } pc;
 
 layout(std430, set = 0, binding = 0) readonly buffer Joints { mat4 m[]; } joints;
-layout(std430, set = 0, binding = 1) readonly buffer RestPositions { vec4 p[]; } rest_pos;
-layout(std430, set = 0, binding = 2) readonly buffer RestNormals { vec4 n[]; } rest_nrm;
-layout(std430, set = 0, binding = 3) readonly buffer VertexJoints { uvec2 j[]; } vjoints;
-layout(std430, set = 0, binding = 4) readonly buffer VertexWeights { vec4 w[]; } vweights;
-layout(std430, set = 0, binding = 5) readonly buffer RestSpheres { vec4 s[]; } rest_sph;
-layout(std430, set = 0, binding = 6) readonly buffer SphereJoints { uvec2 j[]; } sjoints;
-layout(std430, set = 0, binding = 7) readonly buffer SphereWeights { vec4 w[]; } sweights;
-layout(std430, set = 0, binding = 8) writeonly buffer Positions { vec4 p[]; } pos;
-layout(std430, set = 0, binding = 9) writeonly buffer Normals { vec4 n[]; } nrm;
-layout(std430, set = 0, binding = 10) writeonly buffer Spheres { vec4 s[]; } sph;
-layout(std430, set = 0, binding = 11) writeonly buffer Extents { float e[]; } ext;
+layout(std430, set = 0, binding = 1) readonly buffer RestSpheres { vec4 s[]; } rest_sph;
+layout(std430, set = 0, binding = 2) readonly buffer SphereJoints { uvec2 j[]; } sjoints;
+layout(std430, set = 0, binding = 3) readonly buffer SphereWeights { vec4 w[]; } sweights;
+layout(std430, set = 0, binding = 4) writeonly buffer Spheres { vec4 s[]; } sph;
+layout(std430, set = 0, binding = 5) writeonly buffer Extents { float e[]; } ext;
 
 mat4 blend(uvec2 packed, vec4 w) {
     uvec4 j = uvec4(packed.x & 0xffffu, packed.x >> 16, packed.y & 0xffffu, packed.y >> 16);
@@ -37,40 +29,32 @@ mat4 blend(uvec2 packed, vec4 w) {
 }
 
 void main() {
-    uint i = gl_GlobalInvocationID.x;
-    if (i < pc.vertex_count) {
-        mat4 m = blend(vjoints.j[i], vweights.w[i]);
-        pos.p[i] = vec4((m * vec4(rest_pos.p[i].xyz, 1.0)).xyz, 1.0);
-        vec3 n = (m * vec4(rest_nrm.n[i].xyz, 0.0)).xyz;
-        float len = length(n);
-        nrm.n[i] = vec4(len > 0.0 ? n / len : rest_nrm.n[i].xyz, 0.0);
-    } else if (i < pc.vertex_count + pc.sphere_count) {
-        uint s = i - pc.vertex_count;
-        vec4 rest = rest_sph.s[s];
-        if (rest.w < 0.0) {
-            sph.s[s] = rest; // unused slot stays unused
-            ext.e[s] = rest.w;
-            return;
-        }
-        mat4 m = blend(sjoints.j[s], sweights.w[s]);
-        vec3 c = (m * vec4(rest.xyz, 1.0)).xyz;
-        sph.s[s] = vec4(c, rest.w);
-        float extent = rest.w;
-        if (s < pc.first_leaf) {
-            // Leaf descendants of s: [s * B^k + (B^k - 1) / (B - 1), + B^k), k levels down.
-            uint first = s;
-            uint count = 1u;
-            while (first < pc.first_leaf) {
-                first = first * pc.branch + 1u;
-                count *= pc.branch;
-            }
-            for (uint l = first; l < first + count; ++l) {
-                vec4 leaf = rest_sph.s[l];
-                if (leaf.w < 0.0) continue;
-                vec3 lc = (blend(sjoints.j[l], sweights.w[l]) * vec4(leaf.xyz, 1.0)).xyz;
-                extent = max(extent, distance(lc, c) + leaf.w);
-            }
-        }
-        ext.e[s] = extent;
+    uint s = gl_GlobalInvocationID.x;
+    if (s >= pc.sphere_count) return;
+    vec4 rest = rest_sph.s[s];
+    if (rest.w < 0.0) {
+        sph.s[s] = rest; // unused slot stays unused
+        ext.e[s] = rest.w;
+        return;
     }
+    mat4 m = blend(sjoints.j[s], sweights.w[s]);
+    vec3 c = (m * vec4(rest.xyz, 1.0)).xyz;
+    sph.s[s] = vec4(c, rest.w);
+    float extent = rest.w;
+    if (s < pc.first_leaf) {
+        // Leaf descendants of s: [s * B^k + (B^k - 1) / (B - 1), + B^k), k levels down.
+        uint first = s;
+        uint count = 1u;
+        while (first < pc.first_leaf) {
+            first = first * pc.branch + 1u;
+            count *= pc.branch;
+        }
+        for (uint l = first; l < first + count; ++l) {
+            vec4 leaf = rest_sph.s[l];
+            if (leaf.w < 0.0) continue;
+            vec3 lc = (blend(sjoints.j[l], sweights.w[l]) * vec4(leaf.xyz, 1.0)).xyz;
+            extent = max(extent, distance(lc, c) + leaf.w);
+        }
+    }
+    ext.e[s] = extent;
 }

@@ -10,7 +10,7 @@ use crate::kernels::ao::fit::{FitConfig, FitSummary, Proxy, fit_tree};
 use crate::kernels::ao::formula::{OcclusionTable, TABLE_SIZE};
 use crate::kernels::ao::{
     AoKernel, AoParams, Blend, Correction, DEFAULT_ANIMATION, DEFAULT_MESH, FrameData, Occlusion,
-    PASS_OCCLUSION, PASS_SKIN, Prepared, Refine,
+    PASS_OCCLUSION, PASS_POSE, PASS_SKIN, Prepared, Refine,
 };
 use crate::kernels::{KernelInfo, run_frames};
 use crate::progress::Progress;
@@ -453,7 +453,9 @@ struct GpuFrame {
 
 impl GpuFrame {
     fn new(data: FrameData, timings: &Timings) -> GpuFrame {
-        let skin_ms = timings.get(PASS_SKIN).unwrap_or(f64::NAN);
+        // Skinning: the vertices (the pose's pass) and the sphere centres.
+        let skin_ms =
+            timings.get(PASS_POSE).unwrap_or(f64::NAN) + timings.get(PASS_SKIN).unwrap_or(f64::NAN);
         let ao_ms = timings.get(PASS_OCCLUSION).unwrap_or(f64::NAN);
         GpuFrame {
             gpu: GpuTimes {

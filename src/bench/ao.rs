@@ -10,7 +10,7 @@ use crate::gpu::Context;
 use crate::kernels::ao::cpu::{self, CpuAo};
 use crate::kernels::ao::formula::{OcclusionTable, TABLE_SIZE};
 use crate::kernels::ao::{AoKernel, AoParams, Blend, Correction, Occlusion, Prepared};
-use crate::kernels::ao::{PASS_OCCLUSION, PASS_SKIN};
+use crate::kernels::ao::{PASS_OCCLUSION, PASS_POSE, PASS_SKIN};
 use crate::progress::Progress;
 use crate::reference::ErrorStats;
 use crate::scene::spheretree::{BuildConfig, SphereTree};
@@ -179,16 +179,12 @@ fn measure(
         kernel.set_correction(&mut setup, f)?;
     }
     setup.submit_and_wait()?;
-    let passes = super::time_passes(ctx, cfg, &kernel, matrices)?;
-    let pass = |name: &str| {
-        passes
-            .iter()
-            .find(|(n, _)| *n == name)
-            .map(|(_, s)| s.clone())
-            .unwrap_or_else(Stats::none)
-    };
-    // Skinning and occlusion, as before; the joints upload is timed but not counted.
-    let times = [pass(PASS_SKIN), pass(PASS_OCCLUSION)];
+    // Skinning (the vertices' pose pass plus the spheres') and occlusion; the joints upload
+    // is not counted.
+    let skin = format!("{PASS_POSE}+{PASS_SKIN}");
+    let times = super::time_gpu_passes(ctx, cfg, &[&skin, PASS_OCCLUSION], |rec| {
+        kernel.record(rec, matrices)
+    })?;
     let mut rec = ctx.recorder("ao bench stats")?;
     kernel.record(&mut rec, matrices)?;
     let rb = kernel.read_back(&mut rec)?;

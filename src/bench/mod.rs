@@ -60,7 +60,8 @@ pub fn time_passes<K: crate::kernels::Kernel>(
 }
 
 /// As [`time_gpu`], for several passes of the same submissions (one `Stats` per pass, in
-/// the order of `passes`).
+/// the order of `passes`). A name joining passes with `+` (`pose skin+ao skin`) times their
+/// sum in each submission.
 pub fn time_gpu_passes(
     ctx: &Context,
     cfg: &BenchConfig,
@@ -76,11 +77,15 @@ pub fn time_gpu_passes(
             continue;
         }
         for (pass, out) in passes.iter().zip(samples.iter_mut()) {
-            out.push(t.get(pass).ok_or_else(|| {
-                Error::InvalidArgument(format!(
-                    "benchmark pass '{pass}' was not timed (no timestamps on this queue, or the pass was never opened)"
-                ))
-            })?);
+            let mut sum = 0.0;
+            for part in pass.split('+') {
+                sum += t.get(part).ok_or_else(|| {
+                    Error::InvalidArgument(format!(
+                        "benchmark pass '{part}' was not timed (no timestamps on this queue, or the pass was never opened)"
+                    ))
+                })?;
+            }
+            out.push(sum);
         }
     }
     passes

@@ -101,7 +101,11 @@ impl Drop for BufferInner {
     }
 }
 
-/// A Vulkan buffer with its memory (the owning handle).
+/// A Vulkan buffer with its memory. A shared handle: clones are the same buffer (one
+/// tracked state, one name), so several kernels can bind the buffer one of them writes (the
+/// character's posed vertices); the buffer is retired when the last clone is dropped and the
+/// work using it completes.
+#[derive(Clone)]
 pub struct Buffer {
     inner: Arc<BufferInner>,
 }

@@ -1,7 +1,9 @@
-//! The AO kernel on the GPU: pass `ao joints` uploads the frame's joint matrices, `ao skin`
-//! skins the vertices and sphere centres, `ao occlusion` evaluates each vertex's visibility
-//! over a cut through the skinned sphere tree. Created from a [`Prepared`] (packed and
-//! checked on the CPU, `pack.rs`).
+//! The AO kernel on the GPU: `ao skin` skins the sphere centres, `ao occlusion` evaluates each
+//! vertex's visibility over a cut through the skinned sphere tree. The posed vertices (and the
+//! frame's joint matrices) come from a [`PoseKernel`]: the character's own, shared with the
+//! other kernels ([`AoKernel::on_pose`]; the caller records it), or one the AO kernel owns and
+//! records first ([`AoKernel::new`]: passes `pose joints`, `pose skin`). Created from a
+//! [`Prepared`] (packed and checked on the CPU, `pack.rs`).
 
 use super::formula::{OcclusionTable, TABLE_SIZE};
 use super::pack::{check_correction, check_matrices};
@@ -11,12 +13,17 @@ use crate::gpu::{
     AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context,
     MemoryReport, Readback, Recorder, Resource, Shader,
 };
+use crate::kernels::pose::{self, PoseKernel};
 use crate::kernels::{Dispatch, Grid, Kernel, Pass};
 use ash::vk;
 use glam::Mat4;
 
-/// Pass names, as they appear in timings and debug labels.
-pub const PASS_JOINTS: &str = "ao joints";
+/// Pass names, as they appear in timings and debug labels: the joint matrices' upload and the
+/// vertex skinning are the pose kernel's (recorded by the AO kernel when it owns its pose).
+pub const PASS_JOINTS: &str = pose::PASS_JOINTS;
+/// The vertex skinning (the pose kernel's pass).
+pub const PASS_POSE: &str = pose::PASS_SKIN;
+/// The skinning of the sphere centres.
 pub const PASS_SKIN: &str = "ao skin";
 pub const PASS_OCCLUSION: &str = "ao occlusion";
 
@@ -52,12 +59,7 @@ impl FrameReadback {
 
 /// The kernel's buffers.
 struct Buffers {
-    /// The rest pose and skin weights ([`Prepared`]): vertices (position, normal, four joints
-    /// and weights) and sphere-tree nodes (centre and radius, joints and weights).
-    rest_positions: Buffer,
-    rest_normals: Buffer,
-    vertex_joints: Buffer,
-    vertex_weights: Buffer,
+    /// The sphere-tree nodes (centre and radius, joints and weights; [`Prepared`]).
     rest_spheres: Buffer,
     sphere_joints: Buffer,
     sphere_weights: Buffer,
@@ -65,12 +67,12 @@ struct Buffers {
     table: Buffer,
     /// Per-vertex static correction factors ([`super::Correction`]; 1 until set).
     correction: Buffer,
-    /// The frame's joint matrices.
+    /// The pose kernel's: the frame's joint matrices, posed positions and normals.
     joint_matrices: Buffer,
-    /// Posed vertices and spheres (and each node's extent), visibility and stats per vertex:
-    /// storage buffers that can also feed a renderer's vertex input directly.
     posed_positions: Buffer,
     posed_normals: Buffer,
+    /// Posed spheres (and each node's extent), visibility and stats per vertex: storage
+    /// buffers that can also feed a renderer's vertex input directly.
     posed_spheres: Buffer,
     posed_extents: Buffer,
     visibility: Buffer,
@@ -78,8 +80,14 @@ struct Buffers {
 }
 
 impl Buffers {
-    /// Creates the buffers and records the uploads of the mesh, tree and table into `rec`.
-    fn new(rec: &mut Recorder, prep: &Prepared, table: &OcclusionTable) -> Result<Buffers> {
+    /// Creates the buffers and records the uploads of the tree and table into `rec`; the
+    /// posed vertices and joint matrices are `pose`'s.
+    fn new(
+        rec: &mut Recorder,
+        prep: &Prepared,
+        table: &OcclusionTable,
+        pose: &PoseKernel,
+    ) -> Result<Buffers> {
         use bytemuck::cast_slice as bytes;
         let ctx = rec.context();
         let mut upload = |name: &str, data: &[u8]| {
@@ -90,20 +98,15 @@ impl Buffers {
             let desc = BufferDesc::storage(size).usage(vk::BufferUsageFlags::VERTEX_BUFFER);
             Buffer::new(&ctx, name, desc)
         };
-        let joints = BufferDesc::storage(prep.joint_count as u64 * 64);
         Ok(Buffers {
-            rest_positions: upload("ao rest positions", bytes(&prep.positions))?,
-            rest_normals: upload("ao rest normals", bytes(&prep.normals))?,
-            vertex_joints: upload("ao vertex joints", bytes(&prep.vertex_joints))?,
-            vertex_weights: upload("ao vertex weights", bytes(&prep.vertex_weights))?,
             rest_spheres: upload("ao rest spheres", bytes(&prep.spheres))?,
             sphere_joints: upload("ao sphere joints", bytes(&prep.sphere_joints))?,
             sphere_weights: upload("ao sphere weights", bytes(&prep.sphere_weights))?,
             table: upload("ao table", bytes(&table.values))?,
             correction: upload("ao correction", bytes(&vec![1.0f32; nv as usize]))?,
-            joint_matrices: Buffer::new(&ctx, "ao joint matrices", joints)?,
-            posed_positions: output("ao posed positions", nv * 16)?,
-            posed_normals: output("ao posed normals", nv * 16)?,
+            joint_matrices: pose.joint_matrices().clone(),
+            posed_positions: pose.positions().clone(),
+            posed_normals: pose.normals().clone(),
             posed_spheres: output("ao posed spheres", ns * 16)?,
             posed_extents: output("ao posed extents", ns * 4)?,
             visibility: output("ao visibility", nv * 4)?,
@@ -111,14 +114,9 @@ impl Buffers {
         })
     }
 
-    /// Every buffer, with the name the shaders bind it by: the passes bind by these names,
-    /// and the memory report counts them all.
-    fn by_binding(&self) -> [(&'static str, &Buffer); 16] {
+    /// Every buffer, with the name the shaders bind it by: the passes bind by these names.
+    fn by_binding(&self) -> [(&'static str, &Buffer); 12] {
         [
-            ("rest_pos", &self.rest_positions),
-            ("rest_nrm", &self.rest_normals),
-            ("vjoints", &self.vertex_joints),
-            ("vweights", &self.vertex_weights),
             ("rest_sph", &self.rest_spheres),
             ("sjoints", &self.sphere_joints),
             ("sweights", &self.sphere_weights),
@@ -131,6 +129,22 @@ impl Buffers {
             ("ext", &self.posed_extents),
             ("ao", &self.visibility),
             ("stats", &self.stats),
+        ]
+    }
+
+    /// The buffers the AO kernel owns (the memory report counts these; the pose's are the
+    /// pose kernel's).
+    fn own(&self) -> [&Buffer; 9] {
+        [
+            &self.rest_spheres,
+            &self.sphere_joints,
+            &self.sphere_weights,
+            &self.table,
+            &self.correction,
+            &self.posed_spheres,
+            &self.posed_extents,
+            &self.visibility,
+            &self.stats,
         ]
     }
 
@@ -150,14 +164,17 @@ impl Buffers {
     }
 }
 
-/// The skinning pass writes the posed vertices and spheres.
-const SKIN_WRITES: [&str; 4] = ["pos", "nrm", "sph", "ext"];
+/// The skinning pass writes the posed spheres and extents.
+const SKIN_WRITES: [&str; 2] = ["sph", "ext"];
 /// The occlusion pass writes the visibility and stats.
 const OCCLUSION_WRITES: [&str; 2] = ["ao", "stats"];
 
 /// The GPU kernel: pipelines, inputs and outputs of one character.
 pub struct AoKernel {
     ctx: Context,
+    /// The pose this kernel owns and records first ([`AoKernel::new`]); `None` when the
+    /// caller shares its character's pose and records it ([`AoKernel::on_pose`]).
+    own_pose: Option<PoseKernel>,
     skin: ComputePipeline,
     skin_bind: BindGroup,
     /// The occlusion shader, specialised again when a mode changes ([`AoKernel::set_params`]).
@@ -175,19 +192,82 @@ pub struct AoKernel {
 impl AoKernel {
     /// Creates the buffers and pipelines, and records the uploads of the mesh, tree and
     /// table into `rec` (they run when the caller submits it; nothing is submitted here).
+    /// The kernel owns the pose of its vertices: its frames record `pose joints` and
+    /// `pose skin` before `ao skin` and `ao occlusion`.
     pub fn new(rec: &mut Recorder, prep: &Prepared, params: AoParams) -> Result<AoKernel> {
         params.validate()?;
         prep.check()?;
+        let pose_prep = pose::Prepared {
+            positions: prep.positions.clone(),
+            normals: prep.normals.clone(),
+            tangents: pose::tangent_frames(
+                &prep
+                    .positions
+                    .iter()
+                    .map(|p| glam::Vec4::from_array(*p).truncate())
+                    .collect::<Vec<_>>(),
+                &prep
+                    .normals
+                    .iter()
+                    .map(|n| glam::Vec4::from_array(*n).truncate())
+                    .collect::<Vec<_>>(),
+                None,
+                &[],
+            )
+            .iter()
+            .map(|t| t.to_array())
+            .collect(),
+            vertex_joints: prep.vertex_joints.clone(),
+            vertex_weights: prep.vertex_weights.clone(),
+            joint_count: prep.joint_count,
+        };
+        let pose = PoseKernel::new(rec, &pose_prep)?;
+        let mut kernel = Self::build(rec, prep, params, &pose)?;
+        kernel.own_pose = Some(pose);
+        Ok(kernel)
+    }
+
+    /// As [`AoKernel::new`], on a character's shared pose: the occlusion reads `pose`'s posed
+    /// vertices and the sphere skinning its joint matrices, and the caller records `pose`
+    /// before this kernel each frame (barriers follow from the declared accesses). `prep`
+    /// must describe the same vertices (its positions are the pose's rest positions).
+    pub fn on_pose(
+        rec: &mut Recorder,
+        prep: &Prepared,
+        params: AoParams,
+        pose: &PoseKernel,
+    ) -> Result<AoKernel> {
+        params.validate()?;
+        prep.check()?;
+        if pose.vertex_count() != prep.vertex_count() || pose.joint_count() != prep.joint_count {
+            return Err(crate::error::Error::InvalidArgument(format!(
+                "the AO input has {} vertices and {} joints, the pose {} and {}",
+                prep.vertex_count(),
+                prep.joint_count,
+                pose.vertex_count(),
+                pose.joint_count()
+            )));
+        }
+        Self::build(rec, prep, params, pose)
+    }
+
+    fn build(
+        rec: &mut Recorder,
+        prep: &Prepared,
+        params: AoParams,
+        pose: &PoseKernel,
+    ) -> Result<AoKernel> {
         let ctx = rec.context();
         let skin = crate::shaders::pipeline(&ctx, "ao/skin")?;
         let occlusion_shader =
             Shader::from_spirv("ao/occlusion", crate::shaders::spirv("ao/occlusion")?)?;
         let table = OcclusionTable::new(TABLE_SIZE, TABLE_SIZE);
-        let buffers = Buffers::new(rec, prep, &table)?;
+        let buffers = Buffers::new(rec, prep, &table, pose)?;
         let skin_bind = buffers.bind(&skin, &SKIN_WRITES)?;
         let occlusion =
             ComputePipeline::specialized(&ctx, &occlusion_shader, &params.specialization())?;
         Ok(AoKernel {
+            own_pose: None,
             skin,
             skin_bind,
             occlusion_bind: buffers.bind(&occlusion, &OCCLUSION_WRITES)?,
@@ -240,7 +320,7 @@ impl AoKernel {
         &self.buffers.visibility
     }
 
-    /// Posed positions (vec4), written by the skinning pass.
+    /// Posed positions (vec4), written by the pose's skinning pass.
     pub fn posed_positions(&self) -> &Buffer {
         &self.buffers.posed_positions
     }
@@ -250,8 +330,8 @@ impl AoKernel {
         &self.buffers.posed_spheres
     }
 
-    /// Records one frame: passes `ao joints` (the joint matrices' upload), `ao skin` and
-    /// `ao occlusion`. Barriers come from the declared accesses through the recorder's
+    /// Records one frame: with its own pose `pose joints` (the joint matrices' upload) and
+    /// `pose skin`, then `ao skin` and `ao occlusion`. Barriers come from the declared accesses through the recorder's
     /// tracking (or are planned by the caller, see [`Kernel::plan_pass`]). The matrices are
     /// staged through the context's ring, so frames in flight never overwrite each other's.
     pub fn record(&self, rec: &mut Recorder, matrices: &[Mat4]) -> Result<()> {
@@ -283,11 +363,22 @@ impl AoKernel {
         rec.upload(&self.buffers.correction, 0, factors)
     }
 
-    /// Device memory held by the kernel's buffers: `used_bytes` and `allocations` are the
-    /// kernel's own; `reserved_bytes` is the context's (blocks are shared).
+    /// Device memory held by the kernel's buffers (with its own pose's, when it owns one):
+    /// `used_bytes` and `allocations` are the kernel's own; `reserved_bytes` is the
+    /// context's (blocks are shared).
     pub fn memory(&self) -> MemoryReport {
-        self.ctx
-            .memory_of(&self.buffers.by_binding().map(|(_, b)| b))
+        let own = self.ctx.memory_of(&self.buffers.own());
+        match &self.own_pose {
+            Some(p) => {
+                let pose = p.memory();
+                MemoryReport {
+                    used_bytes: own.used_bytes + pose.used_bytes,
+                    allocations: own.allocations + pose.allocations,
+                    ..own
+                }
+            }
+            None => own,
+        }
     }
 
     /// Bytes of the kernel's buffers (their allocations).
@@ -295,15 +386,26 @@ impl AoKernel {
         self.memory().used_bytes
     }
 
-    fn joint_bytes(&self, matrices: &[Mat4]) -> Result<Vec<u8>> {
-        let cols: Vec<[f32; 16]> = matrices.iter().map(|m| m.to_cols_array()).collect();
-        Ok(bytemuck::cast_slice(&cols).to_vec())
+    fn pose_joint_bytes(&self, matrices: &[Mat4]) -> Result<Vec<u8>> {
+        match &self.own_pose {
+            Some(p) => p.joint_bytes(matrices),
+            None => Ok(Vec::new()),
+        }
+    }
+
+    fn pose_skin_args(&self, matrices: &[Mat4]) -> Result<Dispatch> {
+        match &self.own_pose {
+            Some(p) => p.skin_args(matrices),
+            None => Err(crate::error::Error::InvalidArgument(
+                "the AO kernel records no pose of its own".into(),
+            )),
+        }
     }
 
     fn skin_args(&self, _matrices: &[Mat4]) -> Result<Dispatch> {
         let s = self.shape;
-        let words = [self.vertex_count, s.node_count, s.branch, s.first_leaf];
-        let grid = Grid::Invocations([self.vertex_count + s.node_count, 1, 1]);
+        let words = [s.node_count, s.branch, s.first_leaf];
+        let grid = Grid::Invocations([s.node_count, 1, 1]);
         Ok(Dispatch::words(&words, grid))
     }
 
@@ -335,8 +437,22 @@ impl Kernel for AoKernel {
     }
 
     fn pass_table(&self) -> Vec<Pass<'_, Self>> {
-        vec![
-            Pass::upload(PASS_JOINTS, &self.buffers.joint_matrices, Self::joint_bytes),
+        let mut passes = Vec::with_capacity(4);
+        if let Some(p) = &self.own_pose {
+            let (pipeline, bind) = p.skin_pass();
+            passes.push(Pass::upload(
+                PASS_JOINTS,
+                p.joint_matrices(),
+                Self::pose_joint_bytes,
+            ));
+            passes.push(Pass::dispatch(
+                PASS_POSE,
+                pipeline,
+                bind,
+                Self::pose_skin_args,
+            ));
+        }
+        passes.extend([
             Pass::dispatch(PASS_SKIN, &self.skin, &self.skin_bind, Self::skin_args),
             Pass::dispatch(
                 PASS_OCCLUSION,
@@ -344,7 +460,8 @@ impl Kernel for AoKernel {
                 &self.occlusion_bind,
                 Self::occlusion_args,
             ),
-        ]
+        ]);
+        passes
     }
 
     fn check_input(&self, matrices: &[Mat4]) -> Result<()> {

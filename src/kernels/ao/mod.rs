@@ -1,6 +1,7 @@
 //! Hierarchical sphere ambient occlusion for skinned characters.
 //!
-//! Per frame, on the GPU: pass `ao skin` skins the vertices (positions, normals) and the sphere
+//! Per frame, on the GPU: the pose kernel (`kernels::pose`) skins the vertices (positions,
+//! normals), pass `ao skin` the sphere
 //! centres with linear blend skinning; pass `ao occlusion` computes each vertex's ambient
 //! visibility from a cut through the skinned sphere tree (see `glsl/ao/occlusion.comp`).
 //! [`AoKernel::record`] puts both into a caller's command buffer; outputs stay on the GPU
@@ -8,7 +9,8 @@
 //!
 //! - [`pack`]: the mesh and sphere tree in the GPU's layout ([`Prepared`], also what the CPU
 //!   twin reads), checked on the CPU.
-//! - [`gpu`]: the kernel ([`AoKernel`]: passes `ao joints`, `ao skin`, `ao occlusion`).
+//! - [`gpu`]: the kernel ([`AoKernel`]: passes `pose joints` and `pose skin` when it owns
+//!   its pose, `ao skin`, `ao occlusion`).
 //! - [`cpu`]: the CPU twin; [`formula`]: the per-sphere occlusion and its table.
 //! - The ray-traced ground truth is `reference::ao`.
 
@@ -19,7 +21,9 @@ pub mod gpu;
 pub mod pack;
 mod registry;
 
-pub use gpu::{AoKernel, FrameData, FrameReadback, PASS_JOINTS, PASS_OCCLUSION, PASS_SKIN};
+pub use gpu::{
+    AoKernel, FrameData, FrameReadback, PASS_JOINTS, PASS_OCCLUSION, PASS_POSE, PASS_SKIN,
+};
 pub use pack::Prepared;
 pub use registry::{DEFAULT_ANIMATION, DEFAULT_MESH, GENERATED_INCLUDES};
 

@@ -178,12 +178,18 @@ impl PoseKernel {
         self.ctx.memory_of(&all)
     }
 
-    fn joint_bytes(&self, matrices: &[Mat4]) -> Result<Vec<u8>> {
+    /// The skinning pass's pipeline and bind group (a kernel that owns a pose records it in
+    /// its own pass table).
+    pub(crate) fn skin_pass(&self) -> (&ComputePipeline, &BindGroup) {
+        (&self.skin, &self.skin_bind)
+    }
+
+    pub(crate) fn joint_bytes(&self, matrices: &[Mat4]) -> Result<Vec<u8>> {
         let cols: Vec<[f32; 16]> = matrices.iter().map(|m| m.to_cols_array()).collect();
         Ok(bytemuck::cast_slice(&cols).to_vec())
     }
 
-    fn skin_args(&self, _matrices: &[Mat4]) -> Result<Dispatch> {
+    pub(crate) fn skin_args(&self, _matrices: &[Mat4]) -> Result<Dispatch> {
         Ok(Dispatch::words(
             &[self.vertex_count],
             Grid::Invocations([self.vertex_count, 1, 1]),
