@@ -30,13 +30,14 @@ pub mod contact;
 pub mod cpu;
 pub mod gpu;
 pub mod pack;
+pub mod posed;
 pub mod profile;
 pub mod sampler;
 pub mod walk;
 
 pub use crate::scene::texspace::TexGeometry;
 pub use cpu::{Light, SamplerParams};
-pub use gpu::{SssKernel, SssOutput};
+pub use gpu::{PosedSource, SssKernel, SssOutput};
 pub use profile::{Material, Profile, ProfileKind};
 
 /// The head of BCN_Epileptic (assimp-testmodels, converted to glTF), in metres.
