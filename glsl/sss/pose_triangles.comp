@@ -1,6 +1,6 @@
 #version 450
 // Per-frame geometry of a skinned mesh, step 2 (pass `sss pose triangles`): per triangle, from
-// the vertex frames of this pose (`verts`, mm) and the topology fixed by the UV layout
+// the vertex frames of this pose (`vframes`, mm) and the topology fixed by the UV layout
 // (`walk_topo`: corners, neighbours, UVs; src/kernels/sss/posed.rs walk_topology):
 // - the surface walk's record (src/kernels/sss/walk.rs SurfaceWalk::records, read by the
 //   diffusion): the triangle's 2D frame (1 / l1, x2, 1 / y2), the edge kinds, its UV map, and
@@ -23,7 +23,9 @@ const uint TOPOLOGY = 4u;      // posed::TOPOLOGY_TEXELS
 const uint EDGE_SHARED = 0u;   // walk::EDGE_*
 const uint EDGE_LOST = 2u;
 
-layout(std430, set = 0, binding = 0) readonly buffer Verts { vec4 v[]; } verts;
+// The vertex frames (position mm, normal), vertex v at texels 2v, 2v + 1 (pass `sss pose
+// vertices`).
+layout(set = 0, binding = 0, rgba32f) readonly uniform image2D vframes;
 layout(std430, set = 0, binding = 1) readonly buffer Topo { uvec4 v[]; } walk_topo;
 layout(set = 0, binding = 2, rgba32ui) writeonly uniform uimage2D walk;
 layout(set = 0, binding = 3, rgba32f) writeonly uniform image2D trirec;
@@ -35,12 +37,16 @@ struct Tri {
     vec3 shape;  // l1, x2, y2 (zero when degenerate)
 };
 
+vec3 vload(uint k) {
+    return imageLoad(vframes, ivec2(k % WALK_ROW, k / WALK_ROW)).xyz;
+}
+
 Tri load(uint t) {
     uvec4 c = walk_topo.v[TOPOLOGY * t];
     Tri r;
-    r.p[0] = verts.v[2u * c.x].xyz;
-    r.p[1] = verts.v[2u * c.y].xyz;
-    r.p[2] = verts.v[2u * c.z].xyz;
+    r.p[0] = vload(2u * c.x);
+    r.p[1] = vload(2u * c.y);
+    r.p[2] = vload(2u * c.z);
     vec3 e1 = r.p[1] - r.p[0];
     vec3 e2 = r.p[2] - r.p[0];
     float l1 = length(e1);

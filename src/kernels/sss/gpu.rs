@@ -303,32 +303,38 @@ pub struct SssKernel {
 }
 
 /// The posed vertex buffers a skinned mesh's frame starts from: vec4 per vertex in model
-/// units, positions (xyz, 1) and unit normals (xyz, 0), the mesh's own vertex order (the
-/// layout of `kernels::pose`). The kernel binds them (an `Arc` handle each), so a pass that
-/// writes them earlier in the same recording is ordered before the geometry passes by the
-/// recorder's tracking.
-pub struct PosedSource {
-    pub positions: Buffer,
-    pub normals: Buffer,
+/// units, positions (xyz, 1) and unit normals (xyz, 0), in the mesh's own vertex order (the
+/// layout of `kernels::pose`, whose `PoseKernel::positions` / `normals` a caller passes). The
+/// kernel's bind group holds them, so a pass that writes them earlier in the same recording
+/// is ordered before the geometry passes by the recorder's tracking.
+#[derive(Clone, Copy)]
+pub struct PosedBuffers<'a> {
+    pub positions: &'a Buffer,
+    pub normals: &'a Buffer,
     /// Millimetres per model unit.
     pub mm_per_unit: f32,
 }
 
+/// Buffers of the [`PosedBuffers`] layout filled from the host: a pose computed on the CPU
+/// (`kernels::pose::cpu`, `scene::texspace::posed`), the tests' stand-in for the skinning
+/// pass.
+pub struct PosedSource {
+    pub positions: Buffer,
+    pub normals: Buffer,
+}
+
 impl PosedSource {
-    /// Buffers of that layout filled from the host (a pose computed on the CPU, e.g.
-    /// `scene::texspace::posed`; the tests' twin of a skinning pass), their uploads recorded.
+    /// Creates the buffers and records the upload of `positions`, `normals`.
     pub fn upload(
         rec: &mut Recorder,
         positions: &[glam::Vec3],
         normals: &[glam::Vec3],
-        mm_per_unit: f32,
     ) -> Result<PosedSource> {
         let ctx = rec.context();
         let bytes = positions.len().max(1) as u64 * 16;
         let src = PosedSource {
             positions: Buffer::new(&ctx, "sss posed positions", BufferDesc::storage(bytes))?,
             normals: Buffer::new(&ctx, "sss posed normals", BufferDesc::storage(bytes))?,
-            mm_per_unit,
         };
         src.write(rec, positions, normals)?;
         Ok(src)
@@ -346,18 +352,30 @@ impl PosedSource {
         rec.upload(&self.positions, 0, &p)?;
         rec.upload(&self.normals, 0, &n)
     }
+
+    /// The buffers as a [`PosedBuffers`].
+    pub fn buffers(&self, mm_per_unit: f32) -> PosedBuffers<'_> {
+        PosedBuffers {
+            positions: &self.positions,
+            normals: &self.normals,
+            mm_per_unit,
+        }
+    }
 }
 
-/// The per-frame geometry of a skinned mesh: its source buffers, what the UV layout fixes
-/// ([`posed::Layout`]) and the passes.
+/// The per-frame geometry of a skinned mesh: what the UV layout fixes ([`posed::Layout`])
+/// and the passes (their bind groups hold the posed buffers they read).
 struct Posed {
-    src: PosedSource,
+    mm_per_unit: f32,
     /// Per vertex: the vertex whose posed position it takes.
     weld: Buffer,
     /// Per triangle: the surface walk's topology ([`posed::walk_topology`]).
     walk_topo: Buffer,
     /// Per triangle (BVH_ROW a row): face normal and texel area, written each frame.
     trirec: Image,
+    /// The vertex frames as an image (vertex v at texels 2v, 2v + 1, BVH_ROW a row), written
+    /// each frame beside the `verts` buffer.
+    vframes: Image,
     /// Per texel: triangle, barycentrics, flag (fixed).
     texel_source: Image,
     /// The BVH's fixed topology ([`posed::BvhTopology::gpu`]) and its triangle slots.
@@ -374,10 +392,10 @@ struct Posed {
 }
 
 impl Posed {
-    fn by_binding(&self) -> [(&'static str, Resource<'_>); 8] {
+    /// The kernel's own resources of the posed passes (the posed buffers are the caller's).
+    fn by_binding(&self) -> [(&'static str, Resource<'_>); 7] {
         [
-            ("posed_pos", Resource::Buffer(&self.src.positions)),
-            ("posed_nrm", Resource::Buffer(&self.src.normals)),
+            ("vframes", Resource::storage_image(&self.vframes)),
             ("weld", Resource::Buffer(&self.weld)),
             ("walk_topo", Resource::Buffer(&self.walk_topo)),
             ("trirec", Resource::storage_image(&self.trirec)),
@@ -476,11 +494,11 @@ impl SssKernel {
         rest: &[glam::Vec3],
         profile: &Profile,
         params: SamplerParams,
-        src: PosedSource,
+        src: PosedBuffers<'_>,
     ) -> Result<SssKernel> {
         let layout = posed::Layout::new(geo, rest)?;
         let vertices = geo.positions.len();
-        for (name, b) in [("positions", &src.positions), ("normals", &src.normals)] {
+        for (name, b) in [("positions", src.positions), ("normals", src.normals)] {
             if b.size() < vertices as u64 * 16 {
                 return Err(Error::InvalidArgument(format!(
                     "posed {name} buffer of {} bytes for {vertices} vertices (vec4 each)",
@@ -511,6 +529,11 @@ impl SssKernel {
             "sss triangle records",
             rgba32f([BVH_ROW, pack::rows(triangles, BVH_ROW)]),
         )?;
+        let vframes = Image::new(
+            &ctx,
+            "sss vertex frames",
+            rgba32f([BVH_ROW, pack::rows(2 * vertices, BVH_ROW)]),
+        )?;
         let size = geo.size;
         let texel_source = Image::new(&ctx, "sss texel source", uint_image([size, size]))?;
         rec.upload(&weld, 0, &at_least_one(&layout.weld))?;
@@ -521,23 +544,25 @@ impl SssKernel {
         // The triangle records are written by every frame before they are read; cleared
         // once so that rows past the last triangle hold defined data too.
         rec.clear_image(&trirec, Subresources::mip(trirec.desc(), 0), [0.0; 4])?;
+        rec.clear_image(&vframes, Subresources::mip(vframes.desc(), 0), [0.0; 4])?;
         let table: Vec<(&'static str, Resource<'_>)> = kernel
             .res
             .by_binding()
             .into_iter()
             .chain([
-                ("posed_pos", Resource::Buffer(&src.positions)),
-                ("posed_nrm", Resource::Buffer(&src.normals)),
+                ("posed_pos", Resource::Buffer(src.positions)),
+                ("posed_nrm", Resource::Buffer(src.normals)),
                 ("weld", Resource::Buffer(&weld)),
                 ("walk_topo", Resource::Buffer(&walk_topo)),
                 ("trirec", Resource::storage_image(&trirec)),
+                ("vframes", Resource::storage_image(&vframes)),
                 ("source", Resource::storage_image(&texel_source)),
                 ("bvh_topo", Resource::Buffer(&bvh_topo)),
                 ("bvh_slots", Resource::Buffer(&bvh_slots)),
             ])
             .collect();
         let stage = |name: &str, writes: &[&str]| Stage::from_table(&ctx, name, &table, writes);
-        let vertices_stage = stage("sss/pose_vertices", &["verts"])?;
+        let vertices_stage = stage("sss/pose_vertices", &["verts", "vframes"])?;
         let triangles_stage = stage("sss/pose_triangles", &["walk", "trirec"])?;
         let texels = stage("sss/pose_texels", &["pos", "nrm"])?;
         let bvh_leaves = stage("sss/bvh_leaves", &["nodes", "tris"])?;
@@ -547,10 +572,11 @@ impl SssKernel {
             triangle_count: triangles as u32,
             leaf_count: layout.bvh.leaves.len() as u32,
             nodes: layout.bvh.nodes,
-            src,
+            mm_per_unit: src.mm_per_unit,
             weld,
             walk_topo,
             trirec,
+            vframes,
             texel_source,
             bvh_topo,
             bvh_slots,
@@ -566,11 +592,6 @@ impl SssKernel {
     /// Whether the kernel computes its geometry per frame from posed buffers.
     pub fn is_posed(&self) -> bool {
         self.posed.is_some()
-    }
-
-    /// The posed buffers each frame starts from ([`SssKernel::new_posed`]).
-    pub fn posed_source(&self) -> Option<&PosedSource> {
-        self.posed.as_ref().map(|p| &p.src)
     }
 
     /// Records the readback of the geometry the GPU holds: vertex frames, texel position and
@@ -739,7 +760,7 @@ impl SssKernel {
         let p = self.posed()?;
         let n = self.settings.room.vertices;
         Ok(Dispatch::words(
-            &[n, p.src.mm_per_unit.to_bits()],
+            &[n, p.mm_per_unit.to_bits()],
             Grid::Invocations([n, 1, 1]),
         ))
     }
