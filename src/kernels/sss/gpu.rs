@@ -16,6 +16,15 @@
 //!
 //! The data is packed and checked on the CPU ([`super::pack`]); this module creates the images
 //! and buffers from it, records their uploads, binds the pipelines and declares the passes.
+//!
+//! A skinned mesh ([`SssKernel::new_posed`]) binds the posed vertex buffers of the skinning
+//! pass and starts each frame with five more passes that compute from them what the upload
+//! held for a static mesh: `sss pose vertices` (vertex frames in mm, as a buffer for the
+//! vertex-light pass and an image for the next two), `sss pose triangles` (the surface walk's
+//! records, face normals, texel areas), `sss pose texels` (position, normal, area per texel
+//! of the occupied segments), `sss bvh leaves` and `sss bvh refit` (the rest pose's BVH
+//! topology with this pose's triangles and boxes). What the UV layout fixes is uploaded once
+//! ([`super::posed::Layout`]), as are the contact entries (the rest pose's).
 
 use super::cpu::{Light, MAX_LIGHTS, SamplerParams, check_lights, shadow_bias};
 use super::pack::{self, BVH_ROW, Packed, Pattern, Room, Settings, VERTEX_ROW, tile_groups};
