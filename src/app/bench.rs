@@ -68,6 +68,11 @@ pub enum Command {
         /// Smaller sweeps (for a quick check).
         #[arg(long)]
         quick: bool,
+        /// The animated head instead: skinning, per-frame texture-space geometry and BVH
+        /// refit, irradiance with shadows and diffusion on the GPU every frame (fps, host ms
+        /// per frame).
+        #[arg(long)]
+        anim: bool,
     },
 }
 
@@ -130,7 +135,10 @@ impl Command {
                 quick,
                 texture,
             } => btf(gpu, opts, *quick, *texture),
-            Command::Sss { opts, quick } => sss(gpu, opts, *quick),
+            Command::Sss {
+                opts, anim: true, ..
+            } => sss_anim(gpu, opts),
+            Command::Sss { opts, quick, .. } => sss(gpu, opts, *quick),
         }
     }
 }
@@ -349,6 +357,18 @@ fn sss(gpu: &Gpu, opts: &Opts, quick: bool) -> Result<()> {
     print_sss(&r);
     write_json(opts, &r)?;
     write_plot(opts, || panels(&r))?;
+    finish(ctx)
+}
+
+/// `bench sss --anim`.
+fn sss_anim(gpu: &Gpu, opts: &Opts) -> Result<()> {
+    check_outputs(opts, false)?;
+    let cfg = bench::sss::SssAnimBenchConfig::default();
+    let ctx = gpu.context()?;
+    eprintln!("bench sss --anim on {}", ctx.info().name);
+    let r = bench::sss::run_anim(&ctx, &cfg, &mut |l| progress(l))?;
+    bench::sss::print_anim(&r);
+    write_json(opts, &r)?;
     finish(ctx)
 }
 

@@ -4,17 +4,26 @@
 //! `render.png` (the mesh lit with subsurface diffusion + transmission | the same irradiance
 //! shaded as plain Lambertian with the same total reflectance, same camera), with
 //! `--reference` `reference.png` (diffusion alone | brute-force truth | error heat map), and
-//! `report.json`.
+//! `report.json`. With `--anim`, every frame runs on the GPU (skinning, texture-space
+//! geometry, BVH refit, irradiance, diffusion; the host records and submits) and writes
+//! `frame_NNNN/irradiance.exr`, `diffuse.exr` and `posed.obj` (the posed mesh with its atlas
+//! UVs, model units); the report gives GPU ms per pass and host ms per frame, and with
+//! `--reference` the brute-force truth at every frame's pose.
 
 use super::Gpu;
 use crate::error::{Error, Result};
 use crate::geom::bvh::Bvh;
 use crate::gpu::{Context, Timings};
 use crate::io::FloatImage;
+use crate::kernels::pose::{PoseKernel, Prepared};
+use crate::kernels::sss::contact::Contact;
 use crate::kernels::sss::cpu::{self, DiffusionGeometry, Light, SamplerParams};
 use crate::kernels::sss::gpu::{PASS_DIFFUSION, PASS_IRRADIANCE, PASS_VERTEX};
+use crate::kernels::sss::posed;
 use crate::kernels::sss::profile::DEFAULT_ENERGY;
-use crate::kernels::sss::{Material, Profile, ProfileKind, SssKernel, SssOutput, TexGeometry};
+use crate::kernels::sss::{
+    Material, PosedBuffers, Profile, ProfileKind, SssKernel, SssOutput, TexGeometry,
+};
 use crate::kernels::{Kernel, KernelInfo, run_frames};
 use crate::reference::sss::{ChannelError, Sources, brute_force, brute_force_where};
 use crate::render::ValueImage;
@@ -278,6 +287,15 @@ pub struct SssReport {
     pub gpu_ms_irradiance: f64,
     pub gpu_ms_diffusion: f64,
     pub fps: f64,
+    /// GPU ms per pass and host ms per frame (with --anim: the per-frame geometry passes
+    /// included).
+    pub frame_cost: FrameCost,
+    /// With --anim: the contact entries of the rest pose reused at the last frame's pose.
+    pub contact_reuse: Option<ContactReuse>,
+    /// With --anim: the refitted BVH at the last frame's pose.
+    pub bvh: Option<BvhQuality>,
+    /// With --anim and --reference: the brute-force truth at every frame's pose.
+    pub reference_poses: Vec<PoseReference>,
     /// Mean fraction of the samples not lost (a non-manifold edge, outside the texture or no
     /// surface where one lands) over covered texels.
     pub accepted_fraction: f64,
@@ -307,6 +325,14 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
     let mut session = Session::new(ctx, cfg, &character, anim, lights, progress)?;
     let frames = session.frames(progress)?;
     let twin = session.cpu_twin(&frames.gpu, progress);
+    let contact_reuse = session.contact_reuse(&frames.gpu, &twin.dg, progress);
+    let bvh = session.bvh_quality();
+    if let Some(b) = &bvh {
+        progress(&format!(
+            "BVH refit ({} levels): SAH cost {:.1}, a tree built for the pose {:.1}",
+            b.levels, b.sah_refitted, b.sah_built_for_pose
+        ));
+    }
     let covered = session.covered();
     let mut files = session.write_textures(&frames.gpu)?;
     let (reference, truth) = match cfg.reference {
@@ -324,7 +350,10 @@ pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Re
         truth.as_deref(),
     )?);
     let notes = session.notes(scale_warning);
-    let report = session.report(frames, twin, &covered, reference, files, notes);
+    let mut report = session.report(frames, twin, &covered, reference, files, notes);
+    report.contact_reuse = contact_reuse;
+    report.bvh = bvh;
+    report.reference_poses = session.pose_references(progress)?;
     crate::io::write_json(&cfg.out.join("report.json"), &report)?;
     Ok(report)
 }
@@ -361,6 +390,63 @@ struct Session<'a> {
     profile: Profile,
     params: SamplerParams,
     kernel: SssKernel,
+    /// With --anim: the rest pose's texture-space geometry (the kernel's UV layout) and the
+    /// contact entries the kernel reuses in every pose (built once, for the rest pose).
+    rest: Option<(TexGeometry, Contact)>,
+    /// With --anim: the skinning pass whose posed buffers the kernel reads.
+    pose: Option<PoseKernel>,
+    /// With --anim and --reference: each frame's time, posed mesh (the GPU's pose) and
+    /// outputs, for the brute-force truth at every pose.
+    kept: Vec<(f32, Mesh, SssOutput)>,
+}
+
+/// The GPU path against the brute-force truth at one pose of the animation (every 3rd
+/// covered texel of the pose's CPU rasterisation as a receiver, every covered texel as a
+/// source, the GPU's irradiance).
+#[derive(Clone, Debug, Serialize)]
+pub struct PoseReference {
+    pub time: f32,
+    /// How far the vertices moved from the rest pose (mm).
+    pub moved_mm: f64,
+    pub error: ChannelError,
+    pub ms: f64,
+}
+
+/// Host milliseconds of a frame outside waiting, and the GPU ms of every pass.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct FrameCost {
+    /// Median GPU ms per pass, in recording order.
+    pub gpu_ms_per_pass: Vec<(String, f64)>,
+    /// Median GPU ms of the whole frame (every pass).
+    pub gpu_ms_total: f64,
+    /// Median host ms per frame spent recording and submitting (command recording, the
+    /// lights' and push constants' bytes), excluding the waits.
+    pub host_ms_per_frame: f64,
+    /// Median host ms per frame evaluating the animation into joint matrices (the rig on
+    /// the CPU: per joint, not per vertex; not in host_ms_per_frame).
+    pub host_ms_animation: f64,
+}
+
+/// What reusing the rest pose's contact entries in a posed frame costs, against entries
+/// built for that pose (the CPU twin's diffusion of the GPU irradiance with each): relative
+/// RMSE of B per channel over covered texels (area-weighted), the largest relative difference
+/// of B at one texel (texels with B at least 1e-3 of the largest), and the build time the
+/// reuse saves per frame.
+#[derive(Clone, Debug, Serialize)]
+pub struct ContactReuse {
+    pub diffuse_rel_rmse: [f64; 3],
+    pub diffuse_energy_ratio: [f64; 3],
+    pub diffuse_max_rel: [f64; 3],
+    pub build_ms_per_pose: f64,
+}
+
+/// The refitted BVH's quality at the last frame: the SAH-like cost (posed::sah_cost) of the
+/// rest pose's topology refitted, and of a tree built for the pose.
+#[derive(Clone, Debug, Serialize)]
+pub struct BvhQuality {
+    pub levels: usize,
+    pub sah_refitted: f64,
+    pub sah_built_for_pose: f64,
 }
 
 /// What the frames gave: the last frame's outputs and the median pass times.
@@ -370,6 +456,7 @@ struct Frames {
     ms_irradiance: f64,
     ms_diffusion: f64,
     in_flight: usize,
+    cost: FrameCost,
 }
 
 /// The CPU twin of both passes on the last frame's geometry, and what the per-vertex
@@ -438,9 +525,31 @@ impl<'a> Session<'a> {
             ..SamplerParams::default()
         };
         let mut setup = ctx.recorder("sss setup")?;
-        let kernel = SssKernel::new(&mut setup, &geo, &profile, params)?;
+        let (kernel, rest, pose) = match anim {
+            None => (
+                SssKernel::new(&mut setup, &geo, &profile, params)?,
+                None,
+                None,
+            ),
+            Some(_) => {
+                let prep = Prepared::new(mesh, character.rig.joints.len())?;
+                let pose = PoseKernel::new(&mut setup, &prep)?;
+                let src = PosedBuffers {
+                    positions: pose.positions(),
+                    normals: pose.normals(),
+                    mm_per_unit: cfg.mm_per_unit as f32,
+                };
+                let k =
+                    SssKernel::new_posed(&mut setup, &geo, &mesh.positions, &profile, params, src)?;
+                let contact = Contact::build(&geo, &profile);
+                (k, Some((geo.clone(), contact)), Some(pose))
+            }
+        };
         setup.submit_and_wait()?;
         Ok(Session {
+            rest,
+            pose,
+            kept: Vec::new(),
             ctx,
             cfg,
             character,
@@ -457,9 +566,10 @@ impl<'a> Session<'a> {
     /// times.
     fn frames(&mut self, progress: &mut dyn FnMut(&str)) -> Result<Frames> {
         let mut times: Vec<(f64, f64)> = Vec::new();
+        let mut cost = FrameCost::default();
         let (last, in_flight) = match self.anim {
             None => self.repeated_frames(&mut times)?,
-            Some(a) => self.animated_frames(a, &mut times, progress)?,
+            Some(a) => self.animated_frames(a, &mut times, &mut cost, progress)?,
         };
         let gpu = last.ok_or_else(|| Error::InvalidArgument("no frame ran".into()))?;
         let median = |f: &dyn Fn(&(f64, f64)) -> f64| {
@@ -472,11 +582,15 @@ impl<'a> Session<'a> {
             "GPU: irradiance {ms_e:.2} ms + diffusion {ms_b:.2} ms ({:.1} fps)",
             1000.0 / (ms_e + ms_b)
         ));
+        if cost.gpu_ms_per_pass.is_empty() {
+            cost.gpu_ms_total = ms_e + ms_b;
+        }
         Ok(Frames {
             gpu,
             ms_irradiance: ms_e,
             ms_diffusion: ms_b,
             in_flight,
+            cost,
         })
     }
 
@@ -492,41 +606,119 @@ impl<'a> Session<'a> {
         Ok((last, in_flight))
     }
 
-    /// Each frame: pose on the CPU, re-rasterise the texture-space geometry (same UV
-    /// layout), upload it, run the passes. The geometry and outputs of the last frame stay.
+    /// Each frame on the GPU path: the skinning pass (`kernels::pose`), then the kernel's
+    /// frame: vertex frames, walk records, texel geometry and the BVH refit from the posed
+    /// buffers, lights, irradiance, diffusion. The host evaluates the joint matrices,
+    /// records and submits; host ms is recording and submitting, not waiting. Each frame's
+    /// irradiance.exr, diffuse.exr and posed mesh (OBJ) go to frame_NNNN/ (read back after
+    /// the frame). The CPU geometry of the last pose is built afterwards (for the twin and
+    /// the reference).
     fn animated_frames(
         &mut self,
         a: &Animation,
         times: &mut Vec<(f64, f64)>,
+        cost: &mut FrameCost,
         progress: &mut dyn FnMut(&str),
     ) -> Result<(Option<SssOutput>, usize)> {
-        let (cfg, mesh) = (self.cfg, &self.character.mesh);
+        let cfg = self.cfg;
+        let pose = self
+            .pose
+            .as_ref()
+            .ok_or_else(|| Error::InvalidArgument("--anim without a pose kernel".into()))?;
         let mut last = None;
+        let mut last_posed = None;
+        let mut per_pass: Vec<(String, Vec<f64>)> = Vec::new();
+        let (mut host, mut animation, mut total) = (vec![], vec![], vec![]);
         for f in 0..cfg.frames {
-            let time = a.duration * f as f32 / cfg.frames.max(2).saturating_sub(1) as f32;
+            // Frames spread over the animation, at the middles of N equal spans.
+            let time = a.duration * (f as f32 + 0.5) / cfg.frames as f32;
+            let t = Instant::now();
             let m = self.character.rig.skinning_matrices(Some(a), time);
-            let posed = crate::scene::texspace::posed(mesh, &m)?;
+            animation.push(t.elapsed().as_secs_f64() * 1e3);
+            let t = Instant::now();
+            let mut rec = self.ctx.recorder(&format!("sss frame {f}"))?;
+            pose.record(&mut rec, &m)?;
+            self.kernel.record(&mut rec, &self.lights[..])?;
+            let rb = self.kernel.read_back(&mut rec)?;
+            let submission = rec.submit()?;
+            host.push(t.elapsed().as_secs_f64() * 1e3);
+            let timings = submission.wait()?;
+            times.push(pass_times(&timings));
+            total.push(timings.passes.iter().map(|p| p.ms).sum::<f64>());
+            for p in &timings.passes {
+                match per_pass.iter_mut().find(|(n, _)| *n == p.name) {
+                    Some((_, v)) => v.push(p.ms),
+                    None => per_pass.push((p.name.to_string(), vec![p.ms])),
+                }
+            }
+            let out = self.kernel.collect(&rb)?;
+            let posed = self.write_frame(f, &out, pose)?;
             let moved = posed
                 .positions
                 .iter()
-                .zip(&mesh.positions)
-                .map(|(p, q)| (*p - *q).length())
-                .fold(0f32, f32::max) as f64
-                * cfg.mm_per_unit;
-            self.geo = TexGeometry::build(&posed, cfg.size, cfg.mm_per_unit)?;
-            let mut rec = self.ctx.recorder(&format!("sss frame {f}"))?;
-            self.kernel.update_geometry(&mut rec, &self.geo)?;
-            self.kernel.record(&mut rec, &self.lights[..])?;
-            let rb = self.kernel.read_back(&mut rec)?;
-            let timings = rec.submit_and_wait()?;
-            times.push(pass_times(&timings));
-            last = Some(self.kernel.collect(&rb)?);
+                .zip(&self.character.mesh.positions)
+                .map(|(p, q)| (*p - *q).length() as f64)
+                .fold(0f64, f64::max);
             progress(&format!(
-                "frame {f} ({} at {time:.2} s): vertices moved up to {moved:.1} mm",
-                a.name
+                "frame {f} ({} at {time:.2} s): vertices moved up to {:.1} mm; GPU {:.2} ms, \
+                 host {:.3} ms",
+                a.name,
+                moved * cfg.mm_per_unit,
+                total.last().copied().unwrap_or(f64::NAN),
+                host.last().copied().unwrap_or(f64::NAN)
             ));
+            if cfg.reference {
+                self.kept.push((time, posed.clone(), out.clone()));
+            }
+            last = Some(out);
+            last_posed = Some(posed);
+        }
+        let median = |mut v: Vec<f64>| {
+            v.sort_by(f64::total_cmp);
+            v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
+        };
+        cost.gpu_ms_per_pass = per_pass.into_iter().map(|(n, v)| (n, median(v))).collect();
+        cost.gpu_ms_total = median(total);
+        cost.host_ms_per_frame = median(host);
+        cost.host_ms_animation = median(animation);
+        // The CPU twin's geometry: the GPU's own pose of the last frame, rasterised.
+        if let Some(posed) = last_posed {
+            self.geo = TexGeometry::build(&posed, cfg.size, cfg.mm_per_unit)?;
         }
         Ok((last, 1))
+    }
+
+    /// frame_NNNN/: irradiance.exr, diffuse.exr and the posed mesh the GPU used (read back
+    /// from the skinning pass's buffers after the frame; OBJ, model units, atlas UVs per
+    /// corner). Returns that posed mesh (seam copies welded, as the kernel welds them).
+    fn write_frame(&self, f: usize, out: &SssOutput, pose: &PoseKernel) -> Result<Mesh> {
+        let dir = self.cfg.out.join(format!("frame_{f:04}"));
+        let texture = |v: &[[f32; 4]]| FloatImage {
+            width: self.geo.size,
+            height: self.geo.size,
+            pixels: v.to_vec(),
+        };
+        for (name, data) in [
+            ("irradiance.exr", &out.irradiance),
+            ("diffuse.exr", &out.diffuse),
+        ] {
+            crate::io::exr::write(
+                &dir.join(name),
+                &texture(data),
+                crate::io::exr::Channels::Rgba,
+            )?;
+        }
+        let mut rec = self.ctx.recorder("sss posed mesh readback")?;
+        let rb = pose.read_back(&mut rec)?;
+        rec.submit_and_wait()?;
+        let data = rb.data()?;
+        let mut posed = self.character.mesh.clone();
+        let weld = posed::weld_first(&posed.positions);
+        posed.positions = weld.iter().map(|&w| data.positions[w as usize]).collect();
+        posed.normals = data.normals;
+        let obj = posed_obj(&posed.positions, &self.geo, self.cfg.mm_per_unit);
+        crate::io::write_atomic(&dir.join("posed.obj"), obj.as_bytes())?;
+        Ok(posed)
     }
 
     /// The CPU twin of both passes and of the transmission on the last frame's geometry,
@@ -537,7 +729,14 @@ impl<'a> Session<'a> {
         let bvh = Bvh::build(&geo.positions, &geo.triangles);
         let cpu_e = cpu::irradiance(geo, &bvh, lights, params.shadow_refine);
         let ms_irradiance = t.elapsed().as_secs_f64() * 1e3;
-        let dg = DiffusionGeometry::build(geo, profile);
+        // A posed kernel reuses the rest pose's contact entries: so does its twin.
+        let dg = match &self.rest {
+            Some((_, contact)) => DiffusionGeometry {
+                walk: crate::kernels::sss::walk::SurfaceWalk::build(geo),
+                contact: contact.clone(),
+            },
+            None => DiffusionGeometry::build(geo, profile),
+        };
         let t = Instant::now();
         let cpu_b = cpu::diffusion_with(&dg, geo, profile, &cpu_e, params);
         let ms_diffusion = t.elapsed().as_secs_f64() * 1e3;
@@ -600,6 +799,129 @@ impl<'a> Session<'a> {
             diffuse_rel_rmse: b_err.rel_rmse,
             diffuse_energy_ratio: b_err.energy_ratio,
         }
+    }
+
+    /// What reusing the rest pose's contact entries costs at the last frame's pose: the CPU
+    /// diffusion of the GPU irradiance with them against the same with entries built for
+    /// the pose (CPU, ~1 s).
+    fn contact_reuse(
+        &self,
+        gpu: &SssOutput,
+        dg: &DiffusionGeometry,
+        progress: &mut dyn FnMut(&str),
+    ) -> Option<ContactReuse> {
+        self.rest.as_ref()?;
+        let (geo, profile, params) = (&self.geo, &self.profile, &self.params);
+        let t = Instant::now();
+        let per_pose = Contact::build(geo, profile);
+        let build_ms_per_pose = t.elapsed().as_secs_f64() * 1e3;
+        let reused = cpu::diffusion_with(dg, geo, profile, &gpu.irradiance, params);
+        let fresh_dg = DiffusionGeometry {
+            walk: dg.walk.clone(),
+            contact: per_pose,
+        };
+        let fresh = cpu::diffusion_with(&fresh_dg, geo, profile, &gpu.irradiance, params);
+        let covered = self.covered();
+        let w: Vec<f64> = covered.iter().map(|&i| geo.nrm[i][3] as f64).collect();
+        let pick = |v: &[[f32; 4]]| -> Vec<[f64; 3]> {
+            covered
+                .iter()
+                .map(|&i| [0, 1, 2].map(|c| v[i][c] as f64))
+                .collect()
+        };
+        let (a, b) = (pick(&reused), pick(&fresh));
+        let err = ChannelError::of(&a, &b, &w);
+        let diffuse_max_rel = [0, 1, 2].map(|c| {
+            let top = b.iter().map(|x| x[c]).fold(0f64, f64::max);
+            a.iter()
+                .zip(&b)
+                .filter(|(_, y)| y[c] >= 1e-3 * top)
+                .map(|(x, y)| (x[c] - y[c]).abs() / y[c])
+                .fold(0f64, f64::max)
+        });
+        let r = ContactReuse {
+            diffuse_rel_rmse: err.rel_rmse,
+            diffuse_energy_ratio: err.energy_ratio,
+            diffuse_max_rel,
+            build_ms_per_pose,
+        };
+        progress(&format!(
+            "contact entries of the rest pose at the last pose: B rel RMSE {:.2e} {:.2e} {:.2e}, \
+             max rel {:.2e} {:.2e} {:.2e} against entries built for the pose ({:.0} ms a pose)",
+            r.diffuse_rel_rmse[0],
+            r.diffuse_rel_rmse[1],
+            r.diffuse_rel_rmse[2],
+            r.diffuse_max_rel[0],
+            r.diffuse_max_rel[1],
+            r.diffuse_max_rel[2],
+            r.build_ms_per_pose
+        ));
+        Some(r)
+    }
+
+    /// The refitted BVH's SAH cost at the last frame's pose against a tree built for it.
+    fn bvh_quality(&self) -> Option<BvhQuality> {
+        let (rest, _) = self.rest.as_ref()?;
+        let top = posed::BvhTopology::build(&rest.positions, &rest.triangles).ok()?;
+        let (nodes, _) = posed::refit(&top, &self.geo.positions);
+        let fresh = Bvh::build(&self.geo.positions, &self.geo.triangles)
+            .flat()
+            .0;
+        Some(BvhQuality {
+            levels: top.levels(),
+            sah_refitted: posed::sah_cost(&nodes),
+            sah_built_for_pose: posed::sah_cost(&fresh),
+        })
+    }
+
+    /// With --anim and --reference: the GPU's diffusion against the brute force at every
+    /// frame's pose.
+    fn pose_references(&self, progress: &mut dyn FnMut(&str)) -> Result<Vec<PoseReference>> {
+        let (cfg, mesh) = (self.cfg, &self.character.mesh);
+        let mut out = Vec::new();
+        for (time, posed, gpu) in &self.kept {
+            let t = Instant::now();
+            let geo = TexGeometry::build(posed, cfg.size, cfg.mm_per_unit)?;
+            let moved_mm = posed
+                .positions
+                .iter()
+                .zip(&mesh.positions)
+                .map(|(p, q)| (*p - *q).length() as f64)
+                .fold(0f64, f64::max)
+                * cfg.mm_per_unit;
+            let covered: Vec<usize> = (0..geo.texels())
+                .filter(|&i| geo.pos[i][3] == COVERED)
+                .collect();
+            let receivers: Vec<usize> = covered.iter().copied().step_by(3).collect();
+            let at: Vec<DVec3> = receivers
+                .iter()
+                .map(|&i| Vec3::from_slice(&geo.pos[i][..3]).as_dvec3())
+                .collect();
+            let truth = brute_force(
+                &Sources::from_texels(&geo, &gpu.irradiance),
+                &at,
+                &self.profile,
+            );
+            let est: Vec<[f64; 3]> = receivers
+                .iter()
+                .map(|&i| [0, 1, 2].map(|c| gpu.diffuse[i][c] as f64))
+                .collect();
+            let w: Vec<f64> = receivers.iter().map(|&i| geo.nrm[i][3] as f64).collect();
+            let error = ChannelError::of(&est, &truth, &w);
+            let ms = t.elapsed().as_secs_f64() * 1e3;
+            progress(&format!(
+                "pose at {time:.2} s (moved {moved_mm:.0} mm) vs brute force: rel RMSE {:.4?}, \
+                 energy {:.4?} ({ms:.0} ms)",
+                error.rel_rmse, error.energy_ratio
+            ));
+            out.push(PoseReference {
+                time: *time,
+                moved_mm,
+                error,
+                ms,
+            });
+        }
+        Ok(out)
     }
 
     /// The covered texels of the last frame's geometry.
@@ -763,8 +1085,10 @@ impl<'a> Session<'a> {
              through a BVH of the mesh on the GPU, one per mesh vertex and light, refined by a \
              ray per texel where a triangle's corners disagree (interpolated over the triangle \
              with --vertex-shadows; see `shadowing`); the texture-space geometry is \
-             rasterised on the CPU (once; with --anim once per frame after CPU skinning, BVH \
-             rebuilt); transmission: thickness along -n by a ray per vertex, \
+             rasterised on the CPU once; with --anim each frame computes the vertex frames, \
+             texel geometry, surface-walk records and a refit of the rest pose's BVH on the \
+             GPU from the posed vertices (contact entries: the rest pose's, see \
+             `contact_reuse`); transmission: thickness along -n by a ray per vertex, \
              back irradiance times the profile beyond the thickness (flat-slab model), \
              interpolated per texel, added in render.png, not in diffuse.exr"
                 .into(),
@@ -812,7 +1136,11 @@ impl<'a> Session<'a> {
             kernel: KernelInfo::of(&self.kernel, frames.in_flight),
             gpu_ms_irradiance: ms_e,
             gpu_ms_diffusion: ms_b,
-            fps: 1000.0 / (ms_e + ms_b),
+            fps: 1000.0 / frames.cost.gpu_ms_total,
+            frame_cost: frames.cost.clone(),
+            contact_reuse: None,
+            bvh: None,
+            reference_poses: Vec::new(),
             accepted_fraction,
             gpu_vs_cpu: twin.error,
             shadowing: twin.shadowing,
@@ -823,6 +1151,40 @@ impl<'a> Session<'a> {
             notes,
         }
     }
+}
+
+/// The posed mesh as OBJ text: positions `p` (model units, vec4), the triangles of `geo` with
+/// its atlas UVs per corner (`vt`, one per triangle corner: the texture-space layout the
+/// EXRs are in, u right and v down the rows, texel (x, y) centred at ((x + 0.5) / N,
+/// (y + 0.5) / N)).
+fn posed_obj(p: &[Vec3], geo: &TexGeometry, mm_per_unit: f64) -> String {
+    use std::fmt::Write;
+    let mut s = format!(
+        "# vkshade sss --anim: the posed mesh (model units; {mm_per_unit} mm per unit), \
+         {}^2 atlas UVs per corner (v down the texture's rows)\n",
+        geo.size
+    );
+    for v in p {
+        let _ = writeln!(s, "v {} {} {}", v.x, v.y, v.z);
+    }
+    for t in &geo.corner_uvs {
+        for uv in t {
+            let _ = writeln!(s, "vt {} {}", uv.x, uv.y);
+        }
+    }
+    for (k, t) in geo.triangles.iter().enumerate() {
+        let _ = writeln!(
+            s,
+            "f {}/{} {}/{} {}/{}",
+            t[0] + 1,
+            3 * k + 1,
+            t[1] + 1,
+            3 * k + 2,
+            t[2] + 1,
+            3 * k + 3
+        );
+    }
+    s
 }
 
 /// RGB of RGBA texels, in f64.
@@ -1123,8 +1485,9 @@ pub struct Args {
     /// Texture size (N x N texels).
     #[arg(long, default_value_t = 512)]
     pub size: u32,
-    /// Frames to run: spread over --anim (posed and re-rasterised each frame), or the same
-    /// frame repeated; timings are medians, the last frame is written.
+    /// Frames to run: spread over --anim (each at the middle of one of N equal spans of the
+    /// animation; skinning and the texture-space geometry on the GPU each frame; every
+    /// frame written to frame_NNNN/), or the same frame repeated; timings are medians.
     #[arg(long, default_value_t = 1)]
     pub frames: usize,
     /// Animation of the mesh's skeleton (glTF; name or unique substring).
@@ -1200,6 +1563,19 @@ impl Args {
 
 /// The line `vkshade sss` prints: the timings of the two passes and where the files went.
 pub fn display(r: &SssReport, cfg: &SssConfig) {
+    if r.anim.is_some() {
+        let passes: Vec<String> = (r.frame_cost.gpu_ms_per_pass.iter())
+            .map(|(n, ms)| format!("{n} {ms:.2}"))
+            .collect();
+        println!(
+            "per frame (medians): GPU {:.2} ms ({}); host {:.3} ms recording + submitting, \
+             {:.3} ms evaluating the animation",
+            r.frame_cost.gpu_ms_total,
+            passes.join(", "),
+            r.frame_cost.host_ms_per_frame,
+            r.frame_cost.host_ms_animation
+        );
+    }
     println!(
         "{} {}^2 texels x {} samples: irradiance {:.2} ms + diffusion {:.2} ms GPU = {:.1} fps; wrote {}",
         r.mesh,

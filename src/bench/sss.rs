@@ -361,3 +361,240 @@ pub fn panels(r: &SssBenchReport) -> Vec<super::plot::Panel> {
         },
     ]
 }
+
+/// `vkshade bench sss --anim`: the whole per-frame path of a skinned head on the GPU.
+#[derive(Clone, Debug, Serialize)]
+pub struct SssAnimBenchConfig {
+    pub mesh: PathBuf,
+    pub part: String,
+    pub animation: String,
+    pub mm_per_unit: f64,
+    pub size: u32,
+    pub samples: u32,
+    /// Untimed frames, then timed frames (poses spread over the animation).
+    pub warmup: usize,
+    pub frames: usize,
+}
+
+impl Default for SssAnimBenchConfig {
+    fn default() -> Self {
+        SssAnimBenchConfig {
+            mesh: PathBuf::from(crate::kernels::sss::DEFAULT_MESH),
+            part: crate::kernels::sss::DEFAULT_PART.into(),
+            animation: "Epileptisch".into(),
+            mm_per_unit: 1000.0,
+            size: 512,
+            samples: 32,
+            warmup: 2,
+            frames: 12,
+        }
+    }
+}
+
+/// What `bench sss --anim` measures.
+#[derive(Clone, Debug, Serialize)]
+pub struct SssAnimBenchReport {
+    pub benchmark: &'static str,
+    pub machine: MachineInfo,
+    pub config: SssAnimBenchConfig,
+    /// GPU ms per pass (skinning, per-frame geometry, lights, shadows, irradiance,
+    /// diffusion), over the timed frames.
+    pub passes: Vec<(String, Stats)>,
+    /// GPU ms of a whole frame (the sum of its passes) and the fps it gives.
+    pub gpu_ms_per_frame: Stats,
+    pub gpu_fps: f64,
+    /// Frames per second of wall-clock time with two frames in flight (recording the next
+    /// while the device runs the last).
+    pub wall_fps: f64,
+    /// Host ms per frame recording and submitting (pose joints, the kernels' passes, the
+    /// lights), excluding the waits; and evaluating the animation into joint matrices.
+    pub host_ms_per_frame: Stats,
+    pub host_ms_animation: Stats,
+    /// The same run's static frame (the rest pose's geometry uploaded once: lights, shadows,
+    /// irradiance, diffusion; the sum of the passes' medians) and the ratio of the animated
+    /// frame to it.
+    pub static_gpu_ms_per_frame: f64,
+    pub anim_over_static: f64,
+    /// What the per-frame geometry cost the host before (CPU skinning, texture-space
+    /// rasterisation, BVH, walk and contact build, packing: the old `sss --anim`), one pose.
+    pub cpu_geometry_ms_per_frame_before: Stats,
+    /// Of which the contact build.
+    pub cpu_contact_ms_per_frame_before: Stats,
+}
+
+/// Runs `bench sss --anim`.
+pub fn run_anim(
+    ctx: &Context,
+    cfg: &SssAnimBenchConfig,
+    progress: &mut dyn FnMut(&str),
+) -> Result<SssAnimBenchReport> {
+    use crate::kernels::pose::{PoseKernel, Prepared};
+    use crate::kernels::sss::{PosedBuffers, load_character};
+    let ch = load_character(&cfg.mesh, Some(&cfg.part))?;
+    let anim = ch.animation(&cfg.animation)?;
+    let mesh = &ch.mesh;
+    let profile = Profile::new(
+        ProfileKind::Dipole,
+        Material::SKIN1,
+        crate::kernels::sss::profile::DEFAULT_ENERGY,
+    )?;
+    let params = SamplerParams {
+        samples: cfg.samples,
+        ..SamplerParams::default()
+    };
+    let geo = TexGeometry::build(mesh, cfg.size, cfg.mm_per_unit)?;
+    let lights = lights();
+    let mut setup = ctx.recorder("sss anim bench setup")?;
+    let prep = Prepared::new(mesh, ch.rig.joints.len())?;
+    let pose = PoseKernel::new(&mut setup, &prep)?;
+    let src = PosedBuffers {
+        positions: pose.positions(),
+        normals: pose.normals(),
+        mm_per_unit: cfg.mm_per_unit as f32,
+    };
+    let kernel = SssKernel::new_posed(&mut setup, &geo, &mesh.positions, &profile, params, src)?;
+    let still = SssKernel::new(&mut setup, &geo, &profile, params)?;
+    setup.submit_and_wait()?;
+    progress(&format!(
+        "{}: {} vertices, {} triangles; {}^2 x {} samples",
+        mesh.name,
+        mesh.positions.len(),
+        mesh.triangles.len(),
+        cfg.size,
+        cfg.samples
+    ));
+    let n = cfg.warmup + cfg.frames.max(1);
+    let time_of = |f: usize| anim.duration * (f as f32 + 0.5) / n as f32;
+    let mut per_pass: Vec<(String, Vec<f64>)> = Vec::new();
+    let (mut gpu, mut host, mut animation) = (vec![], vec![], vec![]);
+    // Two frames in flight: the host records frame f while the device runs frame f - 1.
+    let mut pending: std::collections::VecDeque<crate::gpu::Submission> = Default::default();
+    let mut finish = |sub: crate::gpu::Submission, timed: bool| -> Result<()> {
+        let t = sub.wait()?;
+        if timed {
+            gpu.push(t.passes.iter().map(|p| p.ms).sum::<f64>());
+            for p in &t.passes {
+                match per_pass.iter_mut().find(|(n, _)| *n == p.name) {
+                    Some((_, v)) => v.push(p.ms),
+                    None => per_pass.push((p.name.to_string(), vec![p.ms])),
+                }
+            }
+        }
+        Ok(())
+    };
+    let mut wall = std::time::Instant::now();
+    for f in 0..n {
+        if f == cfg.warmup {
+            while let Some(s) = pending.pop_front() {
+                finish(s, false)?;
+            }
+            wall = std::time::Instant::now();
+        }
+        let t = std::time::Instant::now();
+        let m = ch.rig.skinning_matrices(Some(anim), time_of(f));
+        let ms_anim = t.elapsed().as_secs_f64() * 1e3;
+        let t = std::time::Instant::now();
+        let mut rec = ctx.recorder("sss anim frame")?;
+        pose.record(&mut rec, &m)?;
+        kernel.record(&mut rec, &lights[..])?;
+        let sub = rec.submit()?;
+        let ms_host = t.elapsed().as_secs_f64() * 1e3;
+        if f >= cfg.warmup {
+            host.push(ms_host);
+            animation.push(ms_anim);
+        }
+        pending.push_back(sub);
+        if pending.len() >= 2
+            && let Some(s) = pending.pop_front()
+        {
+            finish(s, f > cfg.warmup)?;
+        }
+    }
+    while let Some(s) = pending.pop_front() {
+        finish(s, true)?;
+    }
+    let wall_fps = cfg.frames.max(1) as f64 / wall.elapsed().as_secs_f64();
+    let stats = |v: &[f64]| Stats::of(v).unwrap_or_else(Stats::none);
+    let gpu_ms = stats(&gpu);
+    // The static frame in the same run.
+    let bench = super::BenchConfig {
+        warmup: 1,
+        samples: 3,
+        min_submit_ms: 0.0,
+    };
+    let still_passes = time_passes(ctx, &bench, &still, &lights[..])?;
+    let static_ms = still_passes.iter().map(|(_, s)| s.median).sum::<f64>();
+    // The old per-frame host work, one pose (the middle of the animation).
+    let m = ch.rig.skinning_matrices(Some(anim), 0.5 * anim.duration);
+    let room = crate::kernels::sss::pack::Room::of(&crate::kernels::sss::pack::Packed::new(
+        &geo, &profile,
+    )?);
+    // The old per-frame host work (one run): pose, rasterise, then pack (BVH, walk and
+    // contact builds); the contact build alone timed apart on the same pose.
+    let before = time_cpu(1, || -> Result<()> {
+        let posed = crate::scene::texspace::posed(mesh, &m)?;
+        let g = TexGeometry::build(&posed, cfg.size, cfg.mm_per_unit)?;
+        room.pack(&g, &profile).map(|_| ())
+    });
+    let posed = crate::scene::texspace::posed(mesh, &m)?;
+    let g = TexGeometry::build(&posed, cfg.size, cfg.mm_per_unit)?;
+    let contact = time_cpu(1, || {
+        crate::kernels::sss::contact::Contact::build(&g, &profile)
+    });
+    let report = SssAnimBenchReport {
+        benchmark: "vkshade bench sss --anim",
+        machine: MachineInfo::of(ctx),
+        config: cfg.clone(),
+        passes: per_pass
+            .iter()
+            .map(|(n, v)| (n.clone(), stats(v)))
+            .collect(),
+        gpu_fps: 1000.0 / gpu_ms.median,
+        wall_fps,
+        host_ms_per_frame: stats(&host),
+        host_ms_animation: stats(&animation),
+        anim_over_static: gpu_ms.median / static_ms,
+        static_gpu_ms_per_frame: static_ms,
+        gpu_ms_per_frame: gpu_ms,
+        cpu_geometry_ms_per_frame_before: before,
+        cpu_contact_ms_per_frame_before: contact,
+    };
+    Ok(report)
+}
+
+/// The table of `bench sss --anim`.
+pub fn print_anim(r: &SssAnimBenchReport) {
+    let c = &r.config;
+    println!("device                 {}", r.machine.device);
+    println!(
+        "frame                  {} {}^2 x {} samples, {} ({} timed frames over the animation)",
+        c.part, c.size, c.samples, c.animation, c.frames
+    );
+    for (name, s) in &r.passes {
+        println!("  {name:<22} {:>8.2} ms GPU (median)", s.median);
+    }
+    let target = |ok: bool| if ok { "PASS" } else { "MISS" };
+    println!(
+        "GPU per frame          {:.2} ms = {:.1} fps (target >= 30) {}; wall clock {:.1} fps \
+         (two in flight)",
+        r.gpu_ms_per_frame.median,
+        r.gpu_fps,
+        target(r.gpu_fps >= 30.0),
+        r.wall_fps
+    );
+    println!(
+        "host per frame         {:.3} ms recording + submitting (target <= 1) {}; {:.3} ms \
+         evaluating the animation",
+        r.host_ms_per_frame.median,
+        target(r.host_ms_per_frame.median <= 1.0),
+        r.host_ms_animation.median
+    );
+    println!(
+        "same run               static frame {:.2} ms GPU: animated / static = {:.2}; the \
+         old CPU geometry per frame {:.0} ms host (contact build {:.0} ms)",
+        r.static_gpu_ms_per_frame,
+        r.anim_over_static,
+        r.cpu_geometry_ms_per_frame_before.median,
+        r.cpu_contact_ms_per_frame_before.median
+    );
+}

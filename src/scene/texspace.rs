@@ -30,9 +30,11 @@
 //! covered texel (ring by ring), flagged as gutter (area 0): irradiance computed there
 //! repeats the chart's border, so bilinear lookups at chart borders stay on the surface.
 //!
-//! Computed on the CPU: once for a static mesh; for a skinned mesh once per frame from the
-//! mesh posed by [`posed`] (linear blend skinning on the CPU; the UV layout, and so the
-//! overlap repair, is the same in every pose), uploaded with `SssKernel::update_geometry`.
+//! Computed on the CPU: once for a static mesh, and once for a skinned mesh's rest pose (the
+//! UV layout, and so the overlap repair, is the same in every pose): the SSS kernel computes
+//! each pose's texel positions, normals and areas on the GPU from this layout
+//! (`kernels::sss::posed`); this rasterisation of a mesh posed by [`posed`] is their CPU
+//! twin.
 
 use crate::error::{Error, Result};
 use crate::scene::Mesh;

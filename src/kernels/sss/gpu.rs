@@ -16,9 +16,19 @@
 //!
 //! The data is packed and checked on the CPU ([`super::pack`]); this module creates the images
 //! and buffers from it, records their uploads, binds the pipelines and declares the passes.
+//!
+//! A skinned mesh ([`SssKernel::new_posed`]) binds the posed vertex buffers of the skinning
+//! pass and starts each frame with five more passes that compute from them what the upload
+//! held for a static mesh: `sss pose vertices` (vertex frames in mm, as a buffer for the
+//! vertex-light pass and an image for the next two), `sss pose triangles` (the surface walk's
+//! records, face normals, texel areas), `sss pose texels` (position, normal, area per texel
+//! of the occupied segments), `sss bvh leaves` and `sss bvh refit` (the rest pose's BVH
+//! topology with this pose's triangles and boxes). What the UV layout fixes is uploaded once
+//! ([`super::posed::Layout`]), as are the contact entries (the rest pose's).
 
 use super::cpu::{Light, MAX_LIGHTS, SamplerParams, check_lights, shadow_bias};
 use super::pack::{self, BVH_ROW, Packed, Pattern, Room, Settings, VERTEX_ROW, tile_groups};
+use super::posed;
 use super::{Profile, TexGeometry};
 use crate::error::{Error, Result};
 use crate::gpu::{
@@ -35,6 +45,17 @@ pub const PASS_LIGHTS: &str = "sss lights";
 pub const PASS_VERTEX: &str = "sss vertex light";
 pub const PASS_IRRADIANCE: &str = "sss irradiance";
 pub const PASS_DIFFUSION: &str = "sss diffusion";
+/// Per-frame geometry of a skinned mesh ([`SssKernel::new_posed`]): the vertex frames (mm)
+/// from the posed buffers.
+pub const PASS_POSE_VERTICES: &str = "sss pose vertices";
+/// Per triangle: the surface walk's records, the face normal and texel area.
+pub const PASS_POSE_TRIANGLES: &str = "sss pose triangles";
+/// Per texel: position, normal, area.
+pub const PASS_POSE_TEXELS: &str = "sss pose texels";
+/// The BVH's leaves (triangles and boxes) from the posed vertices.
+pub const PASS_BVH_LEAVES: &str = "sss bvh leaves";
+/// The BVH's inner boxes, level by level.
+pub const PASS_BVH_REFIT: &str = "sss bvh refit";
 /// Most samples per texel (the width of the pattern image; Vulkan guarantees 4096 texels,
 /// checked at run time).
 pub const MAX_SAMPLES: u32 = 4096;
@@ -100,10 +121,14 @@ struct Resources {
     tile_list: Mutex<Vec<u32>>,
 }
 
-/// An RGBA32UI storage image the host fills.
+/// An RGBA32UI storage image the host fills (and can read back, for the tests of the
+/// per-frame geometry).
 fn uint_image(size: [u32; 2]) -> ImageDesc {
-    ImageDesc::d2(vk::Format::R32G32B32A32_UINT, size)
-        .usage(vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST)
+    ImageDesc::d2(vk::Format::R32G32B32A32_UINT, size).usage(
+        vk::ImageUsageFlags::STORAGE
+            | vk::ImageUsageFlags::TRANSFER_DST
+            | vk::ImageUsageFlags::TRANSFER_SRC,
+    )
 }
 
 /// A float storage image the host can fill and read back.
@@ -244,8 +269,17 @@ impl Stage {
     /// The embedded shader `name`, each of its bindings bound to the kernel's resource of
     /// that name; those in `writes` are declared as written only (`writeonly` in GLSL).
     fn new(ctx: &Context, name: &str, res: &Resources, writes: &[&str]) -> Result<Stage> {
+        Stage::from_table(ctx, name, &res.by_binding(), writes)
+    }
+
+    /// As [`Stage::new`], the resources looked up by name in `table`.
+    fn from_table(
+        ctx: &Context,
+        name: &str,
+        table: &[(&'static str, Resource<'_>)],
+        writes: &[&str],
+    ) -> Result<Stage> {
         let pipeline = crate::shaders::pipeline(ctx, name)?;
-        let table = res.by_binding();
         let lookup = |b: &str| table.iter().find(|(n, _)| *n == b).map(|(_, r)| r.clone());
         let w = AccessSet::from(A::ComputeShaderWrite);
         let writes: Vec<(&str, AccessSet)> = writes.iter().map(|&b| (b, w)).collect();
@@ -273,6 +307,138 @@ pub struct SssKernel {
     /// A frame's own diffusion pass always gathers the grey E its irradiance pass wrote.
     irradiance_is_grey: AtomicBool,
     settings: Settings,
+    /// The per-frame geometry passes of a skinned mesh ([`SssKernel::new_posed`]).
+    posed: Option<Posed>,
+}
+
+/// The posed vertex buffers a skinned mesh's frame starts from: vec4 per vertex in model
+/// units, positions (xyz, 1) and unit normals (xyz, 0), in the mesh's own vertex order (the
+/// layout of `kernels::pose`, whose `PoseKernel::positions` / `normals` a caller passes). The
+/// kernel's bind group holds them, so a pass that writes them earlier in the same recording
+/// is ordered before the geometry passes by the recorder's tracking.
+#[derive(Clone, Copy)]
+pub struct PosedBuffers<'a> {
+    pub positions: &'a Buffer,
+    pub normals: &'a Buffer,
+    /// Millimetres per model unit.
+    pub mm_per_unit: f32,
+}
+
+/// Buffers of the [`PosedBuffers`] layout filled from the host: a pose computed on the CPU
+/// (`kernels::pose::cpu`, `scene::texspace::posed`), the tests' stand-in for the skinning
+/// pass.
+pub struct PosedSource {
+    pub positions: Buffer,
+    pub normals: Buffer,
+}
+
+impl PosedSource {
+    /// Creates the buffers and records the upload of `positions`, `normals`.
+    pub fn upload(
+        rec: &mut Recorder,
+        positions: &[glam::Vec3],
+        normals: &[glam::Vec3],
+    ) -> Result<PosedSource> {
+        let ctx = rec.context();
+        let bytes = positions.len().max(1) as u64 * 16;
+        let src = PosedSource {
+            positions: Buffer::new(&ctx, "sss posed positions", BufferDesc::storage(bytes))?,
+            normals: Buffer::new(&ctx, "sss posed normals", BufferDesc::storage(bytes))?,
+        };
+        src.write(rec, positions, normals)?;
+        Ok(src)
+    }
+
+    /// Records the upload of another pose into the buffers.
+    pub fn write(
+        &self,
+        rec: &mut Recorder,
+        positions: &[glam::Vec3],
+        normals: &[glam::Vec3],
+    ) -> Result<()> {
+        let p: Vec<[f32; 4]> = positions.iter().map(|p| p.extend(1.0).into()).collect();
+        let n: Vec<[f32; 4]> = normals.iter().map(|n| n.extend(0.0).into()).collect();
+        rec.upload(&self.positions, 0, &p)?;
+        rec.upload(&self.normals, 0, &n)
+    }
+
+    /// The buffers as a [`PosedBuffers`].
+    pub fn buffers(&self, mm_per_unit: f32) -> PosedBuffers<'_> {
+        PosedBuffers {
+            positions: &self.positions,
+            normals: &self.normals,
+            mm_per_unit,
+        }
+    }
+}
+
+/// The per-frame geometry of a skinned mesh: what the UV layout fixes ([`posed::Layout`])
+/// and the passes (their bind groups hold the posed buffers they read).
+struct Posed {
+    mm_per_unit: f32,
+    /// Per vertex: the vertex whose posed position it takes.
+    weld: Buffer,
+    /// Per triangle: the surface walk's topology ([`posed::walk_topology`]).
+    walk_topo: Buffer,
+    /// Per triangle (BVH_ROW a row): face normal and texel area, written each frame.
+    trirec: Image,
+    /// The vertex frames as an image (vertex v at texels 2v, 2v + 1, BVH_ROW a row), written
+    /// each frame beside the `verts` buffer.
+    vframes: Image,
+    /// Per texel: triangle, barycentrics, flag (fixed).
+    texel_source: Image,
+    /// The BVH's fixed topology ([`posed::BvhTopology::gpu`]) and its triangle slots.
+    bvh_topo: Buffer,
+    bvh_slots: Buffer,
+    vertices: Stage,
+    triangles: Stage,
+    texels: Stage,
+    bvh_leaves: Stage,
+    bvh_refit: Stage,
+    triangle_count: u32,
+    leaf_count: u32,
+    nodes: usize,
+}
+
+impl Posed {
+    /// The kernel's own resources of the posed passes (the posed buffers are the caller's).
+    fn by_binding(&self) -> [(&'static str, Resource<'_>); 7] {
+        [
+            ("vframes", Resource::storage_image(&self.vframes)),
+            ("weld", Resource::Buffer(&self.weld)),
+            ("walk_topo", Resource::Buffer(&self.walk_topo)),
+            ("trirec", Resource::storage_image(&self.trirec)),
+            ("source", Resource::storage_image(&self.texel_source)),
+            ("bvh_topo", Resource::Buffer(&self.bvh_topo)),
+            ("bvh_slots", Resource::Buffer(&self.bvh_slots)),
+        ]
+    }
+}
+
+/// The per-frame geometry as the GPU computed it, read back (tests and diagnostics; not part
+/// of a frame).
+#[derive(Clone, Debug)]
+pub struct PosedGeometry {
+    /// Per vertex: position (mm), unit normal.
+    pub vertex_frames: Vec<[[f32; 4]; 2]>,
+    /// Per texel: position and flag, normal and area.
+    pub pos: Vec<[f32; 4]>,
+    pub nrm: Vec<[f32; 4]>,
+    /// The surface walk's records ([`super::walk::SurfaceWalk::records`]).
+    pub walk_records: Vec<[u32; 4]>,
+    /// The BVH as [`crate::geom::bvh::Bvh::flat`] lays it out.
+    pub bvh_nodes: Vec<[f32; 8]>,
+    pub bvh_triangles: Vec<[f32; 12]>,
+}
+
+/// The readbacks of [`SssKernel::read_back_geometry`].
+pub struct GeometryReadback {
+    verts: Readback,
+    pos: Readback,
+    nrm: Readback,
+    walk: Readback,
+    nodes: Readback,
+    tris: Readback,
 }
 
 impl SssKernel {
@@ -320,6 +486,182 @@ impl SssKernel {
                 shadow_bias: shadow_bias(geo.extent_mm()),
                 room,
             },
+            posed: None,
+        })
+    }
+
+    /// The kernel for a skinned mesh whose pose is computed on the GPU: `geo` is its rest
+    /// pose (mm) and `rest` its rest positions in model units; each frame starts from the
+    /// posed buffers `src` and computes the vertex frames, the surface walk's records, the
+    /// texel geometry and the BVH (a refit of the rest pose's topology) on the GPU (passes
+    /// `sss pose *`, `sss bvh *`), before the lights. What only the UV layout fixes is
+    /// uploaded here, once; so are the contact entries, built for the rest pose and reused in
+    /// every pose (their cost in error: `vkshade sss --anim`, report `contact_reuse`).
+    pub fn new_posed(
+        rec: &mut Recorder,
+        geo: &TexGeometry,
+        rest: &[glam::Vec3],
+        profile: &Profile,
+        params: SamplerParams,
+        src: PosedBuffers<'_>,
+    ) -> Result<SssKernel> {
+        let layout = posed::Layout::new(geo, rest)?;
+        let vertices = geo.positions.len();
+        for (name, b) in [("positions", src.positions), ("normals", src.normals)] {
+            if b.size() < vertices as u64 * 16 {
+                return Err(Error::InvalidArgument(format!(
+                    "posed {name} buffer of {} bytes for {vertices} vertices (vec4 each)",
+                    b.size()
+                )));
+            }
+        }
+        if !(src.mm_per_unit.is_finite() && src.mm_per_unit > 0.0) {
+            return Err(Error::InvalidArgument(format!(
+                "mm per unit {} must be finite and > 0",
+                src.mm_per_unit
+            )));
+        }
+        let mut kernel = SssKernel::new(rec, geo, profile, params)?;
+        let ctx = kernel.ctx.clone();
+        let buffer = |name: &str, bytes: u64| Buffer::new(&ctx, name, BufferDesc::storage(bytes));
+        let weld = buffer("sss weld", layout.weld.len().max(1) as u64 * 4)?;
+        let walk_topo = buffer(
+            "sss walk topology",
+            layout.walk_topology.len().max(1) as u64 * 16,
+        )?;
+        let topo = layout.bvh.gpu();
+        let bvh_topo = buffer("sss bvh topology", topo.len() as u64 * 4)?;
+        let bvh_slots = buffer("sss bvh slots", layout.bvh.slots.len().max(1) as u64 * 16)?;
+        let triangles = geo.triangles.len();
+        let trirec = Image::new(
+            &ctx,
+            "sss triangle records",
+            rgba32f([BVH_ROW, pack::rows(triangles, BVH_ROW)]),
+        )?;
+        let vframes = Image::new(
+            &ctx,
+            "sss vertex frames",
+            rgba32f([BVH_ROW, pack::rows(2 * vertices, BVH_ROW)]),
+        )?;
+        let size = geo.size;
+        let texel_source = Image::new(&ctx, "sss texel source", uint_image([size, size]))?;
+        rec.upload(&weld, 0, &at_least_one(&layout.weld))?;
+        rec.upload(&walk_topo, 0, &at_least_one(&layout.walk_topology))?;
+        rec.upload(&bvh_topo, 0, &topo)?;
+        rec.upload(&bvh_slots, 0, &at_least_one(&layout.bvh.slots))?;
+        rec.upload_image_rows(&texel_source, &layout.texel_source)?;
+        // The triangle records are written by every frame before they are read; cleared
+        // once so that rows past the last triangle hold defined data too.
+        rec.clear_image(&trirec, Subresources::mip(trirec.desc(), 0), [0.0; 4])?;
+        rec.clear_image(&vframes, Subresources::mip(vframes.desc(), 0), [0.0; 4])?;
+        let table: Vec<(&'static str, Resource<'_>)> = kernel
+            .res
+            .by_binding()
+            .into_iter()
+            .chain([
+                ("posed_pos", Resource::Buffer(src.positions)),
+                ("posed_nrm", Resource::Buffer(src.normals)),
+                ("weld", Resource::Buffer(&weld)),
+                ("walk_topo", Resource::Buffer(&walk_topo)),
+                ("trirec", Resource::storage_image(&trirec)),
+                ("vframes", Resource::storage_image(&vframes)),
+                ("source", Resource::storage_image(&texel_source)),
+                ("bvh_topo", Resource::Buffer(&bvh_topo)),
+                ("bvh_slots", Resource::Buffer(&bvh_slots)),
+            ])
+            .collect();
+        let stage = |name: &str, writes: &[&str]| Stage::from_table(&ctx, name, &table, writes);
+        let vertices_stage = stage("sss/pose_vertices", &["verts", "vframes"])?;
+        let triangles_stage = stage("sss/pose_triangles", &["walk", "trirec"])?;
+        let texels = stage("sss/pose_texels", &["pos", "nrm"])?;
+        let bvh_leaves = stage("sss/bvh_leaves", &["nodes", "tris"])?;
+        let bvh_refit = stage("sss/bvh_refit", &[])?;
+        drop(table);
+        kernel.posed = Some(Posed {
+            triangle_count: triangles as u32,
+            leaf_count: layout.bvh.leaves.len() as u32,
+            nodes: layout.bvh.nodes,
+            mm_per_unit: src.mm_per_unit,
+            weld,
+            walk_topo,
+            trirec,
+            vframes,
+            texel_source,
+            bvh_topo,
+            bvh_slots,
+            vertices: vertices_stage,
+            triangles: triangles_stage,
+            texels,
+            bvh_leaves,
+            bvh_refit,
+        });
+        Ok(kernel)
+    }
+
+    /// Whether the kernel computes its geometry per frame from posed buffers.
+    pub fn is_posed(&self) -> bool {
+        self.posed.is_some()
+    }
+
+    /// Records the readback of the geometry the GPU holds: vertex frames, texel position and
+    /// normal, walk records, BVH (for tests and diagnostics, not in a frame).
+    pub fn read_back_geometry(&self, rec: &mut Recorder) -> Result<GeometryReadback> {
+        let r = &self.res;
+        let whole = |image: &Image| ImageRegion::whole(image.desc());
+        Ok(GeometryReadback {
+            verts: rec.read_back(&r.vertex_frames)?,
+            pos: rec.read_back_image(&r.texel_positions, whole(&r.texel_positions))?,
+            nrm: rec.read_back_image(&r.texel_normals, whole(&r.texel_normals))?,
+            walk: rec.read_back_image(&r.walk_records, whole(&r.walk_records))?,
+            nodes: rec.read_back_image(&r.bvh_nodes, whole(&r.bvh_nodes))?,
+            tris: rec.read_back_image(&r.bvh_triangles, whole(&r.bvh_triangles))?,
+        })
+    }
+
+    /// The geometry of [`SssKernel::read_back_geometry`], once its submission is complete.
+    pub fn collect_geometry(&self, rb: &GeometryReadback) -> Result<PosedGeometry> {
+        let room = &self.settings.room;
+        let walk_texels = room.walk_records;
+        let nodes = match &self.posed {
+            Some(p) => p.nodes,
+            None => room.triangles.max(1) * 2 - 1,
+        };
+        let mut walk_records: Vec<[u32; 4]> = rb.walk.to_vec()?;
+        walk_records.truncate(walk_texels);
+        let node_texels: Vec<[u32; 4]> = rb.nodes.to_vec()?;
+        let bvh_nodes = node_texels
+            .chunks_exact(2)
+            .take(nodes)
+            .map(|c| {
+                let mut n = [0f32; 8];
+                for k in 0..4 {
+                    n[k] = f32::from_bits(c[0][k]);
+                    n[4 + k] = f32::from_bits(c[1][k]);
+                }
+                n
+            })
+            .collect();
+        let tri_texels: Vec<[u32; 4]> = rb.tris.to_vec()?;
+        let bvh_triangles = tri_texels
+            .chunks_exact(3)
+            .take(room.triangles)
+            .map(|c| {
+                let mut t = [0f32; 12];
+                for (r, row) in c.iter().enumerate() {
+                    for k in 0..4 {
+                        t[4 * r + k] = f32::from_bits(row[k]);
+                    }
+                }
+                t
+            })
+            .collect();
+        Ok(PosedGeometry {
+            vertex_frames: rb.verts.to_vec()?,
+            pos: rb.pos.to_vec()?,
+            nrm: rb.nrm.to_vec()?,
+            walk_records,
+            bvh_nodes,
+            bvh_triangles,
         })
     }
 
@@ -417,6 +759,41 @@ impl SssKernel {
         Ok(Dispatch::words(&words, Grid::Groups(tile_groups(tiles))))
     }
 
+    fn posed(&self) -> Result<&Posed> {
+        self.posed
+            .as_ref()
+            .ok_or_else(|| Error::InvalidArgument("the SSS kernel is not posed".into()))
+    }
+
+    fn pose_vertices_args(&self, _lights: &[Light]) -> Result<Dispatch> {
+        let p = self.posed()?;
+        let n = self.settings.room.vertices;
+        Ok(Dispatch::words(
+            &[n, p.mm_per_unit.to_bits()],
+            Grid::Invocations([n, 1, 1]),
+        ))
+    }
+
+    fn pose_triangles_args(&self, _lights: &[Light]) -> Result<Dispatch> {
+        let n = self.posed()?.triangle_count;
+        Ok(Dispatch::words(&[n], Grid::Invocations([n.max(1), 1, 1])))
+    }
+
+    fn pose_texels_args(&self, _lights: &[Light]) -> Result<Dispatch> {
+        let tiles = self.res.tile_count();
+        let words = [self.settings.room.size, tiles];
+        Ok(Dispatch::words(&words, Grid::Groups(tile_groups(tiles))))
+    }
+
+    fn bvh_leaves_args(&self, _lights: &[Light]) -> Result<Dispatch> {
+        let n = self.posed()?.leaf_count;
+        Ok(Dispatch::words(&[], Grid::Invocations([n.max(1), 1, 1])))
+    }
+
+    fn bvh_refit_args(&self, _lights: &[Light]) -> Result<Dispatch> {
+        Ok(Dispatch::words(&[], Grid::Groups([1, 1, 1])))
+    }
+
     fn diffusion_args(&self, _lights: &[Light]) -> Result<Dispatch> {
         let tiles = self.res.tile_count();
         let words = self.settings.diffusion_push(tiles);
@@ -436,13 +813,26 @@ impl Kernel for SssKernel {
     /// A frame: the lights' upload, per-vertex light, texture-space irradiance (grey E),
     /// then the diffusion of that grey E.
     fn pass_table(&self) -> Vec<Pass<'_, Self>> {
-        vec![
+        let mut passes = Vec::with_capacity(9);
+        if let Some(p) = &self.posed {
+            passes.extend([
+                p.vertices
+                    .pass(PASS_POSE_VERTICES, Self::pose_vertices_args),
+                p.triangles
+                    .pass(PASS_POSE_TRIANGLES, Self::pose_triangles_args),
+                p.texels.pass(PASS_POSE_TEXELS, Self::pose_texels_args),
+                p.bvh_leaves.pass(PASS_BVH_LEAVES, Self::bvh_leaves_args),
+                p.bvh_refit.pass(PASS_BVH_REFIT, Self::bvh_refit_args),
+            ]);
+        }
+        passes.extend([
             Pass::upload(PASS_LIGHTS, &self.res.lights, Self::light_bytes),
             self.vertex_light.pass(PASS_VERTEX, Self::vertex_light_args),
             self.irradiance.pass(PASS_IRRADIANCE, Self::irradiance_args),
             self.diffusion_grey
                 .pass(PASS_DIFFUSION, Self::diffusion_args),
-        ]
+        ]);
+        passes
     }
 
     fn check_input(&self, lights: &[Light]) -> Result<()> {
@@ -479,8 +869,15 @@ impl Kernel for SssKernel {
     }
 
     fn memory(&self) -> MemoryReport {
-        self.ctx
-            .memory_of_resources(self.res.by_binding().map(|(_, r)| r))
+        let posed = self.posed.as_ref().map(|p| p.by_binding());
+        let extra = posed.iter().flatten().map(|(_, r)| r.clone());
+        self.ctx.memory_of_resources(
+            self.res
+                .by_binding()
+                .map(|(_, r)| r)
+                .into_iter()
+                .chain(extra),
+        )
     }
 }
 

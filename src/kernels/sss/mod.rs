@@ -11,8 +11,11 @@
 //!   it leaves by, seams included; off the surface past an open edge).
 //! - [`contact`]: light between separate pieces of the mesh that touch (eyeballs, mouth).
 //! - [`pack`]: what the kernel uploads, packed and checked on the CPU.
+//! - [`posed`]: what a skinned mesh's UV layout fixes (built once), and the CPU twins of
+//!   the BVH refit.
 //! - [`gpu`]: the kernel (passes `sss lights`, `sss vertex light`, `sss irradiance`,
-//!   `sss diffusion`).
+//!   `sss diffusion`; posed: `sss pose vertices`, `sss pose triangles`, `sss pose texels`,
+//!   `sss bvh leaves`, `sss bvh refit` first).
 //! - [`cpu`]: the CPU twin of both passes (same rays, same sample pattern).
 //! - The brute-force ground truth is `reference::sss`.
 //!
@@ -23,20 +26,24 @@
 //! Transmission through thin parts (ears): per mesh vertex, the thickness along -n and the
 //! back surface's irradiance give E_b (R_tot - F(t)) per channel (a locally flat slab lit
 //! from behind; [`cpu::transmission`]), interpolated per texel into its own image.
-//! Skinned meshes: posed and re-rasterised on the CPU each frame, uploaded with
-//! [`SssKernel::update_geometry`] (`vkshade sss --anim`).
+//! Skinned meshes ([`SssKernel::new_posed`], `vkshade sss --anim`): what the UV layout fixes
+//! is built once ([`posed`]); each frame the GPU computes the vertex frames, the texel
+//! geometry, the walk's records and a refit of the rest pose's BVH from the posed buffers of
+//! `kernels::pose` (passes `sss pose *`, `sss bvh *`); the contact entries are the rest
+//! pose's. [`SssKernel::update_geometry`] still uploads a CPU-rasterised pose.
 
 pub mod contact;
 pub mod cpu;
 pub mod gpu;
 pub mod pack;
+pub mod posed;
 pub mod profile;
 pub mod sampler;
 pub mod walk;
 
 pub use crate::scene::texspace::TexGeometry;
 pub use cpu::{Light, SamplerParams};
-pub use gpu::{SssKernel, SssOutput};
+pub use gpu::{PosedBuffers, PosedSource, SssKernel, SssOutput};
 pub use profile::{Material, Profile, ProfileKind};
 
 /// The head of BCN_Epileptic (assimp-testmodels, converted to glTF), in metres.
