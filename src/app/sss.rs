@@ -718,6 +718,13 @@ impl<'a> Session<'a> {
         posed.normals = data.normals;
         let obj = posed_obj(&posed.positions, &self.geo, self.cfg.mm_per_unit);
         crate::io::write_atomic(&dir.join("posed.obj"), obj.as_bytes())?;
+        frame_picture(
+            &self.cfg.out.join(format!("frame_{f:04}.png")),
+            &self.cfg,
+            &self.geo,
+            &posed.positions,
+            out,
+        )?;
         Ok(posed)
     }
 
@@ -1324,6 +1331,31 @@ fn pictures(
         files.push(path.display().to_string());
     }
     Ok(files)
+}
+
+/// frame_NNNN.png of an animated run: the posed mesh (`posed`, model units) seen from the
+/// pictures' camera, lit with the frame's subsurface diffusion and transmission (exit
+/// radiance B / pi, as render.png's left half), exposed per frame.
+fn frame_picture(
+    path: &Path,
+    cfg: &SssConfig,
+    geo: &TexGeometry,
+    posed: &[Vec3],
+    gpu: &SssOutput,
+) -> Result<()> {
+    use crate::render::{shade_rgb, write_png};
+    let mut frame_geo = geo.clone();
+    let scale = cfg.mm_per_unit as f32;
+    frame_geo.positions = posed.iter().map(|p| *p * scale).collect();
+    let atlas = AtlasView::new(cfg, &frame_geo);
+    let pi = std::f32::consts::PI;
+    let sss = atlas.image(&|uv| {
+        let b = lookup(&gpu.diffuse, &geo.pos, geo.size, uv);
+        let t = lookup(&gpu.transmission, &geo.pos, geo.size, uv);
+        [0, 1, 2].map(|c| (b[c] + t[c]) / pi)
+    });
+    let picture = shade_rgb([&sss[0], &sss[1], &sss[2]], exposure(&sss))?;
+    write_png(path, picture.width, picture.height, &picture.rgb)
 }
 
 /// The mesh seen from the pictures' camera, each pixel holding the atlas UV it shows.
