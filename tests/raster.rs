@@ -249,3 +249,337 @@ fn ids_and_depths_equal_the_twin_over_many_workgroups_and_grid_rows() {
         assert_eq!(out.counters[counter::NEAR_CLIPPED], 0);
     }
 }
+
+/// Largest differences of the GPU's resolve from the twin's on the same triangle ids, at
+/// pixels away from edges: (position, normal, tangent, uv), and the tags compared exactly.
+fn resolve_errors(
+    out: &RasterOutput,
+    pose: &HostPose,
+    prep: &Prepared,
+    cam: &Camera,
+    robust: &[bool],
+) -> [f64; 4] {
+    let ids: Vec<u32> = (0..out.keys.len())
+        .map(|k| out.hit(k).map_or(u32::MAX, |h| h.0))
+        .collect();
+    let posed = PosedCpu {
+        positions: &pose.positions,
+        normals: &pose.normals,
+        tangents: &pose.tangents,
+    };
+    let want = twin::resolve(&posed, prep, cam, &ids);
+    let mut err = [0f64; 4];
+    for k in 0..ids.len() {
+        if !robust[k] || ids[k] == u32::MAX {
+            continue;
+        }
+        let (g, c) = (
+            &out.gbuffer.texels[3 * k..3 * k + 3],
+            &want.texels[3 * k..3 * k + 3],
+        );
+        assert_eq!(g[0][3], c[0][3], "pixel {k}: tag (handedness, part)");
+        let d = |i: usize, n: usize| {
+            (0..n)
+                .map(|j| (g[i][j] - c[i][j]).abs() as f64)
+                .fold(0.0, f64::max)
+        };
+        err[0] = err[0].max(d(0, 3));
+        err[1] = err[1].max(d(1, 3));
+        // On a mirror seam the vertices' tangents point opposite ways: their interpolation
+        // nearly cancels and normalising it scales f32 rounding by 1 / its length.
+        let t = prep.triangles[ids[k] as usize];
+        let w = [t[0], t[1], t[2]].map(|i| pose.tangents[i as usize].w);
+        if w[0] == w[1] && w[1] == w[2] {
+            err[2] = err[2].max(d(2, 3));
+        }
+        err[3] = err[3].max(((g[1][3] - c[1][3]).abs()).max((g[2][3] - c[2][3]).abs()) as f64);
+    }
+    err
+}
+
+#[test]
+fn resolve_equals_its_twin_and_back_faces_face_the_camera_with_flipped_handedness() {
+    // Seen from above at 50 degrees: the inside of the far wall shows (back faces).
+    let mesh = tube(64, 24);
+    let pose = host_pose(&mesh, None);
+    let prep = Prepared::new(&mesh, &[], [128, 128], 3.0).unwrap();
+    let cam = Camera::framing(Vec3::ZERO, 1.5, Vec3::new(0.0, 1.2, 1.0));
+    let out = &raster_frames(&pose, &prep, &[cam])[0];
+    let want = twin::visibility(&pose.positions, &prep, &cam);
+    assert_matches("tube from above", out, &want);
+    assert!(
+        out.counters[counter::BACK_FACING] > 500,
+        "{:?}",
+        out.counters
+    );
+    // f32 against f64 on the same triangle: the ray-plane intersection in f32 is within a
+    // few ulps of values ~2 (1e-6) scaled by 1 / |cos| of the ray's incidence; past 85
+    // degrees (cos 0.09) that is < 3e-5. Normals and tangents are unit vectors interpolated
+    // and normalised (f32: ~1e-6) with barycentrics off by the same 3e-5; uv is scaled by 3.
+    let err = resolve_errors(out, &pose, &prep, &cam, &want.robust);
+    assert!(
+        err[0] < 1e-4 && err[1] < 1e-4 && err[2] < 1e-4 && err[3] < 3e-4,
+        "{err:?}"
+    );
+
+    // Independent of the twin: every covered pixel's normal faces the camera; where the
+    // triangle is a back face (its winding's normal points away), the handedness is the
+    // vertices' negated, so the bitangent stays along +v.
+    let (mut back, mut mirrored) = (0, 0);
+    for k in 0..out.keys.len() {
+        let Some((t, _)) = out.hit(k) else { continue };
+        let px = out.gbuffer.pixel(k).unwrap();
+        let to_eye = cam.eye.as_dvec3() - px.position;
+        assert!(px.normal.dot(to_eye) >= 0.0, "pixel {k} faces away");
+        let [a, b, c] = mesh.triangles[t as usize].map(|i| i as usize);
+        let geo =
+            (mesh.positions[b] - mesh.positions[a]).cross(mesh.positions[c] - mesh.positions[a]);
+        let w = pose.tangents[a].w as f64;
+        if pose.tangents[a].w != pose.tangents[b].w || pose.tangents[a].w != pose.tangents[c].w {
+            continue; // a triangle on the mirror seam
+        }
+        let facing_away = geo.as_dvec3().dot(to_eye) < 0.0;
+        let n_interp = mesh.normals[a] + mesh.normals[b] + mesh.normals[c];
+        if facing_away && n_interp.as_dvec3().dot(to_eye) < -0.1 {
+            back += 1;
+            assert_eq!(
+                px.handedness, -w,
+                "pixel {k}: back face keeps its handedness"
+            );
+        }
+        mirrored += (w < 0.0) as usize;
+    }
+    assert!(back > 300, "{back} back-face pixels");
+    assert!(mirrored > 300, "{mirrored} pixels of the mirrored half");
+}
+
+#[test]
+fn triangles_crossing_the_near_plane_are_clipped_and_those_behind_culled() {
+    // Inside the tube, looking along +z with a near plane at 0.45: the side walls cross it,
+    // the wall behind lies wholly in front of the eye's back.
+    let mesh = tube(64, 24);
+    let pose = host_pose(&mesh, None);
+    let prep = Prepared::new(&mesh, &[], [120, 96], 2.0).unwrap();
+    let cam = Camera {
+        eye: Vec3::new(0.0, 0.1, -0.2),
+        target: Vec3::new(0.1, 0.0, 1.0),
+        up: Vec3::Y,
+        fov_y_deg: 100.0,
+        near: 0.45,
+    };
+    let out = &raster_frames(&pose, &prep, &[cam])[0];
+    let want = twin::visibility(&pose.positions, &prep, &cam);
+    let (_, covered) = assert_matches("inside the tube", out, &want);
+    assert!(covered > 4000, "{covered} pixels compared");
+    for c in [
+        counter::NEAR_CLIPPED,
+        counter::NEAR_CULLED,
+        counter::BACK_FACING,
+    ] {
+        assert_eq!(
+            out.counters[c], want.counters[c],
+            "counter {c}: {:?}",
+            out.counters
+        );
+    }
+    assert!(
+        out.counters[counter::NEAR_CLIPPED] > 20,
+        "{:?}",
+        out.counters
+    );
+    assert!(
+        out.counters[counter::NEAR_CULLED] > 100,
+        "{:?}",
+        out.counters
+    );
+    // Nothing nearer than the near plane is kept (f32 rounding of the clipped vertices).
+    for k in 0..out.keys.len() {
+        if let Some((_, d)) = out.hit(k) {
+            assert!(d >= cam.near * (1.0 - 1e-5), "pixel {k}: depth {d}");
+        }
+    }
+    // The clipped walls fill the image's left and right edges.
+    for y in [10usize, 48, 85] {
+        assert!(out.hit(y * 120).is_some() && out.hit(y * 120 + 119).is_some());
+    }
+}
+
+#[test]
+fn the_cloth_far_from_its_bind_pose_equals_the_twin() {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/bcn_epileptic.glb");
+    let (ch, parts) = vkshade::scene::gltf_load::load_parts(&path, &["Torso", "Legs"]).unwrap();
+    let anim = ch.animation("Epileptisch").unwrap();
+    assert!(parts.contains(&0) && parts.contains(&1));
+    // The frame farthest from the bind pose among 16 spread over the animation.
+    let rest = host_pose(&ch.mesh, None);
+    let (lo, hi) = vkshade::scene::mesh::bounds(&rest.positions);
+    let radius = (hi - lo).length() * 0.5;
+    let (mut far, mut far_d) = (None, 0.0);
+    for i in 0..16 {
+        let m = ch
+            .rig
+            .skinning_matrices(Some(anim), anim.duration * i as f32 / 16.0);
+        let p = host_pose(&ch.mesh, Some(&m));
+        let d = p
+            .positions
+            .iter()
+            .zip(&rest.positions)
+            .map(|(a, b)| a.distance(*b))
+            .sum::<f32>()
+            / p.positions.len() as f32;
+        if d > far_d {
+            (far, far_d) = (Some(p), d);
+        }
+    }
+    let pose = far.unwrap();
+    // Far: the vertices moved by more than 5% of the cloth's size on average.
+    assert!(
+        far_d > 0.05 * radius,
+        "mean displacement {far_d} of radius {radius}"
+    );
+    let (lo, hi) = vkshade::scene::mesh::bounds(&pose.positions);
+    let centre = (lo + hi) * 0.5;
+    let r = (hi - lo).length() * 0.5;
+    let prep = Prepared::new(&ch.mesh, &parts, [128, 160], 8.0).unwrap();
+    let cams = [
+        Camera::framing(centre, r, Vec3::new(0.2, 0.1, 1.0)),
+        Camera::framing(centre, r, Vec3::new(-1.0, 0.3, -0.5)),
+    ];
+    let outs = raster_frames(&pose, &prep, &cams);
+    for (cam, out) in cams.iter().zip(&outs) {
+        let want = twin::visibility(&pose.positions, &prep, cam);
+        let (_, covered) = assert_matches("cloth", out, &want);
+        let all = want.id.iter().filter(|&&i| i != u32::MAX).count();
+        assert!(
+            covered * 10 > all * 6 && all > 2000,
+            "{covered} of {all} compared"
+        );
+        // Both parts are seen, and the part ids reach the G-buffer.
+        let seen: std::collections::BTreeSet<u32> = (0..out.keys.len())
+            .filter_map(|k| out.gbuffer.pixel(k).map(|p| p.part))
+            .collect();
+        assert_eq!(seen.into_iter().collect::<Vec<_>>(), vec![0, 1]);
+        let err = resolve_errors(out, &pose, &prep, cam, &want.robust);
+        // As on the tube, in units of the cloth (r ~ 1) and uv scaled by 8.
+        assert!(
+            err[0] < 1e-4 * r.max(1.0) as f64 && err[1] < 1e-4 && err[2] < 1e-4 && err[3] < 8e-4,
+            "{err:?}"
+        );
+    }
+}
+
+#[test]
+fn a_device_context_without_64_bit_atomics_is_refused_naming_the_feature() {
+    let e = common::with_gpu(|ctx| {
+        let mesh = tube(4, 2);
+        let pose = host_pose(&mesh, None);
+        let bufs = PosedBuffers::upload(ctx, &pose)?;
+        let prep = Prepared::new(&mesh, &[], [8, 8], 1.0)?;
+        let mut rec = ctx.recorder("raster refused")?;
+        let e = RasterKernel::new(&mut rec, &prep, &bufs.posed())
+            .err()
+            .map(|e| e.to_string());
+        drop(rec);
+        Ok(e.unwrap_or_default())
+    });
+    assert!(e.contains("shaderBufferInt64Atomics"), "{e}");
+}
+
+/// Largest difference between the GPU's BTF and its f64 CPU twin (as tests/btf.rs
+/// `gpu_cpu_bound`): bilinear weights with `bits` sub-texel bits off by 2^-bits of the
+/// largest texel, plus 1.1e-3 for the sRGB decode and f32 rounding, per light of strength 1.
+fn gpu_cpu_bound(bits: u32) -> f64 {
+    2f64.powi(-(bits as i32)) + 1.1e-3
+}
+
+#[test]
+fn btf_shades_the_gpu_gbuffer_like_its_cpu_twin() {
+    use vkshade::kernels::btf::cloth::{Pattern, SynthConfig};
+    use vkshade::kernels::btf::dirs::{Maps, Triangulation};
+    use vkshade::kernels::btf::gpu::{
+        BtfInputs, BtfKernel, Prepared as BtfPrepared, Texture, pack,
+    };
+    use vkshade::scene::gbuffer::{Camera as View, Frame, GBuffer, default_lights};
+    let btf =
+        vkshade::kernels::btf::synth::synthesize(&SynthConfig::tile(Pattern::Weave, 8)).unwrap();
+    let maps = Maps::build(&Triangulation::new().unwrap(), 32).unwrap();
+    let mesh = tube(48, 16);
+    let pose = host_pose(&mesh, None);
+    let size = [96, 80];
+    let prep = Prepared::new(&mesh, &[], size, 3.0).unwrap();
+    let cam = Camera::framing(Vec3::ZERO, 1.5, Vec3::new(0.5, 0.8, 1.0));
+    let frame = Frame {
+        camera: View::Perspective(cam.eye),
+        lights: default_lights(),
+    };
+    let (raster, shaded, bits) = with_gpu_features(INT64, |ctx| {
+        let bufs = PosedBuffers::upload(ctx, &pose)?;
+        let mut rec = ctx.recorder("raster + btf setup")?;
+        let r = RasterKernel::new(&mut rec, &prep, &bufs.posed())?;
+        let l = ctx.limits();
+        let unused = GBuffer::tile([1, 1]);
+        let inputs = BtfInputs::new(&btf, &maps, &unused, Texture::Rgba8);
+        let bp = BtfPrepared::for_gpu_gbuffer(
+            &inputs,
+            size,
+            l.max_image_dimension_2d,
+            l.max_image_array_layers,
+        )?;
+        let b = BtfKernel::on_gbuffer(&mut rec, &bp, r.gbuffer())?;
+        rec.submit_and_wait()?;
+        // One frame: rasterise, shade the G-buffer just written, read both back.
+        let mut rec = ctx.recorder("raster + btf frame")?;
+        r.record(&mut rec, &cam)?;
+        b.record(&mut rec, &frame)?;
+        let (rr, rb) = (r.read_back(&mut rec)?, b.read_back(&mut rec)?);
+        rec.submit_and_wait()?;
+        let h = ctx.external_handles();
+        // SAFETY: the context's own instance and physical device, alive while `ctx` is.
+        let bits = unsafe { h.instance.get_physical_device_properties(h.physical_device) }
+            .limits
+            .sub_texel_precision_bits;
+        Ok((r.collect(&rr)?, b.collect(&rb)?, bits))
+    });
+    let packed = pack(&btf);
+    let (want, ambiguous) = vkshade::kernels::btf::cpu::shade(
+        &vkshade::kernels::btf::cpu::Packed::new(btf.size, &packed),
+        &maps,
+        &raster.gbuffer,
+        &frame,
+    );
+    let mut max: f64 = 0.0;
+    let mut compared = 0;
+    for k in 0..want.len() {
+        assert_eq!(shaded[k][3] as f64, want[k][3], "coverage of pixel {k}");
+        if !ambiguous[k] {
+            compared += 1;
+            for i in 0..3 {
+                max = max.max((shaded[k][i] as f64 - want[k][i]).abs());
+            }
+        }
+    }
+    let covered = raster.gbuffer.covered();
+    assert!(
+        covered > 2000 && compared + covered / 20 > covered,
+        "{compared} of {covered}"
+    );
+    // Lit pixels on both halves of the mirrored UVs (the handedness reaches the shader).
+    let lit = |hand: f64| {
+        (0..want.len())
+            .filter(|&k| {
+                want[k][0] > 0.01
+                    && raster
+                        .gbuffer
+                        .pixel(k)
+                        .is_some_and(|p| p.handedness == hand)
+            })
+            .count()
+    };
+    assert!(
+        lit(1.0) > 200 && lit(-1.0) > 200,
+        "{} / {}",
+        lit(1.0),
+        lit(-1.0)
+    );
+    assert!(max < gpu_cpu_bound(bits), "|GPU - CPU| = {max}");
+}
