@@ -156,21 +156,9 @@ impl Prepared {
     }
 }
 
-/// Checks one frame's joint matrices: one per joint of the rig, finite.
-pub fn check_matrices(matrices: &[glam::Mat4], joint_count: usize) -> Result<()> {
-    if matrices.len() != joint_count {
-        return Err(Error::InvalidArgument(format!(
-            "{} joint matrices for a rig of {joint_count} joints",
-            matrices.len()
-        )));
-    }
-    if let Some(i) = matrices.iter().position(|m| !m.is_finite()) {
-        return Err(Error::InvalidArgument(format!(
-            "joint matrix {i} is not finite"
-        )));
-    }
-    Ok(())
-}
+/// Checks one frame's joint matrices: one per joint of the rig, finite (the pose kernel's
+/// check: AO skins its spheres with the same matrices).
+pub use crate::kernels::pose::check_matrices;
 
 /// Checks static correction factors: one per vertex, finite and not negative.
 pub fn check_correction(factors: &[f32], vertices: usize) -> Result<()> {

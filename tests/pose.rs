@@ -1,0 +1,205 @@
+//! The shared posed geometry (kernels::pose): the GPU skinning pass against its CPU twin on a
+//! real character far from its bind pose, tangent frames against the UVs they come from, and
+//! bad input refused before anything is recorded.
+
+mod common;
+
+use glam::{Mat4, Vec3};
+use vkshade::kernels::pose::{PoseKernel, Prepared, cpu};
+use vkshade::scene::{Character, MeshData};
+
+fn bcn() -> Character {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/bcn_epileptic.glb");
+    vkshade::scene::load(&path).unwrap_or_else(|e| {
+        panic!("{e}\nThe test character comes from tools/setup.sh (assimp-testmodels converted to glTF).")
+    })
+}
+
+/// The time of `anim` (of 32 spread over it) whose pose moves the vertices farthest from the
+/// bind pose on average, with that mean displacement.
+fn farthest_pose(c: &Character, prep: &Prepared, anim: &str) -> (Vec<Mat4>, f32) {
+    let a = c.animation(anim).unwrap();
+    (0..32)
+        .map(|k| {
+            let m = c
+                .rig
+                .skinning_matrices(Some(a), a.duration * k as f32 / 32.0);
+            let posed = cpu::pose(prep, &m).unwrap();
+            let moved = posed
+                .positions
+                .iter()
+                .zip(&c.mesh.positions)
+                .map(|(p, r)| p.distance(*r))
+                .sum::<f32>()
+                / posed.positions.len() as f32;
+            (m, moved)
+        })
+        .max_by(|a, b| a.1.total_cmp(&b.1))
+        .unwrap()
+}
+
+#[test]
+fn gpu_skinning_matches_the_cpu_twin_far_from_the_bind_pose() {
+    let c = bcn();
+    let prep = Prepared::new(&c.mesh, c.rig.joints.len()).unwrap();
+    let (matrices, moved) = farthest_pose(&c, &prep, "Epileptisch");
+    let (lo, hi) = c.mesh.bounds();
+    let size = (hi - lo).length();
+    eprintln!(
+        "{} vertices; mean displacement from the bind pose {moved:.4} ({:.1}% of the diagonal)",
+        prep.vertex_count(),
+        100.0 * moved / size
+    );
+    // Far from the bind pose: the vertices moved on average by more than 1% of the size.
+    assert!(moved > 0.01 * size, "pose too close to the bind pose");
+    let cpu = cpu::pose(&prep, &matrices).unwrap();
+    let gpu = common::with_gpu(|ctx| {
+        let mut rec = ctx.recorder("pose test")?;
+        let kernel = PoseKernel::new(&mut rec, &prep)?;
+        kernel.record(&mut rec, &matrices)?;
+        let readback = kernel.read_back(&mut rec)?;
+        rec.submit()?.wait()?;
+        let posed = readback.data()?;
+        // A second frame through the contract's frame runner gives the same result.
+        let mut again = None;
+        vkshade::kernels::run_frames(ctx, &kernel, [&matrices[..]], 1, |f| {
+            again = Some(f.output);
+            Ok(())
+        })?;
+        let again = again.expect("one frame ran");
+        assert_eq!(again.positions, posed.positions);
+        eprintln!("pose kernel memory: {:?}", kernel.memory());
+        Ok(posed)
+    });
+    // Same f32 operations in the same order; the driver may contract a*b+c into an FMA
+    // (Vulkan allows it), which moves a product by <= 1 ulp of the sum: for |p| ~ 2 m, a few
+    // 1e-7. Positions within 1e-5 of the size, directions within 1e-5 (unit vectors).
+    let pos = gpu
+        .positions
+        .iter()
+        .zip(&cpu.positions)
+        .map(|(g, c)| g.distance(*c))
+        .fold(0f32, f32::max);
+    let nrm = gpu
+        .normals
+        .iter()
+        .zip(&cpu.normals)
+        .map(|(g, c)| g.distance(*c))
+        .fold(0f32, f32::max);
+    let tan = gpu
+        .tangents
+        .iter()
+        .zip(&cpu.tangents)
+        .map(|(g, c)| g.truncate().distance(c.truncate()))
+        .fold(0f32, f32::max);
+    let hand = gpu
+        .tangents
+        .iter()
+        .zip(&cpu.tangents)
+        .filter(|(g, c)| g.w != c.w)
+        .count();
+    eprintln!("max |GPU - CPU|: position {pos:e}, normal {nrm:e}, tangent {tan:e}");
+    assert!(pos < 1e-5 * size, "positions differ by {pos}");
+    assert!(nrm < 1e-5 && tan < 1e-5, "normal {nrm}, tangent {tan}");
+    assert_eq!(hand, 0, "handedness differs");
+    // The posed frames are orthonormal.
+    for (n, t) in gpu.normals.iter().zip(&gpu.tangents) {
+        assert!((n.length() - 1.0).abs() < 1e-5 && (t.truncate().length() - 1.0).abs() < 1e-5);
+        assert!(n.dot(t.truncate()).abs() < 1e-5);
+        assert!(t.w == 1.0 || t.w == -1.0);
+    }
+}
+
+/// A flat grid in z = 0, u along +x; `mirror` flips u (u = 1 - x), as a mirrored chart does.
+fn grid(mirror: bool) -> Character {
+    let n = 4u32;
+    let mut d = MeshData::default();
+    let mut uvs = Vec::new();
+    for j in 0..=n {
+        for i in 0..=n {
+            let (x, y) = (i as f32 / n as f32, j as f32 / n as f32);
+            d.positions.push([x, y, 0.0]);
+            uvs.push([if mirror { 1.0 - x } else { x }, y]);
+        }
+    }
+    for j in 0..n {
+        for i in 0..n {
+            let v = |i: u32, j: u32| j * (n + 1) + i;
+            d.triangles.push([v(i, j), v(i + 1, j), v(i + 1, j + 1)]);
+            d.triangles.push([v(i, j), v(i + 1, j + 1), v(i, j + 1)]);
+        }
+    }
+    d.uvs = Some(uvs);
+    Character::from_static(
+        vkshade::scene::Mesh::from_data(d, std::path::Path::new("grid")).unwrap(),
+    )
+}
+
+#[test]
+fn tangent_frames_follow_the_uvs_and_their_mirroring() {
+    for mirror in [false, true] {
+        let c = grid(mirror);
+        let prep = Prepared::new(&c.mesh, 1).unwrap();
+        // A rigid turn: 90 degrees about +z, so +x goes to +y.
+        let m = [Mat4::from_rotation_z(std::f32::consts::FRAC_PI_2)];
+        let posed = cpu::pose(&prep, &m).unwrap();
+        for (k, (n, t)) in posed.normals.iter().zip(&posed.tangents).enumerate() {
+            // dP/du is +x (mirror: -x), turned to +y (-y); dP/dv is +y, turned to -x.
+            let want_t = if mirror { -Vec3::Y } else { Vec3::Y };
+            assert!(
+                t.truncate().distance(want_t) < 1e-5,
+                "mirror {mirror}, vertex {k}: tangent {t}"
+            );
+            let bitangent = t.w * n.cross(t.truncate());
+            assert!(
+                bitangent.distance(-Vec3::X) < 1e-5,
+                "mirror {mirror}, vertex {k}: +v along {bitangent}"
+            );
+            assert_eq!(t.w, if mirror { -1.0 } else { 1.0 });
+        }
+    }
+    // Without UVs: a perpendicular of the normal, right-handed.
+    let mut c = grid(false);
+    c.mesh.uvs = None;
+    let prep = Prepared::new(&c.mesh, 1).unwrap();
+    for (n, t) in prep.normals.iter().zip(&prep.tangents) {
+        let (n, t) = (Vec3::from_slice(n), Vec3::from_slice(t));
+        assert!(n.dot(t).abs() < 1e-6 && (t.length() - 1.0).abs() < 1e-6);
+    }
+}
+
+#[test]
+fn bad_frames_and_bad_rest_poses_are_refused() {
+    let c = grid(false);
+    let prep = Prepared::new(&c.mesh, 1).unwrap();
+    let mut nan = prep.clone();
+    nan.tangents[3][1] = f32::NAN;
+    let e = nan.check().unwrap_err().to_string();
+    assert!(e.contains("vertex 3") && e.contains("tangent"), "{e}");
+    let mut joint = prep.clone();
+    joint.vertex_joints[2] = [1, 0];
+    let e = joint.check().unwrap_err().to_string();
+    assert!(e.contains("vertex 2") && e.contains("joint"), "{e}");
+    let mut short = prep.clone();
+    short.normals.pop();
+    assert!(short.check().is_err());
+    common::with_gpu(|ctx| {
+        let mut rec = ctx.recorder("pose bad input")?;
+        let kernel = PoseKernel::new(&mut rec, &prep)?;
+        assert!(PoseKernel::new(&mut rec, &nan).is_err());
+        let e = kernel.record(&mut rec, &[]).unwrap_err().to_string();
+        assert!(e.contains("0 joint matrices for a rig of 1"), "{e}");
+        let e = kernel
+            .record(&mut rec, &[Mat4::from_scale(Vec3::splat(f32::NAN))])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("not finite"), "{e}");
+        // Nothing was recorded by the refused frames: a good one still runs.
+        kernel.record(&mut rec, &[Mat4::IDENTITY])?;
+        let r = kernel.read_back(&mut rec)?;
+        rec.submit()?.wait()?;
+        let posed = r.data()?;
+        assert_eq!(posed.positions, c.mesh.positions);
+        Ok(())
+    });
+}
