@@ -265,6 +265,19 @@ pub struct PosedCpu<'a> {
 /// The G-buffer the resolve pass writes for triangle ids `id` (per pixel, `u32::MAX` for
 /// none), in f64: the same ray, barycentrics (clamped), interpolation, facing and layout.
 pub fn resolve(posed: &PosedCpu<'_>, prep: &Prepared, camera: &Camera, id: &[u32]) -> GBuffer {
+    resolve_conditioned(posed, prep, camera, id).0
+}
+
+/// As [`resolve`], with per pixel the lengths of the interpolated normal and of the
+/// interpolated tangent after Gram-Schmidt, before each is normalised (0 where nothing is
+/// covered): normalising divides the interpolation's rounding by them, so where they are
+/// small (folds, mirror seams) f32 and f64 differ most.
+pub fn resolve_conditioned(
+    posed: &PosedCpu<'_>,
+    prep: &Prepared,
+    camera: &Camera,
+    id: &[u32],
+) -> (GBuffer, Vec<[f64; 2]>) {
     let [w, h] = prep.size;
     let b = camera.basis(prep.size);
     let eye = camera.eye.as_dvec3();
@@ -275,6 +288,7 @@ pub fn resolve(posed: &PosedCpu<'_>, prep: &Prepared, camera: &Camera, id: &[u32
     );
     let scale = prep.uv_scale as f64;
     let mut texels = Vec::with_capacity(3 * (w * h) as usize);
+    let mut lengths = vec![[0.0; 2]; (w * h) as usize];
     for k in 0..(w * h) as usize {
         if id[k] == u32::MAX {
             texels.extend([[0.0f32; 4]; 3]);
@@ -301,6 +315,7 @@ pub fn resolve(posed: &PosedCpu<'_>, prep: &Prepared, camera: &Camera, id: &[u32
         let mix3 = |f: &dyn Fn(usize) -> DVec3| f(ia) * w0 + f(ib) * u + f(ic) * v;
         let pos = mix3(&|i| p(i));
         let mut n = mix3(&|i| posed.normals[i].as_dvec3());
+        lengths[k][0] = n.length();
         n = if n.length() > 0.0 {
             n.normalize()
         } else {
@@ -316,6 +331,7 @@ pub fn resolve(posed: &PosedCpu<'_>, prep: &Prepared, camera: &Camera, id: &[u32
             hand = -hand;
         }
         let mut tt = tg - n * n.dot(tg);
+        lengths[k][1] = tt.length();
         if tt.length_squared() < 1e-12 {
             tt = if n.x.abs() < 0.9 {
                 n.cross(DVec3::X)
@@ -333,9 +349,10 @@ pub fn resolve(posed: &PosedCpu<'_>, prep: &Prepared, camera: &Camera, id: &[u32
         texels.push([n.x as f32, n.y as f32, n.z as f32, uv(0) as f32]);
         texels.push([tg.x as f32, tg.y as f32, tg.z as f32, uv(1) as f32]);
     }
-    GBuffer {
+    let gb = GBuffer {
         width: w,
         height: h,
         texels,
-    }
+    };
+    (gb, lengths)
 }
