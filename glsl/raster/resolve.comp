@@ -5,7 +5,8 @@
 // (Moller-Trumbore: exact, perspective-correct barycentrics, clamped into the triangle as
 // the CPU G-buffer does); position, normal, tangent, handedness and uv are interpolated and
 // written as the G-buffer the BTF pass reads, three layers:
-//   0: (position, s * (1 + part))   s = handedness (+-1); 0 where nothing is covered
+//   0: (position, s * (1 + part))   s = handedness (+-1); all 0 where nothing is covered
+//      (layers 1 and 2 are then not written)
 //   1: (normal, u * tile_scale)
 //   2: (tangent, v * tile_scale)
 // The normal faces the camera: where the interpolated normal faces away (a back face, or a
@@ -40,7 +41,9 @@ void main() {
     if (any(greaterThanEqual(px, pc.dims.xy))) return;
     uint64_t key = vis.key[px.y * pc.dims.x + px.x];
     if (key == ~0ul) {
-        store(ivec2(px), vec4(0.0), vec4(0.0), vec4(0.0));
+        // Only the tag says "empty" (layers 1 and 2 are left as they were: readers test the
+        // tag first; lavapipe stores image texels one lane at a time).
+        imageStore(gbuffer, ivec3(px, 0), vec4(0.0));
         return;
     }
     uvec4 t = tris.t[uint(key & 0xFFFFFFFFul)];

@@ -35,7 +35,8 @@ pub struct Posed<'a> {
 
 /// Host copies of one frame: the G-buffer, the visibility keys and the counters.
 pub struct RasterOutput {
-    /// The G-buffer as the resolve pass wrote it.
+    /// The G-buffer as the resolve pass wrote it (all zeros at empty pixels, whose second
+    /// and third layers the GPU leaves unwritten).
     pub gbuffer: GBuffer,
     /// Per pixel: (depth bits << 32) | triangle, or `u64::MAX` where nothing is covered.
     pub keys: Vec<u64>,
@@ -278,8 +279,16 @@ impl Kernel for RasterKernel {
     fn collect(&self, rb: &RasterReadback) -> Result<RasterOutput> {
         let layers: Vec<[f32; 4]> = rb.gbuffer.to_vec()?;
         let n = (self.size[0] * self.size[1]) as usize;
+        // The resolve pass writes only the first layer of an empty pixel (tag 0); the host
+        // copy holds zeros there, as the CPU G-buffers do.
         let texels = (0..n)
-            .flat_map(|k| [layers[k], layers[n + k], layers[2 * n + k]])
+            .flat_map(|k| {
+                if layers[k][3] == 0.0 {
+                    [[0.0; 4]; 3]
+                } else {
+                    [layers[k], layers[n + k], layers[2 * n + k]]
+                }
+            })
             .collect();
         let c: Vec<u32> = rb.counters.to_vec()?;
         let mut counters = [0u32; 8];
