@@ -594,3 +594,67 @@ fn btf_shades_the_gpu_gbuffer_like_its_cpu_twin() {
     );
     assert!(max < gpu_cpu_bound(bits), "|GPU - CPU| = {max}");
 }
+
+/// Triangles given in screen pixels of a 32 x 32 image seen by a 90-degree camera at the
+/// origin looking along +z (screen x grows towards -x, y down), all at depth 1.
+fn screen_mesh(tris: &[[[f32; 2]; 3]]) -> Mesh {
+    let mut d = MeshData::default();
+    let mut uvs = Vec::new();
+    for t in tris {
+        for p in t {
+            d.positions
+                .push([-(p[0] / 16.0 - 1.0), 1.0 - p[1] / 16.0, 1.0]);
+            uvs.push([p[0] / 32.0, p[1] / 32.0]);
+        }
+        let b = d.positions.len() as u32 - 3;
+        d.triangles.push([b, b + 1, b + 2]);
+    }
+    d.uvs = Some(uvs);
+    Mesh::from_data(d, std::path::Path::new("screen")).unwrap()
+}
+
+#[test]
+fn pixel_centres_on_a_shared_edge_belong_to_one_triangle_by_the_top_left_rule() {
+    let cam = Camera {
+        eye: Vec3::ZERO,
+        target: Vec3::Z,
+        up: Vec3::Y,
+        fov_y_deg: 90.0,
+        near: 0.1,
+    };
+    // A vertical edge at x = 10.5 through the centres of column 10: it is triangle 0's right
+    // edge and triangle 1's left edge, so those centres are triangle 1's. Both triangles lie
+    // at the same depth, where atomicMin would keep the lower id 0 if both covered them.
+    // Likewise a horizontal edge at y = 20.5 through row 20's centres: triangle 1's bottom
+    // edge (not owned) and triangle 2's top edge (owned).
+    let mesh = screen_mesh(&[
+        [[2.0, 2.0], [10.5, 2.0], [10.5, 20.5]],
+        [[10.5, 2.0], [30.0, 20.5], [10.5, 20.5]],
+        [[10.5, 20.5], [30.0, 20.5], [20.0, 30.0]],
+    ]);
+    let pose = host_pose(&mesh, None);
+    let prep = Prepared::new(&mesh, &[], [32, 32], 1.0).unwrap();
+    let out = &raster_frames(&pose, &prep, &[cam])[0];
+    let id = |x: usize, y: usize| out.hit(y * 32 + x).map(|h| h.0);
+    for y in 3..20 {
+        assert_eq!(
+            id(10, y),
+            Some(1),
+            "column 10, row {y}: the left edge's owner"
+        );
+    }
+    for y in 3..18 {
+        assert_eq!(id(9, y), Some(0), "column 9, row {y}");
+    }
+    for x in 12..28 {
+        assert_eq!(
+            id(x, 20),
+            Some(2),
+            "row 20, column {x}: the top edge's owner"
+        );
+        assert_eq!(id(x, 19), Some(1), "row 19, column {x}");
+    }
+    // The vertex (10.5, 20.5) of all three: on triangle 0's right edge (not owned), on
+    // triangle 1's bottom edge (not owned), on triangle 2's top and left edges (owned).
+    assert_eq!(id(10, 20), Some(2));
+}
