@@ -279,6 +279,8 @@ pub struct RenderReport {
     pub texture_mib: f64,
     pub map_bytes: u64,
     pub gpu_ms: crate::report::Stats,
+    /// Host ms per frame outside waiting (recording the pass and submitting).
+    pub host_ms: crate::report::Stats,
     pub fps: f64,
     pub load_ms: f64,
     pub kernel: KernelInfo,
@@ -335,6 +337,7 @@ struct Session<'a> {
     /// Linear RGBA per pixel, as the GPU shaded it.
     out: Vec<[f32; 4]>,
     gpu_ms: crate::report::Stats,
+    host_ms: crate::report::Stats,
 }
 
 impl<'a> Session<'a> {
@@ -381,6 +384,19 @@ impl<'a> Session<'a> {
         let out = kernel.collect(&rb)?;
         let timed = time_passes(ctx, &cfg.bench, &kernel, &frame)?;
         let gpu_ms = timed[0].1.clone();
+        // Host time of a frame outside waiting: recording the pass (push constants) and
+        // submitting, over as many frames as the GPU timing took.
+        let mut host = Vec::new();
+        for _ in 0..cfg.bench.samples.max(1) {
+            let t = Instant::now();
+            let mut rec = ctx.recorder("btf render host timing")?;
+            kernel.record(&mut rec, &frame)?;
+            let sub = rec.submit()?;
+            host.push(t.elapsed().as_secs_f64() * 1e3);
+            sub.wait()?;
+        }
+        let host_ms = crate::report::Stats::of(&host)
+            .ok_or_else(|| Error::InvalidArgument("no host timing samples".into()))?;
         progress(&format!(
             "btf shade {} x {}: {:.3} ms (median GPU)",
             cfg.width, cfg.height, gpu_ms.median
@@ -396,6 +412,7 @@ impl<'a> Session<'a> {
             kernel,
             out,
             gpu_ms,
+            host_ms,
         })
     }
 
@@ -606,6 +623,7 @@ impl<'a> Session<'a> {
             map_bytes: kernel.map_bytes(),
             fps: 1000.0 / self.gpu_ms.median,
             gpu_ms: self.gpu_ms.clone(),
+            host_ms: self.host_ms.clone(),
             load_ms: self.load_ms,
             kernel: KernelInfo::of(kernel, 1),
             vs_cpu,
@@ -1019,6 +1037,10 @@ pub fn display(r: &RenderReport) {
             t.all.psnr_db
         );
     }
+    println!(
+        "host {:.3} ms per frame (median; recording + submit, no waits)",
+        r.host_ms.median
+    );
     println!("wrote {}, {} and report.json", r.png, r.exr);
 }
 
