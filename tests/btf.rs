@@ -271,6 +271,7 @@ const BC: vkshade::gpu::Features = vkshade::gpu::Features {
     shader_float64: false,
     sampler_anisotropy: false,
     texture_compression_bc: true,
+    buffer_int64_atomics: false,
 };
 
 #[test]

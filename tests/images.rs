@@ -520,6 +520,7 @@ fn unsupported_formats_samplers_and_features_are_clear_errors() {
         shader_float64: true,
         sampler_anisotropy: true,
         texture_compression_bc: true,
+        buffer_int64_atomics: true,
     };
     let missing = all.missing_from(&supported);
     match Context::new(&ContextDesc {

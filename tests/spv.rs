@@ -71,7 +71,13 @@ fn embedded_modules_are_the_committed_ones() {
 
 #[test]
 fn every_module_reflects_and_builds_a_pipeline() {
-    common::with_gpu(|ctx| {
+    // The rasteriser's modules declare Int64 and Int64Atomics: the context enables the
+    // feature they need (as RasterKernel::new requires).
+    let int64 = vkshade::gpu::Features {
+        buffer_int64_atomics: true,
+        ..Default::default()
+    };
+    common::with_gpu_features(int64, |ctx| {
         for (name, bytes) in EMBEDDED {
             let shader = Shader::from_spirv(name, bytes)?;
             assert!(shader.invocations() > 0, "{name}");

@@ -41,7 +41,8 @@ layout(set = 0, binding = 1) uniform sampler tile_sampler;   // linear, repeat
 #endif
 // RGBA32UI per texel: x = three sample indices (8 bits each), yzw = their weights (f32 bits).
 layout(set = 0, binding = 2) uniform utexture2D dir_map;
-// Layers 0, 1, 2: (position, valid), (normal, u), (tangent, v).
+// Layers 0, 1, 2: (position, tag), (normal, u), (tangent, v); tag = 0 where empty, else
+// s * (1 + part), s = +-1 the frame's handedness (src/scene/gbuffer.rs).
 layout(set = 0, binding = 4) uniform texture2DArray gbuffer;
 layout(std430, set = 0, binding = 5) writeonly buffer Result { vec4 v[]; } result;
 
@@ -135,7 +136,7 @@ void main() {
     if (any(greaterThanEqual(px, pc.dims.xy))) return;
     uint k = px.y * pc.dims.x + px.x;
     vec4 g0 = texelFetch(gbuffer, ivec3(px, 0), 0);
-    if (g0.w < 0.5) {
+    if (abs(g0.w) < 0.5) {
         result.v[k] = vec4(0.0);
         return;
     }
@@ -143,7 +144,7 @@ void main() {
     vec4 g2 = texelFetch(gbuffer, ivec3(px, 2), 0);
     vec3 n = normalize(g1.xyz);
     vec3 t = normalize(g2.xyz - n * dot(n, g2.xyz));
-    vec3 b = cross(n, t);
+    vec3 b = (g0.w < 0.0 ? -1.0 : 1.0) * cross(n, t);   // handedness: the tag's sign
     Footprint fp = footprint(vec2(g1.w, g2.w));
     vec3 view = pc.camera.w == 0.0 ? pc.camera.xyz : normalize(pc.camera.xyz - g0.xyz);
     vec3 vt = vec3(dot(view, t), dot(view, b), dot(view, n));

@@ -57,6 +57,11 @@ pub enum Command {
         /// other formats; bc1 when the device supports it).
         #[arg(long, default_value = "block", value_parser = super::choice::<Texture>("texture format"))]
         texture: Texture,
+        /// Instead: the moving garment (BCN_Epileptic's Torso and Legs, Epileptisch), per
+        /// frame skinning + G-buffer 512 x 512 (compute rasteriser) + BTF: fps, GPU ms per
+        /// pass and host ms per frame.
+        #[arg(long)]
+        anim: bool,
     },
     /// Texture-space SSS on the BCN_Epileptic head: GPU time of irradiance and diffusion
     /// over texture size x samples per texel, error against the brute-force ground truth vs
@@ -132,8 +137,15 @@ impl Command {
             Command::Srbf { opts, quick } => srbf(gpu, opts, *quick),
             Command::Btf {
                 opts,
+                anim: true,
+                texture,
+                ..
+            } => super::btf::bench_anim(gpu, opts, *texture),
+            Command::Btf {
+                opts,
                 quick,
                 texture,
+                anim: false,
             } => btf(gpu, opts, *quick, *texture),
             Command::Sss {
                 opts, anim: true, ..
@@ -145,7 +157,7 @@ impl Command {
 
 /// Refuses unwritable output paths before anything runs (the plot's only where the
 /// benchmark draws one).
-fn check_outputs(opts: &Opts, plots: bool) -> Result<()> {
+pub(super) fn check_outputs(opts: &Opts, plots: bool) -> Result<()> {
     let plot = opts.plot.iter().filter(|_| plots);
     for path in opts.json.iter().chain(plot) {
         crate::io::check_writable(path)?;
@@ -157,7 +169,7 @@ fn check_outputs(opts: &Opts, plots: bool) -> Result<()> {
 }
 
 /// Writes the report as JSON where `--json` asks for it.
-fn write_json<R: serde::Serialize>(opts: &Opts, report: &R) -> Result<()> {
+pub(super) fn write_json<R: serde::Serialize>(opts: &Opts, report: &R) -> Result<()> {
     if let Some(path) = &opts.json {
         crate::io::write_json(path, report)?;
         println!("wrote {}", path.display());

@@ -3,6 +3,7 @@
 //! direct ray-cast as references.
 
 use super::Gpu;
+use crate::bench::btf::{Garment, GarmentConfig, garment_passes};
 use crate::bench::time_passes;
 use crate::error::{Error, Result};
 use crate::gpu::Context;
@@ -278,6 +279,8 @@ pub struct RenderReport {
     pub texture_mib: f64,
     pub map_bytes: u64,
     pub gpu_ms: crate::report::Stats,
+    /// Host ms per frame outside waiting (recording the pass and submitting).
+    pub host_ms: crate::report::Stats,
     pub fps: f64,
     pub load_ms: f64,
     pub kernel: KernelInfo,
@@ -334,6 +337,7 @@ struct Session<'a> {
     /// Linear RGBA per pixel, as the GPU shaded it.
     out: Vec<[f32; 4]>,
     gpu_ms: crate::report::Stats,
+    host_ms: crate::report::Stats,
 }
 
 impl<'a> Session<'a> {
@@ -380,6 +384,19 @@ impl<'a> Session<'a> {
         let out = kernel.collect(&rb)?;
         let timed = time_passes(ctx, &cfg.bench, &kernel, &frame)?;
         let gpu_ms = timed[0].1.clone();
+        // Host time of a frame outside waiting: recording the pass (push constants) and
+        // submitting, over as many frames as the GPU timing took.
+        let mut host = Vec::new();
+        for _ in 0..cfg.bench.samples.max(1) {
+            let t = Instant::now();
+            let mut rec = ctx.recorder("btf render host timing")?;
+            kernel.record(&mut rec, &frame)?;
+            let sub = rec.submit()?;
+            host.push(t.elapsed().as_secs_f64() * 1e3);
+            sub.wait()?;
+        }
+        let host_ms = crate::report::Stats::of(&host)
+            .ok_or_else(|| Error::InvalidArgument("no host timing samples".into()))?;
         progress(&format!(
             "btf shade {} x {}: {:.3} ms (median GPU)",
             cfg.width, cfg.height, gpu_ms.median
@@ -395,6 +412,7 @@ impl<'a> Session<'a> {
             kernel,
             out,
             gpu_ms,
+            host_ms,
         })
     }
 
@@ -605,6 +623,7 @@ impl<'a> Session<'a> {
             map_bytes: kernel.map_bytes(),
             fps: 1000.0 / self.gpu_ms.median,
             gpu_ms: self.gpu_ms.clone(),
+            host_ms: self.host_ms.clone(),
             load_ms: self.load_ms,
             kernel: KernelInfo::of(kernel, 1),
             vs_cpu,
@@ -758,6 +777,24 @@ pub struct RenderArgs {
     pub error_scale: f32,
     #[arg(long, default_value = "out/btf")]
     pub out: PathBuf,
+    /// With --anim: the glTF mesh parts to cover with cloth, comma-separated (node or mesh
+    /// names, e.g. Torso,Legs).
+    #[arg(long, value_delimiter = ',')]
+    pub part: Vec<String>,
+    /// Play this animation of the --object glTF: per frame the parts are skinned, their
+    /// G-buffer rasterised and shaded on the GPU; writes DIR/frame_NNNN.png and
+    /// DIR/anim.json (GPU ms per pass, host ms per frame).
+    #[arg(long)]
+    pub anim: Option<String>,
+    /// With --anim: frames to render.
+    #[arg(long, default_value_t = 30)]
+    pub frames: u32,
+    /// With --anim: frames per second of animation time.
+    #[arg(long, default_value_t = 30.0)]
+    pub frame_rate: f32,
+    /// With --anim: BTF tile repeats per unit of the mesh's uv.
+    #[arg(long, default_value_t = 8.0)]
+    pub tile_scale: f32,
 }
 
 impl Command {
@@ -951,6 +988,9 @@ impl RenderArgs {
 
     /// `vkshade btf render`: renders, compares (with `--reference`) and prints the summary.
     pub fn run(&self, gpu: &Gpu) -> Result<()> {
+        if self.anim.is_some() || !self.part.is_empty() {
+            return self.run_anim(gpu);
+        }
         let cfg = self.config()?;
         let ctx = context(gpu, self.texture)?;
         eprintln!("vkshade btf render on {}", ctx.info().name);
@@ -997,5 +1037,247 @@ pub fn display(r: &RenderReport) {
             t.all.psnr_db
         );
     }
+    println!(
+        "host {:.3} ms per frame (median; recording + submit, no waits)",
+        r.host_ms.median
+    );
     println!("wrote {}, {} and report.json", r.png, r.exr);
+}
+
+/// The context the moving garment needs: 64-bit buffer atomics for the rasteriser (and
+/// textureCompressionBC for `--texture bc1`).
+pub fn anim_context(gpu: &Gpu, texture: Texture) -> Result<Context> {
+    gpu.context_with(crate::gpu::Features {
+        texture_compression_bc: texture == Texture::Bc1,
+        buffer_int64_atomics: true,
+        ..Default::default()
+    })
+}
+
+/// What `btf render --anim` writes to anim.json.
+#[derive(Clone, Debug, Serialize)]
+pub struct AnimReport {
+    pub tool: &'static str,
+    pub machine: MachineInfo,
+    pub config: GarmentConfig,
+    pub btf: String,
+    pub frames: u32,
+    pub frame_rate: f32,
+    pub triangles: usize,
+    pub vertices: usize,
+    /// GPU ms of each pass over the frames.
+    pub pass_ms: Vec<(&'static str, crate::report::Stats)>,
+    /// Host ms per frame outside waiting: joint matrices, recording (with the output's
+    /// readback copy) and submit.
+    pub host_ms: crate::report::Stats,
+    pub covered_pixels: Vec<usize>,
+    pub pngs: Vec<String>,
+}
+
+/// `vkshade btf render --anim`: the garment in motion, one PNG per frame.
+pub fn render_anim(
+    ctx: &Context,
+    btf_dir: &Path,
+    cfg: &GarmentConfig,
+    (frames, frame_rate): (u32, f32),
+    out: &Path,
+    progress: &mut dyn FnMut(&str),
+) -> Result<AnimReport> {
+    let report_path = out.join("anim.json");
+    crate::io::check_writable(&report_path)?;
+    if frames == 0 || !(frame_rate.is_finite() && frame_rate > 0.0) {
+        return Err(Error::InvalidArgument(format!(
+            "--frames {frames} and --frame-rate {frame_rate}: need at least one frame at a positive rate"
+        )));
+    }
+    let btf = load::load_dir(btf_dir)?;
+    let maps = Maps::build(&Triangulation::new()?, cfg.map_res)?;
+    let g = Garment::new(ctx, cfg, &btf, &maps)?;
+    let (triangles, vertices) = g.counts();
+    progress(&format!(
+        "{} of {}: {triangles} triangles, {vertices} vertices, animation '{}' ({:.2} s)",
+        cfg.parts.join("+"),
+        cfg.mesh.display(),
+        g.animation().name,
+        g.animation().duration
+    ));
+    let names = garment_passes();
+    let mut pass = vec![Vec::new(); names.len()];
+    let (mut host, mut covered, mut pngs) = (Vec::new(), Vec::new(), Vec::new());
+    let [w, h] = cfg.size;
+    for i in 0..frames {
+        let t0 = Instant::now();
+        let m = g.matrices(i as f32 / frame_rate);
+        let mut rec = ctx.recorder(&format!("garment frame {i}"))?;
+        g.record(&mut rec, &m)?;
+        let rb = g.read_back(&mut rec)?;
+        let sub = rec.submit()?;
+        host.push(t0.elapsed().as_secs_f64() * 1e3);
+        let timings = sub.wait()?;
+        for (n, p) in names.iter().zip(pass.iter_mut()) {
+            p.push(
+                timings
+                    .get(n)
+                    .ok_or_else(|| Error::InvalidArgument(format!("pass '{n}' was not timed")))?,
+            );
+        }
+        let px: Vec<[f32; 4]> = rb.to_vec()?;
+        covered.push(px.iter().filter(|p| p[3] > 0.0).count());
+        let rgb: Vec<u8> = px
+            .iter()
+            .flat_map(|p| [p[0], p[1], p[2]].map(srgb_encode))
+            .collect();
+        let png = out.join(format!("frame_{i:04}.png"));
+        crate::render::write_png(&png, w, h, &rgb)?;
+        pngs.push(png.display().to_string());
+    }
+    let stats = |s: &[f64]| {
+        crate::report::Stats::of(s).ok_or_else(|| Error::InvalidArgument("no samples".into()))
+    };
+    let report = AnimReport {
+        tool: "vkshade btf render --anim",
+        machine: MachineInfo::of(ctx),
+        config: cfg.clone(),
+        btf: btf_dir.display().to_string(),
+        frames,
+        frame_rate,
+        triangles,
+        vertices,
+        pass_ms: names
+            .iter()
+            .zip(&pass)
+            .map(|(n, p)| Ok((*n, stats(p)?)))
+            .collect::<Result<_>>()?,
+        host_ms: stats(&host)?,
+        covered_pixels: covered,
+        pngs,
+    };
+    crate::io::write_json(&report_path, &report)?;
+    Ok(report)
+}
+
+impl RenderArgs {
+    /// The moving garment these arguments describe.
+    pub fn garment(&self) -> Result<GarmentConfig> {
+        let (Some(anim), false) = (&self.anim, self.part.is_empty()) else {
+            return Err(Error::InvalidArgument(
+                "--anim and --part go together: the parts of the --object glTF to cover, and the animation to play".into(),
+            ));
+        };
+        if !(self.tile_scale.is_finite() && self.tile_scale > 0.0) {
+            return Err(Error::InvalidArgument(format!(
+                "--tile-scale must be > 0, not {}",
+                self.tile_scale
+            )));
+        }
+        let cfg = self.config()?;
+        let mesh = cfg.mesh.ok_or_else(|| {
+            Error::InvalidArgument("--anim needs --object to be a glTF character".into())
+        })?;
+        Ok(GarmentConfig {
+            mesh,
+            parts: self.part.clone(),
+            anim: anim.clone(),
+            size: [self.width, self.height],
+            tile_scale: self.tile_scale,
+            map_res: self.map_res,
+            texture: self.texture,
+            lights: cfg.lights,
+        })
+    }
+
+    /// `vkshade btf render --anim`.
+    fn run_anim(&self, gpu: &Gpu) -> Result<()> {
+        let cfg = self.garment()?;
+        let ctx = anim_context(gpu, self.texture)?;
+        eprintln!("vkshade btf render --anim on {}", ctx.info().name);
+        let r = render_anim(
+            &ctx,
+            &self.btf,
+            &cfg,
+            (self.frames, self.frame_rate),
+            &self.out,
+            &mut |l| super::progress(l),
+        )?;
+        println!(
+            "{} frames of {} x {} ({} triangles):",
+            r.frames, cfg.size[0], cfg.size[1], r.triangles
+        );
+        let mut total = 0.0;
+        for (n, s) in &r.pass_ms {
+            println!("  {n:<18} {:.3} ms GPU (median)", s.median);
+            total += s.median;
+        }
+        println!(
+            "  frame              {total:.3} ms GPU = {:.1} fps; host {:.3} ms per frame (median, recording + submit, no waits)",
+            1000.0 / total,
+            r.host_ms.median
+        );
+        println!(
+            "wrote {} .. {} and anim.json",
+            r.pngs.first().map_or("", |s| s.as_str()),
+            r.pngs.last().map_or("", |s| s.as_str())
+        );
+        super::finish(ctx)
+    }
+}
+
+/// `vkshade bench btf --anim`: the garment's per-frame cost.
+pub fn bench_anim(gpu: &Gpu, opts: &super::bench::Opts, texture: Texture) -> Result<()> {
+    super::bench::check_outputs(opts, false)?;
+    let bench = opts.config()?;
+    let cfg = GarmentConfig {
+        mesh: PathBuf::from("data/bcn_epileptic.glb"),
+        parts: vec!["Torso".into(), "Legs".into()],
+        anim: "Epileptisch".into(),
+        size: [512, 512],
+        tile_scale: 8.0,
+        map_res: 128,
+        texture,
+        lights: default_lights(),
+    };
+    let ctx = anim_context(gpu, texture)?;
+    eprintln!("bench btf --anim on {}", ctx.info().name);
+    let r = crate::bench::btf::run_anim(&ctx, &cfg, &bench, 32, &mut |l| super::progress(l))?;
+    println!("device                 {}", r.machine.device);
+    println!(
+        "garment                {} ({} triangles, {} vertices), {} x {}, tile 32 x {} per uv, {:?}",
+        cfg.parts.join("+"),
+        r.triangles,
+        r.vertices,
+        cfg.size[0],
+        cfg.size[1],
+        cfg.tile_scale,
+        texture
+    );
+    for ((n, s), (_, share)) in r.pass_ms.iter().zip(&r.pass_share) {
+        println!(
+            "  {n:<20} {:>7.3} ms GPU (median, spread {:.0}%), {:>5.1}% of the frame",
+            s.median,
+            100.0 * s.spread,
+            100.0 * share
+        );
+    }
+    println!(
+        "frame                  {:.3} ms GPU = {:.1} fps; wall clock {:.1} fps (2 in flight); host {:.3} ms per frame (median; max {:.3})",
+        r.frame_gpu_ms.median, r.fps_gpu, r.fps_wall, r.host_ms.median, r.host_ms.max
+    );
+    println!(
+        "same run               btf shade alone on the static sphere ({} px covered; the garment: {}): {:.3} ms GPU = {:.1} fps",
+        r.sphere_covered_pixels,
+        r.covered_pixels,
+        r.sphere_btf_ms.median,
+        1000.0 / r.sphere_btf_ms.median
+    );
+    for t in &r.targets {
+        println!(
+            "target                 {}: {:.1} vs {:.0}: {}",
+            t.name,
+            t.measured,
+            t.target,
+            if t.pass { "pass" } else { "MISS" }
+        );
+    }
+    super::bench::write_json(opts, &r)?;
+    super::finish(ctx)
 }

@@ -21,6 +21,7 @@ use crate::kernels::btf::synth::Btf;
 use crate::scene::gbuffer::{Camera, EYE, Frame, GBuffer, Light, Object, render_object};
 use glam::Vec3;
 use serde::Serialize;
+use std::time::Instant;
 
 /// What `bench btf` measures.
 #[derive(Clone, Debug, Serialize)]
@@ -458,6 +459,347 @@ pub fn run(
         formats,
         cpu_same_method_ms: cpu_ms,
         sweep,
+        targets,
+    })
+}
+
+/// A cloth garment in motion, all on the GPU per frame: the pose kernel skins the chosen
+/// parts with the frame's joint matrices, the rasteriser writes their G-buffer from the
+/// posed buffers, and the BTF pass shades that G-buffer (barriers from the three kernels'
+/// declared accesses; nothing crosses to the host inside a frame). `btf render --anim` and
+/// `bench btf --anim` drive it.
+pub struct Garment {
+    /// The character (its mesh: the chosen parts joined, [`crate::scene::gltf_load::load_parts`]).
+    pub character: crate::scene::Character,
+    /// Part index of every triangle.
+    pub parts: Vec<u32>,
+    anim: usize,
+    /// The camera (fixed, framing the garment over the whole animation).
+    pub camera: crate::kernels::raster::pack::Camera,
+    /// The BTF pass's frame: the camera position and the lights.
+    pub frame: Frame,
+    pose: crate::kernels::pose::PoseKernel,
+    raster: crate::kernels::raster::gpu::RasterKernel,
+    btf: BtfKernel,
+}
+
+/// What a [`Garment`] is built from.
+#[derive(Clone, Debug, Serialize)]
+pub struct GarmentConfig {
+    /// The glTF character.
+    pub mesh: std::path::PathBuf,
+    /// Its mesh parts to cover with cloth (node or mesh names).
+    pub parts: Vec<String>,
+    /// The animation.
+    pub anim: String,
+    /// Image width and height.
+    pub size: [u32; 2],
+    /// BTF tile repeats per unit of the mesh's uv.
+    pub tile_scale: f32,
+    /// Direction map resolution.
+    pub map_res: u32,
+    /// Texel format of the BTF.
+    pub texture: Texture,
+    /// Lights (1..=2).
+    #[serde(skip)]
+    pub lights: Vec<Light>,
+}
+
+/// Labels of a garment frame's passes, in order.
+pub fn garment_passes() -> Vec<&'static str> {
+    use crate::kernels::{pose::gpu as p, raster::gpu as r};
+    vec![
+        p::PASS_JOINTS,
+        p::PASS_SKIN,
+        r::PASS_CLEAR,
+        r::PASS_VISIBILITY,
+        r::PASS_RESOLVE,
+        crate::kernels::btf::gpu::PASS_SHADE,
+    ]
+}
+
+impl Garment {
+    /// Loads the parts, frames the camera on the garment's bounds over 16 poses of the
+    /// animation (CPU, once), creates the three kernels and uploads their static data
+    /// (submitted and waited for here).
+    pub fn new(ctx: &Context, cfg: &GarmentConfig, btf: &Btf, maps: &Maps) -> Result<Garment> {
+        use crate::kernels::raster::gpu::{Posed, Prepared as RasterPrep, RasterKernel};
+        use crate::kernels::{pose, raster};
+        let names: Vec<&str> = cfg.parts.iter().map(String::as_str).collect();
+        let (character, parts) = crate::scene::gltf_load::load_parts(&cfg.mesh, &names)?;
+        let anim = character
+            .animations
+            .iter()
+            .position(|a| a.name.eq_ignore_ascii_case(&cfg.anim))
+            .ok_or_else(|| {
+                let names: Vec<&str> = character
+                    .animations
+                    .iter()
+                    .map(|a| a.name.as_str())
+                    .collect();
+                Error::input(
+                    &cfg.mesh,
+                    format!("no animation '{}'; it has: {}", cfg.anim, names.join(", ")),
+                )
+            })?;
+        let joints = character.rig.joints.len();
+        let pose_prep = pose::Prepared::new(&character.mesh, joints)?;
+        // Bounds over the animation, so the fixed camera keeps the garment in view.
+        let a = &character.animations[anim];
+        let (mut lo, mut hi) = (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN));
+        for i in 0..16 {
+            let m = character
+                .rig
+                .skinning_matrices(Some(a), a.duration * i as f32 / 16.0);
+            let p = pose::cpu::pose(&pose_prep, &m)?;
+            let (l, h) = crate::scene::mesh::bounds(&p.positions);
+            (lo, hi) = (lo.min(l), hi.max(h));
+        }
+        let camera = raster::pack::Camera::framing(
+            (lo + hi) * 0.5,
+            (hi - lo).length() * 0.5,
+            Vec3::new(0.25, 0.15, 1.0),
+        );
+        let frame = Frame {
+            camera: Camera::Perspective(camera.eye),
+            lights: cfg.lights.clone(),
+        };
+        frame.check()?;
+        raster::gpu::check_device(ctx)?;
+        let mut rec = ctx.recorder("garment setup")?;
+        let pose = pose::PoseKernel::new(&mut rec, &pose_prep)?;
+        let rprep = RasterPrep::new(&character.mesh, &parts, cfg.size, cfg.tile_scale)?;
+        let posed = Posed {
+            positions: pose.positions(),
+            normals: pose.normals(),
+            tangents: pose.tangents(),
+        };
+        let raster = RasterKernel::new(&mut rec, &rprep, &posed)?;
+        let l = ctx.limits();
+        let unused = GBuffer::tile([1, 1]);
+        let inputs = BtfInputs::new(btf, maps, &unused, cfg.texture);
+        let bprep = crate::kernels::btf::gpu::Prepared::for_gpu_gbuffer(
+            &inputs,
+            cfg.size,
+            l.max_image_dimension_2d,
+            l.max_image_array_layers,
+        )?;
+        let btf = BtfKernel::on_gbuffer(&mut rec, &bprep, raster.gbuffer())?;
+        rec.submit_and_wait()?;
+        Ok(Garment {
+            character,
+            parts,
+            anim,
+            camera,
+            frame,
+            pose,
+            raster,
+            btf,
+        })
+    }
+
+    /// The animation played.
+    pub fn animation(&self) -> &crate::scene::Animation {
+        &self.character.animations[self.anim]
+    }
+
+    /// The skinning matrices at `time` seconds (wrapped into the animation).
+    pub fn matrices(&self, time: f32) -> Vec<glam::Mat4> {
+        let a = self.animation();
+        let t = if a.duration > 0.0 {
+            time.rem_euclid(a.duration)
+        } else {
+            0.0
+        };
+        self.character.rig.skinning_matrices(Some(a), t)
+    }
+
+    /// Records one frame: skinning, rasterisation, BTF shading.
+    pub fn record(&self, rec: &mut crate::gpu::Recorder, matrices: &[glam::Mat4]) -> Result<()> {
+        use crate::kernels::Kernel;
+        self.pose.record(rec, matrices)?;
+        self.raster.record(rec, &self.camera)?;
+        self.btf.record(rec, &self.frame)
+    }
+
+    /// The shaded image's readback (linear RGBA per pixel; alpha 0 where empty).
+    pub fn read_back(&self, rec: &mut crate::gpu::Recorder) -> Result<crate::gpu::Readback> {
+        use crate::kernels::Kernel;
+        self.btf.read_back(rec)
+    }
+
+    /// Triangles and vertices posed and rasterised per frame.
+    pub fn counts(&self) -> (usize, usize) {
+        (
+            self.character.mesh.triangles.len(),
+            self.character.mesh.positions.len(),
+        )
+    }
+
+    /// Device memory of the three kernels.
+    pub fn memory_bytes(&self) -> u64 {
+        use crate::kernels::Kernel;
+        self.pose.memory().used_bytes
+            + self.raster.memory().used_bytes
+            + self.btf.memory().used_bytes
+    }
+}
+
+/// What `bench btf --anim` writes.
+#[derive(Clone, Debug, Serialize)]
+pub struct AnimBenchReport {
+    pub benchmark: &'static str,
+    pub machine: MachineInfo,
+    pub config: GarmentConfig,
+    pub bench: BenchConfig,
+    pub triangles: usize,
+    pub vertices: usize,
+    /// Median GPU ms of each pass over the timed frames (poses spread over the animation).
+    pub pass_ms: Vec<(&'static str, Stats)>,
+    /// Median GPU ms of a whole frame (sum of its passes per frame).
+    pub frame_gpu_ms: Stats,
+    /// 1000 / frame_gpu_ms.median.
+    pub fps_gpu: f64,
+    /// Frames per second of wall clock with two frames in flight and no readback.
+    pub fps_wall: f64,
+    /// Host ms per frame outside waiting: joint matrices + recording + submit.
+    pub host_ms: Stats,
+    /// Each pass's share of the frame's GPU time (same run).
+    pub pass_share: Vec<(&'static str, f64)>,
+    pub memory_mib: f64,
+    /// Pixels the garment covers at the animation's start.
+    pub covered_pixels: usize,
+    /// Same run: `btf shade` alone on the static sphere (same size, texture, lights).
+    pub sphere_covered_pixels: usize,
+    pub sphere_btf_ms: Stats,
+    pub targets: Vec<super::ao::TargetCheck>,
+}
+
+/// `bench btf --anim`: skinning + G-buffer + BTF of the garment per frame, timed over poses
+/// spread across the animation (hashed BTF texels: the work does not depend on them).
+pub fn run_anim(
+    ctx: &Context,
+    cfg: &GarmentConfig,
+    bench: &BenchConfig,
+    tile: u32,
+    progress: &mut dyn FnMut(&str),
+) -> Result<AnimBenchReport> {
+    let btf = hashed_btf(tile);
+    let maps = Maps::build(&Triangulation::new()?, cfg.map_res)?;
+    let g = Garment::new(ctx, cfg, &btf, &maps)?;
+    let (triangles, vertices) = g.counts();
+    progress(&format!(
+        "{}: {triangles} triangles, {vertices} vertices at {} x {}",
+        cfg.parts.join("+"),
+        cfg.size[0],
+        cfg.size[1]
+    ));
+    let names = garment_passes();
+    let n = bench.warmup + bench.samples.max(1);
+    let duration = g.animation().duration;
+    let mut samples = vec![Vec::new(); names.len()];
+    let (mut frame_ms, mut host_ms) = (Vec::new(), Vec::new());
+    for i in 0..n {
+        let t0 = Instant::now();
+        let m = g.matrices(duration * i as f32 / n as f32);
+        let mut rec = ctx.recorder("garment frame")?;
+        g.record(&mut rec, &m)?;
+        let sub = rec.submit()?;
+        let host = t0.elapsed().as_secs_f64() * 1e3;
+        let t = sub.wait()?;
+        if i < bench.warmup {
+            continue;
+        }
+        host_ms.push(host);
+        let mut sum = 0.0;
+        for (name, s) in names.iter().zip(samples.iter_mut()) {
+            let ms = t
+                .get(name)
+                .ok_or_else(|| Error::InvalidArgument(format!("pass '{name}' was not timed")))?;
+            sum += ms;
+            s.push(ms);
+        }
+        frame_ms.push(sum);
+    }
+    // Wall clock: two frames in flight, no readback (the figure a renderer would see).
+    let frames = bench.samples.max(10);
+    let t0 = Instant::now();
+    let mut pending = std::collections::VecDeque::new();
+    for i in 0..frames {
+        let m = g.matrices(duration * i as f32 / frames as f32);
+        let mut rec = ctx.recorder("garment frame")?;
+        g.record(&mut rec, &m)?;
+        pending.push_back(rec.submit()?);
+        if pending.len() >= 2
+            && let Some(s) = pending.pop_front()
+        {
+            s.wait()?;
+        }
+    }
+    while let Some(s) = pending.pop_front() {
+        s.wait()?;
+    }
+    let fps_wall = frames as f64 / t0.elapsed().as_secs_f64();
+    // Same run: `btf shade` alone on the static sphere at the same size, texture and lights
+    // (the reference the static bench's fps is for).
+    let sphere = render_object(Object::Sphere, cfg.size[0], cfg.size[1])?;
+    let mut rec = ctx.recorder("bench btf sphere setup")?;
+    let k = BtfKernel::new(&mut rec, &BtfInputs::new(&btf, &maps, &sphere, cfg.texture))?;
+    rec.submit_and_wait()?;
+    let f = Frame {
+        camera: Camera::Perspective(Vec3::from(EYE)),
+        lights: cfg.lights.clone(),
+    };
+    let sphere_btf_ms = time_passes(ctx, bench, &k, &f)?.remove(0).1;
+    drop(k);
+    let covered = {
+        let mut rec = ctx.recorder("garment coverage")?;
+        g.record(&mut rec, &g.matrices(0.0))?;
+        let rb = g.read_back(&mut rec)?;
+        rec.submit_and_wait()?;
+        rb.to_vec::<[f32; 4]>()?
+            .iter()
+            .filter(|p| p[3] > 0.0)
+            .count()
+    };
+    let stats = |s: &[f64]| Stats::of(s).ok_or_else(|| Error::InvalidArgument("no samples".into()));
+    let pass_ms: Vec<(&'static str, Stats)> = names
+        .iter()
+        .zip(&samples)
+        .map(|(n, s)| Ok((*n, stats(s)?)))
+        .collect::<Result<_>>()?;
+    let frame_gpu_ms = stats(&frame_ms)?;
+    let fps_gpu = 1000.0 / frame_gpu_ms.median;
+    let pass_share = pass_ms
+        .iter()
+        .map(|(n, s)| (*n, s.median / frame_gpu_ms.median))
+        .collect();
+    let targets = [super::ao::TargetCheck::of(
+        "fps (issue 17: skinning + G-buffer 512 x 512 + BTF on Torso and Legs)",
+        Some(60.0),
+        fps_wall,
+        true,
+    )]
+    .into_iter()
+    .flatten()
+    .collect();
+    Ok(AnimBenchReport {
+        benchmark: "btf --anim",
+        machine: MachineInfo::of(ctx),
+        config: cfg.clone(),
+        bench: bench.clone(),
+        triangles,
+        vertices,
+        pass_ms,
+        frame_gpu_ms,
+        fps_gpu,
+        fps_wall,
+        host_ms: stats(&host_ms)?,
+        pass_share,
+        memory_mib: g.memory_bytes() as f64 / (1u64 << 20) as f64,
+        covered_pixels: covered,
+        sphere_covered_pixels: sphere.covered(),
+        sphere_btf_ms,
         targets,
     })
 }

@@ -5,6 +5,7 @@ pub mod ao;
 pub mod btf;
 pub mod contract;
 pub mod pose;
+pub mod raster;
 pub mod srbf;
 pub mod sss;
 

@@ -14,7 +14,10 @@ use glam::{DVec3, Vec3};
 /// Lights one frame can have (push constants of `btf shade`).
 pub const MAX_LIGHTS: usize = 2;
 
-/// Pixels of a G-buffer: three vec4 each, (position, valid), (normal, u), (tangent, v).
+/// Pixels of a G-buffer: three vec4 each, (position, tag), (normal, u), (tangent, v). The
+/// tag is 0 where nothing is covered, else s * (1 + part): s = +-1 the handedness of the
+/// tangent frame (bitangent = s * normal x tangent; -1 where the UVs are mirrored) and
+/// `part` the part (material) id. The analytic objects write 1: part 0, right-handed.
 #[derive(Clone, Debug)]
 pub struct GBuffer {
     pub width: u32,
@@ -29,6 +32,10 @@ pub struct Pixel {
     pub normal: DVec3,
     pub tangent: DVec3,
     pub uv: [f64; 2],
+    /// +1, or -1 where the frame is left-handed (bitangent = handedness * normal x tangent).
+    pub handedness: f64,
+    /// The part (material) id.
+    pub part: u32,
 }
 
 impl GBuffer {
@@ -54,7 +61,8 @@ impl GBuffer {
     /// The pixel at index `k`, if the G-buffer covers it.
     pub fn pixel(&self, k: usize) -> Option<Pixel> {
         let g = &self.texels[3 * k..3 * k + 3];
-        if g[0][3] < 0.5 {
+        let tag = g[0][3];
+        if tag.abs() < 0.5 {
             return None;
         }
         let v = |a: [f32; 4]| DVec3::new(a[0] as f64, a[1] as f64, a[2] as f64);
@@ -63,6 +71,8 @@ impl GBuffer {
             normal: v(g[1]),
             tangent: v(g[2]),
             uv: [g[1][3] as f64, g[2][3] as f64],
+            handedness: if tag < 0.0 { -1.0 } else { 1.0 },
+            part: (tag.abs() - 1.0).round() as u32,
         })
     }
 
@@ -70,7 +80,7 @@ impl GBuffer {
     pub fn covered(&self) -> usize {
         self.texels
             .chunks_exact(3)
-            .filter(|g| g[0][3] >= 0.5)
+            .filter(|g| g[0][3].abs() >= 0.5)
             .count()
     }
 
@@ -305,11 +315,11 @@ impl Frame {
 }
 
 /// The tangent frame of a pixel as the shader builds it: unit normal, tangent
-/// Gram-Schmidt-orthogonalised against it, bitangent = normal x tangent.
+/// Gram-Schmidt-orthogonalised against it, bitangent = handedness * normal x tangent.
 pub fn frame_of(p: &Pixel) -> (DVec3, DVec3, DVec3) {
     let n = p.normal.normalize();
     let t = (p.tangent - n * n.dot(p.tangent)).normalize();
-    (t, n.cross(t), n)
+    (t, n.cross(t) * p.handedness, n)
 }
 
 /// `w` (world) in the tangent frame (t, b, n).

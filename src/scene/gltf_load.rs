@@ -23,6 +23,57 @@ pub fn load_named(path: &Path, name: &str) -> Result<Character> {
     Ok(c)
 }
 
+/// Several named parts of one character (each chosen as [`load_named`] does), as one mesh:
+/// the parts' vertices and triangles concatenated in the order given, and the part index
+/// (0, 1, ..) of every triangle. Rig and animations are the file's; the parts must agree on
+/// whether they have UVs and skin weights.
+pub fn load_parts(path: &Path, names: &[&str]) -> Result<(Character, Vec<u32>)> {
+    let Some((first, rest)) = names.split_first() else {
+        return Err(Error::input(path, "no part names given"));
+    };
+    let mut c = load_named(path, first)?;
+    let mut parts = vec![0u32; c.mesh.triangles.len()];
+    for (i, name) in rest.iter().enumerate() {
+        if names[..=i].iter().any(|n| n.eq_ignore_ascii_case(name)) {
+            return Err(Error::input(path, format!("part '{name}' given twice")));
+        }
+        let next = load_named(path, name)?.mesh;
+        let m = &mut c.mesh;
+        if m.uvs.is_some() != next.uvs.is_some() || m.skin.is_some() != next.skin.is_some() {
+            return Err(Error::input(
+                path,
+                format!("part '{name}' differs from '{first}' in having UVs or skin weights"),
+            ));
+        }
+        let base = m.positions.len() as u32;
+        m.positions.extend(&next.positions);
+        m.normals.extend(&next.normals);
+        if let (Some(a), Some(b)) = (&mut m.uvs, &next.uvs) {
+            a.extend(b);
+        }
+        if let (Some(a), Some(b)) = (&mut m.skin, &next.skin) {
+            a.joints.extend(&b.joints);
+            a.weights.extend(&b.weights);
+        }
+        m.triangles
+            .extend(next.triangles.iter().map(|t| t.map(|v| v + base)));
+        parts.resize(m.triangles.len(), i as u32 + 1);
+        let (r, n) = (&mut m.report, &next.report);
+        r.vertices += n.vertices;
+        r.triangles += n.triangles;
+        r.degenerate_triangles_removed += n.degenerate_triangles_removed;
+        r.weights_renormalised += n.weights_renormalised;
+        r.influences_truncated += n.influences_truncated;
+        r.normals_recomputed += n.normals_recomputed;
+        r.boundary_edges += n.boundary_edges;
+        r.non_manifold_edges += n.non_manifold_edges;
+        r.unreferenced_vertices += n.unreferenced_vertices;
+    }
+    let base = c.mesh.name.split(':').next().unwrap_or("").to_string();
+    c.mesh.name = format!("{base}:{}", names.join("+"));
+    Ok((c, parts))
+}
+
 fn load_filtered(path: &Path, only: Option<&str>) -> Result<Character> {
     let err = |m: String| Error::input(path, m);
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;

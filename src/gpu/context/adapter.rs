@@ -183,6 +183,8 @@ pub(super) fn describe_device(
         shader_float64: core.shader_float64 == vk::TRUE,
         sampler_anisotropy: core.sampler_anisotropy == vk::TRUE,
         texture_compression_bc: core.texture_compression_bc == vk::TRUE,
+        buffer_int64_atomics: core.shader_int64 == vk::TRUE
+            && f12.shader_buffer_int64_atomics == vk::TRUE,
     };
     // SAFETY: as above.
     let mem = unsafe { instance.get_physical_device_memory_properties(pd) };

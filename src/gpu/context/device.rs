@@ -35,19 +35,23 @@ pub struct Features {
     pub sampler_anisotropy: bool,
     /// `textureCompressionBC` (BC1-7 formats).
     pub texture_compression_bc: bool,
+    /// `shaderInt64` and `shaderBufferInt64Atomics` together: 64-bit integers and 64-bit
+    /// atomics on storage buffers (the compute rasteriser's depth + id keys).
+    pub buffer_int64_atomics: bool,
 }
 
 impl Features {
-    const NAMES: [&'static str; 6] = [
+    const NAMES: [&'static str; 7] = [
         "shaderFloat16",
         "shaderInt16",
         "storageBuffer16BitAccess",
         "shaderFloat64",
         "samplerAnisotropy",
         "textureCompressionBC",
+        "shaderInt64 + shaderBufferInt64Atomics",
     ];
 
-    fn flags(&self) -> [bool; 6] {
+    fn flags(&self) -> [bool; 7] {
         [
             self.shader_float16,
             self.shader_int16,
@@ -55,6 +59,7 @@ impl Features {
             self.shader_float64,
             self.sampler_anisotropy,
             self.texture_compression_bc,
+            self.buffer_int64_atomics,
         ]
     }
 
@@ -209,12 +214,14 @@ fn create_device(
         .maintenance4(true);
     let mut f12 = vk::PhysicalDeviceVulkan12Features::default()
         .timeline_semaphore(true)
-        .shader_float16(f.shader_float16);
+        .shader_float16(f.shader_float16)
+        .shader_buffer_int64_atomics(f.buffer_int64_atomics);
     let mut f11 =
         vk::PhysicalDeviceVulkan11Features::default().storage_buffer16_bit_access(f.storage_16bit);
     let core = vk::PhysicalDeviceFeatures::default()
         .shader_int16(f.shader_int16)
         .shader_float64(f.shader_float64)
+        .shader_int64(f.buffer_int64_atomics)
         .sampler_anisotropy(f.sampler_anisotropy)
         .texture_compression_bc(f.texture_compression_bc);
     let mut features2 = vk::PhysicalDeviceFeatures2::default()

@@ -8,7 +8,7 @@ pub use super::pack::{
     Prepared, Sampled, Texture, encode_bc1, encode_blocks, map_texels, pack, sampled_texels,
 };
 
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::gpu::{
     AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context, Image,
     ImageDesc, ImageRegion, MemoryReport, Readback, Recorder, Resource, Sampler, SamplerDesc,
@@ -31,7 +31,9 @@ pub struct BtfKernel {
     packing: Packing,
     _sampler: Option<Sampler>,
     map: Image,
-    gbuffer: Image,
+    /// The G-buffer when the kernel owns it (uploaded from the CPU); a GPU-written one is
+    /// kept alive by the bind group.
+    gbuffer: Option<Image>,
     result: Buffer,
     size: [u32; 2],
 }
@@ -49,6 +51,45 @@ impl BtfKernel {
     /// Creates the textures, buffers and pipeline for `prep` and records the uploads into
     /// `rec` (they run when the caller submits it).
     pub fn from_prepared(rec: &mut Recorder, prep: &Prepared) -> Result<BtfKernel> {
+        let Some(layers) = &prep.gbuffer else {
+            return Err(Error::InvalidArgument(
+                "BTF prepared for a GPU G-buffer: create it with BtfKernel::on_gbuffer".into(),
+            ));
+        };
+        let [w, h] = prep.size;
+        let gb_desc = ImageDesc::d2_array(vk::Format::R32G32B32A32_SFLOAT, [w, h], 3);
+        let gbuffer = image_with(rec, "btf gbuffer", gb_desc, layers)?;
+        let mut k = Self::with_gbuffer(rec, prep, &gbuffer)?;
+        k.gbuffer = Some(gbuffer);
+        Ok(k)
+    }
+
+    /// As [`BtfKernel::from_prepared`], shading `gbuffer` (RGBA32F, three layers of
+    /// `prep`'s size, sampled usage), which another kernel writes on the GPU (the
+    /// rasteriser's [`crate::kernels::raster::gpu::RasterKernel::gbuffer`]): the pass
+    /// declares a sampled read of it, so the tracker orders it after that write.
+    pub fn on_gbuffer(rec: &mut Recorder, prep: &Prepared, gbuffer: &Image) -> Result<BtfKernel> {
+        let d = gbuffer.desc();
+        let [w, h] = prep.size;
+        if d.format != vk::Format::R32G32B32A32_SFLOAT
+            || d.extent != [w, h, 1]
+            || d.layers != 3
+            || !d.usage.contains(vk::ImageUsageFlags::SAMPLED)
+        {
+            return Err(Error::InvalidArgument(format!(
+                "G-buffer image '{}' is {:?} {:?} x {} layers (usage {:?}); the BTF pass reads \
+                 sampled RGBA32F {w} x {h} x 3",
+                gbuffer.name(),
+                d.format,
+                d.extent,
+                d.layers,
+                d.usage
+            )));
+        }
+        Self::with_gbuffer(rec, prep, gbuffer)
+    }
+
+    fn with_gbuffer(rec: &mut Recorder, prep: &Prepared, gbuffer: &Image) -> Result<BtfKernel> {
         let ctx = rec.context();
         let packing = prep.packing;
         // One module per layout (not a specialization constant: lavapipe 22.3.6 ignored the
@@ -65,14 +106,12 @@ impl BtfKernel {
         let map_desc = ImageDesc::d2(vk::Format::R32G32B32A32_UINT, [res, res]);
         let map = image_with(rec, "btf direction map", map_desc, &prep.map)?;
         let [w, h] = prep.size;
-        let gb_desc = ImageDesc::d2_array(vk::Format::R32G32B32A32_SFLOAT, [w, h], 3);
-        let gbuffer = image_with(rec, "btf gbuffer", gb_desc, &prep.gbuffer)?;
         let result = Buffer::new(
             &ctx,
             "btf result",
             BufferDesc::storage(w as u64 * h as u64 * 16),
         )?;
-        let images = (&map, &gbuffer, &result);
+        let images = (&map, gbuffer, &result);
         let (bind, _sampler) = Self::bind(&ctx, &pipeline, packing.texture, &arrays, images)?;
         Ok(BtfKernel {
             ctx,
@@ -82,7 +121,7 @@ impl BtfKernel {
             packing,
             _sampler,
             map,
-            gbuffer,
+            gbuffer: None,
             result,
             size: prep.size,
         })
@@ -259,7 +298,11 @@ impl Kernel for BtfKernel {
     }
 
     fn memory(&self) -> MemoryReport {
-        let images = self.arrays.iter().chain([&self.map, &self.gbuffer]);
+        let images = self
+            .arrays
+            .iter()
+            .chain([&self.map])
+            .chain(self.gbuffer.as_ref());
         let result = Resource::Buffer(&self.result);
         self.ctx
             .memory_of_resources(images.map(Resource::texture).chain([result]))

@@ -453,14 +453,46 @@ pub struct Prepared {
     pub(super) map: Vec<[u32; 4]>,
     /// Output width and height: the G-buffer's.
     pub(super) size: [u32; 2],
-    /// The G-buffer's three layers ([`gbuffer_layers`]).
-    pub(super) gbuffer: Vec<[f32; 4]>,
+    /// The G-buffer's three layers ([`gbuffer_layers`]); none when it lives on the GPU
+    /// ([`Prepared::for_gpu_gbuffer`]).
+    pub(super) gbuffer: Option<Vec<[f32; 4]>>,
 }
 
 impl Prepared {
     /// Checks `inputs` and packs them for a device whose maxImageDimension2D and
     /// maxImageArrayLayers are `max_dim_2d` and `max_layers`.
     pub fn new(inputs: &BtfInputs<'_>, max_dim_2d: u32, max_layers: u32) -> Result<Prepared> {
+        let gb = inputs.gbuffer;
+        gb.check()?;
+        let limits = (max_dim_2d, max_layers);
+        let size = [gb.width, gb.height];
+        let mut prep = Self::build(inputs, size, limits)?;
+        prep.gbuffer = Some(gbuffer_layers(gb));
+        Ok(prep)
+    }
+
+    /// As [`Prepared::new`] for a G-buffer of `size` pixels that lives on the GPU (written
+    /// by the rasteriser, bound with `BtfKernel::on_gbuffer`); `inputs.gbuffer` is not read.
+    pub fn for_gpu_gbuffer(
+        inputs: &BtfInputs<'_>,
+        size: [u32; 2],
+        max_dim_2d: u32,
+        max_layers: u32,
+    ) -> Result<Prepared> {
+        if size[0] == 0 || size[1] == 0 || size[0] > 16384 || size[1] > 16384 {
+            return Err(Error::InvalidArgument(format!(
+                "G-buffer of {} x {} pixels",
+                size[0], size[1]
+            )));
+        }
+        Self::build(inputs, size, (max_dim_2d, max_layers))
+    }
+
+    fn build(
+        inputs: &BtfInputs<'_>,
+        size: [u32; 2],
+        (max_dim_2d, max_layers): (u32, u32),
+    ) -> Result<Prepared> {
         let btf = inputs.btf;
         if btf.texels.len() != SLICES as usize * btf.image_len() || btf.image_len() == 0 {
             return Err(Error::InvalidArgument(format!(
@@ -470,9 +502,7 @@ impl Prepared {
                 btf.size[1]
             )));
         }
-        let gb = inputs.gbuffer;
-        gb.check()?;
-        let side = gb.width.max(gb.height);
+        let side = size[0].max(size[1]);
         if side > max_dim_2d {
             return Err(Error::Limit {
                 what: "BTF G-buffer texture side".into(),
@@ -495,8 +525,8 @@ impl Prepared {
             texels: packing.upload_bytes(btf),
             map_res: inputs.maps.res,
             map: map_texels(inputs.maps),
-            size: [gb.width, gb.height],
-            gbuffer: gbuffer_layers(gb),
+            size,
+            gbuffer: None,
         })
     }
 
@@ -606,9 +636,10 @@ mod tests {
         assert_eq!(p.map[5], [3 | 1 << 8 | 80 << 16, w[0], w[1], w[2]]);
         // The G-buffer: layer j holds vec4 j of every pixel.
         assert_eq!(p.size, [3, 2]);
-        assert_eq!(p.gbuffer.len(), 3 * 6);
+        let layers = p.gbuffer.as_ref().expect("a CPU G-buffer");
+        assert_eq!(layers.len(), 3 * 6);
         for (j, k) in [(0, 0), (1, 4), (2, 5)] {
-            assert_eq!(p.gbuffer[j * 6 + k], gb.texels[3 * k + j]);
+            assert_eq!(layers[j * 6 + k], gb.texels[3 * k + j]);
         }
         // Layers split over four arrays: each array's bytes are its layers, in order.
         let capped = BtfInputs {
