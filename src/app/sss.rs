@@ -720,7 +720,7 @@ impl<'a> Session<'a> {
         crate::io::write_atomic(&dir.join("posed.obj"), obj.as_bytes())?;
         frame_picture(
             &self.cfg.out.join(format!("frame_{f:04}.png")),
-            &self.cfg,
+            self.cfg,
             &self.geo,
             &posed.positions,
             out,
