@@ -170,6 +170,8 @@ pub struct FrameReport {
     pub index: usize,
     pub time_s: f32,
     pub gpu: GpuTimes,
+    /// Host milliseconds the frame cost outside waiting (recording and submitting).
+    pub host_ms: f64,
     pub spheres_tested_per_vertex: PerVertex,
     pub spheres_used_per_vertex: PerVertex,
     pub mean_visibility: f64,
@@ -186,6 +188,8 @@ pub struct Summary {
     pub skin_ms_median: f64,
     pub ao_ms_median: f64,
     pub total_ms_median: f64,
+    /// Median host milliseconds per frame outside waiting (recording and submitting).
+    pub host_ms_median: f64,
     /// 1000 / median(skin + ao).
     pub fps: f64,
     pub spheres_used_per_vertex_mean: f64,
@@ -445,6 +449,7 @@ struct Session<'a> {
 /// What one GPU frame gave back.
 struct GpuFrame {
     gpu: GpuTimes,
+    host_ms: f64,
     positions: Vec<Vec3>,
     normals: Vec<Vec3>,
     visibility: Vec<f32>,
@@ -452,7 +457,7 @@ struct GpuFrame {
 }
 
 impl GpuFrame {
-    fn new(data: FrameData, timings: &Timings) -> GpuFrame {
+    fn new(data: FrameData, timings: &Timings, host_ms: f64) -> GpuFrame {
         // Skinning: the vertices (the pose's pass) and the sphere centres.
         let skin_ms =
             timings.get(PASS_POSE).unwrap_or(f64::NAN) + timings.get(PASS_SKIN).unwrap_or(f64::NAN);
@@ -463,6 +468,7 @@ impl GpuFrame {
                 ao_ms,
                 total_ms: skin_ms + ao_ms,
             },
+            host_ms,
             positions: to_vec3(&data.positions),
             normals: to_vec3(&data.normals),
             visibility: data.visibility,
@@ -537,7 +543,7 @@ pub fn run(ctx: &Context, cfg: &AoRunConfig, progress: &mut dyn FnMut(&str)) -> 
             jump_method.push(sampled.iter().map(|&i| r.output.visibility[i]).collect());
             jump_truth.push(session.sampled_truth(&matrices[index], &sampled));
         }
-        let f = GpuFrame::new(r.output, &r.timings);
+        let f = GpuFrame::new(r.output, &r.timings, r.host_ms);
         frames.push(session.frame(index, time, &matrices[index], f, progress)?);
         if !cfg.reference {
             counter.add(1);
@@ -700,6 +706,7 @@ impl<'a> Session<'a> {
             index,
             time_s: time,
             gpu: f.gpu.clone(),
+            host_ms: f.host_ms,
             spheres_tested_per_vertex: per_vertex(0),
             spheres_used_per_vertex: per_vertex(1),
             mean_visibility: f.visibility.iter().map(|&v| v as f64).sum::<f64>()
@@ -888,6 +895,7 @@ fn summarize(frames: &[FrameReport]) -> Summary {
         skin_ms_median: median(&|f| f.gpu.skin_ms),
         ao_ms_median: median(&|f| f.gpu.ao_ms),
         total_ms_median: total,
+        host_ms_median: median(&|f| f.host_ms),
         fps: 1000.0 / total,
         spheres_used_per_vertex_mean: frames
             .iter()
@@ -1052,12 +1060,13 @@ pub fn demo(gpu: &Gpu) -> Result<()> {
 pub fn display(report: &AoReport, cfg: &AoRunConfig) {
     let s = &report.summary;
     println!(
-        "{} frames of {}: skin {:.3} ms + ao {:.3} ms GPU (median) = {:.0} fps; {:.1} spheres/vertex",
+        "{} frames of {}: skin {:.3} ms + ao {:.3} ms GPU (median) = {:.0} fps, host {:.3} ms/frame; {:.1} spheres/vertex",
         s.frames,
         report.mesh.path,
         s.skin_ms_median,
         s.ao_ms_median,
         s.fps,
+        s.host_ms_median,
         s.spheres_used_per_vertex_mean
     );
     if let Some(j) = &s.jumps {

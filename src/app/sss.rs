@@ -4,10 +4,13 @@
 //! `render.png` (the mesh lit with subsurface diffusion + transmission | the same irradiance
 //! shaded as plain Lambertian with the same total reflectance, same camera), with
 //! `--reference` `reference.png` (diffusion alone | brute-force truth | error heat map), and
-//! `report.json`. With `--anim`, every frame runs on the GPU (skinning, texture-space
+//! `report.json`. Where the mesh's UVs overlap, the passes run in a unique atlas (those files
+//! are in its layout) and `*_mesh_uv.exr` hold the same results in the mesh's own UVs. With
+//! `--anim`, every frame runs on the GPU (skinning, texture-space
 //! geometry, BVH refit, irradiance, diffusion; the host records and submits) and writes
 //! `frame_NNNN/irradiance.exr`, `diffuse.exr` and `posed.obj` (the posed mesh with its atlas
-//! UVs, model units); the report gives GPU ms per pass and host ms per frame, and with
+//! UVs, model units) and `frame_NNNN.png` (the posed mesh lit with that frame's diffusion);
+//! the report gives GPU ms per pass and host ms per frame, and with
 //! `--reference` the brute-force truth at every frame's pose.
 
 use super::Gpu;
@@ -955,6 +958,15 @@ impl<'a> Session<'a> {
             let path = self.cfg.out.join(name);
             crate::io::exr::write(&path, &texture(data), crate::io::exr::Channels::Rgba)?;
             files.push(path.display().to_string());
+            // The passes ran in a unique atlas: also the result in the mesh's own UVs, for a
+            // renderer that textures the mesh with them (overlapping texels keep one point).
+            if self.geo.report.layout != crate::scene::texspace::Layout::Original {
+                let mesh_uv = name.replace(".exr", "_mesh_uv.exr");
+                let path = self.cfg.out.join(mesh_uv);
+                let back = self.geo.to_source_layout(data, self.geo.size);
+                crate::io::exr::write(&path, &texture(&back), crate::io::exr::Channels::Rgba)?;
+                files.push(path.display().to_string());
+            }
         }
         Ok(files)
     }

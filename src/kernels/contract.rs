@@ -312,6 +312,9 @@ pub struct FrameResult<O> {
     pub output: O,
     /// GPU times of the frame's passes.
     pub timings: Timings,
+    /// Host milliseconds the frame cost outside waiting: recording its passes and
+    /// readbacks (uniforms and uploads staged included) and submitting.
+    pub host_ms: f64,
 }
 
 /// Runs `kernel` over `inputs`, keeping up to `in_flight` frames submitted at once (each
@@ -334,22 +337,27 @@ where
             "frames in flight must be at least 1".into(),
         ));
     }
-    let mut pending: VecDeque<(usize, Submission, K::Readback)> = VecDeque::new();
+    type Pending<R> = (usize, Submission, R, f64);
+    let mut pending: VecDeque<Pending<K::Readback>> = VecDeque::new();
     let mut most = 0;
-    let mut finish = |(index, submission, readback): (usize, Submission, K::Readback)| {
+    let mut finish = |(index, submission, readback, host_ms): Pending<K::Readback>| {
         let timings = submission.wait()?;
         let output = kernel.collect(&readback)?;
         on_frame(FrameResult {
             index,
             output,
             timings,
+            host_ms,
         })
     };
     for (index, input) in inputs.into_iter().enumerate() {
+        let start = std::time::Instant::now();
         let mut rec = ctx.recorder(&format!("{} frame {index}", kernel.name()))?;
         kernel.record(&mut rec, input.borrow())?;
         let readback = kernel.read_back(&mut rec)?;
-        pending.push_back((index, rec.submit()?, readback));
+        let submission = rec.submit()?;
+        let host_ms = start.elapsed().as_secs_f64() * 1e3;
+        pending.push_back((index, submission, readback, host_ms));
         most = most.max(pending.len());
         if pending.len() >= in_flight
             && let Some(oldest) = pending.pop_front()
