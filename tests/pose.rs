@@ -158,6 +158,11 @@ fn tangent_frames_follow_the_uvs_and_their_mirroring() {
             assert_eq!(t.w, if mirror { -1.0 } else { 1.0 });
         }
     }
+    // A zero normal (a degenerate vertex) still gets a finite unit tangent.
+    assert_eq!(
+        vkshade::kernels::pose::pack::perpendicular(Vec3::ZERO),
+        Vec3::X
+    );
     // Without UVs: a perpendicular of the normal, right-handed.
     let mut c = grid(false);
     c.mesh.uvs = None;

@@ -496,6 +496,36 @@ fn a_device_context_without_64_bit_atomics_is_refused_naming_the_feature() {
     assert!(e.contains("shaderBufferInt64Atomics"), "{e}");
 }
 
+#[test]
+fn inconsistent_public_fields_are_refused_before_any_gpu_work() {
+    // `Prepared`'s fields are public: the shaders index uvs by vertex and divide the grid by
+    // its row, so both are checked when the kernel is made.
+    let errors = with_gpu_features(INT64, |ctx| {
+        let mesh = tube(4, 2);
+        let pose = host_pose(&mesh, None);
+        let bufs = PosedBuffers::upload(ctx, &pose)?;
+        let good = Prepared::new(&mesh, &[], [8, 8], 1.0)?;
+        let mut short = good.clone();
+        short.uvs.pop();
+        let mut row = good.clone();
+        row.row = 0;
+        let mut rec = ctx.recorder("raster refused")?;
+        let errors: Vec<String> = [short, row]
+            .iter()
+            .map(|p| {
+                RasterKernel::new(&mut rec, p, &bufs.posed())
+                    .err()
+                    .map(|e| e.to_string())
+                    .unwrap_or_default()
+            })
+            .collect();
+        drop(rec);
+        Ok(errors)
+    });
+    assert!(errors[0].contains("uvs for"), "{}", errors[0]);
+    assert!(errors[1].contains("row"), "{}", errors[1]);
+}
+
 /// Largest difference between the GPU's BTF and its f64 CPU twin (as tests/btf.rs
 /// `gpu_cpu_bound`): bilinear weights with `bits` sub-texel bits off by 2^-bits of the
 /// largest texel, plus 1.1e-3 for the sRGB decode and f32 rounding, per light of strength 1.

@@ -32,9 +32,11 @@ mat4 blend(uvec2 packed, vec4 w) {
 }
 
 // A unit vector perpendicular to the unit vector n.
+// +x for a zero n (a degenerate vertex), as the CPU twin.
 vec3 perpendicular(vec3 n) {
     vec3 a = abs(n.x) < 0.9 ? vec3(1.0, 0.0, 0.0) : vec3(0.0, 1.0, 0.0);
-    return normalize(cross(n, a));
+    vec3 p = cross(n, a);
+    return dot(p, p) > 0.0 ? normalize(p) : vec3(1.0, 0.0, 0.0);
 }
 
 void main() {

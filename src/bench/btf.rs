@@ -469,7 +469,7 @@ pub fn run(
 /// declared accesses; nothing crosses to the host inside a frame). `btf render --anim` and
 /// `bench btf --anim` drive it.
 pub struct Garment {
-    /// The character (its mesh: the chosen parts joined, [`crate::scene::gltf_load::load_parts`]).
+    /// The character (its mesh: the chosen parts joined, `scene::gltf_load::load_parts`).
     pub character: crate::scene::Character,
     /// Part index of every triangle.
     pub parts: Vec<u32>,

@@ -23,10 +23,16 @@ pub struct Prepared {
     pub joint_count: usize,
 }
 
-/// A unit vector perpendicular to the unit vector `n` (the shader's `perpendicular`).
+/// A unit vector perpendicular to the unit vector `n` (the shader's `perpendicular`); +x
+/// for a zero `n` (a degenerate vertex, whose frame nothing can use).
 pub fn perpendicular(n: Vec3) -> Vec3 {
     let a = if n.x.abs() < 0.9 { Vec3::X } else { Vec3::Y };
-    n.cross(a).normalize()
+    let p = n.cross(a);
+    if p.length_squared() > 0.0 {
+        p.normalize()
+    } else {
+        Vec3::X
+    }
 }
 
 /// Per-vertex tangent frames from the UVs: each triangle's dP/du and dP/dv, summed over the

@@ -114,6 +114,19 @@ impl RasterKernel {
                 )));
             }
         }
+        // The fields are public: every length the shaders index with is checked here.
+        if prep.uvs.len() != prep.vertex_count {
+            return Err(Error::InvalidArgument(format!(
+                "{} uvs for {} vertices",
+                prep.uvs.len(),
+                prep.vertex_count
+            )));
+        }
+        if prep.row == 0 {
+            return Err(Error::InvalidArgument(
+                "the visibility grid's row must hold at least one triangle".into(),
+            ));
+        }
         if let Some(bad) = prep
             .triangles
             .iter()
@@ -242,10 +255,12 @@ impl Kernel for RasterKernel {
         let (rp, rb) = (&self.resolve.0, &self.resolve.1);
         vec![
             Pass::dispatch(PASS_CLEAR, cp, cb, |k, _| {
-                let pixels = k.size[0] * k.size[1];
+                // One invocation per pixel on a 2D grid (a 1D one would pass the 65535
+                // workgroups Vulkan guarantees at 2048^2); row 0 also clears the counters.
+                let [w, h] = k.size;
                 Ok(Dispatch::words(
-                    &[pixels],
-                    Grid::Invocations([pixels.max(8), 1, 1]),
+                    &[w, h],
+                    Grid::Invocations([w.max(8), h, 1]),
                 ))
             }),
             Pass::dispatch(PASS_VISIBILITY, vp, vb, |k, cam| {

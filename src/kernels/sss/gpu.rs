@@ -673,6 +673,13 @@ impl SssKernel {
     /// and UV layout; e.g. the skinned mesh of the next frame re-rasterised): the texel
     /// geometry, the vertices and a rebuilt BVH.
     pub fn update_geometry(&self, rec: &mut Recorder, geo: &TexGeometry) -> Result<()> {
+        if self.posed.is_some() {
+            return Err(Error::InvalidArgument(
+                "this SSS kernel computes its geometry from the posed buffers every frame; \
+                 update_geometry would be overwritten (use SssKernel::new for uploaded geometry)"
+                    .into(),
+            ));
+        }
         let s = &self.settings;
         self.res.upload(rec, s.room.pack(geo, &s.profile)?)
     }

@@ -30,7 +30,8 @@
 //! is built once ([`posed`]); each frame the GPU computes the vertex frames, the texel
 //! geometry, the walk's records and a refit of the rest pose's BVH from the posed buffers of
 //! `kernels::pose` (passes `sss pose *`, `sss bvh *`); the contact entries are the rest
-//! pose's. [`SssKernel::update_geometry`] still uploads a CPU-rasterised pose.
+//! pose's. [`SssKernel::update_geometry`] uploads a CPU-rasterised pose to a kernel made
+//! with [`SssKernel::new`] (one made on posed buffers refuses it).
 
 pub mod contact;
 pub mod cpu;
