@@ -392,6 +392,7 @@ fn triangles_crossing_the_near_plane_are_clipped_and_those_behind_culled() {
     }
 }
 
+#[cfg(feature = "gltf")]
 #[test]
 fn the_cloth_far_from_its_bind_pose_equals_the_twin() {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/bcn_epileptic.glb");

@@ -518,6 +518,26 @@ pub fn garment_passes() -> Vec<&'static str> {
     ]
 }
 
+/// The named glTF parts joined into one mesh, with a part id per triangle (needs the `gltf`
+/// feature).
+fn load_garment(
+    mesh: &std::path::Path,
+    names: &[&str],
+) -> Result<(crate::scene::Character, Vec<u32>)> {
+    #[cfg(feature = "gltf")]
+    {
+        crate::scene::gltf_load::load_parts(mesh, names)
+    }
+    #[cfg(not(feature = "gltf"))]
+    {
+        let _ = names;
+        Err(Error::feature(
+            format!("loading garment parts of {}", mesh.display()),
+            "gltf",
+        ))
+    }
+}
+
 impl Garment {
     /// Loads the parts, frames the camera on the garment's bounds over 16 poses of the
     /// animation (CPU, once), creates the three kernels and uploads their static data
@@ -526,7 +546,7 @@ impl Garment {
         use crate::kernels::raster::gpu::{Posed, Prepared as RasterPrep, RasterKernel};
         use crate::kernels::{pose, raster};
         let names: Vec<&str> = cfg.parts.iter().map(String::as_str).collect();
-        let (character, parts) = crate::scene::gltf_load::load_parts(&cfg.mesh, &names)?;
+        let (character, parts) = load_garment(&cfg.mesh, &names)?;
         let anim = character
             .animations
             .iter()
