@@ -23,12 +23,7 @@ pub struct Prepared {
     pub joint_count: usize,
 }
 
-fn pack(j: [u16; 4]) -> [u32; 2] {
-    [
-        j[0] as u32 | (j[1] as u32) << 16,
-        j[2] as u32 | (j[3] as u32) << 16,
-    ]
-}
+use crate::kernels::pose::pack::pack_joints as pack;
 
 impl Prepared {
     /// Checks the mesh, tree and rig agree and lays them out for the GPU.

@@ -86,7 +86,9 @@ pub fn tangent_frames(
         .collect()
 }
 
-fn pack(j: [u16; 4]) -> [u32; 2] {
+/// Four u16 joint indices packed in two u32, as the skinning shaders read them (AO's spheres
+/// use the same layout).
+pub fn pack_joints(j: [u16; 4]) -> [u32; 2] {
     [
         j[0] as u32 | (j[1] as u32) << 16,
         j[2] as u32 | (j[3] as u32) << 16,
@@ -118,7 +120,7 @@ impl Prepared {
                 .map(|n| n.extend(0.0).to_array())
                 .collect(),
             tangents: tangents.iter().map(|t| t.to_array()).collect(),
-            vertex_joints: skin.joints.iter().map(|&j| pack(j)).collect(),
+            vertex_joints: skin.joints.iter().map(|&j| pack_joints(j)).collect(),
             vertex_weights: skin.weights.clone(),
             joint_count,
         };
