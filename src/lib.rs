@@ -115,6 +115,7 @@
 pub mod app;
 pub mod bench;
 pub mod error;
+pub mod frame;
 pub mod geom;
 pub mod gpu;
 pub mod io;

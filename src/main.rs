@@ -39,9 +39,14 @@ enum Command {
     /// DIR/ao_NNNN.png (with --reference: result | truth | error), its linear twin
     /// DIR/ao_NNNN.exr, and DIR/report.json.
     Ao(app::ao::Args),
-    /// The main demo: `ao` on the built-in default (Testwuson's Run animation, 8 frames,
-    /// compared with the ray-traced mesh), pictures in out/ao/.
+    /// The main demo: the character frame on the built-in character (BCN_Epileptic's
+    /// Epileptisch animation, 24 frames: skin, cloth, ambient occlusion, a turning
+    /// environment), pictures in out/demo/.
     Demo,
+    /// The character frame: an animated glTF character's skin and cloth rendered per frame
+    /// on the GPU: DIR/frame_NNNN.png and .exr, DIR/animation.png (animated PNG),
+    /// DIR/contact_sheet.png, DIR/timing.png (GPU ms per pass), DIR/report.json.
+    Frame(app::frame::Args),
     /// Environment lighting by spherical Gaussians (SRBFs) rotated on the GPU with
     /// precomputed per-vertex transfer.
     #[command(subcommand)]
@@ -71,7 +76,8 @@ fn main() -> ExitCode {
         Command::Bench(c) => c.run(gpu),
         Command::Shaders(c) => c.run(),
         Command::Ao(a) => a.run(gpu),
-        Command::Demo => app::ao::demo(gpu),
+        Command::Demo => app::frame::demo(gpu),
+        Command::Frame(a) => a.run(gpu),
         Command::Srbf(c) => c.run(gpu),
         Command::Btf(c) => c.run(gpu),
         Command::Sss(a) => a.run(gpu),

@@ -601,6 +601,52 @@ pub fn write_png(path: &Path, width: u32, height: u32, rgb: &[u8]) -> Result<()>
     crate::io::write_atomic(path, &png)
 }
 
+/// Writes RGB8 frames as an animated PNG (APNG; every frame `delay_ms` long, looping),
+/// atomically.
+#[cfg(feature = "png")]
+pub fn write_apng(
+    path: &Path,
+    width: u32,
+    height: u32,
+    frames: &[Vec<u8>],
+    delay_ms: u16,
+) -> Result<()> {
+    let fail = |e: png::EncodingError| Error::input(path, format!("APNG encoding failed: {e}"));
+    let n = width as usize * height as usize * 3;
+    if frames.is_empty() || frames.iter().any(|f| f.len() != n) {
+        return Err(Error::input(
+            path,
+            format!("APNG needs at least one frame of {width}x{height} RGB bytes"),
+        ));
+    }
+    let mut bytes = Vec::new();
+    {
+        let mut enc = png::Encoder::new(&mut bytes, width, height);
+        enc.set_color(png::ColorType::Rgb);
+        enc.set_depth(png::BitDepth::Eight);
+        enc.set_animated(frames.len() as u32, 0).map_err(fail)?;
+        enc.set_frame_delay(delay_ms, 1000).map_err(fail)?;
+        let mut w = enc.write_header().map_err(fail)?;
+        for f in frames {
+            w.write_image_data(f).map_err(fail)?;
+        }
+        w.finish().map_err(fail)?;
+    }
+    crate::io::write_atomic(path, &bytes)
+}
+
+/// Writes an animated PNG: compiled out (feature `png`), always an error naming it.
+#[cfg(not(feature = "png"))]
+pub fn write_apng(
+    path: &Path,
+    _width: u32,
+    _height: u32,
+    _frames: &[Vec<u8>],
+    _delay_ms: u16,
+) -> Result<()> {
+    Err(Error::feature(format!("writing {}", path.display()), "png"))
+}
+
 /// Writes an RGB8 image as PNG: compiled out (feature `png`), always an error naming it.
 #[cfg(not(feature = "png"))]
 pub fn write_png(path: &Path, _width: u32, _height: u32, _rgb: &[u8]) -> Result<()> {

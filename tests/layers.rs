@@ -46,6 +46,12 @@ const LAYERS: &[(&str, &[&str])] = &[
         &["error", "progress", "gpu", "io", "geom", "shaders", "scene"],
     ),
     (
+        "frame",
+        &[
+            "error", "progress", "gpu", "io", "geom", "shaders", "scene", "kernels",
+        ],
+    ),
+    (
         "reference",
         &[
             "error",
@@ -71,6 +77,7 @@ const LAYERS: &[(&str, &[&str])] = &[
             "kernels",
             "reference",
             "report",
+            "frame",
         ],
     ),
     (
@@ -88,6 +95,7 @@ const LAYERS: &[(&str, &[&str])] = &[
             "report",
             "render",
             "bench",
+            "frame",
         ],
     ),
     // src/main.rs, the `vkshade` binary (it names the library `vkshade::`).
@@ -106,6 +114,7 @@ const LAYERS: &[(&str, &[&str])] = &[
             "report",
             "render",
             "bench",
+            "frame",
             "app",
         ],
     ),

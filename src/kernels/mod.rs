@@ -3,6 +3,7 @@
 
 pub mod ao;
 pub mod btf;
+pub mod compose;
 pub mod contract;
 pub mod pose;
 pub mod raster;

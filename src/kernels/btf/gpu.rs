@@ -189,6 +189,12 @@ impl BtfKernel {
         self.packing
     }
 
+    /// The shaded radiance, vec4 per pixel (alpha 0 where the G-buffer is empty), written by
+    /// `btf shade`: a later pass (the character frame's compose) reads it.
+    pub fn result(&self) -> &Buffer {
+        &self.result
+    }
+
     /// The array textures holding the BTF (the first `packing().arrays`).
     pub fn arrays(&self) -> &[Image] {
         &self.arrays[..self.packing.arrays as usize]

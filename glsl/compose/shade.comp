@@ -1,0 +1,188 @@
+#version 450
+// The character frame's last pass: one invocation per pixel of the screen G-buffer.
+// - Skin pixels (triangles below the skin triangle count: the skin parts come first in the
+//   character's mesh) look the texture-space diffusion up at the pixel's atlas uv (the
+//   triangle's atlas corners interpolated with the pixel's barycentrics; bilinear over the
+//   atlas's valid texels) and shade it with Fresnel transmission at exit,
+//   L_d = (1 - F(n.v)) / pi * D (D: diffused irradiance; the entry transmission is in D),
+//   plus a Kelemen/Szirmay-Kalos specular layer, f = rho_s * (P_H / pi) * F(h.v) / |l + v|^2
+//   (P_H: Beckmann without 1/pi), for the directional lights (unshadowed: only the diffuse
+//   irradiance carries the lights' shadows) and for every environment lobe through the warped-NDF SG (axis r = reflect(-v, n), sharpness
+//   (2/m^2) / (4 n.v), amplitude 1/(pi m^2)), each lobe weighted by its per-vertex
+//   visibility V_j interpolated to the pixel.
+// - Cloth pixels take the BTF pass's radiance.
+// - Background pixels show the environment (sum of its rotated lobes along the view ray).
+// Then exposure, the ACES fit (Narkowicz) and sRGB encoding into an RGBA8 word per pixel;
+// the linear HDR radiance is kept too. The CPU twin is kernels::compose::cpu::shade.
+#extension GL_EXT_samplerless_texture_functions : require
+layout(local_size_x = 16, local_size_y = 4) in;
+
+struct Params {
+    vec4 eye;       // xyz camera position (model units), w exposure
+    vec4 forward;   // the camera basis as raster resolve takes it
+    vec4 right;     // right * tan_x
+    vec4 up;        // up * tan_y
+    vec4 light_dir[2]; // towards the light (unit), w 0
+    vec4 light_rgb[2]; // irradiance on a surface facing the light
+    vec4 skin;      // rho_s, Beckmann m, F0, 0
+    vec4 background; // rgb used where there is no environment, w 0
+    uvec4 counts;   // width, height, lights, lobes
+    uvec4 atlas;    // atlas size, skin triangles, visibility mode (0 none, 1 per lobe), 0
+};
+
+layout(set = 0, binding = 0) uniform texture2DArray gbuffer;
+layout(std430, set = 0, binding = 1) readonly buffer Keys { uvec2 k[]; } keys;
+layout(std430, set = 0, binding = 2) readonly buffer Positions { vec4 p[]; } pos;
+// Per skin triangle: vertex ids (xyz), then atlas uv of corners 0, 1 (one vec4) and 2.
+layout(std430, set = 0, binding = 3) readonly buffer SkinTris { uvec4 v[]; } skin_tris;
+layout(std430, set = 0, binding = 4) readonly buffer SkinUvs { vec4 uv[]; } skin_uvs;
+layout(std430, set = 0, binding = 5) readonly buffer Diffuse { vec4 d[]; } diffuse;
+layout(std430, set = 0, binding = 6) readonly buffer AtlasMask { float m[]; } mask;
+layout(std430, set = 0, binding = 7) readonly buffer Cloth { vec4 c[]; } cloth;
+layout(std430, set = 0, binding = 8) readonly buffer Lobes { vec4 l[]; } lobes;
+layout(std430, set = 0, binding = 9) readonly buffer LobeVisibility { float v[]; } lobe_vis;
+layout(std430, set = 0, binding = 10) readonly buffer FrameParams { Params p; } params;
+layout(std430, set = 0, binding = 11) writeonly buffer Hdr { vec4 c[]; } hdr;
+layout(std430, set = 0, binding = 12) writeonly buffer Ldr { uint c[]; } ldr;
+
+const float PI = 3.14159265358979;
+
+float schlick(float f0, float c) {
+    float x = 1.0 - clamp(c, 0.0, 1.0);
+    float x2 = x * x;
+    return f0 + (1.0 - f0) * x2 * x2 * x;
+}
+
+// Sum of the environment's lobes along w.
+vec3 environment(vec3 w, uint lobes_n) {
+    vec3 s = vec3(0.0);
+    for (uint j = 0u; j < lobes_n; j++) {
+        vec4 a = lobes.l[2u * j];
+        s += lobes.l[2u * j + 1u].rgb * exp(a.w * (dot(a.xyz, w) - 1.0));
+    }
+    return s;
+}
+
+// <G1, G2> for unit axes: 2 pi mu1 mu2 e^(|r| - l1 - l2) (1 - e^(-2|r|)) / |r|, with the
+// exponent in the cancellation-free form.
+float sg_inner(vec3 p1, float l1, vec3 p2, float l2) {
+    float r = length(l1 * p1 + l2 * p2);
+    float e = -2.0 * l1 * l2 * (1.0 - dot(p1, p2)) / (r + l1 + l2);
+    return 2.0 * PI * exp(e) * (1.0 - exp(-2.0 * r)) / max(r, 1e-6);
+}
+
+// Bilinear lookup of the diffusion over the atlas's valid texels.
+vec3 atlas_lookup(vec2 uv, uint n) {
+    vec2 t = uv * float(n) - 0.5;
+    vec2 f0 = floor(t);
+    vec2 f = t - f0;
+    ivec2 i0 = ivec2(f0);
+    vec3 sum = vec3(0.0);
+    float wsum = 0.0;
+    for (int k = 0; k < 4; k++) {
+        ivec2 o = ivec2(k & 1, k >> 1);
+        float w = (o.x == 1 ? f.x : 1.0 - f.x) * (o.y == 1 ? f.y : 1.0 - f.y);
+        ivec2 c = clamp(i0 + o, ivec2(0), ivec2(int(n) - 1));
+        uint i = uint(c.y) * n + uint(c.x);
+        if (mask.m[i] > 0.0) {
+            sum += w * diffuse.d[i].rgb;
+            wsum += w;
+        }
+    }
+    return wsum > 0.0 ? sum / wsum : vec3(0.0);
+}
+
+vec3 aces(vec3 x) {
+    return clamp((x * (2.51 * x + 0.03)) / (x * (2.43 * x + 0.59) + 0.14), 0.0, 1.0);
+}
+
+float srgb(float c) {
+    return c <= 0.0031308 ? 12.92 * c : 1.055 * pow(c, 1.0 / 2.4) - 0.055;
+}
+
+void main() {
+    Params P = params.p;
+    uvec2 px = gl_GlobalInvocationID.xy;
+    if (any(greaterThanEqual(px, P.counts.xy))) return;
+    uint idx = px.y * P.counts.x + px.x;
+    vec2 s = (vec2(px) + 0.5) / vec2(P.counts.xy) * 2.0 - 1.0;
+    vec3 d = normalize(P.forward.xyz + P.right.xyz * s.x - P.up.xyz * s.y);
+    uint lobes_n = P.counts.w;
+    vec4 g0 = texelFetch(gbuffer, ivec3(px, 0), 0);
+    vec3 radiance;
+    if (g0.w == 0.0) {
+        radiance = lobes_n > 0u ? environment(d, lobes_n) : P.background.rgb;
+    } else {
+        uint tri = keys.k[idx].x;
+        if (tri < P.atlas.y) {
+            // Skin: the pixel's barycentrics on its triangle (as raster resolve finds them).
+            uvec4 t = skin_tris.v[tri];
+            vec3 a = pos.p[t.x].xyz, b = pos.p[t.y].xyz, c = pos.p[t.z].xyz;
+            vec3 e1 = b - a, e2 = c - a;
+            vec3 pv = cross(d, e2);
+            float det = dot(e1, pv);
+            vec3 tv = P.eye.xyz - a;
+            float inv = det != 0.0 ? 1.0 / det : 0.0;
+            float u = clamp(dot(tv, pv) * inv, 0.0, 1.0);
+            vec3 qv = cross(tv, e1);
+            float v = clamp(dot(d, qv) * inv, 0.0, 1.0 - u);
+            float w0 = 1.0 - u - v;
+            vec4 uv01 = skin_uvs.uv[2u * tri];
+            vec2 uv2 = skin_uvs.uv[2u * tri + 1u].xy;
+            vec2 uv = uv01.xy * w0 + uv01.zw * u + uv2 * v;
+            vec3 n = texelFetch(gbuffer, ivec3(px, 1), 0).xyz;
+            vec3 view = -d;
+            float nv = max(dot(n, view), 1e-4);
+            float rho_s = P.skin.x, m = P.skin.y, f0 = P.skin.z;
+            vec3 diffused = atlas_lookup(uv, P.atlas.x);
+            radiance = (1.0 - schlick(f0, nv)) / PI * diffused;
+            // Specular: directional lights.
+            vec3 spec = vec3(0.0);
+            for (uint k = 0u; k < P.counts.z; k++) {
+                vec3 l = P.light_dir[k].xyz;
+                float nl = dot(n, l);
+                if (nl <= 0.0) continue;
+                vec3 hv = l + view;
+                float hh = dot(hv, hv);
+                if (hh < 1e-8) continue;
+                vec3 h = hv * inversesqrt(hh);
+                float nh = max(dot(n, h), 1e-4);
+                float nh2 = nh * nh;
+                float tan2 = (1.0 - nh2) / nh2;
+                float ph = exp(-tan2 / (m * m)) / (m * m * nh2 * nh2);
+                spec += P.light_rgb[k].rgb * (rho_s * ph / PI * schlick(f0, dot(h, view)) * nl / hh);
+            }
+            // Specular: environment lobes through the warped NDF.
+            if (lobes_n > 0u) {
+                vec3 r = reflect(-view, n);
+                float nr = dot(n, r);
+                vec3 hv = r + view;
+                float hh = dot(hv, hv);
+                if (nr > 0.0 && hh > 1e-8) {
+                    float lam = (2.0 / (m * m)) / (4.0 * max(nv, 0.1));
+                    float fr = schlick(f0, dot(hv * inversesqrt(hh), view));
+                    float scale = rho_s * fr * nr / hh / (PI * m * m);
+                    for (uint j = 0u; j < lobes_n; j++) {
+                        vec4 ax = lobes.l[2u * j];
+                        float vis = 1.0;
+                        if (P.atlas.z == 1u) {
+                            vis = lobe_vis.v[t.x * lobes_n + j] * w0
+                                + lobe_vis.v[t.y * lobes_n + j] * u
+                                + lobe_vis.v[t.z * lobes_n + j] * v;
+                        }
+                        spec += lobes.l[2u * j + 1u].rgb
+                            * (scale * vis * sg_inner(r, lam, ax.xyz, ax.w));
+                    }
+                }
+            }
+            radiance += spec;
+        } else {
+            radiance = cloth.c[idx].rgb;
+        }
+    }
+    radiance = max(radiance, vec3(0.0));
+    hdr.c[idx] = vec4(radiance, g0.w == 0.0 ? 0.0 : 1.0);
+    vec3 mapped = aces(radiance * P.eye.w);
+    uvec3 q = uvec3(round(vec3(srgb(mapped.r), srgb(mapped.g), srgb(mapped.b)) * 255.0));
+    ldr.c[idx] = q.r | (q.g << 8) | (q.b << 16) | (255u << 24);
+}

@@ -1,0 +1,382 @@
+//! `vkshade frame` (any skinned glTF character with named skin and cloth parts) and
+//! `vkshade demo` (the same on the built-in character): N frames of an animation rendered on
+//! the GPU, frames in flight, written as frame_NNNN.png / .exr, an animated PNG of the
+//! sequence, a contact sheet, a per-pass GPU timing chart and report.json.
+
+use super::Gpu;
+use crate::error::{Error, Result};
+use crate::frame::{CharacterFrame, FrameConfig, FrameInput, SetupReport};
+use crate::io::FloatImage;
+use glam::Mat3;
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// `vkshade frame`.
+#[derive(clap::Args, Clone, Debug)]
+pub struct Args {
+    /// The skinned glTF character.
+    #[arg(long, default_value = crate::kernels::sss::DEFAULT_MESH)]
+    pub mesh: PathBuf,
+    /// Its parts rendered as skin, comma-separated (node or mesh names; "" for none).
+    #[arg(long, default_value = "Head")]
+    pub skin: String,
+    /// Its parts rendered as cloth, comma-separated ("" for none).
+    #[arg(long, default_value = "Torso,Legs")]
+    pub cloth: String,
+    /// A BTF directory (`vkshade btf synth` layout); default: a woven tile synthesised in
+    /// memory.
+    #[arg(long)]
+    pub btf: Option<PathBuf>,
+    /// The animation to play.
+    #[arg(long, default_value = "Epileptisch")]
+    pub anim: String,
+    /// Frames, spread evenly over one loop of the animation.
+    #[arg(long, default_value_t = 24)]
+    pub frames: usize,
+    /// Degrees the environment turns about the vertical over the sequence.
+    #[arg(long, default_value_t = 360.0)]
+    pub rotate: f32,
+    /// Output width and height.
+    #[arg(long, default_value_t = 512)]
+    pub size: u32,
+    /// The skin's texture-space atlas side.
+    #[arg(long, default_value_t = 512)]
+    pub atlas: u32,
+    /// Diffusion samples per texel.
+    #[arg(long, default_value_t = 32)]
+    pub samples: u32,
+    /// Millimetres per model unit (default: 1000 for the built-in character, else 1).
+    #[arg(long)]
+    pub mm_per_unit: Option<f64>,
+    /// BTF tile repeats per unit of the cloth's uv.
+    #[arg(long, default_value_t = 20.0)]
+    pub tile_scale: f32,
+    /// Radiance multiplier before tone mapping.
+    #[arg(long, default_value_t = 1.0)]
+    pub exposure: f32,
+    /// Frames submitted before the oldest is waited for.
+    #[arg(long, default_value_t = 2)]
+    pub in_flight: usize,
+    /// Output directory.
+    #[arg(long, default_value = "out/frame")]
+    pub out: PathBuf,
+}
+
+impl Args {
+    fn config(&self) -> Result<FrameConfig> {
+        let list = |s: &str| -> Vec<String> {
+            s.split(',')
+                .map(str::trim)
+                .filter(|t| !t.is_empty())
+                .map(String::from)
+                .collect()
+        };
+        let d = FrameConfig::default();
+        let cfg = FrameConfig {
+            mesh: self.mesh.clone(),
+            skin: list(&self.skin),
+            cloth: list(&self.cloth),
+            anim: self.anim.clone(),
+            size: [self.size, self.size],
+            atlas: self.atlas,
+            samples: self.samples,
+            mm_per_unit: self
+                .mm_per_unit
+                .unwrap_or_else(|| crate::kernels::sss::default_mm_per_unit(&self.mesh)),
+            tile_scale: self.tile_scale,
+            btf: self.btf.clone(),
+            exposure: self.exposure,
+            ..d
+        };
+        cfg.check()?;
+        if self.frames == 0 || self.frames > 10_000 {
+            return Err(Error::InvalidArgument(format!(
+                "--frames {} must be in 1..=10000",
+                self.frames
+            )));
+        }
+        if !self.rotate.is_finite() {
+            return Err(Error::InvalidArgument("--rotate must be finite".into()));
+        }
+        Ok(cfg)
+    }
+
+    /// Runs the frames and writes everything under `--out`.
+    pub fn run(&self, gpu: &Gpu) -> Result<()> {
+        let cfg = self.config()?;
+        crate::io::check_writable(&self.out)?;
+        let ctx = context(gpu)?;
+        eprintln!("vkshade frame on {}", ctx.info().name);
+        let t = Instant::now();
+        let report = render(&ctx, &cfg, self, &mut |l| super::progress(l))?;
+        display(&report, &self.out);
+        eprintln!("total {:.1} s", t.elapsed().as_secs_f64());
+        super::finish(ctx)
+    }
+}
+
+/// The context a character frame needs: 64-bit buffer atomics for the rasteriser.
+pub fn context(gpu: &Gpu) -> Result<crate::gpu::Context> {
+    gpu.context_with(crate::gpu::Features {
+        buffer_int64_atomics: true,
+        ..Default::default()
+    })
+}
+
+/// `vkshade demo`: the frame on the built-in character, 24 frames, out/demo/.
+pub fn demo(gpu: &Gpu) -> Result<()> {
+    use clap::{Args as _, FromArgMatches};
+    let matches = Args::augment_args(clap::Command::new("frame"))
+        .get_matches_from(["frame", "--out", "out/demo"]);
+    let args =
+        Args::from_arg_matches(&matches).map_err(|e| Error::InvalidArgument(e.to_string()))?;
+    args.run(gpu)
+}
+
+/// Median GPU ms of one pass over the frames.
+#[derive(Clone, Debug, Serialize)]
+pub struct PassTime {
+    pub name: String,
+    pub ms: f64,
+}
+
+/// What `vkshade frame` writes to report.json.
+#[derive(Clone, Debug, Serialize)]
+pub struct FrameReport {
+    pub tool: &'static str,
+    pub device: String,
+    pub config: FrameConfig,
+    pub frames: usize,
+    pub in_flight: usize,
+    pub env_rotation_deg: f32,
+    pub setup: SetupReport,
+    pub setup_ms: f64,
+    /// Median GPU ms per pass.
+    pub passes: Vec<PassTime>,
+    /// Median GPU ms of the whole frame (sum of its passes).
+    pub gpu_ms: f64,
+    pub fps_gpu: f64,
+    /// Median host ms per frame outside waiting (recording, uniforms, submission).
+    pub host_ms: f64,
+    /// Wall-clock ms per frame over the sequence (frames in flight, readback and file
+    /// writing included).
+    pub wall_ms: f64,
+    pub device_memory_bytes: u64,
+    pub files: Vec<String>,
+}
+
+/// Renders the frames and writes the pictures and report.
+pub fn render(
+    ctx: &crate::gpu::Context,
+    cfg: &FrameConfig,
+    args: &Args,
+    progress: &mut dyn FnMut(&str),
+) -> Result<FrameReport> {
+    let t0 = Instant::now();
+    let frame = CharacterFrame::new(ctx, cfg, progress)?;
+    let setup_ms = t0.elapsed().as_secs_f64() * 1e3;
+    std::fs::create_dir_all(&args.out).map_err(|e| Error::io(&args.out, e))?;
+    let n = args.frames;
+    let duration = frame.animation().duration;
+    let inputs: Vec<FrameInput> = (0..n)
+        .map(|i| FrameInput {
+            time: duration * i as f32 / n as f32,
+            env_rotation: Mat3::from_rotation_y((args.rotate * i as f32 / n as f32).to_radians()),
+        })
+        .collect();
+    let names = crate::frame::pass_names(&frame);
+    let mut per_pass: Vec<Vec<f64>> = vec![Vec::new(); names.len()];
+    let (mut host, mut total) = (Vec::new(), Vec::new());
+    let [w, h] = cfg.size;
+    let mut rgb_frames: Vec<Vec<u8>> = Vec::new();
+    let mut files = Vec::new();
+    let t = Instant::now();
+    crate::frame::run(ctx, &frame, &inputs, args.in_flight, |f| {
+        let mut sum = 0.0;
+        for (name, v) in names.iter().zip(per_pass.iter_mut()) {
+            let ms = f
+                .timings
+                .get(name)
+                .ok_or_else(|| Error::InvalidArgument(format!("pass '{name}' was not timed")))?;
+            v.push(ms);
+            sum += ms;
+        }
+        total.push(sum);
+        host.push(f.host_ms);
+        let rgb: Vec<u8> = f
+            .output
+            .ldr
+            .iter()
+            .flat_map(|p| {
+                let b = p.to_le_bytes();
+                [b[0], b[1], b[2]]
+            })
+            .collect();
+        let png = args.out.join(format!("frame_{:04}.png", f.index));
+        crate::render::write_png(&png, w, h, &rgb)?;
+        let exr = args.out.join(format!("frame_{:04}.exr", f.index));
+        let img = FloatImage {
+            width: w,
+            height: h,
+            pixels: f.output.hdr.clone(),
+        };
+        crate::io::exr::write(&exr, &img, crate::io::exr::Channels::Rgba)?;
+        if f.index == 0 || f.index + 1 == n {
+            files.push(png.display().to_string());
+            files.push(exr.display().to_string());
+        }
+        progress(&format!(
+            "frame {} (t {:.2} s): GPU {:.1} ms, host {:.3} ms",
+            f.index, inputs[f.index].time, sum, f.host_ms
+        ));
+        rgb_frames.push(rgb);
+        Ok(())
+    })?;
+    let wall_ms = t.elapsed().as_secs_f64() * 1e3 / n as f64;
+    let median = |v: &[f64]| {
+        let mut v = v.to_vec();
+        v.sort_by(f64::total_cmp);
+        v.get(v.len() / 2).copied().unwrap_or(f64::NAN)
+    };
+    let apng = args.out.join("animation.png");
+    crate::render::write_apng(&apng, w, h, &rgb_frames, 80)?;
+    files.push(apng.display().to_string());
+    let sheet = args.out.join("contact_sheet.png");
+    contact_sheet(&sheet, w, h, &rgb_frames)?;
+    files.push(sheet.display().to_string());
+    let chart = args.out.join("timing.png");
+    timing_chart(&chart, &names, &per_pass)?;
+    files.push(chart.display().to_string());
+    let gpu_ms = median(&total);
+    let report = FrameReport {
+        tool: "vkshade frame",
+        device: ctx.info().name.clone(),
+        config: cfg.clone(),
+        frames: n,
+        in_flight: args.in_flight,
+        env_rotation_deg: args.rotate,
+        setup: frame.setup.clone(),
+        setup_ms,
+        passes: names
+            .iter()
+            .zip(&per_pass)
+            .map(|(n, v)| PassTime {
+                name: n.to_string(),
+                ms: median(v),
+            })
+            .collect(),
+        gpu_ms,
+        fps_gpu: 1000.0 / gpu_ms,
+        host_ms: median(&host),
+        wall_ms,
+        device_memory_bytes: frame.memory_bytes(),
+        files,
+    };
+    crate::io::write_json(&args.out.join("report.json"), &report)?;
+    Ok(report)
+}
+
+/// Every frame at half size on a grid of up to 6 columns.
+fn contact_sheet(path: &Path, w: u32, h: u32, frames: &[Vec<u8>]) -> Result<()> {
+    let cols = frames.len().clamp(1, 6);
+    let rows = frames.len().div_ceil(cols);
+    let (sw, sh) = ((w / 2).max(1) as usize, (h / 2).max(1) as usize);
+    let (width, height) = (cols * sw, rows * sh);
+    let mut out = vec![0u8; width * height * 3];
+    for (k, f) in frames.iter().enumerate() {
+        let (cx, cy) = ((k % cols) * sw, (k / cols) * sh);
+        for y in 0..sh {
+            for x in 0..sw {
+                for c in 0..3 {
+                    // The mean of the 2 x 2 block (sRGB bytes; a thumbnail).
+                    let mut s = 0u32;
+                    for (dx, dy) in [(0, 0), (1, 0), (0, 1), (1, 1)] {
+                        let (sx, sy) = (
+                            (2 * x + dx).min(w as usize - 1),
+                            (2 * y + dy).min(h as usize - 1),
+                        );
+                        s += f[(sy * w as usize + sx) * 3 + c] as u32;
+                    }
+                    out[((cy + y) * width + cx + x) * 3 + c] = (s / 4) as u8;
+                }
+            }
+        }
+    }
+    crate::render::write_png(path, width as u32, height as u32, &out)
+}
+
+/// GPU ms of each pass over the frames (the passes under 2% of the frame are summed into
+/// "other").
+fn timing_chart(path: &Path, names: &[&str], per_pass: &[Vec<f64>]) -> Result<()> {
+    use crate::bench::plot::{Panel, Series, draw};
+    let frames = per_pass.first().map_or(0, Vec::len);
+    let total: Vec<f64> = (0..frames)
+        .map(|i| per_pass.iter().map(|v| v[i]).sum())
+        .collect();
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len().max(1) as f64;
+    let whole = mean(&total);
+    let mut series = vec![Series {
+        name: "whole frame".into(),
+        points: total
+            .iter()
+            .enumerate()
+            .map(|(i, &m)| (i as f64, m))
+            .collect(),
+    }];
+    let mut other = vec![0.0; frames];
+    for (name, v) in names.iter().zip(per_pass) {
+        if mean(v) < 0.02 * whole {
+            for (o, m) in other.iter_mut().zip(v) {
+                *o += m;
+            }
+            continue;
+        }
+        series.push(Series {
+            name: name.to_string(),
+            points: v.iter().enumerate().map(|(i, &m)| (i as f64, m)).collect(),
+        });
+    }
+    series.push(Series {
+        name: "other passes".into(),
+        points: other
+            .iter()
+            .enumerate()
+            .map(|(i, &m)| (i as f64, m))
+            .collect(),
+    });
+    draw(
+        path,
+        &[Panel {
+            title: "character frame: GPU ms per pass".into(),
+            x_label: "frame".into(),
+            y_label: "GPU ms".into(),
+            log_x: false,
+            log_y: false,
+            series,
+        }],
+    )
+}
+
+/// The summary `vkshade frame` prints.
+pub fn display(r: &FrameReport, out: &Path) {
+    println!(
+        "{} frames at {} x {}: GPU {:.1} ms (median) = {:.1} fps, host {:.3} ms/frame, wall {:.1} ms/frame; setup {:.1} s; device memory {:.1} MiB",
+        r.frames,
+        r.config.size[0],
+        r.config.size[1],
+        r.gpu_ms,
+        r.fps_gpu,
+        r.host_ms,
+        r.wall_ms,
+        r.setup_ms / 1e3,
+        r.device_memory_bytes as f64 / (1 << 20) as f64
+    );
+    for p in &r.passes {
+        println!("  {:<24} {:>8.3} ms", p.name, p.ms);
+    }
+    println!(
+        "wrote {} (frame_NNNN.png/.exr, animation.png, contact_sheet.png, timing.png, report.json)",
+        out.display()
+    );
+}

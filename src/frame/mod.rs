@@ -1,0 +1,635 @@
+//! The character frame: one animated character rendered per frame on the GPU, every kernel
+//! driven through the public kernel API as an outside renderer would drive it.
+//!
+//! One frame, recorded into one command buffer (barriers between kernels come from each
+//! pass's declared accesses through the recorder's tracking):
+//! 1. `pose` skins the whole character once (skin parts first, then cloth parts);
+//!    `ao` skins the sphere tree and computes per-vertex occlusion from the same pose;
+//! 2. `raster` writes the screen G-buffer of the posed character;
+//! 3. `sss` builds the skin's texture-space geometry from the posed buffers, its irradiance
+//!    (lights with shadows) and the subsurface diffusion;
+//! 4. `btf` shades the cloth pixels of the G-buffer;
+//! 5. `compose` shades the skin pixels through the G-buffer (diffusion with Fresnel, a
+//!    specular layer), takes the cloth's radiance, puts the environment behind, tone maps.
+//!
+//! What is built once per character ([`CharacterFrame::new`]): the sphere tree, the skin's
+//! UV layout and texture-space structure, the BTF tile, the camera framing the whole
+//! animation.
+
+use crate::error::{Error, Result};
+use crate::gpu::{Context, Recorder, Timings};
+use crate::kernels::btf::dirs::{Maps, Triangulation};
+use crate::kernels::btf::gpu::{BtfKernel, Prepared as BtfPrepared};
+use crate::kernels::btf::pack::{BtfInputs, Texture};
+use crate::kernels::btf::synth::Btf;
+use crate::kernels::compose::{self, ComposeKernel, ComposeOutput, FrameParams, SkinSpecular};
+use crate::kernels::raster::gpu::{Posed as RasterPosed, Prepared as RasterPrep, RasterKernel};
+use crate::kernels::raster::pack::Camera as RasterCamera;
+use crate::kernels::sss::gpu::{PosedBuffers, SssKernel};
+use crate::kernels::sss::profile::{Material, Profile, ProfileKind};
+use crate::kernels::sss::{Light as SssLight, SamplerParams};
+use crate::kernels::{Kernel, ao, pose};
+use crate::scene::gbuffer::{Camera as BtfCamera, Frame as BtfFrame, GBuffer, Light};
+use crate::scene::spheretree::{BuildConfig, SphereTree};
+use crate::scene::texspace::TexGeometry;
+use crate::scene::{Animation, Character};
+use glam::{Mat3, Vec3};
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// A directional light of the frame: direction towards the light, irradiance on a surface
+/// facing it (linear rgb).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct DirLight {
+    pub toward: [f32; 3],
+    pub irradiance: [f32; 3],
+}
+
+/// What a character frame is built from.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct FrameConfig {
+    /// The skinned glTF character.
+    pub mesh: PathBuf,
+    /// Its parts rendered as skin (node or mesh names).
+    pub skin: Vec<String>,
+    /// Its parts rendered as cloth.
+    pub cloth: Vec<String>,
+    /// The animation played.
+    pub anim: String,
+    /// Output width and height.
+    pub size: [u32; 2],
+    /// The skin's texture-space atlas side.
+    pub atlas: u32,
+    /// Diffusion samples per texel.
+    pub samples: u32,
+    /// Millimetres per model unit (the diffusion profile is in mm).
+    pub mm_per_unit: f64,
+    /// BTF tile repeats per unit of the cloth's uv.
+    pub tile_scale: f32,
+    /// A measured or synthesised BTF directory (`btf synth` layout); None: a woven tile is
+    /// synthesised in memory.
+    pub btf: Option<PathBuf>,
+    /// Texels of the synthesised tile's side.
+    pub btf_tile: u32,
+    /// Directional lights (1..=2).
+    pub lights: Vec<DirLight>,
+    /// Radiance multiplier before tone mapping.
+    pub exposure: f32,
+    /// The skin's specular layer.
+    pub specular: SkinSpecular,
+    /// Background colour (linear) where no environment is drawn.
+    pub background: [f32; 3],
+}
+
+impl Default for FrameConfig {
+    fn default() -> Self {
+        FrameConfig {
+            mesh: PathBuf::from(crate::kernels::sss::DEFAULT_MESH),
+            skin: vec!["Head".into()],
+            cloth: vec!["Torso".into(), "Legs".into()],
+            anim: "Epileptisch".into(),
+            size: [512, 512],
+            atlas: 512,
+            samples: 32,
+            mm_per_unit: crate::kernels::sss::DEFAULT_MESH_MM_PER_UNIT,
+            tile_scale: 20.0,
+            btf: None,
+            btf_tile: 16,
+            lights: vec![
+                DirLight {
+                    toward: [0.5, 0.8, 0.6],
+                    irradiance: [2.6, 2.45, 2.3],
+                },
+                DirLight {
+                    toward: [-0.9, 0.1, 0.2],
+                    irradiance: [0.6, 0.7, 1.0],
+                },
+            ],
+            exposure: 1.0,
+            specular: SkinSpecular::default(),
+            background: [0.05, 0.055, 0.06],
+        }
+    }
+}
+
+impl FrameConfig {
+    /// Checks what can be checked without reading the files.
+    pub fn check(&self) -> Result<()> {
+        let bad = |m: String| Err(Error::InvalidArgument(m));
+        if self.skin.is_empty() && self.cloth.is_empty() {
+            return bad("a frame needs at least one skin or cloth part".into());
+        }
+        if self.lights.is_empty() || self.lights.len() > compose::pack::MAX_LIGHTS {
+            return bad(format!(
+                "{} lights; a frame takes 1..={}",
+                self.lights.len(),
+                compose::pack::MAX_LIGHTS
+            ));
+        }
+        for l in &self.lights {
+            let t = Vec3::from_array(l.toward);
+            if !t.is_finite()
+                || t.length() < 1e-6
+                || l.irradiance.iter().any(|c| !c.is_finite() || *c < 0.0)
+            {
+                return bad(format!(
+                    "light {l:?}: direction finite, non-zero; irradiance >= 0"
+                ));
+            }
+        }
+        if !(self.mm_per_unit.is_finite() && self.mm_per_unit > 0.0) {
+            return bad(format!("mm per unit {} must be > 0", self.mm_per_unit));
+        }
+        if !(self.tile_scale.is_finite() && self.tile_scale > 0.0) {
+            return bad(format!("tile scale {} must be > 0", self.tile_scale));
+        }
+        Ok(())
+    }
+}
+
+/// One frame's input.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FrameInput {
+    /// Animation time in seconds (wrapped into the animation).
+    pub time: f32,
+    /// The environment's rotation.
+    pub env_rotation: Mat3,
+}
+
+/// The labels of a frame's passes, in order (their GPU times are in a frame's timings).
+pub fn pass_names(frame: &CharacterFrame) -> Vec<&'static str> {
+    let mut v = Vec::new();
+    v.extend(frame.pose.passes().into_iter().map(|p| p.name));
+    v.extend(frame.ao.passes().into_iter().map(|p| p.name));
+    v.extend(frame.raster.passes().into_iter().map(|p| p.name));
+    if let Some(s) = &frame.sss {
+        v.extend(s.kernel.passes().into_iter().map(|p| p.name));
+    }
+    if let Some(b) = &frame.btf {
+        v.extend(b.passes().into_iter().map(|p| p.name));
+    }
+    v.extend(frame.compose.passes().into_iter().map(|p| p.name));
+    v
+}
+
+struct Skin {
+    kernel: SssKernel,
+    geo: TexGeometry,
+    lights: Vec<SssLight>,
+}
+
+/// Setup costs and sizes, for reports.
+#[derive(Clone, Debug, Default, serde::Serialize)]
+pub struct SetupReport {
+    pub vertices: usize,
+    pub triangles: usize,
+    pub skin_triangles: usize,
+    pub cloth_triangles: usize,
+    pub spheres: usize,
+    pub atlas_covered_texels: usize,
+    pub ms_tree: f64,
+    pub ms_atlas: f64,
+    pub ms_btf: f64,
+    pub ms_upload: f64,
+}
+
+/// The character frame: every kernel of one animated character, built once.
+pub struct CharacterFrame {
+    /// The character (skin parts then cloth parts, joined).
+    pub character: Character,
+    /// Part index of every triangle (skin parts first).
+    pub parts: Vec<u32>,
+    anim: usize,
+    /// The camera, framing the character over its whole animation.
+    pub camera: RasterCamera,
+    cfg: FrameConfig,
+    pose: pose::PoseKernel,
+    ao: ao::gpu::AoKernel,
+    raster: RasterKernel,
+    sss: Option<Skin>,
+    btf: Option<BtfKernel>,
+    btf_frame: BtfFrame,
+    compose: ComposeKernel,
+    /// What setup cost.
+    pub setup: SetupReport,
+}
+
+fn load_parts(mesh: &Path, names: &[&str]) -> Result<(Character, Vec<u32>)> {
+    #[cfg(feature = "gltf")]
+    {
+        crate::scene::gltf_load::load_parts(mesh, names)
+    }
+    #[cfg(not(feature = "gltf"))]
+    {
+        let _ = names;
+        Err(Error::feature(
+            format!("loading the character parts of {}", mesh.display()),
+            "gltf",
+        ))
+    }
+}
+
+/// A woven cloth tile synthesised in memory (`btf synth`'s model, one ray per texel).
+pub fn synthesized_btf(tile: u32) -> Result<Btf> {
+    use crate::kernels::btf::cloth::{Pattern, SynthConfig};
+    crate::kernels::btf::synth::synthesize(&SynthConfig::tile(Pattern::Weave, tile))
+}
+
+impl CharacterFrame {
+    /// Loads the character, builds what is fixed per character, creates every kernel and
+    /// uploads their static data (submitted and waited for here).
+    pub fn new(
+        ctx: &Context,
+        cfg: &FrameConfig,
+        progress: &mut dyn FnMut(&str),
+    ) -> Result<CharacterFrame> {
+        cfg.check()?;
+        let mut setup = SetupReport::default();
+        let names: Vec<&str> = cfg
+            .skin
+            .iter()
+            .chain(&cfg.cloth)
+            .map(String::as_str)
+            .collect();
+        let (character, parts) = load_parts(&cfg.mesh, &names)?;
+        let anim = character
+            .animations
+            .iter()
+            .position(|a| a.name.eq_ignore_ascii_case(&cfg.anim))
+            .ok_or_else(|| {
+                let names: Vec<&str> = character
+                    .animations
+                    .iter()
+                    .map(|a| a.name.as_str())
+                    .collect();
+                Error::input(
+                    &cfg.mesh,
+                    format!("no animation '{}'; it has: {}", cfg.anim, names.join(", ")),
+                )
+            })?;
+        let skin_parts = cfg.skin.len() as u32;
+        let skin_triangles = parts.iter().take_while(|&&p| p < skin_parts).count();
+        if parts[skin_triangles..].iter().any(|&p| p < skin_parts) {
+            return Err(Error::input(
+                &cfg.mesh,
+                "the skin parts' triangles are not first in the joined mesh",
+            ));
+        }
+        let mesh = &character.mesh;
+        setup.vertices = mesh.positions.len();
+        setup.triangles = mesh.triangles.len();
+        setup.skin_triangles = skin_triangles;
+        setup.cloth_triangles = mesh.triangles.len() - skin_triangles;
+        progress(&format!(
+            "{}: {} vertices, {} triangles ({} skin, {} cloth), animation '{}' ({:.2} s)",
+            cfg.mesh.display(),
+            setup.vertices,
+            setup.triangles,
+            setup.skin_triangles,
+            setup.cloth_triangles,
+            character.animations[anim].name,
+            character.animations[anim].duration
+        ));
+        let joints = character.rig.joints.len();
+        let pose_prep = pose::Prepared::new(mesh, joints)?;
+        // The camera frames the character's bounds over 16 poses of the animation.
+        let a = &character.animations[anim];
+        let (mut lo, mut hi) = (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN));
+        for i in 0..16 {
+            let m = character
+                .rig
+                .skinning_matrices(Some(a), a.duration * i as f32 / 16.0);
+            let p = pose::cpu::pose(&pose_prep, &m)?;
+            let (l, h) = crate::scene::mesh::bounds(&p.positions);
+            (lo, hi) = (lo.min(l), hi.max(h));
+        }
+        // The bounds' largest extent across the view (it looks along -z), not their
+        // diagonal: the character fills more of the image.
+        let e = hi - lo;
+        let camera = RasterCamera::framing(
+            (lo + hi) * 0.5,
+            0.5 * e.x.max(e.y).max(0.6 * e.z),
+            Vec3::new(0.25, 0.15, 1.0),
+        );
+        // The sphere tree of the whole character (AO, and the environment's occluders).
+        let t = Instant::now();
+        let (tree, _) = SphereTree::build(mesh, &BuildConfig::default())?;
+        let ao_prep = ao::pack::Prepared::new(mesh, &tree, joints)?;
+        setup.spheres = tree.spheres.iter().filter(|s| s.used()).count();
+        setup.ms_tree = t.elapsed().as_secs_f64() * 1e3;
+        progress(&format!(
+            "sphere tree: {} spheres ({:.0} ms)",
+            setup.spheres, setup.ms_tree
+        ));
+        // The skin's texture space: the skin parts alone, with the same vertex ids.
+        let t = Instant::now();
+        let skin_geo = if skin_triangles > 0 {
+            let skin_names: Vec<&str> = cfg.skin.iter().map(String::as_str).collect();
+            let (skin_char, _) = load_parts(&cfg.mesh, &skin_names)?;
+            let n = skin_char.mesh.positions.len();
+            if skin_char.mesh.positions[..] != mesh.positions[..n]
+                || skin_char.mesh.triangles[..] != mesh.triangles[..skin_triangles]
+            {
+                return Err(Error::input(
+                    &cfg.mesh,
+                    "the skin parts alone differ from the joined mesh's first vertices",
+                ));
+            }
+            let geo = TexGeometry::build(&skin_char.mesh, cfg.atlas, cfg.mm_per_unit)?;
+            setup.atlas_covered_texels = geo.report.covered_texels;
+            Some((geo, skin_char.mesh.positions))
+        } else {
+            None
+        };
+        setup.ms_atlas = t.elapsed().as_secs_f64() * 1e3;
+        if skin_geo.is_some() {
+            progress(&format!(
+                "skin atlas {}^2: {} covered texels ({:.0} ms)",
+                cfg.atlas, setup.atlas_covered_texels, setup.ms_atlas
+            ));
+        }
+        // The cloth's BTF.
+        let t = Instant::now();
+        let btf = if setup.cloth_triangles > 0 {
+            let btf = match &cfg.btf {
+                Some(dir) => crate::kernels::btf::load::load_dir(dir)?,
+                None => synthesized_btf(cfg.btf_tile)?,
+            };
+            Some(btf)
+        } else {
+            None
+        };
+        setup.ms_btf = t.elapsed().as_secs_f64() * 1e3;
+        if let Some(b) = &btf {
+            progress(&format!(
+                "BTF: {} x {} texel tile, 81 x 81 directions ({:.0} ms)",
+                b.size[0], b.size[1], setup.ms_btf
+            ));
+        }
+        crate::kernels::raster::gpu::check_device(ctx)?;
+        let t = Instant::now();
+        let mut rec = ctx.recorder("character frame setup")?;
+        let pose = pose::PoseKernel::new(&mut rec, &pose_prep)?;
+        let ao = ao::gpu::AoKernel::on_pose(&mut rec, &ao_prep, ao::AoParams::default(), &pose)?;
+        let rprep = RasterPrep::new(mesh, &parts, cfg.size, cfg.tile_scale)?;
+        let raster = RasterKernel::new(
+            &mut rec,
+            &rprep,
+            &RasterPosed {
+                positions: pose.positions(),
+                normals: pose.normals(),
+                tangents: pose.tangents(),
+            },
+        )?;
+        let lights_toward: Vec<Vec3> = cfg
+            .lights
+            .iter()
+            .map(|l| Vec3::from_array(l.toward).normalize())
+            .collect();
+        let sss = match &skin_geo {
+            Some((geo, rest)) => {
+                let profile = Profile::new(
+                    ProfileKind::Dipole,
+                    Material::SKIN1,
+                    crate::kernels::sss::profile::DEFAULT_ENERGY,
+                )?;
+                let params = SamplerParams {
+                    samples: cfg.samples,
+                    ..SamplerParams::default()
+                };
+                let src = PosedBuffers {
+                    positions: pose.positions(),
+                    normals: pose.normals(),
+                    mm_per_unit: cfg.mm_per_unit as f32,
+                };
+                let kernel = SssKernel::new_posed(&mut rec, geo, rest, &profile, params, src)?;
+                // The diffusion is grey per light: the lights' mean irradiance drives it.
+                let lights = cfg
+                    .lights
+                    .iter()
+                    .zip(&lights_toward)
+                    .map(|(l, t)| SssLight::Directional {
+                        toward: *t,
+                        e: (l.irradiance[0] + l.irradiance[1] + l.irradiance[2]) / 3.0,
+                    })
+                    .collect();
+                Some(Skin {
+                    kernel,
+                    geo: geo.clone(),
+                    lights,
+                })
+            }
+            None => None,
+        };
+        let btf_frame = BtfFrame {
+            camera: BtfCamera::Perspective(camera.eye),
+            // The BTF's values are radiance under irradiance pi: rgb 1 is irradiance pi.
+            lights: cfg
+                .lights
+                .iter()
+                .zip(&lights_toward)
+                .map(|(l, t)| Light {
+                    direction: *t,
+                    rgb: l.irradiance.map(|c| c / std::f32::consts::PI),
+                })
+                .collect(),
+        };
+        btf_frame.check()?;
+        let btf = match &btf {
+            Some(btf) => {
+                let maps = Maps::build(&Triangulation::new()?, 128)?;
+                let unused = GBuffer::tile([1, 1]);
+                let inputs = BtfInputs::new(btf, &maps, &unused, Texture::Rgba8);
+                let l = ctx.limits();
+                let bprep = BtfPrepared::for_gpu_gbuffer(
+                    &inputs,
+                    cfg.size,
+                    l.max_image_dimension_2d,
+                    l.max_image_array_layers,
+                )?;
+                Some(BtfKernel::on_gbuffer(&mut rec, &bprep, raster.gbuffer())?)
+            }
+            None => None,
+        };
+        let cprep = match &sss {
+            Some(s) => compose::Prepared::new(cfg.size, &s.geo)?,
+            None => compose::Prepared::without_skin(cfg.size),
+        };
+        let compose = ComposeKernel::new(
+            &mut rec,
+            &cprep,
+            &compose::gpu::Inputs {
+                gbuffer: raster.gbuffer(),
+                keys: raster.keys(),
+                positions: pose.positions(),
+                diffuse: sss.as_ref().map(|s| s.kernel.diffuse()),
+                cloth: btf.as_ref().map(|b| b.result()),
+                lobes: None,
+                lobe_visibility: None,
+                background: cfg.background,
+            },
+        )?;
+        rec.submit_and_wait()?;
+        setup.ms_upload = t.elapsed().as_secs_f64() * 1e3;
+        Ok(CharacterFrame {
+            character,
+            parts,
+            anim,
+            camera,
+            cfg: cfg.clone(),
+            pose,
+            ao,
+            raster,
+            sss,
+            btf,
+            btf_frame,
+            compose,
+            setup,
+        })
+    }
+
+    /// The animation played.
+    pub fn animation(&self) -> &Animation {
+        &self.character.animations[self.anim]
+    }
+
+    /// The configuration the frame was built from.
+    pub fn config(&self) -> &FrameConfig {
+        &self.cfg
+    }
+
+    /// The skinning matrices at `time` seconds (wrapped into the animation).
+    pub fn matrices(&self, time: f32) -> Vec<glam::Mat4> {
+        let a = self.animation();
+        let t = if a.duration > 0.0 {
+            time.rem_euclid(a.duration)
+        } else {
+            0.0
+        };
+        self.character.rig.skinning_matrices(Some(a), t)
+    }
+
+    /// The compose pass's parameters for a frame.
+    pub fn params(&self) -> FrameParams {
+        FrameParams {
+            camera: self.camera,
+            lights: self
+                .btf_frame
+                .lights
+                .iter()
+                .zip(&self.cfg.lights)
+                .map(|(l, c)| Light {
+                    direction: l.direction,
+                    rgb: c.irradiance,
+                })
+                .collect(),
+            exposure: self.cfg.exposure,
+            specular: self.cfg.specular,
+        }
+    }
+
+    /// Records one frame into `rec`: every kernel's passes in order, barriers from their
+    /// declared accesses. The skinning matrices are evaluated here (host work).
+    pub fn record(&self, rec: &mut Recorder, input: &FrameInput) -> Result<()> {
+        if !input.time.is_finite() || !input.env_rotation.is_finite() {
+            return Err(Error::InvalidArgument(format!(
+                "frame input {input:?} is not finite"
+            )));
+        }
+        let m = self.matrices(input.time);
+        self.pose.record(rec, &m)?;
+        Kernel::record(&self.ao, rec, &m)?;
+        self.raster.record(rec, &self.camera)?;
+        if let Some(s) = &self.sss {
+            s.kernel.record(rec, &s.lights[..])?;
+        }
+        if let Some(b) = &self.btf {
+            b.record(rec, &self.btf_frame)?;
+        }
+        self.compose.record(rec, &self.params())
+    }
+
+    /// Records the readback of the frame's images.
+    pub fn read_back(&self, rec: &mut Recorder) -> Result<compose::gpu::ComposeReadback> {
+        self.compose.read_back(rec)
+    }
+
+    /// The frame's images, once the submission holding the readback is complete.
+    pub fn collect(&self, rb: &compose::gpu::ComposeReadback) -> Result<ComposeOutput> {
+        self.compose.collect(rb)
+    }
+
+    /// Device memory of every kernel.
+    pub fn memory_bytes(&self) -> u64 {
+        let mut b = self.pose.memory().used_bytes
+            + Kernel::memory(&self.ao).used_bytes
+            + self.raster.memory().used_bytes
+            + self.compose.memory().used_bytes;
+        if let Some(s) = &self.sss {
+            b += s.kernel.memory().used_bytes;
+        }
+        if let Some(k) = &self.btf {
+            b += k.memory().used_bytes;
+        }
+        b
+    }
+}
+
+/// One finished frame from [`run`].
+pub struct Finished {
+    /// Index of the frame's input.
+    pub index: usize,
+    /// The images.
+    pub output: ComposeOutput,
+    /// GPU times of every pass.
+    pub timings: Timings,
+    /// Host ms spent recording and submitting the frame (not waiting).
+    pub host_ms: f64,
+}
+
+/// Runs `inputs` with up to `in_flight` frames submitted at once, handing each finished
+/// frame to `on_frame` in order.
+pub fn run(
+    ctx: &Context,
+    frame: &CharacterFrame,
+    inputs: &[FrameInput],
+    in_flight: usize,
+    mut on_frame: impl FnMut(Finished) -> Result<()>,
+) -> Result<()> {
+    let in_flight = in_flight.max(1);
+    let mut pending = std::collections::VecDeque::new();
+    let mut finish = |p: (
+        usize,
+        crate::gpu::Submission,
+        compose::gpu::ComposeReadback,
+        f64,
+    )| {
+        let (index, sub, rb, host_ms) = p;
+        let timings = sub.wait()?;
+        let output = frame.collect(&rb)?;
+        on_frame(Finished {
+            index,
+            output,
+            timings,
+            host_ms,
+        })
+    };
+    for (i, input) in inputs.iter().enumerate() {
+        let t = Instant::now();
+        let mut rec = ctx.recorder(&format!("character frame {i}"))?;
+        frame.record(&mut rec, input)?;
+        let rb = frame.read_back(&mut rec)?;
+        let sub = rec.submit()?;
+        let host = t.elapsed().as_secs_f64() * 1e3;
+        pending.push_back((i, sub, rb, host));
+        if pending.len() >= in_flight
+            && let Some(p) = pending.pop_front()
+        {
+            finish(p)?;
+        }
+    }
+    while let Some(p) = pending.pop_front() {
+        finish(p)?;
+    }
+    Ok(())
+}

@@ -1,0 +1,208 @@
+//! The compose pass on the CPU (f32, the shader's operations in the shader's order): the
+//! twin the GPU output is tested against.
+
+use super::pack::{Environment, FrameParams, Prepared};
+use glam::{Vec2, Vec3, Vec4};
+use std::f32::consts::PI;
+
+/// Host copies of what the pass reads.
+pub struct HostInputs<'a> {
+    /// G-buffer texels, layer-major (3 layers of width x height).
+    pub gbuffer: &'a [[f32; 4]],
+    /// Per pixel (depth bits << 32 | triangle).
+    pub keys: &'a [u64],
+    /// Posed positions (xyz, 1).
+    pub positions: &'a [[f32; 4]],
+    /// The skin's diffusion per atlas texel.
+    pub diffuse: &'a [[f32; 4]],
+    /// The cloth's radiance per pixel.
+    pub cloth: &'a [[f32; 4]],
+    /// The rotated lobes (two vec4 each: axis + sharpness, rgb amplitude).
+    pub lobes: &'a [[f32; 4]],
+    /// Per vertex and lobe visibility (vertex-major); empty: unshadowed.
+    pub lobe_visibility: &'a [f32],
+}
+
+fn schlick(f0: f32, c: f32) -> f32 {
+    let x = 1.0 - c.clamp(0.0, 1.0);
+    let x2 = x * x;
+    f0 + (1.0 - f0) * x2 * x2 * x
+}
+
+fn environment(lobes: &[[f32; 4]], n: usize, w: Vec3) -> Vec3 {
+    let mut s = Vec3::ZERO;
+    for j in 0..n {
+        let a = Vec4::from_array(lobes[2 * j]);
+        s += Vec4::from_array(lobes[2 * j + 1]).truncate()
+            * (a.w * (a.truncate().dot(w) - 1.0)).exp();
+    }
+    s
+}
+
+/// `<G1, G2>` of two unit-amplitude spherical Gaussians (see the shader).
+pub fn sg_inner(p1: Vec3, l1: f32, p2: Vec3, l2: f32) -> f32 {
+    let r = (l1 * p1 + l2 * p2).length();
+    let e = -2.0 * l1 * l2 * (1.0 - p1.dot(p2)) / (r + l1 + l2);
+    2.0 * PI * e.exp() * (1.0 - (-2.0 * r).exp()) / r.max(1e-6)
+}
+
+fn atlas_lookup(prep: &Prepared, diffuse: &[[f32; 4]], uv: Vec2) -> Vec3 {
+    let n = prep.atlas_size as i32;
+    let t = uv * n as f32 - Vec2::splat(0.5);
+    let f0 = t.floor();
+    let f = t - f0;
+    let i0 = (f0.x as i32, f0.y as i32);
+    let mut sum = Vec3::ZERO;
+    let mut wsum = 0.0f32;
+    for k in 0..4 {
+        let (ox, oy) = (k & 1, k >> 1);
+        let w = (if ox == 1 { f.x } else { 1.0 - f.x }) * (if oy == 1 { f.y } else { 1.0 - f.y });
+        let cx = (i0.0 + ox).clamp(0, n - 1);
+        let cy = (i0.1 + oy).clamp(0, n - 1);
+        let i = (cy * n + cx) as usize;
+        if prep.mask[i] > 0.0 {
+            sum += w * Vec4::from_array(diffuse[i]).truncate();
+            wsum += w;
+        }
+    }
+    if wsum > 0.0 { sum / wsum } else { Vec3::ZERO }
+}
+
+/// Narkowicz's fit of the ACES filmic curve.
+pub fn aces(x: Vec3) -> Vec3 {
+    ((x * (2.51 * x + 0.03)) / (x * (2.43 * x + 0.59) + 0.14)).clamp(Vec3::ZERO, Vec3::ONE)
+}
+
+/// Linear to sRGB-encoded, one channel.
+pub fn srgb(c: f32) -> f32 {
+    if c <= 0.0031308 {
+        12.92 * c
+    } else {
+        1.055 * c.powf(1.0 / 2.4) - 0.055
+    }
+}
+
+/// The pass on the CPU: (linear radiance per pixel, RGBA8 word per pixel).
+pub fn shade(
+    prep: &Prepared,
+    params: &FrameParams,
+    env: Environment,
+    visibility: bool,
+    inp: &HostInputs<'_>,
+) -> (Vec<[f32; 4]>, Vec<u32>) {
+    let [w, h] = prep.size;
+    let pixels = w as usize * h as usize;
+    let b = params.camera.basis(prep.size);
+    let (fwd, right, up) = (b.forward, b.right * b.tan_x, b.up * b.tan_y);
+    let eye = params.camera.eye;
+    let lobes_n = match env {
+        Environment::Lobes(n) => n as usize,
+        Environment::None(_) => 0,
+    };
+    let background = match env {
+        Environment::None(c) => Vec3::from_array(c),
+        Environment::Lobes(_) => Vec3::ZERO,
+    };
+    let sp = params.specular;
+    let (rho_s, m, f0) = (sp.rho_s, sp.roughness, sp.f0);
+    let mut hdr = vec![[0f32; 4]; pixels];
+    let mut ldr = vec![0u32; pixels];
+    for y in 0..h {
+        for x in 0..w {
+            let idx = (y * w + x) as usize;
+            let s =
+                (Vec2::new(x as f32, y as f32) + 0.5) / Vec2::new(w as f32, h as f32) * 2.0 - 1.0;
+            let d = (fwd + right * s.x - up * s.y).normalize();
+            let g0 = inp.gbuffer[idx];
+            let radiance = if g0[3] == 0.0 {
+                if lobes_n > 0 {
+                    environment(inp.lobes, lobes_n, d)
+                } else {
+                    background
+                }
+            } else {
+                let tri = (inp.keys[idx] & 0xFFFF_FFFF) as u32;
+                if tri < prep.skin_triangles {
+                    let t = prep.skin_tris[tri as usize];
+                    let p = |v: u32| Vec4::from_array(inp.positions[v as usize]).truncate();
+                    let (a, bb, c) = (p(t[0]), p(t[1]), p(t[2]));
+                    let (e1, e2) = (bb - a, c - a);
+                    let pv = d.cross(e2);
+                    let det = e1.dot(pv);
+                    let tv = eye - a;
+                    let inv = if det != 0.0 { 1.0 / det } else { 0.0 };
+                    let u = (tv.dot(pv) * inv).clamp(0.0, 1.0);
+                    let qv = tv.cross(e1);
+                    let v = (d.dot(qv) * inv).clamp(0.0, 1.0 - u);
+                    let w0 = 1.0 - u - v;
+                    let uv01 = prep.skin_uvs[2 * tri as usize];
+                    let uv2 = prep.skin_uvs[2 * tri as usize + 1];
+                    let uv = Vec2::new(uv01[0], uv01[1]) * w0
+                        + Vec2::new(uv01[2], uv01[3]) * u
+                        + Vec2::new(uv2[0], uv2[1]) * v;
+                    let n = Vec4::from_array(inp.gbuffer[pixels + idx]).truncate();
+                    let view = -d;
+                    let nv = n.dot(view).max(1e-4);
+                    let diffused = atlas_lookup(prep, inp.diffuse, uv);
+                    let mut radiance = (1.0 - schlick(f0, nv)) / PI * diffused;
+                    let mut spec = Vec3::ZERO;
+                    for l in &params.lights {
+                        let ld = l.direction.normalize();
+                        let nl = n.dot(ld);
+                        if nl <= 0.0 {
+                            continue;
+                        }
+                        let hv = ld + view;
+                        let hh = hv.dot(hv);
+                        if hh < 1e-8 {
+                            continue;
+                        }
+                        let hn = hv / hh.sqrt();
+                        let nh = n.dot(hn).max(1e-4);
+                        let nh2 = nh * nh;
+                        let tan2 = (1.0 - nh2) / nh2;
+                        let ph = (-tan2 / (m * m)).exp() / (m * m * nh2 * nh2);
+                        spec += Vec3::from_array(l.rgb)
+                            * (rho_s * ph / PI * schlick(f0, hn.dot(view)) * nl / hh);
+                    }
+                    if lobes_n > 0 {
+                        let r = -view - 2.0 * n.dot(-view) * n;
+                        let nr = n.dot(r);
+                        let hv = r + view;
+                        let hh = hv.dot(hv);
+                        if nr > 0.0 && hh > 1e-8 {
+                            let lam = (2.0 / (m * m)) / (4.0 * nv.max(0.1));
+                            let fr = schlick(f0, (hv / hh.sqrt()).dot(view));
+                            let scale = rho_s * fr * nr / hh / (PI * m * m);
+                            for j in 0..lobes_n {
+                                let ax = Vec4::from_array(inp.lobes[2 * j]);
+                                let vis = if visibility {
+                                    let lv = |vert: u32| {
+                                        inp.lobe_visibility[vert as usize * lobes_n + j]
+                                    };
+                                    lv(t[0]) * w0 + lv(t[1]) * u + lv(t[2]) * v
+                                } else {
+                                    1.0
+                                };
+                                spec += Vec4::from_array(inp.lobes[2 * j + 1]).truncate()
+                                    * (scale * vis * sg_inner(r, lam, ax.truncate(), ax.w));
+                            }
+                        }
+                    }
+                    radiance += spec;
+                    radiance
+                } else {
+                    Vec4::from_array(inp.cloth[idx]).truncate()
+                }
+            };
+            let radiance = radiance.max(Vec3::ZERO);
+            hdr[idx] = radiance
+                .extend(if g0[3] == 0.0 { 0.0 } else { 1.0 })
+                .to_array();
+            let mapped = aces(radiance * params.exposure);
+            let q = mapped.to_array().map(|c| (srgb(c) * 255.0).round() as u32);
+            ldr[idx] = q[0] | (q[1] << 8) | (q[2] << 16) | (255 << 24);
+        }
+    }
+    (hdr, ldr)
+}

@@ -1,0 +1,326 @@
+//! The compose kernel on the GPU: `compose params` uploads the frame's parameters,
+//! `compose shade` shades every pixel (glsl/compose/shade.comp).
+
+use super::pack::{Environment, FrameParams, Prepared};
+use crate::error::{Error, Result};
+use crate::gpu::{
+    AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context, Image,
+    MemoryReport, Readback, Recorder, Resource,
+};
+use crate::kernels::{Dispatch, Grid, Kernel, Pass};
+
+/// The upload of the frame's parameters.
+pub const PASS_PARAMS: &str = "compose params";
+/// The per-pixel shading, tone mapping and encoding.
+pub const PASS_SHADE: &str = "compose shade";
+
+/// Bytes of the parameter block (std430 `Params`).
+const PARAMS_BYTES: u64 = 192;
+
+/// The buffers and image the pass reads that other kernels write.
+#[derive(Clone, Copy)]
+pub struct Inputs<'a> {
+    /// The screen G-buffer (3 layers, rgba32f; `kernels::raster`).
+    pub gbuffer: &'a Image,
+    /// The rasteriser's per-pixel (depth, triangle) keys, 8 bytes a pixel.
+    pub keys: &'a Buffer,
+    /// Posed positions, vec4 per vertex (`kernels::pose`).
+    pub positions: &'a Buffer,
+    /// The skin's diffusion, vec4 per atlas texel (`SssKernel::diffuse`); None without skin.
+    pub diffuse: Option<&'a Buffer>,
+    /// The cloth's radiance, vec4 per pixel (`BtfKernel::result`); None without cloth.
+    pub cloth: Option<&'a Buffer>,
+    /// The rotated environment lobes (two vec4 each) and their count; None: no environment.
+    pub lobes: Option<(&'a Buffer, u32)>,
+    /// Per vertex and lobe, the lobe's visibility (f32, vertex-major); None: unshadowed.
+    pub lobe_visibility: Option<&'a Buffer>,
+    /// The background where there is no environment (linear rgb).
+    pub background: [f32; 3],
+}
+
+/// One frame's images, read back.
+#[derive(Clone, Debug)]
+pub struct ComposeOutput {
+    /// Width and height.
+    pub size: [u32; 2],
+    /// Linear radiance per pixel; alpha 1 where the character covers the pixel.
+    pub hdr: Vec<[f32; 4]>,
+    /// Tone-mapped sRGB, RGBA8 per pixel (red in the low byte).
+    pub ldr: Vec<u32>,
+}
+
+impl ComposeOutput {
+    /// The sRGB image as bytes, RGBA row-major.
+    pub fn rgba8(&self) -> Vec<u8> {
+        self.ldr.iter().flat_map(|w| w.to_le_bytes()).collect()
+    }
+}
+
+/// The readbacks of a frame's images.
+pub struct ComposeReadback {
+    hdr: Readback,
+    ldr: Readback,
+}
+
+/// The compose pass of a character frame.
+pub struct ComposeKernel {
+    ctx: Context,
+    pipeline: ComputePipeline,
+    bind: BindGroup,
+    params: Buffer,
+    hdr: Buffer,
+    ldr: Buffer,
+    own: Vec<Buffer>,
+    /// Zero buffers bound in place of absent inputs.
+    spare: Vec<Buffer>,
+    size: [u32; 2],
+    env: Environment,
+    atlas: [u32; 3],
+}
+
+fn too_small(what: &str, have: u64, need: u64) -> Error {
+    Error::InvalidArgument(format!(
+        "compose: {what} holds {have} bytes; the frame needs {need}"
+    ))
+}
+
+impl ComposeKernel {
+    /// Creates the kernel's buffers and pipeline and records the uploads of `prep` into
+    /// `rec`. The inputs are bound once: each frame reads what the kernels writing them
+    /// wrote earlier in the same recording (ordered by their declared accesses).
+    pub fn new(rec: &mut Recorder, prep: &Prepared, inputs: &Inputs<'_>) -> Result<ComposeKernel> {
+        let ctx = rec.context();
+        let [w, h] = prep.size;
+        let pixels = w as u64 * h as u64;
+        let d = inputs.gbuffer.desc();
+        if d.extent[0] != w || d.extent[1] != h || d.layers < 3 {
+            return Err(Error::InvalidArgument(format!(
+                "compose: G-buffer of {} x {} x {} layers for a {w} x {h} frame (3 layers)",
+                d.extent[0], d.extent[1], d.layers
+            )));
+        }
+        if inputs.keys.size() < pixels * 8 {
+            return Err(too_small("the key buffer", inputs.keys.size(), pixels * 8));
+        }
+        let vertices = inputs.positions.size() / 16;
+        let atlas_texels = prep.atlas_size as u64 * prep.atlas_size as u64;
+        if prep.mask.len() as u64 != atlas_texels {
+            return Err(Error::InvalidArgument(format!(
+                "compose: atlas mask of {} texels for a {0}^2 atlas",
+                prep.mask.len()
+            )));
+        }
+        if prep.skin_triangles > 0 {
+            let diffuse = inputs.diffuse.ok_or_else(|| {
+                Error::InvalidArgument("compose: skin triangles but no diffusion buffer".into())
+            })?;
+            if diffuse.size() < atlas_texels * 16 {
+                return Err(too_small(
+                    "the diffusion",
+                    diffuse.size(),
+                    atlas_texels * 16,
+                ));
+            }
+            let max_vertex = prep.skin_tris.iter().flat_map(|t| &t[..3]).max();
+            if max_vertex.is_some_and(|&v| v as u64 >= vertices) {
+                return Err(Error::InvalidArgument(format!(
+                    "compose: a skin triangle names vertex {} of {vertices} posed",
+                    max_vertex.copied().unwrap_or(0)
+                )));
+            }
+        }
+        if let Some(c) = inputs.cloth
+            && c.size() < pixels * 16
+        {
+            return Err(too_small("the cloth radiance", c.size(), pixels * 16));
+        }
+        let lobe_count = inputs.lobes.map_or(0, |l| l.1);
+        if let Some((b, n)) = inputs.lobes
+            && (n == 0 || b.size() < n as u64 * 32)
+        {
+            return Err(too_small("the lobe buffer", b.size(), n.max(1) as u64 * 32));
+        }
+        if let Some(v) = inputs.lobe_visibility {
+            if inputs.lobes.is_none() {
+                return Err(Error::InvalidArgument(
+                    "compose: lobe visibility without lobes".into(),
+                ));
+            }
+            if v.size() < vertices * lobe_count as u64 * 4 {
+                return Err(too_small(
+                    "the lobe visibility",
+                    v.size(),
+                    vertices * lobe_count as u64 * 4,
+                ));
+            }
+        }
+        use bytemuck::cast_slice as bytes;
+        let storage = BufferDesc::storage;
+        let skin_tris = rec.buffer_with(
+            "compose skin triangles",
+            storage(prep.skin_tris.len() as u64 * 16),
+            &prep.skin_tris,
+        )?;
+        let skin_uvs = rec.buffer_with(
+            "compose skin uvs",
+            storage(prep.skin_uvs.len() as u64 * 16),
+            &prep.skin_uvs,
+        )?;
+        let mask = rec.buffer_with(
+            "compose atlas mask",
+            storage(prep.mask.len() as u64 * 4),
+            &prep.mask,
+        )?;
+        let params = Buffer::new(&ctx, "compose params", storage(PARAMS_BYTES))?;
+        let hdr = Buffer::new(&ctx, "compose hdr", storage(pixels * 16))?;
+        let ldr = Buffer::new(&ctx, "compose ldr", storage(pixels * 4))?;
+        // Stand-ins for absent inputs: zeros, never read where the input is absent (no skin
+        // triangle, no cloth triangle, no lobe) but bound because the layout is fixed.
+        let small = |rec: &mut Recorder, name: &str| {
+            rec.buffer_with(name, storage(32), bytes::<f32, u8>(&[0.0; 8]))
+        };
+        let mut spare = Vec::new();
+        let diffuse = match inputs.diffuse {
+            Some(b) => b.clone(),
+            None => small(rec, "compose no diffusion")?,
+        };
+        if inputs.diffuse.is_none() {
+            spare.push(diffuse.clone());
+        }
+        let cloth = match inputs.cloth {
+            Some(b) => b.clone(),
+            None => {
+                let zero = Buffer::new(&ctx, "compose no cloth", storage(pixels * 16))?;
+                rec.fill_buffer(&zero, 0)?;
+                spare.push(zero.clone());
+                zero
+            }
+        };
+        let lobes = match inputs.lobes {
+            Some((b, _)) => b.clone(),
+            None => {
+                let b = small(rec, "compose no lobes")?;
+                spare.push(b.clone());
+                b
+            }
+        };
+        let lobe_vis = match inputs.lobe_visibility {
+            Some(b) => b.clone(),
+            None => {
+                let b = small(rec, "compose no lobe visibility")?;
+                spare.push(b.clone());
+                b
+            }
+        };
+        let own = vec![skin_tris, skin_uvs, mask];
+        let pipeline = crate::shaders::pipeline(&ctx, "compose/shade")?;
+        let lookup = |name: &str| -> Option<Resource<'_>> {
+            Some(match name {
+                "gbuffer" => Resource::texture(inputs.gbuffer),
+                "keys" => Resource::Buffer(inputs.keys),
+                "pos" => Resource::Buffer(inputs.positions),
+                "skin_tris" => Resource::Buffer(&own[0]),
+                "skin_uvs" => Resource::Buffer(&own[1]),
+                "mask" => Resource::Buffer(&own[2]),
+                "diffuse" => Resource::Buffer(&diffuse),
+                "cloth" => Resource::Buffer(&cloth),
+                "lobes" => Resource::Buffer(&lobes),
+                "lobe_vis" => Resource::Buffer(&lobe_vis),
+                "params" => Resource::Buffer(&params),
+                "hdr" => Resource::Buffer(&hdr),
+                "ldr" => Resource::Buffer(&ldr),
+                _ => return None,
+            })
+        };
+        let w = AccessSet::from(A::ComputeShaderWrite);
+        let bind = pipeline.bind_from(lookup, &[("hdr", w), ("ldr", w)])?;
+        let env = match inputs.lobes {
+            Some((_, n)) => Environment::Lobes(n),
+            None => Environment::None(inputs.background),
+        };
+        let visibility_mode = u32::from(inputs.lobe_visibility.is_some());
+        Ok(ComposeKernel {
+            ctx,
+            pipeline,
+            bind,
+            params,
+            hdr,
+            ldr,
+            own,
+            spare,
+            size: prep.size,
+            env,
+            atlas: [prep.atlas_size, prep.skin_triangles, visibility_mode],
+        })
+    }
+
+    /// Linear radiance per pixel (vec4; alpha 1 where the character covers it).
+    pub fn hdr(&self) -> &Buffer {
+        &self.hdr
+    }
+
+    /// Tone-mapped sRGB per pixel (one RGBA8 word).
+    pub fn ldr(&self) -> &Buffer {
+        &self.ldr
+    }
+
+    /// Output width and height.
+    pub fn size(&self) -> [u32; 2] {
+        self.size
+    }
+
+    fn params_bytes(&self, p: &FrameParams) -> Result<Vec<u8>> {
+        p.check()?;
+        Ok(p.bytes(self.size, self.env, self.atlas))
+    }
+
+    fn shade_args(&self, _p: &FrameParams) -> Result<Dispatch> {
+        Ok(Dispatch {
+            push: Vec::new(),
+            grid: Grid::Invocations([self.size[0], self.size[1], 1]),
+        })
+    }
+}
+
+impl Kernel for ComposeKernel {
+    type Input = FrameParams;
+    type Readback = ComposeReadback;
+    type Output = ComposeOutput;
+
+    fn name(&self) -> &'static str {
+        "compose"
+    }
+
+    fn pass_table(&self) -> Vec<Pass<'_, Self>> {
+        vec![
+            Pass::upload(PASS_PARAMS, &self.params, Self::params_bytes),
+            Pass::dispatch(PASS_SHADE, &self.pipeline, &self.bind, Self::shade_args),
+        ]
+    }
+
+    fn check_input(&self, p: &FrameParams) -> Result<()> {
+        p.check()
+    }
+
+    fn read_back(&self, rec: &mut Recorder) -> Result<ComposeReadback> {
+        Ok(ComposeReadback {
+            hdr: rec.read_back(&self.hdr)?,
+            ldr: rec.read_back(&self.ldr)?,
+        })
+    }
+
+    fn collect(&self, rb: &ComposeReadback) -> Result<ComposeOutput> {
+        Ok(ComposeOutput {
+            size: self.size,
+            hdr: rb.hdr.to_vec()?,
+            ldr: rb.ldr.to_vec()?,
+        })
+    }
+
+    fn memory(&self) -> MemoryReport {
+        let mut all: Vec<&Buffer> = vec![&self.params, &self.hdr, &self.ldr];
+        all.extend(self.own.iter());
+        all.extend(self.spare.iter());
+        self.ctx.memory_of(&all)
+    }
+}
