@@ -210,6 +210,7 @@ pub struct CharacterFrame {
     btf: Option<BtfKernel>,
     btf_frame: BtfFrame,
     compose: ComposeKernel,
+    compose_prep: compose::Prepared,
     /// What setup cost.
     pub setup: SetupReport,
 }
@@ -484,6 +485,7 @@ impl CharacterFrame {
             btf,
             btf_frame,
             compose,
+            compose_prep: cprep,
             setup,
         })
     }
@@ -559,6 +561,76 @@ impl CharacterFrame {
         self.compose.collect(rb)
     }
 
+    /// Records the readback of what the compose pass read and wrote (tests and tools: the
+    /// frame itself reads back only its images).
+    pub fn read_back_stages(&self, rec: &mut Recorder) -> Result<StageReadback> {
+        let g = self.raster.gbuffer();
+        Ok(StageReadback {
+            gbuffer: rec.read_back_image(g, crate::gpu::ImageRegion::whole(g.desc()))?,
+            keys: rec.read_back(self.raster.keys())?,
+            positions: rec.read_back(self.pose.positions())?,
+            normals: rec.read_back(self.pose.normals())?,
+            diffuse: match &self.sss {
+                Some(s) => Some(rec.read_back(s.kernel.diffuse())?),
+                None => None,
+            },
+            cloth: match &self.btf {
+                Some(b) => Some(rec.read_back(b.result())?),
+                None => None,
+            },
+            images: self.compose.read_back(rec)?,
+        })
+    }
+
+    /// The stages' outputs, once the submission holding the readback is complete.
+    pub fn collect_stages(&self, rb: &StageReadback) -> Result<Stages> {
+        let pixels = self.cfg.size[0] as usize * self.cfg.size[1] as usize;
+        Ok(Stages {
+            gbuffer: rb.gbuffer.to_vec()?,
+            keys: rb.keys.to_vec()?,
+            positions: rb.positions.to_vec()?,
+            normals: rb.normals.to_vec()?,
+            diffuse: match &rb.diffuse {
+                Some(r) => r.to_vec()?,
+                None => vec![[0.0; 4]; 8],
+            },
+            cloth: match &rb.cloth {
+                Some(r) => r.to_vec()?,
+                None => vec![[0.0; 4]; pixels],
+            },
+            output: self.compose.collect(&rb.images)?,
+        })
+    }
+
+    /// The compose pass's CPU twin on the stages the GPU computed: (linear radiance, RGBA8).
+    pub fn compose_twin(&self, params: &FrameParams, st: &Stages) -> (Vec<[f32; 4]>, Vec<u32>) {
+        compose::cpu::shade(
+            &self.compose_prep,
+            params,
+            compose::Environment::None(self.cfg.background),
+            false,
+            &compose::cpu::HostInputs {
+                gbuffer: &st.gbuffer,
+                keys: &st.keys,
+                positions: &st.positions,
+                diffuse: &st.diffuse,
+                cloth: &st.cloth,
+                lobes: &[],
+                lobe_visibility: &[],
+            },
+        )
+    }
+
+    /// The skin's texture-space geometry (rest pose), when the character has skin.
+    pub fn skin_geometry(&self) -> Option<&TexGeometry> {
+        self.sss.as_ref().map(|s| &s.geo)
+    }
+
+    /// The skin's diffusion kernel and its lights, when the character has skin.
+    pub fn skin_kernel(&self) -> Option<(&SssKernel, &[SssLight])> {
+        self.sss.as_ref().map(|s| (&s.kernel, &s.lights[..]))
+    }
+
     /// Device memory of every kernel.
     pub fn memory_bytes(&self) -> u64 {
         let mut b = self.pose.memory().used_bytes
@@ -573,6 +645,35 @@ impl CharacterFrame {
         }
         b
     }
+}
+
+/// Readbacks of [`CharacterFrame::read_back_stages`].
+pub struct StageReadback {
+    gbuffer: crate::gpu::Readback,
+    keys: crate::gpu::Readback,
+    positions: crate::gpu::Readback,
+    normals: crate::gpu::Readback,
+    diffuse: Option<crate::gpu::Readback>,
+    cloth: Option<crate::gpu::Readback>,
+    images: compose::gpu::ComposeReadback,
+}
+
+/// What a frame's stages computed, read back.
+#[derive(Clone, Debug)]
+pub struct Stages {
+    /// The G-buffer, layer-major.
+    pub gbuffer: Vec<[f32; 4]>,
+    /// The rasteriser's keys.
+    pub keys: Vec<u64>,
+    /// Posed positions and normals.
+    pub positions: Vec<[f32; 4]>,
+    pub normals: Vec<[f32; 4]>,
+    /// The skin's diffusion per atlas texel.
+    pub diffuse: Vec<[f32; 4]>,
+    /// The cloth's radiance per pixel.
+    pub cloth: Vec<[f32; 4]>,
+    /// The frame's images.
+    pub output: ComposeOutput,
 }
 
 /// One finished frame from [`run`].

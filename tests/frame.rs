@@ -1,0 +1,232 @@
+//! The character frame (frame::CharacterFrame): every kernel of one animated character in one
+//! recording per frame, under the validation harness (synchronization validation on). The
+//! compose pass against its CPU twin on a posed frame; a stage inside the frame against the
+//! same kernel run alone on the same inputs; frames in flight against one at a time; bad
+//! input refused. The character is a glTF file: the tests need the `gltf` feature.
+#![cfg(feature = "gltf")]
+
+mod common;
+
+use common::with_gpu_features;
+use glam::Mat3;
+use vkshade::frame::{CharacterFrame, FrameConfig, FrameInput, run};
+use vkshade::gpu::Features;
+use vkshade::kernels::Kernel;
+
+const INT64: Features = Features {
+    shader_float16: false,
+    shader_int16: false,
+    storage_16bit: false,
+    shader_float64: false,
+    sampler_anisotropy: false,
+    texture_compression_bc: false,
+    buffer_int64_atomics: true,
+};
+
+/// A small frame of the built-in character: 160 x 160 pixels, a 128^2 atlas, 8 samples, an
+/// 8-texel BTF tile (the method is the same at any size; small keeps the test quick).
+fn small() -> FrameConfig {
+    FrameConfig {
+        mesh: std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/bcn_epileptic.glb"),
+        size: [160, 160],
+        atlas: 128,
+        samples: 8,
+        btf_tile: 8,
+        ..FrameConfig::default()
+    }
+}
+
+fn input(frame: &CharacterFrame, k: usize, n: usize) -> FrameInput {
+    FrameInput {
+        time: frame.animation().duration * k as f32 / n as f32,
+        env_rotation: Mat3::from_rotation_y(k as f32),
+    }
+}
+
+fn stages_skin_triangles() -> u64 {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/bcn_epileptic.glb");
+    let (c, _) = vkshade::scene::gltf_load::load_parts(&path, &["Head"]).unwrap();
+    c.mesh.triangles.len() as u64
+}
+
+#[test]
+#[allow(clippy::needless_range_loop)]
+fn compose_matches_its_cpu_twin_on_a_posed_frame() {
+    let cfg = small();
+    let (stages, twin) = with_gpu_features(INT64, |ctx| {
+        let frame = CharacterFrame::new(ctx, &cfg, &mut |_| {})?;
+        // A pose far into the animation (the arm raised, the torso bent).
+        let inp = input(&frame, 9, 24);
+        let mut rec = ctx.recorder("frame twin")?;
+        frame.record(&mut rec, &inp)?;
+        let rb = frame.read_back_stages(&mut rec)?;
+        rec.submit_and_wait()?;
+        let st = frame.collect_stages(&rb)?;
+        let twin = frame.compose_twin(&frame.params(), &st);
+        Ok((st, twin))
+    });
+    let (hdr, ldr) = twin;
+    let gpu = &stages.output;
+    let pixels = hdr.len();
+    // Skin pixels: keys below the skin triangle count (the Head's) where the tag is set.
+    let skin_tris = stages_skin_triangles();
+    let (mut skin, mut cloth, mut empty) = (0, 0, 0);
+    let mut worst = 0f32;
+    for i in 0..pixels {
+        let covered = stages.gbuffer[i][3] != 0.0;
+        match (covered, stages.keys[i] & 0xFFFF_FFFF) {
+            (false, _) => empty += 1,
+            (true, t) if t < skin_tris => skin += 1,
+            _ => cloth += 1,
+        }
+        for c in 0..3 {
+            let (g, t) = (gpu.hdr[i][c], hdr[i][c]);
+            // The same f32 operations in the same order, but the GPU compiler contracts
+            // a * b + c into FMAs and its exp/pow differ from libm by a few ulp. The pixel's
+            // barycentrics come from a ray-triangle intersection (a 3x3 determinant) and the
+            // diffusion is looked up bilinearly at the resulting atlas uv, where it varies by
+            // up to ~10% per texel: an ulp-level uv change (1e-7 x 512 texels) moves the
+            // value by ~1e-5 relative. 2e-4 keeps 10x headroom over the worst measured
+            // (printed below) and is far below what any wrong term would move (a missing
+            // Fresnel or specular term moves skin pixels by > 2%).
+            let err = (g - t).abs() / t.abs().max(1e-3);
+            worst = worst.max(err);
+            assert!(
+                (g - t).abs() <= 2e-4 * t.abs() + 1e-6,
+                "pixel {i} channel {c}: GPU {g} vs CPU {t}"
+            );
+        }
+        for k in 0..3 {
+            let (g, t) = ((gpu.ldr[i] >> (8 * k)) & 0xff, (ldr[i] >> (8 * k)) & 0xff);
+            // The 8-bit code may round the other way where the value sits on a boundary.
+            assert!(g.abs_diff(t) <= 1, "pixel {i}: sRGB {g} vs {t}");
+        }
+    }
+    eprintln!("{skin} skin, {cloth} cloth, {empty} empty pixels; worst relative {worst:e}");
+    // The frame must show all three kinds of pixel, or the comparison proves little.
+    assert!(
+        skin > 60 && cloth > 1000 && empty > 1000,
+        "{skin} / {cloth} / {empty}"
+    );
+}
+
+#[test]
+fn the_skin_stage_equals_the_sss_kernel_alone_on_the_same_pose() {
+    use vkshade::kernels::sss::SamplerParams;
+    use vkshade::kernels::sss::gpu::{PosedSource, SssKernel};
+    use vkshade::kernels::sss::profile::{DEFAULT_ENERGY, Material, Profile, ProfileKind};
+    let cfg = small();
+    with_gpu_features(INT64, |ctx| {
+        let frame = CharacterFrame::new(ctx, &cfg, &mut |_| {})?;
+        let mut rec = ctx.recorder("frame stage")?;
+        frame.record(&mut rec, &input(&frame, 15, 24))?;
+        let rb = frame.read_back_stages(&mut rec)?;
+        rec.submit_and_wait()?;
+        let st = frame.collect_stages(&rb)?;
+        // The SSS kernel alone, fed the frame's own posed vertices from the host.
+        let geo = frame.skin_geometry().expect("the default frame has skin");
+        let (_, lights) = frame.skin_kernel().expect("skin");
+        let n = geo.positions.len();
+        let v3 = |v: &[[f32; 4]]| -> Vec<glam::Vec3> {
+            v[..n]
+                .iter()
+                .map(|p| glam::Vec4::from_array(*p).truncate())
+                .collect()
+        };
+        let rest: Vec<glam::Vec3> = frame.character.mesh.positions[..n].to_vec();
+        let profile = Profile::new(ProfileKind::Dipole, Material::SKIN1, DEFAULT_ENERGY)?;
+        let params = SamplerParams {
+            samples: cfg.samples,
+            ..SamplerParams::default()
+        };
+        let mut rec = ctx.recorder("sss alone")?;
+        let src = PosedSource::upload(&mut rec, &v3(&st.positions), &v3(&st.normals))?;
+        let alone = SssKernel::new_posed(
+            &mut rec,
+            geo,
+            &rest,
+            &profile,
+            params,
+            src.buffers(cfg.mm_per_unit as f32),
+        )?;
+        alone.record(&mut rec, lights)?;
+        let rb = alone.read_back(&mut rec)?;
+        rec.submit_and_wait()?;
+        let out = alone.collect(&rb)?;
+        // The same inputs through the same passes: bit for bit.
+        let differ = out
+            .diffuse
+            .iter()
+            .zip(&st.diffuse)
+            .filter(|(a, b)| a != b)
+            .count();
+        assert_eq!(
+            differ, 0,
+            "{differ} texels differ between the frame and SSS alone"
+        );
+        assert!(
+            out.diffuse.iter().any(|d| d[0] > 0.0),
+            "the diffusion is black"
+        );
+        Ok(())
+    });
+}
+
+#[test]
+fn two_frames_in_flight_give_the_images_of_one_at_a_time() {
+    let cfg = small();
+    let frames = |in_flight: usize| {
+        with_gpu_features(INT64, |ctx| {
+            let frame = CharacterFrame::new(ctx, &cfg, &mut |_| {})?;
+            let inputs: Vec<FrameInput> = (0..4).map(|k| input(&frame, 3 * k + 1, 12)).collect();
+            let mut out = Vec::new();
+            run(ctx, &frame, &inputs, in_flight, |f| {
+                out.push((f.index, f.output.hdr));
+                Ok(())
+            })?;
+            Ok(out)
+        })
+    };
+    let one = frames(1);
+    let two = frames(2);
+    assert_eq!(one.len(), 4);
+    for ((i, a), (j, b)) in one.iter().zip(&two) {
+        assert_eq!(i, j);
+        assert!(a == b, "frame {i} differs with two frames in flight");
+    }
+    // Different poses give different images (the comparison is not of constant frames).
+    assert!(one[0].1 != one[1].1);
+}
+
+#[test]
+fn bad_frame_input_is_refused() {
+    let cfg = small();
+    with_gpu_features(INT64, |ctx| {
+        let frame = CharacterFrame::new(ctx, &cfg, &mut |_| {})?;
+        let mut rec = ctx.recorder("bad input")?;
+        let bad = FrameInput {
+            time: f32::NAN,
+            env_rotation: Mat3::IDENTITY,
+        };
+        let e = frame.record(&mut rec, &bad).unwrap_err().to_string();
+        assert!(e.contains("not finite"), "{e}");
+        drop(rec);
+        // A part the file does not have: an error naming the file and the part.
+        let missing = FrameConfig {
+            cloth: vec!["Cape".into()],
+            ..small()
+        };
+        let e = CharacterFrame::new(ctx, &missing, &mut |_| {})
+            .err()
+            .expect("a missing part is refused")
+            .to_string();
+        assert!(e.contains("bcn_epileptic.glb") && e.contains("Cape"), "{e}");
+        // No light at all.
+        let dark = FrameConfig {
+            lights: vec![],
+            ..small()
+        };
+        assert!(CharacterFrame::new(ctx, &dark, &mut |_| {}).is_err());
+        Ok(())
+    });
+}
