@@ -63,6 +63,13 @@ pub enum Command {
         #[arg(long)]
         anim: bool,
     },
+    /// The character frame (BCN_Epileptic: Head skin, Torso and Legs cloth, 512 x 512, atlas
+    /// 512^2 x 32 samples): whole-frame and per-pass GPU ms, host ms per frame, each pass's
+    /// bandwidth against the streaming peak measured in the same run.
+    Frame {
+        #[command(flatten)]
+        opts: Opts,
+    },
     /// Texture-space SSS on the BCN_Epileptic head: GPU time of irradiance and diffusion
     /// over texture size x samples per texel, error against the brute-force ground truth vs
     /// time, throughput against the FMA and bandwidth peaks, and the speed-up over the same
@@ -128,6 +135,7 @@ impl Command {
     pub fn run(&self, gpu: &Gpu) -> Result<()> {
         match self {
             Command::Peak { opts } => peak(gpu, opts),
+            Command::Frame { opts } => frame(gpu, opts),
             Command::Ao {
                 opts,
                 mesh,
@@ -369,6 +377,19 @@ fn sss(gpu: &Gpu, opts: &Opts, quick: bool) -> Result<()> {
     print_sss(&r);
     write_json(opts, &r)?;
     write_plot(opts, || panels(&r))?;
+    finish(ctx)
+}
+
+/// `bench frame`.
+fn frame(gpu: &Gpu, opts: &Opts) -> Result<()> {
+    check_outputs(opts, false)?;
+    let bench_cfg = opts.config()?;
+    let ctx = super::frame::context(gpu)?;
+    eprintln!("bench frame on {}", ctx.info().name);
+    let cfg = crate::frame::FrameConfig::default();
+    let r = bench::frame::run(&ctx, &cfg, &bench_cfg, &mut |l| progress(l))?;
+    bench::frame::print(&r);
+    write_json(opts, &r)?;
     finish(ctx)
 }
 

@@ -158,18 +158,7 @@ pub struct FrameInput {
 
 /// The labels of a frame's passes, in order (their GPU times are in a frame's timings).
 pub fn pass_names(frame: &CharacterFrame) -> Vec<&'static str> {
-    let mut v = Vec::new();
-    v.extend(frame.pose.passes().into_iter().map(|p| p.name));
-    v.extend(frame.ao.passes().into_iter().map(|p| p.name));
-    v.extend(frame.raster.passes().into_iter().map(|p| p.name));
-    if let Some(s) = &frame.sss {
-        v.extend(s.kernel.passes().into_iter().map(|p| p.name));
-    }
-    if let Some(b) = &frame.btf {
-        v.extend(b.passes().into_iter().map(|p| p.name));
-    }
-    v.extend(frame.compose.passes().into_iter().map(|p| p.name));
-    v
+    frame.passes().into_iter().map(|p| p.name).collect()
 }
 
 struct Skin {
@@ -488,6 +477,22 @@ impl CharacterFrame {
             compose_prep: cprep,
             setup,
         })
+    }
+
+    /// Every pass of a frame, in recording order, with its declared uses.
+    pub fn passes(&self) -> Vec<crate::kernels::PassInfo> {
+        let mut v = Vec::new();
+        v.extend(self.pose.passes());
+        v.extend(self.ao.passes());
+        v.extend(self.raster.passes());
+        if let Some(s) = &self.sss {
+            v.extend(s.kernel.passes());
+        }
+        if let Some(b) = &self.btf {
+            v.extend(b.passes());
+        }
+        v.extend(self.compose.passes());
+        v
     }
 
     /// The animation played.

@@ -888,6 +888,9 @@ pub struct DeclaredUse {
     pub resource: String,
     /// How the dispatch accesses it.
     pub access: AccessSet,
+    /// Bytes of the bound range (a buffer range's size; for an image, its allocation's
+    /// share of the bound layers): what the dispatch can touch at most.
+    pub bytes: u64,
 }
 
 pub(crate) struct BindGroupInner {
@@ -1090,6 +1093,12 @@ impl BindGroup {
                     Target::Image(i, _) => i.name.clone(),
                 },
                 access: u.access,
+                bytes: match &u.target {
+                    Target::Buffer(b) => b.alloc_bytes(),
+                    Target::Image(i, sub) => {
+                        i.alloc_bytes() * sub.layer_count as u64 / i.desc.layers.max(1) as u64
+                    }
+                },
             })
             .collect()
     }

@@ -43,6 +43,8 @@ pub struct UseInfo {
     pub resource: String,
     /// The access types, e.g. `{ComputeShaderReadOther}`.
     pub access: String,
+    /// Bytes of the bound range (what the pass can touch at most).
+    pub bytes: u64,
 }
 
 impl From<DeclaredUse> for UseInfo {
@@ -51,6 +53,7 @@ impl From<DeclaredUse> for UseInfo {
             binding: u.binding,
             resource: u.resource,
             access: format!("{:?}", u.access),
+            bytes: u.bytes,
         }
     }
 }
@@ -165,6 +168,7 @@ impl<'k, K: Kernel + ?Sized> Pass<'k, K> {
                 binding: "(upload)".into(),
                 resource: buffer.name().to_string(),
                 access: format!("{:?}", AccessSet::from(AccessType::TransferWrite)),
+                bytes: buffer.size(),
             }],
         };
         PassInfo {

@@ -46,6 +46,13 @@ pub(crate) struct ImageInner {
     pub(crate) state: Mutex<super::track::ImageState>,
 }
 
+impl ImageInner {
+    /// Bytes of the allocation backing the image (every mip and layer).
+    pub(crate) fn alloc_bytes(&self) -> u64 {
+        self.alloc_size
+    }
+}
+
 impl Used for ImageInner {
     fn stamp(&self, value: u64) {
         self.stamp.raise(value);

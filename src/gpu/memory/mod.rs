@@ -60,6 +60,13 @@ pub(crate) struct BufferInner {
     pooled: bool,
 }
 
+impl BufferInner {
+    /// Bytes of the allocation backing the buffer.
+    pub(crate) fn alloc_bytes(&self) -> u64 {
+        self.alloc_size
+    }
+}
+
 impl Used for BufferInner {
     fn stamp(&self, value: u64) {
         let _host = self.mapped.map(|_| lock(&self.host));
