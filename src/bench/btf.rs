@@ -513,6 +513,7 @@ pub fn garment_passes() -> Vec<&'static str> {
         p::PASS_SKIN,
         r::PASS_CLEAR,
         r::PASS_VISIBILITY,
+        r::PASS_TILES,
         r::PASS_RESOLVE,
         crate::kernels::btf::gpu::PASS_SHADE,
     ]
@@ -604,7 +605,12 @@ impl Garment {
             l.max_image_dimension_2d,
             l.max_image_array_layers,
         )?;
-        let btf = BtfKernel::on_gbuffer(&mut rec, &bprep, raster.gbuffer())?;
+        // Shaded over the rasteriser's tile list: only where the garment is (or was last
+        // frame), one workgroup per listed tile.
+        let tiles = raster.tiles().ok_or_else(|| {
+            Error::InvalidArgument("the garment's rasteriser has no tile list".into())
+        })?;
+        let btf = BtfKernel::on_gbuffer_tiles(&mut rec, &bprep, raster.gbuffer(), tiles)?;
         rec.submit_and_wait()?;
         Ok(Garment {
             character,
