@@ -12,7 +12,9 @@ use glam::{Mat4, Vec3};
 use vkshade::gpu::{Buffer, BufferDesc, Context, Features};
 use vkshade::kernels::Kernel;
 use vkshade::kernels::raster::cpu::{self as twin, PosedCpu, Visibility};
-use vkshade::kernels::raster::gpu::{Camera, Posed, Prepared, RasterKernel, RasterOutput, counter};
+use vkshade::kernels::raster::gpu::{
+    Camera, Posed, Prepared, RasterKernel, RasterOutput, TILE, Tiling, counter, tile_grid,
+};
 use vkshade::scene::{Mesh, MeshData};
 
 const INT64: Features = Features {
@@ -688,4 +690,144 @@ fn pixel_centres_on_a_shared_edge_belong_to_one_triangle_by_the_top_left_rule() 
     // The vertex (10.5, 20.5) of all three: on triangle 0's right edge (not owned), on
     // triangle 1's bottom edge (not owned), on triangle 2's top and left edges (owned).
     assert_eq!(id(10, 20), Some(2));
+}
+
+/// The tiles holding a covered pixel of `out` (sorted tile indices `ty * tiles_x + tx`).
+fn covered_tiles(out: &RasterOutput, size: [u32; 2]) -> Vec<u32> {
+    let tiles_x = tile_grid(size)[0];
+    let set: std::collections::BTreeSet<u32> = (0..out.keys.len())
+        .filter(|&k| out.hit(k).is_some())
+        .map(|k| {
+            let (x, y) = (k as u32 % size[0], k as u32 / size[0]);
+            (y / TILE[1]) * tiles_x + x / TILE[0]
+        })
+        .collect();
+    set.into_iter().collect()
+}
+
+#[test]
+fn tile_lists_cover_exactly_the_covered_pixels_and_match_the_full_dispatch_bit_for_bit() {
+    use vkshade::kernels::btf::cloth::{Pattern, SynthConfig};
+    use vkshade::kernels::btf::dirs::{Maps, Triangulation};
+    use vkshade::kernels::btf::gpu::{BtfInputs, BtfKernel, Prepared as BtfPrepared, Texture};
+    use vkshade::scene::gbuffer::{Camera as View, Frame, GBuffer, default_lights};
+    let btf =
+        vkshade::kernels::btf::synth::synthesize(&SynthConfig::tile(Pattern::Weave, 8)).unwrap();
+    let maps = Maps::build(&Triangulation::new().unwrap(), 32).unwrap();
+    let mesh = tube(48, 16);
+    let pose = host_pose(&mesh, None);
+    // Neither side a multiple of the 16 x 4 tile: the last tiles of each row and column
+    // hang over the image.
+    let size = [100, 70];
+    let prep = Prepared::new(&mesh, &[], size, 3.0).unwrap();
+    // The whole tube; from farther away (it shrinks: tiles of frame 0 become stale); a camera looking away
+    // (nothing covered: an empty list, every tile of frame 1 stale); the tube from another
+    // side, twice (the second frame has no stale tile).
+    let away = Camera {
+        eye: Vec3::new(0.0, 0.0, 4.0),
+        target: Vec3::new(0.0, 0.0, 8.0),
+        up: Vec3::Y,
+        fov_y_deg: 40.0,
+        near: 0.1,
+    };
+    let cams = [
+        Camera::framing(Vec3::ZERO, 1.5, Vec3::new(0.5, 0.8, 1.0)),
+        Camera::framing(Vec3::new(0.3, 0.2, 0.0), 4.0, Vec3::new(1.0, 0.2, 0.3)),
+        away,
+        Camera::framing(Vec3::ZERO, 1.4, Vec3::new(-1.0, -0.3, 0.4)),
+        Camera::framing(Vec3::ZERO, 1.4, Vec3::new(-1.0, -0.3, 0.4)),
+    ];
+    let frame = Frame {
+        camera: View::Perspective(cams[0].eye),
+        lights: default_lights(),
+    };
+    type FrameOut = (RasterOutput, RasterOutput, Vec<[f32; 4]>, Vec<[f32; 4]>);
+    let outs: Vec<FrameOut> = with_gpu_features(INT64, |ctx| {
+        let bufs = PosedBuffers::upload(ctx, &pose)?;
+        let mut rec = ctx.recorder("tiled + full setup")?;
+        let tiled = RasterKernel::new(&mut rec, &prep, &bufs.posed())?;
+        let full = RasterKernel::with_tiling(&mut rec, &prep, &bufs.posed(), Tiling::Full)?;
+        assert_eq!(tiled.tiling(), Tiling::Tiles);
+        assert!(full.tiles().is_none());
+        let l = ctx.limits();
+        let unused = GBuffer::tile([1, 1]);
+        let inputs = BtfInputs::new(&btf, &maps, &unused, Texture::Block);
+        let bp = BtfPrepared::for_gpu_gbuffer(
+            &inputs,
+            size,
+            l.max_image_dimension_2d,
+            l.max_image_array_layers,
+        )?;
+        let tiles = tiled.tiles().expect("a tiled rasteriser has a tile list");
+        let btf_tiled = BtfKernel::on_gbuffer_tiles(&mut rec, &bp, tiled.gbuffer(), tiles)?;
+        let btf_full = BtfKernel::on_gbuffer(&mut rec, &bp, full.gbuffer())?;
+        rec.submit_and_wait()?;
+        let mut outs = Vec::new();
+        for cam in &cams {
+            let mut rec = ctx.recorder("tiled + full frame")?;
+            tiled.record(&mut rec, cam)?;
+            btf_tiled.record(&mut rec, &frame)?;
+            full.record(&mut rec, cam)?;
+            btf_full.record(&mut rec, &frame)?;
+            let rb = (
+                tiled.read_back(&mut rec)?,
+                full.read_back(&mut rec)?,
+                btf_tiled.read_back(&mut rec)?,
+                btf_full.read_back(&mut rec)?,
+            );
+            rec.submit_and_wait()?;
+            outs.push((
+                tiled.collect(&rb.0)?,
+                full.collect(&rb.1)?,
+                btf_tiled.collect(&rb.2)?,
+                btf_full.collect(&rb.3)?,
+            ));
+        }
+        Ok(outs)
+    });
+    let [tx, ty] = tile_grid(size);
+    let mut previous: Vec<u32> = Vec::new();
+    for (i, (tiled, full, shaded_tiled, shaded_full)) in outs.iter().enumerate() {
+        assert!(full.tiles.is_none());
+        let list = tiled.tiles.as_ref().expect("tile list read back");
+        let want = covered_tiles(full, size);
+        assert_eq!(list.covered, want, "frame {i}: covered tiles");
+        let stale: Vec<u32> = previous
+            .iter()
+            .copied()
+            .filter(|t| want.binary_search(t).is_err())
+            .collect();
+        assert_eq!(list.stale, stale, "frame {i}: stale tiles");
+        assert_eq!(tiled.keys, full.keys, "frame {i}: visibility keys");
+        assert_eq!(tiled.counters, full.counters, "frame {i}: counters");
+        let bits =
+            |v: &[[f32; 4]]| -> Vec<u32> { v.iter().flatten().map(|x| x.to_bits()).collect() };
+        assert!(
+            bits(&tiled.gbuffer.texels) == bits(&full.gbuffer.texels),
+            "frame {i}: G-buffers differ"
+        );
+        assert!(
+            bits(shaded_tiled) == bits(shaded_full),
+            "frame {i}: shaded images differ"
+        );
+        // What each frame exercises: coverage on a part of the tiles, then stale tiles,
+        // then nothing covered.
+        match i {
+            0 | 3 => assert!(
+                !want.is_empty() && want.len() < (tx * ty) as usize,
+                "{}",
+                want.len()
+            ),
+            1 => assert!(!want.is_empty() && !stale.is_empty()),
+            2 => assert!(want.is_empty() && !stale.is_empty()),
+            _ => assert!(!want.is_empty() && stale.is_empty()),
+        }
+        if i > 0 {
+            assert!(
+                shaded_full.iter().any(|p| p[3] > 0.0) != want.is_empty(),
+                "frame {i}: the shaded image has covered pixels iff the G-buffer does"
+            );
+        }
+        previous = want;
+    }
 }

@@ -45,6 +45,12 @@ layout(set = 0, binding = 2) uniform utexture2D dir_map;
 // s * (1 + part), s = +-1 the frame's handedness (src/scene/gbuffer.rs).
 layout(set = 0, binding = 4) uniform texture2DArray gbuffer;
 layout(std430, set = 0, binding = 5) writeonly buffer Result { vec4 v[]; } result;
+#ifdef BTF_TILES
+// The rasteriser's tile list (glsl/raster/tiles.comp), dispatched indirectly: workgroup i
+// shades the 16 x 4 tile list[i] (index ty * tiles_x + tx); pixels outside every listed tile
+// keep what they hold (background, 0).
+layout(std430, set = 0, binding = 6) readonly buffer Tiles { uint head[4]; uint list[]; } tiles;
+#endif
 
 #if BTF_MODE == 2
 // The footprint of a pixel's uv, shared by its 9 taps: block, bit shifts of its 4 texels'
@@ -132,7 +138,13 @@ void lookup(vec3 d, out uvec3 index, out vec3 weight) {
 }
 
 void main() {
+#ifdef BTF_TILES
+    uint tile = tiles.list[gl_WorkGroupID.x];
+    uint tiles_x = (pc.dims.x + 15u) / 16u;
+    uvec2 px = uvec2(tile % tiles_x, tile / tiles_x) * uvec2(16u, 4u) + gl_LocalInvocationID.xy;
+#else
     uvec2 px = gl_GlobalInvocationID.xy;
+#endif
     if (any(greaterThanEqual(px, pc.dims.xy))) return;
     uint k = px.y * pc.dims.x + px.x;
     vec4 g0 = texelFetch(gbuffer, ivec3(px, 0), 0);

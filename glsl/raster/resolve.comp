@@ -12,6 +12,9 @@
 // The normal faces the camera: where the interpolated normal faces away (a back face, or a
 // front face at a silhouette) it is negated and the handedness with it, so the bitangent
 // s * cross(n, t) stays along +v.
+// Two modes (dims.z): 0: one invocation per pixel of the image; 1: one workgroup per 16 x 4
+// tile of the tile list `raster tiles` wrote (dispatched indirectly over it: the tiles
+// covered this frame and those covered only last frame, whose pixels become empty here).
 layout(local_size_x = 16, local_size_y = 4) in;
 
 layout(push_constant) uniform Push {
@@ -19,7 +22,7 @@ layout(push_constant) uniform Push {
     vec4 forward;  // xyz: unit view axis
     vec4 right;    // xyz: camera right * tan(fov_y / 2) * aspect
     vec4 up;       // xyz: camera up * tan(fov_y / 2)
-    uvec4 dims;    // width, height
+    uvec4 dims;    // width, height, mode
 } pc;
 
 layout(std430, set = 0, binding = 0) readonly buffer Positions { vec4 p[]; } pos;
@@ -29,6 +32,7 @@ layout(std430, set = 0, binding = 3) readonly buffer Uvs { vec2 uv[]; } uvs;
 layout(std430, set = 0, binding = 4) readonly buffer Triangles { uvec4 t[]; } tris;
 layout(std430, set = 0, binding = 5) readonly buffer Visibility { uint64_t key[]; } vis;
 layout(set = 0, binding = 6, rgba32f) writeonly uniform image2DArray gbuffer;
+layout(std430, set = 0, binding = 7) readonly buffer Tiles { uint head[4]; uint list[]; } tiles;
 
 void store(ivec2 px, vec4 g0, vec4 g1, vec4 g2) {
     imageStore(gbuffer, ivec3(px, 0), g0);
@@ -38,6 +42,11 @@ void store(ivec2 px, vec4 g0, vec4 g1, vec4 g2) {
 
 void main() {
     uvec2 px = gl_GlobalInvocationID.xy;
+    if (pc.dims.z != 0u) {
+        uint t = tiles.list[gl_WorkGroupID.x];
+        uint tiles_x = (pc.dims.x + 15u) / 16u;
+        px = uvec2(t % tiles_x, t / tiles_x) * uvec2(16u, 4u) + gl_LocalInvocationID.xy;
+    }
     if (any(greaterThanEqual(px, pc.dims.xy))) return;
     uint64_t key = vis.key[px.y * pc.dims.x + px.x];
     if (key == ~0ul) {

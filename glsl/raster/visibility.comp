@@ -11,6 +11,8 @@
 // distance along the camera's forward axis; it is positive, so its float bits order like
 // the values. 1/depth is affine in screen space: depth = 1 / sum_i b_i / z_i.
 // Both windings are rasterised (back faces are kept; the resolve pass flips their normal).
+// Every covered pixel also flags its 16 x 4 tile (the same value from any invocation), from
+// which `raster tiles` lists the tiles the later passes dispatch over.
 layout(local_size_x = 64) in;
 
 layout(push_constant) uniform Push {
@@ -27,6 +29,8 @@ layout(std430, set = 0, binding = 2) buffer Visibility { uint64_t key[]; } vis;
 // 0: triangles scanned, 1: clipped by the near plane, 2: wholly behind it, 3: outside the
 // guard band, 4: back-facing (scanned), 5: zero screen area, 6: off screen.
 layout(std430, set = 0, binding = 3) buffer Counters { uint c[8]; } counters;
+// One word per 16 x 4 tile (ty * tiles_x + tx): 1 where a pixel is covered.
+layout(std430, set = 0, binding = 4) writeonly buffer TileFlags { uint f[]; } flags;
 
 const float SUB = 256.0;          // sub-pixel steps per pixel
 const float GUARD = 16384.0;      // |screen coordinate| limit in pixels: products < 2^47
@@ -93,6 +97,7 @@ void scan(vec3 s0, vec3 s1, vec3 s2, uint id) {
     int64_t dx0 = -(c.y - b.y) * 256l, dx1 = -(a.y - c.y) * 256l, dx2 = -(b.y - a.y) * 256l;
     int64_t dy0 = (c.x - b.x) * 256l, dy1 = (a.x - c.x) * 256l, dy2 = (b.x - a.x) * 256l;
     float inv_area = 1.0 / float(area);
+    uint tiles_x = (pc.dims.x + 15u) / 16u;
     for (int y = y0; y <= y1; y++) {
         int64_t e0 = r0, e1 = r1, e2 = r2;
         for (int x = x0; x <= x1; x++) {
@@ -102,6 +107,7 @@ void scan(vec3 s0, vec3 s1, vec3 s2, uint id) {
                 float depth = 1.0 / dot(w, iz);
                 uint64_t key = (uint64_t(floatBitsToUint(depth)) << 32) | uint64_t(id);
                 atomicMin(vis.key[uint(y) * pc.dims.x + uint(x)], key);
+                flags.f[(uint(y) / 4u) * tiles_x + uint(x) / 16u] = 1u;
             }
             e0 += dx0; e1 += dx1; e2 += dx2;
         }

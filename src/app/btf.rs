@@ -1269,6 +1269,13 @@ pub fn bench_anim(gpu: &Gpu, opts: &super::bench::Opts, texture: Texture) -> Res
         r.sphere_btf_ms.median,
         1000.0 / r.sphere_btf_ms.median
     );
+    println!(
+        "tiles                  {} of 16 x 4 px hold a covered pixel, {} listed with last frame's: raster resolve and btf shade run {} px of {}",
+        r.covered_tiles,
+        r.listed_tiles,
+        r.listed_tiles * 64,
+        cfg.size[0] * cfg.size[1]
+    );
     for t in &r.targets {
         println!(
             "target                 {}: {:.1} vs {:.0}: {}",

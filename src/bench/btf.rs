@@ -513,6 +513,7 @@ pub fn garment_passes() -> Vec<&'static str> {
         p::PASS_SKIN,
         r::PASS_CLEAR,
         r::PASS_VISIBILITY,
+        r::PASS_TILES,
         r::PASS_RESOLVE,
         crate::kernels::btf::gpu::PASS_SHADE,
     ]
@@ -604,7 +605,12 @@ impl Garment {
             l.max_image_dimension_2d,
             l.max_image_array_layers,
         )?;
-        let btf = BtfKernel::on_gbuffer(&mut rec, &bprep, raster.gbuffer())?;
+        // Shaded over the rasteriser's tile list: only where the garment is (or was last
+        // frame), one workgroup per listed tile.
+        let tiles = raster.tiles().ok_or_else(|| {
+            Error::InvalidArgument("the garment's rasteriser has no tile list".into())
+        })?;
+        let btf = BtfKernel::on_gbuffer_tiles(&mut rec, &bprep, raster.gbuffer(), tiles)?;
         rec.submit_and_wait()?;
         Ok(Garment {
             character,
@@ -656,6 +662,11 @@ impl Garment {
         )
     }
 
+    /// The rasteriser writing the garment's G-buffer and tile list.
+    pub fn raster(&self) -> &crate::kernels::raster::gpu::RasterKernel {
+        &self.raster
+    }
+
     /// Device memory of the three kernels.
     pub fn memory_bytes(&self) -> u64 {
         use crate::kernels::Kernel;
@@ -689,6 +700,11 @@ pub struct AnimBenchReport {
     pub memory_mib: f64,
     /// Pixels the garment covers at the animation's start.
     pub covered_pixels: usize,
+    /// 16 x 4 tiles holding a covered pixel then, and tiles listed in all (those plus the
+    /// tiles covered only the frame before): the workgroups of `raster resolve` and
+    /// `btf shade`.
+    pub covered_tiles: usize,
+    pub listed_tiles: usize,
     /// Same run: `btf shade` alone on the static sphere (same size, texture, lights).
     pub sphere_covered_pixels: usize,
     pub sphere_btf_ms: Stats,
@@ -772,15 +788,21 @@ pub fn run_anim(
     };
     let sphere_btf_ms = time_passes(ctx, bench, &k, &f)?.remove(0).1;
     drop(k);
-    let covered = {
+    let (covered, covered_tiles, listed_tiles) = {
+        use crate::kernels::Kernel;
         let mut rec = ctx.recorder("garment coverage")?;
         g.record(&mut rec, &g.matrices(0.0))?;
         let rb = g.read_back(&mut rec)?;
+        let raster = g.raster().read_back(&mut rec)?;
         rec.submit_and_wait()?;
-        rb.to_vec::<[f32; 4]>()?
+        let covered = rb
+            .to_vec::<[f32; 4]>()?
             .iter()
             .filter(|p| p[3] > 0.0)
-            .count()
+            .count();
+        let tiles = g.raster().collect(&raster)?.tiles;
+        let (c, s) = tiles.map_or((0, 0), |t| (t.covered.len(), t.stale.len()));
+        (covered, c, c + s)
     };
     let stats = |s: &[f64]| Stats::of(s).ok_or_else(|| Error::InvalidArgument("no samples".into()));
     let pass_ms: Vec<(&'static str, Stats)> = names
@@ -818,6 +840,8 @@ pub fn run_anim(
         pass_share,
         memory_mib: g.memory_bytes() as f64 / (1u64 << 20) as f64,
         covered_pixels: covered,
+        covered_tiles,
+        listed_tiles,
         sphere_covered_pixels: sphere.covered(),
         sphere_btf_ms,
         targets,

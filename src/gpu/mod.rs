@@ -38,8 +38,8 @@ pub use memory::{
 };
 pub use pipeline::{BindGroup, ComputePipeline, DeclaredUse, ImageRef, Resource, default_access};
 pub use record::{
-    AliasUse, Barrier, BarrierMode, PassTiming, PlannedBarrier, Readback, Recorded, Recorder,
-    Submission, Timings, Use,
+    AliasUse, Barrier, BarrierMode, DISPATCH_INDIRECT_SIZE, PassTiming, PlannedBarrier, Readback,
+    Recorded, Recorder, Submission, Timings, Use,
 };
 pub use recycle::CreationCounts;
 pub use shader::{BindingInfo, DescriptorKind, SampledType, Shader};

@@ -104,6 +104,19 @@ impl Dispatch {
 pub type DispatchArgs<K> = fn(&K, &<K as Kernel>::Input) -> Result<Dispatch>;
 /// Gives the bytes an upload pass writes for one frame (nothing is recorded when empty).
 pub type UploadBytes<K> = fn(&K, &<K as Kernel>::Input) -> Result<Vec<u8>>;
+/// Gives an indirect dispatch pass's push-constant bytes for one frame (the pipeline's
+/// reflected block; the workgroup counts come from the GPU).
+pub type PushBytes<K> = fn(&K, &<K as Kernel>::Input) -> Result<Vec<u8>>;
+
+/// Where an indirect dispatch reads its workgroup counts: a `VkDispatchIndirectCommand`
+/// (three u32) at `offset` in `buffer`, written on the GPU by an earlier pass.
+#[derive(Clone, Copy)]
+pub struct IndirectArgs<'k> {
+    /// The buffer holding the command (INDIRECT_BUFFER usage).
+    pub buffer: &'k Buffer,
+    /// Its byte offset (a multiple of 4).
+    pub offset: u64,
+}
 
 /// What a pass touches and how it is recorded.
 pub enum Step<'k, K: Kernel + ?Sized> {
@@ -116,6 +129,20 @@ pub enum Step<'k, K: Kernel + ?Sized> {
         bind: &'k BindGroup,
         /// Gives the frame's push constants and grid.
         args: DispatchArgs<K>,
+    },
+    /// A compute dispatch whose workgroup counts the GPU reads from `indirect` (written by
+    /// an earlier pass, e.g. a count of the tiles some geometry covers). Its uses are
+    /// `bind`'s declared accesses plus an [`AccessType::IndirectBuffer`] read of
+    /// `indirect.buffer` (merged with that buffer's binding when it is also bound).
+    DispatchIndirect {
+        /// The pipeline dispatched.
+        pipeline: &'k ComputePipeline,
+        /// Its bind group; its declared accesses are uses of the pass.
+        bind: &'k BindGroup,
+        /// Where the workgroup counts are read.
+        indirect: IndirectArgs<'k>,
+        /// Gives the frame's push constants.
+        push: PushBytes<K>,
     },
     /// A host-to-device upload into `buffer` at offset 0 (a transfer write).
     Upload {
@@ -152,6 +179,26 @@ impl<'k, K: Kernel + ?Sized> Pass<'k, K> {
         }
     }
 
+    /// An indirect dispatch pass: `pipeline` with `bind`, the workgroup counts read by the
+    /// GPU from `indirect`, the push constants from `push`.
+    pub fn dispatch_indirect(
+        name: &'static str,
+        pipeline: &'k ComputePipeline,
+        bind: &'k BindGroup,
+        indirect: IndirectArgs<'k>,
+        push: PushBytes<K>,
+    ) -> Self {
+        Pass {
+            name,
+            step: Step::DispatchIndirect {
+                pipeline,
+                bind,
+                indirect,
+                push,
+            },
+        }
+    }
+
     /// An upload pass.
     pub fn upload(name: &'static str, buffer: &'k Buffer, bytes: UploadBytes<K>) -> Self {
         Pass {
@@ -164,6 +211,17 @@ impl<'k, K: Kernel + ?Sized> Pass<'k, K> {
     pub fn info(&self) -> PassInfo {
         let uses = match &self.step {
             Step::Dispatch { bind, .. } => bind.accesses().into_iter().map(UseInfo::from).collect(),
+            Step::DispatchIndirect { bind, indirect, .. } => {
+                let mut uses: Vec<UseInfo> =
+                    bind.accesses().into_iter().map(UseInfo::from).collect();
+                uses.push(UseInfo {
+                    binding: "(indirect)".into(),
+                    resource: indirect.buffer.name().to_string(),
+                    access: format!("{:?}", AccessSet::from(AccessType::IndirectBuffer)),
+                    bytes: 12,
+                });
+                uses
+            }
             Step::Upload { buffer, .. } => vec![UseInfo {
                 binding: "(upload)".into(),
                 resource: buffer.name().to_string(),
@@ -181,6 +239,9 @@ impl<'k, K: Kernel + ?Sized> Pass<'k, K> {
     pub fn plan(&self, rec: &mut Recorder) -> Result<Vec<PlannedBarrier>> {
         match &self.step {
             Step::Dispatch { bind, .. } => rec.plan_dispatch(bind),
+            Step::DispatchIndirect { bind, indirect, .. } => {
+                rec.plan_dispatch_indirect(bind, indirect.buffer, indirect.offset)
+            }
             Step::Upload { buffer, .. } => {
                 rec.plan(&[Use::Buffer(buffer, AccessType::TransferWrite.into())])
             }
@@ -197,6 +258,14 @@ impl<'k, K: Kernel + ?Sized> Pass<'k, K> {
                 bind,
                 args,
             } => args(kernel, input).and_then(|d| d.record(rec, pipeline, bind)),
+            Step::DispatchIndirect {
+                pipeline,
+                bind,
+                indirect,
+                push,
+            } => push(kernel, input).and_then(|p| {
+                rec.dispatch_indirect_tracked(pipeline, bind, &p, indirect.buffer, indirect.offset)
+            }),
             Step::Upload { buffer, bytes } => bytes(kernel, input).and_then(|b| {
                 if b.is_empty() {
                     Ok(())

@@ -11,7 +11,7 @@ pub mod srbf;
 pub mod sss;
 
 pub use contract::{
-    Dispatch, FrameResult, Grid, Kernel, KernelInfo, Pass, PassInfo, Step, UseInfo,
+    Dispatch, FrameResult, Grid, IndirectArgs, Kernel, KernelInfo, Pass, PassInfo, Step, UseInfo,
     record_as_graph, run_frames,
 };
 

@@ -1,11 +1,53 @@
 //! Compute dispatches: with the caller's barriers, or with those their bind group's declared
-//! accesses call for.
+//! accesses call for; direct (workgroup counts from the host) or indirect (read by the GPU
+//! from a buffer an earlier command wrote).
 
 use super::Recorder;
 use crate::error::{Error, Result};
-use crate::gpu::pipeline::{BindGroup, ComputePipeline, Target};
-use crate::gpu::sync::AccessType;
+use crate::gpu::memory::{Buffer, BufferInner, require_buffer_usage};
+use crate::gpu::pipeline::{BindGroup, BindGroupInner, ComputePipeline, Target};
+use crate::gpu::sync::{AccessSet, AccessType};
 use ash::vk;
+use std::sync::Arc;
+
+/// Bytes of a `VkDispatchIndirectCommand` (three u32 workgroup counts).
+pub const DISPATCH_INDIRECT_SIZE: u64 = 12;
+
+/// The uses of a dispatch: the bind group's declared accesses, plus an indirect read of
+/// `indirect` (merged into its binding's access when the buffer is also bound, so one
+/// barrier covers both).
+pub(super) fn dispatch_uses(
+    inner: &BindGroupInner,
+    indirect: Option<&Arc<BufferInner>>,
+) -> Vec<(Target, AccessSet)> {
+    let mut uses: Vec<(Target, AccessSet)> = inner
+        .uses
+        .iter()
+        .map(|u| (u.target.clone(), u.access))
+        .collect();
+    if let Some(args) = indirect {
+        let bound = uses
+            .iter_mut()
+            .find(|(t, _)| matches!(t, Target::Buffer(b) if Arc::ptr_eq(b, args)));
+        match bound {
+            Some((_, access)) => *access = *access | AccessType::IndirectBuffer,
+            None => uses.push((
+                Target::Buffer(args.clone()),
+                AccessType::IndirectBuffer.into(),
+            )),
+        }
+    }
+    uses
+}
+
+/// Where a recorded dispatch takes its workgroup counts from.
+#[derive(Clone, Copy)]
+enum Groups {
+    /// From the host.
+    Direct([u32; 3]),
+    /// From a `VkDispatchIndirectCommand` in a buffer (kept alive by the caller) at an offset.
+    Indirect(vk::Buffer, u64),
+}
 
 impl Recorder {
     fn check_dispatch(
@@ -62,23 +104,43 @@ impl Recorder {
         groups: [u32; 3],
     ) -> Result<()> {
         self.check_dispatch(pipeline, bind, push, groups)?;
+        self.declare_untracked(bind, None);
+        self.record_dispatch(pipeline, bind, push, Groups::Direct(groups));
+        Ok(())
+    }
+
+    /// Updates the tracked state with a dispatch's uses without queueing barriers (the
+    /// caller's barriers stand in for the ones these uses would need).
+    fn declare_untracked(&mut self, bind: &BindGroup, indirect: Option<&Arc<BufferInner>>) {
         self.flush_barriers();
         let inner = bind.keep();
-        for u in &inner.uses {
-            match &u.target {
-                // The caller's barriers stand in for the ones these uses would need.
+        for (target, access) in dispatch_uses(&inner, indirect) {
+            match &target {
                 Target::Buffer(b) => {
-                    let _ = self.local.use_buffer(b, u.access);
+                    let _ = self.local.use_buffer(b, access);
                     self.keep.add(b.clone());
                 }
                 Target::Image(i, range) => {
-                    let _ = self.local.use_image(i, range, u.access, false);
+                    let _ = self.local.use_image(i, range, access, false);
                     self.keep.add(i.clone());
                 }
             }
         }
-        self.record_dispatch(pipeline, bind, push, groups);
-        Ok(())
+    }
+
+    /// Applies a dispatch's uses through the tracker, queueing the barriers they need.
+    pub(super) fn declare_tracked(
+        &mut self,
+        bind: &BindGroup,
+        indirect: Option<&Arc<BufferInner>>,
+    ) {
+        let inner = bind.keep();
+        for (target, access) in dispatch_uses(&inner, indirect) {
+            match &target {
+                Target::Buffer(b) => self.use_buffer_inner(b, access),
+                Target::Image(i, range) => self.use_image_inner(i, *range, access, false),
+            }
+        }
     }
 
     /// Dispatches `groups` workgroups with the barriers its declared accesses call for
@@ -91,15 +153,88 @@ impl Recorder {
         groups: [u32; 3],
     ) -> Result<()> {
         self.check_dispatch(pipeline, bind, push, groups)?;
-        let inner = bind.keep();
-        for u in &inner.uses {
-            match &u.target {
-                Target::Buffer(b) => self.use_buffer_inner(b, u.access),
-                Target::Image(i, range) => self.use_image_inner(i, *range, u.access, false),
-            }
-        }
+        self.declare_tracked(bind, None);
         self.flush_barriers();
-        self.record_dispatch(pipeline, bind, push, groups);
+        self.record_dispatch(pipeline, bind, push, Groups::Direct(groups));
+        Ok(())
+    }
+
+    /// Checks an indirect dispatch: the pipeline and bind group as for a direct one, and
+    /// `args` (this context's, with INDIRECT_BUFFER usage, a 4-aligned `offset` and a whole
+    /// `VkDispatchIndirectCommand` inside it).
+    fn check_indirect(
+        &self,
+        pipeline: &ComputePipeline,
+        bind: &BindGroup,
+        push: &[u8],
+        args: &Buffer,
+        offset: u64,
+    ) -> Result<()> {
+        self.check_dispatch(pipeline, bind, push, [0; 3])?;
+        self.check_indirect_args(args, offset)
+    }
+
+    pub(super) fn check_indirect_args(&self, args: &Buffer, offset: u64) -> Result<()> {
+        let inner = args.keep();
+        self.check_owner(&inner.shared, || format!("buffer '{}'", inner.name))?;
+        require_buffer_usage(
+            args,
+            vk::BufferUsageFlags::INDIRECT_BUFFER,
+            "indirect dispatch arguments",
+        )?;
+        if !offset.is_multiple_of(4)
+            || offset
+                .checked_add(DISPATCH_INDIRECT_SIZE)
+                .is_none_or(|end| end > args.size())
+        {
+            return Err(Error::InvalidArgument(format!(
+                "indirect dispatch arguments at offset {offset} of buffer '{}' ({} bytes): the \
+                 offset must be a multiple of 4 and the {DISPATCH_INDIRECT_SIZE} bytes of \
+                 VkDispatchIndirectCommand must lie inside the buffer",
+                args.name(),
+                args.size()
+            )));
+        }
+        Ok(())
+    }
+
+    /// Dispatches the workgroup counts the GPU reads from `args` at `offset` (a
+    /// `VkDispatchIndirectCommand`: three u32, written by an earlier command); barriers
+    /// are the caller's, as for [`Recorder::dispatch`] (the indirect read of `args` still
+    /// updates the tracked state). The counts are not known here, so the GPU must keep them
+    /// within `maxComputeWorkGroupCount`; a zero count dispatches nothing.
+    pub fn dispatch_indirect(
+        &mut self,
+        pipeline: &ComputePipeline,
+        bind: &BindGroup,
+        push: &[u8],
+        args: &Buffer,
+        offset: u64,
+    ) -> Result<()> {
+        self.check_indirect(pipeline, bind, push, args, offset)?;
+        let a = args.keep();
+        self.declare_untracked(bind, Some(&a));
+        self.record_dispatch(pipeline, bind, push, Groups::Indirect(a.raw, offset));
+        Ok(())
+    }
+
+    /// [`Recorder::dispatch_indirect`] with the barriers its uses call for: the bind
+    /// group's declared accesses and an [`AccessType::IndirectBuffer`] read of `args`
+    /// (merged with its binding's access when `args` is also bound), batched into one
+    /// barrier before the dispatch.
+    pub fn dispatch_indirect_tracked(
+        &mut self,
+        pipeline: &ComputePipeline,
+        bind: &BindGroup,
+        push: &[u8],
+        args: &Buffer,
+        offset: u64,
+    ) -> Result<()> {
+        self.check_indirect(pipeline, bind, push, args, offset)?;
+        let a = args.keep();
+        self.declare_tracked(bind, Some(&a));
+        self.flush_barriers();
+        self.record_dispatch(pipeline, bind, push, Groups::Indirect(a.raw, offset));
         Ok(())
     }
 
@@ -108,7 +243,7 @@ impl Recorder {
         pipeline: &ComputePipeline,
         bind: &BindGroup,
         push: &[u8],
-        groups: [u32; 3],
+        groups: Groups,
     ) {
         self.keep.add(pipeline.keep());
         self.keep.add(bind.keep());
@@ -142,8 +277,15 @@ impl Recorder {
                     push,
                 );
             }
-            if groups.iter().all(|&g| g > 0) {
-                device.cmd_dispatch(self.cmd, groups[0], groups[1], groups[2]);
+            match groups {
+                Groups::Direct(g) => {
+                    if g.iter().all(|&n| n > 0) {
+                        device.cmd_dispatch(self.cmd, g[0], g[1], g[2]);
+                    }
+                }
+                Groups::Indirect(buffer, offset) => {
+                    device.cmd_dispatch_indirect(self.cmd, buffer, offset)
+                }
             }
         }
     }

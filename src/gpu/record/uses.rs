@@ -7,7 +7,7 @@ use super::{Barrier, PlannedBarrier, Recorder};
 use crate::error::{Error, Result};
 use crate::gpu::image::{Image, ImageInner, Subresources};
 use crate::gpu::memory::{Buffer, BufferInner};
-use crate::gpu::pipeline::{BindGroup, Target};
+use crate::gpu::pipeline::BindGroup;
 use crate::gpu::sync::{AccessSet, AccessType};
 use crate::gpu::track::{RangeTransition, Transition};
 use ash::vk;
@@ -89,22 +89,38 @@ impl Recorder {
     /// dispatch with it would use).
     pub fn plan_dispatch(&mut self, bind: &BindGroup) -> Result<Vec<PlannedBarrier>> {
         self.check_bind_group(bind)?;
+        Ok(self.plan_dispatch_uses(bind, None))
+    }
+
+    /// [`Recorder::plan_dispatch`] for an indirect dispatch reading its workgroup counts
+    /// from `args` at `offset` (what [`Recorder::dispatch_indirect_tracked`] would use: the
+    /// bind group's declared accesses and an indirect read of `args`).
+    pub fn plan_dispatch_indirect(
+        &mut self,
+        bind: &BindGroup,
+        args: &Buffer,
+        offset: u64,
+    ) -> Result<Vec<PlannedBarrier>> {
+        self.check_bind_group(bind)?;
+        self.check_indirect_args(args, offset)?;
+        Ok(self.plan_dispatch_uses(bind, Some(&args.keep())))
+    }
+
+    fn plan_dispatch_uses(
+        &mut self,
+        bind: &BindGroup,
+        indirect: Option<&Arc<BufferInner>>,
+    ) -> Vec<PlannedBarrier> {
         self.flush_barriers();
         self.planning = true;
         let mode = std::mem::replace(&mut self.mode, BarrierMode::Collect);
         let earlier = std::mem::take(&mut self.collected);
-        let inner = bind.keep();
-        for u in &inner.uses {
-            match &u.target {
-                Target::Buffer(b) => self.use_buffer_inner(b, u.access),
-                Target::Image(i, range) => self.use_image_inner(i, *range, u.access, false),
-            }
-        }
-        self.keep.add(inner);
+        self.declare_tracked(bind, indirect);
+        self.keep.add(bind.keep());
         let planned = std::mem::replace(&mut self.collected, earlier);
         self.mode = mode;
         self.planning = false;
-        Ok(planned)
+        planned
     }
 
     /// Declares that `buffer` is accessed as `next` from here on; queues the barrier the

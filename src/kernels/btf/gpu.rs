@@ -13,7 +13,7 @@ use crate::gpu::{
     AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context, Image,
     ImageDesc, ImageRegion, MemoryReport, Readback, Recorder, Resource, Sampler, SamplerDesc,
 };
-use crate::kernels::{Dispatch, Grid, Kernel, Pass};
+use crate::kernels::{Dispatch, Grid, IndirectArgs, Kernel, Pass};
 use crate::scene::gbuffer::{Frame, MAX_LIGHTS};
 use ash::vk;
 
@@ -35,6 +35,9 @@ pub struct BtfKernel {
     /// kept alive by the bind group.
     gbuffer: Option<Image>,
     result: Buffer,
+    /// The rasteriser's tile list when the pass is dispatched over it
+    /// ([`BtfKernel::on_gbuffer_tiles`]).
+    tiles: Option<Buffer>,
     size: [u32; 2],
 }
 
@@ -59,7 +62,7 @@ impl BtfKernel {
         let [w, h] = prep.size;
         let gb_desc = ImageDesc::d2_array(vk::Format::R32G32B32A32_SFLOAT, [w, h], 3);
         let gbuffer = image_with(rec, "btf gbuffer", gb_desc, layers)?;
-        let mut k = Self::with_gbuffer(rec, prep, &gbuffer)?;
+        let mut k = Self::with_gbuffer(rec, prep, &gbuffer, None)?;
         k.gbuffer = Some(gbuffer);
         Ok(k)
     }
@@ -69,6 +72,47 @@ impl BtfKernel {
     /// rasteriser's [`crate::kernels::raster::gpu::RasterKernel::gbuffer`]): the pass
     /// declares a sampled read of it, so the tracker orders it after that write.
     pub fn on_gbuffer(rec: &mut Recorder, prep: &Prepared, gbuffer: &Image) -> Result<BtfKernel> {
+        Self::check_gbuffer(prep, gbuffer)?;
+        Self::with_gbuffer(rec, prep, gbuffer, None)
+    }
+
+    /// As [`BtfKernel::on_gbuffer`], shading only the tiles of the rasteriser's tile list
+    /// `tiles` ([`crate::kernels::raster::gpu::RasterKernel::tiles`]: this frame's covered
+    /// tiles and last frame's, one workgroup each, dispatched indirectly), which a pass of
+    /// the same frame writes before this one. Every other pixel of the result keeps the
+    /// background (0) it is cleared to here (recorded into `rec`), so the output equals
+    /// [`BtfKernel::on_gbuffer`]'s as long as the pass runs after every frame of the
+    /// rasteriser that wrote the list.
+    pub fn on_gbuffer_tiles(
+        rec: &mut Recorder,
+        prep: &Prepared,
+        gbuffer: &Image,
+        tiles: &Buffer,
+    ) -> Result<BtfKernel> {
+        Self::check_gbuffer(prep, gbuffer)?;
+        let [tx, ty] = crate::kernels::raster::pack::tile_grid(prep.size);
+        let need = 16 + 4 * tx as u64 * ty as u64;
+        if tiles.size() < need
+            || !tiles
+                .usage()
+                .contains(vk::BufferUsageFlags::INDIRECT_BUFFER)
+        {
+            return Err(Error::InvalidArgument(format!(
+                "tile list '{}' ({} bytes, usage {:?}): a {} x {} image needs {need} bytes with \
+                 INDIRECT_BUFFER usage",
+                tiles.name(),
+                tiles.size(),
+                tiles.usage(),
+                prep.size[0],
+                prep.size[1]
+            )));
+        }
+        let k = Self::with_gbuffer(rec, prep, gbuffer, Some(tiles.clone()))?;
+        rec.fill_buffer(&k.result, 0)?;
+        Ok(k)
+    }
+
+    fn check_gbuffer(prep: &Prepared, gbuffer: &Image) -> Result<()> {
         let d = gbuffer.desc();
         let [w, h] = prep.size;
         if d.format != vk::Format::R32G32B32A32_SFLOAT
@@ -86,19 +130,27 @@ impl BtfKernel {
                 d.usage
             )));
         }
-        Self::with_gbuffer(rec, prep, gbuffer)
+        Ok(())
     }
 
-    fn with_gbuffer(rec: &mut Recorder, prep: &Prepared, gbuffer: &Image) -> Result<BtfKernel> {
+    fn with_gbuffer(
+        rec: &mut Recorder,
+        prep: &Prepared,
+        gbuffer: &Image,
+        tiles: Option<Buffer>,
+    ) -> Result<BtfKernel> {
         let ctx = rec.context();
         let packing = prep.packing;
         // One module per layout (not a specialization constant: lavapipe 22.3.6 ignored the
         // constant's value in this shader; and a runtime branch keeps all five sampling call
-        // sites, which lavapipe inlines each: 3x slower).
-        let name = match (packing.layout, packing.texture) {
-            (_, Texture::Block) => "btf/shade_block",
-            (Layout::Rows, _) => "btf/shade_rows",
-            (Layout::Layers, _) => "btf/shade_layers",
+        // sites, which lavapipe inlines each: 3x slower); `_tiles`: over a tile list.
+        let name = match (packing.layout, packing.texture, tiles.is_some()) {
+            (_, Texture::Block, false) => "btf/shade_block",
+            (Layout::Rows, _, false) => "btf/shade_rows",
+            (Layout::Layers, _, false) => "btf/shade_layers",
+            (_, Texture::Block, true) => "btf/shade_block_tiles",
+            (Layout::Rows, _, true) => "btf/shade_rows_tiles",
+            (Layout::Layers, _, true) => "btf/shade_layers_tiles",
         };
         let pipeline = crate::shaders::pipeline(&ctx, name)?;
         let arrays = Self::arrays_of(rec, prep)?;
@@ -111,7 +163,7 @@ impl BtfKernel {
             "btf result",
             BufferDesc::storage(w as u64 * h as u64 * 16),
         )?;
-        let images = (&map, gbuffer, &result);
+        let images = (&map, gbuffer, &result, tiles.as_ref());
         let (bind, _sampler) = Self::bind(&ctx, &pipeline, packing.texture, &arrays, images)?;
         Ok(BtfKernel {
             ctx,
@@ -123,6 +175,7 @@ impl BtfKernel {
             map,
             gbuffer: None,
             result,
+            tiles,
             size: prep.size,
         })
     }
@@ -146,19 +199,22 @@ impl BtfKernel {
     }
 
     /// The bind group of `btf shade` (and the tile sampler of the sampled formats) over the
-    /// arrays, then the direction map, G-buffer and result.
+    /// arrays, then the direction map, G-buffer, result and tile list.
     fn bind(
         ctx: &Context,
         pipeline: &ComputePipeline,
         texture: Texture,
         arrays: &[Image],
-        (map, gbuffer, result): (&Image, &Image, &Buffer),
+        (map, gbuffer, result, tiles): (&Image, &Image, &Buffer, Option<&Buffer>),
     ) -> Result<(BindGroup, Option<Sampler>)> {
-        let common = [
+        let mut common = vec![
             ("dir_map", Resource::texture(map)),
             ("gbuffer", Resource::texture(gbuffer)),
             ("result", Resource::Buffer(result)),
         ];
+        if let Some(t) = tiles {
+            common.push(("tiles", Resource::Buffer(t)));
+        }
         let writes = [("result", AccessSet::from(A::ComputeShaderWrite))];
         if texture == Texture::Block {
             let mut res = vec![("btf_blocks", Resource::texture(&arrays[0]))];
@@ -278,6 +334,18 @@ impl Kernel for BtfKernel {
     }
 
     fn pass_table(&self) -> Vec<Pass<'_, Self>> {
+        if let Some(tiles) = &self.tiles {
+            return vec![Pass::dispatch_indirect(
+                PASS_SHADE,
+                &self.pipeline,
+                &self.bind,
+                IndirectArgs {
+                    buffer: tiles,
+                    offset: 0,
+                },
+                |k, frame| k.push(frame),
+            )];
+        }
         vec![Pass::dispatch(
             PASS_SHADE,
             &self.pipeline,

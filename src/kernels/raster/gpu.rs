@@ -2,16 +2,25 @@
 //! bound as they are (any buffers of the pose layout: vec4 per vertex), a visibility buffer
 //! of 64-bit keys, the visibility pass's counters and the G-buffer image (three RGBA32F
 //! layers, storage for the resolve pass and sampled for the BTF pass).
+//!
+//! [`Tiling::Tiles`] (the default): the work after the visibility pass is done only where
+//! the mesh is. The visibility pass flags every 16 x 4 tile ([`TILE`]) holding a covered
+//! pixel; `raster tiles` lists those tiles, followed by the tiles covered last frame and not
+//! this one, in a buffer that is also the `VkDispatchIndirectCommand` of `raster resolve`
+//! (and of a BTF pass shading the G-buffer: [`RasterKernel::tiles`]); `raster clear` resets
+//! only the keys of last frame's covered tiles. Pixels outside every listed tile hold what
+//! the kernel's creation cleared them to (empty keys, G-buffer tag 0), so the outputs are
+//! those of [`Tiling::Full`], which clears and resolves every pixel, bit for bit.
 
-pub use super::pack::{Camera, Counters, Prepared, counter};
+pub use super::pack::{Camera, Counters, Prepared, TILE, counter, tile_grid};
 
-use super::pack::{resolve_push, visibility_push};
+use super::pack::{resolve_push_mode, visibility_push};
 use crate::error::{Error, Result};
 use crate::gpu::{
     AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context, Image,
     ImageDesc, ImageRegion, MemoryReport, Readback, Recorder, Resource,
 };
-use crate::kernels::{Dispatch, Grid, Kernel, Pass};
+use crate::kernels::{Dispatch, Grid, IndirectArgs, Kernel, Pass};
 use crate::scene::gbuffer::GBuffer;
 use ash::vk;
 
@@ -19,8 +28,32 @@ use ash::vk;
 pub const PASS_CLEAR: &str = "raster clear";
 /// Label of the per-triangle visibility pass.
 pub const PASS_VISIBILITY: &str = "raster visibility";
+/// Label of the pass listing the tiles the frame covers ([`Tiling::Tiles`] only).
+pub const PASS_TILES: &str = "raster tiles";
 /// Label of the per-pixel resolve pass writing the G-buffer.
 pub const PASS_RESOLVE: &str = "raster resolve";
+/// Workgroups of `raster clear` walking the previous frame's tile list.
+const CLEAR_GROUPS: u32 = 16;
+
+/// Where the passes after the visibility pass work.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Tiling {
+    /// Only on the tiles the mesh covers (this frame's and last frame's), dispatched
+    /// indirectly over the tile list the GPU writes.
+    Tiles,
+    /// On every pixel of the image.
+    Full,
+}
+
+/// The tile list of one frame, read back: tile indices `ty * tiles_x + tx` ([`tile_grid`]).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct TileList {
+    /// Tiles holding a covered pixel this frame (sorted).
+    pub covered: Vec<u32>,
+    /// Tiles covered last frame and not this one, whose pixels this frame made empty
+    /// (sorted).
+    pub stale: Vec<u32>,
+}
 
 /// The posed geometry the rasteriser reads: vec4 per vertex, in the mesh's vertex order
 /// (positions w = 1, unit normals w = 0, unit tangents along +u with w = handedness).
@@ -42,6 +75,8 @@ pub struct RasterOutput {
     pub keys: Vec<u64>,
     /// The visibility pass's counters ([`counter`]).
     pub counters: Counters,
+    /// The frame's tile list ([`Tiling::Tiles`]; `None` for [`Tiling::Full`]).
+    pub tiles: Option<TileList>,
 }
 
 impl RasterOutput {
@@ -57,6 +92,7 @@ pub struct RasterReadback {
     gbuffer: Readback,
     keys: Readback,
     counters: Readback,
+    tiles: Option<Readback>,
 }
 
 /// The GPU kernel. Input: the frame's camera.
@@ -65,15 +101,21 @@ pub struct RasterKernel {
     clear: (ComputePipeline, BindGroup),
     visibility: (ComputePipeline, BindGroup),
     resolve: (ComputePipeline, BindGroup),
+    list: (ComputePipeline, BindGroup),
     triangles: Buffer,
     uvs: Buffer,
     keys: Buffer,
     counters: Buffer,
+    /// One word per tile: set by the visibility pass where a pixel is covered.
+    flags: Buffer,
+    /// (length, 1, 1, covered) then the list, then as many words of scratch.
+    tiles: Buffer,
     gbuffer: Image,
     size: [u32; 2],
     triangle_count: u32,
     row: u32,
     uv_scale: f32,
+    tiling: Tiling,
 }
 
 /// Checks that `ctx` has 64-bit buffer atomics enabled, naming the feature if not.
@@ -99,8 +141,21 @@ pub fn check_device(ctx: &Context) -> Result<()> {
 impl RasterKernel {
     /// Uploads `prep`'s triangles and UVs (recorded into `rec`), creates the visibility
     /// buffer, counters and G-buffer, and binds `posed` (whose vertex count must be
-    /// `prep.vertex_count`).
+    /// `prep.vertex_count`). The passes after the visibility pass work on the tiles the
+    /// mesh covers ([`Tiling::Tiles`]).
     pub fn new(rec: &mut Recorder, prep: &Prepared, posed: &Posed<'_>) -> Result<RasterKernel> {
+        Self::with_tiling(rec, prep, posed, Tiling::Tiles)
+    }
+
+    /// As [`RasterKernel::new`], choosing where the passes after the visibility pass work.
+    /// The initial clears of the visibility buffer, tile flags, tile list and G-buffer
+    /// are recorded into `rec`.
+    pub fn with_tiling(
+        rec: &mut Recorder,
+        prep: &Prepared,
+        posed: &Posed<'_>,
+        tiling: Tiling,
+    ) -> Result<RasterKernel> {
         let ctx = rec.context();
         check_device(&ctx)?;
         let verts = prep.vertex_count as u64 * 16;
@@ -161,9 +216,23 @@ impl RasterKernel {
         let pixels = w as u64 * h as u64;
         let keys = Buffer::new(&ctx, "raster visibility", BufferDesc::storage(pixels * 8))?;
         let counters = Buffer::new(&ctx, "raster counters", BufferDesc::storage(32))?;
+        let [tx, ty] = tile_grid(prep.size);
+        let n_tiles = tx as u64 * ty as u64;
+        let flags = Buffer::new(&ctx, "raster tile flags", BufferDesc::storage(n_tiles * 4))?;
+        let tiles = Buffer::new(
+            &ctx,
+            "raster tiles",
+            BufferDesc::storage(16 + n_tiles * 8).usage(vk::BufferUsageFlags::INDIRECT_BUFFER),
+        )?;
         let gb_desc = ImageDesc::d2_array(vk::Format::R32G32B32A32_SFLOAT, [w, h], 3)
-            .usage(vk::ImageUsageFlags::STORAGE);
+            .usage(vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST);
         let gbuffer = Image::new(&ctx, "raster gbuffer", gb_desc)?;
+        // The state every frame starts from outside the previous frame's tiles: no key, no
+        // flag, an empty list, an empty G-buffer.
+        rec.fill_buffer(&keys, u32::MAX)?;
+        rec.fill_buffer(&flags, 0)?;
+        rec.upload(&tiles, 0, &[0u32, 1, 1, 0])?;
+        rec.clear_image(&gbuffer, gbuffer.all(), [0.0; 4])?;
 
         let write = AccessSet::from(A::ComputeShaderWrite);
         let p = crate::shaders::pipeline(&ctx, "raster/clear")?;
@@ -171,6 +240,7 @@ impl RasterKernel {
             &[
                 ("vis", Resource::Buffer(&keys)),
                 ("counters", Resource::Buffer(&counters)),
+                ("tiles", Resource::Buffer(&tiles)),
             ],
             &[("vis", write), ("counters", write)],
         )?;
@@ -181,8 +251,15 @@ impl RasterKernel {
             ("tris", Resource::Buffer(&triangles)),
             ("vis", Resource::Buffer(&keys)),
             ("counters", Resource::Buffer(&counters)),
+            ("flags", Resource::Buffer(&flags)),
         ])?;
         let visibility = (p, b);
+        let p = crate::shaders::pipeline(&ctx, "raster/tiles")?;
+        let b = p.bind(&[
+            ("flags", Resource::Buffer(&flags)),
+            ("tiles", Resource::Buffer(&tiles)),
+        ])?;
+        let list = (p, b);
         let p = crate::shaders::pipeline(&ctx, "raster/resolve")?;
         let b = p.bind_declared(
             &[
@@ -193,6 +270,7 @@ impl RasterKernel {
                 ("tris", Resource::Buffer(&triangles)),
                 ("vis", Resource::Buffer(&keys)),
                 ("gbuffer", Resource::storage_image(&gbuffer)),
+                ("tiles", Resource::Buffer(&tiles)),
             ],
             &[("gbuffer", write)],
         )?;
@@ -202,16 +280,37 @@ impl RasterKernel {
             clear,
             visibility,
             resolve,
+            list,
             triangles,
             uvs,
             keys,
             counters,
+            flags,
+            tiles,
             gbuffer,
             size: prep.size,
             triangle_count: prep.triangles.len() as u32,
             row: prep.row,
             uv_scale: prep.uv_scale,
+            tiling,
         })
+    }
+
+    /// Where the passes after the visibility pass work.
+    pub fn tiling(&self) -> Tiling {
+        self.tiling
+    }
+
+    /// The tile list `raster tiles` writes each frame ([`Tiling::Tiles`]; `None` for
+    /// [`Tiling::Full`]), for a pass shading the G-buffer over the same tiles. u32 words:
+    /// `(length, 1, 1, covered)` (a `VkDispatchIndirectCommand` at offset 0: one workgroup
+    /// per listed tile), then `length` tile indices `ty * tiles_x + tx` of [`TILE`]-sized
+    /// tiles ([`tile_grid`]): first the tiles covered this frame, then those covered only
+    /// last frame (empty in this frame's G-buffer). A pass shading every listed tile each
+    /// frame keeps empty pixels empty everywhere, provided it starts from an all-empty
+    /// output. INDIRECT_BUFFER usage.
+    pub fn tiles(&self) -> Option<&Buffer> {
+        (self.tiling == Tiling::Tiles).then_some(&self.tiles)
     }
 
     /// The G-buffer image the resolve pass writes (bind it as a texture to shade it).
@@ -253,30 +352,57 @@ impl Kernel for RasterKernel {
         let (cp, cb) = (&self.clear.0, &self.clear.1);
         let (vp, vb) = (&self.visibility.0, &self.visibility.1);
         let (rp, rb) = (&self.resolve.0, &self.resolve.1);
-        vec![
-            Pass::dispatch(PASS_CLEAR, cp, cb, |k, _| {
+        let (tp, tb) = (&self.list.0, &self.list.1);
+        let clear = Pass::dispatch(PASS_CLEAR, cp, cb, |k: &Self, _| {
+            let [w, h] = k.size;
+            Ok(match k.tiling {
                 // One invocation per pixel on a 2D grid (a 1D one would pass the 65535
-                // workgroups Vulkan guarantees at 2048^2); row 0 also clears the counters.
-                let [w, h] = k.size;
-                Ok(Dispatch::words(
-                    &[w, h],
-                    Grid::Invocations([w.max(8), h, 1]),
-                ))
-            }),
-            Pass::dispatch(PASS_VISIBILITY, vp, vb, |k, cam| {
-                let grid = k.visibility_grid();
-                Ok(Dispatch {
-                    push: visibility_push(cam, k.size, k.triangle_count, grid[0]),
-                    grid: Grid::Invocations(grid),
-                })
-            }),
-            Pass::dispatch(PASS_RESOLVE, rp, rb, |k, cam| {
-                Ok(Dispatch {
-                    push: resolve_push(cam, k.size, k.uv_scale),
-                    grid: Grid::Invocations([k.size[0], k.size[1], 1]),
-                })
-            }),
-        ]
+                // workgroups Vulkan guarantees at 2048^2).
+                Tiling::Full => Dispatch::words(&[w, h, 0, 0], Grid::Invocations([w, h, 1])),
+                // A few workgroups walking last frame's covered tiles.
+                Tiling::Tiles => {
+                    Dispatch::words(&[w, h, 1, CLEAR_GROUPS], Grid::Groups([CLEAR_GROUPS, 1, 1]))
+                }
+            })
+        });
+        let visibility = Pass::dispatch(PASS_VISIBILITY, vp, vb, |k: &Self, cam| {
+            let grid = k.visibility_grid();
+            Ok(Dispatch {
+                push: visibility_push(cam, k.size, k.triangle_count, grid[0]),
+                grid: Grid::Invocations(grid),
+            })
+        });
+        match self.tiling {
+            Tiling::Full => vec![
+                clear,
+                visibility,
+                Pass::dispatch(PASS_RESOLVE, rp, rb, |k, cam| {
+                    Ok(Dispatch {
+                        push: resolve_push_mode(cam, k.size, k.uv_scale, false),
+                        grid: Grid::Invocations([k.size[0], k.size[1], 1]),
+                    })
+                }),
+            ],
+            Tiling::Tiles => vec![
+                clear,
+                visibility,
+                Pass::dispatch(PASS_TILES, tp, tb, |k, _| {
+                    let [w, h] = k.size;
+                    let [tx, ty] = tile_grid(k.size);
+                    Ok(Dispatch::words(&[w, h, tx, ty], Grid::Groups([1, 1, 1])))
+                }),
+                Pass::dispatch_indirect(
+                    PASS_RESOLVE,
+                    rp,
+                    rb,
+                    IndirectArgs {
+                        buffer: &self.tiles,
+                        offset: 0,
+                    },
+                    |k, cam| Ok(resolve_push_mode(cam, k.size, k.uv_scale, true)),
+                ),
+            ],
+        }
     }
 
     fn check_input(&self, camera: &Camera) -> Result<()> {
@@ -288,6 +414,10 @@ impl Kernel for RasterKernel {
             gbuffer: rec.read_back_image(&self.gbuffer, ImageRegion::whole(self.gbuffer.desc()))?,
             keys: rec.read_back(&self.keys)?,
             counters: rec.read_back(&self.counters)?,
+            tiles: match self.tiling {
+                Tiling::Tiles => Some(rec.read_back(&self.tiles)?),
+                Tiling::Full => None,
+            },
         })
     }
 
@@ -316,11 +446,19 @@ impl Kernel for RasterKernel {
             },
             keys: rb.keys.to_vec()?,
             counters,
+            tiles: rb.tiles.as_ref().map(tile_list).transpose()?,
         })
     }
 
     fn memory(&self) -> MemoryReport {
-        let buffers = [&self.triangles, &self.uvs, &self.keys, &self.counters];
+        let buffers = [
+            &self.triangles,
+            &self.uvs,
+            &self.keys,
+            &self.counters,
+            &self.flags,
+            &self.tiles,
+        ];
         self.ctx.memory_of_resources(
             buffers
                 .into_iter()
@@ -328,4 +466,26 @@ impl Kernel for RasterKernel {
                 .chain([Resource::texture(&self.gbuffer)]),
         )
     }
+}
+
+/// The covered and stale parts of a read-back tile list, each sorted.
+fn tile_list(rb: &Readback) -> Result<TileList> {
+    let words: Vec<u32> = rb.to_vec()?;
+    let (len, covered) = (words[0] as usize, words[3] as usize);
+    let list = words.get(4..4 + len).ok_or_else(|| {
+        Error::InvalidArgument(format!(
+            "tile list of {len} entries in a buffer of {} words",
+            words.len()
+        ))
+    })?;
+    let (mut c, mut s) = (
+        list[..covered.min(len)].to_vec(),
+        list[covered.min(len)..].to_vec(),
+    );
+    c.sort_unstable();
+    s.sort_unstable();
+    Ok(TileList {
+        covered: c,
+        stale: s,
+    })
 }

@@ -137,8 +137,22 @@ pub fn visibility_push(camera: &Camera, size: [u32; 2], triangles: u32, row: u32
     push
 }
 
-/// Push constants of `raster resolve`.
+/// Pixels of a tile (width, height) of the tile list: the workgroup size of `raster
+/// resolve` and `btf shade`, one workgroup per listed tile.
+pub const TILE: [u32; 2] = [16, 4];
+
+/// Tiles per row and per column of a `size` image.
+pub fn tile_grid(size: [u32; 2]) -> [u32; 2] {
+    [size[0].div_ceil(TILE[0]), size[1].div_ceil(TILE[1])]
+}
+
+/// Push constants of `raster resolve` over every pixel.
 pub fn resolve_push(camera: &Camera, size: [u32; 2], uv_scale: f32) -> Vec<u8> {
+    resolve_push_mode(camera, size, uv_scale, false)
+}
+
+/// Push constants of `raster resolve`, over every pixel or (`tiles`) over the tile list.
+pub fn resolve_push_mode(camera: &Camera, size: [u32; 2], uv_scale: f32, tiles: bool) -> Vec<u8> {
     let b = camera.basis(size);
     let f: [[f32; 4]; 4] = [
         vec4(camera.eye, uv_scale),
@@ -147,7 +161,7 @@ pub fn resolve_push(camera: &Camera, size: [u32; 2], uv_scale: f32) -> Vec<u8> {
         vec4(b.up * b.tan_y, 0.0),
     ];
     let mut push: Vec<u8> = bytemuck::cast_slice(&f).to_vec();
-    for u in [size[0], size[1], 0, 0] {
+    for u in [size[0], size[1], tiles as u32, 0] {
         push.extend_from_slice(&u.to_le_bytes());
     }
     push
