@@ -3,7 +3,7 @@
 //! direct ray-cast as references.
 
 use super::Gpu;
-use crate::bench::btf::{Garment, GarmentConfig, garment_passes};
+use crate::bench::btf::{Garment, GarmentConfig};
 use crate::bench::time_passes;
 use crate::error::{Error, Result};
 use crate::gpu::Context;
@@ -197,6 +197,62 @@ pub struct RenderConfig {
     pub error_scale: f32,
     pub out: PathBuf,
     pub bench: crate::bench::BenchConfig,
+    /// Light the cloth by an SG-fitted environment too (pass `btf env`).
+    pub env: Option<EnvConfig>,
+}
+
+/// The environment of `btf render --env`: a map, fitted once with `lobes` SG lobes (on its
+/// 128 x 64 downsampling) and turned `rotate_deg` about +Y.
+#[derive(Clone, Debug, Serialize)]
+pub struct EnvConfig {
+    pub path: PathBuf,
+    pub lobes: usize,
+    pub rotate_deg: f32,
+}
+
+impl EnvConfig {
+    /// The map downsampled to the fit's 128 x 64, the lobes fitted to it and turned by the
+    /// rotation (returned too).
+    pub fn fit(
+        &self,
+    ) -> Result<(
+        crate::scene::envmap::EnvMap,
+        Vec<crate::geom::sg::Lobe>,
+        glam::Mat3,
+    )> {
+        use crate::kernels::srbf::fit::{FitConfig, fit};
+        let map = crate::scene::envmap::EnvMap::load(&self.path)?;
+        let small = map.downsampled(128.min(map.width))?;
+        let fitted = fit(
+            &small.samples(),
+            &FitConfig {
+                lobes: self.lobes,
+                ..FitConfig::default()
+            },
+        )?;
+        let r = crate::geom::sg::rotation(Vec3::Y, self.rotate_deg);
+        let lobes = fitted.lobes.iter().map(|l| l.rotated(r)).collect();
+        Ok((small, lobes, r))
+    }
+}
+
+/// The environment pass against its references (`btf render --env --reference`), over the
+/// covered pixels, the environment's share alone (GPU: the frame again with the directional
+/// lights off).
+#[derive(Clone, Debug, Serialize)]
+pub struct VsEnv {
+    /// Relative L2 against ground truth (1): the BTF's own quadrature of the unfitted,
+    /// rotated map (cell averages of L over the 81 light directions' cells).
+    pub vs_quadrature: f64,
+    /// Relative L2 against ground truth (2): the integral of the kernel's interpolated BTF
+    /// over the map's directions.
+    pub vs_interpolated: f64,
+    /// Relative L2 of (1) against (2): the 81-direction quadrature's own error.
+    pub quadrature_vs_interpolated: f64,
+    /// GPU against the CPU twin: largest |difference| and the largest environment value.
+    pub vs_twin_max_abs: f64,
+    pub env_max: f64,
+    pub truth_ms: f64,
 }
 
 pub use crate::scene::gbuffer::default_lights;
@@ -286,6 +342,10 @@ pub struct RenderReport {
     pub kernel: KernelInfo,
     pub vs_cpu: Option<VsCpu>,
     pub vs_ray_cast: Option<VsRayCast>,
+    /// With --env: the environment, GPU ms of `btf env`, and (with --reference) its errors.
+    pub env: Option<EnvConfig>,
+    pub env_gpu_ms: Option<crate::report::Stats>,
+    pub vs_env: Option<VsEnv>,
     pub png: String,
     pub exr: String,
     pub notes: Vec<String>,
@@ -310,7 +370,7 @@ pub fn render(
         None
     };
     let session = Session::new(ctx, cfg, progress)?;
-    let (vs_cpu, vs_ray_cast, truth) = match &meta {
+    let (vs_cpu, vs_ray_cast, mut truth) = match &meta {
         Some(meta) => {
             let vs_cpu = session.vs_cpu();
             let (vs_ray_cast, truth) = session.vs_ray_cast(meta, progress)?;
@@ -318,8 +378,25 @@ pub fn render(
         }
         None => (None, None, None),
     };
+    let vs_env = match (&session.env, cfg.reference) {
+        (Some(env), true) => {
+            let (vs, t1) = session.vs_env(env, progress)?;
+            // The picture's truth: the directional lights ray-cast plus the environment's
+            // quadrature truth (1).
+            if let Some(t) = truth.as_mut() {
+                for (a, b) in t.iter_mut().zip(&t1) {
+                    for i in 0..3 {
+                        a[i] += b[i];
+                    }
+                }
+            }
+            Some(vs)
+        }
+        _ => None,
+    };
     let (png, exr) = session.pictures(truth.as_deref())?;
-    let report = session.report(vs_cpu, vs_ray_cast, &png, &exr);
+    let mut report = session.report(vs_cpu, vs_ray_cast, &png, &exr);
+    report.vs_env = vs_env;
     crate::io::write_json(&report_path, &report)?;
     Ok(report)
 }
@@ -338,6 +415,19 @@ struct Session<'a> {
     out: Vec<[f32; 4]>,
     gpu_ms: crate::report::Stats,
     host_ms: crate::report::Stats,
+    /// With --env: the lobes (and their buffer, which the kernel reads), the map they were
+    /// fitted to, the rotation, the environment's share of `out` (GPU, lights off) and the
+    /// GPU ms of `btf env`.
+    env: Option<SessionEnv>,
+}
+
+struct SessionEnv {
+    _buffer: crate::gpu::Buffer,
+    lobes: Vec<[f32; 4]>,
+    map: crate::scene::envmap::EnvMap,
+    rotation: glam::Mat3,
+    out: Vec<[f32; 4]>,
+    gpu_ms: crate::report::Stats,
 }
 
 impl<'a> Session<'a> {
@@ -371,19 +461,87 @@ impl<'a> Session<'a> {
         };
         frame.check()?;
         let mut rec = ctx.recorder("btf render")?;
-        let kernel = BtfKernel::new(
-            &mut rec,
-            &BtfInputs {
-                layout: cfg.layout,
-                ..BtfInputs::new(&btf, &maps, &gb, cfg.texture)
-            },
-        )?;
+        let inputs = BtfInputs {
+            layout: cfg.layout,
+            ..BtfInputs::new(&btf, &maps, &gb, cfg.texture)
+        };
+        let (kernel, env) = match &cfg.env {
+            None => (BtfKernel::new(&mut rec, &inputs)?, None),
+            Some(e) => {
+                let t = Instant::now();
+                let (map, lobes, rotation) = e.fit()?;
+                progress(&format!(
+                    "fitted {} lobes to {} in {:.0} ms, turned {} deg about +Y",
+                    lobes.len(),
+                    e.path.display(),
+                    t.elapsed().as_secs_f64() * 1e3,
+                    e.rotate_deg
+                ));
+                let texels = crate::kernels::btf::env::lobe_texels(&lobes);
+                let buffer = rec.buffer_with(
+                    "btf render lobes",
+                    crate::gpu::BufferDesc::storage(16 * texels.len() as u64),
+                    &texels,
+                )?;
+                let l = ctx.limits();
+                let prep = crate::kernels::btf::gpu::Prepared::new(
+                    &inputs,
+                    l.max_image_dimension_2d,
+                    l.max_image_array_layers,
+                )?;
+                let env_in = crate::kernels::btf::gpu::EnvInputs {
+                    lobes: &buffer,
+                    lobe_count: lobes.len() as u32,
+                    visibility: None,
+                };
+                let k = BtfKernel::from_prepared_env(&mut rec, &prep, env_in)?;
+                (k, Some((buffer, texels, map, rotation)))
+            }
+        };
         kernel.record(&mut rec, &frame)?;
         let rb = kernel.read_back(&mut rec)?;
         rec.submit_and_wait()?;
         let out = kernel.collect(&rb)?;
         let timed = time_passes(ctx, &cfg.bench, &kernel, &frame)?;
         let gpu_ms = timed[0].1.clone();
+        let env = match env {
+            None => None,
+            Some((buffer, lobes, map, rotation)) => {
+                // The environment's share alone: the same frame with the lights off.
+                let dark = Frame {
+                    lights: frame
+                        .lights
+                        .iter()
+                        .map(|l| Light {
+                            rgb: [0.0; 3],
+                            ..*l
+                        })
+                        .collect(),
+                    ..frame.clone()
+                };
+                let mut rec = ctx.recorder("btf render env only")?;
+                kernel.record(&mut rec, &dark)?;
+                let rb = kernel.read_back(&mut rec)?;
+                rec.submit_and_wait()?;
+                let env_ms = timed
+                    .iter()
+                    .find(|(n, _)| *n == crate::kernels::btf::gpu::PASS_ENV)
+                    .map(|(_, s)| s.clone())
+                    .ok_or_else(|| Error::InvalidArgument("btf env was not timed".into()))?;
+                progress(&format!(
+                    "btf env {} x {}: {:.3} ms (median GPU)",
+                    cfg.width, cfg.height, env_ms.median
+                ));
+                Some(SessionEnv {
+                    _buffer: buffer,
+                    lobes,
+                    map,
+                    rotation,
+                    out: kernel.collect(&rb)?,
+                    gpu_ms: env_ms,
+                })
+            }
+        };
         // Host time of a frame outside waiting: recording the pass (push constants) and
         // submitting, over as many frames as the GPU timing took.
         let mut host = Vec::new();
@@ -413,7 +571,54 @@ impl<'a> Session<'a> {
             out,
             gpu_ms,
             host_ms,
+            env,
         })
+    }
+
+    /// The environment's share (GPU, lights off) against the twin and the two quadrature
+    /// truths; returns them and truth (1) per pixel.
+    fn vs_env(
+        &self,
+        env: &SessionEnv,
+        progress: &mut dyn FnMut(&str),
+    ) -> Result<(VsEnv, Vec<[f64; 4]>)> {
+        use crate::kernels::btf::env as benv;
+        let sampled = Sampled::of(&self.btf, self.cfg.texture);
+        let packed = sampled.packed(self.btf.size);
+        let cam = &self.frame.camera;
+        let (twin, amb) = benv::shade(&packed, &self.maps, &self.gb, cam, &env.lobes, None);
+        progress("integrating the rotated map over the 81 light directions' cells at every pixel");
+        let t = Instant::now();
+        let (t1, t2) = benv::truths(
+            &packed,
+            &self.maps,
+            &self.gb,
+            cam,
+            &env.map,
+            env.rotation,
+            None,
+        );
+        let truth_ms = t.elapsed().as_secs_f64() * 1e3;
+        let gpu: Vec<[f64; 4]> = env.out.iter().map(|p| p.map(|x| x as f64)).collect();
+        let (mut max, mut peak) = (0.0f64, 0.0f64);
+        for k in 0..gpu.len() {
+            if twin[k][3] == 0.0 || amb[k] {
+                continue;
+            }
+            for i in 0..3 {
+                max = max.max((gpu[k][i] - twin[k][i]).abs());
+                peak = peak.max(twin[k][i]);
+            }
+        }
+        let vs = VsEnv {
+            vs_quadrature: benv::rel_l2(&gpu, &t1),
+            vs_interpolated: benv::rel_l2(&gpu, &t2),
+            quadrature_vs_interpolated: benv::rel_l2(&t1, &t2),
+            vs_twin_max_abs: max,
+            env_max: peak,
+            truth_ms,
+        };
+        Ok((vs, t1))
     }
 
     /// The GPU against the CPU interpolation (f64) of the data the GPU samples (for BC1:
@@ -429,6 +634,23 @@ impl<'a> Session<'a> {
             &self.gb,
             &self.frame,
         );
+        let (mut want, mut ambiguous) = (want, ambiguous);
+        if let Some(env) = &self.env {
+            let (e, amb) = crate::kernels::btf::env::shade(
+                &sampled.packed(self.btf.size),
+                &self.maps,
+                &self.gb,
+                &self.frame.camera,
+                &env.lobes,
+                None,
+            );
+            for k in 0..want.len() {
+                for i in 0..3 {
+                    want[k][i] += e[k][i];
+                }
+                ambiguous[k] |= amb[k];
+            }
+        }
         let cpu_ms = t.elapsed().as_secs_f64() * 1e3;
         let (mut max, mut se, mut n, mut amb) = (0.0f64, 0.0, 0usize, 0usize);
         for k in 0..out.len() {
@@ -468,7 +690,17 @@ impl<'a> Session<'a> {
         meta: &SynthMeta,
         progress: &mut dyn FnMut(&str),
     ) -> Result<(VsRayCast, Vec<[f64; 4]>)> {
-        let (btf, out) = (&self.btf, &self.out);
+        let btf = &self.btf;
+        // The ray-cast holds the directional lights only: compare their share.
+        let out: Vec<[f32; 4]> = match &self.env {
+            None => self.out.clone(),
+            Some(env) => self
+                .out
+                .iter()
+                .zip(&env.out)
+                .map(|(a, e)| [a[0] - e[0], a[1] - e[1], a[2] - e[2], a[3]])
+                .collect(),
+        };
         if meta.synth.size != btf.size || meta.synth.period != btf.size[0] {
             return Err(Error::input(
                 self.cfg.btf.join(META),
@@ -628,6 +860,9 @@ impl<'a> Session<'a> {
             kernel: KernelInfo::of(kernel, 1),
             vs_cpu,
             vs_ray_cast,
+            env: cfg.env.clone(),
+            env_gpu_ms: self.env.as_ref().map(|e| e.gpu_ms.clone()),
+            vs_env: None,
             png: png.display().to_string(),
             exr: exr.display().to_string(),
             notes: RENDER_NOTES.iter().map(|n| n.to_string()).collect(),
@@ -795,6 +1030,17 @@ pub struct RenderArgs {
     /// With --anim: BTF tile repeats per unit of the mesh's uv.
     #[arg(long, default_value_t = 8.0)]
     pub tile_scale: f32,
+    /// Light the cloth by this equirectangular HDR environment too (EXR or .hdr), fitted
+    /// with --env-lobes SG lobes (pass `btf env`); with --reference, the environment's share
+    /// is compared with the BTF's own quadrature of the unfitted map.
+    #[arg(long)]
+    pub env: Option<PathBuf>,
+    /// With --env: turn the environment this many degrees about +Y.
+    #[arg(long, default_value_t = 0.0)]
+    pub rotate: f32,
+    /// With --env: SG lobes fitted to the map.
+    #[arg(long, default_value_t = 32)]
+    pub env_lobes: usize,
 }
 
 impl Command {
@@ -983,6 +1229,11 @@ impl RenderArgs {
             error_scale: self.error_scale,
             out: self.out.clone(),
             bench: crate::bench::BenchConfig::default(),
+            env: self.env.as_ref().map(|p| EnvConfig {
+                path: p.clone(),
+                lobes: self.env_lobes,
+                rotate_deg: self.rotate,
+            }),
         })
     }
 
@@ -1035,6 +1286,25 @@ pub fn display(r: &RenderReport) {
             t.grazing.rmse,
             t.grazing.pixels,
             t.all.psnr_db
+        );
+    }
+    if let (Some(e), Some(ms)) = (&r.env, &r.env_gpu_ms) {
+        println!(
+            "environment {} ({} lobes, turned {} deg): btf env {:.3} ms GPU (median)",
+            e.path.display(),
+            e.lobes,
+            e.rotate_deg,
+            ms.median
+        );
+    }
+    if let Some(v) = &r.vs_env {
+        println!(
+            "environment vs the BTF's quadrature of the map (1): relative L2 {:.4}; vs the interpolated BTF's integral (2): {:.4}; (1) vs (2): {:.4}; vs CPU twin: max {:.2e} (peak {:.3})",
+            v.vs_quadrature,
+            v.vs_interpolated,
+            v.quadrature_vs_interpolated,
+            v.vs_twin_max_abs,
+            v.env_max
         );
     }
     println!(
@@ -1101,7 +1371,7 @@ pub fn render_anim(
         g.animation().name,
         g.animation().duration
     ));
-    let names = garment_passes();
+    let names = g.passes();
     let mut pass = vec![Vec::new(); names.len()];
     let (mut host, mut covered, mut pngs) = (Vec::new(), Vec::new(), Vec::new());
     let [w, h] = cfg.size;
@@ -1183,6 +1453,10 @@ impl RenderArgs {
             map_res: self.map_res,
             texture: self.texture,
             lights: cfg.lights,
+            env_lobes: match &cfg.env {
+                Some(e) => e.fit()?.1,
+                None => Vec::new(),
+            },
         })
     }
 
@@ -1235,7 +1509,11 @@ pub fn bench_anim(gpu: &Gpu, opts: &super::bench::Opts, texture: Texture) -> Res
         map_res: 128,
         texture,
         lights: default_lights(),
+        env_lobes: Vec::new(),
     };
+    // The environment pass (`btf env`, per-pixel light factors) is not timed here: at
+    // 512 x 512 it costs seconds a frame on lavapipe (README, "BTF cloth shading"); `btf
+    // render --env` measures it.
     let ctx = anim_context(gpu, texture)?;
     eprintln!("bench btf --anim on {}", ctx.info().name);
     let r = crate::bench::btf::run_anim(&ctx, &cfg, &bench, 32, &mut |l| super::progress(l))?;

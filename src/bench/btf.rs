@@ -481,6 +481,8 @@ pub struct Garment {
     pose: crate::kernels::pose::PoseKernel,
     raster: crate::kernels::raster::gpu::RasterKernel,
     btf: BtfKernel,
+    /// The lobes `btf env` reads (with `GarmentConfig::env_lobes`).
+    _env_lobes: Option<Buffer>,
 }
 
 /// What a [`Garment`] is built from.
@@ -503,6 +505,10 @@ pub struct GarmentConfig {
     /// Lights (1..=2).
     #[serde(skip)]
     pub lights: Vec<Light>,
+    /// SG environment lobes (world space, already rotated) lighting the cloth too through
+    /// the pass `btf env`; empty: none.
+    #[serde(skip)]
+    pub env_lobes: Vec<crate::geom::sg::Lobe>,
 }
 
 /// Labels of a garment frame's passes, in order.
@@ -605,12 +611,31 @@ impl Garment {
             l.max_image_dimension_2d,
             l.max_image_array_layers,
         )?;
-        // Shaded over the rasteriser's tile list: only where the garment is (or was last
-        // frame), one workgroup per listed tile.
-        let tiles = raster.tiles().ok_or_else(|| {
-            Error::InvalidArgument("the garment's rasteriser has no tile list".into())
-        })?;
-        let btf = BtfKernel::on_gbuffer_tiles(&mut rec, &bprep, raster.gbuffer(), tiles)?;
+        let (btf, env_lobes) = if cfg.env_lobes.is_empty() {
+            // Shaded over the rasteriser's tile list: only where the garment is (or was
+            // last frame), one workgroup per listed tile.
+            let tiles = raster.tiles().ok_or_else(|| {
+                Error::InvalidArgument("the garment's rasteriser has no tile list".into())
+            })?;
+            (
+                BtfKernel::on_gbuffer_tiles(&mut rec, &bprep, raster.gbuffer(), tiles)?,
+                None,
+            )
+        } else {
+            let texels = crate::kernels::btf::env::lobe_texels(&cfg.env_lobes);
+            let buf = rec.buffer_with(
+                "garment env lobes",
+                BufferDesc::storage(16 * texels.len() as u64),
+                &texels,
+            )?;
+            let env = crate::kernels::btf::gpu::EnvInputs {
+                lobes: &buf,
+                lobe_count: cfg.env_lobes.len() as u32,
+                visibility: None,
+            };
+            let k = BtfKernel::on_gbuffer_env(&mut rec, &bprep, raster.gbuffer(), env)?;
+            (k, Some(buf))
+        };
         rec.submit_and_wait()?;
         Ok(Garment {
             character,
@@ -621,7 +646,18 @@ impl Garment {
             pose,
             raster,
             btf,
+            _env_lobes: env_lobes,
         })
+    }
+
+    /// Labels of this garment's passes in order: [`garment_passes`], then `btf env` when
+    /// the cloth is lit by an environment.
+    pub fn passes(&self) -> Vec<&'static str> {
+        let mut p = garment_passes();
+        if self.btf.env_lobes().is_some() {
+            p.push(crate::kernels::btf::gpu::PASS_ENV);
+        }
+        p
     }
 
     /// The animation played.
@@ -708,6 +744,10 @@ pub struct AnimBenchReport {
     /// Same run: `btf shade` alone on the static sphere (same size, texture, lights).
     pub sphere_covered_pixels: usize,
     pub sphere_btf_ms: Stats,
+    /// Same run, same poses: GPU ms of `btf env` (the cloth under the SG environment,
+    /// `GarmentConfig::env_lobes` lobes) on the garment, outside the frame above.
+    pub env_lobes: usize,
+    pub env_ms: Option<Stats>,
     pub targets: Vec<super::ao::TargetCheck>,
 }
 
@@ -722,7 +762,13 @@ pub fn run_anim(
 ) -> Result<AnimBenchReport> {
     let btf = hashed_btf(tile);
     let maps = Maps::build(&Triangulation::new()?, cfg.map_res)?;
-    let g = Garment::new(ctx, cfg, &btf, &maps)?;
+    // The frame of issue 17 (directional lights only); the environment pass is timed on its
+    // own garment below.
+    let plain = GarmentConfig {
+        env_lobes: Vec::new(),
+        ..cfg.clone()
+    };
+    let g = Garment::new(ctx, &plain, &btf, &maps)?;
     let (triangles, vertices) = g.counts();
     progress(&format!(
         "{}: {triangles} triangles, {vertices} vertices at {} x {}",
@@ -788,6 +834,27 @@ pub fn run_anim(
     };
     let sphere_btf_ms = time_passes(ctx, bench, &k, &f)?.remove(0).1;
     drop(k);
+    // Same run: the garment lit by the environment too; GPU ms of `btf env` per frame over
+    // the same poses.
+    let env_ms = if cfg.env_lobes.is_empty() {
+        None
+    } else {
+        let ge = Garment::new(ctx, cfg, &btf, &maps)?;
+        let mut ms = Vec::new();
+        for i in 0..n {
+            let m = ge.matrices(duration * i as f32 / n as f32);
+            let mut rec = ctx.recorder("garment env frame")?;
+            ge.record(&mut rec, &m)?;
+            let t = rec.submit_and_wait()?;
+            if i >= bench.warmup {
+                let name = crate::kernels::btf::gpu::PASS_ENV;
+                ms.push(t.get(name).ok_or_else(|| {
+                    Error::InvalidArgument(format!("pass '{name}' was not timed"))
+                })?);
+            }
+        }
+        Some(Stats::of(&ms).ok_or_else(|| Error::InvalidArgument("no samples".into()))?)
+    };
     let (covered, covered_tiles, listed_tiles) = {
         use crate::kernels::Kernel;
         let mut rec = ctx.recorder("garment coverage")?;
@@ -844,6 +911,8 @@ pub fn run_anim(
         listed_tiles,
         sphere_covered_pixels: sphere.covered(),
         sphere_btf_ms,
+        env_lobes: cfg.env_lobes.len(),
+        env_ms,
         targets,
     })
 }

@@ -18,6 +18,8 @@ use crate::scene::gbuffer::{Frame, MAX_LIGHTS};
 use ash::vk;
 
 pub const PASS_SHADE: &str = "btf shade";
+/// The environment pass ([`BtfKernel::on_gbuffer_env`]), recorded after [`PASS_SHADE`].
+pub const PASS_ENV: &str = "btf env";
 
 /// Host copy of one frame: linear RGBA per pixel (alpha 0 where the G-buffer is empty).
 pub type BtfOutput = Vec<[f32; 4]>;
@@ -39,6 +41,8 @@ pub struct BtfKernel {
     /// ([`BtfKernel::on_gbuffer_tiles`]).
     tiles: Option<Buffer>,
     size: [u32; 2],
+    /// The environment pass, when built with [`BtfKernel::on_gbuffer_env`].
+    env: Option<EnvPass>,
 }
 
 impl BtfKernel {
@@ -177,6 +181,7 @@ impl BtfKernel {
             result,
             tiles,
             size: prep.size,
+            env: None,
         })
     }
 
@@ -334,8 +339,8 @@ impl Kernel for BtfKernel {
     }
 
     fn pass_table(&self) -> Vec<Pass<'_, Self>> {
-        if let Some(tiles) = &self.tiles {
-            return vec![Pass::dispatch_indirect(
+        let mut passes: Vec<Pass<'_, Self>> = match &self.tiles {
+            Some(tiles) => vec![Pass::dispatch_indirect(
                 PASS_SHADE,
                 &self.pipeline,
                 &self.bind,
@@ -344,19 +349,28 @@ impl Kernel for BtfKernel {
                     offset: 0,
                 },
                 |k, frame| k.push(frame),
-            )];
+            )],
+            None => vec![Pass::dispatch(
+                PASS_SHADE,
+                &self.pipeline,
+                &self.bind,
+                |k, frame| {
+                    Ok(Dispatch {
+                        push: k.push(frame)?,
+                        grid: Grid::Invocations([k.size[0], k.size[1], 1]),
+                    })
+                },
+            )],
+        };
+        if let Some(env) = &self.env {
+            passes.push(Pass::dispatch(
+                PASS_ENV,
+                &env.pipeline,
+                &env.bind,
+                |k, frame| k.env_dispatch(frame),
+            ));
         }
-        vec![Pass::dispatch(
-            PASS_SHADE,
-            &self.pipeline,
-            &self.bind,
-            |k, frame| {
-                Ok(Dispatch {
-                    push: k.push(frame)?,
-                    grid: Grid::Invocations([k.size[0], k.size[1], 1]),
-                })
-            },
-        )]
+        passes
     }
 
     fn check_input(&self, frame: &Frame) -> Result<()> {
@@ -378,7 +392,183 @@ impl Kernel for BtfKernel {
             .chain([&self.map])
             .chain(self.gbuffer.as_ref());
         let result = Resource::Buffer(&self.result);
-        self.ctx
-            .memory_of_resources(images.map(Resource::texture).chain([result]))
+        let env = self.env.iter().flat_map(|e| [&e.cells, &e.placeholder]);
+        self.ctx.memory_of_resources(
+            images
+                .map(Resource::texture)
+                .chain([result])
+                .chain(env.map(Resource::Buffer)),
+        )
+    }
+}
+
+/// What the environment pass `btf env` reads besides the kernel's own textures: buffers
+/// another kernel writes on the GPU (e.g. the environment kernel's rotated lobes and
+/// per-pixel visibility) or the caller uploads. The pass declares a read of each.
+#[derive(Clone, Copy)]
+pub struct EnvInputs<'a> {
+    /// Two vec4 per lobe, world space: (axis xyz, sharpness), (amplitude rgb, 0) (radiance;
+    /// [`super::env::lobe_texels`] packs host lobes so).
+    pub lobes: &'a Buffer,
+    /// Lobes the pass reads from `lobes` (at least 1).
+    pub lobe_count: u32,
+    /// Per-lobe visibility per pixel, f32 `[pixel * lobe_count + j]` (pixel = y * width + x
+    /// of the G-buffer); `None`: every lobe fully visible.
+    pub visibility: Option<&'a Buffer>,
+}
+
+/// The pipeline and bindings of `btf env`.
+struct EnvPass {
+    pipeline: ComputePipeline,
+    bind: BindGroup,
+    /// The midpoint rule's sub-cells ([`super::env::cell_texels`]).
+    cells: Buffer,
+    /// Bound as `visibility` when there is none (never read).
+    placeholder: Buffer,
+    lobe_count: u32,
+    has_visibility: bool,
+}
+
+impl BtfKernel {
+    /// As [`BtfKernel::on_gbuffer`], plus the pass `btf env` after `btf shade`: the cloth lit
+    /// by the SG environment in `env` (rotated lobes, optional per-pixel visibility), added
+    /// to the directional lights' result ([`super::env`] has the quadrature).
+    pub fn on_gbuffer_env(
+        rec: &mut Recorder,
+        prep: &Prepared,
+        gbuffer: &Image,
+        env: EnvInputs<'_>,
+    ) -> Result<BtfKernel> {
+        let mut k = Self::on_gbuffer(rec, prep, gbuffer)?;
+        k.env = Some(k.env_pass(rec, gbuffer, env)?);
+        Ok(k)
+    }
+
+    /// As [`BtfKernel::from_prepared`] (G-buffer uploaded from `prep`) with the pass `btf
+    /// env` of [`BtfKernel::on_gbuffer_env`].
+    pub fn from_prepared_env(
+        rec: &mut Recorder,
+        prep: &Prepared,
+        env: EnvInputs<'_>,
+    ) -> Result<BtfKernel> {
+        let mut k = Self::from_prepared(rec, prep)?;
+        let gbuffer = k
+            .gbuffer
+            .take()
+            .ok_or_else(|| Error::InvalidArgument("BTF prepared without a G-buffer".into()))?;
+        k.env = Some(k.env_pass(rec, &gbuffer, env)?);
+        k.gbuffer = Some(gbuffer);
+        Ok(k)
+    }
+
+    fn env_pass(&self, rec: &mut Recorder, gbuffer: &Image, env: EnvInputs<'_>) -> Result<EnvPass> {
+        let j = env.lobe_count as u64;
+        let px = self.size[0] as u64 * self.size[1] as u64;
+        if j == 0 || env.lobes.size() < 32 * j {
+            return Err(Error::InvalidArgument(format!(
+                "btf env: {j} lobes need {} bytes of lobes; '{}' holds {}",
+                32 * j,
+                env.lobes.name(),
+                env.lobes.size()
+            )));
+        }
+        if let Some(v) = env.visibility
+            && v.size() < 4 * j * px
+        {
+            return Err(Error::InvalidArgument(format!(
+                "btf env: visibility '{}' holds {} bytes; {px} pixels x {j} lobes need {}",
+                v.name(),
+                v.size(),
+                4 * j * px
+            )));
+        }
+        let ctx = rec.context();
+        let name = match (self.packing.layout, self.packing.texture) {
+            (_, Texture::Block) => "btf/shade_env_block",
+            (Layout::Rows, _) => "btf/shade_env_rows",
+            (Layout::Layers, _) => "btf/shade_env_layers",
+        };
+        let pipeline = crate::shaders::pipeline(&ctx, name)?;
+        let texels = super::env::cell_texels();
+        let cells = rec.buffer_with(
+            "btf env cells",
+            BufferDesc::storage(16 * texels.len() as u64),
+            &texels,
+        )?;
+        let placeholder =
+            rec.buffer_with("btf env no visibility", BufferDesc::storage(16), &[0f32; 4])?;
+        let mut res = vec![
+            ("dir_map", Resource::texture(&self.map)),
+            ("gbuffer", Resource::texture(gbuffer)),
+            ("result", Resource::Buffer(&self.result)),
+            ("lobes", Resource::Buffer(env.lobes)),
+            (
+                "visibility",
+                Resource::Buffer(env.visibility.unwrap_or(&placeholder)),
+            ),
+            ("cells", Resource::Buffer(&cells)),
+        ];
+        if self.packing.texture == Texture::Block {
+            res.push(("btf_blocks", Resource::texture(&self.arrays[0])));
+        } else {
+            let sampler = self._sampler.as_ref().ok_or_else(|| {
+                Error::InvalidArgument("btf env: sampled BTF without its sampler".into())
+            })?;
+            res.push((
+                "btf",
+                Resource::Array(self.arrays.iter().map(Resource::texture).collect()),
+            ));
+            res.push(("tile_sampler", Resource::Sampler(sampler)));
+        }
+        // `result` is read (the directional lights' sum) and written (plus the environment).
+        let bind = pipeline.bind_declared(
+            &res,
+            &[("result", A::ComputeShaderReadOther | A::ComputeShaderWrite)],
+        )?;
+        Ok(EnvPass {
+            pipeline,
+            bind,
+            cells,
+            placeholder,
+            lobe_count: env.lobe_count,
+            has_visibility: env.visibility.is_some(),
+        })
+    }
+
+    /// Whether the kernel records `btf env`, and how many lobes it reads.
+    pub fn env_lobes(&self) -> Option<u32> {
+        self.env.as_ref().map(|e| e.lobe_count)
+    }
+
+    fn env_dispatch(&self, frame: &Frame) -> Result<Dispatch> {
+        frame.check()?;
+        let env = self.env.as_ref().expect("btf env pass without its state");
+        let mut push: Vec<u8> = frame
+            .camera
+            .push()
+            .iter()
+            .flat_map(|x| x.to_le_bytes())
+            .collect();
+        let p = &self.packing;
+        for u in [
+            self.size[0],
+            self.size[1],
+            env.lobe_count,
+            p.layers_per_array,
+            p.gutter,
+            p.tile[0],
+            p.layer_extent[0],
+            p.tile[1],
+            env.has_visibility as u32,
+            0,
+            0,
+            0,
+        ] {
+            push.extend_from_slice(&u.to_le_bytes());
+        }
+        Ok(Dispatch {
+            push,
+            grid: Grid::Invocations([self.size[0], self.size[1], 1]),
+        })
     }
 }

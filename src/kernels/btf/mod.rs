@@ -11,6 +11,7 @@ pub mod block;
 pub mod cloth;
 pub mod cpu;
 pub mod dirs;
+pub mod env;
 pub mod gpu;
 pub mod load;
 pub mod pack;
