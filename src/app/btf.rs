@@ -3,7 +3,7 @@
 //! direct ray-cast as references.
 
 use super::Gpu;
-use crate::bench::btf::{Garment, GarmentConfig, garment_passes};
+use crate::bench::btf::{Garment, GarmentConfig};
 use crate::bench::time_passes;
 use crate::error::{Error, Result};
 use crate::gpu::Context;
@@ -1101,7 +1101,7 @@ pub fn render_anim(
         g.animation().name,
         g.animation().duration
     ));
-    let names = garment_passes();
+    let names = g.passes();
     let mut pass = vec![Vec::new(); names.len()];
     let (mut host, mut covered, mut pngs) = (Vec::new(), Vec::new(), Vec::new());
     let [w, h] = cfg.size;
@@ -1183,6 +1183,7 @@ impl RenderArgs {
             map_res: self.map_res,
             texture: self.texture,
             lights: cfg.lights,
+            tiles: true,
         })
     }
 
@@ -1235,6 +1236,7 @@ pub fn bench_anim(gpu: &Gpu, opts: &super::bench::Opts, texture: Texture) -> Res
         map_res: 128,
         texture,
         lights: default_lights(),
+        tiles: true,
     };
     let ctx = anim_context(gpu, texture)?;
     eprintln!("bench btf --anim on {}", ctx.info().name);
@@ -1269,6 +1271,26 @@ pub fn bench_anim(gpu: &Gpu, opts: &super::bench::Opts, texture: Texture) -> Res
         r.sphere_btf_ms.median,
         1000.0 / r.sphere_btf_ms.median
     );
+    if let Some(cpu) = r.cpu_ms_per_frame {
+        println!(
+            "cpu                    {cpu:.3} ms of process CPU time per frame (lavapipe's workers included; 2 in flight)"
+        );
+    }
+    if let Some(e) = &r.every_pixel {
+        let passes: Vec<String> = e
+            .pass_ms
+            .iter()
+            .map(|(n, s)| format!("{n} {:.3}", s.median))
+            .collect();
+        println!(
+            "same run               every pixel (no tile list): {:.3} ms GPU = {:.1} fps; wall clock {:.1} fps; cpu {} ms per frame; per pass ms: {}",
+            e.frame_gpu_ms.median,
+            1000.0 / e.frame_gpu_ms.median,
+            e.fps_wall,
+            e.cpu_ms_per_frame.map_or("-".into(), |c| format!("{c:.3}")),
+            passes.join(", ")
+        );
+    }
     println!(
         "tiles                  {} of 16 x 4 px hold a covered pixel, {} listed with last frame's: raster resolve and btf shade run {} px of {}",
         r.covered_tiles,
