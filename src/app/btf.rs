@@ -1457,6 +1457,7 @@ impl RenderArgs {
                 Some(e) => e.fit()?.1,
                 None => Vec::new(),
             },
+            tiles: true,
         })
     }
 
@@ -1510,6 +1511,7 @@ pub fn bench_anim(gpu: &Gpu, opts: &super::bench::Opts, texture: Texture) -> Res
         texture,
         lights: default_lights(),
         env_lobes: Vec::new(),
+        tiles: true,
     };
     // The environment pass (`btf env`, per-pixel light factors) is not timed here: at
     // 512 x 512 it costs seconds a frame on lavapipe (README, "BTF cloth shading"); `btf
@@ -1547,6 +1549,26 @@ pub fn bench_anim(gpu: &Gpu, opts: &super::bench::Opts, texture: Texture) -> Res
         r.sphere_btf_ms.median,
         1000.0 / r.sphere_btf_ms.median
     );
+    if let Some(cpu) = r.cpu_ms_per_frame {
+        println!(
+            "cpu                    {cpu:.3} ms of process CPU time per frame (lavapipe's workers included; 2 in flight)"
+        );
+    }
+    if let Some(e) = &r.every_pixel {
+        let passes: Vec<String> = e
+            .pass_ms
+            .iter()
+            .map(|(n, s)| format!("{n} {:.3}", s.median))
+            .collect();
+        println!(
+            "same run               every pixel (no tile list): {:.3} ms GPU = {:.1} fps; wall clock {:.1} fps; cpu {} ms per frame; per pass ms: {}",
+            e.frame_gpu_ms.median,
+            1000.0 / e.frame_gpu_ms.median,
+            e.fps_wall,
+            e.cpu_ms_per_frame.map_or("-".into(), |c| format!("{c:.3}")),
+            passes.join(", ")
+        );
+    }
     println!(
         "tiles                  {} of 16 x 4 px hold a covered pixel, {} listed with last frame's: raster resolve and btf shade run {} px of {}",
         r.covered_tiles,

@@ -505,8 +505,11 @@ pub struct GarmentConfig {
     /// Lights (1..=2).
     #[serde(skip)]
     pub lights: Vec<Light>,
+    /// Resolve and shade over the rasteriser's tile list (false: every pixel, the path
+    /// before the tile list; `bench btf --anim` times it in the same run).
+    pub tiles: bool,
     /// SG environment lobes (world space, already rotated) lighting the cloth too through
-    /// the pass `btf env`; empty: none.
+    /// the pass `btf env` (every pixel); empty: none.
     #[serde(skip)]
     pub env_lobes: Vec<crate::geom::sg::Lobe>,
 }
@@ -601,7 +604,12 @@ impl Garment {
             normals: pose.normals(),
             tangents: pose.tangents(),
         };
-        let raster = RasterKernel::new(&mut rec, &rprep, &posed)?;
+        let tiling = if cfg.tiles {
+            raster::gpu::Tiling::Tiles
+        } else {
+            raster::gpu::Tiling::Full
+        };
+        let raster = RasterKernel::with_tiling(&mut rec, &rprep, &posed, tiling)?;
         let l = ctx.limits();
         let unused = GBuffer::tile([1, 1]);
         let inputs = BtfInputs::new(btf, maps, &unused, cfg.texture);
@@ -611,30 +619,33 @@ impl Garment {
             l.max_image_dimension_2d,
             l.max_image_array_layers,
         )?;
-        let (btf, env_lobes) = if cfg.env_lobes.is_empty() {
-            // Shaded over the rasteriser's tile list: only where the garment is (or was
-            // last frame), one workgroup per listed tile.
-            let tiles = raster.tiles().ok_or_else(|| {
-                Error::InvalidArgument("the garment's rasteriser has no tile list".into())
-            })?;
-            (
+        // Shaded over the rasteriser's tile list: only where the garment is (or was last
+        // frame), one workgroup per listed tile.
+        let (btf, env_lobes) = match (raster.tiles(), cfg.env_lobes.is_empty()) {
+            (Some(tiles), true) => (
                 BtfKernel::on_gbuffer_tiles(&mut rec, &bprep, raster.gbuffer(), tiles)?,
                 None,
-            )
-        } else {
-            let texels = crate::kernels::btf::env::lobe_texels(&cfg.env_lobes);
-            let buf = rec.buffer_with(
-                "garment env lobes",
-                BufferDesc::storage(16 * texels.len() as u64),
-                &texels,
-            )?;
-            let env = crate::kernels::btf::gpu::EnvInputs {
-                lobes: &buf,
-                lobe_count: cfg.env_lobes.len() as u32,
-                visibility: None,
-            };
-            let k = BtfKernel::on_gbuffer_env(&mut rec, &bprep, raster.gbuffer(), env)?;
-            (k, Some(buf))
+            ),
+            (None, true) => (
+                BtfKernel::on_gbuffer(&mut rec, &bprep, raster.gbuffer())?,
+                None,
+            ),
+            (_, false) => {
+                // The environment pass runs over every pixel (it has no tile list yet).
+                let texels = crate::kernels::btf::env::lobe_texels(&cfg.env_lobes);
+                let buf = rec.buffer_with(
+                    "garment env lobes",
+                    BufferDesc::storage(16 * texels.len() as u64),
+                    &texels,
+                )?;
+                let env = crate::kernels::btf::gpu::EnvInputs {
+                    lobes: &buf,
+                    lobe_count: cfg.env_lobes.len() as u32,
+                    visibility: None,
+                };
+                let k = BtfKernel::on_gbuffer_env(&mut rec, &bprep, raster.gbuffer(), env)?;
+                (k, Some(buf))
+            }
         };
         rec.submit_and_wait()?;
         Ok(Garment {
@@ -648,16 +659,6 @@ impl Garment {
             btf,
             _env_lobes: env_lobes,
         })
-    }
-
-    /// Labels of this garment's passes in order: [`garment_passes`], then `btf env` when
-    /// the cloth is lit by an environment.
-    pub fn passes(&self) -> Vec<&'static str> {
-        let mut p = garment_passes();
-        if self.btf.env_lobes().is_some() {
-            p.push(crate::kernels::btf::gpu::PASS_ENV);
-        }
-        p
     }
 
     /// The animation played.
@@ -696,6 +697,19 @@ impl Garment {
             self.character.mesh.triangles.len(),
             self.character.mesh.positions.len(),
         )
+    }
+
+    /// Labels of its frame's passes, in order ([`garment_passes`] without `raster tiles`
+    /// when the garment is shaded over every pixel).
+    pub fn passes(&self) -> Vec<&'static str> {
+        let mut names = garment_passes();
+        if self.raster.tiles().is_none() {
+            names.retain(|n| *n != crate::kernels::raster::gpu::PASS_TILES);
+        }
+        if self.btf.env_lobes().is_some() {
+            names.push(crate::kernels::btf::gpu::PASS_ENV);
+        }
+        names
     }
 
     /// The rasteriser writing the garment's G-buffer and tile list.
@@ -744,39 +758,46 @@ pub struct AnimBenchReport {
     /// Same run: `btf shade` alone on the static sphere (same size, texture, lights).
     pub sphere_covered_pixels: usize,
     pub sphere_btf_ms: Stats,
-    /// Same run, same poses: GPU ms of `btf env` (the cloth under the SG environment,
-    /// `GarmentConfig::env_lobes` lobes) on the garment, outside the frame above.
-    pub env_lobes: usize,
-    pub env_ms: Option<Stats>,
+    /// CPU ms of the whole process per frame over the wall-clock frames (lavapipe's
+    /// workers included: on a CPU device, the frame's work in CPU time, which other
+    /// processes' load changes less than wall time); None where /proc is not readable.
+    pub cpu_ms_per_frame: Option<f64>,
+    /// Same run, the frame over every pixel (no tile list; GPU ms per pass, wall fps and
+    /// CPU ms per frame), when measured.
+    pub every_pixel: Option<EveryPixel>,
     pub targets: Vec<super::ao::TargetCheck>,
 }
 
-/// `bench btf --anim`: skinning + G-buffer + BTF of the garment per frame, timed over poses
-/// spread across the animation (hashed BTF texels: the work does not depend on them).
-pub fn run_anim(
-    ctx: &Context,
-    cfg: &GarmentConfig,
-    bench: &BenchConfig,
-    tile: u32,
-    progress: &mut dyn FnMut(&str),
-) -> Result<AnimBenchReport> {
-    let btf = hashed_btf(tile);
-    let maps = Maps::build(&Triangulation::new()?, cfg.map_res)?;
-    // The frame of issue 17 (directional lights only); the environment pass is timed on its
-    // own garment below.
-    let plain = GarmentConfig {
-        env_lobes: Vec::new(),
-        ..cfg.clone()
-    };
-    let g = Garment::new(ctx, &plain, &btf, &maps)?;
-    let (triangles, vertices) = g.counts();
-    progress(&format!(
-        "{}: {triangles} triangles, {vertices} vertices at {} x {}",
-        cfg.parts.join("+"),
-        cfg.size[0],
-        cfg.size[1]
-    ));
-    let names = garment_passes();
+/// The every-pixel frame of `bench btf --anim`, timed in the same run.
+#[derive(Clone, Debug, Serialize)]
+pub struct EveryPixel {
+    /// Median GPU ms of each pass.
+    pub pass_ms: Vec<(&'static str, Stats)>,
+    /// Median GPU ms of a whole frame.
+    pub frame_gpu_ms: Stats,
+    /// Frames per second of wall clock with two frames in flight and no readback.
+    pub fps_wall: f64,
+    /// CPU ms of the process per frame over those frames.
+    pub cpu_ms_per_frame: Option<f64>,
+}
+
+/// CPU seconds (user + system, all threads) this process has used, from /proc/self/stat.
+fn process_cpu_s() -> Option<f64> {
+    let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+    // Fields after the command name (which may hold spaces) end with ')'.
+    let rest = &stat[stat.rfind(')')? + 2..];
+    let f: Vec<&str> = rest.split_whitespace().collect();
+    let ticks: f64 = f.get(11)?.parse::<f64>().ok()? + f.get(12)?.parse::<f64>().ok()?;
+    // The kernel reports in USER_HZ, 100 on Linux.
+    Some(ticks / 100.0)
+}
+
+/// Times `g`'s frames: per-pass GPU ms over `bench.warmup + bench.samples` poses, then the
+/// wall-clock fps and process CPU ms per frame with two frames in flight.
+type FrameTimes = (Vec<Vec<f64>>, Vec<f64>, Vec<f64>, f64, Option<f64>);
+
+fn time_garment(ctx: &Context, g: &Garment, bench: &BenchConfig) -> Result<FrameTimes> {
+    let names = g.passes();
     let n = bench.warmup + bench.samples.max(1);
     let duration = g.animation().duration;
     let mut samples = vec![Vec::new(); names.len()];
@@ -805,6 +826,7 @@ pub fn run_anim(
     }
     // Wall clock: two frames in flight, no readback (the figure a renderer would see).
     let frames = bench.samples.max(10);
+    let cpu0 = process_cpu_s();
     let t0 = Instant::now();
     let mut pending = std::collections::VecDeque::new();
     for i in 0..frames {
@@ -822,6 +844,34 @@ pub fn run_anim(
         s.wait()?;
     }
     let fps_wall = frames as f64 / t0.elapsed().as_secs_f64();
+    let cpu = match (cpu0, process_cpu_s()) {
+        (Some(a), Some(b)) => Some((b - a) * 1e3 / frames as f64),
+        _ => None,
+    };
+    Ok((samples, frame_ms, host_ms, fps_wall, cpu))
+}
+
+/// `bench btf --anim`: skinning + G-buffer + BTF of the garment per frame, timed over poses
+/// spread across the animation (hashed BTF texels: the work does not depend on them).
+pub fn run_anim(
+    ctx: &Context,
+    cfg: &GarmentConfig,
+    bench: &BenchConfig,
+    tile: u32,
+    progress: &mut dyn FnMut(&str),
+) -> Result<AnimBenchReport> {
+    let btf = hashed_btf(tile);
+    let maps = Maps::build(&Triangulation::new()?, cfg.map_res)?;
+    let g = Garment::new(ctx, cfg, &btf, &maps)?;
+    let (triangles, vertices) = g.counts();
+    progress(&format!(
+        "{}: {triangles} triangles, {vertices} vertices at {} x {}",
+        cfg.parts.join("+"),
+        cfg.size[0],
+        cfg.size[1]
+    ));
+    let names = g.passes();
+    let (samples, frame_ms, host_ms, fps_wall, cpu_ms_per_frame) = time_garment(ctx, &g, bench)?;
     // Same run: `btf shade` alone on the static sphere at the same size, texture and lights
     // (the reference the static bench's fps is for).
     let sphere = render_object(Object::Sphere, cfg.size[0], cfg.size[1])?;
@@ -834,27 +884,6 @@ pub fn run_anim(
     };
     let sphere_btf_ms = time_passes(ctx, bench, &k, &f)?.remove(0).1;
     drop(k);
-    // Same run: the garment lit by the environment too; GPU ms of `btf env` per frame over
-    // the same poses.
-    let env_ms = if cfg.env_lobes.is_empty() {
-        None
-    } else {
-        let ge = Garment::new(ctx, cfg, &btf, &maps)?;
-        let mut ms = Vec::new();
-        for i in 0..n {
-            let m = ge.matrices(duration * i as f32 / n as f32);
-            let mut rec = ctx.recorder("garment env frame")?;
-            ge.record(&mut rec, &m)?;
-            let t = rec.submit_and_wait()?;
-            if i >= bench.warmup {
-                let name = crate::kernels::btf::gpu::PASS_ENV;
-                ms.push(t.get(name).ok_or_else(|| {
-                    Error::InvalidArgument(format!("pass '{name}' was not timed"))
-                })?);
-            }
-        }
-        Some(Stats::of(&ms).ok_or_else(|| Error::InvalidArgument("no samples".into()))?)
-    };
     let (covered, covered_tiles, listed_tiles) = {
         use crate::kernels::Kernel;
         let mut rec = ctx.recorder("garment coverage")?;
@@ -872,6 +901,30 @@ pub fn run_anim(
         (covered, c, c + s)
     };
     let stats = |s: &[f64]| Stats::of(s).ok_or_else(|| Error::InvalidArgument("no samples".into()));
+    // Same run: the frame over every pixel (the path before the tile list).
+    let every_pixel = if cfg.tiles {
+        progress("the same frame over every pixel (same run)");
+        let full_cfg = GarmentConfig {
+            tiles: false,
+            ..cfg.clone()
+        };
+        let full = Garment::new(ctx, &full_cfg, &btf, &maps)?;
+        let (samples, frame_ms, _, fps_wall, cpu_ms_per_frame) = time_garment(ctx, &full, bench)?;
+        let pass_ms = full
+            .passes()
+            .into_iter()
+            .zip(&samples)
+            .map(|(n, s)| Ok((n, stats(s)?)))
+            .collect::<Result<_>>()?;
+        Some(EveryPixel {
+            pass_ms,
+            frame_gpu_ms: stats(&frame_ms)?,
+            fps_wall,
+            cpu_ms_per_frame,
+        })
+    } else {
+        None
+    };
     let pass_ms: Vec<(&'static str, Stats)> = names
         .iter()
         .zip(&samples)
@@ -911,8 +964,8 @@ pub fn run_anim(
         listed_tiles,
         sphere_covered_pixels: sphere.covered(),
         sphere_btf_ms,
-        env_lobes: cfg.env_lobes.len(),
-        env_ms,
+        cpu_ms_per_frame,
+        every_pixel,
         targets,
     })
 }
