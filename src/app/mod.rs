@@ -5,6 +5,7 @@
 pub mod ao;
 pub mod bench;
 pub mod btf;
+pub mod env;
 pub mod info;
 pub mod scene;
 pub mod shaders;

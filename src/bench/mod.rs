@@ -3,6 +3,7 @@
 
 pub mod ao;
 pub mod btf;
+pub mod env;
 pub mod peak;
 pub mod plot;
 pub mod srbf;

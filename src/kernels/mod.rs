@@ -4,11 +4,13 @@
 pub mod ao;
 pub mod btf;
 pub mod contract;
+pub mod env;
 pub mod pose;
 pub mod raster;
 pub mod srbf;
 pub mod sss;
 
+pub use env::EnvKernel;
 pub use contract::{
     Dispatch, FrameResult, Grid, Kernel, KernelInfo, Pass, PassInfo, Step, UseInfo,
     record_as_graph, run_frames,
