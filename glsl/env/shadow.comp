@@ -4,7 +4,8 @@
 // for step). Per lobe j: the product lobe P_j = G_j x cosine SG; for every sphere of AO's cut
 // (the walk of glsl/ao/occlusion.comp: refinement, blend weights, inside fade) above the
 // horizon, the fraction O_js of P_j inside the sphere's cap (table lookup, or centre value x
-// solid angle for caps under 0.35 lobe widths), and AO's per-sphere cosine-weighted
+// solid angle for caps under 0.3 lobe widths, blended to 0.4) times the cap's share above the
+// horizon, and AO's per-sphere cosine-weighted
 // occlusion I_s. V_j = clamp(AO(x) prod_s ((1 - O_js) / (1 - I_s))^w_s, 0, 1) (log space).
 // Irradiance = sum_j V_j E_j(n) amplitude_j.
 #include <common/ao.glsl>
@@ -50,8 +51,9 @@ const uint N_ALPHA = 49u;
 const uint N_S = 65u;
 const float S_MAX = 8.0;
 const float FRAC_2_PI = 0.636619772367581;
-// kernels::env::pack::SMALL_CAP.
-const float SMALL_CAP = 0.35;
+// kernels::env::pack::{SMALL_CAP, SMALL_CAP_BAND}.
+const float SMALL_CAP = 0.3;
+const float SMALL_CAP_BAND = 0.1;
 
 // As kernels::ao::cpu::refinement.
 float refinement(float size, float d, float tau, float band) {
@@ -91,11 +93,20 @@ float cap_lookup(float lambda, float gamma, float alpha) {
 
 // kernels::env::pack::cap_occlusion.
 float cap_occlusion(float lambda, float cos_g, float alpha, float one_minus_cos_a) {
-    if (alpha * sqrt(lambda) < SMALL_CAP) {
+    float t = clamp((alpha * sqrt(lambda) - SMALL_CAP) / SMALL_CAP_BAND, 0.0, 1.0);
+    float o = 0.0;
+    if (t < 1.0) {
         float norm = lambda / (1.0 - exp(-2.0 * lambda));
-        return min(exp(lambda * (cos_g - 1.0)) * one_minus_cos_a * norm, 1.0);
+        o += (1.0 - t) * min(exp(lambda * (cos_g - 1.0)) * one_minus_cos_a * norm, 1.0);
     }
-    return cap_lookup(lambda, acos(clamp(cos_g, -1.0, 1.0)), alpha);
+    if (t > 0.0) o += t * cap_lookup(lambda, acos(clamp(cos_g, -1.0, 1.0)), alpha);
+    return o;
+}
+
+// kernels::env::pack::above_horizon.
+float above_horizon(float cos_t, float alpha) {
+    float x = clamp(asin(clamp(cos_t, -1.0, 1.0)) / max(alpha, 1e-6), -1.0, 1.0);
+    return (acos(-x) + x * sqrt(max(1.0 - x * x, 0.0))) / AO_PI;
 }
 
 // Irradiance of a unit SG on normal n (no 1/pi): kernels::env::cpu::irradiance.
@@ -193,8 +204,9 @@ void main() {
                         float sin_a = min(1.0 / max(h, 1.0), 1.0);
                         float alpha = asin(sin_a);
                         float omc = sin_a * sin_a / (1.0 + sqrt(max(1.0 - sin_a * sin_a, 0.0)));
+                        float up = above_horizon(cos_t, alpha);
                         for (uint j = 0u; j < nj; ++j) {
-                            float o = cap_occlusion(prod[j].w, dot(prod[j].xyz, wc), alpha, omc);
+                            float o = up * cap_occlusion(prod[j].w, dot(prod[j].xyz, wc), alpha, omc);
                             acc[j] += w * log(max(1.0 - o, pc.min_transmission));
                         }
                     }

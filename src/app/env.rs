@@ -229,6 +229,14 @@ pub struct EnvFrameReport {
     pub floor_rel_l2: Option<f64>,
     /// The same of the unshadowed sum_j E_j(n).
     pub unshadowed_rel_l2: Option<f64>,
+    /// The same of the caps' product alone (no AO correction; CPU twin).
+    pub caps_only_rel_l2: Option<f64>,
+    /// Vertices the truth finds enclosed (E = 0: inside another part of the posed mesh).
+    pub enclosed: Option<usize>,
+    /// This method's relative L2 over the other vertices.
+    pub open_rel_l2: Option<f64>,
+    /// The floor's over the same.
+    pub open_floor_rel_l2: Option<f64>,
     /// The PLY written (with `--reference`).
     pub ply: Option<String>,
 }
@@ -293,6 +301,8 @@ pub fn run_scene(
         kernels.record(&mut rec, &matrices, &r)?;
         let env_rb = kernels.env.read_back(&mut rec)?;
         let ao_rb = kernels.ao.read_back(&mut rec)?;
+        let sph_rb = rec.read_back(kernels.ao.posed_spheres())?;
+        let ext_rb = rec.read_back(kernels.ao.posed_extents())?;
         let submission = rec.submit()?;
         let host_ms = start.elapsed().as_secs_f64() * 1e3;
         let timings = submission.wait()?;
@@ -308,6 +318,10 @@ pub fn run_scene(
             rel_l2: None,
             floor_rel_l2: None,
             unshadowed_rel_l2: None,
+            caps_only_rel_l2: None,
+            enclosed: None,
+            open_rel_l2: None,
+            open_floor_rel_l2: None,
             ply: None,
         };
         if cfg.reference {
@@ -342,21 +356,65 @@ pub fn run_scene(
                 .iter()
                 .map(|&n| env_cpu::unshadowed(&lobes, n))
                 .collect();
+            // The caps' product alone (CPU twin without AO's correction), for comparison.
+            let spheres: Vec<Vec4> = sph_rb
+                .to_vec::<[f32; 4]>()?
+                .iter()
+                .map(|s| Vec4::from_array(*s))
+                .collect();
+            let extents: Vec<f32> = ext_rb.to_vec()?;
+            let caps = env_cpu::shadow(
+                &lobes,
+                kernels.env.table(),
+                &env_cpu::ShadowInputs {
+                    positions: &positions,
+                    normals: &normals,
+                    spheres: &spheres,
+                    extents: &extents,
+                    shape: kernels.ao.tree_shape(),
+                    params: kernels.env.ao_params(),
+                    ao: None,
+                },
+            );
+            let caps: Vec<[f32; 3]> = caps.irradiance.iter().map(|e| [e[0], e[1], e[2]]).collect();
+            report.caps_only_rel_l2 = Some(env_cpu::relative_l2(&caps, &truth));
+            // Without the vertices the truth finds enclosed (E = 0: inside another part of
+            // the posed mesh, which spheres cannot represent).
+            let open_idx: Vec<usize> = (0..truth.len())
+                .filter(|&v| truth[v].iter().sum::<f64>() > 0.0)
+                .collect();
+            let pick3 = |a: &[[f32; 3]]| open_idx.iter().map(|&v| a[v]).collect::<Vec<_>>();
+            let t_open: Vec<[f64; 3]> = open_idx.iter().map(|&v| truth[v]).collect();
+            report.enclosed = Some(truth.len() - open_idx.len());
+            report.open_rel_l2 = Some(env_cpu::relative_l2(&pick3(&mine), &t_open));
+            report.open_floor_rel_l2 = Some(env_cpu::relative_l2(&pick3(&floor), &t_open));
             report.rel_l2 = Some(env_cpu::relative_l2(&mine, &truth));
             report.floor_rel_l2 = Some(env_cpu::relative_l2(&floor, &truth));
             report.unshadowed_rel_l2 = Some(env_cpu::relative_l2(&open, &truth));
             let ply = frame_ply(&cfg.out, frame);
             let channel = |c: usize| mine.iter().map(|e| e[c]).collect::<Vec<f32>>();
             let (r_, g_, b_) = (channel(0), channel(1), channel(2));
+            let truth_channel = |c: usize| truth.iter().map(|e| e[c] as f32).collect::<Vec<f32>>();
+            let (tr, tg, tb) = (truth_channel(0), truth_channel(1), truth_channel(2));
             crate::scene::ply_write::write_ply_properties(
                 &ply,
                 &format!(
-                    "vkshade env: frame {frame}, environment irradiance (linear, radiometric, no 1/pi)"
+                    "vkshade env: frame {frame}, environment irradiance r g b (linear, radiometric, \
+                     no 1/pi); truth_*: ray-traced ({} rays/vertex); ao: AO's visibility",
+                    cfg.rays
                 ),
                 &positions,
                 &normals,
                 &mesh.triangles,
-                &[("r", &r_), ("g", &g_), ("b", &b_)],
+                &[
+                    ("r", &r_),
+                    ("g", &g_),
+                    ("b", &b_),
+                    ("truth_r", &tr),
+                    ("truth_g", &tg),
+                    ("truth_b", &tb),
+                    ("ao", &ao.visibility),
+                ],
             )?;
             report.ply = Some(ply.display().to_string());
         }
@@ -463,14 +521,27 @@ pub fn display(r: &EnvReport) {
         r.vertices, r.lobes, r.fit_rel_l2, r.fit_ms
     );
     println!(
-        "{:>5} {:>7} {:>10} {:>10} {:>9} {:>9} {:>12} {:>10} {:>12}",
-        "frame", "rot deg", "rotate ms", "shadow ms", "frame ms", "host ms", "env shadow", "AO floor",
-        "unshadowed"
+        "{:>5} {:>7} {:>10} {:>10} {:>9} {:>9} {:>11} {:>9} {:>11} {:>10} {:>9} {:>16}",
+        "frame",
+        "rot deg",
+        "rotate ms",
+        "shadow ms",
+        "frame ms",
+        "host ms",
+        "env shadow",
+        "AO floor",
+        "caps only",
+        "unshadowed",
+        "enclosed",
+        "open: env/floor"
     );
-    let pct = |x: Option<f64>| x.map(|v| format!("{:.2}%", 100.0 * v)).unwrap_or("-".into());
+    let pct = |x: Option<f64>| {
+        x.map(|v| format!("{:.2}%", 100.0 * v))
+            .unwrap_or("-".into())
+    };
     for f in &r.frames {
         println!(
-            "{:>5} {:>7.0} {:>10.3} {:>10.3} {:>9.2} {:>9.2} {:>12} {:>10} {:>12}",
+            "{:>5} {:>7.0} {:>10.3} {:>10.3} {:>9.2} {:>9.2} {:>11} {:>9} {:>11} {:>10} {:>9} {:>16}",
             f.frame,
             f.rotation_deg,
             f.rotate_ms,
@@ -479,7 +550,10 @@ pub fn display(r: &EnvReport) {
             f.host_ms,
             pct(f.rel_l2),
             pct(f.floor_rel_l2),
-            pct(f.unshadowed_rel_l2)
+            pct(f.caps_only_rel_l2),
+            pct(f.unshadowed_rel_l2),
+            f.enclosed.map(|n| n.to_string()).unwrap_or("-".into()),
+            format!("{}/{}", pct(f.open_rel_l2), pct(f.open_floor_rel_l2))
         );
     }
     if r.frames.iter().any(|f| f.ply.is_some()) {

@@ -91,7 +91,7 @@ pub fn run(ctx: &Context, cfg: &BenchConfig, input: &EnvBenchInput) -> Result<En
         extents: &extents,
         shape: input.ao.tree_shape(),
         params: &params,
-        ao: &ao_data.visibility,
+        ao: Some(&ao_data.visibility),
     };
     let (caps, cut) = cpu::caps_per_vertex(&inputs);
     let mut rows = Vec::new();

@@ -10,11 +10,11 @@ pub mod raster;
 pub mod srbf;
 pub mod sss;
 
-pub use env::EnvKernel;
 pub use contract::{
     Dispatch, FrameResult, Grid, Kernel, KernelInfo, Pass, PassInfo, Step, UseInfo,
     record_as_graph, run_frames,
 };
+pub use env::EnvKernel;
 
 pub use crate::shaders::GeneratedInclude;
 

@@ -2,7 +2,7 @@
 //! AO-weighted floor, and the ray-traced truth (f64 accumulation, rays against the posed
 //! triangle mesh).
 
-use super::pack::{CapTable, cap_occlusion};
+use super::pack::{CapTable, above_horizon, cap_occlusion};
 use super::{COSINE_AMPLITUDE, COSINE_SHARPNESS, HILL_MIN_SHARPNESS, MIN_TRANSMISSION};
 use crate::geom::sg::Lobe;
 use crate::geom::{Bvh, Rng, orthonormal_basis};
@@ -32,7 +32,11 @@ pub fn irradiance(p: Vec3, lambda: f32, n: Vec3) -> f32 {
         let lc = COSINE_SHARPNESS;
         let r = (p * lambda + n * lc).length();
         let exponent = -2.0 * lambda * lc * (1.0 - x).max(0.0) / (r + lambda + lc);
-        let tail = if r > 1e-6 { (1.0 - (-2.0 * r).exp()) / r } else { 2.0 };
+        let tail = if r > 1e-6 {
+            (1.0 - (-2.0 * r).exp()) / r
+        } else {
+            2.0
+        };
         return 2.0 * PI * COSINE_AMPLITUDE * exponent.exp() * tail;
     }
     let c0 = 0.36f32;
@@ -58,8 +62,8 @@ pub fn unshadowed(lobes: &[Lobe], n: Vec3) -> [f32; 3] {
     let mut e = [0.0f32; 3];
     for l in lobes {
         let ej = irradiance(l.axis(), l.sharpness, n);
-        for c in 0..3 {
-            e[c] += ej * l.amplitude[c];
+        for (e, a) in e.iter_mut().zip(l.amplitude) {
+            *e += ej * a;
         }
     }
     e
@@ -89,8 +93,9 @@ pub struct ShadowInputs<'a> {
     pub shape: TreeShape,
     /// AO's parameters (its cut: tau, band, refine, clamp_inside).
     pub params: &'a AoParams,
-    /// AO's per-vertex visibility (blended, corrected).
-    pub ao: &'a [f32],
+    /// AO's per-vertex visibility (blended, corrected): the kernel's method. `None`: the caps'
+    /// product alone, prod_s (1 - O_js)^w_s (a comparison; not what the GPU computes).
+    pub ao: Option<&'a [f32]>,
 }
 
 /// One frame's outputs.
@@ -142,32 +147,43 @@ pub fn shadow_vertex(
     let mut s = vec![0.0f32; lobes.len()];
     let mut u = 0.0f32;
     let params = inp.params;
-    walk_cut(p, inp.spheres, inp.extents, inp.shape, params, |_, sph, w| {
-        let dv = sph.truncate() - p;
-        let d = dv.length();
-        if !(d > sph.w || params.clamp_inside) {
-            return;
-        }
-        let mut h = d / sph.w;
-        if !params.clamp_inside && h < 1.0 + INSIDE_FADE {
-            h /= ((h - 1.0) / INSIDE_FADE).max(1e-6);
-        }
-        let cos_t = if d > 0.0 { n.dot(dv) / d } else { 1.0 };
-        let occ = sphere_occlusion(cos_t, h);
-        if occ > 0.0 {
-            u += w * (1.0 - occ).max(MIN_TRANSMISSION).ln();
-            let wc = if d > 0.0 { dv / d } else { n };
-            let sin_a = (1.0 / h.max(1.0)).min(1.0);
-            let alpha = sin_a.asin();
-            // 1 - cos a without cancellation for small caps.
-            let omc = sin_a * sin_a / (1.0 + (1.0 - sin_a * sin_a).max(0.0).sqrt());
-            for (j, &(axis, lambda)) in prod.iter().enumerate() {
-                let o = cap_occlusion(table, lambda, axis.dot(wc), alpha, omc);
-                s[j] += w * (1.0 - o).max(MIN_TRANSMISSION).ln();
+    walk_cut(
+        p,
+        inp.spheres,
+        inp.extents,
+        inp.shape,
+        params,
+        |_, sph, w| {
+            let dv = sph.truncate() - p;
+            let d = dv.length();
+            if !(d > sph.w || params.clamp_inside) {
+                return;
             }
-        }
-    });
-    let ao = inp.ao[v];
+            let mut h = d / sph.w;
+            if !params.clamp_inside && h < 1.0 + INSIDE_FADE {
+                h /= ((h - 1.0) / INSIDE_FADE).max(1e-6);
+            }
+            let cos_t = if d > 0.0 { n.dot(dv) / d } else { 1.0 };
+            let occ = sphere_occlusion(cos_t, h);
+            if occ > 0.0 {
+                u += w * (1.0 - occ).max(MIN_TRANSMISSION).ln();
+                let wc = if d > 0.0 { dv / d } else { n };
+                let sin_a = (1.0 / h.max(1.0)).min(1.0);
+                let alpha = sin_a.asin();
+                // 1 - cos a without cancellation for small caps.
+                let omc = sin_a * sin_a / (1.0 + (1.0 - sin_a * sin_a).max(0.0).sqrt());
+                let up = above_horizon(cos_t, alpha);
+                for (j, &(axis, lambda)) in prod.iter().enumerate() {
+                    let o = up * cap_occlusion(table, lambda, axis.dot(wc), alpha, omc);
+                    s[j] += w * (1.0 - o).max(MIN_TRANSMISSION).ln();
+                }
+            }
+        },
+    );
+    let (ao, u) = match inp.ao {
+        Some(a) => (a[v], u),
+        None => (1.0, 0.0),
+    };
     let mut e = [0.0f32; 4];
     let vis: Vec<f32> = lobes
         .iter()
@@ -175,8 +191,8 @@ pub fn shadow_vertex(
         .map(|(l, &sj)| {
             let vj = (ao * (sj - u).exp()).clamp(0.0, 1.0);
             let ej = vj * irradiance(l.axis(), l.sharpness, n);
-            for c in 0..3 {
-                e[c] += ej * l.amplitude[c];
+            for (e, a) in e.iter_mut().zip(l.amplitude) {
+                *e += ej * a;
             }
             vj
         })
@@ -195,22 +211,29 @@ pub fn caps_per_vertex(inp: &ShadowInputs) -> (f64, f64) {
             let params = inp.params;
             let mut caps = 0u64;
             let mut walked = 0u64;
-            walk_cut(p, inp.spheres, inp.extents, inp.shape, params, |_, sph, _| {
-                walked += 1;
-                let dv = sph.truncate() - p;
-                let d = dv.length();
-                if !(d > sph.w || params.clamp_inside) {
-                    return;
-                }
-                let mut h = d / sph.w;
-                if !params.clamp_inside && h < 1.0 + INSIDE_FADE {
-                    h /= ((h - 1.0) / INSIDE_FADE).max(1e-6);
-                }
-                let cos_t = if d > 0.0 { n.dot(dv) / d } else { 1.0 };
-                if sphere_occlusion(cos_t, h) > 0.0 {
-                    caps += 1;
-                }
-            });
+            walk_cut(
+                p,
+                inp.spheres,
+                inp.extents,
+                inp.shape,
+                params,
+                |_, sph, _| {
+                    walked += 1;
+                    let dv = sph.truncate() - p;
+                    let d = dv.length();
+                    if !(d > sph.w || params.clamp_inside) {
+                        return;
+                    }
+                    let mut h = d / sph.w;
+                    if !params.clamp_inside && h < 1.0 + INSIDE_FADE {
+                        h /= ((h - 1.0) / INSIDE_FADE).max(1e-6);
+                    }
+                    let cos_t = if d > 0.0 { n.dot(dv) / d } else { 1.0 };
+                    if sphere_occlusion(cos_t, h) > 0.0 {
+                        caps += 1;
+                    }
+                },
+            );
             (caps, walked)
         })
         .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
@@ -286,8 +309,8 @@ pub fn ray_traced(
                 let ph = tau * u2;
                 let axis = l.axis().as_dvec3();
                 let (t, b) = orthonormal_basis(l.axis());
-                let w: DVec3 = (t.as_dvec3() * ph.cos() + b.as_dvec3() * ph.sin()) * sin_t
-                    + axis * cos_t;
+                let w: DVec3 =
+                    (t.as_dvec3() * ph.cos() + b.as_dvec3() * ph.sin()) * sin_t + axis * cos_t;
                 let cos_n = w.dot(nd);
                 if cos_n <= 0.0 {
                     continue;
@@ -298,8 +321,8 @@ pub fn ray_traced(
                 for (k, lk) in lobes.iter().enumerate() {
                     let g = (lk.sharpness as f64 * (lk.axis().as_dvec3().dot(w) - 1.0)).exp();
                     pdf += c[k] * g / norm[k];
-                    for ch in 0..3 {
-                        rad[ch] += lk.amplitude[ch] as f64 * g;
+                    for (r, a) in rad.iter_mut().zip(lk.amplitude) {
+                        *r += a as f64 * g;
                     }
                 }
                 if pdf <= 0.0 || bvh.any_hit(o, w.as_vec3(), f32::INFINITY) {

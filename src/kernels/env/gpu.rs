@@ -105,11 +105,7 @@ impl EnvKernel {
         let ctx = rec.context();
         let table = CapTable::new();
         let (nv, nj) = (pose.vertex_count() as u64, lobes.len() as u64);
-        let base = rec.buffer_with(
-            "env base lobes",
-            BufferDesc::storage(nj * 32),
-            &packed[..],
-        )?;
+        let base = rec.buffer_with("env base lobes", BufferDesc::storage(nj * 32), &packed[..])?;
         let table_buf = rec.buffer_with(
             "env cap table",
             BufferDesc::storage(table.values.len() as u64 * 4),

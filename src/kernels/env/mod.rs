@@ -9,9 +9,11 @@
 //!   half-angle a = asin(r / d) at angle g from P_j's axis: O_js = the fraction of P_j inside
 //!   the cap, exact as the 1D integral 2 pi int_0^a e^(lambda (cos(g - t) - 1))
 //!   i0e(lambda sin g sin t) sin t dt / int P_j, tabulated once over (log2 lambda, a,
-//!   (g - a) sqrt(lambda)) ([`pack::CapTable`]); caps smaller than 0.35 lobe widths by the
-//!   lobe's value at their centre times their solid angle ([`cap_occlusion`]). Caps below the
-//!   horizon (AO's cosine-weighted occlusion I_s = 0) occlude nothing.
+//!   (g - a) sqrt(lambda)) ([`pack::CapTable`]); caps smaller than 0.3 lobe widths by the
+//!   lobe's value at their centre times their solid angle, blended into the table up to 0.4
+//!   ([`cap_occlusion`]). O_js is weighted by the cap's share above the horizon
+//!   ([`pack::above_horizon`]): light from below adds nothing, and a sinking cap fades out
+//!   instead of dropping out (no jump where AO's I_s reaches 0).
 //! - Caps combine by product, and AO's own judgement of the same caps corrects it: with
 //!   I_s AO's exact per-sphere cosine-weighted occlusion and AO(x) its blended (cone-mask
 //!   union), corrected visibility,
@@ -46,8 +48,9 @@ pub const COSINE_AMPLITUDE: f32 = 1.17;
 /// Below this sharpness a lobe's irradiance is the inner product with the cosine SG (Hill's fit
 /// fails there).
 pub const HILL_MIN_SHARPNESS: f32 = 1.0;
-/// Floor of 1 - O in the log-space products (a receiver touching a sphere).
-pub const MIN_TRANSMISSION: f32 = 1e-6;
+/// Floor of 1 - O_js and 1 - I_s in the products: a cap that nearly fills the hemisphere (a
+/// receiver touching a sphere) would otherwise make the ratio 0/0, amplifying rounding by 1e6.
+pub const MIN_TRANSMISSION: f32 = 0.02;
 
 /// Checks a frame's environment rotation: finite and orthonormal (|R^T R - I| < 1e-3).
 pub fn check_rotation(r: &glam::Mat3) -> crate::error::Result<()> {

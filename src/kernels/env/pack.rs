@@ -76,9 +76,8 @@ impl CapTable {
             .into_par_iter()
             .map(|k| {
                 let (l, a, s) = (k / (na * ns), (k / ns) % na, k % ns);
-                let lambda = 2f64.powf(
-                    LOG_MIN as f64 + (LOG_MAX - LOG_MIN) as f64 * l as f64 / (nl - 1) as f64,
-                );
+                let lambda = 2f64
+                    .powf(LOG_MIN as f64 + (LOG_MAX - LOG_MIN) as f64 * l as f64 / (nl - 1) as f64);
                 let alpha = std::f64::consts::FRAC_PI_2 * (a as f64 / (na - 1) as f64).powi(2);
                 let s = -(S_MAX as f64) + 2.0 * S_MAX as f64 * s as f64 / (ns - 1) as f64;
                 let g = (alpha + s / lambda.max(4.0).sqrt()).clamp(0.0, std::f64::consts::PI);
@@ -113,15 +112,19 @@ impl CapTable {
     }
 }
 
-/// Below this cap radius in lobe widths (a sqrt(lambda)) a cap's fraction is taken as the
-/// lobe's value at its centre times its solid angle ([`cap_occlusion`]), skipping the table.
-pub const SMALL_CAP: f32 = 0.35;
+/// Below this cap radius in lobe widths (a sqrt(lambda)) a cap's fraction is the lobe's value
+/// at its centre times its solid angle ([`cap_occlusion`]); above it plus [`SMALL_CAP_BAND`],
+/// the table; in between, a linear blend of the two (no jump where the form changes).
+pub const SMALL_CAP: f32 = 0.3;
+/// See [`SMALL_CAP`].
+pub const SMALL_CAP_BAND: f32 = 0.1;
 
-/// The fraction of a unit SG (sharpness `lambda`) inside a cap of half-angle `alpha` (cosine
-/// `1 - cos(alpha)` = `one_minus_cos_a`) at cos(gamma) = `cos_g` from its axis, as the shadow pass evaluates it: small caps
-/// (alpha sqrt(lambda) < [`SMALL_CAP`]) by the lobe's value at the cap's centre times the
-/// cap's solid angle, e^(lambda (cos_g - 1)) 2 pi (1 - cos alpha) / (2 pi (1 - e^(-2 lambda)) /
-/// lambda); the others by the table. As `glsl/env/shadow.comp`'s `cap_occlusion`.
+/// The fraction of a unit SG (sharpness `lambda`) inside a cap of half-angle `alpha`
+/// (`1 - cos(alpha)` = `one_minus_cos_a`) at cos(gamma) = `cos_g` from its axis, as the shadow
+/// pass evaluates it: small caps by the lobe's value at the cap's centre times the cap's solid
+/// angle, e^(lambda (cos_g - 1)) 2 pi (1 - cos alpha) / (2 pi (1 - e^(-2 lambda)) / lambda),
+/// larger ones by the table, blended over [`SMALL_CAP`] .. + [`SMALL_CAP_BAND`] widths. As
+/// `glsl/env/shadow.comp`'s `cap_occlusion`.
 pub fn cap_occlusion(
     table: &CapTable,
     lambda: f32,
@@ -129,11 +132,25 @@ pub fn cap_occlusion(
     alpha: f32,
     one_minus_cos_a: f32,
 ) -> f32 {
-    if alpha * lambda.sqrt() < SMALL_CAP {
+    let t = ((alpha * lambda.sqrt() - SMALL_CAP) / SMALL_CAP_BAND).clamp(0.0, 1.0);
+    let mut o = 0.0;
+    if t < 1.0 {
         let norm = lambda / (1.0 - (-2.0 * lambda).exp());
-        return ((lambda * (cos_g - 1.0)).exp() * one_minus_cos_a * norm).min(1.0);
+        o += (1.0 - t) * ((lambda * (cos_g - 1.0)).exp() * one_minus_cos_a * norm).min(1.0);
     }
-    table.lookup(lambda, cos_g.clamp(-1.0, 1.0).acos(), alpha)
+    if t > 0.0 {
+        o += t * table.lookup(lambda, cos_g.clamp(-1.0, 1.0).acos(), alpha);
+    }
+    o
+}
+
+/// The share of a cap of half-angle `alpha` above the horizon, its centre at `cos_t` = n . w
+/// (a disc cut by a line at signed distance x = elevation / alpha from its centre:
+/// (acos(-x) + x sqrt(1 - x^2)) / pi). Light below the horizon adds nothing to E_j, so a cap
+/// occludes a lobe only with its share above it: the cap's effect fades to 0 as it sinks.
+pub fn above_horizon(cos_t: f32, alpha: f32) -> f32 {
+    let x = (cos_t.clamp(-1.0, 1.0).asin() / alpha.max(1e-6)).clamp(-1.0, 1.0);
+    ((-x).acos() + x * (1.0 - x * x).max(0.0).sqrt()) / std::f32::consts::PI
 }
 
 /// Gauss-Legendre nodes and weights on [-1, 1] (Newton on P_n).
@@ -172,7 +189,8 @@ pub fn i0e(x: f64) -> f64 {
         let t = (x / 3.75).powi(2);
         let i0 = 1.0
             + t * (3.5156229
-                + t * (3.0899424 + t * (1.2067492 + t * (0.2659732 + t * (0.0360768 + t * 0.0045813)))));
+                + t * (3.0899424
+                    + t * (1.2067492 + t * (0.2659732 + t * (0.0360768 + t * 0.0045813)))));
         i0 * (-x).exp()
     } else {
         let t = 3.75 / x;
@@ -258,7 +276,10 @@ mod tests {
         // A lobe at the cap's centre, in closed form: (1 - e^(-lambda (1 - cos a))) / (1 - e^-2lambda).
         for &(l, a) in &[(0.3f64, 1.2f64), (5.0, 0.4), (900.0, 0.05)] {
             let exact = -(-l * (1.0 - a.cos())).exp_m1() / -(-2.0 * l).exp_m1();
-            assert!((cap_fraction(l, 0.0, a) - exact).abs() < 1e-6, "lambda {l} a {a}");
+            assert!(
+                (cap_fraction(l, 0.0, a) - exact).abs() < 1e-6,
+                "lambda {l} a {a}"
+            );
         }
     }
 
@@ -296,8 +317,9 @@ mod tests {
         let (mut worst, mut at) = (0.0f64, (0.0, 0.0, 0.0));
         for _ in 0..20000 {
             let lambda = 2f64.powf(-3.0 + 16.0 * rng.f32() as f64);
-            // Caps below the small-cap radius, spread over the lobe (g up to 6 widths + a).
-            let a = (SMALL_CAP as f64 / lambda.sqrt()).min(1.5) * rng.f32() as f64;
+            // Caps up to the end of the blend, spread over the lobe (g up to 6 widths + a).
+            let a =
+                ((SMALL_CAP + SMALL_CAP_BAND) as f64 / lambda.sqrt()).min(1.5) * rng.f32() as f64;
             let g = ((a + 6.0 / lambda.sqrt()) * rng.f32() as f64).min(std::f64::consts::PI);
             let omc = (1.0 - a.cos()) as f32;
             let o = cap_occlusion(&table, lambda as f32, g.cos() as f32, a as f32, omc);
@@ -308,7 +330,7 @@ mod tests {
             }
         }
         eprintln!("small caps: worst |centre x solid angle - exact| {worst:.5} at {at:.3?}");
-        // The lobe varies across a cap of radius 0.35 widths by e^(+-0.35 sqrt(lambda) a sin g)
+        // The lobe varies across a cap of radius 0.4 widths by e^(+-0.4 sqrt(lambda) a sin g)
         // at most; measured worst below; a wrong normalisation errs by O(0.1).
         assert!(worst < 0.01, "{worst}");
     }
@@ -324,6 +346,11 @@ mod tests {
             sharpness: f32::NAN,
             ..l
         };
-        assert!(pack_lobes(&[l, bad]).unwrap_err().to_string().contains("lobe 1"));
+        assert!(
+            pack_lobes(&[l, bad])
+                .unwrap_err()
+                .to_string()
+                .contains("lobe 1")
+        );
     }
 }
