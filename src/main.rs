@@ -60,6 +60,10 @@ enum Command {
     /// DIR/render.png (SSS | Lambertian), with --reference DIR/reference.png, and
     /// DIR/report.json.
     Sss(app::sss::Args),
+    /// Environment light on a moving character: SG lobes of an HDR map, turned per frame,
+    /// shadowed per vertex by the character's sphere tree; with --reference, the error vs the
+    /// ray-traced truth and the AO-weighted floor, and DIR/env_NNNN.ply (irradiance r g b).
+    Env(app::env::Args),
     /// Sphere trees.
     #[command(subcommand)]
     Spheretree(app::scene::TreeCommand),
@@ -81,6 +85,7 @@ fn main() -> ExitCode {
         Command::Srbf(c) => c.run(gpu),
         Command::Btf(c) => c.run(gpu),
         Command::Sss(a) => a.run(gpu),
+        Command::Env(a) => a.run(gpu),
         Command::Spheretree(c) => c.run(),
         Command::Mesh(c) => c.run(),
     };

@@ -70,6 +70,16 @@ pub enum Command {
         #[command(flatten)]
         opts: Opts,
     },
+    /// Environment light shadowed by the character (BCN_Epileptic, Epileptisch, forest map):
+    /// GPU ms of `env rotate` and `env shadow` over the lobe count, beside the pose and AO
+    /// passes, host ms per frame, the CPU twin's ms and the table lookups per vertex.
+    Env {
+        #[command(flatten)]
+        opts: Opts,
+        /// Only the headline lobe count (32).
+        #[arg(long)]
+        quick: bool,
+    },
     /// Texture-space SSS on the BCN_Epileptic head: GPU time of irradiance and diffusion
     /// over texture size x samples per texel, error against the brute-force ground truth vs
     /// time, throughput against the FMA and bandwidth peaks, and the speed-up over the same
@@ -159,6 +169,7 @@ impl Command {
                 opts, anim: true, ..
             } => sss_anim(gpu, opts),
             Command::Sss { opts, quick, .. } => sss(gpu, opts, *quick),
+            Command::Env { opts, quick } => super::env::bench(gpu, opts, *quick),
         }
     }
 }

@@ -6,6 +6,7 @@ pub mod ao;
 pub mod bench;
 pub mod btf;
 pub mod frame;
+pub mod env;
 pub mod info;
 pub mod scene;
 pub mod shaders;

@@ -4,6 +4,7 @@
 pub mod ao;
 pub mod btf;
 pub mod frame;
+pub mod env;
 pub mod peak;
 pub mod plot;
 pub mod srbf;

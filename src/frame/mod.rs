@@ -437,7 +437,17 @@ impl CharacterFrame {
                     l.max_image_dimension_2d,
                     l.max_image_array_layers,
                 )?;
-                Some(BtfKernel::on_gbuffer(&mut rec, &bprep, raster.gbuffer())?)
+                // Shaded over the rasteriser's tile list (only where the character is, or
+                // was last frame); every frame records `btf shade` after `raster`.
+                let tiles = raster.tiles().ok_or_else(|| {
+                    Error::InvalidArgument("the character's rasteriser has no tile list".into())
+                })?;
+                Some(BtfKernel::on_gbuffer_tiles(
+                    &mut rec,
+                    &bprep,
+                    raster.gbuffer(),
+                    tiles,
+                )?)
             }
             None => None,
         };

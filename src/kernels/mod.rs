@@ -5,6 +5,7 @@ pub mod ao;
 pub mod btf;
 pub mod compose;
 pub mod contract;
+pub mod env;
 pub mod pose;
 pub mod raster;
 pub mod srbf;
@@ -14,6 +15,7 @@ pub use contract::{
     Dispatch, FrameResult, Grid, IndirectArgs, Kernel, KernelInfo, Pass, PassInfo, Step, UseInfo,
     record_as_graph, run_frames,
 };
+pub use env::EnvKernel;
 
 pub use crate::shaders::GeneratedInclude;
 

@@ -330,6 +330,17 @@ impl AoKernel {
         &self.buffers.posed_spheres
     }
 
+    /// The posed extents buffer (f32 per node: the farthest reach of its skinned leaves from
+    /// its centre), written by `ao skin`; the cut's refinement reads it.
+    pub fn posed_extents(&self) -> &Buffer {
+        &self.buffers.posed_extents
+    }
+
+    /// The sphere tree's shape (node count, branch, first leaf), as the cut walks it.
+    pub fn tree_shape(&self) -> cpu::TreeShape {
+        self.shape
+    }
+
     /// Records one frame: with its own pose `pose joints` (the joint matrices' upload) and
     /// `pose skin`, then `ao skin` and `ao occlusion`. Barriers come from the declared accesses through the recorder's
     /// tracking (or are planned by the caller, see [`Kernel::plan_pass`]). The matrices are

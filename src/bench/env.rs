@@ -1,0 +1,137 @@
+//! `vkshade bench env`: GPU time of the environment kernel's passes (`env rotate`,
+//! `env shadow`) on a posed character, beside the pose and AO passes it runs after, the host
+//! time of recording the frame, the CPU twin's time, and the shader's work per vertex (caps x
+//! lobes table lookups), over the lobe count.
+
+use super::{BenchConfig, Stats, time_gpu_passes};
+use crate::error::{Error, Result};
+use crate::geom::sg::Lobe;
+use crate::gpu::Context;
+use crate::kernels::ao::AoKernel;
+use crate::kernels::env::{EnvKernel, PASS_ROTATE, PASS_SHADOW, cpu};
+use crate::kernels::pose::PoseKernel;
+use glam::{Mat4, Vec3, Vec4};
+use serde::Serialize;
+use std::time::Instant;
+
+/// One lobe count's measurement.
+#[derive(Clone, Debug, Serialize)]
+pub struct EnvBenchRow {
+    /// Lobes.
+    pub lobes: usize,
+    /// GPU ms of `env rotate`.
+    pub rotate: Stats,
+    /// GPU ms of `env shadow`.
+    pub shadow: Stats,
+    /// GPU ms of the pose and AO passes of the same frame (pose skin + ao skin + ao occlusion).
+    pub pose_ao: Stats,
+    /// Host ms of recording the whole frame (pose, AO, environment), median.
+    pub host_ms: f64,
+    /// Milliseconds of the CPU twin's shadow pass (rayon), one run.
+    pub cpu_ms: f64,
+    /// Cap-lobe table lookups per vertex (caps above the horizon x lobes).
+    pub lookups_per_vertex: f64,
+}
+
+/// The benchmark's report.
+#[derive(Clone, Debug, Serialize)]
+pub struct EnvBenchReport {
+    /// Vertices shaded.
+    pub vertices: usize,
+    /// Spheres of the cut per vertex, and those above the horizon (caps evaluated).
+    pub cut_per_vertex: f64,
+    /// See [`EnvBenchReport::cut_per_vertex`].
+    pub caps_per_vertex: f64,
+    /// Per lobe count.
+    pub rows: Vec<EnvBenchRow>,
+}
+
+/// What the benchmark runs on: the character's posed frame and its kernels' inputs.
+pub struct EnvBenchInput<'a> {
+    /// The character's pose kernel.
+    pub pose: &'a PoseKernel,
+    /// AO on that pose.
+    pub ao: &'a AoKernel,
+    /// The frame's skinning matrices.
+    pub matrices: &'a [Mat4],
+    /// The fitted lobes (the counts benchmarked take the first k, repeating when k exceeds
+    /// them).
+    pub lobes: &'a [Lobe],
+    /// Lobe counts to time.
+    pub counts: &'a [usize],
+}
+
+/// Times the environment kernel at each lobe count on `input`'s posed frame.
+pub fn run(ctx: &Context, cfg: &BenchConfig, input: &EnvBenchInput) -> Result<EnvBenchReport> {
+    if input.lobes.is_empty() {
+        return Err(Error::InvalidArgument("no lobes to benchmark".into()));
+    }
+    let r = crate::geom::sg::rotation(Vec3::new(0.2, 1.0, 0.1), 35.0);
+    // The frame's posed data for the twin and the cost count (read back once).
+    let (ao_data, spheres, extents) = {
+        let mut rec = ctx.recorder("env bench inputs")?;
+        input.pose.record(&mut rec, input.matrices)?;
+        input.ao.record(&mut rec, input.matrices)?;
+        let a = input.ao.read_back(&mut rec)?;
+        let s = rec.read_back(input.ao.posed_spheres())?;
+        let e = rec.read_back(input.ao.posed_extents())?;
+        rec.submit_and_wait()?;
+        (a.data()?, s.to_vec::<[f32; 4]>()?, e.to_vec::<f32>()?)
+    };
+    let v3 = |v: &[[f32; 4]]| -> Vec<Vec3> {
+        v.iter().map(|p| Vec4::from_array(*p).truncate()).collect()
+    };
+    let (positions, normals) = (v3(&ao_data.positions), v3(&ao_data.normals));
+    let spheres: Vec<Vec4> = spheres.iter().map(|s| Vec4::from_array(*s)).collect();
+    let params = *input.ao.params();
+    let inputs = cpu::ShadowInputs {
+        positions: &positions,
+        normals: &normals,
+        spheres: &spheres,
+        extents: &extents,
+        shape: input.ao.tree_shape(),
+        params: &params,
+        ao: Some(&ao_data.visibility),
+    };
+    let (caps, cut) = cpu::caps_per_vertex(&inputs);
+    let mut rows = Vec::new();
+    for &k in input.counts {
+        let lobes: Vec<Lobe> = (0..k).map(|i| input.lobes[i % input.lobes.len()]).collect();
+        let mut setup = ctx.recorder("env bench setup")?;
+        let env = EnvKernel::new(&mut setup, &lobes, input.pose, input.ao)?;
+        setup.submit_and_wait()?;
+        let mut host = Vec::new();
+        let names = [PASS_ROTATE, PASS_SHADOW, "pose skin+ao skin+ao occlusion"];
+        let stats = time_gpu_passes(ctx, cfg, &names, |rec| {
+            let t = Instant::now();
+            input.pose.record(rec, input.matrices)?;
+            input.ao.record(rec, input.matrices)?;
+            env.record(rec, &r)?;
+            host.push(t.elapsed().as_secs_f64() * 1e3);
+            Ok(())
+        })?;
+        let rotated = cpu::rotate(&lobes, r);
+        let t = Instant::now();
+        let twin = cpu::shadow(&rotated, env.table(), &inputs);
+        let cpu_ms = t.elapsed().as_secs_f64() * 1e3;
+        std::hint::black_box(&twin);
+        host.sort_by(f64::total_cmp);
+        let mut stats = stats.into_iter();
+        let mut next = || stats.next().expect("three passes timed");
+        rows.push(EnvBenchRow {
+            lobes: k,
+            rotate: next(),
+            shadow: next(),
+            pose_ao: next(),
+            host_ms: host[host.len() / 2],
+            cpu_ms,
+            lookups_per_vertex: caps * k as f64,
+        });
+    }
+    Ok(EnvBenchReport {
+        vertices: positions.len(),
+        cut_per_vertex: cut,
+        caps_per_vertex: caps,
+        rows,
+    })
+}

@@ -1,0 +1,345 @@
+//! Environment light on a moving character (kernels::env): the GPU against its CPU twin far
+//! from the bind pose, the method against the ray-traced truth at three poses (and below the
+//! AO-weighted floor), rotation of the environment, and bad input refused.
+
+mod common;
+
+use glam::{Mat3, Vec3, Vec4};
+use vkshade::geom::sg::{Lobe, fibonacci_sphere};
+use vkshade::kernels::Kernel;
+use vkshade::kernels::ao::{AoKernel, AoParams, Prepared as AoPrepared, cpu::TreeShape};
+use vkshade::kernels::env::{EnvKernel, MAX_LOBES, cpu};
+use vkshade::kernels::pose::{PoseKernel, Prepared as PosePrepared};
+
+/// 32 lobes over the sphere with sharpness from 0.5 to ~5000 (the whole cap table) and
+/// coloured amplitudes.
+fn synthetic_lobes() -> Vec<Lobe> {
+    fibonacci_sphere(32)
+        .iter()
+        .enumerate()
+        .map(|(k, &a)| {
+            let lambda = 0.5 * 2f32.powf(13.3 * k as f32 / 31.0);
+            let amp = 1.0 + (k % 5) as f32;
+            Lobe::new(a, lambda, [amp, 0.5 * amp, 0.25 * amp + 0.1])
+        })
+        .collect()
+}
+
+fn v3(v: &[[f32; 4]]) -> Vec<Vec3> {
+    v.iter().map(|p| Vec4::from_array(*p).truncate()).collect()
+}
+
+#[cfg(feature = "gltf")]
+#[test]
+fn gpu_matches_the_cpu_twin_far_from_the_bind_pose() {
+    use vkshade::scene::spheretree::{BuildConfig, SphereTree};
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/bcn_epileptic.glb");
+    let c = vkshade::scene::load(&path)
+        .unwrap_or_else(|e| panic!("{e}\nThe test character comes from tools/setup.sh."));
+    let joints = c.rig.joints.len();
+    let (tree, _) = SphereTree::build(&c.mesh, &BuildConfig::default()).unwrap();
+    let ao_prep = AoPrepared::new(&c.mesh, &tree, joints).unwrap();
+    let pose_prep = PosePrepared::new(&c.mesh, joints).unwrap();
+    let anim = c.animation("Epileptisch").unwrap();
+    // A pose far from the bind pose: the frame of 16 that moves the vertices farthest.
+    let matrices = (0..16)
+        .map(|k| {
+            c.rig
+                .skinning_matrices(Some(anim), anim.duration * k as f32 / 16.0)
+        })
+        .max_by(|a, b| {
+            let moved = |m: &Vec<glam::Mat4>| {
+                let p = vkshade::kernels::pose::cpu::pose(&pose_prep, m).unwrap();
+                p.positions
+                    .iter()
+                    .zip(&c.mesh.positions)
+                    .map(|(x, y)| x.distance(*y))
+                    .sum::<f32>()
+            };
+            moved(a).total_cmp(&moved(b))
+        })
+        .unwrap();
+    let lobes = synthetic_lobes();
+    let r = vkshade::geom::sg::rotation(Vec3::new(0.3, 1.0, -0.2), 73.0);
+    let (frame, spheres, extents, ao, table, params, shape) = common::with_gpu(|ctx| {
+        let mut rec = ctx.recorder("env twin")?;
+        let pose = PoseKernel::new(&mut rec, &pose_prep)?;
+        let ao = AoKernel::on_pose(&mut rec, &ao_prep, AoParams::default(), &pose)?;
+        let env = EnvKernel::new(&mut rec, &lobes, &pose, &ao)?;
+        let names: Vec<&str> = env.passes().iter().map(|p| p.name).collect();
+        assert_eq!(names, ["env rotate", "env shadow"]);
+        pose.record(&mut rec, &matrices)?;
+        ao.record(&mut rec, &matrices)?;
+        env.record(&mut rec, &r)?;
+        let out = env.read_back(&mut rec)?;
+        let aor = ao.read_back(&mut rec)?;
+        let sph = rec.read_back(ao.posed_spheres())?;
+        let ext = rec.read_back(ao.posed_extents())?;
+        rec.submit_and_wait()?;
+        eprintln!("env kernel memory: {:?}", env.memory());
+        Ok((
+            out.data()?,
+            sph.to_vec::<[f32; 4]>()?,
+            ext.to_vec::<f32>()?,
+            aor.data()?,
+            env.table().clone(),
+            *env.ao_params(),
+            ao.tree_shape(),
+        ))
+    });
+    // The rotated lobes: the same normalize(R axis).
+    let rotated = cpu::rotate(&lobes, r);
+    for (g, c) in frame.lobes.iter().zip(&rotated) {
+        let d = Vec3::from_array(g.axis).distance(c.axis());
+        // One f32 matrix product and normalisation: a few ulp of a unit vector.
+        assert!(d < 1e-6, "rotated axis off by {d}");
+        assert_eq!((g.sharpness, g.amplitude), (c.sharpness, c.amplitude));
+    }
+    // The twin on the very buffers the shader read (posed vertices, spheres, AO), so only the
+    // shadow pass itself is compared.
+    let (positions, normals) = (v3(&ao.positions), v3(&ao.normals));
+    let spheres: Vec<Vec4> = spheres.iter().map(|s| Vec4::from_array(*s)).collect();
+    let twin = cpu::shadow(
+        &frame.lobes,
+        &table,
+        &cpu::ShadowInputs {
+            positions: &positions,
+            normals: &normals,
+            spheres: &spheres,
+            extents: &extents,
+            shape: TreeShape { ..shape },
+            params: &params,
+            ao: Some(&ao.visibility),
+        },
+    );
+    let gpu = &frame.shadowed;
+    assert_eq!(gpu.visibility.len(), twin.visibility.len());
+    let mut dv: Vec<f32> = gpu
+        .visibility
+        .iter()
+        .zip(&twin.visibility)
+        .map(|(a, b)| (a - b).abs())
+        .collect();
+    dv.sort_by(f32::total_cmp);
+    let vis = *dv.last().unwrap();
+    let p999 = dv[dv.len() * 999 / 1000];
+    let over = dv.iter().filter(|&&d| d > 1e-4).count();
+    let mut irr: f32 = 0.0;
+    let mut peak: f32 = 0.0;
+    for (a, b) in gpu.irradiance.iter().zip(&twin.irradiance) {
+        for c in 0..3 {
+            irr = irr.max((a[c] - b[c]).abs());
+            peak = peak.max(b[c].abs());
+        }
+    }
+    let occluded = twin.visibility.iter().filter(|&&v| v < 0.9).count();
+    eprintln!(
+        "GPU vs twin: max |dV_j| {vis:.2e} (99.9% {p999:.2e}, {over} over 1e-4), max |dE| {irr:.2e} of peak {peak:.3}; {occluded} of {} V_j < 0.9",
+        twin.visibility.len()
+    );
+    // A real shadowing result, not all ones.
+    assert!(occluded > twin.visibility.len() / 50, "{occluded}");
+    // Same f32 operations in the same order, but Vulkan lets asin/acos err by 4096 ulp
+    // (inherited from atan; ~2.4e-4 of an angle near 1 rad) where the host's are exact to an
+    // ulp. The cap table's slope in the lobe-to-cap angle is at most ~0.4 per quarter lobe
+    // width, i.e. 1.6 sqrt(lambda) ~ 110 per radian for the sharpest lobe here (lambda ~5000):
+    // one cap moves O_js, hence V_j, by up to ~0.03 there, far less for the broad lobes that
+    // carry most of the light. Measured: max |dV_j| 9.6e-3, 99.9th percentile 1.5e-3, max
+    // |dE| 1.9e-4 of the peak irradiance. Bounds: 2e-2 on any V_j, 5e-3 on the 99.9th
+    // percentile, 1e-3 of the peak on E (a wrong index or a skipped cap errs by O(0.1-1)).
+    assert!(vis < 2e-2, "V_j differ by {vis}");
+    assert!(p999 < 5e-3, "99.9th percentile of |dV_j| {p999}");
+    assert!(
+        irr < 1e-3 * peak,
+        "irradiance differs by {irr} (peak {peak})"
+    );
+}
+
+/// A sphere tree with every node unused: no caps; AO's visibility is 1.
+fn no_occluder_scene() -> (AoPrepared, PosePrepared) {
+    let ball = common::ball();
+    let m = &ball.mesh;
+    let (tree, _) = vkshade::scene::spheretree::SphereTree::build(
+        m,
+        &vkshade::scene::spheretree::BuildConfig::default(),
+    )
+    .unwrap();
+    let mut ao = AoPrepared::new(m, &tree, 1).unwrap();
+    for s in ao.spheres.iter_mut() {
+        s[3] = -1.0;
+    }
+    (ao, PosePrepared::new(m, 1).unwrap())
+}
+
+/// Exact irradiance of a unit SG (the note's 1D form, f64 midpoint rule).
+fn exact_irradiance(theta: f64, lambda: f64) -> f64 {
+    let nt = 8000;
+    let mut sum = 0.0;
+    for i in 0..nt {
+        let t = std::f64::consts::PI * (i as f64 + 0.5) / nt as f64;
+        let (a, b) = (theta.cos() * t.cos(), theta.sin() * t.sin());
+        let g = if a >= b.abs() {
+            std::f64::consts::TAU * a
+        } else if a <= -b.abs() {
+            0.0
+        } else {
+            2.0 * (a * (-a / b.abs()).acos() + (b * b - a * a).sqrt())
+        };
+        sum += (lambda * (t.cos() - 1.0)).exp() * t.sin() * g;
+    }
+    sum * std::f64::consts::PI / nt as f64
+}
+
+#[test]
+fn rotating_the_environment_rotates_the_irradiance() {
+    let (ao_prep, pose_prep) = no_occluder_scene();
+    let normals: Vec<Vec3> = ao_prep
+        .normals
+        .iter()
+        .map(|n| Vec4::from_array(*n).truncate())
+        .collect();
+    for lambda in [0.7f32, 6.0, 60.0] {
+        let lobe = Lobe::new(Vec3::new(0.2, 0.9, 0.1), lambda, [2.0, 1.0, 0.5]);
+        let rotations = [
+            Mat3::IDENTITY,
+            vkshade::geom::sg::rotation(Vec3::Y, 90.0),
+            vkshade::geom::sg::rotation(Vec3::new(1.0, 0.4, -0.3), 140.0),
+        ];
+        common::with_gpu(|ctx| {
+            let mut rec = ctx.recorder("env rotation")?;
+            let pose = PoseKernel::new(&mut rec, &pose_prep)?;
+            let ao = AoKernel::on_pose(&mut rec, &ao_prep, AoParams::default(), &pose)?;
+            let env = EnvKernel::new(&mut rec, &[lobe], &pose, &ao)?;
+            // The pose and AO once (rest pose; AO = 1 without spheres): the frames below
+            // record the environment alone.
+            pose.record(&mut rec, &[glam::Mat4::IDENTITY])?;
+            ao.record(&mut rec, &[glam::Mat4::IDENTITY])?;
+            rec.submit_and_wait()?;
+            let total = vkshade::geom::sg::integral(lambda as f64);
+            vkshade::kernels::run_frames(ctx, &env, rotations.iter(), 2, |f| {
+                let r = rotations[f.index];
+                let axis = (r * lobe.axis()).normalize();
+                assert!(f.output.lobes[0].axis().distance(axis) < 1e-6);
+                let mut worst: f64 = 0.0;
+                for (v, e) in f.output.shadowed.irradiance.iter().enumerate() {
+                    // No occluders: V = 1 exactly.
+                    assert_eq!(f.output.shadowed.visibility[v], 1.0);
+                    let theta = (normals[v].dot(axis) as f64).clamp(-1.0, 1.0).acos();
+                    let want = exact_irradiance(theta, lambda as f64);
+                    for (x, a) in e.iter().zip(lobe.amplitude) {
+                        let got = *x as f64 / a as f64;
+                        worst = worst.max((got - want).abs() / total);
+                    }
+                }
+                eprintln!(
+                    "lambda {lambda}, rotation {}: worst |E - exact| {worst:.4} of the lobe's integral",
+                    f.index
+                );
+                // The irradiance fits' own error (the note's measured maxima: inner product
+                // <= 0.032 below lambda 1, Hill <= 0.020); a wrong rotation (the axis not
+                // turned, or turned by R^T) errs by O(1) of the integral.
+                assert!(worst < 0.035, "{worst}");
+                Ok(())
+            })?;
+            Ok(())
+        });
+    }
+}
+
+#[test]
+fn bad_input_is_refused() {
+    let (ao_prep, pose_prep) = no_occluder_scene();
+    let lobe = Lobe::new(Vec3::Z, 4.0, [1.0; 3]);
+    common::with_gpu(|ctx| {
+        let mut rec = ctx.recorder("env refusals")?;
+        let pose = PoseKernel::new(&mut rec, &pose_prep)?;
+        let ao = AoKernel::on_pose(&mut rec, &ao_prep, AoParams::default(), &pose)?;
+        let msg = |r: vkshade::Result<EnvKernel>| match r {
+            Ok(_) => panic!("accepted"),
+            Err(e) => e.to_string(),
+        };
+        assert!(msg(EnvKernel::new(&mut rec, &[], &pose, &ao)).contains("0 environment lobes"));
+        let many = vec![lobe; MAX_LOBES + 1];
+        assert!(msg(EnvKernel::new(&mut rec, &many, &pose, &ao)).contains("1..=64"));
+        let nan = Lobe {
+            axis: [f32::NAN, 0.0, 1.0],
+            ..lobe
+        };
+        assert!(msg(EnvKernel::new(&mut rec, &[lobe, nan], &pose, &ao)).contains("lobe 1"));
+        // A pose of another mesh.
+        let other = PosePrepared::new(&common::ball().mesh, 1)?;
+        let mut small = other.clone();
+        small.positions.truncate(10);
+        small.normals.truncate(10);
+        small.tangents.truncate(10);
+        small.vertex_joints.truncate(10);
+        small.vertex_weights.truncate(10);
+        let small_pose = PoseKernel::new(&mut rec, &small)?;
+        assert!(msg(EnvKernel::new(&mut rec, &[lobe], &small_pose, &ao)).contains("vertices"));
+        let env = EnvKernel::new(&mut rec, &[lobe; MAX_LOBES], &pose, &ao)?;
+        let mut bad = Mat3::IDENTITY;
+        bad.x_axis.y = f32::NAN;
+        let e = env.record(&mut rec, &bad).unwrap_err().to_string();
+        assert!(e.contains("not finite"), "{e}");
+        let e = env
+            .record(&mut rec, &Mat3::from_diagonal(Vec3::splat(2.0)))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("orthonormal"), "{e}");
+        // Nothing was recorded by the refusals: a good frame still runs.
+        pose.record(&mut rec, &[glam::Mat4::IDENTITY])?;
+        ao.record(&mut rec, &[glam::Mat4::IDENTITY])?;
+        env.record(&mut rec, &Mat3::IDENTITY)?;
+        let out = env.read_back(&mut rec)?;
+        rec.submit_and_wait()?;
+        let f = out.data()?;
+        assert_eq!(f.lobes.len(), MAX_LOBES);
+        assert!(f.shadowed.irradiance.iter().all(|e| e[0].is_finite()));
+        Ok(())
+    });
+}
+
+/// `vkshade env --frames 3 --reference` on BCN_Epileptic's Epileptisch under the forest map's
+/// 32-lobe fit: at each pose the relative L2 over vertices vs the ray-traced truth is below the
+/// AO-weighted floor's. The issue's 10% target is met at the first pose only (measured with
+/// 2048 rays: 7.9 / 15.1 / 16.4% vs the floor's 11.0 / 16.3 / 18.6%; the floor shows the
+/// sphere proxy's own error at the moved poses); the bound below guards that measurement.
+#[cfg(all(feature = "cli", feature = "gltf"))]
+#[test]
+fn beats_the_ao_floor_against_the_ray_traced_truth_at_three_poses() {
+    use vkshade::app::env::{EnvRunConfig, run};
+    let out = common::temp_dir("env");
+    let cfg = EnvRunConfig {
+        mesh: std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/bcn_epileptic.glb"),
+        frames: 3,
+        reference: true,
+        rays: 1024,
+        out: out.clone(),
+        ..EnvRunConfig::default()
+    };
+    let report = common::with_gpu(|ctx| run(ctx, &cfg, &mut |l| eprintln!("{l}")));
+    assert_eq!(report.frames.len(), 3);
+    for f in &report.frames {
+        let (mine, floor) = (f.rel_l2.unwrap(), f.floor_rel_l2.unwrap());
+        eprintln!(
+            "frame {}: env shadow {:.2}%, AO floor {:.2}%, unshadowed {:.2}%",
+            f.frame,
+            100.0 * mine,
+            100.0 * floor,
+            100.0 * f.unshadowed_rel_l2.unwrap()
+        );
+        assert!(mine < floor, "frame {}: {mine} >= floor {floor}", f.frame);
+        // Regression bound: the measured worst pose (16.4%) plus the truth's extra noise at
+        // 1024 rays (adds in quadrature, < 1%); the first pose meets the issue's 10%.
+        assert!(mine <= 0.18, "frame {}: {mine}", f.frame);
+        if f.frame == 0 {
+            assert!(mine <= 0.10, "frame 0: {mine}");
+        }
+        let ply = std::fs::read(f.ply.as_ref().unwrap()).unwrap();
+        let head = String::from_utf8_lossy(&ply[..400.min(ply.len())]).to_string();
+        for p in ["property float r", "property float g", "property float b"] {
+            assert!(head.contains(p), "{head}");
+        }
+    }
+    let _ = std::fs::remove_dir_all(out);
+}
