@@ -60,7 +60,8 @@ pub const PASS_DIFFUSION: &str = "sss diffusion";
 pub const PASS_POSE_VERTICES: &str = "sss pose vertices";
 /// Per triangle: the surface walk's records, the face normal and texel area.
 pub const PASS_POSE_TRIANGLES: &str = "sss pose triangles";
-/// Per texel: position, normal, area.
+/// Per texel: position, normal, area into images (not a pass of a frame: the posed irradiance
+/// computes them itself; [`SssKernel::read_back_geometry`] records it).
 pub const PASS_POSE_TEXELS: &str = "sss pose texels";
 /// The BVH's leaves (triangles and boxes) from the posed vertices.
 pub const PASS_BVH_LEAVES: &str = "sss bvh leaves";
@@ -709,6 +710,11 @@ impl SssKernel {
             bvh_nodes,
             bvh_triangles,
         })
+    }
+
+    /// Vertices of the mesh (a per-vertex irradiance holds at least this many vec4).
+    pub fn vertex_count(&self) -> u32 {
+        self.settings.room.vertices
     }
 
     pub fn size(&self) -> u32 {
