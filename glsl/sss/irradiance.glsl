@@ -63,8 +63,9 @@ layout(set = 0, binding = 9, rgba32ui) readonly uniform uimage2D tris;
 // channel, the cheapest gather), E >= 0, -1 where no surface. The kernel reads the
 // irradiance back from it (rgb = E, alpha 1; 0 where E < 0).
 #ifdef SSS_ENV
-// Per vertex of the posed mesh: rgb irradiance (radiometric, no 1/pi), the caller's buffer.
-layout(std430, set = 0, binding = 15) readonly buffer Venv { vec4 v[]; } venv;
+// Per vertex of the posed mesh: rgb irradiance (radiometric, no 1/pi), the caller's buffer
+// copied into an image (vertex v at (v % VERTEX_ROW, v / VERTEX_ROW); glsl/sss/vertex_env.comp).
+layout(set = 0, binding = 15, rgba32f) readonly uniform image2D venv_texels;
 // The output: rgb E, alpha 1 on the surface, -1 where no surface (the kernel clears it
 // once; the diffusion's gathers read it: glsl/sss/diffusion_env.comp).
 layout(set = 0, binding = 16, rgba32f) writeonly uniform image2D penv;
@@ -224,7 +225,8 @@ void main() {
     }
 #ifdef SSS_ENV
     // The caller's per-vertex irradiance at the texel (rgb), added to the lights' E.
-    vec3 env = w0 * venv.v[cr.x].rgb + w1 * venv.v[cr.y].rgb + w2 * venv.v[cr.z].rgb;
+    vec3 env = w0 * imageLoad(venv_texels, a0).rgb + w1 * imageLoad(venv_texels, a1).rgb
+        + w2 * imageLoad(venv_texels, a2).rgb;
     imageStore(penv, at, vec4(vec3(e) + env, 1.0));
 #else
     imageStore(pe, at, vec4(e));

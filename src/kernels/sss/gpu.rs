@@ -67,6 +67,9 @@ pub const PASS_POSE_TEXELS: &str = "sss pose texels";
 pub const PASS_BVH_LEAVES: &str = "sss bvh leaves";
 /// The BVH's inner boxes, level by level.
 pub const PASS_BVH_REFIT: &str = "sss bvh refit";
+/// With a per-vertex irradiance set ([`SssKernel::set_vertex_irradiance`]): the caller's
+/// buffer copied into an image for the irradiance pass.
+pub const PASS_VERTEX_IRRADIANCE: &str = "sss vertex irradiance";
 /// Most samples per texel (the width of the pattern image; Vulkan guarantees 4096 texels,
 /// checked at run time).
 pub const MAX_SAMPLES: u32 = 4096;
@@ -448,6 +451,10 @@ impl Posed {
 struct Env {
     /// Per texel: rgb E, alpha 1 on the surface and -1 where none (RGBA32F).
     image: Image,
+    /// The caller's per-vertex irradiance as an image (vertex v at (v % VERTEX_ROW,
+    /// v / VERTEX_ROW)), written by `sss vertex irradiance`.
+    vertex_texels: Image,
+    copy: Stage,
     irradiance: Stage,
     diffusion: Stage,
 }
@@ -819,6 +826,8 @@ impl SssKernel {
             Subresources::mip(image.desc(), 0),
             [0.0, 0.0, 0.0, -1.0],
         )?;
+        let per_vertex = [VERTEX_ROW, pack::rows(vertices as usize, VERTEX_ROW)];
+        let vertex_texels = Image::new(&ctx, "sss vertex E", rgba32f(per_vertex))?;
         let posed = self.posed.as_ref().map(|p| p.by_binding());
         let table: Vec<(&'static str, Resource<'_>)> = self
             .res
@@ -827,6 +836,7 @@ impl SssKernel {
             .chain(posed.into_iter().flatten())
             .chain([
                 ("venv", Resource::Buffer(buffer)),
+                ("venv_texels", Resource::storage_image(&vertex_texels)),
                 ("penv", Resource::storage_image(&image)),
             ])
             .collect();
@@ -835,11 +845,14 @@ impl SssKernel {
         } else {
             "sss/irradiance_env"
         };
+        let copy = Stage::from_table(&ctx, "sss/vertex_env", &table, &["venv_texels"])?;
         let irradiance = Stage::from_table(&ctx, shader, &table, &["trans", "penv"])?;
         let diffusion = Stage::from_table(&ctx, "sss/diffusion_env", &table, &["diffuse"])?;
         drop(table);
         self.env = Some(Env {
             image,
+            vertex_texels,
+            copy,
             irradiance,
             diffusion,
         });
@@ -921,6 +934,11 @@ impl SssKernel {
         Ok(Dispatch::words(&[], Grid::Invocations([n.max(1), 1, 1])))
     }
 
+    fn vertex_irradiance_args(&self, _lights: &[Light]) -> Result<Dispatch> {
+        let n = self.settings.room.vertices;
+        Ok(Dispatch::words(&[n], Grid::Invocations([n.max(1), 1, 1])))
+    }
+
     fn bvh_refit_args(&self, _lights: &[Light]) -> Result<Dispatch> {
         Ok(Dispatch::words(&[], Grid::Groups([1, 1, 1])))
     }
@@ -961,13 +979,19 @@ impl Kernel for SssKernel {
             irradiance = &p.irradiance;
         }
         let mut diffusion = &self.diffusion_grey;
+        passes.extend([
+            Pass::upload(PASS_LIGHTS, &self.res.lights, Self::light_bytes),
+            self.vertex_light.pass(PASS_VERTEX, Self::vertex_light_args),
+        ]);
         if let Some(env) = &self.env {
+            passes.push(
+                env.copy
+                    .pass(PASS_VERTEX_IRRADIANCE, Self::vertex_irradiance_args),
+            );
             irradiance = &env.irradiance;
             diffusion = &env.diffusion;
         }
         passes.extend([
-            Pass::upload(PASS_LIGHTS, &self.res.lights, Self::light_bytes),
-            self.vertex_light.pass(PASS_VERTEX, Self::vertex_light_args),
             irradiance.pass(PASS_IRRADIANCE, Self::irradiance_args),
             diffusion.pass(PASS_DIFFUSION, Self::diffusion_args),
         ]);
@@ -1012,8 +1036,17 @@ impl Kernel for SssKernel {
 
     fn memory(&self) -> MemoryReport {
         let posed = self.posed.as_ref().map(|p| p.by_binding());
-        let env = self.env.as_ref().map(|e| Resource::storage_image(&e.image));
-        let extra = posed.iter().flatten().map(|(_, r)| r.clone()).chain(env);
+        let env = self.env.as_ref().map(|e| {
+            [
+                Resource::storage_image(&e.image),
+                Resource::storage_image(&e.vertex_texels),
+            ]
+        });
+        let extra = posed
+            .iter()
+            .flatten()
+            .map(|(_, r)| r.clone())
+            .chain(env.into_iter().flatten());
         self.ctx.memory_of_resources(
             self.res
                 .by_binding()
