@@ -893,7 +893,9 @@ fn posed_head_geometry_on_the_gpu_equals_the_cpu_rasterisation() {
             passes.len(),
         ))
     });
-    assert_eq!(passes, 9);
+    // Pose vertices, pose triangles, BVH leaves and refit, lights, vertex light, irradiance
+    // (which computes the texel geometry itself), diffusion.
+    assert_eq!(passes, 8);
     // Vertex frames: the GPU scales the posed f32 by 1000 in f32, the CPU in f64 rounded
     // once to f32: the same rounding of the same exact product, so equal; the normal is
     // renormalised (1 ulp).
@@ -1083,5 +1085,211 @@ fn posed_head_512_meets_the_accuracy_target_through_the_pose_kernel() {
             (err.energy_ratio[c] - 1.0).abs() <= 0.02,
             "channel {c}: {err:?}"
         );
+    }
+}
+
+/// A smooth, non-uniform per-vertex rgb irradiance over a mesh (from its vertex normals and
+/// positions; positive, of the order of the lights' E).
+fn vertex_irradiance(geo: &TexGeometry) -> Vec<[f32; 4]> {
+    geo.positions
+        .iter()
+        .zip(&geo.normals)
+        .map(|(p, n)| {
+            let s = (0.05 * p.x).sin() * (0.03 * p.y).cos();
+            [
+                0.6 + 0.4 * n.x,
+                0.5 + 0.3 * n.y + 0.1 * s,
+                0.4 + 0.3 * s,
+                0.0,
+            ]
+        })
+        .collect()
+}
+
+/// Records the upload of a per-vertex irradiance into a new buffer.
+fn vertex_buffer(
+    rec: &mut vkshade::gpu::Recorder,
+    e: &[[f32; 4]],
+) -> vkshade::Result<vkshade::gpu::Buffer> {
+    use vkshade::gpu::{Buffer, BufferDesc};
+    let ctx = rec.context();
+    let b = Buffer::new(
+        &ctx,
+        "sss test vertex E",
+        BufferDesc::storage(e.len() as u64 * 16),
+    )?;
+    rec.upload(&b, 0, e)?;
+    Ok(b)
+}
+
+/// A per-vertex rgb irradiance (e.g. the environment shadowed by the character) added by the
+/// irradiance pass and diffused as rgb: the GPU against its CPU twin on the head.
+#[test]
+fn a_per_vertex_irradiance_on_the_gpu_equals_the_cpu_twin() {
+    let geo = head(256);
+    let p = Profile::new(ProfileKind::Dipole, Material::SKIN1, 0.995).unwrap();
+    let params = SamplerParams {
+        samples: 32,
+        ..Default::default()
+    };
+    let ve = vertex_irradiance(&geo);
+    // No lights: the irradiance is the interpolated per-vertex E alone, with no shadow ray
+    // that could flip at a grazing edge, so that the comparison is tight.
+    let lights: [Light; 0] = [];
+    let (out, passes) = common::with_gpu(|ctx| {
+        let mut setup = ctx.recorder("sss env setup")?;
+        let mut kernel = SssKernel::new(&mut setup, &geo, &p, params)?;
+        let buffer = vertex_buffer(&mut setup, &ve)?;
+        kernel.set_vertex_irradiance(&mut setup, Some(&buffer))?;
+        setup.submit_and_wait()?;
+        let mut out = None;
+        run_frames(ctx, &kernel, [&lights[..]], 1, |r| {
+            out = Some(r.output);
+            Ok(())
+        })?;
+        Ok((out.unwrap(), kernel.passes().len()))
+    });
+    // Lights, vertex light, the per-vertex irradiance's copy, irradiance, diffusion.
+    assert_eq!(passes, 5);
+    let e = cpu::irradiance_with_vertex(
+        &geo,
+        &Bvh::build(&geo.positions, &geo.triangles),
+        &lights,
+        params.shadow_refine,
+        &ve,
+    );
+    let valid: Vec<usize> = (0..geo.texels()).filter(|&i| geo.pos[i][3] > 0.0).collect();
+    let mut worst = 0f32;
+    for i in 0..geo.texels() {
+        if geo.pos[i][3] == 0.0 {
+            assert_eq!(out.irradiance[i], [0.0; 4], "texel {i}: no surface");
+            continue;
+        }
+        assert_eq!(out.irradiance[i][3], 1.0);
+        for c in 0..3 {
+            worst = worst.max((out.irradiance[i][c] - e[i][c]).abs() / e[i][c]);
+        }
+    }
+    eprintln!("per-vertex irradiance: GPU vs CPU twin max relative difference {worst:e}");
+    // Three products and two sums of positive f32 terms on each side, the same order; a
+    // driver may fuse a product into a sum (one rounding fewer): a few ulp of the result at
+    // most (ulp 1.2e-7 relative).
+    assert!(
+        worst <= 4.0 * f32::EPSILON,
+        "max relative difference {worst}"
+    );
+    // Non-uniform: the channels differ and vary over the head.
+    let spread = valid
+        .iter()
+        .map(|&i| out.irradiance[i][0])
+        .fold((f32::MAX, 0f32), |(lo, hi), x| (lo.min(x), hi.max(x)));
+    assert!(spread.1 > 1.5 * spread.0, "E red spans {spread:?}");
+    // The rgb diffusion: the same sample pattern from the GPU's rgb irradiance (as the grey
+    // path against its twin: measured 0, bound as there).
+    let b = cpu::diffusion(&geo, &p, &out.irradiance, &params);
+    for c in 0..3 {
+        let (mut d2, mut t2) = (0f64, 0f64);
+        for &i in &valid {
+            d2 += ((out.diffuse[i][c] - b[i][c]) as f64).powi(2);
+            t2 += (b[i][c] as f64).powi(2);
+        }
+        let rel = (d2 / t2).sqrt();
+        eprintln!("rgb diffusion channel {c}: GPU vs CPU twin rel RMSE {rel:e}");
+        assert!(rel < 1e-5, "channel {c}: relative RMSE {rel}");
+    }
+}
+
+/// A constant per-vertex irradiance adds exactly itself to every texel's irradiance, on the
+/// posed head (the posed irradiance pass) with a shadowing light: the frame with it against
+/// the frame without it, on the same kernel and pose.
+#[test]
+fn a_constant_per_vertex_irradiance_adds_exactly_itself() {
+    use vkshade::kernels::sss::PosedSource;
+    let size = 128;
+    let (ch, posed) = posed_head(0.3);
+    let rest = TexGeometry::build(&ch.mesh, size, 1000.0).unwrap();
+    let p = Profile::new(ProfileKind::Dipole, Material::SKIN1, 0.995).unwrap();
+    let lights = [Light::Directional {
+        toward: Vec3::new(0.3, 0.4, 1.0).normalize(),
+        e: 1.0,
+    }];
+    let params = SamplerParams {
+        samples: 8,
+        ..Default::default()
+    };
+    // Powers of two: with barycentrics that are multiples of 2^-16 (and w0 = 1 - w1 - w2
+    // exact in f32), w0 a + w1 a + w2 a is exactly a, so the texel's E is the f32 sum
+    // E_lights + a, bitwise.
+    let a = [0.5f32, 1.0, 2.0];
+    let ve = vec![[a[0], a[1], a[2], 0.0]; posed.positions.len()];
+    let (without, with, passes) = common::with_gpu(|ctx| {
+        let mut setup = ctx.recorder("sss env posed setup")?;
+        let src = PosedSource::upload(&mut setup, &posed.positions, &posed.normals)?;
+        let mut kernel = SssKernel::new_posed(
+            &mut setup,
+            &rest,
+            &ch.mesh.positions,
+            &p,
+            params,
+            src.buffers(1000.0),
+        )?;
+        let buffer = vertex_buffer(&mut setup, &ve)?;
+        setup.submit_and_wait()?;
+        let frame = |kernel: &SssKernel| -> vkshade::Result<SssOutput> {
+            let mut rec = ctx.recorder("sss env posed frame")?;
+            kernel.record(&mut rec, &lights[..])?;
+            let rb = kernel.read_back(&mut rec)?;
+            rec.submit_and_wait()?;
+            kernel.collect(&rb)
+        };
+        let without = frame(&kernel)?;
+        let mut rec = ctx.recorder("sss env set")?;
+        kernel.set_vertex_irradiance(&mut rec, Some(&buffer))?;
+        rec.submit_and_wait()?;
+        let with = frame(&kernel)?;
+        let passes = kernel.passes().len();
+        // Removed again: the grey path.
+        let mut rec = ctx.recorder("sss env unset")?;
+        kernel.set_vertex_irradiance(&mut rec, None)?;
+        rec.submit_and_wait()?;
+        let again = frame(&kernel)?;
+        assert_eq!(again.irradiance, without.irradiance);
+        Ok((without, with, passes))
+    });
+    // The posed frame's 8 and `sss vertex irradiance`.
+    assert_eq!(passes, 9);
+    let (mut covered, mut lit, mut shadowed) = (0, 0, 0);
+    for i in 0..without.irradiance.len() {
+        let (e0, e1) = (without.irradiance[i], with.irradiance[i]);
+        if e0[3] == 0.0 {
+            assert_eq!(e1, [0.0; 4], "texel {i}: no surface");
+            continue;
+        }
+        covered += 1;
+        lit += (e0[0] > 0.0) as usize;
+        shadowed += (e0[0] == 0.0) as usize;
+        for c in 0..3 {
+            assert_eq!(
+                e1[c].to_bits(),
+                (e0[c] + a[c]).to_bits(),
+                "texel {i} channel {c}: {} + {} gave {}",
+                e0[c],
+                a[c],
+                e1[c]
+            );
+        }
+    }
+    assert!(
+        covered > 1000 && lit > 100 && shadowed > 100,
+        "{covered} {lit} {shadowed}"
+    );
+    // The diffusion is linear in E: a constant E spreads to itself times R_tot where every
+    // sample finds surface; at least it adds light everywhere.
+    for i in 0..with.diffuse.len() {
+        if without.irradiance[i][3] != 0.0 && without.diffuse[i][3] > 0.0 {
+            for c in 0..3 {
+                assert!(with.diffuse[i][c] > without.diffuse[i][c], "texel {i}");
+            }
+        }
     }
 }

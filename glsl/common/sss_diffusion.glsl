@@ -1,8 +1,9 @@
 // The texture-space diffusion (glsl/sss/diffusion.comp, glsl/sss/diffusion_grey.comp; the
 // method is described in diffusion.comp). SSS_GREY: the gathers read the grey E from one
 // single-channel image (`pe`, written by the irradiance pass for white lights), one load per
-// sample; otherwise the surface flag and rgb E from two images (any irradiance, e.g. a
-// caller's upload). The arithmetic is the same (w * vec3(E)).
+// sample; SSS_ENV: the rgb E and the surface flag from one rgba image (`penv`, written by the
+// irradiance pass with a per-vertex irradiance added); otherwise the surface flag and rgb E
+// from two images (any irradiance, e.g. a caller's upload). The arithmetic is the same (w * vec3(E)).
 layout(local_size_x = 8, local_size_y = 8) in;
 
 layout(push_constant) uniform Push {
@@ -16,10 +17,14 @@ layout(push_constant) uniform Push {
 
 // Per texel, images (lavapipe fetches a texel's four channels at once; a storage-buffer load
 // at a per-lane index loops over the lanes for each component).
-#ifdef SSS_GREY
+#if defined(SSS_GREY)
 // The grey E (written by glsl/sss/irradiance.comp), -1 where no surface: one channel, the
 // cheapest gather.
 layout(set = 0, binding = 0, r32f) readonly uniform image2D pe;
+#elif defined(SSS_ENV)
+// The rgb E (written by glsl/sss/irradiance_env.comp, irradiance_posed_env.comp), alpha -1
+// where no surface: one rgba gather.
+layout(set = 0, binding = 0, rgba32f) readonly uniform image2D penv;
 #else
 layout(set = 0, binding = 0, rgba32f) readonly uniform image2D pos;   // xyz, flag
 layout(set = 0, binding = 4, rgba32f) readonly uniform image2D irr;
@@ -65,10 +70,14 @@ uvec4 record(uint tri, uint k) {
 
 // E at texel j (rgb); false where no surface.
 bool source(ivec2 j, out vec3 e) {
-#ifdef SSS_GREY
+#if defined(SSS_GREY)
     float ej = imageLoad(pe, j).x;
     e = vec3(ej);
     return ej >= 0.0;
+#elif defined(SSS_ENV)
+    vec4 ej = imageLoad(penv, j);
+    e = ej.rgb;
+    return ej.w >= 0.0;
 #else
     vec4 pj = imageLoad(pos, j);
     e = imageLoad(irr, j).rgb;

@@ -420,6 +420,8 @@ pub struct SssAnimBenchReport {
     pub cpu_geometry_ms_per_frame_before: Stats,
     /// Of which the contact build.
     pub cpu_contact_ms_per_frame_before: Stats,
+    /// The irradiance and diffusion with a per-vertex rgb irradiance against without.
+    pub rgb_path: RgbPathCost,
 }
 
 /// Runs `bench sss --anim`.
@@ -452,7 +454,8 @@ pub fn run_anim(
         normals: pose.normals(),
         mm_per_unit: cfg.mm_per_unit as f32,
     };
-    let kernel = SssKernel::new_posed(&mut setup, &geo, &mesh.positions, &profile, params, src)?;
+    let mut kernel =
+        SssKernel::new_posed(&mut setup, &geo, &mesh.positions, &profile, params, src)?;
     let still = SssKernel::new(&mut setup, &geo, &profile, params)?;
     setup.submit_and_wait()?;
     progress(&format!(
@@ -524,6 +527,8 @@ pub fn run_anim(
     };
     let still_passes = time_passes(ctx, &bench, &still, &lights[..])?;
     let static_ms = still_passes.iter().map(|(_, s)| s.median).sum::<f64>();
+    // The rgb path: the last pose's frame without and with a per-vertex irradiance.
+    let rgb_path = time_rgb_path(ctx, &bench, &mut kernel, &lights[..])?;
     // The old per-frame host work, one pose (the middle of the animation).
     let m = ch.rig.skinning_matrices(Some(anim), 0.5 * anim.duration);
     let room = crate::kernels::sss::pack::Room::of(&crate::kernels::sss::pack::Packed::new(
@@ -558,8 +563,60 @@ pub fn run_anim(
         gpu_ms_per_frame: gpu_ms,
         cpu_geometry_ms_per_frame_before: before,
         cpu_contact_ms_per_frame_before: contact,
+        rgb_path,
     };
     Ok(report)
+}
+
+/// What a per-vertex rgb irradiance ([`SssKernel::set_vertex_irradiance`], the character
+/// frame's environment term) costs: the irradiance and diffusion passes of the same frame
+/// without it (grey E) and with it (rgb E).
+#[derive(Clone, Debug, Serialize)]
+pub struct RgbPathCost {
+    pub grey_irradiance_ms: f64,
+    pub grey_diffusion_ms: f64,
+    pub rgb_irradiance_ms: f64,
+    pub rgb_diffusion_ms: f64,
+}
+
+/// Times `kernel`'s frame (the pose its posed buffers hold) without, then with, a constant
+/// per-vertex irradiance (the cost does not depend on its values); leaves it unset.
+fn time_rgb_path(
+    ctx: &Context,
+    bench: &super::BenchConfig,
+    kernel: &mut SssKernel,
+    lights: &[Light],
+) -> Result<RgbPathCost> {
+    use crate::gpu::{Buffer, BufferDesc};
+    let of = |passes: &[(&str, Stats)], name: &str| {
+        passes
+            .iter()
+            .find(|(n, _)| *n == name)
+            .map(|(_, s)| s.median)
+            .unwrap_or(f64::NAN)
+    };
+    let grey = time_passes(ctx, bench, &*kernel, lights)?;
+    let vertices = kernel.vertex_count() as usize;
+    let mut rec = ctx.recorder("sss bench vertex irradiance")?;
+    let e = vec![[0.25f32, 0.2, 0.15, 0.0]; vertices.max(1)];
+    let buffer = Buffer::new(
+        ctx,
+        "sss bench vertex E",
+        BufferDesc::storage(e.len() as u64 * 16),
+    )?;
+    rec.upload(&buffer, 0, &e)?;
+    kernel.set_vertex_irradiance(&mut rec, Some(&buffer))?;
+    rec.submit_and_wait()?;
+    let rgb = time_passes(ctx, bench, &*kernel, lights)?;
+    let mut rec = ctx.recorder("sss bench vertex irradiance off")?;
+    kernel.set_vertex_irradiance(&mut rec, None)?;
+    rec.submit_and_wait()?;
+    Ok(RgbPathCost {
+        grey_irradiance_ms: of(&grey, PASS_IRRADIANCE),
+        grey_diffusion_ms: of(&grey, PASS_DIFFUSION),
+        rgb_irradiance_ms: of(&rgb, PASS_IRRADIANCE),
+        rgb_diffusion_ms: of(&rgb, PASS_DIFFUSION),
+    })
 }
 
 /// The table of `bench sss --anim`.
@@ -596,5 +653,15 @@ pub fn print_anim(r: &SssAnimBenchReport) {
         r.anim_over_static,
         r.cpu_geometry_ms_per_frame_before.median,
         r.cpu_contact_ms_per_frame_before.median
+    );
+    let g = &r.rgb_path;
+    println!(
+        "per-vertex rgb E       irradiance {:.2} -> {:.2} ms, diffusion {:.2} -> {:.2} ms GPU \
+         (grey -> rgb, same pose): {:+.2} ms per frame",
+        g.grey_irradiance_ms,
+        g.rgb_irradiance_ms,
+        g.grey_diffusion_ms,
+        g.rgb_diffusion_ms,
+        g.rgb_irradiance_ms + g.rgb_diffusion_ms - g.grey_irradiance_ms - g.grey_diffusion_ms
     );
 }

@@ -243,6 +243,34 @@ pub fn irradiance_from_visibility(
     vis: &[u32],
     refine: bool,
 ) -> Vec<[f32; 4]> {
+    irradiance_with_vertex_irradiance(geo, bvh, lights, vis, refine, None)
+}
+
+/// [`irradiance`] plus a per-vertex rgb irradiance (the GPU's
+/// [`super::SssKernel::set_vertex_irradiance`]): per texel, `vertex_e` of its triangle's
+/// corners interpolated with the barycentrics the shader decodes and added to the lights' E
+/// (the shader's arithmetic: w0 E0 + w1 E1 + w2 E2, then E_lights + that).
+pub fn irradiance_with_vertex(
+    geo: &TexGeometry,
+    bvh: &Bvh,
+    lights: &[Light],
+    refine: bool,
+    vertex_e: &[[f32; 4]],
+) -> Vec<[f32; 4]> {
+    let vis = vertex_visibility(geo, bvh, lights);
+    irradiance_with_vertex_irradiance(geo, bvh, lights, &vis, refine, Some(vertex_e))
+}
+
+/// [`irradiance_from_visibility`] with an optional per-vertex rgb irradiance added
+/// ([`irradiance_with_vertex`]).
+pub fn irradiance_with_vertex_irradiance(
+    geo: &TexGeometry,
+    bvh: &Bvh,
+    lights: &[Light],
+    vis: &[u32],
+    refine: bool,
+    vertex_e: Option<&[[f32; 4]]>,
+) -> Vec<[f32; 4]> {
     let bias = shadow_bias(geo.extent_mm());
     (0..geo.texels())
         .into_par_iter()
@@ -282,7 +310,14 @@ pub fn irradiance_from_visibility(
                 };
                 e += strength * c * v;
             }
-            [e, e, e, 1.0]
+            match vertex_e {
+                Some(ve) => {
+                    let [a, b, c] = ids.map(|v| ve[v]);
+                    let at = |k: usize| e + (w[0] * a[k] + w[1] * b[k] + w[2] * c[k]);
+                    [at(0), at(1), at(2), 1.0]
+                }
+                None => [e, e, e, 1.0],
+            }
         })
         .collect()
 }

@@ -18,13 +18,23 @@
 //! and buffers from it, records their uploads, binds the pipelines and declares the passes.
 //!
 //! A skinned mesh ([`SssKernel::new_posed`]) binds the posed vertex buffers of the skinning
-//! pass and starts each frame with five more passes that compute from them what the upload
+//! pass and starts each frame with four more passes that compute from them what the upload
 //! held for a static mesh: `sss pose vertices` (vertex frames in mm, as a buffer for the
-//! vertex-light pass and an image for the next two), `sss pose triangles` (the surface walk's
-//! records, face normals, texel areas), `sss pose texels` (position, normal, area per texel
-//! of the occupied segments), `sss bvh leaves` and `sss bvh refit` (the rest pose's BVH
-//! topology with this pose's triangles and boxes). What the UV layout fixes is uploaded once
+//! vertex-light pass and an image for the irradiance), `sss pose triangles` (the surface
+//! walk's records, face normals, texel areas), `sss bvh leaves` and `sss bvh refit` (the rest
+//! pose's BVH topology with this pose's triangles and boxes). Its irradiance pass computes
+//! each texel's position and normal from its triangle and barycentrics (glsl/sss/
+//! irradiance_posed.comp) rather than reading them from images another pass wrote: nothing
+//! else in a frame reads them, and on lavapipe a store per texel costs more than the few
+//! loads that recompute them. `sss pose texels` stores them for a diagnostic readback only
+//! ([`SssKernel::read_back_geometry`]). What the UV layout fixes is uploaded once
 //! ([`super::posed::Layout`]), as are the contact entries (the rest pose's).
+//!
+//! A per-vertex rgb irradiance ([`SssKernel::set_vertex_irradiance`], e.g. the environment
+//! shadowed by the character, written by another kernel into a buffer) is interpolated per
+//! texel by the irradiance pass and added to the lights' E; the irradiance is then rgb, in
+//! one rgba image whose alpha marks the surface, and the diffusion gathers it with one load
+//! per sample (glsl/sss/irradiance*_env.comp, diffusion_env.comp).
 
 use super::cpu::{Light, MAX_LIGHTS, SamplerParams, check_lights, shadow_bias};
 use super::pack::{self, BVH_ROW, Packed, Pattern, Room, Settings, VERTEX_ROW, tile_groups};
@@ -39,7 +49,7 @@ use crate::kernels::contract::DispatchArgs;
 use crate::kernels::{Dispatch, Grid, Kernel, Pass};
 use ash::vk;
 use std::sync::Mutex;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicU8, Ordering};
 
 pub const PASS_LIGHTS: &str = "sss lights";
 pub const PASS_VERTEX: &str = "sss vertex light";
@@ -50,15 +60,27 @@ pub const PASS_DIFFUSION: &str = "sss diffusion";
 pub const PASS_POSE_VERTICES: &str = "sss pose vertices";
 /// Per triangle: the surface walk's records, the face normal and texel area.
 pub const PASS_POSE_TRIANGLES: &str = "sss pose triangles";
-/// Per texel: position, normal, area.
+/// Per texel: position, normal, area into images (not a pass of a frame: the posed irradiance
+/// computes them itself; [`SssKernel::read_back_geometry`] records it).
 pub const PASS_POSE_TEXELS: &str = "sss pose texels";
 /// The BVH's leaves (triangles and boxes) from the posed vertices.
 pub const PASS_BVH_LEAVES: &str = "sss bvh leaves";
 /// The BVH's inner boxes, level by level.
 pub const PASS_BVH_REFIT: &str = "sss bvh refit";
+/// With a per-vertex irradiance set ([`SssKernel::set_vertex_irradiance`]): the caller's
+/// buffer copied into an image for the irradiance pass.
+pub const PASS_VERTEX_IRRADIANCE: &str = "sss vertex irradiance";
 /// Most samples per texel (the width of the pattern image; Vulkan guarantees 4096 texels,
 /// checked at run time).
 pub const MAX_SAMPLES: u32 = 4096;
+
+/// The irradiance last recorded: the irradiance pass's grey E (lights only).
+const IRR_GREY: u8 = 0;
+/// The irradiance pass's rgb E (lights plus the per-vertex irradiance of
+/// [`SssKernel::set_vertex_irradiance`]).
+const IRR_ENV: u8 = 1;
+/// A caller's upload ([`SssKernel::upload_irradiance`]).
+const IRR_UPLOAD: u8 = 2;
 
 /// Host copies of a frame: irradiance, diffuse (rgba per texel; diffuse alpha is the
 /// fraction of the samples not lost) and transmission (rgb; alpha the thickness in mm, 0
@@ -71,8 +93,8 @@ pub struct SssOutput {
 }
 
 pub struct SssReadback {
-    /// `irradiance` is the grey E of the irradiance pass rather than a caller's rgb upload.
-    irradiance_is_grey: bool,
+    /// What `irradiance` holds ([`IRR_GREY`], [`IRR_ENV`], [`IRR_UPLOAD`]).
+    irradiance_kind: u8,
     irradiance: Readback,
     diffuse: Readback,
     transmission: Readback,
@@ -301,11 +323,14 @@ pub struct SssKernel {
     diffusion_rgb: Stage,
     /// The diffusion of the irradiance pass's grey E: one gather a sample.
     diffusion_grey: Stage,
-    /// Whether the irradiance last recorded is the irradiance pass's grey E (in
-    /// `irradiance_grey`) rather than a caller's upload (in `irradiance_rgb`): picks the
-    /// pipeline of [`SssKernel::record_diffusion`] and the image [`Kernel::read_back`] reads.
-    /// A frame's own diffusion pass always gathers the grey E its irradiance pass wrote.
-    irradiance_is_grey: AtomicBool,
+    /// What the irradiance last recorded is ([`IRR_GREY`]: the irradiance pass's grey E in
+    /// `irradiance_grey`; [`IRR_ENV`]: its rgb E in the [`Env`] image; [`IRR_UPLOAD`]: a
+    /// caller's upload in `irradiance_rgb`): picks the pipeline of
+    /// [`SssKernel::record_diffusion`] and the image [`Kernel::read_back`] reads. A frame's
+    /// own diffusion pass always gathers what its irradiance pass wrote.
+    irradiance_kind: AtomicU8,
+    /// The per-vertex irradiance added by the irradiance pass, when set.
+    env: Option<Env>,
     settings: Settings,
     /// The per-frame geometry passes of a skinned mesh ([`SssKernel::new_posed`]).
     posed: Option<Posed>,
@@ -392,7 +417,12 @@ struct Posed {
     bvh_slots: Buffer,
     vertices: Stage,
     triangles: Stage,
+    /// The texel geometry of this pose into the `pos`, `nrm` images: not a pass of the frame
+    /// (the posed irradiance computes it where it needs it), recorded by
+    /// [`SssKernel::read_back_geometry`] for diagnostics.
     texels: Stage,
+    /// The irradiance of a posed frame (glsl/sss/irradiance_posed.comp).
+    irradiance: Stage,
     bvh_leaves: Stage,
     bvh_refit: Stage,
     triangle_count: u32,
@@ -413,6 +443,20 @@ impl Posed {
             ("bvh_slots", Resource::Buffer(&self.bvh_slots)),
         ]
     }
+}
+
+/// A per-vertex rgb irradiance added to the lights' ([`SssKernel::set_vertex_irradiance`]):
+/// the rgb E image and the passes that write and diffuse it (their bind groups hold the
+/// caller's buffer).
+struct Env {
+    /// Per texel: rgb E, alpha 1 on the surface and -1 where none (RGBA32F).
+    image: Image,
+    /// The caller's per-vertex irradiance as an image (vertex v at (v % VERTEX_ROW,
+    /// v / VERTEX_ROW)), written by `sss vertex irradiance`.
+    vertex_texels: Image,
+    copy: Stage,
+    irradiance: Stage,
+    diffusion: Stage,
 }
 
 /// The per-frame geometry as the GPU computed it, read back (tests and diagnostics; not part
@@ -478,7 +522,8 @@ impl SssKernel {
             diffusion_grey,
             // The frame path (irradiance pass, then the grey diffusion) until a caller uploads
             // an irradiance.
-            irradiance_is_grey: AtomicBool::new(true),
+            irradiance_kind: AtomicU8::new(IRR_GREY),
+            env: None,
             settings: Settings {
                 profile: profile.clone(),
                 params,
@@ -574,6 +619,7 @@ impl SssKernel {
         let vertices_stage = stage("sss/pose_vertices", &["verts", "vframes"])?;
         let triangles_stage = stage("sss/pose_triangles", &["walk", "trirec"])?;
         let texels = stage("sss/pose_texels", &["pos", "nrm"])?;
+        let irradiance = stage("sss/irradiance_posed", &["trans", "pe"])?;
         let bvh_leaves = stage("sss/bvh_leaves", &["nodes", "tris"])?;
         let bvh_refit = stage("sss/bvh_refit", &[])?;
         drop(table);
@@ -592,6 +638,7 @@ impl SssKernel {
             vertices: vertices_stage,
             triangles: triangles_stage,
             texels,
+            irradiance,
             bvh_leaves,
             bvh_refit,
         });
@@ -604,8 +651,15 @@ impl SssKernel {
     }
 
     /// Records the readback of the geometry the GPU holds: vertex frames, texel position and
-    /// normal, walk records, BVH (for tests and diagnostics, not in a frame).
+    /// normal, walk records, BVH (for tests and diagnostics, not in a frame). A posed kernel
+    /// first records `sss pose texels`, which computes the texel position and normal of the
+    /// pose the frame's passes last computed (a frame's irradiance computes them where it
+    /// needs them and stores none).
     pub fn read_back_geometry(&self, rec: &mut Recorder) -> Result<GeometryReadback> {
+        if let Some(p) = &self.posed {
+            self.pose_texels_args(&[])?
+                .record(rec, &p.texels.pipeline, &p.texels.bind)?;
+        }
         let r = &self.res;
         let whole = |image: &Image| ImageRegion::whole(image.desc());
         Ok(GeometryReadback {
@@ -663,6 +717,11 @@ impl SssKernel {
             bvh_nodes,
             bvh_triangles,
         })
+    }
+
+    /// Vertices of the mesh (a per-vertex irradiance holds at least this many vec4).
+    pub fn vertex_count(&self) -> u32 {
+        self.settings.room.vertices
     }
 
     pub fn size(&self) -> u32 {
@@ -729,18 +788,91 @@ impl SssKernel {
     pub fn upload_irradiance(&self, rec: &mut Recorder, e: &[[f32; 4]]) -> Result<()> {
         pack::check_irradiance(self.size(), e)?;
         rec.upload_image_rows(&self.res.irradiance_rgb, e)?;
-        self.irradiance_is_grey.store(false, Ordering::Relaxed);
+        self.irradiance_kind.store(IRR_UPLOAD, Ordering::Relaxed);
         Ok(())
+    }
+
+    /// Sets (or with `None` removes) a per-vertex rgb irradiance that the irradiance pass adds
+    /// to the lights' E before the diffusion: `irradiance` holds a vec4 per vertex of the
+    /// (posed) mesh, (E_r, E_g, E_b, -) radiometric (no 1/pi, the lights' units), e.g. the
+    /// environment shadowed by the character (another kernel's output; vertices past this
+    /// mesh's are not read). Per texel it is interpolated with the texel's barycentrics over
+    /// its triangle, as the transmission is. The buffer is bound by the passes, so a pass
+    /// that writes it earlier in the same recording is ordered before the irradiance by the
+    /// recorder's tracking. With it the irradiance is rgb (one rgba gather per diffusion
+    /// sample instead of one channel); without it the grey path is unchanged. Records the
+    /// clearing of the rgb image (its empty texels say "no surface").
+    pub fn set_vertex_irradiance(
+        &mut self,
+        rec: &mut Recorder,
+        irradiance: Option<&Buffer>,
+    ) -> Result<()> {
+        let Some(buffer) = irradiance else {
+            self.env = None;
+            return Ok(());
+        };
+        let vertices = self.settings.room.vertices as u64;
+        if buffer.size() < vertices * 16 {
+            return Err(Error::InvalidArgument(format!(
+                "per-vertex irradiance buffer of {} bytes for {vertices} vertices (vec4 each)",
+                buffer.size()
+            )));
+        }
+        let ctx = rec.context();
+        let size = self.settings.room.size;
+        let image = Image::new(&ctx, "sss rgb E", rgba32f([size, size]))?;
+        rec.clear_image(
+            &image,
+            Subresources::mip(image.desc(), 0),
+            [0.0, 0.0, 0.0, -1.0],
+        )?;
+        let per_vertex = [VERTEX_ROW, pack::rows(vertices as usize, VERTEX_ROW)];
+        let vertex_texels = Image::new(&ctx, "sss vertex E", rgba32f(per_vertex))?;
+        let posed = self.posed.as_ref().map(|p| p.by_binding());
+        let table: Vec<(&'static str, Resource<'_>)> = self
+            .res
+            .by_binding()
+            .into_iter()
+            .chain(posed.into_iter().flatten())
+            .chain([
+                ("venv", Resource::Buffer(buffer)),
+                ("venv_texels", Resource::storage_image(&vertex_texels)),
+                ("penv", Resource::storage_image(&image)),
+            ])
+            .collect();
+        let shader = if self.posed.is_some() {
+            "sss/irradiance_posed_env"
+        } else {
+            "sss/irradiance_env"
+        };
+        let copy = Stage::from_table(&ctx, "sss/vertex_env", &table, &["venv_texels"])?;
+        let irradiance = Stage::from_table(&ctx, shader, &table, &["trans", "penv"])?;
+        let diffusion = Stage::from_table(&ctx, "sss/diffusion_env", &table, &["diffuse"])?;
+        drop(table);
+        self.env = Some(Env {
+            image,
+            vertex_texels,
+            copy,
+            irradiance,
+            diffusion,
+        });
+        Ok(())
+    }
+
+    /// Whether a per-vertex irradiance is set ([`SssKernel::set_vertex_irradiance`]).
+    pub fn has_vertex_irradiance(&self) -> bool {
+        self.env.is_some()
     }
 
     /// Records the diffusion dispatch alone (barriers from the declared accesses), of the
     /// irradiance last recorded: the grey one (one gather per sample) after the irradiance
-    /// pass, the rgb one after an upload.
+    /// pass, the rgb one with a per-vertex irradiance set (one rgba gather), the rgb one of
+    /// an upload (two gathers).
     pub fn record_diffusion(&self, rec: &mut Recorder) -> Result<()> {
-        let stage = if self.irradiance_is_grey.load(Ordering::Relaxed) {
-            &self.diffusion_grey
-        } else {
-            &self.diffusion_rgb
+        let stage = match (self.irradiance_kind.load(Ordering::Relaxed), &self.env) {
+            (IRR_UPLOAD, _) => &self.diffusion_rgb,
+            (IRR_ENV, Some(env)) => &env.diffusion,
+            _ => &self.diffusion_grey,
         };
         self.diffusion_args(&[])?
             .record(rec, &stage.pipeline, &stage.bind)
@@ -762,7 +894,12 @@ impl SssKernel {
     fn irradiance_args(&self, lights: &[Light]) -> Result<Dispatch> {
         let tiles = self.res.tile_count();
         let words = self.settings.irradiance_push(lights.len() as u32, tiles);
-        self.irradiance_is_grey.store(true, Ordering::Relaxed);
+        let kind = if self.env.is_some() {
+            IRR_ENV
+        } else {
+            IRR_GREY
+        };
+        self.irradiance_kind.store(kind, Ordering::Relaxed);
         Ok(Dispatch::words(&words, Grid::Groups(tile_groups(tiles))))
     }
 
@@ -797,6 +934,11 @@ impl SssKernel {
         Ok(Dispatch::words(&[], Grid::Invocations([n.max(1), 1, 1])))
     }
 
+    fn vertex_irradiance_args(&self, _lights: &[Light]) -> Result<Dispatch> {
+        let n = self.settings.room.vertices;
+        Ok(Dispatch::words(&[n], Grid::Invocations([n.max(1), 1, 1])))
+    }
+
     fn bvh_refit_args(&self, _lights: &[Light]) -> Result<Dispatch> {
         Ok(Dispatch::words(&[], Grid::Groups([1, 1, 1])))
     }
@@ -817,27 +959,41 @@ impl Kernel for SssKernel {
         "sss"
     }
 
-    /// A frame: the lights' upload, per-vertex light, texture-space irradiance (grey E),
-    /// then the diffusion of that grey E.
+    /// A frame: the lights' upload, per-vertex light, texture-space irradiance (grey E; rgb
+    /// with a per-vertex irradiance set), then the diffusion of that E. A posed kernel starts
+    /// with the vertex frames, the triangle records and the BVH; its irradiance computes the
+    /// texel geometry from them (no `sss pose texels` pass: the texels' positions and normals
+    /// are not stored).
     fn pass_table(&self) -> Vec<Pass<'_, Self>> {
-        let mut passes = Vec::with_capacity(9);
+        let mut passes = Vec::with_capacity(8);
+        let mut irradiance = &self.irradiance;
         if let Some(p) = &self.posed {
             passes.extend([
                 p.vertices
                     .pass(PASS_POSE_VERTICES, Self::pose_vertices_args),
                 p.triangles
                     .pass(PASS_POSE_TRIANGLES, Self::pose_triangles_args),
-                p.texels.pass(PASS_POSE_TEXELS, Self::pose_texels_args),
                 p.bvh_leaves.pass(PASS_BVH_LEAVES, Self::bvh_leaves_args),
                 p.bvh_refit.pass(PASS_BVH_REFIT, Self::bvh_refit_args),
             ]);
+            irradiance = &p.irradiance;
         }
+        let mut diffusion = &self.diffusion_grey;
         passes.extend([
             Pass::upload(PASS_LIGHTS, &self.res.lights, Self::light_bytes),
             self.vertex_light.pass(PASS_VERTEX, Self::vertex_light_args),
-            self.irradiance.pass(PASS_IRRADIANCE, Self::irradiance_args),
-            self.diffusion_grey
-                .pass(PASS_DIFFUSION, Self::diffusion_args),
+        ]);
+        if let Some(env) = &self.env {
+            passes.push(
+                env.copy
+                    .pass(PASS_VERTEX_IRRADIANCE, Self::vertex_irradiance_args),
+            );
+            irradiance = &env.irradiance;
+            diffusion = &env.diffusion;
+        }
+        passes.extend([
+            irradiance.pass(PASS_IRRADIANCE, Self::irradiance_args),
+            diffusion.pass(PASS_DIFFUSION, Self::diffusion_args),
         ]);
         passes
     }
@@ -847,16 +1003,19 @@ impl Kernel for SssKernel {
     }
 
     fn read_back(&self, rec: &mut Recorder) -> Result<SssReadback> {
-        let grey = self.irradiance_is_grey.load(Ordering::Relaxed);
+        let mut kind = self.irradiance_kind.load(Ordering::Relaxed);
         let r = &self.res;
-        let e = if grey {
-            &r.irradiance_grey
-        } else {
-            &r.irradiance_rgb
+        let e = match (kind, &self.env) {
+            (IRR_UPLOAD, _) => &r.irradiance_rgb,
+            (IRR_ENV, Some(env)) => &env.image,
+            _ => {
+                kind = IRR_GREY;
+                &r.irradiance_grey
+            }
         };
         let whole = |image: &Image| ImageRegion::whole(image.desc());
         Ok(SssReadback {
-            irradiance_is_grey: grey,
+            irradiance_kind: kind,
             irradiance: rec.read_back_image(e, whole(e))?,
             diffuse: rec.read_back(&r.diffuse)?,
             transmission: rec.read_back_image(&r.transmission, whole(&r.transmission))?,
@@ -865,10 +1024,10 @@ impl Kernel for SssKernel {
 
     fn collect(&self, rb: &SssReadback) -> Result<SssOutput> {
         Ok(SssOutput {
-            irradiance: if rb.irradiance_is_grey {
-                pack::grey_to_rgba(&rb.irradiance.to_vec()?)
-            } else {
-                rb.irradiance.to_vec()?
+            irradiance: match rb.irradiance_kind {
+                IRR_GREY => pack::grey_to_rgba(&rb.irradiance.to_vec()?),
+                IRR_ENV => pack::rgb_to_rgba(&rb.irradiance.to_vec()?),
+                _ => rb.irradiance.to_vec()?,
             },
             diffuse: rb.diffuse.to_vec()?,
             transmission: rb.transmission.to_vec()?,
@@ -877,7 +1036,17 @@ impl Kernel for SssKernel {
 
     fn memory(&self) -> MemoryReport {
         let posed = self.posed.as_ref().map(|p| p.by_binding());
-        let extra = posed.iter().flatten().map(|(_, r)| r.clone());
+        let env = self.env.as_ref().map(|e| {
+            [
+                Resource::storage_image(&e.image),
+                Resource::storage_image(&e.vertex_texels),
+            ]
+        });
+        let extra = posed
+            .iter()
+            .flatten()
+            .map(|(_, r)| r.clone())
+            .chain(env.into_iter().flatten());
         self.ctx.memory_of_resources(
             self.res
                 .by_binding()

@@ -14,8 +14,10 @@
 //! - [`posed`]: what a skinned mesh's UV layout fixes (built once), and the CPU twins of
 //!   the BVH refit.
 //! - [`gpu`]: the kernel (passes `sss lights`, `sss vertex light`, `sss irradiance`,
-//!   `sss diffusion`; posed: `sss pose vertices`, `sss pose triangles`, `sss pose texels`,
-//!   `sss bvh leaves`, `sss bvh refit` first).
+//!   `sss diffusion`; posed: `sss pose vertices`, `sss pose triangles`, `sss bvh leaves`,
+//!   `sss bvh refit` first, and the irradiance computes the texel geometry itself). An
+//!   optional per-vertex rgb irradiance (e.g. the environment shadowed by the character) is
+//!   added before the diffusion ([`SssKernel::set_vertex_irradiance`]).
 //! - [`cpu`]: the CPU twin of both passes (same rays, same sample pattern).
 //! - The brute-force ground truth is `reference::sss`.
 //!
@@ -29,7 +31,8 @@
 //! Skinned meshes ([`SssKernel::new_posed`], `vkshade sss --anim`): what the UV layout fixes
 //! is built once ([`posed`]); each frame the GPU computes the vertex frames, the texel
 //! geometry, the walk's records and a refit of the rest pose's BVH from the posed buffers of
-//! `kernels::pose` (passes `sss pose *`, `sss bvh *`); the contact entries are the rest
+//! `kernels::pose` (passes `sss pose *`, `sss bvh *`, the texel geometry inside `sss
+//! irradiance`); the contact entries are the rest
 //! pose's. [`SssKernel::update_geometry`] uploads a CPU-rasterised pose to a kernel made
 //! with [`SssKernel::new`] (one made on posed buffers refuses it).
 

@@ -1,0 +1,238 @@
+// Texture-space irradiance (glsl/sss/irradiance*.comp). SSS_POSED: the texel's position and
+// normal are computed here from its triangle and barycentrics (fixed by the UV layout) and this
+// pose's vertex frames (what pass `sss pose texels` writes for a diagnostic readback), instead
+// of read from the per-texel images. SSS_ENV: a per-vertex rgb irradiance (the caller's
+// buffer `venv`, e.g. the environment shadowed by the character) is interpolated with the
+// texel's barycentrics and added to the lights' E; the output is then rgb (`penv`, alpha -1
+// where no surface) instead of the grey `pe`.
+// Texture-space irradiance: E per texel from directional and point lights, E =
+// sum_l strength_l max(n.l, 0) V_l, with the texel's own normal, position (point-light
+// distance) and cosine, and the visibility V_l interpolated over the texel's triangle from
+// the per-vertex shadow rays of pass `sss vertex light` (glsl/sss/vertex_light.comp): where
+// the triangle's three corners agree, V is theirs (0 or 1); where they disagree (a shadow
+// boundary crosses the triangle) and refine is on, the texel casts its own shadow ray through
+// the BVH (the same traversal as the vertex pass), else V is interpolated with the texel
+// centre's barycentrics. White lights: one grey E. Transmission (mode != 0):
+// the per-vertex (rgb, thickness) interpolated. What this changes against a ray per texel is
+// measured by `vkshade sss` (report.json `shadowing`): shadows smaller than a triangle that
+// touch none of its corners are missed. Everything per texel is an image (lavapipe fetches a texel's four channels at
+// once; a storage-buffer load at a per-lane index loops over the lanes for each component).
+// The CPU twin is src/kernels/sss/cpu.rs.
+layout(local_size_x = 8, local_size_y = 8) in;
+
+layout(push_constant) uniform Push {
+    uint size;     // texture is size x size
+    uint lights;
+    uint mode;     // transmission: 0 off, else on
+    uint refine;   // 1: a shadow ray per texel where the corners disagree
+    float bias;    // shadow-ray origin offset along the normal (mm)
+    uint tiles;    // occupied row segments
+} pc;
+
+const uint VERTEX_ROW = 1024u;
+
+#ifdef SSS_POSED
+// Per texel: (triangle, w1 bits, w2 bits, flag bits), fixed by the UV layout; per triangle
+// (BVH_ROW a row) the face normal and texel area, and per vertex v the frame (position mm,
+// normal) at texels 2v, 2v + 1 (passes `sss pose triangles`, `sss pose vertices`).
+layout(set = 0, binding = 12, rgba32ui) readonly uniform uimage2D source;
+layout(set = 0, binding = 13, rgba32f) readonly uniform image2D trirec;
+layout(set = 0, binding = 14, rgba32f) readonly uniform image2D vframes;
+#else
+layout(set = 0, binding = 0, rgba32f) readonly uniform image2D pos;     // xyz, flag
+layout(set = 0, binding = 1, rgba32f) readonly uniform image2D nrm;     // xyz, area
+#endif
+// The texel's triangle corners (vertex indices) and barycentrics w1, w2 as 16-bit fractions
+// of 2^16 in w (cpu::texel_corners_packed).
+layout(set = 0, binding = 2, rgba32ui) readonly uniform uimage2D corners;
+const uint MAX_LIGHTS = 16u; // cpu::MAX_LIGHTS
+// A uniform buffer: lavapipe reads it at the loop's uniform index as a scalar (a storage
+// buffer would be loaded lane by lane, component by component).
+layout(std140, set = 0, binding = 3) uniform Lights { vec4 v[2 * MAX_LIGHTS]; } lights; // 2 per light
+layout(set = 0, binding = 4, r32ui) readonly uniform uimage2D vis;
+layout(set = 0, binding = 5, rgba32f) readonly uniform image2D vtrans;
+// Transmission: written only when mode != 0 (the kernel clears it when transmission is off;
+// lavapipe stores a texel lane by lane, and a store per texel costs ~2.5 ms at 512^2).
+layout(set = 0, binding = 7, rgba32f) writeonly uniform image2D trans;  // rgb, t
+// The BVH as images (row BVH_ROW; lavapipe fetches a texel's four channels at once): nodes
+// 2 texels each (lo xyz, first; hi xyz, count), triangles 3 (a, e1, e2), float bits.
+const uint BVH_ROW = 1024u;
+layout(set = 0, binding = 8, rgba32ui) readonly uniform uimage2D nodes;
+layout(set = 0, binding = 9, rgba32ui) readonly uniform uimage2D tris;
+// The output: the grey E for the diffusion's gathers (glsl/sss/diffusion_grey.comp: one
+// channel, the cheapest gather), E >= 0, -1 where no surface. The kernel reads the
+// irradiance back from it (rgb = E, alpha 1; 0 where E < 0).
+#ifdef SSS_ENV
+// Per vertex of the posed mesh: rgb irradiance (radiometric, no 1/pi), the caller's buffer
+// copied into an image (vertex v at (v % VERTEX_ROW, v / VERTEX_ROW); glsl/sss/vertex_env.comp).
+layout(set = 0, binding = 15, rgba32f) readonly uniform image2D venv_texels;
+// The output: rgb E, alpha 1 on the surface, -1 where no surface (the kernel clears it
+// once; the diffusion's gathers read it: glsl/sss/diffusion_env.comp).
+layout(set = 0, binding = 16, rgba32f) writeonly uniform image2D penv;
+#else
+layout(set = 0, binding = 10, r32f) writeonly uniform image2D pe;
+#endif
+// The occupied 8x1 row segments of the atlas (x / 8 | y << 16, built once per mesh: the UV
+// layout does not change when it is skinned): workgroup (x, y) shades segments
+// 8 (y * TILE_ROW + x) + local y, a SIMD step of 8 lanes per segment; texels of empty
+// segments are never touched (the kernel clears the outputs there once).
+const uint TILE_ROW = 256u;
+layout(std430, set = 0, binding = 11) readonly buffer Tiles { uint v[]; } tiles;
+
+uvec4 bvh_node(uint k) {
+    return imageLoad(nodes, ivec2(k % BVH_ROW, k / BVH_ROW));
+}
+
+vec3 tri_row(uint k) {
+    return uintBitsToFloat(imageLoad(tris, ivec2(k % BVH_ROW, k / BVH_ROW)).xyz);
+}
+
+bool hit_tri(vec3 o, vec3 d, uint t, float tmax) {
+    vec3 a = tri_row(3u * t);
+    vec3 e1 = tri_row(3u * t + 1u);
+    vec3 e2 = tri_row(3u * t + 2u);
+    vec3 p = cross(d, e2);
+    float det = dot(e1, p);
+    if (abs(det) < 1e-12) return false;
+    float inv = 1.0 / det;
+    vec3 s = o - a;
+    float u = dot(s, p) * inv;
+    if (u < 0.0 || u > 1.0) return false;
+    vec3 q = cross(s, e1);
+    float v = dot(d, q) * inv;
+    if (v < 0.0 || u + v > 1.0) return false;
+    float t_hit = dot(e2, q) * inv;
+    return t_hit > 0.0 && t_hit <= tmax;
+}
+
+bool any_hit(vec3 o, vec3 d, float tmax) {
+    vec3 inv = 1.0 / d;
+    uint stack[64];
+    uint sp = 1u;
+    stack[0] = 0u;
+    while (sp > 0u) {
+        sp--;
+        uint ni = stack[sp];
+        uvec4 lo_u = bvh_node(2u * ni);
+        uvec4 hi_u = bvh_node(2u * ni + 1u);
+        vec3 lo = uintBitsToFloat(lo_u.xyz);
+        vec3 hi = uintBitsToFloat(hi_u.xyz);
+        vec3 t0 = (lo - o) * inv;
+        vec3 t1 = (hi - o) * inv;
+        vec3 tmin = min(t0, t1);
+        vec3 tmx = max(t0, t1);
+        float tnear = max(max(max(tmin.x, tmin.y), tmin.z), 0.0);
+        float tfar = min(min(min(tmx.x, tmx.y), tmx.z), tmax);
+        if (tnear > tfar) continue;
+        uint first = lo_u.w;
+        uint count = hi_u.w;
+        if (count > 0u) {
+            for (uint t = first; t < first + count; t++) {
+                if (hit_tri(o, d, t, tmax)) return true;
+            }
+        } else if (sp + 2u <= 64u) {
+            stack[sp] = first;
+            stack[sp + 1u] = first + 1u;
+            sp += 2u;
+        }
+    }
+    return false;
+}
+
+
+#ifdef SSS_POSED
+vec3 vload(uint k) {
+    return imageLoad(vframes, ivec2(k % BVH_ROW, k / BVH_ROW)).xyz;
+}
+#endif
+
+ivec2 vertex_at(uint v) {
+    return ivec2(v % VERTEX_ROW, v / VERTEX_ROW);
+}
+
+void main() {
+    uint ti = 8u * (gl_WorkGroupID.y * TILE_ROW + gl_WorkGroupID.x) + gl_LocalInvocationID.y;
+    if (ti >= pc.tiles) return;
+    uint tile = tiles.v[ti];
+    uvec2 xy = uvec2((tile & 0xffffu) * 8u + gl_LocalInvocationID.x, tile >> 16u);
+    if (xy.x >= pc.size || xy.y >= pc.size) return;
+    ivec2 at = ivec2(xy);
+#ifdef SSS_POSED
+    uvec4 src = imageLoad(source, at);
+    float flag = uintBitsToFloat(src.w);
+#else
+    vec4 p4 = imageLoad(pos, at);
+    float flag = p4.w;
+#endif
+    if (flag == 0.0) {
+        if (pc.mode != 0u) imageStore(trans, at, vec4(0.0));
+#ifdef SSS_ENV
+        imageStore(penv, at, vec4(0.0, 0.0, 0.0, -1.0));
+#else
+        imageStore(pe, at, vec4(-1.0));
+#endif
+        return;
+    }
+    uvec4 cr = imageLoad(corners, at);
+#ifdef SSS_POSED
+    // As glsl/sss/pose_texels.comp (the same arithmetic).
+    vec3 p, n;
+    {
+        float s1 = uintBitsToFloat(src.y), s2 = uintBitsToFloat(src.z);
+        float s0 = 1.0 - s1 - s2;
+        p = vload(2u * cr.x) * s0 + vload(2u * cr.y) * s1 + vload(2u * cr.z) * s2;
+        n = vload(2u * cr.x + 1u) * s0 + vload(2u * cr.y + 1u) * s1 + vload(2u * cr.z + 1u) * s2;
+        float ln = length(n);
+        n = ln > 0.0 ? n * (1.0 / ln) : imageLoad(trirec, ivec2(src.x % BVH_ROW, src.x / BVH_ROW)).xyz;
+    }
+#else
+    vec3 p = p4.xyz;
+    vec3 n = imageLoad(nrm, at).xyz;
+#endif
+    const float Q = 1.0 / 65536.0;
+    float w1 = float(cr.w & 0xffffu) * Q, w2 = float(cr.w >> 16u) * Q;
+    float w0 = 1.0 - w1 - w2;
+    ivec2 a0 = vertex_at(cr.x), a1 = vertex_at(cr.y), a2 = vertex_at(cr.z);
+    uint b0 = imageLoad(vis, a0).x, b1 = imageLoad(vis, a1).x, b2 = imageLoad(vis, a2).x;
+    float e = 0.0;
+    for (uint l = 0u; l < pc.lights; l++) {
+        vec4 a = lights.v[2u * l];
+        float strength = lights.v[2u * l + 1u].x;
+        vec3 dir;
+        float tmax;
+        if (a.w == 0.0) {
+            dir = a.xyz;
+            tmax = uintBitsToFloat(0x7f800000u);
+        } else {
+            vec3 dd = a.xyz - p;
+            float dist = length(dd);
+            dir = dd / dist;
+            tmax = dist - pc.bias;
+            strength = strength / (dist * dist);
+        }
+        float c = dot(n, dir);
+        if (c <= 0.0 || strength == 0.0) continue;
+        uint c0 = (b0 >> l) & 1u, c1 = (b1 >> l) & 1u, c2 = (b2 >> l) & 1u;
+        float v;
+        if (c0 == c1 && c1 == c2) {
+            v = float(c0);
+        } else if (pc.refine != 0u && flag == 1.0) { // gutters (0.5) interpolate
+            v = any_hit(p + n * pc.bias, dir, tmax) ? 0.0 : 1.0;
+        } else {
+            v = w0 * float(c0) + w1 * float(c1) + w2 * float(c2);
+        }
+        e += strength * c * v;
+    }
+#ifdef SSS_ENV
+    // The caller's per-vertex irradiance at the texel (rgb), added to the lights' E.
+    vec3 env = w0 * imageLoad(venv_texels, a0).rgb + w1 * imageLoad(venv_texels, a1).rgb
+        + w2 * imageLoad(venv_texels, a2).rgb;
+    imageStore(penv, at, vec4(vec3(e) + env, 1.0));
+#else
+    imageStore(pe, at, vec4(e));
+#endif
+    if (pc.mode != 0u) {
+        vec4 tr = w0 * imageLoad(vtrans, a0) + w1 * imageLoad(vtrans, a1) + w2 * imageLoad(vtrans, a2);
+        imageStore(trans, at, tr);
+    }
+}

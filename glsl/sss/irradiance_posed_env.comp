@@ -1,0 +1,5 @@
+#version 450
+// Texture-space irradiance: Lights plus a per-vertex rgb irradiance, the texel geometry from this pose's vertex frames. The method: glsl/sss/irradiance.glsl.
+#define SSS_POSED 1
+#define SSS_ENV 1
+#include <sss/irradiance.glsl>
