@@ -141,7 +141,7 @@ fn the_skin_stage_equals_the_sss_kernel_alone_on_the_same_pose() {
         };
         let mut rec = ctx.recorder("sss alone")?;
         let src = PosedSource::upload(&mut rec, &v3(&st.positions), &v3(&st.normals))?;
-        let alone = SssKernel::new_posed(
+        let mut alone = SssKernel::new_posed(
             &mut rec,
             geo,
             &rest,
@@ -149,6 +149,17 @@ fn the_skin_stage_equals_the_sss_kernel_alone_on_the_same_pose() {
             params,
             src.buffers(cfg.mm_per_unit as f32),
         )?;
+        // The frame's environment irradiance, uploaded from the host.
+        let env = rec.buffer_with(
+            "env irradiance from the frame",
+            vkshade::gpu::BufferDesc::storage(16 * st.env_irradiance.len().max(1) as u64),
+            &st.env_irradiance,
+        )?;
+        assert!(
+            !st.env_irradiance.is_empty(),
+            "the default frame has an environment"
+        );
+        alone.set_vertex_irradiance(&mut rec, Some(&env))?;
         alone.record(&mut rec, lights)?;
         let rb = alone.read_back(&mut rec)?;
         rec.submit_and_wait()?;

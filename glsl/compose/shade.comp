@@ -11,7 +11,8 @@
 //   (2/m^2) / (4 n.v), amplitude 1/(pi m^2)), each lobe weighted by its per-vertex
 //   visibility V_j interpolated to the pixel.
 // - Cloth pixels take the BTF pass's radiance.
-// - Background pixels show the environment (sum of its rotated lobes along the view ray).
+// - Background pixels take the background colour (evaluating every lobe per background
+//   pixel cost more than the rest of the pass together on lavapipe).
 // Then exposure, the ACES fit (Narkowicz) and sRGB encoding into an RGBA8 word per pixel;
 // the linear HDR radiance is kept too. The CPU twin is kernels::compose::cpu::shade.
 #extension GL_EXT_samplerless_texture_functions : require
@@ -25,7 +26,7 @@ struct Params {
     vec4 light_dir[2]; // towards the light (unit), w 0
     vec4 light_rgb[2]; // irradiance on a surface facing the light
     vec4 skin;      // rho_s, Beckmann m, F0, 0
-    vec4 background; // rgb used where there is no environment, w 0
+    vec4 background; // rgb behind the character, w 0
     uvec4 counts;   // width, height, lights, lobes
     uvec4 atlas;    // atlas size, skin triangles, visibility mode (0 none, 1 per lobe), 0
 };
@@ -51,16 +52,6 @@ float schlick(float f0, float c) {
     float x = 1.0 - clamp(c, 0.0, 1.0);
     float x2 = x * x;
     return f0 + (1.0 - f0) * x2 * x2 * x;
-}
-
-// Sum of the environment's lobes along w.
-vec3 environment(vec3 w, uint lobes_n) {
-    vec3 s = vec3(0.0);
-    for (uint j = 0u; j < lobes_n; j++) {
-        vec4 a = lobes.l[2u * j];
-        s += lobes.l[2u * j + 1u].rgb * exp(a.w * (dot(a.xyz, w) - 1.0));
-    }
-    return s;
 }
 
 // <G1, G2> for unit axes: 2 pi mu1 mu2 e^(|r| - l1 - l2) (1 - e^(-2|r|)) / |r|, with the
@@ -111,7 +102,7 @@ void main() {
     vec4 g0 = texelFetch(gbuffer, ivec3(px, 0), 0);
     vec3 radiance;
     if (g0.w == 0.0) {
-        radiance = lobes_n > 0u ? environment(d, lobes_n) : P.background.rgb;
+        radiance = P.background.rgb;
     } else {
         uint tri = keys.k[idx].x;
         if (tri < P.atlas.y) {

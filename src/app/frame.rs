@@ -28,6 +28,15 @@ pub struct Args {
     /// memory.
     #[arg(long)]
     pub btf: Option<PathBuf>,
+    /// The HDR environment (EXR or .hdr), fitted once with spherical Gaussians.
+    #[arg(long, default_value = crate::kernels::srbf::DEFAULT_ENV)]
+    pub env: PathBuf,
+    /// No environment: the directional lights alone.
+    #[arg(long)]
+    pub no_env: bool,
+    /// Lobes of the environment's fit.
+    #[arg(long, default_value_t = 16)]
+    pub env_lobes: usize,
     /// The animation to play.
     #[arg(long, default_value = "Epileptisch")]
     pub anim: String,
@@ -87,6 +96,8 @@ impl Args {
             tile_scale: self.tile_scale,
             btf: self.btf.clone(),
             exposure: self.exposure,
+            env: (!self.no_env).then(|| self.env.clone()),
+            env_lobes: self.env_lobes,
             ..d
         };
         cfg.check()?;

@@ -5,8 +5,8 @@
 pub mod ao;
 pub mod bench;
 pub mod btf;
-pub mod frame;
 pub mod env;
+pub mod frame;
 pub mod info;
 pub mod scene;
 pub mod shaders;

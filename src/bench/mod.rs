@@ -3,8 +3,8 @@
 
 pub mod ao;
 pub mod btf;
-pub mod frame;
 pub mod env;
+pub mod frame;
 pub mod peak;
 pub mod plot;
 pub mod srbf;

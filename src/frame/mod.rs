@@ -5,12 +5,14 @@
 //! pass's declared accesses through the recorder's tracking):
 //! 1. `pose` skins the whole character once (skin parts first, then cloth parts);
 //!    `ao` skins the sphere tree and computes per-vertex occlusion from the same pose;
+//!    `env` rotates the environment's SG lobes and shadows each by the sphere tree's caps per
+//!    vertex (visibility per lobe, shadowed irradiance);
 //! 2. `raster` writes the screen G-buffer of the posed character;
 //! 3. `sss` builds the skin's texture-space geometry from the posed buffers, its irradiance
-//!    (lights with shadows) and the subsurface diffusion;
+//!    (lights with shadows, plus the shadowed environment) and the subsurface diffusion;
 //! 4. `btf` shades the cloth pixels of the G-buffer;
 //! 5. `compose` shades the skin pixels through the G-buffer (diffusion with Fresnel, a
-//!    specular layer), takes the cloth's radiance, puts the environment behind, tone maps.
+//!    specular layer), takes the cloth's radiance, a background colour behind, tone maps.
 //!
 //! What is built once per character ([`CharacterFrame::new`]): the sphere tree, the skin's
 //! UV layout and texture-space structure, the BTF tile, the camera framing the whole
@@ -77,8 +79,16 @@ pub struct FrameConfig {
     pub exposure: f32,
     /// The skin's specular layer.
     pub specular: SkinSpecular,
-    /// Background colour (linear) where no environment is drawn.
+    /// Background colour (linear).
     pub background: [f32; 3],
+    /// An HDR environment map (EXR or .hdr), fitted once with `env_lobes` spherical
+    /// Gaussians, rotated per frame on the GPU and shadowed by the character; None: the
+    /// directional lights alone.
+    pub env: Option<PathBuf>,
+    /// Lobes of the environment's fit.
+    pub env_lobes: usize,
+    /// Width of the map the fit samples (the map is downsampled to it).
+    pub env_fit_width: u32,
 }
 
 impl Default for FrameConfig {
@@ -108,6 +118,9 @@ impl Default for FrameConfig {
             exposure: 1.0,
             specular: SkinSpecular::default(),
             background: [0.05, 0.055, 0.06],
+            env: Some(PathBuf::from(crate::kernels::srbf::DEFAULT_ENV)),
+            env_lobes: 16,
+            env_fit_width: 128,
         }
     }
 }
@@ -139,6 +152,13 @@ impl FrameConfig {
         }
         if !(self.mm_per_unit.is_finite() && self.mm_per_unit > 0.0) {
             return bad(format!("mm per unit {} must be > 0", self.mm_per_unit));
+        }
+        if self.env.is_some() && !(1..=crate::kernels::env::MAX_LOBES).contains(&self.env_lobes) {
+            return bad(format!(
+                "{} environment lobes; 1..={}",
+                self.env_lobes,
+                crate::kernels::env::MAX_LOBES
+            ));
         }
         if !(self.tile_scale.is_finite() && self.tile_scale > 0.0) {
             return bad(format!("tile scale {} must be > 0", self.tile_scale));
@@ -180,6 +200,10 @@ pub struct SetupReport {
     pub ms_atlas: f64,
     pub ms_btf: f64,
     pub ms_upload: f64,
+    pub env_lobes: usize,
+    /// Relative L2 of the environment's fit (solid-angle weighted, all channels).
+    pub env_fit_rel_l2: f64,
+    pub ms_env_fit: f64,
 }
 
 /// The character frame: every kernel of one animated character, built once.
@@ -195,6 +219,7 @@ pub struct CharacterFrame {
     pose: pose::PoseKernel,
     ao: ao::gpu::AoKernel,
     raster: RasterKernel,
+    env: Option<crate::kernels::env::EnvKernel>,
     sss: Option<Skin>,
     btf: Option<BtfKernel>,
     btf_frame: BtfFrame,
@@ -356,11 +381,47 @@ impl CharacterFrame {
                 b.size[0], b.size[1], setup.ms_btf
             ));
         }
+        // The environment, fitted once.
+        let t = Instant::now();
+        let lobes = match &cfg.env {
+            Some(path) => {
+                use crate::kernels::srbf::fit::{FitConfig, fit};
+                let map = crate::scene::EnvMap::load(path)?;
+                let small = map.downsampled(cfg.env_fit_width.min(map.width))?;
+                let fitted = fit(
+                    &small.samples(),
+                    &FitConfig {
+                        lobes: cfg.env_lobes,
+                        ..FitConfig::default()
+                    },
+                )?;
+                setup.env_lobes = fitted.lobes.len();
+                setup.env_fit_rel_l2 = fitted.rel_l2;
+                Some(fitted.lobes)
+            }
+            None => None,
+        };
+        setup.ms_env_fit = t.elapsed().as_secs_f64() * 1e3;
+        if let Some(path) = &cfg.env {
+            progress(&format!(
+                "environment {}: {} lobes, relative L2 {:.3} ({:.0} ms)",
+                path.display(),
+                setup.env_lobes,
+                setup.env_fit_rel_l2,
+                setup.ms_env_fit
+            ));
+        }
         crate::kernels::raster::gpu::check_device(ctx)?;
         let t = Instant::now();
         let mut rec = ctx.recorder("character frame setup")?;
         let pose = pose::PoseKernel::new(&mut rec, &pose_prep)?;
         let ao = ao::gpu::AoKernel::on_pose(&mut rec, &ao_prep, ao::AoParams::default(), &pose)?;
+        let env = match &lobes {
+            Some(l) => Some(crate::kernels::env::EnvKernel::new(
+                &mut rec, l, &pose, &ao,
+            )?),
+            None => None,
+        };
         let rprep = RasterPrep::new(mesh, &parts, cfg.size, cfg.tile_scale)?;
         let raster = RasterKernel::new(
             &mut rec,
@@ -392,7 +453,12 @@ impl CharacterFrame {
                     normals: pose.normals(),
                     mm_per_unit: cfg.mm_per_unit as f32,
                 };
-                let kernel = SssKernel::new_posed(&mut rec, geo, rest, &profile, params, src)?;
+                let mut kernel = SssKernel::new_posed(&mut rec, geo, rest, &profile, params, src)?;
+                // The environment's shadowed irradiance joins the lights' before diffusion
+                // (so its visibility bleeds with the light, and no AO is applied after).
+                if let Some(e) = &env {
+                    kernel.set_vertex_irradiance(&mut rec, Some(e.irradiance()))?;
+                }
                 // The diffusion is grey per light: the lights' mean irradiance drives it.
                 let lights = cfg
                     .lights
@@ -464,8 +530,8 @@ impl CharacterFrame {
                 positions: pose.positions(),
                 diffuse: sss.as_ref().map(|s| s.kernel.diffuse()),
                 cloth: btf.as_ref().map(|b| b.result()),
-                lobes: None,
-                lobe_visibility: None,
+                lobes: env.as_ref().map(|e| (e.lobes(), e.lobe_count() as u32)),
+                lobe_visibility: env.as_ref().map(|e| e.visibility()),
                 background: cfg.background,
             },
         )?;
@@ -480,6 +546,7 @@ impl CharacterFrame {
             pose,
             ao,
             raster,
+            env,
             sss,
             btf,
             btf_frame,
@@ -494,6 +561,9 @@ impl CharacterFrame {
         let mut v = Vec::new();
         v.extend(self.pose.passes());
         v.extend(self.ao.passes());
+        if let Some(e) = &self.env {
+            v.extend(e.passes());
+        }
         v.extend(self.raster.passes());
         if let Some(s) = &self.sss {
             v.extend(s.kernel.passes());
@@ -556,6 +626,9 @@ impl CharacterFrame {
         let m = self.matrices(input.time);
         self.pose.record(rec, &m)?;
         Kernel::record(&self.ao, rec, &m)?;
+        if let Some(e) = &self.env {
+            e.record(rec, &input.env_rotation)?;
+        }
         self.raster.record(rec, &self.camera)?;
         if let Some(s) = &self.sss {
             s.kernel.record(rec, &s.lights[..])?;
@@ -593,6 +666,14 @@ impl CharacterFrame {
                 Some(b) => Some(rec.read_back(b.result())?),
                 None => None,
             },
+            lobes: match &self.env {
+                Some(e) => Some((
+                    rec.read_back(e.lobes())?,
+                    rec.read_back(e.visibility())?,
+                    rec.read_back(e.irradiance())?,
+                )),
+                None => None,
+            },
             images: self.compose.read_back(rec)?,
         })
     }
@@ -613,25 +694,44 @@ impl CharacterFrame {
                 Some(r) => r.to_vec()?,
                 None => vec![[0.0; 4]; pixels],
             },
+            lobes: match &rb.lobes {
+                Some((l, _, _)) => l.to_vec()?,
+                None => Vec::new(),
+            },
+            lobe_visibility: match &rb.lobes {
+                Some((_, v, _)) => v.to_vec()?,
+                None => Vec::new(),
+            },
+            env_irradiance: match &rb.lobes {
+                Some((_, _, e)) => e.to_vec()?,
+                None => Vec::new(),
+            },
             output: self.compose.collect(&rb.images)?,
         })
     }
 
     /// The compose pass's CPU twin on the stages the GPU computed: (linear radiance, RGBA8).
     pub fn compose_twin(&self, params: &FrameParams, st: &Stages) -> (Vec<[f32; 4]>, Vec<u32>) {
+        let (env, vis) = match &self.env {
+            Some(e) => (
+                compose::Environment::Lobes(e.lobe_count() as u32, self.cfg.background),
+                true,
+            ),
+            None => (compose::Environment::None(self.cfg.background), false),
+        };
         compose::cpu::shade(
             &self.compose_prep,
             params,
-            compose::Environment::None(self.cfg.background),
-            false,
+            env,
+            vis,
             &compose::cpu::HostInputs {
                 gbuffer: &st.gbuffer,
                 keys: &st.keys,
                 positions: &st.positions,
                 diffuse: &st.diffuse,
                 cloth: &st.cloth,
-                lobes: &[],
-                lobe_visibility: &[],
+                lobes: &st.lobes,
+                lobe_visibility: &st.lobe_visibility,
             },
         )
     }
@@ -658,6 +758,9 @@ impl CharacterFrame {
         if let Some(k) = &self.btf {
             b += k.memory().used_bytes;
         }
+        if let Some(e) = &self.env {
+            b += e.memory().used_bytes;
+        }
         b
     }
 }
@@ -670,6 +773,11 @@ pub struct StageReadback {
     normals: crate::gpu::Readback,
     diffuse: Option<crate::gpu::Readback>,
     cloth: Option<crate::gpu::Readback>,
+    lobes: Option<(
+        crate::gpu::Readback,
+        crate::gpu::Readback,
+        crate::gpu::Readback,
+    )>,
     images: compose::gpu::ComposeReadback,
 }
 
@@ -687,6 +795,12 @@ pub struct Stages {
     pub diffuse: Vec<[f32; 4]>,
     /// The cloth's radiance per pixel.
     pub cloth: Vec<[f32; 4]>,
+    /// The rotated environment lobes (two vec4 each) and the per-vertex, per-lobe
+    /// visibility; empty without an environment.
+    pub lobes: Vec<[f32; 4]>,
+    pub lobe_visibility: Vec<f32>,
+    /// The shadowed environment irradiance per vertex (rgb, 0); empty without one.
+    pub env_irradiance: Vec<[f32; 4]>,
     /// The frame's images.
     pub output: ComposeOutput,
 }

@@ -29,16 +29,6 @@ fn schlick(f0: f32, c: f32) -> f32 {
     f0 + (1.0 - f0) * x2 * x2 * x
 }
 
-fn environment(lobes: &[[f32; 4]], n: usize, w: Vec3) -> Vec3 {
-    let mut s = Vec3::ZERO;
-    for j in 0..n {
-        let a = Vec4::from_array(lobes[2 * j]);
-        s += Vec4::from_array(lobes[2 * j + 1]).truncate()
-            * (a.w * (a.truncate().dot(w) - 1.0)).exp();
-    }
-    s
-}
-
 /// `<G1, G2>` of two unit-amplitude spherical Gaussians (see the shader).
 pub fn sg_inner(p1: Vec3, l1: f32, p2: Vec3, l2: f32) -> f32 {
     let r = (l1 * p1 + l2 * p2).length();
@@ -66,6 +56,12 @@ fn atlas_lookup(prep: &Prepared, diffuse: &[[f32; 4]], uv: Vec2) -> Vec3 {
         }
     }
     if wsum > 0.0 { sum / wsum } else { Vec3::ZERO }
+}
+
+fn prep_background(env: Environment) -> [f32; 3] {
+    match env {
+        Environment::None(c) | Environment::Lobes(_, c) => c,
+    }
 }
 
 /// Narkowicz's fit of the ACES filmic curve.
@@ -96,13 +92,10 @@ pub fn shade(
     let (fwd, right, up) = (b.forward, b.right * b.tan_x, b.up * b.tan_y);
     let eye = params.camera.eye;
     let lobes_n = match env {
-        Environment::Lobes(n) => n as usize,
+        Environment::Lobes(n, _) => n as usize,
         Environment::None(_) => 0,
     };
-    let background = match env {
-        Environment::None(c) => Vec3::from_array(c),
-        Environment::Lobes(_) => Vec3::ZERO,
-    };
+    let background = Vec3::from_array(prep_background(env));
     let sp = params.specular;
     let (rho_s, m, f0) = (sp.rho_s, sp.roughness, sp.f0);
     let mut hdr = vec![[0f32; 4]; pixels];
@@ -115,11 +108,7 @@ pub fn shade(
             let d = (fwd + right * s.x - up * s.y).normalize();
             let g0 = inp.gbuffer[idx];
             let radiance = if g0[3] == 0.0 {
-                if lobes_n > 0 {
-                    environment(inp.lobes, lobes_n, d)
-                } else {
-                    background
-                }
+                background
             } else {
                 let tri = (inp.keys[idx] & 0xFFFF_FFFF) as u32;
                 if tri < prep.skin_triangles {

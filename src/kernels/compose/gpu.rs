@@ -34,7 +34,7 @@ pub struct Inputs<'a> {
     pub lobes: Option<(&'a Buffer, u32)>,
     /// Per vertex and lobe, the lobe's visibility (f32, vertex-major); None: unshadowed.
     pub lobe_visibility: Option<&'a Buffer>,
-    /// The background where there is no environment (linear rgb).
+    /// The background behind the character (linear rgb).
     pub background: [f32; 3],
 }
 
@@ -235,7 +235,7 @@ impl ComposeKernel {
         let w = AccessSet::from(A::ComputeShaderWrite);
         let bind = pipeline.bind_from(lookup, &[("hdr", w), ("ldr", w)])?;
         let env = match inputs.lobes {
-            Some((_, n)) => Environment::Lobes(n),
+            Some((_, n)) => Environment::Lobes(n, inputs.background),
             None => Environment::None(inputs.background),
         };
         let visibility_mode = u32::from(inputs.lobe_visibility.is_some());

@@ -2,7 +2,7 @@
 //! shading from the texture-space diffusion (Fresnel at exit, a Kelemen/Szirmay-Kalos
 //! specular layer for the directional lights and, through the warped-NDF spherical
 //! Gaussian, for every environment lobe weighted by its per-vertex visibility), the cloth's
-//! BTF radiance, the environment behind the character; then exposure, tone mapping and sRGB
+//! BTF radiance, a background colour; then exposure, tone mapping and sRGB
 //! encoding. Linear HDR radiance and 8-bit sRGB come out side by side.
 //!
 //! `pack`: what is fixed per character (the skin triangles' atlas corners, the atlas's valid

@@ -34,10 +34,11 @@ impl Default for SkinSpecular {
 /// The environment of a frame as the pass sees it.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Environment {
-    /// No environment: the background is this colour and no lobe lights the skin.
+    /// No environment: no lobe lights the skin; the background colour.
     None([f32; 3]),
-    /// `lobes` rotated lobes in the kernel's lobe buffer (two vec4 each).
-    Lobes(u32),
+    /// Rotated lobes in the kernel's lobe buffer (two vec4 each): their count, and the
+    /// background colour.
+    Lobes(u32, [f32; 3]),
 }
 
 /// One frame's parameters.
@@ -114,7 +115,7 @@ impl FrameParams {
         f.push([s.rho_s, s.roughness, s.f0, 0.0]);
         let (background, lobes) = match env {
             Environment::None(c) => ([c[0], c[1], c[2], 0.0], 0),
-            Environment::Lobes(n) => ([0.0; 4], n),
+            Environment::Lobes(n, c) => ([c[0], c[1], c[2], 0.0], n),
         };
         f.push(background);
         let mut out: Vec<u8> = bytemuck::cast_slice(&f).to_vec();
