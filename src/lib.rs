@@ -6,6 +6,7 @@
 //! recording, timing), [`io`] (files), [`geom`] (CPU geometry and the physics methods and
 //! truths share: BVH, ray-cast visibility, spherical Gaussians), [`shaders`] (GLSL -> SPIR-V
 //! and the embedded modules), [`scene`] (inputs), [`kernels`] (one module per kernel),
+//! [`frame`] (the character frame: every kernel of one animated character per frame),
 //! [`reference`](mod@reference) (CPU ground truths, independent of the methods: they use
 //! geom, scene and the kernels' model modules alone), [`report`] (the JSON pieces every
 //! command shares), [`render`] (pictures), [`bench`](mod@bench) (the benchmark harness),
