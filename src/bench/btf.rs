@@ -528,26 +528,6 @@ pub fn garment_passes() -> Vec<&'static str> {
     ]
 }
 
-/// The named glTF parts joined into one mesh, with a part id per triangle (needs the `gltf`
-/// feature).
-fn load_garment(
-    mesh: &std::path::Path,
-    names: &[&str],
-) -> Result<(crate::scene::Character, Vec<u32>)> {
-    #[cfg(feature = "gltf")]
-    {
-        crate::scene::gltf_load::load_parts(mesh, names)
-    }
-    #[cfg(not(feature = "gltf"))]
-    {
-        let _ = names;
-        Err(Error::feature(
-            format!("loading garment parts of {}", mesh.display()),
-            "gltf",
-        ))
-    }
-}
-
 impl Garment {
     /// Loads the parts, frames the camera on the garment's bounds over 16 poses of the
     /// animation (CPU, once), creates the three kernels and uploads their static data
@@ -556,35 +536,12 @@ impl Garment {
         use crate::kernels::raster::gpu::{Posed, Prepared as RasterPrep, RasterKernel};
         use crate::kernels::{pose, raster};
         let names: Vec<&str> = cfg.parts.iter().map(String::as_str).collect();
-        let (character, parts) = load_garment(&cfg.mesh, &names)?;
-        let anim = character
-            .animations
-            .iter()
-            .position(|a| a.name.eq_ignore_ascii_case(&cfg.anim))
-            .ok_or_else(|| {
-                let names: Vec<&str> = character
-                    .animations
-                    .iter()
-                    .map(|a| a.name.as_str())
-                    .collect();
-                Error::input(
-                    &cfg.mesh,
-                    format!("no animation '{}'; it has: {}", cfg.anim, names.join(", ")),
-                )
-            })?;
+        let (character, parts) = crate::frame::load_parts(&cfg.mesh, &names)?;
+        let anim = crate::frame::animation_index(&character, &cfg.anim, &cfg.mesh)?;
         let joints = character.rig.joints.len();
         let pose_prep = pose::Prepared::new(&character.mesh, joints)?;
         // Bounds over the animation, so the fixed camera keeps the garment in view.
-        let a = &character.animations[anim];
-        let (mut lo, mut hi) = (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN));
-        for i in 0..16 {
-            let m = character
-                .rig
-                .skinning_matrices(Some(a), a.duration * i as f32 / 16.0);
-            let p = pose::cpu::pose(&pose_prep, &m)?;
-            let (l, h) = crate::scene::mesh::bounds(&p.positions);
-            (lo, hi) = (lo.min(l), hi.max(h));
-        }
+        let (lo, hi) = crate::frame::animation_bounds(&character, &pose_prep, anim)?;
         let camera = raster::pack::Camera::framing(
             (lo + hi) * 0.5,
             (hi - lo).length() * 0.5,
@@ -668,13 +625,7 @@ impl Garment {
 
     /// The skinning matrices at `time` seconds (wrapped into the animation).
     pub fn matrices(&self, time: f32) -> Vec<glam::Mat4> {
-        let a = self.animation();
-        let t = if a.duration > 0.0 {
-            time.rem_euclid(a.duration)
-        } else {
-            0.0
-        };
-        self.character.rig.skinning_matrices(Some(a), t)
+        crate::frame::looped_matrices(&self.character, self.anim, time)
     }
 
     /// Records one frame: skinning, rasterisation, BTF shading.

@@ -229,7 +229,9 @@ pub struct CharacterFrame {
     pub setup: SetupReport,
 }
 
-fn load_parts(mesh: &Path, names: &[&str]) -> Result<(Character, Vec<u32>)> {
+/// The named parts of a glTF character joined into one mesh, with a part id per triangle
+/// (`scene::gltf_load::load_parts`; an error naming the feature without `gltf`).
+pub fn load_parts(mesh: &Path, names: &[&str]) -> Result<(Character, Vec<u32>)> {
     #[cfg(feature = "gltf")]
     {
         crate::scene::gltf_load::load_parts(mesh, names)
@@ -242,6 +244,45 @@ fn load_parts(mesh: &Path, names: &[&str]) -> Result<(Character, Vec<u32>)> {
             "gltf",
         ))
     }
+}
+
+/// The index of the animation `name` (`Character::animation`'s lookup), the error naming
+/// the file.
+pub fn animation_index(c: &Character, name: &str, path: &Path) -> Result<usize> {
+    let a = c
+        .animation(name)
+        .map_err(|e| Error::input(path, e.to_string()))?;
+    c.animations
+        .iter()
+        .position(|b| std::ptr::eq(a, b))
+        .ok_or_else(|| Error::input(path, format!("animation '{name}' not in the list")))
+}
+
+/// The bounds of the posed vertices over 16 poses spread across animation `anim` (CPU, once:
+/// a fixed camera that keeps the character in view).
+pub fn animation_bounds(c: &Character, prep: &pose::Prepared, anim: usize) -> Result<(Vec3, Vec3)> {
+    let a = &c.animations[anim];
+    let (mut lo, mut hi) = (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN));
+    for i in 0..16 {
+        let m = c
+            .rig
+            .skinning_matrices(Some(a), a.duration * i as f32 / 16.0);
+        let p = pose::cpu::pose(prep, &m)?;
+        let (l, h) = crate::scene::mesh::bounds(&p.positions);
+        (lo, hi) = (lo.min(l), hi.max(h));
+    }
+    Ok((lo, hi))
+}
+
+/// The skinning matrices of animation `anim` at `time` seconds, wrapped into the animation.
+pub fn looped_matrices(c: &Character, anim: usize, time: f32) -> Vec<glam::Mat4> {
+    let a = &c.animations[anim];
+    let t = if a.duration > 0.0 {
+        time.rem_euclid(a.duration)
+    } else {
+        0.0
+    };
+    c.rig.skinning_matrices(Some(a), t)
 }
 
 /// A woven cloth tile synthesised in memory (`btf synth`'s model, one ray per texel).
@@ -267,21 +308,7 @@ impl CharacterFrame {
             .map(String::as_str)
             .collect();
         let (character, parts) = load_parts(&cfg.mesh, &names)?;
-        let anim = character
-            .animations
-            .iter()
-            .position(|a| a.name.eq_ignore_ascii_case(&cfg.anim))
-            .ok_or_else(|| {
-                let names: Vec<&str> = character
-                    .animations
-                    .iter()
-                    .map(|a| a.name.as_str())
-                    .collect();
-                Error::input(
-                    &cfg.mesh,
-                    format!("no animation '{}'; it has: {}", cfg.anim, names.join(", ")),
-                )
-            })?;
+        let anim = animation_index(&character, &cfg.anim, &cfg.mesh)?;
         let skin_parts = cfg.skin.len() as u32;
         let skin_triangles = parts.iter().take_while(|&&p| p < skin_parts).count();
         if parts[skin_triangles..].iter().any(|&p| p < skin_parts) {
@@ -307,17 +334,8 @@ impl CharacterFrame {
         ));
         let joints = character.rig.joints.len();
         let pose_prep = pose::Prepared::new(mesh, joints)?;
-        // The camera frames the character's bounds over 16 poses of the animation.
-        let a = &character.animations[anim];
-        let (mut lo, mut hi) = (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN));
-        for i in 0..16 {
-            let m = character
-                .rig
-                .skinning_matrices(Some(a), a.duration * i as f32 / 16.0);
-            let p = pose::cpu::pose(&pose_prep, &m)?;
-            let (l, h) = crate::scene::mesh::bounds(&p.positions);
-            (lo, hi) = (lo.min(l), hi.max(h));
-        }
+        // The camera frames the character's bounds over the animation.
+        let (lo, hi) = animation_bounds(&character, &pose_prep, anim)?;
         // The bounds' largest extent across the view (it looks along -z), not their
         // diagonal: the character fills more of the image.
         let e = hi - lo;
@@ -587,13 +605,7 @@ impl CharacterFrame {
 
     /// The skinning matrices at `time` seconds (wrapped into the animation).
     pub fn matrices(&self, time: f32) -> Vec<glam::Mat4> {
-        let a = self.animation();
-        let t = if a.duration > 0.0 {
-            time.rem_euclid(a.duration)
-        } else {
-            0.0
-        };
-        self.character.rig.skinning_matrices(Some(a), t)
+        looped_matrices(&self.character, self.anim, time)
     }
 
     /// The compose pass's parameters for a frame.
