@@ -132,6 +132,11 @@ void main() {
     // others renormalise (rare: their weights are subtracted from the pattern's total).
     vec3 sum = vec3(0.0), lost_w = vec3(0.0);
     uint lost = 0u;
+    // Branch-free (lavapipe runs both sides of a divergent branch with masks, and a
+    // `continue` in one costs mask bookkeeping besides): both landings are computed, the
+    // right one selected, and every sample gathers (at texel 0 when it has nowhere to land)
+    // and then counts, leaves, or counts as dark. The same arithmetic as before, so the CPU
+    // twin (walk::TexelSampler::land) is unchanged.
     for (uint s = 0u; s < pc.samples; s++) {
         vec4 q = imageLoad(seq, ivec2(s, 0));
         vec3 w = vec3(q.z, q.w, 3.0 - q.z - q.w);
@@ -139,44 +144,35 @@ void main() {
         float d1 = rc_ * q.x + rd_ * q.y;
         float b1 = w1 + d1, b2 = w2 + d2;
         float bz = 1.0 - b1 - b2;
-        vec2 uv;
-        if (min(bz, min(b1, b2)) >= 0.0) {
-            // In the triangle: its own map.
-            uv = uvt + mx * q.x + my * q.y;
-        } else {
-            // Leaving it: through the edge it leaves by, the first whose barycentric
-            // reaches 0 along the way. Barycentrics are linear along the offset, so that edge
-            // is one the end point lies beyond (b_k < 0); of two such, edge i comes first
-            // when w_i / -d_i < w_j / -d_j, i.e. w_i d_j > w_j d_i (no division).
-            float d0 = -(d1 + d2);
-            uint exit;
-            if (bz < 0.0 && (b1 >= 0.0 || w0 * d1 > w1 * d0) && (b2 >= 0.0 || w0 * d2 > w2 * d0)) {
-                exit = 0u;
-            } else if (b1 < 0.0 && (b2 >= 0.0 || w1 * d2 > w2 * d1)) {
-                exit = 1u;
-            } else {
-                exit = 2u;
-            }
-            uint kind = (kinds >> (2u * exit)) & 3u;
-            if (kind == EDGE_OPEN) continue;
-            if (kind != EDGE_SHARED) {
-                lost_w += w;
-                lost++;
-                continue;
-            }
-            vec4 m = exit == 0u ? v0 : (exit == 1u ? v1 : v2);
-            vec2 t = exit == 0u ? s0 : (exit == 1u ? s1 : s2);
-            uv = vec2(t.x + m.x * b1 + m.y * b2, t.y + m.z * b1 + m.w * b2);
-        }
+        // In the triangle: its own map.
+        vec2 uv_in = uvt + mx * q.x + my * q.y;
+        // Leaving it: through the edge it leaves by, the first whose barycentric reaches 0
+        // along the way. Barycentrics are linear along the offset, so that edge is one the
+        // end point lies beyond (b_k < 0); of two such, edge i comes first when
+        // w_i / -d_i < w_j / -d_j, i.e. w_i d_j > w_j d_i (no division).
+        float d0 = -(d1 + d2);
+        bool e0 = bz < 0.0 && (b1 >= 0.0 || w0 * d1 > w1 * d0) && (b2 >= 0.0 || w0 * d2 > w2 * d0);
+        bool e1 = !e0 && b1 < 0.0 && (b2 >= 0.0 || w1 * d2 > w2 * d1);
+        uint exit = e0 ? 0u : (e1 ? 1u : 2u);
+        bool inside = min(bz, min(b1, b2)) >= 0.0;
+        uint kind = inside ? EDGE_SHARED : (kinds >> (2u * exit)) & 3u;
+        vec4 m = e0 ? v0 : (e1 ? v1 : v2);
+        vec2 t = e0 ? s0 : (e1 ? s1 : s2);
+        vec2 uv_x = vec2(t.x + m.x * b1 + m.y * b2, t.y + m.z * b1 + m.w * b2);
+        vec2 uv = inside ? uv_in : uv_x;
         float fx = floor(uv.x + 0.5), fy = floor(uv.y + 0.5);
-        vec3 ej;
         // (written so that NaN and infinities fail it)
-        if (!(fx >= 0.0 && fy >= 0.0 && fx < nf && fy < nf) || !source(ivec2(fx, fy), ej)) {
-            lost_w += w;
-            lost++;
-            continue;
-        }
-        sum += w * ej;
+        bool within = fx >= 0.0 && fy >= 0.0 && fx < nf && fy < nf;
+        vec3 ej;
+        bool surface = source(within ? ivec2(fx, fy) : ivec2(0), ej);
+        // Off the surface past an open border: dark, counted. Across a non-manifold edge,
+        // outside the texture or onto no surface: lost.
+        bool open = kind == EDGE_OPEN;
+        bool counts = kind == EDGE_SHARED && within && surface;
+        bool gone = !open && !counts;
+        sum += counts ? w * ej : vec3(0.0);
+        lost_w += gone ? w : vec3(0.0);
+        lost += gone ? 1u : 0u;
     }
     vec3 k3 = pc.k.rgb;
     vec3 wsum = pc.total.rgb - lost_w;
