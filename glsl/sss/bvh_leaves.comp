@@ -2,14 +2,15 @@
 // Per-frame BVH of a skinned mesh, step 1 (pass `sss bvh leaves`): the topology is built once
 // over the rest pose (src/kernels/sss/posed.rs BvhTopology); per leaf, its triangles from the
 // vertex frames of this pose (`verts`, mm), stored as (a, b - a, c - a) in the triangle slots
-// the traversal reads (`tris`), and its box (`nodes`: lo xyz, first; hi xyz, count). Pass
+// the traversal reads (`tris`), and its box (`nodes`: lo xyz, first; hi xyz, link). Pass
 // `sss bvh refit` then fits the inner nodes. The CPU twin is posed::refit.
 layout(local_size_x = 64) in;
 
 const uint BVH_ROW = 1024u;
 
 layout(std430, set = 0, binding = 0) readonly buffer Verts { vec4 v[]; } verts;
-// Leaves, levels, inner nodes, 0; then per leaf (node, first, count) (BvhTopology::gpu).
+// Leaves, levels, inner nodes, 0; then per leaf (node, first, link word: count | skip << 8)
+// (BvhTopology::gpu; posed::link_words).
 layout(std430, set = 0, binding = 1) readonly buffer Topo { uint v[]; } bvh_topo;
 // Per triangle slot: the mesh's vertex indices (v0, v1, v2, 0).
 layout(std430, set = 0, binding = 2) readonly buffer Slots { uvec4 v[]; } bvh_slots;
@@ -25,7 +26,8 @@ void main() {
     if (leaf >= bvh_topo.v[0]) return;
     uint node = bvh_topo.v[4u + 3u * leaf];
     uint first = bvh_topo.v[4u + 3u * leaf + 1u];
-    uint count = bvh_topo.v[4u + 3u * leaf + 2u];
+    uint link = bvh_topo.v[4u + 3u * leaf + 2u];
+    uint count = link & 0xffu;
     vec3 lo = vec3(uintBitsToFloat(0x7f800000u));
     vec3 hi = -lo;
     for (uint s = first; s < first + count; s++) {
@@ -38,5 +40,5 @@ void main() {
         hi = max(hi, max(a, max(b, d)));
     }
     imageStore(nodes, at(2u * node), uvec4(floatBitsToUint(lo), first));
-    imageStore(nodes, at(2u * node + 1u), uvec4(floatBitsToUint(hi), count));
+    imageStore(nodes, at(2u * node + 1u), uvec4(floatBitsToUint(hi), link));
 }

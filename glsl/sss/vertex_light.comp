@@ -24,7 +24,7 @@ layout(push_constant) uniform Push {
 
 layout(std430, set = 0, binding = 0) readonly buffer Verts { vec4 v[]; } verts;   // pos, normal
 // The BVH as images (row BVH_ROW; lavapipe fetches a texel's four channels at once): nodes
-// 2 texels each (lo xyz, first; hi xyz, count), triangles 3 (a, e1, e2), float bits.
+// 2 texels each (lo xyz, first; hi xyz, link word), triangles 3 (a, e1, e2), float bits.
 const uint BVH_ROW = 1024u;
 layout(set = 0, binding = 1, rgba32ui) readonly uniform uimage2D nodes;
 layout(set = 0, binding = 2, rgba32ui) readonly uniform uimage2D tris;
@@ -83,14 +83,18 @@ bool hit_tri(vec3 o, vec3 d, uint t, float tmax) {
     return t_hit > 0.0 && t_hit <= tmax;
 }
 
+// Stackless traversal (src/kernels/sss/posed.rs link_words): a node's hi.w is its
+// triangle count | its skip << 8, the node visited next when the ray does not enter it;
+// entering an inner node goes to its left child, a leaf's triangles are tested and then its
+// skip is taken. The root's skip (0xffffff) ends it; every step moves forward in the
+// depth-first order (MAX_STEPS only guards a malformed table).
+const uint LINK_END = 0xffffffu;
+const uint MAX_STEPS = 1u << 22u;
+
 bool any_hit(vec3 o, vec3 d, float tmax) {
     vec3 inv = 1.0 / d;
-    uint stack[64];
-    uint sp = 1u;
-    stack[0] = 0u;
-    while (sp > 0u) {
-        sp--;
-        uint ni = stack[sp];
+    uint ni = 0u;
+    for (uint step = 0u; ni != LINK_END && step < MAX_STEPS; step++) {
         uvec4 lo_u = bvh_node(2u * ni);
         uvec4 hi_u = bvh_node(2u * ni + 1u);
         vec3 lo = uintBitsToFloat(lo_u.xyz);
@@ -101,33 +105,26 @@ bool any_hit(vec3 o, vec3 d, float tmax) {
         vec3 tmx = max(t0, t1);
         float tnear = max(max(max(tmin.x, tmin.y), tmin.z), 0.0);
         float tfar = min(min(min(tmx.x, tmx.y), tmx.z), tmax);
-        if (tnear > tfar) continue;
+        bool meets = !(tnear > tfar);
         uint first = lo_u.w;
-        uint count = hi_u.w;
-        if (count > 0u) {
-            for (uint t = first; t < first + count; t++) {
-                if (hit_tri(o, d, t, tmax)) return true;
-            }
-        } else if (sp + 2u <= 64u) {
-            stack[sp] = first;
-            stack[sp + 1u] = first + 1u;
-            sp += 2u;
+        uint count = hi_u.w & 0xffu;
+        uint n = meets ? count : 0u;
+        for (uint t = first; t < first + n; t++) {
+            if (hit_tri(o, d, t, tmax)) return true;
         }
+        ni = (meets && count == 0u) ? first : hi_u.w >> 8u;
     }
     return false;
 }
 
-// Nearest hit in (0, tmax]: (t, triangle), or t < 0.
+// Nearest hit in (0, tmax]: (t, triangle), or t < 0. The stackless traversal of any_hit,
+// the far bound shrinking to the best hit so far.
 vec2 closest_hit(vec3 o, vec3 d, float tmax) {
     vec3 inv = 1.0 / d;
-    uint stack[64];
-    uint sp = 1u;
-    stack[0] = 0u;
     float best = -1.0;
     uint best_tri = 0u;
-    while (sp > 0u) {
-        sp--;
-        uint ni = stack[sp];
+    uint ni = 0u;
+    for (uint step = 0u; ni != LINK_END && step < MAX_STEPS; step++) {
         uvec4 lo_u = bvh_node(2u * ni);
         uvec4 hi_u = bvh_node(2u * ni + 1u);
         vec3 lo = uintBitsToFloat(lo_u.xyz);
@@ -138,22 +135,18 @@ vec2 closest_hit(vec3 o, vec3 d, float tmax) {
         vec3 tmx = max(t0, t1);
         float tnear = max(max(max(tmin.x, tmin.y), tmin.z), 0.0);
         float tfar = min(min(min(tmx.x, tmx.y), tmx.z), best >= 0.0 ? best : tmax);
-        if (tnear > tfar) continue;
+        bool meets = !(tnear > tfar);
         uint first = lo_u.w;
-        uint count = hi_u.w;
-        if (count > 0u) {
-            for (uint t = first; t < first + count; t++) {
-                float th = hit_t(o, d, t, tmax);
-                if (th >= 0.0 && (best < 0.0 || th < best)) {
-                    best = th;
-                    best_tri = t;
-                }
+        uint count = hi_u.w & 0xffu;
+        uint n = meets ? count : 0u;
+        for (uint t = first; t < first + n; t++) {
+            float th = hit_t(o, d, t, tmax);
+            if (th >= 0.0 && (best < 0.0 || th < best)) {
+                best = th;
+                best_tri = t;
             }
-        } else if (sp + 2u <= 64u) {
-            stack[sp] = first;
-            stack[sp + 1u] = first + 1u;
-            sp += 2u;
         }
+        ni = (meets && count == 0u) ? first : hi_u.w >> 8u;
     }
     return vec2(best, uintBitsToFloat(best_tri));
 }

@@ -38,7 +38,8 @@ pub struct Packed<'g> {
     pub diffusion_start: Vec<[u32; 4]>,
     /// Per vertex: position and unit normal ([`vertex_frames`]).
     pub vertex_frames: Vec<[[f32; 4]; 2]>,
-    /// The BVH over the posed mesh ([`Bvh::flat`]): 2 texels a node, 3 a triangle.
+    /// The BVH over the posed mesh ([`Bvh::flat`] with [`super::posed::link_words`] in place
+    /// of the counts): 2 texels a node, 3 a triangle.
     pub bvh_nodes: Vec<[f32; 8]>,
     pub bvh_triangles: Vec<[f32; 12]>,
     /// The surface walk's triangle records ([`super::walk::SurfaceWalk::records`]).
@@ -55,6 +56,8 @@ impl<'g> Packed<'g> {
     pub fn new(geo: &'g TexGeometry, profile: &Profile) -> Result<Packed<'g>> {
         check_geometry(geo)?;
         let (bvh_nodes, bvh_triangles) = Bvh::build(&geo.positions, &geo.triangles).flat();
+        // The shaders traverse without a stack: each node's count carries its skip link.
+        let bvh_nodes = super::posed::with_links(bvh_nodes)?;
         let dg = DiffusionGeometry::build(geo, profile);
         Ok(Packed {
             size: geo.size,

@@ -51,10 +51,11 @@ pub struct BvhTopology {
     /// Per triangle slot of the flat BVH (leaf order): the mesh's vertex indices (v0, v1, v2,
     /// 0) of the triangle stored there.
     pub slots: Vec<[u32; 4]>,
-    /// Leaves: (node, first slot, slot count).
+    /// Leaves: (node, first slot, link word: slot count | skip << 8, [`link_words`]).
     pub leaves: Vec<[u32; 3]>,
-    /// Inner nodes, deepest level first: (node, left child; the right child is left + 1).
-    pub inner: Vec<[u32; 2]>,
+    /// Inner nodes, deepest level first: (node, left child; the right child is left + 1,
+    /// link word: skip << 8).
+    pub inner: Vec<[u32; 3]>,
     /// Where each level starts in `inner` (levels + 1 entries, the last = inner.len()).
     pub level_starts: Vec<u32>,
     /// Nodes of the flat BVH.
@@ -86,6 +87,7 @@ impl BvhTopology {
             let v = triangles[t as usize];
             slots.push([v[0], v[1], v[2], 0]);
         }
+        let links = link_words(&nodes)?;
         // Depth of every node (children follow their parent in the flat order).
         let mut depth = vec![0u32; nodes.len()];
         let mut leaves = Vec::new();
@@ -93,7 +95,7 @@ impl BvhTopology {
         for (i, n) in nodes.iter().enumerate() {
             let (first, count) = (n[3].to_bits(), n[7].to_bits());
             if count > 0 {
-                leaves.push([i as u32, first, count]);
+                leaves.push([i as u32, first, links[i]]);
             } else {
                 let d = depth[i] + 1;
                 for c in [first, first + 1] {
@@ -117,7 +119,10 @@ impl BvhTopology {
         Ok(BvhTopology {
             slots,
             leaves,
-            inner: inner_at.iter().map(|&(_, i, c)| [i, c]).collect(),
+            inner: inner_at
+                .iter()
+                .map(|&(_, i, c)| [i, c, links[i as usize]])
+                .collect(),
             level_starts,
             nodes: nodes.len(),
         })
@@ -129,8 +134,8 @@ impl BvhTopology {
     }
 
     /// The buffer the refit shaders read (glsl/sss/bvh_leaves.comp, bvh_refit.comp): leaves,
-    /// inner-node levels, then per leaf (node, first, count), then per inner node (node,
-    /// left child), then the level starts.
+    /// inner-node levels, then per leaf (node, first, link word), then per inner node
+    /// (node, left child, link word), then the level starts.
     pub fn gpu(&self) -> Vec<u32> {
         let mut out = vec![
             self.leaves.len() as u32,
@@ -146,8 +151,8 @@ impl BvhTopology {
 }
 
 /// The BVH over `positions` (mm) refitted on the CPU, as the refit passes compute it (the
-/// CPU twin): triangles (a, b - a, c - a) per slot and per node (lo, first; hi, count) as
-/// [`Bvh::flat`] lays them out.
+/// CPU twin): triangles (a, b - a, c - a) per slot and per node (lo, first; hi, link word) as
+/// [`Bvh::flat`] lays them out, with [`link_words`] in place of the counts.
 pub fn refit(top: &BvhTopology, positions: &[Vec3]) -> (Vec<[f32; 8]>, Vec<[f32; 12]>) {
     let tris: Vec<[f32; 12]> = top
         .slots
@@ -161,7 +166,8 @@ pub fn refit(top: &BvhTopology, positions: &[Vec3]) -> (Vec<[f32; 8]>, Vec<[f32;
         })
         .collect();
     let mut nodes = vec![[0f32; 8]; top.nodes];
-    for &[node, first, count] in &top.leaves {
+    for &[node, first, link] in &top.leaves {
+        let count = link & LINK_COUNT;
         let (mut lo, mut hi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
         for s in &top.slots[first as usize..(first + count) as usize] {
             for &v in &s[..3] {
@@ -177,10 +183,10 @@ pub fn refit(top: &BvhTopology, positions: &[Vec3]) -> (Vec<[f32; 8]>, Vec<[f32;
             hi.x,
             hi.y,
             hi.z,
-            f32::from_bits(count),
+            f32::from_bits(link),
         ];
     }
-    for &[node, left] in &top.inner {
+    for &[node, left, link] in &top.inner {
         let (l, r) = (nodes[left as usize], nodes[left as usize + 1]);
         nodes[node as usize] = [
             l[0].min(r[0]),
@@ -190,10 +196,76 @@ pub fn refit(top: &BvhTopology, positions: &[Vec3]) -> (Vec<[f32; 8]>, Vec<[f32;
             l[4].max(r[4]),
             l[5].max(r[5]),
             l[6].max(r[6]),
-            0.0,
+            f32::from_bits(link),
         ];
     }
     (nodes, tris)
+}
+
+/// The low bits of a node's link word: its triangle count (0: an inner node).
+pub const LINK_COUNT: u32 = 0xff;
+/// The skip of the last node of a traversal: past the end (the root's skip).
+pub const LINK_END: u32 = 0x00ff_ffff;
+
+/// Per node of a flat BVH ([`Bvh::flat`]: an inner node's children at `first`, `first + 1`),
+/// the word the shaders keep in place of its count: count | skip << 8, where skip is the
+/// node a depth-first traversal visits next when it does not enter this one (its right
+/// sibling, else its parent's skip; [`LINK_END`] for the root). The traversal is then a
+/// loop without a stack: enter a node whose box the ray meets (its left child, or its
+/// triangles and then its skip), else go to its skip. lavapipe runs a per-lane stack as
+/// scattered loads and stores for every push and pop; the link costs a word already loaded.
+pub fn link_words(nodes: &[[f32; 8]]) -> Result<Vec<u32>> {
+    if nodes.len() as u64 >= LINK_END as u64 {
+        return Err(Error::InvalidArgument(format!(
+            "a BVH of {} nodes (the shaders' traversal holds fewer than {LINK_END})",
+            nodes.len()
+        )));
+    }
+    let mut skip = vec![LINK_END; nodes.len()];
+    let mut seen = vec![false; nodes.len()];
+    let mut todo = Vec::new();
+    if !nodes.is_empty() {
+        todo.push(0usize);
+        seen[0] = true;
+    }
+    while let Some(i) = todo.pop() {
+        let (first, count) = (nodes[i][3].to_bits(), nodes[i][7].to_bits());
+        if count > LINK_COUNT {
+            return Err(Error::InvalidArgument(format!(
+                "BVH leaf {i} holds {count} triangles (at most {LINK_COUNT})"
+            )));
+        }
+        if count > 0 {
+            continue;
+        }
+        let (l, r) = (first as usize, first as usize + 1);
+        if r >= nodes.len() || seen[l] || seen[r] {
+            return Err(Error::InvalidArgument(format!(
+                "BVH node {i} names children {l}, {r} (of {} nodes, each child once)",
+                nodes.len()
+            )));
+        }
+        seen[l] = true;
+        seen[r] = true;
+        skip[l] = r as u32;
+        skip[r] = skip[i];
+        todo.extend([l, r]);
+    }
+    Ok(nodes
+        .iter()
+        .zip(&skip)
+        .map(|(n, &k)| (n[7].to_bits() & LINK_COUNT) | k << 8)
+        .collect())
+}
+
+/// [`Bvh::flat`]'s nodes with [`link_words`] in place of the counts: the layout the
+/// shaders traverse.
+pub fn with_links(mut nodes: Vec<[f32; 8]>) -> Result<Vec<[f32; 8]>> {
+    let links = link_words(&nodes)?;
+    for (n, l) in nodes.iter_mut().zip(links) {
+        n[7] = f32::from_bits(l);
+    }
+    Ok(nodes)
 }
 
 /// The SAH-like quality figure of a flat BVH: the sum of its inner nodes' box areas over the
@@ -212,7 +284,7 @@ pub fn sah_cost(nodes: &[[f32; 8]]) -> f64 {
     nodes
         .iter()
         .map(|n| {
-            let count = n[7].to_bits();
+            let count = n[7].to_bits() & LINK_COUNT;
             if count > 0 {
                 area(n) * count as f64
             } else {
@@ -224,58 +296,61 @@ pub fn sah_cost(nodes: &[[f32; 8]]) -> f64 {
 }
 
 /// Whether a ray from `o` along `d` hits a triangle of the flat BVH in (0, tmax]: the
-/// shaders' traversal (glsl/sss/vertex_light.comp) on the CPU, to check a refitted BVH
-/// against one built for the pose.
+/// shaders' stackless traversal (glsl/sss/vertex_light.comp) on the CPU, over nodes whose
+/// counts are [`link_words`], to check a refitted BVH against one built for the pose.
 pub fn flat_any_hit(nodes: &[[f32; 8]], tris: &[[f32; 12]], o: Vec3, d: Vec3, tmax: f32) -> bool {
     if tris.is_empty() || nodes.is_empty() {
         return false;
     }
     let inv = d.recip();
-    let mut stack = [0u32; 64];
-    let mut sp = 1;
-    while sp > 0 {
-        sp -= 1;
-        let n = &nodes[stack[sp] as usize];
+    let mut i = 0u32;
+    // Every step moves forward in the depth-first order, so the walk ends; the bound only
+    // guards a malformed table.
+    for _ in 0..2 * nodes.len() + 1 {
+        let Some(n) = nodes.get(i as usize) else {
+            return false;
+        };
         let (lo, hi) = (Vec3::new(n[0], n[1], n[2]), Vec3::new(n[4], n[5], n[6]));
         let t0 = (lo - o) * inv;
         let t1 = (hi - o) * inv;
         let tnear = t0.min(t1).max_element().max(0.0);
         let tfar = t0.max(t1).min_element().min(tmax);
+        let (first, link) = (n[3].to_bits(), n[7].to_bits());
+        let (count, skip) = (link & LINK_COUNT, link >> 8);
         if tnear > tfar {
+            i = skip;
             continue;
         }
-        let (first, count) = (n[3].to_bits(), n[7].to_bits());
-        if count > 0 {
-            for t in &tris[first as usize..(first + count) as usize] {
-                let a = Vec3::new(t[0], t[1], t[2]);
-                let e1 = Vec3::new(t[4], t[5], t[6]);
-                let e2 = Vec3::new(t[8], t[9], t[10]);
-                let p = d.cross(e2);
-                let det = e1.dot(p);
-                if det.abs() < 1e-12 {
-                    continue;
-                }
-                let inv_det = 1.0 / det;
-                let s = o - a;
-                let u = s.dot(p) * inv_det;
-                if !(0.0..=1.0).contains(&u) {
-                    continue;
-                }
-                let q = s.cross(e1);
-                let v = d.dot(q) * inv_det;
-                if v < 0.0 || u + v > 1.0 {
-                    continue;
-                }
-                let th = e2.dot(q) * inv_det;
-                if th > 0.0 && th <= tmax {
-                    return true;
-                }
-            }
-        } else if sp + 2 <= stack.len() {
-            stack[sp] = first;
-            stack[sp + 1] = first + 1;
-            sp += 2;
+        if count == 0 {
+            i = first;
+            continue;
         }
+        for t in &tris[first as usize..(first + count) as usize] {
+            let a = Vec3::new(t[0], t[1], t[2]);
+            let e1 = Vec3::new(t[4], t[5], t[6]);
+            let e2 = Vec3::new(t[8], t[9], t[10]);
+            let p = d.cross(e2);
+            let det = e1.dot(p);
+            if det.abs() < 1e-12 {
+                continue;
+            }
+            let inv_det = 1.0 / det;
+            let s = o - a;
+            let u = s.dot(p) * inv_det;
+            if !(0.0..=1.0).contains(&u) {
+                continue;
+            }
+            let q = s.cross(e1);
+            let v = d.dot(q) * inv_det;
+            if v < 0.0 || u + v > 1.0 {
+                continue;
+            }
+            let th = e2.dot(q) * inv_det;
+            if th > 0.0 && th <= tmax {
+                return true;
+            }
+        }
+        i = skip;
     }
     false
 }
@@ -396,7 +471,7 @@ mod tests {
         let built = Bvh::build(&geo.positions, &geo.triangles).flat();
         let refitted = refit(&top, &geo.positions);
         assert_eq!(built.1, refitted.1);
-        for (a, b) in built.0.iter().zip(&refitted.0) {
+        for (a, b) in with_links(built.0).unwrap().iter().zip(&refitted.0) {
             assert_eq!(a.map(f32::to_bits), b.map(f32::to_bits));
         }
         assert!(top.levels() >= 3, "{} levels", top.levels());
