@@ -70,6 +70,16 @@ pub struct Args {
     /// Output directory.
     #[arg(long, default_value = "out/frame")]
     pub out: PathBuf,
+    /// After the sequence, three poses (1/6, 1/2 and 5/6 of the loop) compared with their
+    /// truths: the environment light shadowed by the character against rays cast through
+    /// the posed mesh (with the AO-weighted floor and the unshadowed light beside it), the
+    /// compose pass against its CPU twin; each pose written as DIR/reference_NNNN.ply
+    /// (posed positions, normals, environment irradiance r g b and the truth's, AO).
+    #[arg(long)]
+    pub reference: bool,
+    /// Rays per vertex of the environment's ray-traced truth (with --reference).
+    #[arg(long, default_value_t = 1024)]
+    pub rays: usize,
 }
 
 impl Args {
@@ -109,6 +119,12 @@ impl Args {
         }
         if !self.rotate.is_finite() {
             return Err(Error::InvalidArgument("--rotate must be finite".into()));
+        }
+        if self.reference && !(1..=1 << 20).contains(&self.rays) {
+            return Err(Error::InvalidArgument(format!(
+                "--rays {} must be in 1..=1048576",
+                self.rays
+            )));
         }
         Ok(cfg)
     }
@@ -175,6 +191,34 @@ pub struct FrameReport {
     pub wall_ms: f64,
     pub device_memory_bytes: u64,
     pub files: Vec<String>,
+    /// With --reference: each stage against its truth at three poses.
+    pub reference: Vec<ReferencePose>,
+}
+
+/// One pose of `vkshade frame --reference`: the frame's stages against their truths.
+#[derive(Clone, Debug, Serialize)]
+pub struct ReferencePose {
+    /// Animation time (s) and the environment's turn (degrees).
+    pub time: f32,
+    pub rotation_deg: f32,
+    /// Environment irradiance per vertex (the frame's `env shadow`) against the ray-traced
+    /// truth: relative L2 over vertices and channels; beside it the AO-weighted floor
+    /// (unshadowed SG irradiance x AO) and the unshadowed light.
+    pub env_rel_l2: Option<f64>,
+    pub env_floor_rel_l2: Option<f64>,
+    pub env_unshadowed_rel_l2: Option<f64>,
+    /// Vertices the truth finds enclosed (no ray escapes: inside another part, which
+    /// spheres cannot represent), and the method's and the floor's error without them.
+    pub env_enclosed: Option<usize>,
+    pub env_open_rel_l2: Option<f64>,
+    pub env_open_floor_rel_l2: Option<f64>,
+    pub rays: usize,
+    /// The compose pass against its CPU twin on the same stages: relative RMS of the linear
+    /// radiance, and the largest difference of the 8-bit image (levels).
+    pub compose_rel_rms: f64,
+    pub compose_max_levels: u32,
+    /// The PLY written for the pose.
+    pub ply: Option<String>,
 }
 
 /// Renders the frames and writes the pictures and report.
@@ -260,6 +304,11 @@ pub fn render(
     timing_chart(&chart, &names, &per_pass)?;
     files.push(chart.display().to_string());
     let gpu_ms = median(&total);
+    let reference = if args.reference {
+        reference_poses(ctx, &frame, args, progress)?
+    } else {
+        Vec::new()
+    };
     let report = FrameReport {
         tool: "vkshade frame",
         device: ctx.info().name.clone(),
@@ -283,6 +332,7 @@ pub fn render(
         wall_ms,
         device_memory_bytes: frame.memory_bytes(),
         files,
+        reference,
     };
     crate::io::write_json(&args.out.join("report.json"), &report)?;
     Ok(report)
@@ -386,8 +436,204 @@ pub fn display(r: &FrameReport, out: &Path) {
     for p in &r.passes {
         println!("  {:<24} {:>8.3} ms", p.name, p.ms);
     }
+    if !r.reference.is_empty() {
+        println!("stages against their truths (--reference):");
+        println!(
+            "  {:>7} {:>6}  {:>10} {:>10} {:>11} {:>8} {:>10} {:>10}  {:>11} {:>9}",
+            "time s",
+            "turn",
+            "env rel L2",
+            "AO floor",
+            "unshadowed",
+            "enclosed",
+            "env open",
+            "floor open",
+            "compose rel",
+            "8-bit max"
+        );
+        let f = |x: Option<f64>| x.map_or("-".to_string(), |v| format!("{:.2}%", 100.0 * v));
+        for p in &r.reference {
+            println!(
+                "  {:>7.2} {:>6.0}  {:>10} {:>10} {:>11} {:>8} {:>10} {:>10}  {:>11.2e} {:>9}",
+                p.time,
+                p.rotation_deg,
+                f(p.env_rel_l2),
+                f(p.env_floor_rel_l2),
+                f(p.env_unshadowed_rel_l2),
+                p.env_enclosed.map_or("-".to_string(), |e| e.to_string()),
+                f(p.env_open_rel_l2),
+                f(p.env_open_floor_rel_l2),
+                p.compose_rel_rms,
+                p.compose_max_levels
+            );
+        }
+        if let Some(rays) = r.reference.first().map(|p| p.rays) {
+            println!(
+                "  (env: {rays} rays a vertex through the posed mesh; compose: the CPU twin on the \
+                 same stages; reference_NNNN.ply: positions, normals, r g b, truth_r g b, ao)"
+            );
+        }
+    }
     println!(
         "wrote {} (frame_NNNN.png/.exr, animation.png, contact_sheet.png, timing.png, report.json)",
         out.display()
     );
+}
+
+/// `--reference`: three poses rendered with their stages read back, each against its truth.
+fn reference_poses(
+    ctx: &crate::gpu::Context,
+    frame: &CharacterFrame,
+    args: &Args,
+    progress: &mut dyn FnMut(&str),
+) -> Result<Vec<ReferencePose>> {
+    use crate::kernels::env::cpu as env_cpu;
+    let duration = frame.animation().duration;
+    let mesh = &frame.character.mesh;
+    let mut out = Vec::new();
+    for k in 0..3 {
+        let at = (2 * k + 1) as f32 / 6.0;
+        let rotation_deg = args.rotate * at;
+        let input = FrameInput {
+            time: duration * at,
+            env_rotation: Mat3::from_rotation_y(rotation_deg.to_radians()),
+        };
+        let mut rec = ctx.recorder(&format!("frame reference pose {k}"))?;
+        frame.record(&mut rec, &input)?;
+        let rb = frame.read_back_stages(&mut rec)?;
+        rec.submit()?.wait()?;
+        let st = frame.collect_stages(&rb)?;
+        // The compose pass against its twin.
+        let (hdr, ldr) = frame.compose_twin(&frame.params(), &st);
+        let (mut num, mut den) = (0.0f64, 0.0f64);
+        for (a, b) in st.output.hdr.iter().zip(&hdr) {
+            for c in 0..3 {
+                num += (a[c] as f64 - b[c] as f64).powi(2);
+                den += (b[c] as f64).powi(2);
+            }
+        }
+        let compose_max_levels = st
+            .output
+            .ldr
+            .iter()
+            .zip(&ldr)
+            .map(|(a, b)| {
+                (0..4)
+                    .map(|c| ((a >> (8 * c)) & 255).abs_diff((b >> (8 * c)) & 255))
+                    .max()
+                    .unwrap_or(0)
+            })
+            .max()
+            .unwrap_or(0);
+        let mut pose = ReferencePose {
+            time: input.time,
+            rotation_deg,
+            env_rel_l2: None,
+            env_floor_rel_l2: None,
+            env_unshadowed_rel_l2: None,
+            env_enclosed: None,
+            env_open_rel_l2: None,
+            env_open_floor_rel_l2: None,
+            rays: args.rays,
+            compose_rel_rms: (num / den.max(1e-30)).sqrt(),
+            compose_max_levels,
+            ply: None,
+        };
+        if let Some(base) = frame.env_lobes() {
+            let positions: Vec<glam::Vec3> = st
+                .positions
+                .iter()
+                .map(|p| glam::Vec3::new(p[0], p[1], p[2]))
+                .collect();
+            let normals: Vec<glam::Vec3> = st
+                .normals
+                .iter()
+                .map(|n| glam::Vec3::new(n[0], n[1], n[2]))
+                .collect();
+            let lobes = env_cpu::rotate(base, input.env_rotation);
+            let bvh = crate::geom::bvh::Bvh::build(&positions, &mesh.triangles);
+            let (lo, hi) = positions.iter().fold(
+                (
+                    glam::Vec3::splat(f32::INFINITY),
+                    glam::Vec3::splat(f32::NEG_INFINITY),
+                ),
+                |(lo, hi), p| (lo.min(*p), hi.max(*p)),
+            );
+            let truth = {
+                let _p = crate::progress::Progress::start(
+                    &format!("reference pose {k}: ray-traced environment"),
+                    positions.len() as u64,
+                );
+                env_cpu::ray_traced(
+                    &positions,
+                    &normals,
+                    &bvh,
+                    &lobes,
+                    &env_cpu::TruthConfig {
+                        rays: args.rays,
+                        offset: 1e-4 * (hi - lo).length(),
+                        seed: 0x5eed + k as u64,
+                    },
+                )
+            };
+            let mine: Vec<[f32; 3]> = st
+                .env_irradiance
+                .iter()
+                .map(|e| [e[0], e[1], e[2]])
+                .collect();
+            let floor = env_cpu::floor(&lobes, &normals, &st.ao);
+            let open: Vec<[f32; 3]> = normals
+                .iter()
+                .map(|&n| env_cpu::unshadowed(&lobes, n))
+                .collect();
+            pose.env_rel_l2 = Some(env_cpu::relative_l2(&mine, &truth));
+            pose.env_floor_rel_l2 = Some(env_cpu::relative_l2(&floor, &truth));
+            pose.env_unshadowed_rel_l2 = Some(env_cpu::relative_l2(&open, &truth));
+            let open_idx: Vec<usize> = (0..truth.len())
+                .filter(|&v| truth[v].iter().sum::<f64>() > 0.0)
+                .collect();
+            let pick = |a: &[[f32; 3]]| open_idx.iter().map(|&v| a[v]).collect::<Vec<_>>();
+            let t_open: Vec<[f64; 3]> = open_idx.iter().map(|&v| truth[v]).collect();
+            pose.env_enclosed = Some(truth.len() - open_idx.len());
+            pose.env_open_rel_l2 = Some(env_cpu::relative_l2(&pick(&mine), &t_open));
+            pose.env_open_floor_rel_l2 = Some(env_cpu::relative_l2(&pick(&floor), &t_open));
+            let ply = args.out.join(format!("reference_{k:04}.ply"));
+            let channel = |c: usize| mine.iter().map(|e| e[c]).collect::<Vec<f32>>();
+            let truth_channel = |c: usize| truth.iter().map(|e| e[c] as f32).collect::<Vec<f32>>();
+            crate::scene::ply_write::write_ply_properties(
+                &ply,
+                &format!(
+                    "vkshade frame --reference: t {:.3} s, environment turned {rotation_deg:.1} \
+                     deg; r g b: environment irradiance shadowed by the character (linear, \
+                     radiometric, no 1/pi); truth_*: ray-traced ({} rays/vertex); ao: AO's \
+                     visibility",
+                    input.time, args.rays
+                ),
+                &positions,
+                &normals,
+                &mesh.triangles,
+                &[
+                    ("r", &channel(0)),
+                    ("g", &channel(1)),
+                    ("b", &channel(2)),
+                    ("truth_r", &truth_channel(0)),
+                    ("truth_g", &truth_channel(1)),
+                    ("truth_b", &truth_channel(2)),
+                    ("ao", &st.ao),
+                ],
+            )?;
+            pose.ply = Some(ply.display().to_string());
+        }
+        progress(&format!(
+            "reference pose {k} (t {:.2} s): env rel L2 {} (AO floor {}), compose vs twin {:.2e}",
+            pose.time,
+            pose.env_rel_l2
+                .map_or("-".into(), |v| format!("{:.2}%", 100.0 * v)),
+            pose.env_floor_rel_l2
+                .map_or("-".into(), |v| format!("{:.2}%", 100.0 * v)),
+            pose.compose_rel_rms
+        ));
+        out.push(pose);
+    }
+    Ok(out)
 }

@@ -670,6 +670,7 @@ impl CharacterFrame {
             keys: rec.read_back(self.raster.keys())?,
             positions: rec.read_back(self.pose.positions())?,
             normals: rec.read_back(self.pose.normals())?,
+            ao: rec.read_back(self.ao.visibility())?,
             diffuse: match &self.sss {
                 Some(s) => Some(rec.read_back(s.kernel.diffuse())?),
                 None => None,
@@ -698,6 +699,7 @@ impl CharacterFrame {
             keys: rb.keys.to_vec()?,
             positions: rb.positions.to_vec()?,
             normals: rb.normals.to_vec()?,
+            ao: rb.ao.to_vec()?,
             diffuse: match &rb.diffuse {
                 Some(r) => r.to_vec()?,
                 None => vec![[0.0; 4]; 8],
@@ -748,6 +750,11 @@ impl CharacterFrame {
         )
     }
 
+    /// The environment's lobes as fitted (before the frame's rotation), when it has one.
+    pub fn env_lobes(&self) -> Option<&[crate::geom::sg::Lobe]> {
+        self.env.as_ref().map(|e| e.base_lobes())
+    }
+
     /// The skin's texture-space geometry (rest pose), when the character has skin.
     pub fn skin_geometry(&self) -> Option<&TexGeometry> {
         self.sss.as_ref().map(|s| &s.geo)
@@ -783,6 +790,7 @@ pub struct StageReadback {
     keys: crate::gpu::Readback,
     positions: crate::gpu::Readback,
     normals: crate::gpu::Readback,
+    ao: crate::gpu::Readback,
     diffuse: Option<crate::gpu::Readback>,
     cloth: Option<crate::gpu::Readback>,
     lobes: Option<(
@@ -803,6 +811,8 @@ pub struct Stages {
     /// Posed positions and normals.
     pub positions: Vec<[f32; 4]>,
     pub normals: Vec<[f32; 4]>,
+    /// AO's visibility per vertex.
+    pub ao: Vec<f32>,
     /// The skin's diffusion per atlas texel.
     pub diffuse: Vec<[f32; 4]>,
     /// The cloth's radiance per pixel.
