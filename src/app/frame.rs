@@ -190,6 +190,13 @@ pub struct FrameReport {
     /// writing included).
     pub wall_ms: f64,
     pub device_memory_bytes: u64,
+    /// The process's resident memory (MiB, Linux VmRSS) after the first frame and after the
+    /// last, and its largest value in between, less the frames the command keeps for the
+    /// animated PNG and the contact sheet (W x H x 3 bytes each): a frame loop that leaks
+    /// shows the growth here (lavapipe's device memory is host memory, so it counts too).
+    pub rss_mib_first: Option<f64>,
+    pub rss_mib_last: Option<f64>,
+    pub rss_mib_max: Option<f64>,
     pub files: Vec<String>,
     /// With --reference: each stage against its truth at three poses.
     pub reference: Vec<ReferencePose>,
@@ -246,6 +253,7 @@ pub fn render(
     let [w, h] = cfg.size;
     let mut rgb_frames: Vec<Vec<u8>> = Vec::new();
     let mut files = Vec::new();
+    let mut rss: Vec<f64> = Vec::new();
     let t = Instant::now();
     crate::frame::run(ctx, &frame, &inputs, args.in_flight, |f| {
         let mut sum = 0.0;
@@ -286,6 +294,10 @@ pub fn render(
             f.index, inputs[f.index].time, sum, f.host_ms
         ));
         rgb_frames.push(rgb);
+        let kept: usize = rgb_frames.iter().map(Vec::len).sum();
+        if let Some(m) = resident_mib() {
+            rss.push(m - kept as f64 / (1 << 20) as f64);
+        }
         Ok(())
     })?;
     let wall_ms = t.elapsed().as_secs_f64() * 1e3 / n as f64;
@@ -331,6 +343,9 @@ pub fn render(
         host_ms: median(&host),
         wall_ms,
         device_memory_bytes: frame.memory_bytes(),
+        rss_mib_first: rss.first().copied(),
+        rss_mib_last: rss.last().copied(),
+        rss_mib_max: rss.iter().copied().reduce(f64::max),
         files,
         reference,
     };
@@ -436,6 +451,12 @@ pub fn display(r: &FrameReport, out: &Path) {
     for p in &r.passes {
         println!("  {:<24} {:>8.3} ms", p.name, p.ms);
     }
+    if let (Some(a), Some(b), Some(m)) = (r.rss_mib_first, r.rss_mib_last, r.rss_mib_max) {
+        println!(
+            "host resident memory (less the frames kept for the animation) {a:.1} MiB after \
+             the first frame, {b:.1} MiB after the last (max {m:.1})"
+        );
+    }
     if !r.reference.is_empty() {
         println!("stages against their truths (--reference):");
         println!(
@@ -478,6 +499,15 @@ pub fn display(r: &FrameReport, out: &Path) {
         "wrote {} (frame_NNNN.png/.exr, animation.png, contact_sheet.png, timing.png, report.json)",
         out.display()
     );
+}
+
+/// The process's resident set in MiB (Linux: VmRSS of /proc/self/status); None elsewhere
+/// or when it cannot be read.
+fn resident_mib() -> Option<f64> {
+    let s = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = s.lines().find(|l| l.starts_with("VmRSS:"))?;
+    let kib: f64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kib / 1024.0)
 }
 
 /// `--reference`: three poses rendered with their stages read back, each against its truth.
