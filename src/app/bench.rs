@@ -1,4 +1,5 @@
-//! `vkshade bench peak|ao|srbf|btf|sss|frame|env|all|compare|table`: the benchmarks' options, runs and printed summaries
+//! `vkshade bench peak|ao|srbf|btf|sss|frame|env|all|compare|table`: the benchmarks'
+//! options, runs and printed summaries
 //! (the sweeps themselves are in [`crate::bench`]).
 
 use super::{Gpu, finish, progress};
@@ -110,8 +111,9 @@ pub enum Command {
         /// Relative IQR (percent) above which a figure is flagged as noisy.
         #[arg(long, default_value_t = 10.0)]
         noise_pct: f64,
-        /// Smoke run (CI): 1 round, 2 samples, 2 ms probes; checks that everything runs, no
-        /// figure of it is meaningful.
+        /// Smoke run (CI): 1 round, 2 samples, 2 ms probes, SRBF on a synthetic transfer of
+        /// the bunny's shape (no ray-cast); checks that everything runs, no figure of it is
+        /// meaningful.
         #[arg(long)]
         quick: bool,
         /// Read every input (data/*.glb, /usr/share/... bunny and studio light) under this
@@ -253,7 +255,7 @@ impl Command {
                     cfg.peak.samples = 2;
                     cfg.peak.min_submit_ms = 2.0;
                 }
-                all(gpu, json, &cfg, data_root.as_deref())
+                all(gpu, json, &cfg, data_root.as_deref(), *quick)
             }
             Command::Compare { a, b, threshold } => compare(a, b, *threshold),
             Command::Table { files } => table(files),
@@ -676,7 +678,13 @@ fn print_targets(targets: &[crate::bench::ao::TargetCheck]) {
 }
 
 /// `bench all`.
-fn all(gpu: &Gpu, dir: &Path, cfg: &bench::all::AllConfig, data_root: Option<&Path>) -> Result<()> {
+fn all(
+    gpu: &Gpu,
+    dir: &Path,
+    cfg: &bench::all::AllConfig,
+    data_root: Option<&Path>,
+    quick: bool,
+) -> Result<()> {
     use bench::all::{Entry, KERNELS};
     let start = std::time::Instant::now();
     if !(1..=1000).contains(&cfg.rounds)
@@ -686,7 +694,9 @@ fn all(gpu: &Gpu, dir: &Path, cfg: &bench::all::AllConfig, data_root: Option<&Pa
         || !(cfg.noise_bound > 0.0 && cfg.noise_bound.is_finite())
     {
         return Err(Error::InvalidArgument(
-            "bench all: --rounds and --samples must be in 1..=1000, --warmup <= 1000, --min-ms in (0, 60000], --noise-pct > 0".into(),
+            "bench all: --rounds and --samples must be in 1..=1000, --warmup <= 1000, \
+             --min-ms in (0, 60000], --noise-pct > 0"
+                .into(),
         ));
     }
     if let Some(k) = cfg.kernels.iter().find(|k| !KERNELS.contains(&k.as_str())) {
@@ -752,14 +762,15 @@ fn all(gpu: &Gpu, dir: &Path, cfg: &bench::all::AllConfig, data_root: Option<&Pa
     frame_cfg.env = frame_cfg.env.as_deref().map(rooted);
     let (mut ao, mut sss, mut srbf, mut btf, mut frame) = (None, None, None, None, None);
     for k in &cfg.kernels {
-        progress(&format!("setting up {k}"));
+        let t = std::time::Instant::now();
         match k.as_str() {
             "ao" => ao = Some(bench::ao::AllBench::new(&ctx, &ao_cfg)?),
             "sss" => sss = Some(bench::sss::AllBench::new(&ctx, &sss_cfg)?),
-            "srbf" => srbf = Some(bench::srbf::AllBench::new(&ctx, &srbf_cfg)?),
+            "srbf" => srbf = Some(bench::srbf::AllBench::new(&ctx, &srbf_cfg, quick)?),
             "btf" => btf = Some(bench::btf::AllBench::new(&ctx, &btf_cfg)?),
             _ => frame = Some(bench::frame::AllBench::new(&ctx, &frame_cfg, &cfg.bench)?),
         }
+        progress(&format!("set up {k} in {:.1} s", t.elapsed().as_secs_f64()));
     }
     let mut entries: Vec<Entry<'_>> = Vec::new();
     for k in &cfg.kernels {

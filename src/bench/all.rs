@@ -219,15 +219,17 @@ pub fn run(
             .duration_since(std::time::UNIX_EPOCH)
             .map_or(0, |d| d.as_secs()),
     );
-    progress("peaks before the kernels");
+    let t = Instant::now();
     let peak_before = super::peak::run(ctx, &cfg.peak, &mut |_| {})?;
     progress(&format!(
-        "  FMA {:.1} GFLOP/s, stream {:.2} GB/s, {} probes",
+        "peaks before the kernels: FMA {:.1} GFLOP/s, stream {:.2} GB/s, {} probes ({:.1} s)",
         peak_before.fma_gflops,
         peak_before.bandwidth_gb_s,
-        peak_before.probes.len()
+        peak_before.probes.len(),
+        t.elapsed().as_secs_f64()
     ));
     let mut rounds: Vec<Vec<Round>> = Vec::new();
+    let t = Instant::now();
     for r in 0..cfg.rounds.max(1) {
         let mut this = Vec::new();
         for k in 0..entries.len() {
@@ -250,11 +252,18 @@ pub fn run(
         }
         rounds.push(this);
     }
-    progress("peaks after the kernels");
+    progress(&format!(
+        "{} round(s) in {:.1} s",
+        rounds.len(),
+        t.elapsed().as_secs_f64()
+    ));
+    let t = Instant::now();
     let peak_after = super::peak::run(ctx, &cfg.peak, &mut |_| {})?;
     progress(&format!(
-        "  FMA {:.1} GFLOP/s, stream {:.2} GB/s",
-        peak_after.fma_gflops, peak_after.bandwidth_gb_s
+        "peaks after the kernels: FMA {:.1} GFLOP/s, stream {:.2} GB/s ({:.1} s)",
+        peak_after.fma_gflops,
+        peak_after.bandwidth_gb_s,
+        t.elapsed().as_secs_f64()
     ));
     let mut report = summarise(
         cfg,

@@ -740,8 +740,11 @@ pub fn run_probes(
         kinds
             .iter()
             .copied()
-            .filter(move |k| {
-                matches!(k, ProbeKind::Sample { dim3: d, format: f, .. } if *d == dim3 && *f == format)
+            .filter(move |k| match k {
+                ProbeKind::Sample {
+                    dim3: d, format: f, ..
+                } => *d == dim3 && *f == format,
+                _ => false,
             })
             .collect::<Vec<_>>()
     };

@@ -410,21 +410,40 @@ pub struct AllBench<'a> {
     cfg: &'a SrbfBenchConfig,
     normals: Vec<Vec3>,
     lobes: Vec<Lobe>,
-    vis: crate::geom::visibility::Visibility,
-    width: u32,
-    height: u32,
+    /// The visibility for compact lobes and its grid (None: a synthetic transfer).
+    vis: Option<(crate::geom::visibility::Visibility, u32, u32)>,
     cpca: Cpca,
     fps_min: Option<f64>,
 }
 
 impl<'a> AllBench<'a> {
-    pub fn new(ctx: &'a Context, cfg: &'a SrbfBenchConfig) -> Result<AllBench<'a>> {
+    /// `synthetic`: the sweep's synthetic transfer of the bunny's size and compressed shape
+    /// (the same work per frame, no compact lobe) instead of ray-casting the real one
+    /// (minutes on a loaded 2-core machine): `bench all --quick`.
+    pub fn new(
+        ctx: &'a Context,
+        cfg: &'a SrbfBenchConfig,
+        synthetic: bool,
+    ) -> Result<AllBench<'a>> {
         let targets: serde_json::Value = serde_json::from_str(super::ao::TARGETS).map_err(|e| {
             crate::error::Error::InvalidArgument(format!("bench/targets.json: {e}"))
         })?;
         let character = crate::scene::load(&cfg.mesh)?;
-        let env = EnvMap::load(&cfg.env)?;
         let (hl, hk) = cfg.headline;
+        let fps_min = targets["srbf"]["fps_min"].as_f64();
+        if synthetic {
+            let nv = character.mesh.positions.len();
+            return Ok(AllBench {
+                ctx,
+                cfg,
+                normals: character.mesh.normals.clone(),
+                lobes: synthetic_lobes(hl, 3),
+                vis: None,
+                cpca: synthetic_cpca(hk, nv, &cfg.cpca, 2),
+                fps_min,
+            });
+        }
+        let env = EnvMap::load(&cfg.env)?;
         let fitted = fit(
             &env.downsampled(128.min(env.width))?.samples(),
             &FitConfig {
@@ -446,30 +465,28 @@ impl<'a> AllBench<'a> {
             cfg,
             normals: character.mesh.normals.clone(),
             lobes: fitted.lobes,
-            vis,
-            width: dir_env.width,
-            height: dir_env.height,
+            vis: Some((vis, dir_env.width, dir_env.height)),
             cpca,
-            fps_min: targets["srbf"]["fps_min"].as_f64(),
+            fps_min,
         })
     }
 
     /// One round: the headline's GPU time and work model, the CPU twin's wall time.
     pub fn round(&self) -> Result<super::all::Round> {
-        let compact = CompactInputs {
-            visibility: &self.vis,
+        let compact = self.vis.as_ref().map(|(vis, width, height)| CompactInputs {
+            visibility: vis,
             normals: &self.normals,
-            width: self.width,
-            height: self.height,
+            width: *width,
+            height: *height,
             factor: crate::kernels::srbf::sharp::DEFAULT_FACTOR,
             max_lobes: crate::kernels::srbf::sharp::DEFAULT_MAX_LOBES,
-        };
+        });
         let p = measure(
             self.ctx,
             &self.cfg.bench,
             &self.lobes,
             &self.cpca,
-            Some(compact),
+            compact,
             true,
             f64::NAN,
         )?;
@@ -477,7 +494,10 @@ impl<'a> AllBench<'a> {
             rotation: sg::rotation(Vec3::Y, 30.0),
             albedo: [1.0; 3],
         };
-        let inputs = SrbfInputs::new(&self.lobes, &self.cpca).with_compact(compact);
+        let mut inputs = SrbfInputs::new(&self.lobes, &self.cpca);
+        if let Some(c) = compact {
+            inputs = inputs.with_compact(c);
+        }
         let cpu = time_cpu(1, || inputs.cpu_pipeline(&frame));
         let within = [&p.lighting_ms, &p.project_ms, &p.sharp_ms, &p.shade_ms]
             .iter()
@@ -486,8 +506,16 @@ impl<'a> AllBench<'a> {
         Ok(super::all::Round {
             kernel: "srbf",
             headline: format!(
-                "bunny, {} vertices, {} lobes ({} compact), {} basis",
-                p.vertices, p.lobes, p.compact_lobes, p.basis
+                "bunny, {} vertices, {} lobes ({} compact), {} basis{}",
+                p.vertices,
+                p.lobes,
+                p.compact_lobes,
+                p.basis,
+                if self.vis.is_none() {
+                    " (synthetic transfer)"
+                } else {
+                    ""
+                }
             ),
             gpu_ms: p.total_ms,
             within_iqr_rel: within,

@@ -28,11 +28,11 @@ use std::path::PathBuf;
 pub mod work_model {
     pub const FLOP_PER_SAMPLE: f64 = 30.0;
     pub const BYTES_PER_SAMPLE: f64 = 4.0;
-    /// Storage-image loads per sample (glsl/common/sss_diffusion.glsl): the pattern texel
-    /// and the gathered grey irradiance (each counted at the rate of
-    /// `image_gather_coherent`, rgba32f loads: an upper bound of the rate of these
-    /// narrower loads, so the fraction is a lower bound).
-    pub const LOADS_PER_SAMPLE: f64 = 2.0;
+    /// Storage-image loads per sample (glsl/common/sss_diffusion.glsl) that differ per lane:
+    /// the gathered grey irradiance (r32f), counted at the rate of `image_gather_coherent`
+    /// (rgba32f loads; a narrower load is at least as fast, so the fraction is an upper
+    /// bound). The pattern texel, the same for every lane, is left out.
+    pub const LOADS_PER_SAMPLE: f64 = 1.0;
     /// Per texel: its start record and the 9 walk records of its triangle, its own source.
     pub const LOADS_PER_TEXEL: f64 = 11.0;
 }
