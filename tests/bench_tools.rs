@@ -1,7 +1,7 @@
 //! `vkshade bench compare` and `bench table` on synthetic `bench all` JSONs with known noise
 //! (no GPU), and a smoke run of `bench all` under the validation layer.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::process::Command;
 
 fn vkshade(args: &[&str]) -> (bool, String, String) {
@@ -66,7 +66,7 @@ fn run_json(name: &str, fps: &[f64]) -> PathBuf {
     path
 }
 
-fn compare(a: &PathBuf, b: &PathBuf, threshold: &str) -> (bool, String, String) {
+fn compare(a: &Path, b: &Path, threshold: &str) -> (bool, String, String) {
     vkshade(&[
         "bench",
         "compare",

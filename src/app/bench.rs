@@ -240,15 +240,25 @@ impl Command {
                 quick,
                 data_root,
             } => {
-                let mut cfg = bench::all::AllConfig::default();
-                cfg.rounds = *rounds;
-                cfg.bench.samples = *samples;
-                cfg.bench.warmup = *warmup;
-                cfg.peak.min_submit_ms = *min_ms;
-                cfg.noise_bound = noise_pct / 100.0;
-                if !kernels.is_empty() {
-                    cfg.kernels = kernels.clone();
-                }
+                let d = bench::all::AllConfig::default();
+                let mut cfg = bench::all::AllConfig {
+                    rounds: *rounds,
+                    bench: BenchConfig {
+                        warmup: *warmup,
+                        samples: *samples,
+                        ..d.bench.clone()
+                    },
+                    peak: BenchConfig {
+                        min_submit_ms: *min_ms,
+                        ..d.peak.clone()
+                    },
+                    noise_bound: noise_pct / 100.0,
+                    kernels: if kernels.is_empty() {
+                        d.kernels.clone()
+                    } else {
+                        kernels.clone()
+                    },
+                };
                 if *quick {
                     cfg.rounds = 1;
                     cfg.bench.samples = 2;
@@ -687,11 +697,13 @@ fn all(
 ) -> Result<()> {
     use bench::all::{Entry, KERNELS};
     let start = std::time::Instant::now();
+    // Positive and at most `hi` (NaN is neither).
+    let positive_to = |x: f64, hi: f64| x > 0.0 && x <= hi;
     if !(1..=1000).contains(&cfg.rounds)
         || !(1..=1000).contains(&cfg.bench.samples)
         || cfg.bench.warmup > 1000
-        || !(cfg.peak.min_submit_ms > 0.0 && cfg.peak.min_submit_ms <= 60_000.0)
-        || !(cfg.noise_bound > 0.0 && cfg.noise_bound.is_finite())
+        || !positive_to(cfg.peak.min_submit_ms, 60_000.0)
+        || !positive_to(cfg.noise_bound, f64::MAX)
     {
         return Err(Error::InvalidArgument(
             "bench all: --rounds and --samples must be in 1..=1000, --warmup <= 1000, \
