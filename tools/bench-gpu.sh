@@ -13,7 +13,7 @@
 #                                       OUT/log.txt)
 #
 # On a lent GPU, from the repository root (DIR inside the repo, git-ignored, then carried):
-#   echo /.gpu/ >> .git/info/exclude; tools/bench-gpu.sh prepare .gpu
+#   tools/bench-gpu.sh prepare .gpu                (.gpu/ is git-ignored)
 #   device run: tools/bench-gpu.sh run .gpu $OUT      (carry: [".gpu"])
 # CI runs `prepare` and then `run ... --quick --validate` on lavapipe (.ci/run).
 set -euo pipefail

@@ -85,7 +85,7 @@ impl Default for AllConfig {
 /// One figure over repeated measurements: what `bench compare` reads.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
 pub struct Figure {
-    /// `KERNEL.fps`, `KERNEL.binding_fraction`, `KERNEL.vs_cpu`, `peak.KEY`.
+    /// `KERNEL.fps`, `KERNEL.gpu_ms`, `KERNEL.binding_fraction`, `KERNEL.vs_cpu`, `peak.KEY`.
     pub name: String,
     pub unit: String,
     pub higher_is_better: bool,
@@ -400,6 +400,7 @@ pub fn summarise(
             None => "-",
         };
         figures.push(fps.clone());
+        figures.push(gpu_ms.clone());
         figures.push(binding_fraction.clone());
         figures.extend(vs_cpu.clone());
         kernels.push(KernelSummary {

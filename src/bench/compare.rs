@@ -3,11 +3,14 @@
 //!
 //! For each figure in both runs: the ratio of the medians B / A, and whether the change is
 //! beyond the noise of both runs: |B / A - 1| larger than the larger of the two relative
-//! interquartile ranges (a change inside either run's own spread is not evidence). A kernel
-//! figure (not `peak.*`) that got worse beyond the noise *and* by more than the threshold is
-//! a **regression**; the command exits non-zero when there is one. Peak figures are shown
-//! for context (a machine whose peaks moved moves its kernels' figures too) and never fail
-//! the comparison.
+//! interquartile ranges (a change inside either run's own spread is not evidence). A kernel's
+//! speed (`KERNEL.fps`, `KERNEL.gpu_ms`) that got worse beyond the noise *and* by more than
+//! the threshold is a **regression**; the command exits non-zero when there is one. The
+//! other figures are shown with their verdicts for context and never fail the comparison:
+//! the peaks (a machine whose peaks moved moves its kernels' figures too), the binding
+//! fractions (they move with the peaks measured in each run, and the binding roofline itself
+//! can change between runs) and the ratios to the CPU twins (the twin's wall time has its
+//! own noise).
 
 use super::all::Figure;
 use crate::error::{Error, Result};
@@ -61,7 +64,7 @@ pub enum Verdict {
     Better,
     /// Worse beyond the noise, by no more than the threshold.
     Worse,
-    /// Worse beyond the noise and by more than the threshold (kernel figures only).
+    /// Worse beyond the noise and by more than the threshold (kernel speed figures only).
     Regression,
     /// Inside the spread of one run or the other.
     WithinNoise,
@@ -119,12 +122,12 @@ pub fn compare(a: &Run, b: &Run, threshold: f64) -> Comparison {
             1.0 / ratio - 1.0
         };
         let beyond = (ratio - 1.0).abs() > noise && ratio.is_finite();
-        let kernel = !fa.name.starts_with("peak.");
+        let gates = fa.name.ends_with(".fps") || fa.name.ends_with(".gpu_ms");
         let verdict = if !beyond {
             Verdict::WithinNoise
         } else if gain > 0.0 {
             Verdict::Better
-        } else if kernel && -gain > threshold {
+        } else if gates && -gain > threshold {
             Verdict::Regression
         } else {
             Verdict::Worse
@@ -190,6 +193,17 @@ pub fn render(a: &Run, b: &Run, c: &Comparison) -> String {
     for (which, names) in [("A", &c.only_in_a), ("B", &c.only_in_b)] {
         if !names.is_empty() {
             s.push_str(&format!("only in {which}: {}\n", names.join(", ")));
+        }
+    }
+    for fa in &a.figures {
+        if let Some(fb) = b.figures.iter().find(|f| f.name == fa.name)
+            && fa.name.ends_with(".binding_fraction")
+            && fa.unit != fb.unit
+        {
+            s.push_str(&format!(
+                "note: {}: the binding roofline changed ({} in A, {} in B)\n",
+                fa.name, fa.unit, fb.unit
+            ));
         }
     }
     if let Some(p) = c.rows.iter().find(|r| r.name == "peak.fma")
@@ -309,9 +323,18 @@ mod tests {
     }
 
     #[test]
-    fn peaks_never_regress() {
-        let a = run(vec![fig("peak.fma", true, &[100.0, 100.0])]);
-        let b = run(vec![fig("peak.fma", true, &[50.0, 50.0])]);
-        assert_eq!(compare(&a, &b, 0.05).rows[0].verdict, Verdict::Worse);
+    fn only_speed_figures_regress() {
+        for name in ["peak.fma", "k.binding_fraction", "k.vs_cpu"] {
+            let a = run(vec![fig(name, true, &[100.0, 100.0])]);
+            let b = run(vec![fig(name, true, &[50.0, 50.0])]);
+            assert_eq!(
+                compare(&a, &b, 0.05).rows[0].verdict,
+                Verdict::Worse,
+                "{name}"
+            );
+        }
+        let a = run(vec![fig("k.fps", true, &[100.0, 100.0])]);
+        let b = run(vec![fig("k.fps", true, &[50.0, 50.0])]);
+        assert_eq!(compare(&a, &b, 0.05).rows[0].verdict, Verdict::Regression);
     }
 }
