@@ -14,6 +14,12 @@ pub struct Stats {
     pub mean: f64,
     /// Relative spread (max - min) / median.
     pub spread: f64,
+    /// First and third quartiles (linear interpolation between order statistics).
+    pub q1: f64,
+    pub q3: f64,
+    /// Relative interquartile range (q3 - q1) / median: the noise figure `bench all` and
+    /// `bench compare` use (robust to one slow outlier, unlike `spread`).
+    pub iqr_rel: f64,
 }
 
 impl Stats {
@@ -31,6 +37,7 @@ impl Stats {
             0.5 * (v[n / 2 - 1] + v[n / 2])
         };
         let (min, max) = (v[0], v[n - 1]);
+        let (q1, q3) = (quantile(&v, 0.25), quantile(&v, 0.75));
         Some(Stats {
             n,
             median,
@@ -39,6 +46,13 @@ impl Stats {
             mean: v.iter().sum::<f64>() / n as f64,
             spread: if median > 0.0 {
                 (max - min) / median
+            } else {
+                0.0
+            },
+            q1,
+            q3,
+            iqr_rel: if median > 0.0 {
+                (q3 - q1) / median
             } else {
                 0.0
             },
@@ -54,7 +68,21 @@ impl Stats {
             max: f64::NAN,
             mean: f64::NAN,
             spread: 0.0,
+            q1: f64::NAN,
+            q3: f64::NAN,
+            iqr_rel: 0.0,
         }
+    }
+}
+
+/// The `p` quantile (0..=1) of sorted, non-empty `v`, interpolating linearly between order
+/// statistics (the "type 7" estimator of R and numpy's default).
+pub fn quantile(v: &[f64], p: f64) -> f64 {
+    let x = p.clamp(0.0, 1.0) * (v.len() - 1) as f64;
+    let (i, f) = (x.floor() as usize, x.fract());
+    match v.get(i + 1) {
+        Some(&next) => v[i] + (next - v[i]) * f,
+        None => v[i],
     }
 }
 

@@ -66,6 +66,19 @@ fn bench_peak_writes_json_and_plot_under_validation() {
     assert!(bw.is_finite() && bw > 0.0, "bandwidth_gb_s = {bw}");
     assert!(!v["machine"]["device"].as_str().unwrap_or("").is_empty());
     assert_eq!(v["fma"]["gpu_ms"]["n"].as_u64(), Some(2));
+    // Every probe either ran (a positive rate with its quartiles) or says why not; lavapipe
+    // runs all 34 (it filters every format it samples).
+    let probes = v["probes"].as_array().expect("probes");
+    let skipped = v["skipped_probes"].as_array().expect("skipped_probes");
+    assert_eq!(probes.len() + skipped.len(), 34, "{skipped:?}");
+    for p in probes {
+        let rate = p["rate_per_s"].as_f64().unwrap_or(f64::NAN);
+        assert!(rate.is_finite() && rate > 0.0, "{p}");
+        assert!(
+            p["gpu_ms"]["q1"].as_f64() <= p["gpu_ms"]["q3"].as_f64(),
+            "{p}"
+        );
+    }
     let png_bytes = std::fs::read(&png).unwrap();
     assert_eq!(&png_bytes[1..4], b"PNG");
 }

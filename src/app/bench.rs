@@ -1,4 +1,5 @@
-//! `vkshade bench peak|ao|srbf|btf|sss`: the benchmarks' options, runs and printed summaries
+//! `vkshade bench peak|ao|srbf|btf|sss|frame|env|all|compare|table`: the benchmarks'
+//! options, runs and printed summaries
 //! (the sweeps themselves are in [`crate::bench`]).
 
 use super::{Gpu, finish, progress};
@@ -11,7 +12,10 @@ use std::path::{Path, PathBuf};
 #[derive(clap::Subcommand, Clone, Debug)]
 pub enum Command {
     /// Device peak: f32 FMA throughput (GFLOP/s) and streaming bandwidth (GB/s), each grown
-    /// until one submission takes --min-ms; the roofline the kernels are judged against.
+    /// until one submission takes --min-ms, and the probes (sampling 2D/3D nearest/bilinear
+    /// RGBA8/16F/32F coherent/random, storage buffer and image gathers, uniform-buffer reads
+    /// at a dynamic index, shared memory, barriers, atomics): the rooflines the kernels are
+    /// judged against.
     Peak {
         #[command(flatten)]
         opts: Opts,
@@ -79,6 +83,61 @@ pub enum Command {
         /// Only the headline lobe count (32).
         #[arg(long)]
         quick: bool,
+    },
+    /// Everything in one run: the peaks, every kernel's headline (ao, sss, srbf, btf, frame)
+    /// in interleaved rounds, the peaks again; per kernel fps, the fraction of its binding
+    /// roofline, the ratio to its CPU twin and its target, each as the median and IQR over
+    /// the rounds, with warnings where the spread or the peaks' drift exceed --noise-pct.
+    /// Writes DIR/all.json, DIR/summary.md and DIR/all.png.
+    All {
+        /// Directory for all.json, summary.md and all.png (created if missing).
+        #[arg(long, value_name = "DIR")]
+        json: PathBuf,
+        /// Rounds over the kernels (each figure's repeats).
+        #[arg(long, default_value_t = 5)]
+        rounds: usize,
+        /// Timed submissions of each kernel's headline per round (median taken).
+        #[arg(long, default_value_t = 5)]
+        samples: usize,
+        /// Untimed submissions before them.
+        #[arg(long, default_value_t = 1)]
+        warmup: usize,
+        /// Peak probes grow until one submission takes this many ms.
+        #[arg(long, default_value_t = 20.0)]
+        min_ms: f64,
+        /// Kernels to run, comma-separated (default: ao,sss,srbf,btf,frame).
+        #[arg(long, value_delimiter = ',')]
+        kernels: Vec<String>,
+        /// Relative IQR (percent) above which a figure is flagged as noisy.
+        #[arg(long, default_value_t = 10.0)]
+        noise_pct: f64,
+        /// Smoke run (CI): 1 round, 2 samples, 2 ms probes, SRBF on a synthetic transfer of
+        /// the bunny's shape (no ray-cast); checks that everything runs, no figure of it is
+        /// meaningful.
+        #[arg(long)]
+        quick: bool,
+        /// Read every input (data/*.glb, /usr/share/... bunny and studio light) under this
+        /// folder instead (an absolute path loses its leading /): a machine without the
+        /// Debian data packages (tools/bench-gpu.sh).
+        #[arg(long, value_name = "DIR")]
+        data_root: Option<PathBuf>,
+    },
+    /// Compare two `bench all` runs (their all.json): per figure the ratio B/A and whether
+    /// it is beyond the noise of both runs; exits non-zero when a kernel figure got worse
+    /// beyond the noise and by more than --threshold percent.
+    Compare {
+        a: PathBuf,
+        b: PathBuf,
+        /// Regression threshold, percent.
+        #[arg(long, default_value_t = 5.0)]
+        threshold: f64,
+    },
+    /// The README's results table from the all.json of each recorded machine (Markdown on
+    /// stdout): machine, date, peaks, and each kernel's figures.
+    Table {
+        /// all.json files, one per machine.
+        #[arg(required = true)]
+        files: Vec<PathBuf>,
     },
     /// Texture-space SSS on the BCN_Epileptic head: GPU time of irradiance and diffusion
     /// over texture size x samples per texel, error against the brute-force ground truth vs
@@ -170,6 +229,46 @@ impl Command {
             } => sss_anim(gpu, opts),
             Command::Sss { opts, quick, .. } => sss(gpu, opts, *quick),
             Command::Env { opts, quick } => super::env::bench(gpu, opts, *quick),
+            Command::All {
+                json,
+                rounds,
+                samples,
+                warmup,
+                min_ms,
+                kernels,
+                noise_pct,
+                quick,
+                data_root,
+            } => {
+                let d = bench::all::AllConfig::default();
+                let mut cfg = bench::all::AllConfig {
+                    rounds: *rounds,
+                    bench: BenchConfig {
+                        warmup: *warmup,
+                        samples: *samples,
+                        ..d.bench.clone()
+                    },
+                    peak: BenchConfig {
+                        min_submit_ms: *min_ms,
+                        ..d.peak.clone()
+                    },
+                    noise_bound: noise_pct / 100.0,
+                    kernels: if kernels.is_empty() {
+                        d.kernels.clone()
+                    } else {
+                        kernels.clone()
+                    },
+                };
+                if *quick {
+                    cfg.rounds = 1;
+                    cfg.bench.samples = 2;
+                    cfg.peak.samples = 2;
+                    cfg.peak.min_submit_ms = 2.0;
+                }
+                all(gpu, json, &cfg, data_root.as_deref(), *quick)
+            }
+            Command::Compare { a, b, threshold } => compare(a, b, *threshold),
+            Command::Table { files } => table(files),
         }
     }
 }
@@ -229,6 +328,19 @@ fn peak(gpu: &Gpu, opts: &Opts) -> Result<()> {
         report.stream.throughput_best,
         report.stream.problem
     );
+    for p in &report.probes {
+        println!(
+            "{:<34} {:>10}{}/s (IQR {:.1}% of the time; {})",
+            p.key,
+            bench::peak::si(p.rate_per_s),
+            p.unit,
+            100.0 * p.gpu_ms.iqr_rel,
+            p.what
+        );
+    }
+    for s in &report.skipped_probes {
+        println!("skipped {s}");
+    }
     write_json(opts, &report)?;
     write_plot(opts, || bench::peak::panels(&report))?;
     finish(ctx)
@@ -279,6 +391,7 @@ fn print_ao(r: &bench::ao::AoBenchReport) {
         100.0 * h.fraction_of_peak,
         r.peak_fma_gflops
     );
+    println!("roofline               {}", r.roofline.summary());
     println!(
         "baselines              same method on the CPU (rayon) {:.2} ms: {:.1}x; ray-traced truth {:.0} ms: {:.0}x",
         r.cpu_same_method_ms.median, r.speedup_vs_cpu, r.raytrace_ms.median, r.speedup_vs_raytrace
@@ -343,6 +456,7 @@ fn print_srbf(r: &bench::srbf::SrbfBenchReport) {
         100.0 * h.fraction_of_peak,
         r.peak_fma_gflops
     );
+    println!("roofline               {}", r.roofline.summary());
     println!(
         "baselines              same method on the CPU {:.2} ms: {:.3}x; brute force {:.1} ms: {:.3}x (speed-up of the GPU path)",
         r.cpu_same_method_ms.median,
@@ -436,6 +550,7 @@ fn print_sss(r: &bench::sss::SssBenchReport) {
         100.0 * h.gathered_vs_stream_bandwidth,
         r.bandwidth_gb_s
     );
+    println!("roofline               {}", r.roofline.summary());
     println!(
         "baselines              same sampler on the CPU {:.0} ms: {:.2}x; brute force at {}^2 {:.0} ms: {:.1}x (speed-up of the GPU path)",
         r.cpu_same_method_ms.median,
@@ -514,6 +629,7 @@ fn print_btf(r: &bench::btf::BtfBenchReport) {
         100.0 * h.fraction_of_fetch_rate,
         rate / 1e6
     );
+    println!("roofline               {}", r.roofline.summary());
     println!(
         "baseline               same interpolation on the CPU (f64, rayon) {:.1} ms: {:.2}x (speed-up of the GPU path)",
         r.cpu_same_method_ms.median, r.speedup_vs_cpu
@@ -569,4 +685,207 @@ fn print_targets(targets: &[crate::bench::ao::TargetCheck]) {
             if t.pass { "PASS" } else { "MISS" }
         );
     }
+}
+
+/// `bench all`.
+fn all(
+    gpu: &Gpu,
+    dir: &Path,
+    cfg: &bench::all::AllConfig,
+    data_root: Option<&Path>,
+    quick: bool,
+) -> Result<()> {
+    use bench::all::{Entry, KERNELS};
+    let start = std::time::Instant::now();
+    // Positive and at most `hi` (NaN is neither).
+    let positive_to = |x: f64, hi: f64| x > 0.0 && x <= hi;
+    if !(1..=1000).contains(&cfg.rounds)
+        || !(1..=1000).contains(&cfg.bench.samples)
+        || cfg.bench.warmup > 1000
+        || !positive_to(cfg.peak.min_submit_ms, 60_000.0)
+        || !positive_to(cfg.noise_bound, f64::MAX)
+    {
+        return Err(Error::InvalidArgument(
+            "bench all: --rounds and --samples must be in 1..=1000, --warmup <= 1000, \
+             --min-ms in (0, 60000], --noise-pct > 0"
+                .into(),
+        ));
+    }
+    if let Some(k) = cfg.kernels.iter().find(|k| !KERNELS.contains(&k.as_str())) {
+        return Err(Error::InvalidArgument(format!(
+            "bench all: unknown kernel '{k}' (one of {})",
+            KERNELS.join(", ")
+        )));
+    }
+    std::fs::create_dir_all(dir).map_err(|e| Error::Io {
+        path: dir.to_path_buf(),
+        source: e,
+    })?;
+    let (json, summary, png) = (
+        dir.join("all.json"),
+        dir.join("summary.md"),
+        dir.join("all.png"),
+    );
+    for p in [&json, &summary, &png] {
+        crate::io::check_writable(p)?;
+    }
+    // The frame needs 64-bit buffer atomics; the other kernels run on any context.
+    let ctx = if cfg.kernels.iter().any(|k| k == "frame") {
+        super::frame::context(gpu)?
+    } else {
+        gpu.context()?
+    };
+    eprintln!(
+        "bench all on {}: {} rounds x {} submissions (+{} warm-up) per kernel",
+        ctx.info().name,
+        cfg.rounds,
+        cfg.bench.samples,
+        cfg.bench.warmup
+    );
+    let rooted = |p: &Path| match data_root {
+        Some(r) => r.join(p.strip_prefix("/").unwrap_or(p)),
+        None => p.to_path_buf(),
+    };
+    let ao_cfg = bench::ao::AoBenchConfig {
+        mesh: rooted(Path::new(crate::kernels::ao::DEFAULT_MESH)),
+        bench: cfg.bench.clone(),
+        // The static correction's rays change its factors, not the work timed.
+        rays: 256,
+        ..Default::default()
+    };
+    let srbf_cfg = bench::srbf::SrbfBenchConfig {
+        mesh: rooted(Path::new(crate::kernels::srbf::DEFAULT_MESH)),
+        env: rooted(Path::new(crate::kernels::srbf::DEFAULT_ENV)),
+        bench: cfg.bench.clone(),
+        ..Default::default()
+    };
+    let sss_cfg = bench::sss::SssBenchConfig {
+        mesh: rooted(Path::new(crate::kernels::sss::DEFAULT_MESH)),
+        bench: cfg.bench.clone(),
+        ..Default::default()
+    };
+    let btf_cfg = bench::btf::BtfBenchConfig {
+        bench: cfg.bench.clone(),
+        bc1_available: false,
+        ..Default::default()
+    };
+    let mut frame_cfg = crate::frame::FrameConfig::default();
+    frame_cfg.mesh = rooted(&frame_cfg.mesh);
+    frame_cfg.env = frame_cfg.env.as_deref().map(rooted);
+    let (mut ao, mut sss, mut srbf, mut btf, mut frame) = (None, None, None, None, None);
+    for k in &cfg.kernels {
+        let t = std::time::Instant::now();
+        match k.as_str() {
+            "ao" => ao = Some(bench::ao::AllBench::new(&ctx, &ao_cfg)?),
+            "sss" => sss = Some(bench::sss::AllBench::new(&ctx, &sss_cfg)?),
+            "srbf" => srbf = Some(bench::srbf::AllBench::new(&ctx, &srbf_cfg, quick)?),
+            "btf" => btf = Some(bench::btf::AllBench::new(&ctx, &btf_cfg)?),
+            _ => frame = Some(bench::frame::AllBench::new(&ctx, &frame_cfg, &cfg.bench)?),
+        }
+        progress(&format!("set up {k} in {:.1} s", t.elapsed().as_secs_f64()));
+    }
+    let mut entries: Vec<Entry<'_>> = Vec::new();
+    for k in &cfg.kernels {
+        match k.as_str() {
+            "ao" => {
+                if let Some(b) = &ao {
+                    entries.push(Entry {
+                        name: "ao",
+                        round: Box::new(|| b.round()),
+                    });
+                }
+            }
+            "sss" => {
+                if let Some(b) = &sss {
+                    entries.push(Entry {
+                        name: "sss",
+                        round: Box::new(|| b.round()),
+                    });
+                }
+            }
+            "srbf" => {
+                if let Some(b) = &srbf {
+                    entries.push(Entry {
+                        name: "srbf",
+                        round: Box::new(|| b.round()),
+                    });
+                }
+            }
+            "btf" => {
+                if let Some(b) = &btf {
+                    entries.push(Entry {
+                        name: "btf",
+                        round: Box::new(|| b.round()),
+                    });
+                }
+            }
+            _ => {
+                if let Some(b) = &frame {
+                    entries.push(Entry {
+                        name: "frame",
+                        round: Box::new(|| b.round()),
+                    });
+                }
+            }
+        }
+    }
+    let mut report = bench::all::run(&ctx, cfg, &entries, &mut |l| progress(l))?;
+    report.wall_s = start.elapsed().as_secs_f64();
+    drop(entries);
+    drop((ao, sss, srbf, btf, frame));
+    let text = bench::all::table(&report);
+    print!("{text}");
+    crate::io::write_json(&json, &report)?;
+    std::fs::write(&summary, &text).map_err(|e| Error::Io {
+        path: summary.clone(),
+        source: e,
+    })?;
+    println!("wrote {} and {}", json.display(), summary.display());
+    // The plot is a convenience: a machine without a font (or a build without plots) still
+    // gets the JSON and the table.
+    match bench::plot::draw(&png, &bench::all::panels(&report)) {
+        Ok(()) => println!("wrote {}", png.display()),
+        Err(e) => eprintln!("bench all: no plot ({e})"),
+    }
+    finish(ctx)
+}
+
+/// `bench compare`.
+fn compare(a: &Path, b: &Path, threshold: f64) -> Result<()> {
+    use bench::compare::{Run, compare, render};
+    if !(threshold.is_finite() && threshold >= 0.0) {
+        return Err(Error::InvalidArgument(
+            "bench compare: --threshold must be a percentage >= 0".into(),
+        ));
+    }
+    let (ra, rb) = (Run::load(a)?, Run::load(b)?);
+    let c = compare(&ra, &rb, threshold / 100.0);
+    print!("{}", render(&ra, &rb, &c));
+    let bad = c.regressions();
+    if bad.is_empty() {
+        Ok(())
+    } else {
+        Err(Error::InvalidArgument(format!(
+            "bench compare: {} regression(s) beyond {threshold}%: {}",
+            bad.len(),
+            bad.iter()
+                .map(|r| format!("{} ({:.3}x)", r.name, r.ratio))
+                .collect::<Vec<_>>()
+                .join(", ")
+        )))
+    }
+}
+
+/// `bench table`.
+fn table(files: &[PathBuf]) -> Result<()> {
+    let mut runs = Vec::new();
+    for f in files {
+        let text = std::fs::read_to_string(f).map_err(|e| Error::Io {
+            path: f.clone(),
+            source: e,
+        })?;
+        runs.push((f.display().to_string(), text));
+    }
+    print!("{}", bench::compare::readme_table(&runs)?);
+    Ok(())
 }

@@ -34,6 +34,39 @@ pub mod flop_model {
     pub const MASK: f64 = 800.0;
 }
 
+/// Loads per unit of work (a documented model, read off glsl/ao/occlusion.comp and
+/// glsl/pose/skin.comp; a load of any width up to 16 bytes counts as one, at the rate of
+/// `buffer_gather_coherent`: neighbouring vertices walk mostly the same nodes).
+pub mod load_model {
+    /// Position, normal, joint indices and weights (skinning), the correction factor.
+    pub const PER_VERTEX: f64 = 5.0;
+    /// The node's sphere and its extent.
+    pub const PER_TESTED: f64 = 2.0;
+    /// Four table entries (the bilinear lookup of the per-sphere occlusion).
+    pub const PER_USED: f64 = 4.0;
+}
+
+/// The work model of one frame of `p` (`nodes` spheres skinned): FLOPs ([`flop_model`]) and
+/// storage-buffer loads ([`load_model`]).
+pub fn work_model(p: &Point, nodes: usize) -> Vec<super::roofline::Term> {
+    use super::roofline::Term;
+    let nv = p.vertices as f64;
+    vec![
+        Term::new("fma", "FLOP (flop_model)", p.gflop_per_frame * 1e9),
+        Term::new(
+            "buffer_gather_coherent",
+            "storage-buffer loads (load_model)",
+            nv * (load_model::PER_VERTEX
+                + p.spheres_tested_per_vertex * load_model::PER_TESTED
+                + p.spheres_used_per_vertex * load_model::PER_USED)
+                + nodes as f64 * load_model::PER_VERTEX,
+        ),
+    ]
+}
+
+/// What the roofline of [`work_model`] covers.
+pub const COVERS: &str = "pose + skin + occlusion passes";
+
 /// Settings of `bench ao`.
 #[derive(Clone, Debug, Serialize)]
 pub struct AoBenchConfig {
@@ -151,6 +184,9 @@ pub struct AoBenchReport {
     pub sphere_sweep: Vec<Point>,
     pub tau_sweep: Vec<Point>,
     pub targets: Vec<TargetCheck>,
+    /// The headline against its binding roofline ([`work_model`], rates measured in this
+    /// run).
+    pub roofline: super::roofline::Roofline,
 }
 
 /// Targets (bench/targets.json, compiled in).
@@ -270,7 +306,12 @@ pub fn run(
     let tau_sweep = setup.tau_sweep(&frames, &counter, progress)?;
     drop(counter);
     let targets = check_targets(&targets["ao"], &headline, &tau_sweep);
+    let terms = work_model(&headline, setup.base_tree.spheres.len());
+    progress("rates of the work model (probes)");
+    let rates = super::roofline::measure_rates(ctx, &cfg.bench, &terms, Some(setup.peak))?;
+    let roofline = super::roofline::Roofline::evaluate(COVERS, terms, headline.total_ms, &rates);
     Ok(AoBenchReport {
+        roofline,
         benchmark: "ao",
         machine: MachineInfo::of(ctx),
         config: cfg.clone(),
@@ -293,6 +334,55 @@ pub fn run(
         tau_sweep,
         targets,
     })
+}
+
+/// `bench all`'s AO: the setup once, then the headline (and the CPU twin) once per round.
+pub struct AllBench<'a> {
+    setup: Setup<'a>,
+    factors: Vec<f32>,
+    fps_min: Option<f64>,
+}
+
+impl<'a> AllBench<'a> {
+    pub fn new(ctx: &'a Context, cfg: &'a AoBenchConfig) -> Result<AllBench<'a>> {
+        let targets: serde_json::Value = serde_json::from_str(TARGETS)
+            .map_err(|e| Error::InvalidArgument(format!("bench/targets.json: {e}")))?;
+        let setup = Setup::new(ctx, cfg, &mut |_| {})?;
+        let factors = setup
+            .correction
+            .factors(&setup.cpu_ao, &setup.prep, &AoParams::default());
+        Ok(AllBench {
+            setup,
+            factors,
+            fps_min: targets["ao"]["fps_min"].as_f64(),
+        })
+    }
+
+    /// One round: the headline's GPU time and work model, the CPU twin's wall time.
+    pub fn round(&self) -> Result<super::all::Round> {
+        let s = &self.setup;
+        let defaults = AoParams::default();
+        let p = s.measure(&s.base(), defaults, Some(&self.factors))?;
+        let cpu = time_cpu(1, || {
+            let posed = cpu::skin(&s.prep, &s.matrices);
+            s.cpu_ao
+                .frame(&posed, s.prep.shape, &defaults, Some(&self.factors))
+        });
+        Ok(super::all::Round {
+            kernel: "ao",
+            headline: format!(
+                "Testwuson, {} vertices, {} spheres, tau {}",
+                p.vertices, p.spheres, p.tau
+            ),
+            gpu_ms: p.total_ms,
+            within_iqr_rel: p.skin_ms.iqr_rel.max(p.ao_ms.iqr_rel),
+            terms: work_model(&p, s.base_tree.spheres.len()),
+            covers: COVERS,
+            covered_ms: p.total_ms,
+            cpu_ms: cpu.median,
+            target_fps: self.fps_min,
+        })
+    }
 }
 
 impl<'a> Setup<'a> {

@@ -108,7 +108,36 @@ pub struct BtfBenchReport {
     pub speedup_vs_cpu: f64,
     pub sweep: Vec<Point>,
     pub targets: Vec<super::ao::TargetCheck>,
+    /// The headline against its binding roofline ([`work_model`], rates measured in this
+    /// run).
+    pub roofline: super::roofline::Roofline,
 }
+
+/// The work model of one frame of `p`: texel fetches (the taps with a non-zero weight, as
+/// counted on the CPU: the shader issues all 9 per lit pixel and light, ~22% more, so the
+/// fraction is a lower bound) at the sampling rate of the texture's format (`block`: one
+/// nearest 16-byte texel, rated as nearest RGBA32F; `rgba8` and `bc1`: bilinear, rated as
+/// bilinear RGBA8, which flatters BC1's software decode on lavapipe), plus the direction-map
+/// fetches and three G-buffer `texelFetch`es per covered pixel (nearest RGBA32F).
+pub fn work_model(p: &Point) -> Vec<super::roofline::Term> {
+    use super::roofline::Term;
+    let nearest = "sample2d_nearest_rgba32f_coherent";
+    let taps = match p.texture {
+        Texture::Block => nearest,
+        _ => "sample2d_bilinear_rgba8_coherent",
+    };
+    vec![
+        Term::new(taps, "BTF taps (non-zero weight)", p.taps_per_frame as f64),
+        Term::new(
+            nearest,
+            "direction-map fetches and G-buffer texelFetch (3 per covered pixel)",
+            p.map_fetches_per_frame as f64 + 3.0 * p.covered_pixels as f64,
+        ),
+    ]
+}
+
+/// What the roofline of [`work_model`] covers.
+pub const COVERS: &str = "btf shade pass";
 
 /// Texels for timing: hashed bytes (the work does not depend on them).
 fn hashed_btf(tile: u32) -> Btf {
@@ -446,7 +475,13 @@ pub fn run(
     .into_iter()
     .flatten()
     .collect();
+    let terms = work_model(&headline);
+    progress("rates of the work model (probes)");
+    let rates = super::roofline::measure_rates(ctx, &cfg.bench, &terms, None)?;
+    let roofline =
+        super::roofline::Roofline::evaluate(COVERS, terms, headline.gpu_ms.median, &rates);
     Ok(BtfBenchReport {
+        roofline,
         benchmark: "btf",
         machine: MachineInfo::of(ctx),
         config: cfg.clone(),
@@ -461,6 +496,82 @@ pub fn run(
         sweep,
         targets,
     })
+}
+
+/// `bench all`'s BTF: maps, G-buffer and hashed texels once, then the headline (and the CPU
+/// interpolation) once per round.
+pub struct AllBench<'a> {
+    ctx: &'a Context,
+    cfg: &'a BtfBenchConfig,
+    btf: Btf,
+    setup: Setup,
+    sampled: Sampled,
+    fps_min: Option<f64>,
+}
+
+impl<'a> AllBench<'a> {
+    pub fn new(ctx: &'a Context, cfg: &'a BtfBenchConfig) -> Result<AllBench<'a>> {
+        let targets: serde_json::Value = serde_json::from_str(super::ao::TARGETS)
+            .map_err(|e| Error::InvalidArgument(format!("bench/targets.json: {e}")))?;
+        let (res, map_res, tile, _) = cfg.headline;
+        let tri = Triangulation::new()?;
+        let setup = Setup {
+            maps: Maps::build(&tri, map_res)?,
+            gb: render_object(cfg.object, res, res)?,
+        };
+        let btf = hashed_btf(tile);
+        let sampled = Sampled::of(&btf, cfg.texture);
+        Ok(AllBench {
+            ctx,
+            cfg,
+            btf,
+            setup,
+            sampled,
+            fps_min: targets["btf"]["fps_min"].as_f64(),
+        })
+    }
+
+    /// One round: the headline's GPU time and work model, the CPU twin's wall time.
+    pub fn round(&self) -> Result<super::all::Round> {
+        let lights = self.cfg.headline.3;
+        let fmt = (self.cfg.texture, self.cfg.texture.default_layout());
+        let p = measure(
+            self.ctx,
+            self.cfg,
+            &self.btf,
+            &self.setup,
+            fmt,
+            lights,
+            (f64::NAN, f64::NAN),
+        )?;
+        let f = frame(lights);
+        let cpu_ms = time_cpu(1, || {
+            cpu::shade(
+                &self.sampled.packed(self.btf.size),
+                &self.setup.maps,
+                &self.setup.gb,
+                &f,
+            )
+        });
+        Ok(super::all::Round {
+            kernel: "btf",
+            headline: format!(
+                "{}^2 sphere, tile {}, map {}, {} light(s), {}",
+                p.resolution,
+                p.tile,
+                p.map_resolution,
+                p.lights,
+                format!("{:?}", p.texture).to_lowercase()
+            ),
+            gpu_ms: p.gpu_ms.median,
+            within_iqr_rel: p.gpu_ms.iqr_rel,
+            terms: work_model(&p),
+            covers: COVERS,
+            covered_ms: p.gpu_ms.median,
+            cpu_ms: cpu_ms.median,
+            target_fps: self.fps_min,
+        })
+    }
 }
 
 /// A cloth garment in motion, all on the GPU per frame: the pose kernel skins the chosen

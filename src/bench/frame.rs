@@ -130,6 +130,77 @@ pub fn run(
     })
 }
 
+/// `bench all`'s frame: the character frame built once, then timed once per round (the
+/// whole frame per submission, over the animation). Work model: every pass's bound bytes
+/// (each resource once per pass: an upper bound of what it touches) against the streaming
+/// peak; no FLOP model and no CPU twin.
+pub struct AllBench<'a> {
+    ctx: &'a Context,
+    bench: BenchConfig,
+    frame: CharacterFrame,
+    bytes: u64,
+}
+
+/// What the frame's roofline covers.
+pub const COVERS: &str = "every pass of the frame";
+
+impl<'a> AllBench<'a> {
+    pub fn new(ctx: &'a Context, cfg: &FrameConfig, bench: &BenchConfig) -> Result<AllBench<'a>> {
+        let frame = CharacterFrame::new(ctx, cfg, &mut |_| {})?;
+        let bytes = frame
+            .passes()
+            .iter()
+            .map(|info| {
+                let mut seen = std::collections::BTreeMap::new();
+                for u in &info.uses {
+                    seen.entry(u.resource.clone()).or_insert(u.bytes);
+                }
+                seen.values().sum::<u64>()
+            })
+            .sum();
+        Ok(AllBench {
+            ctx,
+            bench: bench.clone(),
+            frame,
+            bytes,
+        })
+    }
+
+    /// One round: the whole frame's GPU time over the animation.
+    pub fn round(&self) -> Result<super::all::Round> {
+        let infos = self.frame.passes();
+        let names: Vec<&str> = infos.iter().map(|p| p.name).collect();
+        let all = names.join("+");
+        let duration = self.frame.animation().duration;
+        let n = (self.bench.warmup + self.bench.samples.max(1)) as f32;
+        let mut k = 0usize;
+        let stats = time_gpu_passes(self.ctx, &self.bench, &[&all], |rec| {
+            let input = FrameInput {
+                time: duration * k as f32 / n,
+                env_rotation: glam::Mat3::from_rotation_y(k as f32 * 0.1),
+            };
+            k += 1;
+            self.frame.record(rec, &input)
+        })?;
+        let s = &stats[0];
+        Ok(super::all::Round {
+            kernel: "frame",
+            headline: format!("BCN_Epileptic character frame, {} passes", names.len()),
+            gpu_ms: s.median,
+            within_iqr_rel: s.iqr_rel,
+            terms: vec![super::roofline::Term::new(
+                "stream",
+                "bound bytes of every pass",
+                self.bytes as f64,
+            )],
+            covers: COVERS,
+            covered_ms: s.median,
+            cpu_ms: f64::NAN,
+            target_fps: Some(20.0),
+        })
+    }
+}
+
 /// The table `bench frame` prints.
 pub fn print(r: &FrameBenchReport) {
     println!("device                 {}", r.machine.device);

@@ -1,12 +1,15 @@
 //! The benchmark harness: warm-up, N timed submissions, GPU time from timestamp queries,
 //! statistics (JSON and PNG output go through [`crate::io`] and [`plot`]).
 
+pub mod all;
 pub mod ao;
 pub mod btf;
+pub mod compare;
 pub mod env;
 pub mod frame;
 pub mod peak;
 pub mod plot;
+pub mod roofline;
 pub mod srbf;
 pub mod sss;
 

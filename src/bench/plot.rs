@@ -21,8 +21,13 @@ const FONT_PATHS: &[&str] = &[
 fn ensure_font() -> Result<()> {
     static FONT: OnceLock<std::result::Result<(), String>> = OnceLock::new();
     FONT.get_or_init(|| {
-        let bytes = FONT_PATHS
+        // VKSHADE_FONT first: a machine without the Debian font (tools/bench-gpu.sh carries
+        // one there).
+        let env = std::env::var("VKSHADE_FONT").ok();
+        let bytes = env
             .iter()
+            .map(String::as_str)
+            .chain(FONT_PATHS.iter().copied())
             .find_map(|p| std::fs::read(p).ok())
             .ok_or_else(|| {
                 format!(

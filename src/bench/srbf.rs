@@ -36,6 +36,37 @@ pub mod flop_model {
     pub const TERM: f64 = 6.0;
 }
 
+/// The work model of one frame of `p` (compressed transfer): FLOPs ([`flop_model`]),
+/// storage-buffer loads at neighbouring addresses (`shade`: the weights, 8 half-precision
+/// components to a uvec4, the vertex's slot and normal, one visibility word per compact
+/// lobe; `project`: every row's basis coefficients as vec4s) and uniform-buffer reads at a
+/// uniform index (`shade`: the cluster's mean and component rows, two per compact lobe).
+/// `lighting` and `sharp` read a few KiB and are left out.
+pub fn work_model(p: &Point) -> Vec<super::roofline::Term> {
+    use super::roofline::Term;
+    let nv = p.vertices as f64;
+    let m = p.components as f64;
+    let compact = p.compact_lobes as f64;
+    let rows = (p.clusters * (p.components + 1)) as f64;
+    vec![
+        Term::new("fma", "FLOP (flop_model)", p.gflop_per_frame * 1e9),
+        Term::new(
+            "buffer_gather_coherent",
+            "shade: weights, slot, normal, visibility; project: rows",
+            nv * ((p.components.div_ceil(8)) as f64 + 2.0 + compact)
+                + rows * (p.basis as f64 / 4.0),
+        ),
+        Term::new(
+            "ubo_uniform",
+            "shade: projected rows and compact-lobe taps",
+            nv * (m + 1.0 + 2.0 * compact),
+        ),
+    ]
+}
+
+/// What the roofline of [`work_model`] covers.
+pub const COVERS: &str = "lighting + project + sharp + shade passes";
+
 /// What `bench srbf` measures.
 #[derive(Clone, Debug, Serialize)]
 pub struct SrbfBenchConfig {
@@ -117,6 +148,9 @@ pub struct SrbfBenchReport {
     pub speedup_vs_brute_force: f64,
     pub sweep: Vec<Point>,
     pub skipped: Vec<String>,
+    /// The headline against its binding roofline ([`work_model`], rates measured in this
+    /// run).
+    pub roofline: super::roofline::Roofline,
 }
 
 /// A transfer of the given shape with random values (the passes' cost depends on the shape
@@ -340,7 +374,12 @@ pub fn run(
         }
     }
     let total = headline.total_ms;
+    let terms = work_model(&headline);
+    progress("rates of the work model (probes)");
+    let rates = super::roofline::measure_rates(ctx, &cfg.bench, &terms, Some(peak))?;
+    let roofline = super::roofline::Roofline::evaluate(COVERS, terms, total, &rates);
     Ok(SrbfBenchReport {
+        roofline,
         benchmark: "vkshade bench srbf",
         machine: MachineInfo::of(ctx),
         config: cfg.clone(),
@@ -362,4 +401,129 @@ pub fn run(
         sweep,
         skipped,
     })
+}
+
+/// `bench all`'s SRBF: the fit, transfer and compression once, then the headline (and the
+/// CPU twin) once per round.
+pub struct AllBench<'a> {
+    ctx: &'a Context,
+    cfg: &'a SrbfBenchConfig,
+    normals: Vec<Vec3>,
+    lobes: Vec<Lobe>,
+    /// The visibility for compact lobes and its grid (None: a synthetic transfer).
+    vis: Option<(crate::geom::visibility::Visibility, u32, u32)>,
+    cpca: Cpca,
+    fps_min: Option<f64>,
+}
+
+impl<'a> AllBench<'a> {
+    /// `synthetic`: the sweep's synthetic transfer of the bunny's size and compressed shape
+    /// (the same work per frame, no compact lobe) instead of ray-casting the real one
+    /// (minutes on a loaded 2-core machine): `bench all --quick`.
+    pub fn new(
+        ctx: &'a Context,
+        cfg: &'a SrbfBenchConfig,
+        synthetic: bool,
+    ) -> Result<AllBench<'a>> {
+        let targets: serde_json::Value = serde_json::from_str(super::ao::TARGETS).map_err(|e| {
+            crate::error::Error::InvalidArgument(format!("bench/targets.json: {e}"))
+        })?;
+        let character = crate::scene::load(&cfg.mesh)?;
+        let (hl, hk) = cfg.headline;
+        let fps_min = targets["srbf"]["fps_min"].as_f64();
+        if synthetic {
+            let nv = character.mesh.positions.len();
+            return Ok(AllBench {
+                ctx,
+                cfg,
+                normals: character.mesh.normals.clone(),
+                lobes: synthetic_lobes(hl, 3),
+                vis: None,
+                cpca: synthetic_cpca(hk, nv, &cfg.cpca, 2),
+                fps_min,
+            });
+        }
+        let env = EnvMap::load(&cfg.env)?;
+        let fitted = fit(
+            &env.downsampled(128.min(env.width))?.samples(),
+            &FitConfig {
+                lobes: hl,
+                ..FitConfig::default()
+            },
+        )?;
+        let dir_env = env.downsampled(cfg.brute_force_width.min(env.width))?;
+        let vis = texel_visibility(&character.mesh, &dir_env);
+        let real = diffuse_transfer(
+            &Basis::fibonacci(hk),
+            &dir_env,
+            &character.mesh.normals,
+            &vis,
+        )?;
+        let cpca = Cpca::compress(&real, &cfg.cpca)?;
+        Ok(AllBench {
+            ctx,
+            cfg,
+            normals: character.mesh.normals.clone(),
+            lobes: fitted.lobes,
+            vis: Some((vis, dir_env.width, dir_env.height)),
+            cpca,
+            fps_min,
+        })
+    }
+
+    /// One round: the headline's GPU time and work model, the CPU twin's wall time.
+    pub fn round(&self) -> Result<super::all::Round> {
+        let compact = self.vis.as_ref().map(|(vis, width, height)| CompactInputs {
+            visibility: vis,
+            normals: &self.normals,
+            width: *width,
+            height: *height,
+            factor: crate::kernels::srbf::sharp::DEFAULT_FACTOR,
+            max_lobes: crate::kernels::srbf::sharp::DEFAULT_MAX_LOBES,
+        });
+        let p = measure(
+            self.ctx,
+            &self.cfg.bench,
+            &self.lobes,
+            &self.cpca,
+            compact,
+            true,
+            f64::NAN,
+        )?;
+        let frame = SrbfFrame {
+            rotation: sg::rotation(Vec3::Y, 30.0),
+            albedo: [1.0; 3],
+        };
+        let mut inputs = SrbfInputs::new(&self.lobes, &self.cpca);
+        if let Some(c) = compact {
+            inputs = inputs.with_compact(c);
+        }
+        let cpu = time_cpu(1, || inputs.cpu_pipeline(&frame));
+        let within = [&p.lighting_ms, &p.project_ms, &p.sharp_ms, &p.shade_ms]
+            .iter()
+            .map(|s| s.iqr_rel)
+            .fold(0.0, f64::max);
+        Ok(super::all::Round {
+            kernel: "srbf",
+            headline: format!(
+                "bunny, {} vertices, {} lobes ({} compact), {} basis{}",
+                p.vertices,
+                p.lobes,
+                p.compact_lobes,
+                p.basis,
+                if self.vis.is_none() {
+                    " (synthetic transfer)"
+                } else {
+                    ""
+                }
+            ),
+            gpu_ms: p.total_ms,
+            within_iqr_rel: within,
+            terms: work_model(&p),
+            covers: COVERS,
+            covered_ms: p.total_ms,
+            cpu_ms: cpu.median,
+            target_fps: self.fps_min,
+        })
+    }
 }

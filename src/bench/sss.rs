@@ -28,7 +28,37 @@ use std::path::PathBuf;
 pub mod work_model {
     pub const FLOP_PER_SAMPLE: f64 = 30.0;
     pub const BYTES_PER_SAMPLE: f64 = 4.0;
+    /// Storage-image loads per sample (glsl/common/sss_diffusion.glsl) that differ per lane:
+    /// the gathered grey irradiance (r32f), counted at the rate of `image_gather_coherent`
+    /// (rgba32f loads; a narrower load is at least as fast, so the fraction is an upper
+    /// bound). The pattern texel, the same for every lane, is left out.
+    pub const LOADS_PER_SAMPLE: f64 = 1.0;
+    /// Per texel: its start record and the 9 walk records of its triangle, its own source.
+    pub const LOADS_PER_TEXEL: f64 = 11.0;
 }
+
+/// The work model of the diffusion pass of `p` (the roofline covers that pass, the frame's
+/// largest): FLOPs and storage-image loads.
+pub fn roofline_terms(p: &Point) -> Vec<super::roofline::Term> {
+    use super::roofline::Term;
+    let samples = p.samples_per_s * p.diffusion_ms.median * 1e-3;
+    let texels = samples / p.samples as f64;
+    vec![
+        Term::new(
+            "fma",
+            "FLOP (work_model::FLOP_PER_SAMPLE)",
+            samples * work_model::FLOP_PER_SAMPLE,
+        ),
+        Term::new(
+            "image_gather_coherent",
+            "storage-image loads (work_model)",
+            samples * work_model::LOADS_PER_SAMPLE + texels * work_model::LOADS_PER_TEXEL,
+        ),
+    ]
+}
+
+/// What the roofline of [`roofline_terms`] covers.
+pub const COVERS: &str = "diffusion pass";
 
 #[derive(Clone, Debug, Serialize)]
 pub struct SssBenchConfig {
@@ -105,6 +135,9 @@ pub struct SssBenchReport {
     pub brute_force_size: u32,
     pub speedup_vs_brute_force: f64,
     pub sweep: Vec<Point>,
+    /// The headline's diffusion pass against its binding roofline ([`roofline_terms`], rates
+    /// measured in this run).
+    pub roofline: super::roofline::Roofline,
 }
 
 fn lights() -> Vec<Light> {
@@ -293,7 +326,13 @@ pub fn run(
         Some(ms) => ms,
         None => measure(ctx, cfg, &geo_e, &profile, hn, peaks, None)?.total_ms,
     };
+    let terms = roofline_terms(&headline);
+    progress("rates of the work model (probes)");
+    let rates = super::roofline::measure_rates(ctx, &cfg.bench, &terms, Some(fma))?;
+    let roofline =
+        super::roofline::Roofline::evaluate(COVERS, terms, headline.diffusion_ms.median, &rates);
     Ok(SssBenchReport {
+        roofline,
         benchmark: "vkshade bench sss",
         machine: MachineInfo::of(ctx),
         config: cfg.clone(),
@@ -664,4 +703,85 @@ pub fn print_anim(r: &SssAnimBenchReport) {
         g.rgb_diffusion_ms,
         g.rgb_irradiance_ms + g.rgb_diffusion_ms - g.grey_irradiance_ms - g.grey_diffusion_ms
     );
+}
+
+/// `bench all`'s SSS: the head's texture-space geometry and the CPU twin's maps once, then
+/// the headline (and the CPU twin) once per round.
+pub struct AllBench<'a> {
+    ctx: &'a Context,
+    cfg: &'a SssBenchConfig,
+    profile: Profile,
+    geo: TexGeometry,
+    bvh: Bvh,
+    dg: cpu::DiffusionGeometry,
+    fps_min: Option<f64>,
+}
+
+impl<'a> AllBench<'a> {
+    pub fn new(ctx: &'a Context, cfg: &'a SssBenchConfig) -> Result<AllBench<'a>> {
+        let targets: serde_json::Value = serde_json::from_str(super::ao::TARGETS).map_err(|e| {
+            crate::error::Error::InvalidArgument(format!("bench/targets.json: {e}"))
+        })?;
+        let mesh = load_mesh(&cfg.mesh, Some(&cfg.part))?;
+        let profile = Profile::new(
+            ProfileKind::Dipole,
+            Material::SKIN1,
+            crate::kernels::sss::profile::DEFAULT_ENERGY,
+        )?;
+        let geo = TexGeometry::build(&mesh, cfg.headline.0, cfg.mm_per_unit)?;
+        let bvh = Bvh::build(&geo.positions, &geo.triangles);
+        let dg = cpu::DiffusionGeometry::build(&geo, &profile);
+        Ok(AllBench {
+            ctx,
+            cfg,
+            profile,
+            geo,
+            bvh,
+            dg,
+            fps_min: targets["sss"]["fps_min"].as_f64(),
+        })
+    }
+
+    /// One round: the headline's GPU time and work model, the CPU twin's wall time.
+    pub fn round(&self) -> Result<super::all::Round> {
+        let hn = self.cfg.headline.1;
+        let p = measure(
+            self.ctx,
+            self.cfg,
+            &self.geo,
+            &self.profile,
+            hn,
+            (f64::NAN, f64::NAN),
+            None,
+        )?;
+        let params = SamplerParams {
+            samples: hn,
+            ..SamplerParams::default()
+        };
+        let cpu_ms = time_cpu(1, || {
+            let e = cpu::irradiance(&self.geo, &self.bvh, &lights(), params.shadow_refine);
+            let t = params
+                .transmission
+                .then(|| cpu::transmission(&self.geo, &self.bvh, &lights(), &self.profile));
+            (
+                cpu::diffusion_with(&self.dg, &self.geo, &self.profile, &e, &params),
+                t,
+            )
+        });
+        let within = [&p.vertex_light_ms, &p.irradiance_ms, &p.diffusion_ms]
+            .iter()
+            .map(|s| s.iqr_rel)
+            .fold(0.0, f64::max);
+        Ok(super::all::Round {
+            kernel: "sss",
+            headline: format!("BCN head, {}^2 texels x {} samples", p.size, p.samples),
+            gpu_ms: p.total_ms,
+            within_iqr_rel: within,
+            terms: roofline_terms(&p),
+            covers: COVERS,
+            covered_ms: p.diffusion_ms.median,
+            cpu_ms: cpu_ms.median,
+            target_fps: self.fps_min,
+        })
+    }
 }
