@@ -334,7 +334,10 @@ fn srbf_spun_about_x_keeps_the_readme_bound_on_the_bunny() {
     let v: serde_json::Value =
         serde_json::from_slice(&std::fs::read(dir.join("report.json")).unwrap()).unwrap();
     assert!(
-        v["mesh"].as_str().unwrap_or_default().ends_with("bunny.obj"),
+        v["mesh"]
+            .as_str()
+            .unwrap_or_default()
+            .ends_with("bunny.obj"),
         "{}",
         v["mesh"]
     );

@@ -189,12 +189,20 @@ fn bad_frames_and_bad_rest_poses_are_refused() {
     short.normals.pop();
     let n = prep.normals.len();
     let e = short.check().unwrap_err().to_string();
-    assert!(e.contains(&format!("{} normals for {n} vertices", n - 1)), "{e}");
+    assert!(
+        e.contains(&format!("{} normals for {n} vertices", n - 1)),
+        "{e}"
+    );
     common::with_gpu(|ctx| {
         let mut rec = ctx.recorder("pose bad input")?;
         let kernel = PoseKernel::new(&mut rec, &prep)?;
-        let e = PoseKernel::new(&mut rec, &nan).err().expect("a NaN tangent is refused");
-        assert!(e.to_string().contains("vertex 3 has a non-finite tangent"), "{e}");
+        let e = PoseKernel::new(&mut rec, &nan)
+            .err()
+            .expect("a NaN tangent is refused");
+        assert!(
+            e.to_string().contains("vertex 3 has a non-finite tangent"),
+            "{e}"
+        );
         let e = kernel.record(&mut rec, &[]).unwrap_err().to_string();
         assert!(e.contains("0 joint matrices for a rig of 1"), "{e}");
         let e = kernel
@@ -240,7 +248,10 @@ fn ao_on_the_shared_pose_equals_ao_posing_its_own() {
             .err()
             .expect("a pose of another mesh is refused")
             .to_string();
-        assert!(e.contains("the AO input has") && e.contains("the pose"), "{e}");
+        assert!(
+            e.contains("the AO input has") && e.contains("the pose"),
+            "{e}"
+        );
         pose.record(&mut rec, &matrices)?;
         shared.record(&mut rec, &matrices)?;
         own.record(&mut rec, &matrices)?;
