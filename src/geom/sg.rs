@@ -198,7 +198,10 @@ mod tests {
     fn product_of_opposite_equal_lobes_is_a_finite_constant() {
         let a1 = Vec3::new(0.3, 0.8, -0.2).normalize();
         let (axis, l, amp) = product(a1, 5.0, -a1, 5.0);
-        assert!(axis.is_finite() && (axis.length() - 1.0).abs() < 1e-6, "{axis}");
+        assert!(
+            axis.is_finite() && (axis.length() - 1.0).abs() < 1e-6,
+            "{axis}"
+        );
         assert_eq!(l, 0.0);
         assert!((amp - (-10f32).exp()).abs() < 1e-9, "{amp}");
         for w in fibonacci_sphere(20) {
