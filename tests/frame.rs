@@ -237,7 +237,11 @@ fn bad_frame_input_is_refused() {
             lights: vec![],
             ..small()
         };
-        assert!(CharacterFrame::new(ctx, &dark, &mut |_| {}).is_err());
+        let e = CharacterFrame::new(ctx, &dark, &mut |_| {})
+            .err()
+            .expect("a frame without lights is refused")
+            .to_string();
+        assert!(e.contains("0 lights; a frame takes 1..="), "{e}");
         Ok(())
     });
 }

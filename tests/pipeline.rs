@@ -783,11 +783,16 @@ fn external_device_command_buffer_and_semaphores() {
 
 /// GPU-assisted validation (instrumented shaders) as far as it completes here: a context with
 /// it starts, makes and frees a buffer and shuts down clean. Known problem of the layer, not
-/// of vkshade: with the Khronos layer 1.3.239 (Debian 12) on lavapipe, the first submission
-/// under GPU-assisted validation never completes (a buffer upload here; the AO, SSS and SRBF
+/// of vkshade: with the Khronos layer 1.3.239 (Debian 12) on lavapipe, an early submission
+/// under GPU-assisted validation never returns (a buffer upload here; the AO, SSS and SRBF
 /// tests hang in their first wait; BTF ran for minutes and the layer reported
 /// `UNASSIGNED-VkSemaphore-state-timeout`, "This is most likely a validation bug"), so no
-/// kernel test runs under it. `VKSHADE_GPU_AV_SUBMIT=1` adds a dispatch to this test, to try
+/// kernel test runs under it. Where it hangs (gdb, re-checked for issue 23, with and without
+/// synchronization validation): vkWaitSemaphores on vkshade's timeline returns, then the
+/// layer's own vkGetSemaphoreCounterValue (from `Shared::completed`, retiring the submission)
+/// blocks forever on the layer's semaphore-state future, which its queue thread never
+/// fulfils: no shader has run yet when it hangs on the upload, so it is the layer's
+/// semaphore tracking under GPU-AV, not an out-of-bounds access it found. `VKSHADE_GPU_AV_SUBMIT=1` adds a dispatch to this test, to try
 /// a newer layer; `common::with_gpu_assisted` is ready for the kernels' tests then.
 #[test]
 fn gpu_assisted_validation_starts_and_shuts_down_clean() {

@@ -187,11 +187,22 @@ fn bad_frames_and_bad_rest_poses_are_refused() {
     assert!(e.contains("vertex 2") && e.contains("joint"), "{e}");
     let mut short = prep.clone();
     short.normals.pop();
-    assert!(short.check().is_err());
+    let n = prep.normals.len();
+    let e = short.check().unwrap_err().to_string();
+    assert!(
+        e.contains(&format!("{} normals for {n} vertices", n - 1)),
+        "{e}"
+    );
     common::with_gpu(|ctx| {
         let mut rec = ctx.recorder("pose bad input")?;
         let kernel = PoseKernel::new(&mut rec, &prep)?;
-        assert!(PoseKernel::new(&mut rec, &nan).is_err());
+        let e = PoseKernel::new(&mut rec, &nan)
+            .err()
+            .expect("a NaN tangent is refused");
+        assert!(
+            e.to_string().contains("vertex 3 has a non-finite tangent"),
+            "{e}"
+        );
         let e = kernel.record(&mut rec, &[]).unwrap_err().to_string();
         assert!(e.contains("0 joint matrices for a rig of 1"), "{e}");
         let e = kernel
@@ -233,7 +244,14 @@ fn ao_on_the_shared_pose_equals_ao_posing_its_own() {
         // A pose of another mesh is refused.
         let g = grid(false);
         let other = PoseKernel::new(&mut rec, &Prepared::new(&g.mesh, 1)?)?;
-        assert!(AoKernel::on_pose(&mut rec, &ao_prep, AoParams::default(), &other).is_err());
+        let e = AoKernel::on_pose(&mut rec, &ao_prep, AoParams::default(), &other)
+            .err()
+            .expect("a pose of another mesh is refused")
+            .to_string();
+        assert!(
+            e.contains("the AO input has") && e.contains("the pose"),
+            "{e}"
+        );
         pose.record(&mut rec, &matrices)?;
         shared.record(&mut rec, &matrices)?;
         own.record(&mut rec, &matrices)?;

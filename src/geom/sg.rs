@@ -189,4 +189,25 @@ mod tests {
             }
         }
     }
+
+    /// Opposite axes, equal sharpness: l1 a1 + l2 a2 = 0, so the product is the constant
+    /// e^(-2 lambda) (sharpness 0) and its axis must still be a finite unit vector (a NaN
+    /// axis makes e^(0 * NaN) = NaN everywhere). Catches `len > 0.0` loosened to `>=`
+    /// (cargo-mutants' survivor in `product`, issue 23).
+    #[test]
+    fn product_of_opposite_equal_lobes_is_a_finite_constant() {
+        let a1 = Vec3::new(0.3, 0.8, -0.2).normalize();
+        let (axis, l, amp) = product(a1, 5.0, -a1, 5.0);
+        assert!(
+            axis.is_finite() && (axis.length() - 1.0).abs() < 1e-6,
+            "{axis}"
+        );
+        assert_eq!(l, 0.0);
+        assert!((amp - (-10f32).exp()).abs() < 1e-9, "{amp}");
+        for w in fibonacci_sphere(20) {
+            let direct = kernel(a1, 5.0, w) * kernel(-a1, 5.0, w);
+            let as_sg = amp * kernel(axis, l, w);
+            assert!((direct - as_sg).abs() < 1e-9, "{direct} vs {as_sg}");
+        }
+    }
 }

@@ -542,6 +542,24 @@ mod tests {
         assert!(h < 0.05, "horizon weight {h}");
     }
 
+    /// A direction at the horizon (z > 0 but below f64's resolution of 1 + z) projects to
+    /// p = 1 exactly: its texel must still lie inside the map. Catches the clamp's upper end
+    /// `n - 1e-9` loosened to `n + 1e-9` (cargo-mutants' survivor in `texel_of`, issue 23):
+    /// texel `res`, and `lookup` indexes past the map.
+    #[test]
+    fn grazing_directions_stay_inside_the_map() {
+        let maps = Maps::build(&Triangulation::new().unwrap(), 32).unwrap();
+        for d in [[1.0, 0.0, 1e-18], [0.0, 1.0, 1e-18], [-1.0, 0.0, 1e-18]] {
+            let ([i, j], margin) = maps.texel_of(d);
+            assert!(
+                i < 32 && j < 32 && margin >= 0.0,
+                "{d:?}: ({i}, {j}), {margin}"
+            );
+            let taps = maps.lookup(d);
+            assert!(taps.index.iter().all(|&k| k < COUNT), "{taps:?}");
+        }
+    }
+
     #[test]
     fn interpolation_is_continuous() {
         // Neighbouring directions get nearly the same interpolated value of a smooth
