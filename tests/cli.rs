@@ -706,3 +706,33 @@ fn frame_reference_compares_the_stages_with_their_truths_under_validation() {
         assert!(header.starts_with("ply\n") && header.contains("property float truth_r"));
     }
 }
+
+/// `vkshade bench env --quick` under validation names the roofline that binds `env shadow`
+/// (its work model: FLOP and cap-table reads) and its fraction of it, as every kernel's bench
+/// does (issue 22). The fraction is a model's estimate: finite and positive is what holds on
+/// any device; its value is in the closing notes, not asserted.
+#[test]
+fn bench_env_names_its_binding_roofline_under_validation() {
+    let json = temp("bench-env.json");
+    let (ok, stdout, stderr) = vkshade(&[
+        "--validate",
+        "bench",
+        "env",
+        "--quick",
+        "--json",
+        json.to_str().unwrap(),
+    ]);
+    assert!(ok, "bench env failed:\n{stdout}\n{stderr}");
+    assert!(stdout.contains("roofline: binds: "), "{stdout}");
+    let v: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&json).unwrap()).unwrap();
+    let r = &v["roofline"];
+    let binding = r["binding"].as_str().unwrap();
+    assert!(
+        ["fma", "buffer_gather_coherent"].contains(&binding),
+        "binding {binding}"
+    );
+    let f = r["fraction"].as_f64().unwrap();
+    assert!(f.is_finite() && f > 0.0, "fraction {f}");
+    assert!(r["fma_fraction"].as_f64().unwrap() > 0.0);
+}

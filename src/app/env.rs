@@ -612,6 +612,7 @@ pub fn bench(gpu: &super::Gpu, opts: &super::bench::Opts, quick: bool) -> Result
             r.lookups_per_vertex
         );
     }
+    println!("roofline: {}", report.roofline.summary());
     super::bench::write_json(opts, &report)?;
     super::finish(ctx)
 }

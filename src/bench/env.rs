@@ -1,7 +1,8 @@
 //! `vkshade bench env`: GPU time of the environment kernel's passes (`env rotate`,
 //! `env shadow`) on a posed character, beside the pose and AO passes it runs after, the host
 //! time of recording the frame, the CPU twin's time, and the shader's work per vertex (caps x
-//! lobes table lookups), over the lobe count.
+//! lobes table lookups), over the lobe count; the largest count's `env shadow` against the
+//! roofline that binds it ([`roofline_terms`]).
 
 use super::{BenchConfig, Stats, time_gpu_passes};
 use crate::error::{Error, Result};
@@ -44,6 +45,52 @@ pub struct EnvBenchReport {
     pub caps_per_vertex: f64,
     /// Per lobe count.
     pub rows: Vec<EnvBenchRow>,
+    /// `env shadow` at the largest lobe count against its rooflines ([`roofline_terms`],
+    /// rates measured in the same run).
+    pub roofline: super::roofline::Roofline,
+}
+
+/// FLOP the model counts per cap-lobe lookup: the product lobe's angle to the cap (dot,
+/// acos), the small-cap closed form (exp, the normalisation), the table's coordinates (log2,
+/// sqrt, clamps) and its trilinear blend (7 lerps), the horizon share, log(1 - o) and the
+/// accumulation. Transcendentals count as the few FMAs lavapipe expands them to (~8 each).
+pub const FLOP_PER_LOOKUP: f64 = 90.0;
+/// FLOP per sphere of the cut: distance, refinement weight, the parent blend, AO's occlusion
+/// of the cap, its angle and horizon (asin, acos, sqrt), the log of its transmission.
+pub const FLOP_PER_CAP: f64 = 60.0;
+/// Table values a lookup reads: the 8 corners of its trilinear cell, at an index that varies
+/// per lane (a storage buffer, `table`).
+pub const GATHERS_PER_LOOKUP: f64 = 8.0;
+
+/// The work model of `env shadow` for `vertices` vertices, `cut` spheres of the cut and
+/// `caps` caps above the horizon per vertex, and `lobes` lobes: FLOP (fma), and the cap
+/// table's reads (buffer_gather_coherent: the table, 460 KiB, stays in the caches, which the
+/// random probe's large buffer does not; against the random rate the pass ran at 20x "its
+/// peak"). The table path is counted for every lookup: its blend weight is 0 only for caps
+/// under 0.3 lobe widths, and lavapipe's lanes run it when any lane of 8 needs it. The cut's
+/// sphere reads (a few per node, mostly shared by neighbouring vertices) and the per-vertex
+/// lobe setup are left out.
+pub fn roofline_terms(
+    vertices: usize,
+    cut: f64,
+    caps: f64,
+    lobes: usize,
+) -> Vec<super::roofline::Term> {
+    use super::roofline::Term;
+    let v = vertices as f64;
+    let lookups = v * caps * lobes as f64;
+    vec![
+        Term::new(
+            "fma",
+            "FLOP (FLOP_PER_LOOKUP x lookups + FLOP_PER_CAP x cut spheres)",
+            lookups * FLOP_PER_LOOKUP + v * cut * FLOP_PER_CAP,
+        ),
+        Term::new(
+            "buffer_gather_coherent",
+            "cap-table reads (GATHERS_PER_LOOKUP x lookups)",
+            lookups * GATHERS_PER_LOOKUP,
+        ),
+    ]
 }
 
 /// What the benchmark runs on: the character's posed frame and its kernels' inputs.
@@ -128,10 +175,22 @@ pub fn run(ctx: &Context, cfg: &BenchConfig, input: &EnvBenchInput) -> Result<En
             lookups_per_vertex: caps * k as f64,
         });
     }
+    let last = rows
+        .last()
+        .ok_or_else(|| Error::InvalidArgument("no lobe counts to benchmark".into()))?;
+    let terms = roofline_terms(positions.len(), cut, caps, last.lobes);
+    let rates = super::roofline::measure_rates(ctx, cfg, &terms, None)?;
+    let roofline = super::roofline::Roofline::evaluate(
+        &format!("env shadow, {} lobes", last.lobes),
+        terms,
+        last.shadow.median,
+        &rates,
+    );
     Ok(EnvBenchReport {
         vertices: positions.len(),
         cut_per_vertex: cut,
         caps_per_vertex: caps,
         rows,
+        roofline,
     })
 }
