@@ -694,8 +694,8 @@ fn frame_reference_compares_the_stages_with_their_truths_under_validation() {
         let compose = p["compose_rel_rms"].as_f64().unwrap();
         assert!(compose < 2e-4, "compose against its twin: {compose}");
         let (env, open) = (
-            p["env_rel_l2"].as_f64().unwrap(),
-            p["env_unshadowed_rel_l2"].as_f64().unwrap(),
+            p["env"]["rel_l2"].as_f64().unwrap(),
+            p["env"]["unshadowed_rel_l2"].as_f64().unwrap(),
         );
         assert!(
             env.is_finite() && env < open,

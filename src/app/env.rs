@@ -351,11 +351,6 @@ pub fn run_scene(
                 .iter()
                 .map(|e| [e[0], e[1], e[2]])
                 .collect();
-            let floor = env_cpu::floor(&lobes, &normals, &ao.visibility);
-            let open: Vec<[f32; 3]> = normals
-                .iter()
-                .map(|&n| env_cpu::unshadowed(&lobes, n))
-                .collect();
             // The caps' product alone (CPU twin without AO's correction), for comparison.
             let spheres: Vec<Vec4> = sph_rb
                 .to_vec::<[f32; 4]>()?
@@ -378,43 +373,25 @@ pub fn run_scene(
             );
             let caps: Vec<[f32; 3]> = caps.irradiance.iter().map(|e| [e[0], e[1], e[2]]).collect();
             report.caps_only_rel_l2 = Some(env_cpu::relative_l2(&caps, &truth));
-            // Without the vertices the truth finds enclosed (E = 0: inside another part of
-            // the posed mesh, which spheres cannot represent).
-            let open_idx: Vec<usize> = (0..truth.len())
-                .filter(|&v| truth[v].iter().sum::<f64>() > 0.0)
-                .collect();
-            let pick3 = |a: &[[f32; 3]]| open_idx.iter().map(|&v| a[v]).collect::<Vec<_>>();
-            let t_open: Vec<[f64; 3]> = open_idx.iter().map(|&v| truth[v]).collect();
-            report.enclosed = Some(truth.len() - open_idx.len());
-            report.open_rel_l2 = Some(env_cpu::relative_l2(&pick3(&mine), &t_open));
-            report.open_floor_rel_l2 = Some(env_cpu::relative_l2(&pick3(&floor), &t_open));
-            report.rel_l2 = Some(env_cpu::relative_l2(&mine, &truth));
-            report.floor_rel_l2 = Some(env_cpu::relative_l2(&floor, &truth));
-            report.unshadowed_rel_l2 = Some(env_cpu::relative_l2(&open, &truth));
+            let e = env_cpu::against_truth(&lobes, &normals, &ao.visibility, &mine, &truth);
+            report.enclosed = Some(e.enclosed);
+            report.open_rel_l2 = Some(e.open_rel_l2);
+            report.open_floor_rel_l2 = Some(e.open_floor_rel_l2);
+            report.rel_l2 = Some(e.rel_l2);
+            report.floor_rel_l2 = Some(e.floor_rel_l2);
+            report.unshadowed_rel_l2 = Some(e.unshadowed_rel_l2);
             let ply = frame_ply(&cfg.out, frame);
-            let channel = |c: usize| mine.iter().map(|e| e[c]).collect::<Vec<f32>>();
-            let (r_, g_, b_) = (channel(0), channel(1), channel(2));
-            let truth_channel = |c: usize| truth.iter().map(|e| e[c] as f32).collect::<Vec<f32>>();
-            let (tr, tg, tb) = (truth_channel(0), truth_channel(1), truth_channel(2));
-            crate::scene::ply_write::write_ply_properties(
+            write_truth_ply(
                 &ply,
                 &format!(
                     "vkshade env: frame {frame}, environment irradiance r g b (linear, radiometric, \
                      no 1/pi); truth_*: ray-traced ({} rays/vertex); ao: AO's visibility",
                     cfg.rays
                 ),
-                &positions,
-                &normals,
-                &mesh.triangles,
-                &[
-                    ("r", &r_),
-                    ("g", &g_),
-                    ("b", &b_),
-                    ("truth_r", &tr),
-                    ("truth_g", &tg),
-                    ("truth_b", &tb),
-                    ("ao", &ao.visibility),
-                ],
+                (&positions, &normals, &mesh.triangles),
+                &mine,
+                &truth,
+                &ao.visibility,
             )?;
             report.ply = Some(ply.display().to_string());
         }
@@ -431,6 +408,37 @@ pub fn run_scene(
     };
     crate::io::write_json(&cfg.out.join("report.json"), &report)?;
     Ok(report)
+}
+
+/// A posed mesh (positions, normals, triangles) with a method's environment irradiance
+/// (`r g b`), the ray-traced truth's (`truth_r truth_g truth_b`) and AO's visibility (`ao`)
+/// per vertex, as `vkshade env --reference` and `vkshade frame --reference` write it.
+pub fn write_truth_ply(
+    path: &Path,
+    comment: &str,
+    (positions, normals, triangles): (&[Vec3], &[Vec3], &[[u32; 3]]),
+    mine: &[[f32; 3]],
+    truth: &[[f64; 3]],
+    ao: &[f32],
+) -> Result<()> {
+    let channel = |c: usize| mine.iter().map(|e| e[c]).collect::<Vec<f32>>();
+    let truth_channel = |c: usize| truth.iter().map(|e| e[c] as f32).collect::<Vec<f32>>();
+    crate::scene::ply_write::write_ply_properties(
+        path,
+        comment,
+        positions,
+        normals,
+        triangles,
+        &[
+            ("r", &channel(0)),
+            ("g", &channel(1)),
+            ("b", &channel(2)),
+            ("truth_r", &truth_channel(0)),
+            ("truth_g", &truth_channel(1)),
+            ("truth_b", &truth_channel(2)),
+            ("ao", ao),
+        ],
+    )
 }
 
 /// DIR/env_NNNN.ply.

@@ -209,16 +209,9 @@ pub struct ReferencePose {
     pub time: f32,
     pub rotation_deg: f32,
     /// Environment irradiance per vertex (the frame's `env shadow`) against the ray-traced
-    /// truth: relative L2 over vertices and channels; beside it the AO-weighted floor
-    /// (unshadowed SG irradiance x AO) and the unshadowed light.
-    pub env_rel_l2: Option<f64>,
-    pub env_floor_rel_l2: Option<f64>,
-    pub env_unshadowed_rel_l2: Option<f64>,
-    /// Vertices the truth finds enclosed (no ray escapes: inside another part, which
-    /// spheres cannot represent), and the method's and the floor's error without them.
-    pub env_enclosed: Option<usize>,
-    pub env_open_rel_l2: Option<f64>,
-    pub env_open_floor_rel_l2: Option<f64>,
+    /// truth, with the AO-weighted floor and the unshadowed light beside it; None without an
+    /// environment.
+    pub env: Option<crate::kernels::env::cpu::TruthErrors>,
     pub rays: usize,
     /// The compose pass against its CPU twin on the same stages: relative RMS of the linear
     /// radiance, and the largest difference of the 8-bit image (levels).
@@ -478,12 +471,12 @@ pub fn display(r: &FrameReport, out: &Path) {
                 "  {:>7.2} {:>6.0}  {:>10} {:>10} {:>11} {:>8} {:>10} {:>10}  {:>11.2e} {:>9}",
                 p.time,
                 p.rotation_deg,
-                f(p.env_rel_l2),
-                f(p.env_floor_rel_l2),
-                f(p.env_unshadowed_rel_l2),
-                p.env_enclosed.map_or("-".to_string(), |e| e.to_string()),
-                f(p.env_open_rel_l2),
-                f(p.env_open_floor_rel_l2),
+                f(p.env.map(|e| e.rel_l2)),
+                f(p.env.map(|e| e.floor_rel_l2)),
+                f(p.env.map(|e| e.unshadowed_rel_l2)),
+                p.env.map_or("-".to_string(), |e| e.enclosed.to_string()),
+                f(p.env.map(|e| e.open_rel_l2)),
+                f(p.env.map(|e| e.open_floor_rel_l2)),
                 p.compose_rel_rms,
                 p.compose_max_levels
             );
@@ -558,12 +551,7 @@ fn reference_poses(
         let mut pose = ReferencePose {
             time: input.time,
             rotation_deg,
-            env_rel_l2: None,
-            env_floor_rel_l2: None,
-            env_unshadowed_rel_l2: None,
-            env_enclosed: None,
-            env_open_rel_l2: None,
-            env_open_floor_rel_l2: None,
+            env: None,
             rays: args.rays,
             compose_rel_rms: (num / den.max(1e-30)).sqrt(),
             compose_max_levels,
@@ -611,26 +599,11 @@ fn reference_poses(
                 .iter()
                 .map(|e| [e[0], e[1], e[2]])
                 .collect();
-            let floor = env_cpu::floor(&lobes, &normals, &st.ao);
-            let open: Vec<[f32; 3]> = normals
-                .iter()
-                .map(|&n| env_cpu::unshadowed(&lobes, n))
-                .collect();
-            pose.env_rel_l2 = Some(env_cpu::relative_l2(&mine, &truth));
-            pose.env_floor_rel_l2 = Some(env_cpu::relative_l2(&floor, &truth));
-            pose.env_unshadowed_rel_l2 = Some(env_cpu::relative_l2(&open, &truth));
-            let open_idx: Vec<usize> = (0..truth.len())
-                .filter(|&v| truth[v].iter().sum::<f64>() > 0.0)
-                .collect();
-            let pick = |a: &[[f32; 3]]| open_idx.iter().map(|&v| a[v]).collect::<Vec<_>>();
-            let t_open: Vec<[f64; 3]> = open_idx.iter().map(|&v| truth[v]).collect();
-            pose.env_enclosed = Some(truth.len() - open_idx.len());
-            pose.env_open_rel_l2 = Some(env_cpu::relative_l2(&pick(&mine), &t_open));
-            pose.env_open_floor_rel_l2 = Some(env_cpu::relative_l2(&pick(&floor), &t_open));
+            pose.env = Some(env_cpu::against_truth(
+                &lobes, &normals, &st.ao, &mine, &truth,
+            ));
             let ply = args.out.join(format!("reference_{k:04}.ply"));
-            let channel = |c: usize| mine.iter().map(|e| e[c]).collect::<Vec<f32>>();
-            let truth_channel = |c: usize| truth.iter().map(|e| e[c] as f32).collect::<Vec<f32>>();
-            crate::scene::ply_write::write_ply_properties(
+            super::env::write_truth_ply(
                 &ply,
                 &format!(
                     "vkshade frame --reference: t {:.3} s, environment turned {rotation_deg:.1} \
@@ -639,27 +612,21 @@ fn reference_poses(
                      visibility",
                     input.time, args.rays
                 ),
-                &positions,
-                &normals,
-                &mesh.triangles,
-                &[
-                    ("r", &channel(0)),
-                    ("g", &channel(1)),
-                    ("b", &channel(2)),
-                    ("truth_r", &truth_channel(0)),
-                    ("truth_g", &truth_channel(1)),
-                    ("truth_b", &truth_channel(2)),
-                    ("ao", &st.ao),
-                ],
+                (&positions, &normals, &mesh.triangles),
+                &mine,
+                &truth,
+                &st.ao,
             )?;
             pose.ply = Some(ply.display().to_string());
         }
         progress(&format!(
             "reference pose {k} (t {:.2} s): env rel L2 {} (AO floor {}), compose vs twin {:.2e}",
             pose.time,
-            pose.env_rel_l2
+            pose.env
+                .map(|e| e.rel_l2)
                 .map_or("-".into(), |v| format!("{:.2}%", 100.0 * v)),
-            pose.env_floor_rel_l2
+            pose.env
+                .map(|e| e.floor_rel_l2)
                 .map_or("-".into(), |v| format!("{:.2}%", 100.0 * v)),
             pose.compose_rel_rms
         ));

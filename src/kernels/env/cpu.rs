@@ -338,6 +338,53 @@ pub fn ray_traced(
         .collect()
 }
 
+/// A method's per-vertex environment irradiance against the ray-traced truth
+/// ([`ray_traced`]), with the AO-weighted floor ([`floor`]) and the unshadowed light
+/// ([`unshadowed`]) beside it: relative L2 over all vertices, and over the vertices the truth
+/// does not find enclosed (no ray escapes: inside another part, which spheres cannot
+/// represent).
+#[derive(Clone, Copy, Debug, serde::Serialize)]
+pub struct TruthErrors {
+    /// The method's relative L2 over every vertex.
+    pub rel_l2: f64,
+    /// The AO-weighted floor's, AO(x) sum_j E_j(n).
+    pub floor_rel_l2: f64,
+    /// The unshadowed light's, sum_j E_j(n).
+    pub unshadowed_rel_l2: f64,
+    /// Vertices the truth finds enclosed (E = 0).
+    pub enclosed: usize,
+    /// The method's relative L2 over the other vertices.
+    pub open_rel_l2: f64,
+    /// The floor's over the same.
+    pub open_floor_rel_l2: f64,
+}
+
+/// [`TruthErrors`] of `mine` against `truth` on the posed `normals`, with AO's per-vertex
+/// `ao` for the floor; `lobes` already rotated.
+pub fn against_truth(
+    lobes: &[Lobe],
+    normals: &[Vec3],
+    ao: &[f32],
+    mine: &[[f32; 3]],
+    truth: &[[f64; 3]],
+) -> TruthErrors {
+    let floor = floor(lobes, normals, ao);
+    let open: Vec<[f32; 3]> = normals.iter().map(|&n| unshadowed(lobes, n)).collect();
+    let open_idx: Vec<usize> = (0..truth.len())
+        .filter(|&v| truth[v].iter().sum::<f64>() > 0.0)
+        .collect();
+    let pick = |a: &[[f32; 3]]| open_idx.iter().map(|&v| a[v]).collect::<Vec<_>>();
+    let t_open: Vec<[f64; 3]> = open_idx.iter().map(|&v| truth[v]).collect();
+    TruthErrors {
+        rel_l2: relative_l2(mine, truth),
+        floor_rel_l2: relative_l2(&floor, truth),
+        unshadowed_rel_l2: relative_l2(&open, truth),
+        enclosed: truth.len() - open_idx.len(),
+        open_rel_l2: relative_l2(&pick(mine), &t_open),
+        open_floor_rel_l2: relative_l2(&pick(&floor), &t_open),
+    }
+}
+
 /// Relative L2 over vertices and channels: |a - truth| / |truth|.
 pub fn relative_l2(a: &[[f32; 3]], truth: &[[f64; 3]]) -> f64 {
     let (mut num, mut den) = (0.0f64, 0.0f64);
