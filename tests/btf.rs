@@ -255,15 +255,6 @@ fn gpu_cpu_bound_bc1(bits: u32) -> f64 {
     gpu_cpu_bound(bits) + 9e-3
 }
 
-/// The subTexelPrecisionBits of the device `ctx` selected.
-fn sub_texel_bits(ctx: &vkshade::gpu::Context) -> u32 {
-    let h = ctx.external_handles();
-    // SAFETY: the context's own instance and physical device, alive while `ctx` is.
-    unsafe { h.instance.get_physical_device_properties(h.physical_device) }
-        .limits
-        .sub_texel_precision_bits
-}
-
 const BC: vkshade::gpu::Features = vkshade::gpu::Features {
     shader_float16: false,
     shader_int16: false,
@@ -294,7 +285,7 @@ fn gpu_matches_the_cpu_interpolation_and_the_direct_ray_cast() {
         assert!(gbuffer.covered() > 300, "{object:?} covers too little");
         let run = |ctx: &vkshade::gpu::Context| {
             let out = run(ctx, btf, &maps, &gbuffer, &frame, (texture, layout))?;
-            Ok((out, sub_texel_bits(ctx)))
+            Ok((out, common::sub_texel_bits(ctx)))
         };
         let (out, bits) = match texture {
             Texture::Bc1 => with_gpu_features(BC, run),
@@ -562,7 +553,7 @@ fn a_mesh_with_uvs_is_shaded_like_the_cpu_and_one_without_is_refused() {
             &frame,
             (Texture::Rgba8, Layout::Rows),
         )?;
-        Ok((out, sub_texel_bits(ctx)))
+        Ok((out, common::sub_texel_bits(ctx)))
     });
     let packed = pack(btf);
     let (want, ambiguous) = cpu::shade(

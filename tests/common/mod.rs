@@ -161,3 +161,12 @@ pub fn with_gpu_assisted_features<T>(
     };
     run_checked(ctx, f)
 }
+
+/// The subTexelPrecisionBits of the device `ctx` selected.
+pub fn sub_texel_bits(ctx: &vkshade::gpu::Context) -> u32 {
+    let h = ctx.external_handles();
+    // SAFETY: the context's own instance and physical device, alive while `ctx` is.
+    unsafe { h.instance.get_physical_device_properties(h.physical_device) }
+        .limits
+        .sub_texel_precision_bits
+}

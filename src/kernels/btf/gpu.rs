@@ -21,6 +21,10 @@ pub const PASS_SHADE: &str = "btf shade";
 /// The environment pass ([`BtfKernel::on_gbuffer_env`]), recorded after [`PASS_SHADE`].
 pub const PASS_ENV: &str = "btf env";
 
+/// The environment pass through the light basis ([`BtfKernel::add_env_basis`]), recorded
+/// after [`PASS_SHADE`] (and [`PASS_ENV`] if both are built).
+pub const PASS_ENV_BASIS: &str = "btf env basis";
+
 /// Host copy of one frame: linear RGBA per pixel (alpha 0 where the G-buffer is empty).
 pub type BtfOutput = Vec<[f32; 4]>;
 
@@ -43,6 +47,8 @@ pub struct BtfKernel {
     size: [u32; 2],
     /// The environment pass, when built with [`BtfKernel::on_gbuffer_env`].
     env: Option<EnvPass>,
+    /// The light-basis environment pass ([`BtfKernel::add_env_basis`]).
+    env_basis: Option<EnvBasisPass>,
 }
 
 impl BtfKernel {
@@ -182,6 +188,7 @@ impl BtfKernel {
             tiles,
             size: prep.size,
             env: None,
+            env_basis: None,
         })
     }
 
@@ -370,6 +377,14 @@ impl Kernel for BtfKernel {
                 |k, frame| k.env_dispatch(frame),
             ));
         }
+        if let Some(eb) = &self.env_basis {
+            passes.push(Pass::dispatch(
+                PASS_ENV_BASIS,
+                &eb.pipeline,
+                &eb.bind,
+                |k, frame| k.env_basis_dispatch(frame),
+            ));
+        }
         passes
     }
 
@@ -393,11 +408,17 @@ impl Kernel for BtfKernel {
             .chain(self.gbuffer.as_ref());
         let result = Resource::Buffer(&self.result);
         let env = self.env.iter().flat_map(|e| [&e.cells, &e.placeholder]);
+        let basis_images = self
+            .env_basis
+            .iter()
+            .flat_map(|e| e.coefficients.iter().chain([&e.table]));
+        let basis_buffers = self.env_basis.iter().map(|e| &e.placeholder);
         self.ctx.memory_of_resources(
             images
+                .chain(basis_images)
                 .map(Resource::texture)
                 .chain([result])
-                .chain(env.map(Resource::Buffer)),
+                .chain(env.chain(basis_buffers).map(Resource::Buffer)),
         )
     }
 }
@@ -560,6 +581,256 @@ impl BtfKernel {
             p.layer_extent[0],
             p.tile[1],
             env.has_visibility as u32,
+            0,
+            0,
+            0,
+        ] {
+            push.extend_from_slice(&u.to_le_bytes());
+        }
+        Ok(Dispatch {
+            push,
+            grid: Grid::Invocations([self.size[0], self.size[1], 1]),
+        })
+    }
+}
+
+/// Per-lobe visibility of `btf env basis`.
+#[derive(Clone, Copy)]
+pub enum BasisVisibility<'a> {
+    /// Every lobe fully visible.
+    None,
+    /// f32 `[pixel * J + j]` (pixel = y * width + x of the G-buffer).
+    PerPixel(&'a Buffer),
+    /// f32 `[vertex * J + j]` (the environment kernel's
+    /// [`crate::kernels::env::EnvKernel::visibility`]), interpolated at each pixel by the
+    /// barycentrics of its G-buffer position on its triangle: `keys` the rasteriser's
+    /// visibility buffer (u64 per pixel, triangle id in the low word), `triangles` its
+    /// triangles (uvec4: vertex ids, part), `positions` the posed vertices (vec4).
+    PerVertex {
+        keys: &'a Buffer,
+        positions: &'a Buffer,
+        triangles: &'a Buffer,
+        visibility: &'a Buffer,
+    },
+}
+
+/// What `btf env basis` reads besides the kernel's own G-buffer and direction map.
+#[derive(Clone, Copy)]
+pub struct EnvBasisInputs<'a> {
+    /// Two vec4 per lobe, world space: (axis xyz, sharpness), (amplitude rgb, 0); the
+    /// lobes `data` was tabulated for, in the same order (rotated freely).
+    pub lobes: &'a Buffer,
+    /// The BTF's light basis and the lobes' tables ([`super::basis::BasisData::new`]).
+    pub data: &'a super::basis::BasisData,
+    /// Per-lobe visibility.
+    pub visibility: BasisVisibility<'a>,
+    /// Bit p: shade the pixels of part p (the G-buffer's part id).
+    pub part_mask: u32,
+}
+
+struct EnvBasisPass {
+    pipeline: ComputePipeline,
+    bind: BindGroup,
+    coefficients: Vec<Image>,
+    table: Image,
+    _samplers: [Sampler; 2],
+    placeholder: Buffer,
+    lobe_count: u32,
+    mode: u32,
+    part_mask: u32,
+}
+
+/// f32 values (already rounded to f16) as RGBA16F texel words.
+fn half_words(texels: &[[f32; 4]]) -> Vec<u16> {
+    texels
+        .iter()
+        .flatten()
+        .map(|&x| half::f16::from_f32(x).to_bits())
+        .collect()
+}
+
+impl BtfKernel {
+    /// Adds the pass `btf env basis` after this kernel's passes: the cloth lit by the SG
+    /// environment through the BTF's light basis ([`super::basis`]), added to the result.
+    /// `gbuffer`: the image the kernel shades (`None`: the one it uploaded itself). Its
+    /// textures' uploads are recorded into `rec`.
+    pub fn add_env_basis<'a>(
+        &mut self,
+        rec: &mut Recorder,
+        gbuffer: Option<&Image>,
+        env: EnvBasisInputs<'a>,
+    ) -> Result<()> {
+        use super::basis::{GROUPS, TABLE_LAYERS_PER_LOBE, TABLE_SIDE};
+        let data = env.data;
+        let j = data.lobe_count as u64;
+        let px = self.size[0] as u64 * self.size[1] as u64;
+        let bad = |m: String| Err(Error::InvalidArgument(format!("btf env basis: {m}")));
+        if j == 0 || j > crate::kernels::env::MAX_LOBES as u64 {
+            return bad(format!("{j} lobes; 1..={}", crate::kernels::env::MAX_LOBES));
+        }
+        if env.lobes.size() < 32 * j {
+            return bad(format!(
+                "{j} lobes need {} bytes; '{}' holds {}",
+                32 * j,
+                env.lobes.name(),
+                env.lobes.size()
+            ));
+        }
+        let texels = data.size[0] as usize * data.size[1] as usize;
+        let layers = data.table.len() / (TABLE_SIDE * TABLE_SIDE) as usize;
+        if data.coefficients.len() != GROUPS
+            || data
+                .coefficients
+                .iter()
+                .any(|c| c.len() != texels * super::dirs::COUNT)
+            || layers != TABLE_LAYERS_PER_LOBE * j as usize
+        {
+            return bad("the basis data's sizes do not match its tile and lobes".into());
+        }
+        let placeholder = rec.buffer_with(
+            "btf env basis placeholder",
+            BufferDesc::storage(16),
+            &[0f32; 4],
+        )?;
+        let (mode, pixel_vis, keys, positions, triangles, vertex_vis) = match env.visibility {
+            BasisVisibility::None => (0u32, None, None, None, None, None),
+            BasisVisibility::PerPixel(v) => {
+                if v.size() < 4 * j * px {
+                    return bad(format!(
+                        "visibility '{}' holds {} bytes; {px} pixels x {j} lobes need {}",
+                        v.name(),
+                        v.size(),
+                        4 * j * px
+                    ));
+                }
+                (1, Some(v), None, None, None, None)
+            }
+            BasisVisibility::PerVertex {
+                keys,
+                positions,
+                triangles,
+                visibility,
+            } => {
+                let vertices = positions.size() / 16;
+                if keys.size() < 8 * px || visibility.size() < 4 * j * vertices {
+                    return bad(format!(
+                        "keys '{}' ({} bytes) and visibility '{}' ({} bytes): {px} pixels need \
+                         {} bytes of keys, {vertices} vertices x {j} lobes {} of visibility",
+                        keys.name(),
+                        keys.size(),
+                        visibility.name(),
+                        visibility.size(),
+                        8 * px,
+                        4 * j * vertices
+                    ));
+                }
+                (
+                    2,
+                    None,
+                    Some(keys),
+                    Some(positions),
+                    Some(triangles),
+                    Some(visibility),
+                )
+            }
+        };
+        let Some(gbuffer) = gbuffer.or(self.gbuffer.as_ref()) else {
+            return bad("no G-buffer given and none uploaded".into());
+        };
+        let format = vk::Format::R16G16B16A16_SFLOAT;
+        let coefficients = data
+            .coefficients
+            .iter()
+            .enumerate()
+            .map(|(g, texels)| {
+                let desc = ImageDesc::d2_array(format, data.size, super::dirs::COUNT as u32);
+                image_with(
+                    rec,
+                    &format!("btf env basis coefficients {g}"),
+                    desc,
+                    &half_words(texels),
+                )
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let table_desc = ImageDesc::d2_array(format, [TABLE_SIDE; 2], layers as u32);
+        let table = image_with(
+            rec,
+            "btf env basis lobe table",
+            table_desc,
+            &half_words(&data.table),
+        )?;
+        let ctx = rec.context();
+        let linear = SamplerDesc::linear().lod(0.0, 0.0);
+        let samplers = [
+            Sampler::new(
+                &ctx,
+                "btf env basis repeat",
+                linear.address(vk::SamplerAddressMode::REPEAT),
+            )?,
+            Sampler::new(&ctx, "btf env basis clamp", linear)?,
+        ];
+        let pipeline = crate::shaders::pipeline(&ctx, "btf/env_basis")?;
+        let ph = &placeholder;
+        let or = |b: Option<&'a Buffer>| Resource::Buffer(b.unwrap_or(ph));
+        let res = vec![
+            (
+                "coeffs",
+                Resource::Array(coefficients.iter().map(Resource::texture).collect()),
+            ),
+            ("coeff_sampler", Resource::Sampler(&samplers[0])),
+            ("table", Resource::texture(&table)),
+            ("table_sampler", Resource::Sampler(&samplers[1])),
+            ("dir_map", Resource::texture(&self.map)),
+            ("gbuffer", Resource::texture(gbuffer)),
+            ("result", Resource::Buffer(&self.result)),
+            ("lobes", Resource::Buffer(env.lobes)),
+            ("pixel_vis", or(pixel_vis)),
+            ("keys", or(keys)),
+            ("pos", or(positions)),
+            ("tris", or(triangles)),
+            ("vertex_vis", or(vertex_vis)),
+        ];
+        let bind = pipeline.bind_declared(
+            &res,
+            &[("result", A::ComputeShaderReadOther | A::ComputeShaderWrite)],
+        )?;
+        self.env_basis = Some(EnvBasisPass {
+            pipeline,
+            bind,
+            coefficients,
+            table,
+            _samplers: samplers,
+            placeholder,
+            lobe_count: j as u32,
+            mode,
+            part_mask: env.part_mask,
+        });
+        Ok(())
+    }
+
+    /// Whether the kernel records `btf env basis`, and how many lobes it reads.
+    pub fn env_basis_lobes(&self) -> Option<u32> {
+        self.env_basis.as_ref().map(|e| e.lobe_count)
+    }
+
+    fn env_basis_dispatch(&self, frame: &Frame) -> Result<Dispatch> {
+        frame.check()?;
+        let eb = self
+            .env_basis
+            .as_ref()
+            .expect("btf env basis pass without its state");
+        let mut push: Vec<u8> = frame
+            .camera
+            .push()
+            .iter()
+            .flat_map(|x| x.to_le_bytes())
+            .collect();
+        for u in [
+            self.size[0],
+            self.size[1],
+            eb.lobe_count,
+            eb.mode,
+            eb.part_mask,
             0,
             0,
             0,

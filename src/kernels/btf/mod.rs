@@ -7,6 +7,7 @@
 //! G-buffer as the GPU holds them; `gpu`: the kernel. The G-buffer the pass shades is a scene
 //! input, [`crate::scene::gbuffer`].
 
+pub mod basis;
 pub mod block;
 pub mod cloth;
 pub mod cpu;
