@@ -10,7 +10,9 @@
 //! 2. `raster` writes the screen G-buffer of the posed character;
 //! 3. `sss` builds the skin's texture-space geometry from the posed buffers, its irradiance
 //!    (lights with shadows, plus the shadowed environment) and the subsurface diffusion;
-//! 4. `btf` shades the cloth pixels of the G-buffer;
+//! 4. `btf` shades the cloth pixels of the G-buffer: the directional lights, then the
+//!    environment's lobes with their per-vertex visibility through the BTF's light basis
+//!    (`btf env basis`, [`crate::kernels::btf::basis`]);
 //! 5. `compose` shades the skin pixels through the G-buffer (diffusion with Fresnel, a
 //!    specular layer), takes the cloth's radiance, a background colour behind, tone maps.
 //!
@@ -163,6 +165,15 @@ impl FrameConfig {
         if !(self.tile_scale.is_finite() && self.tile_scale > 0.0) {
             return bad(format!("tile scale {} must be > 0", self.tile_scale));
         }
+        // Part ids travel in the G-buffer and the cloth's environment pass selects them by
+        // a 32-bit mask.
+        if self.skin.len() + self.cloth.len() > 32 {
+            return bad(format!(
+                "{} skin and {} cloth parts; a frame takes at most 32 in all",
+                self.skin.len(),
+                self.cloth.len()
+            ));
+        }
         Ok(())
     }
 }
@@ -204,6 +215,9 @@ pub struct SetupReport {
     /// Relative L2 of the environment's fit (solid-angle weighted, all channels).
     pub env_fit_rel_l2: f64,
     pub ms_env_fit: f64,
+    /// The cloth's light basis: its share of the lit BTF's energy, and its setup time.
+    pub cloth_basis_captured: f64,
+    pub ms_cloth_basis: f64,
 }
 
 /// The character frame: every kernel of one animated character, built once.
@@ -222,6 +236,8 @@ pub struct CharacterFrame {
     env: Option<crate::kernels::env::EnvKernel>,
     sss: Option<Skin>,
     btf: Option<BtfKernel>,
+    /// The cloth's light basis and lobe tables (with an environment and cloth).
+    cloth_basis: Option<crate::kernels::btf::basis::BasisData>,
     btf_frame: BtfFrame,
     compose: ComposeKernel,
     compose_prep: compose::Prepared,
@@ -509,6 +525,23 @@ impl CharacterFrame {
                 .collect(),
         };
         btf_frame.check()?;
+        // The cloth under the environment: the BTF's light basis, fitted to the lobes'
+        // lighting, and the lobes' tables (once per character and lobe set).
+        let t_basis = Instant::now();
+        let cloth_basis = match (&btf, &lobes) {
+            (Some(b), Some(l)) => Some(crate::kernels::btf::basis::BasisData::new(b, l)?),
+            _ => None,
+        };
+        if let Some(cb) = &cloth_basis {
+            setup.ms_cloth_basis = t_basis.elapsed().as_secs_f64() * 1e3;
+            setup.cloth_basis_captured = cb.captured;
+            progress(&format!(
+                "cloth light basis: rank {}, {:.2}% of the lit BTF's energy ({:.0} ms)",
+                crate::kernels::btf::basis::RANK,
+                100.0 * cb.captured,
+                setup.ms_cloth_basis
+            ));
+        }
         let btf = match &btf {
             Some(btf) => {
                 let maps = Maps::build(&Triangulation::new()?, 128)?;
@@ -526,12 +559,29 @@ impl CharacterFrame {
                 let tiles = raster.tiles().ok_or_else(|| {
                     Error::InvalidArgument("the character's rasteriser has no tile list".into())
                 })?;
-                Some(BtfKernel::on_gbuffer_tiles(
-                    &mut rec,
-                    &bprep,
-                    raster.gbuffer(),
-                    tiles,
-                )?)
+                let mut k = BtfKernel::on_gbuffer_tiles(&mut rec, &bprep, raster.gbuffer(), tiles)?;
+                if let (Some(e), Some(data)) = (&env, &cloth_basis) {
+                    use crate::kernels::btf::gpu::{BasisVisibility, EnvBasisInputs};
+                    let skin = cfg.skin.len() as u32;
+                    let cloth_mask =
+                        (skin..skin + cfg.cloth.len() as u32).fold(0u32, |m, p| m | (1 << p));
+                    k.add_env_basis(
+                        &mut rec,
+                        Some(raster.gbuffer()),
+                        EnvBasisInputs {
+                            lobes: e.lobes(),
+                            data,
+                            visibility: BasisVisibility::PerVertex {
+                                keys: raster.keys(),
+                                positions: pose.positions(),
+                                triangles: raster.triangles(),
+                                visibility: e.visibility(),
+                            },
+                            part_mask: cloth_mask,
+                        },
+                    )?;
+                }
+                Some(k)
             }
             None => None,
         };
@@ -567,6 +617,7 @@ impl CharacterFrame {
             env,
             sss,
             btf,
+            cloth_basis,
             btf_frame,
             compose,
             compose_prep: cprep,
@@ -748,6 +799,29 @@ impl CharacterFrame {
                 lobe_visibility: &st.lobe_visibility,
             },
         )
+    }
+
+    /// The cloth's light basis and lobe tables, when the frame lights cloth by an
+    /// environment.
+    pub fn cloth_basis(&self) -> Option<&crate::kernels::btf::basis::BasisData> {
+        self.cloth_basis.as_ref()
+    }
+
+    /// The cloth's directional lights and camera as `btf shade` takes them (radiance units:
+    /// the BTF holds radiance under irradiance pi).
+    pub fn btf_frame(&self) -> &BtfFrame {
+        &self.btf_frame
+    }
+
+    /// The raster's triangles as uploaded: vertex ids and part id.
+    pub fn raster_triangles(&self) -> Vec<[u32; 4]> {
+        self.character
+            .mesh
+            .triangles
+            .iter()
+            .zip(&self.parts)
+            .map(|(t, &p)| [t[0], t[1], t[2], p])
+            .collect()
     }
 
     /// The environment's lobes as fitted (before the frame's rotation), when it has one.

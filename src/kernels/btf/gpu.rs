@@ -378,12 +378,21 @@ impl Kernel for BtfKernel {
             ));
         }
         if let Some(eb) = &self.env_basis {
-            passes.push(Pass::dispatch(
-                PASS_ENV_BASIS,
-                &eb.pipeline,
-                &eb.bind,
-                |k, frame| k.env_basis_dispatch(frame),
-            ));
+            passes.push(match &self.tiles {
+                Some(tiles) => Pass::dispatch_indirect(
+                    PASS_ENV_BASIS,
+                    &eb.pipeline,
+                    &eb.bind,
+                    IndirectArgs {
+                        buffer: tiles,
+                        offset: 0,
+                    },
+                    |k, frame| Ok(k.env_basis_dispatch(frame)?.push),
+                ),
+                None => Pass::dispatch(PASS_ENV_BASIS, &eb.pipeline, &eb.bind, |k, frame| {
+                    k.env_basis_dispatch(frame)
+                }),
+            });
         }
         passes
     }
@@ -769,10 +778,16 @@ impl BtfKernel {
             )?,
             Sampler::new(&ctx, "btf env basis clamp", linear)?,
         ];
-        let pipeline = crate::shaders::pipeline(&ctx, "btf/env_basis")?;
+        // Over the tile list when `btf shade` runs over it (the pixels it leaves empty stay
+        // empty: the pass only adds where the G-buffer is covered).
+        let name = match self.tiles {
+            Some(_) => "btf/env_basis_tiles",
+            None => "btf/env_basis",
+        };
+        let pipeline = crate::shaders::pipeline(&ctx, name)?;
         let ph = &placeholder;
         let or = |b: Option<&'a Buffer>| Resource::Buffer(b.unwrap_or(ph));
-        let res = vec![
+        let mut res = vec![
             (
                 "coeffs",
                 Resource::Array(coefficients.iter().map(Resource::texture).collect()),
@@ -790,6 +805,9 @@ impl BtfKernel {
             ("tris", or(triangles)),
             ("vertex_vis", or(vertex_vis)),
         ];
+        if let Some(t) = &self.tiles {
+            res.push(("tiles", Resource::Buffer(t)));
+        }
         let bind = pipeline.bind_declared(
             &res,
             &[("result", A::ComputeShaderReadOther | A::ComputeShaderWrite)],

@@ -318,6 +318,12 @@ impl RasterKernel {
         &self.gbuffer
     }
 
+    /// The triangles (uvec4 per triangle: vertex ids, part id), as uploaded from
+    /// [`Prepared::triangles`](super::pack::Prepared::triangles).
+    pub fn triangles(&self) -> &Buffer {
+        &self.triangles
+    }
+
     /// The visibility buffer (one u64 key per pixel).
     pub fn keys(&self) -> &Buffer {
         &self.keys

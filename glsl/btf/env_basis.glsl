@@ -1,0 +1,154 @@
+// `btf env basis`, included by btf/env_basis.comp (every pixel) and btf/env_basis_tiles.comp
+// (BTF_TILES: one workgroup per 16 x 4 tile of the rasteriser's tile list, dispatched
+// indirectly, as `btf shade` over tiles): cloth under the SG environment through the BTF's light basis
+// (src/kernels/btf/basis.rs has the method; BasisData::shade is the CPU twin). Per covered
+// pixel of a part in the mask: each lobe's axis into the tangent frame, its RANK basis
+// weights Q_jk from the lobe's octahedral table (2 filtered fetches), summed as
+// L_k = sum_j (V_j a_j / pi) Q_jk; then sum_k L_k B_k(uv, view) over the 3 view taps of the
+// direction map (GROUPS filtered fetches each), ADDED to `result` (the pass runs after
+// `btf shade`). V_j: 1, per pixel ([pixel * J + j]) or per vertex ([vertex * J + j],
+// interpolated by the barycentrics of the G-buffer position on the pixel's triangle).
+layout(local_size_x = 16, local_size_y = 4) in;
+
+layout(push_constant) uniform Push {
+    vec4 camera; // xyz: camera position; w = 0: xyz is the direction towards an
+                 // orthographic camera instead
+    uvec4 dims;  // width, height, lobes J, visibility mode (0 none, 1 per pixel, 2 per vertex)
+    uvec4 info;  // x: part mask (bit p: shade part p)
+} pc;
+
+const uint RANK = 8u;   // basis.rs RANK
+const uint GROUPS = 6u; // basis.rs GROUPS
+const uint LAYERS_PER_LOBE = 2u;
+const float PI = 3.14159265358979;
+
+layout(set = 0, binding = 0) uniform texture2DArray coeffs[GROUPS];
+layout(set = 0, binding = 1) uniform sampler coeff_sampler;  // linear, repeat
+layout(set = 0, binding = 2) uniform texture2DArray table;
+layout(set = 0, binding = 3) uniform sampler table_sampler;  // linear, clamp to edge
+layout(set = 0, binding = 4) uniform utexture2D dir_map;
+layout(set = 0, binding = 5) uniform texture2DArray gbuffer;
+layout(std430, set = 0, binding = 6) buffer Result { vec4 v[]; } result;
+// Two vec4 per lobe: (axis xyz world, sharpness), (amplitude rgb, 0).
+layout(std430, set = 0, binding = 7) readonly buffer Lobes { vec4 v[]; } lobes;
+layout(std430, set = 0, binding = 8) readonly buffer PixelVisibility { float v[]; } pixel_vis;
+layout(std430, set = 0, binding = 9) readonly buffer Keys { uvec2 k[]; } keys;
+layout(std430, set = 0, binding = 10) readonly buffer Positions { vec4 p[]; } pos;
+layout(std430, set = 0, binding = 11) readonly buffer Triangles { uvec4 t[]; } tris;
+layout(std430, set = 0, binding = 12) readonly buffer VertexVisibility { float v[]; } vertex_vis;
+#ifdef BTF_TILES
+layout(std430, set = 0, binding = 13) readonly buffer Tiles { uint head[4]; uint list[]; } tiles;
+#endif
+
+void lookup(vec3 d, out uvec3 index, out vec3 weight) {
+    ivec2 n = textureSize(dir_map, 0);
+    vec2 p = d.xy / (1.0 + d.z);
+    ivec2 t = clamp(ivec2(floor((p + 1.0) * 0.5 * vec2(n))), ivec2(0), n - 1);
+    uvec4 m = texelFetch(dir_map, t, 0);
+    index = uvec3(m.x & 0xFFu, (m.x >> 8u) & 0xFFu, (m.x >> 16u) & 0xFFu);
+    weight = uintBitsToFloat(m.yzw);
+}
+
+float sgn(float x) {
+    return x >= 0.0 ? 1.0 : -1.0;
+}
+
+// basis.rs oct_encode.
+vec2 oct_encode(vec3 d) {
+    float s = abs(d.x) + abs(d.y) + abs(d.z);
+    vec2 p = d.xy / s;
+    if (d.z < 0.0) p = vec2((1.0 - abs(p.y)) * sgn(p.x), (1.0 - abs(p.x)) * sgn(p.y));
+    return p * 0.5 + 0.5;
+}
+
+// basis.rs barycentrics.
+vec3 barycentrics(vec3 p, vec3 a, vec3 b, vec3 c) {
+    vec3 e1 = b - a, e2 = c - a, d = p - a;
+    float d00 = dot(e1, e1), d01 = dot(e1, e2), d11 = dot(e2, e2);
+    float d20 = dot(d, e1), d21 = dot(d, e2);
+    float den = d00 * d11 - d01 * d01;
+    if (abs(den) <= 1e-30) return vec3(1.0, 0.0, 0.0);
+    float v = clamp((d11 * d20 - d01 * d21) / den, 0.0, 1.0);
+    float w = clamp((d00 * d21 - d01 * d20) / den, 0.0, 1.0 - v);
+    return vec3(1.0 - v - w, v, w);
+}
+
+void main() {
+#ifdef BTF_TILES
+    uint tile = tiles.list[gl_WorkGroupID.x];
+    uint tiles_x = (pc.dims.x + 15u) / 16u;
+    uvec2 px = uvec2(tile % tiles_x, tile / tiles_x) * uvec2(16u, 4u) + gl_LocalInvocationID.xy;
+#else
+    uvec2 px = gl_GlobalInvocationID.xy;
+#endif
+    if (any(greaterThanEqual(px, pc.dims.xy))) return;
+    uint k = px.y * pc.dims.x + px.x;
+    vec4 g0 = texelFetch(gbuffer, ivec3(px, 0), 0);
+    if (abs(g0.w) < 0.5) return;
+    uint part = uint(abs(g0.w)) - 1u;
+    if (part >= 32u || (pc.info.x & (1u << part)) == 0u) return;
+    vec4 g1 = texelFetch(gbuffer, ivec3(px, 1), 0);
+    vec4 g2 = texelFetch(gbuffer, ivec3(px, 2), 0);
+    vec3 n = normalize(g1.xyz);
+    vec3 t = normalize(g2.xyz - n * dot(n, g2.xyz));
+    vec3 bt = (g0.w < 0.0 ? -1.0 : 1.0) * cross(n, t);
+    vec3 view = pc.camera.w == 0.0 ? pc.camera.xyz : normalize(pc.camera.xyz - g0.xyz);
+    vec3 vt = vec3(dot(view, t), dot(view, bt), dot(view, n));
+    if (vt.z <= 0.0) return;
+
+    uint J = pc.dims.z;
+    uint mode = pc.dims.w;
+    uvec4 tri = uvec4(0u);
+    vec3 bary = vec3(0.0);
+    if (mode == 2u) {
+        tri = tris.t[keys.k[k].x];
+        bary = barycentrics(g0.xyz, pos.p[tri.x].xyz, pos.p[tri.y].xyz, pos.p[tri.z].xyz);
+    }
+    vec3 l[RANK];
+    for (uint q = 0u; q < RANK; q++) l[q] = vec3(0.0);
+    for (uint j = 0u; j < J; j++) {
+        vec4 p = lobes.v[2u * j];
+        vec3 amp = lobes.v[2u * j + 1u].rgb;
+        float v = 1.0;
+        if (mode == 1u) {
+            v = pixel_vis.v[k * J + j];
+        } else if (mode == 2u) {
+            v = bary.x * vertex_vis.v[tri.x * J + j] + bary.y * vertex_vis.v[tri.y * J + j]
+                + bary.z * vertex_vis.v[tri.z * J + j];
+        }
+        vec3 s = amp * (v * (1.0 / PI));
+        vec2 uv = oct_encode(vec3(dot(p.xyz, t), dot(p.xyz, bt), dot(p.xyz, n)));
+        vec4 q0 = textureLod(sampler2DArray(table, table_sampler),
+                             vec3(uv, float(LAYERS_PER_LOBE * j)), 0.0);
+        vec4 q1 = textureLod(sampler2DArray(table, table_sampler),
+                             vec3(uv, float(LAYERS_PER_LOBE * j + 1u)), 0.0);
+        l[0] += s * q0.x;
+        l[1] += s * q0.y;
+        l[2] += s * q0.z;
+        l[3] += s * q0.w;
+        l[4] += s * q1.x;
+        l[5] += s * q1.y;
+        l[6] += s * q1.z;
+        l[7] += s * q1.w;
+    }
+    uvec3 iv;
+    vec3 wv;
+    lookup(vt, iv, wv);
+    vec2 uv = vec2(g1.w, g2.w);
+    // The coefficients B_s (s = 3 k + channel) of the 3 view taps, weighted.
+    vec4 b[GROUPS];
+    for (uint g = 0u; g < GROUPS; g++) b[g] = vec4(0.0);
+    for (int a = 0; a < 3; a++) {
+        if (wv[a] == 0.0) continue;
+        for (uint g = 0u; g < GROUPS; g++) {
+            b[g] += wv[a] * textureLod(sampler2DArray(coeffs[g], coeff_sampler),
+                                       vec3(uv, float(iv[a])), 0.0);
+        }
+    }
+    // sum_k L_k B_k per channel: scalar s = 4 g + c is channel s % 3 of coefficient s / 3.
+    float f[RANK * 3u];
+    for (uint s = 0u; s < RANK * 3u; s++) f[s] = b[s / 4u][s % 4u];
+    vec3 sum = vec3(0.0);
+    for (uint q = 0u; q < RANK; q++) sum += l[q] * vec3(f[3u * q], f[3u * q + 1u], f[3u * q + 2u]);
+    result.v[k] += vec4(sum, 0.0);
+}
