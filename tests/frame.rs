@@ -253,112 +253,60 @@ fn bad_frame_input_is_refused() {
 /// `btf shade` on the sRGB-8 BTF (bilinear weights rounded to b = subTexelPrecisionBits bits,
 /// the sRGB decode) + 4 x 2^-b x (the basis twin's sum of |terms|) for the environment (see
 /// tests/btf_env_basis.rs) + 1e-5. A frame without the environment pass would miss by the
-/// whole environment term, which is most of the cloth's light.
+/// whole environment term, which is most of the cloth's light. The basis against the BTF's
+/// own quadrature of the same lobes and visibility (the exact pass's twin): <= 3%, as
+/// tests/btf_env_basis.rs bounds it on the sphere.
 #[test]
 fn the_cloth_stage_equals_its_twins_with_the_environment() {
-    use vkshade::kernels::btf::basis::Visibility;
-    use vkshade::kernels::btf::dirs::{Maps, Triangulation};
-    use vkshade::kernels::btf::gpu::{Sampled, Texture};
-    use vkshade::scene::gbuffer::GBuffer;
     let cfg = small();
-    let (stages, frame_light, triangles, bits, out) = with_gpu_features(INT64, |ctx| {
+    let (stages, light, bits, tw, errors) = with_gpu_features(INT64, |ctx| {
         let frame = CharacterFrame::new(ctx, &cfg, &mut |_| {})?;
+        assert!(
+            frame.cloth_basis().is_some(),
+            "the default frame lights its cloth by the environment"
+        );
         let inp = input(&frame, 5, 24);
         let mut rec = ctx.recorder("frame cloth")?;
         frame.record(&mut rec, &inp)?;
         let rb = frame.read_back_stages(&mut rec)?;
         rec.submit_and_wait()?;
         let st = frame.collect_stages(&rb)?;
-        let basis = frame
-            .cloth_basis()
-            .expect("the default frame lights its cloth by the environment");
-        let gb = GBuffer {
-            width: cfg.size[0],
-            height: cfg.size[1],
-            texels: (0..st.keys.len())
-                .flat_map(|k| (0..3).map(move |l| (k, l)))
-                .map(|(k, l)| st.gbuffer[l * st.keys.len() + k])
-                .collect(),
-        };
-        let maps = Maps::build(&Triangulation::new()?, 128)?;
-        let tri: Vec<u32> = st.keys.iter().map(|k| (k & 0xFFFF_FFFF) as u32).collect();
-        let triangles = frame.raster_triangles();
-        let skin = cfg.skin.len() as u32;
-        let mask = (skin..skin + cfg.cloth.len() as u32).fold(0u32, |m, p| m | (1 << p));
-        let env = basis.shade(
-            &maps,
-            &gb,
-            &frame.btf_frame().camera,
-            &st.lobes,
-            Visibility::PerVertex {
-                triangle: &tri,
-                positions: &st.positions,
-                triangles: &triangles,
-                visibility: &st.lobe_visibility,
-            },
-            mask,
-        );
-        let btf = vkshade::frame::synthesized_btf(cfg.btf_tile)?;
-        let sampled = Sampled::of(&btf, Texture::Rgba8);
-        let (direct, amb) = vkshade::kernels::btf::cpu::shade(
-            &sampled.packed(btf.size),
-            &maps,
-            &gb,
-            frame.btf_frame(),
-        );
+        let tw = frame.cloth_twins(&st)?.expect("the frame has cloth");
+        let errors = frame.cloth_errors(&st)?.expect("the frame has cloth");
         let light: f64 = frame
             .btf_frame()
             .lights
             .iter()
             .map(|l| l.rgb.iter().fold(0f32, |m, c| m.max(*c)) as f64)
             .sum();
-        Ok((
-            st,
-            light,
-            (tri, triangles, mask),
-            common::sub_texel_bits(ctx),
-            (env, direct, amb),
-        ))
+        Ok((st, light, common::sub_texel_bits(ctx), tw, errors))
     });
-    let (env, direct, amb) = out;
-    let (tri, triangles, mask) = triangles;
     let q = 2f64.powi(-(bits as i32));
-    let (mut compared, mut env_share, mut total) = (0usize, 0f64, 0f64);
+    let mut compared = 0usize;
     for (k, g) in stages.cloth.iter().enumerate() {
         let tag = stages.gbuffer[k][3];
-        if tag.abs() < 0.5 || mask & (1 << (tag.abs() as u32 - 1)) == 0 {
+        if tag.abs() < 0.5 || tw.part_mask & (1 << (tag.abs() as u32 - 1)) == 0 {
             continue;
         }
-        assert_eq!(
-            triangles[tri[k] as usize][3],
-            tag.abs() as u32 - 1,
-            "pixel {k}: part"
-        );
-        if env.ambiguous[k] || amb[k] {
+        if tw.env.ambiguous[k] || tw.direct_ambiguous[k] {
             continue;
         }
         compared += 1;
-        let bound = (2.0 * q + 1.1e-3) * frame_light + 4.0 * q * env.scale[k] + 1e-5;
+        let bound = (2.0 * q + 1.1e-3) * light + 4.0 * q * tw.env.scale[k] + 1e-5;
         for c in 0..3 {
-            let want = direct[k][c] + env.radiance[k][c];
-            env_share += env.radiance[k][c].abs();
-            total += want.abs();
+            let want = tw.direct[k][c] + tw.env.radiance[k][c];
             assert!(
                 (g[c] as f64 - want).abs() <= bound,
                 "pixel {k} channel {c}: GPU {} vs twins {want} (direct {}, environment {}, bound {bound:e})",
                 g[c],
-                direct[k][c],
-                env.radiance[k][c]
+                tw.direct[k][c],
+                tw.env.radiance[k][c]
             );
         }
     }
-    eprintln!(
-        "{compared} cloth pixels compared; the environment is {:.1}% of their light",
-        100.0 * env_share / total
-    );
+    eprintln!("{compared} cloth pixels compared; {errors:?}");
     assert!(compared > 1000, "{compared} cloth pixels compared");
-    assert!(
-        env_share > 0.1 * total,
-        "environment share {env_share} of {total}"
-    );
+    assert!(errors.env_share > 0.1, "{errors:?}");
+    assert!(errors.basis_vs_quadrature < 0.03, "{errors:?}");
+    assert!(errors.gpu_vs_twins < 0.01, "{errors:?}");
 }

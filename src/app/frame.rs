@@ -217,6 +217,9 @@ pub struct ReferencePose {
     /// radiance, and the largest difference of the 8-bit image (levels).
     pub compose_rel_rms: f64,
     pub compose_max_levels: u32,
+    /// The cloth: the light basis against the BTF's own quadrature of the same lobes and
+    /// visibility, the GPU against the twins; None without cloth.
+    pub cloth: Option<crate::frame::ClothErrors>,
     /// The PLY written for the pose.
     pub ply: Option<String>,
 }
@@ -453,7 +456,7 @@ pub fn display(r: &FrameReport, out: &Path) {
     if !r.reference.is_empty() {
         println!("stages against their truths (--reference):");
         println!(
-            "  {:>7} {:>6}  {:>10} {:>10} {:>11} {:>8} {:>10} {:>10}  {:>11} {:>9}",
+            "  {:>7} {:>6}  {:>10} {:>10} {:>11} {:>8} {:>10} {:>10}  {:>11} {:>9}  {:>10} {:>10}",
             "time s",
             "turn",
             "env rel L2",
@@ -463,12 +466,14 @@ pub fn display(r: &FrameReport, out: &Path) {
             "env open",
             "floor open",
             "compose rel",
-            "8-bit max"
+            "8-bit max",
+            "cloth env",
+            "cloth GPU"
         );
         let f = |x: Option<f64>| x.map_or("-".to_string(), |v| format!("{:.2}%", 100.0 * v));
         for p in &r.reference {
             println!(
-                "  {:>7.2} {:>6.0}  {:>10} {:>10} {:>11} {:>8} {:>10} {:>10}  {:>11.2e} {:>9}",
+                "  {:>7.2} {:>6.0}  {:>10} {:>10} {:>11} {:>8} {:>10} {:>10}  {:>11.2e} {:>9}  {:>10} {:>10}",
                 p.time,
                 p.rotation_deg,
                 f(p.env.map(|e| e.rel_l2)),
@@ -478,13 +483,18 @@ pub fn display(r: &FrameReport, out: &Path) {
                 f(p.env.map(|e| e.open_rel_l2)),
                 f(p.env.map(|e| e.open_floor_rel_l2)),
                 p.compose_rel_rms,
-                p.compose_max_levels
+                p.compose_max_levels,
+                f(p.cloth.map(|c| c.basis_vs_quadrature)),
+                p.cloth
+                    .map_or("-".to_string(), |c| format!("{:.1e}", c.gpu_vs_twins))
             );
         }
         if let Some(rays) = r.reference.first().map(|p| p.rays) {
             println!(
                 "  (env: {rays} rays a vertex through the posed mesh; compose: the CPU twin on the \
-                 same stages; reference_NNNN.ply: positions, normals, r g b, truth_r g b, ao)"
+                 same stages; cloth env: the light basis against the BTF's own quadrature of the \
+                 same lobes and visibility; cloth GPU: against the twins; reference_NNNN.ply: \
+                 positions, normals, r g b, truth_r g b, ao)"
             );
         }
     }
@@ -555,6 +565,7 @@ fn reference_poses(
             rays: args.rays,
             compose_rel_rms: (num / den.max(1e-30)).sqrt(),
             compose_max_levels,
+            cloth: frame.cloth_errors(&st)?,
             ply: None,
         };
         if let Some(base) = frame.env_lobes() {

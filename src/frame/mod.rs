@@ -238,6 +238,8 @@ pub struct CharacterFrame {
     btf: Option<BtfKernel>,
     /// The cloth's light basis and lobe tables (with an environment and cloth).
     cloth_basis: Option<crate::kernels::btf::basis::BasisData>,
+    /// The cloth's BTF and direction maps on the host (for the twins).
+    cloth_host: Option<(Btf, Maps)>,
     btf_frame: BtfFrame,
     compose: ComposeKernel,
     compose_prep: compose::Prepared,
@@ -299,6 +301,37 @@ pub fn looped_matrices(c: &Character, anim: usize, time: f32) -> Vec<glam::Mat4>
         0.0
     };
     c.rig.skinning_matrices(Some(a), t)
+}
+
+/// Resolution of the cloth's direction maps.
+pub const CLOTH_MAP_RES: u32 = 128;
+
+/// The cloth stage's CPU twins on a frame's stages ([`CharacterFrame::cloth_twins`]).
+pub struct ClothTwins {
+    /// Bit p: part p is cloth.
+    pub part_mask: u32,
+    /// `btf shade` (the directional lights) per pixel, and where f32 may differ.
+    pub direct: Vec<[f64; 4]>,
+    pub direct_ambiguous: Vec<bool>,
+    /// `btf env basis` per pixel (zero without an environment).
+    pub env: crate::kernels::btf::basis::Shaded,
+    /// The exact pass's twin on the same lobes and interpolated visibility: the BTF's own
+    /// quadrature of the fitted environment (81 cell factors per pixel); None without an
+    /// environment.
+    pub quadrature: Option<Vec<[f64; 4]>>,
+}
+
+/// The cloth stage's errors at one pose ([`CharacterFrame::cloth_errors`]).
+#[derive(Clone, Copy, Debug, serde::Serialize)]
+pub struct ClothErrors {
+    /// Cloth pixels compared.
+    pub pixels: usize,
+    /// The environment's share of the cloth's light.
+    pub env_share: f64,
+    /// The light basis against the BTF's own quadrature (relative L2 over the cloth).
+    pub basis_vs_quadrature: f64,
+    /// The GPU's cloth against the twins (relative L2).
+    pub gpu_vs_twins: f64,
 }
 
 /// A woven cloth tile synthesised in memory (`btf synth`'s model, one ray per texel).
@@ -542,9 +575,9 @@ impl CharacterFrame {
                 setup.ms_cloth_basis
             ));
         }
-        let btf = match &btf {
+        let btf_kernel = match &btf {
             Some(btf) => {
-                let maps = Maps::build(&Triangulation::new()?, 128)?;
+                let maps = Maps::build(&Triangulation::new()?, CLOTH_MAP_RES)?;
                 let unused = GBuffer::tile([1, 1]);
                 let inputs = BtfInputs::new(btf, &maps, &unused, Texture::Rgba8);
                 let l = ctx.limits();
@@ -585,6 +618,11 @@ impl CharacterFrame {
             }
             None => None,
         };
+        let cloth_host = match btf {
+            Some(b) => Some((b, Maps::build(&Triangulation::new()?, CLOTH_MAP_RES)?)),
+            None => None,
+        };
+        let btf = btf_kernel;
         let cprep = match &sss {
             Some(s) => compose::Prepared::new(cfg.size, &s.geo)?,
             None => compose::Prepared::without_skin(cfg.size),
@@ -618,6 +656,7 @@ impl CharacterFrame {
             sss,
             btf,
             cloth_basis,
+            cloth_host,
             btf_frame,
             compose,
             compose_prep: cprep,
@@ -811,6 +850,138 @@ impl CharacterFrame {
     /// the BTF holds radiance under irradiance pi).
     pub fn btf_frame(&self) -> &BtfFrame {
         &self.btf_frame
+    }
+
+    /// The G-buffer of `st` as the BTF twins take it (pixel-major).
+    pub fn gbuffer_of(&self, st: &Stages) -> GBuffer {
+        let n = st.keys.len();
+        GBuffer {
+            width: self.cfg.size[0],
+            height: self.cfg.size[1],
+            texels: (0..n)
+                .flat_map(|k| (0..3).map(move |l| st.gbuffer[l * n + k]))
+                .collect(),
+        }
+    }
+
+    /// The cloth stage's CPU twins on the stages the GPU computed (None without cloth).
+    pub fn cloth_twins(&self, st: &Stages) -> Result<Option<ClothTwins>> {
+        use crate::kernels::btf::basis::{Shaded, Visibility, barycentrics};
+        use crate::kernels::btf::pack::Sampled;
+        let Some((btf, maps)) = &self.cloth_host else {
+            return Ok(None);
+        };
+        let gb = self.gbuffer_of(st);
+        let skin = self.cfg.skin.len() as u32;
+        let part_mask = (skin..skin + self.cfg.cloth.len() as u32).fold(0u32, |m, p| m | (1 << p));
+        let sampled = Sampled::of(btf, Texture::Rgba8);
+        let packed = sampled.packed(btf.size);
+        let (direct, direct_ambiguous) =
+            crate::kernels::btf::cpu::shade(&packed, maps, &gb, &self.btf_frame);
+        let n = st.keys.len();
+        let camera = &self.btf_frame.camera;
+        let (env, quadrature) = match &self.cloth_basis {
+            Some(basis) => {
+                let tri: Vec<u32> = st.keys.iter().map(|k| (k & 0xFFFF_FFFF) as u32).collect();
+                let triangles = self.raster_triangles();
+                let env = basis.shade(
+                    maps,
+                    &gb,
+                    camera,
+                    &st.lobes,
+                    Visibility::PerVertex {
+                        triangle: &tri,
+                        positions: &st.positions,
+                        triangles: &triangles,
+                        visibility: &st.lobe_visibility,
+                    },
+                    part_mask,
+                );
+                // The exact pass's per-pixel visibility: the same interpolation.
+                let j = st.lobes.len() / 2;
+                let mut vis = vec![0f32; n * j];
+                let mut cloth_gb = gb.clone();
+                for k in 0..n {
+                    let tag = gb.texels[3 * k][3];
+                    let part = tag.abs() as u32;
+                    if tag.abs() < 0.5 || part > 32 || part_mask & (1 << (part - 1)) == 0 {
+                        cloth_gb.texels[3 * k][3] = 0.0;
+                        continue;
+                    }
+                    let t = triangles[tri[k] as usize];
+                    let p = |i: u32| Vec3::from_slice(&st.positions[i as usize][..3]);
+                    let g = gb.texels[3 * k];
+                    let w = barycentrics(Vec3::new(g[0], g[1], g[2]), p(t[0]), p(t[1]), p(t[2]));
+                    for jj in 0..j {
+                        vis[k * j + jj] = (0..3)
+                            .map(|c| w[c] * st.lobe_visibility[t[c] as usize * j + jj])
+                            .sum();
+                    }
+                }
+                let (q, _) = crate::kernels::btf::env::shade(
+                    &packed,
+                    maps,
+                    &cloth_gb,
+                    camera,
+                    &st.lobes,
+                    Some(&vis),
+                );
+                (env, Some(q))
+            }
+            None => (
+                Shaded {
+                    radiance: vec![[0.0; 4]; n],
+                    ambiguous: vec![false; n],
+                    scale: vec![0.0; n],
+                },
+                None,
+            ),
+        };
+        Ok(Some(ClothTwins {
+            part_mask,
+            direct,
+            direct_ambiguous,
+            env,
+            quadrature,
+        }))
+    }
+
+    /// The cloth stage's errors on `st`: the light basis against the BTF's own quadrature
+    /// of the same (fitted, rotated, shadowed) environment, and the GPU against the twins,
+    /// over the cloth pixels (None without cloth).
+    pub fn cloth_errors(&self, st: &Stages) -> Result<Option<ClothErrors>> {
+        let Some(tw) = self.cloth_twins(st)? else {
+            return Ok(None);
+        };
+        let (mut pixels, mut env_l, mut all_l) = (0usize, 0f64, 0f64);
+        let (mut bq, mut bq_den, mut gt, mut gt_den) = (0f64, 0f64, 0f64, 0f64);
+        for (k, g) in st.cloth.iter().enumerate() {
+            let tag = st.gbuffer[k][3];
+            let part = tag.abs() as u32;
+            if tag.abs() < 0.5 || part > 32 || tw.part_mask & (1 << (part - 1)) == 0 {
+                continue;
+            }
+            pixels += 1;
+            for c in 0..3 {
+                let e = tw.env.radiance[k][c];
+                let want = tw.direct[k][c] + e;
+                env_l += e.abs();
+                all_l += want.abs();
+                gt += (g[c] as f64 - want).powi(2);
+                gt_den += want * want;
+                if let Some(q) = &tw.quadrature {
+                    bq += (e - q[k][c]).powi(2);
+                    bq_den += q[k][c] * q[k][c];
+                }
+            }
+        }
+        let rel = |n: f64, d: f64| if d > 0.0 { (n / d).sqrt() } else { 0.0 };
+        Ok(Some(ClothErrors {
+            pixels,
+            env_share: if all_l > 0.0 { env_l / all_l } else { 0.0 },
+            basis_vs_quadrature: rel(bq, bq_den),
+            gpu_vs_twins: rel(gt, gt_den),
+        }))
     }
 
     /// The raster's triangles as uploaded: vertex ids and part id.
