@@ -91,6 +91,10 @@ pub struct FrameConfig {
     pub env_lobes: usize,
     /// Width of the map the fit samples (the map is downsampled to it).
     pub env_fit_width: u32,
+    /// Rays per vertex of AO's static correction, baked once in the bind pose
+    /// ([`ao::Correction`]: the detail the spheres miss, such as the skin buried under the
+    /// clothes); 0: AO and the environment's shadowing by the spheres alone.
+    pub ao_correction_rays: usize,
 }
 
 impl Default for FrameConfig {
@@ -123,6 +127,7 @@ impl Default for FrameConfig {
             env: Some(PathBuf::from(crate::kernels::srbf::DEFAULT_ENV)),
             env_lobes: 16,
             env_fit_width: 128,
+            ao_correction_rays: 1024,
         }
     }
 }
@@ -218,6 +223,8 @@ pub struct SetupReport {
     /// The cloth's light basis: its share of the lit BTF's energy, and its setup time.
     pub cloth_basis_captured: f64,
     pub ms_cloth_basis: f64,
+    /// Baking AO's static correction.
+    pub ms_ao_correction: f64,
 }
 
 /// The character frame: every kernel of one animated character, built once.
@@ -403,6 +410,27 @@ impl CharacterFrame {
             "sphere tree: {} spheres ({:.0} ms)",
             setup.spheres, setup.ms_tree
         ));
+        // AO's static correction, as `vkshade ao` and `vkshade env` bake it: without it the
+        // skin under the clothes reads as half open and takes the environment's light.
+        let t = Instant::now();
+        let ao_params = ao::AoParams::default();
+        let correction = if cfg.ao_correction_rays > 0 {
+            let c = ao::Correction::bake(mesh, cfg.ao_correction_rays);
+            let cpu_ao = ao::cpu::CpuAo::new(ao::formula::OcclusionTable::new(
+                ao::formula::TABLE_SIZE,
+                ao::formula::TABLE_SIZE,
+            ));
+            Some(c.factors(&cpu_ao, &ao_prep, &ao_params))
+        } else {
+            None
+        };
+        setup.ms_ao_correction = t.elapsed().as_secs_f64() * 1e3;
+        if correction.is_some() {
+            progress(&format!(
+                "AO correction: {} rays a vertex in the bind pose ({:.0} ms)",
+                cfg.ao_correction_rays, setup.ms_ao_correction
+            ));
+        }
         // The skin's texture space: the skin parts alone, with the same vertex ids.
         let t = Instant::now();
         let skin_geo = if skin_triangles > 0 {
@@ -482,7 +510,10 @@ impl CharacterFrame {
         let t = Instant::now();
         let mut rec = ctx.recorder("character frame setup")?;
         let pose = pose::PoseKernel::new(&mut rec, &pose_prep)?;
-        let ao = ao::gpu::AoKernel::on_pose(&mut rec, &ao_prep, ao::AoParams::default(), &pose)?;
+        let ao = ao::gpu::AoKernel::on_pose(&mut rec, &ao_prep, ao_params, &pose)?;
+        if let Some(c) = &correction {
+            ao.set_correction(&mut rec, c)?;
+        }
         let env = match &lobes {
             Some(l) => Some(crate::kernels::env::EnvKernel::new(
                 &mut rec, l, &pose, &ao,
