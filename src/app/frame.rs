@@ -80,6 +80,10 @@ pub struct Args {
     /// Rays per vertex of the environment's ray-traced truth (with --reference).
     #[arg(long, default_value_t = 1024)]
     pub rays: usize,
+    /// Rays per vertex of AO's static correction, baked once in the bind pose (0: AO and
+    /// the environment's shadowing by the sphere tree alone).
+    #[arg(long, default_value_t = 1024)]
+    pub ao_correction_rays: usize,
 }
 
 impl Args {
@@ -108,6 +112,7 @@ impl Args {
             exposure: self.exposure,
             env: (!self.no_env).then(|| self.env.clone()),
             env_lobes: self.env_lobes,
+            ao_correction_rays: self.ao_correction_rays,
             ..d
         };
         cfg.check()?;
@@ -124,6 +129,12 @@ impl Args {
             return Err(Error::InvalidArgument(format!(
                 "--rays {} must be in 1..=1048576",
                 self.rays
+            )));
+        }
+        if self.ao_correction_rays > 1 << 20 {
+            return Err(Error::InvalidArgument(format!(
+                "--ao-correction-rays {} must be at most 1048576 (0: off)",
+                self.ao_correction_rays
             )));
         }
         Ok(cfg)

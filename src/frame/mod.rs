@@ -170,6 +170,12 @@ impl FrameConfig {
         if !(self.tile_scale.is_finite() && self.tile_scale > 0.0) {
             return bad(format!("tile scale {} must be > 0", self.tile_scale));
         }
+        if self.ao_correction_rays > 1 << 20 {
+            return bad(format!(
+                "{} AO correction rays a vertex; at most 1048576 (0: off)",
+                self.ao_correction_rays
+            ));
+        }
         // Part ids travel in the G-buffer and the cloth's environment pass selects them by
         // a 32-bit mask.
         if self.skin.len() + self.cloth.len() > 32 {
