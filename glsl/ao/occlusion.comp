@@ -88,6 +88,53 @@ float table_lookup(float cos_t, float h) {
     return a + (b - a) * fy;
 }
 
+// One child's weight share at alpha = 0: 1 / the used children of inner node `node`.
+float child_share(uint node) {
+    uint first = node * pc.branch + 1u;
+    uint used_children = 0u;
+    for (uint c = first; c < first + pc.branch; ++c) used_children += uint(sph.s[c].w >= 0.0);
+    return 1.0 / float(max(used_children, 1u));
+}
+
+// The parent state of `node` (at `depth`) as the walk's descent left it: from depth 1 down
+// the node's ancestors, each refined as in main (cpu::walk_cut).
+void ancestor_state(uint node, uint depth, vec3 p, out vec4 p_sph, out float p_w, out float p_a,
+                    out float p_share) {
+    p_sph = vec4(0.0);
+    p_w = 1.0;
+    p_a = 1.0;
+    p_share = 1.0;
+    uint B = pc.branch;
+    // First index of depth `depth` and B^(depth - 1).
+    uint first = 1u;
+    uint span = 1u;
+    for (uint j = 1u; j < depth; ++j) {
+        first = first * B + 1u;
+        span *= B;
+    }
+    uint i = node - first;
+    uint first_j = 1u;
+    for (uint j = 1u; j < depth; ++j) {
+        uint n = first_j + i / span;
+        vec4 s = sph.s[n];
+        vec4 eff = s;
+        float w = p_w;
+        if (p_a < 1.0) {
+            eff = p_sph + (s - p_sph) * p_a;
+            w *= p_share + (1.0 - p_share) * p_a;
+        }
+        float d = length(s.xyz - p);
+        float size = REFINE == 1u ? ext.e[n] : s.w;
+        float a = min(ao_refinement(size, d, pc.tau, pc.band), p_a);
+        p_sph = eff;
+        p_w = w;
+        p_a = a;
+        p_share = child_share(n);
+        first_j = first_j * B + 1u;
+        span /= B;
+    }
+}
+
 void main() {
     uint vi = gl_GlobalInvocationID.x;
     if (vi >= pc.vertex_count) return;
@@ -106,15 +153,16 @@ void main() {
     uint tested = 0u;
     uint used = 0u;
 
-    // Per depth (1 = the root's children): the parent's effective sphere, its weight, its
-    // alpha and one child's weight share at alpha = 0 (see cpu::walk_cut).
-    vec4 parent_sph[MAX_DEPTH + 1];
-    float parent_w[MAX_DEPTH + 1];
-    float parent_a[MAX_DEPTH + 1];
-    float parent_share[MAX_DEPTH + 1];
-    parent_w[1] = 1.0;
-    parent_a[1] = 1.0;
-    parent_share[1] = 1.0;
+    // The state of the current depth's parent: its effective sphere, its weight, its alpha
+    // and one child's weight share at alpha = 0 (see cpu::walk_cut). Held in registers, not
+    // a per-depth stack: a private array indexed by depth is a select ladder or scratch
+    // memory on SIMD drivers (lavapipe) and cost ~40% of the pass; after a climb, the state
+    // is recomputed from the root down the new node's path (ancestor_state), the same
+    // operations the descent made, so the result is bit for bit the same.
+    vec4 p_sph = vec4(0.0);
+    float p_w = 1.0;
+    float p_a = 1.0;
+    float p_share = 1.0;
     uint depth = 1u;
 
     uint node = 1u;
@@ -124,29 +172,25 @@ void main() {
         bool descend = false;
         if (s.w >= 0.0) {
             tested++;
-            float a_p = parent_a[depth];
             vec4 eff = s;
-            float w = parent_w[depth];
-            if (a_p < 1.0) {
-                eff = parent_sph[depth] + (s - parent_sph[depth]) * a_p;
-                w *= parent_share[depth] + (1.0 - parent_share[depth]) * a_p;
+            float w = p_w;
+            if (p_a < 1.0) {
+                eff = p_sph + (s - p_sph) * p_a;
+                w *= p_share + (1.0 - p_share) * p_a;
             }
             float a = 0.0;
             if (node < pc.first_leaf) {
                 float d = length(s.xyz - p);
                 float size = REFINE == 1u ? ext.e[node] : s.w;
-                a = min(ao_refinement(size, d, pc.tau, pc.band), a_p);
+                a = min(ao_refinement(size, d, pc.tau, pc.band), p_a);
             }
             if (a > 0.0) {
                 descend = true;
-                uint first = node * B + 1u;
-                uint used_children = 0u;
-                for (uint c = first; c < first + B; ++c) used_children += uint(sph.s[c].w >= 0.0);
                 depth++;
-                parent_sph[depth] = eff;
-                parent_w[depth] = w;
-                parent_a[depth] = a;
-                parent_share[depth] = 1.0 / float(max(used_children, 1u));
+                p_sph = eff;
+                p_w = w;
+                p_a = a;
+                p_share = child_share(node);
             } else {
                 vec3 dv = eff.xyz - p;
                 float d = length(dv);
@@ -164,7 +208,8 @@ void main() {
                         vec3 wd = d > 0.0 ? dv / d : n;
                         vec3 wl = vec3(dot(wd, t), dot(wd, b), dot(wd, n));
                         float cos_a = sqrt(max(1.0 - 1.0 / max(h * h, 1.0), 0.0));
-                        uvec4 m = ao_cap_mask(wl, cos_a);
+                        uint k;
+                        uvec4 m = ao_cap_mask_nearest(wl, cos_a, k);
                         uint c = uint(bitCount(m.x) + bitCount(m.y) + bitCount(m.z) + bitCount(m.w));
                         if (c > 0u) {
                             sum_masked += w * occ;
@@ -173,8 +218,7 @@ void main() {
                         } else {
                             // A cap between the directions: hidden when its nearest direction
                             // is covered already (see cpu.rs).
-                            uint k = ao_nearest_direction(wl);
-                            uint bit = 1u << (k & 31u);
+                                                        uint bit = 1u << (k & 31u);
                             if (((uni[k >> 5u] | small[k >> 5u]) & bit) == 0u) {
                                 small[k >> 5u] |= bit;
                             } else {
@@ -189,11 +233,15 @@ void main() {
             node = node * B + 1u;
         } else {
             // Next in preorder: climb while this is the last child, then step to the sibling.
+            uint from = depth;
             while (node != 0u && (node - 1u) % B == B - 1u) {
                 node = (node - 1u) / B;
                 depth--;
             }
-            if (node != 0u) node += 1u;
+            if (node != 0u) {
+                node += 1u;
+                if (depth < from) ancestor_state(node, depth, p, p_sph, p_w, p_a, p_share);
+            }
         }
     }
 
