@@ -826,6 +826,121 @@ fn no_popping_over_consecutive_frames_of_run() {
 }
 
 #[test]
+fn no_popping_on_the_gpu_over_60_frames_of_run() {
+    use vkshade::geom::visibility::{RayConfig, ambient_visibility};
+    use vkshade::kernels::run_frames;
+    use vkshade::reference::ao::count_jumps;
+    // Issue 20's count on the GPU path, under validation: 60 consecutive frames of Run (the
+    // spacing of `vkshade ao --frames 60`), every 4th vertex, the method alone and with the
+    // static correction (the default, whose factors up to 2 could amplify a step), against
+    // the ray-traced truth with common random rays (each receiver casts the same local
+    // directions in every frame, so the truth's own noise does not move between frames). A
+    // jump: the result moves by more than 0.1 while the truth moves by less than 0.02.
+    // Before the blended cut and the fading of spheres that come to hold the receiver, the
+    // method alone made 45 such jumps in 29,500 vertex-steps.
+    let c = testwuson();
+    let (tree, _) = SphereTree::build(&c.mesh, &BuildConfig::default()).unwrap();
+    let prep = Prepared::new(&c.mesh, &tree, c.rig.joints.len()).unwrap();
+    let cpu_ao = CpuAo::new(OcclusionTable::new(TABLE_SIZE, TABLE_SIZE));
+    let correction = Correction::bake(&c.mesh, 256);
+    let run = c.animation("Run").unwrap();
+    let (lo, hi) = c.mesh.bounds();
+    let rays = RayConfig {
+        rays: 256,
+        ..RayConfig::for_scene((hi - lo).length())
+    };
+    let subset: Vec<usize> = (0..prep.vertex_count()).step_by(4).collect();
+    let frames = 60;
+    let matrices: Vec<Vec<Mat4>> = (0..frames)
+        .map(|f| {
+            c.rig
+                .skinning_matrices(Some(run), run.duration * f as f32 / frames as f32)
+        })
+        .collect();
+    let truth: Vec<Vec<f32>> = matrices
+        .iter()
+        .map(|m| {
+            let posed = cpu::skin(&prep, m);
+            let bvh = vkshade::geom::Bvh::build(&posed.positions, &c.mesh.triangles);
+            ambient_visibility(&posed.positions, &posed.normals, &bvh, &subset, &rays)
+        })
+        .collect();
+    common::with_gpu(|ctx| {
+        for correct in [false, true] {
+            let params = AoParams {
+                correct,
+                ..AoParams::default()
+            };
+            let mut setup = ctx.recorder("ao jumps setup")?;
+            let kernel = AoKernel::new(&mut setup, &prep, params)?;
+            if correct {
+                let factors = correction.factors(&cpu_ao, &prep, &params);
+                kernel.set_correction(&mut setup, &factors)?;
+            }
+            setup.submit_and_wait()?;
+            let mut method = vec![Vec::new(); frames];
+            run_frames(ctx, &kernel, matrices.iter().map(Vec::as_slice), 2, |r| {
+                method[r.index] = subset.iter().map(|&i| r.output.visibility[i]).collect();
+                Ok(())
+            })?;
+            let j = count_jumps(&method, &truth, 0.1, 0.02);
+            eprintln!("GPU, correction {correct}: {j:?}");
+            assert_eq!(j.steps, subset.len() * (frames - 1));
+            // Measured: 4 of 47,318 (method alone), 3 (corrected), e.g. vertex 1072, frames
+            // 40 -> 41: 0.355 -> 0.471 while the truth moved 0.004. None is a pop (below):
+            // many caps of a deeply buried receiver slide across the mask's 128 directions
+            // within one frame. Issue 20's target is 0; this bound holds what is measured.
+            assert!(j.jumps <= 4, "correction {correct}: {j:?}");
+            // Each counted jump, re-evaluated by the CPU twin (the GPU matches it to 1e-2) at
+            // 40 instants between the two frames: a cut or a sphere that switches shows as
+            // one sub-step carrying the jump; a continuous change spreads it. Bound: no
+            // sub-step above 0.03, under a third of the 0.1 jump (measured <= 0.021).
+            let factors = correct.then(|| correction.factors(&cpu_ao, &prep, &params));
+            let mut pops = Vec::new();
+            for f in 1..frames {
+                for (k, &v) in subset.iter().enumerate() {
+                    let dm = (method[f][k] - method[f - 1][k]).abs();
+                    let dt = (truth[f][k] - truth[f - 1][k]).abs();
+                    if !(dm > 0.1 && dt < 0.02) {
+                        continue;
+                    }
+                    let sub = 40;
+                    let values: Vec<f32> = (0..=sub)
+                        .map(|s| {
+                            let t = run.duration * (f as f32 - 1.0 + s as f32 / sub as f32)
+                                / frames as f32;
+                            let posed = cpu::skin(&prep, &c.rig.skinning_matrices(Some(run), t));
+                            let x = cpu_ao.vertex(
+                                posed.positions[v],
+                                posed.normals[v],
+                                &posed,
+                                prep.shape,
+                                &params,
+                            );
+                            match &factors {
+                                Some(fs) => (x.visibility * fs[v]).min(1.0),
+                                None => x.visibility,
+                            }
+                        })
+                        .collect();
+                    let step = values
+                        .windows(2)
+                        .map(|w| (w[1] - w[0]).abs())
+                        .fold(0f32, f32::max);
+                    eprintln!("  vertex {v}, frame {f}: largest of {sub} sub-steps {step}");
+                    pops.push((v, f, step));
+                }
+            }
+            assert!(
+                pops.iter().all(|p| p.2 < 0.03),
+                "correction {correct}: jumps that switch within a frame (vertex, frame, sub-step): {pops:?}"
+            );
+        }
+        Ok(())
+    });
+}
+
+#[test]
 fn fitted_proxy_per_level_and_sph_round_trip() {
     use vkshade::geom::visibility::{RayConfig, ambient_visibility};
     use vkshade::kernels::ao::fit::{FitConfig, fit_tree};
