@@ -886,7 +886,7 @@ fn no_popping_on_the_gpu_over_60_frames_of_run() {
             let j = count_jumps(&method, &truth, 0.1, 0.02);
             eprintln!("GPU, correction {correct}: {j:?}");
             assert_eq!(j.steps, subset.len() * (frames - 1));
-            // Measured: 4 of 47,318 (method alone), 3 (corrected), e.g. vertex 1072, frames
+            // Measured: 3 of 47,318 (method alone and corrected), e.g. vertex 1072, frames
             // 40 -> 41: 0.355 -> 0.471 while the truth moved 0.004. None is a pop (below):
             // many caps of a deeply buried receiver slide across the mask's 128 directions
             // within one frame. Issue 20's target is 0; this bound holds what is measured.

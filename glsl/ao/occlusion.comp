@@ -54,6 +54,11 @@ layout(std430, set = 0, binding = 4) readonly buffer Correction { float c[]; } c
 layout(std430, set = 0, binding = 5) writeonly buffer Visibility { float v[]; } ao;
 layout(std430, set = 0, binding = 6) writeonly buffer Stats { uvec2 tested_used[]; } stats;
 layout(std430, set = 0, binding = 7) readonly buffer Extents { float e[]; } ext;
+// Per inner node: 1 / its used children (a child's weight share at alpha = 0), static per
+// tree; loading it beats counting the children in every iteration.
+layout(std430, set = 0, binding = 8) readonly buffer Shares { float s[]; } share;
+// formula::nearest_direction_table, four 8-bit direction indices a word.
+layout(std430, set = 0, binding = 9) readonly buffer Nearest { uint k[]; } nearest;
 
 // Deepest tree walked (levels below the root); cpu::MAX_DEPTH, checked by Prepared::check.
 const uint MAX_DEPTH = 8u;
@@ -88,12 +93,14 @@ float table_lookup(float cos_t, float h) {
     return a + (b - a) * fy;
 }
 
-// One child's weight share at alpha = 0: 1 / the used children of inner node `node`.
-float child_share(uint node) {
-    uint first = node * pc.branch + 1u;
-    uint used_children = 0u;
-    for (uint c = first; c < first + pc.branch; ++c) used_children += uint(sph.s[c].w >= 0.0);
-    return 1.0 / float(max(used_children, 1u));
+// formula::nearest_cell and its table entry: the mask direction nearest wl's cell.
+uint nearest_direction(vec3 wl) {
+    float last = float(AO_NEAREST_RES - 1u);
+    uint ix = uint(clamp((wl.x * 0.5 + 0.5) * float(AO_NEAREST_RES), 0.0, last));
+    uint iy = uint(clamp((wl.y * 0.5 + 0.5) * float(AO_NEAREST_RES), 0.0, last));
+    uint below = wl.z < 0.0 ? 1u : 0u;
+    uint i = (below * AO_NEAREST_RES + iy) * AO_NEAREST_RES + ix;
+    return (nearest.k[i >> 2u] >> ((i & 3u) * 8u)) & 255u;
 }
 
 // The parent state of `node` (at `depth`) as the walk's descent left it: from depth 1 down
@@ -129,7 +136,7 @@ void ancestor_state(uint node, uint depth, vec3 p, out vec4 p_sph, out float p_w
         p_sph = eff;
         p_w = w;
         p_a = a;
-        p_share = child_share(n);
+        p_share = share.s[n];
         first_j = first_j * B + 1u;
         span /= B;
     }
@@ -190,7 +197,7 @@ void main() {
                 p_sph = eff;
                 p_w = w;
                 p_a = a;
-                p_share = child_share(node);
+                p_share = share.s[node];
             } else {
                 vec3 dv = eff.xyz - p;
                 float d = length(dv);
@@ -208,8 +215,7 @@ void main() {
                         vec3 wd = d > 0.0 ? dv / d : n;
                         vec3 wl = vec3(dot(wd, t), dot(wd, b), dot(wd, n));
                         float cos_a = sqrt(max(1.0 - 1.0 / max(h * h, 1.0), 0.0));
-                        uint k;
-                        uvec4 m = ao_cap_mask_nearest(wl, cos_a, k);
+                        uvec4 m = ao_cap_mask(wl, cos_a);
                         uint c = uint(bitCount(m.x) + bitCount(m.y) + bitCount(m.z) + bitCount(m.w));
                         if (c > 0u) {
                             sum_masked += w * occ;
@@ -217,7 +223,8 @@ void main() {
                             uni |= m;
                         } else {
                             // A cap between the directions: hidden when its nearest direction
-                            // is covered already (see cpu.rs).
+                            // (looked up by its centre) is covered already (see cpu.rs).
+                            uint k = nearest_direction(wl);
                                                         uint bit = 1u << (k & 31u);
                             if (((uni[k >> 5u] | small[k >> 5u]) & bit) == 0u) {
                                 small[k >> 5u] |= bit;

@@ -65,6 +65,10 @@ struct Buffers {
     sphere_weights: Buffer,
     /// The occlusion table ([`OcclusionTable`]).
     table: Buffer,
+    /// Per node: 1 / its used children ([`child_shares`]).
+    shares: Buffer,
+    /// [`super::formula::nearest_direction_table`], four indices a word.
+    nearest: Buffer,
     /// Per-vertex static correction factors ([`super::Correction`]; 1 until set).
     correction: Buffer,
     /// The pose kernel's: the frame's joint matrices, posed positions and normals.
@@ -103,6 +107,8 @@ impl Buffers {
             sphere_joints: upload("ao sphere joints", bytes(&prep.sphere_joints))?,
             sphere_weights: upload("ao sphere weights", bytes(&prep.sphere_weights))?,
             table: upload("ao table", bytes(&table.values))?,
+            shares: upload("ao child shares", bytes(&child_shares(prep)))?,
+            nearest: upload("ao nearest directions", bytes(&nearest_words()))?,
             correction: upload("ao correction", bytes(&vec![1.0f32; nv as usize]))?,
             joint_matrices: pose.joint_matrices().clone(),
             posed_positions: pose.positions().clone(),
@@ -115,8 +121,10 @@ impl Buffers {
     }
 
     /// Every buffer, with the name the shaders bind it by: the passes bind by these names.
-    fn by_binding(&self) -> [(&'static str, &Buffer); 12] {
+    fn by_binding(&self) -> [(&'static str, &Buffer); 14] {
         [
+            ("share", &self.shares),
+            ("nearest", &self.nearest),
             ("rest_sph", &self.rest_spheres),
             ("sjoints", &self.sphere_joints),
             ("sweights", &self.sphere_weights),
@@ -134,9 +142,11 @@ impl Buffers {
 
     /// The buffers the AO kernel owns (the memory report counts these; the pose's are the
     /// pose kernel's).
-    fn own(&self) -> [&Buffer; 9] {
+    fn own(&self) -> [&Buffer; 11] {
         [
             &self.rest_spheres,
+            &self.shares,
+            &self.nearest,
             &self.sphere_joints,
             &self.sphere_weights,
             &self.table,
@@ -162,6 +172,38 @@ impl Buffers {
         let writes: Vec<(&str, AccessSet)> = writes.iter().map(|&b| (b, w)).collect();
         pipeline.bind_from(lookup, &writes)
     }
+}
+
+/// Per node, a child's weight share at alpha = 0 in the blended cut: 1 / the node's used
+/// children (as `cpu::walk_cut` counts them; leaves and unused slots get 1, never read).
+fn child_shares(prep: &Prepared) -> Vec<f32> {
+    let (b, first_leaf) = (prep.shape.branch as usize, prep.shape.first_leaf as usize);
+    (0..prep.spheres.len())
+        .map(|n| {
+            if n >= first_leaf {
+                return 1.0;
+            }
+            let first = n * b + 1;
+            let used = (first..first + b)
+                .filter(|&c| prep.spheres.get(c).is_some_and(|s| s[3] >= 0.0))
+                .count()
+                .max(1);
+            1.0 / used as f32
+        })
+        .collect()
+}
+
+/// [`super::formula::nearest_direction_table`] packed four 8-bit indices a word, as the
+/// shader unpacks it.
+fn nearest_words() -> Vec<u32> {
+    super::formula::nearest_direction_table()
+        .chunks(4)
+        .map(|c| {
+            c.iter()
+                .enumerate()
+                .fold(0u32, |w, (i, &k)| w | (k as u32) << (8 * i))
+        })
+        .collect()
 }
 
 /// The skinning pass writes the posed spheres and extents.
