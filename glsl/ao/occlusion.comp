@@ -34,6 +34,7 @@ layout(constant_id = 1) const uint BLEND = 2u;          // 0 product, 1 sum, 2 c
 layout(constant_id = 2) const bool CLAMP_INSIDE = false; // receiver inside a leaf: clamp h to 1
 layout(constant_id = 3) const bool CORRECT = true;      // apply the static correction
 layout(constant_id = 4) const uint REFINE = 1u;         // 0 radius, 1 extent
+layout(constant_id = 5) const uint BRANCH = 8u;         // the tree's branch factor
 
 layout(push_constant) uniform Push {
     uint vertex_count;
@@ -59,6 +60,8 @@ layout(std430, set = 0, binding = 7) readonly buffer Extents { float e[]; } ext;
 layout(std430, set = 0, binding = 8) readonly buffer Shares { float s[]; } share;
 // formula::nearest_direction_table, four 8-bit direction indices a word.
 layout(std430, set = 0, binding = 9) readonly buffer Nearest { uint k[]; } nearest;
+// The vertices along a Morton curve (gpu::spatial_order): neighbouring lanes walk alike cuts.
+layout(std430, set = 0, binding = 10) readonly buffer Order { uint i[]; } order;
 
 // Deepest tree walked (levels below the root); cpu::MAX_DEPTH, checked by Prepared::check.
 const uint MAX_DEPTH = 8u;
@@ -111,7 +114,7 @@ void ancestor_state(uint node, uint depth, vec3 p, out vec4 p_sph, out float p_w
     p_w = 1.0;
     p_a = 1.0;
     p_share = 1.0;
-    uint B = pc.branch;
+    uint B = BRANCH;
     // First index of depth `depth` and B^(depth - 1).
     uint first = 1u;
     uint span = 1u;
@@ -143,8 +146,8 @@ void ancestor_state(uint node, uint depth, vec3 p, out vec4 p_sph, out float p_w
 }
 
 void main() {
-    uint vi = gl_GlobalInvocationID.x;
-    if (vi >= pc.vertex_count) return;
+    if (gl_GlobalInvocationID.x >= pc.vertex_count) return;
+    uint vi = order.i[gl_GlobalInvocationID.x];
     vec3 p = pos.p[vi].xyz;
     vec3 n = nrm.n[vi].xyz;
     vec3 t, b;
@@ -173,7 +176,7 @@ void main() {
     uint depth = 1u;
 
     uint node = 1u;
-    uint B = pc.branch;
+    uint B = BRANCH;
     while (node != 0u && node < pc.node_count) {
         vec4 s = sph.s[node];
         bool descend = false;
