@@ -694,6 +694,19 @@ fn error_holds_as_the_cut_refines_on_testwuson() {
     let taus = [1.0f32, 0.8, 0.5, 0.3];
     let mut method = vec![0.0; taus.len()];
     let mut blend = vec![0.0; taus.len()];
+    // With the static correction (the default), baked for each tau as `bench ao` does.
+    let mut corrected = vec![0.0; taus.len()];
+    let bake = Correction::bake(&c.mesh, 256);
+    let factors: Vec<Vec<f32>> = taus
+        .iter()
+        .map(|&tau| {
+            let params = AoParams {
+                tau,
+                ..AoParams::default()
+            };
+            bake.factors(&cpu_ao, &prep, &params)
+        })
+        .collect();
     let frames = 2;
     for f in 0..frames {
         let m = c
@@ -713,10 +726,12 @@ fn error_holds_as_the_cut_refines_on_testwuson() {
                 occlusion: Occlusion::Exact,
                 ..params
             };
-            let (mut v, mut e, mut u) = (Vec::new(), Vec::new(), Vec::new());
+            let (mut v, mut e, mut u, mut fv) = (Vec::new(), Vec::new(), Vec::new(), Vec::new());
             for &i in &subset {
                 let (p, n) = (posed.positions[i], posed.normals[i]);
-                v.push(cpu_ao.vertex(p, n, &posed, prep.shape, &params).visibility);
+                let alone = cpu_ao.vertex(p, n, &posed, prep.shape, &params).visibility;
+                v.push(alone);
+                fv.push((alone * factors[k][i]).min(1.0));
                 e.push(cpu_ao.vertex(p, n, &posed, prep.shape, &exact).visibility);
                 let mut cut = Vec::new();
                 cpu::walk_cut(
@@ -738,10 +753,25 @@ fn error_holds_as_the_cut_refines_on_testwuson() {
                 u.push(spheres_visibility(p, n, i, &cut, &rays));
             }
             method[k] += mae(&v, &truth) / frames as f64;
+            corrected[k] += mae(&fv, &truth) / frames as f64;
             blend[k] += mae(&e, &u) / frames as f64;
         }
     }
-    eprintln!("tau {taus:?}: method alone MAE {method:?}; |blend - union of the cut| {blend:?}");
+    eprintln!(
+        "tau {taus:?}: method alone MAE {method:?}; corrected {corrected:?}; |blend - union of the cut| {blend:?}"
+    );
+    // With the correction the sweep must not rise from one tau to the next finer by more
+    // than 0.001: the truth and its rays are common to every tau, so a difference is the
+    // method's, and 0.001 is a quarter of the rise the bug made in `bench ao` (mask,
+    // corrected, tau 1.0 -> 0.3: 0.017 -> 0.021, issue 20).
+    for k in 1..taus.len() {
+        assert!(
+            corrected[k] <= corrected[k - 1] + 0.001,
+            "corrected MAE rises from tau {} to {}: {corrected:?}",
+            taus[k - 1],
+            taus[k]
+        );
+    }
     // The truth and its rays are the same at every tau, so the differences are the method's.
     // Bounds: the blend stays within 0.02 of the exact union of its spheres at every tau
     // (before the fix 0.049 at 0.3), and no finer cut errs more than 0.006 above the
@@ -823,6 +853,121 @@ fn no_popping_over_consecutive_frames_of_run() {
     let j_hard = count_jumps(&sharp, &truth, 0.1, 0.02);
     eprintln!("blended cut: {j_soft:?}; hard cut: {j_hard:?}");
     assert_eq!(j_soft.jumps, 0, "{j_soft:?}");
+}
+
+#[test]
+fn no_popping_on_the_gpu_over_60_frames_of_run() {
+    use vkshade::geom::visibility::{RayConfig, ambient_visibility};
+    use vkshade::kernels::run_frames;
+    use vkshade::reference::ao::count_jumps;
+    // Issue 20's count on the GPU path, under validation: 60 consecutive frames of Run (the
+    // spacing of `vkshade ao --frames 60`), every 4th vertex, the method alone and with the
+    // static correction (the default, whose factors up to 2 could amplify a step), against
+    // the ray-traced truth with common random rays (each receiver casts the same local
+    // directions in every frame, so the truth's own noise does not move between frames). A
+    // jump: the result moves by more than 0.1 while the truth moves by less than 0.02.
+    // Before the blended cut and the fading of spheres that come to hold the receiver, the
+    // method alone made 45 such jumps in 29,500 vertex-steps.
+    let c = testwuson();
+    let (tree, _) = SphereTree::build(&c.mesh, &BuildConfig::default()).unwrap();
+    let prep = Prepared::new(&c.mesh, &tree, c.rig.joints.len()).unwrap();
+    let cpu_ao = CpuAo::new(OcclusionTable::new(TABLE_SIZE, TABLE_SIZE));
+    let correction = Correction::bake(&c.mesh, 256);
+    let run = c.animation("Run").unwrap();
+    let (lo, hi) = c.mesh.bounds();
+    let rays = RayConfig {
+        rays: 256,
+        ..RayConfig::for_scene((hi - lo).length())
+    };
+    let subset: Vec<usize> = (0..prep.vertex_count()).step_by(4).collect();
+    let frames = 60;
+    let matrices: Vec<Vec<Mat4>> = (0..frames)
+        .map(|f| {
+            c.rig
+                .skinning_matrices(Some(run), run.duration * f as f32 / frames as f32)
+        })
+        .collect();
+    let truth: Vec<Vec<f32>> = matrices
+        .iter()
+        .map(|m| {
+            let posed = cpu::skin(&prep, m);
+            let bvh = vkshade::geom::Bvh::build(&posed.positions, &c.mesh.triangles);
+            ambient_visibility(&posed.positions, &posed.normals, &bvh, &subset, &rays)
+        })
+        .collect();
+    common::with_gpu(|ctx| {
+        for correct in [false, true] {
+            let params = AoParams {
+                correct,
+                ..AoParams::default()
+            };
+            let mut setup = ctx.recorder("ao jumps setup")?;
+            let kernel = AoKernel::new(&mut setup, &prep, params)?;
+            if correct {
+                let factors = correction.factors(&cpu_ao, &prep, &params);
+                kernel.set_correction(&mut setup, &factors)?;
+            }
+            setup.submit_and_wait()?;
+            let mut method = vec![Vec::new(); frames];
+            run_frames(ctx, &kernel, matrices.iter().map(Vec::as_slice), 2, |r| {
+                method[r.index] = subset.iter().map(|&i| r.output.visibility[i]).collect();
+                Ok(())
+            })?;
+            let j = count_jumps(&method, &truth, 0.1, 0.02);
+            eprintln!("GPU, correction {correct}: {j:?}");
+            assert_eq!(j.steps, subset.len() * (frames - 1));
+            // Measured: 3 of 47,318 (method alone and corrected), e.g. vertex 1072, frames
+            // 40 -> 41: 0.355 -> 0.471 while the truth moved 0.004. None is a pop (below):
+            // many caps of a deeply buried receiver slide across the mask's 128 directions
+            // within one frame. Issue 20's target is 0; this bound holds what is measured.
+            assert!(j.jumps <= 4, "correction {correct}: {j:?}");
+            // Each counted jump, re-evaluated by the CPU twin (the GPU matches it to 1e-2) at
+            // 40 instants between the two frames: a cut or a sphere that switches shows as
+            // one sub-step carrying the jump; a continuous change spreads it. Bound: no
+            // sub-step above 0.03, under a third of the 0.1 jump (measured <= 0.021).
+            let factors = correct.then(|| correction.factors(&cpu_ao, &prep, &params));
+            let mut pops = Vec::new();
+            for f in 1..frames {
+                for (k, &v) in subset.iter().enumerate() {
+                    let dm = (method[f][k] - method[f - 1][k]).abs();
+                    let dt = (truth[f][k] - truth[f - 1][k]).abs();
+                    if !(dm > 0.1 && dt < 0.02) {
+                        continue;
+                    }
+                    let sub = 40;
+                    let values: Vec<f32> = (0..=sub)
+                        .map(|s| {
+                            let t = run.duration * (f as f32 - 1.0 + s as f32 / sub as f32)
+                                / frames as f32;
+                            let posed = cpu::skin(&prep, &c.rig.skinning_matrices(Some(run), t));
+                            let x = cpu_ao.vertex(
+                                posed.positions[v],
+                                posed.normals[v],
+                                &posed,
+                                prep.shape,
+                                &params,
+                            );
+                            match &factors {
+                                Some(fs) => (x.visibility * fs[v]).min(1.0),
+                                None => x.visibility,
+                            }
+                        })
+                        .collect();
+                    let step = values
+                        .windows(2)
+                        .map(|w| (w[1] - w[0]).abs())
+                        .fold(0f32, f32::max);
+                    eprintln!("  vertex {v}, frame {f}: largest of {sub} sub-steps {step}");
+                    pops.push((v, f, step));
+                }
+            }
+            assert!(
+                pops.iter().all(|p| p.2 < 0.03),
+                "correction {correct}: jumps that switch within a frame (vertex, frame, sub-step): {pops:?}"
+            );
+        }
+        Ok(())
+    });
 }
 
 #[test]

@@ -34,6 +34,7 @@ layout(constant_id = 1) const uint BLEND = 2u;          // 0 product, 1 sum, 2 c
 layout(constant_id = 2) const bool CLAMP_INSIDE = false; // receiver inside a leaf: clamp h to 1
 layout(constant_id = 3) const bool CORRECT = true;      // apply the static correction
 layout(constant_id = 4) const uint REFINE = 1u;         // 0 radius, 1 extent
+layout(constant_id = 5) const uint BRANCH = 8u;         // the tree's branch factor
 
 layout(push_constant) uniform Push {
     uint vertex_count;
@@ -54,6 +55,13 @@ layout(std430, set = 0, binding = 4) readonly buffer Correction { float c[]; } c
 layout(std430, set = 0, binding = 5) writeonly buffer Visibility { float v[]; } ao;
 layout(std430, set = 0, binding = 6) writeonly buffer Stats { uvec2 tested_used[]; } stats;
 layout(std430, set = 0, binding = 7) readonly buffer Extents { float e[]; } ext;
+// Per inner node: 1 / its used children (a child's weight share at alpha = 0), static per
+// tree; loading it beats counting the children in every iteration.
+layout(std430, set = 0, binding = 8) readonly buffer Shares { float s[]; } share;
+// formula::nearest_direction_table, four 8-bit direction indices a word.
+layout(std430, set = 0, binding = 9) readonly buffer Nearest { uint k[]; } nearest;
+// The vertices along a Morton curve (gpu::spatial_order): neighbouring lanes walk alike cuts.
+layout(std430, set = 0, binding = 10) readonly buffer Order { uint i[]; } order;
 
 // Deepest tree walked (levels below the root); cpu::MAX_DEPTH, checked by Prepared::check.
 const uint MAX_DEPTH = 8u;
@@ -88,9 +96,58 @@ float table_lookup(float cos_t, float h) {
     return a + (b - a) * fy;
 }
 
+// formula::nearest_cell and its table entry: the mask direction nearest wl's cell.
+uint nearest_direction(vec3 wl) {
+    float last = float(AO_NEAREST_RES - 1u);
+    uint ix = uint(clamp((wl.x * 0.5 + 0.5) * float(AO_NEAREST_RES), 0.0, last));
+    uint iy = uint(clamp((wl.y * 0.5 + 0.5) * float(AO_NEAREST_RES), 0.0, last));
+    uint below = wl.z < 0.0 ? 1u : 0u;
+    uint i = (below * AO_NEAREST_RES + iy) * AO_NEAREST_RES + ix;
+    return (nearest.k[i >> 2u] >> ((i & 3u) * 8u)) & 255u;
+}
+
+// The parent state of `node` (at `depth`) as the walk's descent left it: from depth 1 down
+// the node's ancestors, each refined as in main (cpu::walk_cut).
+void ancestor_state(uint node, uint depth, vec3 p, out vec4 p_sph, out float p_w, out float p_a,
+                    out float p_share) {
+    p_sph = vec4(0.0);
+    p_w = 1.0;
+    p_a = 1.0;
+    p_share = 1.0;
+    uint B = BRANCH;
+    // First index of depth `depth` and B^(depth - 1).
+    uint first = 1u;
+    uint span = 1u;
+    for (uint j = 1u; j < depth; ++j) {
+        first = first * B + 1u;
+        span *= B;
+    }
+    uint i = node - first;
+    uint first_j = 1u;
+    for (uint j = 1u; j < depth; ++j) {
+        uint n = first_j + i / span;
+        vec4 s = sph.s[n];
+        vec4 eff = s;
+        float w = p_w;
+        if (p_a < 1.0) {
+            eff = p_sph + (s - p_sph) * p_a;
+            w *= p_share + (1.0 - p_share) * p_a;
+        }
+        float d = length(s.xyz - p);
+        float size = REFINE == 1u ? ext.e[n] : s.w;
+        float a = min(ao_refinement(size, d, pc.tau, pc.band), p_a);
+        p_sph = eff;
+        p_w = w;
+        p_a = a;
+        p_share = share.s[n];
+        first_j = first_j * B + 1u;
+        span /= B;
+    }
+}
+
 void main() {
-    uint vi = gl_GlobalInvocationID.x;
-    if (vi >= pc.vertex_count) return;
+    if (gl_GlobalInvocationID.x >= pc.vertex_count) return;
+    uint vi = order.i[gl_GlobalInvocationID.x];
     vec3 p = pos.p[vi].xyz;
     vec3 n = nrm.n[vi].xyz;
     vec3 t, b;
@@ -106,47 +163,44 @@ void main() {
     uint tested = 0u;
     uint used = 0u;
 
-    // Per depth (1 = the root's children): the parent's effective sphere, its weight, its
-    // alpha and one child's weight share at alpha = 0 (see cpu::walk_cut).
-    vec4 parent_sph[MAX_DEPTH + 1];
-    float parent_w[MAX_DEPTH + 1];
-    float parent_a[MAX_DEPTH + 1];
-    float parent_share[MAX_DEPTH + 1];
-    parent_w[1] = 1.0;
-    parent_a[1] = 1.0;
-    parent_share[1] = 1.0;
+    // The state of the current depth's parent: its effective sphere, its weight, its alpha
+    // and one child's weight share at alpha = 0 (see cpu::walk_cut). Held in registers, not
+    // a per-depth stack: a private array indexed by depth is a select ladder or scratch
+    // memory on SIMD drivers (lavapipe) and cost ~40% of the pass; after a climb, the state
+    // is recomputed from the root down the new node's path (ancestor_state), the same
+    // operations the descent made, so the result is bit for bit the same.
+    vec4 p_sph = vec4(0.0);
+    float p_w = 1.0;
+    float p_a = 1.0;
+    float p_share = 1.0;
     uint depth = 1u;
 
     uint node = 1u;
-    uint B = pc.branch;
+    uint B = BRANCH;
     while (node != 0u && node < pc.node_count) {
         vec4 s = sph.s[node];
         bool descend = false;
         if (s.w >= 0.0) {
             tested++;
-            float a_p = parent_a[depth];
             vec4 eff = s;
-            float w = parent_w[depth];
-            if (a_p < 1.0) {
-                eff = parent_sph[depth] + (s - parent_sph[depth]) * a_p;
-                w *= parent_share[depth] + (1.0 - parent_share[depth]) * a_p;
+            float w = p_w;
+            if (p_a < 1.0) {
+                eff = p_sph + (s - p_sph) * p_a;
+                w *= p_share + (1.0 - p_share) * p_a;
             }
             float a = 0.0;
             if (node < pc.first_leaf) {
                 float d = length(s.xyz - p);
                 float size = REFINE == 1u ? ext.e[node] : s.w;
-                a = min(ao_refinement(size, d, pc.tau, pc.band), a_p);
+                a = min(ao_refinement(size, d, pc.tau, pc.band), p_a);
             }
             if (a > 0.0) {
                 descend = true;
-                uint first = node * B + 1u;
-                uint used_children = 0u;
-                for (uint c = first; c < first + B; ++c) used_children += uint(sph.s[c].w >= 0.0);
                 depth++;
-                parent_sph[depth] = eff;
-                parent_w[depth] = w;
-                parent_a[depth] = a;
-                parent_share[depth] = 1.0 / float(max(used_children, 1u));
+                p_sph = eff;
+                p_w = w;
+                p_a = a;
+                p_share = share.s[node];
             } else {
                 vec3 dv = eff.xyz - p;
                 float d = length(dv);
@@ -172,9 +226,9 @@ void main() {
                             uni |= m;
                         } else {
                             // A cap between the directions: hidden when its nearest direction
-                            // is covered already (see cpu.rs).
-                            uint k = ao_nearest_direction(wl);
-                            uint bit = 1u << (k & 31u);
+                            // (looked up by its centre) is covered already (see cpu.rs).
+                            uint k = nearest_direction(wl);
+                                                        uint bit = 1u << (k & 31u);
                             if (((uni[k >> 5u] | small[k >> 5u]) & bit) == 0u) {
                                 small[k >> 5u] |= bit;
                             } else {
@@ -189,11 +243,15 @@ void main() {
             node = node * B + 1u;
         } else {
             // Next in preorder: climb while this is the last child, then step to the sibling.
+            uint from = depth;
             while (node != 0u && (node - 1u) % B == B - 1u) {
                 node = (node - 1u) / B;
                 depth--;
             }
-            if (node != 0u) node += 1u;
+            if (node != 0u) {
+                node += 1u;
+                if (depth < from) ancestor_state(node, depth, p, p_sph, p_w, p_a, p_share);
+            }
         }
     }
 

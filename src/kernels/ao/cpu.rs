@@ -2,7 +2,9 @@
 //! occlusion and blending, step for step as `glsl/ao/*.comp` do it. It is the reference the
 //! GPU is tested against (tight bound) and the CPU baseline of `bench ao`.
 
-use super::formula::{OcclusionTable, mask_directions, sphere_occlusion};
+use super::formula::{
+    OcclusionTable, mask_directions, nearest_cell, nearest_direction_table, sphere_occlusion,
+};
 use super::{AoParams, Blend, Occlusion, Prepared, Refine};
 use crate::geom::orthonormal_basis;
 use glam::{Mat4, Vec3, Vec4};
@@ -217,6 +219,8 @@ pub struct VertexAo {
 pub struct CpuAo {
     pub table: OcclusionTable,
     dirs: Vec<Vec3>,
+    /// [`nearest_direction_table`].
+    nearest: Vec<u8>,
 }
 
 impl CpuAo {
@@ -227,6 +231,7 @@ impl CpuAo {
                 .iter()
                 .map(|d| Vec3::new(d[0], d[1], d[2]))
                 .collect(),
+            nearest: nearest_direction_table(),
         }
     }
 
@@ -293,17 +298,11 @@ impl CpuAo {
                         uni[k] |= m[k];
                     }
                 } else {
-                    // A cap between the directions: hidden when its nearest direction is
-                    // already covered (by the union so far or an earlier such cap), else it
+                    // A cap between the directions: hidden when its nearest direction (looked
+                    // up by its centre, nearest_direction_table) is already covered (by the union so far or an earlier such cap), else it
                     // counts as it is and covers that direction for the next.
-                    let mut best = (f32::NEG_INFINITY, 0usize);
-                    for (k, dir) in self.dirs.iter().enumerate() {
-                        let c = dir.dot(wl);
-                        if c > best.0 {
-                            best = (c, k);
-                        }
-                    }
-                    let (word, bit) = (best.1 >> 5, 1u32 << (best.1 & 31));
+                    let k = self.nearest[nearest_cell(wl.to_array())] as usize;
+                    let (word, bit) = (k >> 5, 1u32 << (k & 31));
                     if (uni[word] | small[word]) & bit == 0 {
                         small[word] |= bit;
                     } else {

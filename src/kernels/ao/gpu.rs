@@ -65,6 +65,12 @@ struct Buffers {
     sphere_weights: Buffer,
     /// The occlusion table ([`OcclusionTable`]).
     table: Buffer,
+    /// Per node: 1 / its used children ([`child_shares`]).
+    shares: Buffer,
+    /// [`super::formula::nearest_direction_table`], four indices a word.
+    nearest: Buffer,
+    /// The vertices in the order the occlusion pass takes them ([`spatial_order`]).
+    order: Buffer,
     /// Per-vertex static correction factors ([`super::Correction`]; 1 until set).
     correction: Buffer,
     /// The pose kernel's: the frame's joint matrices, posed positions and normals.
@@ -103,6 +109,9 @@ impl Buffers {
             sphere_joints: upload("ao sphere joints", bytes(&prep.sphere_joints))?,
             sphere_weights: upload("ao sphere weights", bytes(&prep.sphere_weights))?,
             table: upload("ao table", bytes(&table.values))?,
+            shares: upload("ao child shares", bytes(&child_shares(prep)))?,
+            nearest: upload("ao nearest directions", bytes(&nearest_words()))?,
+            order: upload("ao vertex order", bytes(&spatial_order(&prep.positions)))?,
             correction: upload("ao correction", bytes(&vec![1.0f32; nv as usize]))?,
             joint_matrices: pose.joint_matrices().clone(),
             posed_positions: pose.positions().clone(),
@@ -115,8 +124,11 @@ impl Buffers {
     }
 
     /// Every buffer, with the name the shaders bind it by: the passes bind by these names.
-    fn by_binding(&self) -> [(&'static str, &Buffer); 12] {
+    fn by_binding(&self) -> [(&'static str, &Buffer); 15] {
         [
+            ("order", &self.order),
+            ("share", &self.shares),
+            ("nearest", &self.nearest),
             ("rest_sph", &self.rest_spheres),
             ("sjoints", &self.sphere_joints),
             ("sweights", &self.sphere_weights),
@@ -134,9 +146,12 @@ impl Buffers {
 
     /// The buffers the AO kernel owns (the memory report counts these; the pose's are the
     /// pose kernel's).
-    fn own(&self) -> [&Buffer; 9] {
+    fn own(&self) -> [&Buffer; 12] {
         [
+            &self.order,
             &self.rest_spheres,
+            &self.shares,
+            &self.nearest,
             &self.sphere_joints,
             &self.sphere_weights,
             &self.table,
@@ -162,6 +177,74 @@ impl Buffers {
         let writes: Vec<(&str, AccessSet)> = writes.iter().map(|&b| (b, w)).collect();
         pipeline.bind_from(lookup, &writes)
     }
+}
+
+/// The occlusion pipeline's specialization constants: the modes, and the tree's branch
+/// factor (the walk divides by it; a divisor known when the pipeline is built compiles to
+/// shifts or multiplications where a push constant is divided lane by lane on SIMD drivers).
+fn occlusion_constants(params: &AoParams, branch: u32) -> Vec<(&'static str, u32)> {
+    let mut c = params.specialization().to_vec();
+    c.push(("BRANCH", branch));
+    c
+}
+
+/// The vertices sorted along a Morton curve through their rest positions (10 bits per axis
+/// over the bounding box). The occlusion pass takes vertex `order[i]` in invocation `i`, so
+/// a subgroup's lanes are neighbours whose cuts through the tree are alike: a SIMD driver
+/// walks every lane's loop as long as the busiest lane's (on Testwuson, the mean of the
+/// subgroups' longest walks fell from 102.8 to 96.6 nodes against 83.0 per vertex).
+fn spatial_order(positions: &[[f32; 4]]) -> Vec<u32> {
+    let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
+    for p in positions {
+        for a in 0..3 {
+            lo[a] = lo[a].min(p[a]);
+            hi[a] = hi[a].max(p[a]);
+        }
+    }
+    let key = |p: &[f32; 4]| -> u32 {
+        let q: [u32; 3] = std::array::from_fn(|a| {
+            let span = (hi[a] - lo[a]).max(f32::MIN_POSITIVE);
+            (((p[a] - lo[a]) / span * 1023.0).clamp(0.0, 1023.0)) as u32
+        });
+        (0..10).rev().fold(0u32, |k, bit| {
+            (0..3).fold(k, |k, a| (k << 1) | ((q[a] >> bit) & 1))
+        })
+    };
+    let mut order: Vec<u32> = (0..positions.len() as u32).collect();
+    order.sort_by_key(|&i| (key(&positions[i as usize]), i));
+    order
+}
+
+/// Per node, a child's weight share at alpha = 0 in the blended cut: 1 / the node's used
+/// children (as `cpu::walk_cut` counts them; leaves and unused slots get 1, never read).
+fn child_shares(prep: &Prepared) -> Vec<f32> {
+    let (b, first_leaf) = (prep.shape.branch as usize, prep.shape.first_leaf as usize);
+    (0..prep.spheres.len())
+        .map(|n| {
+            if n >= first_leaf {
+                return 1.0;
+            }
+            let first = n * b + 1;
+            let used = (first..first + b)
+                .filter(|&c| prep.spheres.get(c).is_some_and(|s| s[3] >= 0.0))
+                .count()
+                .max(1);
+            1.0 / used as f32
+        })
+        .collect()
+}
+
+/// [`super::formula::nearest_direction_table`] packed four 8-bit indices a word, as the
+/// shader unpacks it.
+fn nearest_words() -> Vec<u32> {
+    super::formula::nearest_direction_table()
+        .chunks(4)
+        .map(|c| {
+            c.iter()
+                .enumerate()
+                .fold(0u32, |w, (i, &k)| w | (k as u32) << (8 * i))
+        })
+        .collect()
 }
 
 /// The skinning pass writes the posed spheres and extents.
@@ -264,8 +347,11 @@ impl AoKernel {
         let table = OcclusionTable::new(TABLE_SIZE, TABLE_SIZE);
         let buffers = Buffers::new(rec, prep, &table, pose)?;
         let skin_bind = buffers.bind(&skin, &SKIN_WRITES)?;
-        let occlusion =
-            ComputePipeline::specialized(&ctx, &occlusion_shader, &params.specialization())?;
+        let occlusion = ComputePipeline::specialized(
+            &ctx,
+            &occlusion_shader,
+            &occlusion_constants(&params, prep.shape.branch),
+        )?;
         Ok(AoKernel {
             own_pose: None,
             skin,
@@ -299,7 +385,7 @@ impl AoKernel {
     pub fn set_params(&mut self, params: AoParams) -> Result<()> {
         params.validate()?;
         if params.specialization() != self.params.specialization() {
-            let constants = params.specialization();
+            let constants = occlusion_constants(&params, self.shape.branch);
             let occlusion =
                 ComputePipeline::specialized(&self.ctx, &self.occlusion_shader, &constants)?;
             self.occlusion_bind = self.buffers.bind(&occlusion, &OCCLUSION_WRITES)?;
