@@ -180,3 +180,152 @@ fn bad_glossy_inputs_are_refused() {
         Ok(())
     });
 }
+
+/// Relative L2 over points and channels: sqrt(sum |a - b|^2 / sum |b|^2).
+fn rel_l2(a: &[[f64; 3]], b: &[[f64; 3]]) -> f64 {
+    let (mut num, mut den) = (0.0, 0.0);
+    for (x, y) in a.iter().zip(b) {
+        for c in 0..3 {
+            num += (x[c] - y[c]).powi(2);
+            den += y[c].powi(2);
+        }
+    }
+    (num / den).sqrt()
+}
+
+/// The glossy method (its CPU twin, which the GPU matches above) against the brute-force
+/// glossy truth on the Stanford bunny (every 40th vertex shaded, 871 points, the whole mesh
+/// occluding) under Blender's forest light (64 lobes; truth and transfer on the 64 x 32
+/// texel directions), Phong exponent 8 with kd 0.3 / ks 0.7, for cameras whose views are not
+/// grid nodes and rotations off the texel grid, with the error split by stage: fit (the truth
+/// over the rasterised lobes against the truth) and transfer + view interpolation (the method
+/// against that).
+///
+/// Measured (relative L2 over points and channels): 8 x 8 grid 5.5-5.8% (fit 1.4-1.5%,
+/// transfer + view 5.3-5.9%); 12 x 12 grid 3.0-3.4% (transfer + view 3.0%). The 12 x 12 grid
+/// is held to the issue's 5% target; the 8 x 8 grid must be worse on every frame (the view
+/// interpolation is the lever the grid size controls, as the h^2 lambda / 8 estimate says),
+/// and the fit's share is held to 2% (measured 1.5%, 64 lobes of a smooth map).
+#[test]
+fn glossy_bunny_against_the_brute_force_truth() {
+    use vkshade::kernels::srbf::fit::{FitConfig, fit};
+    use vkshade::reference::srbf::{rasterise_lobes, shade_glossy_truth};
+    use vkshade::scene::envmap::EnvMap;
+    let mesh = vkshade::scene::load(std::path::Path::new(vkshade::kernels::srbf::DEFAULT_MESH))
+        .unwrap()
+        .mesh;
+    let env = EnvMap::load(std::path::Path::new(vkshade::kernels::srbf::DEFAULT_ENV)).unwrap();
+    let lobes = fit(
+        &env.downsampled(128).unwrap().samples(),
+        &FitConfig {
+            lobes: 64,
+            ..FitConfig::default()
+        },
+    )
+    .unwrap()
+    .lobes;
+    let dir_env = env.downsampled(64).unwrap();
+    let pick: Vec<usize> = (0..mesh.positions.len()).step_by(40).collect();
+    let points: Vec<Vec3> = pick.iter().map(|&v| mesh.positions[v]).collect();
+    let normals: Vec<Vec3> = pick.iter().map(|&v| mesh.normals[v]).collect();
+    let directions: Vec<Vec3> = dir_env.samples().iter().map(|s| s.0).collect();
+    let (lo, hi) = mesh.bounds();
+    let bvh = vkshade::geom::Bvh::build(&mesh.positions, &mesh.triangles);
+    let vis = vkshade::geom::visibility::direction_visibility(
+        &points,
+        &normals,
+        &bvh,
+        &directions,
+        1e-4 * (hi - lo).length(),
+    );
+    let centre = (lo + hi) * 0.5;
+    let radius = (hi - lo).length();
+    let brdf = Brdf::Phong {
+        exponent: 8.0,
+        diffuse: 0.3,
+        specular: 0.7,
+    };
+    let mut errors: Vec<Vec<f64>> = Vec::new();
+    for n in [8u32, 12] {
+        let mut per_frame = Vec::new();
+        let t0 = std::time::Instant::now();
+        let transfer = vkshade::kernels::srbf::glossy_transfer(
+            &Basis::fibonacci(256),
+            &brdf,
+            ViewGrid { n },
+            &dir_env,
+            &normals,
+            &vis,
+        )
+        .unwrap();
+        eprintln!(
+            "grid {n}: projection {:.2?}, estimated rel L2 {:.4}",
+            t0.elapsed(),
+            transfer.rows.projection_rel_l2
+        );
+        let input = GlossyInputs {
+            lobes: &lobes,
+            transfer: &transfer,
+            positions: &points,
+            normals: &normals,
+        };
+        for (deg, axis, cam) in [
+            (0.0f32, Vec3::Y, Vec3::new(0.3, 0.2, 1.0)),
+            (40.0, Vec3::Y, Vec3::new(-1.0, 0.4, 0.5)),
+            (73.0, Vec3::X, Vec3::new(0.7, -0.3, -0.8)),
+        ] {
+            let frame = GlossyFrame {
+                rotation: sg::rotation(axis, deg),
+                albedo: [1.0; 3],
+                camera: centre + cam.normalize() * 2.0 * radius,
+            };
+            let method = input.cpu_pipeline(&frame).unwrap();
+            let truth = shade_glossy_truth(
+                &dir_env,
+                frame.rotation,
+                &mesh,
+                &points,
+                &normals,
+                &brdf,
+                frame.camera,
+                frame.albedo,
+            )
+            .unwrap();
+            let raster = rasterise_lobes(&lobes, frame.rotation, &dir_env);
+            let lobe_map = EnvMap::from_texels(
+                dir_env.width,
+                dir_env.height,
+                raster.iter().map(|c| c.map(|x| x as f32)).collect(),
+                "lobes",
+            )
+            .unwrap();
+            let sg_truth = shade_glossy_truth(
+                &lobe_map,
+                Mat3::IDENTITY,
+                &mesh,
+                &points,
+                &normals,
+                &brdf,
+                frame.camera,
+                frame.albedo,
+            )
+            .unwrap();
+            let (e, fit_share) = (rel_l2(&method, &truth), rel_l2(&sg_truth, &truth));
+            eprintln!(
+                "grid {n} {axis}:{deg}: method vs truth {e:.4}; fit {fit_share:.4}; transfer + \
+                 view {:.4}",
+                rel_l2(&method, &sg_truth)
+            );
+            assert!(fit_share < 0.02, "fit share {fit_share}");
+            per_frame.push(e);
+        }
+        errors.push(per_frame);
+    }
+    for (coarse, fine) in errors[0].iter().zip(&errors[1]) {
+        assert!(*fine <= 0.05, "12 x 12 grid: {fine}");
+        assert!(
+            coarse > fine,
+            "8 x 8 grid {coarse} not worse than 12 x 12 {fine}"
+        );
+    }
+}
