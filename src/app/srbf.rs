@@ -8,16 +8,21 @@ use crate::error::{Error, Result};
 use crate::geom::sg::{self, Lobe};
 use crate::geom::visibility::Visibility;
 use crate::gpu::Context;
+use crate::kernels::srbf::brdf::Brdf;
 use crate::kernels::srbf::cpca::{Cpca, CpcaConfig};
 use crate::kernels::srbf::diffuse_transfer;
 use crate::kernels::srbf::fit::{FitConfig, fit};
+use crate::kernels::srbf::glossy::{GlossyTransfer, ViewGrid};
+use crate::kernels::srbf::glossy_gpu::{GlossyFrame, GlossyInputs, GlossyKernel, PASS_GLOSSY};
 use crate::kernels::srbf::gpu::{
     CompactInputs, PASS_LIGHTING, PASS_PROJECT, PASS_SHADE, PASS_SHARP, SrbfFrame, SrbfInputs,
     SrbfKernel, SrbfOutput,
 };
 use crate::kernels::srbf::transfer::{self, Basis, Transfer};
 use crate::kernels::{FrameResult, KernelInfo, run_frames};
-use crate::reference::srbf::{rasterise_lobes, shade_brute_force_radiance, shade_ground_truth};
+use crate::reference::srbf::{
+    rasterise_lobes, shade_brute_force_radiance, shade_glossy_truth, shade_ground_truth,
+};
 use crate::report::MachineInfo;
 use crate::scene::envmap::EnvMap;
 use crate::scene::{self, Mesh};
@@ -93,6 +98,20 @@ pub struct ShadeConfig {
     pub sharp_factor: f32,
     /// The most compact lobes shaded directly (the strongest; 0 turns it off).
     pub compact_lobes: usize,
+    /// The surface's BRDF; a glossy one shades toward `camera` through per-vertex transfer
+    /// matrices over a `views` x `views` view grid ([`crate::kernels::srbf::glossy`]).
+    pub brdf: Brdf,
+    /// The camera position in model units (glossy only); `None`: the default camera,
+    /// [`default_camera`].
+    pub camera: Option<Vec3>,
+    pub views: u32,
+}
+
+/// The camera of a glossy run without `--camera`: on +Z of the mesh's bounding-box centre,
+/// 1.5 bounding-box diagonals away.
+pub fn default_camera(mesh: &Mesh) -> Vec3 {
+    let (lo, hi) = mesh.bounds();
+    (lo + hi) * 0.5 + Vec3::Z * 1.5 * (hi - lo).length()
 }
 
 impl Default for ShadeConfig {
@@ -116,6 +135,9 @@ impl Default for ShadeConfig {
             in_flight: 2,
             sharp_factor: crate::kernels::srbf::sharp::DEFAULT_FACTOR,
             compact_lobes: crate::kernels::srbf::sharp::DEFAULT_MAX_LOBES,
+            brdf: Brdf::Diffuse,
+            camera: None,
+            views: 12,
         }
     }
 }
@@ -184,6 +206,19 @@ impl ShadeConfig {
                 "--error-scale must be > 0, not {}",
                 self.error_scale
             ));
+        }
+        self.brdf
+            .check()
+            .map_err(|e| Error::InvalidArgument(format!("--brdf: {e}")))?;
+        if let Some(c) = self.camera
+            && !c.is_finite()
+        {
+            return bad(format!("--camera {c} is not finite"));
+        }
+        if self.brdf.is_glossy() {
+            ViewGrid { n: self.views }
+                .check()
+                .map_err(|e| Error::InvalidArgument(format!("--views: {e}")))?;
         }
         for (name, w) in [
             ("fit width", self.fit_width),
@@ -304,6 +339,12 @@ pub struct ShadeReport {
     pub gpu_ms_sharp_median: f64,
     pub gpu_ms_shade_median: f64,
     pub fps: f64,
+    /// The BRDF and its parameters.
+    pub brdf: Brdf,
+    /// Glossy runs: the camera position (model units) every frame is shaded toward, and the
+    /// side N of the N x N view grid of the transfer matrices.
+    pub camera: Option<[f32; 3]>,
+    pub view_grid: Option<u32>,
     pub notes: Vec<String>,
 }
 
@@ -416,6 +457,9 @@ pub fn shade(
         env.width,
         env.height
     ));
+    if cfg.brdf.is_glossy() {
+        return shade_glossy(ctx, cfg, mesh, &env, progress);
+    }
     let pre = Precomputed::new(cfg, mesh, &env, progress)?;
     let session = Session::new(ctx, cfg, mesh, &pre, progress)?;
     let frames_in: Vec<SrbfFrame> = cfg
@@ -509,6 +553,229 @@ impl Precomputed {
             cpca_ms,
         })
     }
+}
+
+/// `vkshade srbf shade` with a glossy BRDF: the lobes fitted as for diffuse, the glossy
+/// transfer projected once and cached (`glossy.bin` beside the outputs), every frame shaded
+/// on the GPU toward the camera and compared with the CPU twin, and with `--reference` with
+/// the glossy brute-force truth over the direction map's texels (the fit's share apart).
+/// Every lobe goes through the basis (no compact lobes on this path). The transfer is
+/// uncompressed: vertices x views^2 x basis f32, refused before the projection when it
+/// exceeds the device's maxStorageBufferRange.
+fn shade_glossy(
+    ctx: &Context,
+    cfg: &ShadeConfig,
+    mesh: &Mesh,
+    env: &EnvMap,
+    progress: &mut dyn FnMut(&str),
+) -> Result<ShadeReport> {
+    let grid = ViewGrid { n: cfg.views };
+    let bytes = mesh.positions.len() as u64 * grid.views() as u64 * cfg.basis as u64 * 4;
+    let limit = ctx.limits().max_storage_buffer_range;
+    if bytes > limit {
+        return Err(Error::InvalidArgument(format!(
+            "glossy transfer of {}: {} vertices x {} views x {} basis functions = {bytes} bytes \
+             uncompressed; the device's storage buffers hold {limit} (maxStorageBufferRange): \
+             use fewer --views or --basis, or a smaller mesh",
+            cfg.mesh.display(),
+            mesh.positions.len(),
+            grid.views(),
+            cfg.basis
+        )));
+    }
+    let t = Instant::now();
+    let fit_env = env.downsampled(cfg.fit_width.min(env.width))?;
+    let fitted = fit(
+        &fit_env.samples(),
+        &FitConfig {
+            lobes: cfg.lobes,
+            ..FitConfig::default()
+        },
+    )?;
+    let fit_ms = t.elapsed().as_secs_f64() * 1e3;
+    progress(&format!(
+        "fit {} lobes to {}x{}: relative L2 {:.4} ({fit_ms:.0} ms)",
+        cfg.lobes, fit_env.width, fit_env.height, fitted.rel_l2
+    ));
+    let dir_env = env.downsampled(cfg.direction_width.min(env.width))?;
+    let vis = crate::scene::envmap::texel_visibility(mesh, &dir_env);
+    let path = cfg.out.join("glossy.bin");
+    let key = format!(
+        "glossy {} {} {} {} {} {:?} {}",
+        cfg.mesh.display(),
+        mesh.positions.len(),
+        cfg.basis,
+        dir_env.width,
+        grid.n,
+        cfg.brdf,
+        std::fs::metadata(&cfg.mesh)
+            .and_then(|m| m.modified())
+            .map(|t| format!("{t:?}"))
+            .unwrap_or_default()
+    );
+    let vertices = mesh.positions.len();
+    let wrap = |rows: Transfer| GlossyTransfer {
+        rows,
+        vertices,
+        grid,
+        brdf: cfg.brdf,
+    };
+    let (transfer, transfer_cached, transfer_ms) = cached(
+        &cfg.out.join("glossy.key"),
+        &key,
+        || {
+            Transfer::load(&path)
+                .ok()
+                .map(wrap)
+                .filter(|t| t.check().is_ok() && t.rows.basis.len() == cfg.basis)
+        },
+        || {
+            crate::kernels::srbf::glossy_transfer(
+                &Basis::fibonacci(cfg.basis),
+                &cfg.brdf,
+                grid,
+                &dir_env,
+                &mesh.normals,
+                &vis,
+            )
+        },
+        |t| t.rows.save(&path),
+    )?;
+    progress(&format!(
+        "glossy transfer: {} views x {} basis SGs per vertex, projection relative L2 ~{:.4}{}",
+        grid.views(),
+        cfg.basis,
+        transfer.rows.projection_rel_l2,
+        cost(transfer_cached, transfer_ms)
+    ));
+    let camera = cfg.camera.unwrap_or_else(|| default_camera(mesh));
+    let inputs = GlossyInputs {
+        lobes: &fitted.lobes,
+        transfer: &transfer,
+        positions: &mesh.positions,
+        normals: &mesh.normals,
+    };
+    let mut setup = ctx.recorder("srbf glossy setup")?;
+    let kernel = GlossyKernel::new(&mut setup, &inputs)?;
+    setup.submit_and_wait()?;
+    let frames_in: Vec<GlossyFrame> = cfg
+        .rotations()
+        .iter()
+        .map(|&rotation| GlossyFrame {
+            rotation,
+            albedo: cfg.albedo,
+            camera,
+        })
+        .collect();
+    let pictures = Pictures::new(cfg, mesh);
+    let mut frames = Vec::with_capacity(frames_in.len());
+    let in_flight = run_frames(ctx, &kernel, &frames_in, cfg.in_flight, |r| {
+        let frame = &frames_in[r.index];
+        let cpu = inputs.cpu_pipeline(frame)?;
+        let gpu: Vec<[f64; 3]> = r.output.iter().map(|c| c.map(|x| x as f64)).collect();
+        let truth_of = |map: &EnvMap, rotation: Mat3| {
+            shade_glossy_truth(
+                map,
+                rotation,
+                mesh,
+                &mesh.positions,
+                &mesh.normals,
+                &cfg.brdf,
+                camera,
+                cfg.albedo,
+            )
+        };
+        let (truth, fit_share) = if cfg.reference {
+            let truth = truth_of(&dir_env, frame.rotation)?;
+            let raster = rasterise_lobes(&fitted.lobes, frame.rotation, &dir_env);
+            let lobe_map = EnvMap::from_texels(
+                dir_env.width,
+                dir_env.height,
+                raster.iter().map(|c| c.map(|x| x as f32)).collect(),
+                "the fitted lobes",
+            )?;
+            let sg_truth = truth_of(&lobe_map, Mat3::IDENTITY)?;
+            let fit_share = RelL2::of(&sg_truth, &truth);
+            (Some(truth), Some((fit_share, RelL2::of(&cpu, &sg_truth))))
+        } else {
+            (None, None)
+        };
+        let report = FrameReport {
+            index: r.index,
+            rotation: frame.rotation.to_cols_array(),
+            gpu_ms_lighting: r.timings.get(PASS_LIGHTING).unwrap_or(f64::NAN),
+            gpu_ms_project: 0.0,
+            gpu_ms_sharp: 0.0,
+            gpu_ms_shade: r.timings.get(PASS_GLOSSY).unwrap_or(f64::NAN),
+            gpu_vs_cpu: RelL2::of(&gpu, &cpu),
+            vs_ground_truth: truth.as_ref().map(|t| RelL2::of(&gpu, t)),
+            uncompressed_vs_ground_truth: truth.as_ref().map(|t| RelL2::of(&cpu, t)),
+            fit_share: fit_share.map(|f| f.0),
+            transfer_share: fit_share.map(|f| f.1),
+            ply: String::new(),
+            png: String::new(),
+        };
+        let report = pictures.write(report, mesh, &gpu, truth.as_deref())?;
+        progress(&frame_line(&report));
+        frames.push(report);
+        Ok(())
+    })?;
+    let median = |f: &dyn Fn(&FrameReport) -> f64| {
+        let mut v: Vec<f64> = frames.iter().map(f).collect();
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let lighting = median(&|f| f.gpu_ms_lighting);
+    let shade_ms = median(&|f| f.gpu_ms_shade);
+    let mut notes = Vec::new();
+    if ctx.info().device_type == "CPU" {
+        notes.push("the device is a CPU implementation (lavapipe): times measure the CPU".into());
+    }
+    notes.push(format!(
+        "glossy: radiance toward the camera; ground truth over the {}x{} texel directions \
+         (solid-angle-weighted downsampling), visibility ray-cast along every rotated \
+         direction; every lobe through the basis (no compact lobes); uncompressed transfer",
+        dir_env.width, dir_env.height
+    ));
+    let report = ShadeReport {
+        tool: "vkshade srbf shade",
+        machine: MachineInfo::of(ctx),
+        mesh: cfg.mesh.display().to_string(),
+        vertices,
+        env: cfg.env.display().to_string(),
+        env_size: [env.width, env.height],
+        lobes: cfg.lobes,
+        compact_lobes: 0,
+        sharp_factor: cfg.sharp_factor,
+        basis: cfg.basis,
+        basis_sharpness: transfer.rows.basis.sharpness,
+        albedo: cfg.albedo,
+        fit_rel_l2: fitted.rel_l2,
+        fit_ms,
+        transfer_rel_l2: transfer.rows.projection_rel_l2,
+        transfer_ms,
+        transfer_cached,
+        clusters: 0,
+        components: 0,
+        cpca_rel_l2: 0.0,
+        cpca_ms: 0.0,
+        cpca_cached: false,
+        transfer_bytes_per_vertex: transfer.bytes_per_vertex(),
+        directions: vis.directions.len(),
+        kernel: KernelInfo::of(&kernel, in_flight),
+        gpu_ms_lighting_median: lighting,
+        gpu_ms_project_median: 0.0,
+        gpu_ms_sharp_median: 0.0,
+        gpu_ms_shade_median: shade_ms,
+        fps: 1000.0 / (lighting + shade_ms),
+        brdf: cfg.brdf,
+        camera: Some(camera.to_array()),
+        view_grid: Some(grid.n),
+        frames,
+        notes,
+    };
+    crate::io::write_json(&cfg.out.join("report.json"), &report)?;
+    Ok(report)
 }
 
 /// " (cached)" or " (N ms)": where a precomputed result came from.
@@ -691,6 +958,9 @@ impl<'a> Session<'a> {
             gpu_ms_sharp_median: sharp_ms,
             gpu_ms_shade_median: shade_ms,
             fps: 1000.0 / (lighting + project_ms + sharp_ms + shade_ms),
+            brdf: Brdf::Diffuse,
+            camera: None,
+            view_grid: None,
             frames,
             notes: self.notes(),
         }
@@ -987,6 +1257,34 @@ pub struct ShadeArgs {
     pub in_flight: usize,
     #[arg(long, default_value = "out/srbf")]
     pub out: PathBuf,
+    /// The surface's BRDF: diffuse, or phong (kd / pi + ks (n + 2) / (2 pi) cos^n of the
+    /// angle to the mirror direction; --exponent, --kd, --ks): glossy, shaded toward
+    /// --camera through per-vertex transfer matrices over a --views x --views view grid.
+    #[arg(long, value_enum, default_value_t = BrdfKind::Diffuse)]
+    pub brdf: BrdfKind,
+    /// Phong exponent n.
+    #[arg(long, default_value_t = 8.0)]
+    pub exponent: f32,
+    /// Phong diffuse part kd (kd + ks <= 1).
+    #[arg(long, default_value_t = 0.3)]
+    pub kd: f32,
+    /// Phong specular part ks.
+    #[arg(long, default_value_t = 0.7)]
+    pub ks: f32,
+    /// Camera position X,Y,Z in model units (glossy; default: 1.5 bounding-box diagonals
+    /// along +Z from the box's centre).
+    #[arg(long, value_delimiter = ',', num_args = 3)]
+    pub camera: Option<Vec<f32>>,
+    /// Side N of the N x N parabolic view grid of the glossy transfer.
+    #[arg(long, default_value_t = 12)]
+    pub views: u32,
+}
+
+/// `--brdf`.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BrdfKind {
+    Diffuse,
+    Phong,
 }
 
 impl Command {
@@ -1041,6 +1339,21 @@ impl ShadeArgs {
             compact_lobes: self.compact_lobes,
             in_flight: self.in_flight,
             out: self.out.clone(),
+            brdf: match self.brdf {
+                BrdfKind::Diffuse => Brdf::Diffuse,
+                BrdfKind::Phong => Brdf::Phong {
+                    exponent: self.exponent,
+                    diffuse: self.kd,
+                    specular: self.ks,
+                },
+            },
+            camera: match &self.camera {
+                None => None,
+                Some(c) => Some(Vec3::from_slice(c.as_slice().get(..3).ok_or_else(
+                    || Error::InvalidArgument("--camera takes three values X,Y,Z".into()),
+                )?)),
+            },
+            views: self.views,
             ..Default::default()
         })
     }
@@ -1078,6 +1391,13 @@ pub fn display(r: &ShadeReport, cfg: &ShadeConfig) {
         r.transfer_rel_l2,
         r.cpca_rel_l2
     );
+    if let (Some(c), Some(n)) = (r.camera, r.view_grid) {
+        println!(
+            "glossy {:?}: shaded toward the camera at {c:?} (model units) through a {n} x {n} \
+             view grid",
+            r.brdf
+        );
+    }
     if let Some(worst) = r
         .frames
         .iter()
