@@ -8,6 +8,7 @@
 pub mod brdf;
 pub mod cpca;
 pub mod cpu;
+pub mod cta;
 pub mod fit;
 pub mod glossy;
 pub mod glossy_gpu;
