@@ -329,3 +329,97 @@ fn glossy_bunny_against_the_brute_force_truth() {
         );
     }
 }
+
+/// CTA-compressed glossy transfer: the GPU's four passes against their CPU twin, and the
+/// twin (per-cluster tables, interpolated view factor) against shading the densely
+/// reconstructed transfer matrices T_v = sum u G W L with the uncompressed path.
+#[test]
+fn cta_gpu_matches_its_twin_and_the_dense_reconstruction() {
+    use vkshade::kernels::srbf::cta::{Cta, CtaConfig};
+    use vkshade::kernels::srbf::cta_gpu::{CtaInputs, CtaKernel};
+    let s = scene(600);
+    let t = &s.transfer;
+    let cta = Cta::compress(
+        &t.rows.basis,
+        &t.rows.coeffs,
+        t.vertices,
+        t.views(),
+        &CtaConfig {
+            clusters: 5,
+            ranks: [4, 5, 8],
+            iterations: 1,
+            ..CtaConfig::default()
+        },
+    )
+    .unwrap();
+    let dense = GlossyTransfer {
+        rows: Transfer {
+            coeffs: (0..t.vertices)
+                .flat_map(|v| cta.reconstruct(v))
+                .map(|x| x as f32)
+                .collect(),
+            ..t.rows.clone()
+        },
+        ..t.clone()
+    };
+    let inputs = CtaInputs {
+        lobes: &s.lobes,
+        transfer: &cta,
+        grid: t.grid,
+        positions: &s.positions,
+        normals: &s.normals,
+    };
+    let frames: Vec<GlossyFrame> = [(0.0f32, Vec3::new(0.0, 0.5, 4.0)), (77.0, Vec3::new(-3.0, 1.0, 0.2))]
+        .iter()
+        .map(|&(deg, camera)| GlossyFrame {
+            rotation: sg::rotation(Vec3::new(0.3, 1.0, 0.1), deg),
+            albedo: [0.9, 0.7, 0.5],
+            camera,
+        })
+        .collect();
+    let max_abs = |v: &[[f64; 3]]| v.iter().flatten().fold(0f64, |m, x| m.max(x.abs()));
+    let worst = |a: &[[f64; 3]], b: &[[f64; 3]]| {
+        a.iter()
+            .zip(b)
+            .flat_map(|(x, y)| (0..3).map(move |c| (x[c] - y[c]).abs()))
+            .fold(0f64, f64::max)
+    };
+    for f in &frames {
+        let twin = inputs.cpu_pipeline(f).unwrap();
+        let lit = GlossyInputs {
+            lobes: &s.lobes,
+            transfer: &dense,
+            positions: &s.positions,
+            normals: &s.normals,
+        }
+        .cpu_pipeline(f)
+        .unwrap();
+        // The same f32 factors summed in a different order (f64), the dense rows rounded to
+        // f32 once: 1e-5 of the largest value.
+        let e = worst(&twin, &lit);
+        assert!(e <= 1e-5 * max_abs(&lit), "{e} vs {}", max_abs(&lit));
+    }
+    common::with_gpu(|ctx| {
+        let mut setup = ctx.recorder("cta setup")?;
+        let kernel = CtaKernel::new(&mut setup, &inputs)?;
+        setup.submit_and_wait()?;
+        let names: Vec<&str> = kernel.passes().iter().map(|p| p.name).collect();
+        assert_eq!(
+            names,
+            ["srbf lighting", "srbf cta light", "srbf cta project", "srbf cta shade"]
+        );
+        let mut done = 0;
+        run_frames(ctx, &kernel, &frames, 2, |r| {
+            let want = inputs.cpu_pipeline(&frames[r.index])?;
+            let got: Vec<[f64; 3]> = r.output.iter().map(|c| c.map(|x| x as f64)).collect();
+            // f32 on the GPU over sums of 96 (light), 8 (core), 4 x 5 (view) and 4 x 5 terms:
+            // ~1e-6 per term of the output's scale; 1e-4 of the largest |value|.
+            let e = worst(&got, &want);
+            assert!(e <= 1e-4 * max_abs(&want), "frame {}: {e}", r.index);
+            done += 1;
+            Ok(())
+        })?;
+        assert_eq!(done, frames.len());
+        Ok(())
+    });
+}

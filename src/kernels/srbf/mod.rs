@@ -9,6 +9,7 @@ pub mod brdf;
 pub mod cpca;
 pub mod cpu;
 pub mod cta;
+pub mod cta_gpu;
 pub mod fit;
 pub mod glossy;
 pub mod glossy_gpu;
