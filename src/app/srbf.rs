@@ -10,6 +10,10 @@ use crate::geom::visibility::Visibility;
 use crate::gpu::Context;
 use crate::kernels::srbf::brdf::Brdf;
 use crate::kernels::srbf::cpca::{Cpca, CpcaConfig};
+use crate::kernels::srbf::cta::{Cta, CtaConfig};
+use crate::kernels::srbf::cta_gpu::{
+    CtaInputs, CtaKernel, PASS_CTA_LIGHT, PASS_CTA_PROJECT, PASS_CTA_SHADE,
+};
 use crate::kernels::srbf::diffuse_transfer;
 use crate::kernels::srbf::fit::{FitConfig, fit};
 use crate::kernels::srbf::glossy::{GlossyTransfer, ViewGrid};
@@ -105,6 +109,9 @@ pub struct ShadeConfig {
     /// [`default_camera`].
     pub camera: Option<Vec3>,
     pub views: u32,
+    /// Glossy: compress the transfer by clustered tensor approximation with these settings
+    /// ([`crate::kernels::srbf::cta`]) and shade it with the CTA kernel; `None`: uncompressed.
+    pub cta: Option<CtaConfig>,
 }
 
 /// The camera of a glossy run without `--camera`: on +Z of the mesh's bounding-box centre,
@@ -138,6 +145,7 @@ impl Default for ShadeConfig {
             brdf: Brdf::Diffuse,
             camera: None,
             views: 12,
+            cta: None,
         }
     }
 }
@@ -214,6 +222,13 @@ impl ShadeConfig {
             && !c.is_finite()
         {
             return bad(format!("--camera {c} is not finite"));
+        }
+        if self.cta.is_some() && !self.brdf.is_glossy() {
+            return bad(
+                "--cta compresses the glossy transfer (--brdf phong); the diffuse transfer is \
+                 compressed by clustered PCA (--clusters, --components)"
+                    .into(),
+            );
         }
         if self.brdf.is_glossy() {
             ViewGrid { n: self.views }
@@ -572,11 +587,11 @@ fn shade_glossy(
     let grid = ViewGrid { n: cfg.views };
     let bytes = mesh.positions.len() as u64 * grid.views() as u64 * cfg.basis as u64 * 4;
     let limit = ctx.limits().max_storage_buffer_range;
-    if bytes > limit {
+    if bytes > limit && cfg.cta.is_none() {
         return Err(Error::InvalidArgument(format!(
             "glossy transfer of {}: {} vertices x {} views x {} basis functions = {bytes} bytes \
              uncompressed; the device's storage buffers hold {limit} (maxStorageBufferRange): \
-             use fewer --views or --basis, or a smaller mesh",
+             use --cta, fewer --views or --basis, or a smaller mesh",
             cfg.mesh.display(),
             mesh.positions.len(),
             grid.views(),
@@ -655,8 +670,39 @@ fn shade_glossy(
         positions: &mesh.positions,
         normals: &mesh.normals,
     };
+    let (cta, cta_ms) = match &cfg.cta {
+        None => (None, 0.0),
+        Some(c) => {
+            let t0 = Instant::now();
+            let cta = Cta::compress(
+                &transfer.rows.basis,
+                &transfer.rows.coeffs,
+                vertices,
+                grid.views(),
+                c,
+            )?;
+            let ms = t0.elapsed().as_secs_f64() * 1e3;
+            let (stream, amortised) = cta.bytes_per_vertex();
+            progress(&format!(
+                "CTA: {} clusters, ranks {:?}: relative L2 {:.4} (history {:?}); {stream} B per \
+                 vertex streamed, {amortised:.1} B amortised ({ms:.0} ms)",
+                cta.clusters, cta.ranks, cta.rel_l2, cta.history
+            ));
+            (Some(cta), ms)
+        }
+    };
+    let cta_inputs = cta.as_ref().map(|t| CtaInputs {
+        lobes: &fitted.lobes,
+        transfer: t,
+        grid,
+        positions: &mesh.positions,
+        normals: &mesh.normals,
+    });
     let mut setup = ctx.recorder("srbf glossy setup")?;
-    let kernel = GlossyKernel::new(&mut setup, &inputs)?;
+    let kernel = match &cta_inputs {
+        None => GlossyOrCta::Glossy(GlossyKernel::new(&mut setup, &inputs)?),
+        Some(i) => GlossyOrCta::Cta(CtaKernel::new(&mut setup, i)?),
+    };
     setup.submit_and_wait()?;
     let frames_in: Vec<GlossyFrame> = cfg
         .rotations()
@@ -669,9 +715,13 @@ fn shade_glossy(
         .collect();
     let pictures = Pictures::new(cfg, mesh);
     let mut frames = Vec::with_capacity(frames_in.len());
-    let in_flight = run_frames(ctx, &kernel, &frames_in, cfg.in_flight, |r| {
+    let mut on_frame = |r: FrameResult<Vec<[f32; 3]>>, shade_ms: f64| -> Result<()> {
         let frame = &frames_in[r.index];
-        let cpu = inputs.cpu_pipeline(frame)?;
+        let dense = inputs.cpu_pipeline(frame)?;
+        let cpu = match &cta_inputs {
+            None => dense.clone(),
+            Some(i) => i.cpu_pipeline(frame)?,
+        };
         let gpu: Vec<[f64; 3]> = r.output.iter().map(|c| c.map(|x| x as f64)).collect();
         let truth_of = |map: &EnvMap, rotation: Mat3| {
             shade_glossy_truth(
@@ -696,7 +746,7 @@ fn shade_glossy(
             )?;
             let sg_truth = truth_of(&lobe_map, Mat3::IDENTITY)?;
             let fit_share = RelL2::of(&sg_truth, &truth);
-            (Some(truth), Some((fit_share, RelL2::of(&cpu, &sg_truth))))
+            (Some(truth), Some((fit_share, RelL2::of(&dense, &sg_truth))))
         } else {
             (None, None)
         };
@@ -706,10 +756,10 @@ fn shade_glossy(
             gpu_ms_lighting: r.timings.get(PASS_LIGHTING).unwrap_or(f64::NAN),
             gpu_ms_project: 0.0,
             gpu_ms_sharp: 0.0,
-            gpu_ms_shade: r.timings.get(PASS_GLOSSY).unwrap_or(f64::NAN),
+            gpu_ms_shade: shade_ms,
             gpu_vs_cpu: RelL2::of(&gpu, &cpu),
             vs_ground_truth: truth.as_ref().map(|t| RelL2::of(&gpu, t)),
-            uncompressed_vs_ground_truth: truth.as_ref().map(|t| RelL2::of(&cpu, t)),
+            uncompressed_vs_ground_truth: truth.as_ref().map(|t| RelL2::of(&dense, t)),
             fit_share: fit_share.map(|f| f.0),
             transfer_share: fit_share.map(|f| f.1),
             ply: String::new(),
@@ -719,7 +769,20 @@ fn shade_glossy(
         progress(&frame_line(&report));
         frames.push(report);
         Ok(())
-    })?;
+    };
+    let in_flight = match &kernel {
+        GlossyOrCta::Glossy(k) => run_frames(ctx, k, &frames_in, cfg.in_flight, |r| {
+            let ms = r.timings.get(PASS_GLOSSY).unwrap_or(f64::NAN);
+            on_frame(r, ms)
+        })?,
+        GlossyOrCta::Cta(k) => run_frames(ctx, k, &frames_in, cfg.in_flight, |r| {
+            let ms = [PASS_CTA_LIGHT, PASS_CTA_PROJECT, PASS_CTA_SHADE]
+                .iter()
+                .map(|p| r.timings.get(p).unwrap_or(f64::NAN))
+                .sum();
+            on_frame(r, ms)
+        })?,
+    };
     let median = |f: &dyn Fn(&FrameReport) -> f64| {
         let mut v: Vec<f64> = frames.iter().map(f).collect();
         v.sort_by(f64::total_cmp);
@@ -734,9 +797,25 @@ fn shade_glossy(
     notes.push(format!(
         "glossy: radiance toward the camera; ground truth over the {}x{} texel directions \
          (solid-angle-weighted downsampling), visibility ray-cast along every rotated \
-         direction; every lobe through the basis (no compact lobes); uncompressed transfer",
+         direction; every lobe through the basis (no compact lobes)",
         dir_env.width, dir_env.height
     ));
+    if let Some(c) = &cta {
+        let (stream, amortised) = c.bytes_per_vertex();
+        notes.push(format!(
+            "CTA: {} clusters, ranks (vertex, view, light) {:?}, {} iterations; {stream} B per \
+             vertex streamed (f32 coefficients + cluster id), {amortised:.1} B per vertex with \
+             the cluster tables; relative L2 (function space) {:.4}; history of the squared \
+             error {:?}; compression {cta_ms:.0} ms (not cached); gpu_ms_shade sums the \
+             cta light, project and shade passes; uncompressed_vs_ground_truth is the \
+             uncompressed transfer (CPU)",
+            c.clusters,
+            c.ranks,
+            cfg.cta.map_or(0, |x| x.iterations),
+            c.rel_l2,
+            c.history
+        ));
+    }
     let report = ShadeReport {
         tool: "vkshade srbf shade",
         machine: MachineInfo::of(ctx),
@@ -755,14 +834,19 @@ fn shade_glossy(
         transfer_rel_l2: transfer.rows.projection_rel_l2,
         transfer_ms,
         transfer_cached,
-        clusters: 0,
+        clusters: cta.as_ref().map_or(0, |c| c.clusters),
         components: 0,
-        cpca_rel_l2: 0.0,
-        cpca_ms: 0.0,
+        cpca_rel_l2: cta.as_ref().map_or(0.0, |c| c.rel_l2),
+        cpca_ms: cta_ms,
         cpca_cached: false,
-        transfer_bytes_per_vertex: transfer.bytes_per_vertex(),
+        transfer_bytes_per_vertex: cta
+            .as_ref()
+            .map_or(transfer.bytes_per_vertex(), |c| c.bytes_per_vertex().0),
         directions: vis.directions.len(),
-        kernel: KernelInfo::of(&kernel, in_flight),
+        kernel: match &kernel {
+            GlossyOrCta::Glossy(k) => KernelInfo::of(k, in_flight),
+            GlossyOrCta::Cta(k) => KernelInfo::of(k, in_flight),
+        },
         gpu_ms_lighting_median: lighting,
         gpu_ms_project_median: 0.0,
         gpu_ms_sharp_median: 0.0,
@@ -776,6 +860,12 @@ fn shade_glossy(
     };
     crate::io::write_json(&cfg.out.join("report.json"), &report)?;
     Ok(report)
+}
+
+/// The kernel of a glossy run: uncompressed or CTA-compressed transfer.
+enum GlossyOrCta {
+    Glossy(GlossyKernel),
+    Cta(CtaKernel),
 }
 
 /// " (cached)" or " (N ms)": where a precomputed result came from.
@@ -1278,6 +1368,19 @@ pub struct ShadeArgs {
     /// Side N of the N x N parabolic view grid of the glossy transfer.
     #[arg(long, default_value_t = 12)]
     pub views: u32,
+    /// Glossy: compress the transfer by clustered tensor approximation (Tsai and Shih 2006)
+    /// and reconstruct it per vertex on the GPU each frame.
+    #[arg(long)]
+    pub cta: bool,
+    /// CTA clusters.
+    #[arg(long, default_value_t = 64)]
+    pub cta_clusters: usize,
+    /// CTA core ranks VERTEX,VIEW,LIGHT.
+    #[arg(long, value_delimiter = ',', num_args = 3, default_values_t = [8usize, 8, 16])]
+    pub cta_ranks: Vec<usize>,
+    /// CTA reassignment + refit rounds.
+    #[arg(long, default_value_t = 2)]
+    pub cta_iterations: usize,
 }
 
 /// `--brdf`.
@@ -1354,6 +1457,18 @@ impl ShadeArgs {
                 )?)),
             },
             views: self.views,
+            cta: if self.cta {
+                Some(CtaConfig {
+                    clusters: self.cta_clusters,
+                    ranks: self.cta_ranks.as_slice().try_into().map_err(|_| {
+                        Error::InvalidArgument("--cta-ranks takes three values".into())
+                    })?,
+                    iterations: self.cta_iterations,
+                    ..CtaConfig::default()
+                })
+            } else {
+                None
+            },
             ..Default::default()
         })
     }

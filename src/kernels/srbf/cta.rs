@@ -101,14 +101,16 @@ struct Model {
 
 /// The data being compressed, y space: per vertex V x K (row-major), and the sizes.
 struct Data<'a> {
-    y: &'a [f64],
+    /// f32 (half the memory of the f64 the sums run in: the bunny's 64-view transfer is
+    /// 2.3 GB in f32).
+    y: &'a [f32],
     views: usize,
     k: usize,
     ranks: [usize; 3],
 }
 
 impl Data<'_> {
-    fn slice(&self, v: usize) -> &[f64] {
+    fn slice(&self, v: usize) -> &[f32] {
         let n = self.views * self.k;
         &self.y[v * n..(v + 1) * n]
     }
@@ -124,7 +126,8 @@ impl Data<'_> {
             let row = &y[j * k..(j + 1) * k];
             let hj = &mut h[j * rl..(j + 1) * rl];
             for (kk, yv) in row.iter().enumerate() {
-                if *yv != 0.0 {
+                let yv = *yv as f64;
+                if yv != 0.0 {
                     for (hc, lc) in hj.iter_mut().zip(&m.l[kk * rl..(kk + 1) * rl]) {
                         *hc += yv * lc;
                     }
@@ -151,7 +154,7 @@ impl Data<'_> {
         let u: Vec<f64> = (0..rv)
             .map(|a| (0..r).map(|i| m.q[i * rv + a] * p[i]).sum())
             .collect();
-        let norm2 = self.slice(v).iter().map(|x| x * x).sum();
+        let norm2 = self.slice(v).iter().map(|x| (*x as f64).powi(2)).sum();
         (norm2, u.iter().map(|x| x * x).sum(), u)
     }
 
@@ -237,7 +240,7 @@ fn light_step(d: &Data, m: &mut Model, members: &[usize], u: &[f64]) {
                 let mut yw = vec![0f64; k * rw];
                 for j in 0..vv {
                     for kk in 0..k {
-                        let yv = y[j * k + kk];
+                        let yv = y[j * k + kk] as f64;
                         if yv != 0.0 {
                             for b in 0..rw {
                                 yw[kk * rw + b] += yv * m.w[j * rw + b];
@@ -311,7 +314,7 @@ fn view_step(d: &Data, m: &mut Model, members: &[usize], u: &[f64]) {
                 for j in 0..vv {
                     let mut h = vec![0f64; rl];
                     for kk in 0..k {
-                        let yv = y[j * k + kk];
+                        let yv = y[j * k + kk] as f64;
                         if yv != 0.0 {
                             for (hc, lc) in h.iter_mut().zip(&m.l[kk * rl..(kk + 1) * rl]) {
                                 *hc += yv * lc;
@@ -374,7 +377,7 @@ fn initial_model(d: &Data, members: &[usize], sweeps: usize, seed: u64) -> Model
                     .iter_mut()
                     .zip(&y[j * k..(j + 1) * k])
                 {
-                    *x += s * yv;
+                    *x += s * *yv as f64;
                 }
             }
         }
@@ -457,17 +460,21 @@ impl Cta {
         })?;
         let clusters = cfg.clusters.min(vertices);
         // y = L^T t per row (L lower, row-major): y_i = sum_{j >= i} L[j][i] t_j.
-        let mut y = vec![0f64; rows.len()];
+        let mut y = vec![0f32; rows.len()];
         y.par_chunks_mut(k)
             .zip(rows.par_chunks(k))
             .for_each(|(out, t)| {
+                let mut acc = vec![0f64; k];
                 for (j, tj) in t.iter().enumerate() {
                     let tj = *tj as f64;
                     if tj != 0.0 {
-                        for (i, o) in out.iter_mut().enumerate().take(j + 1) {
+                        for (i, o) in acc.iter_mut().enumerate().take(j + 1) {
                             *o += factor[j * k + i] * tj;
                         }
                     }
+                }
+                for (o, a) in out.iter_mut().zip(&acc) {
+                    *o = *a as f32;
                 }
             });
         let d = Data {
@@ -482,7 +489,7 @@ impl Cta {
             .flat_map_iter(|v| {
                 let s = d.slice(v);
                 (0..k).map(move |i| {
-                    ((0..views).map(|j| s[j * k + i]).sum::<f64>() / views as f64) as f32
+                    ((0..views).map(|j| s[j * k + i] as f64).sum::<f64>() / views as f64) as f32
                 })
             })
             .collect();
@@ -565,7 +572,7 @@ impl Cta {
             history.push(total(&assign, &models));
         }
         // Output: coefficients, cores, factors (the light factor back to coefficient space).
-        let norm2: f64 = y.iter().map(|x| x * x).sum();
+        let norm2: f64 = y.iter().map(|x| (*x as f64).powi(2)).sum();
         let coeffs: Vec<f32> = (0..vertices)
             .into_par_iter()
             .flat_map_iter(|v| {

@@ -97,11 +97,9 @@ impl CtaInputs<'_> {
             .into_par_iter()
             .map(|v| {
                 let c = t.cluster_of[v] as usize;
-                let taps = self.grid.taps(local_view(
-                    self.positions[v],
-                    self.normals[v],
-                    frame.camera,
-                ));
+                let taps =
+                    self.grid
+                        .taps(local_view(self.positions[v], self.normals[v], frame.camera));
                 let mut uw = vec![0f64; rw];
                 for (j, w) in taps {
                     for (b, x) in uw.iter_mut().enumerate() {
@@ -151,7 +149,8 @@ impl CtaKernel {
             let bytes: &[u8] = bytemuck::cast_slice(data);
             rec.buffer_with(name, BufferDesc::storage(bytes.len() as u64), bytes)
         }
-        let vec4 = |v: &[Vec3]| -> Vec<[f32; 4]> { v.iter().map(|x| x.extend(0.0).into()).collect() };
+        let vec4 =
+            |v: &[Vec3]| -> Vec<[f32; 4]> { v.iter().map(|x| x.extend(0.0).into()).collect() };
         let zeros = |rec: &mut Recorder, name: &str, n: usize| {
             rec.buffer_with(
                 name,
@@ -181,7 +180,8 @@ impl CtaKernel {
             storage(rec, "srbf cta basis axes", &vec4(&t.basis.axes))?,
             rec.buffer_with(
                 "srbf cta coefficients",
-                BufferDesc::storage(MAX_BASIS as u64 * 16).usage(vk::BufferUsageFlags::UNIFORM_BUFFER),
+                BufferDesc::storage(MAX_BASIS as u64 * 16)
+                    .usage(vk::BufferUsageFlags::UNIFORM_BUFFER),
                 &vec![[0f32; 4]; MAX_BASIS],
             )?,
             storage(rec, "srbf cta light factors", &t.light_factors)?,
@@ -194,8 +194,22 @@ impl CtaKernel {
             storage(rec, "srbf cta positions", &vec4(inputs.positions))?,
             storage(rec, "srbf cta normals", &vec4(inputs.normals))?,
         ];
-        let [_, axes, amps, basis_axes, coeffs, light, y, cores, m, vc, clusters, view, points, normals] =
-            std::array::from_fn(|i| &buffers[i]);
+        let [
+            _,
+            axes,
+            amps,
+            basis_axes,
+            coeffs,
+            light,
+            y,
+            cores,
+            m,
+            vc,
+            clusters,
+            view,
+            points,
+            normals,
+        ] = std::array::from_fn(|i| &buffers[i]);
         let (b, w) = (Resource::Buffer, AccessSet::from(A::ComputeShaderWrite));
         let pipeline = |name| crate::shaders::pipeline(&ctx, name);
         let lighting = pipeline("srbf/lighting")?;
