@@ -369,14 +369,17 @@ fn cta_gpu_matches_its_twin_and_the_dense_reconstruction() {
         positions: &s.positions,
         normals: &s.normals,
     };
-    let frames: Vec<GlossyFrame> = [(0.0f32, Vec3::new(0.0, 0.5, 4.0)), (77.0, Vec3::new(-3.0, 1.0, 0.2))]
-        .iter()
-        .map(|&(deg, camera)| GlossyFrame {
-            rotation: sg::rotation(Vec3::new(0.3, 1.0, 0.1), deg),
-            albedo: [0.9, 0.7, 0.5],
-            camera,
-        })
-        .collect();
+    let frames: Vec<GlossyFrame> = [
+        (0.0f32, Vec3::new(0.0, 0.5, 4.0)),
+        (77.0, Vec3::new(-3.0, 1.0, 0.2)),
+    ]
+    .iter()
+    .map(|&(deg, camera)| GlossyFrame {
+        rotation: sg::rotation(Vec3::new(0.3, 1.0, 0.1), deg),
+        albedo: [0.9, 0.7, 0.5],
+        camera,
+    })
+    .collect();
     let max_abs = |v: &[[f64; 3]]| v.iter().flatten().fold(0f64, |m, x| m.max(x.abs()));
     let worst = |a: &[[f64; 3]], b: &[[f64; 3]]| {
         a.iter()
@@ -406,7 +409,12 @@ fn cta_gpu_matches_its_twin_and_the_dense_reconstruction() {
         let names: Vec<&str> = kernel.passes().iter().map(|p| p.name).collect();
         assert_eq!(
             names,
-            ["srbf lighting", "srbf cta light", "srbf cta project", "srbf cta shade"]
+            [
+                "srbf lighting",
+                "srbf cta light",
+                "srbf cta project",
+                "srbf cta shade"
+            ]
         );
         let mut done = 0;
         run_frames(ctx, &kernel, &frames, 2, |r| {

@@ -1294,7 +1294,7 @@ pub enum Command {
     /// Shade a mesh under a rotated environment: per frame DIR/shade_NNNN.ply (per-vertex
     /// linear RGB radiance r, g, b) and DIR/shade_NNNN.png (with --reference: result |
     /// brute-force truth | error), and DIR/report.json.
-    Shade(ShadeArgs),
+    Shade(Box<ShadeArgs>),
 }
 
 /// The arguments of `vkshade srbf shade`.
@@ -1325,7 +1325,7 @@ pub struct ShadeArgs {
     #[arg(long, default_value_t = 1)]
     pub frames: usize,
     /// Diffuse albedo R,G,B (default 1,1,1).
-    #[arg(long, value_delimiter = ',', num_args = 3, default_values_t = [1.0f32, 1.0, 1.0])]
+    #[arg(long, value_delimiter = ',', default_values_t = [1.0f32, 1.0, 1.0])]
     pub albedo: Vec<f32>,
     /// Compare each frame with the brute-force integration of the rotated map (f64).
     #[arg(long)]
@@ -1363,7 +1363,7 @@ pub struct ShadeArgs {
     pub ks: f32,
     /// Camera position X,Y,Z in model units (glossy; default: 1.5 bounding-box diagonals
     /// along +Z from the box's centre).
-    #[arg(long, value_delimiter = ',', num_args = 3)]
+    #[arg(long, value_delimiter = ',', allow_negative_numbers = true)]
     pub camera: Option<Vec<f32>>,
     /// Side N of the N x N parabolic view grid of the glossy transfer.
     #[arg(long, default_value_t = 12)]
@@ -1376,7 +1376,7 @@ pub struct ShadeArgs {
     #[arg(long, default_value_t = 64)]
     pub cta_clusters: usize,
     /// CTA core ranks VERTEX,VIEW,LIGHT.
-    #[arg(long, value_delimiter = ',', num_args = 3, default_values_t = [8usize, 8, 16])]
+    #[arg(long, value_delimiter = ',', default_values_t = [8usize, 8, 16])]
     pub cta_ranks: Vec<usize>,
     /// CTA reassignment + refit rounds.
     #[arg(long, default_value_t = 2)]
@@ -1461,7 +1461,9 @@ impl ShadeArgs {
                 Some(CtaConfig {
                     clusters: self.cta_clusters,
                     ranks: self.cta_ranks.as_slice().try_into().map_err(|_| {
-                        Error::InvalidArgument("--cta-ranks takes three values".into())
+                        Error::InvalidArgument(
+                            "--cta-ranks takes three values VERTEX,VIEW,LIGHT".into(),
+                        )
                     })?,
                     iterations: self.cta_iterations,
                     ..CtaConfig::default()
