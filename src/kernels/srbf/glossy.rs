@@ -173,7 +173,7 @@ impl GlossyTransfer {
     }
 
     /// The CPU twin of `srbf glossy shade`: per vertex the radiance toward `camera`,
-    /// B = albedo * sum_taps w_t (T_v[j_t] . c^), for lighting coefficients `coeffs` (one
+    /// `B = albedo * sum_taps w_t (T_v[j_t] . c^)`, for lighting coefficients `coeffs` (one
     /// per basis function), positions and normals (those the transfer was projected for).
     pub fn shade(
         &self,
