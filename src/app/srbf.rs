@@ -8,16 +8,25 @@ use crate::error::{Error, Result};
 use crate::geom::sg::{self, Lobe};
 use crate::geom::visibility::Visibility;
 use crate::gpu::Context;
+use crate::kernels::srbf::brdf::Brdf;
 use crate::kernels::srbf::cpca::{Cpca, CpcaConfig};
+use crate::kernels::srbf::cta::{Cta, CtaConfig};
+use crate::kernels::srbf::cta_gpu::{
+    CtaInputs, CtaKernel, PASS_CTA_LIGHT, PASS_CTA_PROJECT, PASS_CTA_SHADE,
+};
 use crate::kernels::srbf::diffuse_transfer;
 use crate::kernels::srbf::fit::{FitConfig, fit};
+use crate::kernels::srbf::glossy::{GlossyTransfer, ViewGrid};
+use crate::kernels::srbf::glossy_gpu::{GlossyFrame, GlossyInputs, GlossyKernel, PASS_GLOSSY};
 use crate::kernels::srbf::gpu::{
     CompactInputs, PASS_LIGHTING, PASS_PROJECT, PASS_SHADE, PASS_SHARP, SrbfFrame, SrbfInputs,
     SrbfKernel, SrbfOutput,
 };
 use crate::kernels::srbf::transfer::{self, Basis, Transfer};
 use crate::kernels::{FrameResult, KernelInfo, run_frames};
-use crate::reference::srbf::{rasterise_lobes, shade_brute_force_radiance, shade_ground_truth};
+use crate::reference::srbf::{
+    rasterise_lobes, shade_brute_force_radiance, shade_glossy_truth, shade_ground_truth,
+};
 use crate::report::MachineInfo;
 use crate::scene::envmap::EnvMap;
 use crate::scene::{self, Mesh};
@@ -93,6 +102,23 @@ pub struct ShadeConfig {
     pub sharp_factor: f32,
     /// The most compact lobes shaded directly (the strongest; 0 turns it off).
     pub compact_lobes: usize,
+    /// The surface's BRDF; a glossy one shades toward `camera` through per-vertex transfer
+    /// matrices over a `views` x `views` view grid ([`crate::kernels::srbf::glossy`]).
+    pub brdf: Brdf,
+    /// The camera position in model units (glossy only); `None`: the default camera,
+    /// [`default_camera`].
+    pub camera: Option<Vec3>,
+    pub views: u32,
+    /// Glossy: compress the transfer by clustered tensor approximation with these settings
+    /// ([`crate::kernels::srbf::cta`]) and shade it with the CTA kernel; `None`: uncompressed.
+    pub cta: Option<CtaConfig>,
+}
+
+/// The camera of a glossy run without `--camera`: on +Z of the mesh's bounding-box centre,
+/// 1.5 bounding-box diagonals away.
+pub fn default_camera(mesh: &Mesh) -> Vec3 {
+    let (lo, hi) = mesh.bounds();
+    (lo + hi) * 0.5 + Vec3::Z * 1.5 * (hi - lo).length()
 }
 
 impl Default for ShadeConfig {
@@ -116,6 +142,10 @@ impl Default for ShadeConfig {
             in_flight: 2,
             sharp_factor: crate::kernels::srbf::sharp::DEFAULT_FACTOR,
             compact_lobes: crate::kernels::srbf::sharp::DEFAULT_MAX_LOBES,
+            brdf: Brdf::Diffuse,
+            camera: None,
+            views: 12,
+            cta: None,
         }
     }
 }
@@ -184,6 +214,26 @@ impl ShadeConfig {
                 "--error-scale must be > 0, not {}",
                 self.error_scale
             ));
+        }
+        self.brdf
+            .check()
+            .map_err(|e| Error::InvalidArgument(format!("--brdf: {e}")))?;
+        if let Some(c) = self.camera
+            && !c.is_finite()
+        {
+            return bad(format!("--camera {c} is not finite"));
+        }
+        if self.cta.is_some() && !self.brdf.is_glossy() {
+            return bad(
+                "--cta compresses the glossy transfer (--brdf phong); the diffuse transfer is \
+                 compressed by clustered PCA (--clusters, --components)"
+                    .into(),
+            );
+        }
+        if self.brdf.is_glossy() {
+            ViewGrid { n: self.views }
+                .check()
+                .map_err(|e| Error::InvalidArgument(format!("--views: {e}")))?;
         }
         for (name, w) in [
             ("fit width", self.fit_width),
@@ -304,6 +354,12 @@ pub struct ShadeReport {
     pub gpu_ms_sharp_median: f64,
     pub gpu_ms_shade_median: f64,
     pub fps: f64,
+    /// The BRDF and its parameters.
+    pub brdf: Brdf,
+    /// Glossy runs: the camera position (model units) every frame is shaded toward, and the
+    /// side N of the N x N view grid of the transfer matrices.
+    pub camera: Option<[f32; 3]>,
+    pub view_grid: Option<u32>,
     pub notes: Vec<String>,
 }
 
@@ -416,6 +472,9 @@ pub fn shade(
         env.width,
         env.height
     ));
+    if cfg.brdf.is_glossy() {
+        return shade_glossy(ctx, cfg, mesh, &env, progress);
+    }
     let pre = Precomputed::new(cfg, mesh, &env, progress)?;
     let session = Session::new(ctx, cfg, mesh, &pre, progress)?;
     let frames_in: Vec<SrbfFrame> = cfg
@@ -509,6 +568,304 @@ impl Precomputed {
             cpca_ms,
         })
     }
+}
+
+/// `vkshade srbf shade` with a glossy BRDF: the lobes fitted as for diffuse, the glossy
+/// transfer projected once and cached (`glossy.bin` beside the outputs), every frame shaded
+/// on the GPU toward the camera and compared with the CPU twin, and with `--reference` with
+/// the glossy brute-force truth over the direction map's texels (the fit's share apart).
+/// Every lobe goes through the basis (no compact lobes on this path). The transfer is
+/// uncompressed: vertices x views^2 x basis f32, refused before the projection when it
+/// exceeds the device's maxStorageBufferRange.
+fn shade_glossy(
+    ctx: &Context,
+    cfg: &ShadeConfig,
+    mesh: &Mesh,
+    env: &EnvMap,
+    progress: &mut dyn FnMut(&str),
+) -> Result<ShadeReport> {
+    let grid = ViewGrid { n: cfg.views };
+    let bytes = mesh.positions.len() as u64 * grid.views() as u64 * cfg.basis as u64 * 4;
+    let limit = ctx.limits().max_storage_buffer_range;
+    if bytes > limit && cfg.cta.is_none() {
+        return Err(Error::InvalidArgument(format!(
+            "glossy transfer of {}: {} vertices x {} views x {} basis functions = {bytes} bytes \
+             uncompressed; the device's storage buffers hold {limit} (maxStorageBufferRange): \
+             use --cta, fewer --views or --basis, or a smaller mesh",
+            cfg.mesh.display(),
+            mesh.positions.len(),
+            grid.views(),
+            cfg.basis
+        )));
+    }
+    let t = Instant::now();
+    let fit_env = env.downsampled(cfg.fit_width.min(env.width))?;
+    let fitted = fit(
+        &fit_env.samples(),
+        &FitConfig {
+            lobes: cfg.lobes,
+            ..FitConfig::default()
+        },
+    )?;
+    let fit_ms = t.elapsed().as_secs_f64() * 1e3;
+    progress(&format!(
+        "fit {} lobes to {}x{}: relative L2 {:.4} ({fit_ms:.0} ms)",
+        cfg.lobes, fit_env.width, fit_env.height, fitted.rel_l2
+    ));
+    let dir_env = env.downsampled(cfg.direction_width.min(env.width))?;
+    let vis = crate::scene::envmap::texel_visibility(mesh, &dir_env);
+    let path = cfg.out.join("glossy.bin");
+    let key = format!(
+        "glossy {} {} {} {} {} {:?} {}",
+        cfg.mesh.display(),
+        mesh.positions.len(),
+        cfg.basis,
+        dir_env.width,
+        grid.n,
+        cfg.brdf,
+        std::fs::metadata(&cfg.mesh)
+            .and_then(|m| m.modified())
+            .map(|t| format!("{t:?}"))
+            .unwrap_or_default()
+    );
+    let vertices = mesh.positions.len();
+    let wrap = |rows: Transfer| GlossyTransfer {
+        rows,
+        vertices,
+        grid,
+        brdf: cfg.brdf,
+    };
+    let (transfer, transfer_cached, transfer_ms) = cached(
+        &cfg.out.join("glossy.key"),
+        &key,
+        || {
+            Transfer::load(&path)
+                .ok()
+                .map(wrap)
+                .filter(|t| t.check().is_ok() && t.rows.basis.len() == cfg.basis)
+        },
+        || {
+            crate::kernels::srbf::glossy_transfer(
+                &Basis::fibonacci(cfg.basis),
+                &cfg.brdf,
+                grid,
+                &dir_env,
+                &mesh.normals,
+                &vis,
+            )
+        },
+        |t| t.rows.save(&path),
+    )?;
+    progress(&format!(
+        "glossy transfer: {} views x {} basis SGs per vertex, projection relative L2 ~{:.4}{}",
+        grid.views(),
+        cfg.basis,
+        transfer.rows.projection_rel_l2,
+        cost(transfer_cached, transfer_ms)
+    ));
+    let camera = cfg.camera.unwrap_or_else(|| default_camera(mesh));
+    let inputs = GlossyInputs {
+        lobes: &fitted.lobes,
+        transfer: &transfer,
+        positions: &mesh.positions,
+        normals: &mesh.normals,
+    };
+    let (cta, cta_ms) = match &cfg.cta {
+        None => (None, 0.0),
+        Some(c) => {
+            let t0 = Instant::now();
+            let cta = Cta::compress(
+                &transfer.rows.basis,
+                &transfer.rows.coeffs,
+                vertices,
+                grid.views(),
+                c,
+            )?;
+            let ms = t0.elapsed().as_secs_f64() * 1e3;
+            let (stream, amortised) = cta.bytes_per_vertex();
+            progress(&format!(
+                "CTA: {} clusters, ranks {:?}: relative L2 {:.4} (history {:?}); {stream} B per \
+                 vertex streamed, {amortised:.1} B amortised ({ms:.0} ms)",
+                cta.clusters, cta.ranks, cta.rel_l2, cta.history
+            ));
+            (Some(cta), ms)
+        }
+    };
+    let cta_inputs = cta.as_ref().map(|t| CtaInputs {
+        lobes: &fitted.lobes,
+        transfer: t,
+        grid,
+        positions: &mesh.positions,
+        normals: &mesh.normals,
+    });
+    let mut setup = ctx.recorder("srbf glossy setup")?;
+    let kernel = match &cta_inputs {
+        None => GlossyOrCta::Glossy(GlossyKernel::new(&mut setup, &inputs)?),
+        Some(i) => GlossyOrCta::Cta(CtaKernel::new(&mut setup, i)?),
+    };
+    setup.submit_and_wait()?;
+    let frames_in: Vec<GlossyFrame> = cfg
+        .rotations()
+        .iter()
+        .map(|&rotation| GlossyFrame {
+            rotation,
+            albedo: cfg.albedo,
+            camera,
+        })
+        .collect();
+    let pictures = Pictures::new(cfg, mesh);
+    let mut frames = Vec::with_capacity(frames_in.len());
+    let mut on_frame = |r: FrameResult<Vec<[f32; 3]>>, shade_ms: f64| -> Result<()> {
+        let frame = &frames_in[r.index];
+        let dense = inputs.cpu_pipeline(frame)?;
+        let cpu = match &cta_inputs {
+            None => dense.clone(),
+            Some(i) => i.cpu_pipeline(frame)?,
+        };
+        let gpu: Vec<[f64; 3]> = r.output.iter().map(|c| c.map(|x| x as f64)).collect();
+        let truth_of = |map: &EnvMap, rotation: Mat3| {
+            shade_glossy_truth(
+                map,
+                rotation,
+                mesh,
+                &mesh.positions,
+                &mesh.normals,
+                &cfg.brdf,
+                camera,
+                cfg.albedo,
+            )
+        };
+        let (truth, fit_share) = if cfg.reference {
+            let truth = truth_of(&dir_env, frame.rotation)?;
+            let raster = rasterise_lobes(&fitted.lobes, frame.rotation, &dir_env);
+            let lobe_map = EnvMap::from_texels(
+                dir_env.width,
+                dir_env.height,
+                raster.iter().map(|c| c.map(|x| x as f32)).collect(),
+                "the fitted lobes",
+            )?;
+            let sg_truth = truth_of(&lobe_map, Mat3::IDENTITY)?;
+            let fit_share = RelL2::of(&sg_truth, &truth);
+            (Some(truth), Some((fit_share, RelL2::of(&dense, &sg_truth))))
+        } else {
+            (None, None)
+        };
+        let report = FrameReport {
+            index: r.index,
+            rotation: frame.rotation.to_cols_array(),
+            gpu_ms_lighting: r.timings.get(PASS_LIGHTING).unwrap_or(f64::NAN),
+            gpu_ms_project: 0.0,
+            gpu_ms_sharp: 0.0,
+            gpu_ms_shade: shade_ms,
+            gpu_vs_cpu: RelL2::of(&gpu, &cpu),
+            vs_ground_truth: truth.as_ref().map(|t| RelL2::of(&gpu, t)),
+            uncompressed_vs_ground_truth: truth.as_ref().map(|t| RelL2::of(&dense, t)),
+            fit_share: fit_share.map(|f| f.0),
+            transfer_share: fit_share.map(|f| f.1),
+            ply: String::new(),
+            png: String::new(),
+        };
+        let report = pictures.write(report, mesh, &gpu, truth.as_deref())?;
+        progress(&frame_line(&report));
+        frames.push(report);
+        Ok(())
+    };
+    let in_flight = match &kernel {
+        GlossyOrCta::Glossy(k) => run_frames(ctx, k, &frames_in, cfg.in_flight, |r| {
+            let ms = r.timings.get(PASS_GLOSSY).unwrap_or(f64::NAN);
+            on_frame(r, ms)
+        })?,
+        GlossyOrCta::Cta(k) => run_frames(ctx, k, &frames_in, cfg.in_flight, |r| {
+            let ms = [PASS_CTA_LIGHT, PASS_CTA_PROJECT, PASS_CTA_SHADE]
+                .iter()
+                .map(|p| r.timings.get(p).unwrap_or(f64::NAN))
+                .sum();
+            on_frame(r, ms)
+        })?,
+    };
+    let median = |f: &dyn Fn(&FrameReport) -> f64| {
+        let mut v: Vec<f64> = frames.iter().map(f).collect();
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let lighting = median(&|f| f.gpu_ms_lighting);
+    let shade_ms = median(&|f| f.gpu_ms_shade);
+    let mut notes = Vec::new();
+    if ctx.info().device_type == "CPU" {
+        notes.push("the device is a CPU implementation (lavapipe): times measure the CPU".into());
+    }
+    notes.push(format!(
+        "glossy: radiance toward the camera; ground truth over the {}x{} texel directions \
+         (solid-angle-weighted downsampling), visibility ray-cast along every rotated \
+         direction; every lobe through the basis (no compact lobes)",
+        dir_env.width, dir_env.height
+    ));
+    if let Some(c) = &cta {
+        let (stream, amortised) = c.bytes_per_vertex();
+        notes.push(format!(
+            "CTA: {} clusters, ranks (vertex, view, light) {:?}, {} iterations; {stream} B per \
+             vertex streamed (f32 coefficients + cluster id), {amortised:.1} B per vertex with \
+             the cluster tables; relative L2 (function space) {:.4}; history of the squared \
+             error {:?}; compression {cta_ms:.0} ms (not cached); gpu_ms_shade sums the \
+             cta light, project and shade passes; uncompressed_vs_ground_truth is the \
+             uncompressed transfer (CPU)",
+            c.clusters,
+            c.ranks,
+            cfg.cta.map_or(0, |x| x.iterations),
+            c.rel_l2,
+            c.history
+        ));
+    }
+    let report = ShadeReport {
+        tool: "vkshade srbf shade",
+        machine: MachineInfo::of(ctx),
+        mesh: cfg.mesh.display().to_string(),
+        vertices,
+        env: cfg.env.display().to_string(),
+        env_size: [env.width, env.height],
+        lobes: cfg.lobes,
+        compact_lobes: 0,
+        sharp_factor: cfg.sharp_factor,
+        basis: cfg.basis,
+        basis_sharpness: transfer.rows.basis.sharpness,
+        albedo: cfg.albedo,
+        fit_rel_l2: fitted.rel_l2,
+        fit_ms,
+        transfer_rel_l2: transfer.rows.projection_rel_l2,
+        transfer_ms,
+        transfer_cached,
+        clusters: cta.as_ref().map_or(0, |c| c.clusters),
+        components: 0,
+        cpca_rel_l2: cta.as_ref().map_or(0.0, |c| c.rel_l2),
+        cpca_ms: cta_ms,
+        cpca_cached: false,
+        transfer_bytes_per_vertex: cta
+            .as_ref()
+            .map_or(transfer.bytes_per_vertex(), |c| c.bytes_per_vertex().0),
+        directions: vis.directions.len(),
+        kernel: match &kernel {
+            GlossyOrCta::Glossy(k) => KernelInfo::of(k, in_flight),
+            GlossyOrCta::Cta(k) => KernelInfo::of(k, in_flight),
+        },
+        gpu_ms_lighting_median: lighting,
+        gpu_ms_project_median: 0.0,
+        gpu_ms_sharp_median: 0.0,
+        gpu_ms_shade_median: shade_ms,
+        fps: 1000.0 / (lighting + shade_ms),
+        brdf: cfg.brdf,
+        camera: Some(camera.to_array()),
+        view_grid: Some(grid.n),
+        frames,
+        notes,
+    };
+    crate::io::write_json(&cfg.out.join("report.json"), &report)?;
+    Ok(report)
+}
+
+/// The kernel of a glossy run: uncompressed or CTA-compressed transfer.
+enum GlossyOrCta {
+    Glossy(GlossyKernel),
+    Cta(CtaKernel),
 }
 
 /// " (cached)" or " (N ms)": where a precomputed result came from.
@@ -691,6 +1048,9 @@ impl<'a> Session<'a> {
             gpu_ms_sharp_median: sharp_ms,
             gpu_ms_shade_median: shade_ms,
             fps: 1000.0 / (lighting + project_ms + sharp_ms + shade_ms),
+            brdf: Brdf::Diffuse,
+            camera: None,
+            view_grid: None,
             frames,
             notes: self.notes(),
         }
@@ -934,7 +1294,7 @@ pub enum Command {
     /// Shade a mesh under a rotated environment: per frame DIR/shade_NNNN.ply (per-vertex
     /// linear RGB radiance r, g, b) and DIR/shade_NNNN.png (with --reference: result |
     /// brute-force truth | error), and DIR/report.json.
-    Shade(ShadeArgs),
+    Shade(Box<ShadeArgs>),
 }
 
 /// The arguments of `vkshade srbf shade`.
@@ -965,7 +1325,7 @@ pub struct ShadeArgs {
     #[arg(long, default_value_t = 1)]
     pub frames: usize,
     /// Diffuse albedo R,G,B (default 1,1,1).
-    #[arg(long, value_delimiter = ',', num_args = 3, default_values_t = [1.0f32, 1.0, 1.0])]
+    #[arg(long, value_delimiter = ',', default_values_t = [1.0f32, 1.0, 1.0])]
     pub albedo: Vec<f32>,
     /// Compare each frame with the brute-force integration of the rotated map (f64).
     #[arg(long)]
@@ -987,6 +1347,47 @@ pub struct ShadeArgs {
     pub in_flight: usize,
     #[arg(long, default_value = "out/srbf")]
     pub out: PathBuf,
+    /// The surface's BRDF: diffuse, or phong (kd / pi + ks (n + 2) / (2 pi) cos^n of the
+    /// angle to the mirror direction; --exponent, --kd, --ks): glossy, shaded toward
+    /// --camera through per-vertex transfer matrices over a --views x --views view grid.
+    #[arg(long, value_enum, default_value_t = BrdfKind::Diffuse)]
+    pub brdf: BrdfKind,
+    /// Phong exponent n.
+    #[arg(long, default_value_t = 8.0)]
+    pub exponent: f32,
+    /// Phong diffuse part kd (kd + ks <= 1).
+    #[arg(long, default_value_t = 0.3)]
+    pub kd: f32,
+    /// Phong specular part ks.
+    #[arg(long, default_value_t = 0.7)]
+    pub ks: f32,
+    /// Camera position X,Y,Z in model units (glossy; default: 1.5 bounding-box diagonals
+    /// along +Z from the box's centre).
+    #[arg(long, value_delimiter = ',', allow_negative_numbers = true)]
+    pub camera: Option<Vec<f32>>,
+    /// Side N of the N x N parabolic view grid of the glossy transfer.
+    #[arg(long, default_value_t = 12)]
+    pub views: u32,
+    /// Glossy: compress the transfer by clustered tensor approximation (Tsai and Shih 2006)
+    /// and reconstruct it per vertex on the GPU each frame.
+    #[arg(long)]
+    pub cta: bool,
+    /// CTA clusters.
+    #[arg(long, default_value_t = 64)]
+    pub cta_clusters: usize,
+    /// CTA core ranks VERTEX,VIEW,LIGHT.
+    #[arg(long, value_delimiter = ',', default_values_t = [8usize, 8, 16])]
+    pub cta_ranks: Vec<usize>,
+    /// CTA reassignment + refit rounds.
+    #[arg(long, default_value_t = 2)]
+    pub cta_iterations: usize,
+}
+
+/// `--brdf`.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum BrdfKind {
+    Diffuse,
+    Phong,
 }
 
 impl Command {
@@ -1041,6 +1442,35 @@ impl ShadeArgs {
             compact_lobes: self.compact_lobes,
             in_flight: self.in_flight,
             out: self.out.clone(),
+            brdf: match self.brdf {
+                BrdfKind::Diffuse => Brdf::Diffuse,
+                BrdfKind::Phong => Brdf::Phong {
+                    exponent: self.exponent,
+                    diffuse: self.kd,
+                    specular: self.ks,
+                },
+            },
+            camera: match &self.camera {
+                None => None,
+                Some(c) => Some(Vec3::from_slice(c.as_slice().get(..3).ok_or_else(
+                    || Error::InvalidArgument("--camera takes three values X,Y,Z".into()),
+                )?)),
+            },
+            views: self.views,
+            cta: if self.cta {
+                Some(CtaConfig {
+                    clusters: self.cta_clusters,
+                    ranks: self.cta_ranks.as_slice().try_into().map_err(|_| {
+                        Error::InvalidArgument(
+                            "--cta-ranks takes three values VERTEX,VIEW,LIGHT".into(),
+                        )
+                    })?,
+                    iterations: self.cta_iterations,
+                    ..CtaConfig::default()
+                })
+            } else {
+                None
+            },
             ..Default::default()
         })
     }
@@ -1078,6 +1508,13 @@ pub fn display(r: &ShadeReport, cfg: &ShadeConfig) {
         r.transfer_rel_l2,
         r.cpca_rel_l2
     );
+    if let (Some(c), Some(n)) = (r.camera, r.view_grid) {
+        println!(
+            "glossy {:?}: shaded toward the camera at {c:?} (model units) through a {n} x {n} \
+             view grid",
+            r.brdf
+        );
+    }
     if let Some(worst) = r
         .frames
         .iter()

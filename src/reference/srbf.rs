@@ -25,6 +25,7 @@ use crate::error::{Error, Result};
 use crate::geom::Bvh;
 use crate::geom::sg::{self, Lobe};
 use crate::geom::visibility::{Visibility, direction_visibility};
+use crate::kernels::srbf::brdf::Brdf;
 use crate::scene::EnvMap;
 use glam::{Mat3, Vec3};
 use rayon::prelude::*;
@@ -144,6 +145,77 @@ pub fn shade_ground_truth(
         &vis,
         albedo,
     ))
+}
+
+/// The glossy ground truth: radiance toward a camera at `camera` (model units) of each
+/// point `points[i]` with unit normal `normals[i]` under `env` rotated by `rotation`,
+///
+/// ```text
+/// B_i = albedo * sum_p L_p dOmega_p V_i(R w_p) rho(R w_p, o_i) max(0, n_i . R w_p)
+/// ```
+///
+/// over every texel p of `env` (pass the map at its own resolution for the full truth), f64,
+/// rho and o_i from the model ([`Brdf`], [`Brdf::view_direction`]), the visibility ray-cast
+/// along every rotated direction against `occluder` (rays from x + 1e-4 diagonal x n, as
+/// [`crate::scene::envmap::texel_visibility`]). The points may be any subset of the
+/// occluder's vertices (or other points). One ray per (point, texel): cost scales with both.
+#[allow(clippy::too_many_arguments)]
+pub fn shade_glossy_truth(
+    env: &EnvMap,
+    rotation: Mat3,
+    occluder: &crate::scene::Mesh,
+    points: &[Vec3],
+    normals: &[Vec3],
+    brdf: &Brdf,
+    camera: Vec3,
+    albedo: [f32; 3],
+) -> Result<Vec<[f64; 3]>> {
+    check_rotation_and_albedo(rotation, albedo)?;
+    brdf.check()?;
+    if points.len() != normals.len() {
+        return Err(Error::InvalidArgument(format!(
+            "{} points and {} normals",
+            points.len(),
+            normals.len()
+        )));
+    }
+    if !camera.is_finite() {
+        return Err(Error::InvalidArgument(format!(
+            "camera {camera} is not finite"
+        )));
+    }
+    let samples = env.samples();
+    let rotated: Vec<(Vec3, f64, [f32; 3])> = samples
+        .iter()
+        .map(|(w, d_omega, l)| ((rotation * *w).normalize(), *d_omega, *l))
+        .collect();
+    let directions: Vec<Vec3> = rotated.iter().map(|s| s.0).collect();
+    let (lo, hi) = occluder.bounds();
+    let bvh = Bvh::build(&occluder.positions, &occluder.triangles);
+    let vis = direction_visibility(
+        points,
+        normals,
+        &bvh,
+        &directions,
+        1e-4 * (hi - lo).length(),
+    );
+    Ok((0..points.len())
+        .into_par_iter()
+        .map(|i| {
+            let n = normals[i].as_dvec3();
+            let o = Brdf::view_direction(n, points[i].as_dvec3(), camera.as_dvec3());
+            let mut sum = [0f64; 3];
+            for (p, (w, d_omega, l)) in rotated.iter().enumerate() {
+                let f = brdf.cosine_weighted(n, w.as_dvec3(), o);
+                if f > 0.0 && vis.visible(i, p) {
+                    for c in 0..3 {
+                        sum[c] += l[c] as f64 * d_omega * f;
+                    }
+                }
+            }
+            [0, 1, 2].map(|c| sum[c] * albedo[c] as f64)
+        })
+        .collect())
 }
 
 /// Whether `rotation` is about +Y by a multiple of 360 / W degrees (to 1e-4 of a column), so

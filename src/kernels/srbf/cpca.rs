@@ -399,7 +399,7 @@ fn sum8(a: &[f32], b: &[f32], term: impl Fn(f32, f32) -> f32) -> f32 {
     acc.iter().sum::<f32>() + tail
 }
 
-fn dist2(a: &[f32], b: &[f32]) -> f32 {
+pub(super) fn dist2(a: &[f32], b: &[f32]) -> f32 {
     sum8(a, b, |x, y| (x - y) * (x - y))
 }
 
@@ -408,7 +408,13 @@ fn dot_f32(a: &[f32], b: &[f32]) -> f32 {
 }
 
 /// k-means (k-means++ seeding, Lloyd iterations) of the rows of `y` (dimension `k`).
-fn kmeans(y: &[f32], k: usize, clusters: usize, iterations: usize, seed: u64) -> Vec<u32> {
+pub(super) fn kmeans(
+    y: &[f32],
+    k: usize,
+    clusters: usize,
+    iterations: usize,
+    seed: u64,
+) -> Vec<u32> {
     let n = y.len() / k;
     let row = |i: usize| &y[i * k..(i + 1) * k];
     let mut rng = Rng::new(seed);

@@ -5,9 +5,14 @@
 //! closed-form SG inner products, shade every vertex. `inputs`: what the kernel is built
 //! from and checks; `pack`: its data as the GPU holds it; `gpu`: the kernel; `cpu`: its twin.
 
+pub mod brdf;
 pub mod cpca;
 pub mod cpu;
+pub mod cta;
+pub mod cta_gpu;
 pub mod fit;
+pub mod glossy;
+pub mod glossy_gpu;
 pub mod gpu;
 pub mod inputs;
 pub mod pack;
@@ -38,6 +43,23 @@ pub fn diffuse_transfer(
             0.0
         }
     })
+}
+
+/// The glossy transfer of a mesh ([`glossy::project`]): V_v(w) rho(w, o_j) max(0, n . w)
+/// for every view node o_j of `grid`, at the texel directions of `dir_env` (those `vis` was
+/// cast for), projected onto `basis`.
+pub fn glossy_transfer(
+    basis: &Basis,
+    brdf: &brdf::Brdf,
+    grid: glossy::ViewGrid,
+    dir_env: &EnvMap,
+    normals: &[glam::Vec3],
+    vis: &Visibility,
+) -> Result<glossy::GlossyTransfer> {
+    let samples = dir_env.samples();
+    let directions: Vec<glam::Vec3> = samples.iter().map(|s| s.0).collect();
+    let solid_angles: Vec<f64> = samples.iter().map(|s| s.1).collect();
+    glossy::project(basis, brdf, grid, &directions, &solid_angles, normals, vis)
 }
 
 /// The built-in mesh of `vkshade srbf shade` and `bench srbf` (Debian package glmark2-data).

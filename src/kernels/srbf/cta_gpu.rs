@@ -1,0 +1,360 @@
+//! The glossy SRBF kernel with CTA-compressed transfer ([`super::cta`]) on the GPU, each
+//! frame: `srbf lighting` (the lighting's coefficients on the basis), `srbf cta light`
+//! (per cluster y_c = L_c^T c^), `srbf cta project` (per cluster M_c = G_c x_3 y_c, an
+//! r_v x r_w RGB table) and `srbf cta shade` (per vertex: the view taps, the interpolated
+//! view-factor row u_w and B = albedo u_v^T M_c u_w). [`CtaInputs::cpu_pipeline`] is the CPU
+//! twin of the four.
+
+use super::cta::Cta;
+use super::glossy::{ViewGrid, local_view};
+use super::glossy_gpu::GlossyFrame;
+use super::pack::MAX_BASIS;
+use crate::error::{Error, Result};
+use crate::geom::sg::Lobe;
+use crate::gpu::{
+    AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context,
+    MemoryReport, Readback, Recorder, Resource,
+};
+use crate::kernels::{Dispatch, Grid, Kernel, Pass};
+use ash::vk;
+use glam::Vec3;
+use rayon::prelude::*;
+
+pub const PASS_LIGHTING: &str = "srbf lighting";
+pub const PASS_CTA_LIGHT: &str = "srbf cta light";
+pub const PASS_CTA_PROJECT: &str = "srbf cta project";
+pub const PASS_CTA_SHADE: &str = "srbf cta shade";
+
+/// The largest view rank `srbf cta shade` holds (its local array).
+pub const MAX_VIEW_RANK: usize = 32;
+
+/// What the CTA kernel is built from: the transfer's views are the nodes of `grid`.
+pub struct CtaInputs<'a> {
+    pub lobes: &'a [Lobe],
+    pub transfer: &'a Cta,
+    pub grid: ViewGrid,
+    pub positions: &'a [Vec3],
+    pub normals: &'a [Vec3],
+}
+
+impl CtaInputs<'_> {
+    /// Checks sizes and values (the shaders index with them).
+    pub fn check(&self) -> Result<()> {
+        let bad = |what: String| Err(Error::InvalidArgument(format!("CTA SRBF input: {what}")));
+        if self.lobes.is_empty() || self.lobes.len() > 65_536 {
+            return bad(format!("{} lighting lobes (1..=65536)", self.lobes.len()));
+        }
+        if let Some(i) = self.lobes.iter().position(|l| !l.is_valid()) {
+            return bad(format!("lobe {i} is not a valid SG: {:?}", self.lobes[i]));
+        }
+        let t = self.transfer;
+        t.check()?;
+        self.grid.check()?;
+        if t.views != self.grid.views() {
+            return bad(format!(
+                "a transfer of {} views for a {} x {} view grid",
+                t.views, self.grid.n, self.grid.n
+            ));
+        }
+        if t.basis.len() > MAX_BASIS || t.ranks[1] > MAX_VIEW_RANK {
+            return bad(format!(
+                "{} basis functions (1..={MAX_BASIS}), view rank {} (1..={MAX_VIEW_RANK})",
+                t.basis.len(),
+                t.ranks[1]
+            ));
+        }
+        if self.positions.len() != t.vertices || self.normals.len() != t.vertices {
+            return bad(format!(
+                "{} positions and {} normals for a transfer of {} vertices",
+                self.positions.len(),
+                self.normals.len(),
+                t.vertices
+            ));
+        }
+        if let Some(i) = self.positions.iter().position(|p| !p.is_finite()) {
+            return bad(format!("position {i} is not finite"));
+        }
+        if let Some(i) = self
+            .normals
+            .iter()
+            .position(|n| !n.is_finite() || (n.length() - 1.0).abs() > 1e-3)
+        {
+            return bad(format!("normal {i} is not a unit vector"));
+        }
+        Ok(())
+    }
+
+    /// The CPU twin of one frame (f32 lighting coefficients, f64 sums).
+    pub fn cpu_pipeline(&self, frame: &GlossyFrame) -> Result<Vec<[f64; 3]>> {
+        self.check()?;
+        frame.check()?;
+        let t = self.transfer;
+        let coeffs = super::transfer::lighting_coefficients(self.lobes, frame.rotation, &t.basis);
+        let m = t.project(&coeffs)?;
+        let [rv, rw, _] = t.ranks;
+        let views = t.views;
+        Ok((0..t.vertices)
+            .into_par_iter()
+            .map(|v| {
+                let c = t.cluster_of[v] as usize;
+                let taps =
+                    self.grid
+                        .taps(local_view(self.positions[v], self.normals[v], frame.camera));
+                let mut uw = vec![0f64; rw];
+                for (j, w) in taps {
+                    for (b, x) in uw.iter_mut().enumerate() {
+                        *x += w as f64 * t.view_factors[(c * views + j) * rw + b] as f64;
+                    }
+                }
+                let mut out = [0f64; 3];
+                for a in 0..rv {
+                    let u = t.coeffs[v * rv + a] as f64;
+                    for (b, x) in uw.iter().enumerate() {
+                        let mm = m[(c * rv + a) * rw + b];
+                        for ch in 0..3 {
+                            out[ch] += u * mm[ch] * x;
+                        }
+                    }
+                }
+                [0, 1, 2].map(|ch| out[ch] * frame.albedo[ch] as f64)
+            })
+            .collect())
+    }
+}
+
+/// The GPU kernel of CTA-compressed glossy transfer.
+pub struct CtaKernel {
+    ctx: Context,
+    stages: [(ComputePipeline, BindGroup); 4],
+    buffers: Vec<Buffer>,
+    vertices: u32,
+    grid: u32,
+    ranks: [u32; 3],
+    clusters: u32,
+    basis: u32,
+    lobes: u32,
+    sharpness: f32,
+}
+
+const RADIANCE: usize = 0;
+
+impl CtaKernel {
+    /// Checks `inputs`, creates the buffers and pipelines and records the uploads into `rec`.
+    pub fn new(rec: &mut Recorder, inputs: &CtaInputs<'_>) -> Result<CtaKernel> {
+        inputs.check()?;
+        let ctx = rec.context();
+        let t = inputs.transfer;
+        let [rv, rw, rl] = t.ranks;
+        fn storage<T: bytemuck::Pod>(rec: &mut Recorder, name: &str, data: &[T]) -> Result<Buffer> {
+            let bytes: &[u8] = bytemuck::cast_slice(data);
+            rec.buffer_with(name, BufferDesc::storage(bytes.len() as u64), bytes)
+        }
+        let vec4 =
+            |v: &[Vec3]| -> Vec<[f32; 4]> { v.iter().map(|x| x.extend(0.0).into()).collect() };
+        let zeros = |rec: &mut Recorder, name: &str, n: usize| {
+            rec.buffer_with(
+                name,
+                BufferDesc::storage(n as u64 * 16),
+                &vec![[0f32; 4]; n],
+            )
+        };
+        let radiance = Buffer::new(
+            &ctx,
+            "srbf cta radiance",
+            BufferDesc::storage(t.vertices as u64 * 16).usage(vk::BufferUsageFlags::VERTEX_BUFFER),
+        )?;
+        let lobe_axes: Vec<[f32; 4]> = inputs
+            .lobes
+            .iter()
+            .map(|l| [l.axis[0], l.axis[1], l.axis[2], l.sharpness])
+            .collect();
+        let lobe_amps: Vec<[f32; 4]> = inputs
+            .lobes
+            .iter()
+            .map(|l| [l.amplitude[0], l.amplitude[1], l.amplitude[2], 0.0])
+            .collect();
+        let buffers = vec![
+            radiance,
+            storage(rec, "srbf cta lobe axes", &lobe_axes)?,
+            storage(rec, "srbf cta lobe amplitudes", &lobe_amps)?,
+            storage(rec, "srbf cta basis axes", &vec4(&t.basis.axes))?,
+            rec.buffer_with(
+                "srbf cta coefficients",
+                BufferDesc::storage(MAX_BASIS as u64 * 16)
+                    .usage(vk::BufferUsageFlags::UNIFORM_BUFFER),
+                &vec![[0f32; 4]; MAX_BASIS],
+            )?,
+            storage(rec, "srbf cta light factors", &t.light_factors)?,
+            zeros(rec, "srbf cta projected light", t.clusters * rl)?,
+            storage(rec, "srbf cta cores", &t.cores)?,
+            zeros(rec, "srbf cta cluster tables", t.clusters * rv * rw)?,
+            storage(rec, "srbf cta vertex coefficients", &t.coeffs)?,
+            storage(rec, "srbf cta clusters", &t.cluster_of)?,
+            storage(rec, "srbf cta view factors", &t.view_factors)?,
+            storage(rec, "srbf cta positions", &vec4(inputs.positions))?,
+            storage(rec, "srbf cta normals", &vec4(inputs.normals))?,
+        ];
+        let [
+            _,
+            axes,
+            amps,
+            basis_axes,
+            coeffs,
+            light,
+            y,
+            cores,
+            m,
+            vc,
+            clusters,
+            view,
+            points,
+            normals,
+        ] = std::array::from_fn(|i| &buffers[i]);
+        let (b, w) = (Resource::Buffer, AccessSet::from(A::ComputeShaderWrite));
+        let pipeline = |name| crate::shaders::pipeline(&ctx, name);
+        let lighting = pipeline("srbf/lighting")?;
+        let lighting_bind = lighting.bind_declared(
+            &[
+                ("lobe_axes", b(axes)),
+                ("lobe_amps", b(amps)),
+                ("basis_axes", b(basis_axes)),
+                ("coeffs", b(coeffs)),
+            ],
+            &[("coeffs", w)],
+        )?;
+        let light_p = pipeline("srbf/cta_light")?;
+        let light_bind = light_p.bind_declared(
+            &[("light", b(light)), ("coeffs", b(coeffs)), ("y", b(y))],
+            &[("y", w)],
+        )?;
+        let project = pipeline("srbf/cta_project")?;
+        let project_bind = project.bind_declared(
+            &[("cores", b(cores)), ("y", b(y)), ("m", b(m))],
+            &[("m", w)],
+        )?;
+        let shade = pipeline("srbf/cta_shade")?;
+        let shade_bind = shade.bind_declared(
+            &[
+                ("vcoeffs", b(vc)),
+                ("cluster", b(clusters)),
+                ("view", b(view)),
+                ("m", b(m)),
+                ("points", b(points)),
+                ("normals", b(normals)),
+                ("radiance", b(&buffers[RADIANCE])),
+            ],
+            &[("radiance", w)],
+        )?;
+        Ok(CtaKernel {
+            ctx,
+            stages: [
+                (lighting, lighting_bind),
+                (light_p, light_bind),
+                (project, project_bind),
+                (shade, shade_bind),
+            ],
+            vertices: t.vertices as u32,
+            grid: inputs.grid.n,
+            ranks: t.ranks.map(|r| r as u32),
+            clusters: t.clusters as u32,
+            basis: t.basis.len() as u32,
+            lobes: inputs.lobes.len() as u32,
+            sharpness: t.basis.sharpness,
+            buffers,
+        })
+    }
+
+    /// Per-vertex RGB radiance toward the camera (vec4, alpha 1).
+    pub fn radiance(&self) -> &Buffer {
+        &self.buffers[RADIANCE]
+    }
+
+    fn lighting_args(&self, frame: &GlossyFrame) -> Result<Dispatch> {
+        let mut push: Vec<u8> = Vec::with_capacity(64);
+        for c in 0..3 {
+            let col = frame.rotation.col(c);
+            for x in [col.x, col.y, col.z, 0.0] {
+                push.extend_from_slice(&x.to_le_bytes());
+            }
+        }
+        push.extend_from_slice(&self.lobes.to_le_bytes());
+        push.extend_from_slice(&self.basis.to_le_bytes());
+        push.extend_from_slice(&self.sharpness.to_le_bytes());
+        Ok(Dispatch {
+            push,
+            grid: Grid::Invocations([self.basis, 1, 1]),
+        })
+    }
+
+    fn light_args(&self, _frame: &GlossyFrame) -> Result<Dispatch> {
+        let entries = self.clusters * self.ranks[2];
+        Ok(Dispatch::words(
+            &[entries, self.ranks[2], self.basis],
+            Grid::Invocations([entries, 1, 1]),
+        ))
+    }
+
+    fn project_args(&self, _frame: &GlossyFrame) -> Result<Dispatch> {
+        let rows = self.ranks[0] * self.ranks[1];
+        let entries = self.clusters * rows;
+        Ok(Dispatch::words(
+            &[entries, rows, self.ranks[2]],
+            Grid::Invocations([entries, 1, 1]),
+        ))
+    }
+
+    fn shade_args(&self, frame: &GlossyFrame) -> Result<Dispatch> {
+        let (c, a) = (frame.camera, frame.albedo);
+        let push: Vec<u8> = [c.x, c.y, c.z, 0.0, a[0], a[1], a[2], 0.0]
+            .iter()
+            .flat_map(|x| x.to_le_bytes())
+            .chain(
+                [self.vertices, self.grid, self.ranks[0], self.ranks[1]]
+                    .iter()
+                    .flat_map(|x| x.to_le_bytes()),
+            )
+            .collect();
+        Ok(Dispatch {
+            push,
+            grid: Grid::Invocations([self.vertices, 1, 1]),
+        })
+    }
+}
+
+impl Kernel for CtaKernel {
+    type Input = GlossyFrame;
+    type Readback = Readback;
+    type Output = Vec<[f32; 3]>;
+
+    fn name(&self) -> &'static str {
+        "srbf cta"
+    }
+
+    fn pass_table(&self) -> Vec<Pass<'_, Self>> {
+        let [l, y, m, s] = &self.stages;
+        vec![
+            Pass::dispatch(PASS_LIGHTING, &l.0, &l.1, Self::lighting_args),
+            Pass::dispatch(PASS_CTA_LIGHT, &y.0, &y.1, Self::light_args),
+            Pass::dispatch(PASS_CTA_PROJECT, &m.0, &m.1, Self::project_args),
+            Pass::dispatch(PASS_CTA_SHADE, &s.0, &s.1, Self::shade_args),
+        ]
+    }
+
+    fn check_input(&self, frame: &GlossyFrame) -> Result<()> {
+        frame.check()
+    }
+
+    fn read_back(&self, rec: &mut Recorder) -> Result<Readback> {
+        rec.read_back(&self.buffers[RADIANCE])
+    }
+
+    fn collect(&self, readback: &Readback) -> Result<Vec<[f32; 3]>> {
+        let v: Vec<[f32; 4]> = readback.to_vec()?;
+        Ok(v.iter().map(|x| [x[0], x[1], x[2]]).collect())
+    }
+
+    fn memory(&self) -> MemoryReport {
+        let all: Vec<&Buffer> = self.buffers.iter().collect();
+        self.ctx.memory_of(&all)
+    }
+}

@@ -1,0 +1,303 @@
+//! The glossy SRBF kernel on the GPU: pass `srbf lighting` (the diffuse kernel's: the
+//! rotated lobes' coefficients on the transfer basis), then pass `srbf glossy shade`: every
+//! vertex's radiance toward the camera from its transfer matrix (glsl/srbf/glossy.comp;
+//! [`GlossyTransfer::shade`] is its CPU twin). Every lobe goes through the basis (no compact
+//! lobes on this path).
+
+use super::glossy::GlossyTransfer;
+use super::inputs::SrbfFrame;
+use super::pack::MAX_BASIS;
+use crate::error::{Error, Result};
+use crate::geom::sg::Lobe;
+use crate::gpu::{
+    AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context,
+    MemoryReport, Readback, Recorder, Resource,
+};
+use crate::kernels::{Dispatch, Grid, Kernel, Pass};
+use ash::vk;
+use glam::{Mat3, Vec3};
+
+pub const PASS_LIGHTING: &str = "srbf lighting";
+pub const PASS_GLOSSY: &str = "srbf glossy shade";
+
+/// One frame: the environment's rotation, the albedo and the camera position (model units).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct GlossyFrame {
+    pub rotation: Mat3,
+    pub albedo: [f32; 3],
+    pub camera: Vec3,
+}
+
+impl GlossyFrame {
+    pub fn check(&self) -> Result<()> {
+        SrbfFrame {
+            rotation: self.rotation,
+            albedo: self.albedo,
+        }
+        .check()?;
+        if !self.camera.is_finite() {
+            return Err(Error::InvalidArgument(format!(
+                "camera position {} is not finite",
+                self.camera
+            )));
+        }
+        Ok(())
+    }
+}
+
+/// What the glossy kernel is built from.
+pub struct GlossyInputs<'a> {
+    pub lobes: &'a [Lobe],
+    pub transfer: &'a GlossyTransfer,
+    pub positions: &'a [Vec3],
+    pub normals: &'a [Vec3],
+}
+
+impl GlossyInputs<'_> {
+    /// Checks sizes and values (the shader indexes with them).
+    pub fn check(&self) -> Result<()> {
+        let bad = |what: String| Err(Error::InvalidArgument(format!("glossy SRBF input: {what}")));
+        if self.lobes.is_empty() || self.lobes.len() > 65_536 {
+            return bad(format!("{} lighting lobes (1..=65536)", self.lobes.len()));
+        }
+        if let Some(i) = self.lobes.iter().position(|l| !l.is_valid()) {
+            return bad(format!("lobe {i} is not a valid SG: {:?}", self.lobes[i]));
+        }
+        let t = self.transfer;
+        t.check()?;
+        if t.rows.basis.len() > MAX_BASIS {
+            return bad(format!(
+                "{} basis functions (1..={MAX_BASIS})",
+                t.rows.basis.len()
+            ));
+        }
+        if self.positions.len() != t.vertices || self.normals.len() != t.vertices {
+            return bad(format!(
+                "{} positions and {} normals for a transfer of {} vertices",
+                self.positions.len(),
+                self.normals.len(),
+                t.vertices
+            ));
+        }
+        if let Some(i) = self.positions.iter().position(|p| !p.is_finite()) {
+            return bad(format!("position {i} is not finite"));
+        }
+        if let Some(i) = self
+            .normals
+            .iter()
+            .position(|n| !n.is_finite() || (n.length() - 1.0).abs() > 1e-3)
+        {
+            return bad(format!("normal {i} is not a unit vector"));
+        }
+        Ok(())
+    }
+
+    /// The CPU twin of one frame (f32 lighting coefficients as the GPU's, f64 sums).
+    pub fn cpu_pipeline(&self, frame: &GlossyFrame) -> Result<Vec<[f64; 3]>> {
+        self.check()?;
+        frame.check()?;
+        let basis = &self.transfer.rows.basis;
+        let coeffs = super::transfer::lighting_coefficients(self.lobes, frame.rotation, basis);
+        self.transfer.shade(
+            &coeffs,
+            self.positions,
+            self.normals,
+            frame.camera,
+            frame.albedo,
+        )
+    }
+}
+
+/// The GPU kernel of glossy transfer.
+pub struct GlossyKernel {
+    ctx: Context,
+    lighting: (ComputePipeline, BindGroup),
+    shade: (ComputePipeline, BindGroup),
+    buffers: [Buffer; 8],
+    vertices: u32,
+    grid: u32,
+    basis: u32,
+    lobes: u32,
+    sharpness: f32,
+}
+
+// Indices into `GlossyKernel::buffers`.
+const LOBE_AXES: usize = 0;
+const LOBE_AMPS: usize = 1;
+const BASIS_AXES: usize = 2;
+const COEFFS: usize = 3;
+const ROWS: usize = 4;
+const POINTS: usize = 5;
+const NORMALS: usize = 6;
+const RADIANCE: usize = 7;
+
+impl GlossyKernel {
+    /// Checks `inputs` (and the transfer's size against maxStorageBufferRange), creates the
+    /// buffers and pipelines and records the uploads into `rec`.
+    pub fn new(rec: &mut Recorder, inputs: &GlossyInputs<'_>) -> Result<GlossyKernel> {
+        inputs.check()?;
+        let ctx = rec.context();
+        let t = inputs.transfer;
+        let bytes = t.rows.coeffs.len() as u64 * 4;
+        let limit = ctx.limits().max_storage_buffer_range;
+        if bytes > limit || t.rows.coeffs.len() > u32::MAX as usize {
+            return Err(Error::InvalidArgument(format!(
+                "glossy SRBF: the uncompressed transfer of {} vertices x {} views x {} basis \
+                 functions is {bytes} bytes; the device's storage buffers hold {limit} \
+                 (maxStorageBufferRange): fewer views or basis functions, or a smaller mesh",
+                t.vertices,
+                t.views(),
+                t.rows.basis.len()
+            )));
+        }
+        fn storage<T: bytemuck::Pod>(rec: &mut Recorder, name: &str, data: &[T]) -> Result<Buffer> {
+            let bytes: &[u8] = bytemuck::cast_slice(data);
+            rec.buffer_with(name, BufferDesc::storage(bytes.len() as u64), bytes)
+        }
+        let vec4 =
+            |v: &[Vec3]| -> Vec<[f32; 4]> { v.iter().map(|x| x.extend(0.0).into()).collect() };
+        let lobe_axes: Vec<[f32; 4]> = inputs
+            .lobes
+            .iter()
+            .map(|l| [l.axis[0], l.axis[1], l.axis[2], l.sharpness])
+            .collect();
+        let lobe_amps: Vec<[f32; 4]> = inputs
+            .lobes
+            .iter()
+            .map(|l| [l.amplitude[0], l.amplitude[1], l.amplitude[2], 0.0])
+            .collect();
+        let basis = &t.rows.basis;
+        let buffers = [
+            storage(rec, "srbf glossy lobe axes", &lobe_axes)?,
+            storage(rec, "srbf glossy lobe amplitudes", &lobe_amps)?,
+            storage(rec, "srbf glossy basis axes", &vec4(&basis.axes))?,
+            rec.buffer_with(
+                "srbf glossy coefficients",
+                BufferDesc::storage(MAX_BASIS as u64 * 16)
+                    .usage(vk::BufferUsageFlags::UNIFORM_BUFFER),
+                &vec![[0f32; 4]; MAX_BASIS],
+            )?,
+            storage(rec, "srbf glossy transfer rows", &t.rows.coeffs)?,
+            storage(rec, "srbf glossy positions", &vec4(inputs.positions))?,
+            storage(rec, "srbf glossy normals", &vec4(inputs.normals))?,
+            Buffer::new(
+                &ctx,
+                "srbf glossy radiance",
+                BufferDesc::storage(t.vertices as u64 * 16)
+                    .usage(vk::BufferUsageFlags::VERTEX_BUFFER),
+            )?,
+        ];
+        let lighting = crate::shaders::pipeline(&ctx, "srbf/lighting")?;
+        let shade = crate::shaders::pipeline(&ctx, "srbf/glossy")?;
+        let (b, w) = (Resource::Buffer, AccessSet::from(A::ComputeShaderWrite));
+        let lighting_bind = lighting.bind_declared(
+            &[
+                ("lobe_axes", b(&buffers[LOBE_AXES])),
+                ("lobe_amps", b(&buffers[LOBE_AMPS])),
+                ("basis_axes", b(&buffers[BASIS_AXES])),
+                ("coeffs", b(&buffers[COEFFS])),
+            ],
+            &[("coeffs", w)],
+        )?;
+        let shade_bind = shade.bind_declared(
+            &[
+                ("rows", b(&buffers[ROWS])),
+                ("points", b(&buffers[POINTS])),
+                ("normals", b(&buffers[NORMALS])),
+                ("coeffs", b(&buffers[COEFFS])),
+                ("radiance", b(&buffers[RADIANCE])),
+            ],
+            &[("radiance", w)],
+        )?;
+        Ok(GlossyKernel {
+            ctx,
+            lighting: (lighting, lighting_bind),
+            shade: (shade, shade_bind),
+            buffers,
+            vertices: t.vertices as u32,
+            grid: t.grid.n,
+            basis: basis.len() as u32,
+            lobes: inputs.lobes.len() as u32,
+            sharpness: basis.sharpness,
+        })
+    }
+
+    /// Per-vertex RGB radiance toward the camera (vec4, alpha 1).
+    pub fn radiance(&self) -> &Buffer {
+        &self.buffers[RADIANCE]
+    }
+
+    fn lighting_args(&self, frame: &GlossyFrame) -> Result<Dispatch> {
+        let mut push: Vec<u8> = Vec::with_capacity(64);
+        for c in 0..3 {
+            let col = frame.rotation.col(c);
+            for x in [col.x, col.y, col.z, 0.0] {
+                push.extend_from_slice(&x.to_le_bytes());
+            }
+        }
+        push.extend_from_slice(&self.lobes.to_le_bytes());
+        push.extend_from_slice(&self.basis.to_le_bytes());
+        push.extend_from_slice(&self.sharpness.to_le_bytes());
+        Ok(Dispatch {
+            push,
+            grid: Grid::Invocations([self.basis, 1, 1]),
+        })
+    }
+
+    fn shade_args(&self, frame: &GlossyFrame) -> Result<Dispatch> {
+        let (c, a) = (frame.camera, frame.albedo);
+        let push: Vec<u8> = [c.x, c.y, c.z, 0.0, a[0], a[1], a[2], 0.0]
+            .iter()
+            .flat_map(|x| x.to_le_bytes())
+            .chain(
+                [self.vertices, self.grid, self.basis]
+                    .iter()
+                    .flat_map(|x| x.to_le_bytes()),
+            )
+            .collect();
+        Ok(Dispatch {
+            push,
+            grid: Grid::Invocations([self.vertices, 1, 1]),
+        })
+    }
+}
+
+impl Kernel for GlossyKernel {
+    type Input = GlossyFrame;
+    type Readback = Readback;
+    type Output = Vec<[f32; 3]>;
+
+    fn name(&self) -> &'static str {
+        "srbf glossy"
+    }
+
+    fn pass_table(&self) -> Vec<Pass<'_, Self>> {
+        vec![
+            Pass::dispatch(
+                PASS_LIGHTING,
+                &self.lighting.0,
+                &self.lighting.1,
+                Self::lighting_args,
+            ),
+            Pass::dispatch(PASS_GLOSSY, &self.shade.0, &self.shade.1, Self::shade_args),
+        ]
+    }
+
+    fn check_input(&self, frame: &GlossyFrame) -> Result<()> {
+        frame.check()
+    }
+
+    fn read_back(&self, rec: &mut Recorder) -> Result<Readback> {
+        rec.read_back(&self.buffers[RADIANCE])
+    }
+
+    fn collect(&self, readback: &Readback) -> Result<Vec<[f32; 3]>> {
+        let v: Vec<[f32; 4]> = readback.to_vec()?;
+        Ok(v.iter().map(|x| [x[0], x[1], x[2]]).collect())
+    }
+
+    fn memory(&self) -> MemoryReport {
+        let all: Vec<&Buffer> = self.buffers.iter().collect();
+        self.ctx.memory_of(&all)
+    }
+}

@@ -1,0 +1,433 @@
+//! Glossy SRBF transfer: the GPU against its CPU twin under validation, and the method against
+//! the brute-force glossy truth on a real mesh and map.
+
+mod common;
+
+use glam::{Mat3, Vec3};
+use vkshade::geom::Rng;
+use vkshade::geom::sg::{self, Lobe};
+use vkshade::kernels::srbf::brdf::Brdf;
+use vkshade::kernels::srbf::glossy::{GlossyTransfer, ViewGrid};
+use vkshade::kernels::srbf::glossy_gpu::{GlossyFrame, GlossyInputs, GlossyKernel};
+use vkshade::kernels::srbf::transfer::{Basis, Transfer};
+use vkshade::kernels::{Kernel, run_frames};
+
+/// Random lobes, a random glossy transfer (K = 96 basis functions, a 5 x 5 view grid),
+/// random points in a box and random unit normals.
+struct Scene {
+    lobes: Vec<Lobe>,
+    transfer: GlossyTransfer,
+    positions: Vec<Vec3>,
+    normals: Vec<Vec3>,
+}
+
+fn scene(vertices: usize) -> Scene {
+    let mut rng = Rng::new(19);
+    let lobes = (0..40)
+        .map(|_| Lobe {
+            axis: vkshade::geom::uniform_sphere(rng.f32(), rng.f32()).to_array(),
+            sharpness: 1.0 + 60.0 * rng.f32() * rng.f32(),
+            amplitude: [rng.f32() * 3.0, rng.f32() * 2.0, rng.f32()],
+        })
+        .collect();
+    let (k, grid) = (96, ViewGrid { n: 5 });
+    let rows = vertices * grid.views();
+    let transfer = GlossyTransfer {
+        rows: Transfer {
+            basis: Basis::fibonacci(k),
+            vertices: rows,
+            coeffs: (0..rows * k).map(|_| rng.f32() * 0.1 - 0.03).collect(),
+            projection_rel_l2: 0.0,
+        },
+        vertices,
+        grid,
+        brdf: Brdf::Phong {
+            exponent: 8.0,
+            diffuse: 0.4,
+            specular: 0.6,
+        },
+    };
+    Scene {
+        lobes,
+        transfer,
+        positions: (0..vertices)
+            .map(|_| Vec3::new(rng.f32(), rng.f32(), rng.f32()) * 2.0 - 1.0)
+            .collect(),
+        normals: (0..vertices)
+            .map(|_| vkshade::geom::uniform_sphere(rng.f32(), rng.f32()))
+            .collect(),
+    }
+}
+
+fn inputs(s: &Scene) -> GlossyInputs<'_> {
+    GlossyInputs {
+        lobes: &s.lobes,
+        transfer: &s.transfer,
+        positions: &s.positions,
+        normals: &s.normals,
+    }
+}
+
+#[test]
+fn glossy_gpu_matches_its_cpu_twin() {
+    let s = scene(1000);
+    // Cameras outside the box, one inside it (views below many vertices' horizons) and one
+    // far away; rotations about +Y and an oblique axis.
+    let frames: Vec<GlossyFrame> = [
+        (0.0f32, Vec3::new(0.0, 0.5, 4.0)),
+        (37.0, Vec3::new(3.0, -2.0, 1.0)),
+        (131.0, Vec3::new(0.1, 0.2, -0.3)),
+        (250.0, Vec3::new(-400.0, 90.0, 20.0)),
+    ]
+    .iter()
+    .enumerate()
+    .map(|(i, &(deg, camera))| GlossyFrame {
+        rotation: if i % 2 == 0 {
+            sg::rotation(Vec3::Y, deg)
+        } else {
+            sg::rotation(Vec3::new(1.0, 2.0, -0.5), deg)
+        },
+        albedo: [0.9, 0.7, 0.5],
+        camera,
+    })
+    .collect();
+    common::with_gpu(|ctx| {
+        let mut setup = ctx.recorder("glossy setup")?;
+        let kernel = GlossyKernel::new(&mut setup, &inputs(&s))?;
+        setup.submit_and_wait()?;
+        let names: Vec<&str> = kernel.passes().iter().map(|p| p.name).collect();
+        assert_eq!(names, ["srbf lighting", "srbf glossy shade"]);
+        let mut done = 0;
+        run_frames(ctx, &kernel, &frames, 2, |r| {
+            let want = inputs(&s).cpu_pipeline(&frames[r.index])?;
+            // f32 on the GPU: each coefficient sums 40 products and each vertex 4 x 96 terms
+            // of mixed sign; the twin sums the same f32 inputs in f64. ~1e-6 per term of the
+            // output's scale, so 1e-4 of the largest |value|. The tap weights are computed in
+            // f32 on both sides from the same formulas; a vertex whose view falls exactly on a
+            // cell edge could pick the neighbouring cell, which changes nothing (weight 0).
+            let scale = want.iter().flatten().fold(0f64, |m, x| m.max(x.abs()));
+            let worst = r
+                .output
+                .iter()
+                .zip(&want)
+                .flat_map(|(g, w)| (0..3).map(move |c| (g[c] as f64 - w[c]).abs()))
+                .fold(0f64, f64::max);
+            assert!(
+                worst <= 1e-4 * scale,
+                "frame {}: {worst} vs scale {scale}",
+                r.index
+            );
+            done += 1;
+            Ok(())
+        })?;
+        assert_eq!(done, frames.len());
+        Ok(())
+    });
+}
+
+#[test]
+fn bad_glossy_inputs_are_refused() {
+    let s = scene(10);
+    let mut short = s.transfer.clone();
+    short.rows.coeffs.pop();
+    let e = inputs(&s)
+        .cpu_pipeline(&GlossyFrame {
+            rotation: Mat3::IDENTITY,
+            albedo: [1.0; 3],
+            camera: Vec3::Z,
+        })
+        .map(|_| ())
+        .and(
+            GlossyInputs {
+                transfer: &short,
+                ..inputs(&s)
+            }
+            .check(),
+        )
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("glossy transfer"), "{e}");
+    let e = GlossyInputs {
+        positions: &s.positions[1..],
+        ..inputs(&s)
+    }
+    .check()
+    .unwrap_err()
+    .to_string();
+    assert!(e.contains("9 positions"), "{e}");
+    let mut grid = s.transfer.clone();
+    grid.grid = ViewGrid { n: 1 };
+    assert!(grid.check().unwrap_err().to_string().contains("1 x 1"));
+    common::with_gpu(|ctx| {
+        let mut rec = ctx.recorder("bad glossy")?;
+        let kernel = GlossyKernel::new(&mut rec, &inputs(&s))?;
+        for frame in [
+            GlossyFrame {
+                rotation: Mat3::from_diagonal(Vec3::new(1.0, 1.0, -1.0)),
+                albedo: [1.0; 3],
+                camera: Vec3::Z,
+            },
+            GlossyFrame {
+                rotation: Mat3::IDENTITY,
+                albedo: [1.0; 3],
+                camera: Vec3::new(f32::NAN, 0.0, 0.0),
+            },
+        ] {
+            assert!(kernel.record(&mut rec, &frame).is_err());
+        }
+        drop(kernel);
+        rec.submit_and_wait()?;
+        Ok(())
+    });
+}
+
+/// Relative L2 over points and channels: sqrt(sum |a - b|^2 / sum |b|^2).
+fn rel_l2(a: &[[f64; 3]], b: &[[f64; 3]]) -> f64 {
+    let (mut num, mut den) = (0.0, 0.0);
+    for (x, y) in a.iter().zip(b) {
+        for c in 0..3 {
+            num += (x[c] - y[c]).powi(2);
+            den += y[c].powi(2);
+        }
+    }
+    (num / den).sqrt()
+}
+
+/// The glossy method (its CPU twin, which the GPU matches above) against the brute-force
+/// glossy truth on the Stanford bunny (every 40th vertex shaded, 871 points, the whole mesh
+/// occluding) under Blender's forest light (64 lobes; truth and transfer on the 64 x 32
+/// texel directions), Phong exponent 8 with kd 0.3 / ks 0.7, for cameras whose views are not
+/// grid nodes and rotations off the texel grid, with the error split by stage: fit (the truth
+/// over the rasterised lobes against the truth) and transfer + view interpolation (the method
+/// against that).
+///
+/// Measured (relative L2 over points and channels): 8 x 8 grid 5.5-5.8% (fit 1.4-1.5%,
+/// transfer + view 5.3-5.9%); 12 x 12 grid 3.0-3.4% (transfer + view 3.0%). The 12 x 12 grid
+/// is held to the issue's 5% target; the 8 x 8 grid must be worse on every frame (the view
+/// interpolation is the lever the grid size controls, as the h^2 lambda / 8 estimate says),
+/// and the fit's share is held to 2% (measured 1.5%, 64 lobes of a smooth map).
+#[test]
+fn glossy_bunny_against_the_brute_force_truth() {
+    use vkshade::kernels::srbf::fit::{FitConfig, fit};
+    use vkshade::reference::srbf::{rasterise_lobes, shade_glossy_truth};
+    use vkshade::scene::envmap::EnvMap;
+    let mesh = vkshade::scene::load(std::path::Path::new(vkshade::kernels::srbf::DEFAULT_MESH))
+        .unwrap()
+        .mesh;
+    let env = EnvMap::load(std::path::Path::new(vkshade::kernels::srbf::DEFAULT_ENV)).unwrap();
+    let lobes = fit(
+        &env.downsampled(128).unwrap().samples(),
+        &FitConfig {
+            lobes: 64,
+            ..FitConfig::default()
+        },
+    )
+    .unwrap()
+    .lobes;
+    let dir_env = env.downsampled(64).unwrap();
+    let pick: Vec<usize> = (0..mesh.positions.len()).step_by(40).collect();
+    let points: Vec<Vec3> = pick.iter().map(|&v| mesh.positions[v]).collect();
+    let normals: Vec<Vec3> = pick.iter().map(|&v| mesh.normals[v]).collect();
+    let directions: Vec<Vec3> = dir_env.samples().iter().map(|s| s.0).collect();
+    let (lo, hi) = mesh.bounds();
+    let bvh = vkshade::geom::Bvh::build(&mesh.positions, &mesh.triangles);
+    let vis = vkshade::geom::visibility::direction_visibility(
+        &points,
+        &normals,
+        &bvh,
+        &directions,
+        1e-4 * (hi - lo).length(),
+    );
+    let centre = (lo + hi) * 0.5;
+    let radius = (hi - lo).length();
+    let brdf = Brdf::Phong {
+        exponent: 8.0,
+        diffuse: 0.3,
+        specular: 0.7,
+    };
+    let mut errors: Vec<Vec<f64>> = Vec::new();
+    for n in [8u32, 12] {
+        let mut per_frame = Vec::new();
+        let t0 = std::time::Instant::now();
+        let transfer = vkshade::kernels::srbf::glossy_transfer(
+            &Basis::fibonacci(256),
+            &brdf,
+            ViewGrid { n },
+            &dir_env,
+            &normals,
+            &vis,
+        )
+        .unwrap();
+        eprintln!(
+            "grid {n}: projection {:.2?}, estimated rel L2 {:.4}",
+            t0.elapsed(),
+            transfer.rows.projection_rel_l2
+        );
+        let input = GlossyInputs {
+            lobes: &lobes,
+            transfer: &transfer,
+            positions: &points,
+            normals: &normals,
+        };
+        for (deg, axis, cam) in [
+            (0.0f32, Vec3::Y, Vec3::new(0.3, 0.2, 1.0)),
+            (40.0, Vec3::Y, Vec3::new(-1.0, 0.4, 0.5)),
+            (73.0, Vec3::X, Vec3::new(0.7, -0.3, -0.8)),
+        ] {
+            let frame = GlossyFrame {
+                rotation: sg::rotation(axis, deg),
+                albedo: [1.0; 3],
+                camera: centre + cam.normalize() * 2.0 * radius,
+            };
+            let method = input.cpu_pipeline(&frame).unwrap();
+            let truth = shade_glossy_truth(
+                &dir_env,
+                frame.rotation,
+                &mesh,
+                &points,
+                &normals,
+                &brdf,
+                frame.camera,
+                frame.albedo,
+            )
+            .unwrap();
+            let raster = rasterise_lobes(&lobes, frame.rotation, &dir_env);
+            let lobe_map = EnvMap::from_texels(
+                dir_env.width,
+                dir_env.height,
+                raster.iter().map(|c| c.map(|x| x as f32)).collect(),
+                "lobes",
+            )
+            .unwrap();
+            let sg_truth = shade_glossy_truth(
+                &lobe_map,
+                Mat3::IDENTITY,
+                &mesh,
+                &points,
+                &normals,
+                &brdf,
+                frame.camera,
+                frame.albedo,
+            )
+            .unwrap();
+            let (e, fit_share) = (rel_l2(&method, &truth), rel_l2(&sg_truth, &truth));
+            eprintln!(
+                "grid {n} {axis}:{deg}: method vs truth {e:.4}; fit {fit_share:.4}; transfer + \
+                 view {:.4}",
+                rel_l2(&method, &sg_truth)
+            );
+            assert!(fit_share < 0.02, "fit share {fit_share}");
+            per_frame.push(e);
+        }
+        errors.push(per_frame);
+    }
+    for (coarse, fine) in errors[0].iter().zip(&errors[1]) {
+        assert!(*fine <= 0.05, "12 x 12 grid: {fine}");
+        assert!(
+            coarse > fine,
+            "8 x 8 grid {coarse} not worse than 12 x 12 {fine}"
+        );
+    }
+}
+
+/// CTA-compressed glossy transfer: the GPU's four passes against their CPU twin, and the
+/// twin (per-cluster tables, interpolated view factor) against shading the densely
+/// reconstructed transfer matrices T_v = sum u G W L with the uncompressed path.
+#[test]
+fn cta_gpu_matches_its_twin_and_the_dense_reconstruction() {
+    use vkshade::kernels::srbf::cta::{Cta, CtaConfig};
+    use vkshade::kernels::srbf::cta_gpu::{CtaInputs, CtaKernel};
+    let s = scene(600);
+    let t = &s.transfer;
+    let cta = Cta::compress(
+        &t.rows.basis,
+        &t.rows.coeffs,
+        t.vertices,
+        t.views(),
+        &CtaConfig {
+            clusters: 5,
+            ranks: [4, 5, 8],
+            iterations: 1,
+            ..CtaConfig::default()
+        },
+    )
+    .unwrap();
+    let dense = GlossyTransfer {
+        rows: Transfer {
+            coeffs: (0..t.vertices)
+                .flat_map(|v| cta.reconstruct(v))
+                .map(|x| x as f32)
+                .collect(),
+            ..t.rows.clone()
+        },
+        ..t.clone()
+    };
+    let inputs = CtaInputs {
+        lobes: &s.lobes,
+        transfer: &cta,
+        grid: t.grid,
+        positions: &s.positions,
+        normals: &s.normals,
+    };
+    let frames: Vec<GlossyFrame> = [
+        (0.0f32, Vec3::new(0.0, 0.5, 4.0)),
+        (77.0, Vec3::new(-3.0, 1.0, 0.2)),
+    ]
+    .iter()
+    .map(|&(deg, camera)| GlossyFrame {
+        rotation: sg::rotation(Vec3::new(0.3, 1.0, 0.1), deg),
+        albedo: [0.9, 0.7, 0.5],
+        camera,
+    })
+    .collect();
+    let max_abs = |v: &[[f64; 3]]| v.iter().flatten().fold(0f64, |m, x| m.max(x.abs()));
+    let worst = |a: &[[f64; 3]], b: &[[f64; 3]]| {
+        a.iter()
+            .zip(b)
+            .flat_map(|(x, y)| (0..3).map(move |c| (x[c] - y[c]).abs()))
+            .fold(0f64, f64::max)
+    };
+    for f in &frames {
+        let twin = inputs.cpu_pipeline(f).unwrap();
+        let lit = GlossyInputs {
+            lobes: &s.lobes,
+            transfer: &dense,
+            positions: &s.positions,
+            normals: &s.normals,
+        }
+        .cpu_pipeline(f)
+        .unwrap();
+        // The same f32 factors summed in a different order (f64), the dense rows rounded to
+        // f32 once: 1e-5 of the largest value.
+        let e = worst(&twin, &lit);
+        assert!(e <= 1e-5 * max_abs(&lit), "{e} vs {}", max_abs(&lit));
+    }
+    common::with_gpu(|ctx| {
+        let mut setup = ctx.recorder("cta setup")?;
+        let kernel = CtaKernel::new(&mut setup, &inputs)?;
+        setup.submit_and_wait()?;
+        let names: Vec<&str> = kernel.passes().iter().map(|p| p.name).collect();
+        assert_eq!(
+            names,
+            [
+                "srbf lighting",
+                "srbf cta light",
+                "srbf cta project",
+                "srbf cta shade"
+            ]
+        );
+        let mut done = 0;
+        run_frames(ctx, &kernel, &frames, 2, |r| {
+            let want = inputs.cpu_pipeline(&frames[r.index])?;
+            let got: Vec<[f64; 3]> = r.output.iter().map(|c| c.map(|x| x as f64)).collect();
+            // f32 on the GPU over sums of 96 (light), 8 (core), 4 x 5 (view) and 4 x 5 terms:
+            // ~1e-6 per term of the output's scale; 1e-4 of the largest |value|.
+            let e = worst(&got, &want);
+            assert!(e <= 1e-4 * max_abs(&want), "frame {}: {e}", r.index);
+            done += 1;
+            Ok(())
+        })?;
+        assert_eq!(done, frames.len());
+        Ok(())
+    });
+}
