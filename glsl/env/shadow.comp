@@ -30,7 +30,8 @@ layout(std430, set = 0, binding = 2) readonly buffer Spheres { vec4 s[]; } sph;
 layout(std430, set = 0, binding = 3) readonly buffer Extents { float e[]; } ext;
 layout(std430, set = 0, binding = 4) readonly buffer Ao { float v[]; } ao;
 layout(std430, set = 0, binding = 5) readonly buffer Lobes { vec4 l[]; } lobes;
-layout(std430, set = 0, binding = 6) readonly buffer Table { float v[]; } table;
+// kernels::env::pack::CapTable::quads: per cell the 2 x 2 corners in (alpha, s).
+layout(std430, set = 0, binding = 6) readonly buffer Table { vec4 q[]; } table;
 layout(std430, set = 0, binding = 7) writeonly buffer Visibility { float v[]; } vis;
 layout(std430, set = 0, binding = 8) writeonly buffer Irradiance { vec4 e[]; } irr;
 
@@ -63,10 +64,6 @@ float refinement(float size, float d, float tau, float band) {
     return t < 1.0 ? 1.0 : 0.0;
 }
 
-float table_at(uint i, uint j, uint k) {
-    return table.v[(i * N_ALPHA + j) * N_S + k];
-}
-
 // Fraction of a unit SG (sharpness lambda) inside a cap of half-angle alpha at angle gamma
 // from its axis: kernels::env::pack::CapTable::lookup.
 float cap_lookup(float lambda, float gamma, float alpha) {
@@ -81,11 +78,14 @@ float cap_lookup(float lambda, float gamma, float alpha) {
     float fx = x - float(i);
     float fy = y - float(j);
     float fz = z - float(k);
-    float r00 = table_at(i, j, k) + (table_at(i, j, k + 1u) - table_at(i, j, k)) * fz;
-    float r01 = table_at(i, j + 1u, k) + (table_at(i, j + 1u, k + 1u) - table_at(i, j + 1u, k)) * fz;
-    float r10 = table_at(i + 1u, j, k) + (table_at(i + 1u, j, k + 1u) - table_at(i + 1u, j, k)) * fz;
-    float r11 = table_at(i + 1u, j + 1u, k)
-        + (table_at(i + 1u, j + 1u, k + 1u) - table_at(i + 1u, j + 1u, k)) * fz;
+    // Two loads: the (alpha, s) corners at lambda samples i and i + 1.
+    uint c = (i * (N_ALPHA - 1u) + j) * (N_S - 1u) + k;
+    vec4 q0 = table.q[c];
+    vec4 q1 = table.q[c + (N_ALPHA - 1u) * (N_S - 1u)];
+    float r00 = q0.x + (q0.y - q0.x) * fz;
+    float r01 = q0.z + (q0.w - q0.z) * fz;
+    float r10 = q1.x + (q1.y - q1.x) * fz;
+    float r11 = q1.z + (q1.w - q1.z) * fz;
     float p0 = r00 + (r01 - r00) * fy;
     float p1 = r10 + (r11 - r10) * fy;
     return p0 + (p1 - p0) * fx;

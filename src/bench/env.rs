@@ -58,13 +58,13 @@ pub const FLOP_PER_LOOKUP: f64 = 90.0;
 /// FLOP per sphere of the cut: distance, refinement weight, the parent blend, AO's occlusion
 /// of the cap, its angle and horizon (asin, acos, sqrt), the log of its transmission.
 pub const FLOP_PER_CAP: f64 = 60.0;
-/// Table values a lookup reads: the 8 corners of its trilinear cell, at an index that varies
-/// per lane (a storage buffer, `table`).
-pub const GATHERS_PER_LOOKUP: f64 = 8.0;
+/// Loads a lookup makes: the 8 corners of its trilinear cell as two vec4 (`CapTable::quads`),
+/// at an index that varies per lane (a storage buffer, `table`).
+pub const GATHERS_PER_LOOKUP: f64 = 2.0;
 
 /// The work model of `env shadow` for `vertices` vertices, `cut` spheres of the cut and
 /// `caps` caps above the horizon per vertex, and `lobes` lobes: FLOP (fma), and the cap
-/// table's reads (buffer_gather_coherent: the table, 460 KiB, stays in the caches, which the
+/// table's loads (buffer_gather_coherent: the table, 1.8 MiB as quads, stays in the caches, which the
 /// random probe's large buffer does not; against the random rate the pass ran at 20x "its
 /// peak"). The table path is counted for every lookup: its blend weight is 0 only for caps
 /// under 0.3 lobe widths, and lavapipe's lanes run it when any lane of 8 needs it. The cut's

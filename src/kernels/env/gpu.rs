@@ -106,10 +106,11 @@ impl EnvKernel {
         let table = CapTable::new();
         let (nv, nj) = (pose.vertex_count() as u64, lobes.len() as u64);
         let base = rec.buffer_with("env base lobes", BufferDesc::storage(nj * 32), &packed[..])?;
+        let quads = table.quads();
         let table_buf = rec.buffer_with(
             "env cap table",
-            BufferDesc::storage(table.values.len() as u64 * 4),
-            &table.values[..],
+            BufferDesc::storage(quads.len() as u64 * 16),
+            &quads[..],
         )?;
         let output = |name: &str, size: u64| {
             let desc = BufferDesc::storage(size)

@@ -87,6 +87,29 @@ impl CapTable {
         CapTable { values }
     }
 
+    /// The table as the shadow pass reads it: per cell (l, a, s) with a < N_ALPHA - 1 and
+    /// s < N_S - 1, the vec4 (T[l][a][s], T[l][a][s + 1], T[l][a + 1][s], T[l][a + 1][s + 1]),
+    /// `[(l * (N_ALPHA - 1) + a) * (N_S - 1) + s]`: a trilinear lookup is two vec4 loads
+    /// instead of eight scalar ones (on lavapipe every load at a per-lane index is a gather,
+    /// and the gathers bound the pass), with the same values and the same arithmetic.
+    pub fn quads(&self) -> Vec<[f32; 4]> {
+        let at = |i: u32, j: u32, k: u32| self.values[((i * N_ALPHA + j) * N_S + k) as usize];
+        let mut out = Vec::with_capacity((N_LAMBDA * (N_ALPHA - 1) * (N_S - 1)) as usize);
+        for i in 0..N_LAMBDA {
+            for j in 0..N_ALPHA - 1 {
+                for k in 0..N_S - 1 {
+                    out.push([
+                        at(i, j, k),
+                        at(i, j, k + 1),
+                        at(i, j + 1, k),
+                        at(i, j + 1, k + 1),
+                    ]);
+                }
+            }
+        }
+        out
+    }
+
     /// The trilinear lookup, operation for operation as `glsl/env/shadow.comp`'s
     /// `cap_lookup` (lambda > 0, gamma in [0, pi], alpha in [0, pi/2]).
     pub fn lookup(&self, lambda: f32, gamma: f32, alpha: f32) -> f32 {
