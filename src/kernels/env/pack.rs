@@ -88,8 +88,8 @@ impl CapTable {
     }
 
     /// The table as the shadow pass reads it: per cell (l, a, s) with a < N_ALPHA - 1 and
-    /// s < N_S - 1, the vec4 (T[l][a][s], T[l][a][s + 1], T[l][a + 1][s], T[l][a + 1][s + 1]),
-    /// `[(l * (N_ALPHA - 1) + a) * (N_S - 1) + s]`: a trilinear lookup is two vec4 loads
+    /// s < N_S - 1, the vec4 of its corners `(T(l, a, s), T(l, a, s + 1), T(l, a + 1, s),
+    /// T(l, a + 1, s + 1))` at `[(l * (N_ALPHA - 1) + a) * (N_S - 1) + s]`: a trilinear lookup is two vec4 loads
     /// instead of eight scalar ones (on lavapipe every load at a per-lane index is a gather,
     /// and the gathers bound the pass), with the same values and the same arithmetic.
     pub fn quads(&self) -> Vec<[f32; 4]> {
