@@ -26,8 +26,6 @@ const MODELS: &[&str] = &[
     "kernels::sss::profile",
     // The synthetic cloth: periodic heightfields with a known BRDF.
     "kernels::btf::cloth",
-    // The SRBF surface model: the BRDF times the clamped cosine.
-    "kernels::srbf::brdf",
 ];
 
 /// The layers, lowest first: (module, the paths its code may use). `error` and `progress`
@@ -43,7 +41,6 @@ const LAYERS: &[(&str, &[&str])] = &[
     // The model modules (MODELS): what a ground truth may use.
     ("kernels::sss::profile", &["error", "geom", "scene"]),
     ("kernels::btf::cloth", &["error", "geom", "scene"]),
-    ("kernels::srbf::brdf", &["error", "geom", "scene"]),
     (
         "kernels",
         &["error", "progress", "gpu", "io", "geom", "shaders", "scene"],
@@ -63,7 +60,6 @@ const LAYERS: &[(&str, &[&str])] = &[
             "scene",
             "kernels::sss::profile",
             "kernels::btf::cloth",
-            "kernels::srbf::brdf",
         ],
     ),
     ("report", &["error", "gpu", "io"]),

@@ -5,8 +5,8 @@ mod common;
 
 use glam::{Mat3, Vec3};
 use vkshade::geom::Rng;
+use vkshade::geom::brdf::Brdf;
 use vkshade::geom::sg::{self, Lobe};
-use vkshade::kernels::srbf::brdf::Brdf;
 use vkshade::kernels::srbf::glossy::{GlossyTransfer, ViewGrid};
 use vkshade::kernels::srbf::glossy_gpu::{GlossyFrame, GlossyInputs, GlossyKernel};
 use vkshade::kernels::srbf::transfer::{Basis, Transfer};

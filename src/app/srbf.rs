@@ -5,10 +5,10 @@
 
 use super::Gpu;
 use crate::error::{Error, Result};
+use crate::geom::brdf::Brdf;
 use crate::geom::sg::{self, Lobe};
 use crate::geom::visibility::Visibility;
 use crate::gpu::Context;
-use crate::kernels::srbf::brdf::Brdf;
 use crate::kernels::srbf::cpca::{Cpca, CpcaConfig};
 use crate::kernels::srbf::cta::{Cta, CtaConfig};
 use crate::kernels::srbf::cta_gpu::{

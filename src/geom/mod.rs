@@ -3,6 +3,7 @@
 //! spherical-Gaussian algebra ([`sg`]), small dense linear algebra ([`linalg`]), sampling,
 //! bilinear texture filtering, a small deterministic RNG.
 
+pub mod brdf;
 pub mod bvh;
 pub mod linalg;
 pub mod sg;

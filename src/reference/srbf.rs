@@ -23,9 +23,9 @@
 
 use crate::error::{Error, Result};
 use crate::geom::Bvh;
+use crate::geom::brdf::Brdf;
 use crate::geom::sg::{self, Lobe};
 use crate::geom::visibility::{Visibility, direction_visibility};
-use crate::kernels::srbf::brdf::Brdf;
 use crate::scene::EnvMap;
 use glam::{Mat3, Vec3};
 use rayon::prelude::*;

@@ -25,9 +25,9 @@
 //! The tangent frame is the branchless orthonormal basis of Duff et al. (2017) from the
 //! normal alone; the GPU builds the same one (glsl/srbf/glossy.comp).
 
-use super::brdf::Brdf;
 use super::transfer::{Basis, Transfer};
 use crate::error::{Error, Result};
+use crate::geom::brdf::Brdf;
 use crate::geom::sg;
 use crate::geom::visibility::Visibility;
 use glam::{DVec3, Vec3};

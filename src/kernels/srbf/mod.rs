@@ -5,7 +5,6 @@
 //! closed-form SG inner products, shade every vertex. `inputs`: what the kernel is built
 //! from and checks; `pack`: its data as the GPU holds it; `gpu`: the kernel; `cpu`: its twin.
 
-pub mod brdf;
 pub mod cpca;
 pub mod cpu;
 pub mod cta;
@@ -50,7 +49,7 @@ pub fn diffuse_transfer(
 /// cast for), projected onto `basis`.
 pub fn glossy_transfer(
     basis: &Basis,
-    brdf: &brdf::Brdf,
+    brdf: &crate::geom::brdf::Brdf,
     grid: glossy::ViewGrid,
     dir_env: &EnvMap,
     normals: &[glam::Vec3],

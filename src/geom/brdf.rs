@@ -1,5 +1,5 @@
-//! The surface model the SRBF kernel shades and its ground truth integrates (a model module:
-//! `reference` may use it): a BRDF rho(w, o) times the clamped cosine max(0, n . w), for
+//! The surface model the SRBF kernel shades and its ground truth integrates (shared
+//! geometry-level math, so the truth needs nothing of the kernel): a BRDF rho(w, o) times the clamped cosine max(0, n . w), for
 //! light direction w and view direction o (both unit, pointing away from the surface).
 //!
 //! - [`Brdf::Diffuse`]: rho = 1 / pi (the albedo multiplies the result outside the model).
