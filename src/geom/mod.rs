@@ -70,19 +70,35 @@ pub fn orthonormal_basis(n: Vec3) -> (Vec3, Vec3) {
 /// centres at (i + 0.5) / size), as a sampler with linear filtering does: how the BTF's CPU
 /// twin filters the stored images and its ground truth the ray-cast texels.
 pub fn bilinear(size: [u32; 2], uv: [f64; 2], texel: impl Fn(u32, u32) -> [f64; 3]) -> [f64; 3] {
+    bilinear_n(size, uv, true, texel)
+}
+
+/// [`bilinear`] for texels of `N` channels, wrapping with REPEAT (`repeat`) or clamping to
+/// the edge.
+pub fn bilinear_n<const N: usize>(
+    size: [u32; 2],
+    uv: [f64; 2],
+    repeat: bool,
+    texel: impl Fn(u32, u32) -> [f64; N],
+) -> [f64; N] {
     let (w, h) = (size[0] as i64, size[1] as i64);
     let x = uv[0] * w as f64 - 0.5;
     let y = uv[1] * h as f64 - 0.5;
     let (x0, y0) = (x.floor(), y.floor());
     let (fx, fy) = (x - x0, y - y0);
     let (x0, y0) = (x0 as i64, y0 as i64);
-    let mut out = [0.0; 3];
+    let wrap = |c: i64, n: i64| {
+        if repeat {
+            c.rem_euclid(n)
+        } else {
+            c.clamp(0, n - 1)
+        }
+    };
+    let mut out = [0.0; N];
     for (dy, wy) in [(0, 1.0 - fy), (1, fy)] {
         for (dx, wx) in [(0, 1.0 - fx), (1, fx)] {
-            let c = (x0 + dx).rem_euclid(w) as u32;
-            let r = (y0 + dy).rem_euclid(h) as u32;
-            let t = texel(c, r);
-            for k in 0..3 {
+            let t = texel(wrap(x0 + dx, w) as u32, wrap(y0 + dy, h) as u32);
+            for k in 0..N {
                 out[k] += wx * wy * t[k];
             }
         }

@@ -399,32 +399,12 @@ pub fn lobe_table(basis: &LightBasis, sharpness: &[f32]) -> Result<Vec<[f32; 4]>
     Ok(per_lobe.concat())
 }
 
-/// Bilinear filtering of an RGBA layer (`side`-sized, row-major) at `uv`, repeat or clamp
-/// to edge, f64 weights (as a sampler with exact weights).
+/// Bilinear filtering of an RGBA layer (`size`, row-major) at `uv`, repeat or clamp to
+/// edge, f64 weights (as a sampler with exact weights).
 fn bilinear4(texels: &[[f32; 4]], size: [u32; 2], uv: [f64; 2], repeat: bool) -> [f64; 4] {
-    let (w, h) = (size[0] as i64, size[1] as i64);
-    let x = uv[0] * w as f64 - 0.5;
-    let y = uv[1] * h as f64 - 0.5;
-    let (x0, y0) = (x.floor(), y.floor());
-    let (fx, fy) = (x - x0, y - y0);
-    let (x0, y0) = (x0 as i64, y0 as i64);
-    let wrap = |c: i64, n: i64| {
-        if repeat {
-            c.rem_euclid(n)
-        } else {
-            c.clamp(0, n - 1)
-        }
-    };
-    let mut out = [0.0; 4];
-    for (dy, wy) in [(0, 1.0 - fy), (1, fy)] {
-        for (dx, wx) in [(0, 1.0 - fx), (1, fx)] {
-            let t = texels[(wrap(y0 + dy, h) * w + wrap(x0 + dx, w)) as usize];
-            for k in 0..4 {
-                out[k] += wx * wy * t[k] as f64;
-            }
-        }
-    }
-    out
+    crate::geom::bilinear_n(size, uv, repeat, |c, r| {
+        texels[(r * size[0] + c) as usize].map(f64::from)
+    })
 }
 
 /// Per-lobe visibility of the pass, as the CPU twin takes it.
