@@ -133,6 +133,13 @@ impl Default for FrameConfig {
 }
 
 impl FrameConfig {
+    /// The part ids of the cloth (they follow the skin parts' ids), as a mask: bit p for
+    /// part p ([`FrameConfig::check`] keeps every id below 32).
+    pub fn cloth_part_mask(&self) -> u32 {
+        let skin = self.skin.len() as u32;
+        (skin..skin + self.cloth.len() as u32).fold(0u32, |m, p| m | (1 << p))
+    }
+
     /// Checks what can be checked without reading the files.
     pub fn check(&self) -> Result<()> {
         let bad = |m: String| Err(Error::InvalidArgument(m));
@@ -612,11 +619,15 @@ impl CharacterFrame {
                 setup.ms_cloth_basis
             ));
         }
-        let btf_kernel = match &btf {
-            Some(btf) => {
-                let maps = Maps::build(&Triangulation::new()?, CLOTH_MAP_RES)?;
+        // The cloth's BTF and direction maps, kept on the host for the twins.
+        let cloth_host = match btf {
+            Some(b) => Some((b, Maps::build(&Triangulation::new()?, CLOTH_MAP_RES)?)),
+            None => None,
+        };
+        let btf = match &cloth_host {
+            Some((btf, maps)) => {
                 let unused = GBuffer::tile([1, 1]);
-                let inputs = BtfInputs::new(btf, &maps, &unused, Texture::Rgba8);
+                let inputs = BtfInputs::new(btf, maps, &unused, Texture::Rgba8);
                 let l = ctx.limits();
                 let bprep = BtfPrepared::for_gpu_gbuffer(
                     &inputs,
@@ -632,9 +643,6 @@ impl CharacterFrame {
                 let mut k = BtfKernel::on_gbuffer_tiles(&mut rec, &bprep, raster.gbuffer(), tiles)?;
                 if let (Some(e), Some(data)) = (&env, &cloth_basis) {
                     use crate::kernels::btf::gpu::{BasisVisibility, EnvBasisInputs};
-                    let skin = cfg.skin.len() as u32;
-                    let cloth_mask =
-                        (skin..skin + cfg.cloth.len() as u32).fold(0u32, |m, p| m | (1 << p));
                     k.add_env_basis(
                         &mut rec,
                         Some(raster.gbuffer()),
@@ -647,7 +655,7 @@ impl CharacterFrame {
                                 triangles: raster.triangles(),
                                 visibility: e.visibility(),
                             },
-                            part_mask: cloth_mask,
+                            part_mask: cfg.cloth_part_mask(),
                         },
                     )?;
                 }
@@ -655,11 +663,6 @@ impl CharacterFrame {
             }
             None => None,
         };
-        let cloth_host = match btf {
-            Some(b) => Some((b, Maps::build(&Triangulation::new()?, CLOTH_MAP_RES)?)),
-            None => None,
-        };
-        let btf = btf_kernel;
         let cprep = match &sss {
             Some(s) => compose::Prepared::new(cfg.size, &s.geo)?,
             None => compose::Prepared::without_skin(cfg.size),
@@ -909,8 +912,7 @@ impl CharacterFrame {
             return Ok(None);
         };
         let gb = self.gbuffer_of(st);
-        let skin = self.cfg.skin.len() as u32;
-        let part_mask = (skin..skin + self.cfg.cloth.len() as u32).fold(0u32, |m, p| m | (1 << p));
+        let part_mask = self.cfg.cloth_part_mask();
         let sampled = Sampled::of(btf, Texture::Rgba8);
         let packed = sampled.packed(btf.size);
         let (direct, direct_ambiguous) =
