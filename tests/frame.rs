@@ -43,6 +43,34 @@ fn input(frame: &CharacterFrame, k: usize, n: usize) -> FrameInput {
     }
 }
 
+/// The frame's colours under glTF materials: the skin's base colour over the profile's total
+/// reflectance, the cloth's over the BTF's albedo, textures as the file holds them.
+fn check_surfaces(frame: &CharacterFrame) {
+    use vkshade::kernels::sss::profile::{DEFAULT_ENERGY, Material, Profile, ProfileKind};
+    let s = frame.surfaces();
+    assert_eq!(s.len(), 3, "Head, Torso, Legs");
+    let r_tot = Profile::new(ProfileKind::Dipole, Material::SKIN1, DEFAULT_ENERGY)
+        .unwrap()
+        .r_tot;
+    let btf = vkshade::frame::synthesized_btf(frame.config().btf_tile).unwrap();
+    let albedo = vkshade::kernels::btf::env::albedo(&btf);
+    for c in 0..3 {
+        let close = |a: f32, b: f64| (a as f64 - b).abs() < 1e-6 * b.abs().max(1.0);
+        assert!(close(s[0].scale[c], 1.0 / r_tot[c]), "{:?}", s[0].scale);
+        assert!(
+            close(s[1].scale[c], [0.9, 0.6, 0.3][c] / albedo[c]),
+            "{:?}",
+            s[1].scale
+        );
+        assert!(close(s[2].scale[c], 0.5 / albedo[c]), "{:?}", s[2].scale);
+    }
+    assert_eq!(
+        s[0].texture.as_ref().unwrap().texels,
+        common::checker_texels()
+    );
+    assert!(s[1].texture.is_some() && s[2].texture.is_none());
+}
+
 fn stages_skin_triangles() -> u64 {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/bcn_epileptic.glb");
     let (c, _) = vkshade::scene::gltf_load::load_parts(&path, &["Head"]).unwrap();
@@ -52,9 +80,15 @@ fn stages_skin_triangles() -> u64 {
 #[test]
 #[allow(clippy::needless_range_loop)]
 fn compose_matches_its_cpu_twin_on_a_posed_frame() {
-    let cfg = small();
+    // Textured materials (the Head and the Torso carry a checker base colour, the Torso's
+    // mirrored along u), so the comparison covers the texture lookup too.
+    let cfg = FrameConfig {
+        mesh: common::textured_bcn("frame-compose"),
+        ..small()
+    };
     let (stages, twin) = with_gpu_features(INT64, |ctx| {
         let frame = CharacterFrame::new(ctx, &cfg, &mut |_| {})?;
+        check_surfaces(&frame);
         // A pose far into the animation (the arm raised, the torso bent).
         let inp = input(&frame, 9, 24);
         let mut rec = ctx.recorder("frame twin")?;

@@ -521,3 +521,94 @@ fn overlapping_and_self_overlapping_uvs_get_a_unique_atlas() {
         assert!(geo.pos.iter().filter(|p| p[3] == COVERED).count() == r.covered_texels);
     }
 }
+
+/// A part's glTF base colour: factor, embedded sRGB texture (texels as written), wrap modes
+/// from its sampler; a part without a texture keeps the factor alone. Catches a loader that
+/// reads the wrong material per part, drops the sampler, or reorders channels.
+#[cfg(feature = "gltf")]
+#[test]
+fn base_colour_materials_load_per_part_with_their_textures_and_wrap_modes() {
+    use vkshade::scene::material::Wrap;
+    let path = common::textured_bcn("scene-materials");
+    let m = scene::gltf_load::load_materials(&path, &["Head", "Torso", "Legs"]).unwrap();
+    assert_eq!(m.len(), 3);
+    assert_eq!(m[0].name, "face");
+    assert_eq!(m[0].factor, [1.0; 4]);
+    let t = m[0].texture.as_ref().expect("the Head is textured");
+    assert_eq!((t.width, t.height), (32, 32));
+    assert_eq!(t.texels, common::checker_texels());
+    assert_eq!(t.wrap, [Wrap::Repeat, Wrap::Repeat]);
+    assert_eq!(m[1].factor, [0.9, 0.6, 0.3, 1.0]);
+    assert_eq!(
+        m[1].texture.as_ref().unwrap().wrap,
+        [Wrap::Mirror, Wrap::Repeat]
+    );
+    assert_eq!(m[2].factor, [0.5, 0.5, 0.5, 1.0]);
+    assert!(m[2].texture.is_none());
+    // The colour at a texel centre is the factor times the decoded texel: texel (12, 4)
+    // is the second colour, 0x20E020 (g 224 -> 0.7454 linear).
+    let c = m[1].colour([12.5 / 32.0, 4.5 / 32.0]);
+    assert!((c[1] - 0.6 * 0.745_404_2).abs() < 1e-5, "{c:?}");
+}
+
+/// Base-colour textures the frame cannot use are refused naming the file, the part and the
+/// image: another texture coordinate set, an undecodable image, a missing external image,
+/// a factor outside [0, 1].
+#[cfg(feature = "gltf")]
+#[test]
+fn bad_base_colour_materials_are_refused_naming_the_part_and_image() {
+    let head_material = |j: &mut serde_json::Value, pbr: serde_json::Value| {
+        j["materials"]
+            .as_array_mut()
+            .unwrap()
+            .push(serde_json::json!({"name": "face", "pbrMetallicRoughness": pbr}));
+        for m in j["meshes"].as_array_mut().unwrap() {
+            if m["name"] == "Head" {
+                m["primitives"][0]["material"] = serde_json::json!(1);
+            }
+        }
+    };
+    let png = common::png_rgba(2, 2, &[0xFFFFFFFF; 4]);
+    let load = |p: &Path| scene::gltf_load::load_materials(p, &["Torso", "Head"]);
+    let p = common::edited_bcn("scene-materials", "texcoord1.glb", &[png], |j| {
+        j["textures"] = serde_json::json!([{"source": 0}]);
+        head_material(
+            j,
+            serde_json::json!({"baseColorTexture": {"index": 0, "texCoord": 1}}),
+        );
+    });
+    let e = common::error_naming(&p, load(&p));
+    assert!(e.contains("'Head'") && e.contains("TEXCOORD_1"), "{e}");
+    let p = common::edited_bcn(
+        "scene-materials",
+        "junk.glb",
+        &[b"not a png".to_vec()],
+        |j| {
+            j["textures"] = serde_json::json!([{"source": 0}]);
+            head_material(j, serde_json::json!({"baseColorTexture": {"index": 0}}));
+        },
+    );
+    let e = common::error_naming(&p, load(&p));
+    assert!(
+        e.contains("'Head'") && e.contains("image 0") && e.contains("decoded"),
+        "{e}"
+    );
+    let p = common::edited_bcn("scene-materials", "external.glb", &[], |j| {
+        j["images"] = serde_json::json!([{"uri": "missing_face.png"}]);
+        j["textures"] = serde_json::json!([{"source": 0}]);
+        head_material(j, serde_json::json!({"baseColorTexture": {"index": 0}}));
+    });
+    let e = common::error_naming(&p, load(&p));
+    assert!(
+        e.contains("missing_face.png") && e.contains("'Head'"),
+        "{e}"
+    );
+    let p = common::edited_bcn("scene-materials", "factor.glb", &[], |j| {
+        head_material(
+            j,
+            serde_json::json!({"baseColorFactor": [2.0, 0.5, 0.5, 1.0]}),
+        );
+    });
+    let e = common::error_naming(&p, load(&p));
+    assert!(e.contains("baseColorFactor") && e.contains("'Head'"), "{e}");
+}

@@ -10,7 +10,12 @@
 //   irradiance carries the lights' shadows) and for every environment lobe through the warped-NDF SG (axis r = reflect(-v, n), sharpness
 //   (2/m^2) / (4 n.v), amplitude 1/(pi m^2)), each lobe weighted by its per-vertex
 //   visibility V_j interpolated to the pixel.
-// - Cloth pixels take the BTF pass's radiance.
+//   The diffuse exit is multiplied by the part's surface colour (below); the specular is not.
+// - Cloth pixels take the BTF pass's radiance times the part's surface colour.
+// - Surface colour of part p (the G-buffer tag's): scale_p times, where the part has a
+//   texture, its linear colour at the pixel's mesh uv (the G-buffer's uv over the raster's uv
+//   scale): bilinear between texel centres over the four texels decoded from sRGB, the
+//   part's wrap modes at the borders (twin: scene::material::Texture::sample).
 // - Background pixels take the background colour (evaluating every lobe per background
 //   pixel cost more than the rest of the pass together on lavapipe).
 // Then exposure, the ACES fit (Narkowicz) and sRGB encoding into an RGBA8 word per pixel;
@@ -26,9 +31,9 @@ struct Params {
     vec4 light_dir[2]; // towards the light (unit), w 0
     vec4 light_rgb[2]; // irradiance on a surface facing the light
     vec4 skin;      // rho_s, Beckmann m, F0, 0
-    vec4 background; // rgb behind the character, w 0
+    vec4 background; // rgb behind the character, w 1 / the raster's uv scale
     uvec4 counts;   // width, height, lights, lobes
-    uvec4 atlas;    // atlas size, skin triangles, visibility mode (0 none, 1 per lobe), 0
+    uvec4 atlas;    // atlas size, skin triangles, visibility mode (0 none, 1 per lobe), surfaces
 };
 
 layout(set = 0, binding = 0) uniform texture2DArray gbuffer;
@@ -45,6 +50,9 @@ layout(std430, set = 0, binding = 9) readonly buffer LobeVisibility { float v[];
 layout(std430, set = 0, binding = 10) readonly buffer FrameParams { Params p; } params;
 layout(std430, set = 0, binding = 11) writeonly buffer Hdr { vec4 c[]; } hdr;
 layout(std430, set = 0, binding = 12) writeonly buffer Ldr { uint c[]; } ldr;
+// Per part: (scale rgb as float bits, 0), (texel offset, width, height, wrap u | wrap v << 2).
+layout(std430, set = 0, binding = 13) readonly buffer Surfaces { uvec4 s[]; } surfaces;
+layout(std430, set = 0, binding = 14) readonly buffer SurfaceTexels { uint t[]; } texels;
 
 const float PI = 3.14159265358979;
 
@@ -83,6 +91,49 @@ vec3 atlas_lookup(vec2 uv, uint n) {
     return wsum > 0.0 ? sum / wsum : vec3(0.0);
 }
 
+float srgb_decode(uint c) {
+    float x = float(c) / 255.0;
+    return x <= 0.04045 ? x / 12.92 : pow((x + 0.055) / 1.055, 2.4);
+}
+
+// Wrap modes: 0 repeat, 1 clamp to edge, 2 mirrored repeat. uv is clamped to [-512, 512]
+// first, so i + 2048 n >= 0 and the remainder is taken on non-negative values (GLSL leaves %
+// of a negative operand undefined).
+int wrap(int i, int n, uint mode) {
+    if (mode == 1u) return clamp(i, 0, n - 1);
+    if (mode == 2u) {
+        int k = int(uint(i + 2048 * n) % uint(2 * n));
+        return k < n ? k : 2 * n - 1 - k;
+    }
+    return int(uint(i + 2048 * n) % uint(n));
+}
+
+vec3 surface_colour(uint part, vec2 uv, uint count) {
+    if (part >= count) return vec3(1.0);
+    uvec4 a = surfaces.s[2u * part];
+    uvec4 t = surfaces.s[2u * part + 1u];
+    vec3 scale = uintBitsToFloat(a.xyz);
+    if (t.y == 0u) return scale;
+    int w = int(t.y), h = int(t.z);
+    uv = clamp(uv, vec2(-512.0), vec2(512.0));
+    float tx = uv.x * float(w) - 0.5;
+    float ty = uv.y * float(h) - 0.5;
+    float fx0 = floor(tx), fy0 = floor(ty);
+    float fx = tx - fx0, fy = ty - fy0;
+    int ix = int(fx0), iy = int(fy0);
+    vec3 sum = vec3(0.0);
+    for (int k = 0; k < 4; k++) {
+        int ox = k & 1, oy = k >> 1;
+        float wgt = (ox == 1 ? fx : 1.0 - fx) * (oy == 1 ? fy : 1.0 - fy);
+        int x = wrap(ix + ox, w, t.w & 3u);
+        int y = wrap(iy + oy, h, t.w >> 2u);
+        uint c = texels.t[t.x + uint(y * w + x)];
+        sum += wgt * vec3(srgb_decode(c & 255u), srgb_decode((c >> 8u) & 255u),
+                          srgb_decode((c >> 16u) & 255u));
+    }
+    return scale * sum;
+}
+
 vec3 aces(vec3 x) {
     return clamp((x * (2.51 * x + 0.03)) / (x * (2.43 * x + 0.59) + 0.14), 0.0, 1.0);
 }
@@ -105,6 +156,10 @@ void main() {
         radiance = P.background.rgb;
     } else {
         uint tri = keys.k[idx].x;
+        uint part = uint(abs(g0.w) + 0.5) - 1u;
+        vec2 mesh_uv = vec2(texelFetch(gbuffer, ivec3(px, 1), 0).w,
+                            texelFetch(gbuffer, ivec3(px, 2), 0).w) * P.background.w;
+        vec3 colour = surface_colour(part, mesh_uv, P.atlas.w);
         if (tri < P.atlas.y) {
             // Skin: the pixel's barycentrics on its triangle (as raster resolve finds them).
             uvec4 t = skin_tris.v[tri];
@@ -126,7 +181,7 @@ void main() {
             float nv = max(dot(n, view), 1e-4);
             float rho_s = P.skin.x, m = P.skin.y, f0 = P.skin.z;
             vec3 diffused = atlas_lookup(uv, P.atlas.x);
-            radiance = (1.0 - schlick(f0, nv)) / PI * diffused;
+            radiance = (1.0 - schlick(f0, nv)) / PI * diffused * colour;
             // Specular: directional lights.
             vec3 spec = vec3(0.0);
             for (uint k = 0u; k < P.counts.z; k++) {
@@ -168,7 +223,7 @@ void main() {
             }
             radiance += spec;
         } else {
-            radiance = cloth.c[idx].rgb;
+            radiance = cloth.c[idx].rgb * colour;
         }
     }
     radiance = max(radiance, vec3(0.0));

@@ -84,6 +84,12 @@ pub struct Args {
     /// the environment's shadowing by the sphere tree alone).
     #[arg(long, default_value_t = 1024)]
     pub ao_correction_rays: usize,
+    /// Where the parts' colours come from: "gltf", each part's glTF base colour (factor
+    /// times its sRGB texture) as its albedo, or "measured", the skin profile's and the
+    /// BTF's own colours. The demo uses "measured": its character's only material is the
+    /// exporter's placeholder grey.
+    #[arg(long, default_value = "gltf", value_parser = ["gltf", "measured"])]
+    pub materials: String,
 }
 
 impl Args {
@@ -113,6 +119,10 @@ impl Args {
             env: (!self.no_env).then(|| self.env.clone()),
             env_lobes: self.env_lobes,
             ao_correction_rays: self.ao_correction_rays,
+            materials: match self.materials.as_str() {
+                "measured" => crate::frame::Materials::Measured,
+                _ => crate::frame::Materials::Gltf,
+            },
             ..d
         };
         cfg.check()?;
@@ -165,8 +175,13 @@ pub fn context(gpu: &Gpu) -> Result<crate::gpu::Context> {
 /// `vkshade demo`: the frame on the built-in character, 24 frames, out/demo/.
 pub fn demo(gpu: &Gpu) -> Result<()> {
     use clap::{Args as _, FromArgMatches};
-    let matches = Args::augment_args(clap::Command::new("frame"))
-        .get_matches_from(["frame", "--out", "out/demo"]);
+    let matches = Args::augment_args(clap::Command::new("frame")).get_matches_from([
+        "frame",
+        "--out",
+        "out/demo",
+        "--materials",
+        "measured",
+    ]);
     let args =
         Args::from_arg_matches(&matches).map_err(|e| Error::InvalidArgument(e.to_string()))?;
     args.run(gpu)

@@ -95,6 +95,25 @@ pub struct FrameConfig {
     /// ([`ao::Correction`]: the detail the spheres miss, such as the skin buried under the
     /// clothes); 0: AO and the environment's shadowing by the spheres alone.
     pub ao_correction_rays: usize,
+    /// Where the parts' colours come from.
+    pub materials: Materials,
+}
+
+/// Where the parts' colours come from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Materials {
+    /// Each part's glTF base colour (factor times the sRGB texture at the mesh's uv, glTF's
+    /// white where the part has no material) is its albedo. Skin: the diffuse exit times
+    /// albedo / R_tot (the dipole profile's total reflectance divided out: the profile then
+    /// sets how far light spreads, the texture its colour; applied after the diffusion, as
+    /// d'Eon and Luebke's post-scatter texturing). Cloth: the BTF radiance times albedo / the
+    /// BTF's own albedo ([`crate::kernels::btf::env::albedo`]), so the weave and its angular
+    /// behaviour stay and its mean colour becomes the authored one.
+    Gltf,
+    /// The skin profile's measured colour and the BTF's own; the glTF's materials are not
+    /// read.
+    Measured,
 }
 
 impl Default for FrameConfig {
@@ -128,6 +147,7 @@ impl Default for FrameConfig {
             env_lobes: 16,
             env_fit_width: 128,
             ao_correction_rays: 1024,
+            materials: Materials::Gltf,
         }
     }
 }
@@ -238,6 +258,8 @@ pub struct SetupReport {
     pub ms_cloth_basis: f64,
     /// Baking AO's static correction.
     pub ms_ao_correction: f64,
+    /// Per part (skin then cloth), the colour it was given.
+    pub materials: Vec<String>,
 }
 
 /// The character frame: every kernel of one animated character, built once.
@@ -265,6 +287,76 @@ pub struct CharacterFrame {
     compose_prep: compose::Prepared,
     /// What setup cost.
     pub setup: SetupReport,
+}
+
+/// The compose pass's surface per part (skin then cloth) under `cfg.materials`, and a line
+/// per part saying what it got. Skin divides out the profile's total reflectance `r_tot`,
+/// cloth the BTF's albedo (see [`Materials::Gltf`]).
+fn surfaces(
+    cfg: &FrameConfig,
+    names: &[&str],
+    r_tot: [f64; 3],
+    btf_albedo: Option<[f64; 3]>,
+    lines: &mut Vec<String>,
+) -> Result<Vec<compose::pack::Surface>> {
+    if cfg.materials == Materials::Measured {
+        lines.push("materials: the skin profile's and the BTF's own colours".into());
+        return Ok(Vec::new());
+    }
+    let mats = load_materials(&cfg.mesh, names)?;
+    let mut out = Vec::with_capacity(mats.len());
+    for (p, (m, name)) in mats.iter().zip(names).enumerate() {
+        let (own, what) = if p < cfg.skin.len() {
+            (r_tot, "the skin profile's total reflectance")
+        } else {
+            (btf_albedo.unwrap_or([1.0; 3]), "the BTF's albedo")
+        };
+        // Below this an albedo channel cannot be rescaled to the authored colour without
+        // amplifying the BTF's noise or the profile's rounding by more than 1000x.
+        if own.iter().any(|c| !(c.is_finite() && *c >= 1e-3)) {
+            return Err(Error::input(
+                &cfg.mesh,
+                format!(
+                    "part '{name}': {what} {own:?} is too dark in a channel to carry the \
+                     glTF base colour; use the measured materials instead"
+                ),
+            ));
+        }
+        let scale = [0, 1, 2].map(|c| (m.factor[c] as f64 / own[c]) as f32);
+        let texture = match &m.texture {
+            Some(t) => format!("{} ({} x {})", t.source, t.width, t.height),
+            None => "no texture".into(),
+        };
+        lines.push(format!(
+            "material of {name}: '{}', base colour factor [{:.3}, {:.3}, {:.3}], {texture}",
+            m.name, m.factor[0], m.factor[1], m.factor[2]
+        ));
+        out.push(compose::pack::Surface {
+            scale,
+            texture: m.texture.clone(),
+        });
+    }
+    Ok(out)
+}
+
+/// The glTF material of each named part (`scene::gltf_load::load_materials`; an error naming
+/// the feature without `gltf`).
+pub fn load_materials(
+    mesh: &Path,
+    names: &[&str],
+) -> Result<Vec<crate::scene::material::Material>> {
+    #[cfg(feature = "gltf")]
+    {
+        crate::scene::gltf_load::load_materials(mesh, names)
+    }
+    #[cfg(not(feature = "gltf"))]
+    {
+        let _ = names;
+        Err(Error::feature(
+            format!("loading the materials of {}", mesh.display()),
+            "gltf",
+        ))
+    }
 }
 
 /// The named parts of a glTF character joined into one mesh, with a part id per triangle
@@ -489,6 +581,22 @@ impl CharacterFrame {
                 b.size[0], b.size[1], setup.ms_btf
             ));
         }
+        // The parts' colours.
+        let skin_profile = Profile::new(
+            ProfileKind::Dipole,
+            Material::SKIN1,
+            crate::kernels::sss::profile::DEFAULT_ENERGY,
+        )?;
+        let surfaces = surfaces(
+            cfg,
+            &names,
+            skin_profile.r_tot,
+            btf.as_ref().map(crate::kernels::btf::env::albedo),
+            &mut setup.materials,
+        )?;
+        for m in &setup.materials {
+            progress(m);
+        }
         // The environment, fitted once.
         let t = Instant::now();
         let lobes = match &cfg.env {
@@ -550,11 +658,7 @@ impl CharacterFrame {
             .collect();
         let sss = match &skin_geo {
             Some((geo, rest)) => {
-                let profile = Profile::new(
-                    ProfileKind::Dipole,
-                    Material::SKIN1,
-                    crate::kernels::sss::profile::DEFAULT_ENERGY,
-                )?;
+                let profile = &skin_profile;
                 let params = SamplerParams {
                     samples: cfg.samples,
                     ..SamplerParams::default()
@@ -564,7 +668,7 @@ impl CharacterFrame {
                     normals: pose.normals(),
                     mm_per_unit: cfg.mm_per_unit as f32,
                 };
-                let mut kernel = SssKernel::new_posed(&mut rec, geo, rest, &profile, params, src)?;
+                let mut kernel = SssKernel::new_posed(&mut rec, geo, rest, profile, params, src)?;
                 // The environment's shadowed irradiance joins the lights' before diffusion
                 // (so its visibility bleeds with the light, and no AO is applied after).
                 if let Some(e) = &env {
@@ -666,7 +770,8 @@ impl CharacterFrame {
         let cprep = match &sss {
             Some(s) => compose::Prepared::new(cfg.size, &s.geo)?,
             None => compose::Prepared::without_skin(cfg.size),
-        };
+        }
+        .with_surfaces(surfaces, cfg.tile_scale)?;
         let compose = ComposeKernel::new(
             &mut rec,
             &cprep,
@@ -1021,6 +1126,12 @@ impl CharacterFrame {
             basis_vs_quadrature: rel(bq, bq_den),
             gpu_vs_twins: rel(gt, gt_den),
         }))
+    }
+
+    /// The compose pass's colour of each part (skin then cloth; empty under
+    /// [`Materials::Measured`]).
+    pub fn surfaces(&self) -> &[compose::pack::Surface] {
+        &self.compose_prep.surfaces
     }
 
     /// The raster's triangles as uploaded: vertex ids and part id.

@@ -2,9 +2,10 @@
 //!
 //! The mesh is every triangle primitive of the nodes that use the file's first skin (so a
 //! character split into several meshes comes back whole); without a skin, every mesh node,
-//! transformed to world space. Texture images are never decoded.
+//! transformed to world space. Texture images are decoded only by [`load_materials`].
 
 use super::Character;
+use super::material::{Material, Texture, Wrap};
 use super::mesh::{Mesh, MeshData};
 use super::rig::{Animation, Channel, Interpolation, Node, Property, Rig, Trs};
 use crate::error::{Error, Result};
@@ -110,41 +111,11 @@ fn load_filtered(path: &Path, only: Option<&str>) -> Result<Character> {
     }
 
     let skin = doc.skins().next();
-    let mesh_nodes: Vec<gltf::Node<'_>> = doc
-        .nodes()
-        .filter(|n| n.mesh().is_some())
-        .filter(|n| match &skin {
-            Some(s) => n.skin().is_some_and(|ns| ns.index() == s.index()),
-            None => true,
-        })
-        .collect();
+    let mesh_nodes = skin_mesh_nodes(&doc);
     if mesh_nodes.is_empty() {
         return Err(err("no mesh nodes in the scene".into()));
     }
-    let mesh_nodes: Vec<gltf::Node<'_>> = match only {
-        None => mesh_nodes,
-        Some(want) => {
-            let named = |n: &gltf::Node<'_>| {
-                let w = want.to_lowercase();
-                n.name().is_some_and(|x| x.to_lowercase() == w)
-                    || n.mesh()
-                        .and_then(|m| m.name().map(|x| x.to_lowercase() == w))
-                        .unwrap_or(false)
-            };
-            let names: Vec<String> = mesh_nodes
-                .iter()
-                .map(|n| n.name().unwrap_or("(unnamed)").to_string())
-                .collect();
-            let chosen: Vec<gltf::Node<'_>> = mesh_nodes.into_iter().filter(named).collect();
-            if chosen.is_empty() {
-                return Err(err(format!(
-                    "no mesh named '{want}'; the meshes are: {}",
-                    names.join(", ")
-                )));
-            }
-            chosen
-        }
-    };
+    let mesh_nodes = choose_nodes(mesh_nodes, only).map_err(err)?;
 
     // Static meshes are flattened into world space; skinned ones stay in bind space.
     let rig_for_world = Rig::new(nodes.clone(), vec![], vec![]).map_err(err)?;
@@ -355,4 +326,205 @@ fn load_filtered(path: &Path, only: Option<&str>) -> Result<Character> {
         animations,
         skinned,
     })
+}
+
+/// The mesh nodes whose node or mesh name is `only` (case-insensitive); all with `None`.
+fn choose_nodes<'a>(
+    mesh_nodes: Vec<gltf::Node<'a>>,
+    only: Option<&str>,
+) -> std::result::Result<Vec<gltf::Node<'a>>, String> {
+    let Some(want) = only else {
+        return Ok(mesh_nodes);
+    };
+    let w = want.to_lowercase();
+    let named = |n: &gltf::Node<'_>| {
+        n.name().is_some_and(|x| x.to_lowercase() == w)
+            || n.mesh()
+                .and_then(|m| m.name().map(|x| x.to_lowercase() == w))
+                .unwrap_or(false)
+    };
+    let names: Vec<String> = mesh_nodes
+        .iter()
+        .map(|n| n.name().unwrap_or("(unnamed)").to_string())
+        .collect();
+    let chosen: Vec<gltf::Node<'a>> = mesh_nodes.into_iter().filter(named).collect();
+    if chosen.is_empty() {
+        return Err(format!(
+            "no mesh named '{want}'; the meshes are: {}",
+            names.join(", ")
+        ));
+    }
+    Ok(chosen)
+}
+
+/// The mesh nodes of the file's first skin (every mesh node without a skin).
+fn skin_mesh_nodes<'a>(doc: &'a gltf::Document) -> Vec<gltf::Node<'a>> {
+    let skin = doc.skins().next();
+    doc.nodes()
+        .filter(|n| n.mesh().is_some())
+        .filter(|n| match &skin {
+            Some(s) => n.skin().is_some_and(|ns| ns.index() == s.index()),
+            None => true,
+        })
+        .collect()
+}
+
+/// The material of each named part (chosen as [`load_named`] chooses its nodes): the
+/// base-colour factor and texture (decoded; embedded, external or a data URI). A part whose
+/// primitives use two different materials, a texture read through a texture coordinate set
+/// other than 0, an image that cannot be read or decoded, or one beyond
+/// [`MAX_TEXTURE_SIDE`](super::material::MAX_TEXTURE_SIDE) is an error naming the file, the part and the image. A part with
+/// no material gets glTF's default (white).
+pub fn load_materials(path: &Path, names: &[&str]) -> Result<Vec<Material>> {
+    let err = |m: String| Error::input(path, m);
+    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    let gltf = gltf::Gltf::from_slice(&bytes).map_err(|e| err(format!("not valid glTF: {e}")))?;
+    let doc = gltf.document;
+    let base = path.parent().or(Some(Path::new(".")));
+    let buffers = gltf::import_buffers(&doc, base, gltf.blob)
+        .map_err(|e| err(format!("cannot load buffers: {e}")))?;
+    let mut out = Vec::with_capacity(names.len());
+    for name in names {
+        let nodes = choose_nodes(skin_mesh_nodes(&doc), Some(name)).map_err(err)?;
+        let mut chosen: Option<gltf::Material<'_>> = None;
+        for n in &nodes {
+            let mesh = n.mesh().expect("mesh nodes only");
+            for prim in mesh.primitives() {
+                let m = prim.material();
+                match &chosen {
+                    None => chosen = Some(m),
+                    Some(c) if c.index() == m.index() => {}
+                    Some(c) => {
+                        let label = |m: &gltf::Material<'_>| match (m.index(), m.name()) {
+                            (Some(i), Some(n)) => format!("{i} '{n}'"),
+                            (Some(i), None) => format!("{i}"),
+                            (None, _) => "the default".to_string(),
+                        };
+                        return Err(err(format!(
+                            "part '{name}' uses materials {} and {}; the frame takes one \
+                             material a part",
+                            label(c),
+                            label(&m)
+                        )));
+                    }
+                }
+            }
+        }
+        let Some(m) = chosen.filter(|m| m.index().is_some()) else {
+            out.push(Material::default());
+            continue;
+        };
+        let mname = m.name().map_or_else(
+            || format!("material {}", m.index().unwrap_or(0)),
+            str::to_string,
+        );
+        let pbr = m.pbr_metallic_roughness();
+        let factor = pbr.base_color_factor();
+        if factor
+            .iter()
+            .any(|f| !f.is_finite() || !(0.0..=1.0).contains(f))
+        {
+            return Err(err(format!(
+                "part '{name}': material '{mname}' has baseColorFactor {factor:?} (each in [0, 1])"
+            )));
+        }
+        let texture = match pbr.base_color_texture() {
+            None => None,
+            Some(info) => {
+                if info.tex_coord() != 0 {
+                    return Err(err(format!(
+                        "part '{name}': material '{mname}' reads its base colour through \
+                         TEXCOORD_{}; only TEXCOORD_0 is loaded",
+                        info.tex_coord()
+                    )));
+                }
+                Some(decode_texture(path, base, &buffers, info.texture(), name)?)
+            }
+        };
+        out.push(Material {
+            name: mname,
+            factor,
+            texture,
+        });
+    }
+    Ok(out)
+}
+
+fn decode_texture(
+    path: &Path,
+    base: Option<&Path>,
+    buffers: &[gltf::buffer::Data],
+    tex: gltf::Texture<'_>,
+    part: &str,
+) -> Result<Texture> {
+    use gltf::image::Format;
+    use gltf::texture::WrappingMode;
+    let image = tex.source();
+    let source = match image.source() {
+        gltf::image::Source::Uri { uri, .. } => {
+            if uri.starts_with("data:") {
+                format!("image {} (data URI)", image.index())
+            } else {
+                format!("image {} '{uri}'", image.index())
+            }
+        }
+        gltf::image::Source::View { .. } => match image.name() {
+            Some(n) => format!("image {} '{n}' (embedded)", image.index()),
+            None => format!("image {} (embedded)", image.index()),
+        },
+    };
+    let data = gltf::image::Data::from_source(image.source(), base, buffers).map_err(|e| {
+        Error::input(
+            path,
+            format!("part '{part}': base-colour {source} cannot be read or decoded: {e}"),
+        )
+    })?;
+    let (w, h) = (data.width, data.height);
+    let px = w as usize * h as usize;
+    let texels: Vec<u32> = match data.format {
+        Format::R8 if data.pixels.len() == px => data
+            .pixels
+            .iter()
+            .map(|&r| u32::from_le_bytes([r, r, r, 255]))
+            .collect(),
+        Format::R8G8 if data.pixels.len() == 2 * px => data
+            .pixels
+            .chunks_exact(2)
+            .map(|c| u32::from_le_bytes([c[0], c[0], c[0], c[1]]))
+            .collect(),
+        Format::R8G8B8 if data.pixels.len() == 3 * px => data
+            .pixels
+            .chunks_exact(3)
+            .map(|c| u32::from_le_bytes([c[0], c[1], c[2], 255]))
+            .collect(),
+        Format::R8G8B8A8 if data.pixels.len() == 4 * px => data
+            .pixels
+            .chunks_exact(4)
+            .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+            .collect(),
+        f => {
+            return Err(Error::input(
+                path,
+                format!(
+                    "part '{part}': base-colour {source} decodes as {f:?}, {w} x {h}; \
+                     8-bit images only"
+                ),
+            ));
+        }
+    };
+    let wrap = |m: WrappingMode| match m {
+        WrappingMode::Repeat => Wrap::Repeat,
+        WrappingMode::ClampToEdge => Wrap::Clamp,
+        WrappingMode::MirroredRepeat => Wrap::Mirror,
+    };
+    let s = tex.sampler();
+    let t = Texture {
+        source,
+        width: w,
+        height: h,
+        texels,
+        wrap: [wrap(s.wrap_s()), wrap(s.wrap_t())],
+    };
+    t.check(path)?;
+    Ok(t)
 }

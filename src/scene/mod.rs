@@ -7,6 +7,7 @@ pub mod envmap;
 pub mod gbuffer;
 #[cfg(feature = "gltf")]
 pub mod gltf_load;
+pub mod material;
 pub mod mesh;
 pub mod ply_write;
 pub mod rig;

@@ -170,3 +170,152 @@ pub fn sub_texel_bits(ctx: &vkshade::gpu::Context) -> u32 {
         .limits
         .sub_texel_precision_bits
 }
+
+/// An 8-bit RGBA PNG of `w` x `h` texels (row-major words r | g << 8 | b << 16 | a << 24),
+/// written with stored (uncompressed) deflate blocks: test images without an encoder.
+pub fn png_rgba(w: u32, h: u32, texels: &[u32]) -> Vec<u8> {
+    fn crc32(data: &[u8]) -> u32 {
+        let mut c = 0xFFFF_FFFFu32;
+        for &b in data {
+            c ^= b as u32;
+            for _ in 0..8 {
+                c = if c & 1 != 0 {
+                    0xEDB8_8320 ^ (c >> 1)
+                } else {
+                    c >> 1
+                };
+            }
+        }
+        !c
+    }
+    fn chunk(out: &mut Vec<u8>, kind: &[u8; 4], data: &[u8]) {
+        out.extend_from_slice(&(data.len() as u32).to_be_bytes());
+        let mut body = kind.to_vec();
+        body.extend_from_slice(data);
+        out.extend_from_slice(&body);
+        out.extend_from_slice(&crc32(&body).to_be_bytes());
+    }
+    assert_eq!(texels.len(), (w * h) as usize);
+    let mut raw = Vec::new();
+    for y in 0..h {
+        raw.push(0u8); // filter: none
+        for x in 0..w {
+            raw.extend_from_slice(&texels[(y * w + x) as usize].to_le_bytes());
+        }
+    }
+    let mut z = vec![0x78, 0x01];
+    for (i, block) in raw.chunks(65535).enumerate() {
+        let last = (i + 1) * 65535 >= raw.len();
+        z.push(u8::from(last));
+        z.extend_from_slice(&(block.len() as u16).to_le_bytes());
+        z.extend_from_slice(&(!(block.len() as u16)).to_le_bytes());
+        z.extend_from_slice(block);
+    }
+    let (mut a, mut b) = (1u32, 0u32);
+    for &x in &raw {
+        a = (a + x as u32) % 65521;
+        b = (b + a) % 65521;
+    }
+    z.extend_from_slice(&((b << 16) | a).to_be_bytes());
+    let mut out = b"\x89PNG\r\n\x1a\n".to_vec();
+    let mut ihdr = Vec::new();
+    ihdr.extend_from_slice(&w.to_be_bytes());
+    ihdr.extend_from_slice(&h.to_be_bytes());
+    ihdr.extend_from_slice(&[8, 6, 0, 0, 0]);
+    chunk(&mut out, b"IHDR", &ihdr);
+    chunk(&mut out, b"IDAT", &z);
+    chunk(&mut out, b"IEND", &[]);
+    out
+}
+
+/// The built-in character (BCN_Epileptic) with textured materials: `pngs` appended to its
+/// binary chunk as embedded images, then `edit` given the JSON (images 0.. are the PNGs,
+/// in order, with buffer views already added) to add samplers, textures and materials and
+/// point the primitives at them. Written as `name` in [`temp_dir`]`(tag)`.
+pub fn edited_bcn(
+    tag: &str,
+    name: &str,
+    pngs: &[Vec<u8>],
+    edit: impl FnOnce(&mut serde_json::Value),
+) -> std::path::PathBuf {
+    let src = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/bcn_epileptic.glb");
+    let glb = std::fs::read(&src).unwrap();
+    let u32_at = |o: usize| u32::from_le_bytes(glb[o..o + 4].try_into().unwrap()) as usize;
+    let json_len = u32_at(12);
+    let mut json: serde_json::Value = serde_json::from_slice(&glb[20..20 + json_len]).unwrap();
+    let bin_at = 20 + json_len;
+    let bin_len = u32_at(bin_at);
+    let mut bin = glb[bin_at + 8..bin_at + 8 + bin_len].to_vec();
+    for png in pngs {
+        while !bin.len().is_multiple_of(4) {
+            bin.push(0);
+        }
+        let views = json["bufferViews"].as_array_mut().unwrap();
+        views.push(serde_json::json!({
+            "buffer": 0, "byteOffset": bin.len(), "byteLength": png.len()
+        }));
+        let view = views.len() - 1;
+        bin.extend_from_slice(png);
+        if json.get("images").is_none() {
+            json["images"] = serde_json::json!([]);
+        }
+        json["images"]
+            .as_array_mut()
+            .unwrap()
+            .push(serde_json::json!({"bufferView": view, "mimeType": "image/png"}));
+    }
+    while !bin.len().is_multiple_of(4) {
+        bin.push(0);
+    }
+    json["buffers"][0]["byteLength"] = serde_json::json!(bin.len());
+    edit(&mut json);
+    let mut text = serde_json::to_vec(&json).unwrap();
+    while !text.len().is_multiple_of(4) {
+        text.push(b' ');
+    }
+    let mut out = Vec::new();
+    out.extend_from_slice(b"glTF");
+    out.extend_from_slice(&2u32.to_le_bytes());
+    out.extend_from_slice(&((12 + 8 + text.len() + 8 + bin.len()) as u32).to_le_bytes());
+    out.extend_from_slice(&(text.len() as u32).to_le_bytes());
+    out.extend_from_slice(b"JSON");
+    out.extend_from_slice(&text);
+    out.extend_from_slice(&(bin.len() as u32).to_le_bytes());
+    out.extend_from_slice(b"BIN\0");
+    out.extend_from_slice(&bin);
+    temp_file(tag, name, &out)
+}
+
+/// A 32 x 32 test texture of 8-texel squares in four saturated colours (sRGB words).
+pub fn checker_texels() -> Vec<u32> {
+    let colours = [0xFF2020E0u32, 0xFF20E020, 0xFFE02020, 0xFFF0F0F0];
+    (0..32u32)
+        .flat_map(|y| (0..32u32).map(move |x| colours[((x / 8 + y / 8) % 4) as usize]))
+        .collect()
+}
+
+/// BCN_Epileptic with the checker as its Head's base colour (factor 1) and its Torso's
+/// (factor 0.9, 0.6, 0.3; mirrored repeat along u), Legs keeping the file's grey.
+pub fn textured_bcn(tag: &str) -> std::path::PathBuf {
+    let png = png_rgba(32, 32, &checker_texels());
+    edited_bcn(tag, "textured.glb", &[png], |j| {
+        j["samplers"] = serde_json::json!([{"wrapS": 33648, "wrapT": 10497}]);
+        j["textures"] = serde_json::json!([{"source": 0}, {"source": 0, "sampler": 0}]);
+        let mats = j["materials"].as_array_mut().unwrap();
+        mats.push(serde_json::json!({"name": "face",
+            "pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}));
+        mats.push(serde_json::json!({"name": "shirt",
+            "pbrMetallicRoughness": {"baseColorFactor": [0.9, 0.6, 0.3, 1.0],
+                                     "baseColorTexture": {"index": 1}}}));
+        for m in j["meshes"].as_array_mut().unwrap() {
+            let mat = match m["name"].as_str() {
+                Some("Head") => 1,
+                Some("Torso") => 2,
+                _ => 0,
+            };
+            for p in m["primitives"].as_array_mut().unwrap() {
+                p["material"] = serde_json::json!(mat);
+            }
+        }
+    })
+}

@@ -92,6 +92,28 @@ pub fn cells() -> Vec<Cell> {
     out
 }
 
+/// The BTF's albedo per channel: its mean over the tile of the radiance seen from the
+/// normal (view 0) under a uniform environment of radiance 1, sum_i (Omega_i / pi) T(l_i, 0)
+/// by the cells' quadrature above, over the same sum for a white Lambertian surface
+/// (T = cos theta_l), so that a Lambertian BTF of reflectance rho gives rho exactly. (The
+/// quadrature alone gives 1.059 for white: the last ring's midpoint overweights the
+/// horizon.)
+pub fn albedo(btf: &super::synth::Btf) -> [f64; 3] {
+    let cells = cells();
+    let n = btf.image_len().max(1);
+    let white: f64 = cells.iter().map(|c| c.solid_angle / PI * c.dir[2]).sum();
+    let mut sum = [0f64; 3];
+    for (i, c) in cells.iter().enumerate() {
+        let w = c.solid_angle / PI;
+        for t in btf.image(i, 0) {
+            for (s, v) in sum.iter_mut().zip(t) {
+                *s += w * *v as f64;
+            }
+        }
+    }
+    sum.map(|s| s / n as f64 / white)
+}
+
 /// Sub-cells per cell along each axis of the midpoint rule (cos theta and phi split evenly,
 /// so every sub-cell of a cell has the same solid angle).
 pub const MIDPOINT_SUB: usize = 2;
@@ -453,6 +475,30 @@ pub fn rel_l2(a: &[[f64; 4]], truth: &[[f64; 4]]) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// Catches an albedo taken from another view, without the cells' weights or without
+    /// the white normalisation: a Lambertian BTF of reflectance (0.2, 0.5, 0.8) with a view
+    /// dependence that only view 0 escapes.
+    #[test]
+    fn albedo_of_a_lambertian_btf_is_its_reflectance() {
+        let dirs = dirs::directions();
+        let size = [2u32, 3];
+        let n = 6;
+        let rho = [0.2f32, 0.5, 0.8];
+        let mut texels = Vec::with_capacity(81 * 81 * n);
+        for v in 0..81 {
+            for l in dirs.iter() {
+                let cos = l.vector()[2] as f32;
+                let view_gain = if v == 0 { 1.0 } else { 1.7 };
+                texels.extend(std::iter::repeat_n(rho.map(|r| r * cos * view_gain), n));
+            }
+        }
+        let btf = super::super::synth::Btf { size, texels };
+        let a = albedo(&btf);
+        for c in 0..3 {
+            assert!((a[c] - rho[c] as f64).abs() < 1e-6, "{a:?}");
+        }
+    }
 
     #[test]
     fn cells_partition_the_hemisphere() {

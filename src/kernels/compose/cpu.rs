@@ -111,6 +111,17 @@ pub fn shade(
                 background
             } else {
                 let tri = (inp.keys[idx] & 0xFFFF_FFFF) as u32;
+                let part = (g0[3].abs() + 0.5) as u32 - 1;
+                let inv_scale = 1.0 / prep.uv_scale;
+                let mesh_uv = [
+                    inp.gbuffer[pixels + idx][3] * inv_scale,
+                    inp.gbuffer[2 * pixels + idx][3] * inv_scale,
+                ];
+                let colour = Vec3::from_array(
+                    prep.surfaces
+                        .get(part as usize)
+                        .map_or([1.0; 3], |s| s.colour(mesh_uv)),
+                );
                 if tri < prep.skin_triangles {
                     let t = prep.skin_tris[tri as usize];
                     let p = |v: u32| Vec4::from_array(inp.positions[v as usize]).truncate();
@@ -133,7 +144,7 @@ pub fn shade(
                     let view = -d;
                     let nv = n.dot(view).max(1e-4);
                     let diffused = atlas_lookup(prep, inp.diffuse, uv);
-                    let mut radiance = (1.0 - schlick(f0, nv)) / PI * diffused;
+                    let mut radiance = (1.0 - schlick(f0, nv)) / PI * diffused * colour;
                     let mut spec = Vec3::ZERO;
                     for l in &params.lights {
                         let ld = l.direction.normalize();
@@ -181,7 +192,7 @@ pub fn shade(
                     radiance += spec;
                     radiance
                 } else {
-                    Vec4::from_array(inp.cloth[idx]).truncate()
+                    Vec4::from_array(inp.cloth[idx]).truncate() * colour
                 }
             };
             let radiance = radiance.max(Vec3::ZERO);

@@ -75,7 +75,9 @@ pub struct ComposeKernel {
     spare: Vec<Buffer>,
     size: [u32; 2],
     env: Environment,
-    atlas: [u32; 3],
+    /// Atlas size, skin triangles, visibility mode, surface count.
+    atlas: [u32; 4],
+    uv_scale: f32,
 }
 
 fn too_small(what: &str, have: u64, need: u64) -> Error {
@@ -171,6 +173,17 @@ impl ComposeKernel {
             storage(prep.mask.len() as u64 * 4),
             &prep.mask,
         )?;
+        let (surface_table, surface_texels) = super::pack::pack_surfaces(&prep.surfaces);
+        let surfaces = rec.buffer_with(
+            "compose surfaces",
+            storage(surface_table.len() as u64 * 16),
+            &surface_table,
+        )?;
+        let texels = rec.buffer_with(
+            "compose surface texels",
+            storage(surface_texels.len() as u64 * 4),
+            &surface_texels,
+        )?;
         let params = Buffer::new(&ctx, "compose params", storage(PARAMS_BYTES))?;
         let hdr = Buffer::new(&ctx, "compose hdr", storage(pixels * 16))?;
         let ldr = Buffer::new(&ctx, "compose ldr", storage(pixels * 4))?;
@@ -212,7 +225,7 @@ impl ComposeKernel {
                 b
             }
         };
-        let own = vec![skin_tris, skin_uvs, mask];
+        let own = vec![skin_tris, skin_uvs, mask, surfaces, texels];
         let pipeline = crate::shaders::pipeline(&ctx, "compose/shade")?;
         let lookup = |name: &str| -> Option<Resource<'_>> {
             Some(match name {
@@ -222,6 +235,8 @@ impl ComposeKernel {
                 "skin_tris" => Resource::Buffer(&own[0]),
                 "skin_uvs" => Resource::Buffer(&own[1]),
                 "mask" => Resource::Buffer(&own[2]),
+                "surfaces" => Resource::Buffer(&own[3]),
+                "texels" => Resource::Buffer(&own[4]),
                 "diffuse" => Resource::Buffer(&diffuse),
                 "cloth" => Resource::Buffer(&cloth),
                 "lobes" => Resource::Buffer(&lobes),
@@ -250,7 +265,13 @@ impl ComposeKernel {
             spare,
             size: prep.size,
             env,
-            atlas: [prep.atlas_size, prep.skin_triangles, visibility_mode],
+            atlas: [
+                prep.atlas_size,
+                prep.skin_triangles,
+                visibility_mode,
+                prep.surfaces.len() as u32,
+            ],
+            uv_scale: prep.uv_scale,
         })
     }
 
@@ -271,7 +292,7 @@ impl ComposeKernel {
 
     fn params_bytes(&self, p: &FrameParams) -> Result<Vec<u8>> {
         p.check()?;
-        Ok(p.bytes(self.size, self.env, self.atlas))
+        Ok(p.bytes(self.size, self.env, self.atlas, self.uv_scale))
     }
 
     fn shade_args(&self, _p: &FrameParams) -> Result<Dispatch> {

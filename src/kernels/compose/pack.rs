@@ -4,6 +4,7 @@
 use crate::error::{Error, Result};
 use crate::kernels::raster::pack::Camera;
 use crate::scene::gbuffer::Light;
+use crate::scene::material::Texture;
 use crate::scene::texspace::TexGeometry;
 use glam::Vec3;
 
@@ -94,7 +95,15 @@ impl FrameParams {
     }
 
     /// The pass's parameter block (std430 `Params` of glsl/compose/shade.comp).
-    pub fn bytes(&self, size: [u32; 2], env: Environment, atlas: [u32; 3]) -> Vec<u8> {
+    /// `atlas`: atlas size, skin triangles, visibility mode, surface count; `uv_scale`: the
+    /// G-buffer's uv multiplier.
+    pub fn bytes(
+        &self,
+        size: [u32; 2],
+        env: Environment,
+        atlas: [u32; 4],
+        uv_scale: f32,
+    ) -> Vec<u8> {
         let b = self.camera.basis(size);
         let v4 = |v: Vec3, w: f32| [v.x, v.y, v.z, w];
         let mut f: Vec<[f32; 4]> = vec![
@@ -114,8 +123,8 @@ impl FrameParams {
         let s = &self.specular;
         f.push([s.rho_s, s.roughness, s.f0, 0.0]);
         let (background, lobes) = match env {
-            Environment::None(c) => ([c[0], c[1], c[2], 0.0], 0),
-            Environment::Lobes(n, c) => ([c[0], c[1], c[2], 0.0], n),
+            Environment::None(c) => ([c[0], c[1], c[2], 1.0 / uv_scale], 0),
+            Environment::Lobes(n, c) => ([c[0], c[1], c[2], 1.0 / uv_scale], n),
         };
         f.push(background);
         let mut out: Vec<u8> = bytemuck::cast_slice(&f).to_vec();
@@ -127,7 +136,7 @@ impl FrameParams {
             atlas[0],
             atlas[1],
             atlas[2],
-            0,
+            atlas[3],
         ] {
             out.extend_from_slice(&u.to_le_bytes());
         }
@@ -151,6 +160,70 @@ pub struct Prepared {
     pub mask: Vec<f32>,
     /// Skin triangles: the triangle ids below this are skin.
     pub skin_triangles: u32,
+    /// Per part id: its surface colour (empty: every part uncoloured).
+    pub surfaces: Vec<Surface>,
+    /// The raster's uv multiplier (the G-buffer holds the mesh's uv times this).
+    pub uv_scale: f32,
+}
+
+/// How the pass colours one part: `scale` times the texture's linear colour at the pixel's
+/// mesh uv (times 1 without a texture). Skin pixels multiply their diffuse exit by it (not
+/// the specular layer: the surface reflection of skin is not tinted), cloth pixels the BTF
+/// radiance.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Surface {
+    pub scale: [f32; 3],
+    pub texture: Option<Texture>,
+}
+
+impl Surface {
+    /// No colouring.
+    pub const WHITE: Surface = Surface {
+        scale: [1.0; 3],
+        texture: None,
+    };
+
+    /// The colour at mesh uv `uv` (f32, as the shader computes it).
+    pub fn colour(&self, uv: [f32; 2]) -> [f32; 3] {
+        let t = self.texture.as_ref().map_or([1.0; 3], |t| t.sample(uv));
+        [0, 1, 2].map(|c| self.scale[c] * t[c])
+    }
+}
+
+/// The surfaces as the shader reads them: per part two uvec4 (scale rgb as f32 bits, 0;
+/// texel offset, width, height, wrap u | wrap v << 2; width 0 without a texture) and every
+/// texture's texels (RGBA8 sRGB words) one after another.
+pub fn pack_surfaces(surfaces: &[Surface]) -> (Vec<[u32; 4]>, Vec<u32>) {
+    let mut table = Vec::with_capacity(2 * surfaces.len().max(1));
+    let mut texels = Vec::new();
+    for s in surfaces {
+        table.push([
+            s.scale[0].to_bits(),
+            s.scale[1].to_bits(),
+            s.scale[2].to_bits(),
+            0,
+        ]);
+        match &s.texture {
+            Some(t) => {
+                table.push([
+                    texels.len() as u32,
+                    t.width,
+                    t.height,
+                    t.wrap[0].code() | (t.wrap[1].code() << 2),
+                ]);
+                texels.extend_from_slice(&t.texels);
+            }
+            None => table.push([0; 4]),
+        }
+    }
+    if table.is_empty() {
+        table.push([1f32.to_bits(), 1f32.to_bits(), 1f32.to_bits(), 0]);
+        table.push([0; 4]);
+    }
+    if texels.is_empty() {
+        texels.push(0);
+    }
+    (table, texels)
 }
 
 impl Prepared {
@@ -197,6 +270,8 @@ impl Prepared {
             skin_tris,
             skin_uvs,
             mask,
+            surfaces: Vec::new(),
+            uv_scale: 1.0,
         })
     }
 
@@ -209,6 +284,51 @@ impl Prepared {
             skin_uvs: vec![[0.0; 4]; 2],
             mask: vec![0.0],
             skin_triangles: 0,
+            surfaces: Vec::new(),
+            uv_scale: 1.0,
         }
+    }
+
+    /// Colours the parts: `surfaces[p]` for part id p (the G-buffer's), read at the mesh uv,
+    /// which the raster wrote multiplied by `uv_scale`. Scales must be finite and >= 0, and
+    /// the textures together below 2^28 texels (one storage buffer).
+    pub fn with_surfaces(mut self, surfaces: Vec<Surface>, uv_scale: f32) -> Result<Prepared> {
+        if !(uv_scale.is_finite() && uv_scale > 0.0) {
+            return Err(Error::InvalidArgument(format!(
+                "compose: uv scale {uv_scale} (finite, > 0)"
+            )));
+        }
+        let mut texels = 0u64;
+        for (p, s) in surfaces.iter().enumerate() {
+            if s.scale.iter().any(|c| !c.is_finite() || *c < 0.0) {
+                return Err(Error::InvalidArgument(format!(
+                    "compose: part {p}'s colour scale {:?} (finite, >= 0)",
+                    s.scale
+                )));
+            }
+            if let Some(t) = &s.texture {
+                if t.width == 0
+                    || t.height == 0
+                    || t.texels.len() != t.width as usize * t.height as usize
+                {
+                    return Err(Error::InvalidArgument(format!(
+                        "compose: part {p}'s texture '{}' holds {} texels for {} x {}",
+                        t.source,
+                        t.texels.len(),
+                        t.width,
+                        t.height
+                    )));
+                }
+                texels += t.texels.len() as u64;
+            }
+        }
+        if texels >= 1 << 28 {
+            return Err(Error::InvalidArgument(format!(
+                "compose: the parts' textures hold {texels} texels together (below 2^28)"
+            )));
+        }
+        self.surfaces = surfaces;
+        self.uv_scale = uv_scale;
+        Ok(self)
     }
 }
