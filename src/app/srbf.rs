@@ -1119,14 +1119,30 @@ struct Pictures {
 }
 
 impl Pictures {
+    /// Diffuse radiance is the same from every side: the fixed three-quarter view. Glossy
+    /// radiance is computed toward the camera, so the picture looks along the camera's
+    /// direction to the mesh's centre (the renderer is orthographic: a distant camera's view,
+    /// with the radiance still toward the camera's position).
     fn new(cfg: &ShadeConfig, mesh: &Mesh) -> Pictures {
+        let mut view = crate::render::View {
+            width: cfg.image.0,
+            height: cfg.image.1,
+            ..Default::default()
+        };
+        if cfg.brdf.is_glossy() {
+            let (lo, hi) = mesh.bounds();
+            let camera = cfg.camera.unwrap_or_else(|| default_camera(mesh));
+            if let Some(d) = ((lo + hi) * 0.5 - camera).try_normalize() {
+                view.direction = d;
+                // Looking straight up or down: the image's up is -Z instead of +Y.
+                if d.cross(view.up).length() < 1e-3 {
+                    view.up = Vec3::NEG_Z;
+                }
+            }
+        }
         Pictures {
             out: cfg.out.clone(),
-            view: crate::render::View {
-                width: cfg.image.0,
-                height: cfg.image.1,
-                ..Default::default()
-            },
+            view,
             frame_points: mesh.positions.clone(),
             error_scale: cfg.error_scale,
         }
