@@ -553,7 +553,7 @@ fn base_colour_materials_load_per_part_with_their_textures_and_wrap_modes() {
 
 /// Base-colour textures the frame cannot use are refused naming the file, the part and the
 /// image: another texture coordinate set, an undecodable image, a missing external image,
-/// a factor outside [0, 1].
+/// a factor outside [0, 1], a texture transform (which would be ignored).
 #[cfg(feature = "gltf")]
 #[test]
 fn bad_base_colour_materials_are_refused_naming_the_part_and_image() {
@@ -611,4 +611,9 @@ fn bad_base_colour_materials_are_refused_naming_the_part_and_image() {
     });
     let e = common::error_naming(&p, load(&p));
     assert!(e.contains("baseColorFactor") && e.contains("'Head'"), "{e}");
+    let p = common::edited_bcn("scene-materials", "transform.glb", &[], |j| {
+        j["extensionsUsed"] = serde_json::json!(["KHR_texture_transform"]);
+    });
+    let e = common::error_naming(&p, load(&p));
+    assert!(e.contains("KHR_texture_transform"), "{e}");
 }

@@ -383,6 +383,15 @@ pub fn load_materials(path: &Path, names: &[&str]) -> Result<Vec<Material>> {
     let base = path.parent().or(Some(Path::new(".")));
     let buffers = gltf::import_buffers(&doc, base, gltf.blob)
         .map_err(|e| err(format!("cannot load buffers: {e}")))?;
+    // A texture transform moves the texture on the surface; reading the texture without it
+    // would put it in the wrong place without a word.
+    if doc.extensions_used().any(|e| e == "KHR_texture_transform") {
+        return Err(err(
+            "uses KHR_texture_transform, which vkshade does not apply to base-colour \
+             textures (bake the transform into the UVs, or use the measured materials)"
+                .into(),
+        ));
+    }
     let mut out = Vec::with_capacity(names.len());
     for name in names {
         let nodes = choose_nodes(skin_mesh_nodes(&doc), Some(name)).map_err(err)?;
