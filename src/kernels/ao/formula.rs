@@ -506,8 +506,14 @@ mod tests {
         );
         // Trilinear interpolation of a function with kinks where one cap starts to hold the
         // other (t = 0) and where the caps separate (t = 1), both on grid planes; between
-        // them F is smooth. Measured max: see the message above (TABLE_MAX_MEASURED).
-        assert!(table_max < 0.03, "table error {table_max}");
+        // them F is smooth. Measured max 2.9e-3 at 32^3; bound 1e-2 (a 3x margin).
+        assert!(table_max < 1e-2, "table error {table_max}");
+        // The model against the integrated union (512^2 cosine-distributed midpoints, whose
+        // own error is ~1e-3): measured mean 0.0076, p95 0.043, max 0.12 (a small cap
+        // straddling the larger one's rim, where the shared part's cosine weight differs
+        // most from the smaller cap's average); product 0.028 and sum 0.048 on the same
+        // pairs. Bound: mean < 0.015, and better than both closed-form blends.
+        assert!(m.0 < 0.015, "pair model mean error {m:?}");
         // The model must beat both closed-form blends on overlapping pairs (mean error).
         assert!(
             m.0 < p.0 && m.0 < s.0,
