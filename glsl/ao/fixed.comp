@@ -5,10 +5,10 @@
 // kernels::ao::cpu::CpuAo::fixed_vertex operation for operation.
 //
 // Per node of the list (largest bind-pose occlusion first): the sphere's occlusion I (2D
-// table or closed form, the inside fade as in occlusion.comp), then the largest pairwise
-// overlap with an earlier cap of the list, F(a_i, a_j, g_ij) * min(I_i, I_j), where F is the
-// fraction of the smaller cap inside the larger (trilinear lookup); the vertex's occlusion
-// is the sum of I_i less those overlaps.
+// table or closed form, the inside fade as in occlusion.comp), less its overlap with the
+// earlier caps of the list: the pairwise overlaps are F(a_i, a_j, g_ij) * min(I_i, I_j),
+// where F is the fraction of the smaller cap inside the larger (trilinear lookup), and the
+// overlap with their union is taken midway between the largest and the (capped) sum.
 #include <common/ao.glsl>
 // 32 lanes: the caps below take 32 x 32 x 24 bytes = 24 KiB of shared memory.
 layout(local_size_x = 32) in;
@@ -132,7 +132,9 @@ void main() {
         if (occ <= 0.0) continue;
         float cos_a = sqrt(max(1.0 - 1.0 / max(h * h, 1.0), 0.0));
         float sin_a = 1.0 / max(h, 1.0);
-        float over = 0.0;
+        // Between the largest pairwise overlap and their sum (capped): the midpoint (cpu.rs).
+        float largest = 0.0;
+        float sum = 0.0;
         for (uint j = 0u; j < count; ++j) {
             // formula::pair_overlap: disjoint caps (g >= a + a_j) skip the lookup.
             vec4 cj = s_cap[j * 32u + lane];
@@ -141,8 +143,10 @@ void main() {
             float cos_sum = cos_a * cj.w - sin_a * oj.y;
             float o = 0.0;
             if (cos_g > cos_sum) o = overlap_lookup(cos_a, cj.w, cos_g) * min(occ, oj.x);
-            over = max(over, o);
+            largest = max(largest, o);
+            sum += o;
         }
+        float over = 0.5 * (largest + min(sum, occ));
         total += occ - over;
         s_cap[count * 32u + lane] = vec4(wd, cos_a);
         s_occ_sin[count * 32u + lane] = vec2(occ, sin_a);

@@ -281,9 +281,10 @@ pub fn overlap_coords(cos_a1: f32, cos_a2: f32, cos_g: f32) -> [f32; 3] {
     ]
 }
 
-/// The overlap the published variant subtracts for a cap (occlusion `occ`, half-angle
-/// cosine `cos_a`) against an earlier one (`occ_j`, `cos_aj`), their axes at cosine
-/// `cos_g`: F * min(occ, occ_j) ([`OverlapTable`]).
+/// The pairwise overlap the published variant uses for a cap (occlusion `occ`, half-angle
+/// cosine `cos_a`) and an earlier one (`occ_j`, `cos_aj`), their axes at cosine `cos_g`:
+/// F * min(occ, occ_j) ([`OverlapTable`]; how a cap's pairwise overlaps combine is
+/// `cpu::CpuAo::fixed_vertex`).
 ///
 /// `sin_a`, `sin_aj` are the half-angles' sines (1 / h): caps whose axes are at least
 /// a + a_j apart (cos g <= cos(a + a_j)) are disjoint and skip the lookup (three arc
