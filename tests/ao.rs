@@ -93,6 +93,7 @@ fn plain(occlusion: Occlusion, blend: Blend) -> AoParams {
         blend,
         clamp_inside: false,
         correct: false,
+        cut: vkshade::kernels::ao::Cut::Adaptive,
     }
 }
 
@@ -260,6 +261,7 @@ fn gpu_matches_the_cpu_implementation_on_testwuson() {
                 blend,
                 clamp_inside: k == 2,
                 correct,
+                cut: vkshade::kernels::ao::Cut::Adaptive,
             };
             let factors = correction.factors(&cpu_ao, &prep, &params);
             let m = c

@@ -5,12 +5,12 @@ use super::Gpu;
 use crate::error::{Error, Result};
 use crate::geom::visibility::{RayConfig, ambient_visibility};
 use crate::gpu::{Context, Timings};
-use crate::kernels::ao::cpu::{self, CpuAo, Posed};
+use crate::kernels::ao::cpu::{self, CpuAo, Posed, VertexAo};
 use crate::kernels::ao::fit::{FitConfig, FitSummary, Proxy, fit_tree};
 use crate::kernels::ao::formula::{OcclusionTable, TABLE_SIZE};
 use crate::kernels::ao::{
-    AoKernel, AoParams, Blend, Correction, DEFAULT_ANIMATION, DEFAULT_MESH, FrameData, Occlusion,
-    PASS_OCCLUSION, PASS_POSE, PASS_SKIN, Prepared, Refine,
+    AoKernel, AoParams, Blend, Correction, Cut, DEFAULT_ANIMATION, DEFAULT_MESH, FixedCut,
+    FrameData, Occlusion, PASS_OCCLUSION, PASS_POSE, PASS_SKIN, Prepared, Refine,
 };
 use crate::kernels::{KernelInfo, run_frames};
 use crate::progress::Progress;
@@ -107,6 +107,33 @@ pub struct TreeInfo {
     pub fit: Option<FitReport>,
     /// The refit of the spheres to the mesh (`--proxy fitted`).
     pub proxy_fit: Option<FitSummary>,
+}
+
+/// The fixed cut's lists (`--cut fixed`), chosen in the bind pose.
+#[derive(Clone, Debug, Serialize)]
+pub struct FixedCutInfo {
+    /// Slots per vertex (the cap).
+    pub slots: u32,
+    /// Mean nodes of the bind-pose hard cut per vertex, before the cap.
+    pub mean_cut: f64,
+    /// Vertices whose bind-pose cut held more nodes than the cap.
+    pub truncated: usize,
+    /// Mean bind-pose occlusion of the nodes the cap left out.
+    pub dropped_occlusion: f64,
+    /// Samples per axis of the pairwise overlap table.
+    pub overlap_table_size: u32,
+}
+
+impl FixedCutInfo {
+    fn of(f: &FixedCut) -> FixedCutInfo {
+        FixedCutInfo {
+            slots: f.slots,
+            mean_cut: f.mean_cut,
+            truncated: f.truncated,
+            dropped_occlusion: f.dropped_occlusion,
+            overlap_table_size: crate::kernels::ao::formula::OVERLAP_SIZE,
+        }
+    }
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -217,6 +244,8 @@ pub struct AoReport {
     pub params: AoParams,
     pub table_size: [u32; 2],
     pub correction: Option<CorrectionInfo>,
+    /// The fixed cut's lists (`--cut fixed`).
+    pub fixed_cut: Option<FixedCutInfo>,
     pub reference_rays: Option<usize>,
     /// Passes with declared accesses, memory, frames in flight.
     pub kernel: KernelInfo,
@@ -283,6 +312,7 @@ fn level_ranges(shape: cpu::TreeShape) -> Vec<std::ops::Range<usize>> {
 fn decompose(
     cpu_ao: &CpuAo,
     prep: &Prepared,
+    fixed: Option<&FixedCut>,
     posed: &Posed,
     params: &AoParams,
     correction: Option<&[f32]>,
@@ -308,22 +338,32 @@ fn decompose(
         .par_iter()
         .map(|&i| {
             let (p, n) = (posed.positions[i], posed.normals[i]);
-            let with_table = cpu_ao.vertex(p, n, posed, prep.shape, &plain).visibility;
-            let with_exact = cpu_ao.vertex(p, n, posed, prep.shape, &exact).visibility;
+            let vertex = |params: &AoParams| match fixed {
+                Some(f) => cpu_ao.fixed_vertex(i, p, n, posed, f, params),
+                None => cpu_ao.vertex(p, n, posed, prep.shape, params),
+            };
+            let with_table = vertex(&plain).visibility;
+            let with_exact = vertex(&exact).visibility;
             let mut cut = Vec::new();
-            cpu::walk_cut(
-                p,
-                &posed.spheres,
-                &posed.extents,
-                prep.shape,
-                &exact,
-                |_, s, _| {
-                    // As for the leaves: a sphere holding the receiver is left out.
-                    if s.truncate().distance(p) > s.w {
-                        cut.push(s)
-                    }
-                },
-            );
+            // As for the leaves: a sphere holding the receiver is left out.
+            let mut keep = |s: Vec4| {
+                if s.truncate().distance(p) > s.w {
+                    cut.push(s)
+                }
+            };
+            match fixed {
+                Some(f) => f.list(i).for_each(|k| keep(posed.spheres[k as usize])),
+                None => {
+                    cpu::walk_cut(
+                        p,
+                        &posed.spheres,
+                        &posed.extents,
+                        prep.shape,
+                        &exact,
+                        |_, s, _| keep(s),
+                    );
+                }
+            }
             let union_cut = spheres_visibility(p, n, i, &cut, &cfg);
             let leaves: Vec<Vec4> = posed.spheres[first_leaf..]
                 .iter()
@@ -437,6 +477,8 @@ struct Session<'a> {
     prep: Prepared,
     kernel: AoKernel,
     cpu_ao: CpuAo,
+    /// The fixed cut's lists (`--cut fixed`; the kernel's own).
+    fixed: Option<FixedCut>,
     correction: Option<Baked>,
     /// The bind-pose truth used as if static (the baseline the animated method must beat).
     static_bind: Option<Vec<f32>>,
@@ -580,8 +622,15 @@ impl<'a> Session<'a> {
         let mut setup = ctx.recorder("ao setup")?;
         let kernel = AoKernel::new(&mut setup, &prep, cfg.params)?;
         let cpu_ao = CpuAo::new(OcclusionTable::new(TABLE_SIZE, TABLE_SIZE));
+        let fixed = kernel.fixed_cut().cloned();
+        if let Some(f) = &fixed {
+            progress(&format!(
+                "fixed cut chosen in the bind pose: {:.1} nodes per vertex before the cap of {} ({} vertices truncated)",
+                f.mean_cut, f.slots, f.truncated
+            ));
+        }
         let correction = if cfg.params.correct {
-            let baked = bake(cfg, mesh, &cpu_ao, &prep)?;
+            let baked = bake(cfg, mesh, &cpu_ao, &prep, fixed.as_ref())?;
             kernel.set_correction(&mut setup, &baked.factors)?;
             progress(&format!(
                 "static correction baked in the bind pose ({} rays/vertex, {:.0} ms)",
@@ -612,6 +661,7 @@ impl<'a> Session<'a> {
             prep,
             kernel,
             cpu_ao,
+            fixed,
             correction,
             static_bind,
             frame_points: Vec::new(),
@@ -749,8 +799,7 @@ impl<'a> Session<'a> {
             ..cfg.params
         };
         let uncorrected: Vec<f32> = self
-            .cpu_ao
-            .frame(&posed, prep.shape, &plain, None)
+            .cpu_frame(&posed, &plain, None)
             .iter()
             .map(|v| v.visibility)
             .collect();
@@ -758,6 +807,7 @@ impl<'a> Session<'a> {
             decompose(
                 &self.cpu_ao,
                 prep,
+                self.fixed.as_ref(),
                 &posed,
                 &cfg.params,
                 self.correction.as_ref().map(|c| &c.factors[..]),
@@ -779,6 +829,21 @@ impl<'a> Session<'a> {
             ray_ms,
         };
         (reference, truth)
+    }
+
+    /// The CPU twin of the configured cut on a posed frame.
+    fn cpu_frame(
+        &self,
+        posed: &Posed,
+        params: &AoParams,
+        correction: Option<&[f32]>,
+    ) -> Vec<VertexAo> {
+        match &self.fixed {
+            Some(f) => self.cpu_ao.fixed_frame(posed, f, params, correction),
+            None => self
+                .cpu_ao
+                .frame(posed, self.prep.shape, params, correction),
+        }
     }
 
     /// Writes the frame's PNG and its linear EXR twin: the result alone, or with a truth,
@@ -851,6 +916,7 @@ impl<'a> Session<'a> {
             params: cfg.params,
             table_size: [TABLE_SIZE, TABLE_SIZE],
             correction: self.correction.as_ref().map(|c| c.info.clone()),
+            fixed_cut: self.fixed.as_ref().map(FixedCutInfo::of),
             reference_rays: cfg.reference.then_some(cfg.rays),
             kernel: KernelInfo::of(&self.kernel, in_flight),
             summary: summarize(&frames),
@@ -861,13 +927,22 @@ impl<'a> Session<'a> {
 }
 
 /// Bakes the static correction in the bind pose (a terminal shows its progress).
-fn bake(cfg: &AoRunConfig, mesh: &Mesh, cpu_ao: &CpuAo, prep: &Prepared) -> Result<Baked> {
+fn bake(
+    cfg: &AoRunConfig,
+    mesh: &Mesh,
+    cpu_ao: &CpuAo,
+    prep: &Prepared,
+    fixed: Option<&FixedCut>,
+) -> Result<Baked> {
     let t = Instant::now();
     let c = {
         let _p = Progress::start("static correction bake", mesh.positions.len() as u64);
         Correction::bake(mesh, cfg.correction_rays)
     };
-    let factors = c.factors(cpu_ao, prep, &cfg.params);
+    let factors = match fixed {
+        Some(f) => c.fixed_factors(cpu_ao, prep, f, &cfg.params),
+        None => c.factors(cpu_ao, prep, &cfg.params),
+    };
     Ok(Baked {
         info: CorrectionInfo {
             rays: cfg.correction_rays,
@@ -941,6 +1016,10 @@ pub struct Args {
     /// the result jumps by more than 0.1 while the ray-traced truth moves less than 0.02.
     #[arg(long, default_value_t = 0)]
     pub jumps: usize,
+    /// The cut: `adaptive` (walked through the skinned tree every frame) or `fixed` (the
+    /// published variant: per-vertex lists chosen in the bind pose, pairwise overlap table).
+    #[arg(long, default_value = "adaptive", value_parser = super::choice::<Cut>("cut"))]
+    pub cut: Cut,
     /// Refine a tree node when size / distance > tau (0 < tau <= 1; smaller = finer cut).
     #[arg(long, default_value_t = 0.8)]
     pub tau: f32,
@@ -1015,6 +1094,7 @@ impl Args {
                 blend: self.blend,
                 clamp_inside: self.clamp_inside,
                 correct: !self.no_correction,
+                cut: self.cut,
             },
             reference: self.reference,
             rays: self.rays,
@@ -1059,6 +1139,12 @@ pub fn demo(gpu: &Gpu) -> Result<()> {
 /// and what was written.
 pub fn display(report: &AoReport, cfg: &AoRunConfig) {
     let s = &report.summary;
+    if let Some(f) = &report.fixed_cut {
+        println!(
+            "fixed cut: {} slots per vertex ({:.1} nodes in the bind-pose cut, {} vertices truncated), pairwise overlap table {}^3",
+            f.slots, f.mean_cut, f.truncated, f.overlap_table_size
+        );
+    }
     println!(
         "{} frames of {}: skin {:.3} ms + ao {:.3} ms GPU (median) = {:.0} fps, host {:.3} ms/frame; {:.1} spheres/vertex",
         s.frames,

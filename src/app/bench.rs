@@ -401,6 +401,24 @@ fn print_ao(r: &bench::ao::AoBenchReport) {
         r.gpu_memory_bytes as f64 / (1u64 << 20) as f64,
         r.headline.gpu_memory_reserved_bytes as f64 / (1u64 << 20) as f64
     );
+    println!(
+        "cut                    GPU ms    fps  CPU twin ms  GPU/CPU  spheres/vertex  MAE    p95    MAE alone"
+    );
+    for c in &r.cut_comparison {
+        let p = &c.point;
+        println!(
+            "  {:<20} {:>7.3} {:>6.0} {:>12.2} {:>7.2}x {:>15.1} {:>6.4} {:>6.3} {:>9.4}",
+            format!("{:?}", c.cut),
+            p.total_ms,
+            p.fps,
+            c.cpu_twin_ms.median,
+            c.speedup_vs_cpu,
+            p.spheres_used_per_vertex,
+            p.mae.unwrap_or(f64::NAN),
+            p.p95.unwrap_or(f64::NAN),
+            c.mae_alone
+        );
+    }
     print_targets(&r.targets);
 }
 

@@ -8,8 +8,11 @@ use crate::error::{Error, Result};
 use crate::geom::visibility::{RayConfig, ambient_visibility};
 use crate::gpu::Context;
 use crate::kernels::ao::cpu::{self, CpuAo};
+use crate::kernels::ao::fixed::FIXED_SLOTS;
 use crate::kernels::ao::formula::{OcclusionTable, TABLE_SIZE};
-use crate::kernels::ao::{AoKernel, AoParams, Blend, Correction, Occlusion, Prepared};
+use crate::kernels::ao::{
+    AoKernel, AoParams, Blend, Correction, Cut, FixedCut, Occlusion, Prepared,
+};
 use crate::kernels::ao::{PASS_OCCLUSION, PASS_POSE, PASS_SKIN};
 use crate::progress::Progress;
 use crate::reference::ErrorStats;
@@ -136,6 +139,21 @@ pub struct Point {
     pub p95: Option<f64>,
 }
 
+/// One cut of the side-by-side comparison: the headline settings with that cut, timed on
+/// the GPU and on the CPU twin and compared with the ray-traced reference frames.
+#[derive(Clone, Debug, Serialize)]
+pub struct CutPoint {
+    pub cut: Cut,
+    /// GPU times, work and the configured method's error (with the static correction).
+    pub point: Point,
+    /// MAE of the method alone (no static correction), mean over the reference frames.
+    pub mae_alone: f64,
+    /// The CPU twin of the same cut (rayon): skinning + occlusion of one frame.
+    pub cpu_twin_ms: Stats,
+    /// cpu_twin_ms / the GPU's total.
+    pub speedup_vs_cpu: f64,
+}
+
 #[derive(Clone, Debug, Serialize)]
 pub struct TargetCheck {
     pub name: String,
@@ -183,6 +201,9 @@ pub struct AoBenchReport {
     pub vertex_sweep: Vec<Point>,
     pub sphere_sweep: Vec<Point>,
     pub tau_sweep: Vec<Point>,
+    /// The default (adaptive) cut and the published fixed cut side by side, headline
+    /// settings otherwise.
+    pub cut_comparison: Vec<CutPoint>,
     pub targets: Vec<TargetCheck>,
     /// The headline against its binding roofline ([`work_model`], rates measured in this
     /// run).
@@ -297,13 +318,14 @@ pub fn run(
     let setup = Setup::new(ctx, cfg, progress)?;
     let frames = setup.reference_frames();
     let (cpu_same_method_ms, raytrace_ms) = setup.baselines(progress);
-    let measurements = 1 + cfg.subdivisions.len() + cfg.depths.len() + 2 * cfg.taus.len();
+    let measurements = 3 + cfg.subdivisions.len() + cfg.depths.len() + 2 * cfg.taus.len();
     let counter = Progress::start("bench ao measurements", measurements as u64);
     let headline = setup.headline(progress)?;
     counter.add(1);
     let vertex_sweep = setup.vertex_sweep(&counter, progress)?;
     let sphere_sweep = setup.sphere_sweep(&counter, progress)?;
     let tau_sweep = setup.tau_sweep(&frames, &counter, progress)?;
+    let cut_comparison = setup.cut_comparison(&frames, &counter, progress)?;
     drop(counter);
     let targets = check_targets(&targets["ao"], &headline, &tau_sweep);
     let terms = work_model(&headline, setup.base_tree.spheres.len());
@@ -332,6 +354,7 @@ pub fn run(
         vertex_sweep,
         sphere_sweep,
         tau_sweep,
+        cut_comparison,
         targets,
     })
 }
@@ -593,6 +616,75 @@ impl<'a> Setup<'a> {
                 ReferenceFrame { matrices, truth }
             })
             .collect()
+    }
+
+    /// The adaptive and the fixed cut at the headline settings: GPU time, CPU twin time, and
+    /// error (with and without the static correction) against the reference frames.
+    fn cut_comparison(
+        &self,
+        frames: &[ReferenceFrame],
+        counter: &Progress,
+        progress: &mut dyn FnMut(&str),
+    ) -> Result<Vec<CutPoint>> {
+        let mut out = Vec::new();
+        for cut in [Cut::Adaptive, Cut::Fixed] {
+            let params = AoParams {
+                cut,
+                ..AoParams::default()
+            };
+            let plain = AoParams {
+                correct: false,
+                ..params
+            };
+            // The kernel chooses the same lists (deterministic) from the same input.
+            let fixed = match cut {
+                Cut::Fixed => Some(FixedCut::select(&self.prep, &params, FIXED_SLOTS)?),
+                Cut::Adaptive => None,
+            };
+            let twin = |posed: &cpu::Posed, params: &AoParams, f: Option<&[f32]>| match &fixed {
+                Some(l) => self.cpu_ao.fixed_frame(posed, l, params, f),
+                None => self.cpu_ao.frame(posed, self.prep.shape, params, f),
+            };
+            let factors = match &fixed {
+                Some(l) => self
+                    .correction
+                    .fixed_factors(&self.cpu_ao, &self.prep, l, &params),
+                None => self.correction.factors(&self.cpu_ao, &self.prep, &params),
+            };
+            let mut p = self.measure(&self.base(), params, Some(&factors))?;
+            let (mut mae, mut p95, mut mae_alone) = (0.0, 0.0, 0.0);
+            for frame in frames {
+                let posed = cpu::skin(&self.prep, &frame.matrices);
+                let vis = |v: Vec<cpu::VertexAo>| -> Vec<f32> {
+                    v.iter().map(|v| v.visibility).collect()
+                };
+                let e = ErrorStats::of(&vis(twin(&posed, &params, Some(&factors))), &frame.truth);
+                let alone = ErrorStats::of(&vis(twin(&posed, &plain, None)), &frame.truth);
+                let k = frames.len() as f64;
+                mae += e.mae / k;
+                p95 += e.p95 / k;
+                mae_alone += alone.mae / k;
+            }
+            p.mae = Some(mae);
+            p.p95 = Some(p95);
+            let cpu_twin_ms = time_cpu(self.cfg.cpu_runs, || {
+                let posed = cpu::skin(&self.prep, &self.matrices);
+                twin(&posed, &params, Some(&factors))
+            });
+            counter.add(1);
+            progress(&format!(
+                "{cut:?} cut: {:.3} ms GPU ({:.0} fps), CPU twin {:.2} ms, MAE {mae:.4} (alone {mae_alone:.4}), {:.1} spheres/vertex",
+                p.total_ms, p.fps, cpu_twin_ms.median, p.spheres_used_per_vertex
+            ));
+            out.push(CutPoint {
+                cut,
+                speedup_vs_cpu: cpu_twin_ms.median / p.total_ms,
+                point: p,
+                mae_alone,
+                cpu_twin_ms,
+            });
+        }
+        Ok(out)
     }
 
     /// Error against time: tau x blend, each timed and compared with the reference frames.

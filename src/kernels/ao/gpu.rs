@@ -5,9 +5,10 @@
 //! records first ([`AoKernel::new`]: passes `pose joints`, `pose skin`). Created from a
 //! [`Prepared`] (packed and checked on the CPU, `pack.rs`).
 
-use super::formula::{OcclusionTable, TABLE_SIZE};
+use super::fixed::{FIXED_SLOTS, FixedCut};
+use super::formula::{OcclusionTable, TABLE_SIZE, overlap_table};
 use super::pack::{check_correction, check_matrices};
-use super::{AoParams, Prepared, cpu};
+use super::{AoParams, Cut, Prepared, cpu};
 use crate::error::Result;
 use crate::gpu::{
     AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context,
@@ -83,6 +84,16 @@ struct Buffers {
     posed_extents: Buffer,
     visibility: Buffer,
     stats: Buffer,
+    /// The fixed cut's lists and the pairwise overlap table ([`Cut::Fixed`] only).
+    fixed: Option<FixedBuffers>,
+}
+
+/// What the fixed cut reads besides the shared buffers.
+struct FixedBuffers {
+    /// [`FixedCut::nodes`], slot-major.
+    nodes: Buffer,
+    /// [`super::formula::OverlapTable`].
+    overlap: Buffer,
 }
 
 impl Buffers {
@@ -93,6 +104,7 @@ impl Buffers {
         prep: &Prepared,
         table: &OcclusionTable,
         pose: &PoseKernel,
+        fixed: Option<&FixedCut>,
     ) -> Result<Buffers> {
         use bytemuck::cast_slice as bytes;
         let ctx = rec.context();
@@ -120,12 +132,19 @@ impl Buffers {
             posed_extents: output("ao posed extents", ns * 4)?,
             visibility: output("ao visibility", nv * 4)?,
             stats: output("ao stats", nv * 8)?,
+            fixed: match fixed {
+                Some(f) => Some(FixedBuffers {
+                    nodes: upload("ao fixed cut", bytes(&f.nodes))?,
+                    overlap: upload("ao overlap table", bytes(&overlap_table().values))?,
+                }),
+                None => None,
+            },
         })
     }
 
     /// Every buffer, with the name the shaders bind it by: the passes bind by these names.
-    fn by_binding(&self) -> [(&'static str, &Buffer); 15] {
-        [
+    fn by_binding(&self) -> Vec<(&'static str, &Buffer)> {
+        let mut all = vec![
             ("order", &self.order),
             ("share", &self.shares),
             ("nearest", &self.nearest),
@@ -141,13 +160,17 @@ impl Buffers {
             ("ext", &self.posed_extents),
             ("ao", &self.visibility),
             ("stats", &self.stats),
-        ]
+        ];
+        if let Some(f) = &self.fixed {
+            all.extend([("fixed_nodes", &f.nodes), ("overlap", &f.overlap)]);
+        }
+        all
     }
 
     /// The buffers the AO kernel owns (the memory report counts these; the pose's are the
     /// pose kernel's).
-    fn own(&self) -> [&Buffer; 12] {
-        [
+    fn own(&self) -> Vec<&Buffer> {
+        let mut own = vec![
             &self.order,
             &self.rest_spheres,
             &self.shares,
@@ -160,7 +183,11 @@ impl Buffers {
             &self.posed_extents,
             &self.visibility,
             &self.stats,
-        ]
+        ];
+        if let Some(f) = &self.fixed {
+            own.extend([&f.nodes, &f.overlap]);
+        }
+        own
     }
 
     /// Binds each binding of `pipeline` to the buffer of that name; those in `writes` are
@@ -182,10 +209,28 @@ impl Buffers {
 /// The occlusion pipeline's specialization constants: the modes, and the tree's branch
 /// factor (the walk divides by it; a divisor known when the pipeline is built compiles to
 /// shifts or multiplications where a push constant is divided lane by lane on SIMD drivers).
+/// The fixed cut's pipeline (`ao/fixed`) takes the per-sphere modes only.
 fn occlusion_constants(params: &AoParams, branch: u32) -> Vec<(&'static str, u32)> {
-    let mut c = params.specialization().to_vec();
-    c.push(("BRANCH", branch));
-    c
+    let spec = params.specialization();
+    match params.cut {
+        Cut::Adaptive => {
+            let mut c = spec.to_vec();
+            c.push(("BRANCH", branch));
+            c
+        }
+        Cut::Fixed => spec
+            .into_iter()
+            .filter(|(name, _)| ["EXACT", "CLAMP_INSIDE", "CORRECT"].contains(name))
+            .collect(),
+    }
+}
+
+/// The occlusion pass's shader for a cut.
+fn occlusion_shader_name(cut: Cut) -> &'static str {
+    match cut {
+        Cut::Adaptive => "ao/occlusion",
+        Cut::Fixed => "ao/fixed",
+    }
 }
 
 /// The vertices sorted along a Morton curve through their rest positions (10 bits per axis
@@ -270,6 +315,8 @@ pub struct AoKernel {
     joint_count: usize,
     table: OcclusionTable,
     params: AoParams,
+    /// The fixed cut's lists ([`Cut::Fixed`]), chosen at construction.
+    fixed: Option<FixedCut>,
 }
 
 impl AoKernel {
@@ -342,10 +389,14 @@ impl AoKernel {
     ) -> Result<AoKernel> {
         let ctx = rec.context();
         let skin = crate::shaders::pipeline(&ctx, "ao/skin")?;
-        let occlusion_shader =
-            Shader::from_spirv("ao/occlusion", crate::shaders::spirv("ao/occlusion")?)?;
+        let name = occlusion_shader_name(params.cut);
+        let occlusion_shader = Shader::from_spirv(name, crate::shaders::spirv(name)?)?;
         let table = OcclusionTable::new(TABLE_SIZE, TABLE_SIZE);
-        let buffers = Buffers::new(rec, prep, &table, pose)?;
+        let fixed = match params.cut {
+            Cut::Fixed => Some(FixedCut::select(prep, &params, FIXED_SLOTS)?),
+            Cut::Adaptive => None,
+        };
+        let buffers = Buffers::new(rec, prep, &table, pose, fixed.as_ref())?;
         let skin_bind = buffers.bind(&skin, &SKIN_WRITES)?;
         let occlusion = ComputePipeline::specialized(
             &ctx,
@@ -366,7 +417,14 @@ impl AoKernel {
             joint_count: prep.joint_count,
             table,
             params,
+            fixed,
         })
+    }
+
+    /// The fixed cut's per-vertex lists, when the kernel was built with [`Cut::Fixed`] (the
+    /// CPU twin evaluates the same lists: `cpu::CpuAo::fixed_frame`).
+    pub fn fixed_cut(&self) -> Option<&FixedCut> {
+        self.fixed.as_ref()
     }
 
     /// The method parameters in use.
@@ -382,8 +440,26 @@ impl AoKernel {
     /// Changes the parameters. Modes (occlusion, blend, clamp, correction) are
     /// specialization constants: changing one builds the pipeline for it (the old one is
     /// retired once the work using it completes); tau is a push constant and costs nothing.
+    ///
+    /// The cut is chosen at construction: changing it is refused, and so, with the fixed
+    /// cut, is changing tau or the refinement test its lists were chosen with.
     pub fn set_params(&mut self, params: AoParams) -> Result<()> {
         params.validate()?;
+        if params.cut != self.params.cut {
+            return Err(crate::error::Error::InvalidArgument(format!(
+                "the AO kernel was built with the {:?} cut; build another for the {:?} cut",
+                self.params.cut, params.cut
+            )));
+        }
+        if params.cut == Cut::Fixed
+            && (params.tau != self.params.tau || params.refine != self.params.refine)
+        {
+            return Err(crate::error::Error::InvalidArgument(format!(
+                "the fixed cut's lists were chosen with tau {} and {:?} refinement; build \
+                 another kernel for tau {} and {:?}",
+                self.params.tau, self.params.refine, params.tau, params.refine
+            )));
+        }
         if params.specialization() != self.params.specialization() {
             let constants = occlusion_constants(&params, self.shape.branch);
             let occlusion =
@@ -508,6 +584,17 @@ impl AoKernel {
 
     fn occlusion_args(&self, _matrices: &[Mat4]) -> Result<Dispatch> {
         self.params.validate()?;
+        if let Some(f) = &self.fixed {
+            let words = [
+                self.vertex_count,
+                f.slots,
+                self.table.n_psi,
+                self.table.n_theta,
+                overlap_table().n,
+            ];
+            let grid = Grid::Invocations([self.vertex_count, 1, 1]);
+            return Ok(Dispatch::words(&words, grid));
+        }
         let s = self.shape;
         let words = [
             self.vertex_count,

@@ -16,11 +16,13 @@
 
 pub mod cpu;
 pub mod fit;
+pub mod fixed;
 pub mod formula;
 pub mod gpu;
 pub mod pack;
 mod registry;
 
+pub use fixed::FixedCut;
 pub use gpu::{
     AoKernel, FrameData, FrameReadback, PASS_JOINTS, PASS_OCCLUSION, PASS_POSE, PASS_SKIN,
 };
@@ -65,6 +67,20 @@ pub enum Refine {
     Extent,
 }
 
+/// Which spheres a vertex sums.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[cfg_attr(feature = "cli", derive(clap::ValueEnum))]
+pub enum Cut {
+    /// A cut through the skinned tree walked anew every frame (refined where size > tau *
+    /// distance, blended over `band`), overlap by the blend mode.
+    #[default]
+    Adaptive,
+    /// The published variant: per vertex a fixed list of nodes chosen once in the bind pose
+    /// ([`fixed::FixedCut`]) and reused in every pose, overlap by the pairwise 3D table
+    /// ([`formula::OverlapTable`]); `band` and `blend` are not used.
+    Fixed,
+}
+
 /// Method parameters. tau is a push constant; the modes are specialization constants of
 /// the occlusion pipeline (see [`AoKernel::set_params`]).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
@@ -81,6 +97,8 @@ pub struct AoParams {
     pub clamp_inside: bool,
     /// Multiply by the static correction factors (see [`Correction`]).
     pub correct: bool,
+    /// The adaptive cut (walked per frame) or the published fixed one.
+    pub cut: Cut,
 }
 
 impl Default for AoParams {
@@ -93,6 +111,7 @@ impl Default for AoParams {
             blend: Blend::Mask,
             clamp_inside: false,
             correct: true,
+            cut: Cut::Adaptive,
         }
     }
 }
@@ -184,6 +203,37 @@ impl Correction {
         };
         cpu_ao
             .frame(&bind, prep.shape, &plain, None)
+            .iter()
+            .zip(&self.bind_visibility)
+            .map(|(m, t)| {
+                if m.visibility > 1e-3 {
+                    (t / m.visibility).min(self.cap)
+                } else {
+                    1.0
+                }
+            })
+            .collect()
+    }
+
+    /// Factors for the fixed cut (`params.cut` = [`Cut::Fixed`]) with the lists `fixed`: the
+    /// fixed-cut method evaluated (on the CPU) in the bind pose.
+    pub fn fixed_factors(
+        &self,
+        cpu_ao: &cpu::CpuAo,
+        prep: &Prepared,
+        fixed: &FixedCut,
+        params: &AoParams,
+    ) -> Vec<f32> {
+        let bind = cpu::skin(prep, &vec![glam::Mat4::IDENTITY; prep.joint_count]);
+        let plain = AoParams {
+            correct: false,
+            ..*params
+        };
+        self.ratio(&cpu_ao.fixed_frame(&bind, fixed, &plain, None))
+    }
+
+    fn ratio(&self, method: &[cpu::VertexAo]) -> Vec<f32> {
+        method
             .iter()
             .zip(&self.bind_visibility)
             .map(|(m, t)| {
