@@ -522,3 +522,74 @@ mod tests {
         );
     }
 }
+
+/// Tests added for issue 23's mutation runs (kept apart from the module's own tests).
+#[cfg(test)]
+mod mutation_tests {
+    use super::*;
+
+    /// A sphere that touches or holds the receiver (h <= 1, as `clamp_inside` evaluates it)
+    /// is looked up in the table's last column, u = 1, where the occlusion is the touching
+    /// sphere's (1 + cos theta) / 2 (`limits`), down to straight below the receiver
+    /// (cos theta = -1, the table's last row). Bilinear in theta = acos(cos theta) at 64
+    /// rows: error <= (pi / 63)^2 / 8 * 1/2 = 1.6e-4; bound 1e-3. Catches cargo-mutants'
+    /// survivor in `OcclusionTable::lookup` (issue 23): `self.n_psi - 2` -> `self.n_psi + 2`
+    /// (the corner tap then lies past the table: a panic at the last row).
+    #[test]
+    fn touching_spheres_read_the_last_column_down_to_the_last_row() {
+        let t = OcclusionTable::new(TABLE_SIZE, TABLE_SIZE);
+        for h in [1.0f32, 0.5] {
+            for c in [-1.0f32, -0.999, -0.5, 0.0, 0.5, 1.0] {
+                let got = t.lookup(c, h);
+                let want = (1.0 + c) / 2.0;
+                assert!((got - want).abs() < 1e-3, "h {h} cos {c}: {got} vs {want}");
+            }
+        }
+    }
+
+    /// The direction [`nearest_direction_table`] holds at [`nearest_cell`]`(wl)` is nearly the
+    /// mask direction nearest `wl`, over the whole sphere (caps centred below the horizon
+    /// look up the lower grid) and at its edges (x or y = +-1 exactly, z = +-1): its angle to
+    /// `wl` exceeds the exact nearest's by at most a cell's angular span (a 2/64 cell spans
+    /// ~1.8 deg at the normal, up to ~16 deg at the rim; measured worst 0.13 rad; bound 0.3).
+    /// Catches cargo-mutants' survivors in `nearest_cell` (issue 23): `NEAREST_RES - 1` ->
+    /// `+ 1` (x = 1 wraps to the next row's far side), `wl[2] < 0.0` -> `== 0.0` (caps below
+    /// the horizon read the upper grid), `below * NEAREST_RES` -> `below + NEAREST_RES` (the
+    /// wrong grid, or past the table).
+    #[test]
+    fn nearest_cell_finds_a_near_nearest_direction_everywhere() {
+        let dirs = mask_directions();
+        let table = nearest_direction_table();
+        let golden = std::f64::consts::PI * (3.0 - 5f64.sqrt());
+        let mut wls: Vec<[f32; 3]> = (0..4000)
+            .map(|i| {
+                let z = 1.0 - (i as f64 + 0.5) / 2000.0;
+                let r = (1.0 - z * z).max(0.0).sqrt();
+                let phi = golden * i as f64;
+                [(r * phi.cos()) as f32, (r * phi.sin()) as f32, z as f32]
+            })
+            .collect();
+        for a in [1.0f32, -1.0] {
+            wls.extend([[a, 0.0, 0.0], [0.0, a, 0.0], [0.0, 0.0, a]]);
+        }
+        let angle = |d: &[f32; 4], w: &[f32; 3]| {
+            let c =
+                d[0] as f64 * w[0] as f64 + d[1] as f64 * w[1] as f64 + d[2] as f64 * w[2] as f64;
+            c.clamp(-1.0, 1.0).acos()
+        };
+        let mut worst = 0f64;
+        for wl in &wls {
+            let best = dirs
+                .iter()
+                .map(|d| angle(d, wl))
+                .fold(f64::INFINITY, f64::min);
+            let got = angle(&dirs[table[nearest_cell(*wl)] as usize], wl);
+            worst = worst.max(got - best);
+            assert!(
+                got - best < 0.3,
+                "{wl:?}: {got} rad vs the nearest's {best}"
+            );
+        }
+        eprintln!("nearest_cell: worst excess angle {worst} rad");
+    }
+}

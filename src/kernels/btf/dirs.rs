@@ -560,6 +560,45 @@ mod tests {
         }
     }
 
+    /// The maps' texels reproduce an affine function of the parabolic point from the 81
+    /// samples' values (barycentric weights do so exactly; f32 weights: 1e-6 on values ~1).
+    /// The library-level twin of `tests/btf.rs`'
+    /// `map_lookups_between_sample_directions_interpolate_an_affine_function_exactly`, at a
+    /// coarse map, so that CI's mutation smoke (tools/mutants-smoke.sh) plants the issue-23
+    /// bug in the library's own tests: catches the direction interpolation replaced by the
+    /// nearest direction (one-hot weights in `Maps::build`; the nearest sample is off by up
+    /// to ~0.1 here).
+    #[test]
+    fn map_texels_interpolate_an_affine_function_of_the_samples() {
+        let res = 32;
+        let maps = Maps::build(&Triangulation::new().unwrap(), res).unwrap();
+        let f = |p: [f64; 2]| 0.6 + 0.25 * p[0] - 0.4 * p[1];
+        let samples: Vec<f64> = points()[..COUNT].iter().map(|&p| f(p)).collect();
+        let mut checked = 0;
+        for j in 0..res {
+            for i in 0..res {
+                let p = Maps::texel_point(res, i, j);
+                if !in_sampled_hull(p) {
+                    continue;
+                }
+                let d = unproject(p);
+                let taps = maps.lookup(d);
+                let got: f64 = (0..3)
+                    .map(|k| taps.weight[k] * samples[taps.index[k]])
+                    .sum();
+                let want = f(project(d));
+                assert!(
+                    (got - want).abs() < 1e-6,
+                    "texel ({i}, {j}): {got} vs {want} ({taps:?})"
+                );
+                checked += 1;
+            }
+        }
+        // The 75 degree ring's hull has parabolic radius tan(37.5 deg) = 0.77: pi 0.77^2 / 4
+        // of the map's 32^2 texels, ~470, lie inside it.
+        assert!(checked > 400, "{checked} texels inside the sampled range");
+    }
+
     #[test]
     fn interpolation_is_continuous() {
         // Neighbouring directions get nearly the same interpolated value of a smooth

@@ -722,6 +722,38 @@ pub(crate) mod tests {
         out
     }
 
+    /// The reported error is the solid-angle-weighted relative L2 norm: lobes at exactly half
+    /// the map's amplitudes (halving is exact in f32, so the fit is exactly L / 2) are off by
+    /// 0.5 in every lit channel, no lobes by 1, the map itself by 0; a channel black
+    /// everywhere reports its absolute error, 0. Catches cargo-mutants' survivor in `rel_l2`
+    /// (issue 23): the denominator's `d_omega * l * l` -> `d_omega + l * l` (every fit's
+    /// printed error, and the README's, would be another number).
+    #[test]
+    fn rel_l2_is_the_weighted_relative_l2_norm() {
+        let truth = [
+            Lobe::new(Vec3::new(0.3, 0.9, 0.1), 12.0, [2.0, 1.5, 0.0]),
+            Lobe::new(Vec3::new(-0.7, 0.2, 0.5), 4.0, [0.5, 0.8, 0.0]),
+        ];
+        let half: Vec<Lobe> = truth
+            .iter()
+            .map(|l| Lobe {
+                amplitude: l.amplitude.map(|a| 0.5 * a),
+                ..*l
+            })
+            .collect();
+        let samples = equirect(64, 32, |w| evaluate(&truth, w));
+        let close = |got: (f64, [f64; 3]), want: (f64, [f64; 3])| {
+            (got.0 - want.0).abs() < 1e-9
+                && got.1.iter().zip(want.1).all(|(g, w)| (g - w).abs() < 1e-9)
+        };
+        let got = rel_l2(&samples, &half);
+        assert!(close(got, (0.5, [0.5, 0.5, 0.0])), "half: {got:?}");
+        let got = rel_l2(&samples, &[]);
+        assert!(close(got, (1.0, [1.0, 1.0, 0.0])), "none: {got:?}");
+        let got = rel_l2(&samples, &truth);
+        assert!(close(got, (0.0, [0.0; 3])), "exact: {got:?}");
+    }
+
     #[test]
     fn recovers_three_known_lobes() {
         let truth = [

@@ -282,6 +282,35 @@ mod tests {
         }
     }
 
+    /// At the sample counts the kernel uses (tens, not the 4096 above, where half a stratum
+    /// hides under the tolerance), each radius is the mixture's quantile at the middle of its
+    /// stratum: mean_c F_c(r_s) = (s + 1/2) / n, to the f32 rounding of r_s (~1e-7 relative;
+    /// bound 1e-5), and every weight is finite. Catches cargo-mutants' survivor in
+    /// `mixture_sequence` (issue 23): `s + 0.5` -> `s - 0.5` (every sample one stratum early,
+    /// the first at r = 0, where Burley's Rd is infinite, and the outermost stratum never
+    /// sampled).
+    #[test]
+    fn mixture_radii_are_the_stratum_midpoints_at_small_counts() {
+        for kind in [ProfileKind::Dipole, ProfileKind::Burley] {
+            let p = Profile::new(kind, Material::SKIN1, DEFAULT_ENERGY).unwrap();
+            for n in [8u32, 32] {
+                for (s, q) in p.mixture_sequence(n).iter().enumerate() {
+                    let r = q[0] as f64;
+                    let mix = (0..3).map(|c| p.cdf_normalised(c, r)).sum::<f64>() / 3.0;
+                    let want = (s as f64 + 0.5) / n as f64;
+                    assert!(
+                        (mix - want).abs() < 1e-5,
+                        "{kind:?} n {n} s {s}: F(r) {mix} vs {want}"
+                    );
+                    assert!(
+                        q.iter().all(|v| v.is_finite()),
+                        "{kind:?} n {n} s {s}: {q:?}"
+                    );
+                }
+            }
+        }
+    }
+
     #[test]
     fn transmission_tail_is_the_profile_beyond_t() {
         for kind in [ProfileKind::Dipole, ProfileKind::Burley] {
