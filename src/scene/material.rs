@@ -118,17 +118,6 @@ impl Texture {
         }
         sum
     }
-
-    /// Mean linear rgb over the texels.
-    pub fn mean(&self) -> [f64; 3] {
-        let mut m = [0f64; 3];
-        for t in &self.texels {
-            for (c, s) in m.iter_mut().enumerate() {
-                *s += srgb_to_linear((t >> (8 * c)) & 0xFF) as f64;
-            }
-        }
-        m.map(|s| s / self.texels.len().max(1) as f64)
-    }
 }
 
 /// One part's material: the glTF base colour.
@@ -158,12 +147,6 @@ impl Material {
     pub fn colour(&self, uv: [f32; 2]) -> [f32; 3] {
         let t = self.texture.as_ref().map_or([1.0; 3], |t| t.sample(uv));
         [0, 1, 2].map(|c| self.factor[c] * t[c])
-    }
-
-    /// The mean base colour over the texture (the factor alone without one).
-    pub fn mean(&self) -> [f64; 3] {
-        let t = self.texture.as_ref().map_or([1.0; 3], Texture::mean);
-        [0, 1, 2].map(|c| self.factor[c] as f64 * t[c])
     }
 }
 

@@ -401,21 +401,9 @@ impl CpuAo {
         params: &AoParams,
         correction: Option<&[f32]>,
     ) -> Vec<VertexAo> {
-        posed
-            .positions
-            .par_iter()
-            .zip(&posed.normals)
-            .enumerate()
-            .map(|(i, (&p, &n))| {
-                let mut v = self.fixed_vertex(i, p, n, posed, fixed, params);
-                if params.correct
-                    && let Some(c) = correction
-                {
-                    v.visibility = (v.visibility * c[i]).min(1.0);
-                }
-                v
-            })
-            .collect()
+        corrected_frame(posed, params, correction, |i, p, n| {
+            self.fixed_vertex(i, p, n, posed, fixed, params)
+        })
     }
 
     /// Visibility of every vertex of a posed mesh (rayon) under the adaptive cut
@@ -428,20 +416,33 @@ impl CpuAo {
         params: &AoParams,
         correction: Option<&[f32]>,
     ) -> Vec<VertexAo> {
-        posed
-            .positions
-            .par_iter()
-            .zip(&posed.normals)
-            .enumerate()
-            .map(|(i, (&p, &n))| {
-                let mut v = self.vertex(p, n, posed, shape, params);
-                if params.correct
-                    && let Some(c) = correction
-                {
-                    v.visibility = (v.visibility * c[i]).min(1.0);
-                }
-                v
-            })
-            .collect()
+        corrected_frame(posed, params, correction, |_, p, n| {
+            self.vertex(p, n, posed, shape, params)
+        })
     }
+}
+
+/// `vertex(i, position, normal)` for every vertex of a posed mesh (rayon), times the static
+/// correction factor (capped at 1) when `params.correct` is set and `correction` is given.
+fn corrected_frame(
+    posed: &Posed,
+    params: &AoParams,
+    correction: Option<&[f32]>,
+    vertex: impl Fn(usize, Vec3, Vec3) -> VertexAo + Sync,
+) -> Vec<VertexAo> {
+    posed
+        .positions
+        .par_iter()
+        .zip(&posed.normals)
+        .enumerate()
+        .map(|(i, (&p, &n))| {
+            let mut v = vertex(i, p, n);
+            if params.correct
+                && let Some(c) = correction
+            {
+                v.visibility = (v.visibility * c[i]).min(1.0);
+            }
+            v
+        })
+        .collect()
 }

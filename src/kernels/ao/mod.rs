@@ -201,18 +201,7 @@ impl Correction {
             correct: false,
             ..*params
         };
-        cpu_ao
-            .frame(&bind, prep.shape, &plain, None)
-            .iter()
-            .zip(&self.bind_visibility)
-            .map(|(m, t)| {
-                if m.visibility > 1e-3 {
-                    (t / m.visibility).min(self.cap)
-                } else {
-                    1.0
-                }
-            })
-            .collect()
+        self.ratio(&cpu_ao.frame(&bind, prep.shape, &plain, None))
     }
 
     /// Factors for the fixed cut (`params.cut` = [`Cut::Fixed`]) with the lists `fixed`: the
@@ -232,6 +221,7 @@ impl Correction {
         self.ratio(&cpu_ao.fixed_frame(&bind, fixed, &plain, None))
     }
 
+    /// The truth over the method per vertex, capped (1 where the method sees no light).
     fn ratio(&self, method: &[cpu::VertexAo]) -> Vec<f32> {
         method
             .iter()
