@@ -836,3 +836,34 @@ fn bench_env_names_its_binding_roofline_under_validation() {
     assert!(f.is_finite() && f > 0.0, "fraction {f}");
     assert!(r["fma_fraction"].as_f64().unwrap() > 0.0);
 }
+
+/// `vkshade frame --part-btf / --part-tile-scale`: malformed entries and a part that is not
+/// cloth are refused before any GPU work, each error naming the flag's value or the part.
+#[test]
+fn frame_part_flags_refuse_bad_entries() {
+    for (args, want) in [
+        (
+            &["frame", "--part-btf", "Legs"][..],
+            "--part-btf 'Legs': expected PART=VALUE",
+        ),
+        (
+            &["frame", "--part-tile-scale", "Legs=x"][..],
+            "'x' is not a number",
+        ),
+        (
+            &["frame", "--part-btf", "Cape=rib"][..],
+            "cloth part 'Cape' has a BTF or tile scale but is not one of the cloth parts",
+        ),
+        (
+            &["frame", "--part-btf", "Legs=rib", "--part-btf", "Legs=knit"][..],
+            "--part-btf names part 'Legs' twice",
+        ),
+        (
+            &["frame", "--part-tile-scale", "Torso=-2"][..],
+            "tile scale -2 must be > 0",
+        ),
+    ] {
+        let (ok, _, stderr) = vkshade(args);
+        assert!(!ok && stderr.contains(want), "{args:?}: {stderr}");
+    }
+}

@@ -69,6 +69,8 @@ fn check_surfaces(frame: &CharacterFrame) {
         common::checker_texels()
     );
     assert!(s[1].texture.is_some() && s[2].texture.is_none());
+    let scales: Vec<f32> = s.iter().map(|x| x.uv_scale).collect();
+    assert_eq!(scales, [20.0, 14.0, 20.0], "the parts' uv scales");
 }
 
 fn stages_skin_triangles() -> u64 {
@@ -82,8 +84,16 @@ fn stages_skin_triangles() -> u64 {
 fn compose_matches_its_cpu_twin_on_a_posed_frame() {
     // Textured materials (the Head and the Torso carry a checker base colour, the Torso's
     // mirrored along u), so the comparison covers the texture lookup too.
+    // The Torso's BTF tile repeats 14 times per unit of its uv (the others 20): the texture
+    // must be read at the G-buffer's uv over the part's own scale (a pass that divided by
+    // the frame's scale would put the Torso's tinted checker in the wrong place).
     let cfg = FrameConfig {
         mesh: common::textured_bcn("frame-compose"),
+        cloth_parts: vec![vkshade::frame::ClothPart {
+            part: "Torso".into(),
+            btf: None,
+            tile_scale: Some(14.0),
+        }],
         ..small()
     };
     let (stages, twin) = with_gpu_features(INT64, |ctx| {
@@ -276,6 +286,36 @@ fn bad_frame_input_is_refused() {
             .expect("a frame without lights is refused")
             .to_string();
         assert!(e.contains("0 lights; a frame takes 1..="), "{e}");
+        // A BTF for a part that is not cloth, and a BTF directory that is not there.
+        let stray = FrameConfig {
+            cloth_parts: vec![vkshade::frame::ClothPart {
+                part: "Head".into(),
+                btf: None,
+                tile_scale: Some(3.0),
+            }],
+            ..small()
+        };
+        let e = CharacterFrame::new(ctx, &stray, &mut |_| {})
+            .err()
+            .expect("a BTF for a skin part is refused")
+            .to_string();
+        assert!(
+            e.contains("'Head'") && e.contains("not one of the cloth parts"),
+            "{e}"
+        );
+        let missing_btf = FrameConfig {
+            cloth_parts: vec![vkshade::frame::ClothPart {
+                part: "Legs".into(),
+                btf: Some(vkshade::frame::BtfSource::Directory("no/such/btf".into())),
+                tile_scale: None,
+            }],
+            ..small()
+        };
+        let e = CharacterFrame::new(ctx, &missing_btf, &mut |_| {})
+            .err()
+            .expect("a missing BTF directory is refused")
+            .to_string();
+        assert!(e.contains("no/such/btf"), "{e}");
         Ok(())
     });
 }
@@ -290,13 +330,34 @@ fn bad_frame_input_is_refused() {
 /// whole environment term, which is most of the cloth's light. The basis against the BTF's
 /// own quadrature of the same lobes and visibility (the exact pass's twin): <= 3%, as
 /// tests/btf_env_basis.rs bounds it on the sphere.
+///
+/// Two BTFs: the Legs wear a synthesised rib at their own tile scale, the Torso the default
+/// weave, both written into one result by two kernels. A `btf shade` that ignored its part
+/// mask (the second kernel overwriting the Torso with rib) or an environment pass added
+/// over another BTF's parts fails the comparison on the Torso's pixels.
 #[test]
 fn the_cloth_stage_equals_its_twins_with_the_environment() {
-    let cfg = small();
+    use vkshade::frame::{BtfSource, ClothPart};
+    use vkshade::kernels::btf::cloth::Pattern;
+    let cfg = FrameConfig {
+        cloth_parts: vec![ClothPart {
+            part: "Legs".into(),
+            btf: Some(BtfSource::Synthesized(Pattern::Rib)),
+            tile_scale: Some(11.0),
+        }],
+        ..small()
+    };
     let (stages, light, bits, tw, errors) = with_gpu_features(INT64, |ctx| {
         let frame = CharacterFrame::new(ctx, &cfg, &mut |_| {})?;
+        let btfs = frame.cloth_btfs();
+        assert_eq!(btfs.len(), 2, "one kernel per BTF");
+        assert_eq!(
+            btfs.iter().map(|b| b.1).collect::<Vec<_>>(),
+            [0b010, 0b100],
+            "the Torso (part 1) on the weave, the Legs (part 2) on the rib"
+        );
         assert!(
-            frame.cloth_basis().is_some(),
+            btfs.iter().all(|b| b.2.is_some()),
             "the default frame lights its cloth by the environment"
         );
         let inp = input(&frame, 5, 24);
@@ -339,6 +400,13 @@ fn the_cloth_stage_equals_its_twins_with_the_environment() {
     }
     eprintln!("{compared} cloth pixels compared; {errors:?}");
     assert!(compared > 1000, "{compared} cloth pixels compared");
+    // Both BTFs on screen, or the two-kernel path is not tested.
+    for part in [2.0f32, 3.0] {
+        let n = (stages.gbuffer.iter().take(stages.cloth.len()))
+            .filter(|g| g[3].abs() == part)
+            .count();
+        assert!(n > 300, "{n} pixels of part {}", part - 1.0);
+    }
     assert!(errors.env_share > 0.1, "{errors:?}");
     assert!(errors.basis_vs_quadrature < 0.03, "{errors:?}");
     assert!(errors.gpu_vs_twins < 0.01, "{errors:?}");

@@ -31,6 +31,8 @@ layout(push_constant) uniform Push {
     vec4 light_rgb[MAX_LIGHTS]; // rgb: its strength
     uvec4 dims;                 // width, height, lights, layers per array
     uvec4 layout_info;          // x: gutter; y: tile width; z: layer width; w: tile height
+    uvec4 parts;                // x: part mask (bit p: shade part p; all ones: every part,
+                                // ids past 31 too); pixels of other parts keep what they hold
 } pc;
 
 #if BTF_MODE == 2
@@ -152,6 +154,8 @@ void main() {
         result.v[k] = vec4(0.0);
         return;
     }
+    uint part = uint(abs(g0.w) + 0.5) - 1u;
+    if (pc.parts.x != 0xFFFFFFFFu && (part >= 32u || (pc.parts.x & (1u << part)) == 0u)) return;
     vec4 g1 = texelFetch(gbuffer, ivec3(px, 1), 0);
     vec4 g2 = texelFetch(gbuffer, ivec3(px, 2), 0);
     vec3 n = normalize(g1.xyz);

@@ -31,7 +31,7 @@ struct Params {
     vec4 light_dir[2]; // towards the light (unit), w 0
     vec4 light_rgb[2]; // irradiance on a surface facing the light
     vec4 skin;      // rho_s, Beckmann m, F0, 0
-    vec4 background; // rgb behind the character, w 1 / the raster's uv scale
+    vec4 background; // rgb behind the character, w unused
     uvec4 counts;   // width, height, lights, lobes
     uvec4 atlas;    // atlas size, skin triangles, visibility mode (0 none, 1 per lobe), surfaces
 };
@@ -108,12 +108,15 @@ int wrap(int i, int n, uint mode) {
     return int(uint(i + 2048 * n) % uint(n));
 }
 
-vec3 surface_colour(uint part, vec2 uv, uint count) {
+// Part `part`'s colour at a pixel whose G-buffer holds uv `gbuffer_uv` (the mesh's uv times
+// the part's uv scale; the table holds its inverse).
+vec3 surface_colour(uint part, vec2 gbuffer_uv, uint count) {
     if (part >= count) return vec3(1.0);
     uvec4 a = surfaces.s[2u * part];
     uvec4 t = surfaces.s[2u * part + 1u];
     vec3 scale = uintBitsToFloat(a.xyz);
     if (t.y == 0u) return scale;
+    vec2 uv = gbuffer_uv * uintBitsToFloat(a.w);
     int w = int(t.y), h = int(t.z);
     uv = clamp(uv, vec2(-512.0), vec2(512.0));
     float tx = uv.x * float(w) - 0.5;
@@ -157,9 +160,9 @@ void main() {
     } else {
         uint tri = keys.k[idx].x;
         uint part = uint(abs(g0.w) + 0.5) - 1u;
-        vec2 mesh_uv = vec2(texelFetch(gbuffer, ivec3(px, 1), 0).w,
-                            texelFetch(gbuffer, ivec3(px, 2), 0).w) * P.background.w;
-        vec3 colour = surface_colour(part, mesh_uv, P.atlas.w);
+        vec2 gbuffer_uv = vec2(texelFetch(gbuffer, ivec3(px, 1), 0).w,
+                               texelFetch(gbuffer, ivec3(px, 2), 0).w);
+        vec3 colour = surface_colour(part, gbuffer_uv, P.atlas.w);
         if (tri < P.atlas.y) {
             // Skin: the pixel's barycentrics on its triangle (as raster resolve finds them).
             uvec4 t = skin_tris.v[tri];

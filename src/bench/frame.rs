@@ -67,7 +67,7 @@ pub fn run(
         "peaks: stream {stream_gb_s:.2} GB/s, FMA {fma_gflops:.1} GFLOP/s"
     ));
     let frame = CharacterFrame::new(ctx, cfg, progress)?;
-    let infos = frame.passes();
+    let infos = frame.passes_by_name();
     let names: Vec<&str> = infos.iter().map(|p| p.name).collect();
     let all = names.join("+");
     let mut timed: Vec<&str> = names.clone();
@@ -168,7 +168,7 @@ impl<'a> AllBench<'a> {
 
     /// One round: the whole frame's GPU time over the animation.
     pub fn round(&self) -> Result<super::all::Round> {
-        let infos = self.frame.passes();
+        let infos = self.frame.passes_by_name();
         let names: Vec<&str> = infos.iter().map(|p| p.name).collect();
         let all = names.join("+");
         let duration = self.frame.animation().duration;

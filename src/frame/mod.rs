@@ -97,6 +97,65 @@ pub struct FrameConfig {
     pub ao_correction_rays: usize,
     /// Where the parts' colours come from.
     pub materials: Materials,
+    /// Cloth parts with their own BTF or tile scale; the other cloth parts take `btf` (or
+    /// the synthesised weave) and `tile_scale`.
+    pub cloth_parts: Vec<ClothPart>,
+}
+
+/// A cloth part's own BTF and tile scale ([`FrameConfig::cloth_parts`]).
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct ClothPart {
+    /// The part (one of [`FrameConfig::cloth`]).
+    pub part: String,
+    /// Its BTF; None: the frame's default.
+    pub btf: Option<BtfSource>,
+    /// Its BTF tile repeats per unit of its uv; None: the frame's `tile_scale`.
+    pub tile_scale: Option<f32>,
+}
+
+/// Where a cloth BTF comes from.
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum BtfSource {
+    /// A tile of this pattern synthesised in memory (`btf synth`'s model, `btf_tile` texels
+    /// a side).
+    Synthesized(crate::kernels::btf::cloth::Pattern),
+    /// A measured or synthesised BTF directory (`btf synth` layout).
+    Directory(PathBuf),
+}
+
+impl std::fmt::Display for BtfSource {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            BtfSource::Synthesized(p) => write!(f, "synthesised {}", p.name()),
+            BtfSource::Directory(d) => write!(f, "{}", d.display()),
+        }
+    }
+}
+
+impl BtfSource {
+    /// Parses a command line's BTF: a pattern name (`weave`, `knit`, `rib`) or a directory.
+    pub fn parse(s: &str) -> BtfSource {
+        use crate::kernels::btf::cloth::Pattern;
+        match [Pattern::Weave, Pattern::Knit, Pattern::Rib]
+            .into_iter()
+            .find(|p| p.name() == s)
+        {
+            Some(p) => BtfSource::Synthesized(p),
+            None => BtfSource::Directory(PathBuf::from(s)),
+        }
+    }
+
+    /// Loads or synthesises the BTF (`tile`: the synthesised tile's side).
+    pub fn load(&self, tile: u32) -> Result<Btf> {
+        use crate::kernels::btf::cloth::SynthConfig;
+        match self {
+            BtfSource::Synthesized(p) => {
+                crate::kernels::btf::synth::synthesize(&SynthConfig::tile(*p, tile))
+            }
+            BtfSource::Directory(d) => crate::kernels::btf::load::load_dir(d),
+        }
+    }
 }
 
 /// Where the parts' colours come from.
@@ -148,6 +207,7 @@ impl Default for FrameConfig {
             env_fit_width: 128,
             ao_correction_rays: 1024,
             materials: Materials::Gltf,
+            cloth_parts: Vec::new(),
         }
     }
 }
@@ -158,6 +218,49 @@ impl FrameConfig {
     pub fn cloth_part_mask(&self) -> u32 {
         let skin = self.skin.len() as u32;
         (skin..skin + self.cloth.len() as u32).fold(0u32, |m, p| m | (1 << p))
+    }
+
+    /// Each cloth part's BTF and tile scale, in [`FrameConfig::cloth`]'s order (its
+    /// [`ClothPart`] where it has one, else the frame's defaults).
+    pub fn cloth_materials(&self) -> Result<Vec<(BtfSource, f32)>> {
+        for (i, cp) in self.cloth_parts.iter().enumerate() {
+            if !self.cloth.contains(&cp.part) {
+                return Err(Error::InvalidArgument(format!(
+                    "cloth part '{}' has a BTF or tile scale but is not one of the cloth parts {:?}",
+                    cp.part, self.cloth
+                )));
+            }
+            if self.cloth_parts[..i].iter().any(|o| o.part == cp.part) {
+                return Err(Error::InvalidArgument(format!(
+                    "cloth part '{}' is given its BTF or tile scale twice",
+                    cp.part
+                )));
+            }
+            if let Some(t) = cp.tile_scale
+                && !(t.is_finite() && t > 0.0)
+            {
+                return Err(Error::InvalidArgument(format!(
+                    "cloth part '{}': tile scale {t} must be > 0",
+                    cp.part
+                )));
+            }
+        }
+        let default = match &self.btf {
+            Some(d) => BtfSource::Directory(d.clone()),
+            None => BtfSource::Synthesized(crate::kernels::btf::cloth::Pattern::Weave),
+        };
+        Ok(self
+            .cloth
+            .iter()
+            .map(|name| {
+                let own = self.cloth_parts.iter().find(|c| &c.part == name);
+                (
+                    own.and_then(|c| c.btf.clone())
+                        .unwrap_or_else(|| default.clone()),
+                    own.and_then(|c| c.tile_scale).unwrap_or(self.tile_scale),
+                )
+            })
+            .collect())
     }
 
     /// Checks what can be checked without reading the files.
@@ -197,6 +300,7 @@ impl FrameConfig {
         if !(self.tile_scale.is_finite() && self.tile_scale > 0.0) {
             return bad(format!("tile scale {} must be > 0", self.tile_scale));
         }
+        self.cloth_materials()?;
         if self.ao_correction_rays > 1 << 20 {
             return bad(format!(
                 "{} AO correction rays a vertex; at most 1048576 (0: off)",
@@ -225,15 +329,29 @@ pub struct FrameInput {
     pub env_rotation: Mat3,
 }
 
-/// The labels of a frame's passes, in order (their GPU times are in a frame's timings).
+/// The labels of a frame's passes, in order, each once (their GPU times are in a frame's
+/// timings, summed over a label's passes: see [`CharacterFrame::passes_by_name`]).
 pub fn pass_names(frame: &CharacterFrame) -> Vec<&'static str> {
-    frame.passes().into_iter().map(|p| p.name).collect()
+    frame.passes_by_name().into_iter().map(|p| p.name).collect()
 }
 
 struct Skin {
     kernel: SssKernel,
     geo: TexGeometry,
     lights: Vec<SssLight>,
+}
+
+/// The cloth parts sharing one BTF.
+struct ClothGroup {
+    /// Where the BTF came from.
+    source: BtfSource,
+    /// Bit p: part p (the G-buffer's id) is shaded with this BTF.
+    part_mask: u32,
+    /// The BTF on the host (for the twins).
+    btf: Btf,
+    /// Its light basis and lobe tables (with an environment).
+    basis: Option<crate::kernels::btf::basis::BasisData>,
+    kernel: BtfKernel,
 }
 
 /// Setup costs and sizes, for reports.
@@ -253,7 +371,8 @@ pub struct SetupReport {
     /// Relative L2 of the environment's fit (solid-angle weighted, all channels).
     pub env_fit_rel_l2: f64,
     pub ms_env_fit: f64,
-    /// The cloth's light basis: its share of the lit BTF's energy, and its setup time.
+    /// The cloth's light basis: its share of the lit BTF's energy (the lowest over the
+    /// cloth's BTFs), and its setup time (all of them).
     pub cloth_basis_captured: f64,
     pub ms_cloth_basis: f64,
     /// Baking AO's static correction.
@@ -277,11 +396,13 @@ pub struct CharacterFrame {
     raster: RasterKernel,
     env: Option<crate::kernels::env::EnvKernel>,
     sss: Option<Skin>,
-    btf: Option<BtfKernel>,
-    /// The cloth's light basis and lobe tables (with an environment and cloth).
-    cloth_basis: Option<crate::kernels::btf::basis::BasisData>,
-    /// The cloth's BTF and direction maps on the host (for the twins).
-    cloth_host: Option<(Btf, Maps)>,
+    /// One group per distinct BTF of the cloth parts, each shading its own parts into
+    /// `cloth_result`.
+    cloth: Vec<ClothGroup>,
+    /// The cloth's radiance per pixel, written by every group's passes.
+    cloth_result: Option<crate::gpu::Buffer>,
+    /// The direction maps (one set serves every BTF; kept on the host for the twins).
+    cloth_maps: Option<Maps>,
     btf_frame: BtfFrame,
     compose: ComposeKernel,
     compose_prep: compose::Prepared,
@@ -296,7 +417,8 @@ fn surfaces(
     cfg: &FrameConfig,
     names: &[&str],
     r_tot: [f64; 3],
-    btf_albedo: Option<[f64; 3]>,
+    cloth_albedo: &[[f64; 3]],
+    uv_scales: &[f32],
     lines: &mut Vec<String>,
 ) -> Result<Vec<compose::pack::Surface>> {
     if cfg.materials == Materials::Measured {
@@ -309,7 +431,7 @@ fn surfaces(
         let (own, what) = if p < cfg.skin.len() {
             (r_tot, "the skin profile's total reflectance")
         } else {
-            (btf_albedo.unwrap_or([1.0; 3]), "the BTF's albedo")
+            (cloth_albedo[p - cfg.skin.len()], "the BTF's albedo")
         };
         // Below this an albedo channel cannot be rescaled to the authored colour without
         // amplifying the BTF's noise or the profile's rounding by more than 1000x.
@@ -333,6 +455,7 @@ fn surfaces(
         ));
         out.push(compose::pack::Surface {
             scale,
+            uv_scale: uv_scales[p],
             texture: m.texture.clone(),
         });
     }
@@ -563,24 +686,51 @@ impl CharacterFrame {
                 cfg.atlas, setup.atlas_covered_texels, setup.ms_atlas
             ));
         }
-        // The cloth's BTF.
+        // The cloth's BTFs: one per distinct source, each over the parts that use it.
         let t = Instant::now();
-        let btf = if setup.cloth_triangles > 0 {
-            let btf = match &cfg.btf {
-                Some(dir) => crate::kernels::btf::load::load_dir(dir)?,
-                None => synthesized_btf(cfg.btf_tile)?,
-            };
-            Some(btf)
-        } else {
-            None
-        };
+        let cloth_materials = cfg.cloth_materials()?;
+        let mut groups: Vec<(BtfSource, u32)> = Vec::new();
+        if setup.cloth_triangles > 0 {
+            for (i, (source, _)) in cloth_materials.iter().enumerate() {
+                let bit = 1u32 << (cfg.skin.len() + i);
+                match groups.iter_mut().find(|(s, _)| s == source) {
+                    Some((_, mask)) => *mask |= bit,
+                    None => groups.push((source.clone(), bit)),
+                }
+            }
+        }
+        let btfs = groups
+            .iter()
+            .map(|(source, _)| source.load(cfg.btf_tile))
+            .collect::<Result<Vec<Btf>>>()?;
         setup.ms_btf = t.elapsed().as_secs_f64() * 1e3;
-        if let Some(b) = &btf {
+        for ((source, mask), b) in groups.iter().zip(&btfs) {
+            let parts: Vec<&str> = (0..32)
+                .filter(|p| mask & (1 << p) != 0)
+                .map(|p| names[p])
+                .collect();
             progress(&format!(
-                "BTF: {} x {} texel tile, 81 x 81 directions ({:.0} ms)",
-                b.size[0], b.size[1], setup.ms_btf
+                "BTF {source}: {} x {} texel tile, 81 x 81 directions, for {}",
+                b.size[0],
+                b.size[1],
+                parts.join(", ")
             ));
         }
+        if !btfs.is_empty() {
+            progress(&format!("BTFs ready ({:.0} ms)", setup.ms_btf));
+        }
+        // Each part's raster uv multiplier: a cloth part's tile scale, the frame's for skin.
+        let uv_scales: Vec<f32> = (0..names.len())
+            .map(|p| match p.checked_sub(cfg.skin.len()) {
+                Some(c) => cloth_materials[c].1,
+                None => cfg.tile_scale,
+            })
+            .collect();
+        let group_of_cloth = |c: usize| {
+            groups
+                .iter()
+                .position(|(_, m)| m & (1 << (cfg.skin.len() + c)) != 0)
+        };
         // The parts' colours.
         let skin_profile = Profile::new(
             ProfileKind::Dipole,
@@ -591,7 +741,13 @@ impl CharacterFrame {
             cfg,
             &names,
             skin_profile.r_tot,
-            btf.as_ref().map(crate::kernels::btf::env::albedo),
+            &(0..cfg.cloth.len())
+                .map(|c| {
+                    group_of_cloth(c)
+                        .map_or([1.0; 3], |g| crate::kernels::btf::env::albedo(&btfs[g]))
+                })
+                .collect::<Vec<_>>(),
+            &uv_scales,
             &mut setup.materials,
         )?;
         for m in &setup.materials {
@@ -641,7 +797,8 @@ impl CharacterFrame {
             )?),
             None => None,
         };
-        let rprep = RasterPrep::new(mesh, &parts, cfg.size, cfg.tile_scale)?;
+        let rprep = RasterPrep::new(mesh, &parts, cfg.size, cfg.tile_scale)?
+            .with_part_uv_scales(&uv_scales)?;
         let raster = RasterKernel::new(
             &mut rec,
             &rprep,
@@ -706,72 +863,107 @@ impl CharacterFrame {
                 .collect(),
         };
         btf_frame.check()?;
-        // The cloth under the environment: the BTF's light basis, fitted to the lobes'
-        // lighting, and the lobes' tables (once per character and lobe set).
+        // The cloth under the environment: each BTF's light basis, fitted to the lobes'
+        // lighting, and the lobes' tables (once per character, BTF and lobe set).
         let t_basis = Instant::now();
-        let cloth_basis = match (&btf, &lobes) {
-            (Some(b), Some(l)) => Some(crate::kernels::btf::basis::BasisData::new(b, l)?),
-            _ => None,
-        };
-        if let Some(cb) = &cloth_basis {
+        let bases = btfs
+            .iter()
+            .map(|b| match &lobes {
+                Some(l) => crate::kernels::btf::basis::BasisData::new(b, l).map(Some),
+                None => Ok(None),
+            })
+            .collect::<Result<Vec<_>>>()?;
+        if bases.iter().any(Option::is_some) {
             setup.ms_cloth_basis = t_basis.elapsed().as_secs_f64() * 1e3;
-            setup.cloth_basis_captured = cb.captured;
+            setup.cloth_basis_captured = bases
+                .iter()
+                .flatten()
+                .map(|b| b.captured)
+                .fold(f64::INFINITY, f64::min);
             progress(&format!(
-                "cloth light basis: rank {}, {:.2}% of the lit BTF's energy ({:.0} ms)",
+                "cloth light basis: rank {}, at least {:.2}% of each lit BTF's energy ({:.0} ms)",
                 crate::kernels::btf::basis::RANK,
-                100.0 * cb.captured,
+                100.0 * setup.cloth_basis_captured,
                 setup.ms_cloth_basis
             ));
         }
-        // The cloth's BTF and direction maps, kept on the host for the twins.
-        let cloth_host = match btf {
-            Some(b) => Some((b, Maps::build(&Triangulation::new()?, CLOTH_MAP_RES)?)),
-            None => None,
+        // The direction maps (one set for every BTF), kept on the host for the twins.
+        let cloth_maps = if btfs.is_empty() {
+            None
+        } else {
+            Some(Maps::build(&Triangulation::new()?, CLOTH_MAP_RES)?)
         };
-        let btf = match &cloth_host {
-            Some((btf, maps)) => {
-                let unused = GBuffer::tile([1, 1]);
-                let inputs = BtfInputs::new(btf, maps, &unused, Texture::Rgba8);
-                let l = ctx.limits();
-                let bprep = BtfPrepared::for_gpu_gbuffer(
-                    &inputs,
-                    cfg.size,
-                    l.max_image_dimension_2d,
-                    l.max_image_array_layers,
+        // One result for every BTF's passes: each writes its own parts' pixels.
+        let cloth_result = match &cloth_maps {
+            Some(_) => {
+                let r = crate::gpu::Buffer::new(
+                    ctx,
+                    "cloth radiance",
+                    crate::gpu::BufferDesc::storage(cfg.size[0] as u64 * cfg.size[1] as u64 * 16),
                 )?;
-                // Shaded over the rasteriser's tile list (only where the character is, or
-                // was last frame); every frame records `btf shade` after `raster`.
-                let tiles = raster.tiles().ok_or_else(|| {
-                    Error::InvalidArgument("the character's rasteriser has no tile list".into())
-                })?;
-                let mut k = BtfKernel::on_gbuffer_tiles(&mut rec, &bprep, raster.gbuffer(), tiles)?;
-                if let (Some(e), Some(data)) = (&env, &cloth_basis) {
-                    use crate::kernels::btf::gpu::{BasisVisibility, EnvBasisInputs};
-                    k.add_env_basis(
-                        &mut rec,
-                        Some(raster.gbuffer()),
-                        EnvBasisInputs {
-                            lobes: e.lobes(),
-                            data,
-                            visibility: BasisVisibility::PerVertex {
-                                keys: raster.keys(),
-                                positions: pose.positions(),
-                                triangles: raster.triangles(),
-                                visibility: e.visibility(),
-                            },
-                            part_mask: cfg.cloth_part_mask(),
-                        },
-                    )?;
-                }
-                Some(k)
+                rec.fill_buffer(&r, 0)?;
+                Some(r)
             }
             None => None,
         };
+        let mut cloth = Vec::with_capacity(btfs.len());
+        for (((source, part_mask), btf), basis) in groups.into_iter().zip(btfs).zip(bases) {
+            let (Some(maps), Some(result)) = (&cloth_maps, &cloth_result) else {
+                break;
+            };
+            let unused = GBuffer::tile([1, 1]);
+            let inputs = BtfInputs::new(&btf, maps, &unused, Texture::Rgba8);
+            let l = ctx.limits();
+            let bprep = BtfPrepared::for_gpu_gbuffer(
+                &inputs,
+                cfg.size,
+                l.max_image_dimension_2d,
+                l.max_image_array_layers,
+            )?;
+            // Shaded over the rasteriser's tile list (only where the character is, or was
+            // last frame); every frame records `btf shade` after `raster`.
+            let tiles = raster.tiles().ok_or_else(|| {
+                Error::InvalidArgument("the character's rasteriser has no tile list".into())
+            })?;
+            let mut k = BtfKernel::on_gbuffer_tiles_into(
+                &mut rec,
+                &bprep,
+                raster.gbuffer(),
+                tiles,
+                result,
+                part_mask,
+            )?;
+            if let (Some(e), Some(data)) = (&env, &basis) {
+                use crate::kernels::btf::gpu::{BasisVisibility, EnvBasisInputs};
+                k.add_env_basis(
+                    &mut rec,
+                    Some(raster.gbuffer()),
+                    EnvBasisInputs {
+                        lobes: e.lobes(),
+                        data,
+                        visibility: BasisVisibility::PerVertex {
+                            keys: raster.keys(),
+                            positions: pose.positions(),
+                            triangles: raster.triangles(),
+                            visibility: e.visibility(),
+                        },
+                        part_mask,
+                    },
+                )?;
+            }
+            cloth.push(ClothGroup {
+                source,
+                part_mask,
+                btf,
+                basis,
+                kernel: k,
+            });
+        }
         let cprep = match &sss {
             Some(s) => compose::Prepared::new(cfg.size, &s.geo)?,
             None => compose::Prepared::without_skin(cfg.size),
         }
-        .with_surfaces(surfaces, cfg.tile_scale)?;
+        .with_surfaces(surfaces)?;
         let compose = ComposeKernel::new(
             &mut rec,
             &cprep,
@@ -780,7 +972,7 @@ impl CharacterFrame {
                 keys: raster.keys(),
                 positions: pose.positions(),
                 diffuse: sss.as_ref().map(|s| s.kernel.diffuse()),
-                cloth: btf.as_ref().map(|b| b.result()),
+                cloth: cloth_result.as_ref(),
                 lobes: env.as_ref().map(|e| (e.lobes(), e.lobe_count() as u32)),
                 lobe_visibility: env.as_ref().map(|e| e.visibility()),
                 background: cfg.background,
@@ -799,9 +991,9 @@ impl CharacterFrame {
             raster,
             env,
             sss,
-            btf,
-            cloth_basis,
-            cloth_host,
+            cloth,
+            cloth_result,
+            cloth_maps,
             btf_frame,
             compose,
             compose_prep: cprep,
@@ -821,11 +1013,25 @@ impl CharacterFrame {
         if let Some(s) = &self.sss {
             v.extend(s.kernel.passes());
         }
-        if let Some(b) = &self.btf {
-            v.extend(b.passes());
+        for g in &self.cloth {
+            v.extend(g.kernel.passes());
         }
         v.extend(self.compose.passes());
         v
+    }
+
+    /// [`CharacterFrame::passes`] with the passes of one label joined (in the place of the
+    /// first; their uses one after another): a frame with several cloth BTFs records `btf
+    /// shade` and `btf env basis` once per BTF, and [`Timings::get`] sums a label's passes.
+    pub fn passes_by_name(&self) -> Vec<crate::kernels::PassInfo> {
+        let mut out: Vec<crate::kernels::PassInfo> = Vec::new();
+        for p in self.passes() {
+            match out.iter_mut().find(|q| q.name == p.name) {
+                Some(q) => q.uses.extend(p.uses),
+                None => out.push(p),
+            }
+        }
+        out
     }
 
     /// The animation played.
@@ -880,8 +1086,8 @@ impl CharacterFrame {
         if let Some(s) = &self.sss {
             s.kernel.record(rec, &s.lights[..])?;
         }
-        if let Some(b) = &self.btf {
-            b.record(rec, &self.btf_frame)?;
+        for g in &self.cloth {
+            g.kernel.record(rec, &self.btf_frame)?;
         }
         self.compose.record(rec, &self.params())
     }
@@ -910,8 +1116,8 @@ impl CharacterFrame {
                 Some(s) => Some(rec.read_back(s.kernel.diffuse())?),
                 None => None,
             },
-            cloth: match &self.btf {
-                Some(b) => Some(rec.read_back(b.result())?),
+            cloth: match &self.cloth_result {
+                Some(r) => Some(rec.read_back(r)?),
                 None => None,
             },
             lobes: match &self.env {
@@ -985,10 +1191,19 @@ impl CharacterFrame {
         )
     }
 
-    /// The cloth's light basis and lobe tables, when the frame lights cloth by an
-    /// environment.
-    pub fn cloth_basis(&self) -> Option<&crate::kernels::btf::basis::BasisData> {
-        self.cloth_basis.as_ref()
+    /// The cloth's BTFs: per BTF, where it came from, its parts (bit p: part p) and, when
+    /// the frame lights cloth by an environment, its light basis and lobe tables.
+    pub fn cloth_btfs(
+        &self,
+    ) -> Vec<(
+        &BtfSource,
+        u32,
+        Option<&crate::kernels::btf::basis::BasisData>,
+    )> {
+        self.cloth
+            .iter()
+            .map(|g| (&g.source, g.part_mask, g.basis.as_ref()))
+            .collect()
     }
 
     /// The cloth's directional lights and camera as `btf shade` takes them (radiance units:
@@ -1009,85 +1224,97 @@ impl CharacterFrame {
         }
     }
 
-    /// The cloth stage's CPU twins on the stages the GPU computed (None without cloth).
+    /// The cloth stage's CPU twins on the stages the GPU computed (None without cloth): each
+    /// BTF's twins over its own parts' pixels.
     pub fn cloth_twins(&self, st: &Stages) -> Result<Option<ClothTwins>> {
-        use crate::kernels::btf::basis::{Shaded, Visibility, barycentrics};
+        use crate::kernels::btf::basis::{Visibility, barycentrics};
         use crate::kernels::btf::pack::Sampled;
-        let Some((btf, maps)) = &self.cloth_host else {
+        let Some(maps) = &self.cloth_maps else {
             return Ok(None);
         };
         let gb = self.gbuffer_of(st);
-        let part_mask = self.cfg.cloth_part_mask();
-        let sampled = Sampled::of(btf, Texture::Rgba8);
-        let packed = sampled.packed(btf.size);
-        let (direct, direct_ambiguous) =
-            crate::kernels::btf::cpu::shade(&packed, maps, &gb, &self.btf_frame);
         let n = st.keys.len();
-        let camera = &self.btf_frame.camera;
-        let (env, quadrature) = match &self.cloth_basis {
-            Some(basis) => {
-                let tri: Vec<u32> = st.keys.iter().map(|k| (k & 0xFFFF_FFFF) as u32).collect();
-                let triangles = self.raster_triangles();
-                let env = basis.shade(
-                    maps,
-                    &gb,
-                    camera,
-                    &st.lobes,
-                    Visibility::PerVertex {
-                        triangle: &tri,
-                        positions: &st.positions,
-                        triangles: &triangles,
-                        visibility: &st.lobe_visibility,
-                    },
-                    part_mask,
-                );
-                // The exact pass's per-pixel visibility: the same interpolation.
-                let j = st.lobes.len() / 2;
-                let mut vis = vec![0f32; n * j];
-                let mut cloth_gb = gb.clone();
-                for k in 0..n {
-                    let tag = gb.texels[3 * k][3];
-                    let part = tag.abs() as u32;
-                    if tag.abs() < 0.5 || part > 32 || part_mask & (1 << (part - 1)) == 0 {
-                        cloth_gb.texels[3 * k][3] = 0.0;
-                        continue;
-                    }
-                    let t = triangles[tri[k] as usize];
-                    let p = |i: u32| Vec3::from_slice(&st.positions[i as usize][..3]);
-                    let g = gb.texels[3 * k];
-                    let w = barycentrics(Vec3::new(g[0], g[1], g[2]), p(t[0]), p(t[1]), p(t[2]));
-                    for jj in 0..j {
-                        vis[k * j + jj] = (0..3)
-                            .map(|c| w[c] * st.lobe_visibility[t[c] as usize * j + jj])
-                            .sum();
-                    }
-                }
-                let (q, _) = crate::kernels::btf::env::shade(
-                    &packed,
-                    maps,
-                    &cloth_gb,
-                    camera,
-                    &st.lobes,
-                    Some(&vis),
-                );
-                (env, Some(q))
-            }
-            None => (
-                Shaded {
-                    radiance: vec![[0.0; 4]; n],
-                    ambiguous: vec![false; n],
-                    scale: vec![0.0; n],
-                },
-                None,
-            ),
+        let part_of = |k: usize| {
+            let tag = gb.texels[3 * k][3];
+            (tag.abs() >= 0.5).then(|| tag.abs() as u32 - 1)
         };
-        Ok(Some(ClothTwins {
-            part_mask,
-            direct,
-            direct_ambiguous,
-            env,
-            quadrature,
-        }))
+        let in_mask =
+            |k: usize, mask: u32| part_of(k).is_some_and(|p| p < 32 && mask & (1 << p) != 0);
+        let mut tw = ClothTwins {
+            part_mask: self.cfg.cloth_part_mask(),
+            direct: vec![[0.0; 4]; n],
+            direct_ambiguous: vec![false; n],
+            env: crate::kernels::btf::basis::Shaded {
+                radiance: vec![[0.0; 4]; n],
+                ambiguous: vec![false; n],
+                scale: vec![0.0; n],
+            },
+            quadrature: None,
+        };
+        let camera = &self.btf_frame.camera;
+        let tri: Vec<u32> = st.keys.iter().map(|k| (k & 0xFFFF_FFFF) as u32).collect();
+        let triangles = self.raster_triangles();
+        for g in &self.cloth {
+            let sampled = Sampled::of(&g.btf, Texture::Rgba8);
+            let packed = sampled.packed(g.btf.size);
+            let (direct, direct_ambiguous) =
+                crate::kernels::btf::cpu::shade(&packed, maps, &gb, &self.btf_frame);
+            for k in (0..n).filter(|&k| in_mask(k, g.part_mask)) {
+                tw.direct[k] = direct[k];
+                tw.direct_ambiguous[k] = direct_ambiguous[k];
+            }
+            let Some(basis) = &g.basis else {
+                continue;
+            };
+            let env = basis.shade(
+                maps,
+                &gb,
+                camera,
+                &st.lobes,
+                Visibility::PerVertex {
+                    triangle: &tri,
+                    positions: &st.positions,
+                    triangles: &triangles,
+                    visibility: &st.lobe_visibility,
+                },
+                g.part_mask,
+            );
+            // The exact pass's per-pixel visibility: the same interpolation.
+            let j = st.lobes.len() / 2;
+            let mut vis = vec![0f32; n * j];
+            let mut group_gb = gb.clone();
+            for k in 0..n {
+                if !in_mask(k, g.part_mask) {
+                    group_gb.texels[3 * k][3] = 0.0;
+                    continue;
+                }
+                let t = triangles[tri[k] as usize];
+                let p = |i: u32| Vec3::from_slice(&st.positions[i as usize][..3]);
+                let gk = gb.texels[3 * k];
+                let w = barycentrics(Vec3::new(gk[0], gk[1], gk[2]), p(t[0]), p(t[1]), p(t[2]));
+                for jj in 0..j {
+                    vis[k * j + jj] = (0..3)
+                        .map(|c| w[c] * st.lobe_visibility[t[c] as usize * j + jj])
+                        .sum();
+                }
+            }
+            let (q, _) = crate::kernels::btf::env::shade(
+                &packed,
+                maps,
+                &group_gb,
+                camera,
+                &st.lobes,
+                Some(&vis),
+            );
+            let quadrature = tw.quadrature.get_or_insert_with(|| vec![[0.0; 4]; n]);
+            for k in (0..n).filter(|&k| in_mask(k, g.part_mask)) {
+                tw.env.radiance[k] = env.radiance[k];
+                tw.env.ambiguous[k] = env.ambiguous[k];
+                tw.env.scale[k] = env.scale[k];
+                quadrature[k] = q[k];
+            }
+        }
+        Ok(Some(tw))
     }
 
     /// The cloth stage's errors on `st`: the light basis against the BTF's own quadrature
@@ -1169,8 +1396,12 @@ impl CharacterFrame {
         if let Some(s) = &self.sss {
             b += s.kernel.memory().used_bytes;
         }
-        if let Some(k) = &self.btf {
-            b += k.memory().used_bytes;
+        for g in &self.cloth {
+            b += g.kernel.memory().used_bytes;
+        }
+        // Each BTF kernel counts the shared result; it is there once.
+        if let Some(r) = &self.cloth_result {
+            b -= self.cloth.len().saturating_sub(1) as u64 * r.size();
         }
         if let Some(e) = &self.env {
             b += e.memory().used_bytes;
@@ -1279,4 +1510,77 @@ pub fn run(
         finish(p)?;
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::kernels::btf::cloth::Pattern;
+
+    /// Each cloth part gets its own BTF and tile scale where it has one, the frame's
+    /// otherwise; a part that is not cloth, a part named twice and a bad scale are refused.
+    #[test]
+    fn cloth_parts_resolve_per_part_and_refuse_bad_entries() {
+        let part = |p: &str, btf: Option<BtfSource>, t: Option<f32>| ClothPart {
+            part: p.into(),
+            btf,
+            tile_scale: t,
+        };
+        let cfg = FrameConfig {
+            cloth_parts: vec![part(
+                "Legs",
+                Some(BtfSource::Synthesized(Pattern::Rib)),
+                Some(9.0),
+            )],
+            ..FrameConfig::default()
+        };
+        let weave = BtfSource::Synthesized(Pattern::Weave);
+        assert_eq!(
+            cfg.cloth_materials().unwrap(),
+            [(weave, 20.0), (BtfSource::Synthesized(Pattern::Rib), 9.0)]
+        );
+        let with_dir = FrameConfig {
+            btf: Some("measured/denim".into()),
+            cloth_parts: vec![part("Torso", None, Some(4.0))],
+            ..FrameConfig::default()
+        };
+        let dir = BtfSource::Directory("measured/denim".into());
+        assert_eq!(
+            with_dir.cloth_materials().unwrap(),
+            [(dir.clone(), 4.0), (dir, 20.0)]
+        );
+        for (bad, want) in [
+            (
+                vec![part("Head", None, Some(2.0))],
+                "'Head' has a BTF or tile scale but is not",
+            ),
+            (
+                vec![part("Legs", None, Some(2.0)), part("Legs", None, None)],
+                "'Legs' is given its BTF or tile scale twice",
+            ),
+            (
+                vec![part("Torso", None, Some(f32::NAN))],
+                "tile scale NaN must be > 0",
+            ),
+            (
+                vec![part("Torso", None, Some(0.0))],
+                "tile scale 0 must be > 0",
+            ),
+        ] {
+            let cfg = FrameConfig {
+                cloth_parts: bad,
+                ..FrameConfig::default()
+            };
+            let e = cfg.check().unwrap_err().to_string();
+            assert!(e.contains(want), "{e}");
+        }
+        assert_eq!(
+            BtfSource::parse("knit"),
+            BtfSource::Synthesized(Pattern::Knit)
+        );
+        assert_eq!(
+            BtfSource::parse("out/btf"),
+            BtfSource::Directory("out/btf".into())
+        );
+    }
 }

@@ -28,9 +28,14 @@ pub struct Timings {
 }
 
 impl Timings {
-    /// Milliseconds of the first pass called `name`.
+    /// Milliseconds of the passes called `name`, summed (a recording may open a pass of the
+    /// same name more than once: e.g. one `btf shade` per BTF of a frame); None when none is.
     pub fn get(&self, name: &str) -> Option<f64> {
-        self.passes.iter().find(|p| p.name == name).map(|p| p.ms)
+        self.passes
+            .iter()
+            .filter(|p| p.name == name)
+            .map(|p| p.ms)
+            .reduce(|a, b| a + b)
     }
 
     /// Sum over all outermost passes.

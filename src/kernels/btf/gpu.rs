@@ -45,6 +45,8 @@ pub struct BtfKernel {
     /// ([`BtfKernel::on_gbuffer_tiles`]).
     tiles: Option<Buffer>,
     size: [u32; 2],
+    /// Bit p: `btf shade` shades part p of the G-buffer (all ones: every part).
+    part_mask: u32,
     /// The environment pass, when built with [`BtfKernel::on_gbuffer_env`].
     env: Option<EnvPass>,
     /// The light-basis environment pass ([`BtfKernel::add_env_basis`]).
@@ -72,7 +74,7 @@ impl BtfKernel {
         let [w, h] = prep.size;
         let gb_desc = ImageDesc::d2_array(vk::Format::R32G32B32A32_SFLOAT, [w, h], 3);
         let gbuffer = image_with(rec, "btf gbuffer", gb_desc, layers)?;
-        let mut k = Self::with_gbuffer(rec, prep, &gbuffer, None)?;
+        let mut k = Self::with_gbuffer(rec, prep, &gbuffer, None, None)?;
         k.gbuffer = Some(gbuffer);
         Ok(k)
     }
@@ -83,7 +85,7 @@ impl BtfKernel {
     /// declares a sampled read of it, so the tracker orders it after that write.
     pub fn on_gbuffer(rec: &mut Recorder, prep: &Prepared, gbuffer: &Image) -> Result<BtfKernel> {
         Self::check_gbuffer(prep, gbuffer)?;
-        Self::with_gbuffer(rec, prep, gbuffer, None)
+        Self::with_gbuffer(rec, prep, gbuffer, None, None)
     }
 
     /// As [`BtfKernel::on_gbuffer`], shading only the tiles of the rasteriser's tile list
@@ -100,6 +102,56 @@ impl BtfKernel {
         tiles: &Buffer,
     ) -> Result<BtfKernel> {
         Self::check_gbuffer(prep, gbuffer)?;
+        Self::check_tiles(prep, tiles)?;
+        let k = Self::with_gbuffer(rec, prep, gbuffer, Some(tiles.clone()), None)?;
+        rec.fill_buffer(&k.result, 0)?;
+        Ok(k)
+    }
+
+    /// [`BtfKernel::on_gbuffer_tiles`] for the parts in `part_mask` only (bit p: part p of
+    /// the G-buffer's tags), written into `result`, a buffer the caller owns and shares:
+    /// several kernels, one BTF each, shade their own parts of one image. `btf shade` writes
+    /// the masked parts' pixels and zero where the G-buffer is empty, and leaves the other
+    /// parts' pixels as they are; each kernel's passes declare their writes of `result`, so
+    /// a graph orders them. `result` must hold a vec4 per pixel (storage usage); the caller
+    /// clears it once.
+    pub fn on_gbuffer_tiles_into(
+        rec: &mut Recorder,
+        prep: &Prepared,
+        gbuffer: &Image,
+        tiles: &Buffer,
+        result: &Buffer,
+        part_mask: u32,
+    ) -> Result<BtfKernel> {
+        Self::check_gbuffer(prep, gbuffer)?;
+        Self::check_tiles(prep, tiles)?;
+        let need = prep.size[0] as u64 * prep.size[1] as u64 * 16;
+        if result.size() < need
+            || !result
+                .usage()
+                .contains(vk::BufferUsageFlags::STORAGE_BUFFER)
+        {
+            return Err(Error::InvalidArgument(format!(
+                "BTF result '{}' ({} bytes, usage {:?}): a {} x {} image needs {need} bytes with \
+                 STORAGE_BUFFER usage",
+                result.name(),
+                result.size(),
+                result.usage(),
+                prep.size[0],
+                prep.size[1]
+            )));
+        }
+        if part_mask == 0 {
+            return Err(Error::InvalidArgument(
+                "a BTF kernel over no part (part mask 0)".into(),
+            ));
+        }
+        let mut k = Self::with_gbuffer(rec, prep, gbuffer, Some(tiles.clone()), Some(result))?;
+        k.part_mask = part_mask;
+        Ok(k)
+    }
+
+    fn check_tiles(prep: &Prepared, tiles: &Buffer) -> Result<()> {
         let [tx, ty] = crate::kernels::raster::pack::tile_grid(prep.size);
         let need = 16 + 4 * tx as u64 * ty as u64;
         if tiles.size() < need
@@ -117,9 +169,7 @@ impl BtfKernel {
                 prep.size[1]
             )));
         }
-        let k = Self::with_gbuffer(rec, prep, gbuffer, Some(tiles.clone()))?;
-        rec.fill_buffer(&k.result, 0)?;
-        Ok(k)
+        Ok(())
     }
 
     fn check_gbuffer(prep: &Prepared, gbuffer: &Image) -> Result<()> {
@@ -148,6 +198,7 @@ impl BtfKernel {
         prep: &Prepared,
         gbuffer: &Image,
         tiles: Option<Buffer>,
+        shared_result: Option<&Buffer>,
     ) -> Result<BtfKernel> {
         let ctx = rec.context();
         let packing = prep.packing;
@@ -168,11 +219,14 @@ impl BtfKernel {
         let map_desc = ImageDesc::d2(vk::Format::R32G32B32A32_UINT, [res, res]);
         let map = image_with(rec, "btf direction map", map_desc, &prep.map)?;
         let [w, h] = prep.size;
-        let result = Buffer::new(
-            &ctx,
-            "btf result",
-            BufferDesc::storage(w as u64 * h as u64 * 16),
-        )?;
+        let result = match shared_result {
+            Some(r) => r.clone(),
+            None => Buffer::new(
+                &ctx,
+                "btf result",
+                BufferDesc::storage(w as u64 * h as u64 * 16),
+            )?,
+        };
         let images = (&map, gbuffer, &result, tiles.as_ref());
         let (bind, _sampler) = Self::bind(&ctx, &pipeline, packing.texture, &arrays, images)?;
         Ok(BtfKernel {
@@ -187,6 +241,7 @@ impl BtfKernel {
             result,
             tiles,
             size: prep.size,
+            part_mask: u32::MAX,
             env: None,
             env_basis: None,
         })
@@ -313,6 +368,10 @@ impl BtfKernel {
             p.tile[0],
             p.layer_extent[0],
             p.tile[1],
+            self.part_mask,
+            0,
+            0,
+            0,
         ] {
             push.extend_from_slice(&u.to_le_bytes());
         }

@@ -112,15 +112,14 @@ pub fn shade(
             } else {
                 let tri = (inp.keys[idx] & 0xFFFF_FFFF) as u32;
                 let part = (g0[3].abs() + 0.5) as u32 - 1;
-                let inv_scale = 1.0 / prep.uv_scale;
-                let mesh_uv = [
-                    inp.gbuffer[pixels + idx][3] * inv_scale,
-                    inp.gbuffer[2 * pixels + idx][3] * inv_scale,
+                let gbuffer_uv = [
+                    inp.gbuffer[pixels + idx][3],
+                    inp.gbuffer[2 * pixels + idx][3],
                 ];
                 let colour = Vec3::from_array(
                     prep.surfaces
                         .get(part as usize)
-                        .map_or([1.0; 3], |s| s.colour(mesh_uv)),
+                        .map_or([1.0; 3], |s| s.colour_at_gbuffer_uv(gbuffer_uv)),
                 );
                 if tri < prep.skin_triangles {
                     let t = prep.skin_tris[tri as usize];

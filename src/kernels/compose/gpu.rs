@@ -77,7 +77,6 @@ pub struct ComposeKernel {
     env: Environment,
     /// Atlas size, skin triangles, visibility mode, surface count.
     atlas: [u32; 4],
-    uv_scale: f32,
 }
 
 fn too_small(what: &str, have: u64, need: u64) -> Error {
@@ -271,7 +270,6 @@ impl ComposeKernel {
                 visibility_mode,
                 prep.surfaces.len() as u32,
             ],
-            uv_scale: prep.uv_scale,
         })
     }
 
@@ -292,7 +290,7 @@ impl ComposeKernel {
 
     fn params_bytes(&self, p: &FrameParams) -> Result<Vec<u8>> {
         p.check()?;
-        Ok(p.bytes(self.size, self.env, self.atlas, self.uv_scale))
+        Ok(p.bytes(self.size, self.env, self.atlas))
     }
 
     fn shade_args(&self, _p: &FrameParams) -> Result<Dispatch> {

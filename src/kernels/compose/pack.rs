@@ -95,15 +95,8 @@ impl FrameParams {
     }
 
     /// The pass's parameter block (std430 `Params` of glsl/compose/shade.comp).
-    /// `atlas`: atlas size, skin triangles, visibility mode, surface count; `uv_scale`: the
-    /// G-buffer's uv multiplier.
-    pub fn bytes(
-        &self,
-        size: [u32; 2],
-        env: Environment,
-        atlas: [u32; 4],
-        uv_scale: f32,
-    ) -> Vec<u8> {
+    /// `atlas`: atlas size, skin triangles, visibility mode, surface count.
+    pub fn bytes(&self, size: [u32; 2], env: Environment, atlas: [u32; 4]) -> Vec<u8> {
         let b = self.camera.basis(size);
         let v4 = |v: Vec3, w: f32| [v.x, v.y, v.z, w];
         let mut f: Vec<[f32; 4]> = vec![
@@ -123,8 +116,8 @@ impl FrameParams {
         let s = &self.specular;
         f.push([s.rho_s, s.roughness, s.f0, 0.0]);
         let (background, lobes) = match env {
-            Environment::None(c) => ([c[0], c[1], c[2], 1.0 / uv_scale], 0),
-            Environment::Lobes(n, c) => ([c[0], c[1], c[2], 1.0 / uv_scale], n),
+            Environment::None(c) => ([c[0], c[1], c[2], 0.0], 0),
+            Environment::Lobes(n, c) => ([c[0], c[1], c[2], 0.0], n),
         };
         f.push(background);
         let mut out: Vec<u8> = bytemuck::cast_slice(&f).to_vec();
@@ -162,17 +155,18 @@ pub struct Prepared {
     pub skin_triangles: u32,
     /// Per part id: its surface colour (empty: every part uncoloured).
     pub surfaces: Vec<Surface>,
-    /// The raster's uv multiplier (the G-buffer holds the mesh's uv times this).
-    pub uv_scale: f32,
 }
 
 /// How the pass colours one part: `scale` times the texture's linear colour at the pixel's
 /// mesh uv (times 1 without a texture). Skin pixels multiply their diffuse exit by it (not
 /// the specular layer: the surface reflection of skin is not tinted), cloth pixels the BTF
-/// radiance.
+/// radiance. `uv_scale` is the raster's uv multiplier on the part (the G-buffer holds the
+/// mesh's uv times it; the cloth's BTF tile repeats): the texture is read at the G-buffer's
+/// uv times `1 / uv_scale`, rounded to f32 as the shader does.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Surface {
     pub scale: [f32; 3],
+    pub uv_scale: f32,
     pub texture: Option<Texture>,
 }
 
@@ -180,6 +174,7 @@ impl Surface {
     /// No colouring.
     pub const WHITE: Surface = Surface {
         scale: [1.0; 3],
+        uv_scale: 1.0,
         texture: None,
     };
 
@@ -188,9 +183,17 @@ impl Surface {
         let t = self.texture.as_ref().map_or([1.0; 3], |t| t.sample(uv));
         [0, 1, 2].map(|c| self.scale[c] * t[c])
     }
+
+    /// The colour at a pixel whose G-buffer holds `gbuffer_uv` (the mesh's uv times
+    /// `uv_scale`).
+    pub fn colour_at_gbuffer_uv(&self, gbuffer_uv: [f32; 2]) -> [f32; 3] {
+        let inv = 1.0 / self.uv_scale;
+        self.colour([gbuffer_uv[0] * inv, gbuffer_uv[1] * inv])
+    }
 }
 
-/// The surfaces as the shader reads them: per part two uvec4 (scale rgb as f32 bits, 0;
+/// The surfaces as the shader reads them: per part two uvec4 (scale rgb, 1 / uv scale as f32
+/// bits;
 /// texel offset, width, height, wrap u | wrap v << 2; width 0 without a texture) and every
 /// texture's texels (RGBA8 sRGB words) one after another.
 pub fn pack_surfaces(surfaces: &[Surface]) -> (Vec<[u32; 4]>, Vec<u32>) {
@@ -201,7 +204,7 @@ pub fn pack_surfaces(surfaces: &[Surface]) -> (Vec<[u32; 4]>, Vec<u32>) {
             s.scale[0].to_bits(),
             s.scale[1].to_bits(),
             s.scale[2].to_bits(),
-            0,
+            (1.0 / s.uv_scale).to_bits(),
         ]);
         match &s.texture {
             Some(t) => {
@@ -271,7 +274,6 @@ impl Prepared {
             skin_uvs,
             mask,
             surfaces: Vec::new(),
-            uv_scale: 1.0,
         })
     }
 
@@ -285,25 +287,26 @@ impl Prepared {
             mask: vec![0.0],
             skin_triangles: 0,
             surfaces: Vec::new(),
-            uv_scale: 1.0,
         }
     }
 
-    /// Colours the parts: `surfaces[p]` for part id p (the G-buffer's), read at the mesh uv,
-    /// which the raster wrote multiplied by `uv_scale`. Scales must be finite and >= 0, and
-    /// the textures together below 2^28 texels (one storage buffer).
-    pub fn with_surfaces(mut self, surfaces: Vec<Surface>, uv_scale: f32) -> Result<Prepared> {
-        if !(uv_scale.is_finite() && uv_scale > 0.0) {
-            return Err(Error::InvalidArgument(format!(
-                "compose: uv scale {uv_scale} (finite, > 0)"
-            )));
-        }
+    /// Colours the parts: `surfaces[p]` for part id p (the G-buffer's), read at the mesh uv
+    /// (the G-buffer's over the part's `uv_scale`). Scales must be finite and >= 0, uv
+    /// scales finite and > 0, and the textures together below 2^28 texels (one storage
+    /// buffer).
+    pub fn with_surfaces(mut self, surfaces: Vec<Surface>) -> Result<Prepared> {
         let mut texels = 0u64;
         for (p, s) in surfaces.iter().enumerate() {
             if s.scale.iter().any(|c| !c.is_finite() || *c < 0.0) {
                 return Err(Error::InvalidArgument(format!(
                     "compose: part {p}'s colour scale {:?} (finite, >= 0)",
                     s.scale
+                )));
+            }
+            if !(s.uv_scale.is_finite() && s.uv_scale > 0.0) {
+                return Err(Error::InvalidArgument(format!(
+                    "compose: part {p}'s uv scale {} (finite, > 0)",
+                    s.uv_scale
                 )));
             }
             if let Some(t) = &s.texture {
@@ -328,7 +331,6 @@ impl Prepared {
             )));
         }
         self.surfaces = surfaces;
-        self.uv_scale = uv_scale;
         Ok(self)
     }
 }

@@ -234,6 +234,52 @@ impl Prepared {
         })
     }
 
+    /// The same with a uv multiplier per part: `scales[p]` for the triangles of part p (the
+    /// G-buffer then holds each part's mesh uv times its own scale: a cloth part's BTF tile
+    /// repeats). The uvs are multiplied here, once, and `uv_scale` becomes 1. A vertex used by
+    /// parts of different scales, a part id without a scale, or a scale that is not finite
+    /// and > 0 is refused.
+    pub fn with_part_uv_scales(mut self, scales: &[f32]) -> Result<Prepared> {
+        if let Some((p, s)) =
+            (scales.iter().enumerate()).find(|(_, s)| !(s.is_finite() && **s > 0.0))
+        {
+            return Err(Error::InvalidArgument(format!(
+                "part {p}'s uv scale {s} must be finite and > 0"
+            )));
+        }
+        let mut of_vertex: Vec<Option<u32>> = vec![None; self.uvs.len()];
+        for t in &self.triangles {
+            let part = t[3];
+            if part as usize >= scales.len() {
+                return Err(Error::InvalidArgument(format!(
+                    "part id {part} has no uv scale ({} given)",
+                    scales.len()
+                )));
+            }
+            for &v in &t[..3] {
+                let slot = of_vertex.get_mut(v as usize).ok_or_else(|| {
+                    Error::InvalidArgument(format!("vertex {v} past the {} uvs", self.uvs.len()))
+                })?;
+                match *slot {
+                    Some(q) if q != part && scales[q as usize] != scales[part as usize] => {
+                        return Err(Error::InvalidArgument(format!(
+                            "vertex {v} is shared by parts {q} and {part}, whose uv scales \
+                             differ ({} and {})",
+                            scales[q as usize], scales[part as usize]
+                        )));
+                    }
+                    _ => *slot = Some(part),
+                }
+            }
+        }
+        for (uv, part) in self.uvs.iter_mut().zip(&of_vertex) {
+            let s = part.map_or(self.uv_scale, |p| scales[p as usize]);
+            *uv = [uv[0] * s, uv[1] * s];
+        }
+        self.uv_scale = 1.0;
+        Ok(self)
+    }
+
     /// The same with `row` invocations per grid row (tests of multi-row grids).
     pub fn with_row(mut self, row: u32) -> Prepared {
         self.row = row.max(1);
@@ -243,5 +289,52 @@ impl Prepared {
     /// Rows of the visibility grid.
     pub fn rows(&self) -> u32 {
         (self.triangles.len() as u32).div_ceil(self.row)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use glam::{Vec2, Vec3};
+
+    /// Two parts, a quad each (vertices 0..4 and 4..8): part 1's uvs scaled by its own
+    /// factor, part 0's by its own; a vertex shared across parts of different scales, a part
+    /// without a scale and a scale of 0 are refused.
+    #[test]
+    fn part_uv_scales_multiply_each_parts_uvs() {
+        let positions: Vec<Vec3> = (0..8).map(|i| Vec3::new(i as f32, 0.0, 0.0)).collect();
+        let uvs: Vec<Vec2> = (0..8).map(|i| Vec2::new(0.1 * i as f32, 0.5)).collect();
+        let mut mesh = Mesh {
+            name: "two quads".into(),
+            normals: vec![Vec3::Z; positions.len()],
+            positions,
+            uvs: Some(uvs.clone()),
+            triangles: vec![[0, 1, 2], [0, 2, 3], [4, 5, 6], [4, 6, 7]],
+            skin: None,
+            report: Default::default(),
+        };
+        let parts = [0, 0, 1, 1];
+        let prep = Prepared::new(&mesh, &parts, [8, 8], 2.0).unwrap();
+        let scaled = prep.clone().with_part_uv_scales(&[3.0, 7.0]).unwrap();
+        assert_eq!(scaled.uv_scale, 1.0);
+        for (v, uv) in scaled.uvs.iter().enumerate() {
+            let s = if v < 4 { 3.0 } else { 7.0 };
+            assert_eq!(*uv, [uvs[v].x * s, uvs[v].y * s], "vertex {v}");
+        }
+        let e = prep.clone().with_part_uv_scales(&[3.0]).unwrap_err();
+        assert!(e.to_string().contains("part id 1 has no uv scale"), "{e}");
+        let e = prep.clone().with_part_uv_scales(&[3.0, 0.0]).unwrap_err();
+        assert!(e.to_string().contains("part 1's uv scale 0"), "{e}");
+        // Vertex 3 in a triangle of part 1 too.
+        mesh.triangles.push([3, 5, 6]);
+        let prep = Prepared::new(&mesh, &[0, 0, 1, 1, 1], [8, 8], 2.0).unwrap();
+        let e = prep.clone().with_part_uv_scales(&[3.0, 7.0]).unwrap_err();
+        assert!(
+            e.to_string()
+                .contains("vertex 3 is shared by parts 0 and 1"),
+            "{e}"
+        );
+        // Equal scales may share vertices.
+        assert!(prep.with_part_uv_scales(&[5.0, 5.0]).is_ok());
     }
 }
