@@ -72,12 +72,11 @@ impl Setup {
     }
 }
 
+/// A frame's radiance per vertex and, with shadow rays, its shadow bits per vertex.
+type GpuFrame = (Vec<[f32; 3]>, Option<Vec<u32>>);
+
 /// One frame on the GPU: the radiance, and with shadow rays the bits per vertex.
-fn gpu_frame(
-    ctx: &Context,
-    kernel: &SrbfKernel,
-    frame: &SrbfFrame,
-) -> vkshade::Result<(Vec<[f32; 3]>, Option<Vec<u32>>)> {
+fn gpu_frame(ctx: &Context, kernel: &SrbfKernel, frame: &SrbfFrame) -> vkshade::Result<GpuFrame> {
     let mut rec = ctx.recorder("srbf sun frame")?;
     kernel.record(&mut rec, frame)?;
     let out = kernel.read_back(&mut rec)?;
@@ -449,6 +448,83 @@ fn a_one_texel_sun_swept_across_a_grid_cell() {
             grid_mid > 2.0 * rays_max && inner.iter().any(|r| r.3 > 0),
             "grid {grid_mid} vs rays {rays_max}: {rows:?}"
         );
+        Ok(())
+    });
+}
+
+/// Shadow-ray inputs that cannot be cast are refused with an error that says what is wrong,
+/// by the CPU twin and by the kernel alike, before anything reaches the GPU.
+#[test]
+fn bad_sun_ray_inputs_are_refused() {
+    let s = sweep();
+    let lobes = [s.sun];
+    let frame = SrbfFrame {
+        rotation: Mat3::IDENTITY,
+        albedo: [1.0; 3],
+    };
+    let mut nan = s.setup.positions.clone();
+    nan[7].y = f32::NAN;
+    let empty = Bvh::build(&[], &[]);
+    let short = &s.setup.positions[1..];
+    fn rays<'a>(positions: &'a [Vec3], bvh: &'a Bvh, offset: f32) -> SunRays<'a> {
+        SunRays {
+            positions,
+            bvh,
+            offset,
+        }
+    }
+    let positions = &s.setup.positions[..];
+    let bvh = &s.setup.bvh;
+    let (nan, short, empty) = (&nan[..], short, &empty);
+    let cases: Vec<(SrbfInputs<'_>, &str)> = vec![
+        (
+            SrbfInputs::new(&lobes, &s.setup.cpca).with_rays(rays(positions, bvh, 1e-4)),
+            "need compact lobes",
+        ),
+        (
+            s.setup
+                .inputs(&lobes, false)
+                .with_rays(rays(short, bvh, 1e-4)),
+            "positions for a transfer",
+        ),
+        (
+            s.setup
+                .inputs(&lobes, false)
+                .with_rays(rays(nan, bvh, 1e-4)),
+            "position 7 is not finite",
+        ),
+        (
+            s.setup
+                .inputs(&lobes, false)
+                .with_rays(rays(positions, bvh, -1.0)),
+            "ray offset -1",
+        ),
+        (
+            s.setup
+                .inputs(&lobes, false)
+                .with_rays(rays(positions, bvh, f32::NAN)),
+            "ray offset NaN",
+        ),
+        (
+            s.setup
+                .inputs(&lobes, false)
+                .with_rays(rays(positions, empty, 1e-4)),
+            "no triangles",
+        ),
+    ];
+    common::with_gpu(|ctx| {
+        for (inputs, says) in &cases {
+            let cpu = inputs.cpu_pipeline(&frame).err().map(|e| e.to_string());
+            let mut rec = ctx.recorder("srbf bad sun setup")?;
+            let gpu = SrbfKernel::new(&mut rec, inputs)
+                .err()
+                .map(|e| e.to_string());
+            drop(rec);
+            for (what, msg) in [("CPU twin", cpu), ("kernel", gpu)] {
+                let msg = msg.unwrap_or_else(|| panic!("{what} accepted a case that says {says}"));
+                assert!(msg.contains(says), "{what}: {msg} (expected '{says}')");
+            }
+        }
         Ok(())
     });
 }
