@@ -1,7 +1,8 @@
 //! The SRBF kernel's data as the GPU holds it, packed on the CPU with no device: the
 //! lighting lobes (zero-amplitude padding keeps every buffer non-empty), the basis axes,
 //! the clustered-PCA transfer in its GPU layout (shade slots grouped by cluster, half
-//! weights, group-major rows) and the per-slot normals and visibility of compact lobes.
+//! weights, group-major rows) and the per-slot normals and visibility of compact lobes (with
+//! shadow rays: the per-slot positions and the static mesh's BVH instead of the visibility).
 
 use super::cpca::Cpca;
 use super::inputs::SrbfInputs;
