@@ -79,66 +79,7 @@ layout(set = 0, binding = 10, r32f) writeonly uniform image2D pe;
 const uint TILE_ROW = 256u;
 layout(std430, set = 0, binding = 11) readonly buffer Tiles { uint v[]; } tiles;
 
-uvec4 bvh_node(uint k) {
-    return imageLoad(nodes, ivec2(k % BVH_ROW, k / BVH_ROW));
-}
-
-vec3 tri_row(uint k) {
-    return uintBitsToFloat(imageLoad(tris, ivec2(k % BVH_ROW, k / BVH_ROW)).xyz);
-}
-
-bool hit_tri(vec3 o, vec3 d, uint t, float tmax) {
-    vec3 a = tri_row(3u * t);
-    vec3 e1 = tri_row(3u * t + 1u);
-    vec3 e2 = tri_row(3u * t + 2u);
-    vec3 p = cross(d, e2);
-    float det = dot(e1, p);
-    if (abs(det) < 1e-12) return false;
-    float inv = 1.0 / det;
-    vec3 s = o - a;
-    float u = dot(s, p) * inv;
-    if (u < 0.0 || u > 1.0) return false;
-    vec3 q = cross(s, e1);
-    float v = dot(d, q) * inv;
-    if (v < 0.0 || u + v > 1.0) return false;
-    float t_hit = dot(e2, q) * inv;
-    return t_hit > 0.0 && t_hit <= tmax;
-}
-
-// Stackless traversal (src/kernels/sss/posed.rs link_words): a node's hi.w is its
-// triangle count | its skip << 8, the node visited next when the ray does not enter it;
-// entering an inner node goes to its left child, a leaf's triangles are tested and then its
-// skip is taken. The root's skip (0xffffff) ends it; every step moves forward in the
-// depth-first order (MAX_STEPS only guards a malformed table).
-const uint LINK_END = 0xffffffu;
-const uint MAX_STEPS = 1u << 22u;
-
-bool any_hit(vec3 o, vec3 d, float tmax) {
-    vec3 inv = 1.0 / d;
-    uint ni = 0u;
-    for (uint step = 0u; ni != LINK_END && step < MAX_STEPS; step++) {
-        uvec4 lo_u = bvh_node(2u * ni);
-        uvec4 hi_u = bvh_node(2u * ni + 1u);
-        vec3 lo = uintBitsToFloat(lo_u.xyz);
-        vec3 hi = uintBitsToFloat(hi_u.xyz);
-        vec3 t0 = (lo - o) * inv;
-        vec3 t1 = (hi - o) * inv;
-        vec3 tmin = min(t0, t1);
-        vec3 tmx = max(t0, t1);
-        float tnear = max(max(max(tmin.x, tmin.y), tmin.z), 0.0);
-        float tfar = min(min(min(tmx.x, tmx.y), tmx.z), tmax);
-        bool meets = !(tnear > tfar);
-        uint first = lo_u.w;
-        uint count = hi_u.w & 0xffu;
-        uint n = meets ? count : 0u;
-        for (uint t = first; t < first + n; t++) {
-            if (hit_tri(o, d, t, tmax)) return true;
-        }
-        ni = (meets && count == 0u) ? first : hi_u.w >> 8u;
-    }
-    return false;
-}
-
+#include <common/bvh.glsl>
 
 #ifdef SSS_POSED
 vec3 vload(uint k) {

@@ -31,11 +31,21 @@ impl SrbfInputs<'_> {
         self.add_taps(&compact, frame, out)
     }
 
-    /// [`Self::add_compact`] for the compact lobes `compact` of checked inputs.
+    /// [`Self::add_compact`] for the compact lobes `compact` of checked inputs: the grid
+    /// tap, or with [`SrbfInputs::rays`] shadow rays at the exact rotated axes.
     fn add_taps(&self, compact: &[Lobe], frame: &SrbfFrame, out: &mut [[f64; 3]]) -> Result<()> {
         if let (Some(c), false) = (&self.compact, compact.is_empty()) {
-            let taps = sharp::taps(compact, frame.rotation, c.width, c.height);
-            let direct = sharp::shade(&taps, c.normals, c.visibility)?;
+            let direct = match &self.rays {
+                Some(r) => {
+                    let taps = sharp::ray_taps(compact, frame.rotation);
+                    let bits = sharp::ray_bits(&taps, r.positions, c.normals, r.bvh, r.offset);
+                    sharp::shade_bits(&taps, c.normals, &bits)?
+                }
+                None => {
+                    let taps = sharp::taps(compact, frame.rotation, c.width, c.height);
+                    sharp::shade(&taps, c.normals, c.visibility)?
+                }
+            };
             for (o, d) in out.iter_mut().zip(direct) {
                 for ch in 0..3 {
                     o[ch] += (frame.albedo[ch] * d[ch]) as f64;
@@ -43,5 +53,23 @@ impl SrbfInputs<'_> {
             }
         }
         Ok(())
+    }
+
+    /// The CPU twin of the shadow-ray bits of pass `srbf sharp` for `frame` (bit j of vertex
+    /// v: compact lobe j seen from v, [`sharp::ray_bits`]); None without shadow rays.
+    pub fn sun_bits(&self, frame: &SrbfFrame) -> Result<Option<Vec<u32>>> {
+        self.check()?;
+        let (Some(c), Some(r)) = (&self.compact, &self.rays) else {
+            return Ok(None);
+        };
+        let (_, compact) = self.split();
+        let taps = sharp::ray_taps(&compact, frame.rotation);
+        Ok(Some(sharp::ray_bits(
+            &taps,
+            r.positions,
+            c.normals,
+            r.bvh,
+            r.offset,
+        )))
     }
 }

@@ -4,17 +4,21 @@
 //! `srbf shade` shades every vertex from its cluster's projected rows and its weights. The
 //! per-vertex result is an RGB radiance buffer that can also feed a renderer's vertex input.
 //! The data is packed on the CPU ([`super::pack`]); this is the glue that creates the
-//! buffers from it and records the passes.
+//! buffers from it and records the passes. With shadow rays ([`super::inputs::SunRays`]),
+//! pass `srbf sharp` runs glsl/srbf/sharp_rays.comp instead of sharp.comp: the taps at the
+//! compact lobes' exact rotated axes and a shadow ray per slot and compact lobe against the
+//! static mesh's BVH (two images, uploaded once), whose bits `srbf shade` reads in place of
+//! the grid's visibility.
 
-pub use super::inputs::{CompactInputs, SrbfFrame, SrbfInputs};
+pub use super::inputs::{CompactInputs, SrbfFrame, SrbfInputs, SunRays, sun_offset};
 pub use super::pack::{
     MAX_BASIS, MAX_ROWS, MAX_SHADE_GROUPS, MAX_TAPS, Prepared, Shape, rows_needed, stride,
 };
 
 use crate::error::Result;
 use crate::gpu::{
-    AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context,
-    MemoryReport, Readback, Recorder, Resource,
+    AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context, Image,
+    ImageDesc, MemoryReport, Readback, Recorder, Resource,
 };
 use crate::kernels::contract::DispatchArgs;
 use crate::kernels::{Dispatch, Grid, Kernel, Pass};
@@ -37,7 +41,61 @@ pub struct SrbfKernel {
     shade: Stage,
     sharp: Stage,
     buffers: Buffers,
+    /// The shadow rays' BVH and buffers (None: the grid tap).
+    sun: Option<SunResources>,
     shape: Shape,
+}
+
+/// What pass `srbf sharp` casts shadow rays with: the static mesh's BVH as the images
+/// glsl/common/bvh.glsl traverses, the slots' positions and the bits it writes.
+struct SunResources {
+    nodes: Image,
+    triangles: Image,
+    positions: Buffer,
+    /// Per slot: bit j set when compact lobe j is seen (written by `srbf sharp`, read by
+    /// `srbf shade`).
+    bits: Buffer,
+}
+
+/// Width of the BVH images (glsl/srbf/sharp_rays.comp's BVH_ROW).
+const BVH_ROW: u32 = 1024;
+
+impl SunResources {
+    /// Creates the images and buffers for `prep` and records their uploads.
+    fn new(rec: &mut Recorder, prep: &Prepared) -> Result<SunResources> {
+        let ctx = rec.context();
+        let image = |name: &str, texels: usize| {
+            let rows = (texels as u32).div_ceil(BVH_ROW).max(1);
+            Image::new(
+                &ctx,
+                name,
+                ImageDesc::d2(vk::Format::R32G32B32A32_UINT, [BVH_ROW, rows])
+                    .usage(vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST),
+            )
+        };
+        let nodes = image("srbf sun bvh nodes", 2 * prep.bvh_nodes.len())?;
+        let triangles = image("srbf sun bvh triangles", 3 * prep.bvh_triangles.len())?;
+        rec.upload_image_rows(&nodes, &prep.bvh_nodes)?;
+        rec.upload_image_rows(&triangles, &prep.bvh_triangles)?;
+        let bytes: &[u8] = bytemuck::cast_slice(&prep.positions);
+        let positions = rec.buffer_with(
+            "srbf sun positions",
+            BufferDesc::storage(bytes.len() as u64),
+            bytes,
+        )?;
+        let bits = Buffer::new(
+            &ctx,
+            "srbf sun bits",
+            BufferDesc::storage(prep.shape.slots as u64 * 4)
+                .usage(vk::BufferUsageFlags::TRANSFER_SRC),
+        )?;
+        Ok(SunResources {
+            nodes,
+            triangles,
+            positions,
+            bits,
+        })
+    }
 }
 
 /// A pass's pipeline and its bindings.
@@ -123,10 +181,21 @@ impl SrbfKernel {
         let lighting = pipeline("srbf/lighting")?;
         let project = pipeline("srbf/project")?;
         let shade = pipeline("srbf/shade")?;
-        let sharp = pipeline("srbf/sharp")?;
+        let sharp = pipeline(if prep.shape.rays {
+            "srbf/sharp_rays"
+        } else {
+            "srbf/sharp"
+        })?;
         let buffers = Self::buffers(rec, prep)?;
-        let [lighting_bind, project_bind, sharp_bind, shade_bind] =
-            Self::binds([&lighting, &project, &sharp, &shade], &buffers)?;
+        let sun = match prep.shape.rays {
+            true => Some(SunResources::new(rec, prep)?),
+            false => None,
+        };
+        let [lighting_bind, project_bind, sharp_bind, shade_bind] = Self::binds(
+            [&lighting, &project, &sharp, &shade],
+            &buffers,
+            sun.as_ref(),
+        )?;
         let stage = |pipeline, bind| Stage { pipeline, bind };
         Ok(SrbfKernel {
             ctx,
@@ -135,15 +204,18 @@ impl SrbfKernel {
             shade: stage(shade, shade_bind),
             sharp: stage(sharp, sharp_bind),
             buffers,
+            sun,
             shape: prep.shape,
         })
     }
 
     /// The bind groups of `srbf lighting`, `srbf project`, `srbf sharp` and `srbf shade`
-    /// (pipelines in that order) over the kernel's buffers.
+    /// (pipelines in that order) over the kernel's buffers; with `sun`, `srbf sharp` casts
+    /// the shadow rays and `srbf shade` reads their bits as its visibility.
     fn binds(
         [lighting, project, sharp, shade]: [&ComputePipeline; 4],
         buffers: &Buffers,
+        sun: Option<&SunResources>,
     ) -> Result<[BindGroup; 4]> {
         let (b, w) = (Resource::Buffer, AccessSet::from(A::ComputeShaderWrite));
         let lighting = lighting.bind_declared(
@@ -163,14 +235,30 @@ impl SrbfKernel {
             ],
             &[("projected", w)],
         )?;
-        let sharp = sharp.bind_declared(
-            &[
-                ("lobe_axes", b(&buffers.compact_axes)),
-                ("lobe_amps", b(&buffers.compact_amps)),
-                ("taps", b(&buffers.taps)),
-            ],
-            &[("taps", w)],
-        )?;
+        let sharp = match sun {
+            None => sharp.bind_declared(
+                &[
+                    ("lobe_axes", b(&buffers.compact_axes)),
+                    ("lobe_amps", b(&buffers.compact_amps)),
+                    ("taps", b(&buffers.taps)),
+                ],
+                &[("taps", w)],
+            )?,
+            Some(sun) => sharp.bind_declared(
+                &[
+                    ("lobe_axes", b(&buffers.compact_axes)),
+                    ("lobe_amps", b(&buffers.compact_amps)),
+                    ("taps", b(&buffers.taps)),
+                    ("positions", b(&sun.positions)),
+                    ("normals", b(&buffers.normals)),
+                    ("sun_bits", b(&sun.bits)),
+                    ("nodes", Resource::storage_image(&sun.nodes)),
+                    ("tris", Resource::storage_image(&sun.triangles)),
+                ],
+                &[("taps", w), ("sun_bits", w)],
+            )?,
+        };
+        let visible = sun.map_or(&buffers.visible, |s| &s.bits);
         let shade = shade.bind_declared(
             &[
                 ("weights", b(&buffers.weights)),
@@ -179,7 +267,7 @@ impl SrbfKernel {
                 ("projected", b(&buffers.projected)),
                 ("radiance", b(&buffers.radiance)),
                 ("normals", b(&buffers.normals)),
-                ("visible", b(&buffers.visible)),
+                ("visible", b(visible)),
                 ("taps", b(&buffers.taps)),
             ],
             &[("radiance", w)],
@@ -253,6 +341,17 @@ impl SrbfKernel {
         self.shape.compact as usize
     }
 
+    /// With shadow rays: per shade slot, the bits pass `srbf sharp` wrote (bit j: compact
+    /// lobe j seen); [`Self::slot_vertices`] maps slots to vertices. None: the grid tap.
+    pub fn sun_bits(&self) -> Option<&Buffer> {
+        self.sun.as_ref().map(|s| &s.bits)
+    }
+
+    /// The vertex of each shade slot ([`super::pack::NO_VERTEX`] for padding).
+    pub fn slot_vertices(&self) -> &Buffer {
+        &self.buffers.slot_vertex
+    }
+
     pub fn basis_count(&self) -> usize {
         self.shape.basis as usize
     }
@@ -284,6 +383,16 @@ impl SrbfKernel {
         // are the same either way and a render graph's plan holds.
         let s = &self.shape;
         let mut push = rotation_push(frame.rotation);
+        if s.rays {
+            // One invocation per slot (the first `compact` also write the taps).
+            push.extend_from_slice(&s.compact.to_le_bytes());
+            push.extend_from_slice(&s.slots.to_le_bytes());
+            push.extend_from_slice(&s.ray_offset.to_le_bytes());
+            return Ok(Dispatch {
+                push,
+                grid: Grid::Invocations([s.slots.max(s.compact).max(1), 1, 1]),
+            });
+        }
         for x in [s.compact, s.grid[0], s.grid[1]] {
             push.extend_from_slice(&x.to_le_bytes());
         }
@@ -363,6 +472,20 @@ impl Kernel for SrbfKernel {
     }
 
     fn memory(&self) -> MemoryReport {
-        self.ctx.memory_of(&self.buffers.all())
+        let sun = self.sun.iter().flat_map(|s| {
+            [
+                Resource::storage_image(&s.nodes),
+                Resource::storage_image(&s.triangles),
+                Resource::Buffer(&s.positions),
+                Resource::Buffer(&s.bits),
+            ]
+        });
+        self.ctx.memory_of_resources(
+            self.buffers
+                .all()
+                .into_iter()
+                .map(Resource::Buffer)
+                .chain(sun),
+        )
     }
 }

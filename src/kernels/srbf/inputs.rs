@@ -5,6 +5,7 @@ use super::cpca::Cpca;
 use super::pack::{MAX_BASIS, MAX_ROWS, rows_needed};
 use super::sharp;
 use crate::error::{Error, Result};
+use crate::geom::Bvh;
 use crate::geom::sg::Lobe;
 use crate::geom::visibility::Visibility;
 use glam::{Mat3, Vec3};
@@ -48,6 +49,33 @@ pub struct SrbfInputs<'a> {
     pub lobes: &'a [Lobe],
     pub transfer: &'a Cpca,
     pub compact: Option<CompactInputs<'a>>,
+    /// Shadow rays for the compact lobes at their exact rotated directions; None: the grid
+    /// tap ([`super::sharp`]).
+    pub rays: Option<SunRays<'a>>,
+}
+
+/// What the compact lobes' shadow rays are cast against ([`super::sharp`], "a sun at any
+/// rotation"): the vertex positions (the same vertices as the transfer, in the same order),
+/// a BVH built once over the static mesh, and the ray origin's offset along the normal
+/// (scene units; [`crate::scene::envmap::texel_visibility`] uses 1e-4 of the bounding box's
+/// diagonal, [`sun_offset`]).
+#[derive(Clone, Copy)]
+pub struct SunRays<'a> {
+    pub positions: &'a [Vec3],
+    pub bvh: &'a Bvh,
+    pub offset: f32,
+}
+
+/// The ray offset of [`crate::scene::envmap::texel_visibility`] for a mesh with these
+/// positions: 1e-4 of its bounding box's diagonal.
+pub fn sun_offset(positions: &[Vec3]) -> f32 {
+    let lo = positions.iter().fold(Vec3::INFINITY, |a, p| a.min(*p));
+    let hi = positions.iter().fold(Vec3::NEG_INFINITY, |a, p| a.max(*p));
+    if positions.is_empty() {
+        0.0
+    } else {
+        1e-4 * (hi - lo).length()
+    }
 }
 
 /// The per-vertex data for shading compact lobes directly: the visibility cast for the
@@ -69,7 +97,15 @@ impl<'a> SrbfInputs<'a> {
             lobes,
             transfer,
             compact: None,
+            rays: None,
         }
+    }
+
+    /// The same, with the compact lobes shadowed by rays at their exact rotated directions
+    /// (needs [`Self::with_compact`]).
+    pub fn with_rays(mut self, rays: SunRays<'a>) -> Self {
+        self.rays = Some(rays);
+        self
     }
 
     /// The same, with compact lobes shaded from `compact`'s visibility.
@@ -119,6 +155,34 @@ impl<'a> SrbfInputs<'a> {
         if c.factor.is_nan() || c.factor < 0.0 {
             return bad(format!("sharpness factor {} must be >= 0", c.factor));
         }
+        self.check_rays()
+    }
+
+    /// Checks the shadow-ray inputs, if any (part of [`Self::check_compact`]).
+    fn check_rays(&self) -> Result<()> {
+        let bad = |what: String| Err(Error::InvalidArgument(format!("SRBF input: {what}")));
+        let Some(r) = &self.rays else {
+            return Ok(());
+        };
+        let vertices = self.transfer.vertices;
+        if r.positions.len() != vertices {
+            return bad(format!(
+                "sun rays: {} positions for a transfer of {vertices} vertices",
+                r.positions.len()
+            ));
+        }
+        if let Some(i) = r.positions.iter().position(|p| !p.is_finite()) {
+            return bad(format!("sun rays: position {i} is not finite"));
+        }
+        if !(r.offset.is_finite() && r.offset >= 0.0) {
+            return bad(format!(
+                "sun rays: ray offset {} must be finite and >= 0",
+                r.offset
+            ));
+        }
+        if r.bvh.is_empty() {
+            return bad("sun rays: the BVH holds no triangles".into());
+        }
         Ok(())
     }
 
@@ -137,6 +201,9 @@ impl<'a> SrbfInputs<'a> {
         let k = t.basis.len();
         if k > MAX_BASIS {
             return bad(format!("{k} basis functions (1..={MAX_BASIS})"));
+        }
+        if self.rays.is_some() && self.compact.is_none() {
+            return bad("sun rays need compact lobes (with_compact)".into());
         }
         self.check_compact()?;
         let rows = rows_needed(t.clusters, t.components);

@@ -1,7 +1,8 @@
 //! The SRBF kernel's data as the GPU holds it, packed on the CPU with no device: the
 //! lighting lobes (zero-amplitude padding keeps every buffer non-empty), the basis axes,
 //! the clustered-PCA transfer in its GPU layout (shade slots grouped by cluster, half
-//! weights, group-major rows) and the per-slot normals and visibility of compact lobes.
+//! weights, group-major rows) and the per-slot normals and visibility of compact lobes (with
+//! shadow rays: the per-slot positions and the static mesh's BVH instead of the visibility).
 
 use super::cpca::Cpca;
 use super::inputs::SrbfInputs;
@@ -55,6 +56,10 @@ pub struct Shape {
     pub stride: u32,
     /// Shade slots: vertices padded so that every workgroup holds one cluster.
     pub slots: u32,
+    /// Compact lobes shadowed by rays at their exact directions (pass `srbf sharp` casts
+    /// them), and the rays' origin offset along the normal; false: the grid tap.
+    pub rays: bool,
+    pub ray_offset: f32,
 }
 
 /// Everything the SRBF passes read, checked and packed (see the module documentation).
@@ -72,6 +77,12 @@ pub struct Prepared {
     /// when there are no compact lobes.
     pub(super) normals: Vec<[f32; 4]>,
     pub(super) visible: Vec<u32>,
+    /// With shadow rays: per slot the vertex position (w 0), and the BVH as the shaders
+    /// traverse it ([`crate::geom::bvh::Bvh::flat`] with [`crate::geom::bvh::with_links`]);
+    /// one zero entry each without.
+    pub(super) positions: Vec<[f32; 4]>,
+    pub(super) bvh_nodes: Vec<[f32; 8]>,
+    pub(super) bvh_triangles: Vec<[f32; 12]>,
 }
 
 impl Prepared {
@@ -82,11 +93,17 @@ impl Prepared {
         let (smooth, compact) = inputs.split();
         let layout = Layout::of(t);
         let slots = layout.slot_vertex.len();
+        let rays = inputs.rays.filter(|_| !compact.is_empty());
         let (normals, visible, grid) = match (&inputs.compact, compact.is_empty()) {
             (Some(c), false) => {
-                let words = c.visibility.directions.len().div_ceil(32);
+                // With shadow rays the grid's bits are not read: one zero word.
+                let words = if rays.is_some() {
+                    0
+                } else {
+                    c.visibility.directions.len().div_ceil(32)
+                };
                 let mut normals = vec![[0f32; 4]; slots];
-                let mut visible = vec![0u32; words * slots];
+                let mut visible = vec![0u32; (words * slots).max(4)];
                 for (slot, &v) in layout.slot_vertex.iter().enumerate() {
                     if v == NO_VERTEX {
                         continue;
@@ -99,6 +116,22 @@ impl Prepared {
                 (normals, visible, [c.width, c.height])
             }
             _ => (vec![[0f32; 4]], vec![0u32; 4], [1, 1]),
+        };
+        let (positions, bvh_nodes, bvh_triangles) = match &rays {
+            Some(r) => {
+                // A padding slot keeps a zero normal: it casts no ray.
+                let positions = layout
+                    .slot_vertex
+                    .iter()
+                    .map(|&v| match v {
+                        NO_VERTEX => [0.0; 4],
+                        v => r.positions[v as usize].extend(0.0).to_array(),
+                    })
+                    .collect();
+                let (nodes, tris) = r.bvh.flat();
+                (positions, crate::geom::bvh::with_links(nodes)?, tris)
+            }
+            None => (vec![[0f32; 4]], vec![[0f32; 8]], vec![[0f32; 12]]),
         };
         Ok(Prepared {
             shape: Shape {
@@ -113,6 +146,8 @@ impl Prepared {
                 rows: (t.clusters * layout.stride) as u32,
                 stride: layout.stride as u32,
                 slots: slots as u32,
+                rays: rays.is_some(),
+                ray_offset: rays.map_or(0.0, |r| r.offset),
             },
             lobe_axes: axes_of(&smooth),
             lobe_amps: amps_of(&smooth),
@@ -127,6 +162,9 @@ impl Prepared {
             layout,
             normals,
             visible,
+            positions,
+            bvh_nodes,
+            bvh_triangles,
         })
     }
 

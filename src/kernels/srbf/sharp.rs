@@ -25,8 +25,31 @@
 //! The GPU computes the taps in pass `srbf sharp` (glsl/srbf/sharp.comp), and pass
 //! `srbf shade` adds them from the visibility bits: one visibility load per compact lobe and
 //! vertex.
+//!
+//! **A sun at any rotation** (issue 19, item 5). The grid tap above shadows a lobe with the
+//! visibility of the texel centre that holds its rotated axis: a sun between two grid
+//! directions takes its neighbour's shadow (5.6 degrees away at 64 x 32), so a shadow boundary
+//! stands still while the sun moves across a texel and then jumps. With shadow rays
+//! ([`super::inputs::SunRays`]) each compact lobe is instead one tap at its exact rotated axis
+//! w_j = R xi_j, shadowed by a ray cast per frame, vertex and compact lobe against a BVH built
+//! once for the static mesh:
+//!
+//! ```text
+//! L_o,v += (albedo / pi) * sum_j weight_j V_v(w_j) max(0, n_v . w_j)
+//! ```
+//!
+//! with V_v(w) = [n_v . w > 0 and no hit along p_v + offset n_v + t w, t > 0], the rule of
+//! [`crate::geom::visibility::direction_visibility`] (the visibility the transfer and the
+//! ground truth are cast with) and its offset. The rays are cast in pass `srbf sharp`
+//! (glsl/srbf/sharp_rays.comp, the traversal of glsl/common/bvh.glsl that SSS uses): one bit
+//! per compact lobe and vertex, which `srbf shade` reads where the grid path reads the grid's
+//! bits. [`ray_taps`], [`ray_bits`] and [`shade_bits`] are the CPU twin (the CPU BVH,
+//! [`crate::geom::Bvh`]). What is left is the lobe's own width: the tap puts the whole lobe at
+//! its axis, so a vertex within about 1 / sqrt(lambda) of the shadow boundary (the penumbra)
+//! takes the axis's bit for the whole lobe.
 
 use crate::error::{Error, Result};
+use crate::geom::Bvh;
 use crate::geom::sg::{self, Lobe};
 use crate::geom::visibility::Visibility;
 use glam::{Mat3, Vec3};
@@ -137,13 +160,20 @@ pub fn shade(taps: &[Tap], normals: &[Vec3], vis: &Visibility) -> Result<Vec<[f3
             vis.vertices
         )));
     }
-    Ok(normals
+    Ok(shade_with(taps, normals, |v, t| {
+        vis.visible(v, t.texel as usize)
+    }))
+}
+
+/// sum_t weight_t [seen(v, t)] max(0, n_v . w_t) per vertex v (f32, the GPU's order).
+fn shade_with(taps: &[Tap], normals: &[Vec3], seen: impl Fn(usize, &Tap) -> bool) -> Vec<[f32; 3]> {
+    normals
         .iter()
         .enumerate()
         .map(|(v, n)| {
             let mut sum = [0f32; 3];
             for t in taps {
-                if vis.visible(v, t.texel as usize) {
+                if seen(v, t) {
                     let c = n.dot(t.dir).max(0.0);
                     for (s, w) in sum.iter_mut().zip(t.weight) {
                         *s += w * c;
@@ -152,7 +182,70 @@ pub fn shade(taps: &[Tap], normals: &[Vec3], vis: &Visibility) -> Result<Vec<[f3
             }
             sum
         })
-        .collect())
+        .collect()
+}
+
+/// The taps of the compact lobes rotated by `rotation` for shadow rays: lobe j's whole
+/// integral / pi at its exact rotated axis R xi_j (normalised in f32, as
+/// glsl/srbf/sharp_rays.comp does), `texel` holding j (its bit in [`ray_bits`]). At most
+/// [`MAX_LOBES`] lobes (32 bits).
+pub fn ray_taps(compact: &[Lobe], rotation: Mat3) -> Vec<Tap> {
+    compact
+        .iter()
+        .take(MAX_LOBES)
+        .enumerate()
+        .map(|(j, lobe)| {
+            let scale = sg::integral(lobe.sharpness as f64) as f32 / std::f32::consts::PI;
+            Tap {
+                texel: j as u32,
+                dir: (rotation * lobe.axis()).normalize(),
+                weight: lobe.amplitude.map(|a| a * scale),
+            }
+        })
+        .collect()
+}
+
+/// Per vertex, bit j set when tap j's direction w is visible: n . w > 0 and no hit of the
+/// ray from p + offset n along w ([`crate::geom::visibility::direction_visibility`]'s rule).
+/// Vertices are the first `min(positions.len(), normals.len())`.
+pub fn ray_bits(
+    taps: &[Tap],
+    positions: &[Vec3],
+    normals: &[Vec3],
+    bvh: &Bvh,
+    offset: f32,
+) -> Vec<u32> {
+    use rayon::prelude::*;
+    positions
+        .par_iter()
+        .zip(normals.par_iter())
+        .map(|(p, n)| {
+            let origin = *p + offset * *n;
+            taps.iter().take(32).enumerate().fold(0u32, |bits, (j, t)| {
+                if n.dot(t.dir) > 0.0 && !bvh.any_hit(origin, t.dir, f32::INFINITY) {
+                    bits | 1 << j
+                } else {
+                    bits
+                }
+            })
+        })
+        .collect()
+}
+
+/// The compact lobes' radiance per vertex from [`ray_taps`] and [`ray_bits`]:
+/// sum_j weight_j [bit j] max(0, n_v . w_j), without the albedo. An error if the sizes
+/// disagree.
+pub fn shade_bits(taps: &[Tap], normals: &[Vec3], bits: &[u32]) -> Result<Vec<[f32; 3]>> {
+    if normals.len() != bits.len() {
+        return Err(Error::InvalidArgument(format!(
+            "compact lobes: {} normals for the shadow-ray bits of {} vertices",
+            normals.len(),
+            bits.len()
+        )));
+    }
+    Ok(shade_with(taps, normals, |v, t| {
+        t.texel < 32 && bits[v] >> t.texel & 1 == 1
+    }))
 }
 
 /// Checks that `vis` was cast for the texel centres of a `width` x `height` grid (the taps

@@ -202,71 +202,9 @@ pub fn refit(top: &BvhTopology, positions: &[Vec3]) -> (Vec<[f32; 8]>, Vec<[f32;
     (nodes, tris)
 }
 
-/// The low bits of a node's link word: its triangle count (0: an inner node).
-pub const LINK_COUNT: u32 = 0xff;
-/// The skip of the last node of a traversal: past the end (the root's skip).
-pub const LINK_END: u32 = 0x00ff_ffff;
-
-/// Per node of a flat BVH ([`Bvh::flat`]: an inner node's children at `first`, `first + 1`),
-/// the word the shaders keep in place of its count: count | skip << 8, where skip is the
-/// node a depth-first traversal visits next when it does not enter this one (its right
-/// sibling, else its parent's skip; [`LINK_END`] for the root). The traversal is then a
-/// loop without a stack: enter a node whose box the ray meets (its left child, or its
-/// triangles and then its skip), else go to its skip. lavapipe runs a per-lane stack as
-/// scattered loads and stores for every push and pop; the link costs a word already loaded.
-pub fn link_words(nodes: &[[f32; 8]]) -> Result<Vec<u32>> {
-    if nodes.len() as u64 >= LINK_END as u64 {
-        return Err(Error::InvalidArgument(format!(
-            "a BVH of {} nodes (the shaders' traversal holds fewer than {LINK_END})",
-            nodes.len()
-        )));
-    }
-    let mut skip = vec![LINK_END; nodes.len()];
-    let mut seen = vec![false; nodes.len()];
-    let mut todo = Vec::new();
-    if !nodes.is_empty() {
-        todo.push(0usize);
-        seen[0] = true;
-    }
-    while let Some(i) = todo.pop() {
-        let (first, count) = (nodes[i][3].to_bits(), nodes[i][7].to_bits());
-        if count > LINK_COUNT {
-            return Err(Error::InvalidArgument(format!(
-                "BVH leaf {i} holds {count} triangles (at most {LINK_COUNT})"
-            )));
-        }
-        if count > 0 {
-            continue;
-        }
-        let (l, r) = (first as usize, first as usize + 1);
-        if r >= nodes.len() || seen[l] || seen[r] {
-            return Err(Error::InvalidArgument(format!(
-                "BVH node {i} names children {l}, {r} (of {} nodes, each child once)",
-                nodes.len()
-            )));
-        }
-        seen[l] = true;
-        seen[r] = true;
-        skip[l] = r as u32;
-        skip[r] = skip[i];
-        todo.extend([l, r]);
-    }
-    Ok(nodes
-        .iter()
-        .zip(&skip)
-        .map(|(n, &k)| (n[7].to_bits() & LINK_COUNT) | k << 8)
-        .collect())
-}
-
-/// [`Bvh::flat`]'s nodes with [`link_words`] in place of the counts: the layout the
-/// shaders traverse.
-pub fn with_links(mut nodes: Vec<[f32; 8]>) -> Result<Vec<[f32; 8]>> {
-    let links = link_words(&nodes)?;
-    for (n, l) in nodes.iter_mut().zip(links) {
-        n[7] = f32::from_bits(l);
-    }
-    Ok(nodes)
-}
+// The link words moved to `crate::geom::bvh` (SRBF's shadow rays traverse the same table);
+// re-exported here for the SSS code and tests that name them.
+pub use crate::geom::bvh::{LINK_COUNT, LINK_END, link_words, with_links};
 
 /// The SAH-like quality figure of a flat BVH: the sum of its inner nodes' box areas over the
 /// root's plus the leaves' areas times their triangle counts over the root's (the expected
