@@ -381,6 +381,20 @@ mod tests {
         }
     }
 
+    /// A receiver on or inside a sphere (h <= 1: the cut's spheres may contain a vertex)
+    /// is evaluated as one just outside it, never NaN. Mutant `1.0 + 1e-6` -> `1.0 - 1e-6` in
+    /// the clamp (issue 23's full AO-formula run): h < 1 reaches sqrt(h^2 - 1) and gives NaN.
+    #[test]
+    fn a_receiver_inside_its_sphere_is_clamped_to_its_surface() {
+        for cos_t in [-0.9f32, -0.2, 0.0, 0.3, 0.999] {
+            let outside = sphere_occlusion(cos_t, 1.0 + 1e-6);
+            for h in [0.0f32, 0.5, 1.0 - 1e-6, 1.0] {
+                let v = sphere_occlusion(cos_t, h);
+                assert!(v.is_finite() && v == outside, "cos {cos_t} h {h}: {v} vs {outside}");
+            }
+        }
+    }
+
     #[test]
     fn limits() {
         assert_eq!(sphere_occlusion(-1.0, 2.0), 0.0);
