@@ -27,8 +27,8 @@ fn matrix_cpca_exact_on_low_rank_groups_and_reports_its_error() {
     for v in 0..n {
         let g = &groups[v % 2];
         let (a, b) = (rng.f32() - 0.5, rng.f32() - 0.5);
-        for x in 0..d {
-            rows.push(g[0][x] + a * g[1][x] + b * g[2][x]);
+        for ((m, u), w) in g[0].iter().zip(&g[1]).zip(&g[2]) {
+            rows.push(m + a * u + b * w);
         }
     }
     let cfg = |m| CpcaConfig {

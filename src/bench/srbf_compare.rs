@@ -111,7 +111,7 @@ impl Default for CompareConfig {
 impl CompareConfig {
     pub fn check(&self) -> Result<()> {
         let bad = |m: String| Err(Error::InvalidArgument(format!("bench srbf --compare: {m}")));
-        if self.bytes.is_empty() || self.bytes.iter().any(|&b| b < 8 || b > 4 + 4 * 32) {
+        if self.bytes.is_empty() || self.bytes.iter().any(|b| !(8..=4 + 4 * 32).contains(b)) {
             return bad(format!(
                 "--bytes {:?}: each point must be in 8..=132 (4 bytes of cluster id plus 1 to \
                  32 f32 coefficients)",
