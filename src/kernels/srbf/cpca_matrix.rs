@@ -371,8 +371,8 @@ impl MatrixCpca {
     }
 
     /// One frame on the CPU: radiance toward `camera` for lighting coefficients `coeffs`
-    /// (one per basis function): per cluster, P_ci[j] = A_ci[j, :] . c^ for its M + 1
-    /// matrices; per vertex, B = albedo sum_taps w_t (P_c0[j_t] + sum_i w_vi P_ci[j_t]).
+    /// (one per basis function): per cluster, `P_ci(j) = A_ci(j, :) . c^` for its M + 1
+    /// matrices; per vertex, `B = albedo sum_taps w_t (P_c0(j_t) + sum_i w_vi P_ci(j_t))`.
     pub fn shade(
         &self,
         coeffs: &[[f32; 3]],
