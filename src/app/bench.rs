@@ -47,6 +47,14 @@ pub enum Command {
         /// Smaller sweeps (for a quick check).
         #[arg(long)]
         quick: bool,
+        /// Instead of the timing sweep: CTA against clustered PCA and the uncompressed
+        /// transfer at matched bytes per vertex, diffuse and glossy (error against the
+        /// brute-force truth, bytes, fps, compression time); writes compare.json,
+        /// compare.md and compare.png into --out.
+        #[arg(long)]
+        compare: bool,
+        #[command(flatten)]
+        cmp: CompareArgs,
     },
     /// BTF shading: GPU time over resolution x map resolution x tile size, texel fetches
     /// per second against the fetch rate the device sustains (measured in the same run), the
@@ -211,7 +219,13 @@ impl Command {
                 anim,
                 quick,
             } => ao(gpu, opts, mesh, anim.as_deref(), *quick),
-            Command::Srbf { opts, quick } => srbf(gpu, opts, *quick),
+            Command::Srbf {
+                opts,
+                compare: true,
+                cmp,
+                ..
+            } => srbf_compare(gpu, opts, cmp),
+            Command::Srbf { opts, quick, .. } => srbf(gpu, opts, *quick),
             Command::Btf {
                 opts,
                 anim: true,
@@ -420,6 +434,95 @@ fn print_ao(r: &bench::ao::AoBenchReport) {
         );
     }
     print_targets(&r.targets);
+}
+
+/// The settings of `bench srbf --compare`.
+#[derive(clap::Args, Clone, Debug)]
+pub struct CompareArgs {
+    /// --compare: the mesh (default: Testwuson, 3205 vertices, a few minutes; the full
+    /// bunny is /usr/share/glmark2/models/bunny.obj).
+    #[arg(long, default_value = "data/testwuson.glb")]
+    pub compare_mesh: PathBuf,
+    /// --compare: the environment map.
+    #[arg(long, default_value = crate::kernels::srbf::DEFAULT_ENV)]
+    pub compare_env: PathBuf,
+    /// --compare: storage points, bytes of transfer streamed per vertex (4 of them the
+    /// cluster id).
+    #[arg(long, value_delimiter = ',', default_values_t = [20usize, 36, 68, 132])]
+    pub bytes: Vec<usize>,
+    /// --compare: clusters of both methods.
+    #[arg(long, default_value_t = 16)]
+    pub clusters: usize,
+    /// --compare: side of the glossy view grid (6: 36 views, so that the uncompressed
+    /// Testwuson transfer fits one storage buffer on lavapipe).
+    #[arg(long, default_value_t = 6)]
+    pub views: u32,
+    /// --compare: width of the map the truth integrates, or `full` (its own resolution).
+    #[arg(long, default_value = "256")]
+    pub truth_width: String,
+    /// --compare: CTA's view rank (glossy).
+    #[arg(long, default_value_t = 8)]
+    pub cta_view_rank: usize,
+    /// --compare: CTA's light rank (glossy).
+    #[arg(long, default_value_t = 16)]
+    pub cta_light_rank: usize,
+    /// --compare: only diffuse or only glossy (default both).
+    #[arg(long)]
+    pub only: Option<String>,
+    /// --compare: output directory (also the cache of the projected transfers).
+    #[arg(long, default_value = "out/bench-srbf-compare")]
+    pub out: PathBuf,
+}
+
+/// `bench srbf --compare`.
+fn srbf_compare(gpu: &Gpu, opts: &Opts, a: &CompareArgs) -> Result<()> {
+    use crate::bench::srbf_compare::{CompareConfig, run, table, write_outputs};
+    check_outputs(opts, true)?;
+    let truth_width = match a.truth_width.as_str() {
+        "full" => None,
+        w => Some(w.parse::<u32>().map_err(|_| {
+            Error::InvalidArgument(format!(
+                "--truth-width '{w}': expected full or an even width dividing the map's"
+            ))
+        })?),
+    };
+    let (diffuse, glossy) = match a.only.as_deref() {
+        None => (true, true),
+        Some("diffuse") => (true, false),
+        Some("glossy") => (false, true),
+        Some(o) => {
+            return Err(Error::InvalidArgument(format!(
+                "--only '{o}': expected diffuse or glossy"
+            )));
+        }
+    };
+    let mut cfg = CompareConfig {
+        mesh: a.compare_mesh.clone(),
+        env: a.compare_env.clone(),
+        bench: opts.config()?,
+        bytes: a.bytes.clone(),
+        clusters: a.clusters,
+        views: a.views,
+        cta_view_rank: a.cta_view_rank,
+        cta_light_rank: a.cta_light_rank,
+        truth_width,
+        diffuse,
+        glossy,
+        out: a.out.clone(),
+        ..Default::default()
+    };
+    cfg.bench.min_submit_ms = opts.min_ms.min(cfg.bench.min_submit_ms);
+    cfg.check()?;
+    let ctx = gpu.context()?;
+    eprintln!("bench srbf --compare on {}", ctx.info().name);
+    let r = run(&ctx, &cfg, &mut |l| progress(l))?;
+    print!("{}", table(&r));
+    for p in write_outputs(&r)? {
+        println!("wrote {}", p.display());
+    }
+    write_json(opts, &r)?;
+    write_plot(opts, || crate::bench::srbf_compare::panels(&r))?;
+    finish(ctx)
 }
 
 /// `bench srbf` (draws no plot).

@@ -68,6 +68,89 @@ impl std::str::FromStr for AxisAngle {
     }
 }
 
+/// The resolution of `--reference`'s brute-force truth (`--reference-width`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum ReferenceWidth {
+    /// The direction map (`--directions`, 64 x 32 by default): the texels the transfer and
+    /// the compact lobes' visibility use, so a sun is a texel of that size (the behaviour
+    /// before `--reference-width`).
+    Directions,
+    /// The map at its own resolution: every texel, no downsampling.
+    Full,
+    /// The map box-filtered to this width (even, dividing the map's width).
+    Width(u32),
+}
+
+impl std::str::FromStr for ReferenceWidth {
+    type Err = String;
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        match s.trim() {
+            "directions" => Ok(ReferenceWidth::Directions),
+            "full" => Ok(ReferenceWidth::Full),
+            w => w.parse::<u32>().map(ReferenceWidth::Width).map_err(|_| {
+                format!("'{s}': expected full, directions or a width (an even number)")
+            }),
+        }
+    }
+}
+
+impl std::fmt::Display for ReferenceWidth {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            ReferenceWidth::Directions => write!(f, "directions"),
+            ReferenceWidth::Full => write!(f, "full"),
+            ReferenceWidth::Width(w) => write!(f, "{w}"),
+        }
+    }
+}
+
+impl ReferenceWidth {
+    /// The map the truth integrates: `env` itself, or a box-filtered copy; `None` when it
+    /// is the direction map (`direction_width` wide) the run already holds.
+    pub fn map(self, env: &EnvMap, direction_width: u32) -> Result<Option<EnvMap>> {
+        let w = match self {
+            ReferenceWidth::Directions => return Ok(None),
+            ReferenceWidth::Full => env.width,
+            ReferenceWidth::Width(w) => w,
+        };
+        if w == direction_width.min(env.width) {
+            return Ok(None);
+        }
+        if w > env.width || !env.width.is_multiple_of(w) || w % 2 != 0 {
+            return Err(Error::InvalidArgument(format!(
+                "--reference-width {w}: {} is {} x {}; the width must be even, at most {}                  and divide it (or 'full')",
+                env.source.display(),
+                env.width,
+                env.height,
+                env.width
+            )));
+        }
+        Ok(Some(if w == env.width {
+            env.clone()
+        } else {
+            env.downsampled(w)?
+        }))
+    }
+}
+
+/// What `--reference` integrated (report.json `reference`).
+#[derive(Clone, Debug, Serialize)]
+pub struct ReferenceInfo {
+    /// `--reference-width` as given: full, directions or a width.
+    pub requested: String,
+    /// The integrated map's size and texel count (every texel is a quadrature node; black
+    /// texels are skipped, which is exact).
+    pub width: u32,
+    pub height: u32,
+    pub texels: usize,
+    /// Whether that is the map at its own resolution (no downsampling).
+    pub full_resolution: bool,
+    /// Median wall time of one frame's truth (ms, CPU, f64, one ray per (vertex, texel)
+    /// where the grid's own visibility cannot be reused).
+    pub ms_median: f64,
+}
+
 /// Everything `vkshade srbf shade` can be told.
 #[derive(Clone, Debug)]
 pub struct ShadeConfig {
@@ -88,6 +171,8 @@ pub struct ShadeConfig {
     pub frames: usize,
     pub albedo: [f32; 3],
     pub reference: bool,
+    /// The resolution of the `--reference` truth.
+    pub reference_width: ReferenceWidth,
     /// Width of the environment the lobes are fitted to (a downsampled copy).
     pub fit_width: u32,
     /// Width of the environment whose texel directions the transfer and the ground truth
@@ -138,6 +223,7 @@ impl Default for ShadeConfig {
             frames: 1,
             albedo: [1.0; 3],
             reference: false,
+            reference_width: ReferenceWidth::Directions,
             fit_width: 128,
             direction_width: 64,
             out: PathBuf::from("out/srbf"),
@@ -302,8 +388,14 @@ pub struct FrameReport {
     pub gpu_ms_shade: f64,
     /// GPU against the same pipeline on the CPU (f64).
     pub gpu_vs_cpu: RelL2,
-    /// With --reference: the method against the brute-force ground truth.
+    /// With --reference: the method against the brute-force ground truth (at
+    /// `reference.width`, see report.json's `reference`).
     pub vs_ground_truth: Option<RelL2>,
+    /// With --reference at a resolution other than the direction map's: the truth over the
+    /// direction map's texels against the reference truth (the share of the error that the
+    /// direction map's coarser texels cause, e.g. a sun blurred into one 5.6-degree texel).
+    /// The fit and transfer shares below are measured against the direction map's truth.
+    pub direction_map_vs_ground_truth: Option<RelL2>,
     /// With --reference: the same lobes with the uncompressed transfer (CPU) against the
     /// ground truth; the difference to `vs_ground_truth` is the compression's share.
     pub uncompressed_vs_ground_truth: Option<RelL2>,
@@ -368,6 +460,8 @@ pub struct ShadeReport {
     /// side N of the N x N view grid of the transfer matrices.
     pub camera: Option<[f32; 3]>,
     pub view_grid: Option<u32>,
+    /// With --reference: the map the truth integrated.
+    pub reference: Option<ReferenceInfo>,
     pub notes: Vec<String>,
 }
 
@@ -523,6 +617,11 @@ struct Precomputed {
     cpca: Cpca,
     cpca_cached: bool,
     cpca_ms: f64,
+    /// With --reference at another resolution than the direction map's: the map the truth
+    /// integrates.
+    reference_env: Option<EnvMap>,
+    /// The loaded map's width.
+    reference_width_of_env: u32,
 }
 
 impl Precomputed {
@@ -565,7 +664,14 @@ impl Precomputed {
                 cost(cpca_cached, cpca_ms)
             ));
         }
+        let reference_env = if cfg.reference {
+            cfg.reference_width.map(env, cfg.direction_width)?
+        } else {
+            None
+        };
         Ok(Precomputed {
+            reference_env,
+            reference_width_of_env: env.width,
             fitted,
             fit_ms,
             dir_env,
@@ -725,6 +831,12 @@ fn shade_glossy(
         })
         .collect();
     let pictures = Pictures::new(cfg, mesh);
+    let reference_env = if cfg.reference {
+        cfg.reference_width.map(env, cfg.direction_width)?
+    } else {
+        None
+    };
+    let mut truth_ms = Vec::new();
     let mut frames = Vec::with_capacity(frames_in.len());
     let mut on_frame = |r: FrameResult<Vec<[f32; 3]>>, shade_ms: f64| -> Result<()> {
         let frame = &frames_in[r.index];
@@ -746,8 +858,14 @@ fn shade_glossy(
                 cfg.albedo,
             )
         };
-        let (truth, fit_share) = if cfg.reference {
-            let truth = truth_of(&dir_env, frame.rotation)?;
+        let (truth, fit_share, grid_share) = if cfg.reference {
+            let t0 = Instant::now();
+            let grid_truth = truth_of(&dir_env, frame.rotation)?;
+            let full_truth = match &reference_env {
+                Some(e) => Some(truth_of(e, frame.rotation)?),
+                None => None,
+            };
+            truth_ms.push(t0.elapsed().as_secs_f64() * 1e3);
             let raster = rasterise_lobes(&fitted.lobes, frame.rotation, &dir_env);
             let lobe_map = EnvMap::from_texels(
                 dir_env.width,
@@ -756,10 +874,15 @@ fn shade_glossy(
                 "the fitted lobes",
             )?;
             let sg_truth = truth_of(&lobe_map, Mat3::IDENTITY)?;
-            let fit_share = RelL2::of(&sg_truth, &truth);
-            (Some(truth), Some((fit_share, RelL2::of(&dense, &sg_truth))))
+            let fit_share = RelL2::of(&sg_truth, &grid_truth);
+            let grid_share = full_truth.as_ref().map(|t| RelL2::of(&grid_truth, t));
+            (
+                Some(full_truth.unwrap_or(grid_truth)),
+                Some((fit_share, RelL2::of(&dense, &sg_truth))),
+                grid_share,
+            )
         } else {
-            (None, None)
+            (None, None, None)
         };
         let report = FrameReport {
             index: r.index,
@@ -770,6 +893,7 @@ fn shade_glossy(
             gpu_ms_shade: shade_ms,
             gpu_vs_cpu: RelL2::of(&gpu, &cpu),
             vs_ground_truth: truth.as_ref().map(|t| RelL2::of(&gpu, t)),
+            direction_map_vs_ground_truth: grid_share,
             uncompressed_vs_ground_truth: truth.as_ref().map(|t| RelL2::of(&dense, t)),
             fit_share: fit_share.map(|f| f.0),
             transfer_share: fit_share.map(|f| f.1),
@@ -805,11 +929,21 @@ fn shade_glossy(
     if ctx.info().device_type == "CPU" {
         notes.push("the device is a CPU implementation (lavapipe): times measure the CPU".into());
     }
+    let truth_env = reference_env.as_ref().unwrap_or(&dir_env);
     notes.push(format!(
         "glossy: radiance toward the camera; ground truth over the {}x{} texel directions \
-         (solid-angle-weighted downsampling), visibility ray-cast along every rotated \
-         direction; every lobe through the basis (no compact lobes)",
-        dir_env.width, dir_env.height
+         ({}), visibility ray-cast along every rotated direction, f64; fit and transfer \
+         shares against the {}x{} direction map's truth; every lobe through the basis (no \
+         compact lobes)",
+        truth_env.width,
+        truth_env.height,
+        if truth_env.width == env.width {
+            "the map at its own resolution"
+        } else {
+            "solid-angle-weighted downsampling"
+        },
+        dir_env.width,
+        dir_env.height
     ));
     if let Some(c) = &cta {
         let (stream, amortised) = c.bytes_per_vertex();
@@ -867,6 +1001,9 @@ fn shade_glossy(
         brdf: cfg.brdf,
         camera: Some(camera.to_array()),
         view_grid: Some(grid.n),
+        reference: cfg
+            .reference
+            .then(|| reference_info(cfg.reference_width, truth_env, env, &truth_ms)),
         frames,
         notes,
     };
@@ -900,6 +1037,8 @@ struct Session<'a> {
     smooth: Vec<Lobe>,
     kernel: SrbfKernel,
     pictures: Pictures,
+    /// Wall time of each frame's truth (ms).
+    truth_ms: std::sync::Mutex<Vec<f64>>,
 }
 
 impl<'a> Session<'a> {
@@ -954,6 +1093,7 @@ impl<'a> Session<'a> {
             smooth,
             kernel,
             pictures: Pictures::new(cfg, mesh),
+            truth_ms: std::sync::Mutex::new(Vec::new()),
         })
     }
 
@@ -963,7 +1103,10 @@ impl<'a> Session<'a> {
         let cfg = self.cfg;
         let cpu = self.inputs.cpu_pipeline(frame)?;
         let gpu: Vec<[f64; 3]> = r.output.iter().map(|c| c.map(|x| x as f64)).collect();
-        let truth = if cfg.reference {
+        // The truth over the direction map's texels (the stages are split against it), and
+        // with --reference-width the truth over the reference map.
+        let t0 = Instant::now();
+        let grid_truth = if cfg.reference {
             Some(shade_ground_truth(
                 &self.pre.dir_env,
                 frame.rotation,
@@ -974,10 +1117,27 @@ impl<'a> Session<'a> {
         } else {
             None
         };
-        let stages = match &truth {
+        let full_truth = match (&grid_truth, &self.pre.reference_env) {
+            (Some(_), Some(e)) => Some(shade_ground_truth(
+                e,
+                frame.rotation,
+                self.mesh,
+                None,
+                cfg.albedo,
+            )?),
+            _ => None,
+        };
+        if grid_truth.is_some() {
+            self.truth_ms
+                .lock()
+                .map_err(|_| Error::InvalidArgument("truth timing lock poisoned".into()))?
+                .push(t0.elapsed().as_secs_f64() * 1e3);
+        }
+        let stages = match &grid_truth {
             Some(t) => Some(self.stage_errors(frame, t)?),
             None => None,
         };
+        let truth = full_truth.or(grid_truth.clone());
         let report = FrameReport {
             index: r.index,
             rotation: frame.rotation.to_cols_array(),
@@ -987,9 +1147,16 @@ impl<'a> Session<'a> {
             gpu_ms_shade: r.timings.get(PASS_SHADE).unwrap_or(f64::NAN),
             gpu_vs_cpu: RelL2::of(&gpu, &cpu),
             vs_ground_truth: truth.as_ref().map(|t| RelL2::of(&gpu, t)),
-            uncompressed_vs_ground_truth: stages.map(|s| s.uncompressed),
-            fit_share: stages.map(|s| s.fit),
-            transfer_share: stages.map(|s| s.transfer),
+            direction_map_vs_ground_truth: match (&self.pre.reference_env, &grid_truth, &truth) {
+                (Some(_), Some(g), Some(t)) => Some(RelL2::of(g, t)),
+                _ => None,
+            },
+            uncompressed_vs_ground_truth: match (&stages, &truth) {
+                (Some(s), Some(t)) => Some(RelL2::of(&s.exact, t)),
+                _ => None,
+            },
+            fit_share: stages.as_ref().map(|s| s.fit),
+            transfer_share: stages.as_ref().map(|s| s.transfer),
             ply: String::new(),
             png: String::new(),
         };
@@ -1018,9 +1185,9 @@ impl<'a> Session<'a> {
             cfg.albedo,
         )?;
         Ok(StageErrors {
-            uncompressed: RelL2::of(&exact, truth),
             fit: RelL2::of(&sg_truth, truth),
             transfer: RelL2::of(&exact, &sg_truth),
+            exact,
         })
     }
 
@@ -1075,6 +1242,14 @@ impl<'a> Session<'a> {
             brdf: Brdf::Diffuse,
             camera: None,
             view_grid: None,
+            reference: cfg.reference.then(|| {
+                reference_info(
+                    cfg.reference_width,
+                    pre.reference_env.as_ref().unwrap_or(&pre.dir_env),
+                    env,
+                    &self.truth_ms.lock().map(|v| v.clone()).unwrap_or_default(),
+                )
+            }),
             frames,
             notes: self.notes(),
         }
@@ -1088,20 +1263,52 @@ impl<'a> Session<'a> {
                 "the device is a CPU implementation (lavapipe): times measure the CPU".into(),
             );
         }
-        notes.push(format!(
-            "ground truth: {}x{} texel directions of the environment (solid-angle-weighted \
-             downsampling of the original), visibility ray-cast per direction; L(R^-1 w) is \
-             looked up in that map",
-            dir_env.width, dir_env.height
-        ));
+        match &self.pre.reference_env {
+            Some(e) if self.cfg.reference => notes.push(format!(
+                "ground truth: every texel of the {}x{} map{} as a quadrature node (its                  direction rotated, its exact solid angle), visibility ray-cast per (vertex,                  texel), f64; the fit and transfer shares are measured against the {}x{}                  direction map's truth, direction_map_vs_ground_truth is that truth against                  this one",
+                e.width,
+                e.height,
+                if e.width == self.pre.reference_width_of_env {
+                    " (its own resolution)"
+                } else {
+                    " (solid-angle-weighted downsampling)"
+                },
+                dir_env.width,
+                dir_env.height
+            )),
+            _ => notes.push(format!(
+                "ground truth: {}x{} texel directions of the environment (solid-angle-weighted                  downsampling of the original, --reference-width directions), visibility                  ray-cast per direction, f64",
+                dir_env.width, dir_env.height
+            )),
+        }
         notes
     }
 }
 
-/// A frame's error against the ground truth by stage (see [`FrameReport`]).
-#[derive(Clone, Copy)]
+/// report.json's `reference`: the map `truth_env` the truth integrated (`env` is the
+/// loaded map) and the median of the frames' truth times.
+fn reference_info(
+    requested: ReferenceWidth,
+    truth_env: &EnvMap,
+    env: &EnvMap,
+    ms: &[f64],
+) -> ReferenceInfo {
+    let mut v = ms.to_vec();
+    v.sort_by(f64::total_cmp);
+    ReferenceInfo {
+        requested: requested.to_string(),
+        width: truth_env.width,
+        height: truth_env.height,
+        texels: truth_env.texels.len(),
+        full_resolution: truth_env.width == env.width,
+        ms_median: v.get(v.len() / 2).copied().unwrap_or(f64::NAN),
+    }
+}
+
+/// A frame's error against the direction map's ground truth by stage (see
+/// [`FrameReport`]), and the uncompressed transfer's radiance.
 struct StageErrors {
-    uncompressed: RelL2,
+    exact: Vec<[f64; 3]>,
     fit: RelL2,
     transfer: RelL2,
 }
@@ -1111,7 +1318,7 @@ struct StageErrors {
 fn frame_line(report: &FrameReport) -> String {
     format!(
         "frame {}: lighting {:.3} + project {:.3} + sharp {:.3} + shade {:.3} ms GPU; GPU vs \
-         CPU {:.1e}{}",
+         CPU {:.1e}{}{}",
         report.index,
         report.gpu_ms_lighting,
         report.gpu_ms_project,
@@ -1130,6 +1337,13 @@ fn frame_line(report: &FrameReport) -> String {
                 e.all, e.rgb[0], e.rgb[1], e.rgb[2], f.all, t.all, u.all
             ),
             _ => String::new(),
+        },
+        match report.direction_map_vs_ground_truth {
+            Some(g) => format!(
+                "; direction-map truth vs this one {:.4} (rgb {:.4} {:.4} {:.4})",
+                g.all, g.rgb[0], g.rgb[1], g.rgb[2]
+            ),
+            None => String::new(),
         }
     )
 }
@@ -1370,6 +1584,12 @@ pub struct ShadeArgs {
     /// Compare each frame with the brute-force integration of the rotated map (f64).
     #[arg(long)]
     pub reference: bool,
+    /// Resolution of --reference's truth: `directions` (the --directions map, 64 x 32 by
+    /// default: cheap, but a sun becomes a 5.6-degree texel), `full` (every texel of the map
+    /// at its own resolution: one ray per vertex and texel, 256x the rays of 64 x 32 at
+    /// 1024 x 512), or a width that divides the map's.
+    #[arg(long, default_value = "directions")]
+    pub reference_width: ReferenceWidth,
     /// Width of the map whose texel directions carry the transfer and the ground truth.
     #[arg(long, default_value_t = 64)]
     pub directions: u32,
@@ -1493,6 +1713,7 @@ impl ShadeArgs {
             frames: self.frames,
             albedo,
             reference: self.reference,
+            reference_width: self.reference_width,
             direction_width: self.directions,
             fit_width: self.fit_width,
             sharp_factor: self.sharp_factor,
@@ -1579,7 +1800,19 @@ pub fn display(r: &ShadeReport, cfg: &ShadeConfig) {
         .filter_map(|f| f.vs_ground_truth.map(|e| e.all))
         .reduce(f64::max)
     {
-        println!("vs brute-force ground truth: relative L2 at most {worst:.4} over the frames");
+        let at = r.reference.as_ref().map_or(String::new(), |i| {
+            format!(
+                " ({}x{}{})",
+                i.width,
+                i.height,
+                if i.full_resolution {
+                    ", the map's own resolution"
+                } else {
+                    ""
+                }
+            )
+        });
+        println!("vs brute-force ground truth{at}: relative L2 at most {worst:.4} over the frames");
     }
     println!(
         "wrote shade_NNNN.ply, shade_NNNN.png and report.json to {}",

@@ -11,6 +11,7 @@ pub mod peak;
 pub mod plot;
 pub mod roofline;
 pub mod srbf;
+pub mod srbf_compare;
 pub mod sss;
 
 use crate::error::{Error, Result};

@@ -184,7 +184,7 @@ fn synthetic_lobes(n: usize, seed: u64) -> Vec<Lobe> {
         .collect()
 }
 
-fn measure(
+pub(super) fn measure(
     ctx: &Context,
     cfg: &BenchConfig,
     lobes: &[Lobe],

@@ -25,7 +25,7 @@ use crate::error::{Error, Result};
 use crate::geom::Bvh;
 use crate::geom::brdf::Brdf;
 use crate::geom::sg::{self, Lobe};
-use crate::geom::visibility::{Visibility, direction_visibility};
+use crate::geom::visibility::Visibility;
 use crate::scene::EnvMap;
 use glam::{Mat3, Vec3};
 use rayon::prelude::*;
@@ -119,32 +119,69 @@ pub fn shade_ground_truth(
         // The rotated directions are the grid's own: the precomputed visibility is exact.
         return shade_brute_force(env, rotation, &mesh.normals, vis, albedo);
     }
-    let samples = env.samples();
-    let rotated: Vec<(Vec3, f64, [f32; 3])> = samples
-        .iter()
-        .map(|(w, d_omega, l)| ((rotation * *w).normalize(), *d_omega, *l))
-        .collect();
-    let directions: Vec<Vec3> = rotated.iter().map(|s| s.0).collect();
-    let (lo, hi) = mesh.bounds();
-    let bvh = Bvh::build(&mesh.positions, &mesh.triangles);
-    let vis = direction_visibility(
+    let scale = albedo.map(|a| a as f64 / std::f64::consts::PI);
+    let sums = ray_cast_sum(
+        env,
+        rotation,
+        mesh,
         &mesh.positions,
         &mesh.normals,
-        &bvh,
-        &directions,
-        1e-4 * (hi - lo).length(),
+        |_, n, w| n.dot(w),
     );
-    let weighted: Vec<[f64; 3]> = rotated
-        .iter()
-        .map(|(_, d_omega, l)| l.map(|c| c as f64 * d_omega))
+    Ok(sums
+        .into_iter()
+        .map(|s| [0, 1, 2].map(|c| s[c] * scale[c]))
+        .collect())
+}
+
+/// sum_p L_p dOmega_p V_i(R w_p) f(i, n_i, R w_p) for every point i, f64, with f the
+/// caller's BRDF x cosine factor (terms with f <= 0 are skipped, as are texels whose
+/// radiance is 0 in every channel: they add exactly 0). The visibility is ray-cast per
+/// (point, texel) against `occluder`'s BVH from x_i + 1e-4 diagonal x n_i (the offset of
+/// [`crate::scene::envmap::texel_visibility`]), streamed: nothing of size points x texels is
+/// held, so a full-resolution map (524,288 texels at 1024 x 512) costs time, not memory.
+fn ray_cast_sum(
+    env: &EnvMap,
+    rotation: Mat3,
+    occluder: &crate::scene::Mesh,
+    points: &[Vec3],
+    normals: &[Vec3],
+    f: impl Fn(usize, glam::DVec3, glam::DVec3) -> f64 + Sync,
+) -> Vec<[f64; 3]> {
+    // (rotated direction in f32 for the ray, in f64 for the terms, L dOmega).
+    let texels: Vec<(Vec3, glam::DVec3, [f64; 3])> = env
+        .samples()
+        .into_iter()
+        .filter(|(_, _, l)| l.iter().any(|&c| c != 0.0))
+        .map(|(w, d_omega, l)| {
+            let r = (rotation * w).normalize();
+            (r, r.as_dvec3(), l.map(|c| c as f64 * d_omega))
+        })
         .collect();
-    Ok(sum_visible(
-        &rotated,
-        &weighted,
-        &mesh.normals,
-        &vis,
-        albedo,
-    ))
+    let (lo, hi) = occluder.bounds();
+    let offset = 1e-4 * (hi - lo).length();
+    let bvh = Bvh::build(&occluder.positions, &occluder.triangles);
+    (0..points.len().min(normals.len()))
+        .into_par_iter()
+        .map(|i| {
+            let (p, n) = (points[i], normals[i]);
+            let origin = p + offset * n;
+            let nd = n.as_dvec3();
+            let mut sum = [0f64; 3];
+            for (w, wd, le) in &texels {
+                if n.dot(*w) <= 0.0 {
+                    continue;
+                }
+                let term = f(i, nd, *wd);
+                if term > 0.0 && !bvh.any_hit(origin, *w, f32::INFINITY) {
+                    for c in 0..3 {
+                        sum[c] += le[c] * term;
+                    }
+                }
+            }
+            sum
+        })
+        .collect()
 }
 
 /// The glossy ground truth: radiance toward a camera at `camera` (model units) of each
@@ -184,37 +221,17 @@ pub fn shade_glossy_truth(
             "camera {camera} is not finite"
         )));
     }
-    let samples = env.samples();
-    let rotated: Vec<(Vec3, f64, [f32; 3])> = samples
+    let views: Vec<glam::DVec3> = points
         .iter()
-        .map(|(w, d_omega, l)| ((rotation * *w).normalize(), *d_omega, *l))
+        .zip(normals)
+        .map(|(p, n)| Brdf::view_direction(n.as_dvec3(), p.as_dvec3(), camera.as_dvec3()))
         .collect();
-    let directions: Vec<Vec3> = rotated.iter().map(|s| s.0).collect();
-    let (lo, hi) = occluder.bounds();
-    let bvh = Bvh::build(&occluder.positions, &occluder.triangles);
-    let vis = direction_visibility(
-        points,
-        normals,
-        &bvh,
-        &directions,
-        1e-4 * (hi - lo).length(),
-    );
-    Ok((0..points.len())
-        .into_par_iter()
-        .map(|i| {
-            let n = normals[i].as_dvec3();
-            let o = Brdf::view_direction(n, points[i].as_dvec3(), camera.as_dvec3());
-            let mut sum = [0f64; 3];
-            for (p, (w, d_omega, l)) in rotated.iter().enumerate() {
-                let f = brdf.cosine_weighted(n, w.as_dvec3(), o);
-                if f > 0.0 && vis.visible(i, p) {
-                    for c in 0..3 {
-                        sum[c] += l[c] as f64 * d_omega * f;
-                    }
-                }
-            }
-            [0, 1, 2].map(|c| sum[c] * albedo[c] as f64)
-        })
+    let sums = ray_cast_sum(env, rotation, occluder, points, normals, |i, n, w| {
+        brdf.cosine_weighted(n, w, views[i])
+    });
+    Ok(sums
+        .into_iter()
+        .map(|s| [0, 1, 2].map(|c| s[c] * albedo[c] as f64))
         .collect())
 }
 

@@ -6,6 +6,7 @@
 //! from and checks; `pack`: its data as the GPU holds it; `gpu`: the kernel; `cpu`: its twin.
 
 pub mod cpca;
+pub mod cpca_matrix;
 pub mod cpu;
 pub mod cta;
 pub mod cta_gpu;
