@@ -390,7 +390,10 @@ mod tests {
             let outside = sphere_occlusion(cos_t, 1.0 + 1e-6);
             for h in [0.0f32, 0.5, 1.0 - 1e-6, 1.0] {
                 let v = sphere_occlusion(cos_t, h);
-                assert!(v.is_finite() && v == outside, "cos {cos_t} h {h}: {v} vs {outside}");
+                assert!(
+                    v.is_finite() && v == outside,
+                    "cos {cos_t} h {h}: {v} vs {outside}"
+                );
             }
         }
     }
