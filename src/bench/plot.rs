@@ -191,13 +191,51 @@ fn draw_panel(
             }
         }};
     }
+    // Log axes are labelled at 1, 2 and 5 times the powers of ten inside their range: a
+    // range within one decade (e.g. errors from 0.019 to 0.08) would otherwise get no label.
+    let lx = || (x0..x1).log_scale().with_key_points(log_key_points(x0, x1));
+    let ly = || (y0..y1).log_scale().with_key_points(log_key_points(y0, y1));
     match (panel.log_x, panel.log_y) {
         (false, false) => finish!(builder.build_cartesian_2d(x0..x1, y0..y1)?),
-        (true, false) => finish!(builder.build_cartesian_2d((x0..x1).log_scale(), y0..y1)?),
-        (false, true) => finish!(builder.build_cartesian_2d(x0..x1, (y0..y1).log_scale())?),
-        (true, true) => {
-            finish!(builder.build_cartesian_2d((x0..x1).log_scale(), (y0..y1).log_scale())?)
-        }
+        (true, false) => finish!(builder.build_cartesian_2d(lx(), y0..y1)?),
+        (false, true) => finish!(builder.build_cartesian_2d(x0..x1, ly())?),
+        (true, true) => finish!(builder.build_cartesian_2d(lx(), ly())?),
     }
     Ok(())
+}
+
+/// 1, 2 and 5 times the powers of ten in [lo, hi] (lo > 0), the ends too when fewer than
+/// two fall inside.
+fn log_key_points(lo: f64, hi: f64) -> Vec<f64> {
+    let mut out = Vec::new();
+    if !(lo > 0.0 && hi >= lo && hi.is_finite()) {
+        return out;
+    }
+    let mut decade = 10f64.powi(lo.log10().floor() as i32);
+    while decade <= hi {
+        for m in [1.0, 2.0, 5.0] {
+            let v = m * decade;
+            if v >= lo && v <= hi {
+                out.push(v);
+            }
+        }
+        decade *= 10.0;
+    }
+    if out.len() < 2 {
+        out = vec![lo, hi];
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    /// Key points of a log axis: 1-2-5 steps inside the range; the range's ends when a
+    /// range holds fewer than two.
+    #[test]
+    fn log_key_points_label_a_range_within_one_decade() {
+        assert_eq!(super::log_key_points(0.0188, 0.08), [0.02, 0.05]);
+        assert_eq!(super::log_key_points(15.0, 140.0), [20.0, 50.0, 100.0]);
+        assert_eq!(super::log_key_points(0.3, 0.45), [0.3, 0.45]);
+        assert!(super::log_key_points(0.0, 1.0).is_empty());
+    }
 }
