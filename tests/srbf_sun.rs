@@ -540,6 +540,8 @@ fn bad_sun_ray_inputs_are_refused() {
 /// degrees, shadow rays 6.4% (6.6 / 6.5 / 5.8), the grid tap 17.7% (18.5 / 17.9 / 15.6);
 /// 47.8125 degrees, 2.4% (2.5 / 2.4 / 2.2) against 8.7% (9.0 / 8.8 / 7.7). Bounds: 7% and 3%
 /// for the shadow rays, and below the grid tap's error at the same rotation.
+/// (Needs the `cli` feature for the tool's error measure, `app::srbf::RelL2`.)
+#[cfg(feature = "cli")]
 #[test]
 fn testwuson_under_a_sun_half_a_texel_off_the_grid() {
     use vkshade::app::srbf::RelL2;

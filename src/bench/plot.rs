@@ -206,6 +206,7 @@ fn draw_panel(
 
 /// 1, 2 and 5 times the powers of ten in [lo, hi] (lo > 0), the ends too when fewer than
 /// two fall inside.
+#[cfg(feature = "plots")]
 fn log_key_points(lo: f64, hi: f64) -> Vec<f64> {
     let mut out = Vec::new();
     if !(lo > 0.0 && hi >= lo && hi.is_finite()) {
@@ -227,7 +228,7 @@ fn log_key_points(lo: f64, hi: f64) -> Vec<f64> {
     out
 }
 
-#[cfg(test)]
+#[cfg(all(test, feature = "plots"))]
 mod tests {
     /// Key points of a log axis: 1-2-5 steps inside the range; the range's ends when a
     /// range holds fewer than two.
