@@ -571,8 +571,7 @@ pub struct ClothErrors {
 
 /// A woven cloth tile synthesised in memory (`btf synth`'s model, one ray per texel).
 pub fn synthesized_btf(tile: u32) -> Result<Btf> {
-    use crate::kernels::btf::cloth::{Pattern, SynthConfig};
-    crate::kernels::btf::synth::synthesize(&SynthConfig::tile(Pattern::Weave, tile))
+    BtfSource::Synthesized(crate::kernels::btf::cloth::Pattern::Weave).load(tile)
 }
 
 impl CharacterFrame {
