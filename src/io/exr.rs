@@ -78,6 +78,21 @@ pub fn write(path: &Path, img: &FloatImage, channels: Channels) -> Result<()> {
     super::write_atomic(path, bytes.get_ref())
 }
 
+/// Most layers (parts) an EXR may declare.
+pub const MAX_LAYERS: usize = 64;
+
+/// Most texels a file may declare per byte it holds, beyond a floor of 2^22 texels (a 2048 x
+/// 2048 map, 64 MiB as RGBA f32, is always allowed). Real float images compress far less:
+/// deflate (ZIP, and the zlib stage of DWA) tops out near 1000:1, a few texels per byte for
+/// f16 RGB; only a large flat single-colour map under lossy DWA gets near this. A header
+/// claiming more is refused before anything is sized from it, so a small file can never make
+/// the reader allocate gigabytes (each input byte can claim at most 16 KiB of texels).
+pub const TEXELS_PER_BYTE: usize = 1024;
+
+fn max_texels_for(file_len: usize) -> usize {
+    (1usize << 22).max(file_len.saturating_mul(TEXELS_PER_BYTE))
+}
+
 /// Reads the first RGB(A) layer of the EXR at `path` as linear f32 (alpha 1 where the file
 /// has none). An unreadable file, or one that is not an RGB(A) EXR, is an error naming it.
 pub fn read_rgba(path: &Path) -> Result<FloatImage> {
@@ -87,6 +102,42 @@ pub fn read_rgba(path: &Path) -> Result<FloatImage> {
             path,
             "not an OpenEXR file (no EXR magic number at its start)",
         ));
+    }
+    // The exr crate sizes each block's buffer from the headers (a block may be as large as
+    // the header's data window allows) before it sees the block: a 1 KiB file whose header
+    // claims a 2^30-texel window made it allocate 1.4 GiB (found by the `envmap` fuzz
+    // target). Every header is checked first, so no allocation exceeds what a
+    // MAX_DIMENSION-square image needs.
+    let meta = exr::meta::MetaData::read_from_buffered(bytes.as_slice(), false)
+        .map_err(|e| Error::input(path, format!("not a readable OpenEXR header: {e}")))?;
+    if meta.headers.len() > MAX_LAYERS {
+        return Err(Error::input(
+            path,
+            format!(
+                "{} layers (vkshade reads at most {MAX_LAYERS})",
+                meta.headers.len()
+            ),
+        ));
+    }
+    let max_texels = max_texels_for(bytes.len());
+    for (i, h) in meta.headers.iter().enumerate() {
+        let (w, ht) = (h.layer_size.width(), h.layer_size.height());
+        if w > MAX_DIMENSION as usize || ht > MAX_DIMENSION as usize {
+            return Err(Error::input(
+                path,
+                format!("layer {i} is {w} x {ht} texels, beyond {MAX_DIMENSION} per side"),
+            ));
+        }
+        if w.saturating_mul(ht) > max_texels {
+            return Err(Error::input(
+                path,
+                format!(
+                    "layer {i} claims {w} x {ht} texels in a file of {} bytes (more than \
+                     {TEXELS_PER_BYTE} texels per byte: not a real compressed image)",
+                    bytes.len()
+                ),
+            ));
+        }
     }
     let image = read()
         .no_deep_data()
@@ -122,4 +173,37 @@ pub fn read_rgba(path: &Path) -> Result<FloatImage> {
         ));
     }
     Ok(img)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A small valid EXR whose header is then made to claim a 4096 x 4096 data window: more
+    /// texels than its bytes can hold at TEXELS_PER_BYTE, so it is refused before anything
+    /// is sized from the header.
+    #[test]
+    fn a_header_claiming_more_texels_than_the_file_can_hold_is_refused() {
+        let dir = std::env::temp_dir().join(format!("vkshade-exr-claim-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("small.exr");
+        let img = FloatImage {
+            width: 16,
+            height: 8,
+            pixels: vec![[0.5, 0.25, 1.0, 1.0]; 128],
+        };
+        write(&path, &img, Channels::Rgb).unwrap();
+        assert_eq!(read_rgba(&path).unwrap().pixels[7], [0.5, 0.25, 1.0, 1.0]);
+        let mut bytes = std::fs::read(&path).unwrap();
+        let key = b"dataWindow\0box2i\0";
+        let at = bytes.windows(key.len()).position(|w| w == key).unwrap() + key.len() + 4;
+        for (i, v) in [0i32, 0, 4095, 4095].iter().enumerate() {
+            bytes[at + 4 * i..at + 4 * i + 4].copy_from_slice(&v.to_le_bytes());
+        }
+        let forged = dir.join("claims.exr");
+        std::fs::write(&forged, &bytes).unwrap();
+        let e = read_rgba(&forged).unwrap_err().to_string();
+        assert!(e.contains("claims.exr") && e.contains("4096 x 4096"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 }
