@@ -53,6 +53,7 @@ pub fn synth_command(
         ..SynthConfig::tile(pattern, size)
     };
     cfg.check()?;
+    crate::io::outdir::check_claimable(out, "btf synth")?;
     let t = Instant::now();
     let btf = synth::synthesize(&cfg)?;
     let meta = SynthMeta {
@@ -67,7 +68,7 @@ pub fn synth_command(
         ),
         ms: t.elapsed().as_secs_f64() * 1e3,
     };
-    synth::write_dir(&btf, out, format, &meta)?;
+    synth::write_dir(&btf, out, format, &meta, "btf synth")?;
     Ok(meta)
 }
 
@@ -358,7 +359,7 @@ pub fn render(
     progress: &mut dyn FnMut(&str),
 ) -> Result<RenderReport> {
     let report_path = cfg.out.join("report.json");
-    crate::io::check_writable(&report_path)?;
+    crate::io::outdir::claim(&cfg.out, "btf render")?;
     let meta = if cfg.reference {
         Some(read_meta(&cfg.btf).map_err(|e| {
             Error::InvalidArgument(format!(
@@ -893,6 +894,7 @@ pub fn tile_command(
     format: FileFormat,
     out: &Path,
 ) -> Result<TileReport> {
+    crate::io::outdir::check_claimable(out, "btf tile")?;
     let btf = load::load_dir(dir)?;
     let period = load::find_period(&btf)?;
     let tile = load::cut_tile(&btf, origin, period.period)?;
@@ -901,7 +903,7 @@ pub fn tile_command(
         period,
         origin,
     };
-    synth::write_dir(&tile, out, format, &report)?;
+    synth::write_dir(&tile, out, format, &report, "btf tile")?;
     Ok(report)
 }
 
@@ -1354,7 +1356,7 @@ pub fn render_anim(
     progress: &mut dyn FnMut(&str),
 ) -> Result<AnimReport> {
     let report_path = out.join("anim.json");
-    crate::io::check_writable(&report_path)?;
+    crate::io::outdir::claim(out, "btf render")?;
     if frames == 0 || !(frame_rate.is_finite() && frame_rate > 0.0) {
         return Err(Error::InvalidArgument(format!(
             "--frames {frames} and --frame-rate {frame_rate}: need at least one frame at a positive rate"

@@ -268,7 +268,7 @@ pub fn run(ctx: &Context, cfg: &EnvRunConfig, progress: &mut dyn FnMut(&str)) ->
     if cfg.frames == 0 {
         return Err(Error::InvalidArgument("--frames must be at least 1".into()));
     }
-    crate::io::check_writable(&cfg.out.join("report.json"))?;
+    crate::io::outdir::claim(&cfg.out, "env")?;
     let scene = EnvScene::load(cfg, progress)?;
     run_scene(ctx, cfg, &scene, progress)
 }

@@ -217,7 +217,7 @@ impl Args {
     /// Runs the frames and writes everything under `--out`.
     pub fn run(&self, gpu: &Gpu) -> Result<()> {
         let cfg = self.config()?;
-        crate::io::check_writable(&self.out)?;
+        crate::io::outdir::check_claimable(&self.out, "frame")?;
         let ctx = context(gpu)?;
         eprintln!("vkshade frame on {}", ctx.info().name);
         let t = Instant::now();
@@ -331,7 +331,7 @@ pub fn render(
     let t0 = Instant::now();
     let frame = CharacterFrame::new(ctx, cfg, progress)?;
     let setup_ms = t0.elapsed().as_secs_f64() * 1e3;
-    std::fs::create_dir_all(&args.out).map_err(|e| Error::io(&args.out, e))?;
+    crate::io::outdir::claim(&args.out, "frame")?;
     let n = args.frames;
     let duration = frame.animation().duration;
     let inputs: Vec<FrameInput> = (0..n)

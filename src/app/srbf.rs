@@ -562,7 +562,7 @@ pub fn shade(
     progress: &mut dyn FnMut(&str),
 ) -> Result<ShadeReport> {
     cfg.validate()?;
-    crate::io::check_writable(&cfg.out.join("report.json"))?;
+    crate::io::outdir::claim(&cfg.out, "srbf shade")?;
     let character = scene::load(&cfg.mesh)?;
     let mesh = &character.mesh;
     let env = EnvMap::load(&cfg.env)?;
@@ -1542,7 +1542,7 @@ pub enum Command {
         /// Width of the downsampled map the lobes are fitted to.
         #[arg(long, default_value_t = 128)]
         fit_width: u32,
-        #[arg(short = 'o', long, default_value = "out/srbf/fit.json")]
+        #[arg(short = 'o', long, default_value = "out/srbf-fit.json")]
         out: PathBuf,
     },
     /// Shade a mesh under a rotated environment: per frame DIR/shade_NNNN.ply (per-vertex

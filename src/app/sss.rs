@@ -314,7 +314,7 @@ pub struct SssReport {
 /// Runs `vkshade sss`.
 pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Result<SssReport> {
     cfg.validate()?;
-    crate::io::check_writable(&cfg.out.join("report.json"))?;
+    crate::io::outdir::claim(&cfg.out, "sss")?;
     let lights = cfg.parsed_lights()?;
     let character = load_character(&cfg.mesh, cfg.part.as_deref())?;
     let anim = match &cfg.anim {
