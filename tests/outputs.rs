@@ -234,13 +234,7 @@ fn run_directories_follow_the_same_rule() {
     }
     assert!(run.join("report.json").is_file());
     // Another command is refused there.
-    let (ok, text) = vkshade(&[
-        "sss",
-        "--frames",
-        "1",
-        "--out",
-        run.to_str().unwrap(),
-    ]);
+    let (ok, text) = vkshade(&["sss", "--frames", "1", "--out", run.to_str().unwrap()]);
     assert!(!ok, "{text}");
     assert!(text.contains("vkshade ao"), "{text}");
     let _ = std::fs::remove_dir_all(d);

@@ -209,6 +209,8 @@ pub struct EnvConfig {
     pub path: PathBuf,
     pub lobes: usize,
     pub rotate_deg: f32,
+    /// How negative samples of the map (codec ringing) are treated.
+    pub hdr: crate::scene::envmap::HdrPolicy,
 }
 
 impl EnvConfig {
@@ -222,7 +224,10 @@ impl EnvConfig {
         glam::Mat3,
     )> {
         use crate::kernels::srbf::fit::{FitConfig, fit};
-        let map = crate::scene::envmap::EnvMap::load(&self.path)?;
+        let map = crate::scene::envmap::EnvMap::load_with(&self.path, self.hdr)?;
+        if let Some(r) = &map.repair {
+            super::progress(&format!("{}: {r}", self.path.display()));
+        }
         let small = map.downsampled(128.min(map.width))?;
         let fitted = fit(
             &small.samples(),
@@ -1043,6 +1048,8 @@ pub struct RenderArgs {
     /// With --env: SG lobes fitted to the map.
     #[arg(long, default_value_t = 32)]
     pub env_lobes: usize,
+    #[command(flatten)]
+    pub hdr: super::Hdr,
 }
 
 impl Command {
@@ -1189,6 +1196,27 @@ fn parse_light(s: &str) -> Result<Light> {
             )));
         }
     };
+    let bound = crate::kernels::sss::cpu::MAX_LIGHT_COORDINATE;
+    let strength = crate::kernels::sss::cpu::MAX_LIGHT_STRENGTH;
+    if d.iter().any(|x| !x.is_finite() || x.abs() > bound) {
+        return Err(Error::InvalidArgument(format!(
+            "--light '{s}': the direction's coordinates must be finite within +-{bound:e} \
+             (normalising a larger vector overflows f32)"
+        )));
+    }
+    if Vec3::from(d).length() < 1e-6 {
+        return Err(Error::InvalidArgument(format!(
+            "--light '{s}': zero direction"
+        )));
+    }
+    if rgb
+        .iter()
+        .any(|c| !(c.is_finite() && (0.0..=strength).contains(c)))
+    {
+        return Err(Error::InvalidArgument(format!(
+            "--light '{s}': R,G,B must be finite and in 0..={strength:e}"
+        )));
+    }
     Ok(Light {
         direction: Vec3::from(d),
         rgb,
@@ -1235,6 +1263,7 @@ impl RenderArgs {
                 path: p.clone(),
                 lobes: self.env_lobes,
                 rotate_deg: self.rotate,
+                hdr: self.hdr.policy(),
             }),
         })
     }

@@ -20,7 +20,9 @@ pub const MARKER: &str = ".vkshade-output";
 
 /// The marker's text for `command`.
 fn marker_text(command: &str) -> String {
-    format!("vkshade output directory (safe to overwrite by vkshade {command})\ncommand: {command}\n")
+    format!(
+        "vkshade output directory (safe to overwrite by vkshade {command})\ncommand: {command}\n"
+    )
 }
 
 /// The command named by the marker in `dir`, if there is one.
@@ -218,10 +220,15 @@ mod tests {
         .unwrap();
         assert_eq!(std::fs::read(out.join("a")).unwrap(), b"1");
         // A failing rebuild leaves the first set and no temporary folder.
-        let e = replace(&out, "btf synth", |_| Err(Error::InvalidArgument("boom".into())));
+        let e = replace(&out, "btf synth", |_| {
+            Err(Error::InvalidArgument("boom".into()))
+        });
         assert!(e.is_err());
         assert_eq!(std::fs::read(out.join("a")).unwrap(), b"1");
-        let names: Vec<_> = std::fs::read_dir(&d).unwrap().map(|e| e.unwrap().file_name()).collect();
+        let names: Vec<_> = std::fs::read_dir(&d)
+            .unwrap()
+            .map(|e| e.unwrap().file_name())
+            .collect();
         assert_eq!(names, vec![std::ffi::OsString::from("set")], "{names:?}");
         // A rebuild replaces it whole.
         replace(&out, "btf synth", |t| {

@@ -96,7 +96,11 @@ pub fn write_dir(
     about: &impl serde::Serialize,
     command: &str,
 ) -> Result<()> {
-    if let Some(i) = btf.texels.iter().position(|t| t.iter().any(|c| !c.is_finite())) {
+    if let Some(i) = btf
+        .texels
+        .iter()
+        .position(|t| t.iter().any(|c| !c.is_finite()))
+    {
         let n = btf.image_len().max(1);
         let d = dirs::directions();
         let (s, texel) = (i / n, i % n);
