@@ -10,7 +10,9 @@ use vkshade::geom::visibility::direction_visibility;
 use vkshade::geom::{Bvh, Rng};
 use vkshade::reference::srbf::shade_brute_force;
 use vkshade::scene::EnvMap;
-use vkshade::scene::envmap::{HdrPolicy, MAX_RADIANCE};
+#[cfg(feature = "exr")]
+use vkshade::scene::envmap::HdrPolicy;
+use vkshade::scene::envmap::MAX_RADIANCE;
 
 fn dir() -> PathBuf {
     common::temp_dir("envmap")

@@ -51,7 +51,7 @@ impl Gpu {
 }
 
 /// A count option that must be at least 1 (clap words the refusal around the message,
-/// naming the flag: "invalid value '0' for '--clusters <CLUSTERS>': must be at least 1").
+/// naming the flag: "invalid value '0' for `'--clusters <CLUSTERS>'`: must be at least 1").
 pub fn at_least_one(s: &str) -> std::result::Result<usize, String> {
     match s.trim().parse::<usize>() {
         Ok(0) => Err("must be at least 1".into()),

@@ -501,6 +501,7 @@ fn transfer_for(
         &key,
         || {
             Transfer::load(&path)
+                .inspect_err(|e| log::warn!("{e}; recomputing the transfer"))
                 .ok()
                 .filter(|t| t.vertices == mesh.positions.len() && t.basis.len() == cfg.basis)
         },
@@ -556,9 +557,12 @@ fn cpca_for(
         &key,
         || {
             // A recomputed transfer invalidates its compression.
-            Cpca::load(&path).ok().filter(|c| {
-                transfer_cached && c.vertices == transfer.vertices && c.basis == transfer.basis
-            })
+            Cpca::load(&path)
+                .inspect_err(|e| log::warn!("{e}; recomputing the compression"))
+                .ok()
+                .filter(|c| {
+                    transfer_cached && c.vertices == transfer.vertices && c.basis == transfer.basis
+                })
         },
         || Cpca::compress(transfer, &settings),
         |c| c.save(&path),

@@ -109,6 +109,8 @@ pub const MAX_UNABSORBED: f64 = 0.01;
 /// undershoot, the neighbourhood's sum and the sun's energy are kept (to f32 rounding), and
 /// the sun's shape is only scaled. Energy no window could supply is clamped and reported as
 /// [`RingingRepair::energy_change`]; more than [`MAX_UNABSORBED`] of the map is an error.
+// `c` is the channel of every texel the window touches, not an index into one array.
+#[allow(clippy::needless_range_loop)]
 pub fn repair_ringing(
     width: usize,
     height: usize,
@@ -176,7 +178,7 @@ pub fn repair_ringing(
         return Ok(None);
     }
     let after = energy_of(texels);
-    if !(after > 0.0) || unabsorbed > MAX_UNABSORBED * after {
+    if after.is_nan() || after <= 0.0 || unabsorbed > MAX_UNABSORBED * after {
         return Err(format!(
             "{count} negative samples down to {most:e} whose energy the positive samples \
              within {REPAIR_RADIUS} texels cannot absorb ({:.3e} of a total {after:.3e} left \
