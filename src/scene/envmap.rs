@@ -77,12 +77,9 @@ impl std::fmt::Display for RingingRepair {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         write!(
             f,
-            "{} negative samples (codec ringing, down to {:e}) moved into their positive \
-             neighbours: {:.4}% of the map's energy moved, total energy changed by {:+.2e}%",
-            self.negative_samples,
-            self.most_negative,
-            100.0 * self.moved_fraction,
-            100.0 * self.energy_change
+            "{} negative samples (codec ringing, down to {:.3e}) moved into their positive \
+             neighbours: {:.2e} of the map's energy moved, total energy changed by {:+.2e}",
+            self.negative_samples, self.most_negative, self.moved_fraction, self.energy_change
         )
     }
 }
