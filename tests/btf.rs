@@ -395,7 +395,7 @@ fn directories_load_and_bad_ones_fail_clearly() {
     let cfg = SynthConfig::tile(Pattern::Rib, 4);
     let btf = synthesize(&cfg).unwrap();
     let dir = temp_dir("btf-load").join("rib");
-    write_dir(&btf, &dir, FileFormat::Png, &cfg).unwrap();
+    write_dir(&btf, &dir, FileFormat::Png, &cfg, "btf synth").unwrap();
     let loaded = load::load_dir(&dir).unwrap();
     assert_eq!(loaded.size, [4, 4]);
     // PNG holds 8-bit sRGB: the loaded values are the quantised originals.
@@ -431,6 +431,7 @@ fn directories_load_and_bad_ones_fail_clearly() {
         &small,
         FileFormat::Png,
         &"3x4",
+        "btf synth",
     )
     .unwrap();
     std::fs::copy(small.join("btf_tl045_pl040_tv030_pv060.png"), &victim).unwrap();

@@ -916,3 +916,209 @@ fn frame_part_flags_refuse_bad_entries() {
         assert!(!ok && stderr.contains(want), "{args:?}: {stderr}");
     }
 }
+
+/// Issue 21, point 5: `--part`'s default applies to the built-in character only. An OBJ
+/// without `--part` loads as OBJ (it used to be forced through the glTF loader: "not valid
+/// glTF: expected value at line 1 column 1"); an explicit `--part` with an OBJ is refused,
+/// saying OBJ has no parts.
+#[test]
+fn sss_part_default_applies_to_the_built_in_character_only() {
+    // A tetrahedron with UVs (each face its own corner of the unit square).
+    let obj = temp("face.obj");
+    std::fs::write(
+        &obj,
+        "v 0 0 0\nv 0.1 0 0\nv 0 0.1 0\nv 0 0 0.1\n\
+         vt 0.05 0.05\nvt 0.45 0.05\nvt 0.05 0.45\nvt 0.55 0.55\nvt 0.95 0.55\nvt 0.55 0.95\n\
+         f 1/1 3/2 2/3\nf 1/4 2/5 4/6\nf 1/1 4/2 3/3\nf 2/4 3/5 4/6\n",
+    )
+    .unwrap();
+    let out = temp("sss-obj");
+    let (ok, stdout, stderr) = vkshade(&[
+        "sss",
+        "--mesh",
+        obj.to_str().unwrap(),
+        "--size",
+        "32",
+        "--samples",
+        "2",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!stderr.contains("glTF"), "{stderr}");
+    assert!(ok, "stdout:\n{stdout}\nstderr:\n{stderr}");
+    let (ok, _, stderr) = vkshade(&["sss", "--mesh", obj.to_str().unwrap(), "--part", "Head"]);
+    assert!(!ok, "{stderr}");
+    assert!(
+        stderr.contains("face.obj") && stderr.contains("an OBJ file, which has no parts"),
+        "{stderr}"
+    );
+}
+
+/// Issue 21, point 5: numeric flags out of range are refused naming the flag and the
+/// bound, never with an internal message ("need 0 projected rows") or a struct dump.
+#[test]
+fn numeric_flags_out_of_range_name_the_flag_and_the_bound() {
+    let (ok, _, stderr) = vkshade(&["srbf", "shade", "--clusters", "0"]);
+    assert!(!ok, "{stderr}");
+    assert!(
+        stderr.contains("--clusters") && stderr.contains("at least 1"),
+        "{stderr}"
+    );
+    assert!(!stderr.contains("projected rows"), "{stderr}");
+    for (args, want) in [
+        (
+            &["sss", "--light", "dir:1e30,1e30,1e30"][..],
+            "--light 'dir:1e30,1e30,1e30': a coordinate is beyond +-1e18",
+        ),
+        (
+            &[
+                "sss",
+                "--light",
+                "point:1e17,0,0:1",
+                "--mesh",
+                "x.glb",
+                "--mm-per-unit",
+                "1000",
+            ][..],
+            "position in mm",
+        ),
+        (
+            &["sss", "--light", "dir:0,1,0:1e30"][..],
+            "strength must be finite and in 0..=1e12",
+        ),
+        (
+            &["btf", "render", "--btf", "x", "--light", "1e30,1e30,1e30"][..],
+            "--light '1e30,1e30,1e30': the direction's coordinates must be finite within +-1e18",
+        ),
+        (
+            &["btf", "render", "--btf", "x", "--light", "0,1,0,inf,1,1"][..],
+            "R,G,B must be finite",
+        ),
+        (
+            &["env", "--lobes", "0"][..],
+            "--lobes must be in 1..=64, not 0",
+        ),
+        (&["env", "--rotate", "nan"][..], "--rotate must be finite"),
+        (
+            &["srbf", "fit", "--fit-width", "0"][..],
+            "--fit-width must be even",
+        ),
+        (
+            &["frame", "--size", "0"][..],
+            "--size 0 must be in 16..=8192",
+        ),
+        (
+            &["frame", "--samples", "0"][..],
+            "--samples 0 must be in 1..=4096",
+        ),
+        (
+            &["frame", "--exposure", "nan"][..],
+            "--exposure NaN must be finite",
+        ),
+        (
+            &["frame", "--in-flight", "0"][..],
+            "--in-flight 0 must be in 1..=16",
+        ),
+    ] {
+        let (ok, _, stderr) = vkshade(args);
+        assert!(!ok && stderr.contains(want), "{args:?}: {stderr}");
+        assert!(!stderr.contains("Directional {"), "{args:?}: {stderr}");
+    }
+}
+
+/// Issue 21, point 3: a map whose texel (or RGBE exponent) overflows the fit's arithmetic
+/// is refused naming the file and the texel, instead of "relative L2 NaN" and null
+/// amplitudes with exit 0; and a fit is never written with a non-finite value.
+#[test]
+fn srbf_fit_refuses_an_overflowing_map_instead_of_printing_nan() {
+    // RGBE 8 x 4, every pixel 1.0 but one (255, 255, 255, e = 255): 255 x 2^119 ~ 1.7e38.
+    let mut bytes = b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 4 +X 8\n".to_vec();
+    for i in 0..32 {
+        bytes.extend(if i == 13 {
+            [255u8, 255, 255, 255]
+        } else {
+            [128, 128, 128, 129]
+        });
+    }
+    let hdr = temp("huge.hdr");
+    std::fs::write(&hdr, &bytes).unwrap();
+    let out = temp("huge-fit.json");
+    let (ok, stdout, stderr) = vkshade(&[
+        "srbf",
+        "fit",
+        "--env",
+        hdr.to_str().unwrap(),
+        "--lobes",
+        "8",
+        "-o",
+        out.to_str().unwrap(),
+    ]);
+    assert!(!ok, "{stdout}\n{stderr}");
+    assert!(
+        stderr.contains("huge.hdr") && stderr.contains("texel (5, 1)") && stderr.contains("above"),
+        "{stderr}"
+    );
+    assert!(
+        !stdout.contains("NaN") && !stderr.contains("NaN"),
+        "{stdout}\n{stderr}"
+    );
+    assert!(!out.exists());
+}
+
+/// Issue 21, point 4 through the CLI: a map with DWAB-like ringing beside a sun loads by
+/// default (the repair reported in the command's output and in the fit's JSON), and
+/// `--hdr-strict` refuses it.
+#[test]
+fn srbf_fit_repairs_codec_ringing_by_default_and_hdr_strict_refuses_it() {
+    use vkshade::io::{FloatImage, exr};
+    let mut img = FloatImage::new(64, 32, [0.5, 0.6, 0.8, 1.0]);
+    for y in 10..12 {
+        for x in 30..32 {
+            img.set(x, y, [11_800.0, 11_000.0, 9_500.0, 1.0]);
+        }
+    }
+    // A negative lobe beside the sun and a positive one next to it (zero sum).
+    img.set(33, 10, [-2_000.0, -1_900.0, -1_600.0, 1.0]);
+    img.set(34, 10, [2_000.5, 1_900.5, 1_600.5, 1.0]);
+    let map = temp("ringing.exr");
+    exr::write(&map, &img, exr::Channels::Rgb).unwrap();
+    let out = temp("ringing-fit.json");
+    let args = |strict: bool| {
+        let mut a = vec![
+            "srbf",
+            "fit",
+            "--env",
+            map.to_str().unwrap(),
+            "--lobes",
+            "8",
+            "--fit-width",
+            "32",
+            "-o",
+            out.to_str().unwrap(),
+        ];
+        if strict {
+            a.push("--hdr-strict");
+        }
+        a
+    };
+    let (ok, stdout, stderr) = vkshade(&args(false));
+    assert!(ok, "{stdout}\n{stderr}");
+    assert!(
+        stderr.contains("ringing.exr") && stderr.contains("3 negative samples"),
+        "{stderr}"
+    );
+    let v: serde_json::Value = serde_json::from_slice(&std::fs::read(&out).unwrap()).unwrap();
+    assert_eq!(v["hdr_repair"]["negative_samples"].as_u64(), Some(3), "{v}");
+    assert!(
+        v["hdr_repair"]["energy_change"].as_f64().unwrap().abs() < 1e-6,
+        "{v}"
+    );
+    std::fs::remove_file(&out).unwrap();
+    let (ok, _, stderr) = vkshade(&args(true));
+    assert!(!ok, "{stderr}");
+    assert!(
+        stderr.contains("ringing.exr") && stderr.contains("negative"),
+        "{stderr}"
+    );
+    assert!(!out.exists());
+}

@@ -10,6 +10,9 @@ use vkshade::geom::visibility::direction_visibility;
 use vkshade::geom::{Bvh, Rng};
 use vkshade::reference::srbf::shade_brute_force;
 use vkshade::scene::EnvMap;
+#[cfg(feature = "exr")]
+use vkshade::scene::envmap::HdrPolicy;
+use vkshade::scene::envmap::MAX_RADIANCE;
 
 fn dir() -> PathBuf {
     common::temp_dir("envmap")
@@ -387,21 +390,21 @@ fn exr_maps_load_and_bad_ones_are_errors() {
         assert_eq!((env.width, env.height), (8, 4));
         assert_eq!(env.texels[3 * 8 + 5], [5.0, 1.5, 0.25]);
     }
-    let e = load_err(&exr(
-        "nan.exr",
-        8,
-        4,
-        &|x, y| {
-            if (x, y) == (2, 1) {
-                [f32::NAN; 4]
-            } else {
-                f(x, y)
-            }
-        },
-        Channels::Rgb,
-    ));
+    // The project's writer refuses a NaN (issue 21), so this file is written by the exr
+    // crate directly, as another program would.
+    let nan = dir().join("nan.exr");
+    exr::prelude::write_rgb_file(&nan, 8, 4, |x, y| {
+        if (x, y) == (2, 1) {
+            (f32::NAN, f32::NAN, f32::NAN)
+        } else {
+            let p = f(x as u32, y as u32);
+            (p[0], p[1], p[2])
+        }
+    })
+    .unwrap();
+    let e = load_err(&nan);
     assert!(e.contains("non-finite") && e.contains("(2, 1)"), "{e}");
-    let e = load_err(&exr(
+    let neg = exr(
         "neg.exr",
         8,
         4,
@@ -413,9 +416,14 @@ fn exr_maps_load_and_bad_ones_are_errors() {
             }
         },
         Channels::Rgb,
-    ));
-    // -0.5 against a mean sample of ~1.4 is an error; ringing-sized (-0.01) becomes 0.
+    );
+    // Strict: -0.5 against a mean sample of ~1.4 is an error; ringing-sized (-0.01) becomes
+    // 0. The default repairs both (tests/envmap.rs's ringing test measures how).
+    let e = common::error_naming(&neg, EnvMap::load_with(&neg, HdrPolicy::Strict));
     assert!(e.contains("negative") && e.contains("ringing"), "{e}");
+    let repaired = EnvMap::load(&neg).unwrap();
+    assert_eq!(repaired.texels[3 * 8 + 7], [0.0, 0.0, 0.0]);
+    assert_eq!(repaired.repair.as_ref().unwrap().negative_samples, 1);
     let ring = |x, y| {
         if (x, y) == (7, 3) {
             [-0.01, 0.0, 0.0, 1.0]
@@ -424,7 +432,10 @@ fn exr_maps_load_and_bad_ones_are_errors() {
         }
     };
     let p = exr("ring.exr", 8, 4, &ring, Channels::Rgb);
-    assert_eq!(EnvMap::load(&p).unwrap().texels[3 * 8 + 7], [0.0, 0.0, 0.0]);
+    assert_eq!(
+        EnvMap::load_with(&p, HdrPolicy::Strict).unwrap().texels[3 * 8 + 7],
+        [0.0, 0.0, 0.0]
+    );
     let p = exr(
         "allneg.exr",
         8,
@@ -750,4 +761,167 @@ fn brute_force_rejects_mismatched_inputs() {
     ));
     assert!(e.contains("albedo"), "{e}");
     assert!(shade_brute_force(&env, Mat3::IDENTITY, &[Vec3::Y], &vis, [1.0; 3]).is_ok());
+}
+
+/// Texels that would overflow the f32 sums after the loader (issue 21): a 3e38 texel in an
+/// EXR or an in-memory map, and an RGBE file whose exponent decodes to ~1.7e38, are refused
+/// naming the file and the texel; 1e12 (the bound) loads.
+#[test]
+fn texels_above_the_radiance_bound_are_refused() {
+    let mut t = vec![[1.0f32; 3]; 8 * 4];
+    t[9] = [3e38, 1.0, 1.0];
+    let e = common::error_naming(
+        Path::new("huge"),
+        EnvMap::from_texels(8, 4, t.clone(), "huge"),
+    );
+    assert!(e.contains("texel (1, 1)") && e.contains("1e12"), "{e}");
+    t[9] = [MAX_RADIANCE; 3];
+    assert!(EnvMap::from_texels(8, 4, t, "edge").is_ok());
+    // RGBE (255, 255, 255, 255): 255 x 2^119 ~ 1.7e38.
+    let mut px = vec![[128u8, 128, 128, 129]; 8 * 4];
+    px[30] = [255, 255, 255, 255];
+    let p = write("huge.hdr", &rgbe_file(8, 4, &px, false, '-'));
+    let e = load_err(&p);
+    assert!(e.contains("texel (6, 3)") && e.contains("above"), "{e}");
+    #[cfg(feature = "exr")]
+    {
+        let img = vkshade::io::FloatImage {
+            width: 8,
+            height: 4,
+            pixels: (0..32)
+                .map(|i| {
+                    if i == 5 {
+                        [3e38, 0.0, 0.0, 1.0]
+                    } else {
+                        [0.5; 4]
+                    }
+                })
+                .collect(),
+        };
+        let p = dir().join("huge.exr");
+        vkshade::io::exr::write(&p, &img, vkshade::io::exr::Channels::Rgb).unwrap();
+        let e = load_err(&p);
+        assert!(e.contains("texel (5, 0)") && e.contains("above"), "{e}");
+    }
+}
+
+/// A sun with DWAB-like ringing (issue 21, point 4): the ring-free map is a dim sky plus a
+/// 4 x 4 texel sun of 11,800; the ringing adds, around the sun, a zero-sum oscillation
+/// (a damped cosine in the distance from the sun, its mean removed per 8 x 8 block) scaled
+/// so its most negative sample is about -2,000. Written as EXR through the project's
+/// writer, the map loads by default with no negative texel, and its energy (the integral
+/// over the sphere, per channel) is within 1e-4 (relative) of the ring-free map's: the
+/// repair moves the negative lobes' energy into the positive ones beside them, and the
+/// ringing itself adds (to f32 rounding) no energy; clamping instead would add the
+/// negative lobes' whole energy (measured here too, as the figure the repair avoids).
+/// Under `HdrPolicy::Strict` the map is refused.
+#[cfg(feature = "exr")]
+#[test]
+fn a_sun_with_codec_ringing_loads_keeping_its_energy_and_strict_refuses_it() {
+    let (w, h) = (256usize, 128usize);
+    let sun = (100usize, 40usize);
+    let clean: Vec<[f32; 3]> = (0..w * h)
+        .map(|i| {
+            let (x, y) = (i % w, i / w);
+            if (sun.0..sun.0 + 4).contains(&x) && (sun.1..sun.1 + 4).contains(&y) {
+                [11_800.0, 11_000.0, 9_500.0]
+            } else {
+                [0.3, 0.4, 0.6]
+            }
+        })
+        .collect();
+    // The ringing: damped cosine of the distance to the sun's centre, within 12 texels,
+    // zero energy over each 8 x 8 block (its solid-angle-weighted mean removed), so the
+    // ringing map's energy is the ring-free map's (to f32 rounding of the texels).
+    let clean_map = EnvMap::from_texels(w as u32, h as u32, clean.clone(), "clean").unwrap();
+    let omega = |y: usize| clean_map.solid_angle(y as u32);
+    let mut ring = vec![0.0f64; w * h];
+    let (cx, cy) = (sun.0 as f64 + 2.0, sun.1 as f64 + 2.0);
+    for y in 0..h {
+        for x in 0..w {
+            let d = ((x as f64 + 0.5 - cx).powi(2) + (y as f64 + 0.5 - cy).powi(2)).sqrt();
+            if d < 12.0 && d > 2.9 {
+                ring[y * w + x] = (d * 1.9).cos() * (-d / 6.0).exp();
+            }
+        }
+    }
+    for by in (0..h).step_by(8) {
+        for bx in (0..w).step_by(8) {
+            let idx: Vec<usize> = (by..by + 8)
+                .flat_map(|y| (bx..bx + 8).map(move |x| y * w + x))
+                .collect();
+            if idx.iter().all(|&i| ring[i] == 0.0) {
+                continue;
+            }
+            let e: f64 = idx.iter().map(|&i| ring[i] * omega(i / w)).sum();
+            let o: f64 = idx.iter().map(|&i| omega(i / w)).sum();
+            idx.iter().for_each(|&i| ring[i] -= e / o);
+        }
+    }
+    let min = ring.iter().cloned().fold(0.0, f64::min);
+    let scale = -2_000.0 / min;
+    let ringing: Vec<[f32; 3]> = clean
+        .iter()
+        .zip(&ring)
+        .map(|(c, r)| c.map(|v| v + (r * scale) as f32))
+        .collect();
+    let negatives = ringing.iter().flatten().filter(|v| **v < 0.0).count();
+    let most = ringing.iter().flatten().cloned().fold(0.0f32, f32::min);
+    assert!(
+        negatives > 20 && most < -1_500.0,
+        "{negatives} negatives down to {most}"
+    );
+    let img = vkshade::io::FloatImage {
+        width: w as u32,
+        height: h as u32,
+        pixels: ringing.iter().map(|t| [t[0], t[1], t[2], 1.0]).collect(),
+    };
+    let path = dir().join("sun-ringing.exr");
+    vkshade::io::exr::write(&path, &img, vkshade::io::exr::Channels::Rgb).unwrap();
+
+    let truth = clean_map.integral();
+    // The signed ringing map's energy: equal to the truth but for f32 rounding.
+    let mut ringing_energy = [0.0f64; 3];
+    for (y, row) in ringing.chunks(w).enumerate() {
+        for t in row {
+            for c in 0..3 {
+                ringing_energy[c] += t[c] as f64 * omega(y);
+            }
+        }
+    }
+    let loaded = EnvMap::load(&path).unwrap();
+    assert!(loaded.texels.iter().flatten().all(|v| *v >= 0.0));
+    let repair = loaded.repair.clone().expect("a repair report");
+    assert_eq!(repair.negative_samples, negatives);
+    assert_eq!(repair.most_negative, most);
+    let got = loaded.integral();
+    let clamped = {
+        let t: Vec<[f32; 3]> = ringing.iter().map(|t| t.map(|v| v.max(0.0))).collect();
+        EnvMap::from_texels(w as u32, h as u32, t, "clamped")
+            .unwrap()
+            .integral()
+    };
+    for c in 0..3 {
+        let rel = (got[c] - truth[c]).abs() / truth[c];
+        let ring_rel = (ringing_energy[c] - truth[c]).abs() / truth[c];
+        let clamp_rel = (clamped[c] - truth[c]) / truth[c];
+        println!(
+            "channel {c}: repaired {rel:.2e}, ringing itself {ring_rel:.2e}, clamping {clamp_rel:.2e} \
+             (relative to the ring-free energy); {repair}"
+        );
+        assert!(rel < 1e-4, "channel {c}: {rel:e}");
+        // The repair keeps the ringing map's energy, and clamping would not have.
+        assert!(
+            clamp_rel > 10.0 * rel.max(1e-6),
+            "channel {c}: clamp {clamp_rel:e}"
+        );
+    }
+    assert!(repair.energy_change.abs() < 1e-5, "{repair:?}");
+    assert!(repair.moved_fraction > 1e-3, "{repair:?}");
+    // The sun is still where it was and about as bright.
+    let s = loaded.texel(sun.0 as u32 + 1, sun.1 as u32 + 1);
+    assert!(s[0] > 10_000.0 && s[0] < 13_000.0, "{s:?}");
+    // Strict refuses it, naming the file.
+    let e = common::error_naming(&path, EnvMap::load_with(&path, HdrPolicy::Strict));
+    assert!(e.contains("negative"), "{e}");
 }

@@ -523,7 +523,7 @@ impl GpuFrame {
 /// DIR/report.json. With `cfg.reference`, each picture is result | ray-traced truth | error.
 pub fn run(ctx: &Context, cfg: &AoRunConfig, progress: &mut dyn FnMut(&str)) -> Result<AoReport> {
     cfg.validate()?;
-    crate::io::check_writable(&cfg.out.join("report.json"))?;
+    crate::io::outdir::claim(&cfg.out, "ao")?;
     let character = scene::load(&cfg.mesh)?;
     let anim = character.pick_animation(cfg.animation.as_deref())?;
     let mesh = &character.mesh;

@@ -838,10 +838,7 @@ fn all(
             KERNELS.join(", ")
         )));
     }
-    std::fs::create_dir_all(dir).map_err(|e| Error::Io {
-        path: dir.to_path_buf(),
-        source: e,
-    })?;
+    crate::io::outdir::claim(dir, "bench all")?;
     let (json, summary, png) = (
         dir.join("all.json"),
         dir.join("summary.md"),

@@ -53,6 +53,7 @@ pub fn synth_command(
         ..SynthConfig::tile(pattern, size)
     };
     cfg.check()?;
+    crate::io::outdir::check_claimable(out, "btf synth")?;
     let t = Instant::now();
     let btf = synth::synthesize(&cfg)?;
     let meta = SynthMeta {
@@ -67,7 +68,7 @@ pub fn synth_command(
         ),
         ms: t.elapsed().as_secs_f64() * 1e3,
     };
-    synth::write_dir(&btf, out, format, &meta)?;
+    synth::write_dir(&btf, out, format, &meta, "btf synth")?;
     Ok(meta)
 }
 
@@ -208,6 +209,8 @@ pub struct EnvConfig {
     pub path: PathBuf,
     pub lobes: usize,
     pub rotate_deg: f32,
+    /// How negative samples of the map (codec ringing) are treated.
+    pub hdr: crate::scene::envmap::HdrPolicy,
 }
 
 impl EnvConfig {
@@ -221,7 +224,10 @@ impl EnvConfig {
         glam::Mat3,
     )> {
         use crate::kernels::srbf::fit::{FitConfig, fit};
-        let map = crate::scene::envmap::EnvMap::load(&self.path)?;
+        let map = crate::scene::envmap::EnvMap::load_with(&self.path, self.hdr)?;
+        if let Some(r) = &map.repair {
+            super::progress(&format!("{}: {r}", self.path.display()));
+        }
         let small = map.downsampled(128.min(map.width))?;
         let fitted = fit(
             &small.samples(),
@@ -358,7 +364,7 @@ pub fn render(
     progress: &mut dyn FnMut(&str),
 ) -> Result<RenderReport> {
     let report_path = cfg.out.join("report.json");
-    crate::io::check_writable(&report_path)?;
+    crate::io::outdir::claim(&cfg.out, "btf render")?;
     let meta = if cfg.reference {
         Some(read_meta(&cfg.btf).map_err(|e| {
             Error::InvalidArgument(format!(
@@ -893,6 +899,7 @@ pub fn tile_command(
     format: FileFormat,
     out: &Path,
 ) -> Result<TileReport> {
+    crate::io::outdir::check_claimable(out, "btf tile")?;
     let btf = load::load_dir(dir)?;
     let period = load::find_period(&btf)?;
     let tile = load::cut_tile(&btf, origin, period.period)?;
@@ -901,7 +908,7 @@ pub fn tile_command(
         period,
         origin,
     };
-    synth::write_dir(&tile, out, format, &report)?;
+    synth::write_dir(&tile, out, format, &report, "btf tile")?;
     Ok(report)
 }
 
@@ -1041,6 +1048,8 @@ pub struct RenderArgs {
     /// With --env: SG lobes fitted to the map.
     #[arg(long, default_value_t = 32)]
     pub env_lobes: usize,
+    #[command(flatten)]
+    pub hdr: super::Hdr,
 }
 
 impl Command {
@@ -1187,6 +1196,27 @@ fn parse_light(s: &str) -> Result<Light> {
             )));
         }
     };
+    let bound = crate::kernels::sss::cpu::MAX_LIGHT_COORDINATE;
+    let strength = crate::kernels::sss::cpu::MAX_LIGHT_STRENGTH;
+    if d.iter().any(|x| !x.is_finite() || x.abs() > bound) {
+        return Err(Error::InvalidArgument(format!(
+            "--light '{s}': the direction's coordinates must be finite within +-{bound:e} \
+             (normalising a larger vector overflows f32)"
+        )));
+    }
+    if Vec3::from(d).length() < 1e-6 {
+        return Err(Error::InvalidArgument(format!(
+            "--light '{s}': zero direction"
+        )));
+    }
+    if rgb
+        .iter()
+        .any(|c| !(c.is_finite() && (0.0..=strength).contains(c)))
+    {
+        return Err(Error::InvalidArgument(format!(
+            "--light '{s}': R,G,B must be finite and in 0..={strength:e}"
+        )));
+    }
     Ok(Light {
         direction: Vec3::from(d),
         rgb,
@@ -1233,6 +1263,7 @@ impl RenderArgs {
                 path: p.clone(),
                 lobes: self.env_lobes,
                 rotate_deg: self.rotate,
+                hdr: self.hdr.policy(),
             }),
         })
     }
@@ -1354,7 +1385,7 @@ pub fn render_anim(
     progress: &mut dyn FnMut(&str),
 ) -> Result<AnimReport> {
     let report_path = out.join("anim.json");
-    crate::io::check_writable(&report_path)?;
+    crate::io::outdir::claim(out, "btf render")?;
     if frames == 0 || !(frame_rate.is_finite() && frame_rate > 0.0) {
         return Err(Error::InvalidArgument(format!(
             "--frames {frames} and --frame-rate {frame_rate}: need at least one frame at a positive rate"

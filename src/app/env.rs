@@ -16,8 +16,8 @@ use crate::kernels::env::cpu::{self as env_cpu, TruthConfig};
 use crate::kernels::env::{EnvKernel, PASS_ROTATE, PASS_SHADOW};
 use crate::kernels::pose::{PoseKernel, Prepared as PosePrepared};
 use crate::kernels::srbf::fit::{FitConfig, fit};
+use crate::scene::Character;
 use crate::scene::spheretree::{BuildConfig, SphereTree};
-use crate::scene::{Character, EnvMap};
 use glam::{Mat3, Mat4, Vec3, Vec4};
 use std::path::{Path, PathBuf};
 use std::time::Instant;
@@ -47,6 +47,8 @@ pub struct EnvRunConfig {
     pub rays: usize,
     /// Output folder.
     pub out: PathBuf,
+    /// How negative samples of the map (codec ringing) are treated.
+    pub hdr: crate::scene::envmap::HdrPolicy,
 }
 
 impl Default for EnvRunConfig {
@@ -63,6 +65,7 @@ impl Default for EnvRunConfig {
             reference: false,
             rays: 2048,
             out: PathBuf::from("out/env"),
+            hdr: Default::default(),
         }
     }
 }
@@ -97,7 +100,7 @@ impl EnvScene {
     /// fits the environment.
     pub fn load(cfg: &EnvRunConfig, progress: &mut dyn FnMut(&str)) -> Result<EnvScene> {
         let t = Instant::now();
-        let map = EnvMap::load(&cfg.env)?;
+        let map = super::load_env(&cfg.env, cfg.hdr, progress)?;
         let small = map.downsampled(cfg.fit_width.min(map.width))?;
         let fitted = fit(
             &small.samples(),
@@ -268,7 +271,20 @@ pub fn run(ctx: &Context, cfg: &EnvRunConfig, progress: &mut dyn FnMut(&str)) ->
     if cfg.frames == 0 {
         return Err(Error::InvalidArgument("--frames must be at least 1".into()));
     }
-    crate::io::check_writable(&cfg.out.join("report.json"))?;
+    if !cfg.rotate_deg.is_finite() {
+        return Err(Error::InvalidArgument(format!(
+            "--rotate must be finite, not {}",
+            cfg.rotate_deg
+        )));
+    }
+    let max = crate::kernels::env::MAX_LOBES;
+    if !(1..=max).contains(&cfg.lobes) {
+        return Err(Error::InvalidArgument(format!(
+            "--lobes must be in 1..={max}, not {}",
+            cfg.lobes
+        )));
+    }
+    crate::io::outdir::claim(&cfg.out, "env")?;
     let scene = EnvScene::load(cfg, progress)?;
     run_scene(ctx, cfg, &scene, progress)
 }
@@ -493,6 +509,8 @@ pub struct Args {
     /// Output folder.
     #[arg(long, default_value = "out/env")]
     pub out: PathBuf,
+    #[command(flatten)]
+    pub hdr: super::Hdr,
 }
 
 impl Args {
@@ -508,6 +526,7 @@ impl Args {
             reference: self.reference,
             rays: self.rays,
             out: self.out.clone(),
+            hdr: self.hdr.policy(),
             ..EnvRunConfig::default()
         }
     }

@@ -34,6 +34,8 @@ pub struct Args {
     /// No environment: the directional lights alone.
     #[arg(long)]
     pub no_env: bool,
+    #[command(flatten)]
+    pub hdr: super::Hdr,
     /// Lobes of the environment's fit.
     #[arg(long, default_value_t = 16)]
     pub env_lobes: usize,
@@ -181,6 +183,7 @@ impl Args {
             exposure: self.exposure,
             env: (!self.no_env).then(|| self.env.clone()),
             env_lobes: self.env_lobes,
+            env_hdr: self.hdr.policy(),
             ao_correction_rays: self.ao_correction_rays,
             materials: match self.materials.as_str() {
                 "measured" => crate::frame::Materials::Measured,
@@ -198,6 +201,30 @@ impl Args {
         }
         if !self.rotate.is_finite() {
             return Err(Error::InvalidArgument("--rotate must be finite".into()));
+        }
+        if !(16..=8192).contains(&self.size) {
+            return Err(Error::InvalidArgument(format!(
+                "--size {} must be in 16..=8192",
+                self.size
+            )));
+        }
+        if !(1..=4096).contains(&self.samples) {
+            return Err(Error::InvalidArgument(format!(
+                "--samples {} must be in 1..=4096",
+                self.samples
+            )));
+        }
+        if !(self.exposure.is_finite() && self.exposure > 0.0) {
+            return Err(Error::InvalidArgument(format!(
+                "--exposure {} must be finite and > 0",
+                self.exposure
+            )));
+        }
+        if !(1..=16).contains(&self.in_flight) {
+            return Err(Error::InvalidArgument(format!(
+                "--in-flight {} must be in 1..=16",
+                self.in_flight
+            )));
         }
         if self.reference && !(1..=1 << 20).contains(&self.rays) {
             return Err(Error::InvalidArgument(format!(
@@ -217,7 +244,7 @@ impl Args {
     /// Runs the frames and writes everything under `--out`.
     pub fn run(&self, gpu: &Gpu) -> Result<()> {
         let cfg = self.config()?;
-        crate::io::check_writable(&self.out)?;
+        crate::io::outdir::check_claimable(&self.out, "frame")?;
         let ctx = context(gpu)?;
         eprintln!("vkshade frame on {}", ctx.info().name);
         let t = Instant::now();
@@ -331,7 +358,7 @@ pub fn render(
     let t0 = Instant::now();
     let frame = CharacterFrame::new(ctx, cfg, progress)?;
     let setup_ms = t0.elapsed().as_secs_f64() * 1e3;
-    std::fs::create_dir_all(&args.out).map_err(|e| Error::io(&args.out, e))?;
+    crate::io::outdir::claim(&args.out, "frame")?;
     let n = args.frames;
     let duration = frame.animation().duration;
     let inputs: Vec<FrameInput> = (0..n)

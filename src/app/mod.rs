@@ -50,6 +50,51 @@ impl Gpu {
     }
 }
 
+/// A count option that must be at least 1 (clap words the refusal around the message,
+/// naming the flag: "invalid value '0' for `'--clusters <CLUSTERS>'`: must be at least 1").
+pub fn at_least_one(s: &str) -> std::result::Result<usize, String> {
+    match s.trim().parse::<usize>() {
+        Ok(0) => Err("must be at least 1".into()),
+        Ok(n) => Ok(n),
+        Err(e) => Err(format!("not a whole number: {e}")),
+    }
+}
+
+/// The environment-map loading option of every command that takes `--env`.
+#[derive(clap::Args, Clone, Copy, Debug, Default)]
+pub struct Hdr {
+    /// Refuse environment maps with negative samples below -5% of the map's mean (the
+    /// default removes lossy-codec ringing beside a bright sun, keeping each
+    /// neighbourhood's energy, and reports what it changed).
+    #[arg(long)]
+    pub hdr_strict: bool,
+}
+
+impl Hdr {
+    /// The loader's policy.
+    pub fn policy(self) -> crate::scene::envmap::HdrPolicy {
+        if self.hdr_strict {
+            crate::scene::envmap::HdrPolicy::Strict
+        } else {
+            crate::scene::envmap::HdrPolicy::Repair
+        }
+    }
+}
+
+/// Loads the environment map `path` under `policy`, saying through `progress` what the
+/// ringing repair changed (if anything).
+pub fn load_env(
+    path: &std::path::Path,
+    policy: crate::scene::envmap::HdrPolicy,
+    progress: &mut dyn FnMut(&str),
+) -> Result<crate::scene::envmap::EnvMap> {
+    let map = crate::scene::envmap::EnvMap::load_with(path, policy)?;
+    if let Some(r) = &map.repair {
+        progress(&format!("{}: {r}", path.display()));
+    }
+    Ok(map)
+}
+
 /// Shuts the context down; with validation, any message collected is an error.
 pub fn finish(ctx: Context) -> Result<()> {
     let validated = ctx.validation_enabled();

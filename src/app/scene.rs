@@ -1,7 +1,7 @@
 //! `vkshade spheretree build` and `vkshade mesh info`: the scene tools, and the sphere-tree
 //! options `vkshade ao` shares with them.
 
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::scene::spheretree::{BuildConfig, Fit, FitReport};
 use std::path::{Path, PathBuf};
 
@@ -73,6 +73,35 @@ fn build_tree(mesh: &Path, out: &Path, opts: &TreeOpts, report: Option<&Path>) -
     let t = std::time::Instant::now();
     let (tree, fit) = crate::scene::SphereTree::build(&c.mesh, &opts.config())?;
     let ms = t.elapsed().as_secs_f64() * 1e3;
+    // A mesh with huge coordinates can give an infinite radius: never write what
+    // `ao --tree` would refuse.
+    let bad = tree
+        .spheres
+        .iter()
+        .zip(&tree.importance)
+        .enumerate()
+        .find_map(|(i, (sp, imp))| {
+            let fields = [
+                ("centre x", sp.center.x),
+                ("centre y", sp.center.y),
+                ("centre z", sp.center.z),
+                ("radius", sp.radius),
+                ("importance", *imp),
+            ];
+            fields
+                .into_iter()
+                .find(|(_, v)| !v.is_finite())
+                .map(|(what, v)| format!("sphere {i} has a non-finite {what} ({v})"))
+        });
+    if let Some(m) = bad {
+        return Err(Error::input(
+            out,
+            format!(
+                "not written: the tree of {} is not finite: {m}",
+                mesh.display()
+            ),
+        ));
+    }
     tree.write_sph(out)?;
     println!(
         "{}: {} levels below the root, branch {}, fit {:?}, from {} ({} cells of {:.4}), {ms:.0} ms",

@@ -179,6 +179,8 @@ pub struct ShadeConfig {
     /// use (visibility is ray-cast for each of them).
     pub direction_width: u32,
     pub out: PathBuf,
+    /// How negative samples of the map (codec ringing) are treated.
+    pub hdr: crate::scene::envmap::HdrPolicy,
     pub image: (u32, u32),
     /// Relative error at the top of the heat map.
     pub error_scale: f32,
@@ -227,6 +229,7 @@ impl Default for ShadeConfig {
             fit_width: 128,
             direction_width: 64,
             out: PathBuf::from("out/srbf"),
+            hdr: Default::default(),
             image: (640, 480),
             error_scale: 0.1,
             in_flight: 2,
@@ -262,7 +265,14 @@ impl ShadeConfig {
         }
         let max_rows = crate::kernels::srbf::gpu::MAX_ROWS;
         let rows = crate::kernels::srbf::gpu::rows_needed(self.clusters, self.components);
-        if self.clusters == 0 || (self.components > 0 && rows > max_rows) {
+        if self.clusters == 0 {
+            return bad(
+                "--clusters must be at least 1 (--components 0 keeps the transfer \
+                 uncompressed)"
+                    .into(),
+            );
+        }
+        if self.components > 0 && rows > max_rows {
             return bad(format!(
                 "--clusters {} x --components {} need {rows} projected rows; the GPU path \
                  holds {max_rows} (fewer clusters or components)",
@@ -491,6 +501,7 @@ fn transfer_for(
         &key,
         || {
             Transfer::load(&path)
+                .inspect_err(|e| log::warn!("{e}; recomputing the transfer"))
                 .ok()
                 .filter(|t| t.vertices == mesh.positions.len() && t.basis.len() == cfg.basis)
         },
@@ -546,9 +557,12 @@ fn cpca_for(
         &key,
         || {
             // A recomputed transfer invalidates its compression.
-            Cpca::load(&path).ok().filter(|c| {
-                transfer_cached && c.vertices == transfer.vertices && c.basis == transfer.basis
-            })
+            Cpca::load(&path)
+                .inspect_err(|e| log::warn!("{e}; recomputing the compression"))
+                .ok()
+                .filter(|c| {
+                    transfer_cached && c.vertices == transfer.vertices && c.basis == transfer.basis
+                })
         },
         || Cpca::compress(transfer, &settings),
         |c| c.save(&path),
@@ -562,10 +576,10 @@ pub fn shade(
     progress: &mut dyn FnMut(&str),
 ) -> Result<ShadeReport> {
     cfg.validate()?;
-    crate::io::check_writable(&cfg.out.join("report.json"))?;
+    crate::io::outdir::claim(&cfg.out, "srbf shade")?;
     let character = scene::load(&cfg.mesh)?;
     let mesh = &character.mesh;
-    let env = EnvMap::load(&cfg.env)?;
+    let env = super::load_env(&cfg.env, cfg.hdr, progress)?;
     progress(&format!(
         "{}: {} vertices; {}: {}x{}",
         cfg.mesh.display(),
@@ -1471,6 +1485,8 @@ impl Pictures {
 pub struct FitReport {
     pub tool: &'static str,
     pub env: String,
+    /// What loading the map changed (codec ringing removed), if anything.
+    pub hdr_repair: Option<crate::scene::envmap::RingingRepair>,
     pub fit_size: [u32; 2],
     /// (lobes, solid-angle-weighted relative L2, per channel, ms) for each lobe count tried.
     pub errors: Vec<(usize, f64, [f64; 3], f64)>,
@@ -1481,6 +1497,7 @@ pub struct FitReport {
 /// writes the largest fit to `out`.
 pub fn fit_command(
     env: &Path,
+    hdr: crate::scene::envmap::HdrPolicy,
     lobes: usize,
     fit_width: u32,
     out: &Path,
@@ -1491,8 +1508,13 @@ pub fn fit_command(
             "--lobes must be in 1..=4096, not {lobes}"
         )));
     }
+    if fit_width < 2 || !fit_width.is_multiple_of(2) {
+        return Err(Error::InvalidArgument(format!(
+            "--fit-width must be even and at least 2, not {fit_width}"
+        )));
+    }
     crate::io::check_writable(out)?;
-    let map = EnvMap::load(env)?;
+    let map = super::load_env(env, hdr, progress)?;
     let small = map.downsampled(fit_width.min(map.width))?;
     let samples = small.samples();
     let mut counts: Vec<usize> = std::iter::successors(Some(8usize), |n| Some(n * 2))
@@ -1521,10 +1543,35 @@ pub fn fit_command(
     let report = FitReport {
         tool: "vkshade srbf fit",
         env: env.display().to_string(),
+        hdr_repair: map.repair.clone(),
         fit_size: [small.width, small.height],
         errors,
         lobes: last.map(|f| f.lobes).unwrap_or_default(),
     };
+    // JSON has no NaN (serde writes null): refuse rather than write a fit nobody can use.
+    let bad_lobe = report.lobes.iter().enumerate().find_map(|(i, l)| {
+        let values = l.axis.iter().chain([&l.sharpness]).chain(&l.amplitude);
+        values.clone().position(|x| !x.is_finite()).map(|c| {
+            format!(
+                "lobe {i}, value {c} (axis x, y, z, sharpness, amplitude r, g, b) is {}",
+                values.clone().nth(c).copied().unwrap_or(f32::NAN)
+            )
+        })
+    });
+    let bad_error = report
+        .errors
+        .iter()
+        .find(|e| !(e.1.is_finite() && e.2.iter().all(|c| c.is_finite())))
+        .map(|e| format!("the {}-lobe fit's relative L2 is {}", e.0, e.1));
+    if let Some(m) = bad_lobe.or(bad_error) {
+        return Err(Error::input(
+            out,
+            format!(
+                "not written: the fit to {} is not finite: {m}",
+                env.display()
+            ),
+        ));
+    }
     crate::io::write_json(out, &report)?;
     Ok(report)
 }
@@ -1542,8 +1589,10 @@ pub enum Command {
         /// Width of the downsampled map the lobes are fitted to.
         #[arg(long, default_value_t = 128)]
         fit_width: u32,
-        #[arg(short = 'o', long, default_value = "out/srbf/fit.json")]
+        #[arg(short = 'o', long, default_value = "out/srbf-fit.json")]
         out: PathBuf,
+        #[command(flatten)]
+        hdr: super::Hdr,
     },
     /// Shade a mesh under a rotated environment: per frame DIR/shade_NNNN.ply (per-vertex
     /// linear RGB radiance r, g, b) and DIR/shade_NNNN.png (with --reference: result |
@@ -1565,8 +1614,8 @@ pub struct ShadeArgs {
     /// Transfer basis functions (spherical Gaussians on a Fibonacci lattice).
     #[arg(long, default_value_t = 256)]
     pub basis: usize,
-    /// Clusters of the clustered-PCA transfer compression.
-    #[arg(long, default_value_t = 64)]
+    /// Clusters of the clustered-PCA transfer compression (at least 1).
+    #[arg(long, default_value_t = 64, value_parser = super::at_least_one)]
     pub clusters: usize,
     /// Principal components per cluster (0: the uncompressed transfer).
     #[arg(long, default_value_t = 16)]
@@ -1614,6 +1663,8 @@ pub struct ShadeArgs {
     pub in_flight: usize,
     #[arg(long, default_value = "out/srbf")]
     pub out: PathBuf,
+    #[command(flatten)]
+    pub hdr: super::Hdr,
     /// The surface's BRDF: diffuse, or phong (kd / pi + ks (n + 2) / (2 pi) cos^n of the
     /// angle to the mirror direction; --exponent, --kd, --ks): glossy, shaded toward
     /// --camera through per-vertex transfer matrices over a --views x --views view grid.
@@ -1676,8 +1727,11 @@ impl Command {
                 lobes,
                 fit_width,
                 out,
+                hdr,
             } => {
-                let r = fit_command(env, *lobes, *fit_width, out, &mut |l| super::progress(l))?;
+                let r = fit_command(env, hdr.policy(), *lobes, *fit_width, out, &mut |l| {
+                    super::progress(l)
+                })?;
                 println!(
                     "fitted {} lobes to {} ({}x{}): relative L2 {:.4}; wrote {}",
                     r.lobes.len(),
@@ -1721,6 +1775,7 @@ impl ShadeArgs {
             sun: self.sun,
             in_flight: self.in_flight,
             out: self.out.clone(),
+            hdr: self.hdr.policy(),
             brdf: match self.brdf {
                 BrdfKind::Diffuse => Brdf::Diffuse,
                 BrdfKind::Phong => Brdf::Phong {

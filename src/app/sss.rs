@@ -314,7 +314,7 @@ pub struct SssReport {
 /// Runs `vkshade sss`.
 pub fn run(ctx: &Context, cfg: &SssConfig, progress: &mut dyn FnMut(&str)) -> Result<SssReport> {
     cfg.validate()?;
-    crate::io::check_writable(&cfg.out.join("report.json"))?;
+    crate::io::outdir::claim(&cfg.out, "sss")?;
     let lights = cfg.parsed_lights()?;
     let character = load_character(&cfg.mesh, cfg.part.as_deref())?;
     let anim = match &cfg.anim {
@@ -1484,8 +1484,10 @@ pub struct Args {
     #[arg(long, default_value = DEFAULT_MESH)]
     pub mesh: PathBuf,
     /// Use only this glTF mesh (node or mesh name); `--part ''` uses the whole file.
-    #[arg(long, default_value = DEFAULT_PART)]
-    pub part: String,
+    /// Default: Head for the built-in character, the whole file for any other mesh (OBJ,
+    /// PLY and OFF files have no parts).
+    #[arg(long)]
+    pub part: Option<String>,
     /// Millimetres per model unit (scattering coefficients are per mm). Default: 1, or
     /// 1000 for the built-in BCN_Epileptic mesh (modelled in metres).
     #[arg(long)]
@@ -1571,7 +1573,12 @@ impl Args {
         };
         Ok(SssConfig {
             mesh: self.mesh.clone(),
-            part: (!self.part.is_empty()).then(|| self.part.clone()),
+            part: match &self.part {
+                None => (self.mesh == std::path::Path::new(DEFAULT_MESH))
+                    .then(|| DEFAULT_PART.to_string()),
+                Some(p) if p.is_empty() => None,
+                Some(p) => Some(p.clone()),
+            },
             mm_per_unit: self
                 .mm_per_unit
                 .unwrap_or_else(|| default_mm_per_unit(&self.mesh)),

@@ -256,7 +256,7 @@ pub fn run(
     progress: &mut dyn FnMut(&str),
 ) -> Result<CompareReport> {
     cfg.check()?;
-    std::fs::create_dir_all(&cfg.out).map_err(|e| Error::io(&cfg.out, e))?;
+    crate::io::outdir::claim(&cfg.out, "bench srbf --compare")?;
     let character = crate::scene::load(&cfg.mesh)?;
     let mesh = &character.mesh;
     let nv = mesh.positions.len();

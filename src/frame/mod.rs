@@ -91,6 +91,8 @@ pub struct FrameConfig {
     pub env_lobes: usize,
     /// Width of the map the fit samples (the map is downsampled to it).
     pub env_fit_width: u32,
+    /// How negative samples of the map (codec ringing) are treated.
+    pub env_hdr: crate::scene::envmap::HdrPolicy,
     /// Rays per vertex of AO's static correction, baked once in the bind pose
     /// ([`ao::Correction`]: the detail the spheres miss, such as the skin buried under the
     /// clothes); 0: AO and the environment's shadowing by the spheres alone.
@@ -205,6 +207,7 @@ impl Default for FrameConfig {
             env: Some(PathBuf::from(crate::kernels::srbf::DEFAULT_ENV)),
             env_lobes: 16,
             env_fit_width: 128,
+            env_hdr: Default::default(),
             ao_correction_rays: 1024,
             materials: Materials::Gltf,
             cloth_parts: Vec::new(),
@@ -757,7 +760,10 @@ impl CharacterFrame {
         let lobes = match &cfg.env {
             Some(path) => {
                 use crate::kernels::srbf::fit::{FitConfig, fit};
-                let map = crate::scene::EnvMap::load(path)?;
+                let map = crate::scene::EnvMap::load_with(path, cfg.env_hdr)?;
+                if let Some(r) = &map.repair {
+                    progress(&format!("{}: {r}", path.display()));
+                }
                 let small = map.downsampled(cfg.env_fit_width.min(map.width))?;
                 let fitted = fit(
                     &small.samples(),

@@ -46,8 +46,33 @@ fn check_shape(path: &Path, img: &FloatImage) -> Result<()> {
 
 /// Writes `img` as a linear 32-bit float EXR at `path`, atomically (a temporary file in the
 /// same folder, renamed when complete).
+/// A NaN or infinite channel is refused, naming the file, the pixel and the channel, and
+/// nothing is written.
 pub fn write(path: &Path, img: &FloatImage, channels: Channels) -> Result<()> {
     check_shape(path, img)?;
+    let used = match channels {
+        Channels::Rgb => 3,
+        Channels::Rgba => 4,
+    };
+    if let Some(i) = img
+        .pixels
+        .iter()
+        .position(|p| p[..used].iter().any(|c| !c.is_finite()))
+    {
+        let p = img.pixels[i];
+        let c = p[..used].iter().position(|c| !c.is_finite()).unwrap_or(0);
+        let w = img.width as usize;
+        return Err(Error::input(
+            path,
+            format!(
+                "not written: pixel ({}, {}) channel {} is {}",
+                i % w,
+                i / w,
+                ["R", "G", "B", "A"][c],
+                p[c]
+            ),
+        ));
+    }
     let size = (img.width as usize, img.height as usize);
     let w = img.width as usize;
     let px = |x: usize, y: usize| img.pixels[y * w + x];

@@ -7,6 +7,7 @@ pub mod bc1;
 #[cfg(feature = "exr")]
 pub mod exr;
 pub mod f16;
+pub mod outdir;
 pub mod transfer_cache;
 
 use crate::error::{Error, Result};

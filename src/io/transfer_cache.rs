@@ -57,6 +57,31 @@ const CPCA_VERSION: u32 = 1;
 /// magic, version, K, M, clusters, sharpness, vertices (u64), rel_l2 (f64).
 pub(crate) const CPCA_HEADER: usize = 8 + 4 * 5 + 8 + 8;
 
+/// Largest magnitude a cached value (axis component, sharpness, coefficient, CPCA row or
+/// weight) may have; a file holding a larger one, or a NaN or infinity, is refused even
+/// with a valid checksum, and the writers refuse to store one.
+///
+/// Why 1e6: the cached values are a clamped cosine (at most 1/pi) times visibility,
+/// projected onto unit-peak SG lobes and compressed by PCA, so their magnitude is O(1) to
+/// O(100) for any basis the fit solves (the Gram matrix's condition limits the rest). The
+/// shading sums K of them times the light's coefficients: with |x| <= 1e6, radiance at most
+/// [`crate::scene::envmap::MAX_RADIANCE`] = 1e12 over 4 pi steradians and K <= 65536 terms,
+/// the sum stays below 1e6 x 1e12 x 4 pi x 65536 ~ 8e23, far from f32's 3.4e38; a forged
+/// 3e38 would overflow the first product.
+pub const MAX_MAGNITUDE: f32 = 1e6;
+
+/// The first value of `values` (named `what`) that is not finite or exceeds
+/// [`MAX_MAGNITUDE`], as a message naming its index.
+fn out_of_bounds(what: &str, values: impl IntoIterator<Item = f32>) -> Option<String> {
+    values
+        .into_iter()
+        .enumerate()
+        .find(|(_, x)| !(x.is_finite() && x.abs() <= MAX_MAGNITUDE))
+        .map(|(i, x)| {
+            format!("{what} {i} is {x:e}: cached values must be finite with magnitude <= {MAX_MAGNITUDE:e}")
+        })
+}
+
 /// FNV-1a, 64 bit: the files' trailing checksum.
 fn fnv1a(bytes: &[u8]) -> u64 {
     bytes.iter().fold(0xcbf2_9ce4_8422_2325u64, |h, b| {
@@ -171,6 +196,9 @@ impl TransferFile<'_> {
                 ),
             ));
         }
+        if let Some(m) = self.bad_value() {
+            return Err(Error::input(path, format!("not written: SG transfer: {m}")));
+        }
         let k32 = header_u32(path, k, "basis functions")?;
         let mut b = Vec::with_capacity(TRANSFER_HEADER + 12 * k + 4 * self.coeffs.len() + 8);
         b.extend_from_slice(TRANSFER_MAGIC);
@@ -188,6 +216,20 @@ impl TransferFile<'_> {
             b.extend_from_slice(&c.to_le_bytes());
         }
         seal_and_write(path, b)
+    }
+
+    /// The first value out of [`MAX_MAGNITUDE`] (or non-finite), named.
+    fn bad_value(&self) -> Option<String> {
+        out_of_bounds(
+            "axis component",
+            self.axes.iter().flat_map(|a| a.to_array()),
+        )
+        .or_else(|| out_of_bounds("sharpness", [self.sharpness]))
+        .or_else(|| out_of_bounds("coefficient", self.coeffs.iter().copied()))
+        .or_else(|| {
+            (!self.projection_rel_l2.is_finite())
+                .then(|| format!("projection error {}", self.projection_rel_l2))
+        })
     }
 }
 
@@ -210,13 +252,17 @@ impl TransferFile<'static> {
             (vertices as u128) * (k as u128) * 4 + (k as u128) * 12 + TRANSFER_HEADER as u128 + 8;
         file.check_size(expected, || format!("K = {k} and {vertices} vertices"))?;
         let vertices = vertices as usize;
-        Ok(TransferFile {
+        let t = TransferFile {
             axes: file.axes(TRANSFER_HEADER, k).into(),
             sharpness,
             vertices,
             coeffs: file.floats(TRANSFER_HEADER + 12 * k, vertices * k).into(),
             projection_rel_l2,
-        })
+        };
+        match t.bad_value() {
+            Some(m) => Err(file.bad(m)),
+            None => Ok(t),
+        }
     }
 }
 
@@ -246,6 +292,12 @@ impl CpcaFile<'_> {
                 ),
             ));
         }
+        if let Some(m) = self.bad_value() {
+            return Err(Error::input(
+                path,
+                format!("not written: CPCA transfer: {m}"),
+            ));
+        }
         let header = [
             CPCA_VERSION,
             header_u32(path, k, "basis functions")?,
@@ -271,6 +323,18 @@ impl CpcaFile<'_> {
             b.extend_from_slice(&w.to_le_bytes());
         }
         seal_and_write(path, b)
+    }
+
+    /// The first value out of [`MAX_MAGNITUDE`] (or non-finite), named.
+    fn bad_value(&self) -> Option<String> {
+        out_of_bounds(
+            "axis component",
+            self.axes.iter().flat_map(|a| a.to_array()),
+        )
+        .or_else(|| out_of_bounds("sharpness", [self.sharpness]))
+        .or_else(|| out_of_bounds("row value", self.rows.iter().copied()))
+        .or_else(|| out_of_bounds("weight", self.weights.iter().copied()))
+        .or_else(|| (!self.rel_l2.is_finite()).then(|| format!("error {}", self.rel_l2)))
     }
 }
 
@@ -304,7 +368,7 @@ impl CpcaFile<'static> {
         let cluster_of = file.words(take(vertices), vertices);
         let rows = file.floats(take(clusters * (m + 1) * k), clusters * (m + 1) * k);
         let weights = file.floats(take(vertices * m), vertices * m);
-        Ok(CpcaFile {
+        let c = CpcaFile {
             axes: axes.into(),
             sharpness,
             vertices,
@@ -314,7 +378,11 @@ impl CpcaFile<'static> {
             rows: rows.into(),
             weights: weights.into(),
             rel_l2,
-        })
+        };
+        match c.bad_value() {
+            Some(m) => Err(file.bad(m)),
+            None => Ok(c),
+        }
     }
 }
 
@@ -454,5 +522,72 @@ mod tests {
             assert!(e.contains("not a vkshade CPCA transfer file"), "{e}");
         }
         let _ = std::fs::remove_dir_all(path.parent().unwrap());
+    }
+
+    /// A forged cache: a valid checksum over a 3e38 or NaN weight (or coefficient) is
+    /// refused naming the file and the element; the writers refuse such values too.
+    #[test]
+    fn forged_values_with_a_valid_checksum_are_refused() {
+        let cpca = CpcaFile {
+            axes: vec![Vec3::X, Vec3::Z].into(),
+            sharpness: 0.75,
+            vertices: 2,
+            components: 1,
+            clusters: 1,
+            cluster_of: vec![0, 0].into(),
+            rows: vec![0.5, -0.5, 1.0, 2.0].into(),
+            weights: vec![3.0, -4.0].into(),
+            rel_l2: 0.01,
+        };
+        let path = temp("forged.cpca");
+        cpca.save(&path).unwrap();
+        let good = std::fs::read(&path).unwrap();
+        let name = path.display().to_string();
+        // The second weight is the last float before the checksum.
+        let at = good.len() - 8 - 4;
+        for (bad, says) in [(3e38f32, "weight 1 is 3e38"), (f32::NAN, "weight 1 is NaN")] {
+            let mut b = good[..good.len() - 8].to_vec();
+            b[at..at + 4].copy_from_slice(&bad.to_le_bytes());
+            let sum = fnv1a(&b);
+            b.extend(sum.to_le_bytes());
+            std::fs::write(&path, &b).unwrap();
+            let e = CpcaFile::load(&path).unwrap_err().to_string();
+            assert!(e.contains(&name) && e.contains(says), "{e}");
+            let forged = CpcaFile {
+                weights: vec![3.0, bad].into(),
+                ..cpca.clone()
+            };
+            let e = forged.save(&temp("w.cpca")).unwrap_err().to_string();
+            assert!(e.contains("not written") && e.contains("weight 1"), "{e}");
+        }
+        let t = TransferFile {
+            axes: vec![Vec3::Y].into(),
+            sharpness: 2.0,
+            vertices: 2,
+            coeffs: vec![1.0, 2.0].into(),
+            projection_rel_l2: 0.0,
+        };
+        let tpath = temp("forged.bin");
+        t.save(&tpath).unwrap();
+        let mut b = std::fs::read(&tpath).unwrap();
+        b.truncate(b.len() - 8);
+        let at = b.len() - 4;
+        b[at..].copy_from_slice(&3e38f32.to_le_bytes());
+        let sum = fnv1a(&b);
+        b.extend(sum.to_le_bytes());
+        std::fs::write(&tpath, &b).unwrap();
+        let e = TransferFile::load(&tpath).unwrap_err().to_string();
+        assert!(e.contains("coefficient 1 is 3e38"), "{e}");
+        // Just inside the bound is kept.
+        let edge = TransferFile {
+            coeffs: vec![MAX_MAGNITUDE, -MAX_MAGNITUDE].into(),
+            ..t
+        };
+        edge.save(&tpath).unwrap();
+        assert_eq!(TransferFile::load(&tpath).unwrap(), edge);
+        for p in [&path, &tpath] {
+            let _ = std::fs::remove_dir_all(p.parent().unwrap());
+        }
+        let _ = std::fs::remove_dir_all(temp("w.cpca").parent().unwrap());
     }
 }

@@ -17,8 +17,11 @@
 //! Files: OpenEXR (`.exr`, cargo feature `exr`: RGB(A) half or float, any compression the
 //! `exr` crate decodes, DWAA/DWAB included; alpha is ignored) and Radiance RGBE (`.hdr`,
 //! `.pic`: flat, old-style and new-style run-length scanlines, read here). Every map must be
-//! 2:1 with finite, non-negative texels (EXR files may carry small negative ringing, set to
-//! 0: see [`NEGATIVE_TOLERANCE`]); every error names the file.
+//! 2:1 with finite, non-negative texels no brighter than [`MAX_RADIANCE`]; every error names
+//! the file. EXR files may carry negative samples from lossy compression (DWAA/DWAB ringing
+//! beside a bright sun): by default they are filtered out locally, keeping the energy
+//! ([`HdrPolicy::Repair`], reported in [`EnvMap::repair`]); [`HdrPolicy::Strict`] refuses
+//! all but tiny ones ([`NEGATIVE_TOLERANCE`]).
 
 use crate::error::{Error, Result};
 use crate::geom::Bvh;
@@ -29,6 +32,164 @@ use std::path::{Path, PathBuf};
 
 /// Largest accepted width (the height is half of it).
 pub const MAX_WIDTH: u32 = 1 << 15;
+
+/// Largest radiance a texel may hold; a brighter one is refused on loading (it is an
+/// overflow, not a sun).
+///
+/// Why 1e12: what follows the loader sums and squares radiance in f32 (the SRBF fit's
+/// least squares and its relative L2, the shading sums on the GPU): with L <= 1e12 and at
+/// most [`MAX_WIDTH`] x [`MAX_WIDTH`] / 2 = 2^29 texels, a sum of squares stays below
+/// 1e24 x 5.4e8 = 5.4e32, under f32's 3.4e38 with a margin of ~6e5 for the weights. Real
+/// maps stay far below: an unclipped sun in a calibrated HDRI is ~1e5 to 1e9. A texel of
+/// 3e38 (or an RGBE exponent decoding to ~1.7e38) made the fit print "relative L2 NaN".
+pub const MAX_RADIANCE: f32 = 1e12;
+
+/// How negative samples of a loaded EXR map (lossy-codec ringing) are treated.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub enum HdrPolicy {
+    /// The default: each negative sample is set to 0 and its (negative) energy taken from
+    /// the positive samples around it, in proportion to their energy, so every
+    /// neighbourhood keeps its sum ([`repair_ringing`]); reported in [`EnvMap::repair`].
+    #[default]
+    Repair,
+    /// Refuse the map when a sample is below -[`NEGATIVE_TOLERANCE`] x the mean sample
+    /// (smaller negatives still become 0): the behaviour before the repair existed.
+    Strict,
+}
+
+/// What [`repair_ringing`] changed in a map.
+#[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
+pub struct RingingRepair {
+    /// Negative samples (texel channels) set to 0.
+    pub negative_samples: usize,
+    /// The most negative sample.
+    pub most_negative: f32,
+    /// Energy moved (the negative samples' |L| x solid angle, summed over channels) over
+    /// the map's total energy after the repair.
+    pub moved_fraction: f64,
+    /// Change of the map's total energy (after - before) over the total after: the part
+    /// of the negative energy no positive neighbourhood within [`REPAIR_RADIUS`] could
+    /// absorb, which was clamped instead.
+    pub energy_change: f64,
+}
+
+impl std::fmt::Display for RingingRepair {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "{} negative samples (codec ringing, down to {:.3e}) moved into their positive \
+             neighbours: {:.2e} of the map's energy moved, total energy changed by {:+.2e}",
+            self.negative_samples, self.most_negative, self.moved_fraction, self.energy_change
+        )
+    }
+}
+
+/// How far (in texels, each way) [`repair_ringing`] looks for positive samples to take a
+/// negative sample's energy from: two DWA blocks (8 x 8 DCT), where its ringing lives.
+pub const REPAIR_RADIUS: usize = 16;
+
+/// The largest share of a map's energy that [`repair_ringing`] may fail to absorb locally
+/// (and clamp) before the map is refused as not ringing but wrong data.
+pub const MAX_UNABSORBED: f64 = 0.01;
+
+/// Removes negative samples from a `width` x `height` equirectangular map, keeping the
+/// energy of every neighbourhood.
+///
+/// Why this policy: lossy EXR codecs (DWAA/DWAB, an 8 x 8 DCT) quantise the sharp edge of a
+/// bright sun into ringing, an oscillation around the true values whose local sum is
+/// about zero: samples down to about -2,000 beside +11,800. Clamping the negatives to 0
+/// would keep the positive overshoot and add energy (the map gets brighter near the sun);
+/// refusing would refuse common maps. So each negative sample is set to 0 and its energy
+/// (L x solid angle, per channel) is taken from the positive samples within the smallest
+/// window of radius 1, 2, 4, ... [`REPAIR_RADIUS`] texels (wrapping in longitude) that
+/// holds enough of it, each giving in proportion to its energy: the overshoot cancels the
+/// undershoot, the neighbourhood's sum and the sun's energy are kept (to f32 rounding), and
+/// the sun's shape is only scaled. Energy no window could supply is clamped and reported as
+/// [`RingingRepair::energy_change`]; more than [`MAX_UNABSORBED`] of the map is an error.
+// `c` is the channel of every texel the window touches, not an index into one array.
+#[allow(clippy::needless_range_loop)]
+pub fn repair_ringing(
+    width: usize,
+    height: usize,
+    texels: &mut [[f32; 3]],
+    solid_angle: impl Fn(usize) -> f64,
+) -> std::result::Result<Option<RingingRepair>, String> {
+    let omega: Vec<f64> = (0..height).map(&solid_angle).collect();
+    let energy_of = |t: &[[f32; 3]]| -> f64 {
+        t.chunks(width)
+            .zip(&omega)
+            .map(|(row, w)| row.iter().flatten().map(|&c| c as f64).sum::<f64>() * w)
+            .sum()
+    };
+    let before = energy_of(texels);
+    let (mut count, mut most, mut moved, mut unabsorbed) = (0usize, 0.0f32, 0.0f64, 0.0f64);
+    for i in 0..texels.len() {
+        for c in 0..3 {
+            let v = texels[i][c];
+            if v >= 0.0 {
+                continue;
+            }
+            count += 1;
+            most = most.min(v);
+            let (x0, y0) = (i % width, i / width);
+            let mut deficit = -(v as f64) * omega[y0];
+            moved += deficit;
+            texels[i][c] = 0.0;
+            let mut r = 1;
+            loop {
+                let r_eff = r.min(REPAIR_RADIUS);
+                let ys = y0.saturating_sub(r_eff)..(y0 + r_eff + 1).min(height);
+                let xr = r_eff.min((width - 1) / 2);
+                let column = |dx: isize| (x0 as isize + dx).rem_euclid(width as isize) as usize;
+                let mut available = 0.0f64;
+                for y in ys.clone() {
+                    for dx in -(xr as isize)..=xr as isize {
+                        let t = texels[y * width + column(dx)][c];
+                        if t > 0.0 {
+                            available += t as f64 * omega[y];
+                        }
+                    }
+                }
+                if available >= deficit || r_eff == REPAIR_RADIUS {
+                    let take = deficit.min(available);
+                    if take > 0.0 {
+                        let keep = 1.0 - take / available;
+                        for y in ys {
+                            for dx in -(xr as isize)..=xr as isize {
+                                let t = &mut texels[y * width + column(dx)][c];
+                                if *t > 0.0 {
+                                    *t = (*t as f64 * keep) as f32;
+                                }
+                            }
+                        }
+                    }
+                    deficit -= take;
+                    unabsorbed += deficit;
+                    break;
+                }
+                r *= 2;
+            }
+        }
+    }
+    if count == 0 {
+        return Ok(None);
+    }
+    let after = energy_of(texels);
+    if after.is_nan() || after <= 0.0 || unabsorbed > MAX_UNABSORBED * after {
+        return Err(format!(
+            "{count} negative samples down to {most:e} whose energy the positive samples \
+             within {REPAIR_RADIUS} texels cannot absorb ({:.3e} of a total {after:.3e} left \
+             over, more than {MAX_UNABSORBED} of it): too negative to be codec ringing",
+            unabsorbed
+        ));
+    }
+    Ok(Some(RingingRepair {
+        negative_samples: count,
+        most_negative: most,
+        moved_fraction: moved / after,
+        energy_change: (after - before) / after,
+    }))
+}
 
 /// The unit direction at map coordinates (u, v) in [0, 1]^2 (v = 0 at the top row):
 /// the inverse of u = 0.5 + atan2(x, -z) / (2 pi), v = acos(y) / pi.
@@ -48,18 +209,27 @@ pub struct EnvMap {
     pub texels: Vec<[f32; 3]>,
     /// The file it came from (or a name for an in-memory map), for error messages.
     pub source: PathBuf,
+    /// What loading changed under [`HdrPolicy::Repair`] (None: nothing, or not loaded
+    /// from a file); the commands print it.
+    pub repair: Option<RingingRepair>,
 }
 
 impl EnvMap {
-    /// Loads an equirectangular map from an `.exr` or `.hdr`/`.pic` file (by extension).
-    /// Small negative EXR samples (>= -[`NEGATIVE_TOLERANCE`] x the mean sample) become 0.
+    /// Loads an equirectangular map from an `.exr` or `.hdr`/`.pic` file (by extension),
+    /// repairing codec ringing ([`HdrPolicy::Repair`], the default).
     pub fn load(path: &Path) -> Result<EnvMap> {
+        EnvMap::load_with(path, HdrPolicy::default())
+    }
+
+    /// Loads an equirectangular map as [`EnvMap::load`], treating negative EXR samples as
+    /// `policy` says.
+    pub fn load_with(path: &Path, policy: HdrPolicy) -> Result<EnvMap> {
         let ext = path
             .extension()
             .map(|e| e.to_string_lossy().to_lowercase())
             .unwrap_or_default();
         match ext.as_str() {
-            "exr" => load_exr(path),
+            "exr" => load_exr(path, policy),
             "hdr" | "pic" => {
                 let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
                 let (w, h, texels) = decode_rgbe(&bytes).map_err(|m| Error::input(path, m))?;
@@ -113,16 +283,26 @@ impl EnvMap {
                 ),
             ));
         }
-        if let Some(i) = texels
-            .iter()
-            .position(|t| t.iter().any(|c| !c.is_finite() || *c < 0.0))
-        {
+        if let Some(i) = texels.iter().position(|t| {
+            t.iter()
+                .any(|c| !c.is_finite() || *c < 0.0 || *c > MAX_RADIANCE)
+        }) {
             let (x, y) = (i % width as usize, i / width as usize);
             let t = texels[i];
-            let what = if t.iter().all(|c| c.is_finite()) {
-                "negative"
-            } else {
+            let what = if !t.iter().all(|c| c.is_finite()) {
                 "non-finite"
+            } else if t.iter().any(|c| *c > MAX_RADIANCE) {
+                return Err(Error::input(
+                    &source,
+                    format!(
+                        "texel ({x}, {y}) is ({}, {}, {}): above {MAX_RADIANCE:e}, the largest \
+                         radiance accepted (brighter values overflow the f32 sums that follow; \
+                         a real sun is ~1e5 to 1e9)",
+                        t[0], t[1], t[2]
+                    ),
+                ));
+            } else {
+                "negative"
             };
             return Err(Error::input(
                 &source,
@@ -137,6 +317,7 @@ impl EnvMap {
             height,
             texels,
             source,
+            repair: None,
         })
     }
 
@@ -289,21 +470,42 @@ pub fn texel_visibility(mesh: &super::Mesh, dir_env: &EnvMap) -> Visibility {
     )
 }
 
-/// Negative samples of an EXR map down to `-NEGATIVE_TOLERANCE` times the map's mean sample
-/// are set to 0 on loading; more negative ones are an error.
+/// Under [`HdrPolicy::Strict`], negative samples of an EXR map down to
+/// `-NEGATIVE_TOLERANCE` times the map's mean sample are set to 0 on loading; more negative
+/// ones are an error.
 pub const NEGATIVE_TOLERANCE: f32 = 0.05;
 
-/// Reads an EXR map. Real maps carry small negative samples where the radiance is 0 or near
-/// it: the Blender studio lights have 3 to ~9000 per map, down to -3.9e-3, i.e. at most 2.5 %
-/// of the map's mean sample (night.exr). They are FLOAT R, G, B channels under DWAB, whose
-/// DCT is lossy for R, G, B of any float type, so this is most likely codec ringing (filter
-/// ringing from resampling looks the same). Samples in [-NEGATIVE_TOLERANCE * mean, 0) are
-/// set to 0 (with a `log` warning saying how many and the most negative); a sample below
-/// that is an error like a NaN.
+/// Reads an EXR map. Real maps carry negative samples: the Blender studio lights have 3 to
+/// ~9000 per map, down to -3.9e-3 (at most 2.5 % of the map's mean sample), and lossy HDRI
+/// collections down to about -2,000 beside a +11,800 sun. They are R, G, B channels under
+/// DWAB, whose DCT is lossy, so this is codec ringing (filter ringing from resampling looks
+/// the same). [`HdrPolicy::Repair`] removes them keeping each neighbourhood's energy
+/// ([`repair_ringing`], reported by a `log` warning and in [`EnvMap::repair`]);
+/// [`HdrPolicy::Strict`] sets samples in [-NEGATIVE_TOLERANCE * mean, 0) to 0 and refuses a
+/// sample below that like a NaN.
 #[cfg(feature = "exr")]
-fn load_exr(path: &Path) -> Result<EnvMap> {
+fn load_exr(path: &Path, policy: HdrPolicy) -> Result<EnvMap> {
     let img = crate::io::exr::read_rgba(path)?;
     let mut texels: Vec<[f32; 3]> = img.pixels.iter().map(|p| [p[0], p[1], p[2]]).collect();
+    if policy == HdrPolicy::Repair {
+        // Shape, finiteness and the radiance bound first: the repair sums energies.
+        let shaped = EnvMap::from_texels(
+            img.width,
+            img.height,
+            texels.iter().map(|t| t.map(f32::abs)).collect(),
+            path,
+        )?;
+        let repair = repair_ringing(img.width as usize, img.height as usize, &mut texels, |y| {
+            shaped.solid_angle(y as u32)
+        })
+        .map_err(|m| Error::input(path, m))?;
+        if let Some(r) = &repair {
+            log::warn!("{}: {r}", path.display());
+        }
+        let mut map = EnvMap::from_texels(img.width, img.height, texels, path)?;
+        map.repair = repair;
+        return Ok(map);
+    }
     let n = texels.len().max(1) as f64 * 3.0;
     let mean = texels.iter().flatten().map(|&c| c as f64).sum::<f64>() / n;
     let floor = -(NEGATIVE_TOLERANCE as f64 * mean.max(0.0)) as f32;
@@ -326,7 +528,8 @@ fn load_exr(path: &Path) -> Result<EnvMap> {
             path,
             message: format!(
                 "{message} (below -{NEGATIVE_TOLERANCE} x the mean sample {mean:e}, too \
-                 negative to be filter ringing)"
+                 negative to be filter ringing; --hdr-strict refuses it, the default policy \
+                 repairs codec ringing)"
             ),
         },
         e => e,
@@ -334,7 +537,7 @@ fn load_exr(path: &Path) -> Result<EnvMap> {
 }
 
 #[cfg(not(feature = "exr"))]
-fn load_exr(path: &Path) -> Result<EnvMap> {
+fn load_exr(path: &Path, _policy: HdrPolicy) -> Result<EnvMap> {
     Err(Error::feature(
         format!("loading the OpenEXR environment map {}", path.display()),
         "exr",

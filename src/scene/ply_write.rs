@@ -1,6 +1,6 @@
 //! Writing meshes with per-vertex scalar properties as binary PLY (atomically).
 
-use crate::error::Result;
+use crate::error::{Error, Result};
 use glam::Vec3;
 use std::path::Path;
 
@@ -25,7 +25,8 @@ pub fn write_ply(
 }
 
 /// Writes positions, normals and several float properties per vertex, in order (e.g. `r`,
-/// `g`, `b`).
+/// `g`, `b`). A NaN or infinite value is refused (nothing is written), naming the file,
+/// the vertex and the property.
 pub fn write_ply_properties(
     path: &Path,
     comment: &str,
@@ -34,6 +35,35 @@ pub fn write_ply_properties(
     triangles: &[[u32; 3]],
     properties: &[(&str, &[f32])],
 ) -> Result<()> {
+    let bad = |vertex: usize, what: &str, v: f32| {
+        Error::input(
+            path,
+            format!("not written: vertex {vertex} has a non-finite {what} ({v})"),
+        )
+    };
+    for (i, p) in positions.iter().enumerate() {
+        let n = normals.get(i).copied().unwrap_or(Vec3::ZERO);
+        let fields = [
+            ("x", p.x),
+            ("y", p.y),
+            ("z", p.z),
+            ("nx", n.x),
+            ("ny", n.y),
+            ("nz", n.z),
+        ];
+        if let Some((what, v)) = fields.into_iter().find(|(_, v)| !v.is_finite()) {
+            return Err(bad(i, what, v));
+        }
+    }
+    for (name, values) in properties {
+        if let Some(i) = values
+            .iter()
+            .take(positions.len())
+            .position(|v| !v.is_finite())
+        {
+            return Err(bad(i, name, values[i]));
+        }
+    }
     let mut out = Vec::with_capacity(64 + positions.len() * 28 + triangles.len() * 13);
     let header = format!(
         "ply\nformat binary_little_endian 1.0\ncomment {}\nelement vertex {}\n\
@@ -66,4 +96,41 @@ pub fn write_ply_properties(
         }
     }
     crate::io::write_atomic(path, &out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn non_finite_values_are_refused_and_nothing_is_written() {
+        let dir = std::env::temp_dir().join(format!("vkshade-ply-write-{}", std::process::id()));
+        let path = dir.join("bad.ply");
+        let tri = [[0u32, 1, 2]];
+        let pos = [Vec3::ZERO, Vec3::X, Vec3::Y];
+        let e = write_ply(
+            &path,
+            "t",
+            &pos,
+            &[Vec3::Z; 3],
+            &tri,
+            "ao",
+            &[0.5, f32::NAN, 1.0],
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            e.contains("bad.ply") && e.contains("vertex 1") && e.contains("ao"),
+            "{e}"
+        );
+        let far = [Vec3::ZERO, Vec3::X, Vec3::new(0.0, f32::INFINITY, 0.0)];
+        let e = write_ply(&path, "t", &far, &[Vec3::Z; 3], &tri, "ao", &[0.5; 3])
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("vertex 2") && e.contains("non-finite y"), "{e}");
+        assert!(!path.exists());
+        write_ply(&path, "t", &pos, &[Vec3::Z; 3], &tri, "ao", &[0.5; 3]).unwrap();
+        assert!(path.is_file());
+        let _ = std::fs::remove_dir_all(dir);
+    }
 }

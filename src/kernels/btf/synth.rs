@@ -84,28 +84,36 @@ pub enum FileFormat {
 }
 
 /// Writes `btf` as a UBO2003-style directory `dir` (one image per (light, view) pair, the
-/// angles in the names) plus `btf.json` describing it. The images go to a temporary folder
-/// beside `dir`, renamed over `dir` when all are written: readers never see half a data set.
+/// angles in the names) plus `btf.json` describing it, for the command `command` (named in
+/// the directory's marker). The directory must be new, empty, or one `command` wrote before
+/// (see [`crate::io::outdir`]): an existing file or a directory of other files is refused
+/// and left untouched. The images go to a temporary folder beside `dir`, swapped in when
+/// all are written: readers never see half a data set.
 pub fn write_dir(
     btf: &Btf,
     dir: &std::path::Path,
     format: FileFormat,
     about: &impl serde::Serialize,
+    command: &str,
 ) -> Result<()> {
-    let name = dir
-        .file_name()
-        .ok_or_else(|| Error::input(dir, "not a directory name"))?
-        .to_string_lossy()
-        .into_owned();
-    let parent = match dir.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p.to_path_buf(),
-        _ => std::path::PathBuf::from("."),
-    };
-    std::fs::create_dir_all(&parent).map_err(|e| Error::io(&parent, e))?;
-    let tmp = parent.join(format!(".{name}.tmp{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&tmp);
-    std::fs::create_dir_all(&tmp).map_err(|e| Error::io(&tmp, e))?;
-    let result = (|| {
+    if let Some(i) = btf
+        .texels
+        .iter()
+        .position(|t| t.iter().any(|c| !c.is_finite()))
+    {
+        let n = btf.image_len().max(1);
+        let d = dirs::directions();
+        let (s, texel) = (i / n, i % n);
+        return Err(Error::input(
+            dir,
+            format!(
+                "not written: texel {texel} of image {} is non-finite ({:?})",
+                Btf::file_name(d[s % dirs::COUNT], d[s / dirs::COUNT], "*"),
+                btf.texels[i]
+            ),
+        ));
+    }
+    crate::io::outdir::replace(dir, command, |tmp| {
         let d = dirs::directions();
         let [w, h] = btf.size;
         (0..dirs::COUNT * dirs::COUNT)
@@ -136,18 +144,7 @@ pub fn write_dir(
                 }
             })?;
         crate::io::write_json(&tmp.join("btf.json"), about)
-    })();
-    if let Err(e) = result {
-        let _ = std::fs::remove_dir_all(&tmp);
-        return Err(e);
-    }
-    let old = parent.join(format!(".{name}.old{}", std::process::id()));
-    if dir.exists() {
-        std::fs::rename(dir, &old).map_err(|e| Error::io(dir, e))?;
-    }
-    std::fs::rename(&tmp, dir).map_err(|e| Error::io(dir, e))?;
-    let _ = std::fs::remove_dir_all(&old);
-    Ok(())
+    })
 }
 
 #[cfg(feature = "png")]

@@ -24,6 +24,16 @@ pub enum Light {
 /// At most this many lights per frame.
 pub const MAX_LIGHTS: usize = 16;
 
+/// Largest |coordinate| of a light's direction or position: normalising or measuring a
+/// vector squares its components in f32, and 3 x (1e18)^2 = 3e36 stays below f32's 3.4e38
+/// (a 1e30 component overflows to infinity and the direction becomes NaN).
+pub const MAX_LIGHT_COORDINATE: f32 = 1e18;
+
+/// Largest light strength (irradiance or intensity): the shading multiplies it by albedos,
+/// profiles and areas and sums over texels in f32; 1e12 is the radiance bound of the
+/// environment maps ([`crate::scene::envmap::MAX_RADIANCE`]), for the same reason.
+pub const MAX_LIGHT_STRENGTH: f32 = 1e12;
+
 impl Light {
     /// At point `p`: the unit direction towards the light, the shadow ray's length (a point
     /// light's distance less `bias`) and the irradiance on a surface facing it.
@@ -43,7 +53,7 @@ impl Light {
     pub fn parse(s: &str, mm_per_unit: f32) -> Result<Light> {
         let bad = |m: &str| {
             Error::InvalidArgument(format!(
-                "light '{s}': {m} (expected dir:X,Y,Z[:E] or point:X,Y,Z:I)"
+                "--light '{s}': {m} (expected dir:X,Y,Z[:E] or point:X,Y,Z:I)"
             ))
         };
         let parts: Vec<&str> = s.split(':').collect();
@@ -56,13 +66,21 @@ impl Light {
         if xyz.len() != 3 || xyz.iter().any(|x| !x.is_finite()) {
             return Err(bad("needs three finite coordinates"));
         }
+        if xyz.iter().any(|x| x.abs() > MAX_LIGHT_COORDINATE) {
+            return Err(bad(&format!(
+                "a coordinate is beyond +-{MAX_LIGHT_COORDINATE:e} (normalising it would \
+                 overflow f32)"
+            )));
+        }
         let v = Vec3::new(xyz[0], xyz[1], xyz[2]);
         let value = match parts.get(2) {
             Some(t) => t.trim().parse::<f32>().map_err(|_| bad("bad strength"))?,
             None => 1.0,
         };
-        if parts.len() > 3 || !(value.is_finite() && value >= 0.0) {
-            return Err(bad("strength must be finite and >= 0"));
+        if parts.len() > 3 || !(value.is_finite() && (0.0..=MAX_LIGHT_STRENGTH).contains(&value)) {
+            return Err(bad(&format!(
+                "strength must be finite and in 0..={MAX_LIGHT_STRENGTH:e}"
+            )));
         }
         let light = match parts[0] {
             "dir" => {
@@ -74,10 +92,16 @@ impl Light {
                     e: value,
                 }
             }
-            "point" if parts.len() == 3 => Light::Point {
-                pos: v * mm_per_unit,
-                i: value,
-            },
+            "point" if parts.len() == 3 => {
+                let pos = v * mm_per_unit;
+                if !pos.is_finite() || pos.abs().max_element() > MAX_LIGHT_COORDINATE {
+                    return Err(bad(&format!(
+                        "the position in mm ({mm_per_unit} mm per unit) is beyond \
+                         +-{MAX_LIGHT_COORDINATE:e}"
+                    )));
+                }
+                Light::Point { pos, i: value }
+            }
             "point" => return Err(bad("a point light needs an intensity")),
             _ => return Err(bad("unknown kind")),
         };
@@ -101,15 +125,35 @@ pub fn check_lights(lights: &[Light]) -> Result<()> {
             lights.len()
         )));
     }
-    for l in lights {
-        let ok = match *l {
+    for (k, l) in lights.iter().enumerate() {
+        let problem = match *l {
             Light::Directional { toward, e } => {
-                toward.is_finite() && (toward.length() - 1.0).abs() < 1e-3 && e >= 0.0
+                if !(toward.is_finite() && (toward.length() - 1.0).abs() < 1e-3) {
+                    Some(format!("direction {toward} is not a finite unit vector"))
+                } else if !(e.is_finite() && (0.0..=MAX_LIGHT_STRENGTH).contains(&e)) {
+                    Some(format!(
+                        "irradiance {e} is not in 0..={MAX_LIGHT_STRENGTH:e}"
+                    ))
+                } else {
+                    None
+                }
             }
-            Light::Point { pos, i } => pos.is_finite() && i.is_finite() && i >= 0.0,
+            Light::Point { pos, i } => {
+                if !pos.is_finite() || pos.abs().max_element() > MAX_LIGHT_COORDINATE {
+                    Some(format!(
+                        "position {pos} (mm) is not finite within +-{MAX_LIGHT_COORDINATE:e}"
+                    ))
+                } else if !(i.is_finite() && (0.0..=MAX_LIGHT_STRENGTH).contains(&i)) {
+                    Some(format!(
+                        "intensity {i} is not in 0..={MAX_LIGHT_STRENGTH:e}"
+                    ))
+                } else {
+                    None
+                }
+            }
         };
-        if !ok {
-            return Err(Error::InvalidArgument(format!("bad light {l:?}")));
+        if let Some(p) = problem {
+            return Err(Error::InvalidArgument(format!("light {k}: {p}")));
         }
     }
     Ok(())

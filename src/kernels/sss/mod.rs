@@ -79,6 +79,26 @@ pub fn load_character(
     mesh: &std::path::Path,
     part: Option<&str>,
 ) -> crate::error::Result<crate::scene::Character> {
+    let ext = mesh
+        .extension()
+        .map(|e| e.to_string_lossy().to_lowercase())
+        .unwrap_or_default();
+    if let Some(name) = part
+        && ext != "glb"
+        && ext != "gltf"
+    {
+        let kind = match ext.as_str() {
+            "" => "a file without an extension".to_string(),
+            e => format!("an {} file", e.to_uppercase()),
+        };
+        return Err(crate::error::Error::input(
+            mesh,
+            format!(
+                "is {kind}, which has no parts: --part '{name}' selects a node or mesh of a \
+                 glTF file (.glb/.gltf); leave --part out to use the whole mesh"
+            ),
+        ));
+    }
     match part {
         #[cfg(feature = "gltf")]
         Some(name) => crate::scene::gltf_load::load_named(mesh, name),
