@@ -212,7 +212,10 @@ fn the_valid_character_loads() {
     );
     assert_eq!(c.mesh.uvs.as_ref().unwrap()[3].to_array(), [0.5, 0.5]);
     let skin = c.mesh.skin.as_ref().unwrap();
-    assert_eq!((skin.joints[3], skin.weights[3]), ([0, 1, 0, 0], [0.5, 0.5, 0.0, 0.0]));
+    assert_eq!(
+        (skin.joints[3], skin.weights[3]),
+        ([0, 1, 0, 0], [0.5, 0.5, 0.0, 0.0])
+    );
     assert_eq!(c.rig.joints, vec![1, 2]);
     assert_eq!(c.animations.len(), 1);
     assert_eq!(c.animations[0].channels.len(), 2);
@@ -234,16 +237,56 @@ fn the_valid_character_loads() {
 #[test]
 fn forbidden_component_types_are_errors_not_panics() {
     for (name, pointer, ct, want) in [
-        ("idx-float.glb", "/accessors/4/componentType", 5126, ["indices", "accessor 4", "SCALAR of FLOAT"]),
-        ("joints-float.glb", "/accessors/2/componentType", 5126, ["JOINTS_0", "accessor 2", "VEC4 of FLOAT"]),
-        ("weights-short.glb", "/accessors/3/componentType", 5122, ["WEIGHTS_0", "accessor 3", "VEC4 of SHORT"]),
-        ("uv-uint.glb", "/accessors/1/componentType", 5125, ["TEXCOORD_0", "accessor 1", "VEC2 of UNSIGNED_INT"]),
-        ("rot-uint.glb", "/accessors/7/componentType", 5125, ["channel 0", "accessor 7", "VEC4 of UNSIGNED_INT"]),
-        ("ibm-short.glb", "/accessors/5/componentType", 5122, ["inverseBindMatrices", "accessor 5", "SHORT"]),
-        ("times-byte.glb", "/accessors/6/componentType", 5121, ["keyframe times", "accessor 6", "UNSIGNED_BYTE"]),
+        (
+            "idx-float.glb",
+            "/accessors/4/componentType",
+            5126,
+            ["indices", "accessor 4", "SCALAR of FLOAT"],
+        ),
+        (
+            "joints-float.glb",
+            "/accessors/2/componentType",
+            5126,
+            ["JOINTS_0", "accessor 2", "VEC4 of FLOAT"],
+        ),
+        (
+            "weights-short.glb",
+            "/accessors/3/componentType",
+            5122,
+            ["WEIGHTS_0", "accessor 3", "VEC4 of SHORT"],
+        ),
+        (
+            "uv-uint.glb",
+            "/accessors/1/componentType",
+            5125,
+            ["TEXCOORD_0", "accessor 1", "VEC2 of UNSIGNED_INT"],
+        ),
+        (
+            "rot-uint.glb",
+            "/accessors/7/componentType",
+            5125,
+            ["channel 0", "accessor 7", "VEC4 of UNSIGNED_INT"],
+        ),
+        (
+            "ibm-short.glb",
+            "/accessors/5/componentType",
+            5122,
+            ["inverseBindMatrices", "accessor 5", "SHORT"],
+        ),
+        (
+            "times-byte.glb",
+            "/accessors/6/componentType",
+            5121,
+            ["keyframe times", "accessor 6", "UNSIGNED_BYTE"],
+        ),
     ] {
         let e = refused(name, &Gltf::valid().set(pointer, json!(ct)), &want);
-        assert!(e.contains("mesh 0 'tet' primitive 0") || e.contains("animation 0 'wave'") || e.contains("skin 0"), "{e}");
+        assert!(
+            e.contains("mesh 0 'tet' primitive 0")
+                || e.contains("animation 0 'wave'")
+                || e.contains("skin 0"),
+            "{e}"
+        );
     }
     // The normalized flag: required for integer texture coordinates, forbidden on floats.
     refused(
@@ -251,7 +294,11 @@ fn forbidden_component_types_are_errors_not_panics() {
         &Gltf::valid()
             .set("/accessors/1/componentType", json!(5123))
             .set("/accessors/1/count", json!(4)),
-        &["TEXCOORD_0", "VEC2 of UNSIGNED_SHORT", "normalized UNSIGNED_SHORT"],
+        &[
+            "TEXCOORD_0",
+            "VEC2 of UNSIGNED_SHORT",
+            "normalized UNSIGNED_SHORT",
+        ],
     );
     refused(
         "pos-normalized.glb",
@@ -287,7 +334,12 @@ fn accessors_views_and_buffers_past_the_data_are_refused() {
     refused(
         "idx-1e9.glb",
         &Gltf::valid().set("/accessors/4/count", json!(1_000_000_000u64)),
-        &["indices", "accessor 4", "1000000000 elements", "points past its buffer view"],
+        &[
+            "indices",
+            "accessor 4",
+            "1000000000 elements",
+            "points past its buffer view",
+        ],
     );
     refused(
         "pos-offset.glb",
@@ -307,7 +359,11 @@ fn accessors_views_and_buffers_past_the_data_are_refused() {
     refused(
         "pos-view.glb",
         &Gltf::valid().set("/bufferViews/0/byteOffset", json!(360)),
-        &["POSITION", "buffer view 0", "points past the end of buffer 0"],
+        &[
+            "POSITION",
+            "buffer view 0",
+            "points past the end of buffer 0",
+        ],
     );
     refused(
         "pos-misaligned.glb",
@@ -327,7 +383,12 @@ fn accessors_views_and_buffers_past_the_data_are_refused() {
     refused(
         "pos-vec2.glb",
         &Gltf::valid().set("/accessors/0/type", json!("VEC2")),
-        &["POSITION", "accessor 0", "is VEC2 of FLOAT", "only VEC3 of FLOAT"],
+        &[
+            "POSITION",
+            "accessor 0",
+            "is VEC2 of FLOAT",
+            "only VEC3 of FLOAT",
+        ],
     );
     refused(
         "uv-count.glb",
@@ -345,7 +406,12 @@ fn accessors_views_and_buffers_past_the_data_are_refused() {
 fn junk_sparse_indices_are_refused() {
     let sparse = |indices: &[u32], count: usize| {
         let mut g = Gltf::valid();
-        let iv = g.append(&indices.iter().flat_map(|i| i.to_le_bytes()).collect::<Vec<u8>>());
+        let iv = g.append(
+            &indices
+                .iter()
+                .flat_map(|i| i.to_le_bytes())
+                .collect::<Vec<u8>>(),
+        );
         let vv = g.append(&f32s(&vec![0.25; 3 * indices.len()]));
         g.set(
             "/accessors/0/sparse",
@@ -358,10 +424,26 @@ fn junk_sparse_indices_are_refused() {
     let good = sparse(&[1], 1);
     let c = scene::load(&good.write("sparse-good.glb")).unwrap();
     assert_eq!(c.mesh.positions[1].to_array(), [0.25; 3]);
-    refused("sparse-range.glb", &sparse(&[1, 7], 2), &["POSITION", "sparse index 1 is 7", "4 elements"]);
-    refused("sparse-order.glb", &sparse(&[3, 1], 2), &["POSITION", "not strictly increasing (1 follows 3)"]);
-    refused("sparse-count.glb", &sparse(&[0, 1, 2, 3, 0], 5), &["sparse count 5 is not in 1..=4"]);
-    refused("sparse-past.glb", &sparse(&[1], 2), &["sparse indices", "points past its buffer view"]);
+    refused(
+        "sparse-range.glb",
+        &sparse(&[1, 7], 2),
+        &["POSITION", "sparse index 1 is 7", "4 elements"],
+    );
+    refused(
+        "sparse-order.glb",
+        &sparse(&[3, 1], 2),
+        &["POSITION", "not strictly increasing (1 follows 3)"],
+    );
+    refused(
+        "sparse-count.glb",
+        &sparse(&[0, 1, 2, 3, 0], 5),
+        &["sparse count 5 is not in 1..=4"],
+    );
+    refused(
+        "sparse-past.glb",
+        &sparse(&[1], 2),
+        &["sparse indices", "points past its buffer view"],
+    );
 }
 
 /// Point 6: a zero or non-finite scale must not collapse a skinned mesh to a point (it gave
@@ -371,7 +453,10 @@ fn collapsing_or_exploding_transforms_are_refused() {
     refused(
         "scale-zero.glb",
         &Gltf::valid().set("/nodes/1/scale", json!([0.0, 0.0, 0.0])),
-        &["collapses the skinned mesh to a point", "node 1 'root' has scale [0.0, 0.0, 0.0]"],
+        &[
+            "collapses the skinned mesh to a point",
+            "node 1 'root' has scale [0.0, 0.0, 0.0]",
+        ],
     );
     refused(
         "scale-huge.glb",
@@ -428,8 +513,15 @@ fn messages_name_the_real_cause() {
     );
     refused(
         "cubic.glb",
-        &Gltf::valid().set("/animations/0/samplers/0/interpolation", json!("CUBICSPLINE")),
-        &["channel 0", "CUBICSPLINE needs 3 output values per keyframe", "2 keyframe times need 6 values, the output has 2"],
+        &Gltf::valid().set(
+            "/animations/0/samplers/0/interpolation",
+            json!("CUBICSPLINE"),
+        ),
+        &[
+            "channel 0",
+            "CUBICSPLINE needs 3 output values per keyframe",
+            "2 keyframe times need 6 values, the output has 2",
+        ],
     );
     refused(
         "keys-count.glb",
@@ -442,11 +534,16 @@ fn messages_name_the_real_cause() {
     let path = write("missing-bin.gltf", &serde_json::to_vec(&g.json).unwrap());
     let e = common::error_naming(&path, no_panic("missing-bin", || scene::load(&path)));
     let resolved = path.parent().unwrap().join("no-such-buffer.bin");
-    assert!(e.contains(&resolved.display().to_string()) && e.contains("buffer 0"), "{e}");
+    assert!(
+        e.contains(&resolved.display().to_string()) && e.contains("buffer 0"),
+        "{e}"
+    );
     // From memory there is no directory to look in: said so, not a panic.
     let e = common::error_naming(
         &path,
-        no_panic("missing-bin mem", || scene::load_bytes(&path, &serde_json::to_vec(&g.json).unwrap())),
+        no_panic("missing-bin mem", || {
+            scene::load_bytes(&path, &serde_json::to_vec(&g.json).unwrap())
+        }),
     );
     assert!(e.contains("cannot be read when loading from memory"), "{e}");
     // Coordinates of 1e20 are refused by the loader, naming the file and the vertex.
@@ -528,10 +625,17 @@ fn mutated_glb_never_panics() {
     for n in 0..glb.len() {
         runs += 1;
         let ok = run(format!("cut at {n}"), &glb[..n]);
-        assert!(ok != Some(true), "a GLB cut to {n} of {} bytes loaded", glb.len());
+        assert!(
+            ok != Some(true),
+            "a GLB cut to {n} of {} bytes loaded",
+            glb.len()
+        );
     }
     PANICS.with(|p| *p.borrow_mut() = None);
-    eprintln!("{runs} mutated GLBs, {loaded} still loaded (harmless edits), {} panics", failures.len());
+    eprintln!(
+        "{runs} mutated GLBs, {loaded} still loaded (harmless edits), {} panics",
+        failures.len()
+    );
     assert!(failures.is_empty(), "panics:\n{}", failures.join("\n"));
     assert!(loaded < runs / 2, "most mutations must be refused");
 }
@@ -551,7 +655,10 @@ fn static_formats_refuse_non_finite_and_huge_values() {
     let e = load_err("inf.obj", b"v 0 0 0\nv 1e39 0 0\nv 0 1 0\nf 1 2 3\n");
     assert!(e.contains("line 2") && e.contains("not a finite"), "{e}");
     let e = load_err("far.obj", b"v 0 0 0\nv 1e20 0 0\nv 0 1 0\nf 1 2 3\n");
-    assert!(e.contains("line 2") && e.contains("coordinate bound"), "{e}");
+    assert!(
+        e.contains("line 2") && e.contains("coordinate bound"),
+        "{e}"
+    );
     let e = load_err("nan.off", b"OFF\n3 1 0\n0 0 0\n1 NaN 0\n0 1 0\n3 0 1 2\n");
     assert!(e.contains("line 4") && e.contains("not a finite"), "{e}");
     let e = load_err("huge.off", b"OFF\n1000000000000 1 0\n0 0 0\n");
@@ -565,11 +672,26 @@ fn static_formats_refuse_non_finite_and_huge_values() {
              end_header\n{body}"
         )
     };
-    let e = load_err("far.ply", ply("0 0 0\n1e20 0 0\n0 1 0\n3 0 1 2\n").as_bytes());
-    assert!(e.contains("vertex 1") && e.contains("coordinate bound"), "{e}");
-    let e = load_err("inf.ply", ply("0 0 0\n1e39 0 0\n0 1 0\n3 0 1 2\n").as_bytes());
-    assert!(e.contains("vertex 1") && e.contains("property x") && e.contains("not a finite"), "{e}");
-    let e = load_err("idx.ply", ply("0 0 0\n1 0 0\n0 1 0\n3 0 1 5000000000\n").as_bytes());
+    let e = load_err(
+        "far.ply",
+        ply("0 0 0\n1e20 0 0\n0 1 0\n3 0 1 2\n").as_bytes(),
+    );
+    assert!(
+        e.contains("vertex 1") && e.contains("coordinate bound"),
+        "{e}"
+    );
+    let e = load_err(
+        "inf.ply",
+        ply("0 0 0\n1e39 0 0\n0 1 0\n3 0 1 2\n").as_bytes(),
+    );
+    assert!(
+        e.contains("vertex 1") && e.contains("property x") && e.contains("not a finite"),
+        "{e}"
+    );
+    let e = load_err(
+        "idx.ply",
+        ply("0 0 0\n1 0 0\n0 1 0\n3 0 1 5000000000\n").as_bytes(),
+    );
     assert!(e.contains("face 0") && e.contains("too large"), "{e}");
     // Binary: a NaN y.
     let mut bin = b"ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n".to_vec();
@@ -649,17 +771,34 @@ fn sphere_trees_stay_finite_and_bad_ones_are_refused() {
     };
     let out = common::temp_dir("loaders-bad").join("inf.sph");
     let e = t.write_sph(&out).unwrap_err().to_string();
-    assert!(e.contains("inf.sph") && e.contains("node 0") && e.contains("not written"), "{e}");
+    assert!(
+        e.contains("inf.sph") && e.contains("node 0") && e.contains("not written"),
+        "{e}"
+    );
     assert!(!out.exists(), "a refused tree left a file");
     for (name, text, want) in [
-        ("rad.sph", "2 2\n0 0 0 3e38 1\n0 0 0 1 1\n0 0 0 1 1\n", "node 0"),
-        ("inf.sph", "2 2\n0 0 0 1 1\n0 0 1e39 1 1\n0 0 0 1 1\n", "not a finite"),
-        ("nan.sph", "2 2\n0 0 0 1 1\n0 0 0 1 1\n0 0 0 1 nan\n", "not a finite"),
+        (
+            "rad.sph",
+            "2 2\n0 0 0 3e38 1\n0 0 0 1 1\n0 0 0 1 1\n",
+            "node 0",
+        ),
+        (
+            "inf.sph",
+            "2 2\n0 0 0 1 1\n0 0 1e39 1 1\n0 0 0 1 1\n",
+            "not a finite",
+        ),
+        (
+            "nan.sph",
+            "2 2\n0 0 0 1 1\n0 0 0 1 1\n0 0 0 1 nan\n",
+            "not a finite",
+        ),
     ] {
         let path = write(name, text.as_bytes());
         let e = common::error_naming(&path, no_panic(name, || SphereTree::read_sph(&path)));
         assert!(e.contains(want), "{name}: {e}");
-        let m = SphereTree::parse_sph(&path, text.as_bytes()).unwrap_err().to_string();
+        let m = SphereTree::parse_sph(&path, text.as_bytes())
+            .unwrap_err()
+            .to_string();
         assert_eq!(m, e);
     }
 }
@@ -676,5 +815,27 @@ fn huge_normals_normalise() {
     let m = Mesh::from_data(d, Path::new("n")).unwrap();
     for n in &m.normals {
         assert!((n.length() - 1.0).abs() < 1e-5, "{n:?}");
+    }
+}
+
+/// The strict checks accept the characters shipped under data/ (every mesh node, and from
+/// memory as from the file), with their animations.
+#[test]
+fn the_shipped_characters_still_load() {
+    for name in ["testwuson.glb", "bcn_epileptic.glb", "human.glb"] {
+        let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("data")
+            .join(name);
+        let c = scene::load(&path).unwrap_or_else(|e| panic!("{e}; run tools/setup.sh"));
+        let bytes = std::fs::read(&path).unwrap();
+        let m = scene::load_bytes(&path, &bytes).unwrap();
+        assert_eq!(m.mesh.positions, c.mesh.positions, "{name}");
+        eprintln!(
+            "{name}: {} vertices, {} triangles, skinned {}, {} animations",
+            c.mesh.positions.len(),
+            c.mesh.triangles.len(),
+            c.skinned,
+            c.animations.len()
+        );
     }
 }

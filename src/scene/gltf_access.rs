@@ -294,7 +294,7 @@ fn span<'b>(
         ));
     }
     let view_start = root.buffer_views[vi].byte_offset.map_or(0, |o| o.0);
-    if (view_start + offset) % align != 0 || stride % align != 0 {
+    if !(view_start + offset).is_multiple_of(align) || !stride.is_multiple_of(align) {
         return Err(format!(
             "data at byte {} of its buffer (stride {stride}) is not aligned to its \
              {align}-byte components",
@@ -342,7 +342,10 @@ pub fn read<T: Copy, const N: usize>(
     let (c, rows) = (ct.0, shape(*ty).1);
     let (col_stride, elem) = layout(c, *ty);
     if (shape(*ty).0 * rows) as usize != N {
-        return Err(at(format!("{} components per element, expected {N}", shape(*ty).0 * rows)));
+        return Err(at(format!(
+            "{} components per element, expected {N}",
+            shape(*ty).0 * rows
+        )));
     }
     let cs = ct_size(c);
     let comp_offset = |k: usize| (k as u64 / rows) * col_stride + (k as u64 % rows) * cs;

@@ -379,11 +379,13 @@ fn from_bytes(
         Some(s) => {
             let joints: Vec<usize> = s.joints().map(|j| j.index()).collect();
             let ibm: Vec<Mat4> = match root.skins[s.index()].inverse_bind_matrices {
-                Some(ai) => read::<f32, 16>(root, &buffers, ai.value(), access::INVERSE_BIND, to_f32)
-                    .map_err(|m| err(format!("skin {}: inverseBindMatrices {m}", s.index())))?
-                    .iter()
-                    .map(Mat4::from_cols_array)
-                    .collect(),
+                Some(ai) => {
+                    read::<f32, 16>(root, &buffers, ai.value(), access::INVERSE_BIND, to_f32)
+                        .map_err(|m| err(format!("skin {}: inverseBindMatrices {m}", s.index())))?
+                        .iter()
+                        .map(Mat4::from_cols_array)
+                        .collect()
+                }
                 None => vec![Mat4::IDENTITY; joints.len()],
             };
             data.joint_count = joints.len();
@@ -485,9 +487,10 @@ fn from_bytes(
                         "{what}: keyframe times are not finite and strictly increasing"
                     )));
                 }
-                if let Some(v) = values.iter().find(|v| {
-                    v.iter().any(|c| !c.is_finite() || c.abs() > MAX_COORDINATE)
-                }) {
+                if let Some(v) = values
+                    .iter()
+                    .find(|v| v.iter().any(|c| !c.is_finite() || c.abs() > MAX_COORDINATE))
+                {
                     return Err(err(format!(
                         "{what}: keyframe value {v:?} is not finite or beyond the coordinate \
                          bound {MAX_COORDINATE:e}"
@@ -608,7 +611,7 @@ fn check_poses(
                 let lin = Mat3::from_mat4(*mj);
                 let l = lin.abs().to_cols_array().into_iter().fold(0f32, f32::max);
                 let bound = 3.0 * l * reach + mj.w_axis.truncate().abs().max_element();
-                if !mj.is_finite() || !(bound <= MAX_COORDINATE) {
+                if !mj.is_finite() || !bound.is_finite() || bound > MAX_COORDINATE {
                     return Err(format!(
                         "animation '{}' at {t} s moves joint {j} so that the mesh may reach \
                          {bound:e}, beyond the coordinate bound {MAX_COORDINATE:e}",
@@ -748,7 +751,14 @@ pub fn load_materials(path: &Path, names: &[&str]) -> Result<Vec<Material>> {
                     )));
                 }
                 let root = doc.as_json();
-                Some(decode_texture(path, base, root, &buffers, info.texture(), name)?)
+                Some(decode_texture(
+                    path,
+                    base,
+                    root,
+                    &buffers,
+                    info.texture(),
+                    name,
+                )?)
             }
         };
         out.push(Material {
@@ -786,9 +796,8 @@ fn decode_texture(
     };
     // The crate slices an embedded image's view without a check.
     if let gltf::image::Source::View { view, .. } = image.source() {
-        access::view_bytes(root, buffers, view.index()).map_err(|m| {
-            Error::input(path, format!("part '{part}': base-colour {source}: {m}"))
-        })?;
+        access::view_bytes(root, buffers, view.index())
+            .map_err(|m| Error::input(path, format!("part '{part}': base-colour {source}: {m}")))?;
     }
     let data = gltf::image::Data::from_source(image.source(), base, &buffers.0).map_err(|e| {
         Error::input(

@@ -222,8 +222,8 @@ impl SphereTree {
     /// As [`SphereTree::read_sph`], from memory; `path` only names the source in errors.
     /// Every number must be finite, centres and radii within [`SphereTree::MAX_EXTENT`].
     pub fn parse_sph(path: &Path, bytes: &[u8]) -> Result<SphereTree> {
-        let text = std::str::from_utf8(bytes)
-            .map_err(|_| Error::input(path, "not a UTF-8 text file"))?;
+        let text =
+            std::str::from_utf8(bytes).map_err(|_| Error::input(path, "not a UTF-8 text file"))?;
         let mut tokens = text.split_whitespace();
         let mut header = |what: &str| -> Result<u32> {
             let t = tokens
@@ -432,10 +432,9 @@ impl SphereTree {
                 }
                 let c = m.iter().map(|&p| points[p as usize]).sum::<Vec3>() / m.len() as f32;
                 let r = match fit {
-                    Fit::Volume => {
-                        (3.0 * m.len() as f64 * cell_volume / (4.0 * std::f64::consts::PI)).cbrt()
-                            as f32
-                    }
+                    Fit::Volume => (3.0 * m.len() as f64 * cell_volume
+                        / (4.0 * std::f64::consts::PI))
+                        .cbrt() as f32,
                     Fit::Bounding => {
                         m.iter()
                             .map(|&p| points[p as usize].distance(c))
