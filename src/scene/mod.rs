@@ -152,6 +152,13 @@ pub fn load_bytes(name: &Path, bytes: &[u8]) -> Result<Character> {
             }
             return Ok(c);
         }
+        #[cfg(not(feature = "gltf"))]
+        "glb" | "gltf" => {
+            return Err(Error::feature(
+                format!("loading the glTF file {}", name.display()),
+                "gltf",
+            ));
+        }
         "obj" => static_load::parse_obj(name, bytes)?,
         "ply" => static_load::parse_ply(name, bytes)?,
         "off" => static_load::parse_off(name, bytes)?,
