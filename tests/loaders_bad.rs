@@ -764,6 +764,16 @@ fn sphere_trees_stay_finite_and_bad_ones_are_refused() {
     .to_string();
     assert!(e.contains("scaled.obj") && e.contains("vertex 1"), "{e}");
 
+    // A mesh past the bound that bypassed the loaders (its fields are public) gets no tree
+    // with infinite or out-of-bound spheres from the builder: an error naming the mesh.
+    let mut far = tri_mesh(1.0);
+    far.positions.iter_mut().for_each(|p| *p *= 1e20);
+    let e = SphereTree::build(&far, &cfg).unwrap_err().to_string();
+    assert!(
+        e.contains("octahedron") && e.contains("sphere tree built for this mesh is unusable"),
+        "{e}"
+    );
+
     let (mut t, _) = SphereTree::build(&tri_mesh(1.0), &cfg).unwrap();
     t.spheres[0] = Sphere {
         center: glam::Vec3::ZERO,
@@ -838,4 +848,57 @@ fn the_shipped_characters_still_load() {
             c.animations.len()
         );
     }
+}
+
+/// The static formats and `.sph` under the same mutations as the GLB (every byte set to
+/// three values, every truncation): errors or meshes, never a panic.
+#[test]
+fn mutated_static_files_never_panic() {
+    let obj = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nv 0 0 1\nvt 0 0\nvn 0 0 1\nf 1/1/1 2/1/1 3/1/1\nf 1 4 2\nf -1 -2 -3\n".to_vec();
+    let off = b"OFF\n4 2 0\n0 0 0\n1 0 0\n0 1 0\n0 0 1\n3 0 1 2\n4 0 1 2 3\n".to_vec();
+    let ascii_ply = b"ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nproperty float nx\nproperty float ny\nproperty float nz\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0 0 0 1\n1 0 0 0 0 1\n0 1 0 0 0 1\n3 0 1 2\n".to_vec();
+    let mut bin_ply = b"ply\nformat binary_big_endian 1.0\nelement vertex 3\nproperty double x\nproperty double y\nproperty double z\nelement face 1\nproperty list uchar uint vertex_indices\nend_header\n".to_vec();
+    for v in [0f64, 0., 0., 1., 0., 0., 0., 1., 0.] {
+        bin_ply.extend(v.to_be_bytes());
+    }
+    bin_ply.push(3);
+    for i in [0u32, 1, 2] {
+        bin_ply.extend(i.to_be_bytes());
+    }
+    let sph = b"2 2\n0 0 0 1 1\n0.5 0 0 0.5 0.5\n-0.5 0 0 0.5 0.5\n".to_vec();
+    let mut runs = 0;
+    let mut panics = Vec::new();
+    for (name, file) in [
+        ("m.obj", &obj),
+        ("m.off", &off),
+        ("a.ply", &ascii_ply),
+        ("b.ply", &bin_ply),
+        ("t.sph", &sph),
+    ] {
+        let path = Path::new(name);
+        let mut check = |what: String, bytes: &[u8]| {
+            runs += 1;
+            let r = catch_unwind(AssertUnwindSafe(|| {
+                if name.ends_with(".sph") {
+                    SphereTree::parse_sph(path, bytes).map(|_| ())
+                } else {
+                    scene::load_bytes(path, bytes).map(|_| ())
+                }
+            }));
+            if r.is_err() {
+                panics.push(format!("{name} {what}"));
+            }
+        };
+        check("as is".into(), file);
+        for i in 0..file.len() {
+            for v in [0u8, 0xff, b'9', b'-', b'\n'] {
+                let mut m = file.clone();
+                m[i] = v;
+                check(format!("byte {i} = {v:#x}"), &m);
+            }
+            check(format!("cut at {i}"), &file[..i]);
+        }
+    }
+    eprintln!("{runs} mutated static files, {} panics", panics.len());
+    assert!(panics.is_empty(), "panics: {panics:?}");
 }
