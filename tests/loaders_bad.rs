@@ -902,3 +902,31 @@ fn mutated_static_files_never_panic() {
     eprintln!("{runs} mutated static files, {} panics", panics.len());
     assert!(panics.is_empty(), "panics: {panics:?}");
 }
+
+/// An embedded base-colour image whose view points past the buffer: the gltf crate sliced
+/// it unchecked (a panic); now an error naming the part and the image.
+#[test]
+fn an_image_view_past_the_buffer_is_an_error() {
+    let mut g = Gltf::valid();
+    g.json["bufferViews"]
+        .as_array_mut()
+        .unwrap()
+        .push(json!({"buffer": 0, "byteOffset": 360, "byteLength": 100}));
+    g.json["images"] = json!([{"bufferView": 9, "mimeType": "image/png"}]);
+    g.json["textures"] = json!([{"source": 0}]);
+    g.json["materials"] = json!([{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}]);
+    g.json["meshes"][0]["primitives"][0]["material"] = json!(0);
+    let path = g.write("image-view.glb");
+    let e = common::error_naming(
+        &path,
+        no_panic("image-view", || {
+            scene::gltf_load::load_materials(&path, &["tet"])
+        }),
+    );
+    assert!(
+        e.contains("part 'tet'")
+            && e.contains("image 0")
+            && e.contains("points past the end of buffer 0"),
+        "{e}"
+    );
+}

@@ -3,6 +3,12 @@
 //! The mesh is every triangle primitive of the nodes that use the file's first skin (so a
 //! character split into several meshes comes back whole); without a skin, every mesh node,
 //! transformed to world space. Texture images are decoded only by [`load_materials`].
+//!
+//! Nothing is read through the gltf crate's accessor readers: [`super::gltf_access`] checks
+//! every accessor against the specification and the bytes before reading it. Errors name the
+//! file and the mesh/primitive, skin or animation/channel, the attribute, the accessor and
+//! the cause. Vertices beyond [`MAX_COORDINATE`] are refused, and so is a skeleton whose
+//! rest pose or keyframes collapse the skinned mesh to a point or move it past the bound.
 
 use super::Character;
 use super::gltf_access as access;
