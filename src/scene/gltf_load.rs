@@ -3,11 +3,18 @@
 //! The mesh is every triangle primitive of the nodes that use the file's first skin (so a
 //! character split into several meshes comes back whole); without a skin, every mesh node,
 //! transformed to world space. Texture images are decoded only by [`load_materials`].
+//!
+//! Nothing is read through the gltf crate's accessor readers: [`super::gltf_access`] checks
+//! every accessor against the specification and the bytes before reading it. Errors name the
+//! file and the mesh/primitive, skin or animation/channel, the attribute, the accessor and
+//! the cause. Vertices beyond [`MAX_COORDINATE`] are refused, and so is a skeleton whose
+//! rest pose or keyframes collapse the skinned mesh to a point or move it past the bound.
 
 use super::Character;
+use super::gltf_access as access;
 use super::material::{Material, Texture, Wrap};
-use super::mesh::{Mesh, MeshData};
-use super::rig::{Animation, Channel, Interpolation, Node, Property, Rig, Trs};
+use super::mesh::{MAX_COORDINATE, Mesh, MeshData};
+use super::rig::{Animation, Channel, Interpolation, Node, Property, Rig, Trs, blend_matrix};
 use crate::error::{Error, Result};
 use glam::{Mat3, Mat4, Quat, Vec3};
 use std::path::Path;
@@ -76,35 +83,134 @@ pub fn load_parts(path: &Path, names: &[&str]) -> Result<(Character, Vec<u32>)> 
 }
 
 fn load_filtered(path: &Path, only: Option<&str>) -> Result<Character> {
-    let err = |m: String| Error::input(path, m);
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    let gltf = gltf::Gltf::from_slice(&bytes).map_err(|e| err(format!("not valid glTF: {e}")))?;
+    let base = path.parent().unwrap_or(Path::new("."));
+    from_bytes(path, &bytes, Some(base), only)
+}
+
+/// A glTF/GLB character from memory (as [`load`]; `name` is only used in error messages).
+/// Buffers must be embedded (GLB BIN chunk or data URIs): an external `.bin` is an error,
+/// since there is no directory to resolve it in. The entry point for fuzzing.
+pub fn load_bytes(name: &Path, bytes: &[u8]) -> Result<Character> {
+    from_bytes(name, bytes, None, None)
+}
+
+/// The GLB header's total length, checked before the gltf crate subtracts the header size
+/// from it (an underflow, a panic with overflow checks on, for a length below 12).
+fn check_glb_header(bytes: &[u8]) -> std::result::Result<(), String> {
+    if bytes.starts_with(b"glTF") && bytes.len() >= 12 {
+        let length = u32::from_le_bytes([bytes[8], bytes[9], bytes[10], bytes[11]]);
+        if length < 12 {
+            return Err(format!(
+                "not valid glTF: the GLB header declares a total length of {length} bytes, \
+                 less than the 12-byte header itself"
+            ));
+        }
+    }
+    Ok(())
+}
+
+/// Parses and validates a glTF/GLB document. The gltf crate's own validation indexes the
+/// accessor of every POSITION attribute without a bounds check, so that index is checked
+/// first, on the unvalidated document.
+fn parse(bytes: &[u8]) -> std::result::Result<gltf::Gltf, String> {
+    use gltf::json::validation::Checked;
+    check_glb_header(bytes)?;
+    let g = gltf::Gltf::from_slice_without_validation(bytes)
+        .map_err(|e| format!("not valid glTF: {e}"))?;
+    let root = g.document.as_json();
+    for (m, mesh) in root.meshes.iter().enumerate() {
+        for (p, prim) in mesh.primitives.iter().enumerate() {
+            let pos = prim
+                .attributes
+                .get(&Checked::Valid(gltf::json::mesh::Semantic::Positions));
+            if let Some(i) = pos.filter(|i| i.value() >= root.accessors.len()) {
+                return Err(format!(
+                    "mesh {m} primitive {p}: POSITION is accessor {}, but the file has {} \
+                     accessors",
+                    i.value(),
+                    root.accessors.len()
+                ));
+            }
+        }
+    }
+    let document = gltf::Document::from_json(g.document.into_json())
+        .map_err(|e| format!("not valid glTF: {e}"))?;
+    Ok(gltf::Gltf {
+        document,
+        blob: g.blob,
+    })
+}
+
+fn node_label(doc: &gltf::Document, i: usize) -> String {
+    match doc.nodes().nth(i).and_then(|n| n.name()) {
+        Some(n) => format!("node {i} '{n}'"),
+        None => format!("node {i}"),
+    }
+}
+
+fn from_bytes(
+    path: &Path,
+    bytes: &[u8],
+    base: Option<&Path>,
+    only: Option<&str>,
+) -> Result<Character> {
+    use access::{read, to_f32, to_u32};
+    use gltf::json::mesh::Semantic;
+    use gltf::json::validation::Checked;
+    let err = |m: String| Error::input(path, m);
+    let gltf = parse(bytes).map_err(err)?;
     let doc = gltf.document;
-    let base = path.parent();
-    let buffers = gltf::import_buffers(&doc, base, gltf.blob)
-        .map_err(|e| err(format!("cannot load buffers: {e}")))?;
-    let get = |b: gltf::Buffer<'_>| buffers.get(b.index()).map(|d| &d.0[..]);
+    let buffers = access::load_buffers(&doc, gltf.blob, base).map_err(err)?;
+    let root = doc.as_json();
 
     // Node hierarchy.
-    let mut nodes: Vec<Node> = doc
-        .nodes()
-        .map(|n| {
-            let (t, r, s) = n.transform().decomposed();
-            Node {
-                name: n.name().unwrap_or("").to_string(),
-                parent: None,
-                rest: Trs {
-                    t: Vec3::from_array(t),
-                    r: Quat::from_array(r).normalize(),
-                    s: Vec3::from_array(s),
-                },
-            }
-        })
-        .collect();
+    let mut nodes: Vec<Node> = Vec::with_capacity(root.nodes.len());
+    for n in doc.nodes() {
+        let (t, r, s) = n.transform().decomposed();
+        let label = node_label(&doc, n.index());
+        if !t.iter().chain(&r).chain(&s).all(|v| v.is_finite()) {
+            return Err(err(format!(
+                "{label} has a non-finite transform (translation {t:?}, rotation {r:?}, \
+                 scale {s:?})"
+            )));
+        }
+        if t.iter().chain(&s).any(|v| v.abs() > MAX_COORDINATE) {
+            return Err(err(format!(
+                "{label} has translation {t:?} / scale {s:?} beyond the coordinate bound \
+                 {MAX_COORDINATE:e}"
+            )));
+        }
+        let q = Quat::from_array(r);
+        if q.length() < 1e-6 {
+            return Err(err(format!(
+                "{label} has rotation {r:?}, which is not a unit quaternion"
+            )));
+        }
+        nodes.push(Node {
+            name: n.name().unwrap_or("").to_string(),
+            parent: None,
+            rest: Trs {
+                t: Vec3::from_array(t),
+                r: q.normalize(),
+                s: Vec3::from_array(s),
+            },
+        });
+    }
     for n in doc.nodes() {
         for c in n.children() {
-            if nodes[c.index()].parent.is_some() {
-                return Err(err(format!("node {} has two parents", c.index())));
+            if c.index() == n.index() {
+                return Err(err(format!(
+                    "{} lists itself as its own child: the node hierarchy has a cycle",
+                    node_label(&doc, n.index())
+                )));
+            }
+            if let Some(p) = nodes[c.index()].parent {
+                return Err(err(format!(
+                    "{} is a child of both node {p} and node {} (a node has one parent)",
+                    node_label(&doc, c.index()),
+                    n.index()
+                )));
             }
             nodes[c.index()].parent = Some(n.index());
         }
@@ -133,60 +239,109 @@ fn load_filtered(path: &Path, only: Option<&str>) -> Result<Character> {
     let mut influences: Vec<Vec<(u32, f32)>> = Vec::new();
     let (mut all_normals, mut all_uvs) = (true, true);
     for node in &mesh_nodes {
-        let mesh = node.mesh().expect("filtered");
+        let Some(mesh) = node.mesh() else {
+            continue;
+        };
         let to_world = if skin.is_some() {
             Mat4::IDENTITY
         } else {
             world[node.index()]
         };
+        let det = Mat3::from_mat4(to_world).determinant();
+        if !to_world.is_finite() || !det.is_finite() || det.abs() < 1e-30 {
+            return Err(err(format!(
+                "{} has a degenerate world transform (determinant {det}): a zero or \
+                 overflowing scale on it or an ancestor collapses its mesh",
+                node_label(&doc, node.index())
+            )));
+        }
         let normal_matrix = Mat3::from_mat4(to_world).inverse().transpose();
-        for (pi, prim) in mesh.primitives().enumerate() {
-            let what = format!("mesh '{}' primitive {pi}", mesh.name().unwrap_or(""));
-            match prim.mode() {
-                gltf::mesh::Mode::Triangles => {}
-                m => {
+        let jmesh = &root.meshes[mesh.index()];
+        let mname = mesh.name().unwrap_or("");
+        for (pi, prim) in jmesh.primitives.iter().enumerate() {
+            let what = format!("mesh {} '{mname}' primitive {pi}", mesh.index());
+            match prim.mode {
+                Checked::Valid(gltf::json::mesh::Mode::Triangles) => {}
+                Checked::Valid(m) => {
                     return Err(err(format!(
                         "{what}: primitive mode {m:?} is not supported (triangles only)"
                     )));
                 }
+                Checked::Invalid => {
+                    return Err(err(format!("{what}: unknown primitive mode")));
+                }
             }
-            let reader = prim.reader(get);
-            let pos: Vec<[f32; 3]> = reader
-                .read_positions()
-                .ok_or_else(|| err(format!("{what} has no POSITION")))?
-                .collect();
-            let base_index = data.positions.len() as u32;
+            let attr = |s: Semantic| prim.attributes.get(&Checked::Valid(s)).map(|i| i.value());
+            let at = |sem: &str| {
+                let what = what.clone();
+                let sem = sem.to_string();
+                move |m: String| Error::input(path, format!("{what}: {sem} {m}"))
+            };
+            let pos_ai = attr(Semantic::Positions)
+                .ok_or_else(|| err(format!("{what} has no POSITION attribute")))?;
+            let pos: Vec<[f32; 3]> =
+                read(root, &buffers, pos_ai, access::POSITION, to_f32).map_err(at("POSITION"))?;
             let count = pos.len();
+            let same_count = |sem: &str, n: usize| {
+                if n == count {
+                    Ok(())
+                } else {
+                    Err(err(format!(
+                        "{what}: {sem} has {n} elements but POSITION has {count} (the \
+                         attributes of a primitive have one count)"
+                    )))
+                }
+            };
+            let base_index = data.positions.len() as u32;
             data.positions.extend(
                 pos.iter()
                     .map(|p| to_world.transform_point3(Vec3::from_array(*p)).to_array()),
             );
-            match reader.read_normals() {
-                Some(n) => {
-                    normals.extend(n.map(|v| (normal_matrix * Vec3::from_array(v)).to_array()))
+            match attr(Semantic::Normals) {
+                Some(ai) => {
+                    let n: Vec<[f32; 3]> =
+                        read(root, &buffers, ai, access::NORMAL, to_f32).map_err(at("NORMAL"))?;
+                    same_count("NORMAL", n.len())?;
+                    normals.extend(
+                        n.iter()
+                            .map(|v| (normal_matrix * Vec3::from_array(*v)).to_array()),
+                    )
                 }
                 None => all_normals = false,
             }
-            match reader.read_tex_coords(0) {
-                Some(t) => uvs.extend(t.into_f32()),
+            match attr(Semantic::TexCoords(0)) {
+                Some(ai) => {
+                    let t: Vec<[f32; 2]> = read(root, &buffers, ai, access::TEXCOORD, to_f32)
+                        .map_err(at("TEXCOORD_0"))?;
+                    same_count("TEXCOORD_0", t.len())?;
+                    uvs.extend(t)
+                }
                 None => all_uvs = false,
             }
             if skin.is_some() {
                 let mut inf: Vec<Vec<(u32, f32)>> = vec![Vec::new(); count];
                 let mut set = 0;
-                while let (Some(j), Some(w)) = (reader.read_joints(set), reader.read_weights(set)) {
-                    let j: Vec<[u16; 4]> = j.into_u16().collect();
-                    let w: Vec<[f32; 4]> = w.into_f32().collect();
-                    if j.len() != count || w.len() != count {
-                        return Err(err(format!(
-                            "{what}: JOINTS_{set}/WEIGHTS_{set} have {}/{} entries for {count} vertices",
-                            j.len(),
-                            w.len()
-                        )));
-                    }
+                loop {
+                    let (ja, wa) = match (attr(Semantic::Joints(set)), attr(Semantic::Weights(set)))
+                    {
+                        (Some(j), Some(w)) => (j, w),
+                        (None, None) => break,
+                        _ => {
+                            return Err(err(format!(
+                                "{what}: JOINTS_{set} and WEIGHTS_{set} come in pairs; one is \
+                                 missing"
+                            )));
+                        }
+                    };
+                    let j: Vec<[u32; 4]> = read(root, &buffers, ja, access::JOINTS, to_u32)
+                        .map_err(at(&format!("JOINTS_{set}")))?;
+                    let w: Vec<[f32; 4]> = read(root, &buffers, wa, access::WEIGHTS, to_f32)
+                        .map_err(at(&format!("WEIGHTS_{set}")))?;
+                    same_count(&format!("JOINTS_{set}"), j.len())?;
+                    same_count(&format!("WEIGHTS_{set}"), w.len())?;
                     for v in 0..count {
                         for k in 0..4 {
-                            inf[v].push((j[v][k] as u32, w[v][k]));
+                            inf[v].push((j[v][k], w[v][k]));
                         }
                     }
                     set += 1;
@@ -198,8 +353,12 @@ fn load_filtered(path: &Path, only: Option<&str>) -> Result<Character> {
                 }
                 influences.extend(inf);
             }
-            let indices: Vec<u32> = match reader.read_indices() {
-                Some(i) => i.into_u32().collect(),
+            let indices: Vec<u32> = match prim.indices {
+                Some(ai) => read::<u32, 1>(root, &buffers, ai.value(), access::INDICES, to_u32)
+                    .map_err(at("indices"))?
+                    .into_iter()
+                    .map(|[i]| i)
+                    .collect(),
                 None => (0..count as u32).collect(),
             };
             if !indices.len().is_multiple_of(3) {
@@ -225,13 +384,19 @@ fn load_filtered(path: &Path, only: Option<&str>) -> Result<Character> {
     let rig = match &skin {
         Some(s) => {
             let joints: Vec<usize> = s.joints().map(|j| j.index()).collect();
-            let ibm: Vec<Mat4> = match s.reader(get).read_inverse_bind_matrices() {
-                Some(m) => m.map(|c| Mat4::from_cols_array_2d(&c)).collect(),
+            let ibm: Vec<Mat4> = match root.skins[s.index()].inverse_bind_matrices {
+                Some(ai) => {
+                    read::<f32, 16>(root, &buffers, ai.value(), access::INVERSE_BIND, to_f32)
+                        .map_err(|m| err(format!("skin {}: inverseBindMatrices {m}", s.index())))?
+                        .iter()
+                        .map(Mat4::from_cols_array)
+                        .collect()
+                }
                 None => vec![Mat4::IDENTITY; joints.len()],
             };
             data.joint_count = joints.len();
             data.influences = Some(influences);
-            Rig::new(nodes, joints, ibm).map_err(err)?
+            Rig::new(nodes, joints, ibm).map_err(|m| err(format!("skin {}: {m}", s.index())))?
         }
         None => Rig::identity(),
     };
@@ -240,46 +405,65 @@ fn load_filtered(path: &Path, only: Option<&str>) -> Result<Character> {
 
     let mut animations = Vec::new();
     if skinned {
-        for (ai, anim) in doc.animations().enumerate() {
+        for ((ai, janim), anim) in root.animations.iter().enumerate().zip(doc.animations()) {
             let name = anim
                 .name()
                 .map(str::to_string)
                 .unwrap_or_else(|| format!("animation{ai}"));
             let mut channels = Vec::new();
             let mut duration = 0f32;
-            for ch in anim.channels() {
-                let property = match ch.target().property() {
-                    gltf::animation::Property::Translation => Property::Translation,
-                    gltf::animation::Property::Rotation => Property::Rotation,
-                    gltf::animation::Property::Scale => Property::Scale,
-                    gltf::animation::Property::MorphTargetWeights => continue,
+            for (ci, ch) in janim.channels.iter().enumerate() {
+                let what = format!("animation {ai} '{name}' channel {ci}");
+                let node = ch.target.node.value();
+                if node >= rig.nodes.len() {
+                    return Err(err(format!(
+                        "{what} targets node {node}, but the file has {} nodes",
+                        rig.nodes.len()
+                    )));
+                }
+                use gltf::json::animation::{Interpolation as I, Property as P};
+                let property = match ch.target.path {
+                    Checked::Valid(P::Translation) => Property::Translation,
+                    Checked::Valid(P::Rotation) => Property::Rotation,
+                    Checked::Valid(P::Scale) => Property::Scale,
+                    Checked::Valid(P::MorphTargetWeights) => continue,
+                    Checked::Invalid => {
+                        return Err(err(format!("{what}: unknown target path")));
+                    }
                 };
-                let interpolation = match ch.sampler().interpolation() {
-                    gltf::animation::Interpolation::Step => Interpolation::Step,
-                    gltf::animation::Interpolation::Linear => Interpolation::Linear,
-                    gltf::animation::Interpolation::CubicSpline => Interpolation::CubicSpline,
+                let Some(sampler) = janim.samplers.get(ch.sampler.value()) else {
+                    return Err(err(format!(
+                        "{what} uses sampler {}, which does not exist",
+                        ch.sampler.value()
+                    )));
                 };
-                let reader = ch.reader(get);
-                let times: Vec<f32> = reader
-                    .read_inputs()
-                    .ok_or_else(|| {
-                        err(format!("animation '{name}': a channel has no input times"))
-                    })?
-                    .collect();
-                let values: Vec<[f32; 4]> = match reader.read_outputs() {
-                    Some(gltf::animation::util::ReadOutputs::Translations(v)) => {
-                        v.map(|[x, y, z]| [x, y, z, 0.0]).collect()
+                let interpolation = match sampler.interpolation {
+                    Checked::Valid(I::Step) => Interpolation::Step,
+                    Checked::Valid(I::Linear) => Interpolation::Linear,
+                    Checked::Valid(I::CubicSpline) => Interpolation::CubicSpline,
+                    Checked::Invalid => {
+                        return Err(err(format!("{what}: unknown interpolation")));
                     }
-                    Some(gltf::animation::util::ReadOutputs::Scales(v)) => {
-                        v.map(|[x, y, z]| [x, y, z, 0.0]).collect()
+                };
+                let times: Vec<f32> =
+                    read::<f32, 1>(root, &buffers, sampler.input.value(), access::TIMES, to_f32)
+                        .map_err(|m| err(format!("{what}: input (keyframe times) {m}")))?
+                        .into_iter()
+                        .map(|[t]| t)
+                        .collect();
+                let out = sampler.output.value();
+                let bad_out = |m: String| err(format!("{what}: output (keyframe values) {m}"));
+                let values: Vec<[f32; 4]> = match property {
+                    Property::Translation | Property::Scale => {
+                        read::<f32, 3>(root, &buffers, out, access::VEC3_KEYS, to_f32)
+                            .map_err(bad_out)?
+                            .into_iter()
+                            .map(|[x, y, z]| [x, y, z, 0.0])
+                            .collect()
                     }
-                    Some(gltf::animation::util::ReadOutputs::Rotations(r)) => {
-                        r.into_f32().collect()
-                    }
-                    _ => {
-                        return Err(err(format!(
-                            "animation '{name}': unreadable channel outputs"
-                        )));
+                    Property::Rotation => {
+                        read::<f32, 4>(root, &buffers, out, access::ROTATION_KEYS, to_f32)
+                            .map_err(bad_out)?
                     }
                 };
                 let per_key = if interpolation == Interpolation::CubicSpline {
@@ -287,26 +471,48 @@ fn load_filtered(path: &Path, only: Option<&str>) -> Result<Character> {
                 } else {
                     1
                 };
-                if times.is_empty() || values.len() != times.len() * per_key {
+                if per_key == 3 && values.len() != 3 * times.len() {
                     return Err(err(format!(
-                        "animation '{name}': {} keyframe times but {} values",
+                        "{what}: CUBICSPLINE needs 3 output values per keyframe (in-tangent, \
+                         value, out-tangent): {} keyframe times need {} values, the output \
+                         has {}",
+                        times.len(),
+                        3 * times.len(),
+                        values.len()
+                    )));
+                }
+                if values.len() != times.len() * per_key {
+                    return Err(err(format!(
+                        "{what}: {} keyframe times but {} output values (one per keyframe)",
                         times.len(),
                         values.len()
                     )));
                 }
                 if times.iter().any(|t| !t.is_finite()) || times.windows(2).any(|w| w[1] <= w[0]) {
                     return Err(err(format!(
-                        "animation '{name}': keyframe times are not finite and strictly increasing"
+                        "{what}: keyframe times are not finite and strictly increasing"
                     )));
                 }
-                if values.iter().flatten().any(|v| !v.is_finite()) {
+                if let Some(v) = values
+                    .iter()
+                    .find(|v| v.iter().any(|c| !c.is_finite() || c.abs() > MAX_COORDINATE))
+                {
                     return Err(err(format!(
-                        "animation '{name}': non-finite keyframe values"
+                        "{what}: keyframe value {v:?} is not finite or beyond the coordinate \
+                         bound {MAX_COORDINATE:e}"
                     )));
                 }
-                duration = duration.max(*times.last().expect("non-empty"));
+                if property == Property::Rotation {
+                    let keys = values.iter().skip(per_key / 2).step_by(per_key);
+                    if let Some(q) = keys.clone().find(|q| Quat::from_array(**q).length() < 1e-6) {
+                        return Err(err(format!(
+                            "{what}: rotation keyframe {q:?} is not a unit quaternion"
+                        )));
+                    }
+                }
+                duration = duration.max(times.last().copied().unwrap_or(0.0));
                 channels.push(Channel {
-                    node: ch.target().node().index(),
+                    node,
                     property,
                     interpolation,
                     times,
@@ -319,6 +525,7 @@ fn load_filtered(path: &Path, only: Option<&str>) -> Result<Character> {
                 channels,
             });
         }
+        check_poses(&mesh, &rig, &animations).map_err(err)?;
     }
     Ok(Character {
         mesh,
@@ -326,6 +533,109 @@ fn load_filtered(path: &Path, only: Option<&str>) -> Result<Character> {
         animations,
         skinned,
     })
+}
+
+/// Most keyframe times per animation at which [`check_poses`] evaluates the skeleton.
+const POSE_CHECKS_PER_ANIMATION: usize = 64;
+
+/// Refuses a skeleton that collapses or blows up the skinned mesh: the rest pose must keep
+/// every vertex finite and within [`MAX_COORDINATE`] and must not shrink the mesh to a point
+/// (a zero node scale would otherwise give occlusion 1 everywhere without a word); at up to
+/// [`POSE_CHECKS_PER_ANIMATION`] keyframe times of each animation, the skinning matrices of
+/// the weighted joints must be finite, keep the bind-space bounds within the coordinate
+/// bound, and not all scale to zero.
+fn check_poses(
+    mesh: &Mesh,
+    rig: &Rig,
+    animations: &[Animation],
+) -> std::result::Result<(), String> {
+    let Some(skin) = &mesh.skin else {
+        return Ok(());
+    };
+    let (lo, hi) = mesh.bounds();
+    let bind_extent = (hi - lo).max_element();
+    let reach = lo.abs().max(hi.abs()).max_element();
+    let mut used = vec![false; rig.joints.len()];
+    for (j, w) in skin.joints.iter().zip(&skin.weights) {
+        for k in 0..4 {
+            if w[k] > 0.0 && (j[k] as usize) < used.len() {
+                used[j[k] as usize] = true;
+            }
+        }
+    }
+    let zero_scales = || {
+        let z: Vec<String> = rig
+            .nodes
+            .iter()
+            .enumerate()
+            .filter(|(_, n)| n.rest.s.abs().min_element() == 0.0)
+            .map(|(i, n)| format!("node {i} '{}' has scale {:?}", n.name, n.rest.s.to_array()))
+            .collect();
+        if z.is_empty() {
+            String::new()
+        } else {
+            format!("; {}", z.join(", "))
+        }
+    };
+    let rest = rig.skinning_matrices(None, 0.0);
+    let (mut plo, mut phi) = (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY));
+    for (i, ((p, j), w)) in mesh
+        .positions
+        .iter()
+        .zip(&skin.joints)
+        .zip(&skin.weights)
+        .enumerate()
+    {
+        let q = blend_matrix(&rest, *j, *w).transform_point3(*p);
+        if !q.is_finite() || q.abs().max_element() > MAX_COORDINATE {
+            return Err(format!(
+                "the rest pose puts vertex {i} at {:?}, beyond the coordinate bound \
+                 {MAX_COORDINATE:e} (a node's translation or scale is too large)",
+                q.to_array()
+            ));
+        }
+        plo = plo.min(q);
+        phi = phi.max(q);
+    }
+    let extent = (phi - plo).max_element();
+    if extent <= 1e-6 * bind_extent {
+        return Err(format!(
+            "the rest pose collapses the skinned mesh to a point (extent {extent:e} against \
+             {bind_extent:e} in bind space){}",
+            zero_scales()
+        ));
+    }
+    for a in animations {
+        let mut times: Vec<f32> = a.channels.iter().flat_map(|c| c.times.clone()).collect();
+        times.sort_by(f32::total_cmp);
+        times.dedup();
+        let step = times.len().div_ceil(POSE_CHECKS_PER_ANIMATION).max(1);
+        for &t in times.iter().step_by(step) {
+            let m = rig.skinning_matrices(Some(a), t);
+            let mut largest_linear = 0f32;
+            for (j, mj) in m.iter().enumerate().filter(|(j, _)| used[*j]) {
+                let lin = Mat3::from_mat4(*mj);
+                let l = lin.abs().to_cols_array().into_iter().fold(0f32, f32::max);
+                let bound = 3.0 * l * reach + mj.w_axis.truncate().abs().max_element();
+                if !mj.is_finite() || !bound.is_finite() || bound > MAX_COORDINATE {
+                    return Err(format!(
+                        "animation '{}' at {t} s moves joint {j} so that the mesh may reach \
+                         {bound:e}, beyond the coordinate bound {MAX_COORDINATE:e}",
+                        a.name
+                    ));
+                }
+                largest_linear = largest_linear.max(l);
+            }
+            if largest_linear < 1e-6 {
+                return Err(format!(
+                    "animation '{}' at {t} s scales every weighted joint to zero, collapsing \
+                     the skinned mesh to a point",
+                    a.name
+                ));
+            }
+        }
+    }
+    Ok(())
 }
 
 /// The mesh nodes whose node or mesh name is `only` (case-insensitive); all with `None`.
@@ -378,11 +688,10 @@ fn skin_mesh_nodes<'a>(doc: &'a gltf::Document) -> Vec<gltf::Node<'a>> {
 pub fn load_materials(path: &Path, names: &[&str]) -> Result<Vec<Material>> {
     let err = |m: String| Error::input(path, m);
     let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    let gltf = gltf::Gltf::from_slice(&bytes).map_err(|e| err(format!("not valid glTF: {e}")))?;
+    let gltf = parse(&bytes).map_err(err)?;
     let doc = gltf.document;
     let base = path.parent().or(Some(Path::new(".")));
-    let buffers = gltf::import_buffers(&doc, base, gltf.blob)
-        .map_err(|e| err(format!("cannot load buffers: {e}")))?;
+    let buffers = access::load_buffers(&doc, gltf.blob, base).map_err(err)?;
     // A texture transform moves the texture on the surface; reading the texture without it
     // would put it in the wrong place without a word.
     if doc.extensions_used().any(|e| e == "KHR_texture_transform") {
@@ -447,7 +756,15 @@ pub fn load_materials(path: &Path, names: &[&str]) -> Result<Vec<Material>> {
                         info.tex_coord()
                     )));
                 }
-                Some(decode_texture(path, base, &buffers, info.texture(), name)?)
+                let root = doc.as_json();
+                Some(decode_texture(
+                    path,
+                    base,
+                    root,
+                    &buffers,
+                    info.texture(),
+                    name,
+                )?)
             }
         };
         out.push(Material {
@@ -462,7 +779,8 @@ pub fn load_materials(path: &Path, names: &[&str]) -> Result<Vec<Material>> {
 fn decode_texture(
     path: &Path,
     base: Option<&Path>,
-    buffers: &[gltf::buffer::Data],
+    root: &gltf::json::Root,
+    buffers: &access::Buffers,
     tex: gltf::Texture<'_>,
     part: &str,
 ) -> Result<Texture> {
@@ -482,7 +800,12 @@ fn decode_texture(
             None => format!("image {} (embedded)", image.index()),
         },
     };
-    let data = gltf::image::Data::from_source(image.source(), base, buffers).map_err(|e| {
+    // The crate slices an embedded image's view without a check.
+    if let gltf::image::Source::View { view, .. } = image.source() {
+        access::view_bytes(root, buffers, view.index())
+            .map_err(|m| Error::input(path, format!("part '{part}': base-colour {source}: {m}")))?;
+    }
+    let data = gltf::image::Data::from_source(image.source(), base, &buffers.0).map_err(|e| {
         Error::input(
             path,
             format!("part '{part}': base-colour {source} cannot be read or decoded: {e}"),

@@ -7,8 +7,9 @@
 //! - missing or zero-length normals are recomputed (area-weighted face normals).
 //!
 //! Errors (naming the file and the element): no triangles, a non-finite position, normal or
-//! weight, an index out of range, a negative weight, a vertex whose weights sum to zero, a
-//! joint index beyond the skeleton.
+//! weight, a coordinate beyond [`MAX_COORDINATE`], an index out of range, a negative weight
+//! or one above [`MAX_SKIN_WEIGHT`], a vertex whose weights sum to zero, a joint index beyond
+//! the skeleton.
 //!
 //! Non-manifold edges (used by more than two triangles) and boundary edges are counted, not
 //! repaired: per-vertex occlusion does not need a manifold, and the sphere-tree builder's
@@ -18,6 +19,25 @@ use crate::error::{Error, Result};
 use glam::{Vec2, Vec3};
 use std::collections::HashMap;
 use std::path::Path;
+
+/// Largest accepted |coordinate| of a vertex, in model units (and of a sphere tree's
+/// centres; of glTF node translations and scales).
+///
+/// Why 1e12: everything downstream works in f32 (max 3.4e38). With |x| <= 1e12 a bounding
+/// box has extents <= 2e12, so squared distances (<= 1.2e25), their sums over a million
+/// points (the k-means of the sphere-tree builder, <= 1.2e31), the cross products of
+/// triangle areas (<= 1.6e25) and the product of three extents (<= 8e36, a bounding-box
+/// volume) all stay finite with a margin; at 1e13 the box volume already overflows. The
+/// bound is far beyond any real model (1e12 m is seven times the Earth-Sun distance), so it
+/// only refuses corrupt or absurdly scaled files, which would otherwise turn into infinite
+/// sphere radii or NaN occlusion far from the loader.
+pub const MAX_COORDINATE: f32 = 1e12;
+
+/// Largest accepted single skin weight before renormalisation. Weights are fractions that
+/// should sum to 1; the loader renormalises any positive sum (exporters round, or store
+/// percentages), but a weight above this is corrupt data: renormalising it in f32 would
+/// overflow the sum (3e38 + 3e38 = inf) and give NaN or zero weights.
+pub const MAX_SKIN_WEIGHT: f32 = 1e3;
 
 /// Up to four joint influences per vertex.
 #[derive(Clone, Debug, Default)]
@@ -95,6 +115,12 @@ impl Mesh {
             if !p.iter().all(|c| c.is_finite()) {
                 return Err(err(format!("vertex {i} has a non-finite position {p:?}")));
             }
+            if p.iter().any(|c| c.abs() > MAX_COORDINATE) {
+                return Err(err(format!(
+                    "vertex {i} has position {p:?}, beyond the coordinate bound \u{b1}{MAX_COORDINATE:e} \
+                     (rescale the model)"
+                )));
+            }
             positions.push(Vec3::from_array(*p));
         }
         let mut triangles = Vec::with_capacity(data.triangles.len());
@@ -136,7 +162,8 @@ impl Mesh {
                     }
                     let v = Vec3::from_array(*nrm);
                     if v.length() > 1e-6 {
-                        normals.push(v.normalize());
+                        // Scaled first: the length of a huge finite normal overflows.
+                        normals.push((v / v.abs().max_element()).normalize());
                     } else {
                         report.normals_recomputed += 1;
                         normals.push(face_normals[i]);
@@ -294,6 +321,12 @@ fn normalise_influences(
             if w < 0.0 {
                 return Err(format!("vertex {v} has a negative skin weight {w}"));
             }
+            if w > MAX_SKIN_WEIGHT {
+                return Err(format!(
+                    "vertex {v} has skin weight {w:e}, above the bound {MAX_SKIN_WEIGHT} \
+                     (weights are fractions summing to 1)"
+                ));
+            }
             if w == 0.0 {
                 continue;
             }
@@ -317,6 +350,12 @@ fn normalise_influences(
             report.weights_renormalised += 1;
         }
         let (j4, w4) = (top.joints, top.weights);
+        let sum: f32 = w4.iter().sum();
+        if !w4.iter().all(|w| w.is_finite() && *w >= 0.0) || (sum - 1.0).abs() > 1e-4 {
+            return Err(format!(
+                "vertex {v}: its skin weights do not normalise (got {w4:?})"
+            ));
+        }
         joints.push(j4);
         weights.push(w4);
     }

@@ -6,6 +6,8 @@
 pub mod envmap;
 pub mod gbuffer;
 #[cfg(feature = "gltf")]
+pub mod gltf_access;
+#[cfg(feature = "gltf")]
 pub mod gltf_load;
 pub mod material;
 pub mod mesh;
@@ -131,4 +133,41 @@ pub fn load(path: &Path) -> Result<Character> {
         }
     };
     Ok(Character::from_static(Mesh::from_data(data, path)?))
+}
+
+/// Loads a mesh from memory, as [`load`] does from a file: the format is chosen by the
+/// extension of `name`, which also names the source in every error. glTF buffers must be
+/// embedded (GLB or data URIs). The path-free entry point for fuzzing every mesh format.
+pub fn load_bytes(name: &Path, bytes: &[u8]) -> Result<Character> {
+    let ext = name
+        .extension()
+        .map(|e| e.to_string_lossy().to_lowercase())
+        .unwrap_or_default();
+    let data = match ext.as_str() {
+        #[cfg(feature = "gltf")]
+        "glb" | "gltf" => {
+            let mut c = gltf_load::load_bytes(name, bytes)?;
+            if !c.skinned {
+                c = Character::from_static(c.mesh);
+            }
+            return Ok(c);
+        }
+        #[cfg(not(feature = "gltf"))]
+        "glb" | "gltf" => {
+            return Err(Error::feature(
+                format!("loading the glTF file {}", name.display()),
+                "gltf",
+            ));
+        }
+        "obj" => static_load::parse_obj(name, bytes)?,
+        "ply" => static_load::parse_ply(name, bytes)?,
+        "off" => static_load::parse_off(name, bytes)?,
+        _ => {
+            return Err(Error::input(
+                name,
+                format!("unknown mesh format '.{ext}' (supported: .glb .gltf .obj .ply .off)"),
+            ));
+        }
+    };
+    Ok(Character::from_static(Mesh::from_data(data, name)?))
 }

@@ -164,7 +164,10 @@ impl Rig {
                     Property::Translation => trs.t = Vec3::new(v[0], v[1], v[2]),
                     Property::Scale => trs.s = Vec3::new(v[0], v[1], v[2]),
                     Property::Rotation => {
-                        trs.r = Quat::from_xyzw(v[0], v[1], v[2], v[3]).normalize()
+                        let q = Quat::from_xyzw(v[0], v[1], v[2], v[3]);
+                        if q.length() > 1e-6 {
+                            trs.r = q.normalize()
+                        }
                     }
                 }
             }
@@ -243,7 +246,13 @@ impl Channel {
                     h00 * p0[k] + h10 * dt * m0[k] + h01 * p1[k] + h11 * dt * m1[k]
                 });
                 if self.property == Property::Rotation {
-                    v = Quat::from_array(v).normalize().to_array();
+                    // Tangents can cancel the values (a zero quaternion): keep the nearer
+                    // keyframe rather than a NaN rotation.
+                    let near = if u < 0.5 { p0 } else { p1 };
+                    v = glam::Vec4::from_array(v)
+                        .try_normalize()
+                        .map_or(Quat::from_array(near).normalize(), Quat::from_vec4)
+                        .to_array();
                 }
                 v
             }
@@ -321,6 +330,27 @@ mod tests {
         };
         assert_eq!(step.sample(0.99)[0], 0.0);
         assert_eq!(step.sample(1.5)[0], 2.0);
+    }
+
+    #[test]
+    fn cubic_rotation_through_zero_stays_finite() {
+        // Values q and -q with zero tangents: the Hermite blend passes through zero at u = 0.5.
+        let q = Quat::from_rotation_y(0.3).to_array();
+        let ch = Channel {
+            node: 0,
+            property: Property::Rotation,
+            interpolation: Interpolation::CubicSpline,
+            times: vec![0.0, 1.0],
+            values: vec![[0.0; 4], q, [0.0; 4], [0.0; 4], q.map(|c| -c), [0.0; 4]],
+        };
+        for t in [0.25, 0.5, 0.75] {
+            let v = ch.sample(t);
+            let l = Quat::from_array(v).length();
+            assert!(
+                v.iter().all(|c| c.is_finite()) && (l - 1.0).abs() < 1e-5,
+                "{t}: {v:?}"
+            );
+        }
     }
 
     #[test]

@@ -17,7 +17,7 @@
 //! A mesh with no interior (open surfaces) falls back to clustering surface samples with
 //! bounding spheres, which the report states.
 
-use super::mesh::{Mesh, four_largest};
+use super::mesh::{MAX_COORDINATE, Mesh, four_largest};
 use crate::error::{Error, Result};
 use crate::geom::{Bvh, Rng};
 use glam::Vec3;
@@ -185,9 +185,45 @@ impl SphereTree {
             .count()
     }
 
+    /// Largest accepted |centre coordinate| and radius of a sphere: the mesh bound
+    /// [`MAX_COORDINATE`] with room for a bounding sphere around a box of that size
+    /// (radius up to sqrt(3) x its half-diagonal), so squared distances stay finite in f32.
+    pub const MAX_EXTENT: f32 = 4.0 * MAX_COORDINATE;
+
+    /// The first used sphere whose centre or radius is not finite or beyond
+    /// [`SphereTree::MAX_EXTENT`], as an error message.
+    fn check_values(&self) -> std::result::Result<(), String> {
+        for (i, s) in self.spheres.iter().enumerate() {
+            let bad = !s.center.is_finite()
+                || !s.radius.is_finite()
+                || s.center.abs().max_element() > Self::MAX_EXTENT
+                || s.radius > Self::MAX_EXTENT;
+            if bad {
+                return Err(format!(
+                    "node {i} has centre {:?} and radius {}: not finite or beyond the bound {:e}",
+                    s.center.to_array(),
+                    s.radius,
+                    Self::MAX_EXTENT
+                ));
+            }
+        }
+        if let Some(i) = self.importance.iter().position(|x| !x.is_finite()) {
+            return Err(format!("node {i} has a non-finite importance"));
+        }
+        Ok(())
+    }
+
     /// Reads a `.sph` file: `levels branch`, then `x y z r importance` per node.
     pub fn read_sph(path: &Path) -> Result<SphereTree> {
-        let text = std::fs::read_to_string(path).map_err(|e| Error::io(path, e))?;
+        let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+        Self::parse_sph(path, &bytes)
+    }
+
+    /// As [`SphereTree::read_sph`], from memory; `path` only names the source in errors.
+    /// Every number must be finite, centres and radii within [`SphereTree::MAX_EXTENT`].
+    pub fn parse_sph(path: &Path, bytes: &[u8]) -> Result<SphereTree> {
+        let text =
+            std::str::from_utf8(bytes).map_err(|_| Error::input(path, "not a UTF-8 text file"))?;
         let mut tokens = text.split_whitespace();
         let mut header = |what: &str| -> Result<u32> {
             let t = tokens
@@ -209,13 +245,18 @@ impl SphereTree {
         let n = node_count(levels, branch)
             .filter(|&n| n <= 1 << 22)
             .ok_or_else(|| Error::input(path, "tree too large"))?;
-        let values: Vec<&str> = tokens.collect();
+        // Counted before collecting: a tree's size is bounded above, the file's is not.
+        let values: Vec<&str> = tokens.by_ref().take(n * 5 + 1).collect();
         if values.len() != n * 5 {
             return Err(Error::input(
                 path,
                 format!(
-                    "{levels} levels x branch {branch} need exactly {n} nodes (5 numbers each), the file has {} numbers",
-                    values.len()
+                    "{levels} levels x branch {branch} need exactly {n} nodes (5 numbers each), the file has {}",
+                    if values.len() > n * 5 {
+                        format!("more than {} numbers", n * 5)
+                    } else {
+                        format!("{} numbers", values.len())
+                    }
                 ),
             ));
         }
@@ -262,11 +303,15 @@ impl SphereTree {
             }
         }
         tree.fill_empty_children();
+        tree.check_values().map_err(|m| Error::input(path, m))?;
         Ok(tree)
     }
 
-    /// Writes the `.sph` format (atomically).
+    /// Writes the `.sph` format (atomically). A non-finite or out-of-bound sphere is an
+    /// error naming the file and the node; nothing is written then.
     pub fn write_sph(&self, path: &Path) -> Result<()> {
+        self.check_values()
+            .map_err(|m| Error::input(path, format!("not written: {m}")))?;
         let mut s = format!("{} {}\n", self.levels, self.branch);
         for (sp, imp) in self.spheres.iter().zip(&self.importance) {
             s.push_str(&format!(
@@ -333,9 +378,10 @@ impl SphereTree {
         let bvh = Bvh::build(&mesh.positions, &mesh.triangles);
         let (lo, hi) = mesh.bounds();
         let extent = (hi - lo).max(Vec3::splat(1e-6));
-        // Cell size so that the bounding box holds ~3x the requested samples.
-        let h = (extent.x * extent.y * extent.z / (3.0 * cfg.samples.max(1000) as f32))
-            .cbrt()
+        // Cell size so that the bounding box holds ~3x the requested samples (the volume in
+        // f64: three extents of a large mesh multiply beyond f32).
+        let e64 = extent.as_dvec3();
+        let h = ((e64.x * e64.y * e64.z / (3.0 * cfg.samples.max(1000) as f64)).cbrt() as f32)
             .max(extent.max_element() / 400.0);
         let grid = Grid::new(lo - Vec3::splat(h), hi + Vec3::splat(h), h);
         let inside = grid.classify(&bvh);
@@ -351,7 +397,7 @@ impl SphereTree {
         if !from_volume {
             points = surface_samples(mesh, cfg.samples.max(1000), cfg.seed);
         }
-        let cell_volume = if from_volume { h * h * h } else { 0.0 };
+        let cell_volume = if from_volume { (h as f64).powi(3) } else { 0.0 };
 
         let mut spheres = vec![
             Sphere {
@@ -386,9 +432,9 @@ impl SphereTree {
                 }
                 let c = m.iter().map(|&p| points[p as usize]).sum::<Vec3>() / m.len() as f32;
                 let r = match fit {
-                    Fit::Volume => {
-                        (3.0 * m.len() as f32 * cell_volume / (4.0 * std::f32::consts::PI)).cbrt()
-                    }
+                    Fit::Volume => (3.0 * m.len() as f64 * cell_volume
+                        / (4.0 * std::f64::consts::PI))
+                        .cbrt() as f32,
                     Fit::Bounding => {
                         m.iter()
                             .map(|&p| points[p as usize].distance(c))
@@ -432,6 +478,12 @@ impl SphereTree {
             weights: vec![[1.0, 0.0, 0.0, 0.0]; n],
         };
         tree.fill_empty_children();
+        tree.check_values().map_err(|m| {
+            Error::input(
+                &mesh.report.source,
+                format!("the sphere tree built for this mesh is unusable: {m}"),
+            )
+        })?;
         tree.assign_skin(mesh, h);
         let report = FitReport {
             config: cfg.clone(),
@@ -452,9 +504,9 @@ impl SphereTree {
             lo = lo.min(s.center - Vec3::splat(s.radius));
             hi = hi.max(s.center + Vec3::splat(s.radius));
         }
-        // Cap the grid at ~8M cells.
-        let e = hi - lo;
-        let h = h.max((e.x * e.y * e.z / 8.0e6).cbrt());
+        // Cap the grid at ~8M cells (the volume in f64, as in the builder).
+        let e = (hi - lo).as_dvec3();
+        let h = h.max((e.x * e.y * e.z / 8.0e6).cbrt() as f32);
         let grid = Grid::new(lo - Vec3::splat(h), hi + Vec3::splat(h), h);
         let inside = grid.classify(bvh);
         let volume_cells = inside.iter().filter(|&&b| b).count().max(1) as f64;

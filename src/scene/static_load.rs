@@ -1,14 +1,30 @@
 //! Static meshes: Wavefront OBJ, PLY (ASCII and binary), OFF. Polygons are triangulated as
 //! fans. Errors name the file and the line (text formats) or element (binary PLY).
 
-use super::mesh::MeshData;
+use super::mesh::{MAX_COORDINATE, MeshData};
 use crate::error::{Error, Result};
 use std::collections::HashMap;
 use std::path::Path;
 
-fn read_text(path: &Path) -> Result<String> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
-    String::from_utf8(bytes).map_err(|_| Error::input(path, "not a UTF-8 text file"))
+fn read(path: &Path) -> Result<Vec<u8>> {
+    std::fs::read(path).map_err(|e| Error::io(path, e))
+}
+
+fn text<'a>(path: &Path, bytes: &'a [u8]) -> Result<&'a str> {
+    std::str::from_utf8(bytes).map_err(|_| Error::input(path, "not a UTF-8 text file"))
+}
+
+/// Refuses a position beyond [`MAX_COORDINATE`] at `line` of a text file.
+fn check_position(p: &[f32; 3], path: &Path, line: usize) -> Result<()> {
+    if p.iter().any(|c| c.abs() > MAX_COORDINATE) {
+        return Err(Error::input(
+            path,
+            format!(
+                "line {line}: vertex {p:?} is beyond the coordinate bound \u{b1}{MAX_COORDINATE:e}"
+            ),
+        ));
+    }
+    Ok(())
 }
 
 fn name_of(path: &Path) -> String {
@@ -40,6 +56,12 @@ fn parse_f32s<const N: usize>(
                 format!("line {line}: '{tok}' is not a number in {what}"),
             )
         })?;
+        if !o.is_finite() {
+            return Err(Error::input(
+                path,
+                format!("line {line}: '{tok}' in {what} is not a finite (32-bit) number"),
+            ));
+        }
     }
     Ok(out)
 }
@@ -47,7 +69,12 @@ fn parse_f32s<const N: usize>(
 /// Wavefront OBJ: `v`, `vt`, `vn`, `f` (with `v`, `v/t`, `v//n`, `v/t/n` and negative
 /// indices). A vertex is a distinct (position, uv, normal) triple.
 pub fn load_obj(path: &Path) -> Result<MeshData> {
-    let text = read_text(path)?;
+    parse_obj(path, &read(path)?)
+}
+
+/// As [`load_obj`], from memory; `path` only names the source in errors.
+pub fn parse_obj(path: &Path, bytes: &[u8]) -> Result<MeshData> {
+    let text = text(path, bytes)?;
     let (mut v, mut vt, mut vn) = (Vec::new(), Vec::new(), Vec::new());
     let mut corners: HashMap<(u32, i64, i64), u32> = HashMap::new();
     let mut data = MeshData {
@@ -60,7 +87,11 @@ pub fn load_obj(path: &Path) -> Result<MeshData> {
         let line = ln + 1;
         let mut it = raw.split_whitespace();
         match it.next() {
-            Some("v") => v.push(parse_f32s::<3>(&mut it, path, line, "vertex")?),
+            Some("v") => {
+                let p = parse_f32s::<3>(&mut it, path, line, "vertex")?;
+                check_position(&p, path, line)?;
+                v.push(p)
+            }
             Some("vt") => vt.push(parse_f32s::<2>(&mut it, path, line, "texture coordinate")?),
             Some("vn") => vn.push(parse_f32s::<3>(&mut it, path, line, "normal")?),
             Some("f") => {
@@ -135,7 +166,12 @@ pub fn load_obj(path: &Path) -> Result<MeshData> {
 
 /// Object File Format: `OFF`, counts, vertices, then faces as `n i0 i1 ...`.
 pub fn load_off(path: &Path) -> Result<MeshData> {
-    let text = read_text(path)?;
+    parse_off(path, &read(path)?)
+}
+
+/// As [`load_off`], from memory; `path` only names the source in errors.
+pub fn parse_off(path: &Path, bytes: &[u8]) -> Result<MeshData> {
+    let text = text(path, bytes)?;
     let mut lines = text
         .lines()
         .enumerate()
@@ -174,12 +210,9 @@ pub fn load_off(path: &Path) -> Result<MeshData> {
         let (ln, l) = lines
             .next()
             .ok_or_else(|| Error::input(path, format!("file ends before {} vertices", c[0])))?;
-        data.positions.push(parse_f32s::<3>(
-            &mut l.split_whitespace(),
-            path,
-            ln,
-            "vertex",
-        )?);
+        let p = parse_f32s::<3>(&mut l.split_whitespace(), path, ln, "vertex")?;
+        check_position(&p, path, ln)?;
+        data.positions.push(p);
     }
     for _ in 0..c[1] {
         let (ln, l) = lines
@@ -280,9 +313,23 @@ pub fn load_ply(path: &Path) -> Result<MeshData> {
     Ok(load_ply_with_properties(path)?.0)
 }
 
+/// As [`load_ply`], from memory; `path` only names the source in errors.
+pub fn parse_ply(path: &Path, bytes: &[u8]) -> Result<MeshData> {
+    Ok(parse_ply_with_properties(path, bytes)?.0)
+}
+
 /// As [`load_ply`], also returning every scalar vertex property by name (e.g. `ao`).
+/// Every scalar vertex property must be finite as a 32-bit float, and `x y z` within
+/// [`MAX_COORDINATE`].
 pub fn load_ply_with_properties(path: &Path) -> Result<(MeshData, HashMap<String, Vec<f32>>)> {
-    let bytes = std::fs::read(path).map_err(|e| Error::io(path, e))?;
+    parse_ply_with_properties(path, &read(path)?)
+}
+
+/// As [`load_ply_with_properties`], from memory; `path` only names the source in errors.
+pub fn parse_ply_with_properties(
+    path: &Path,
+    bytes: &[u8],
+) -> Result<(MeshData, HashMap<String, Vec<f32>>)> {
     let end = bytes
         .windows(10)
         .position(|w| w == b"end_header")
@@ -435,6 +482,28 @@ pub fn load_ply_with_properties(path: &Path) -> Result<(MeshData, HashMap<String
             }
             if el.name == "vertex" {
                 for (p, v) in el.props.iter().zip(&vals) {
+                    if p.list.is_none() && !(*v as f32).is_finite() {
+                        return Err(Error::input(
+                            path,
+                            format!(
+                                "{what}: property {} = {v} is not a finite 32-bit number",
+                                p.name
+                            ),
+                        ));
+                    }
+                }
+                for i in [xi, yi, zi].into_iter().flatten() {
+                    if (vals[i] as f32).abs() > MAX_COORDINATE {
+                        return Err(Error::input(
+                            path,
+                            format!(
+                                "{what}: {} = {} is beyond the coordinate bound \u{b1}{MAX_COORDINATE:e}",
+                                el.props[i].name, vals[i]
+                            ),
+                        ));
+                    }
+                }
+                for (p, v) in el.props.iter().zip(&vals) {
                     if p.list.is_none() {
                         vertex_props
                             .entry(p.name.clone())
@@ -453,10 +522,13 @@ pub fn load_ply_with_properties(path: &Path) -> Result<(MeshData, HashMap<String
                         format!("{what} has {} corners", list.len()),
                     ));
                 }
-                if list.iter().any(|&i| i < 0.0 || i.fract() != 0.0) {
+                if list
+                    .iter()
+                    .any(|&i| i < 0.0 || i.fract() != 0.0 || i > u32::MAX as f64)
+                {
                     return Err(Error::input(
                         path,
-                        format!("{what} has a negative or fractional index"),
+                        format!("{what} has a negative, fractional or too large index"),
                     ));
                 }
                 let poly: Vec<u32> = list.iter().map(|&i| i as u32).collect();
