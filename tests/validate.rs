@@ -3,7 +3,7 @@
 
 use std::time::Duration;
 use vkshade::app::Gpu;
-use vkshade::app::validate::{self, FeatureSet, SoakKernel, Status, ValidateConfig, soak_run};
+use vkshade::app::validate::{self, FeatureSet, Status, ValidateConfig};
 
 fn gpu() -> Gpu {
     Gpu {
