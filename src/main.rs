@@ -70,6 +70,11 @@ enum Command {
     /// Meshes.
     #[command(subcommand)]
     Mesh(app::scene::MeshCommand),
+    /// Every pipeline vkshade ships, each on a small input, under every validation feature
+    /// the installed layer offers (core, synchronization, best practices, GPU-assisted where
+    /// it completes): a table per case, a non-zero exit on any message or on a spv/ module
+    /// no case ran.
+    Validate(app::validate::Args),
 }
 
 fn main() -> ExitCode {
@@ -88,6 +93,7 @@ fn main() -> ExitCode {
         Command::Env(a) => a.run(gpu),
         Command::Spheretree(c) => c.run(),
         Command::Mesh(c) => c.run(),
+        Command::Validate(a) => a.run(gpu),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

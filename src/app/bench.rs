@@ -82,6 +82,11 @@ pub enum Command {
         #[command(flatten)]
         opts: Opts,
     },
+    /// Many frames of one kernel under validation (default 10,000 AO frames): device memory
+    /// (the allocator's report) and host RSS sampled every 1% of the run must stay flat after
+    /// the warm-up (criterion in `bench::soak`), with no validation message and no leak at
+    /// shutdown; writes DIR/soak.csv, soak.json and soak.png.
+    Soak(super::validate::SoakArgs),
     /// Environment light shadowed by the character (BCN_Epileptic, Epileptisch, forest map):
     /// GPU ms of `env rotate` and `env shadow` over the lobe count, beside the pose and AO
     /// passes, host ms per frame, the CPU twin's ms and the table lookups per vertex.
@@ -213,6 +218,7 @@ impl Command {
         match self {
             Command::Peak { opts } => peak(gpu, opts),
             Command::Frame { opts } => frame(gpu, opts),
+            Command::Soak(a) => a.run(gpu),
             Command::Ao {
                 opts,
                 mesh,

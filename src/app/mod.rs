@@ -12,6 +12,7 @@ pub mod scene;
 pub mod shaders;
 pub mod srbf;
 pub mod sss;
+pub mod validate;
 
 use crate::error::{Error, Result};
 use crate::gpu::{Context, ContextDesc, DeviceSelector, Features, ValidationConfig};
@@ -31,6 +32,10 @@ pub struct Gpu {
     /// validation message makes the command fail.
     #[arg(long, global = true)]
     pub validate: bool,
+    /// The validation settings to use instead of the default ones (`vkshade validate` sets
+    /// them per run: features, and a sink collecting the messages); implies validation.
+    #[arg(skip)]
+    pub validation: Option<ValidationConfig>,
 }
 
 impl Gpu {
@@ -43,7 +48,10 @@ impl Gpu {
     pub fn context_with(&self, features: Features) -> Result<Context> {
         Context::new(&ContextDesc {
             device: self.device.clone(),
-            validation: self.validate.then(ValidationConfig::default),
+            validation: match &self.validation {
+                Some(v) => Some(v.clone()),
+                None => self.validate.then(ValidationConfig::default),
+            },
             features,
             ..ContextDesc::default()
         })

@@ -117,3 +117,4 @@ pub fn time_cpu<T>(runs: usize, mut f: impl FnMut() -> T) -> Stats {
         .collect();
     Stats::of(&samples).unwrap_or_else(Stats::none)
 }
+pub mod soak;

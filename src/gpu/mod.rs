@@ -27,7 +27,7 @@ pub mod validation;
 
 pub use context::{
     Context, ContextDesc, DeviceInfo, DeviceLimits, DeviceSelector, ExternalDevice, Features,
-    MemoryConfig, SystemInfo, ValidationConfig, enumerate_devices,
+    LimitOverrides, MemoryConfig, SystemInfo, ValidationConfig, enumerate_devices,
 };
 pub use image::{
     FormatBlock, Image, ImageDesc, ImageDim, ImageRegion, Sampler, SamplerDesc, Subresources,
@@ -39,7 +39,7 @@ pub use memory::{
 pub use pipeline::{BindGroup, ComputePipeline, DeclaredUse, ImageRef, Resource, default_access};
 pub use record::{
     AliasUse, Barrier, BarrierMode, DISPATCH_INDIRECT_SIZE, PassTiming, PlannedBarrier, Readback,
-    Recorded, Recorder, Submission, Timings, Use,
+    Recorded, Recorder, Submission, Timings, Use, dispatched_pipelines,
 };
 pub use recycle::CreationCounts;
 pub use shader::{BindingInfo, DescriptorKind, SampledType, Shader};

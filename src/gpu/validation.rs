@@ -60,20 +60,33 @@ pub struct MessageSink {
     messages: Mutex<Vec<ValidationMessage>>,
     ignored_ids: Vec<i32>,
     ignored_count: Mutex<u64>,
+    /// A second sink every kept message is copied to (see [`ValidationConfig::tee`](crate::gpu::ValidationConfig::tee)).
+    tee: Option<Arc<MessageSink>>,
 }
 
 impl MessageSink {
     /// A sink that drops messages whose `messageIdNumber` is in `ignored_ids`.
     pub fn new(ignored_ids: Vec<i32>) -> Arc<Self> {
+        MessageSink::teed(ignored_ids, None)
+    }
+
+    /// As [`MessageSink::new`], copying every message to `tee` as well, ignored ones included
+    /// (the tee applies its own ignore list; a caller
+    /// collecting the messages of contexts it does not hold, e.g. `vkshade validate`).
+    pub fn teed(ignored_ids: Vec<i32>, tee: Option<Arc<MessageSink>>) -> Arc<Self> {
         Arc::new(MessageSink {
             messages: Mutex::new(Vec::new()),
             ignored_ids,
             ignored_count: Mutex::new(0),
+            tee,
         })
     }
 
-    /// Stores a message unless its id is ignored.
+    /// Copies a message to the tee (if any), then stores it unless its id is ignored.
     pub fn push(&self, message: ValidationMessage) {
+        if let Some(tee) = &self.tee {
+            tee.push(message.clone());
+        }
         if self.ignored_ids.contains(&message.id_number) {
             *lock(&self.ignored_count) += 1;
             return;

@@ -102,6 +102,40 @@ impl MemoryConfig {
     }
 }
 
+/// Lower limits and a memory budget for a context: the device's own limits stay what it
+/// reports, but vkshade checks its work against these (each only lowers, never raises, the
+/// device's value). For a renderer that leaves vkshade part of the device, and for tests of
+/// the refusals at limits too large to reach by real allocation on the test device (lavapipe's
+/// `maxImageDimension3D` 4096 would need a multi-GiB texture).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct LimitOverrides {
+    /// Bytes of live allocations the context may hold at once, staging ring included: an
+    /// allocation that would pass it is refused as [`Error::Limit`] naming "memory budget".
+    pub memory_budget: Option<u64>,
+    /// Lowers `maxStorageBufferRange`.
+    pub max_storage_buffer_range: Option<u64>,
+    /// Lowers `maxImageDimension3D`.
+    pub max_image_dimension_3d: Option<u32>,
+    /// Lowers `maxImageDimension2D`.
+    pub max_image_dimension_2d: Option<u32>,
+}
+
+impl LimitOverrides {
+    /// `info`'s limits lowered to these.
+    fn apply(&self, info: &mut DeviceInfo) {
+        let l = &mut info.limits;
+        if let Some(v) = self.max_storage_buffer_range {
+            l.max_storage_buffer_range = l.max_storage_buffer_range.min(v);
+        }
+        if let Some(v) = self.max_image_dimension_3d {
+            l.max_image_dimension_3d = l.max_image_dimension_3d.min(v);
+        }
+        if let Some(v) = self.max_image_dimension_2d {
+            l.max_image_dimension_2d = l.max_image_dimension_2d.min(v);
+        }
+    }
+}
+
 /// How to create a [`Context`].
 #[derive(Clone, Debug, Default)]
 pub struct ContextDesc {
@@ -115,6 +149,8 @@ pub struct ContextDesc {
     pub extensions: Vec<String>,
     /// Allocator block sizes and the staging ring's size.
     pub memory: MemoryConfig,
+    /// Limits lower than the device's, and a memory budget (default: none).
+    pub limits: LimitOverrides,
 }
 
 impl ContextDesc {
@@ -291,7 +327,8 @@ impl Context {
             .collect();
         let chosen = select_device(&infos, &desc.device)?;
         let physical = pds[chosen];
-        let info = infos[chosen].clone();
+        let mut info = infos[chosen].clone();
+        desc.limits.apply(&mut info);
         let (queue_family, _) =
             pick_queue_family(&instance, physical).ok_or_else(|| Error::NoDevice {
                 reason: format!("{} has no compute queue", info.name),
@@ -339,6 +376,7 @@ impl Context {
             graveyard: Mutex::new(Vec::new()),
             staging: Mutex::new(StagingRing::new(desc.memory.staging_ring_bytes)),
             stats: MemoryStats::default(),
+            budget: AtomicU64::new(desc.limits.memory_budget.unwrap_or(u64::MAX)),
             recycled: Default::default(),
             counters: Default::default(),
         };
@@ -429,6 +467,7 @@ impl Context {
                 graveyard: Mutex::new(Vec::new()),
                 staging: Mutex::new(StagingRing::new(ext.memory.staging_ring_bytes)),
                 stats: MemoryStats::default(),
+                budget: AtomicU64::new(u64::MAX),
                 recycled: Default::default(),
                 counters: Default::default(),
             }),

@@ -21,6 +21,11 @@ pub struct ValidationConfig {
     pub gpu_assisted: bool,
     /// `messageIdNumber`s to drop (documented false positives only).
     pub ignored_ids: Vec<i32>,
+    /// A sink that receives a copy of every message, `ignored_ids` included (besides the
+    /// context's own sink, which
+    /// [`Context::shutdown`](crate::gpu::Context::shutdown) returns): lets a caller count the
+    /// messages of contexts made deep inside a command (`vkshade validate`).
+    pub tee: Option<Arc<MessageSink>>,
 }
 
 /// Message ids ignored by default, each a documented false positive for vkshade.
@@ -38,6 +43,7 @@ impl Default for ValidationConfig {
             best_practices: true,
             gpu_assisted: false,
             ignored_ids: DEFAULT_IGNORED_IDS.iter().map(|(id, _)| *id).collect(),
+            tee: None,
         }
     }
 }
@@ -103,10 +109,11 @@ pub(super) fn create_instance(validation: Option<&ValidationConfig>) -> Result<I
         )?,
         None => false,
     };
-    let sink = MessageSink::new(
+    let sink = MessageSink::teed(
         validation
             .map(|v| v.ignored_ids.clone())
             .unwrap_or_default(),
+        validation.and_then(|v| v.tee.clone()),
     );
     let user_data = Arc::as_ptr(&sink) as *mut std::ffi::c_void;
     let mut layers: Vec<*const c_char> = Vec::new();

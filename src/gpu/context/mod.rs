@@ -10,7 +10,7 @@ mod device;
 mod instance;
 
 pub use adapter::{DeviceInfo, DeviceLimits, DeviceSelector, SystemInfo, enumerate_devices};
-pub use device::{ContextDesc, ExternalDevice, Features, MemoryConfig};
+pub use device::{ContextDesc, ExternalDevice, Features, LimitOverrides, MemoryConfig};
 pub use instance::{DEFAULT_IGNORED_IDS, ValidationConfig};
 
 use super::lifetime::Retired;
@@ -63,6 +63,9 @@ pub(crate) struct Shared {
     pub graveyard: Mutex<Vec<(u64, Retired)>>,
     pub staging: Mutex<StagingRing>,
     pub stats: MemoryStats,
+    /// The most bytes of live allocations this context may hold (see
+    /// [`LimitOverrides::memory_budget`]); `u64::MAX`: what the device gives.
+    pub budget: AtomicU64,
     /// Idle pools and readback buffers for reuse (see `recycle`).
     pub recycled: Mutex<super::recycle::Recycled>,
     /// Objects created so far, per kind.
@@ -362,6 +365,29 @@ impl Context {
     pub fn maintain(&self) -> usize {
         self.shared.collect();
         self.shared.retired_pending()
+    }
+
+    /// Sets the most bytes of live device allocations this context may hold (`None`: no
+    /// budget but the device's), e.g. a renderer shrinking vkshade's share. An allocation
+    /// past it fails with [`Error::Limit`] naming "memory budget" and its value; what is
+    /// already allocated stays.
+    pub fn set_memory_budget(&self, bytes: Option<u64>) {
+        self.shared.budget.store(
+            bytes.unwrap_or(u64::MAX),
+            std::sync::atomic::Ordering::Release,
+        );
+    }
+
+    /// The memory budget in force (`None`: none but the device's).
+    pub fn memory_budget(&self) -> Option<u64> {
+        match self
+            .shared
+            .budget
+            .load(std::sync::atomic::Ordering::Acquire)
+        {
+            u64::MAX => None,
+            b => Some(b),
+        }
     }
 
     /// Peak bytes of the staging ring held at once so far.

@@ -48,6 +48,21 @@ impl Shared {
         dedicated: (AllocationScheme, bool, bool),
     ) -> Result<Allocation> {
         let (scheme, prefers, requires) = dedicated;
+        let budget = self.budget.load(Ordering::Acquire);
+        if budget != u64::MAX {
+            let used = self.stats.used.load(Ordering::Acquire);
+            if used.saturating_add(requirements.size) > budget {
+                return Err(Error::Limit {
+                    what: format!(
+                        "device memory for '{name}' ({} bytes on top of {used} in use)",
+                        requirements.size
+                    ),
+                    requested: used.saturating_add(requirements.size),
+                    limit_name: "memory budget",
+                    limit: budget,
+                });
+            }
+        }
         let use_dedicated = match placement.dedicated {
             Dedicated::Always => true,
             Dedicated::Auto => prefers || requires,

@@ -13,6 +13,17 @@ use std::sync::Arc;
 /// Bytes of a `VkDispatchIndirectCommand` (three u32 workgroup counts).
 pub const DISPATCH_INDIRECT_SIZE: u64 = 12;
 
+/// Dispatches recorded so far in this process, per pipeline name (all contexts together).
+static DISPATCHED: std::sync::Mutex<std::collections::BTreeMap<String, u64>> =
+    std::sync::Mutex::new(std::collections::BTreeMap::new());
+
+/// How many dispatches of each pipeline (by its name: the embedded module's, e.g.
+/// `"srbf/shade"`, for vkshade's own) were recorded in this process so far, on any context.
+/// `vkshade validate` checks with it that every module of spv/ ran.
+pub fn dispatched_pipelines() -> std::collections::BTreeMap<String, u64> {
+    crate::gpu::validation::lock(&DISPATCHED).clone()
+}
+
 /// The uses of a dispatch: the bind group's declared accesses, plus an indirect read of
 /// `indirect` (merged into its binding's access when the buffer is also bound, so one
 /// barrier covers both).
@@ -247,6 +258,9 @@ impl Recorder {
     ) {
         self.keep.add(pipeline.keep());
         self.keep.add(bind.keep());
+        *crate::gpu::validation::lock(&DISPATCHED)
+            .entry(pipeline.name().to_string())
+            .or_default() += 1;
         if bind.keep().uses.iter().any(|u| {
             u.access.iter().any(AccessType::is_write)
                 && matches!(&u.target, Target::Buffer(b) if b.desc.placement.location.host_visible())

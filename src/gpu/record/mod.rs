@@ -29,7 +29,7 @@ mod transfer;
 mod uses;
 
 pub use barrier::{Barrier, PlannedBarrier};
-pub use dispatch::DISPATCH_INDIRECT_SIZE;
+pub use dispatch::{DISPATCH_INDIRECT_SIZE, dispatched_pipelines};
 pub use submit::{Recorded, Submission};
 pub use timing::{MAX_PASSES, PassTiming, Timings};
 pub use transfer::Readback;
