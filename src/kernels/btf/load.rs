@@ -55,8 +55,9 @@ fn is_image(path: &Path) -> bool {
         .unwrap_or(false)
 }
 
-/// Reads one image as linear RGB.
-fn read_image(path: &Path) -> Result<([u32; 2], Vec<[f32; 3]>)> {
+/// Reads one BTF image (PNG/JPEG as sRGB, EXR as linear) as linear RGB: its size and texels.
+/// What [`load_dir`] does with each file; an error names the file.
+pub fn read_image(path: &Path) -> Result<([u32; 2], Vec<[f32; 3]>)> {
     let exr = path
         .extension()
         .is_some_and(|e| e.eq_ignore_ascii_case("exr"));

@@ -1,0 +1,47 @@
+#!/usr/bin/env bash
+# Runs the cargo-fuzz targets (fuzz/) one after another, each for SECONDS (default 60), and
+# prints a table: executions, coverage (libFuzzer's edge count `cov` and feature count `ft`)
+# at the end, the execution at which coverage last grew, corpus size and crashes.
+#   tools/fuzz.sh [SECONDS] [TARGET...]      (default: every target)
+# Needs the nightly toolchain and cargo-fuzz (`cargo install cargo-fuzz`). The growing corpus
+# lives in fuzz/corpus/TARGET (not committed); the committed seeds in fuzz/seeds/TARGET; a
+# crash lands in fuzz/artifacts/TARGET and belongs, once fixed, in fuzz/regressions/TARGET
+# (replayed by tests/fuzz_corpus.rs). Limits: 10 s per input (a hang), 2 GiB RSS, and no
+# single allocation above 512 MiB from an input of at most 64 KiB (unbounded allocation).
+set -euo pipefail
+cd "$(dirname "$0")/../fuzz"
+secs=${1:-60}
+shift || true
+targets=("$@")
+if [ ${#targets[@]} -eq 0 ]; then
+    targets=(gltf obj off ply sph envmap transfer btf_json btf_dir btf_image)
+fi
+cargo +nightly fuzz build -O >/dev/null 2>&1 || cargo +nightly fuzz build -O
+mkdir -p logs
+printf '%-9s %6s %10s %6s %7s %14s %7s %s\n' target secs execs cov ft "last-new-cov" corpus crashes
+status=0
+for t in "${targets[@]}"; do
+    mkdir -p "corpus/$t" "artifacts/$t"
+    log="logs/$t.log"
+    set +e
+    cargo +nightly fuzz run -O "$t" "corpus/$t" "seeds/$t" -- \
+        -max_total_time="$secs" -timeout=10 -rss_limit_mb=2048 -malloc_limit_mb=512 \
+        -max_len=65536 -print_final_stats=1 -artifact_prefix="artifacts/$t/" >"$log" 2>&1
+    rc=$?
+    set -e
+    execs=$(grep -o 'stat::number_of_executed_units: [0-9]*' "$log" | awk '{print $2}' | tail -1)
+    last=$(grep -E '^#[0-9]+.*(NEW|REDUCE) +cov' "$log" | tail -1)
+    cov=$(grep -oE 'cov: [0-9]+' "$log" | tail -1 | awk '{print $2}')
+    ft=$(grep -oE 'ft: [0-9]+' "$log" | tail -1 | awk '{print $2}')
+    lastn=$(echo "$last" | grep -oE '^#[0-9]+' | tr -d '#')
+    crashes=$(find "artifacts/$t" -type f | wc -l)
+    corpus=$(find "corpus/$t" -type f | wc -l)
+    printf '%-9s %6s %10s %6s %7s %14s %7s %s\n' "$t" "$secs" "${execs:-?}" "${cov:-?}" "${ft:-?}" \
+        "${lastn:-?}" "$corpus" "$crashes"
+    if [ "$rc" -ne 0 ] || [ "$crashes" -ne 0 ]; then
+        status=1
+        grep -E 'ERROR|panicked|SUMMARY' "$log" | head -5 | sed 's/^/    /'
+    fi
+done
+rm -rf /dev/shm/vkshade-fuzz-* 2>/dev/null || true
+exit $status
