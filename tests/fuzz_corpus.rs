@@ -22,7 +22,7 @@ fn inputs(kind: &str, target: &str) -> Vec<PathBuf> {
 }
 
 /// Runs `f` on the file's bytes, failing the test (with the file named) on a panic.
-fn replay(f: fn(&[u8]) -> targets::Outcome, path: &Path) -> targets::Outcome {
+fn replay(f: targets::Target, path: &Path) -> targets::Outcome {
     let bytes = std::fs::read(path).unwrap();
     std::panic::catch_unwind(|| f(&bytes))
         .unwrap_or_else(|_| panic!("{} panicked the loader", path.display()))

@@ -208,8 +208,11 @@ pub fn btf_image(data: &[u8]) -> Outcome {
     done(load::read_image(&file(&format!("image.{ext}"), image)))
 }
 
+/// A target's body.
+pub type Target = fn(&[u8]) -> Outcome;
+
 /// Every target by name, for the corpus replay.
-pub const TARGETS: [(&str, fn(&[u8]) -> Outcome); 10] = [
+pub const TARGETS: [(&str, Target); 10] = [
     ("gltf", gltf),
     ("obj", obj),
     ("off", off),
