@@ -9,8 +9,9 @@
 #   tools/bench-gpu.sh run DIR OUT [ARGS...]
 #                                       there: unpacks the loader into a private folder (never
 #                                       into /), finds the driver's ICD, runs `vkshade info`
-#                                       and `vkshade bench all --json OUT ARGS...` (log in
-#                                       OUT/log.txt)
+#                                       and `vkshade bench all --json OUT/bench ARGS...`
+#                                       (OUT/info.txt, log in OUT/log.txt; bench all writes
+#                                       only into a directory of its own, so OUT/bench)
 #
 # On a lent GPU, from the repository root (DIR inside the repo, git-ignored, then carried):
 #   tools/bench-gpu.sh prepare .gpu                (.gpu/ is git-ignored)
@@ -115,8 +116,8 @@ run() {
   }
   local start=$SECONDS
   set -o pipefail
-  "$dir/vkshade" bench all --json "$out" --data-root "$dir/root" "$@" 2>&1 | tee "$out/log.txt"
-  echo "bench-gpu: bench all took $((SECONDS - start)) s; results in $out"
+  "$dir/vkshade" bench all --json "$out/bench" --data-root "$dir/root" "$@" 2>&1 | tee "$out/log.txt"
+  echo "bench-gpu: bench all took $((SECONDS - start)) s; results in $out/bench"
 }
 
 [[ $# -ge 2 ]] || usage
