@@ -191,7 +191,7 @@ pub const CASES: &[Case] = &[
         ],
     ),
     cli(
-        "btf-anim-layers",
+        "btf-anim-rgba8",
         &[
             "btf",
             "render",
@@ -211,8 +211,6 @@ pub const CASES: &[Case] = &[
             "64",
             "--map-res",
             "32",
-            "--layout",
-            "layers",
             "--texture",
             "rgba8",
             "--out",
