@@ -536,8 +536,24 @@ fn gpu_cpu_bound(bits: u32) -> f64 {
     2f64.powi(-(bits as i32)) + 1.1e-3
 }
 
+/// The rasteriser's G-buffer shaded by the BTF kernel equals the CPU twin, in both packings
+/// and both dispatches the library offers: 'rows' over every pixel
+/// (`btf/shade_rows`), and 'layers' over the rasteriser's tile list
+/// (`btf/shade_layers_tiles`, what `btf render --anim --layout layers` runs). A tile-list
+/// shader that skipped or misplaced a tile, or a layers packing that indexed the wrong
+/// array or layer, fails the per-pixel comparison.
 #[test]
 fn btf_shades_the_gpu_gbuffer_like_its_cpu_twin() {
+    use vkshade::kernels::btf::gpu::Layout;
+    use vkshade::kernels::raster::gpu::Tiling;
+    btf_on_gbuffer_case(Layout::Rows, Tiling::Full);
+    btf_on_gbuffer_case(Layout::Layers, Tiling::Tiles);
+}
+
+fn btf_on_gbuffer_case(
+    layout: vkshade::kernels::btf::gpu::Layout,
+    tiling: vkshade::kernels::raster::gpu::Tiling,
+) {
     use vkshade::kernels::btf::cloth::{Pattern, SynthConfig};
     use vkshade::kernels::btf::dirs::{Maps, Triangulation};
     use vkshade::kernels::btf::gpu::{
@@ -559,17 +575,25 @@ fn btf_shades_the_gpu_gbuffer_like_its_cpu_twin() {
     let (raster, shaded, bits) = with_gpu_features(INT64, |ctx| {
         let bufs = PosedBuffers::upload(ctx, &pose)?;
         let mut rec = ctx.recorder("raster + btf setup")?;
-        let r = RasterKernel::new(&mut rec, &prep, &bufs.posed())?;
+        let r = RasterKernel::with_tiling(&mut rec, &prep, &bufs.posed(), tiling)?;
         let l = ctx.limits();
         let unused = GBuffer::tile([1, 1]);
-        let inputs = BtfInputs::new(&btf, &maps, &unused, Texture::Rgba8);
+        let inputs = BtfInputs {
+            layout,
+            ..BtfInputs::new(&btf, &maps, &unused, Texture::Rgba8)
+        };
         let bp = BtfPrepared::for_gpu_gbuffer(
             &inputs,
             size,
             l.max_image_dimension_2d,
             l.max_image_array_layers,
         )?;
-        let b = BtfKernel::on_gbuffer(&mut rec, &bp, r.gbuffer())?;
+        assert_eq!(bp.packing().layout, layout);
+        let b = match r.tiles() {
+            Some(tiles) => BtfKernel::on_gbuffer_tiles(&mut rec, &bp, r.gbuffer(), tiles)?,
+            None => BtfKernel::on_gbuffer(&mut rec, &bp, r.gbuffer())?,
+        };
+        assert_eq!(r.tiles().is_some(), tiling == Tiling::Tiles);
         rec.submit_and_wait()?;
         // One frame: rasterise, shade the G-buffer just written, read both back.
         let mut rec = ctx.recorder("raster + btf frame")?;
@@ -594,7 +618,10 @@ fn btf_shades_the_gpu_gbuffer_like_its_cpu_twin() {
     let mut max: f64 = 0.0;
     let mut compared = 0;
     for k in 0..want.len() {
-        assert_eq!(shaded[k][3] as f64, want[k][3], "coverage of pixel {k}");
+        assert_eq!(
+            shaded[k][3] as f64, want[k][3],
+            "{layout:?}/{tiling:?}: coverage of pixel {k}"
+        );
         if !ambiguous[k] {
             compared += 1;
             for i in 0..3 {
@@ -625,7 +652,10 @@ fn btf_shades_the_gpu_gbuffer_like_its_cpu_twin() {
         lit(1.0),
         lit(-1.0)
     );
-    assert!(max < gpu_cpu_bound(bits), "|GPU - CPU| = {max}");
+    assert!(
+        max < gpu_cpu_bound(bits),
+        "{layout:?}/{tiling:?}: |GPU - CPU| = {max}"
+    );
 }
 
 /// Triangles given in screen pixels of a 32 x 32 image seen by a 90-degree camera at the

@@ -43,5 +43,11 @@ for t in "${targets[@]}"; do
         grep -E 'ERROR|panicked|SUMMARY' "$log" | head -5 | sed 's/^/    /'
     fi
 done
-rm -rf /dev/shm/vkshade-fuzz-* 2>/dev/null || true
+# Scratch directories are named vkshade-fuzz-PID-THREAD: remove those whose process is gone,
+# so that two runs side by side (different targets) keep each other's.
+for d in /dev/shm/vkshade-fuzz-*; do
+    [ -e "$d" ] || continue
+    pid=${d#/dev/shm/vkshade-fuzz-}
+    kill -0 "${pid%%-*}" 2>/dev/null || rm -rf "$d"
+done
 exit $status

@@ -1003,7 +1003,7 @@ pub struct RenderArgs {
     pub map_res: u32,
     /// Texture layout: rows (one 81-layer array, images side by side with gutters) or
     /// layers (one image per layer, split over arrays of maxImageArrayLayers; rgba8 and
-    /// bc1 only). Default: rows.
+    /// bc1 only). Default: rows. Also with --anim.
     #[arg(long, value_parser = super::choice::<Layout>("layout"))]
     pub layout: Option<Layout>,
     /// Texel format of the packed BTF: block (overlapping 4x4 blocks of linear RGB,
@@ -1483,6 +1483,7 @@ impl RenderArgs {
             tile_scale: self.tile_scale,
             map_res: self.map_res,
             texture: self.texture,
+            layout: self.layout.unwrap_or(self.texture.default_layout()),
             lights: cfg.lights,
             env_lobes: match &cfg.env {
                 Some(e) => e.fit()?.1,
@@ -1540,6 +1541,7 @@ pub fn bench_anim(gpu: &Gpu, opts: &super::bench::Opts, texture: Texture) -> Res
         tile_scale: 8.0,
         map_res: 128,
         texture,
+        layout: texture.default_layout(),
         lights: default_lights(),
         env_lobes: Vec::new(),
         tiles: true,

@@ -217,6 +217,35 @@ pub const CASES: &[Case] = &[
             "{out}",
         ],
     ),
+    cli(
+        "btf-anim-layers",
+        &[
+            "btf",
+            "render",
+            "--btf",
+            "{btf}",
+            "--object",
+            "{data}/bcn_epileptic.glb",
+            "--anim",
+            "Epileptisch",
+            "--part",
+            "Torso,Legs",
+            "--frames",
+            "2",
+            "--width",
+            "64",
+            "--height",
+            "64",
+            "--map-res",
+            "32",
+            "--texture",
+            "rgba8",
+            "--layout",
+            "layers",
+            "--out",
+            "{out}",
+        ],
+    ),
     Case {
         name: "btf-env-basis",
         args: &[],
@@ -577,12 +606,7 @@ pub const ALLOWED: &[(i32, &str, &str)] = &[(
 /// Modules of spv/ no case runs, each with the reason and the test that dispatches it
 /// under validation instead. The coverage check reports them (a module neither run nor
 /// listed here fails it).
-pub const NOT_IN_A_CASE: &[(&str, &str)] = &[(
-    "btf/shade_layers_tiles",
-    "the 'layers' layout over the rasteriser's tile list: a library path only \
-     (`BtfKernel::on_gbuffer_tiles` with a Layers-packed BTF); `btf render --anim` packs its \
-     garment in the 'rows' layout whatever --layout says, and the frame uses 'rows'",
-)];
+pub const NOT_IN_A_CASE: &[(&str, &str)] = &[];
 
 /// The layer's own message under GPU-assisted validation on lavapipe (see the module doc).
 pub const LAYER_PROBLEM: &str = "UNASSIGNED-VkSemaphore-state-timeout";

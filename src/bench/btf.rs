@@ -613,6 +613,9 @@ pub struct GarmentConfig {
     pub map_res: u32,
     /// Texel format of the BTF.
     pub texture: Texture,
+    /// How the BTF's images are packed into array textures (`Texture::default_layout`
+    /// unless asked; 'layers' shades through `btf/shade_layers_tiles`).
+    pub layout: Layout,
     /// Lights (1..=2).
     #[serde(skip)]
     pub lights: Vec<Light>,
@@ -680,7 +683,10 @@ impl Garment {
         let raster = RasterKernel::with_tiling(&mut rec, &rprep, &posed, tiling)?;
         let l = ctx.limits();
         let unused = GBuffer::tile([1, 1]);
-        let inputs = BtfInputs::new(btf, maps, &unused, cfg.texture);
+        let inputs = BtfInputs {
+            layout: cfg.layout,
+            ..BtfInputs::new(btf, maps, &unused, cfg.texture)
+        };
         let bprep = crate::kernels::btf::gpu::Prepared::for_gpu_gbuffer(
             &inputs,
             cfg.size,
