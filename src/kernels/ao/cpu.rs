@@ -446,3 +446,465 @@ fn corrected_frame(
         })
         .collect()
 }
+
+/// Fast tests of the cut and the blend on hand-made trees (milliseconds, so a mutation run
+/// over `refinement`, `walk_cut` and `CpuAo::vertex` can use the library's tests alone). The
+/// whole-character tests are in tests/ao.rs.
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::geom::Rng;
+
+    fn close(a: f32, b: f32) -> bool {
+        (a - b).abs() <= 1e-5 * (1.0 + a.abs().max(b.abs()))
+    }
+
+    fn params(tau: f32, band: f32, refine: Refine) -> AoParams {
+        AoParams {
+            tau,
+            band,
+            refine,
+            ..AoParams::default()
+        }
+    }
+
+    /// Planted bugs this catches: `size <= 0` flipped, `tau * d` as `tau + d`, a wrong sign
+    /// in `1 + band - t`, the hard cut's `t < 1` as `<=` or `>`.
+    #[test]
+    fn refinement_is_its_formula_and_the_hard_cut_at_band_zero() {
+        assert_eq!(refinement(0.0, 1.0, 0.5, 0.5), 0.0);
+        assert_eq!(refinement(-1.0, 0.1, 0.5, 0.0), 0.0);
+        // Hard cut: refined exactly when size > tau * d.
+        assert_eq!(refinement(1.0, 1.0, 0.5, 0.0), 1.0);
+        assert_eq!(
+            refinement(1.0, 2.0, 0.5, 0.0),
+            0.0,
+            "size == tau * d is not refined"
+        );
+        assert_eq!(refinement(1.0, 4.0, 0.5, 0.0), 0.0);
+        // Band: alpha = clamp((1 + band - tau d / size) / band, 0, 1), here tau = 0.5,
+        // size = 2, band = 0.5, so t = d / 4.
+        for (d, want) in [
+            (2.0, 1.0),
+            (4.0, 1.0),
+            (5.0, 0.5),
+            (5.6, 0.2),
+            (6.0, 0.0),
+            (9.0, 0.0),
+        ] {
+            let a = refinement(2.0, d, 0.5, 0.5);
+            assert!(close(a, want), "d = {d}: alpha {a}, want {want}");
+        }
+        // Continuous in d over the band.
+        let mut last = 1.0;
+        for k in 0..=200 {
+            let a = refinement(2.0, 3.5 + k as f32 * 0.015, 0.5, 0.5);
+            assert!(a <= last && last - a <= 0.061, "step {k}: {last} -> {a}");
+            last = a;
+        }
+    }
+
+    /// A binary tree of `levels` levels below the root (node 0; children of n are 2n + 1
+    /// and 2n + 2): spheres along x, halving per level, every extent twice the radius.
+    fn binary_tree(levels: u32) -> (Vec<Vec4>, Vec<f32>, TreeShape) {
+        let node_count = (1u32 << (levels + 1)) - 1;
+        let first_leaf = (1u32 << levels) - 1;
+        let mut spheres = Vec::new();
+        for n in 0..node_count {
+            let level = 32 - (n + 1).leading_zeros() - 1;
+            let i = n + 1 - (1 << level);
+            let width = 16.0 / (1u32 << level) as f32;
+            let x = -8.0 + width * (i as f32 + 0.5);
+            spheres.push(Vec4::new(x, 0.0, 0.0, width * 0.5));
+        }
+        let extents = spheres.iter().map(|s| s.w * 2.0).collect();
+        let shape = TreeShape {
+            node_count,
+            branch: 2,
+            first_leaf,
+        };
+        (spheres, extents, shape)
+    }
+
+    type Contribution = (u32, Vec4, f32);
+
+    fn walk(
+        p: Vec3,
+        spheres: &[Vec4],
+        extents: &[f32],
+        shape: TreeShape,
+        params: &AoParams,
+    ) -> (Vec<Contribution>, u32) {
+        let mut out = Vec::new();
+        let tested = walk_cut(p, spheres, extents, shape, params, |n, s, w| {
+            out.push((n, s, w))
+        });
+        (out, tested)
+    }
+
+    /// The cut written as a recursion over the tree (the definition the iterative walk with
+    /// its per-depth arrays must equal).
+    #[allow(clippy::too_many_arguments)]
+    fn recurse(
+        p: Vec3,
+        spheres: &[Vec4],
+        extents: &[f32],
+        shape: TreeShape,
+        params: &AoParams,
+        node: u32,
+        (parent, w_parent, a_parent, share): (Vec4, f32, f32, f32),
+        out: &mut Vec<Contribution>,
+        tested: &mut u32,
+    ) {
+        let s = spheres[node as usize];
+        if s.w < 0.0 {
+            return;
+        }
+        *tested += 1;
+        let (eff, w) = if a_parent >= 1.0 {
+            (s, w_parent)
+        } else {
+            (
+                parent + (s - parent) * a_parent,
+                w_parent * (share + (1.0 - share) * a_parent),
+            )
+        };
+        let a = if node >= shape.first_leaf {
+            0.0
+        } else {
+            let size = match params.refine {
+                Refine::Radius => s.w,
+                Refine::Extent => extents[node as usize],
+            };
+            let d = (s.truncate() - p).length();
+            refinement(size, d, params.tau, params.band).min(a_parent)
+        };
+        if a > 0.0 {
+            let first = node * shape.branch + 1;
+            let children = first..first + shape.branch;
+            let used = children
+                .clone()
+                .filter(|&c| spheres[c as usize].w >= 0.0)
+                .count()
+                .max(1);
+            for c in children {
+                let state = (eff, w, a, 1.0 / used as f32);
+                recurse(p, spheres, extents, shape, params, c, state, out, tested);
+            }
+        } else {
+            out.push((node, eff, w));
+        }
+    }
+
+    fn reference(
+        p: Vec3,
+        spheres: &[Vec4],
+        extents: &[f32],
+        shape: TreeShape,
+        params: &AoParams,
+    ) -> (Vec<Contribution>, u32) {
+        let (mut out, mut tested) = (Vec::new(), 0);
+        for c in 1..=shape.branch {
+            let state = (Vec4::ZERO, 1.0, 1.0, 1.0);
+            recurse(
+                p,
+                spheres,
+                extents,
+                shape,
+                params,
+                c,
+                state,
+                &mut out,
+                &mut tested,
+            );
+        }
+        (out, tested)
+    }
+
+    fn same(a: &[Contribution], b: &[Contribution]) -> bool {
+        a.len() == b.len()
+            && a.iter().zip(b).all(|(x, y)| {
+                x.0 == y.0 && (0..4).all(|k| close(x.1[k], y.1[k])) && close(x.2, y.2)
+            })
+    }
+
+    /// Hand-computed cuts: none refined (far), all refined (tau tiny), and one node half
+    /// refined, whose children are morphed halfway from it and weigh 3/4 each. Planted bugs
+    /// this catches: the walk's child / sibling / parent index arithmetic, the depth
+    /// bookkeeping, the morph `parent + (s - parent) * a`, the weight share
+    /// `share + (1 - share) * a`, the count of used children, an unused node tested.
+    #[test]
+    fn the_cut_is_the_hand_computed_one() {
+        let (spheres, extents, shape) = binary_tree(2);
+        // Far away: the two level-1 spheres, whole.
+        let far = params(1.0, 0.0, Refine::Radius);
+        let (cut, tested) = walk(Vec3::new(0.0, 100.0, 0.0), &spheres, &extents, shape, &far);
+        assert_eq!(tested, 2);
+        assert!(
+            same(&cut, &[(1, spheres[1], 1.0), (2, spheres[2], 1.0)]),
+            "{cut:?}"
+        );
+        // tau tiny: every leaf, whole, in order.
+        let near = params(0.01, 0.0, Refine::Radius);
+        let (cut, tested) = walk(Vec3::new(0.0, 10.0, 0.0), &spheres, &extents, shape, &near);
+        assert_eq!(tested, 6);
+        let leaves: Vec<_> = (3..7).map(|n| (n, spheres[n as usize], 1.0)).collect();
+        assert!(same(&cut, &leaves), "{cut:?}");
+        // Node 1 (centre -4, radius 4) half refined: d = 6, t = d / 4 = 1.5 with tau 1,
+        // band 1: alpha = (2 - 1.5) / 1 = 0.5. Node 2 (centre 4): d = 10, alpha 0.
+        let half = params(1.0, 1.0, Refine::Radius);
+        let p = Vec3::new(-4.0, 6.0, 0.0);
+        let (cut, tested) = walk(p, &spheres, &extents, shape, &half);
+        let morph = |n: usize| spheres[1] + (spheres[n] - spheres[1]) * 0.5;
+        let want = [
+            (3, morph(3), 0.75),
+            (4, morph(4), 0.75),
+            (2, spheres[2], 1.0),
+        ];
+        assert_eq!(tested, 4);
+        assert!(same(&cut, &want), "{cut:?}");
+        // One child of node 1 unused: the other carries the whole weight as it morphs.
+        let mut one = spheres.clone();
+        one[4].w = -1.0;
+        let (cut, tested) = walk(p, &one, &extents, shape, &half);
+        assert_eq!(tested, 3);
+        assert!(
+            same(&cut, &[(3, morph(3), 1.0), (2, one[2], 1.0)]),
+            "{cut:?}"
+        );
+        // Refining by extent (twice the radius here) refines where the radius would not.
+        let by_extent = params(1.0, 0.0, Refine::Extent);
+        let by_radius = params(1.0, 0.0, Refine::Radius);
+        let q = Vec3::new(-4.0, 6.0, 0.0); // d = 6: radius 4 < 6 < extent 8
+        assert_eq!(walk(q, &spheres, &extents, shape, &by_radius).0.len(), 2);
+        let (cut, _) = walk(q, &spheres, &extents, shape, &by_extent);
+        assert_eq!(cut.iter().map(|c| c.0).collect::<Vec<_>>(), [3, 4, 2]);
+    }
+
+    /// A deeper tree's cut equals the recursion's at random receivers and settings, covers
+    /// every used leaf exactly once, and blends nested nodes with the parent's alpha as a
+    /// ceiling (a child of a half-refined node is at most half refined). Planted bugs this
+    /// catches: the climb back to a parent (`(node - 1) % b == b - 1`), `depth` off by one,
+    /// `.min(a_p)` dropped, a leaf refined.
+    #[test]
+    fn the_cut_equals_its_recursion_and_partitions_the_leaves() {
+        let (mut spheres, extents, shape) = binary_tree(4);
+        let mut rng = Rng::new(7);
+        // A few unused subtrees' roots and leaves.
+        for n in [6u32, 20, 23] {
+            spheres[n as usize].w = -1.0;
+        }
+        let mut partial = 0;
+        for k in 0..400 {
+            let p = Vec3::new(
+                rng.f32() * 24.0 - 12.0,
+                rng.f32() * 8.0 + 0.5,
+                rng.f32() * 4.0 - 2.0,
+            );
+            let refine = if k % 2 == 0 {
+                Refine::Radius
+            } else {
+                Refine::Extent
+            };
+            let prm = params(0.2 + 0.8 * rng.f32(), [0.0, 0.5, 2.0][k % 3], refine);
+            let (cut, tested) = walk(p, &spheres, &extents, shape, &prm);
+            let (want, want_tested) = reference(p, &spheres, &extents, shape, &prm);
+            assert!(
+                same(&cut, &want),
+                "receiver {p}, {prm:?}:\n{cut:?}\n{want:?}"
+            );
+            assert_eq!(tested, want_tested);
+            partial += cut.iter().filter(|c| c.2 < 1.0).count();
+            // Every used leaf lies under exactly one contributing node (unused subtrees
+            // aside), and no contributing node is unused.
+            for leaf in shape.first_leaf..shape.node_count {
+                let mut chain = vec![leaf];
+                while *chain.last().unwrap() > 0 {
+                    let n = *chain.last().unwrap();
+                    chain.push((n - 1) / 2);
+                }
+                // Below an unused node nothing counts; above it, at most one node.
+                let covering = |nodes: &[u32]| cut.iter().filter(|c| nodes.contains(&c.0)).count();
+                match chain.iter().rposition(|&n| spheres[n as usize].w < 0.0) {
+                    Some(k) => {
+                        assert_eq!(covering(&chain[..=k]), 0, "leaf {leaf} at {p}");
+                        assert!(covering(&chain[k + 1..]) <= 1, "leaf {leaf} at {p}");
+                    }
+                    None => assert_eq!(covering(&chain), 1, "leaf {leaf} at receiver {p}"),
+                }
+            }
+        }
+        assert!(partial > 100, "only {partial} blended contributions");
+    }
+
+    /// Two caps seen from a receiver at the origin with normal +z, alone in a tree of two
+    /// leaves (branch 2, first_leaf 1).
+    fn two_leaves(a: Vec4, b: Vec4) -> Posed {
+        Posed {
+            positions: Vec::new(),
+            normals: Vec::new(),
+            spheres: vec![Vec4::ZERO, a, b],
+            extents: vec![0.0, a.w, b.w],
+        }
+    }
+
+    const LEAVES: TreeShape = TreeShape {
+        node_count: 3,
+        branch: 2,
+        first_leaf: 1,
+    };
+
+    fn occ(s: Vec4) -> f32 {
+        let d = s.truncate().length();
+        sphere_occlusion(s.z / d, d / s.w)
+    }
+
+    fn vis(ao: &CpuAo, posed: &Posed, prm: &AoParams) -> VertexAo {
+        ao.vertex(Vec3::ZERO, Vec3::Z, posed, LEAVES, prm)
+    }
+
+    /// Each blend mode is its formula on two caps: product of (1 - I), 1 - sum I, and the
+    /// mask union (disjoint caps: the sum; coincident caps: one of them). Planted bugs this
+    /// catches: the cosine taken against another axis, h inverted, the blends swapped or
+    /// their sums mis-weighted, the union's scale inverted.
+    #[test]
+    fn each_blend_is_its_formula_on_two_caps() {
+        let ao = CpuAo::new(OcclusionTable::new(64, 64));
+        let a = Vec4::new(3.0, 0.5, 4.0, 1.5);
+        let b = Vec4::new(-2.0, -2.0, 1.0, 1.0);
+        let (ia, ib) = (occ(a), occ(b));
+        assert!(
+            ia > 0.02 && ib > 0.02 && (ia - ib).abs() > 0.01,
+            "{ia} {ib}"
+        );
+        let exact = |blend| AoParams {
+            occlusion: Occlusion::Exact,
+            blend,
+            ..AoParams::default()
+        };
+        let posed = two_leaves(a, b);
+        let r = vis(&ao, &posed, &exact(Blend::Product));
+        assert_eq!((r.tested, r.used), (2, 2));
+        assert!(close(r.visibility, (1.0 - ia) * (1.0 - ib)), "{r:?}");
+        let r = vis(&ao, &posed, &exact(Blend::Sum));
+        assert!(close(r.visibility, 1.0 - ia - ib), "{r:?}");
+        // Disjoint caps (a towards +x, b towards -x -y): the mask union is their sum.
+        let r = vis(&ao, &posed, &exact(Blend::Mask));
+        assert!(close(r.visibility, 1.0 - ia - ib), "{r:?}");
+        // Coincident caps: the union is one of them.
+        let r = vis(&ao, &two_leaves(a, a), &exact(Blend::Mask));
+        assert!(close(r.visibility, 1.0 - ia), "{r:?}");
+        // Half-overlapping caps: between the larger and the sum.
+        let c = Vec4::new(3.6, 0.5, 3.2, 1.5);
+        let r = vis(&ao, &two_leaves(a, c), &exact(Blend::Mask));
+        let (lo, hi) = (1.0 - ia - occ(c), 1.0 - ia.max(occ(c)));
+        assert!(
+            r.visibility > lo + 0.01 && r.visibility < hi - 0.01,
+            "{r:?} in ({lo}, {hi})"
+        );
+        // The table lookup agrees with the closed form to its interpolation error.
+        let table = AoParams {
+            occlusion: Occlusion::Table,
+            blend: Blend::Sum,
+            ..AoParams::default()
+        };
+        let r = vis(&ao, &posed, &table);
+        assert!((r.visibility - (1.0 - ia - ib)).abs() < 0.01, "{r:?}");
+    }
+
+    /// A sphere the receiver is close to or inside: without clamp_inside its radius fades
+    /// from nothing at its surface to whole at 1.25 radii (h / ((h - 1) / 0.25)) and a sphere
+    /// holding the receiver is skipped; with clamp_inside h is clamped to the surface.
+    /// Blended weights below 1 enter the product as powers. Planted bugs this catches: the
+    /// fade's test or formula, the skip of a sphere holding the receiver, `powf(w)` dropped.
+    #[test]
+    fn spheres_near_the_receiver_fade_and_weights_enter_as_powers() {
+        let ao = CpuAo::new(OcclusionTable::new(64, 64));
+        let exact = |clamp_inside| AoParams {
+            occlusion: Occlusion::Exact,
+            blend: Blend::Sum,
+            clamp_inside,
+            ..AoParams::default()
+        };
+        let far = Vec4::new(0.0, 0.0, 100.0, 1.0); // occludes ~1e-4
+        // h = 1.125: faded to h = 1.125 / 0.5 = 2.25.
+        let s = Vec4::new(0.0, 1.8, 2.4, 3.0 / 1.125);
+        let r = vis(&ao, &two_leaves(s, far), &exact(false));
+        let want = 1.0 - sphere_occlusion(0.8, 2.25) - occ(far);
+        assert!(close(r.visibility, want), "{r:?} want {want}");
+        // h = 2: no fade.
+        let s2 = Vec4::new(0.0, 1.8, 2.4, 1.5);
+        let r = vis(&ao, &two_leaves(s2, far), &exact(false));
+        assert!(close(
+            r.visibility,
+            1.0 - sphere_occlusion(0.8, 2.0) - occ(far)
+        ));
+        // Inside (h = 0.5): skipped, or clamped to its surface (the whole hemisphere above
+        // the tangent plane it touches).
+        let inside = Vec4::new(0.0, 1.8, 2.4, 6.0);
+        let r = vis(&ao, &two_leaves(inside, far), &exact(false));
+        assert_eq!(r.used, 1);
+        assert!(close(r.visibility, 1.0 - occ(far)));
+        let r = vis(&ao, &two_leaves(inside, far), &exact(true));
+        assert_eq!(r.used, 2);
+        let want = 1.0 - sphere_occlusion(0.8, 1.0) - occ(far);
+        assert!(close(r.visibility, want.max(0.0)), "{r:?} want {want}");
+        // Weights below 1 (a half-refined parent over two children) in the product.
+        let (spheres, extents, shape) = binary_tree(2);
+        let mut spheres = spheres;
+        for s in &mut spheres {
+            s.z += 3.0; // above the receiver's plane
+        }
+        let posed = Posed {
+            positions: Vec::new(),
+            normals: Vec::new(),
+            spheres: spheres.clone(),
+            extents,
+        };
+        let prm = AoParams {
+            occlusion: Occlusion::Exact,
+            blend: Blend::Product,
+            ..params(0.5, 1.0, Refine::Radius)
+        };
+        let p = Vec3::new(0.0, 0.0, -9.0);
+        let mut want = 1.0f32;
+        let mut weights = Vec::new();
+        walk_cut(p, &spheres, &posed.extents, shape, &prm, |_, s, w| {
+            let dv = s.truncate() - p;
+            want *= (1.0 - sphere_occlusion(dv.z / dv.length(), dv.length() / s.w)).powf(w);
+            weights.push(w);
+        });
+        assert!(weights.iter().all(|&w| w > 0.55 && w < 0.95), "{weights:?}");
+        let r = ao.vertex(p, Vec3::Z, &posed, shape, &prm);
+        assert!(close(r.visibility, want), "{r:?} want {want}");
+    }
+
+    /// Caps too small to hold any of the 128 mask directions: one alone counts, a second in
+    /// the same direction is hidden behind the first (left out of the mask blend), one in
+    /// another direction counts. Planted bugs this catches: the hidden test inverted, the
+    /// small caps' bit never set, hidden occlusion added instead of removed.
+    #[test]
+    fn caps_between_mask_directions_count_once_per_direction() {
+        let ao = CpuAo::new(OcclusionTable::new(64, 64));
+        let mask = AoParams {
+            occlusion: Occlusion::Exact,
+            blend: Blend::Mask,
+            ..AoParams::default()
+        };
+        let tiny = |x: f32, y: f32| {
+            let d = Vec3::new(x, y, 1.0).normalize() * 50.0;
+            d.extend(0.2)
+        };
+        let (a, b, c) = (tiny(0.3, 0.2), tiny(0.3, 0.2), tiny(-0.6, 0.5));
+        let (ia, ic) = (occ(a), occ(c));
+        assert!(ia > 0.0 && ic > 0.0);
+        let r = vis(&ao, &two_leaves(a, b), &mask);
+        assert!(close(r.visibility, 1.0 - ia), "same direction: {r:?}");
+        let r = vis(&ao, &two_leaves(a, c), &mask);
+        assert!(close(r.visibility, 1.0 - ia - ic), "two directions: {r:?}");
+        // Behind a large cap that holds its direction, a tiny cap is hidden.
+        let big = Vec3::new(0.3, 0.2, 1.0).normalize().extend(0.0) * 4.0 + Vec4::W * 2.0;
+        let r = vis(&ao, &two_leaves(big, a), &mask);
+        assert!(close(r.visibility, 1.0 - occ(big)), "behind: {r:?}");
+    }
+}
