@@ -156,3 +156,69 @@ fn side_by_side_refuses_mismatched_inputs() {
     assert_eq!(label(0.0), "0");
     assert_eq!(label(1.5e-4), "1.5E-4");
 }
+
+/// A report holding a NaN or an infinity is refused naming the file and the value's path,
+/// and nothing is written (serde_json alone would write `null`). An existing file of that
+/// name is left as it was.
+#[test]
+fn json_reports_with_non_finite_numbers_are_refused_by_path() {
+    #[derive(serde::Serialize)]
+    struct Pass {
+        name: &'static str,
+        median_ms: f64,
+    }
+    #[derive(serde::Serialize)]
+    struct Report {
+        passes: Vec<Pass>,
+        fps: Option<f32>,
+    }
+    let d = dir("json_non_finite");
+    let path = d.join("report.json");
+    let good = Report {
+        passes: vec![Pass {
+            name: "skin",
+            median_ms: 1.5,
+        }],
+        fps: None,
+    };
+    vkshade::io::write_json(&path, &good).unwrap();
+    let before = std::fs::read(&path).unwrap();
+    for (report, at, value) in [
+        (
+            Report {
+                passes: vec![
+                    Pass {
+                        name: "a",
+                        median_ms: 1.0,
+                    },
+                    Pass {
+                        name: "b",
+                        median_ms: f64::NAN,
+                    },
+                ],
+                fps: None,
+            },
+            "passes[1].median_ms",
+            "NaN",
+        ),
+        (
+            Report {
+                passes: Vec::new(),
+                fps: Some(f32::INFINITY),
+            },
+            "fps",
+            "inf",
+        ),
+    ] {
+        let e = vkshade::io::write_json(&path, &report)
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("report.json") && e.contains(at) && e.contains(value),
+            "{e}"
+        );
+        assert_eq!(std::fs::read(&path).unwrap(), before, "{at}: file changed");
+    }
+    let left: Vec<_> = std::fs::read_dir(&d).unwrap().collect();
+    assert_eq!(left.len(), 1, "a temporary file was left: {left:?}");
+}

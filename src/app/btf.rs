@@ -112,6 +112,7 @@ pub struct EvalReport {
     pub size: [u32; 2],
     pub light_taps: Vec<(Angles, f64)>,
     pub view_taps: Vec<(Angles, f64)>,
+    #[serde(serialize_with = "crate::io::finite::nan_as_null")]
     pub gpu_ms: f64,
 }
 
@@ -292,6 +293,7 @@ pub struct VsRayCast {
 pub struct Band {
     pub pixels: usize,
     pub rmse: f64,
+    #[serde(serialize_with = "crate::io::finite::nan_as_null")]
     pub psnr_db: f64,
     pub max_abs: f64,
 }

@@ -219,8 +219,10 @@ pub struct EnvFrameReport {
     /// Environment rotation about +Y, degrees.
     pub rotation_deg: f32,
     /// GPU ms of `env rotate`.
+    #[serde(serialize_with = "crate::io::finite::nan_as_null")]
     pub rotate_ms: f64,
     /// GPU ms of `env shadow`.
+    #[serde(serialize_with = "crate::io::finite::nan_as_null")]
     pub shadow_ms: f64,
     /// GPU ms of the whole recording (pose, AO, environment).
     pub frame_ms: f64,

@@ -391,10 +391,14 @@ pub struct FrameReport {
     pub index: usize,
     /// Column-major rotation matrix of the environment.
     pub rotation: [f32; 9],
+    #[serde(serialize_with = "crate::io::finite::nan_as_null")]
     pub gpu_ms_lighting: f64,
+    #[serde(serialize_with = "crate::io::finite::nan_as_null")]
     pub gpu_ms_project: f64,
     /// Taps of the compact lobes (see `compact_lobes`).
+    #[serde(serialize_with = "crate::io::finite::nan_as_null")]
     pub gpu_ms_sharp: f64,
+    #[serde(serialize_with = "crate::io::finite::nan_as_null")]
     pub gpu_ms_shade: f64,
     /// GPU against the same pipeline on the CPU (f64).
     pub gpu_vs_cpu: RelL2,
@@ -459,9 +463,13 @@ pub struct ShadeReport {
     pub directions: usize,
     pub kernel: KernelInfo,
     pub frames: Vec<FrameReport>,
+    #[serde(serialize_with = "crate::io::finite::nan_as_null")]
     pub gpu_ms_lighting_median: f64,
+    #[serde(serialize_with = "crate::io::finite::nan_as_null")]
     pub gpu_ms_project_median: f64,
+    #[serde(serialize_with = "crate::io::finite::nan_as_null")]
     pub gpu_ms_sharp_median: f64,
+    #[serde(serialize_with = "crate::io::finite::nan_as_null")]
     pub gpu_ms_shade_median: f64,
     pub fps: f64,
     /// The BRDF and its parameters.

@@ -1249,9 +1249,7 @@ impl Args {
         let report = run(&cfg, gpu, &mut |l| super::progress(l))?;
         print!("{}", table(&report));
         if let Some(path) = &self.json {
-            let bytes = serde_json::to_vec_pretty(&report)
-                .map_err(|e| Error::InvalidArgument(format!("validate JSON: {e}")))?;
-            crate::io::write_atomic(path, &bytes)?;
+            crate::io::write_json(path, &report)?;
         }
         println!("validate: {:.1} s", report.seconds);
         if report.passed() {
@@ -1337,9 +1335,7 @@ impl SoakArgs {
 pub fn write_soak(dir: &Path, report: &SoakReport) -> Result<()> {
     std::fs::create_dir_all(dir).map_err(|e| Error::io(dir, e))?;
     crate::io::write_atomic(&dir.join("soak.csv"), soak::csv(report).as_bytes())?;
-    let json = serde_json::to_vec_pretty(report)
-        .map_err(|e| Error::InvalidArgument(format!("soak JSON: {e}")))?;
-    crate::io::write_atomic(&dir.join("soak.json"), &json)?;
+    crate::io::write_json(&dir.join("soak.json"), report)?;
     if cfg!(feature = "plots") {
         crate::bench::plot::draw(&dir.join("soak.png"), &soak::panels(report))?;
     }

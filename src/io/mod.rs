@@ -7,6 +7,7 @@ pub mod bc1;
 #[cfg(feature = "exr")]
 pub mod exr;
 pub mod f16;
+pub mod finite;
 pub mod outdir;
 pub mod transfer_cache;
 
@@ -67,8 +68,21 @@ pub fn check_writable(path: &Path) -> Result<()> {
     Ok(())
 }
 
-/// Writes `value` as pretty JSON (with a final newline), atomically.
+/// Writes `value` as pretty JSON (with a final newline), atomically. A NaN or infinity
+/// anywhere in it is refused, naming its path in the value (JSON has no such numbers, and
+/// `serde_json` would write `null`); nothing is written then.
 pub fn write_json(path: &Path, value: &impl Serialize) -> Result<()> {
+    if let Some((at, v)) = finite::first_non_finite(value) {
+        let at = if at.is_empty() {
+            "the value".into()
+        } else {
+            at
+        };
+        return Err(Error::input(
+            path,
+            format!("not written: {at} is {v}, not a finite number"),
+        ));
+    }
     let text = serde_json::to_string_pretty(value)
         .map_err(|e| Error::input(path, format!("JSON encoding failed: {e}")))?;
     write_atomic(path, format!("{text}\n").as_bytes())
