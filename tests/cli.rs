@@ -620,6 +620,12 @@ fn srbf_glossy_and_cta_write_their_report_and_refuse_bad_input() {
         (&["--cta"][..], "--cta compresses the glossy transfer"),
         (&["--brdf", "phong", "--views", "1"][..], "--views"),
         (&["--brdf", "phong", "--camera", "1,2"][..], "--camera"),
+        // Refused even where the diffuse BRDF would not read them.
+        (&["--kd", "nan"][..], "--kd NaN is not a finite number"),
+        (
+            &["--brdf", "phong", "--exponent", "inf"][..],
+            "--exponent inf",
+        ),
     ] {
         let all: Vec<&str> = ["srbf", "shade"].iter().chain(args).copied().collect();
         let (ok, _, stderr) = vkshade(&all);

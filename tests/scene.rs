@@ -306,6 +306,25 @@ fn testwuson_loads_with_skin_and_animations() {
     assert!(e.contains("Wuson_Run"), "{e}");
 }
 
+/// Too few or too many interior samples are refused naming the flag (0 used to become 1000
+/// silently).
+#[test]
+fn sphere_tree_sample_counts_out_of_range_are_refused() {
+    let c = common::ball();
+    for n in [0, 999, vkshade::scene::spheretree::MAX_BUILD_SAMPLES + 1] {
+        let e = SphereTree::build(
+            &c.mesh,
+            &BuildConfig {
+                samples: n,
+                ..Default::default()
+            },
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(e.contains(&format!("--samples {n}")), "{e}");
+    }
+}
+
 #[test]
 fn sphere_tree_of_a_ball_fits_its_volume() {
     let c = common::ball();

@@ -1,7 +1,9 @@
 #!/usr/bin/env bash
 # Runs the cargo-fuzz targets (fuzz/) one after another, each for SECONDS (default 60), and
 # prints a table: executions, coverage (libFuzzer's edge count `cov` and feature count `ft`)
-# at the end, the execution at which coverage last grew, corpus size and crashes.
+# at the end, `cov` when half the executions had run (the second half's growth shows a
+# plateau), the execution at which coverage last grew, corpus size and crashes. A target
+# with a dictionary (dicts/TARGET.dict: keys, chunk names, magics) runs with it.
 #   tools/fuzz.sh [SECONDS] [TARGET...]      (default: every target)
 # Needs the nightly toolchain and cargo-fuzz (`cargo install cargo-fuzz`). The growing corpus
 # lives in fuzz/corpus/TARGET (not committed); the committed seeds in fuzz/seeds/TARGET; a
@@ -18,13 +20,17 @@ if [ ${#targets[@]} -eq 0 ]; then
 fi
 cargo +nightly fuzz build -O >/dev/null 2>&1 || cargo +nightly fuzz build -O
 mkdir -p logs
-printf '%-9s %6s %10s %6s %7s %14s %7s %s\n' target secs execs cov ft "last-new-cov" corpus crashes
+printf '%-9s %6s %10s %6s %8s %7s %14s %7s %s\n' target secs execs cov cov-half ft "last-new-cov" corpus crashes
 status=0
 for t in "${targets[@]}"; do
     mkdir -p "corpus/$t" "artifacts/$t"
     log="logs/$t.log"
     set +e
-    cargo +nightly fuzz run -O "$t" "corpus/$t" "seeds/$t" -- \
+    dict=()
+    if [ -f "dicts/$t.dict" ]; then
+        dict=(-dict="dicts/$t.dict")
+    fi
+    cargo +nightly fuzz run -O "$t" "corpus/$t" "seeds/$t" -- "${dict[@]}" \
         -max_total_time="$secs" -timeout=10 -rss_limit_mb=2048 -malloc_limit_mb=512 \
         -max_len=65536 -print_final_stats=1 -artifact_prefix="artifacts/$t/" >"$log" 2>&1
     rc=$?
@@ -34,9 +40,15 @@ for t in "${targets[@]}"; do
     cov=$(grep -oE 'cov: [0-9]+' "$log" | tail -1 | awk '{print $2}')
     ft=$(grep -oE 'ft: [0-9]+' "$log" | tail -1 | awk '{print $2}')
     lastn=$(echo "$last" | grep -oE '^#[0-9]+' | tr -d '#')
+    # Coverage when half the executions had run: the growth over the second half says
+    # whether the run reached a plateau.
+    half=$(grep -E '^#[0-9]+.*cov: [0-9]+' "$log" | awk -v h="$(( ${execs:-0} / 2 ))" \
+        '{n = substr($1, 2) + 0; if (n <= h) for (i = 1; i < NF; i++) if ($i == "cov:") c = $(i + 1)}
+         END {print c}')
     crashes=$(find "artifacts/$t" -type f | wc -l)
     corpus=$(find "corpus/$t" -type f | wc -l)
-    printf '%-9s %6s %10s %6s %7s %14s %7s %s\n' "$t" "$secs" "${execs:-?}" "${cov:-?}" "${ft:-?}" \
+    printf '%-9s %6s %10s %6s %8s %7s %14s %7s %s\n' "$t" "$secs" "${execs:-?}" "${cov:-?}" \
+        "${half:-?}" "${ft:-?}" \
         "${lastn:-?}" "$corpus" "$crashes"
     if [ "$rc" -ne 0 ] || [ "$crashes" -ne 0 ]; then
         status=1

@@ -1764,6 +1764,19 @@ impl ShadeArgs {
             .as_slice()
             .try_into()
             .map_err(|_| Error::InvalidArgument("--albedo takes three values R,G,B".into()))?;
+        // Checked whatever --brdf says: a NaN given to a flag the diffuse BRDF does not
+        // read is still a mistake in the command line.
+        for (flag, v) in [
+            ("--exponent", self.exponent),
+            ("--kd", self.kd),
+            ("--ks", self.ks),
+        ] {
+            if !v.is_finite() {
+                return Err(Error::InvalidArgument(format!(
+                    "{flag} {v} is not a finite number"
+                )));
+            }
+        }
         Ok(ShadeConfig {
             mesh: self.mesh.clone(),
             env: self.env.clone(),

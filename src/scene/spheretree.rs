@@ -61,6 +61,10 @@ pub enum Fit {
     Bounding,
 }
 
+/// Most interior samples [`SphereTree::build`] clusters (the grid holds about three times
+/// as many cells, 4 bytes each, and the clustering keeps the samples).
+pub const MAX_BUILD_SAMPLES: usize = 20_000_000;
+
 /// Builder settings.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct BuildConfig {
@@ -68,7 +72,7 @@ pub struct BuildConfig {
     pub depth: u32,
     pub branch: u32,
     pub fit: Fit,
-    /// Approximate number of interior cells to cluster.
+    /// Approximate number of interior cells to cluster, 1000 to [`MAX_BUILD_SAMPLES`].
     pub samples: usize,
     pub seed: u64,
 }
@@ -371,6 +375,12 @@ impl SphereTree {
                 cfg.depth, cfg.branch
             )));
         }
+        if !(1000..=MAX_BUILD_SAMPLES).contains(&cfg.samples) {
+            return Err(Error::InvalidArgument(format!(
+                "--samples {}: a tree is fitted to 1000 to {MAX_BUILD_SAMPLES} interior samples",
+                cfg.samples
+            )));
+        }
         let levels = cfg.depth + 1;
         let n = node_count(levels, cfg.branch)
             .filter(|&n| n <= 1 << 20)
@@ -381,7 +391,7 @@ impl SphereTree {
         // Cell size so that the bounding box holds ~3x the requested samples (the volume in
         // f64: three extents of a large mesh multiply beyond f32).
         let e64 = extent.as_dvec3();
-        let h = ((e64.x * e64.y * e64.z / (3.0 * cfg.samples.max(1000) as f64)).cbrt() as f32)
+        let h = ((e64.x * e64.y * e64.z / (3.0 * cfg.samples as f64)).cbrt() as f32)
             .max(extent.max_element() / 400.0);
         let grid = Grid::new(lo - Vec3::splat(h), hi + Vec3::splat(h), h);
         let inside = grid.classify(&bvh);
@@ -395,7 +405,7 @@ impl SphereTree {
         let from_volume = interior_cells >= 8 * cfg.branch as usize;
         let fit = if from_volume { cfg.fit } else { Fit::Bounding };
         if !from_volume {
-            points = surface_samples(mesh, cfg.samples.max(1000), cfg.seed);
+            points = surface_samples(mesh, cfg.samples, cfg.seed);
         }
         let cell_volume = if from_volume { (h as f64).powi(3) } else { 0.0 };
 

@@ -681,6 +681,28 @@ mod tests {
         assert_eq!(cut.iter().map(|c| c.0).collect::<Vec<_>>(), [3, 4, 2]);
     }
 
+    /// The deepest tree the walk accepts (MAX_DEPTH levels below the root) walked to its
+    /// leaves: every leaf, once, whole. Planted bugs this catches: the per-depth arrays
+    /// sized MAX_DEPTH - 1 (a panic at the last level).
+    #[test]
+    fn the_deepest_tree_walks_to_every_leaf() {
+        let (spheres, extents, shape) = binary_tree(MAX_DEPTH as u32);
+        let all = params(0.001, 0.0, Refine::Radius);
+        let (cut, tested) = walk(Vec3::new(0.0, 1.0, 0.0), &spheres, &extents, shape, &all);
+        assert_eq!(tested, shape.node_count - 1);
+        let leaves: Vec<u32> = (shape.first_leaf..shape.node_count).collect();
+        assert_eq!(cut.iter().map(|c| c.0).collect::<Vec<_>>(), leaves);
+        assert!(
+            cut.iter()
+                .all(|c| c.2 == 1.0 && c.1 == spheres[c.0 as usize])
+        );
+        // Half refined at every level: the weights multiply down to the leaves.
+        let half = params(1.0, 4.0, Refine::Radius);
+        let (cut, _) = walk(Vec3::new(0.0, 1.0, 0.0), &spheres, &extents, shape, &half);
+        let (want, _) = reference(Vec3::new(0.0, 1.0, 0.0), &spheres, &extents, shape, &half);
+        assert!(same(&cut, &want));
+    }
+
     /// A deeper tree's cut equals the recursion's at random receivers and settings, covers
     /// every used leaf exactly once, and blends nested nodes with the parent's alpha as a
     /// ceiling (a child of a half-refined node is at most half refined). Planted bugs this
