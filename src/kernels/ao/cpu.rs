@@ -504,26 +504,33 @@ mod tests {
         }
     }
 
-    /// A binary tree of `levels` levels below the root (node 0; children of n are 2n + 1
-    /// and 2n + 2): spheres along x, halving per level, every extent twice the radius.
-    fn binary_tree(levels: u32) -> (Vec<Vec4>, Vec<f32>, TreeShape) {
-        let node_count = (1u32 << (levels + 1)) - 1;
-        let first_leaf = (1u32 << levels) - 1;
+    /// A tree of `levels` levels below the root (node 0; children of n are b n + 1 ..
+    /// b n + b): spheres along x, narrowing by b per level, every extent twice the radius.
+    fn tree(b: u32, levels: u32) -> (Vec<Vec4>, Vec<f32>, TreeShape) {
         let mut spheres = Vec::new();
-        for n in 0..node_count {
-            let level = 32 - (n + 1).leading_zeros() - 1;
-            let i = n + 1 - (1 << level);
-            let width = 16.0 / (1u32 << level) as f32;
-            let x = -8.0 + width * (i as f32 + 0.5);
-            spheres.push(Vec4::new(x, 0.0, 0.0, width * 0.5));
+        let (mut first_leaf, mut per_level) = (0, 1u32);
+        for level in 0..=levels {
+            let width = 16.0 / per_level as f32;
+            for i in 0..per_level {
+                let x = -8.0 + width * (i as f32 + 0.5);
+                spheres.push(Vec4::new(x, 0.0, 0.0, width * 0.5));
+            }
+            if level < levels {
+                first_leaf += per_level;
+            }
+            per_level *= b;
         }
         let extents = spheres.iter().map(|s| s.w * 2.0).collect();
         let shape = TreeShape {
-            node_count,
-            branch: 2,
+            node_count: spheres.len() as u32,
+            branch: b,
             first_leaf,
         };
         (spheres, extents, shape)
+    }
+
+    fn binary_tree(levels: u32) -> (Vec<Vec4>, Vec<f32>, TreeShape) {
+        tree(2, levels)
     }
 
     type Contribution = (u32, Vec4, f32);
@@ -710,10 +717,22 @@ mod tests {
     /// `.min(a_p)` dropped, a leaf refined.
     #[test]
     fn the_cut_equals_its_recursion_and_partitions_the_leaves() {
-        let (mut spheres, extents, shape) = binary_tree(4);
+        // Branch 2, 3 and 8 (the shipped trees' branch): `(node - 1) % b` and `(node + 1) % b`
+        // agree for b = 2 only.
+        for (b, levels, unused) in [
+            (2, 4, [6u32, 20, 23]),
+            (3, 3, [5, 17, 30]),
+            (8, 2, [3, 20, 70]),
+        ] {
+            cut_against_recursion(b, levels, &unused);
+        }
+    }
+
+    fn cut_against_recursion(b: u32, levels: u32, unused: &[u32]) {
+        let (mut spheres, extents, shape) = tree(b, levels);
         let mut rng = Rng::new(7);
         // A few unused subtrees' roots and leaves.
-        for n in [6u32, 20, 23] {
+        for &n in unused {
             spheres[n as usize].w = -1.0;
         }
         let mut partial = 0;
@@ -743,7 +762,7 @@ mod tests {
                 let mut chain = vec![leaf];
                 while *chain.last().unwrap() > 0 {
                     let n = *chain.last().unwrap();
-                    chain.push((n - 1) / 2);
+                    chain.push((n - 1) / b);
                 }
                 // Below an unused node nothing counts; above it, at most one node.
                 let covering = |nodes: &[u32]| cut.iter().filter(|c| nodes.contains(&c.0)).count();
@@ -756,7 +775,10 @@ mod tests {
                 }
             }
         }
-        assert!(partial > 100, "only {partial} blended contributions");
+        assert!(
+            partial > 100,
+            "branch {b}: only {partial} blended contributions"
+        );
     }
 
     /// Two caps seen from a receiver at the origin with normal +z, alone in a tree of two
