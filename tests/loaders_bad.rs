@@ -930,3 +930,66 @@ fn an_image_view_past_the_buffer_is_an_error() {
         "{e}"
     );
 }
+
+/// A PNG header (CRC-checked, so a decoder trusts it) claiming more texels than the file
+/// could hold.
+fn png_bomb(w: u32, h: u32) -> Vec<u8> {
+    fn crc32(bytes: &[u8]) -> u32 {
+        let mut c = !0u32;
+        for &b in bytes {
+            c ^= b as u32;
+            for _ in 0..8 {
+                c = if c & 1 != 0 {
+                    0xedb8_8320 ^ (c >> 1)
+                } else {
+                    c >> 1
+                };
+            }
+        }
+        !c
+    }
+    let mut b = b"\x89PNG\r\n\x1a\n".to_vec();
+    for (kind, data) in [
+        (
+            &b"IHDR"[..],
+            [
+                &w.to_be_bytes()[..],
+                &h.to_be_bytes()[..],
+                &[16, 6, 0, 0, 0][..],
+            ]
+            .concat(),
+        ),
+        (&b"IDAT"[..], b"\x78\x9c\x03\x00\x00\x00\x00\x01".to_vec()),
+    ] {
+        let chunk = [kind, &data[..]].concat();
+        b.extend((data.len() as u32).to_be_bytes());
+        b.extend(&chunk);
+        b.extend(crc32(&chunk).to_be_bytes());
+    }
+    b
+}
+
+/// An embedded base-colour PNG whose header claims 8192 x 8192 16-bit RGBA texels (512 MiB
+/// decoded) in 60 bytes: the crate's decoder allocated all of it before failing (the
+/// `btf_image` fuzz target found the same in the BTF loader). Refused from the header,
+/// naming the part, the image and the bound.
+#[test]
+fn an_embedded_image_claiming_more_than_it_holds_is_refused_before_decoding() {
+    let mut g = Gltf::valid();
+    let view = g.append(&png_bomb(8192, 8192));
+    g.json["images"] = json!([{"bufferView": view, "mimeType": "image/png"}]);
+    g.json["textures"] = json!([{"source": 0}]);
+    g.json["materials"] = json!([{"pbrMetallicRoughness": {"baseColorTexture": {"index": 0}}}]);
+    g.json["meshes"][0]["primitives"][0]["material"] = json!(0);
+    let path = g.write("image-bomb.glb");
+    let e = common::error_naming(
+        &path,
+        no_panic("image-bomb", || {
+            scene::gltf_load::load_materials(&path, &["tet"])
+        }),
+    );
+    assert!(
+        e.contains("part 'tet'") && e.contains("image 0") && e.contains("8192 x 8192"),
+        "{e}"
+    );
+}

@@ -8,6 +8,8 @@ pub mod bc1;
 pub mod exr;
 pub mod f16;
 pub mod finite;
+#[cfg(feature = "png")]
+pub mod image_bounds;
 pub mod outdir;
 pub mod transfer_cache;
 

@@ -151,7 +151,7 @@ pub fn to_u32(v: f64, _c: Ct, _normalized: bool) -> u32 {
 /// The buffers of a document, each cut to its declared `byteLength`.
 pub struct Buffers(pub Vec<gltf::buffer::Data>);
 
-fn percent_decode(s: &str) -> String {
+pub fn percent_decode(s: &str) -> String {
     let b = s.as_bytes();
     let mut out = Vec::with_capacity(b.len());
     let mut i = 0;

@@ -800,10 +800,34 @@ fn decode_texture(
             None => format!("image {} (embedded)", image.index()),
         },
     };
-    // The crate slices an embedded image's view without a check.
-    if let gltf::image::Source::View { view, .. } = image.source() {
-        access::view_bytes(root, buffers, view.index())
-            .map_err(|m| Error::input(path, format!("part '{part}': base-colour {source}: {m}")))?;
+    let bad = |m: String| Error::input(path, format!("part '{part}': base-colour {source}: {m}"));
+    // The encoded bytes, to check the header's size before the crate decodes (it allocates
+    // what the header claims); the crate also slices an embedded image's view unchecked.
+    let encoded: Vec<u8> = match image.source() {
+        gltf::image::Source::View { view, .. } => access::view_bytes(root, buffers, view.index())
+            .map_err(bad)?
+            .0
+            .to_vec(),
+        gltf::image::Source::Uri { uri, .. } if uri.starts_with("data:") => {
+            gltf::buffer::Data::from_source_and_blob(
+                gltf::buffer::Source::Uri(uri),
+                None,
+                &mut None,
+            )
+            .map_err(|e| bad(format!("its data URI cannot be decoded: {e}")))?
+            .0
+        }
+        gltf::image::Source::Uri { uri, .. } => match base {
+            Some(dir) => {
+                let file = dir.join(access::percent_decode(uri));
+                std::fs::read(&file)
+                    .map_err(|e| bad(format!("its file {} cannot be read: {e}", file.display())))?
+            }
+            None => Vec::new(), // the crate reports the missing base below
+        },
+    };
+    if !encoded.is_empty() {
+        crate::io::image_bounds::check_header(&encoded).map_err(bad)?;
     }
     let data = gltf::image::Data::from_source(image.source(), base, &buffers.0).map_err(|e| {
         Error::input(

@@ -78,8 +78,27 @@ pub fn read_image(path: &Path) -> Result<([u32; 2], Vec<[f32; 3]>)> {
     }
     #[cfg(feature = "png")]
     {
-        let img = image::open(path)
-            .map_err(|e| Error::input(path, format!("cannot read the image: {e}")))?
+        // The decoder sizes its buffer from the header: bound it by what the file could
+        // hold before it allocates (`io::image_bounds`).
+        use crate::io::image_bounds::{MAX_IMAGE_SIDE, decode_budget, limits};
+        let file_bytes = std::fs::metadata(path)
+            .map_err(|e| Error::io(path, e))?
+            .len();
+        let mut reader = image::ImageReader::open(path).map_err(|e| Error::io(path, e))?;
+        reader.limits(limits(file_bytes));
+        let img = reader
+            .decode()
+            .map_err(|e| match e {
+                image::ImageError::Limits(_) => Error::input(
+                    path,
+                    format!(
+                        "its header claims an image larger than a {file_bytes}-byte file can \
+                         hold (at most {MAX_IMAGE_SIDE} texels a side and {} MiB decoded): {e}",
+                        decode_budget(file_bytes) >> 20
+                    ),
+                ),
+                e => Error::input(path, format!("cannot read the image: {e}")),
+            })?
             .to_rgb8();
         let lut: Vec<f32> = (0..=255u8)
             .map(|b| super::synth::srgb_decode(b) as f32)
@@ -347,6 +366,59 @@ pub fn cut_tile(btf: &Btf, origin: [u32; 2], period: [u32; 2]) -> Result<Btf> {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A 58-byte PNG (found by the `btf_image` fuzz target) whose header claimed an image
+    /// that made the decoder allocate 512 MiB before failing: refused before that, naming
+    /// the file and the bound. Also a header of 16385 x 1.
+    #[cfg(feature = "png")]
+    #[test]
+    fn a_header_claiming_more_than_the_file_holds_is_refused_before_decoding() {
+        let dir = std::env::temp_dir().join(format!("vkshade-btf-bomb-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let png = |w: u32, h: u32| {
+            let mut b = b"\x89PNG\r\n\x1a\n".to_vec();
+            let mut ihdr = b"IHDR".to_vec();
+            ihdr.extend(w.to_be_bytes());
+            ihdr.extend(h.to_be_bytes());
+            ihdr.extend([16, 6, 0, 0, 0]); // 16-bit RGBA
+            b.extend(13u32.to_be_bytes());
+            b.extend(&ihdr);
+            b.extend(crc32(&ihdr).to_be_bytes());
+            let idat = b"IDAT\x78\x9c\x03\x00\x00\x00\x00\x01";
+            b.extend(8u32.to_be_bytes());
+            b.extend(idat);
+            b.extend(crc32(idat).to_be_bytes());
+            b
+        };
+        for (w, h, what) in [
+            (8192, 8192, "MiB decoded"),
+            (16385, 1, "16384 texels a side"),
+        ] {
+            let path = dir.join(format!("bomb_{w}x{h}.png"));
+            std::fs::write(&path, png(w, h)).unwrap();
+            let e = read_image(&path).unwrap_err().to_string();
+            assert!(
+                e.contains(&format!("bomb_{w}x{h}.png")) && e.contains(what),
+                "{e}"
+            );
+        }
+        let _ = std::fs::remove_dir_all(&dir);
+    }
+
+    fn crc32(bytes: &[u8]) -> u32 {
+        let mut c = !0u32;
+        for &b in bytes {
+            c ^= b as u32;
+            for _ in 0..8 {
+                c = if c & 1 != 0 {
+                    0xedb8_8320 ^ (c >> 1)
+                } else {
+                    c >> 1
+                };
+            }
+        }
+        !c
+    }
 
     #[test]
     fn names_parse_whatever_the_separators() {
