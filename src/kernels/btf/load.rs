@@ -405,6 +405,7 @@ mod tests {
         let _ = std::fs::remove_dir_all(&dir);
     }
 
+    #[cfg(feature = "png")]
     fn crc32(bytes: &[u8]) -> u32 {
         let mut c = !0u32;
         for &b in bytes {
