@@ -951,4 +951,101 @@ mod tests {
         let r = vis(&ao, &two_leaves(big, a), &mask);
         assert!(close(r.visibility, 1.0 - occ(big)), "behind: {r:?}");
     }
+
+    /// The mask blend over many caps, large and too small to hold a direction, equals the
+    /// same rule written with sets (directions as indices, not bit words): large caps add
+    /// I scaled by |union| / sum of counts, a small cap adds I unless its nearest direction
+    /// is in the union or taken by an earlier small cap. Planted bugs this catches: the bit
+    /// of direction k (`k >> 5`, `1 << (k & 31)`) miscomputed, the union or the small caps'
+    /// words combined with `&` or `^`, a small cap's bit never recorded.
+    #[test]
+    fn the_mask_blend_equals_its_set_rewrite() {
+        use std::collections::BTreeSet;
+        let ao = CpuAo::new(OcclusionTable::new(64, 64));
+        let prm = AoParams {
+            occlusion: Occlusion::Exact,
+            blend: Blend::Mask,
+            ..AoParams::default()
+        };
+        let mut rng = Rng::new(11);
+        for trial in 0..60 {
+            let n = 12;
+            let mut spheres = vec![Vec4::ZERO];
+            for k in 0..n {
+                let dir = Vec3::new(
+                    rng.f32() * 2.0 - 1.0,
+                    rng.f32() * 2.0 - 1.0,
+                    0.3 + rng.f32(),
+                )
+                .normalize();
+                // Some small caps repeat an earlier one's direction.
+                let dir = if k > 2 && k % 4 == 0 {
+                    spheres[k - 2].truncate().normalize()
+                } else {
+                    dir
+                };
+                let (dist, r) = if rng.f32() < 0.5 {
+                    (50.0, 0.1 + 0.2 * rng.f32())
+                } else {
+                    (4.0 + 4.0 * rng.f32(), 0.8 + 1.5 * rng.f32())
+                };
+                spheres.push((dir * dist).extend(r));
+            }
+            let posed = Posed {
+                positions: Vec::new(),
+                normals: Vec::new(),
+                extents: spheres.iter().map(|s| s.w).collect(),
+                spheres: spheres.clone(),
+            };
+            let shape = TreeShape {
+                node_count: n as u32 + 1,
+                branch: n as u32,
+                first_leaf: 1,
+            };
+            let got = ao.vertex(Vec3::ZERO, Vec3::Z, &posed, shape, &prm);
+            let (t, b) = orthonormal_basis(Vec3::Z);
+            let (mut union, mut small) = (BTreeSet::new(), BTreeSet::new());
+            let (mut sum_all, mut sum_masked, mut hidden, mut counts) = (0.0, 0.0, 0.0, 0usize);
+            let mut n_small = 0;
+            for s in &spheres[1..] {
+                let i = occ(*s);
+                sum_all += i;
+                if i <= 0.0 {
+                    continue;
+                }
+                let c = s.truncate();
+                let h = c.length() / s.w;
+                let wd = c / c.length();
+                let wl = Vec3::new(wd.dot(t), wd.dot(b), wd.dot(Vec3::Z));
+                let cos_a = (1.0 - 1.0 / (h * h)).sqrt();
+                let held: Vec<usize> = (0..ao.dirs.len())
+                    .filter(|&k| ao.dirs[k].dot(wl) >= cos_a)
+                    .collect();
+                if held.is_empty() {
+                    n_small += 1;
+                    let k = ao.nearest[nearest_cell(wl.to_array())] as usize;
+                    if union.contains(&k) || !small.insert(k) {
+                        hidden += i;
+                    }
+                } else {
+                    sum_masked += i;
+                    counts += held.len();
+                    union.extend(held);
+                }
+            }
+            let scale = if counts > 0 {
+                union.len() as f32 / counts as f32
+            } else {
+                1.0
+            };
+            let want =
+                (1.0 - ((sum_all - sum_masked - hidden) + sum_masked * scale)).clamp(0.0, 1.0);
+            assert!(n_small > 0 && counts > 0, "trial {trial}");
+            assert!(
+                (got.visibility - want).abs() < 1e-5,
+                "trial {trial}: {} against {want}",
+                got.visibility
+            );
+        }
+    }
 }
