@@ -893,6 +893,19 @@ mod tests {
         assert_eq!(r.used, 2);
         let want = 1.0 - sphere_occlusion(0.8, 1.0) - occ(far);
         assert!(close(r.visibility, want.max(0.0)), "{r:?} want {want}");
+        // The receiver at a sphere's centre (d = 0) with clamp_inside: the sphere counts as
+        // touching it along the normal, finite in every blend (a 0 / 0 direction would be
+        // NaN).
+        let centred = Vec4::new(0.0, 0.0, 0.0, 2.0);
+        for blend in [Blend::Sum, Blend::Mask] {
+            let prm = AoParams {
+                blend,
+                ..exact(true)
+            };
+            let r = vis(&ao, &two_leaves(centred, far), &prm);
+            let want = (1.0 - sphere_occlusion(1.0, 0.0) - occ(far)).clamp(0.0, 1.0);
+            assert!(r.visibility.is_finite() && close(r.visibility, want), "{blend:?}: {r:?}");
+        }
         // Weights below 1 (a half-refined parent over two children) in the product.
         let (spheres, extents, shape) = binary_tree(2);
         let mut spheres = spheres;
