@@ -38,7 +38,8 @@ pub struct Round {
     /// What the work model covers, and the median GPU ms of that part.
     pub covers: &'static str,
     pub covered_ms: f64,
-    /// The CPU twin's wall ms (NaN: none).
+    /// The CPU twin's wall ms (NaN: none; `null` in JSON).
+    #[serde(serialize_with = "crate::io::finite::nan_as_null")]
     pub cpu_ms: f64,
     /// The fps target of bench/targets.json, if any.
     pub target_fps: Option<f64>,
@@ -91,8 +92,12 @@ pub struct Figure {
     pub higher_is_better: bool,
     /// One value per repeat (round, or before/after for the peaks).
     pub values: Vec<f64>,
+    /// NaN (`null` in JSON) where no value was measured.
+    #[serde(serialize_with = "crate::io::finite::nan_as_null")]
     pub median: f64,
+    #[serde(serialize_with = "crate::io::finite::nan_as_null")]
     pub q1: f64,
+    #[serde(serialize_with = "crate::io::finite::nan_as_null")]
     pub q3: f64,
     /// (q3 - q1) / median.
     pub iqr_rel: f64,
