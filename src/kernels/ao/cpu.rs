@@ -904,7 +904,10 @@ mod tests {
             };
             let r = vis(&ao, &two_leaves(centred, far), &prm);
             let want = (1.0 - sphere_occlusion(1.0, 0.0) - occ(far)).clamp(0.0, 1.0);
-            assert!(r.visibility.is_finite() && close(r.visibility, want), "{blend:?}: {r:?}");
+            assert!(
+                r.visibility.is_finite() && close(r.visibility, want),
+                "{blend:?}: {r:?}"
+            );
         }
         // Weights below 1 (a half-refined parent over two children) in the product.
         let (spheres, extents, shape) = binary_tree(2);
