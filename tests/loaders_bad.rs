@@ -934,20 +934,6 @@ fn an_image_view_past_the_buffer_is_an_error() {
 /// A PNG header (CRC-checked, so a decoder trusts it) claiming more texels than the file
 /// could hold.
 fn png_bomb(w: u32, h: u32) -> Vec<u8> {
-    fn crc32(bytes: &[u8]) -> u32 {
-        let mut c = !0u32;
-        for &b in bytes {
-            c ^= b as u32;
-            for _ in 0..8 {
-                c = if c & 1 != 0 {
-                    0xedb8_8320 ^ (c >> 1)
-                } else {
-                    c >> 1
-                };
-            }
-        }
-        !c
-    }
     let mut b = b"\x89PNG\r\n\x1a\n".to_vec();
     for (kind, data) in [
         (
@@ -964,7 +950,7 @@ fn png_bomb(w: u32, h: u32) -> Vec<u8> {
         let chunk = [kind, &data[..]].concat();
         b.extend((data.len() as u32).to_be_bytes());
         b.extend(&chunk);
-        b.extend(crc32(&chunk).to_be_bytes());
+        b.extend(common::crc32(&chunk).to_be_bytes());
     }
     b
 }

@@ -171,23 +171,25 @@ pub fn sub_texel_bits(ctx: &vkshade::gpu::Context) -> u32 {
         .sub_texel_precision_bits
 }
 
+/// CRC-32 (the PNG chunk checksum) of `data`.
+pub fn crc32(data: &[u8]) -> u32 {
+    let mut c = 0xFFFF_FFFFu32;
+    for &b in data {
+        c ^= b as u32;
+        for _ in 0..8 {
+            c = if c & 1 != 0 {
+                0xEDB8_8320 ^ (c >> 1)
+            } else {
+                c >> 1
+            };
+        }
+    }
+    !c
+}
+
 /// An 8-bit RGBA PNG of `w` x `h` texels (row-major words r | g << 8 | b << 16 | a << 24),
 /// written with stored (uncompressed) deflate blocks: test images without an encoder.
 pub fn png_rgba(w: u32, h: u32, texels: &[u32]) -> Vec<u8> {
-    fn crc32(data: &[u8]) -> u32 {
-        let mut c = 0xFFFF_FFFFu32;
-        for &b in data {
-            c ^= b as u32;
-            for _ in 0..8 {
-                c = if c & 1 != 0 {
-                    0xEDB8_8320 ^ (c >> 1)
-                } else {
-                    c >> 1
-                };
-            }
-        }
-        !c
-    }
     fn chunk(out: &mut Vec<u8>, kind: &[u8; 4], data: &[u8]) {
         out.extend_from_slice(&(data.len() as u32).to_be_bytes());
         let mut body = kind.to_vec();
