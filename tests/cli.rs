@@ -892,8 +892,9 @@ fn bench_env_names_its_binding_roofline_under_validation() {
     assert!(r["fma_fraction"].as_f64().unwrap() > 0.0);
 }
 
-/// `vkshade frame --part-btf / --part-tile-scale`: malformed entries and a part that is not
-/// cloth are refused before any GPU work, each error naming the flag's value or the part.
+/// `vkshade frame --part-btf / --part-tile-scale / --part-skin / --skin-material`: malformed
+/// entries and a part of the wrong kind are refused before any GPU work, each error naming
+/// the flag's value or the part.
 #[test]
 fn frame_part_flags_refuse_bad_entries() {
     for (args, want) in [
@@ -916,6 +917,18 @@ fn frame_part_flags_refuse_bad_entries() {
         (
             &["frame", "--part-tile-scale", "Torso=-2"][..],
             "tile scale -2 must be > 0",
+        ),
+        (
+            &["frame", "--part-skin", "Head=marble"][..],
+            "--part-skin 'Head=marble': unknown material 'marble'",
+        ),
+        (
+            &["frame", "--part-skin", "Legs=skin2"][..],
+            "skin part 'Legs' has a scattering material but is not one of the skin parts",
+        ),
+        (
+            &["frame", "--skin-material", "1,2/3,4,5"][..],
+            "--skin-material: skin material '1,2/3,4,5': sigma_a has 2 values, not 3",
         ),
     ] {
         let (ok, _, stderr) = vkshade(args);

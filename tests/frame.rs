@@ -154,12 +154,25 @@ fn compose_matches_its_cpu_twin_on_a_posed_frame() {
     );
 }
 
+/// The skin stage inside the frame, bit for bit against the SSS kernel alone on the frame's
+/// posed vertices and environment irradiance. Two skin parts with their own scattering
+/// (multi-region skin: the Head skin 1, the Torso skin 2; the Legs are the cloth), the
+/// standalone kernel's regions built here from the parts' triangles: a frame that gave every
+/// skin part one profile, or mapped parts to the wrong region, fails the comparison.
 #[test]
 fn the_skin_stage_equals_the_sss_kernel_alone_on_the_same_pose() {
     use vkshade::kernels::sss::SamplerParams;
     use vkshade::kernels::sss::gpu::{PosedSource, SssKernel};
     use vkshade::kernels::sss::profile::{DEFAULT_ENERGY, Material, Profile, ProfileKind};
-    let cfg = small();
+    let cfg = FrameConfig {
+        skin: vec!["Head".into(), "Torso".into()],
+        cloth: vec!["Legs".into()],
+        skin_parts: vec![vkshade::frame::SkinPart {
+            part: "Torso".into(),
+            material: Material::SKIN2,
+        }],
+        ..small()
+    };
     with_gpu_features(INT64, |ctx| {
         let frame = CharacterFrame::new(ctx, &cfg, &mut |_| {})?;
         let mut rec = ctx.recorder("frame stage")?;
@@ -168,7 +181,7 @@ fn the_skin_stage_equals_the_sss_kernel_alone_on_the_same_pose() {
         rec.submit_and_wait()?;
         let st = frame.collect_stages(&rb)?;
         // The SSS kernel alone, fed the frame's own posed vertices from the host.
-        let geo = frame.skin_geometry().expect("the default frame has skin");
+        let geo = frame.skin_geometry().expect("the frame has skin");
         let (_, lights) = frame.skin_kernel().expect("skin");
         let n = geo.positions.len();
         let v3 = |v: &[[f32; 4]]| -> Vec<glam::Vec3> {
@@ -178,7 +191,15 @@ fn the_skin_stage_equals_the_sss_kernel_alone_on_the_same_pose() {
                 .collect()
         };
         let rest: Vec<glam::Vec3> = frame.character.mesh.positions[..n].to_vec();
-        let profile = Profile::new(ProfileKind::Dipole, Material::SKIN1, DEFAULT_ENERGY)?;
+        let profile = |m| Profile::new(ProfileKind::Dipole, m, DEFAULT_ENERGY);
+        let (_, parts) = vkshade::scene::gltf_load::load_parts(&cfg.mesh, &["Head", "Torso"])?;
+        assert_eq!(parts.len(), geo.triangles.len());
+        let torso = parts.iter().filter(|&&p| p == 1).count();
+        assert!(torso > 500, "{torso} Torso triangles");
+        let regions = vkshade::kernels::sss::Regions::new(
+            vec![profile(Material::SKIN1)?, profile(Material::SKIN2)?],
+            parts.iter().map(|&p| p as u8).collect(),
+        )?;
         let params = SamplerParams {
             samples: cfg.samples,
             ..SamplerParams::default()
@@ -189,7 +210,7 @@ fn the_skin_stage_equals_the_sss_kernel_alone_on_the_same_pose() {
             &mut rec,
             geo,
             &rest,
-            &profile,
+            &regions,
             params,
             src.buffers(cfg.mm_per_unit as f32),
         )?;

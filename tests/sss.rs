@@ -10,7 +10,7 @@ mod common;
 use glam::{DVec3, Vec3};
 use vkshade::geom::bvh::Bvh;
 use vkshade::kernels::sss::cpu::{self, Light, SamplerParams};
-use vkshade::kernels::sss::{Material, Profile, ProfileKind, SssKernel, SssOutput};
+use vkshade::kernels::sss::{Material, Profile, ProfileKind, Regions, SssKernel, SssOutput};
 use vkshade::kernels::{Kernel, run_frames};
 use vkshade::reference::sss as truth;
 use vkshade::scene::texspace::{COVERED, TexGeometry, plane_mesh};
@@ -23,7 +23,7 @@ fn profile(kind: ProfileKind) -> Profile {
 fn gpu_frame(
     ctx: &vkshade::gpu::Context,
     geo: &TexGeometry,
-    p: &Profile,
+    p: impl Into<Regions>,
     params: SamplerParams,
     lights: &[Light],
     irradiance: Option<&[[f32; 4]]>,
@@ -134,7 +134,7 @@ fn shadow_edge_follows_the_half_plane_integral() {
         ..Default::default()
     };
     let out = common::with_gpu(|ctx| gpu_frame(ctx, &geo, &p, params, &[], Some(&e)));
-    let cpu = cpu::diffusion(&geo, &p, &e, &params);
+    let cpu = cpu::diffusion(&geo, &Regions::from(&p), &e, &params);
     let texel = w / 128.0;
     let inner = interior(&geo, w, h, rmax * 1.02);
     // Mean over texels at the same x (one column of texels) against the 1D integral.
@@ -261,7 +261,7 @@ fn head_gpu_matches_the_cpu_twin_and_the_brute_force() {
         &geo,
         &Bvh::build(&geo.positions, &geo.triangles),
         &lights,
-        &p,
+        &Regions::from(&p),
     );
     let tmax = valid.iter().map(|&i| tr[i][0]).fold(0f32, f32::max);
     assert!(tmax > 0.0, "nothing transmits through the head");
@@ -279,7 +279,7 @@ fn head_gpu_matches_the_cpu_twin_and_the_brute_force() {
     // Diffusion: the same sample pattern from the GPU's irradiance. Measured relative RMSE 0
     // (the same arithmetic); a sample may flip at a triangle edge or texel boundary where the
     // driver's cos / sin or a fused multiply-add rounds differently from the CPU.
-    let b = cpu::diffusion(&geo, &p, &out.irradiance, &params);
+    let b = cpu::diffusion(&geo, &Regions::from(&p), &out.irradiance, &params);
     for c in 0..3 {
         let (mut d2, mut t2) = (0f64, 0f64);
         for &i in &valid {
@@ -422,6 +422,111 @@ fn bad_inputs_are_refused_with_clear_errors() {
     });
 }
 
+/// The triangles of `geo` whose centroid lies at x >= 0 in region 1, the others in 0.
+fn halves(geo: &TexGeometry) -> Vec<u8> {
+    geo.triangles
+        .iter()
+        .map(|t| {
+            let x: f32 = t.iter().map(|&v| geo.positions[v as usize].x).sum();
+            (x >= 0.0) as u8
+        })
+        .collect()
+}
+
+/// Multi-region skin (`kernels::sss::regions`): a plane whose left half is skin 1 and right
+/// half skin 2 (Jensen's measured skins; their R_tot differ by 5-30% per channel). Each texel
+/// diffuses with its own region's profile (the exit point's): under uniform light every
+/// interior texel is E R_tot of its own region, right up to the border between them (the
+/// profile is the receiver's, and E is the same wherever the samples land), so a texel that
+/// took the other region's profile is off by 5-30% against a 1e-5 bound. Then the GPU
+/// against its CPU twin on an irradiance with an edge near the border (1e-5 of the
+/// largest value). Catches: the diffusion shader ignoring the region (every texel on region
+/// 0's rows of the pattern image; checked by planting `row = 0`), the region's R_tot or
+/// totals read from another row, and the walk records losing the region.
+#[test]
+fn two_skin_regions_each_diffuse_with_their_own_profile() {
+    for kind in [ProfileKind::Dipole, ProfileKind::Burley] {
+        let skin1 = profile(kind);
+        let skin2 = Profile::new(kind, Material::SKIN2, 0.99).unwrap();
+        let rmax = skin1.max_radius().max(skin2.max_radius()) as f32;
+        let (w, h) = (6.0 * rmax, 3.0 * rmax);
+        let geo = TexGeometry::build(&plane_mesh(w, h, 8).unwrap(), 96, 1.0).unwrap();
+        let regions = Regions::new(vec![skin1.clone(), skin2.clone()], halves(&geo)).unwrap();
+        let region_of = |i: usize| regions.of_triangle(geo.texel_tri[i][0] as usize);
+        let params = SamplerParams {
+            samples: 16,
+            ..Default::default()
+        };
+        let lights = [Light::Directional {
+            toward: Vec3::Z,
+            e: 2.0,
+        }];
+        // A step in the irradiance 0.3 rmax right of the border (an uploaded E).
+        let step: Vec<[f32; 4]> = geo
+            .pos
+            .iter()
+            .map(|p| {
+                let e = if p[0] > 0.3 * rmax { 2.0 } else { 0.5 };
+                [e, e, e, 1.0]
+            })
+            .collect();
+        let (lit, stepped) = common::with_gpu(|ctx| {
+            let mut setup = ctx.recorder("sss regions setup")?;
+            let kernel = SssKernel::new(&mut setup, &geo, &regions, params)?;
+            setup.submit_and_wait()?;
+            assert_eq!(kernel.regions().len(), 2);
+            let mut lit = None;
+            run_frames(ctx, &kernel, [&lights[..]], 1, |r| {
+                lit = Some(r.output);
+                Ok(())
+            })?;
+            let mut rec = ctx.recorder("sss regions step")?;
+            kernel.upload_irradiance(&mut rec, &step)?;
+            kernel.record_diffusion(&mut rec)?;
+            let rb = kernel.read_back(&mut rec)?;
+            rec.submit_and_wait()?;
+            Ok((lit.unwrap(), kernel.collect(&rb)?))
+        });
+        let inner = interior(&geo, w, h, rmax * 1.02);
+        let per_region = [0, 1].map(|r| inner.iter().filter(|&&i| region_of(i) == r).count());
+        assert!(per_region.iter().all(|&n| n > 100), "{per_region:?}");
+        for &i in &inner {
+            let p = [&skin1, &skin2][region_of(i)];
+            for c in 0..3 {
+                let want = 2.0 * p.r_tot[c] as f32;
+                assert!(
+                    (lit.diffuse[i][c] - want).abs() <= 1e-5 * want,
+                    "{kind:?} texel {i} (region {}) ch {c}: {} vs {want}",
+                    region_of(i),
+                    lit.diffuse[i][c]
+                );
+            }
+        }
+        // The two profiles are far enough apart for the bound above to tell them apart.
+        for c in 0..3 {
+            let (a, b) = (skin1.r_tot[c], skin2.r_tot[c]);
+            assert!((a - b).abs() > 0.03 * a, "ch {c}: R_tot {a} vs {b}");
+        }
+        let cpu_b = cpu::diffusion(&geo, &regions, &step, &params);
+        let top = cpu_b
+            .iter()
+            .map(|b| b[0].max(b[1]).max(b[2]))
+            .fold(0f32, f32::max);
+        let worst = (0..geo.texels())
+            .map(|i| {
+                (0..3)
+                    .map(|c| (stepped.diffuse[i][c] - cpu_b[i][c]).abs())
+                    .fold(0f32, f32::max)
+            })
+            .fold(0f32, f32::max);
+        eprintln!("{kind:?}: two regions, GPU vs CPU twin worst {worst:e} (of {top})");
+        assert!(
+            worst <= 1e-5 * top,
+            "{kind:?}: GPU vs CPU twin {worst} of {top}"
+        );
+    }
+}
+
 #[test]
 fn back_lit_thin_slab_transmits_red() {
     // Two parallel planes 3 mm apart, facing away from each other (front +z at z = 0, back -z at
@@ -479,7 +584,7 @@ fn back_lit_thin_slab_transmits_red() {
     };
     let out = common::with_gpu(|ctx| gpu_frame(ctx, &geo, &p, params, &lights, None));
     let bvh = Bvh::build(&geo.positions, &geo.triangles);
-    let cpu_t = cpu::transmission(&geo, &bvh, &lights, &p);
+    let cpu_t = cpu::transmission(&geo, &bvh, &lights, &Regions::from(&p));
     let want = [0, 1, 2].map(|c| p.tail_f32(c, t));
     let mut front = 0;
     for i in 0..geo.texels() {
@@ -501,6 +606,50 @@ fn back_lit_thin_slab_transmits_red() {
         assert!(out.transmission[i][0] > 5.0 * out.transmission[i][2]);
     }
     assert!(front > 1000, "{front} front texels");
+    // Two regions (multi-region skin): the right half skin 2. A vertex takes the lowest
+    // region around it, so a front texel whose triangle's corners are all in region r
+    // transmits region r's tail; those across the middle column blend both. Catches the
+    // transmission pass reading one region's tail for every vertex (skin 2's tail at 3 mm is
+    // 6-60% above skin 1's per channel, the bound 1e-4).
+    let skin2 = Profile::new(ProfileKind::Dipole, Material::SKIN2, 0.99).unwrap();
+    let regions = Regions::new(vec![p.clone(), skin2.clone()], halves(&geo)).unwrap();
+    let vreg = regions.of_vertices(&geo.triangles, geo.positions.len());
+    let out = common::with_gpu(|ctx| gpu_frame(ctx, &geo, &regions, params, &lights, None));
+    let cpu_t = cpu::transmission(&geo, &bvh, &lights, &regions);
+    let tails = [&p, &skin2].map(|q| [0, 1, 2].map(|c| q.tail_f32(c, t)));
+    for c in 0..3 {
+        assert!(tails[1][c] > 1.05 * tails[0][c], "ch {c}: {tails:?}");
+    }
+    let mut seen = [0usize; 2];
+    for i in 0..geo.texels() {
+        if geo.pos[i][3] != COVERED || geo.pos[i][2] != 0.0 {
+            continue;
+        }
+        let corners = geo.triangles[geo.texel_tri[i][0] as usize].map(|v| vreg[v as usize]);
+        for c in 0..3 {
+            let scale = tails[1][c];
+            assert!(
+                (cpu_t[i][c] - out.transmission[i][c]).abs() <= 1e-5 * scale,
+                "texel {i} ch {c}: GPU {} vs CPU twin {}",
+                out.transmission[i][c],
+                cpu_t[i][c]
+            );
+        }
+        for r in 0..2 {
+            if corners.iter().all(|&x| x as usize == r) {
+                seen[r] += 1;
+                for c in 0..3 {
+                    let want = tails[r][c];
+                    assert!(
+                        (out.transmission[i][c] - want).abs() <= 1e-4 * want,
+                        "texel {i} region {r} ch {c}: {} vs {want}",
+                        out.transmission[i][c]
+                    );
+                }
+            }
+        }
+    }
+    assert!(seen.iter().all(|&n| n > 200), "texels per region {seen:?}");
 }
 
 /// Catches: `SssKernel::update_geometry` made a no-op (or uploading only some of the
@@ -547,14 +696,14 @@ fn a_frame_that_stretches_the_mesh_follows_the_new_geometry() {
     });
     let bvh = Bvh::build(&stretched.positions, &stretched.triangles);
     let cpu_e = cpu::irradiance(&stretched, &bvh, &lights, params.shadow_refine);
-    let cpu_b = cpu::diffusion(&stretched, &p, &out.irradiance, &params);
+    let cpu_b = cpu::diffusion(&stretched, &Regions::from(&p), &out.irradiance, &params);
     let old_e = cpu::irradiance(
         &square,
         &Bvh::build(&square.positions, &square.triangles),
         &lights,
         params.shadow_refine,
     );
-    let old_b = cpu::diffusion(&square, &p, &old_e, &params);
+    let old_b = cpu::diffusion(&square, &Regions::from(&p), &old_e, &params);
     let covered: Vec<usize> = (0..stretched.texels())
         .filter(|&i| stretched.pos[i][3] == COVERED)
         .collect();
@@ -648,7 +797,7 @@ fn quadratic_irradiance_measures_the_second_moment_on_a_stretched_plane() {
         for c in 0..3 {
             let (w, h, geo, e) = &planes[c];
             let out = &outs[c];
-            let cpu = cpu::diffusion(geo, &p, e, &params);
+            let cpu = cpu::diffusion(geo, &Regions::from(&p), e, &params);
             let inner = interior(geo, *w, *h, p.radius[c] as f32 * 1.02);
             assert!(inner.len() > 1000, "{} interior texels", inner.len());
             let (mut gpu_sum, mut cpu_sum, mut d2, mut t2) = (0f64, 0f64, 0f64, 0f64);
@@ -836,7 +985,9 @@ fn max_diff(a: &[[f32; 4]], b: &[[f32; 4]], n: usize, keep: impl Fn(usize) -> bo
 /// position / normal / area, the surface walk's records, the refitted BVH) against the CPU's
 /// rasterisation of the same pose, on a pose far from the bind pose; and the frame's outputs
 /// against the CPU twin on that geometry (shadows through the refitted BVH against rays
-/// through a BVH built for the pose).
+/// through a BVH built for the pose), with two skin regions (multi-region skin): a
+/// `pose_triangles.comp` that dropped the region from the records fails the record
+/// comparison, and the diffusion then takes region 0's profile everywhere (fails the twin).
 #[test]
 fn posed_head_geometry_on_the_gpu_equals_the_cpu_rasterisation() {
     use vkshade::kernels::sss::posed::{BvhTopology, refit, sah_cost};
@@ -856,6 +1007,24 @@ fn posed_head_geometry_on_the_gpu_equals_the_cpu_rasterisation() {
     eprintln!("pose: vertices moved up to {moved:.0} mm (extent {extent:.0} mm)");
     assert!(moved > 0.2 * extent, "the pose is near the bind pose");
     let p = Profile::new(ProfileKind::Dipole, Material::SKIN1, 0.995).unwrap();
+    // Two skin regions (the face's left and right of its mean x: skin 1 and skin 2), so that
+    // the per-frame walk records must carry each triangle's region and the diffusion read it.
+    let mean_x = rest.positions.iter().map(|v| v.x).sum::<f32>() / rest.positions.len() as f32;
+    let split: Vec<u8> = rest
+        .triangles
+        .iter()
+        .map(|t| {
+            (t.iter().map(|&v| rest.positions[v as usize].x).sum::<f32>() >= 3.0 * mean_x) as u8
+        })
+        .collect();
+    let skin2 = Profile::new(ProfileKind::Dipole, Material::SKIN2, 0.995).unwrap();
+    let regions = Regions::new(vec![p.clone(), skin2], split.clone()).unwrap();
+    let ones = split.iter().filter(|&&r| r == 1).count();
+    assert!(
+        ones > split.len() / 4 && ones < 3 * split.len() / 4,
+        "{ones} of {}",
+        split.len()
+    );
     let lights = [Light::Directional {
         toward: Vec3::new(0.3, 0.4, 1.0).normalize(),
         e: 1.0,
@@ -873,7 +1042,7 @@ fn posed_head_geometry_on_the_gpu_equals_the_cpu_rasterisation() {
             &mut setup,
             &rest,
             &ch.mesh.positions,
-            &p,
+            &regions,
             params,
             src.buffers(1000.0),
         )?;
@@ -948,7 +1117,15 @@ fn posed_head_geometry_on_the_gpu_equals_the_cpu_rasterisation() {
     assert_eq!(gutter_area, 0.0);
     // The walk's records: the frame, kinds and UVs; the crossing maps (texel units).
     let walk = SurfaceWalk::build(&geo);
-    let cpu_rec = walk.records();
+    // (the walk's records carry no region; the kernel's hold each triangle's)
+    let mut cpu_rec = walk.records();
+    vkshade::kernels::sss::pack::region_records(&mut cpu_rec, &regions);
+    assert!(
+        cpu_rec
+            .chunks(9)
+            .zip(&split)
+            .all(|(r, &s)| r[2][2] == s as u32)
+    );
     assert_eq!(cpu_rec.len(), g.walk_records.len());
     let (mut shape_err, mut map_err, mut kinds_differ) = (0f32, 0f32, 0);
     for (t, wt) in walk.tris.iter().enumerate() {
@@ -1016,9 +1193,9 @@ fn posed_head_geometry_on_the_gpu_equals_the_cpu_rasterisation() {
     // kernel uses (built once, for the rest pose).
     let dg = cpu::DiffusionGeometry {
         walk,
-        contact: Contact::build(&rest, &p),
+        contact: Contact::build(&rest, &regions),
     };
-    let b = cpu::diffusion_with(&dg, &geo, &p, &out.irradiance, &params);
+    let b = cpu::diffusion_with(&dg, &geo, &regions, &out.irradiance, &params);
     for c in 0..3 {
         let (mut d2, mut t2) = (0f64, 0f64);
         for &i in &valid {
@@ -1186,7 +1363,7 @@ fn a_per_vertex_irradiance_on_the_gpu_equals_the_cpu_twin() {
     assert!(spread.1 > 1.5 * spread.0, "E red spans {spread:?}");
     // The rgb diffusion: the same sample pattern from the GPU's rgb irradiance (as the grey
     // path against its twin: measured 0, bound as there).
-    let b = cpu::diffusion(&geo, &p, &out.irradiance, &params);
+    let b = cpu::diffusion(&geo, &Regions::from(&p), &out.irradiance, &params);
     for c in 0..3 {
         let (mut d2, mut t2) = (0f64, 0f64);
         for &i in &valid {

@@ -7,8 +7,6 @@
 layout(local_size_x = 8, local_size_y = 8) in;
 
 layout(push_constant) uniform Push {
-    vec4 k;          // the scale per channel (rgb): R_tot (the untruncated total)
-    vec4 total;      // the sum of each channel's weights over the pattern (rgb)
     uint size;
     uint samples;
     uint tiles;      // occupied row segments
@@ -33,15 +31,19 @@ layout(set = 0, binding = 4, rgba32f) readonly uniform image2D irr;
 // entries (first << 5 | count) (src/kernels/sss/walk.rs, contact.rs).
 layout(set = 0, binding = 1, rgba32ui) readonly uniform uimage2D start;
 // Per triangle, WALK_RECORD texels, WALK_ROW texels a row (src/kernels/sss/walk.rs,
-// SurfaceWalk::records): (1 / l1, x2, 1 / y2, edge kinds), (uv0, uv1 - uv0), (uv2 - uv0, 0, 0),
+// SurfaceWalk::records): (1 / l1, x2, 1 / y2, edge kinds), (uv0, uv1 - uv0), (uv2 - uv0, region, 0),
 // then per edge the map from this triangle's barycentrics to the atlas through the neighbour
 // unfolded across that edge: uv = s + V (b1, b2), (V row-major), (s, 0, 0).
 layout(set = 0, binding = 2, rgba32ui) readonly uniform uimage2D walk;
 // Contact entries, WALK_ROW a row: (source texel, f_r, f_g, f_b bits).
 layout(set = 0, binding = 3, rgba32ui) readonly uniform uimage2D contact;
-// The shared pattern (cpu::sample_pattern), one texel per sample: (ux, uy, w_r, w_g), and
-// w_b = 3 - w_r - w_g (the MIS weights sum to 3). An image: lavapipe loads a uniform buffer
-// at the loop index lane by lane, component by component.
+// The patterns (cpu::sample_pattern) of the skin regions (src/kernels/sss/regions.rs; one for
+// a single profile), region r's in row 2r, one texel per sample: (ux, uy, w_r, w_g), and
+// w_b = 3 - w_r - w_g (the MIS weights sum to 3); row 2r + 1: texel 0 the region's scale
+// per channel R_tot (the untruncated total), texel 1 the sum of each channel's weights over
+// its pattern (pack::Pattern::texels). A texel diffuses with its triangle's region's (the
+// exit point's profile). An image: lavapipe loads a uniform buffer at the loop index lane by
+// lane, component by component.
 layout(set = 0, binding = 5, rgba32f) readonly uniform image2D seq;
 layout(std430, set = 0, binding = 6) writeonly buffer Diffuse { vec4 v[]; } diffuse;
 // The occupied 8x1 row segments of the atlas (x / 8 | y << 16, built once per mesh: the UV
@@ -56,6 +58,7 @@ const uint WALK_ROW = 1024u;
 const uint WALK_RECORD = 9u;
 const uint EDGE_SHARED = 0u; // walk::EDGE_*
 const uint EDGE_OPEN = 1u;
+const uint MAX_REGIONS = 8u; // regions::MAX_REGIONS
 
 uint pcg(uint v) {
     uint state = v * 747796405u + 2891336453u;
@@ -115,6 +118,10 @@ void main() {
     vec4 v2 = uintBitsToFloat(record(tri0, 7u));
     vec2 s0 = uintBitsToFloat(record(tri0, 4u).xy), s1 = uintBitsToFloat(record(tri0, 6u).xy);
     vec2 s2 = uintBitsToFloat(record(tri0, 8u).xy);
+    // The triangle's skin region (pack::region_records) and its profile's rows.
+    int row = 2 * int(min(rc.z, MAX_REGIONS - 1u));
+    vec3 k3 = imageLoad(seq, ivec2(0, row + 1)).rgb;
+    vec3 total = imageLoad(seq, ivec2(1, row + 1)).rgb;
     // The texel's rotation of the shared pattern, folded into the rates and the atlas map
     // (walk::TexelSampler): per sample, d2 = a ux + b uy, d1 = c ux + d uy, and inside the
     // triangle uv = uvt + ux * mx + uy * my.
@@ -138,7 +145,7 @@ void main() {
     // and then counts, leaves, or counts as dark. The same arithmetic as before, so the CPU
     // twin (walk::TexelSampler::land) is unchanged.
     for (uint s = 0u; s < pc.samples; s++) {
-        vec4 q = imageLoad(seq, ivec2(s, 0));
+        vec4 q = imageLoad(seq, ivec2(s, row));
         vec3 w = vec3(q.z, q.w, 3.0 - q.z - q.w);
         float d2 = ra_ * q.x + rb_ * q.y;
         float d1 = rc_ * q.x + rd_ * q.y;
@@ -174,8 +181,7 @@ void main() {
         lost_w += gone ? w : vec3(0.0);
         lost += gone ? 1u : 0u;
     }
-    vec3 k3 = pc.k.rgb;
-    vec3 wsum = pc.total.rgb - lost_w;
+    vec3 wsum = total - lost_w;
     // (every sample lost, rare: the texel's own E)
     vec3 own = vec3(
         wsum.r > 0.0 ? sum.r / wsum.r : eo.r,

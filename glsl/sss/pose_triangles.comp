@@ -169,7 +169,8 @@ void main() {
     imageStore(walk, ivec2(base % WALK_ROW, base / WALK_ROW), head);
     uint i1 = base + 1u, i2 = base + 2u;
     imageStore(walk, ivec2(i1 % WALK_ROW, i1 / WALK_ROW), uva);
-    imageStore(walk, ivec2(i2 % WALK_ROW, i2 / WALK_ROW), uvec4(uvb.xy, 0u, 0u));
+    // z: the triangle's skin region, fixed (posed::walk_topology; pack::region_records).
+    imageStore(walk, ivec2(i2 % WALK_ROW, i2 / WALK_ROW), uvec4(uvb.xy, uvb.w, 0u));
     for (uint r = 0u; r < 6u; r++) {
         uint i = base + 3u + r;
         imageStore(walk, ivec2(i % WALK_ROW, i / WALK_ROW), rec[r]);

@@ -14,12 +14,10 @@
 layout(local_size_x = 64) in;
 
 layout(push_constant) uniform Push {
-    vec4 tail[3];  // per channel: dipole (alpha'/2, sigma_tr, z_r, z_v), Burley (A, d, 0, 0)
     uint vertices;
     uint lights;
     float bias;    // shadow-ray origin offset along the normal (mm)
     uint mode;     // transmission: 0 off, 1 dipole, 2 Burley
-    float max_t;   // thickest part that transmits (mm)
 } pc;
 
 layout(std430, set = 0, binding = 0) readonly buffer Verts { vec4 v[]; } verts;   // pos, normal
@@ -38,6 +36,13 @@ layout(std140, set = 0, binding = 3) uniform Lights { vec4 v[2 * MAX_LIGHTS]; } 
 const uint VERTEX_ROW = 1024u;
 layout(set = 0, binding = 4, r32ui) writeonly uniform uimage2D vis;
 layout(set = 0, binding = 5, rgba32f) writeonly uniform image2D vtrans; // rgb, t
+// The skin regions' profiles (src/kernels/sss/regions.rs; pack::region_tails), four vec4 a
+// region: per channel the tail, dipole (alpha'/2, sigma_tr, z_r, z_v) or Burley (A, d, 0,
+// 0); then (the thickest part that transmits (mm), 0, 0, 0). A vertex takes its region's
+// (`vregion`: the lowest region of its triangles, Regions::of_vertices).
+const uint MAX_REGIONS = 8u;
+layout(std140, set = 0, binding = 6) uniform Tails { vec4 v[4u * MAX_REGIONS]; } tails;
+layout(std430, set = 0, binding = 7) readonly buffer VRegion { uint v[]; } vregion;
 
 #include <common/bvh.glsl>
 
@@ -90,8 +95,8 @@ float irradiance_at(vec3 p, vec3 n) {
     return e;
 }
 
-float tail(uint c, float t) {
-    vec4 p = pc.tail[c];
+float tail(uint r, uint c, float t) {
+    vec4 p = tails.v[4u * r + c];
     if (pc.mode == 1u) {
         float dr = sqrt(t * t + p.z * p.z);
         float dv = sqrt(t * t + p.w * p.w);
@@ -109,8 +114,9 @@ void main() {
     imageStore(vis, at, uvec4(visibility(p, n)));
     vec4 tr = vec4(0.0);
     if (pc.mode != 0u) {
+        uint r = min(vregion.v[v], MAX_REGIONS - 1u);
         vec3 o = p - n * pc.bias;
-        vec2 h = closest_hit(o, -n, pc.max_t);
+        vec2 h = closest_hit(o, -n, tails.v[4u * r + 3u].x);
         if (h.x >= 0.0) {
             uint k = floatBitsToUint(h.y);
             vec3 nb = normalize(cross(tri_row(3u * k + 1u), tri_row(3u * k + 2u)));
@@ -118,7 +124,8 @@ void main() {
             vec3 xb = o - n * h.x;
             float eb = irradiance_at(xb, nb);
             float thick = h.x + pc.bias;
-            tr = vec4(eb * tail(0u, thick), eb * tail(1u, thick), eb * tail(2u, thick), thick);
+            tr = vec4(eb * tail(r, 0u, thick), eb * tail(r, 1u, thick), eb * tail(r, 2u, thick),
+                thick);
         }
     }
     imageStore(vtrans, at, tr);

@@ -72,6 +72,15 @@ pub struct Args {
     /// parts take --tile-scale.
     #[arg(long = "part-tile-scale", value_name = "PART=REPEATS")]
     pub part_tile_scale: Vec<String>,
+    /// The skin's scattering material: skin1 or skin2 (Jensen et al. 2001's measured
+    /// skins), or SA_R,SA_G,SA_B/SS_R,SS_G,SS_B[/ETA] (sigma_a and sigma_s' per mm).
+    #[arg(long, default_value = "skin1")]
+    pub skin_material: String,
+    /// A skin part's own scattering material, PART=MATERIAL (as --skin-material); repeat for
+    /// more parts (multi-region skin: each texel diffuses with its part's profile). The
+    /// other skin parts take --skin-material.
+    #[arg(long = "part-skin", value_name = "PART=MATERIAL")]
+    pub part_skin: Vec<String>,
     /// Radiance multiplier before tone mapping.
     #[arg(long, default_value_t = 1.0)]
     pub exposure: f32,
@@ -103,19 +112,48 @@ pub struct Args {
     pub materials: String,
 }
 
+/// An invalid argument's message without its prefix (to be wrapped in another).
+fn argument_message(e: Error) -> String {
+    match e {
+        Error::InvalidArgument(m) => m,
+        other => other.to_string(),
+    }
+}
+
+/// A `--part-*` flag's PART=VALUE, both sides non-empty.
+fn split_part(flag: &str, s: &str) -> Result<(String, String)> {
+    match s.split_once('=') {
+        Some((p, v)) if !p.trim().is_empty() && !v.trim().is_empty() => {
+            Ok((p.trim().to_string(), v.trim().to_string()))
+        }
+        _ => Err(Error::InvalidArgument(format!(
+            "{flag} '{s}': expected PART=VALUE"
+        ))),
+    }
+}
+
 impl Args {
+    /// `--part-skin`, one entry per part named.
+    fn skin_parts(&self) -> Result<Vec<crate::frame::SkinPart>> {
+        let mut out: Vec<crate::frame::SkinPart> = Vec::new();
+        for s in &self.part_skin {
+            let (part, v) = split_part("--part-skin", s)?;
+            if out.iter().any(|o| o.part == part) {
+                return Err(Error::InvalidArgument(format!(
+                    "--part-skin names part '{part}' twice"
+                )));
+            }
+            let material = crate::frame::parse_skin_material(&v).map_err(|e| {
+                Error::InvalidArgument(format!("--part-skin '{s}': {}", argument_message(e)))
+            })?;
+            out.push(crate::frame::SkinPart { part, material });
+        }
+        Ok(out)
+    }
+
     /// `--part-btf` and `--part-tile-scale`, one entry per part named.
     fn cloth_parts(&self) -> Result<Vec<crate::frame::ClothPart>> {
-        let split = |flag: &str, s: &str| -> Result<(String, String)> {
-            match s.split_once('=') {
-                Some((p, v)) if !p.trim().is_empty() && !v.trim().is_empty() => {
-                    Ok((p.trim().to_string(), v.trim().to_string()))
-                }
-                _ => Err(Error::InvalidArgument(format!(
-                    "{flag} '{s}': expected PART=VALUE"
-                ))),
-            }
-        };
+        let split = split_part;
         let mut out: Vec<crate::frame::ClothPart> = Vec::new();
         fn entry(out: &mut Vec<crate::frame::ClothPart>, part: String) -> usize {
             match out.iter().position(|c| c.part == part) {
@@ -167,6 +205,11 @@ impl Args {
         };
         let d = FrameConfig::default();
         let cloth_parts = self.cloth_parts()?;
+        let skin_parts = self.skin_parts()?;
+        let skin_material =
+            crate::frame::parse_skin_material(&self.skin_material).map_err(|e| {
+                Error::InvalidArgument(format!("--skin-material: {}", argument_message(e)))
+            })?;
         let cfg = FrameConfig {
             mesh: self.mesh.clone(),
             skin: list(&self.skin),
@@ -190,6 +233,8 @@ impl Args {
                 _ => crate::frame::Materials::Gltf,
             },
             cloth_parts,
+            skin_material,
+            skin_parts,
             ..d
         };
         cfg.check()?;

@@ -19,6 +19,7 @@ use crate::geom::bvh::Bvh;
 use crate::gpu::{Context, Timings};
 use crate::io::FloatImage;
 use crate::kernels::pose::{PoseKernel, Prepared};
+use crate::kernels::sss::Regions;
 use crate::kernels::sss::contact::Contact;
 use crate::kernels::sss::cpu::{self, DiffusionGeometry, Light, SamplerParams};
 use crate::kernels::sss::gpu::{PASS_DIFFUSION, PASS_IRRADIANCE, PASS_VERTEX};
@@ -544,7 +545,7 @@ impl<'a> Session<'a> {
                 };
                 let k =
                     SssKernel::new_posed(&mut setup, &geo, &mesh.positions, &profile, params, src)?;
-                let contact = Contact::build(&geo, &profile);
+                let contact = Contact::build(&geo, &Regions::from(&profile));
                 (k, Some((geo.clone(), contact)), Some(pose))
             }
         };
@@ -745,12 +746,12 @@ impl<'a> Session<'a> {
                 walk: crate::kernels::sss::walk::SurfaceWalk::build(geo),
                 contact: contact.clone(),
             },
-            None => DiffusionGeometry::build(geo, profile),
+            None => DiffusionGeometry::build(geo, &Regions::from(profile)),
         };
         let t = Instant::now();
-        let cpu_b = cpu::diffusion_with(&dg, geo, profile, &cpu_e, params);
+        let cpu_b = cpu::diffusion_with(&dg, geo, &Regions::from(profile), &cpu_e, params);
         let ms_diffusion = t.elapsed().as_secs_f64() * 1e3;
-        let cpu_t = cpu::transmission(geo, &bvh, lights, profile);
+        let cpu_t = cpu::transmission(geo, &bvh, lights, &Regions::from(profile));
         let error = TwinError::of(geo, gpu, &cpu_e, &cpu_b, &cpu_t);
         let shadowing = self.shadowing(&bvh, &dg, &cpu_e, &cpu_b);
         progress(&format!(
@@ -785,7 +786,7 @@ impl<'a> Session<'a> {
     ) -> ShadowingReport {
         let (geo, profile, params) = (&self.geo, &self.profile, &self.params);
         let e_ray = cpu::irradiance_per_texel_rays(geo, bvh, &self.lights);
-        let b_ray = cpu::diffusion_with(dg, geo, profile, &e_ray, params);
+        let b_ray = cpu::diffusion_with(dg, geo, &Regions::from(profile), &e_ray, params);
         let w: Vec<f64> = (0..geo.texels())
             .map(|i| {
                 if geo.pos[i][3] == COVERED {
@@ -823,14 +824,20 @@ impl<'a> Session<'a> {
         self.rest.as_ref()?;
         let (geo, profile, params) = (&self.geo, &self.profile, &self.params);
         let t = Instant::now();
-        let per_pose = Contact::build(geo, profile);
+        let per_pose = Contact::build(geo, &Regions::from(profile));
         let build_ms_per_pose = t.elapsed().as_secs_f64() * 1e3;
-        let reused = cpu::diffusion_with(dg, geo, profile, &gpu.irradiance, params);
+        let reused = cpu::diffusion_with(dg, geo, &Regions::from(profile), &gpu.irradiance, params);
         let fresh_dg = DiffusionGeometry {
             walk: dg.walk.clone(),
             contact: per_pose,
         };
-        let fresh = cpu::diffusion_with(&fresh_dg, geo, profile, &gpu.irradiance, params);
+        let fresh = cpu::diffusion_with(
+            &fresh_dg,
+            geo,
+            &Regions::from(profile),
+            &gpu.irradiance,
+            params,
+        );
         let covered = self.covered();
         let w: Vec<f64> = covered.iter().map(|&i| geo.nrm[i][3] as f64).collect();
         let pick = |v: &[[f32; 4]]| -> Vec<[f64; 3]> {

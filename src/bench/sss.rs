@@ -10,6 +10,7 @@ use crate::error::Result;
 use crate::geom::bvh::Bvh;
 use crate::gpu::Context;
 use crate::kernels::Kernel;
+use crate::kernels::sss::Regions;
 use crate::kernels::sss::cpu::{self, Light, SamplerParams};
 use crate::kernels::sss::gpu::{PASS_DIFFUSION, PASS_IRRADIANCE, PASS_VERTEX};
 use crate::kernels::sss::load_mesh;
@@ -309,14 +310,17 @@ pub fn run(
     };
     // The walk's maps and the contact sums are built once per pose on both sides (the GPU's
     // come with the geometry upload, outside the timed passes).
-    let dg = cpu::DiffusionGeometry::build(&geo, &profile);
+    let dg = cpu::DiffusionGeometry::build(&geo, &Regions::from(&profile));
     let cpu_ms = time_cpu(cfg.cpu_runs, || {
         let e = cpu::irradiance(&geo, &bvh, &lights(), params.shadow_refine);
         // The GPU's irradiance pass also computes the transmission.
         let t = params
             .transmission
-            .then(|| cpu::transmission(&geo, &bvh, &lights(), &profile));
-        (cpu::diffusion_with(&dg, &geo, &profile, &e, &params), t)
+            .then(|| cpu::transmission(&geo, &bvh, &lights(), &Regions::from(&profile)));
+        (
+            cpu::diffusion_with(&dg, &geo, &Regions::from(&profile), &e, &params),
+            t,
+        )
     });
     progress(&format!(
         "CPU same sampler at {hs}^2 x {hn}: {:.0} ms",
@@ -571,19 +575,20 @@ pub fn run_anim(
     // The old per-frame host work, one pose (the middle of the animation).
     let m = ch.rig.skinning_matrices(Some(anim), 0.5 * anim.duration);
     let room = crate::kernels::sss::pack::Room::of(&crate::kernels::sss::pack::Packed::new(
-        &geo, &profile,
+        &geo,
+        &Regions::from(&profile),
     )?);
     // The old per-frame host work (one run): pose, rasterise, then pack (BVH, walk and
     // contact builds); the contact build alone timed apart on the same pose.
     let before = time_cpu(1, || -> Result<()> {
         let posed = crate::scene::texspace::posed(mesh, &m)?;
         let g = TexGeometry::build(&posed, cfg.size, cfg.mm_per_unit)?;
-        room.pack(&g, &profile).map(|_| ())
+        room.pack(&g, &Regions::from(&profile)).map(|_| ())
     });
     let posed = crate::scene::texspace::posed(mesh, &m)?;
     let g = TexGeometry::build(&posed, cfg.size, cfg.mm_per_unit)?;
     let contact = time_cpu(1, || {
-        crate::kernels::sss::contact::Contact::build(&g, &profile)
+        crate::kernels::sss::contact::Contact::build(&g, &Regions::from(&profile))
     });
     let report = SssAnimBenchReport {
         benchmark: "vkshade bench sss --anim",
@@ -730,7 +735,7 @@ impl<'a> AllBench<'a> {
         )?;
         let geo = TexGeometry::build(&mesh, cfg.headline.0, cfg.mm_per_unit)?;
         let bvh = Bvh::build(&geo.positions, &geo.triangles);
-        let dg = cpu::DiffusionGeometry::build(&geo, &profile);
+        let dg = cpu::DiffusionGeometry::build(&geo, &Regions::from(&profile));
         Ok(AllBench {
             ctx,
             cfg,
@@ -760,11 +765,22 @@ impl<'a> AllBench<'a> {
         };
         let cpu_ms = time_cpu(1, || {
             let e = cpu::irradiance(&self.geo, &self.bvh, &lights(), params.shadow_refine);
-            let t = params
-                .transmission
-                .then(|| cpu::transmission(&self.geo, &self.bvh, &lights(), &self.profile));
+            let t = params.transmission.then(|| {
+                cpu::transmission(
+                    &self.geo,
+                    &self.bvh,
+                    &lights(),
+                    &Regions::from(&self.profile),
+                )
+            });
             (
-                cpu::diffusion_with(&self.dg, &self.geo, &self.profile, &e, &params),
+                cpu::diffusion_with(
+                    &self.dg,
+                    &self.geo,
+                    &Regions::from(&self.profile),
+                    &e,
+                    &params,
+                ),
                 t,
             )
         });

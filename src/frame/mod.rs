@@ -102,6 +102,68 @@ pub struct FrameConfig {
     /// Cloth parts with their own BTF or tile scale; the other cloth parts take `btf` (or
     /// the synthesised weave) and `tile_scale`.
     pub cloth_parts: Vec<ClothPart>,
+    /// The skin's scattering material (per mm; Jensen's measured skin 1 by default), for the
+    /// skin parts without their own.
+    pub skin_material: Material,
+    /// Skin parts with their own scattering material: multi-region skin, a dipole profile
+    /// per distinct material, each texel diffusing with its own part's profile
+    /// ([`crate::kernels::sss::regions`]).
+    pub skin_parts: Vec<SkinPart>,
+}
+
+/// A skin part's own scattering material ([`FrameConfig::skin_parts`]).
+#[derive(Clone, Debug, PartialEq, serde::Serialize)]
+pub struct SkinPart {
+    /// The part (one of [`FrameConfig::skin`]).
+    pub part: String,
+    /// Its material.
+    pub material: Material,
+}
+
+/// Parses a command line's skin material: a built-in name (`skin1`, `skin2`: Jensen et al.
+/// 2001's measured skins) or custom coefficients per mm, `SA_R,SA_G,SA_B/SS_R,SS_G,SS_B`
+/// (sigma_a, then sigma_s'), optionally `/ETA`.
+pub fn parse_skin_material(s: &str) -> Result<Material> {
+    let s = s.trim();
+    if !s.contains('/') {
+        return Material::named(s);
+    }
+    let bad = |why: String| {
+        Error::InvalidArgument(format!(
+            "skin material '{s}': {why} (expected skin1, skin2 or SA_R,SA_G,SA_B/SS_R,SS_G,SS_B\
+             [/ETA], per mm)"
+        ))
+    };
+    let parts: Vec<&str> = s.split('/').collect();
+    if parts.len() > 3 {
+        return Err(bad(format!("{} '/'-separated fields", parts.len())));
+    }
+    let rgb = |f: &str, what: &str| -> Result<[f64; 3]> {
+        let v: Vec<&str> = f.split(',').map(str::trim).collect();
+        if v.len() != 3 {
+            return Err(bad(format!("{what} has {} values, not 3", v.len())));
+        }
+        let mut out = [0.0; 3];
+        for (o, x) in out.iter_mut().zip(&v) {
+            *o = x
+                .parse::<f64>()
+                .map_err(|_| bad(format!("{what}: '{x}' is not a number")))?;
+        }
+        Ok(out)
+    };
+    let sigma_a = rgb(parts[0], "sigma_a")?;
+    let sigma_s = rgb(parts[1], "sigma_s'")?;
+    let eta = match parts.get(2) {
+        Some(e) => e
+            .trim()
+            .parse::<f64>()
+            .map_err(|_| bad(format!("eta '{e}' is not a number")))?,
+        None => crate::kernels::sss::profile::DEFAULT_ETA,
+    };
+    Material::custom(sigma_a, sigma_s, eta).map_err(|e| match e {
+        Error::InvalidArgument(m) => bad(m),
+        other => other,
+    })
 }
 
 /// A cloth part's own BTF and tile scale ([`FrameConfig::cloth_parts`]).
@@ -211,6 +273,8 @@ impl Default for FrameConfig {
             ao_correction_rays: 1024,
             materials: Materials::Gltf,
             cloth_parts: Vec::new(),
+            skin_material: Material::SKIN1,
+            skin_parts: Vec::new(),
         }
     }
 }
@@ -266,6 +330,53 @@ impl FrameConfig {
             .collect())
     }
 
+    /// Each skin part's material, in [`FrameConfig::skin`]'s order (its [`SkinPart`] where it
+    /// has one, else `skin_material`), checked.
+    pub fn skin_materials(&self) -> Result<Vec<Material>> {
+        for (i, sp) in self.skin_parts.iter().enumerate() {
+            if !self.skin.contains(&sp.part) {
+                return Err(Error::InvalidArgument(format!(
+                    "skin part '{}' has a scattering material but is not one of the skin parts \
+                     {:?}",
+                    sp.part, self.skin
+                )));
+            }
+            if self.skin_parts[..i].iter().any(|o| o.part == sp.part) {
+                return Err(Error::InvalidArgument(format!(
+                    "skin part '{}' is given its scattering material twice",
+                    sp.part
+                )));
+            }
+        }
+        let out: Vec<Material> = self
+            .skin
+            .iter()
+            .map(|name| {
+                self.skin_parts
+                    .iter()
+                    .find(|s| &s.part == name)
+                    .map_or(self.skin_material, |s| s.material)
+            })
+            .collect();
+        for m in out.iter().chain([&self.skin_material]) {
+            m.check()?;
+        }
+        let mut distinct: Vec<Material> = Vec::new();
+        for m in &out {
+            if !distinct.contains(m) {
+                distinct.push(*m);
+            }
+        }
+        if distinct.len() > crate::kernels::sss::regions::MAX_REGIONS {
+            return Err(Error::InvalidArgument(format!(
+                "{} distinct skin materials; the skin takes at most {}",
+                distinct.len(),
+                crate::kernels::sss::regions::MAX_REGIONS
+            )));
+        }
+        Ok(out)
+    }
+
     /// Checks what can be checked without reading the files.
     pub fn check(&self) -> Result<()> {
         let bad = |m: String| Err(Error::InvalidArgument(m));
@@ -304,6 +415,7 @@ impl FrameConfig {
             return bad(format!("tile scale {} must be > 0", self.tile_scale));
         }
         self.cloth_materials()?;
+        self.skin_materials()?;
         if self.ao_correction_rays > 1 << 20 {
             return bad(format!(
                 "{} AO correction rays a vertex; at most 1048576 (0: off)",
@@ -414,12 +526,12 @@ pub struct CharacterFrame {
 }
 
 /// The compose pass's surface per part (skin then cloth) under `cfg.materials`, and a line
-/// per part saying what it got. Skin divides out the profile's total reflectance `r_tot`,
-/// cloth the BTF's albedo (see [`Materials::Gltf`]).
+/// per part saying what it got. Skin divides out its profile's total reflectance (`r_tot`,
+/// per skin part), cloth the BTF's albedo (see [`Materials::Gltf`]).
 fn surfaces(
     cfg: &FrameConfig,
     names: &[&str],
-    r_tot: [f64; 3],
+    r_tot: &[[f64; 3]],
     cloth_albedo: &[[f64; 3]],
     uv_scales: &[f32],
     lines: &mut Vec<String>,
@@ -432,7 +544,7 @@ fn surfaces(
     let mut out = Vec::with_capacity(mats.len());
     for (p, (m, name)) in mats.iter().zip(names).enumerate() {
         let (own, what) = if p < cfg.skin.len() {
-            (r_tot, "the skin profile's total reflectance")
+            (r_tot[p], "the skin profile's total reflectance")
         } else {
             (cloth_albedo[p - cfg.skin.len()], "the BTF's albedo")
         };
@@ -733,16 +845,58 @@ impl CharacterFrame {
                 .iter()
                 .position(|(_, m)| m & (1 << (cfg.skin.len() + c)) != 0)
         };
-        // The parts' colours.
-        let skin_profile = Profile::new(
-            ProfileKind::Dipole,
-            Material::SKIN1,
-            crate::kernels::sss::profile::DEFAULT_ENERGY,
+        // The skin's regions: a dipole profile per distinct material, each skin triangle in
+        // its part's.
+        let skin_materials = cfg.skin_materials()?;
+        let mut distinct: Vec<Material> = Vec::new();
+        let region_of_part: Vec<u8> = skin_materials
+            .iter()
+            .map(|m| match distinct.iter().position(|d| d == m) {
+                Some(r) => r as u8,
+                None => {
+                    distinct.push(*m);
+                    (distinct.len() - 1) as u8
+                }
+            })
+            .collect();
+        let profiles = distinct
+            .iter()
+            .map(|m| {
+                Profile::new(
+                    ProfileKind::Dipole,
+                    *m,
+                    crate::kernels::sss::profile::DEFAULT_ENERGY,
+                )
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let part_r_tot: Vec<[f64; 3]> = region_of_part
+            .iter()
+            .map(|&r| profiles[r as usize].r_tot)
+            .collect();
+        let skin_regions = crate::kernels::sss::Regions::new(
+            profiles,
+            parts[..skin_triangles]
+                .iter()
+                .map(|&p| region_of_part[p as usize])
+                .collect(),
         )?;
+        if skin_regions.len() > 1 {
+            progress(&format!(
+                "skin: {} scattering profiles ({})",
+                skin_regions.len(),
+                cfg.skin
+                    .iter()
+                    .zip(&skin_materials)
+                    .map(|(p, m)| format!("{p} {}", m.name))
+                    .collect::<Vec<_>>()
+                    .join(", ")
+            ));
+        }
+        // The parts' colours.
         let surfaces = surfaces(
             cfg,
             &names,
-            skin_profile.r_tot,
+            &part_r_tot,
             &(0..cfg.cloth.len())
                 .map(|c| {
                     group_of_cloth(c)
@@ -820,7 +974,6 @@ impl CharacterFrame {
             .collect();
         let sss = match &skin_geo {
             Some((geo, rest)) => {
-                let profile = &skin_profile;
                 let params = SamplerParams {
                     samples: cfg.samples,
                     ..SamplerParams::default()
@@ -830,7 +983,8 @@ impl CharacterFrame {
                     normals: pose.normals(),
                     mm_per_unit: cfg.mm_per_unit as f32,
                 };
-                let mut kernel = SssKernel::new_posed(&mut rec, geo, rest, profile, params, src)?;
+                let mut kernel =
+                    SssKernel::new_posed(&mut rec, geo, rest, &skin_regions, params, src)?;
                 // The environment's shadowed irradiance joins the lights' before diffusion
                 // (so its visibility bleeds with the light, and no AO is applied after).
                 if let Some(e) = &env {
@@ -1524,6 +1678,74 @@ mod tests {
 
     /// Each cloth part gets its own BTF and tile scale where it has one, the frame's
     /// otherwise; a part that is not cloth, a part named twice and a bad scale are refused.
+    #[test]
+    fn skin_parts_resolve_per_part_and_refuse_bad_entries() {
+        let part = |p: &str, m: Material| SkinPart {
+            part: p.into(),
+            material: m,
+        };
+        let cfg = FrameConfig {
+            skin: vec!["Head".into(), "Hands".into(), "Ears".into()],
+            skin_parts: vec![part("Hands", Material::SKIN2)],
+            ..FrameConfig::default()
+        };
+        assert_eq!(
+            cfg.skin_materials().unwrap(),
+            [Material::SKIN1, Material::SKIN2, Material::SKIN1]
+        );
+        let custom = parse_skin_material("0.01,0.1,0.3 / 1,1.2,1.4/1.4").unwrap();
+        assert_eq!(custom.sigma_a, [0.01, 0.1, 0.3]);
+        assert_eq!(custom.sigma_s_prime, [1.0, 1.2, 1.4]);
+        assert_eq!(custom.eta, 1.4);
+        assert_eq!(parse_skin_material("skin2").unwrap(), Material::SKIN2);
+        for (s, want) in [
+            ("marble", "unknown material 'marble'"),
+            ("0.01,0.1/1,1,1", "sigma_a has 2 values, not 3"),
+            ("0.01,0.1,x/1,1,1", "sigma_a: 'x' is not a number"),
+            ("0.01,0.1,0.3/1,1,1/1/2", "4 '/'-separated fields"),
+            ("0.01,0.1,0.3/1,1,1/q", "eta 'q' is not a number"),
+            ("0.01,0.1,0/1,1,1", "skin material '0.01,0.1,0/1,1,1'"),
+        ] {
+            let e = parse_skin_material(s).unwrap_err().to_string();
+            assert!(e.contains(want), "{s}: {e}");
+        }
+        let nine: Vec<SkinPart> = (0..9)
+            .map(|i| {
+                part(
+                    &format!("P{i}"),
+                    Material::custom([0.01 + i as f64 * 0.01, 0.1, 0.3], [1.0; 3], 1.3).unwrap(),
+                )
+            })
+            .collect();
+        for (skin, parts, want) in [
+            (
+                vec!["Head"],
+                vec![part("Torso", Material::SKIN2)],
+                "skin part 'Torso' has a scattering material but is not one of the skin parts",
+            ),
+            (
+                vec!["Head"],
+                vec![part("Head", Material::SKIN2), part("Head", Material::SKIN1)],
+                "'Head' is given its scattering material twice",
+            ),
+            (
+                (0..9)
+                    .map(|i| ["P0", "P1", "P2", "P3", "P4", "P5", "P6", "P7", "P8"][i])
+                    .collect(),
+                nine,
+                "9 distinct skin materials; the skin takes at most 8",
+            ),
+        ] {
+            let cfg = FrameConfig {
+                skin: skin.into_iter().map(String::from).collect(),
+                skin_parts: parts,
+                ..FrameConfig::default()
+            };
+            let e = cfg.check().unwrap_err().to_string();
+            assert!(e.contains(want), "{e}");
+        }
+    }
+
     #[test]
     fn cloth_parts_resolve_per_part_and_refuse_bad_entries() {
         let part = |p: &str, btf: Option<BtfSource>, t: Option<f32>| ClothPart {

@@ -17,9 +17,10 @@
 //! was built for (rebuilt with the texture-space geometry, per frame for a skinned mesh).
 //!
 //! Pieces are the connected components of the mesh with vertices welded by position (so a UV
-//! seam does not split a piece).
+//! seam does not split a piece). With several skin regions ([`Regions`]) each receiver's sum
+//! uses its own region's profile and radius (the exit point's, as the diffusion does).
 
-use super::Profile;
+use super::{Profile, Regions};
 use crate::scene::texspace::{COVERED, Dsu, TexGeometry};
 use glam::Vec3;
 use rayon::prelude::*;
@@ -93,13 +94,14 @@ fn source_factor(
 }
 
 impl Contact {
-    /// The contact sums for `geo` and `profile` (none when the mesh is one piece).
-    pub fn build(geo: &TexGeometry, profile: &Profile) -> Contact {
-        Contact::build_with(geo, profile, MAX_ENTRIES)
+    /// The contact sums for `geo` and its regions' profiles (none when the mesh is one
+    /// piece).
+    pub fn build(geo: &TexGeometry, regions: &Regions) -> Contact {
+        Contact::build_with(geo, regions, MAX_ENTRIES)
     }
 
     /// [`Contact::build`] keeping at most `max_entries` (1..=31) per receiver.
-    pub fn build_with(geo: &TexGeometry, profile: &Profile, max_entries: usize) -> Contact {
+    pub fn build_with(geo: &TexGeometry, regions: &Regions, max_entries: usize) -> Contact {
         let max_entries = max_entries.clamp(1, 31);
         let n = geo.texels();
         let (piece, count) = pieces(geo);
@@ -111,8 +113,9 @@ impl Contact {
         if count < 2 {
             return out;
         }
-        let radius = profile.radius.map(|r| r as f32);
-        let rmax = radius.iter().cloned().fold(0.0, f32::max);
+        // The grid's cell is the largest radius of any region; each receiver then keeps the
+        // sources within its own region's radii.
+        let rmax = regions.max_radius() as f32;
         let covered: Vec<usize> = (0..n).filter(|&i| geo.pos[i][3] == COVERED).collect();
         let pos = |i: usize| Vec3::from_slice(&geo.pos[i][..3]);
         let piece_of = |i: usize| piece[geo.texel_tri[i][0] as usize];
@@ -128,10 +131,13 @@ impl Contact {
                 .or_default()
                 .push(i as u32);
         }
-        let k = profile.k.map(|k| k as f32);
         let lists: Vec<Vec<(u32, [f32; 3])>> = covered
             .par_iter()
             .map(|&o| {
+                let profile = regions.of_triangle_profile(geo.texel_tri[o][0] as usize);
+                let radius = profile.radius.map(|r| r as f32);
+                let rmax = radius.iter().cloned().fold(0.0, f32::max);
+                let k = profile.k.map(|k| k as f32);
                 let po = pos(o);
                 let me = piece_of(o);
                 let (kx, ky, kz) = key(po);
@@ -251,7 +257,7 @@ mod tests {
         let geo = facing_squares(1.0);
         let profile = Profile::new(ProfileKind::Dipole, Material::SKIN1, 0.995).unwrap();
         assert_eq!(pieces(&geo).1, 2);
-        let contact = Contact::build(&geo, &profile);
+        let contact = Contact::build(&geo, &(&profile).into());
         // Light on the upper square only.
         let e: Vec<[f32; 4]> = geo
             .pos
@@ -305,7 +311,7 @@ mod tests {
         )
         .unwrap();
         let profile = Profile::new(ProfileKind::Burley, Material::SKIN1, 0.995).unwrap();
-        let contact = Contact::build(&geo, &profile);
+        let contact = Contact::build(&geo, &(&profile).into());
         assert_eq!(
             (contact.pieces, contact.receivers, contact.entries.len()),
             (1, 0, 0)

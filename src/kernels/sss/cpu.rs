@@ -4,6 +4,7 @@
 
 use super::contact::Contact;
 use super::profile::Profile;
+use super::regions::Regions;
 use super::walk::{Landing, SurfaceWalk};
 use crate::error::{Error, Result};
 use crate::geom::bvh::Bvh;
@@ -395,9 +396,9 @@ pub fn transmission(
     geo: &TexGeometry,
     bvh: &Bvh,
     lights: &[Light],
-    profile: &Profile,
+    regions: &Regions,
 ) -> Vec<[f32; 4]> {
-    let vt = vertex_transmission(geo, bvh, lights, profile);
+    let vt = vertex_transmission(geo, bvh, lights, regions);
     (0..geo.texels())
         .into_par_iter()
         .map(|i| {
@@ -412,18 +413,22 @@ pub fn transmission(
         .collect()
 }
 
-/// The per-vertex transmission (rgb, thickness) of [`transmission`].
+/// The per-vertex transmission (rgb, thickness) of [`transmission`], each vertex with its
+/// region's profile ([`Regions::of_vertices`]).
 pub fn vertex_transmission(
     geo: &TexGeometry,
     bvh: &Bvh,
     lights: &[Light],
-    profile: &Profile,
+    regions: &Regions,
 ) -> Vec<[f32; 4]> {
     let bias = shadow_bias(geo.extent_mm());
-    let max_t = profile.max_radius() as f32;
+    let region = regions.of_vertices(&geo.triangles, geo.positions.len());
     vertex_frames(geo)
         .par_iter()
-        .map(|f| {
+        .zip(&region)
+        .map(|(f, &r)| {
+            let profile = regions.profile(r as usize);
+            let max_t = profile.max_radius() as f32;
             let p = Vec3::from_slice(&f[0][..3]);
             let n = Vec3::from_slice(&f[1][..3]);
             let o = p - n * bias;
@@ -529,27 +534,28 @@ pub struct DiffusionGeometry {
 }
 
 impl DiffusionGeometry {
-    pub fn build(geo: &TexGeometry, profile: &Profile) -> DiffusionGeometry {
+    pub fn build(geo: &TexGeometry, regions: &Regions) -> DiffusionGeometry {
         DiffusionGeometry {
             walk: SurfaceWalk::build(geo),
-            contact: Contact::build(geo, profile),
+            contact: Contact::build(geo, regions),
         }
     }
 }
 
 /// The diffusion pass on the CPU: B per texel (rgb; alpha the fraction of the samples not
 /// lost), from irradiance `e` (rgba, as the irradiance pass writes it). One sample set for
-/// the three channels ([`Profile::mixture_sequence`]), as the shader.
+/// the three channels ([`Profile::mixture_sequence`]), as the shader; each texel with its
+/// region's profile ([`Regions`]: the exit point's).
 pub fn diffusion(
     geo: &TexGeometry,
-    profile: &Profile,
+    regions: &Regions,
     e: &[[f32; 4]],
     params: &SamplerParams,
 ) -> Vec<[f32; 4]> {
     diffusion_with(
-        &DiffusionGeometry::build(geo, profile),
+        &DiffusionGeometry::build(geo, regions),
         geo,
-        profile,
+        regions,
         e,
         params,
     )
@@ -559,14 +565,21 @@ pub fn diffusion(
 pub fn diffusion_with(
     dg: &DiffusionGeometry,
     geo: &TexGeometry,
-    profile: &Profile,
+    regions: &Regions,
     e: &[[f32; 4]],
     params: &SamplerParams,
 ) -> Vec<[f32; 4]> {
     let nf = geo.size as f32;
-    let scale = profile.r_tot.map(|k| k as f32);
-    let pattern = sample_pattern(profile, params.samples);
-    let total = pattern_totals(&pattern);
+    // Per region: R_tot, its sample pattern and the pattern's totals.
+    let per_region: Vec<([f32; 3], Vec<[f32; 4]>, [f32; 3])> = regions
+        .profiles()
+        .iter()
+        .map(|p| {
+            let pattern = sample_pattern(p, params.samples);
+            let total = pattern_totals(&pattern);
+            (p.r_tot.map(|k| k as f32), pattern, total)
+        })
+        .collect();
     let contact = dg.contact.apply(e);
     let walk = &dg.walk;
     (0..geo.texels())
@@ -576,6 +589,7 @@ pub fn diffusion_with(
             if geo.pos[i][3] == 0.0 || tt[0] == NO_TRIANGLE {
                 return [0.0; 4];
             }
+            let (scale, pattern, total) = &per_region[regions.of_triangle(tt[0] as usize)];
             let texel = walk.texel(
                 tt[0],
                 f32::from_bits(tt[1]),
@@ -588,7 +602,7 @@ pub fn diffusion_with(
             let mut sum = [0f32; 3];
             let mut lost_w = [0f32; 3];
             let mut lost = 0u32;
-            for q in &pattern {
+            for q in pattern {
                 let w = pattern_weights(q);
                 let ej = match texel.land(q[0], q[1]) {
                     Landing::Atlas(uv) => nearest(geo, nf, uv.x, uv.y).map(|j| e[j]),

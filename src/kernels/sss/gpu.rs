@@ -36,10 +36,14 @@
 //! one rgba image whose alpha marks the surface, and the diffusion gathers it with one load
 //! per sample (glsl/sss/irradiance*_env.comp, diffusion_env.comp).
 
+use super::TexGeometry;
 use super::cpu::{Light, MAX_LIGHTS, SamplerParams, check_lights, shadow_bias};
-use super::pack::{self, BVH_ROW, Packed, Pattern, Room, Settings, VERTEX_ROW, tile_groups};
+use super::pack::{
+    self, BVH_ROW, PATTERN_ROWS, PATTERN_WIDTH, Packed, Pattern, Room, Settings, VERTEX_ROW,
+    tile_groups,
+};
 use super::posed;
-use super::{Profile, TexGeometry};
+use super::regions::{MAX_REGIONS, Regions};
 use crate::error::{Error, Result};
 use crate::gpu::{
     AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context, Image,
@@ -72,7 +76,7 @@ pub const PASS_BVH_REFIT: &str = "sss bvh refit";
 pub const PASS_VERTEX_IRRADIANCE: &str = "sss vertex irradiance";
 /// Most samples per texel (the width of the pattern image; Vulkan guarantees 4096 texels,
 /// checked at run time).
-pub const MAX_SAMPLES: u32 = 4096;
+pub const MAX_SAMPLES: u32 = PATTERN_WIDTH;
 
 /// The irradiance last recorded: the irradiance pass's grey E (lights only).
 const IRR_GREY: u8 = 0;
@@ -109,10 +113,14 @@ struct Resources {
     /// The BVH, RGBA32UI, [`BVH_ROW`] texels a row (float bits; nodes 2 texels, triangles 3).
     bvh_nodes: Image,
     bvh_triangles: Image,
-    /// The shared sample pattern, RGBA32F, one texel per sample (lavapipe loads a uniform
-    /// buffer at a loop index lane by lane: a vec4 from it cost more than the irradiance
-    /// gather of a sample).
+    /// The skin regions' sample patterns, RGBA32F, one texel per sample, two rows a region
+    /// ([`Pattern::texels`]; lavapipe loads a uniform buffer at a loop index lane by lane: a
+    /// vec4 from it cost more than the irradiance gather of a sample).
     sample_pattern: Image,
+    /// The regions' transmission tails ([`pack::region_tails`]), a uniform buffer, and each
+    /// vertex's region ([`Regions::of_vertices`], a u32 each).
+    region_tails: Buffer,
+    vertex_regions: Buffer,
     /// The frame's lights: a uniform buffer (the shaders' MAX_LIGHTS x 2 vec4), which
     /// lavapipe loads at the light loop's uniform index as a scalar.
     lights: Buffer,
@@ -186,7 +194,15 @@ impl Resources {
             )?,
             bvh_nodes: image("sss bvh nodes", rows(room.bvh_node_rows))?,
             bvh_triangles: image("sss bvh triangles", rows(room.bvh_triangle_rows))?,
-            sample_pattern: image("sss sample pattern", rgba32f([MAX_SAMPLES, 1]))?,
+            sample_pattern: image("sss sample pattern", rgba32f([PATTERN_WIDTH, PATTERN_ROWS]))?,
+            region_tails: buffer(
+                "sss region tails",
+                BufferDesc::uniform(MAX_REGIONS as u64 * 64),
+            )?,
+            vertex_regions: buffer(
+                "sss vertex regions",
+                BufferDesc::storage(room.vertices.max(1) as u64 * 4),
+            )?,
             lights: buffer("sss lights", BufferDesc::uniform(MAX_LIGHTS as u64 * 32))?,
             texel_positions: image("sss position", rgba32f(texels))?,
             texel_normals: image("sss normal", rgba32f(texels))?,
@@ -207,13 +223,15 @@ impl Resources {
 
     /// Every resource, with the name the shaders bind it by: the passes bind by these names,
     /// and the memory report counts them all.
-    fn by_binding(&self) -> [(&'static str, Resource<'_>); 18] {
+    fn by_binding(&self) -> [(&'static str, Resource<'_>); 20] {
         let image = Resource::storage_image;
         [
             ("verts", Resource::Buffer(&self.vertex_frames)),
             ("nodes", image(&self.bvh_nodes)),
             ("tris", image(&self.bvh_triangles)),
             ("seq", image(&self.sample_pattern)),
+            ("tails", Resource::Buffer(&self.region_tails)),
+            ("vregion", Resource::Buffer(&self.vertex_regions)),
             ("lights", Resource::Buffer(&self.lights)),
             ("pos", image(&self.texel_positions)),
             ("nrm", image(&self.texel_normals)),
@@ -487,14 +505,17 @@ pub struct GeometryReadback {
 
 impl SssKernel {
     /// Creates buffers, images and pipelines for `geo` and records the uploads into `rec`.
+    /// `regions`: one [`super::Profile`] for the whole mesh (`&profile`), or a profile per
+    /// region of its triangles ([`Regions`], multi-region skin).
     pub fn new(
         rec: &mut Recorder,
         geo: &TexGeometry,
-        profile: &Profile,
+        regions: impl Into<Regions>,
         params: SamplerParams,
     ) -> Result<SssKernel> {
         params.check()?;
-        let packed = Packed::new(geo, profile)?;
+        let regions: Regions = regions.into();
+        let packed = Packed::new(geo, &regions)?;
         let ctx = rec.context();
         let width_limit = ctx.limits().max_image_dimension_2d;
         if width_limit < MAX_SAMPLES {
@@ -510,8 +531,15 @@ impl SssKernel {
         let irradiance = stage("sss/irradiance", &["trans", "pe"])?;
         let diffusion_rgb = stage("sss/diffusion", &["diffuse"])?;
         let diffusion_grey = stage("sss/diffusion_grey", &["diffuse"])?;
-        let pattern = Pattern::new(profile, params.samples);
-        rec.upload_image_rows(&res.sample_pattern, &pattern.texels)?;
+        let pattern = Pattern::new(&regions, params.samples);
+        rec.upload_image_rows(&res.sample_pattern, &pattern.texels(&regions))?;
+        rec.upload(&res.region_tails, 0, &pack::region_tails(&regions))?;
+        let vertex_regions: Vec<u32> = regions
+            .of_vertices(&geo.triangles, geo.positions.len())
+            .into_iter()
+            .map(u32::from)
+            .collect();
+        rec.upload(&res.vertex_regions, 0, &at_least_one(&vertex_regions))?;
         res.upload(rec, packed)?;
         Ok(SssKernel {
             ctx,
@@ -525,9 +553,8 @@ impl SssKernel {
             irradiance_kind: AtomicU8::new(IRR_GREY),
             env: None,
             settings: Settings {
-                profile: profile.clone(),
+                regions,
                 params,
-                pattern_totals: pattern.totals,
                 shadow_bias: shadow_bias(geo.extent_mm()),
                 room,
             },
@@ -546,11 +573,14 @@ impl SssKernel {
         rec: &mut Recorder,
         geo: &TexGeometry,
         rest: &[glam::Vec3],
-        profile: &Profile,
+        regions: impl Into<Regions>,
         params: SamplerParams,
         src: PosedBuffers<'_>,
     ) -> Result<SssKernel> {
-        let layout = posed::Layout::new(geo, rest)?;
+        let regions: Regions = regions.into();
+        regions.check_mesh(geo.triangles.len())?;
+        let mut layout = posed::Layout::new(geo, rest)?;
+        posed::topology_regions(&mut layout.walk_topology, &regions);
         let vertices = geo.positions.len();
         for (name, b) in [("positions", src.positions), ("normals", src.normals)] {
             if b.size() < vertices as u64 * 16 {
@@ -566,7 +596,7 @@ impl SssKernel {
                 src.mm_per_unit
             )));
         }
-        let mut kernel = SssKernel::new(rec, geo, profile, params)?;
+        let mut kernel = SssKernel::new(rec, geo, &regions, params)?;
         let ctx = kernel.ctx.clone();
         let buffer = |name: &str, bytes: u64| Buffer::new(&ctx, name, BufferDesc::storage(bytes));
         let weld = buffer("sss weld", layout.weld.len().max(1) as u64 * 4)?;
@@ -740,7 +770,13 @@ impl SssKernel {
             ));
         }
         let s = &self.settings;
-        self.res.upload(rec, s.room.pack(geo, &s.profile)?)
+        self.res.upload(rec, s.room.pack(geo, &s.regions)?)
+    }
+
+    /// The skin regions' profiles the kernel diffuses with (one region for a single
+    /// profile).
+    pub fn regions(&self) -> &Regions {
+        &self.settings.regions
     }
 
     pub fn params(&self) -> &SamplerParams {
@@ -751,9 +787,8 @@ impl SssKernel {
     pub fn set_params(&mut self, rec: &mut Recorder, params: SamplerParams) -> Result<()> {
         params.check()?;
         let s = &mut self.settings;
-        let pattern = Pattern::new(&s.profile, params.samples);
-        rec.upload_image_rows(&self.res.sample_pattern, &pattern.texels)?;
-        s.pattern_totals = pattern.totals;
+        let pattern = Pattern::new(&s.regions, params.samples);
+        rec.upload_image_rows(&self.res.sample_pattern, &pattern.texels(&s.regions))?;
         if s.params.transmission && !params.transmission {
             self.res.clear_transmission(rec)?;
         }

@@ -9,6 +9,7 @@
 //!   truth reads too.
 //! - [`walk`]: where a sample lands when it leaves the receiver's triangle (across the edge
 //!   it leaves by, seams included; off the surface past an open edge).
+//! - [`regions`]: multi-region skin, a profile per region of the mesh (the exit point's).
 //! - [`contact`]: light between separate pieces of the mesh that touch (eyeballs, mouth).
 //! - [`pack`]: what the kernel uploads, packed and checked on the CPU.
 //! - [`posed`]: what a skinned mesh's UV layout fixes (built once), and the CPU twins of
@@ -42,6 +43,7 @@ pub mod gpu;
 pub mod pack;
 pub mod posed;
 pub mod profile;
+pub mod regions;
 pub mod sampler;
 pub mod walk;
 
@@ -49,6 +51,7 @@ pub use crate::scene::texspace::TexGeometry;
 pub use cpu::{Light, SamplerParams};
 pub use gpu::{PosedBuffers, PosedSource, SssKernel, SssOutput};
 pub use profile::{Material, Profile, ProfileKind};
+pub use regions::Regions;
 
 /// The head of BCN_Epileptic (assimp-testmodels, converted to glTF), in metres.
 pub const DEFAULT_MESH: &str = "data/bcn_epileptic.glb";

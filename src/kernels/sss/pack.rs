@@ -10,7 +10,8 @@ use super::cpu::{
     DiffusionGeometry, SamplerParams, pattern_totals, sample_pattern, texel_corners_packed,
     vertex_frames,
 };
-use super::{Profile, ProfileKind, TexGeometry};
+use super::regions::{MAX_REGIONS, Regions};
+use super::{ProfileKind, TexGeometry};
 use crate::error::{Error, Result};
 use crate::geom::bvh::Bvh;
 
@@ -52,13 +53,17 @@ pub struct Packed<'g> {
 
 impl<'g> Packed<'g> {
     /// Checks `geo` ([`check_geometry`]) and packs it, building the BVH, the surface walk and
-    /// the contact sums for `profile`.
-    pub fn new(geo: &'g TexGeometry, profile: &Profile) -> Result<Packed<'g>> {
+    /// the contact sums for the regions' profiles. Each triangle's region rides in its walk
+    /// record (texel 2, z: [`region_records`]).
+    pub fn new(geo: &'g TexGeometry, regions: &Regions) -> Result<Packed<'g>> {
         check_geometry(geo)?;
+        regions.check_mesh(geo.triangles.len())?;
         let (bvh_nodes, bvh_triangles) = Bvh::build(&geo.positions, &geo.triangles).flat();
         // The shaders traverse without a stack: each node's count carries its skip link.
         let bvh_nodes = super::posed::with_links(bvh_nodes)?;
-        let dg = DiffusionGeometry::build(geo, profile);
+        let dg = DiffusionGeometry::build(geo, regions);
+        let mut walk_records = dg.walk.records();
+        region_records(&mut walk_records, regions);
         Ok(Packed {
             size: geo.size,
             triangles: geo.triangles.len(),
@@ -69,7 +74,7 @@ impl<'g> Packed<'g> {
             vertex_frames: vertex_frames(geo),
             bvh_nodes,
             bvh_triangles,
-            walk_records: dg.walk.records(),
+            walk_records,
             contact_entries: contact_entries(&dg.contact),
             tiles: occupied_tiles(geo),
         })
@@ -98,6 +103,19 @@ pub struct Room {
     pub contact_rows: u32,
 }
 
+/// Writes each triangle's region into its walk record (texel 2 of
+/// [`super::walk::RECORD_TEXELS`], z, which the walk leaves 0): the diffusion reads it with
+/// the record it loads anyway. The per-frame records of a skinned mesh carry it the same way
+/// (glsl/sss/pose_triangles.comp copies it from the topology, [`super::posed::walk_topology`]).
+pub fn region_records(records: &mut [[u32; 4]], regions: &Regions) {
+    for (t, rec) in records
+        .chunks_exact_mut(super::walk::RECORD_TEXELS)
+        .enumerate()
+    {
+        rec[2][2] = regions.of_triangle(t) as u32;
+    }
+}
+
 /// Rows of `row` texels that hold `texels` (at least one).
 pub fn rows(texels: usize, row: u32) -> u32 {
     (texels as u32).div_ceil(row).max(1)
@@ -124,7 +142,7 @@ impl Room {
 
     /// Checks and packs `geo`, a later pose of the mesh (same texture size, same triangles
     /// and UV layout), refusing one that does not fit.
-    pub fn pack<'g>(&self, geo: &'g TexGeometry, profile: &Profile) -> Result<Packed<'g>> {
+    pub fn pack<'g>(&self, geo: &'g TexGeometry, regions: &Regions) -> Result<Packed<'g>> {
         if geo.size != self.size
             || self.triangles != geo.triangles.len()
             || geo.positions.len() != self.vertices as usize
@@ -140,7 +158,7 @@ impl Room {
                 self.vertices
             )));
         }
-        let p = Packed::new(geo, profile)?;
+        let p = Packed::new(geo, regions)?;
         if 2 * p.bvh_nodes.len() > (self.bvh_node_rows * BVH_ROW) as usize {
             return Err(Error::InvalidArgument("BVH larger than its image".into()));
         }
@@ -164,29 +182,71 @@ impl Room {
     }
 }
 
-/// The shared sample pattern ([`sample_pattern`]), one texel per sample, and its weight totals
-/// ([`pattern_totals`]), pushed with each diffusion.
+/// The sample patterns of every region ([`sample_pattern`]) as the shaders read them from one
+/// image [`PATTERN_WIDTH`] texels wide: region r's pattern in row 2 r, one texel per sample;
+/// in row 2 r + 1, texel 0 its R_tot (rgb) and texel 1 its pattern's weight totals
+/// ([`pattern_totals`]); the diffusion of a texel reads its region's rows. Row 0 and its
+/// totals are region 0's, so one region is the old single pattern.
 pub struct Pattern {
-    pub texels: Vec<[f32; 4]>,
-    pub totals: [f32; 3],
+    /// Per region: its pattern and its totals.
+    pub regions: Vec<(Vec<[f32; 4]>, [f32; 3])>,
 }
 
+/// Texels per row of the pattern image (the most samples a texel takes).
+pub const PATTERN_WIDTH: u32 = 4096;
+/// Rows of the pattern image: two per region.
+pub const PATTERN_ROWS: u32 = 2 * MAX_REGIONS as u32;
+
 impl Pattern {
-    pub fn new(profile: &Profile, samples: u32) -> Pattern {
-        let texels = sample_pattern(profile, samples);
-        let totals = pattern_totals(&texels);
-        Pattern { texels, totals }
+    pub fn new(regions: &Regions, samples: u32) -> Pattern {
+        Pattern {
+            regions: regions
+                .profiles()
+                .iter()
+                .map(|p| {
+                    let texels = sample_pattern(p, samples);
+                    let totals = pattern_totals(&texels);
+                    (texels, totals)
+                })
+                .collect(),
+        }
     }
+
+    /// The image's texels, rows [`PATTERN_WIDTH`] wide, for `regions` (R_tot per region).
+    pub fn texels(&self, regions: &Regions) -> Vec<[f32; 4]> {
+        let w = PATTERN_WIDTH as usize;
+        let mut out = vec![[0f32; 4]; 2 * w * self.regions.len()];
+        for (r, (texels, totals)) in self.regions.iter().enumerate() {
+            out[2 * r * w..2 * r * w + texels.len()].copy_from_slice(texels);
+            let k = regions.profile(r).r_tot.map(|k| k as f32);
+            out[(2 * r + 1) * w] = [k[0], k[1], k[2], 0.0];
+            out[(2 * r + 1) * w + 1] = [totals[0], totals[1], totals[2], 0.0];
+        }
+        out
+    }
+}
+
+/// The transmission's profile tails per region as `glsl/sss/vertex_light.comp`'s `Regions`
+/// block reads them: per region four vec4, the tails of the three channels
+/// ([`super::Profile::tail_gpu`]) and (the thickest part that transmits, mm; 0, 0, 0).
+pub fn region_tails(regions: &Regions) -> Vec<[f32; 4]> {
+    let mut out = vec![[0f32; 4]; 4 * MAX_REGIONS];
+    for (r, p) in regions.profiles().iter().enumerate() {
+        for c in 0..3 {
+            out[4 * r + c] = p.tail_gpu(c);
+        }
+        out[4 * r + 3] = [p.max_radius() as f32, 0.0, 0.0, 0.0];
+    }
+    out
 }
 
 /// The sampler's settings for one mesh, and the push constants they give each pass (word by
 /// word as the shaders' `Push` blocks lay them out).
 #[derive(Clone, Debug)]
 pub struct Settings {
-    pub profile: Profile,
+    /// The profiles of the mesh's skin regions.
+    pub regions: Regions,
     pub params: SamplerParams,
-    /// The sample pattern's weight totals ([`Pattern::totals`]).
-    pub pattern_totals: [f32; 3],
     /// Shadow-ray origin offset along the normal (mm), from the first pose's extent.
     pub shadow_bias: f32,
     /// The texture and mesh the kernel was made for.
@@ -194,26 +254,15 @@ pub struct Settings {
 }
 
 impl Settings {
-    /// `glsl/sss/vertex_light.comp`: the profile's tails, vertices, lights, bias, the
-    /// transmission mode (0 off, 1 dipole, 2 Burley), the thickest part that transmits.
+    /// `glsl/sss/vertex_light.comp`: vertices, lights, bias, the transmission mode (0 off,
+    /// 1 dipole, 2 Burley); the tails are in the regions' block ([`region_tails`]).
     pub fn vertex_light_push(&self, lights: u32) -> Vec<u32> {
-        let p = &self.profile;
-        let mode = match (self.params.transmission, p.kind) {
+        let mode = match (self.params.transmission, self.regions.kind()) {
             (false, _) => 0u32,
             (true, ProfileKind::Dipole) => 1,
             (true, ProfileKind::Burley) => 2,
         };
-        let mut words: Vec<u32> = (0..3)
-            .flat_map(|c| p.tail_gpu(c).map(f32::to_bits))
-            .collect();
-        words.extend([
-            self.room.vertices,
-            lights,
-            self.shadow_bias.to_bits(),
-            mode,
-            (p.max_radius() as f32).to_bits(),
-        ]);
-        words
+        vec![self.room.vertices, lights, self.shadow_bias.to_bits(), mode]
     }
 
     /// `glsl/sss/irradiance.comp`: size, lights, transmission, shadow refinement, bias,
@@ -229,14 +278,10 @@ impl Settings {
         ]
     }
 
-    /// `glsl/common/sss_diffusion.glsl`: R_tot and the pattern's totals per channel (vec4
-    /// each), size, samples, occupied tiles.
+    /// `glsl/common/sss_diffusion.glsl`: size, samples, occupied tiles (each region's R_tot
+    /// and totals are in the pattern image, [`Pattern::texels`]).
     pub fn diffusion_push(&self, tiles: u32) -> Vec<u32> {
-        let k = self.profile.r_tot.map(|k| k as f32);
-        let t = self.pattern_totals;
-        let floats = [k[0], k[1], k[2], 0.0, t[0], t[1], t[2], 0.0].map(f32::to_bits);
-        let words = [self.room.size, self.params.samples, tiles];
-        floats.into_iter().chain(words).collect()
+        vec![self.room.size, self.params.samples, tiles]
     }
 }
 
@@ -378,15 +423,15 @@ pub fn contact_entries(contact: &Contact) -> Vec<[u32; 4]> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::kernels::sss::{Material, ProfileKind, walk};
+    use crate::kernels::sss::{Material, Profile, ProfileKind, walk};
     use crate::scene::texspace::plane_mesh;
 
     fn plane(size: u32) -> TexGeometry {
         TexGeometry::build(&plane_mesh(10.0, 10.0, 2).unwrap(), size, 1.0).unwrap()
     }
 
-    fn profile() -> Profile {
-        Profile::new(ProfileKind::Burley, Material::SKIN1, 0.99).unwrap()
+    fn profile() -> Regions {
+        Regions::single(Profile::new(ProfileKind::Burley, Material::SKIN1, 0.99).unwrap())
     }
 
     /// The diffusion shader's layout constants are the ones the host writes with.
@@ -406,6 +451,19 @@ mod tests {
                 "glsl/common/sss_diffusion.glsl lacks `{line}`"
             );
         }
+    }
+
+    /// The transmission's block of region tails is the size the host writes.
+    #[test]
+    fn vertex_light_shader_takes_every_region() {
+        for src in [
+            include_str!("../../../glsl/sss/vertex_light.comp"),
+            include_str!("../../../glsl/common/sss_diffusion.glsl"),
+        ] {
+            let line = format!("const uint MAX_REGIONS = {MAX_REGIONS}u;");
+            assert!(src.contains(&line), "a region shader lacks `{line}`");
+        }
+        assert_eq!(region_tails(&profile()).len(), 4 * MAX_REGIONS);
     }
 
     /// The per-vertex and BVH shaders read with the same rows as the host writes.
@@ -503,9 +561,8 @@ mod tests {
         let geo = plane(32);
         let packed = Packed::new(&geo, &profile()).unwrap();
         let s = Settings {
-            profile: profile(),
+            regions: profile(),
             params: SamplerParams::default(),
-            pattern_totals: [1.0; 3],
             shadow_bias: 0.01,
             room: Room::of(&packed),
         };
@@ -576,10 +633,44 @@ mod tests {
         );
     }
 
+    /// Two regions' patterns land in their own rows, with R_tot and the totals in the row
+    /// below each; the walk records carry each triangle's region.
     #[test]
-    fn the_pattern_totals_are_its_weights_summed() {
-        let pattern = Pattern::new(&profile(), 16);
-        assert_eq!(pattern.texels.len(), 16);
-        assert_eq!(pattern.totals, pattern_totals(&pattern.texels));
+    fn each_region_has_its_rows_and_each_record_its_region() {
+        let skin1 = Profile::new(ProfileKind::Dipole, Material::SKIN1, 0.99).unwrap();
+        let skin2 = Profile::new(ProfileKind::Dipole, Material::SKIN2, 0.99).unwrap();
+        let geo = plane(32);
+        let tris = geo.triangles.len();
+        let of_tri: Vec<u8> = (0..tris).map(|t| (t % 2) as u8).collect();
+        let regions = Regions::new(vec![skin1.clone(), skin2.clone()], of_tri).unwrap();
+        let pattern = Pattern::new(&regions, 16);
+        let texels = pattern.texels(&regions);
+        let w = PATTERN_WIDTH as usize;
+        assert_eq!(texels.len(), 4 * w);
+        for (r, p) in [&skin1, &skin2].into_iter().enumerate() {
+            let own = sample_pattern(p, 16);
+            assert_eq!(texels[2 * r * w..2 * r * w + 16], own[..]);
+            assert!(
+                texels[2 * r * w + 16..(2 * r + 1) * w]
+                    .iter()
+                    .all(|t| *t == [0.0; 4])
+            );
+            let k = p.r_tot.map(|k| k as f32);
+            assert_eq!(texels[(2 * r + 1) * w], [k[0], k[1], k[2], 0.0]);
+            let t = pattern_totals(&own);
+            assert_eq!(texels[(2 * r + 1) * w + 1], [t[0], t[1], t[2], 0.0]);
+        }
+        assert_ne!(texels[0], texels[2 * w], "the two profiles sample alike");
+        let packed = Packed::new(&geo, &regions).unwrap();
+        for t in 0..tris {
+            assert_eq!(
+                packed.walk_records[t * walk::RECORD_TEXELS + 2][2],
+                (t % 2) as u32
+            );
+        }
+        let e = Packed::new(&plane(16), &Regions::new(vec![skin1], vec![0; 3]).unwrap())
+            .err()
+            .unwrap();
+        assert!(e.to_string().contains("for 3 triangles"), "{e}");
     }
 }

@@ -396,6 +396,15 @@ pub fn walk_topology(geo: &TexGeometry) -> Vec<[u32; 4]> {
     out
 }
 
+/// Writes each triangle's skin region into its topology (texel 3, w, 0 from
+/// [`walk_topology`]): glsl/sss/pose_triangles.comp copies it into the walk record each frame,
+/// where the diffusion reads it (`pack::region_records` for uploaded geometry).
+pub fn topology_regions(topology: &mut [[u32; 4]], regions: &super::Regions) {
+    for (t, topo) in topology.chunks_exact_mut(TOPOLOGY_TEXELS).enumerate() {
+        topo[3][3] = regions.of_triangle(t) as u32;
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

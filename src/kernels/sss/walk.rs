@@ -312,8 +312,9 @@ impl SurfaceWalk {
     }
 
     /// The records the shader reads, [`RECORD_TEXELS`] RGBA32UI texels per triangle:
-    /// (1 / l1, x2, 1 / y2, edge kinds: 2 bits per edge), (uv0, uv1 - uv0), (uv2 - uv0, 0, 0),
-    /// then per edge the crossing map (V row-major), (s, 0, 0); floats as bits.
+    /// (1 / l1, x2, 1 / y2, edge kinds: 2 bits per edge), (uv0, uv1 - uv0), (uv2 - uv0, 0, 0)
+    /// (z: the triangle's skin region, written by `pack::region_records`), then per edge the
+    /// crossing map (V row-major), (s, 0, 0); floats as bits.
     pub fn records(&self) -> Vec<[u32; 4]> {
         let mut out = Vec::with_capacity(self.tris.len() * RECORD_TEXELS);
         for (i, t) in self.tris.iter().enumerate() {
