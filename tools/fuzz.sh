@@ -30,10 +30,51 @@ if [ -z "${VKSHADE_FUZZ_NO_BUILD:-}" ]; then
 fi
 bin_dir=target/x86_64-unknown-linux-gnu/release
 mkdir -p logs
+# Seeds from the installed data packages (assimp-testmodels, blender-data, every PNG/JPEG
+# under /usr/share), added to the target's corpus once: real files of every variant the
+# packages hold reach far more of a loader than the few committed seeds, so coverage
+# starts high and its plateau comes sooner. Files above the 64 KiB input limit are skipped;
+# a target whose input starts with a selector byte gets that byte in front.
+package_seeds() {
+    local t=$1 dir="corpus/$1" marker="corpus/$1/.package-seeds"
+    [ -e "$marker" ] && return 0
+    add() { # PREFIX FILE...
+        local prefix=$1 f n=0
+        shift
+        for f in "$@"; do
+            [ -f "$f" ] && [ "$(stat -c %s "$f")" -lt 65535 ] || continue
+            { [ -n "$prefix" ] && printf "\\x$prefix"; cat "$f"; } \
+                >"$dir/pkg-$(printf '%s' "$f" | md5sum | cut -c1-12)"
+            n=$((n + 1))
+        done
+    }
+    # Every 'step'-th of a sorted list, at most 'max' files (the PNGs number thousands).
+    spread() { # MAX then paths on stdin
+        awk -v max="$1" '{a[NR] = $0} END {s = NR > max ? NR / max : 1;
+            for (i = 1; i <= NR; i += s) print a[int(i)]}'
+    }
+    local assimp=/usr/share/assimp/models
+    case $t in
+    gltf) mapfile -t f < <(find "$assimp" -iname '*.gltf' -o -iname '*.glb' | sort); add "" "${f[@]}" ;;
+    obj) mapfile -t f < <(find "$assimp" -iname '*.obj' | sort); add "" "${f[@]}" ;;
+    off) mapfile -t f < <(find "$assimp" -iname '*.off' | sort); add "" "${f[@]}" ;;
+    ply) mapfile -t f < <(find "$assimp" -iname '*.ply' | sort); add "" "${f[@]}" ;;
+    envmap)
+        mapfile -t f < <(find /usr/share -iname '*.exr' 2>/dev/null | sort); add 01 "${f[@]}"
+        mapfile -t f < <(find /usr/share -iname '*.hdr' 2>/dev/null | sort); add 00 "${f[@]}" ;;
+    btf_image)
+        mapfile -t f < <(find /usr/share -iname '*.png' -size -64k 2>/dev/null | sort | spread 60)
+        add 00 "${f[@]}"
+        mapfile -t f < <(find /usr/share -iname '*.exr' 2>/dev/null | sort); add 01 "${f[@]}"
+        mapfile -t f < <(find /usr/share -iname '*.jp*g' 2>/dev/null | sort); add 02 "${f[@]}" ;;
+    esac
+    touch "$marker"
+}
 printf '%-9s %6s %10s %6s %8s %7s %14s %7s %s\n' target secs execs cov cov-half ft "last-new-cov" corpus crashes
 status=0
 for t in "${targets[@]}"; do
     mkdir -p "corpus/$t" "artifacts/$t"
+    package_seeds "$t"
     log="logs/$t.log"
     set +e
     dict=()
@@ -58,7 +99,7 @@ for t in "${targets[@]}"; do
         '{n = substr($1, 2) + 0; if (n <= h) for (i = 1; i < NF; i++) if ($i == "cov:") c = $(i + 1)}
          END {print c}')
     crashes=$(find "artifacts/$t" -type f | wc -l)
-    corpus=$(find "corpus/$t" -type f | wc -l)
+    corpus=$(find "corpus/$t" -type f ! -name .package-seeds | wc -l)
     printf '%-9s %6s %10s %6s %8s %7s %14s %7s %s\n' "$t" "$secs" "${execs:-?}" "${cov:-?}" \
         "${half:-?}" "${ft:-?}" \
         "${lastn:-?}" "$corpus" "$crashes"

@@ -188,6 +188,10 @@ pub fn read_rgba(path: &Path) -> Result<FloatImage> {
         )
         .first_valid_layer()
         .all_attributes()
+        // One thread: the crate's parallel decoding builds a thread pool per image read
+        // (and leaves its threads running after the read returns); the maps vkshade reads
+        // decode in tens of milliseconds on one core.
+        .non_parallel()
         .from_buffered(std::io::Cursor::new(bytes))
         .map_err(|e| Error::input(path, format!("not a readable RGB(A) OpenEXR image: {e}")))?;
     let img = image.layer_data.channel_data.pixels;
