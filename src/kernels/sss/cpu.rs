@@ -571,13 +571,21 @@ pub fn diffusion_with(
 ) -> Vec<[f32; 4]> {
     let nf = geo.size as f32;
     // Per region: R_tot, its sample pattern and the pattern's totals.
-    let per_region: Vec<([f32; 3], Vec<[f32; 4]>, [f32; 3])> = regions
+    struct RegionSampler {
+        scale: [f32; 3],
+        pattern: Vec<[f32; 4]>,
+        total: [f32; 3],
+    }
+    let per_region: Vec<RegionSampler> = regions
         .profiles()
         .iter()
         .map(|p| {
             let pattern = sample_pattern(p, params.samples);
-            let total = pattern_totals(&pattern);
-            (p.r_tot.map(|k| k as f32), pattern, total)
+            RegionSampler {
+                scale: p.r_tot.map(|k| k as f32),
+                total: pattern_totals(&pattern),
+                pattern,
+            }
         })
         .collect();
     let contact = dg.contact.apply(e);
@@ -589,7 +597,11 @@ pub fn diffusion_with(
             if geo.pos[i][3] == 0.0 || tt[0] == NO_TRIANGLE {
                 return [0.0; 4];
             }
-            let (scale, pattern, total) = &per_region[regions.of_triangle(tt[0] as usize)];
+            let RegionSampler {
+                scale,
+                pattern,
+                total,
+            } = &per_region[regions.of_triangle(tt[0] as usize)];
             let texel = walk.texel(
                 tt[0],
                 f32::from_bits(tt[1]),
