@@ -686,6 +686,10 @@ fn print_sss(r: &bench::sss::SssBenchReport) {
         r.brute_force_ms.median,
         r.speedup_vs_brute_force
     );
+    println!(
+        "two skin regions       {:.2} ms: {:.3}x the one-region headline (same run)",
+        r.two_regions.total_ms, r.two_regions_vs_one
+    );
     let target = 30.0;
     println!(
         "target fps (head, 512^2, 32 samples)            {:>10.2} (target {target}) {}",

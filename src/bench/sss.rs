@@ -136,9 +136,26 @@ pub struct SssBenchReport {
     pub brute_force_size: u32,
     pub speedup_vs_brute_force: f64,
     pub sweep: Vec<Point>,
+    /// The headline with two skin regions (multi-region skin: the head's triangles left of
+    /// its mean x skin 1, the rest skin 2), measured in the same run.
+    pub two_regions: Point,
+    /// Its GPU time over the headline's (one region): what the per-texel profile costs.
+    pub two_regions_vs_one: f64,
     /// The headline's diffusion pass against its binding roofline ([`roofline_terms`], rates
     /// measured in this run).
     pub roofline: super::roofline::Roofline,
+}
+
+/// Per triangle: 1 where its centroid lies at or right of the mesh's mean x, else 0.
+fn halves(geo: &TexGeometry) -> Vec<u8> {
+    let n = geo.positions.len().max(1) as f32;
+    let mean_x = geo.positions.iter().map(|p| p.x).sum::<f32>() / n;
+    geo.triangles
+        .iter()
+        .map(|t| {
+            (t.iter().map(|&v| geo.positions[v as usize].x).sum::<f32>() >= 3.0 * mean_x) as u8
+        })
+        .collect()
 }
 
 fn lights() -> Vec<Light> {
@@ -158,7 +175,7 @@ fn measure(
     ctx: &Context,
     cfg: &SssBenchConfig,
     geo: &TexGeometry,
-    profile: &Profile,
+    regions: &Regions,
     samples: u32,
     peaks: (f64, f64),
     truth: Option<&Truth>,
@@ -168,7 +185,7 @@ fn measure(
         ..SamplerParams::default()
     };
     let mut setup = ctx.recorder("sss bench setup")?;
-    let kernel = SssKernel::new(&mut setup, geo, profile, params)?;
+    let kernel = SssKernel::new(&mut setup, geo, regions, params)?;
     setup.submit_and_wait()?;
     let lights = lights();
     let passes = time_passes(ctx, &cfg.bench, &kernel, &lights[..])?;
@@ -228,6 +245,7 @@ pub fn run(
         Material::SKIN1,
         crate::kernels::sss::profile::DEFAULT_ENERGY,
     )?;
+    let regions = Regions::from(&profile);
     progress("device peaks (FMA, streaming) for the roofline");
     let fma = super::peak::run_fma(ctx, &cfg.bench, &mut |_| {})?.throughput_median;
     let bw = super::peak::run_stream(ctx, &cfg.bench, &mut |_| {})?.throughput_median;
@@ -272,7 +290,7 @@ pub fn run(
         };
         for &s in &cfg.samples {
             let t = (size == cfg.error_size).then_some(&truth);
-            let p = measure(ctx, cfg, &geo, &profile, s, peaks, t)?;
+            let p = measure(ctx, cfg, &geo, &regions, s, peaks, t)?;
             progress(&format!(
                 "  {size}^2 x {s}: vertex light {:.1} + irradiance {:.1} + diffusion {:.1} ms = {:.2} fps{}",
                 p.vertex_light_ms.median,
@@ -298,11 +316,26 @@ pub fn run(
         Some(p) => p.clone(),
         None => {
             let geo = TexGeometry::build(&mesh, hs, cfg.mm_per_unit)?;
-            measure(ctx, cfg, &geo, &profile, hn, peaks, None)?
+            measure(ctx, cfg, &geo, &regions, hn, peaks, None)?
         }
     };
     // The CPU twin at the headline.
     let geo = TexGeometry::build(&mesh, hs, cfg.mm_per_unit)?;
+    // The headline again with two skin regions (each texel reads its own profile's rows).
+    let skin2 = Profile::new(
+        ProfileKind::Dipole,
+        Material::SKIN2,
+        crate::kernels::sss::profile::DEFAULT_ENERGY,
+    )?;
+    let two = Regions::new(vec![profile.clone(), skin2], halves(&geo))?;
+    let two_regions = measure(ctx, cfg, &geo, &two, hn, peaks, None)?;
+    progress(&format!(
+        "  {hs}^2 x {hn}, two skin regions: vertex light {:.1} + irradiance {:.1} + diffusion {:.1} ms = {:.2} fps",
+        two_regions.vertex_light_ms.median,
+        two_regions.irradiance_ms.median,
+        two_regions.diffusion_ms.median,
+        two_regions.fps
+    ));
     let bvh = Bvh::build(&geo.positions, &geo.triangles);
     let params = SamplerParams {
         samples: hn,
@@ -310,17 +343,14 @@ pub fn run(
     };
     // The walk's maps and the contact sums are built once per pose on both sides (the GPU's
     // come with the geometry upload, outside the timed passes).
-    let dg = cpu::DiffusionGeometry::build(&geo, &Regions::from(&profile));
+    let dg = cpu::DiffusionGeometry::build(&geo, &regions);
     let cpu_ms = time_cpu(cfg.cpu_runs, || {
         let e = cpu::irradiance(&geo, &bvh, &lights(), params.shadow_refine);
         // The GPU's irradiance pass also computes the transmission.
         let t = params
             .transmission
-            .then(|| cpu::transmission(&geo, &bvh, &lights(), &Regions::from(&profile)));
-        (
-            cpu::diffusion_with(&dg, &geo, &Regions::from(&profile), &e, &params),
-            t,
-        )
+            .then(|| cpu::transmission(&geo, &bvh, &lights(), &regions));
+        (cpu::diffusion_with(&dg, &geo, &regions, &e, &params), t)
     });
     progress(&format!(
         "CPU same sampler at {hs}^2 x {hn}: {:.0} ms",
@@ -328,7 +358,7 @@ pub fn run(
     ));
     let gpu_at_error = match at_error_size_headline {
         Some(ms) => ms,
-        None => measure(ctx, cfg, &geo_e, &profile, hn, peaks, None)?.total_ms,
+        None => measure(ctx, cfg, &geo_e, &regions, hn, peaks, None)?.total_ms,
     };
     let terms = roofline_terms(&headline);
     progress("rates of the work model (probes)");
@@ -343,6 +373,8 @@ pub fn run(
         peak_fma_gflops: fma,
         bandwidth_gb_s: bw,
         speedup_vs_cpu: cpu_ms.median / headline.total_ms,
+        two_regions_vs_one: two_regions.total_ms / headline.total_ms,
+        two_regions,
         cpu_same_method_ms: cpu_ms,
         speedup_vs_brute_force: brute.median / gpu_at_error,
         brute_force_ms: brute,
@@ -574,21 +606,21 @@ pub fn run_anim(
     let rgb_path = time_rgb_path(ctx, &bench, &mut kernel, &lights[..])?;
     // The old per-frame host work, one pose (the middle of the animation).
     let m = ch.rig.skinning_matrices(Some(anim), 0.5 * anim.duration);
+    let regions = Regions::from(&profile);
     let room = crate::kernels::sss::pack::Room::of(&crate::kernels::sss::pack::Packed::new(
-        &geo,
-        &Regions::from(&profile),
+        &geo, &regions,
     )?);
     // The old per-frame host work (one run): pose, rasterise, then pack (BVH, walk and
     // contact builds); the contact build alone timed apart on the same pose.
     let before = time_cpu(1, || -> Result<()> {
         let posed = crate::scene::texspace::posed(mesh, &m)?;
         let g = TexGeometry::build(&posed, cfg.size, cfg.mm_per_unit)?;
-        room.pack(&g, &Regions::from(&profile)).map(|_| ())
+        room.pack(&g, &regions).map(|_| ())
     });
     let posed = crate::scene::texspace::posed(mesh, &m)?;
     let g = TexGeometry::build(&posed, cfg.size, cfg.mm_per_unit)?;
     let contact = time_cpu(1, || {
-        crate::kernels::sss::contact::Contact::build(&g, &Regions::from(&profile))
+        crate::kernels::sss::contact::Contact::build(&g, &regions)
     });
     let report = SssAnimBenchReport {
         benchmark: "vkshade bench sss --anim",
@@ -715,7 +747,7 @@ pub fn print_anim(r: &SssAnimBenchReport) {
 pub struct AllBench<'a> {
     ctx: &'a Context,
     cfg: &'a SssBenchConfig,
-    profile: Profile,
+    regions: Regions,
     geo: TexGeometry,
     bvh: Bvh,
     dg: cpu::DiffusionGeometry,
@@ -735,11 +767,12 @@ impl<'a> AllBench<'a> {
         )?;
         let geo = TexGeometry::build(&mesh, cfg.headline.0, cfg.mm_per_unit)?;
         let bvh = Bvh::build(&geo.positions, &geo.triangles);
-        let dg = cpu::DiffusionGeometry::build(&geo, &Regions::from(&profile));
+        let regions = Regions::from(&profile);
+        let dg = cpu::DiffusionGeometry::build(&geo, &regions);
         Ok(AllBench {
             ctx,
             cfg,
-            profile,
+            regions,
             geo,
             bvh,
             dg,
@@ -754,7 +787,7 @@ impl<'a> AllBench<'a> {
             self.ctx,
             self.cfg,
             &self.geo,
-            &self.profile,
+            &self.regions,
             hn,
             (f64::NAN, f64::NAN),
             None,
@@ -765,22 +798,11 @@ impl<'a> AllBench<'a> {
         };
         let cpu_ms = time_cpu(1, || {
             let e = cpu::irradiance(&self.geo, &self.bvh, &lights(), params.shadow_refine);
-            let t = params.transmission.then(|| {
-                cpu::transmission(
-                    &self.geo,
-                    &self.bvh,
-                    &lights(),
-                    &Regions::from(&self.profile),
-                )
-            });
+            let t = params
+                .transmission
+                .then(|| cpu::transmission(&self.geo, &self.bvh, &lights(), &self.regions));
             (
-                cpu::diffusion_with(
-                    &self.dg,
-                    &self.geo,
-                    &Regions::from(&self.profile),
-                    &e,
-                    &params,
-                ),
+                cpu::diffusion_with(&self.dg, &self.geo, &self.regions, &e, &params),
                 t,
             )
         });
