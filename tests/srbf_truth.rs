@@ -5,10 +5,9 @@
 
 use glam::{DVec3, Mat3, Vec3};
 use std::f64::consts::PI;
-use vkshade::app::srbf::ReferenceWidth;
 use vkshade::geom::brdf::Brdf;
 use vkshade::geom::sg;
-use vkshade::reference::srbf::{shade_glossy_truth, shade_ground_truth};
+use vkshade::reference::srbf::{ReferenceWidth, shade_glossy_truth, shade_ground_truth};
 use vkshade::scene::envmap::EnvMap;
 use vkshade::scene::{Mesh, MeshData};
 

@@ -68,71 +68,7 @@ impl std::str::FromStr for AxisAngle {
     }
 }
 
-/// The resolution of `--reference`'s brute-force truth (`--reference-width`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
-#[serde(rename_all = "lowercase")]
-pub enum ReferenceWidth {
-    /// The direction map (`--directions`, 64 x 32 by default): the texels the transfer and
-    /// the compact lobes' visibility use, so a sun is a texel of that size (the behaviour
-    /// before `--reference-width`).
-    Directions,
-    /// The map at its own resolution: every texel, no downsampling.
-    Full,
-    /// The map box-filtered to this width (even, dividing the map's width).
-    Width(u32),
-}
-
-impl std::str::FromStr for ReferenceWidth {
-    type Err = String;
-    fn from_str(s: &str) -> std::result::Result<Self, String> {
-        match s.trim() {
-            "directions" => Ok(ReferenceWidth::Directions),
-            "full" => Ok(ReferenceWidth::Full),
-            w => w.parse::<u32>().map(ReferenceWidth::Width).map_err(|_| {
-                format!("'{s}': expected full, directions or a width (an even number)")
-            }),
-        }
-    }
-}
-
-impl std::fmt::Display for ReferenceWidth {
-    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        match self {
-            ReferenceWidth::Directions => write!(f, "directions"),
-            ReferenceWidth::Full => write!(f, "full"),
-            ReferenceWidth::Width(w) => write!(f, "{w}"),
-        }
-    }
-}
-
-impl ReferenceWidth {
-    /// The map the truth integrates: `env` itself, or a box-filtered copy; `None` when it
-    /// is the direction map (`direction_width` wide) the run already holds.
-    pub fn map(self, env: &EnvMap, direction_width: u32) -> Result<Option<EnvMap>> {
-        let w = match self {
-            ReferenceWidth::Directions => return Ok(None),
-            ReferenceWidth::Full => env.width,
-            ReferenceWidth::Width(w) => w,
-        };
-        if w == direction_width.min(env.width) {
-            return Ok(None);
-        }
-        if w > env.width || !env.width.is_multiple_of(w) || w % 2 != 0 {
-            return Err(Error::InvalidArgument(format!(
-                "--reference-width {w}: {} is {} x {}; the width must be even, at most {}                  and divide it (or 'full')",
-                env.source.display(),
-                env.width,
-                env.height,
-                env.width
-            )));
-        }
-        Ok(Some(if w == env.width {
-            env.clone()
-        } else {
-            env.downsampled(w)?
-        }))
-    }
-}
+pub use crate::reference::srbf::ReferenceWidth;
 
 /// What `--reference` integrated (report.json `reference`).
 #[derive(Clone, Debug, Serialize)]
