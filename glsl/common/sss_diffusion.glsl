@@ -119,7 +119,8 @@ void main() {
     vec2 s0 = uintBitsToFloat(record(tri0, 4u).xy), s1 = uintBitsToFloat(record(tri0, 6u).xy);
     vec2 s2 = uintBitsToFloat(record(tri0, 8u).xy);
     // The triangle's skin region (pack::region_records) and its profile's rows.
-    int row = 2 * int(min(rc.z, MAX_REGIONS - 1u));
+    // (clamped to the image, which holds two rows per region the kernel was made with)
+    int row = 2 * min(int(min(rc.z, MAX_REGIONS - 1u)), imageSize(seq).y / 2 - 1);
     vec3 k3 = imageLoad(seq, ivec2(0, row + 1)).rgb;
     vec3 total = imageLoad(seq, ivec2(1, row + 1)).rgb;
     // The texel's rotation of the shared pattern, folded into the rates and the atlas map

@@ -39,8 +39,7 @@
 use super::TexGeometry;
 use super::cpu::{Light, MAX_LIGHTS, SamplerParams, check_lights, shadow_bias};
 use super::pack::{
-    self, BVH_ROW, PATTERN_ROWS, PATTERN_WIDTH, Packed, Pattern, Room, Settings, VERTEX_ROW,
-    tile_groups,
+    self, BVH_ROW, PATTERN_WIDTH, Packed, Pattern, Room, Settings, VERTEX_ROW, tile_groups,
 };
 use super::posed;
 use super::regions::{MAX_REGIONS, Regions};
@@ -175,8 +174,9 @@ fn rgba32f(size: [u32; 2]) -> ImageDesc {
 }
 
 impl Resources {
-    /// Creates the images and buffers `room` asks for (nothing uploaded).
-    fn new(ctx: &Context, room: &Room) -> Result<Resources> {
+    /// Creates the images and buffers `room` asks for, the pattern image with rows for
+    /// `regions` skin regions (nothing uploaded).
+    fn new(ctx: &Context, room: &Room, regions: usize) -> Result<Resources> {
         let image = |name: &str, desc: ImageDesc| Image::new(ctx, name, desc);
         let buffer = |name: &str, desc: BufferDesc| Buffer::new(ctx, name, desc);
         let rows = |rows: u32| uint_image([BVH_ROW, rows]);
@@ -194,7 +194,10 @@ impl Resources {
             )?,
             bvh_nodes: image("sss bvh nodes", rows(room.bvh_node_rows))?,
             bvh_triangles: image("sss bvh triangles", rows(room.bvh_triangle_rows))?,
-            sample_pattern: image("sss sample pattern", rgba32f([PATTERN_WIDTH, PATTERN_ROWS]))?,
+            sample_pattern: image(
+                "sss sample pattern",
+                rgba32f([PATTERN_WIDTH, 2 * regions.clamp(1, MAX_REGIONS) as u32]),
+            )?,
             region_tails: buffer(
                 "sss region tails",
                 BufferDesc::uniform(MAX_REGIONS as u64 * 64),
@@ -525,7 +528,7 @@ impl SssKernel {
             )));
         }
         let room = Room::of(&packed);
-        let res = Resources::new(&ctx, &room)?;
+        let res = Resources::new(&ctx, &room, regions.len())?;
         let stage = |name, writes: &[&str]| Stage::new(&ctx, name, &res, writes);
         let vertex_light = stage("sss/vertex_light", &["vis", "vtrans"])?;
         let irradiance = stage("sss/irradiance", &["trans", "pe"])?;

@@ -194,7 +194,7 @@ pub struct Pattern {
 
 /// Texels per row of the pattern image (the most samples a texel takes).
 pub const PATTERN_WIDTH: u32 = 4096;
-/// Rows of the pattern image: two per region.
+/// Most rows of the pattern image: two per region (the kernel makes two per region it has).
 pub const PATTERN_ROWS: u32 = 2 * MAX_REGIONS as u32;
 
 impl Pattern {
