@@ -78,6 +78,14 @@ enum Command {
 }
 
 fn main() -> ExitCode {
+    // A third-party decoder's panic that vkshade catches and reports as an error naming the
+    // file (vkshade::io::panic_scope) is not printed; any other panic is, as before.
+    let default_hook = std::panic::take_hook();
+    std::panic::set_hook(Box::new(move |info| {
+        if !vkshade::io::panic_scope::active() {
+            default_hook(info)
+        }
+    }));
     let cli = Cli::parse();
     let gpu = &cli.gpu;
     let result = match &cli.command {

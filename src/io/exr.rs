@@ -164,7 +164,50 @@ pub fn read_rgba(path: &Path) -> Result<FloatImage> {
             ));
         }
     }
-    let image = read()
+    // The exr crate panics on some corrupt compressed blocks (a fuzzed DWAB file: `Vec::
+    // with_capacity` of a length read from the data, "capacity overflow" in its PIZ Huffman
+    // decoder). That panic is caught here and becomes an error naming the file; the CLI's
+    // panic hook stays quiet inside this scope ([`super::panic_scope`]).
+    let decoded = super::panic_scope::catch(|| read_layer(bytes));
+    let image = match decoded {
+        Ok(r) => {
+            r.map_err(|e| Error::input(path, format!("not a readable RGB(A) OpenEXR image: {e}")))?
+        }
+        Err(why) => {
+            return Err(Error::input(
+                path,
+                format!("not a readable RGB(A) OpenEXR image: the decoder failed ({why})"),
+            ));
+        }
+    };
+    let img = image.layer_data.channel_data.pixels;
+    if img.width == 0 {
+        return Err(Error::input(
+            path,
+            format!("image size outside 1..={MAX_DIMENSION} per side"),
+        ));
+    }
+    Ok(img)
+}
+
+type RgbaLayer = exr::image::Image<
+    exr::image::Layer<
+        exr::image::SpecificChannels<
+            FloatImage,
+            (
+                exr::meta::attribute::ChannelDescription,
+                exr::meta::attribute::ChannelDescription,
+                exr::meta::attribute::ChannelDescription,
+                Option<exr::meta::attribute::ChannelDescription>,
+            ),
+        >,
+    >,
+>;
+
+/// The exr crate's read of the first RGB(A) layer (sizes outside the bounds give an empty
+/// image, refused by the caller).
+fn read_layer(bytes: Vec<u8>) -> exr::error::Result<RgbaLayer> {
+    read()
         .no_deep_data()
         .largest_resolution_level()
         .rgba_channels(
@@ -193,15 +236,6 @@ pub fn read_rgba(path: &Path) -> Result<FloatImage> {
         // decode in tens of milliseconds on one core.
         .non_parallel()
         .from_buffered(std::io::Cursor::new(bytes))
-        .map_err(|e| Error::input(path, format!("not a readable RGB(A) OpenEXR image: {e}")))?;
-    let img = image.layer_data.channel_data.pixels;
-    if img.width == 0 {
-        return Err(Error::input(
-            path,
-            format!("image size outside 1..={MAX_DIMENSION} per side"),
-        ));
-    }
-    Ok(img)
 }
 
 #[cfg(test)]

@@ -11,6 +11,7 @@ pub mod finite;
 #[cfg(feature = "png")]
 pub mod image_bounds;
 pub mod outdir;
+pub mod panic_scope;
 pub mod transfer_cache;
 
 use crate::error::{Error, Result};
