@@ -105,7 +105,11 @@ for t in "${targets[@]}"; do
     half=$(grep -E '^#[0-9]+.*cov: [0-9]+' "$log" | awk -v h="$(( ${execs:-0} / 2 ))" \
         '{n = substr($1, 2) + 0; if (n <= h) for (i = 1; i < NF; i++) if ($i == "cov:") c = $(i + 1)}
          END {print c}')
-    crashes=$(find "artifacts/$t" -type f | wc -l)
+    # Crashes, out-of-memory, leaks and timeouts; libFuzzer's slow-unit files (inputs slower
+    # than 10 s, which a starved run writes for quick inputs) are listed apart.
+    crashes=$(find "artifacts/$t" -type f ! -name 'slow-unit-*' | wc -l)
+    slow=$(find "artifacts/$t" -type f -name 'slow-unit-*' | wc -l)
+    [ "$slow" -eq 0 ] || echo "    $t: $slow slow-unit file(s) in artifacts/$t (replay them alone)" >&2
     corpus=$(find "corpus/$t" -type f ! -name .package-seeds | wc -l)
     printf '%-9s %6s %10s %6s %8s %7s %14s %7s %s\n' "$t" "$secs" "${execs:-?}" "${cov:-?}" \
         "${half:-?}" "${ft:-?}" \
