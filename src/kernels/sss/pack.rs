@@ -194,8 +194,6 @@ pub struct Pattern {
 
 /// Texels per row of the pattern image (the most samples a texel takes).
 pub const PATTERN_WIDTH: u32 = 4096;
-/// Most rows of the pattern image: two per region (the kernel makes two per region it has).
-pub const PATTERN_ROWS: u32 = 2 * MAX_REGIONS as u32;
 
 impl Pattern {
     pub fn new(regions: &Regions, samples: u32) -> Pattern {
