@@ -392,6 +392,8 @@ struct Session<'a> {
     /// The geometry of the last frame run (the rest pose, or the last pose of `anim`).
     geo: TexGeometry,
     profile: Profile,
+    /// `profile` over the whole mesh, as the CPU twin takes it (built once).
+    regions: Regions,
     params: SamplerParams,
     kernel: SssKernel,
     /// With --anim: the rest pose's texture-space geometry (the kernel's UV layout) and the
@@ -560,6 +562,7 @@ impl<'a> Session<'a> {
             anim,
             lights,
             geo,
+            regions: Regions::from(&profile),
             profile,
             params,
             kernel,
@@ -735,7 +738,7 @@ impl<'a> Session<'a> {
     /// The CPU twin of both passes and of the transmission on the last frame's geometry,
     /// compared with the GPU's outputs `gpu`.
     fn cpu_twin(&self, gpu: &SssOutput, progress: &mut dyn FnMut(&str)) -> CpuTwin {
-        let (geo, lights, profile, params) = (&self.geo, &self.lights, &self.profile, &self.params);
+        let (geo, lights, regions, params) = (&self.geo, &self.lights, &self.regions, &self.params);
         let t = Instant::now();
         let bvh = Bvh::build(&geo.positions, &geo.triangles);
         let cpu_e = cpu::irradiance(geo, &bvh, lights, params.shadow_refine);
@@ -746,12 +749,12 @@ impl<'a> Session<'a> {
                 walk: crate::kernels::sss::walk::SurfaceWalk::build(geo),
                 contact: contact.clone(),
             },
-            None => DiffusionGeometry::build(geo, &Regions::from(profile)),
+            None => DiffusionGeometry::build(geo, regions),
         };
         let t = Instant::now();
-        let cpu_b = cpu::diffusion_with(&dg, geo, &Regions::from(profile), &cpu_e, params);
+        let cpu_b = cpu::diffusion_with(&dg, geo, regions, &cpu_e, params);
         let ms_diffusion = t.elapsed().as_secs_f64() * 1e3;
-        let cpu_t = cpu::transmission(geo, &bvh, lights, &Regions::from(profile));
+        let cpu_t = cpu::transmission(geo, &bvh, lights, regions);
         let error = TwinError::of(geo, gpu, &cpu_e, &cpu_b, &cpu_t);
         let shadowing = self.shadowing(&bvh, &dg, &cpu_e, &cpu_b);
         progress(&format!(
@@ -784,9 +787,9 @@ impl<'a> Session<'a> {
         cpu_e: &[[f32; 4]],
         cpu_b: &[[f32; 4]],
     ) -> ShadowingReport {
-        let (geo, profile, params) = (&self.geo, &self.profile, &self.params);
+        let (geo, regions, params) = (&self.geo, &self.regions, &self.params);
         let e_ray = cpu::irradiance_per_texel_rays(geo, bvh, &self.lights);
-        let b_ray = cpu::diffusion_with(dg, geo, &Regions::from(profile), &e_ray, params);
+        let b_ray = cpu::diffusion_with(dg, geo, regions, &e_ray, params);
         let w: Vec<f64> = (0..geo.texels())
             .map(|i| {
                 if geo.pos[i][3] == COVERED {
@@ -822,22 +825,16 @@ impl<'a> Session<'a> {
         progress: &mut dyn FnMut(&str),
     ) -> Option<ContactReuse> {
         self.rest.as_ref()?;
-        let (geo, profile, params) = (&self.geo, &self.profile, &self.params);
+        let (geo, regions, params) = (&self.geo, &self.regions, &self.params);
         let t = Instant::now();
-        let per_pose = Contact::build(geo, &Regions::from(profile));
+        let per_pose = Contact::build(geo, regions);
         let build_ms_per_pose = t.elapsed().as_secs_f64() * 1e3;
-        let reused = cpu::diffusion_with(dg, geo, &Regions::from(profile), &gpu.irradiance, params);
+        let reused = cpu::diffusion_with(dg, geo, regions, &gpu.irradiance, params);
         let fresh_dg = DiffusionGeometry {
             walk: dg.walk.clone(),
             contact: per_pose,
         };
-        let fresh = cpu::diffusion_with(
-            &fresh_dg,
-            geo,
-            &Regions::from(profile),
-            &gpu.irradiance,
-            params,
-        );
+        let fresh = cpu::diffusion_with(&fresh_dg, geo, regions, &gpu.irradiance, params);
         let covered = self.covered();
         let w: Vec<f64> = covered.iter().map(|&i| geo.nrm[i][3] as f64).collect();
         let pick = |v: &[[f32; 4]]| -> Vec<[f64; 3]> {
