@@ -752,6 +752,25 @@ pub(crate) mod tests {
         assert!(close(got, (1.0, [1.0, 1.0, 0.0])), "none: {got:?}");
         let got = rel_l2(&samples, &truth);
         assert!(close(got, (0.0, [0.0; 3])), "exact: {got:?}");
+        // Every channel lit: the third channel's sums are now non-zero, so a reduction that
+        // subtracts partial sums (cargo-mutants' `+ -> -` in the reduce's `n1[2] + n2[2]`,
+        // which survived the case above, where that channel is 0 everywhere) reports
+        // another number. rayon splits a 2048-sample slice across its threads whenever
+        // there are two or more.
+        let lit = truth.map(|l| Lobe {
+            amplitude: [l.amplitude[0], l.amplitude[1], 0.7 * l.amplitude[0]],
+            ..l
+        });
+        let samples = equirect(64, 32, |w| evaluate(&lit, w));
+        let half: Vec<Lobe> = lit
+            .iter()
+            .map(|l| Lobe {
+                amplitude: l.amplitude.map(|a| 0.5 * a),
+                ..*l
+            })
+            .collect();
+        let got = rel_l2(&samples, &half);
+        assert!(close(got, (0.5, [0.5; 3])), "half, all lit: {got:?}");
     }
 
     #[test]
