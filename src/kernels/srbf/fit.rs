@@ -823,6 +823,44 @@ pub(crate) mod tests {
         }
     }
 
+    /// `match_compact_energy` on hand-made lobes over a map that is black but for a one-texel
+    /// sun: a lobe at the sharpness cap (2 pi / dO) on the sun is scaled so that its exact
+    /// integral holds the texel's energy; lobes on black texels are zeroed when they are
+    /// compact (sharpness 0.55 of their texel's cap) and left alone when they are not (0.46:
+    /// `COMPACT` is 0.5). A zero-solid-angle sample on the sun's direction, last in the list,
+    /// must not stand in for the sun's texel. Kills cargo-mutants' survivors of issue 23 in
+    /// the texel search (`w > 0.0` -> `>= 0.0` or `== 0.0`: the sun's lobe then counts as a
+    /// zero-area texel's and is not matched) and in the cap (`2.0 * PI` -> `2.0 + PI`: the
+    /// 0.46 lobe then counts as compact and is zeroed). No fitting test reaches these: a
+    /// fit's lobes sit at the cap or far below it.
+    #[test]
+    fn compact_lobes_take_their_texels_energy_and_broad_ones_are_left_alone() {
+        let w = 64;
+        let mut samples = equirect(w, 32, |_| [0.0; 3]);
+        let (sun, dark_a, dark_b) = (10 * w + 20, 20 * w + 50, 16 * w + 5);
+        samples[sun].2 = [1000.0, 500.0, 250.0];
+        samples.push((samples[sun].0, 0.0, [0.0; 3]));
+        let data = Data::new(&samples).unwrap();
+        let cap = |i: usize| 2.0 * PI / samples[i].1;
+        let mut lobes = vec![
+            Lobe::new(samples[sun].0, cap(sun) as f32, [400.0, 200.0, 100.0]),
+            Lobe::new(samples[dark_a].0, (0.46 * cap(dark_a)) as f32, [1.0; 3]),
+            Lobe::new(samples[dark_b].0, (0.55 * cap(dark_b)) as f32, [1.0; 3]),
+        ];
+        match_compact_energy(&data, &mut lobes, 1e9);
+        let integral = sg::integral(lobes[0].sharpness as f64);
+        for c in 0..3 {
+            let want = samples[sun].2[c] as f64 * samples[sun].1;
+            let got = lobes[0].amplitude[c] as f64 * integral;
+            assert!(
+                (got / want - 1.0).abs() < 1e-5,
+                "sun, channel {c}: energy {got} against the texel's {want}"
+            );
+        }
+        assert_eq!(lobes[1].amplitude, [1.0; 3], "a broad lobe was rescaled");
+        assert_eq!(lobes[2].amplitude, [0.0; 3], "a compact lobe on black kept energy");
+    }
+
     #[test]
     fn keeps_the_sun() {
         // Sky gradient plus a sun 1000x brighter: one texel (row 20, column 40), or the
