@@ -858,7 +858,64 @@ pub(crate) mod tests {
             );
         }
         assert_eq!(lobes[1].amplitude, [1.0; 3], "a broad lobe was rescaled");
-        assert_eq!(lobes[2].amplitude, [0.0; 3], "a compact lobe on black kept energy");
+        assert_eq!(
+            lobes[2].amplitude, [0.0; 3],
+            "a compact lobe on black kept energy"
+        );
+    }
+
+    /// Two compact lobes on a two-texel sun (indices 0 and 2, so the grouping must pair
+    /// lobes that are not neighbours in the list) and a broad lobe over them (index 1): the
+    /// two form one group and share one factor per channel, the broad lobe is left alone, and
+    /// the group's exact integrals plus the broad lobe's sampled light within
+    /// `COMPACT_RADIUS` texel widths of either member equal the map's energy there (the
+    /// definition in `match_compact_energy`'s documentation). Kills cargo-mutants' survivors
+    /// of issue 23 in the pairing loop (`i + 1..n` -> `i - 1..n`: lobes 0 and 2 are never
+    /// paired), the group membership and roots (`&&` -> `||`), the radius (`*` -> `+`, `<` ->
+    /// `>`) and the other lobes' light (`+=` -> `-=`).
+    #[test]
+    fn a_group_of_compact_lobes_shares_one_factor_and_counts_the_other_lobes_light() {
+        let w = 64;
+        let mut samples = equirect(w, 32, |_| [0.0; 3]);
+        let (left, right) = (10 * w + 20, 10 * w + 21);
+        samples[left].2 = [800.0, 400.0, 200.0];
+        samples[right].2 = [400.0, 400.0, 400.0];
+        let data = Data::new(&samples).unwrap();
+        let cap = |i: usize| 2.0 * PI / samples[i].1;
+        let before = [[300.0f32, 150.0, 80.0], [5.0; 3], [200.0; 3]];
+        let mut lobes = vec![
+            Lobe::new(samples[left].0, cap(left) as f32, before[0]),
+            Lobe::new(samples[left].0, 2.0, before[1]),
+            Lobe::new(samples[right].0, cap(right) as f32, before[2]),
+        ];
+        match_compact_energy(&data, &mut lobes, 1e9);
+        assert_eq!(lobes[1].amplitude, before[1], "the broad lobe was rescaled");
+        let axes: Vec<DVec3> = lobes.iter().map(|l| l.axis().as_dvec3()).collect();
+        // Both members lie in one row: one texel width, one radius.
+        let radius = COMPACT_RADIUS * samples[left].1.sqrt();
+        for c in 0..3 {
+            let f = [0, 2].map(|j| lobes[j].amplitude[c] as f64 / before[j][c] as f64);
+            assert!(
+                (f[0] / f[1] - 1.0).abs() < 1e-5 && f[0] > 1.2 && f[0] < 3.5,
+                "channel {c}: factors {f:?}, not one unclamped factor for the group"
+            );
+            let (mut map, mut others) = (0.0f64, 0.0f64);
+            for (d, d_omega, l) in &samples {
+                let d = d.as_dvec3().normalize();
+                if d.angle_between(axes[0]).min(d.angle_between(axes[2])) < radius {
+                    map += d_omega * l[c] as f64;
+                    others += d_omega * 5.0 * (2.0f64 * (axes[1].dot(d) - 1.0)).exp();
+                }
+            }
+            let own: f64 = [0, 2]
+                .map(|j| lobes[j].amplitude[c] as f64 * sg::integral(lobes[j].sharpness as f64))
+                .iter()
+                .sum();
+            assert!(
+                ((own + others) / map - 1.0).abs() < 1e-5,
+                "channel {c}: group {own} + broad lobe {others} against the map's {map}"
+            );
+        }
     }
 
     #[test]
