@@ -828,7 +828,9 @@ pub(crate) mod tests {
     /// integral holds the texel's energy; lobes on black texels are zeroed when they are
     /// compact (sharpness 0.55 of their texel's cap) and left alone when they are not (0.46:
     /// `COMPACT` is 0.5). A zero-solid-angle sample on the sun's direction, last in the list,
-    /// must not stand in for the sun's texel. Kills cargo-mutants' survivors of issue 23 in
+    /// must not stand in for the sun's texel. The third channel is black everywhere, map and
+    /// lobes: its amplitudes stay exactly 0 (own energy 0 keeps the factor at 1; taking the
+    /// 0 / 0 branch, `own > 0.0` -> `>= 0.0`, gives NaN). Kills cargo-mutants' survivors of issue 23 in
     /// the texel search (`w > 0.0` -> `>= 0.0` or `== 0.0`: the sun's lobe then counts as a
     /// zero-area texel's and is not matched) and in the cap (`2.0 * PI` -> `2.0 + PI`: the
     /// 0.46 lobe then counts as compact and is zeroed). No fitting test reaches these: a
@@ -838,18 +840,26 @@ pub(crate) mod tests {
         let w = 64;
         let mut samples = equirect(w, 32, |_| [0.0; 3]);
         let (sun, dark_a, dark_b) = (10 * w + 20, 20 * w + 50, 16 * w + 5);
-        samples[sun].2 = [1000.0, 500.0, 250.0];
+        samples[sun].2 = [1000.0, 500.0, 0.0];
         samples.push((samples[sun].0, 0.0, [0.0; 3]));
         let data = Data::new(&samples).unwrap();
         let cap = |i: usize| 2.0 * PI / samples[i].1;
         let mut lobes = vec![
-            Lobe::new(samples[sun].0, cap(sun) as f32, [400.0, 200.0, 100.0]),
-            Lobe::new(samples[dark_a].0, (0.46 * cap(dark_a)) as f32, [1.0; 3]),
-            Lobe::new(samples[dark_b].0, (0.55 * cap(dark_b)) as f32, [1.0; 3]),
+            Lobe::new(samples[sun].0, cap(sun) as f32, [400.0, 200.0, 0.0]),
+            Lobe::new(
+                samples[dark_a].0,
+                (0.46 * cap(dark_a)) as f32,
+                [1.0, 1.0, 0.0],
+            ),
+            Lobe::new(
+                samples[dark_b].0,
+                (0.55 * cap(dark_b)) as f32,
+                [1.0, 1.0, 0.0],
+            ),
         ];
         match_compact_energy(&data, &mut lobes, 1e9);
         let integral = sg::integral(lobes[0].sharpness as f64);
-        for c in 0..3 {
+        for c in 0..2 {
             let want = samples[sun].2[c] as f64 * samples[sun].1;
             let got = lobes[0].amplitude[c] as f64 * integral;
             assert!(
@@ -857,7 +867,12 @@ pub(crate) mod tests {
                 "sun, channel {c}: energy {got} against the texel's {want}"
             );
         }
-        assert_eq!(lobes[1].amplitude, [1.0; 3], "a broad lobe was rescaled");
+        assert_eq!(lobes[0].amplitude[2], 0.0, "the black channel");
+        assert_eq!(
+            lobes[1].amplitude,
+            [1.0, 1.0, 0.0],
+            "a broad lobe was rescaled"
+        );
         assert_eq!(
             lobes[2].amplitude, [0.0; 3],
             "a compact lobe on black kept energy"
@@ -1023,6 +1038,91 @@ pub(crate) mod tests {
                 assert!(
                     (fd - an).abs() < 1e-4 * fd.abs().max(1e-6),
                     "axis {j}: {fd} vs {an}"
+                );
+            }
+        }
+    }
+
+    /// `Data::solve`'s amplitudes minimise the loss it reports. The loss is recomputed here
+    /// term by term: sum_p dO_p |F(w_p) - L_p|^2 + beta sum_j |a_j|^2 delta_j^2, over the
+    /// map's energy, delta_j = lobe j's sampled integral - its exact one. The reported loss
+    /// must equal it at the returned amplitudes, and they must satisfy the non-negative
+    /// least-squares optimality conditions: zero gradient where a > 0, non-negative where
+    /// a = 0. The state is the gradient test's: a sub-texel sun lobe (delta far from 0) and
+    /// two broad ones. Kills cargo-mutants' survivors of issue 23 in the energy term on the
+    /// Gram diagonal (`beta * delta * delta` -> `beta * delta + delta`) and the right-hand
+    /// side (`r += g * l` -> `*=`), which the finite-difference test cannot see (it
+    /// differentiates whatever loss the solve returns).
+    #[test]
+    fn solve_returns_the_amplitudes_that_minimise_its_penalised_loss() {
+        let samples = equirect(48, 24, |d| {
+            let s = if d.y > 0.97 { 300.0 } else { 0.0 };
+            [s + 0.5 + d.x.max(0.0), 0.3 + s, 0.2]
+        });
+        let mut data = Data::new(&samples).unwrap();
+        data.beta = 1.0 / data.median_d_omega;
+        let state = State {
+            axes: vec![
+                DVec3::new(0.1, 0.99, 0.05).normalize(),
+                DVec3::new(0.8, 0.2, 0.1).normalize(),
+                DVec3::new(-0.5, -0.5, 0.3).normalize(),
+            ],
+            log_lam: vec![(300.0f64).ln(), 3.0f64.ln(), 1.5f64.ln()],
+            amps: vec![[0.0; 3]; 3],
+        };
+        let eval = data.solve(&state);
+        let n = data.n();
+        let g = |j: usize, p: usize| {
+            (state.log_lam[j].exp() * (state.axes[j].dot(data.dirs[p]) - 1.0)).exp()
+        };
+        let delta: Vec<f64> = (0..3)
+            .map(|j| {
+                (0..n).map(|p| data.weights[p] * g(j, p)).sum::<f64>()
+                    - sg::integral(state.log_lam[j].exp())
+            })
+            .collect();
+        let sun_integral = sg::integral(state.log_lam[0].exp());
+        assert!(
+            delta[0].abs() > 0.01 * sun_integral,
+            "the sun lobe's delta {} is ~0 against its integral {sun_integral}",
+            delta[0]
+        );
+        let residual = |p: usize, c: usize| {
+            (0..3).map(|j| eval.amps[j][c] * g(j, p)).sum::<f64>() - data.radiance[p][c]
+        };
+        let mut loss = 0.0;
+        for p in 0..n {
+            for c in 0..3 {
+                loss += data.weights[p] * residual(p, c).powi(2);
+            }
+        }
+        for j in 0..3 {
+            loss += data.beta * eval.amps[j].iter().map(|a| a * a).sum::<f64>() * delta[j].powi(2);
+        }
+        loss /= data.energy;
+        assert!(
+            (eval.loss - loss).abs() <= 1e-9 * loss,
+            "reported loss {} against {loss} recomputed",
+            eval.loss
+        );
+        for j in 0..3 {
+            for c in 0..3 {
+                let a = eval.amps[j][c];
+                let mut grad = data.beta * a * delta[j].powi(2);
+                let mut scale = 0.0;
+                for p in 0..n {
+                    grad += data.weights[p] * residual(p, c) * g(j, p);
+                    scale += data.weights[p] * g(j, p) * data.radiance[p][c];
+                }
+                assert!(a >= 0.0, "lobe {j}, channel {c}: amplitude {a} < 0");
+                let ok = if a > 0.0 {
+                    grad.abs() <= 1e-6 * scale
+                } else {
+                    grad >= -1e-6 * scale
+                };
+                assert!(
+                    ok,
+                    "lobe {j}, channel {c}: a {a}, d loss / d a {grad} (scale {scale})"
                 );
             }
         }
