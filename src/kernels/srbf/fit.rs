@@ -830,8 +830,8 @@ pub(crate) mod tests {
     /// `COMPACT` is 0.5). A zero-solid-angle sample on the sun's direction, last in the list,
     /// must not stand in for the sun's texel. The third channel is black everywhere, map and
     /// lobes: its amplitudes stay exactly 0 (own energy 0 keeps the factor at 1; taking the
-    /// 0 / 0 branch, `own > 0.0` -> `>= 0.0`, gives NaN). Kills cargo-mutants' survivors of issue 23 in
-    /// the texel search (`w > 0.0` -> `>= 0.0` or `== 0.0`: the sun's lobe then counts as a
+    /// 0 / 0 branch, `own > 0.0` -> `>= 0.0`, gives NaN). Kills cargo-mutants' survivors of
+    /// issue 23 in the texel search (`w > 0.0` -> `>= 0.0` or `== 0.0`: the sun's lobe then counts as a
     /// zero-area texel's and is not matched) and in the cap (`2.0 * PI` -> `2.0 + PI`: the
     /// 0.46 lobe then counts as compact and is zeroed). No fitting test reaches these: a
     /// fit's lobes sit at the cap or far below it.
@@ -1049,10 +1049,10 @@ pub(crate) mod tests {
     /// must equal it at the returned amplitudes, and they must satisfy the non-negative
     /// least-squares optimality conditions: zero gradient where a > 0, non-negative where
     /// a = 0. The state is the gradient test's: a sub-texel sun lobe (delta far from 0) and
-    /// two broad ones. Kills cargo-mutants' survivors of issue 23 in the energy term on the
-    /// Gram diagonal (`beta * delta * delta` -> `beta * delta + delta`) and the right-hand
-    /// side (`r += g * l` -> `*=`), which the finite-difference test cannot see (it
-    /// differentiates whatever loss the solve returns).
+    /// two broad ones. The fitting tests catch mutants of the solve only through a worse fit
+    /// (the energy term on the Gram diagonal, `beta * delta * delta` -> `beta * delta +
+    /// delta`, or the right-hand side, `r += g * l` -> `*=`), and the finite-difference test
+    /// differentiates whatever loss the solve returns; this one fails on either directly.
     #[test]
     fn solve_returns_the_amplitudes_that_minimise_its_penalised_loss() {
         let samples = equirect(48, 24, |d| {
