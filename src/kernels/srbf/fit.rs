@@ -831,10 +831,10 @@ pub(crate) mod tests {
     /// must not stand in for the sun's texel. The third channel is black everywhere, map and
     /// lobes: its amplitudes stay exactly 0 (own energy 0 keeps the factor at 1; taking the
     /// 0 / 0 branch, `own > 0.0` -> `>= 0.0`, gives NaN). Kills cargo-mutants' survivors of
-    /// issue 23 in the texel search (`w > 0.0` -> `>= 0.0` or `== 0.0`: the sun's lobe then counts as a
-    /// zero-area texel's and is not matched) and in the cap (`2.0 * PI` -> `2.0 + PI`: the
-    /// 0.46 lobe then counts as compact and is zeroed). No fitting test reaches these: a
-    /// fit's lobes sit at the cap or far below it.
+    /// issue 23 in the texel search (`w > 0.0` -> `>= 0.0` or `== 0.0`: the sun's lobe then
+    /// counts as a zero-area texel's and is not matched) and in the cap (`2.0 * PI` -> `2.0 +
+    /// PI`: the 0.46 lobe then counts as compact and is zeroed). No fitting test reaches
+    /// these: a fit's lobes sit at the cap or far below it.
     #[test]
     fn compact_lobes_take_their_texels_energy_and_broad_ones_are_left_alone() {
         let w = 64;
