@@ -1128,6 +1128,71 @@ pub(crate) mod tests {
         }
     }
 
+    /// `Adam::step` against the textbook update (Kingma and Ba 2015). With the same gradient
+    /// at every step the bias-corrected moments are g and g^2, so each coordinate moves by
+    /// lr * g / (|g| + 1e-12) per step: a full step for an ordinary gradient, half a step for
+    /// a gradient of 1e-12 (the epsilon guards it), none for a zero one. Axes move at lr *
+    /// min(1, 2 / sqrt(lambda)) and are renormalised; ln lambda is clamped to [ln_min,
+    /// ln_max(new axis)]. Kills cargo-mutants' survivors of issue 23 in the epsilon (`+ EPS`
+    /// -> `- EPS` in either denominator: a 1e-12 gradient is then divided by zero, the axis
+    /// stays put and ln lambda runs to its clamp). The fits reach no gradient that small.
+    #[test]
+    fn adam_steps_are_the_textbook_update() {
+        let lr = 0.01;
+        let mut s = State {
+            axes: vec![DVec3::Z, DVec3::Z, DVec3::Z, DVec3::X],
+            log_lam: vec![4.0f64.ln(), 400.0f64.ln(), 1.0, 2.0],
+            amps: vec![[0.0; 3]; 4],
+        };
+        let start = s.clone();
+        let g_axes = [
+            DVec3::new(0.3, 0.0, 0.0),
+            DVec3::new(0.0, -2.0, 0.0),
+            DVec3::new(1e-12, 0.0, 0.0),
+            DVec3::ZERO,
+        ];
+        let g_lam = [0.5, -3.0, 1e-12, 7.0];
+        let ln_max = |a: DVec3| if a.x > 0.5 { 1.0 } else { 10.0 };
+        let step = |g: f64| g / (g.abs() + 1e-12);
+        let close = |a: f64, b: f64| (a - b).abs() <= 1e-12 * b.abs().max(1.0);
+        let mut adam = Adam::new(4);
+        adam.step(&mut s, &g_axes, &g_lam, lr, 0.5, ln_max);
+        // Lobe 0: lambda 4, a full step; lobe 1: lambda 400, a tenth; lobe 2: half a step.
+        let moved = [
+            DVec3::new(-lr * step(0.3), 0.0, 1.0),
+            DVec3::new(0.0, 0.1 * lr, 1.0),
+            DVec3::new(-0.5 * lr, 0.0, 1.0),
+            DVec3::X,
+        ];
+        for j in 0..4 {
+            let want = moved[j].normalize();
+            assert!(
+                (s.axes[j] - want).length() < 1e-12,
+                "lobe {j}: axis {} against {want}",
+                s.axes[j]
+            );
+        }
+        for j in 0..3 {
+            let want = start.log_lam[j] - lr * step(g_lam[j]);
+            assert!(
+                close(s.log_lam[j], want),
+                "lobe {j}: ln lambda {} against {want}",
+                s.log_lam[j]
+            );
+        }
+        assert_eq!(s.log_lam[3], 1.0, "lobe 3: ln lambda not clamped to ln_max");
+        // A second step with the same gradients moves ln lambda as far again.
+        adam.step(&mut s, &g_axes, &g_lam, lr, 0.5, ln_max);
+        for j in 0..3 {
+            let want = start.log_lam[j] - 2.0 * lr * step(g_lam[j]);
+            assert!(
+                close(s.log_lam[j], want),
+                "step 2, lobe {j}: {} against {want}",
+                s.log_lam[j]
+            );
+        }
+    }
+
     #[test]
     fn more_lobes_fit_no_worse() {
         // A smooth random map: 24 pseudo-random lobes plus a constant.
