@@ -1193,6 +1193,65 @@ pub(crate) mod tests {
         }
     }
 
+    /// `initial_lobes` on a black map with 40 one-texel stars (brightness 100 + k): with 8
+    /// lobes it seeds max(3, 8 / 4) = 3, at the three brightest stars in order, each at its
+    /// texel's cap 2 pi / dO (a star's energy is one texel's, so the cone estimate lands
+    /// exactly there), then 5 Fibonacci lobes; with a seed threshold of -1 on a map of two
+    /// stars the third seed finds a residual of zero and takes the cap too, not 0 / 0. Kills
+    /// cargo-mutants' survivors of issue 23 in the seed count (`axes.len() < max_seeds &&` ->
+    /// `||`: every star is seeded and the lobe count overflows), the cap (`2.0 * PI` -> `2.0 +
+    /// PI`) and the empty cone (`energy > 0.0` -> `>= 0.0`: NaN sharpness).
+    #[test]
+    fn seeds_go_to_the_brightest_texels_at_their_cap() {
+        let w = 64;
+        let star = |k: usize| (3 + (k % 8) * 3) * w + (k * 13) % w;
+        let mut samples = equirect(w, 32, |_| [0.0; 3]);
+        for k in 0..40 {
+            let v = 100.0 + k as f32;
+            samples[star(k)].2 = [v, 0.5 * v, 0.25 * v];
+        }
+        let data = Data::new(&samples).unwrap();
+        let cfg = FitConfig {
+            lobes: 8,
+            ..Default::default()
+        };
+        let (axes, lams) = initial_lobes(&data, &cfg, 0.5, 1e9);
+        assert_eq!((axes.len(), lams.len()), (8, 8));
+        for (i, k) in [39, 38, 37].into_iter().enumerate() {
+            let p = star(k);
+            let cap = 2.0 * PI / samples[p].1;
+            assert!(
+                axes[i] == data.dirs[p] && (lams[i] / cap - 1.0).abs() < 1e-9,
+                "seed {i}: axis {} sharpness {} against star {k}'s {} and cap {cap}",
+                axes[i],
+                lams[i],
+                data.dirs[p]
+            );
+        }
+        let fib = sg::fibonacci_sphere(5);
+        for (a, f) in axes[3..].iter().zip(&fib) {
+            assert!(
+                (*a - f.as_dvec3().normalize()).length() < 1e-12,
+                "{a} against {f}"
+            );
+        }
+        let mut two = equirect(w, 32, |_| [0.0; 3]);
+        for k in [0, 1] {
+            two[star(k)].2 = [50.0; 3];
+        }
+        let data = Data::new(&two).unwrap();
+        let cfg = FitConfig {
+            lobes: 8,
+            seed_threshold: -1.0,
+            ..Default::default()
+        };
+        let (axes, lams) = initial_lobes(&data, &cfg, 0.5, 1e9);
+        assert_eq!(axes.len(), 8);
+        for (i, l) in lams[..3].iter().enumerate() {
+            assert!(l.is_finite() && *l >= 0.5, "seed {i}: sharpness {l}");
+        }
+    }
+
     #[test]
     fn more_lobes_fit_no_worse() {
         // A smooth random map: 24 pseudo-random lobes plus a constant.
