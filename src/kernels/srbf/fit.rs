@@ -1096,8 +1096,8 @@ pub(crate) mod tests {
                 loss += data.weights[p] * residual(p, c).powi(2);
             }
         }
-        for j in 0..3 {
-            loss += data.beta * eval.amps[j].iter().map(|a| a * a).sum::<f64>() * delta[j].powi(2);
+        for (amp, d) in eval.amps.iter().zip(&delta) {
+            loss += data.beta * amp.iter().map(|a| a * a).sum::<f64>() * d.powi(2);
         }
         loss /= data.energy;
         assert!(
@@ -1105,10 +1105,10 @@ pub(crate) mod tests {
             "reported loss {} against {loss} recomputed",
             eval.loss
         );
-        for j in 0..3 {
+        for (j, d) in delta.iter().enumerate() {
             for c in 0..3 {
                 let a = eval.amps[j][c];
-                let mut grad = data.beta * a * delta[j].powi(2);
+                let mut grad = data.beta * a * d.powi(2);
                 let mut scale = 0.0;
                 for p in 0..n {
                     grad += data.weights[p] * residual(p, c) * g(j, p);
@@ -1164,16 +1164,15 @@ pub(crate) mod tests {
             DVec3::new(-0.5 * lr, 0.0, 1.0),
             DVec3::X,
         ];
-        for j in 0..4 {
-            let want = moved[j].normalize();
+        for (j, (axis, m)) in s.axes.iter().zip(moved).enumerate() {
+            let want = m.normalize();
             assert!(
-                (s.axes[j] - want).length() < 1e-12,
-                "lobe {j}: axis {} against {want}",
-                s.axes[j]
+                (*axis - want).length() < 1e-12,
+                "lobe {j}: axis {axis} against {want}"
             );
         }
-        for j in 0..3 {
-            let want = start.log_lam[j] - lr * step(g_lam[j]);
+        for (j, g) in g_lam[..3].iter().enumerate() {
+            let want = start.log_lam[j] - lr * step(*g);
             assert!(
                 close(s.log_lam[j], want),
                 "lobe {j}: ln lambda {} against {want}",
@@ -1183,8 +1182,8 @@ pub(crate) mod tests {
         assert_eq!(s.log_lam[3], 1.0, "lobe 3: ln lambda not clamped to ln_max");
         // A second step with the same gradients moves ln lambda as far again.
         adam.step(&mut s, &g_axes, &g_lam, lr, 0.5, ln_max);
-        for j in 0..3 {
-            let want = start.log_lam[j] - 2.0 * lr * step(g_lam[j]);
+        for (j, g) in g_lam[..3].iter().enumerate() {
+            let want = start.log_lam[j] - 2.0 * lr * step(*g);
             assert!(
                 close(s.log_lam[j], want),
                 "step 2, lobe {j}: {} against {want}",
