@@ -394,6 +394,96 @@ mod tests {
         .to_vec()
     }
 
+    /// `Basis::gram_factor` is the lower Cholesky factor of gram + RIDGE * mean(diag) * I:
+    /// its upper triangle is 0, and L L^T reproduces the Gram matrix off the diagonal and
+    /// adds exactly the ridge on it (to 1e-4 of the ridge; an f64 Cholesky errs ~1e-15).
+    /// Kills cargo-mutants' survivors of issue 23 in the ridge (`+=` -> `-=`; the mean taken
+    /// over `i * k - i`; the ridge added at `i * k - i`): at 1e-7 of the diagonal they move no
+    /// shading test, so only the factor's contract shows them.
+    #[test]
+    fn gram_factor_is_the_cholesky_factor_of_the_ridged_gram() {
+        let basis = Basis::fibonacci(24);
+        let k = basis.len();
+        let gram = basis.gram();
+        let l = basis.gram_factor().unwrap();
+        let ridge = RIDGE * (0..k).map(|i| gram[i * k + i]).sum::<f64>() / k as f64;
+        for i in 0..k {
+            for j in 0..k {
+                if j > i {
+                    assert_eq!(l[i * k + j], 0.0, "upper triangle ({i}, {j})");
+                }
+                let llt: f64 = (0..k).map(|m| l[i * k + m] * l[j * k + m]).sum();
+                let want = gram[i * k + j] + if i == j { ridge } else { 0.0 };
+                assert!(
+                    (llt - want).abs() <= 1e-4 * ridge,
+                    "({i}, {j}): L L^T {llt} against {want} (ridge {ridge})"
+                );
+            }
+        }
+    }
+
+    /// `project`'s reported error is what `Transfer::projection_rel_l2` documents: the mean
+    /// over vertices of sqrt(sum dO (T - T~)^2 / sum dO T^2), recomputed here from the
+    /// returned coefficients; a vertex whose function is 0 everywhere counts its absolute
+    /// error, 0 (not 0 / 0). A zero solid angle is a valid sample; a negative one is refused,
+    /// naming it. Kills cargo-mutants' survivors of issue 23 in the error (`num +=` -> `-=`,
+    /// `d_omega * e` -> `+`, `den > 0.0` -> `>= 0.0` or `== 0.0`) and in the solid-angle check
+    /// (`*a < 0.0` -> `<= 0.0` or `== 0.0`).
+    #[test]
+    fn projection_error_is_the_mean_relative_l2_and_solid_angles_may_be_zero() {
+        let basis = Basis::fibonacci(32);
+        let k = basis.len();
+        let grid = equirect(32, 16, |_| [0.0; 3]);
+        let dirs: Vec<Vec3> = grid.iter().map(|s| s.0).collect();
+        let mut d_omega: Vec<f64> = grid.iter().map(|s| s.1).collect();
+        d_omega[5] = 0.0;
+        // Vertex 0: smooth; vertex 1: a bright cap (hard to fit); vertex 2: 0 everywhere.
+        let value = |v: usize, p: usize| -> f32 {
+            match v {
+                0 => (1.0 + dirs[p].y).powi(2),
+                1 if dirs[p].x > 0.8 => 3.0,
+                _ => 0.0,
+            }
+        };
+        let t = project(&basis, &dirs, &d_omega, 3, value).unwrap();
+        let errors: Vec<f64> = (0..3)
+            .map(|v| {
+                let (mut num, mut den) = (0.0, 0.0);
+                for (p, (d, w)) in dirs.iter().zip(&d_omega).enumerate() {
+                    let fitted: f64 = basis
+                        .axes
+                        .iter()
+                        .zip(&t.coeffs[v * k..(v + 1) * k])
+                        .map(|(a, c)| sg::kernel(*a, basis.sharpness, *d) as f64 * *c as f64)
+                        .sum();
+                    let value = value(v, p) as f64;
+                    num += w * (fitted - value).powi(2);
+                    den += w * value * value;
+                }
+                if den > 0.0 {
+                    (num / den).sqrt()
+                } else {
+                    num.sqrt()
+                }
+            })
+            .collect();
+        assert!(
+            errors[0] > 0.0 && errors[1] > 2.0 * errors[0] && errors[2] == 0.0,
+            "per vertex {errors:?}"
+        );
+        let mean = errors.iter().sum::<f64>() / 3.0;
+        assert!(
+            (t.projection_rel_l2 - mean).abs() <= 1e-9 * mean,
+            "reported {} against {mean}",
+            t.projection_rel_l2
+        );
+        d_omega[5] = -1e-3;
+        let e = project(&basis, &dirs, &d_omega, 1, |_, _| 1.0)
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("solid angle 5"), "{e}");
+    }
+
     /// Shading an unoccluded vertex under a constant environment c (one SG of sharpness
     /// 1e-5: constant to 2e-5) gives c * albedo up to the projection's integral error.
     #[test]
