@@ -996,8 +996,9 @@ pub(crate) mod tests {
 
     /// The analytic reduced gradient (NNLS amplitudes, energy term included) against
     /// central differences of the reduced loss.
-    #[test]
-    fn gradient_matches_finite_differences() {
+    /// A sky with a sub-texel sun near +Y (beta 1 / median dO) and a state of three lobes: one
+    /// at the sun (sharpness 300, its sampled integral off its exact one) and two broad.
+    fn sun_and_two_broad_lobes() -> (Data, State) {
         let samples = equirect(48, 24, |d| {
             let s = if d.y > 0.97 { 300.0 } else { 0.0 };
             [s + 0.5 + d.x.max(0.0), 0.3 + s, 0.2]
@@ -1013,6 +1014,12 @@ pub(crate) mod tests {
             log_lam: vec![(300.0f64).ln(), 3.0f64.ln(), 1.5f64.ln()],
             amps: vec![[0.0; 3]; 3],
         };
+        (data, state)
+    }
+
+    #[test]
+    fn gradient_matches_finite_differences() {
+        let (data, state) = sun_and_two_broad_lobes();
         let eval = data.solve(&state);
         let h = 1e-6;
         for j in 0..3 {
@@ -1055,21 +1062,7 @@ pub(crate) mod tests {
     /// differentiates whatever loss the solve returns; this one fails on either directly.
     #[test]
     fn solve_returns_the_amplitudes_that_minimise_its_penalised_loss() {
-        let samples = equirect(48, 24, |d| {
-            let s = if d.y > 0.97 { 300.0 } else { 0.0 };
-            [s + 0.5 + d.x.max(0.0), 0.3 + s, 0.2]
-        });
-        let mut data = Data::new(&samples).unwrap();
-        data.beta = 1.0 / data.median_d_omega;
-        let state = State {
-            axes: vec![
-                DVec3::new(0.1, 0.99, 0.05).normalize(),
-                DVec3::new(0.8, 0.2, 0.1).normalize(),
-                DVec3::new(-0.5, -0.5, 0.3).normalize(),
-            ],
-            log_lam: vec![(300.0f64).ln(), 3.0f64.ln(), 1.5f64.ln()],
-            amps: vec![[0.0; 3]; 3],
-        };
+        let (data, state) = sun_and_two_broad_lobes();
         let eval = data.solve(&state);
         let n = data.n();
         let g = |j: usize, p: usize| {
