@@ -307,6 +307,11 @@ fn bad_input_is_refused() {
 /// AO-weighted floor's. The issue's 10% target is met at the first pose only (measured with
 /// 2048 rays: 7.9 / 15.1 / 16.4% vs the floor's 11.0 / 16.3 / 18.6%; the floor shows the
 /// sphere proxy's own error at the moved poses); the bound below guards that measurement.
+/// With the posed mesh's ray-traced visibility in place of AO(x), the same caps split the
+/// light within 10% at every pose (7.9 / 9.2 / 8.7%, AO's MAE 0.002 / 0.044 / 0.035): what
+/// misses the target is AO's error at the moved poses, not the per-lobe split. A bug in the
+/// split (a cap's occlusion, the ratio to AO's own caps) fails that bound even where AO is
+/// right.
 #[cfg(all(feature = "cli", feature = "gltf"))]
 #[test]
 fn beats_the_ao_floor_against_the_ray_traced_truth_at_three_poses() {
@@ -338,6 +343,14 @@ fn beats_the_ao_floor_against_the_ray_traced_truth_at_three_poses() {
         if f.frame == 0 {
             assert!(mine <= 0.10, "frame 0: {mine}");
         }
+        let split = f.traced_ao_rel_l2.unwrap();
+        eprintln!(
+            "frame {}: with traced AO {:.2}%, AO MAE {:.4}",
+            f.frame,
+            100.0 * split,
+            f.ao_mae.unwrap()
+        );
+        assert!(split <= 0.10, "frame {}: the split alone {split}", f.frame);
         let ply = std::fs::read(f.ply.as_ref().unwrap()).unwrap();
         let head = String::from_utf8_lossy(&ply[..400.min(ply.len())]).to_string();
         for p in ["property float r", "property float g", "property float b"] {

@@ -242,6 +242,13 @@ pub struct EnvFrameReport {
     pub open_rel_l2: Option<f64>,
     /// The floor's over the same.
     pub open_floor_rel_l2: Option<f64>,
+    /// Mean |AO(x) - ray-traced visibility of the posed mesh| (cosine-weighted, unbounded
+    /// rays, as many per vertex as the truth's): AO's own error at this pose.
+    pub ao_mae: Option<f64>,
+    /// Relative L2 vs the truth of this method with the ray-traced visibility in place of
+    /// AO(x) (CPU twin): what is left is the per-lobe split by the caps alone, so
+    /// `rel_l2` minus this is roughly what AO's error costs.
+    pub traced_ao_rel_l2: Option<f64>,
     /// The PLY written (with `--reference`).
     pub ply: Option<String>,
 }
@@ -340,6 +347,8 @@ pub fn run_scene(
             enclosed: None,
             open_rel_l2: None,
             open_floor_rel_l2: None,
+            ao_mae: None,
+            traced_ao_rel_l2: None,
             ply: None,
         };
         if cfg.reference {
@@ -391,6 +400,53 @@ pub fn run_scene(
             );
             let caps: Vec<[f32; 3]> = caps.irradiance.iter().map(|e| [e[0], e[1], e[2]]).collect();
             report.caps_only_rel_l2 = Some(env_cpu::relative_l2(&caps, &truth));
+            // The split alone: the same caps with the posed mesh's ray-traced visibility in
+            // place of AO(x).
+            let traced_ao = {
+                let _p = crate::progress::Progress::start(
+                    &format!("frame {frame}: ray-traced AO"),
+                    positions.len() as u64,
+                );
+                let all: Vec<usize> = (0..positions.len()).collect();
+                crate::geom::visibility::ambient_visibility(
+                    &positions,
+                    &normals,
+                    &bvh,
+                    &all,
+                    &crate::geom::visibility::RayConfig {
+                        rays: cfg.rays,
+                        offset: 1e-4 * diagonal,
+                        seed: 0xa0e4 + frame as u64,
+                    },
+                )
+            };
+            report.ao_mae = Some(
+                ao.visibility
+                    .iter()
+                    .zip(&traced_ao)
+                    .map(|(a, t)| (a - t).abs() as f64)
+                    .sum::<f64>()
+                    / traced_ao.len().max(1) as f64,
+            );
+            let split = env_cpu::shadow(
+                &lobes,
+                kernels.env.table(),
+                &env_cpu::ShadowInputs {
+                    positions: &positions,
+                    normals: &normals,
+                    spheres: &spheres,
+                    extents: &extents,
+                    shape: kernels.ao.tree_shape(),
+                    params: kernels.env.ao_params(),
+                    ao: Some(&traced_ao),
+                },
+            );
+            let split: Vec<[f32; 3]> = split
+                .irradiance
+                .iter()
+                .map(|e| [e[0], e[1], e[2]])
+                .collect();
+            report.traced_ao_rel_l2 = Some(env_cpu::relative_l2(&split, &truth));
             let e = env_cpu::against_truth(&lobes, &normals, &ao.visibility, &mine, &truth);
             report.enclosed = Some(e.enclosed);
             report.open_rel_l2 = Some(e.open_rel_l2);
@@ -550,7 +606,7 @@ pub fn display(r: &EnvReport) {
         r.vertices, r.lobes, r.fit_rel_l2, r.fit_ms
     );
     println!(
-        "{:>5} {:>7} {:>10} {:>10} {:>9} {:>9} {:>11} {:>9} {:>11} {:>10} {:>9} {:>16}",
+        "{:>5} {:>7} {:>10} {:>10} {:>9} {:>9} {:>11} {:>9} {:>11} {:>10} {:>9} {:>16} {:>7} {:>10}",
         "frame",
         "rot deg",
         "rotate ms",
@@ -562,7 +618,9 @@ pub fn display(r: &EnvReport) {
         "caps only",
         "unshadowed",
         "enclosed",
-        "open: env/floor"
+        "open: env/floor",
+        "AO MAE",
+        "traced AO"
     );
     let pct = |x: Option<f64>| {
         x.map(|v| format!("{:.2}%", 100.0 * v))
@@ -570,7 +628,7 @@ pub fn display(r: &EnvReport) {
     };
     for f in &r.frames {
         println!(
-            "{:>5} {:>7.0} {:>10.3} {:>10.3} {:>9.2} {:>9.2} {:>11} {:>9} {:>11} {:>10} {:>9} {:>16}",
+            "{:>5} {:>7.0} {:>10.3} {:>10.3} {:>9.2} {:>9.2} {:>11} {:>9} {:>11} {:>10} {:>9} {:>16} {:>7} {:>10}",
             f.frame,
             f.rotation_deg,
             f.rotate_ms,
@@ -582,12 +640,16 @@ pub fn display(r: &EnvReport) {
             pct(f.caps_only_rel_l2),
             pct(f.unshadowed_rel_l2),
             f.enclosed.map(|n| n.to_string()).unwrap_or("-".into()),
-            format!("{}/{}", pct(f.open_rel_l2), pct(f.open_floor_rel_l2))
+            format!("{}/{}", pct(f.open_rel_l2), pct(f.open_floor_rel_l2)),
+            f.ao_mae.map(|m| format!("{m:.4}")).unwrap_or("-".into()),
+            pct(f.traced_ao_rel_l2)
         );
     }
     if r.frames.iter().any(|f| f.ply.is_some()) {
         println!(
-            "relative L2 over vertices vs the ray-traced truth ({} rays/vertex); PLYs in {}",
+            "relative L2 over vertices vs the ray-traced truth ({} rays/vertex); AO MAE: AO vs \
+             the posed mesh's ray-traced visibility; traced AO: this method with that visibility \
+             in place of AO's (the per-lobe split's own error); PLYs in {}",
             r.config.rays,
             r.config.out.display()
         );
