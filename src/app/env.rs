@@ -224,7 +224,9 @@ pub struct EnvFrameReport {
     /// GPU ms of `env shadow`.
     #[serde(serialize_with = "crate::io::finite::nan_as_null")]
     pub shadow_ms: f64,
-    /// GPU ms of the whole recording (pose, AO, environment).
+    /// GPU ms of the whole recording (pose, AO, environment); NaN (null) when a pass went
+    /// untimed.
+    #[serde(serialize_with = "crate::io::finite::nan_as_null")]
     pub frame_ms: f64,
     /// Host ms: recording and submitting the frame.
     pub host_ms: f64,

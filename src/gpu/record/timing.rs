@@ -38,8 +38,13 @@ impl Timings {
             .reduce(|a, b| a + b)
     }
 
-    /// Sum over all outermost passes.
+    /// Sum over all outermost passes; NaN when any pass went untimed (no timestamps on the
+    /// queue, or more passes than [`MAX_PASSES`]): a sum that leaves passes out would pass for
+    /// a faster frame.
     pub fn total_ms(&self) -> f64 {
+        if !self.untimed.is_empty() {
+            return f64::NAN;
+        }
         self.passes
             .iter()
             .filter(|p| p.depth == 0)
@@ -148,5 +153,35 @@ impl Recorder {
                 .cmd_write_timestamp2(self.cmd, stage, self.queries.pool, q)
         };
         Some(q)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn pass(name: &str, depth: usize, ms: f64) -> PassTiming {
+        PassTiming {
+            name: name.into(),
+            depth,
+            ms,
+        }
+    }
+
+    #[test]
+    fn the_total_sums_outermost_passes_and_is_nan_when_one_went_untimed() {
+        let mut t = Timings {
+            passes: vec![
+                pass("a", 0, 1.5),
+                pass("a.inner", 1, 1.0),
+                pass("b", 0, 2.0),
+            ],
+            untimed: Vec::new(),
+        };
+        assert_eq!(t.total_ms(), 3.5);
+        assert_eq!(t.get("a"), Some(1.5));
+        assert_eq!(t.get("c"), None);
+        t.untimed.push("c".into());
+        assert!(t.total_ms().is_nan());
     }
 }
