@@ -11,7 +11,7 @@ use glam::{Mat3, Vec3, Vec4};
 use vkshade::geom::sg::{Lobe, fibonacci_sphere};
 use vkshade::kernels::Kernel;
 use vkshade::kernels::ao::{AoKernel, AoParams, Prepared as AoPrepared, cpu::TreeShape};
-use vkshade::kernels::env::{EnvKernel, MAX_LOBES, cpu};
+use vkshade::kernels::env::{EnvKernel, EnvVisibility, MAX_LOBES, MAX_TRACE_GRID, cpu};
 use vkshade::kernels::pose::{PoseKernel, Prepared as PosePrepared};
 
 /// 32 lobes over the sphere with sharpness from 0.5 to ~5000 (the whole cap table) and
@@ -32,9 +32,15 @@ fn v3(v: &[[f32; 4]]) -> Vec<Vec3> {
     v.iter().map(|p| Vec4::from_array(*p).truncate()).collect()
 }
 
+/// BCN_Epileptic with its sphere tree, and the skinning matrices of the Epileptisch frame (of
+/// 16) that moves its vertices farthest from the bind pose.
 #[cfg(feature = "gltf")]
-#[test]
-fn gpu_matches_the_cpu_twin_far_from_the_bind_pose() {
+fn far_pose() -> (
+    vkshade::scene::Character,
+    AoPrepared,
+    PosePrepared,
+    Vec<glam::Mat4>,
+) {
     use vkshade::scene::spheretree::{BuildConfig, SphereTree};
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/bcn_epileptic.glb");
     let c = vkshade::scene::load(&path)
@@ -62,6 +68,13 @@ fn gpu_matches_the_cpu_twin_far_from_the_bind_pose() {
             moved(a).total_cmp(&moved(b))
         })
         .unwrap();
+    (c, ao_prep, pose_prep, matrices)
+}
+
+#[cfg(feature = "gltf")]
+#[test]
+fn gpu_matches_the_cpu_twin_far_from_the_bind_pose() {
+    let (_, ao_prep, pose_prep, matrices) = far_pose();
     let lobes = synthetic_lobes();
     let r = vkshade::geom::sg::rotation(Vec3::new(0.3, 1.0, -0.2), 73.0);
     let (frame, spheres, extents, ao, table, params, shape) = common::with_gpu(|ctx| {
@@ -152,6 +165,128 @@ fn gpu_matches_the_cpu_twin_far_from_the_bind_pose() {
     // percentile, 1e-3 of the peak on E (a wrong index or a skipped cap errs by O(0.1-1)).
     assert!(vis < 2e-2, "V_j differ by {vis}");
     assert!(p999 < 5e-3, "99.9th percentile of |dV_j| {p999}");
+    assert!(
+        irr < 1e-3 * peak,
+        "irradiance differs by {irr} (peak {peak})"
+    );
+}
+
+/// The traced visibility (passes `env bvh leaves`, `env bvh refit`, `env trace`) far from the
+/// bind pose against its twin [`cpu::traced_visibility`], which refits the same topology on
+/// the host and casts the same rays; and the shadow pass scaled by it against the twin of
+/// `env shadow` given the GPU's visibility. The rays come from the same integer hash and f32
+/// operations, but a device's sin and cos may differ in the last bits, so a ray grazing an
+/// edge may decide the other way: one ray is 1/16 of a vertex's visibility. Measured: 0 of 3014
+/// vertices differ. Bounds: at most 1% of the vertices differ, none by more than 2 rays, the
+/// mean by < 1e-3. A BVH left in the rest pose (no refit), a wrong basis or a wrong stratum
+/// moves hundreds of vertices by several rays.
+#[cfg(feature = "gltf")]
+#[test]
+fn traced_visibility_matches_its_twin_far_from_the_bind_pose() {
+    let (c, ao_prep, pose_prep, matrices) = far_pose();
+    let lobes = synthetic_lobes();
+    let r = vkshade::geom::sg::rotation(Vec3::new(-0.4, 1.0, 0.1), 31.0);
+    let grid = 4;
+    let (frame, scale, ao, spheres, extents, table, params, shape, topology, cfg) =
+        common::with_gpu(|ctx| {
+            let mut rec = ctx.recorder("env traced twin")?;
+            let pose = PoseKernel::new(&mut rec, &pose_prep)?;
+            let ao = AoKernel::on_pose(&mut rec, &ao_prep, AoParams::default(), &pose)?;
+            let env = EnvKernel::with_visibility(
+                &mut rec,
+                &lobes,
+                &pose,
+                &ao,
+                EnvVisibility::Traced {
+                    rest: &c.mesh.positions,
+                    triangles: &c.mesh.triangles,
+                    grid,
+                },
+            )?;
+            let names: Vec<&str> = env.passes().iter().map(|p| p.name).collect();
+            assert_eq!(
+                names,
+                [
+                    "env rotate",
+                    "env bvh leaves",
+                    "env bvh refit",
+                    "env trace",
+                    "env shadow"
+                ]
+            );
+            pose.record(&mut rec, &matrices)?;
+            ao.record(&mut rec, &matrices)?;
+            env.record(&mut rec, &r)?;
+            let out = env.read_back(&mut rec)?;
+            let scale = rec.read_back(env.scale_visibility())?;
+            let aor = ao.read_back(&mut rec)?;
+            let sph = rec.read_back(ao.posed_spheres())?;
+            let ext = rec.read_back(ao.posed_extents())?;
+            rec.submit_and_wait()?;
+            eprintln!("env kernel memory (traced): {:?}", env.memory());
+            let (top, cfg) = env.traced().expect("built with traced visibility");
+            Ok((
+                out.data()?,
+                scale.to_vec::<f32>()?,
+                aor.data()?,
+                sph.to_vec::<[f32; 4]>()?,
+                ext.to_vec::<f32>()?,
+                env.table().clone(),
+                *env.ao_params(),
+                ao.tree_shape(),
+                top.clone(),
+                *cfg,
+            ))
+        });
+    let (positions, normals) = (v3(&ao.positions), v3(&ao.normals));
+    let twin = cpu::traced_visibility(&topology, &positions, &normals, &cfg);
+    let step = 1.0 / (grid * grid) as f32;
+    let differ = scale.iter().zip(&twin).filter(|(a, b)| a != b).count();
+    let worst = scale
+        .iter()
+        .zip(&twin)
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0f32, f32::max);
+    let mean = scale
+        .iter()
+        .zip(&twin)
+        .map(|(a, b)| (a - b).abs() as f64)
+        .sum::<f64>()
+        / twin.len() as f64;
+    let shaded = twin.iter().filter(|&&v| v < 0.75).count();
+    eprintln!(
+        "traced visibility GPU vs twin: {differ} of {} vertices differ, worst {worst} ({} rays), mean {mean:.2e}; {shaded} below 0.75",
+        twin.len(),
+        worst / step
+    );
+    // A real visibility, not all ones (the character shades itself far from the bind pose).
+    assert!(shaded > twin.len() / 20, "{shaded}");
+    assert!(differ <= twin.len() / 100, "{differ} vertices differ");
+    assert!(worst <= 2.0 * step + 1e-6, "a vertex differs by {worst}");
+    assert!(mean < 1e-3, "mean difference {mean}");
+    // The shadow pass scaled by the GPU's visibility against its twin given the same.
+    let spheres: Vec<Vec4> = spheres.iter().map(|s| Vec4::from_array(*s)).collect();
+    let shadow = cpu::shadow(
+        &frame.lobes,
+        &table,
+        &cpu::ShadowInputs {
+            positions: &positions,
+            normals: &normals,
+            spheres: &spheres,
+            extents: &extents,
+            shape,
+            params: &params,
+            ao: Some(&scale),
+        },
+    );
+    let (mut irr, mut peak) = (0.0f32, 0.0f32);
+    for (a, b) in frame.shadowed.irradiance.iter().zip(&shadow.irradiance) {
+        for c in 0..3 {
+            irr = irr.max((a[c] - b[c]).abs());
+            peak = peak.max(b[c].abs());
+        }
+    }
+    // As in gpu_matches_the_cpu_twin_far_from_the_bind_pose: 1e-3 of the peak.
     assert!(
         irr < 1e-3 * peak,
         "irradiance differs by {irr} (peak {peak})"
@@ -279,6 +414,44 @@ fn bad_input_is_refused() {
         small.vertex_weights.truncate(10);
         let small_pose = PoseKernel::new(&mut rec, &small)?;
         assert!(msg(EnvKernel::new(&mut rec, &[lobe], &small_pose, &ao)).contains("vertices"));
+        // Traced visibility: the grid's range, the mesh's vertex count and its triangles.
+        let ball = common::ball();
+        fn traced<'a>(grid: u32, rest: &'a [Vec3], triangles: &'a [[u32; 3]]) -> EnvVisibility<'a> {
+            EnvVisibility::Traced {
+                rest,
+                triangles,
+                grid,
+            }
+        }
+        let (rest, tris) = (&ball.mesh.positions, &ball.mesh.triangles);
+        for grid in [0, MAX_TRACE_GRID + 1] {
+            let e = msg(EnvKernel::with_visibility(
+                &mut rec,
+                &[lobe],
+                &pose,
+                &ao,
+                traced(grid, rest, tris),
+            ));
+            assert!(e.contains("strata per axis") && e.contains("1..=16"), "{e}");
+        }
+        let e = msg(EnvKernel::with_visibility(
+            &mut rec,
+            &[lobe],
+            &pose,
+            &ao,
+            traced(4, &rest[..10], tris),
+        ));
+        assert!(e.contains("the mesh has 10 vertices"), "{e}");
+        let mut bad_tris = tris.clone();
+        bad_tris[3] = [0, 1, rest.len() as u32];
+        let e = msg(EnvKernel::with_visibility(
+            &mut rec,
+            &[lobe],
+            &pose,
+            &ao,
+            traced(4, rest, &bad_tris),
+        ));
+        assert!(e.contains("triangle 3 names vertex"), "{e}");
         let env = EnvKernel::new(&mut rec, &[lobe; MAX_LOBES], &pose, &ao)?;
         let mut bad = Mat3::IDENTITY;
         bad.x_axis.y = f32::NAN;
@@ -303,15 +476,15 @@ fn bad_input_is_refused() {
 }
 
 /// `vkshade env --frames 3 --reference` on BCN_Epileptic's Epileptisch under the forest map's
-/// 32-lobe fit: at each pose the relative L2 over vertices vs the ray-traced truth is below the
-/// AO-weighted floor's. The 10% target is met at the first pose only (measured with
-/// 2048 rays: 7.9 / 15.1 / 16.4% vs the floor's 11.0 / 16.3 / 18.6%; the floor shows the
-/// sphere proxy's own error at the moved poses); the bound below guards that measurement.
-/// With the posed mesh's ray-traced visibility in place of AO(x), the same caps split the
-/// light within 10% at every pose (7.9 / 9.2 / 8.7%, AO's MAE 0.002 / 0.044 / 0.035): what
-/// misses the target is AO's error at the moved poses, not the per-lobe split. A bug in the
-/// split (a cap's occlusion, the ratio to AO's own caps) fails that bound even where AO is
-/// right.
+/// 32-lobe fit, the split scaled by 16 rays a vertex traced through the posed mesh (the
+/// default): at each pose the relative L2 over vertices vs the ray-traced truth is within the
+/// issue's 10% and below the AO-weighted floor's (measured with 2048 rays: 8.7 / 9.6 / 9.1%
+/// vs the floor's 11.0 / 16.3 / 18.6%). Scaled by AO's visibility instead the method read
+/// 7.9 / 15.1 / 16.4%: AO errs at the moved poses (MAE 0.002 / 0.044 / 0.035), the split
+/// does not. With the truth's own 1024-ray visibility the same caps give 7.9 / 9.2 / 8.7%,
+/// bounded here too, so a bug in the split (a cap's occlusion, the ratio to AO's own caps)
+/// fails even where the rays are right, and a bug in the rays (the traced visibility noisier
+/// or biased) fails the first bound.
 #[cfg(all(feature = "cli", feature = "gltf"))]
 #[test]
 fn beats_the_ao_floor_against_the_ray_traced_truth_at_three_poses() {
@@ -337,12 +510,8 @@ fn beats_the_ao_floor_against_the_ray_traced_truth_at_three_poses() {
             100.0 * f.unshadowed_rel_l2.unwrap()
         );
         assert!(mine < floor, "frame {}: {mine} >= floor {floor}", f.frame);
-        // Regression bound: the measured worst pose (16.4%) plus the truth's extra noise at
-        // 1024 rays (adds in quadrature, < 1%); the first pose meets the 10%.
-        assert!(mine <= 0.18, "frame {}: {mine}", f.frame);
-        if f.frame == 0 {
-            assert!(mine <= 0.10, "frame 0: {mine}");
-        }
+        // The target at every pose (the truth's noise at 1024 rays included).
+        assert!(mine <= 0.10, "frame {}: {mine}", f.frame);
         let split = f.traced_ao_rel_l2.unwrap();
         eprintln!(
             "frame {}: with traced AO {:.2}%, AO MAE {:.4}",

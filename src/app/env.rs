@@ -13,7 +13,10 @@ use crate::kernels::ao::cpu::CpuAo;
 use crate::kernels::ao::formula::{OcclusionTable, TABLE_SIZE};
 use crate::kernels::ao::{AoKernel, AoParams, Correction, Prepared as AoPrepared};
 use crate::kernels::env::cpu::{self as env_cpu, TruthConfig};
-use crate::kernels::env::{EnvKernel, PASS_ROTATE, PASS_SHADOW};
+use crate::kernels::env::{
+    DEFAULT_TRACE_GRID, EnvKernel, EnvVisibility, PASS_BVH_LEAVES, PASS_BVH_REFIT, PASS_ROTATE,
+    PASS_SHADOW, PASS_TRACE,
+};
 use crate::kernels::pose::{PoseKernel, Prepared as PosePrepared};
 use crate::kernels::srbf::fit::{FitConfig, fit};
 use crate::scene::Character;
@@ -49,6 +52,9 @@ pub struct EnvRunConfig {
     pub out: PathBuf,
     /// How negative samples of the map (codec ringing) are treated.
     pub hdr: crate::scene::envmap::HdrPolicy,
+    /// The visibility that scales the caps' split of the light: rays traced through the
+    /// posed mesh every frame, `trace_grid`^2 per vertex (`Some`), or AO's (`None`).
+    pub trace_grid: Option<u32>,
 }
 
 impl Default for EnvRunConfig {
@@ -66,6 +72,7 @@ impl Default for EnvRunConfig {
             rays: 2048,
             out: PathBuf::from("out/env"),
             hdr: Default::default(),
+            trace_grid: Some(DEFAULT_TRACE_GRID),
         }
     }
 }
@@ -93,6 +100,8 @@ pub struct EnvScene {
     pub fit_ms: f64,
     /// Milliseconds the tree build and the correction bake took.
     pub setup_ms: f64,
+    /// The run's [`EnvRunConfig::trace_grid`].
+    pub trace_grid: Option<u32>,
 }
 
 impl EnvScene {
@@ -164,6 +173,7 @@ impl EnvScene {
             fit_rel_l2,
             fit_ms,
             setup_ms,
+            trace_grid: cfg.trace_grid,
         })
     }
 
@@ -199,7 +209,16 @@ impl EnvGpu {
         let pose = PoseKernel::new(rec, &scene.pose_prep)?;
         let ao = AoKernel::on_pose(rec, &scene.ao_prep, scene.ao_params, &pose)?;
         ao.set_correction(rec, &scene.correction)?;
-        let env = EnvKernel::new(rec, &scene.lobes, &pose, &ao)?;
+        let mesh = &scene.character.mesh;
+        let visibility = match scene.trace_grid {
+            Some(grid) => EnvVisibility::Traced {
+                rest: &mesh.positions,
+                triangles: &mesh.triangles,
+                grid,
+            },
+            None => EnvVisibility::Ao,
+        };
+        let env = EnvKernel::with_visibility(rec, &scene.lobes, &pose, &ao, visibility)?;
         Ok(EnvGpu { pose, ao, env })
     }
 
@@ -224,6 +243,10 @@ pub struct EnvFrameReport {
     /// GPU ms of `env shadow`.
     #[serde(serialize_with = "crate::io::finite::nan_as_null")]
     pub shadow_ms: f64,
+    /// GPU ms of the traced visibility (passes `env bvh leaves`, `env bvh refit`,
+    /// `env trace`); 0 with AO's visibility, NaN (null) when untimed.
+    #[serde(serialize_with = "crate::io::finite::nan_as_null")]
+    pub trace_ms: f64,
     /// GPU ms of the whole recording (pose, AO, environment); NaN (null) when a pass went
     /// untimed.
     #[serde(serialize_with = "crate::io::finite::nan_as_null")]
@@ -247,6 +270,9 @@ pub struct EnvFrameReport {
     /// Mean |AO(x) - ray-traced visibility of the posed mesh| (cosine-weighted, unbounded
     /// rays, as many per vertex as the truth's): AO's own error at this pose.
     pub ao_mae: Option<f64>,
+    /// With traced visibility: mean |the kernel's traced visibility - the same with the
+    /// truth's ray count| (its noise).
+    pub traced_mae: Option<f64>,
     /// Relative L2 vs the truth of this method with the ray-traced visibility in place of
     /// AO(x) (CPU twin): what is left is the per-lobe split by the caps alone, so
     /// `rel_l2` minus this is roughly what AO's error costs.
@@ -329,6 +355,7 @@ pub fn run_scene(
         let env_rb = kernels.env.read_back(&mut rec)?;
         let ao_rb = kernels.ao.read_back(&mut rec)?;
         let sph_rb = rec.read_back(kernels.ao.posed_spheres())?;
+        let scale_rb = rec.read_back(kernels.env.scale_visibility())?;
         let ext_rb = rec.read_back(kernels.ao.posed_extents())?;
         let submission = rec.submit()?;
         let host_ms = start.elapsed().as_secs_f64() * 1e3;
@@ -340,6 +367,14 @@ pub fn run_scene(
             rotation_deg: cfg.rotate_deg * frame as f32,
             rotate_ms: timings.get(PASS_ROTATE).unwrap_or(f64::NAN),
             shadow_ms: timings.get(PASS_SHADOW).unwrap_or(f64::NAN),
+            trace_ms: if kernels.env.traced().is_some() {
+                [PASS_BVH_LEAVES, PASS_BVH_REFIT, PASS_TRACE]
+                    .iter()
+                    .map(|p| timings.get(p).unwrap_or(f64::NAN))
+                    .sum()
+            } else {
+                0.0
+            },
             frame_ms: timings.total_ms(),
             host_ms,
             rel_l2: None,
@@ -350,6 +385,7 @@ pub fn run_scene(
             open_rel_l2: None,
             open_floor_rel_l2: None,
             ao_mae: None,
+            traced_mae: None,
             traced_ao_rel_l2: None,
             ply: None,
         };
@@ -422,6 +458,17 @@ pub fn run_scene(
                     },
                 )
             };
+            if kernels.env.traced().is_some() {
+                let scale: Vec<f32> = scale_rb.to_vec()?;
+                report.traced_mae = Some(
+                    scale
+                        .iter()
+                        .zip(&traced_ao)
+                        .map(|(a, t)| (a - t).abs() as f64)
+                        .sum::<f64>()
+                        / traced_ao.len().max(1) as f64,
+                );
+            }
             report.ao_mae = Some(
                 ao.visibility
                     .iter()
@@ -569,6 +616,10 @@ pub struct Args {
     /// Output folder.
     #[arg(long, default_value = "out/env")]
     pub out: PathBuf,
+    /// Rays per vertex and axis that scale the per-lobe split each frame (grid^2 rays through
+    /// the posed mesh, 1..=16); 0: AO's visibility instead.
+    #[arg(long, default_value_t = DEFAULT_TRACE_GRID)]
+    pub trace_grid: u32,
     #[command(flatten)]
     pub hdr: super::Hdr,
 }
@@ -587,6 +638,7 @@ impl Args {
             rays: self.rays,
             out: self.out.clone(),
             hdr: self.hdr.policy(),
+            trace_grid: (self.trace_grid > 0).then_some(self.trace_grid),
             ..EnvRunConfig::default()
         }
     }
@@ -604,11 +656,21 @@ impl Args {
 /// Prints the per-frame table.
 pub fn display(r: &EnvReport) {
     println!(
-        "{} vertices x {} lobes (fit rel L2 {:.3}, {:.0} ms)",
-        r.vertices, r.lobes, r.fit_rel_l2, r.fit_ms
+        "{} vertices x {} lobes (fit rel L2 {:.3}, {:.0} ms); the split scaled by {}",
+        r.vertices,
+        r.lobes,
+        r.fit_rel_l2,
+        r.fit_ms,
+        match r.config.trace_grid {
+            Some(g) => format!(
+                "{} rays per vertex traced through the posed mesh each frame",
+                g * g
+            ),
+            None => "AO's visibility".into(),
+        }
     );
     println!(
-        "{:>5} {:>7} {:>10} {:>10} {:>9} {:>9} {:>11} {:>9} {:>11} {:>10} {:>9} {:>16} {:>7} {:>10}",
+        "{:>5} {:>7} {:>10} {:>10} {:>9} {:>9} {:>11} {:>9} {:>11} {:>10} {:>9} {:>16} {:>7} {:>10} {:>9} {:>8}",
         "frame",
         "rot deg",
         "rotate ms",
@@ -622,7 +684,9 @@ pub fn display(r: &EnvReport) {
         "enclosed",
         "open: env/floor",
         "AO MAE",
-        "traced AO"
+        "traced AO",
+        "trace ms",
+        "rays MAE"
     );
     let pct = |x: Option<f64>| {
         x.map(|v| format!("{:.2}%", 100.0 * v))
@@ -630,7 +694,7 @@ pub fn display(r: &EnvReport) {
     };
     for f in &r.frames {
         println!(
-            "{:>5} {:>7.0} {:>10.3} {:>10.3} {:>9.2} {:>9.2} {:>11} {:>9} {:>11} {:>10} {:>9} {:>16} {:>7} {:>10}",
+            "{:>5} {:>7.0} {:>10.3} {:>10.3} {:>9.2} {:>9.2} {:>11} {:>9} {:>11} {:>10} {:>9} {:>16} {:>7} {:>10} {:>9.3} {:>8}",
             f.frame,
             f.rotation_deg,
             f.rotate_ms,
@@ -644,14 +708,19 @@ pub fn display(r: &EnvReport) {
             f.enclosed.map(|n| n.to_string()).unwrap_or("-".into()),
             format!("{}/{}", pct(f.open_rel_l2), pct(f.open_floor_rel_l2)),
             f.ao_mae.map(|m| format!("{m:.4}")).unwrap_or("-".into()),
-            pct(f.traced_ao_rel_l2)
+            pct(f.traced_ao_rel_l2),
+            f.trace_ms,
+            f.traced_mae
+                .map(|m| format!("{m:.4}"))
+                .unwrap_or("-".into())
         );
     }
     if r.frames.iter().any(|f| f.ply.is_some()) {
         println!(
             "relative L2 over vertices vs the ray-traced truth ({} rays/vertex); AO MAE: AO vs \
-             the posed mesh's ray-traced visibility; traced AO: this method with that visibility \
-             in place of AO's (the per-lobe split's own error); PLYs in {}",
+             the posed mesh's ray-traced visibility; traced AO: the caps' split scaled by that \
+             visibility (the split's own error); rays MAE: the kernel's traced visibility vs the \
+             same; PLYs in {}",
             r.config.rays,
             r.config.out.display()
         );

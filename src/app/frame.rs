@@ -39,6 +39,10 @@ pub struct Args {
     /// Lobes of the environment's fit.
     #[arg(long, default_value_t = 16)]
     pub env_lobes: usize,
+    /// Rays per vertex and axis that scale the environment's per-lobe split each frame
+    /// (grid^2 rays through the posed mesh, 1..=16); 0: AO's visibility instead.
+    #[arg(long, default_value_t = crate::kernels::env::DEFAULT_TRACE_GRID)]
+    pub env_trace_grid: u32,
     /// The animation to play.
     #[arg(long, default_value = "Epileptisch")]
     pub anim: String,
@@ -227,6 +231,7 @@ impl Args {
             env: (!self.no_env).then(|| self.env.clone()),
             env_lobes: self.env_lobes,
             env_hdr: self.hdr.policy(),
+            env_trace_grid: (self.env_trace_grid > 0).then_some(self.env_trace_grid),
             ao_correction_rays: self.ao_correction_rays,
             materials: match self.materials.as_str() {
                 "measured" => crate::frame::Materials::Measured,

@@ -93,6 +93,10 @@ pub struct FrameConfig {
     pub env_fit_width: u32,
     /// How negative samples of the map (codec ringing) are treated.
     pub env_hdr: crate::scene::envmap::HdrPolicy,
+    /// The visibility that scales the environment's per-lobe split: rays traced through the
+    /// posed mesh every frame, grid^2 per vertex (`Some(grid)`, 1..=16), or AO's (`None`)
+    /// (see [`crate::kernels::env::EnvVisibility`]).
+    pub env_trace_grid: Option<u32>,
     /// Rays per vertex of AO's static correction, baked once in the bind pose
     /// ([`ao::Correction`]: the detail the spheres miss, such as the skin buried under the
     /// clothes); 0: AO and the environment's shadowing by the spheres alone.
@@ -270,6 +274,7 @@ impl Default for FrameConfig {
             env_lobes: 16,
             env_fit_width: 128,
             env_hdr: Default::default(),
+            env_trace_grid: Some(crate::kernels::env::DEFAULT_TRACE_GRID),
             ao_correction_rays: 1024,
             materials: Materials::Gltf,
             cloth_parts: Vec::new(),
@@ -951,8 +956,19 @@ impl CharacterFrame {
             ao.set_correction(&mut rec, c)?;
         }
         let env = match &lobes {
-            Some(l) => Some(crate::kernels::env::EnvKernel::new(
-                &mut rec, l, &pose, &ao,
+            Some(l) => Some(crate::kernels::env::EnvKernel::with_visibility(
+                &mut rec,
+                l,
+                &pose,
+                &ao,
+                match cfg.env_trace_grid {
+                    Some(grid) => crate::kernels::env::EnvVisibility::Traced {
+                        rest: &mesh.positions,
+                        triangles: &mesh.triangles,
+                        grid,
+                    },
+                    None => crate::kernels::env::EnvVisibility::Ao,
+                },
             )?),
             None => None,
         };

@@ -241,6 +241,73 @@ pub fn caps_per_vertex(inp: &ShadowInputs) -> (f64, f64) {
     (caps as f64 / n, walked as f64 / n)
 }
 
+/// `glsl/common/util.glsl`'s `hash_u32` (one PCG round).
+pub fn hash_u32(v: u32) -> u32 {
+    let state = v.wrapping_mul(747_796_405).wrapping_add(2_891_336_453);
+    let word = ((state >> ((state >> 28) + 4)) ^ state).wrapping_mul(277_803_737);
+    (word >> 22) ^ word
+}
+
+/// `glsl/common/util.glsl`'s `unit_float`: the top 24 bits of `h` in [0, 1).
+pub fn unit_float(h: u32) -> f32 {
+    (h >> 8) as f32 * (1.0 / 16_777_216.0)
+}
+
+/// Settings of the per-frame traced visibility ([`traced_visibility`], pass `env trace`).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
+pub struct TraceConfig {
+    /// Rays per vertex: grid x grid strata of the cosine-weighted hemisphere.
+    pub grid: u32,
+    /// Ray origins move this far along the normal (model units).
+    pub offset: f32,
+    /// Seed of the jitter (an integer hash of seed, vertex and ray).
+    pub seed: u32,
+}
+
+/// The twin of pass `env trace`: per vertex, the fraction of `cfg.grid`^2 stratified
+/// cosine-weighted rays that escape the posed mesh, cast through the BVH of `top` refitted to
+/// `positions` (as passes `env bvh leaves` and `env bvh refit` build it). The directions come
+/// from the shader's integer hash and f32 operations; sin and cos may round differently on a
+/// device, so a ray grazing an edge may decide differently there.
+pub fn traced_visibility(
+    top: &crate::kernels::sss::posed::BvhTopology,
+    positions: &[Vec3],
+    normals: &[Vec3],
+    cfg: &TraceConfig,
+) -> Vec<f32> {
+    use crate::kernels::sss::posed::{flat_any_hit, refit};
+    let (nodes, tris) = refit(top, positions);
+    let g = cfg.grid;
+    let rays = g * g;
+    (0..positions.len())
+        .into_par_iter()
+        .map(|v| {
+            let (p, n) = (positions[v], normals[v]);
+            let (t, b) = orthonormal_basis(n);
+            let o = p + n * cfg.offset;
+            let mut escaped = 0u32;
+            for k in 0..rays {
+                let key = cfg.seed
+                    ^ (v as u32)
+                        .wrapping_mul(rays)
+                        .wrapping_add(k)
+                        .wrapping_mul(2);
+                let u1 = ((k / g) as f32 + unit_float(hash_u32(key))) / g as f32;
+                let u2 = ((k % g) as f32 + unit_float(hash_u32(key.wrapping_add(1)))) / g as f32;
+                let u1 = u1.min(0.999_999);
+                let r = u1.sqrt();
+                let phi = 6.283_185_5 * u2;
+                let l = Vec3::new(r * phi.cos(), r * phi.sin(), (1.0 - u1).max(0.0).sqrt());
+                let d = t * l.x + b * l.y + n * l.z;
+                if !flat_any_hit(&nodes, &tris, o, d, f32::INFINITY) {
+                    escaped += 1;
+                }
+            }
+            escaped as f32 / rays.max(1) as f32
+        })
+        .collect()
+}
+
 /// Ray-traced truth settings.
 #[derive(Clone, Copy, Debug, serde::Serialize)]
 pub struct TruthConfig {

@@ -37,7 +37,10 @@ pub mod cpu;
 pub mod gpu;
 pub mod pack;
 
-pub use gpu::{EnvKernel, EnvReadback, PASS_ROTATE, PASS_SHADOW};
+pub use gpu::{
+    DEFAULT_TRACE_GRID, EnvKernel, EnvReadback, EnvVisibility, MAX_TRACE_GRID, PASS_BVH_LEAVES,
+    PASS_BVH_REFIT, PASS_ROTATE, PASS_SHADOW, PASS_TRACE,
+};
 pub use pack::{CapTable, MAX_LOBES, cap_occlusion, pack_lobes};
 
 /// Sharpness and amplitude of the cosine lobe as an SG: max(0, n . w) ~ 1.17 e^(2.133 (n . w - 1))

@@ -1,0 +1,42 @@
+// Per-frame BVH of a skinned mesh, step 1, shared by pass `sss bvh leaves` (the skin's vertex
+// frames, mm) and pass `env bvh leaves` (the character's posed positions): the topology is
+// built once over the rest pose (src/kernels/sss/posed.rs BvhTopology); per leaf, its
+// triangles from this pose's vertices, stored as (a, b - a, c - a) in the triangle slots the
+// traversal reads (`tris`), and its box (`nodes`: lo xyz, first; hi xyz, link). Pass
+// `sss bvh refit` then fits the inner nodes. The CPU twin is posed::refit.
+// The includer declares `const uint BVH_ROW`, its vertex buffer at binding 0 and
+// `#define BVH_VERTEX(i)`, the position of vertex i (a vec3).
+
+// Leaves, levels, inner nodes, 0; then per leaf (node, first, link word: count | skip << 8)
+// (BvhTopology::gpu; posed::link_words).
+layout(std430, set = 0, binding = 1) readonly buffer Topo { uint v[]; } bvh_topo;
+// Per triangle slot: the mesh's vertex indices (v0, v1, v2, 0).
+layout(std430, set = 0, binding = 2) readonly buffer Slots { uvec4 v[]; } bvh_slots;
+layout(set = 0, binding = 3, rgba32ui) writeonly uniform uimage2D nodes;
+layout(set = 0, binding = 4, rgba32ui) writeonly uniform uimage2D tris;
+
+ivec2 at(uint k) {
+    return ivec2(k % BVH_ROW, k / BVH_ROW);
+}
+
+void main() {
+    uint leaf = gl_GlobalInvocationID.x;
+    if (leaf >= bvh_topo.v[0]) return;
+    uint node = bvh_topo.v[4u + 3u * leaf];
+    uint first = bvh_topo.v[4u + 3u * leaf + 1u];
+    uint link = bvh_topo.v[4u + 3u * leaf + 2u];
+    uint count = link & 0xffu;
+    vec3 lo = vec3(uintBitsToFloat(0x7f800000u));
+    vec3 hi = -lo;
+    for (uint s = first; s < first + count; s++) {
+        uvec4 c = bvh_slots.v[s];
+        vec3 a = BVH_VERTEX(c.x), b = BVH_VERTEX(c.y), d = BVH_VERTEX(c.z);
+        imageStore(tris, at(3u * s), uvec4(floatBitsToUint(a), 0u));
+        imageStore(tris, at(3u * s + 1u), uvec4(floatBitsToUint(b - a), 0u));
+        imageStore(tris, at(3u * s + 2u), uvec4(floatBitsToUint(d - a), 0u));
+        lo = min(lo, min(a, min(b, d)));
+        hi = max(hi, max(a, max(b, d)));
+    }
+    imageStore(nodes, at(2u * node), uvec4(floatBitsToUint(lo), first));
+    imageStore(nodes, at(2u * node + 1u), uvec4(floatBitsToUint(hi), link));
+}
