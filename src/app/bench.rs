@@ -89,7 +89,8 @@ pub enum Command {
     Soak(super::validate::SoakArgs),
     /// Environment light shadowed by the character (BCN_Epileptic, Epileptisch, forest map):
     /// GPU ms of `env rotate` and `env shadow` over the lobe count, beside the pose and AO
-    /// passes, host ms per frame, the CPU twin's ms and the table lookups per vertex.
+    /// passes, host ms per frame, the CPU twin's ms and the table lookups per vertex; the
+    /// traced visibility's BVH refit and rays against their CPU twin.
     Env {
         #[command(flatten)]
         opts: Opts,

@@ -751,6 +751,10 @@ pub fn bench(gpu: &super::Gpu, opts: &super::bench::Opts, quick: bool) -> Result
                 matrices: &matrices,
                 lobes: &scene.lobes,
                 counts,
+                trace: scene.trace_grid.map(|g| {
+                    let m = &scene.character.mesh;
+                    (&m.positions[..], &m.triangles[..], g)
+                }),
             },
         )?
     };
@@ -775,6 +779,20 @@ pub fn bench(gpu: &super::Gpu, opts: &super::bench::Opts, quick: bool) -> Result
         );
     }
     println!("roofline: {}", report.roofline.summary());
+    if let Some(t) = &report.trace {
+        println!(
+            "traced visibility, {} rays x {} vertices through {} triangles: refit + rays {:.3} ms \
+             GPU (env trace {:.3} ms, {:.2} Mrays/s), CPU twin {:.1} ms ({:.2}x the GPU)",
+            t.grid * t.grid,
+            report.vertices,
+            t.triangles,
+            t.gpu.median,
+            t.trace.median,
+            t.rays_per_s * 1e-6,
+            t.cpu_ms,
+            t.cpu_ms / t.gpu.median
+        );
+    }
     super::bench::write_json(opts, &report)?;
     super::finish(ctx)
 }

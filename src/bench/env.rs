@@ -2,14 +2,15 @@
 //! `env shadow`) on a posed character, beside the pose and AO passes it runs after, the host
 //! time of recording the frame, the CPU twin's time, and the shader's work per vertex (caps x
 //! lobes table lookups), over the lobe count; the largest count's `env shadow` against the
-//! roofline that binds it ([`roofline_terms`]).
+//! roofline that binds it ([`roofline_terms`]); and the traced visibility's passes (BVH refit
+//! and rays) against their CPU twin.
 
 use super::{BenchConfig, Stats, time_gpu_passes};
 use crate::error::{Error, Result};
 use crate::geom::sg::Lobe;
 use crate::gpu::Context;
 use crate::kernels::ao::AoKernel;
-use crate::kernels::env::{EnvKernel, PASS_ROTATE, PASS_SHADOW, cpu};
+use crate::kernels::env::{EnvKernel, EnvVisibility, PASS_ROTATE, PASS_SHADOW, cpu};
 use crate::kernels::pose::PoseKernel;
 use glam::{Mat4, Vec3, Vec4};
 use serde::Serialize;
@@ -34,6 +35,23 @@ pub struct EnvBenchRow {
     pub lookups_per_vertex: f64,
 }
 
+/// The traced visibility's measurement (passes `env bvh leaves`, `env bvh refit`, `env trace`).
+#[derive(Clone, Debug, Serialize)]
+pub struct TraceBench {
+    /// Strata per axis (rays per vertex = grid^2).
+    pub grid: u32,
+    /// Triangles in the BVH.
+    pub triangles: usize,
+    /// GPU ms of the three passes together.
+    pub gpu: Stats,
+    /// GPU ms of `env trace` alone.
+    pub trace: Stats,
+    /// Rays per second of `env trace` (median).
+    pub rays_per_s: f64,
+    /// Milliseconds of the CPU twin (refit and rays, rayon), median of 3 runs.
+    pub cpu_ms: f64,
+}
+
 /// The benchmark's report.
 #[derive(Clone, Debug, Serialize)]
 pub struct EnvBenchReport {
@@ -45,6 +63,8 @@ pub struct EnvBenchReport {
     pub caps_per_vertex: f64,
     /// Per lobe count.
     pub rows: Vec<EnvBenchRow>,
+    /// The traced visibility (when the input has a mesh to trace).
+    pub trace: Option<TraceBench>,
     /// `env shadow` at the largest lobe count against its rooflines ([`roofline_terms`],
     /// rates measured in the same run).
     pub roofline: super::roofline::Roofline,
@@ -106,6 +126,9 @@ pub struct EnvBenchInput<'a> {
     pub lobes: &'a [Lobe],
     /// Lobe counts to time.
     pub counts: &'a [usize],
+    /// The mesh the pose kernel skins (rest positions, triangles) and the grid to time the
+    /// traced visibility with; `None`: not timed.
+    pub trace: Option<(&'a [Vec3], &'a [[u32; 3]], u32)>,
 }
 
 /// Times the environment kernel at each lobe count on `input`'s posed frame.
@@ -175,6 +198,53 @@ pub fn run(ctx: &Context, cfg: &BenchConfig, input: &EnvBenchInput) -> Result<En
             lookups_per_vertex: caps * k as f64,
         });
     }
+    let trace = match input.trace {
+        None => None,
+        Some((rest, triangles, grid)) => {
+            let lobes = &input.lobes[..1];
+            let mut setup = ctx.recorder("env bench trace setup")?;
+            let env = EnvKernel::with_visibility(
+                &mut setup,
+                lobes,
+                input.pose,
+                input.ao,
+                EnvVisibility::Traced {
+                    rest,
+                    triangles,
+                    grid,
+                },
+            )?;
+            setup.submit_and_wait()?;
+            let names = [
+                "env bvh leaves+env bvh refit+env trace",
+                crate::kernels::env::PASS_TRACE,
+            ];
+            let stats = time_gpu_passes(ctx, cfg, &names, |rec| {
+                input.pose.record(rec, input.matrices)?;
+                input.ao.record(rec, input.matrices)?;
+                env.record(rec, &r)
+            })?;
+            let (top, tcfg) = env.traced().expect("built with traced visibility");
+            let mut cpu = Vec::new();
+            for _ in 0..3 {
+                let t = Instant::now();
+                std::hint::black_box(cpu::traced_visibility(top, &positions, &normals, tcfg));
+                cpu.push(t.elapsed().as_secs_f64() * 1e3);
+            }
+            cpu.sort_by(f64::total_cmp);
+            let mut stats = stats.into_iter();
+            let (gpu, trace) = (stats.next().expect("timed"), stats.next().expect("timed"));
+            let rays = positions.len() as f64 * (grid * grid) as f64;
+            Some(TraceBench {
+                grid,
+                triangles: triangles.len(),
+                rays_per_s: rays / (trace.median * 1e-3),
+                gpu,
+                trace,
+                cpu_ms: cpu[1],
+            })
+        }
+    };
     let last = rows
         .last()
         .ok_or_else(|| Error::InvalidArgument("no lobe counts to benchmark".into()))?;
@@ -191,6 +261,7 @@ pub fn run(ctx: &Context, cfg: &BenchConfig, input: &EnvBenchInput) -> Result<En
         cut_per_vertex: cut,
         caps_per_vertex: caps,
         rows,
+        trace,
         roofline,
     })
 }
