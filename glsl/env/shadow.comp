@@ -6,7 +6,8 @@
 // horizon, the fraction O_js of P_j inside the sphere's cap (table lookup, or centre value x
 // solid angle for caps under 0.3 lobe widths, blended to 0.4) times the cap's share above the
 // horizon, and AO's per-sphere cosine-weighted
-// occlusion I_s. V_j = clamp(AO(x) prod_s ((1 - O_js) / (1 - I_s))^w_s, 0, 1) (log space).
+// occlusion I_s. V_j = clamp(AO(x) prod_s ((1 - O_js) / (1 - I_s))^w_s, 0, 1) (log space),
+// AO(x) the visibility bound as `ao`: AO's, or the rays of pass `env trace`.
 // Irradiance = sum_j V_j E_j(n) amplitude_j.
 #include <common/ao.glsl>
 layout(local_size_x = 64) in;

@@ -22,14 +22,23 @@
 //!   visibility is AO's; a lobe behind a cap loses all of it (a lobe inside a cap has
 //!   1 - O_js = 0), one in the open keeps more than AO. The ratio carries AO's overlap handling
 //!   and its static correction (mesh detail the spheres miss) to every lobe.
+//! - A(x), the visibility the split is scaled by ([`EnvVisibility`]): by default the
+//!   fraction of 4 x 4 stratified cosine-weighted rays that escape the posed mesh, cast every
+//!   frame through a BVH built once over the rest pose and refitted to the pose (passes
+//!   `env bvh leaves`, `env bvh refit`, `env trace`); or AO's own visibility. Measured on
+//!   BCN_Epileptic (`vkshade env --reference`): the caps' split scaled by the truth's own
+//!   2048-ray visibility errs 7.9 / 9.2 / 8.7% at three poses, by 16 traced rays 8.7 / 9.6 /
+//!   9.1%, by AO's 7.9 / 15.1 / 16.4% (AO, exact in its bind-pose bake, errs by MAE 0.04 once
+//!   the character moves). The caps give the direction, the rays the amount.
 //! - E_j(n): Hill's fitted SG irradiance, the inner product with the cosine SG below
 //!   lambda = 1 ([`cpu::irradiance`]); E(x) = sum_j V_j E_j(n) amplitude_j, radiometric (no
 //!   1/pi).
 //!
 //! - [`pack`]: the lobes in the GPU's layout and the cap table, checked.
-//! - [`gpu`]: the kernel ([`EnvKernel`]: passes `env rotate`, `env shadow`).
-//! - [`cpu`]: the CPU twin (same f32 operations) and the f64 ray-traced truth
-//!   ([`cpu::ray_traced`]).
+//! - [`gpu`]: the kernel ([`EnvKernel`]: passes `env rotate`, with traced visibility
+//!   `env bvh leaves`, `env bvh refit`, `env trace`, then `env shadow`).
+//! - [`cpu`]: the CPU twins (same f32 operations: [`cpu::shadow`],
+//!   [`cpu::traced_visibility`]) and the f64 ray-traced truth ([`cpu::ray_traced`]).
 
 #![warn(missing_docs)]
 
