@@ -890,6 +890,15 @@ fn bench_env_names_its_binding_roofline_under_validation() {
     let f = r["fraction"].as_f64().unwrap();
     assert!(f.is_finite() && f > 0.0, "fraction {f}");
     assert!(r["fma_fraction"].as_f64().unwrap() > 0.0);
+    // The traced visibility's passes, timed beside their CPU twin (under validation too).
+    assert!(stdout.contains("traced visibility, 16 rays"), "{stdout}");
+    let t = &v["trace"];
+    assert_eq!(t["grid"].as_u64(), Some(4), "{t}");
+    for k in ["rays_per_s", "cpu_ms"] {
+        let x = t[k].as_f64().unwrap();
+        assert!(x.is_finite() && x > 0.0, "{k} {x}");
+    }
+    assert!(t["gpu"]["median"].as_f64().unwrap() >= t["trace"]["median"].as_f64().unwrap());
 }
 
 /// `vkshade frame --part-btf / --part-tile-scale / --part-skin / --skin-material`: malformed
@@ -1018,6 +1027,7 @@ fn numeric_flags_out_of_range_name_the_flag_and_the_bound() {
             "--lobes must be in 1..=64, not 0",
         ),
         (&["env", "--rotate", "nan"][..], "--rotate must be finite"),
+        (&["env", "--trace-grid", "17"][..], "--trace-grid must be 0"),
         (
             &["srbf", "fit", "--fit-width", "0"][..],
             "--fit-width must be even",

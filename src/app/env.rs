@@ -321,6 +321,14 @@ pub fn run(ctx: &Context, cfg: &EnvRunConfig, progress: &mut dyn FnMut(&str)) ->
             cfg.lobes
         )));
     }
+    if let Some(g) = cfg.trace_grid
+        && !(1..=crate::kernels::env::MAX_TRACE_GRID).contains(&g)
+    {
+        return Err(Error::InvalidArgument(format!(
+            "--trace-grid must be 0 (AO's visibility) or 1..={}, not {g}",
+            crate::kernels::env::MAX_TRACE_GRID
+        )));
+    }
     crate::io::outdir::claim(&cfg.out, "env")?;
     let scene = EnvScene::load(cfg, progress)?;
     run_scene(ctx, cfg, &scene, progress)
