@@ -307,6 +307,16 @@ fn bad_frame_input_is_refused() {
             .expect("a frame without lights is refused")
             .to_string();
         assert!(e.contains("0 lights; a frame takes 1..="), "{e}");
+        // A trace grid past the kernel's.
+        let wide = FrameConfig {
+            env_trace_grid: Some(vkshade::kernels::env::MAX_TRACE_GRID + 1),
+            ..small()
+        };
+        let e = CharacterFrame::new(ctx, &wide, &mut |_| {})
+            .err()
+            .expect("a trace grid of 17 is refused")
+            .to_string();
+        assert!(e.contains("environment trace grid 17; 1..=16"), "{e}");
         // A BTF for a part that is not cloth, and a BTF directory that is not there.
         let stray = FrameConfig {
             cloth_parts: vec![vkshade::frame::ClothPart {

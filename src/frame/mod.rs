@@ -416,6 +416,14 @@ impl FrameConfig {
                 crate::kernels::env::MAX_LOBES
             ));
         }
+        if let Some(g) = self.env_trace_grid
+            && !(1..=crate::kernels::env::MAX_TRACE_GRID).contains(&g)
+        {
+            return bad(format!(
+                "environment trace grid {g}; 1..={} (or none: AO's visibility)",
+                crate::kernels::env::MAX_TRACE_GRID
+            ));
+        }
         if !(self.tile_scale.is_finite() && self.tile_scale > 0.0) {
             return bad(format!("tile scale {} must be > 0", self.tile_scale));
         }
