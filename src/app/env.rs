@@ -759,10 +759,14 @@ pub fn bench(gpu: &super::Gpu, opts: &super::bench::Opts, quick: bool) -> Result
                 matrices: &matrices,
                 lobes: &scene.lobes,
                 counts,
-                trace: scene.trace_grid.map(|g| {
-                    let m = &scene.character.mesh;
-                    (&m.positions[..], &m.triangles[..], g)
-                }),
+                trace: match scene.trace_grid {
+                    Some(grid) => EnvVisibility::Traced {
+                        rest: &scene.character.mesh.positions,
+                        triangles: &scene.character.mesh.triangles,
+                        grid,
+                    },
+                    None => EnvVisibility::Ao,
+                },
             },
         )?
     };

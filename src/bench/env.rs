@@ -126,9 +126,9 @@ pub struct EnvBenchInput<'a> {
     pub lobes: &'a [Lobe],
     /// Lobe counts to time.
     pub counts: &'a [usize],
-    /// The mesh the pose kernel skins (rest positions, triangles) and the grid to time the
-    /// traced visibility with; `None`: not timed.
-    pub trace: Option<(&'a [Vec3], &'a [[u32; 3]], u32)>,
+    /// [`EnvVisibility::Traced`] (the mesh the pose kernel skins and the grid): the traced
+    /// visibility is timed too; [`EnvVisibility::Ao`]: it is not.
+    pub trace: EnvVisibility<'a>,
 }
 
 /// Times the environment kernel at each lobe count on `input`'s posed frame.
@@ -199,21 +199,14 @@ pub fn run(ctx: &Context, cfg: &BenchConfig, input: &EnvBenchInput) -> Result<En
         });
     }
     let trace = match input.trace {
-        None => None,
-        Some((rest, triangles, grid)) => {
+        EnvVisibility::Ao => None,
+        EnvVisibility::Traced {
+            triangles, grid, ..
+        } => {
             let lobes = &input.lobes[..1];
             let mut setup = ctx.recorder("env bench trace setup")?;
-            let env = EnvKernel::with_visibility(
-                &mut setup,
-                lobes,
-                input.pose,
-                input.ao,
-                EnvVisibility::Traced {
-                    rest,
-                    triangles,
-                    grid,
-                },
-            )?;
+            let env =
+                EnvKernel::with_visibility(&mut setup, lobes, input.pose, input.ao, input.trace)?;
             setup.submit_and_wait()?;
             let names = [
                 "env bvh leaves+env bvh refit+env trace",
