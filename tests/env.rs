@@ -28,6 +28,18 @@ fn synthetic_lobes() -> Vec<Lobe> {
         .collect()
 }
 
+/// The largest |GPU - twin| over the irradiance's rgb channels, and the twin's peak.
+fn irradiance_gap(gpu: &[[f32; 4]], twin: &[[f32; 4]]) -> (f32, f32) {
+    let (mut gap, mut peak) = (0.0f32, 0.0f32);
+    for (a, b) in gpu.iter().zip(twin) {
+        for c in 0..3 {
+            gap = gap.max((a[c] - b[c]).abs());
+            peak = peak.max(b[c].abs());
+        }
+    }
+    (gap, peak)
+}
+
 fn v3(v: &[[f32; 4]]) -> Vec<Vec3> {
     v.iter().map(|p| Vec4::from_array(*p).truncate()).collect()
 }
@@ -140,14 +152,7 @@ fn gpu_matches_the_cpu_twin_far_from_the_bind_pose() {
     let vis = *dv.last().unwrap();
     let p999 = dv[dv.len() * 999 / 1000];
     let over = dv.iter().filter(|&&d| d > 1e-4).count();
-    let mut irr: f32 = 0.0;
-    let mut peak: f32 = 0.0;
-    for (a, b) in gpu.irradiance.iter().zip(&twin.irradiance) {
-        for c in 0..3 {
-            irr = irr.max((a[c] - b[c]).abs());
-            peak = peak.max(b[c].abs());
-        }
-    }
+    let (irr, peak) = irradiance_gap(&gpu.irradiance, &twin.irradiance);
     let occluded = twin.visibility.iter().filter(|&&v| v < 0.9).count();
     eprintln!(
         "GPU vs twin: max |dV_j| {vis:.2e} (99.9% {p999:.2e}, {over} over 1e-4), max |dE| {irr:.2e} of peak {peak:.3}; {occluded} of {} V_j < 0.9",
@@ -279,13 +284,7 @@ fn traced_visibility_matches_its_twin_far_from_the_bind_pose() {
             ao: Some(&scale),
         },
     );
-    let (mut irr, mut peak) = (0.0f32, 0.0f32);
-    for (a, b) in frame.shadowed.irradiance.iter().zip(&shadow.irradiance) {
-        for c in 0..3 {
-            irr = irr.max((a[c] - b[c]).abs());
-            peak = peak.max(b[c].abs());
-        }
-    }
+    let (irr, peak) = irradiance_gap(&frame.shadowed.irradiance, &shadow.irradiance);
     // As in gpu_matches_the_cpu_twin_far_from_the_bind_pose: 1e-3 of the peak.
     assert!(
         irr < 1e-3 * peak,

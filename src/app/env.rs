@@ -431,21 +431,25 @@ pub fn run_scene(
                 .map(|s| Vec4::from_array(*s))
                 .collect();
             let extents: Vec<f32> = ext_rb.to_vec()?;
-            let caps = env_cpu::shadow(
-                &lobes,
-                kernels.env.table(),
-                &env_cpu::ShadowInputs {
-                    positions: &positions,
-                    normals: &normals,
-                    spheres: &spheres,
-                    extents: &extents,
-                    shape: kernels.ao.tree_shape(),
-                    params: kernels.env.ao_params(),
-                    ao: None,
-                },
-            );
-            let caps: Vec<[f32; 3]> = caps.irradiance.iter().map(|e| [e[0], e[1], e[2]]).collect();
-            report.caps_only_rel_l2 = Some(env_cpu::relative_l2(&caps, &truth));
+            // The caps' split scaled by a visibility (None: the caps' product alone), on the
+            // CPU twin.
+            let caps_scaled_by = |ao: Option<&[f32]>| -> Vec<[f32; 3]> {
+                let out = env_cpu::shadow(
+                    &lobes,
+                    kernels.env.table(),
+                    &env_cpu::ShadowInputs {
+                        positions: &positions,
+                        normals: &normals,
+                        spheres: &spheres,
+                        extents: &extents,
+                        shape: kernels.ao.tree_shape(),
+                        params: kernels.env.ao_params(),
+                        ao,
+                    },
+                );
+                out.irradiance.iter().map(|e| [e[0], e[1], e[2]]).collect()
+            };
+            report.caps_only_rel_l2 = Some(env_cpu::relative_l2(&caps_scaled_by(None), &truth));
             // The split alone: the same caps with the posed mesh's ray-traced visibility in
             // place of AO(x).
             let traced_ao = {
@@ -466,44 +470,21 @@ pub fn run_scene(
                     },
                 )
             };
-            if kernels.env.traced().is_some() {
-                let scale: Vec<f32> = scale_rb.to_vec()?;
-                report.traced_mae = Some(
-                    scale
-                        .iter()
-                        .zip(&traced_ao)
-                        .map(|(a, t)| (a - t).abs() as f64)
-                        .sum::<f64>()
-                        / traced_ao.len().max(1) as f64,
-                );
-            }
-            report.ao_mae = Some(
-                ao.visibility
-                    .iter()
+            let mae_to_traced = |a: &[f32]| {
+                a.iter()
                     .zip(&traced_ao)
                     .map(|(a, t)| (a - t).abs() as f64)
                     .sum::<f64>()
-                    / traced_ao.len().max(1) as f64,
-            );
-            let split = env_cpu::shadow(
-                &lobes,
-                kernels.env.table(),
-                &env_cpu::ShadowInputs {
-                    positions: &positions,
-                    normals: &normals,
-                    spheres: &spheres,
-                    extents: &extents,
-                    shape: kernels.ao.tree_shape(),
-                    params: kernels.env.ao_params(),
-                    ao: Some(&traced_ao),
-                },
-            );
-            let split: Vec<[f32; 3]> = split
-                .irradiance
-                .iter()
-                .map(|e| [e[0], e[1], e[2]])
-                .collect();
-            report.traced_ao_rel_l2 = Some(env_cpu::relative_l2(&split, &truth));
+                    / traced_ao.len().max(1) as f64
+            };
+            if kernels.env.traced().is_some() {
+                report.traced_mae = Some(mae_to_traced(&scale_rb.to_vec::<f32>()?));
+            }
+            report.ao_mae = Some(mae_to_traced(&ao.visibility));
+            report.traced_ao_rel_l2 = Some(env_cpu::relative_l2(
+                &caps_scaled_by(Some(&traced_ao)),
+                &truth,
+            ));
             let e = env_cpu::against_truth(&lobes, &normals, &ao.visibility, &mine, &truth);
             report.enclosed = Some(e.enclosed);
             report.open_rel_l2 = Some(e.open_rel_l2);
