@@ -1221,10 +1221,17 @@ pub(crate) mod tests {
             );
         }
         let fib = sg::fibonacci_sphere(5);
-        for (a, f) in axes[3..].iter().zip(&fib) {
+        // The broad lobes tile the sphere: 5 lobes are sqrt(4 pi / 5) rad apart, and each
+        // takes lambda = 1 / (1 - cos spacing) (0.986 here; `4.0 * PI` -> `4.0 + PI` gives 1.58).
+        let broad = 1.0 / (1.0 - (4.0 * PI / 5.0).sqrt().cos());
+        for ((a, f), l) in axes[3..].iter().zip(&fib).zip(&lams[3..]) {
             assert!(
                 (*a - f.as_dvec3().normalize()).length() < 1e-12,
                 "{a} against {f}"
+            );
+            assert!(
+                (l / broad - 1.0).abs() < 1e-12,
+                "broad sharpness {l} against {broad}"
             );
         }
         let mut two = equirect(w, 32, |_| [0.0; 3]);
