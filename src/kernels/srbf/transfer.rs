@@ -484,6 +484,35 @@ mod tests {
         assert!(e.contains("solid angle 5"), "{e}");
     }
 
+    /// `project` over zero vertices is an empty transfer whose error is 0, not 0 / 0; a
+    /// vertex count whose coefficients overflow (usize) or would pass isize::MAX bytes is
+    /// refused before anything is allocated, naming both counts. Kills cargo-mutants'
+    /// survivors of issue 23 (half 1) in the mean (`vertices > 0` -> `>= 0`: NaN) and in the
+    /// size guard (`n > isize::MAX / 4` -> `== ...`: the allocation itself panics).
+    #[test]
+    fn project_takes_zero_vertices_and_refuses_sizes_it_cannot_hold() {
+        let basis = Basis::fibonacci(8);
+        let k = basis.len();
+        let grid = equirect(8, 4, |_| [0.0; 3]);
+        let dirs: Vec<Vec3> = grid.iter().map(|s| s.0).collect();
+        let d_omega: Vec<f64> = grid.iter().map(|s| s.1).collect();
+        let empty = project(&basis, &dirs, &d_omega, 0, |_, _| 1.0).unwrap();
+        assert!(empty.coeffs.is_empty() && empty.projection_rel_l2 == 0.0);
+        let limit = isize::MAX as usize / 4;
+        for vertices in [usize::MAX, limit / k + 1] {
+            let e = project(&basis, &dirs, &d_omega, vertices, |_, _| 1.0)
+                .err()
+                .expect("refused")
+                .to_string();
+            assert!(
+                e.contains(&format!(
+                    "{vertices} vertices x {k} coefficients is too large"
+                )),
+                "{e}"
+            );
+        }
+    }
+
     /// Shading an unoccluded vertex under a constant environment c (one SG of sharpness
     /// 1e-5: constant to 2e-5) gives c * albedo up to the projection's integral error.
     #[test]
