@@ -501,8 +501,7 @@ mod tests {
         let limit = isize::MAX as usize / 4;
         for vertices in [usize::MAX, limit / k + 1] {
             let e = project(&basis, &dirs, &d_omega, vertices, |_, _| 1.0)
-                .err()
-                .expect("refused")
+                .expect_err("refused")
                 .to_string();
             assert!(
                 e.contains(&format!(
