@@ -317,6 +317,7 @@ fn gpu_matches_the_cpu_implementation_on_testwuson() {
 #[test]
 fn method_against_the_ray_traced_mesh_on_testwuson() {
     use vkshade::app::ao::{AoRunConfig, run};
+    common::hold_gpu(); // `run` makes its own context
     let mesh = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/testwuson.glb");
     let _ = testwuson(); // a clear message if setup has not run
     for anim in ["Run", "Walk"] {

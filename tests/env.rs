@@ -488,6 +488,7 @@ fn bad_input_is_refused() {
 #[test]
 fn beats_the_ao_floor_against_the_ray_traced_truth_at_three_poses() {
     use vkshade::app::env::{EnvRunConfig, run};
+    common::hold_gpu(); // `run` makes its own context
     let out = common::temp_dir("env");
     let cfg = EnvRunConfig {
         mesh: std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/bcn_epileptic.glb"),

@@ -503,6 +503,7 @@ fn unsupported_formats_samplers_and_features_are_clear_errors() {
         Ok(())
     });
     // Features and extensions the device lacks are named.
+    common::hold_gpu();
     let e = Context::new(&ContextDesc {
         extensions: vec!["VK_VKSHADE_not_an_extension".into()],
         ..ContextDesc::validated()
@@ -523,6 +524,7 @@ fn unsupported_formats_samplers_and_features_are_clear_errors() {
         buffer_int64_atomics: true,
     };
     let missing = all.missing_from(&supported);
+    common::hold_gpu();
     match Context::new(&ContextDesc {
         features: all,
         ..ContextDesc::validated()
@@ -722,6 +724,7 @@ fn bc1_images_upload_and_sample_like_the_cpu_decoder() {
         assert!(e.to_string().contains("textureCompressionBC"), "{e}");
         Ok(())
     });
+    common::hold_gpu();
     let ctx = Context::new(&ContextDesc {
         features: Features {
             texture_compression_bc: true,

@@ -217,6 +217,7 @@ fn placement_block_sizes_and_memory_reports() {
         },
         ..ContextDesc::validated()
     };
+    common::hold_gpu();
     let ctx = Context::new(&desc).unwrap();
     (|| -> vkshade::Result<()> {
         let before = ctx.memory_report();
@@ -357,6 +358,7 @@ fn a_large_volume_streams_through_a_small_staging_ring() {
         },
         ..ContextDesc::validated()
     };
+    common::hold_gpu();
     let ctx = Context::new(&desc).unwrap();
     (|| -> vkshade::Result<()> {
         // 128 x 128 x 400 R32F = 25 MiB.

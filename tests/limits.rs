@@ -190,6 +190,7 @@ fn lowered_limits_are_what_kernels_are_checked_against() {
         features: Features::default(),
         ..ContextDesc::validated()
     };
+    common::hold_gpu();
     let low = Context::new(&desc).unwrap();
     assert_eq!(low.limits().max_storage_buffer_range, 4096);
     let before = low.memory_report().used_bytes;
@@ -223,6 +224,7 @@ fn a_btf_wider_than_max_image_dimension_2d_is_refused_and_the_context_runs_on() 
         },
         ..ContextDesc::validated()
     };
+    common::hold_gpu();
     let ctx = Context::new(&desc).unwrap();
     let result = (|| -> vkshade::Result<()> {
         let before = ctx.memory_report().used_bytes;

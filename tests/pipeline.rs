@@ -490,6 +490,7 @@ fn unknown_device_selector_names_the_devices_present() {
         validation: None,
         ..Default::default()
     };
+    common::hold_gpu();
     let e = Context::new(&desc).unwrap_err();
     let s = e.to_string();
     assert!(s.contains("no-such-gpu-xyz") && s.contains("0:"), "{s}");

@@ -3,10 +3,40 @@
 //! A missing Vulkan device fails too, with the message saying what to install.
 #![allow(dead_code)]
 
+use std::cell::RefCell;
+use std::sync::{Mutex, MutexGuard, PoisonError};
 use vkshade::gpu::{Context, ContextDesc, ValidationMessage};
+
+/// Held by the test thread that made a context until the thread ends (see [`hold_gpu`]).
+static GPU: Mutex<()> = Mutex::new(());
+
+thread_local! {
+    static HELD: RefCell<Option<MutexGuard<'static, ()>>> = const { RefCell::new(None) };
+}
+
+/// Makes the calling test the only one in this process using Vulkan until its thread ends;
+/// CPU-only tests still run beside it. Call it before making a context (the helpers here
+/// do). Reentrant: a test may make several contexts.
+///
+/// Why: the Khronos validation layer 1.3.239 (Debian 12's) finds each device's state in a
+/// global map that it writes without a lock when an instance or device is made or destroyed
+/// (KhronosGroup/Vulkan-ValidationLayers#4391). One test's context shutting down while
+/// another test's context makes a call can crash the process: seen once in 600 runs of
+/// tests/pipeline.rs, `vkGetSemaphoreCounterValue` in one test against `vkDestroyInstance`
+/// in another, and once in CI. Two contexts on one thread are not affected.
+pub fn hold_gpu() {
+    HELD.with(|held| {
+        let mut held = held.borrow_mut();
+        if held.is_none() {
+            // A test that panicked while holding the lock poisons nothing we rely on.
+            *held = Some(GPU.lock().unwrap_or_else(PoisonError::into_inner));
+        }
+    });
+}
 
 /// A validated context, or a panic explaining how to get one.
 pub fn context() -> Context {
+    hold_gpu();
     match Context::new(&ContextDesc::validated()) {
         Ok(ctx) => ctx,
         Err(e) => panic!(
@@ -32,6 +62,7 @@ pub fn with_gpu_features<T>(
     features: vkshade::gpu::Features,
     f: impl FnOnce(&Context) -> vkshade::Result<T>,
 ) -> T {
+    hold_gpu();
     let ctx = match Context::new(&ContextDesc {
         features,
         ..ContextDesc::validated()
@@ -155,6 +186,7 @@ pub fn with_gpu_assisted_features<T>(
         }),
         ..ContextDesc::validated()
     };
+    hold_gpu();
     let ctx = match Context::new(&desc) {
         Ok(ctx) => ctx,
         Err(e) => panic!("cannot create a context with GPU-assisted validation: {e}"),

@@ -142,6 +142,14 @@ pub struct ContextDesc {
     /// Which physical device to use.
     pub device: DeviceSelector,
     /// `None`: no validation layer. `Some`: the layer is required and an error if missing.
+    ///
+    /// Several validated contexts in one process: the layer up to at least 1.3.239 (Debian
+    /// 12's) keeps each device's state in a global map it changes without a lock when an
+    /// instance or device is made or destroyed (KhronosGroup/Vulkan-ValidationLayers#4391),
+    /// so making or shutting down a validated context while another thread calls Vulkan
+    /// through another one can crash inside the layer. Make and shut down validated contexts
+    /// only while no other thread is using one (vkshade's tests run their GPU tests one at a
+    /// time for this: `hold_gpu` in tests/common/mod.rs).
     pub validation: Option<ValidationConfig>,
     /// Optional features to enable (an error if the device lacks one).
     pub features: Features,
