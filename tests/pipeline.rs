@@ -818,3 +818,70 @@ fn gpu_assisted_validation_starts_and_shuts_down_clean() {
         Ok(())
     });
 }
+
+/// The lines of the test file `name` (source `src`) that make a context without
+/// `common::hold_gpu()` first (see there for the layer's race): a `Context::new(` whose line
+/// before is not `common::hold_gpu();`, and, in a file of more than one test, an app run or
+/// `Gpu` (which makes its own contexts) with no `hold_gpu` in the three lines after it.
+fn contexts_made_without_the_gpu_lock(name: &str, src: &str) -> Vec<String> {
+    let lines: Vec<&str> = src.lines().collect();
+    let tests = lines.iter().filter(|l| l.trim() == "#[test]").count();
+    let mut found = Vec::new();
+    for (i, line) in lines.iter().enumerate() {
+        // Code before any comment or string (so this checker does not find itself).
+        let code = line.split(['/', '"']).next().unwrap_or("");
+        let before = if i > 0 { lines[i - 1].trim() } else { "" };
+        if code.contains("Context::new(") && before != "common::hold_gpu();" {
+            found.push(format!("{name}:{}: {}", i + 1, line.trim()));
+        }
+        let makes_its_own = (code.contains("use vkshade::app::") && code.contains(" run}"))
+            || code.contains("Gpu {");
+        let locks_after = lines[i + 1..(i + 4).min(lines.len())]
+            .iter()
+            .any(|l| l.contains("hold_gpu()"));
+        if tests > 1 && makes_its_own && !locks_after {
+            found.push(format!("{name}:{}: {}", i + 1, line.trim()));
+        }
+    }
+    found
+}
+
+/// Every context a test makes is made under the GPU lock, so no two tests' contexts overlap
+/// the layer's unlocked create and destroy (tests/common, `hold_gpu`). The check itself
+/// catches a planted unlocked context and an unlocked app run.
+#[test]
+fn every_test_context_is_made_under_the_gpu_lock() {
+    let planted = "#[test]\nfn a() {\n    let ctx = Context::new(&desc).unwrap();\n}\n\
+                   #[test]\nfn b() {\n    use vkshade::app::ao::{AoRunConfig, run};\n    run(&cfg);\n}\n";
+    assert_eq!(
+        contexts_made_without_the_gpu_lock("planted.rs", planted).len(),
+        2
+    );
+    let fixed = planted
+        .replace("    let ctx", "    common::hold_gpu();\n    let ctx")
+        .replace("    run(&cfg)", "    common::hold_gpu();\n    run(&cfg)");
+    assert!(contexts_made_without_the_gpu_lock("fixed.rs", &fixed).is_empty());
+
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("tests");
+    let mut found = Vec::new();
+    let mut files = 0;
+    for entry in std::fs::read_dir(&dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_some_and(|e| e == "rs") {
+            let name = path.file_name().unwrap().to_string_lossy().into_owned();
+            let src = std::fs::read_to_string(&path).unwrap();
+            found.extend(contexts_made_without_the_gpu_lock(&name, &src));
+            files += 1;
+        }
+    }
+    assert!(
+        files > 20,
+        "only {files} test files found in {}",
+        dir.display()
+    );
+    assert!(
+        found.is_empty(),
+        "contexts made without common::hold_gpu():\n{}",
+        found.join("\n")
+    );
+}
