@@ -416,6 +416,34 @@ mod tests {
         assert!(bad.check().unwrap_err().to_string().contains("15 weight"));
     }
 
+    /// `texel_of` names the texel a direction falls in and its distance to the nearest
+    /// border, whichever side that is (the environment's and the basis's truths skip
+    /// directions closer than a bound to a border). Catches cargo-mutants' survivor
+    /// `1.0 - f` -> `1.0 + f` (issue 23), which measured only to the lower border.
+    #[test]
+    fn texel_of_gives_the_texel_and_the_distance_to_its_nearest_border() {
+        let maps = Maps {
+            res: 8,
+            index: vec![[0, 0, 0, 0]; 64],
+            weight: vec![[1.0, 0.0, 0.0, 0.0]; 64],
+        };
+        // Continuous texel coordinate x = (p + 1) / 2 * 8, so p = x / 4 - 1.
+        for (x, y, want_ij, want_margin) in [
+            (2.9, 5.5, [2, 5], 0.1),
+            (2.1, 5.5, [2, 5], 0.1),
+            (6.5, 0.75, [6, 0], 0.25),
+            (3.5, 4.5, [3, 4], 0.5),
+        ] {
+            let d = unproject([x / 4.0 - 1.0, y / 4.0 - 1.0]);
+            let (ij, margin) = maps.texel_of(d);
+            assert_eq!(ij, want_ij, "texel of ({x}, {y})");
+            assert!(
+                (margin - want_margin).abs() < 1e-9,
+                "margin at ({x}, {y}): {margin}, want {want_margin}"
+            );
+        }
+    }
+
     #[test]
     fn directions_are_the_ubo2003_set() {
         let d = directions();
