@@ -851,10 +851,21 @@ fn contexts_made_without_the_gpu_lock(name: &str, src: &str) -> Vec<String> {
 /// catches a planted unlocked context and an unlocked app run.
 #[test]
 fn every_test_context_is_made_under_the_gpu_lock() {
-    let planted = "#[test]\nfn a() {\n    let ctx = Context::new(&desc).unwrap();\n}\n\
-                   #[test]\nfn b() {\n    use vkshade::app::ao::{AoRunConfig, run};\n    run(&cfg);\n}\n";
+    // One line per string, so this file's own scan sees a quote before each pattern.
+    let planted = [
+        "#[test]",
+        "fn a() {",
+        "    let ctx = Context::new(&desc).unwrap();",
+        "}",
+        "#[test]",
+        "fn b() {",
+        "    use vkshade::app::ao::{AoRunConfig, run};",
+        "    run(&cfg);",
+        "}",
+    ]
+    .join("\n");
     assert_eq!(
-        contexts_made_without_the_gpu_lock("planted.rs", planted).len(),
+        contexts_made_without_the_gpu_lock("planted.rs", &planted).len(),
         2
     );
     let fixed = planted
