@@ -991,7 +991,7 @@ fn max_diff(a: &[[f32; 4]], b: &[[f32; 4]], n: usize, keep: impl Fn(usize) -> bo
 /// comparison, and the diffusion then takes region 0's profile everywhere (fails the twin).
 #[test]
 fn posed_head_geometry_on_the_gpu_equals_the_cpu_rasterisation() {
-    use vkshade::kernels::sss::posed::{BvhTopology, refit, sah_cost};
+    use vkshade::geom::bvh::{BvhTopology, refit, sah_cost};
     use vkshade::kernels::sss::walk::SurfaceWalk;
     use vkshade::kernels::sss::{PosedSource, contact::Contact};
     let size = 256;

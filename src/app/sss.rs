@@ -446,7 +446,7 @@ pub struct ContactReuse {
     pub build_ms_per_pose: f64,
 }
 
-/// The refitted BVH's quality at the last frame: the SAH-like cost (posed::sah_cost) of the
+/// The refitted BVH's quality at the last frame: the SAH-like cost (geom::bvh::sah_cost) of the
 /// rest pose's topology refitted, and of a tree built for the pose.
 #[derive(Clone, Debug, Serialize)]
 pub struct BvhQuality {
@@ -876,15 +876,15 @@ impl<'a> Session<'a> {
     /// The refitted BVH's SAH cost at the last frame's pose against a tree built for it.
     fn bvh_quality(&self) -> Option<BvhQuality> {
         let (rest, _) = self.rest.as_ref()?;
-        let top = posed::BvhTopology::build(&rest.positions, &rest.triangles).ok()?;
-        let (nodes, _) = posed::refit(&top, &self.geo.positions);
+        let top = crate::geom::bvh::BvhTopology::build(&rest.positions, &rest.triangles).ok()?;
+        let (nodes, _) = crate::geom::bvh::refit(&top, &self.geo.positions);
         let fresh = Bvh::build(&self.geo.positions, &self.geo.triangles)
             .flat()
             .0;
         Some(BvhQuality {
             levels: top.levels(),
-            sah_refitted: posed::sah_cost(&nodes),
-            sah_built_for_pose: posed::sah_cost(&fresh),
+            sah_refitted: crate::geom::bvh::sah_cost(&nodes),
+            sah_built_for_pose: crate::geom::bvh::sah_cost(&fresh),
         })
     }
 

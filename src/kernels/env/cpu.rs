@@ -270,12 +270,12 @@ pub struct TraceConfig {
 /// from the shader's integer hash and f32 operations; sin and cos may round differently on a
 /// device, so a ray grazing an edge may decide differently there.
 pub fn traced_visibility(
-    top: &crate::kernels::sss::posed::BvhTopology,
+    top: &crate::geom::bvh::BvhTopology,
     positions: &[Vec3],
     normals: &[Vec3],
     cfg: &TraceConfig,
 ) -> Vec<f32> {
-    use crate::kernels::sss::posed::{flat_any_hit, refit};
+    use crate::geom::bvh::{flat_any_hit, refit};
     let (nodes, tris) = refit(top, positions);
     let g = cfg.grid;
     let rays = g * g;

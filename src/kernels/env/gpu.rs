@@ -9,6 +9,7 @@ use super::cpu::{Shadowed, TraceConfig};
 use super::pack::{CapTable, pack_lobes};
 use super::{MIN_TRANSMISSION, check_rotation};
 use crate::error::{Error, Result};
+use crate::geom::bvh::BvhTopology;
 use crate::geom::sg::Lobe;
 use crate::gpu::{
     AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context, Image,
@@ -17,7 +18,6 @@ use crate::gpu::{
 use crate::kernels::ao::{AoKernel, AoParams, Refine, cpu::TreeShape};
 use crate::kernels::pose::PoseKernel;
 use crate::kernels::sss::pack::{BVH_ROW, rows};
-use crate::kernels::sss::posed::BvhTopology;
 use crate::kernels::{Dispatch, Grid, Kernel, Pass};
 use ash::vk;
 use glam::{Mat3, Vec3};
