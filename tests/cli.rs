@@ -888,14 +888,20 @@ fn frame_reference_compares_the_stages_with_their_truths_under_validation() {
     for p in poses {
         let compose = p["compose_rel_rms"].as_f64().unwrap();
         assert!(compose < 2e-4, "compose against its twin: {compose}");
-        let (env, open) = (
+        let (env, open, floor) = (
             p["env"]["rel_l2"].as_f64().unwrap(),
             p["env"]["unshadowed_rel_l2"].as_f64().unwrap(),
+            p["env"]["floor_rel_l2"].as_f64().unwrap(),
         );
         assert!(
             env.is_finite() && env < open,
             "env {env} vs unshadowed {open}"
         );
+        // Issue 18's 10% at every pose, and below the AO-weighted floor. Measured with this
+        // 256-ray truth: 8.01 / 8.77 / 8.71% (floor 12.9 / 16.9 / 19.3%). The caps' split
+        // scaled by the rays' escaped fraction instead of corrected per lobe read 13.4% at the
+        // second pose (1024 rays), so this fails if the per-lobe correction is lost.
+        assert!(env <= 0.10 && env < floor, "env {env} (floor {floor})");
         let ply = std::fs::read(p["ply"].as_str().unwrap()).unwrap();
         let header = String::from_utf8_lossy(&ply[..ply.len().min(2000)]).into_owned();
         assert!(header.starts_with("ply\n") && header.contains("property float truth_r"));

@@ -2,11 +2,13 @@
 // The posed character's own visibility per vertex by ray casting (pass `env trace`): the
 // fraction of GRID x GRID stratified cosine-weighted rays from the vertex (origin moved
 // `offset` along the normal) that escape the posed mesh, through the BVH refitted this frame
-// (passes `env bvh leaves`, `env bvh refit`). `env shadow` takes it in place of AO's
-// visibility (src/kernels/env/mod.rs). Twin: kernels::env::cpu::traced_visibility, the same
-// integer hash and f32 operations (sin and cos may differ in the last bits, so a ray grazing
-// an edge may decide differently).
+// (passes `env bvh leaves`, `env bvh refit`), and which rays escaped (bit k of word k / 32 of
+// the vertex's ceil(GRID^2 / 32) words). `env shadow_rays` corrects the caps' split per lobe
+// with them (src/kernels/env/mod.rs). Twin: kernels::env::cpu::traced_rays, the same integer
+// hash and f32 operations (sin and cos may differ in the last bits, so a ray grazing an edge
+// may decide differently).
 #include <common/util.glsl>
+#include <env/rays.glsl>
 layout(local_size_x = 64) in;
 
 const uint BVH_ROW = 1024u;
@@ -23,6 +25,7 @@ layout(std430, set = 0, binding = 1) readonly buffer Normals { vec4 n[]; } nrm;
 layout(set = 0, binding = 2, rgba32ui) readonly uniform uimage2D nodes;
 layout(set = 0, binding = 3, rgba32ui) readonly uniform uimage2D tris;
 layout(std430, set = 0, binding = 4) writeonly buffer Traced { float v[]; } traced;
+layout(std430, set = 0, binding = 5) writeonly buffer Escaped { uint w[]; } escaped;
 
 #include <common/bvh.glsl>
 
@@ -31,27 +34,25 @@ void main() {
     if (vi >= pc.vertex_count) return;
     vec3 p = pos.p[vi].xyz;
     vec3 n = nrm.n[vi].xyz;
-    // geom::orthonormal_basis (Duff et al. 2017); copysign(1, n.z) keeps -0.0's sign.
-    float sgn = (floatBitsToUint(n.z) >> 31u) != 0u ? -1.0 : 1.0;
-    float a = -1.0 / (sgn + n.z);
-    float b = n.x * n.y * a;
-    vec3 t = vec3(1.0 + sgn * n.x * n.x * a, sgn * b, -sgn * n.x);
-    vec3 bt = vec3(b, sgn + n.y * n.y * a, -n.y);
+    vec3 t, bt;
+    ray_basis(n, t, bt);
     vec3 o = p + n * pc.offset;
     uint g = pc.grid;
     uint rays = g * g;
+    uint words = (rays + 31u) / 32u;
     float inf = uintBitsToFloat(0x7f800000u);
-    uint escaped = 0u;
+    uint count = 0u;
+    uint word = 0u;
     for (uint k = 0u; k < rays; k++) {
-        uint key = pc.seed ^ (vi * rays + k) * 2u;
-        float u1 = (float(k / g) + unit_float(hash_u32(key))) / float(g);
-        float u2 = (float(k % g) + unit_float(hash_u32(key + 1u))) / float(g);
-        u1 = min(u1, 0.999999);
-        float r = sqrt(u1);
-        float phi = 6.2831855 * u2;
-        vec3 l = vec3(r * cos(phi), r * sin(phi), sqrt(max(1.0 - u1, 0.0)));
-        vec3 d = t * l.x + bt * l.y + n * l.z;
-        if (!any_hit(o, d, inf)) escaped++;
+        vec3 d = ray_direction(vi, k, g, pc.seed, t, bt, n);
+        if (!any_hit(o, d, inf)) {
+            count++;
+            word |= 1u << (k & 31u);
+        }
+        if ((k & 31u) == 31u || k + 1u == rays) {
+            escaped.w[vi * words + k / 32u] = word;
+            word = 0u;
+        }
     }
-    traced.v[vi] = float(escaped) / float(rays);
+    traced.v[vi] = float(count) / float(rays);
 }

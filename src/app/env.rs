@@ -52,8 +52,9 @@ pub struct EnvRunConfig {
     pub out: PathBuf,
     /// How negative samples of the map (codec ringing) are treated.
     pub hdr: crate::scene::envmap::HdrPolicy,
-    /// The visibility that scales the caps' split of the light: rays traced through the
-    /// posed mesh every frame, `trace_grid`^2 per vertex (`Some`), or AO's (`None`).
+    /// What turns the caps' split of the light into each lobe's visibility: rays traced
+    /// through the posed mesh every frame, `trace_grid`^2 per vertex, correcting each lobe
+    /// (`Some`), or AO's visibility as a scale (`None`).
     pub trace_grid: Option<u32>,
 }
 
@@ -277,6 +278,10 @@ pub struct EnvFrameReport {
     /// AO(x) (CPU twin): what is left is the per-lobe split by the caps alone, so
     /// `rel_l2` minus this is roughly what AO's error costs.
     pub traced_ao_rel_l2: Option<f64>,
+    /// With traced visibility: relative L2 vs the truth of the caps' split scaled by the
+    /// same rays' escaped fraction (module `env/shadow`'s formula with the rays in place of
+    /// AO; CPU twin), i.e. the rays used as one number per vertex instead of per lobe.
+    pub traced_scale_rel_l2: Option<f64>,
     /// The PLY written (with `--reference`).
     pub ply: Option<String>,
 }
@@ -395,6 +400,7 @@ pub fn run_scene(
             ao_mae: None,
             traced_mae: None,
             traced_ao_rel_l2: None,
+            traced_scale_rel_l2: None,
             ply: None,
         };
         if cfg.reference {
@@ -445,6 +451,7 @@ pub fn run_scene(
                         shape: kernels.ao.tree_shape(),
                         params: kernels.env.ao_params(),
                         ao,
+                        rays: None,
                     },
                 );
                 out.irradiance.iter().map(|e| [e[0], e[1], e[2]]).collect()
@@ -478,7 +485,10 @@ pub fn run_scene(
                     / traced_ao.len().max(1) as f64
             };
             if kernels.env.traced().is_some() {
-                report.traced_mae = Some(mae_to_traced(&scale_rb.to_vec::<f32>()?));
+                let scale = scale_rb.to_vec::<f32>()?;
+                report.traced_mae = Some(mae_to_traced(&scale));
+                report.traced_scale_rel_l2 =
+                    Some(env_cpu::relative_l2(&caps_scaled_by(Some(&scale)), &truth));
             }
             report.ao_mae = Some(mae_to_traced(&ao.visibility));
             report.traced_ao_rel_l2 = Some(env_cpu::relative_l2(
@@ -605,8 +615,8 @@ pub struct Args {
     /// Output folder.
     #[arg(long, default_value = "out/env")]
     pub out: PathBuf,
-    /// Rays per vertex and axis that scale the per-lobe split each frame (grid^2 rays through
-    /// the posed mesh, 1..=16); 0: AO's visibility instead.
+    /// Rays per vertex and axis that correct the caps' per-lobe split each frame (grid^2
+    /// rays through the posed mesh, 1..=16); 0: AO's visibility as a scale instead.
     #[arg(long, default_value_t = DEFAULT_TRACE_GRID)]
     pub trace_grid: u32,
     #[command(flatten)]
@@ -645,21 +655,21 @@ impl Args {
 /// Prints the per-frame table.
 pub fn display(r: &EnvReport) {
     println!(
-        "{} vertices x {} lobes (fit rel L2 {:.3}, {:.0} ms); the split scaled by {}",
+        "{} vertices x {} lobes (fit rel L2 {:.3}, {:.0} ms); the caps' split {}",
         r.vertices,
         r.lobes,
         r.fit_rel_l2,
         r.fit_ms,
         match r.config.trace_grid {
             Some(g) => format!(
-                "{} rays per vertex traced through the posed mesh each frame",
+                "corrected per lobe by {} rays per vertex traced through the posed mesh each frame",
                 g * g
             ),
-            None => "AO's visibility".into(),
+            None => "scaled by AO's visibility".into(),
         }
     );
     println!(
-        "{:>5} {:>7} {:>10} {:>10} {:>9} {:>9} {:>11} {:>9} {:>11} {:>10} {:>9} {:>16} {:>7} {:>10} {:>9} {:>8}",
+        "{:>5} {:>7} {:>10} {:>10} {:>9} {:>9} {:>11} {:>11} {:>9} {:>11} {:>10} {:>9} {:>16} {:>7} {:>10} {:>9} {:>8}",
         "frame",
         "rot deg",
         "rotate ms",
@@ -667,6 +677,7 @@ pub fn display(r: &EnvReport) {
         "frame ms",
         "host ms",
         "env shadow",
+        "rays scale",
         "AO floor",
         "caps only",
         "unshadowed",
@@ -683,7 +694,7 @@ pub fn display(r: &EnvReport) {
     };
     for f in &r.frames {
         println!(
-            "{:>5} {:>7.0} {:>10.3} {:>10.3} {:>9.2} {:>9.2} {:>11} {:>9} {:>11} {:>10} {:>9} {:>16} {:>7} {:>10} {:>9.3} {:>8}",
+            "{:>5} {:>7.0} {:>10.3} {:>10.3} {:>9.2} {:>9.2} {:>11} {:>11} {:>9} {:>11} {:>10} {:>9} {:>16} {:>7} {:>10} {:>9.3} {:>8}",
             f.frame,
             f.rotation_deg,
             f.rotate_ms,
@@ -691,6 +702,7 @@ pub fn display(r: &EnvReport) {
             f.frame_ms,
             f.host_ms,
             pct(f.rel_l2),
+            pct(f.traced_scale_rel_l2),
             pct(f.floor_rel_l2),
             pct(f.caps_only_rel_l2),
             pct(f.unshadowed_rel_l2),
@@ -707,8 +719,9 @@ pub fn display(r: &EnvReport) {
     if r.frames.iter().any(|f| f.ply.is_some()) {
         println!(
             "relative L2 over vertices vs the ray-traced truth ({} rays/vertex); AO MAE: AO vs \
-             the posed mesh's ray-traced visibility; traced AO: the caps' split scaled by that \
-             visibility (the split's own error); rays MAE: the kernel's traced visibility vs the \
+             the posed mesh's ray-traced visibility; rays scale: the caps' split scaled by the \
+             kernel's rays' escaped fraction instead of corrected per lobe; traced AO: the \
+             caps' split scaled by the truth's visibility (the split's own error); rays MAE: the kernel's traced visibility vs the \
              same; PLYs in {}",
             r.config.rays,
             r.config.out.display()

@@ -39,8 +39,8 @@ pub struct Args {
     /// Lobes of the environment's fit.
     #[arg(long, default_value_t = 16)]
     pub env_lobes: usize,
-    /// Rays per vertex and axis that scale the environment's per-lobe split each frame
-    /// (grid^2 rays through the posed mesh, 1..=16); 0: AO's visibility instead.
+    /// Rays per vertex and axis that correct the environment's per-lobe split each frame
+    /// (grid^2 rays through the posed mesh, 1..=16); 0: AO's visibility as a scale instead.
     #[arg(long, default_value_t = crate::kernels::env::DEFAULT_TRACE_GRID)]
     pub env_trace_grid: u32,
     /// The animation to play.

@@ -255,6 +255,21 @@ pub const CASES: &[Case] = &[
         "env",
         &["env", "--frames", "2", "--lobes", "8", "--out", "{out}"],
     ),
+    // AO's visibility as the scale (module env/shadow; the default traces rays).
+    cli(
+        "env-ao-scale",
+        &[
+            "env",
+            "--frames",
+            "1",
+            "--lobes",
+            "8",
+            "--trace-grid",
+            "0",
+            "--out",
+            "{out}",
+        ],
+    ),
     cli(
         "ao-fixed-cut",
         &["ao", "--frames", "1", "--cut", "fixed", "--out", "{out}"],

@@ -162,14 +162,31 @@ pub fn run(ctx: &Context, cfg: &BenchConfig, input: &EnvBenchInput) -> Result<En
         shape: input.ao.tree_shape(),
         params: &params,
         ao: Some(&ao_data.visibility),
+        rays: None,
     };
     let (caps, cut) = cpu::caps_per_vertex(&inputs);
+    // With traced visibility the kernel runs module `env/shadow_rays`, and its twin reads the
+    // rays' escape bits (cast once by the twin of `env trace`).
+    let mut bits: Option<(Vec<u32>, u32, u32)> = None;
     let mut rows = Vec::new();
     for &k in input.counts {
         let lobes: Vec<Lobe> = (0..k).map(|i| input.lobes[i % input.lobes.len()]).collect();
         let mut setup = ctx.recorder("env bench setup")?;
-        let env = EnvKernel::new(&mut setup, &lobes, input.pose, input.ao)?;
+        let env =
+            EnvKernel::with_visibility(&mut setup, &lobes, input.pose, input.ao, input.trace)?;
         setup.submit_and_wait()?;
+        if let (None, Some((top, tcfg))) = (&bits, env.traced()) {
+            let (_, b) = cpu::traced_rays(top, &positions, &normals, tcfg);
+            bits = Some((b, tcfg.grid, tcfg.seed));
+        }
+        let inputs = cpu::ShadowInputs {
+            rays: bits.as_ref().map(|(bits, grid, seed)| cpu::RayBits {
+                bits,
+                grid: *grid,
+                seed: *seed,
+            }),
+            ..inputs
+        };
         let mut host = Vec::new();
         let names = [PASS_ROTATE, PASS_SHADOW, "pose skin+ao skin+ao occlusion"];
         let stats = time_gpu_passes(ctx, cfg, &names, |rec| {

@@ -93,8 +93,9 @@ pub struct FrameConfig {
     pub env_fit_width: u32,
     /// How negative samples of the map (codec ringing) are treated.
     pub env_hdr: crate::scene::envmap::HdrPolicy,
-    /// The visibility that scales the environment's per-lobe split: rays traced through the
-    /// posed mesh every frame, grid^2 per vertex (`Some(grid)`, 1..=16), or AO's (`None`)
+    /// What turns the environment's per-lobe split into visibility: rays traced through the
+    /// posed mesh every frame, grid^2 per vertex, correcting each lobe (`Some(grid)`,
+    /// 1..=16), or AO's visibility as a scale (`None`)
     /// (see [`crate::kernels::env::EnvVisibility`]).
     pub env_trace_grid: Option<u32>,
     /// Rays per vertex of AO's static correction, baked once in the bind pose

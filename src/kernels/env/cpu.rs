@@ -3,7 +3,9 @@
 //! triangle mesh).
 
 use super::pack::{CapTable, above_horizon, cap_occlusion};
-use super::{COSINE_AMPLITUDE, COSINE_SHARPNESS, HILL_MIN_SHARPNESS, MIN_TRANSMISSION};
+use super::{
+    COSINE_AMPLITUDE, COSINE_SHARPNESS, CV_SHARPNESS, HILL_MIN_SHARPNESS, MIN_TRANSMISSION,
+};
 use crate::geom::sg::Lobe;
 use crate::geom::{Bvh, Rng, orthonormal_basis};
 use crate::kernels::ao::cpu::{INSIDE_FADE, TreeShape, walk_cut};
@@ -93,9 +95,32 @@ pub struct ShadowInputs<'a> {
     pub shape: TreeShape,
     /// AO's parameters (its cut: tau, band, refine, clamp_inside).
     pub params: &'a AoParams,
-    /// AO's per-vertex visibility (blended, corrected): the kernel's method. `None`: the caps'
-    /// product alone, prod_s (1 - O_js)^w_s (a comparison; not what the GPU computes).
+    /// AO's per-vertex visibility (blended, corrected): module `env/shadow`'s method.
+    /// `None` (and no `rays`): the caps' product alone, prod_s (1 - O_js)^w_s (a comparison;
+    /// not what the GPU computes).
     pub ao: Option<&'a [f32]>,
+    /// Pass `env trace`'s rays: module `env/shadow_rays`'s method, the caps' product
+    /// corrected per lobe by the rays' residuals (`ao` is then not read).
+    pub rays: Option<RayBits<'a>>,
+}
+
+/// Which of each vertex's traced rays escaped the mesh ([`traced_rays`], pass `env trace`),
+/// and how they were drawn.
+#[derive(Clone, Copy, Debug)]
+pub struct RayBits<'a> {
+    /// ceil(grid^2 / 32) words per vertex; bit k % 32 of word k / 32: ray k escaped.
+    pub bits: &'a [u32],
+    /// Strata per axis (grid^2 rays per vertex).
+    pub grid: u32,
+    /// The rays' seed ([`TraceConfig::seed`]).
+    pub seed: u32,
+}
+
+impl RayBits<'_> {
+    /// Words per vertex.
+    pub fn words(&self) -> usize {
+        ((self.grid * self.grid) as usize).div_ceil(32)
+    }
 }
 
 /// One frame's outputs.
@@ -147,6 +172,18 @@ pub fn shadow_vertex(
     let mut s = vec![0.0f32; lobes.len()];
     let mut u = 0.0f32;
     let params = inp.params;
+    // With rays: their directions and the log of the caps' transmission along each.
+    let dirs: Vec<Vec3> = match &inp.rays {
+        Some(r) => {
+            let (t, b) = orthonormal_basis(n);
+            (0..r.grid * r.grid)
+                .map(|k| ray_direction(v as u32, k, r.grid, r.seed, t, b, n))
+                .collect()
+        }
+        None => Vec::new(),
+    };
+    let mut logc = vec![0.0f32; dirs.len()];
+    let log_floor = MIN_TRANSMISSION.ln();
     walk_cut(
         p,
         inp.spheres,
@@ -173,6 +210,12 @@ pub fn shadow_vertex(
                 // 1 - cos a without cancellation for small caps.
                 let omc = sin_a * sin_a / (1.0 + (1.0 - sin_a * sin_a).max(0.0).sqrt());
                 let up = above_horizon(cos_t, alpha);
+                let cos_a = (1.0 - sin_a * sin_a).max(0.0).sqrt();
+                for (d, c) in dirs.iter().zip(logc.iter_mut()) {
+                    if d.dot(wc) >= cos_a {
+                        *c += w * log_floor;
+                    }
+                }
                 for (j, &(axis, lambda)) in prod.iter().enumerate() {
                     let o = up * cap_occlusion(table, lambda, axis.dot(wc), alpha, omc);
                     s[j] += w * (1.0 - o).max(MIN_TRANSMISSION).ln();
@@ -180,16 +223,36 @@ pub fn shadow_vertex(
             }
         },
     );
-    let (ao, u) = match inp.ao {
-        Some(a) => (a[v], u),
-        None => (1.0, 0.0),
+    let (ao, u) = match (inp.ao, &inp.rays) {
+        (Some(a), None) => (a[v], u),
+        _ => (1.0, 0.0),
     };
+    // With rays: each ray's residual e_k - c_k (escaped or not, less the caps' transmission).
+    if let Some(r) = &inp.rays {
+        let words = r.words();
+        for (k, c) in logc.iter_mut().enumerate() {
+            let esc = ((r.bits[v * words + k / 32] >> (k % 32)) & 1) as f32;
+            *c = esc - c.exp();
+        }
+    }
     let mut e = [0.0f32; 4];
     let vis: Vec<f32> = lobes
         .iter()
         .zip(&s)
         .map(|(l, &sj)| {
-            let vj = (ao * (sj - u).exp()).clamp(0.0, 1.0);
+            let vj = if inp.rays.is_some() {
+                let lk = l.sharpness.min(CV_SHARPNESS);
+                let axis = l.axis();
+                let (mut sk, mut sr) = (0.0f32, 0.0f32);
+                for (d, res) in dirs.iter().zip(&logc) {
+                    let kw = (lk * (axis.dot(*d) - 1.0)).exp();
+                    sk += kw;
+                    sr += kw * res;
+                }
+                (sj.exp() + sr / sk.max(1e-30)).clamp(0.0, 1.0)
+            } else {
+                (ao * (sj - u).exp()).clamp(0.0, 1.0)
+            };
             let ej = vj * irradiance(l.axis(), l.sharpness, n);
             for (e, a) in e.iter_mut().zip(l.amplitude) {
                 *e += ej * a;
@@ -264,48 +327,72 @@ pub struct TraceConfig {
     pub seed: u32,
 }
 
+/// Ray `k` of vertex `v` (unit normal `n`, basis `t`, `b` from [`orthonormal_basis`]) of
+/// the `grid` x `grid` stratified cosine-weighted rays of pass `env trace`
+/// (`glsl/env/rays.glsl`'s `ray_direction`: the same integer hash and f32 operations).
+pub fn ray_direction(v: u32, k: u32, grid: u32, seed: u32, t: Vec3, b: Vec3, n: Vec3) -> Vec3 {
+    let g = grid;
+    let rays = g * g;
+    let key = seed ^ v.wrapping_mul(rays).wrapping_add(k).wrapping_mul(2);
+    let u1 = ((k / g) as f32 + unit_float(hash_u32(key))) / g as f32;
+    let u2 = ((k % g) as f32 + unit_float(hash_u32(key.wrapping_add(1)))) / g as f32;
+    let u1 = u1.min(0.999_999);
+    let r = u1.sqrt();
+    let phi = 6.283_185_5 * u2;
+    let l = Vec3::new(r * phi.cos(), r * phi.sin(), (1.0 - u1).max(0.0).sqrt());
+    t * l.x + b * l.y + n * l.z
+}
+
 /// The twin of pass `env trace`: per vertex, the fraction of `cfg.grid`^2 stratified
-/// cosine-weighted rays that escape the posed mesh, cast through the BVH of `top` refitted to
-/// `positions` (as passes `env bvh leaves` and `env bvh refit` build it). The directions come
-/// from the shader's integer hash and f32 operations; sin and cos may round differently on a
-/// device, so a ray grazing an edge may decide differently there.
-pub fn traced_visibility(
+/// cosine-weighted rays ([`ray_direction`]) that escape the posed mesh, and which of them
+/// escaped (the layout of [`RayBits::bits`]), cast through the BVH of `top` refitted to
+/// `positions` (as passes `env bvh leaves` and `env bvh refit` build it). sin and cos may
+/// round differently on a device, so a ray grazing an edge may decide differently there.
+pub fn traced_rays(
     top: &crate::geom::bvh::BvhTopology,
     positions: &[Vec3],
     normals: &[Vec3],
     cfg: &TraceConfig,
-) -> Vec<f32> {
+) -> (Vec<f32>, Vec<u32>) {
     use crate::geom::bvh::{flat_any_hit, refit};
     let (nodes, tris) = refit(top, positions);
-    let g = cfg.grid;
-    let rays = g * g;
-    (0..positions.len())
+    let rays = cfg.grid * cfg.grid;
+    let words = (rays as usize).div_ceil(32);
+    let per_vertex: Vec<(f32, Vec<u32>)> = (0..positions.len())
         .into_par_iter()
         .map(|v| {
             let (p, n) = (positions[v], normals[v]);
             let (t, b) = orthonormal_basis(n);
             let o = p + n * cfg.offset;
             let mut escaped = 0u32;
+            let mut bits = vec![0u32; words];
             for k in 0..rays {
-                let key = cfg.seed
-                    ^ (v as u32)
-                        .wrapping_mul(rays)
-                        .wrapping_add(k)
-                        .wrapping_mul(2);
-                let u1 = ((k / g) as f32 + unit_float(hash_u32(key))) / g as f32;
-                let u2 = ((k % g) as f32 + unit_float(hash_u32(key.wrapping_add(1)))) / g as f32;
-                let u1 = u1.min(0.999_999);
-                let r = u1.sqrt();
-                let phi = 6.283_185_5 * u2;
-                let l = Vec3::new(r * phi.cos(), r * phi.sin(), (1.0 - u1).max(0.0).sqrt());
-                let d = t * l.x + b * l.y + n * l.z;
+                let d = ray_direction(v as u32, k, cfg.grid, cfg.seed, t, b, n);
                 if !flat_any_hit(&nodes, &tris, o, d, f32::INFINITY) {
                     escaped += 1;
+                    bits[k as usize / 32] |= 1 << (k % 32);
                 }
             }
-            escaped as f32 / rays.max(1) as f32
+            (escaped as f32 / rays.max(1) as f32, bits)
         })
-        .collect()
+        .collect();
+    let mut visibility = Vec::with_capacity(per_vertex.len());
+    let mut bits = Vec::with_capacity(per_vertex.len() * words);
+    for (f, b) in per_vertex {
+        visibility.push(f);
+        bits.extend(b);
+    }
+    (visibility, bits)
+}
+
+/// The fraction of [`traced_rays`] that escape, per vertex.
+pub fn traced_visibility(
+    top: &crate::geom::bvh::BvhTopology,
+    positions: &[Vec3],
+    normals: &[Vec3],
+    cfg: &TraceConfig,
+) -> Vec<f32> {
+    traced_rays(top, positions, normals, cfg).0
 }
 
 /// Ray-traced truth settings.

@@ -7,7 +7,7 @@
 
 use super::cpu::{Shadowed, TraceConfig};
 use super::pack::{CapTable, pack_lobes};
-use super::{MIN_TRANSMISSION, check_rotation};
+use super::{CV_SHARPNESS, MIN_TRANSMISSION, check_rotation};
 use crate::error::{Error, Result};
 use crate::geom::bvh::BvhTopology;
 use crate::geom::sg::Lobe;
@@ -33,17 +33,20 @@ pub const PASS_BVH_REFIT: &str = "env bvh refit";
 /// With traced visibility: the rays per vertex through the refitted BVH.
 pub const PASS_TRACE: &str = "env trace";
 
-/// The per-vertex visibility that scales the caps' split of the light (V_j = A(x) prod_s
-/// ((1 - O_js) / (1 - I_s))^w_s; src/kernels/env/mod.rs).
+/// What turns the caps' split of the light into each lobe's visibility
+/// (src/kernels/env/mod.rs): AO's visibility as a scale, or rays traced through the posed
+/// mesh as a per-lobe correction.
 #[derive(Clone, Copy, Debug)]
 pub enum EnvVisibility<'a> {
-    /// A(x) = AO's (blended, corrected) visibility.
+    /// V_j = AO(x) prod_s ((1 - O_js) / (1 - I_s))^w_s, AO(x) AO's (blended, corrected)
+    /// visibility (module `env/shadow`).
     Ao,
-    /// A(x) = the fraction of `grid` x `grid` stratified cosine-weighted rays that escape the
-    /// posed mesh, cast each frame through a BVH built once over the rest pose (`rest`,
-    /// `triangles`: the mesh the pose kernel skins) and refitted to the pose (passes
-    /// [`PASS_BVH_LEAVES`], [`PASS_BVH_REFIT`], [`PASS_TRACE`]). Ray origins move 1e-4 of the
-    /// rest pose's bounding-box diagonal along the normal.
+    /// `grid` x `grid` stratified cosine-weighted rays per vertex, cast each frame through
+    /// a BVH built once over the rest pose (`rest`, `triangles`: the mesh the pose kernel
+    /// skins) and refitted to the pose (passes [`PASS_BVH_LEAVES`], [`PASS_BVH_REFIT`],
+    /// [`PASS_TRACE`]); ray origins move 1e-4 of the rest pose's bounding-box diagonal along
+    /// the normal. Each lobe's caps' visibility is corrected by the rays' residuals, weighed
+    /// by the lobe (module `env/shadow_rays`; [`super::CV_SHARPNESS`]).
     Traced {
         /// Rest-pose positions.
         rest: &'a [Vec3],
@@ -55,9 +58,11 @@ pub enum EnvVisibility<'a> {
 }
 
 /// Strata per axis of the traced visibility by default: 16 rays per vertex. On BCN_Epileptic's
-/// three poses (`vkshade env --reference`, 2048-ray truth) 4 / 9 / 16 / 36 / 64 rays gave the
-/// method 13.4 / 10.5 / 9.7 / 9.6 / 9.3% at the worst pose, against 15.1% with AO's visibility
-/// and 9.2% with 2048 rays: past 16 the caps' split, not the rays' noise, is the error.
+/// three poses (`vkshade env --reference --trace-grid N`, 1024-ray truth) 4 / 9 / 16 / 36 / 64
+/// rays correcting each lobe gave 12.5 / 9.2 / 7.9 / 6.5 / 6.0% at the worst pose; the same
+/// rays as one scale per vertex 13.2 / 10.6 / 9.6 / 9.5 / 9.3% (the caps' split limits a
+/// scale, the rays' noise the correction), AO's visibility 15.1%. 16 is the fewest within
+/// 10% with a margin.
 pub const DEFAULT_TRACE_GRID: u32 = 4;
 
 /// Most strata per axis of [`EnvVisibility::Traced`] (256 rays per vertex).
@@ -137,7 +142,7 @@ pub struct EnvKernel {
 /// The kernel's own buffers (the memory report counts these, and the traced visibility's).
 const OWN: [&str; 5] = ["base", "lobes", "table", "vis", "irr"];
 /// The traced visibility's own buffers.
-const OWN_TRACED: [&str; 3] = ["traced", "bvh_topo", "bvh_slots"];
+const OWN_TRACED: [&str; 4] = ["traced", "escaped", "bvh_topo", "bvh_slots"];
 
 impl EnvKernel {
     /// Creates the buffers and pipelines and records the uploads of the lobes (fitted once,
@@ -155,10 +160,10 @@ impl EnvKernel {
         Self::with_visibility(rec, lobes, pose, ao, EnvVisibility::Ao)
     }
 
-    /// As [`EnvKernel::new`], the caps' split scaled by `visibility` (AO's, or rays traced
-    /// through the posed mesh every frame). Refuses, besides, a traced mesh whose vertex count
-    /// is not the pose's, a triangle naming a vertex it lacks, and a grid outside
-    /// 1..=[`MAX_TRACE_GRID`].
+    /// As [`EnvKernel::new`], the caps' split turned into visibility by `visibility` (AO's
+    /// as a scale, or rays traced through the posed mesh every frame correcting each lobe).
+    /// Refuses, besides, a traced mesh whose vertex count is not the pose's, a triangle
+    /// naming a vertex it lacks, and a grid outside 1..=[`MAX_TRACE_GRID`].
     pub fn with_visibility(
         rec: &mut Recorder,
         lobes: &[Lobe],
@@ -275,8 +280,11 @@ impl EnvKernel {
                 images.push(("nodes", nodes));
                 images.push(("tris", tris));
                 let traced_buf = output("env traced visibility", nv.max(1) * 4)?;
+                let words = u64::from(grid * grid).div_ceil(32);
+                let escaped = output("env traced rays", nv.max(1) * words * 4)?;
                 buffers.push(("ao", traced_buf.clone()));
                 buffers.push(("traced", traced_buf));
+                buffers.push(("escaped", escaped));
                 buffers.push(("bvh_topo", topo_buf));
                 buffers.push(("bvh_slots", slots_buf));
                 traced = Some((topology, config));
@@ -300,7 +308,14 @@ impl EnvKernel {
             pipeline.bind_from(lookup, &writes)
         };
         let rotate = crate::shaders::pipeline(&ctx, "env/rotate")?;
-        let shadow = crate::shaders::pipeline(&ctx, "env/shadow")?;
+        let shadow = crate::shaders::pipeline(
+            &ctx,
+            if traced.is_some() {
+                "env/shadow_rays"
+            } else {
+                "env/shadow"
+            },
+        )?;
         let rotate_bind = bind(&rotate, &["lobes"])?;
         let shadow_bind = bind(&shadow, &["vis", "irr"])?;
         let trace_parts = match &traced {
@@ -311,7 +326,7 @@ impl EnvKernel {
                 let trace = crate::shaders::pipeline(&ctx, "env/trace")?;
                 let leaves_bind = bind(&leaves, &["nodes", "tris"])?;
                 let refit_bind = bind(&refit, &[])?;
-                let trace_bind = bind(&trace, &["traced"])?;
+                let trace_bind = bind(&trace, &["traced", "escaped"])?;
                 Some((leaves, leaves_bind, refit, refit_bind, trace, trace_bind))
             }
         };
@@ -354,11 +369,18 @@ impl EnvKernel {
         self.trace.as_ref().map(|t| (&t.topology, &t.config))
     }
 
-    /// The per-vertex visibility `env shadow` scales the caps' split by: AO's visibility
-    /// buffer, or with traced visibility the kernel's own (f32 per vertex, written by
-    /// `env trace`).
+    /// The per-vertex visibility: AO's visibility buffer (which `env shadow` scales the
+    /// caps' split by), or with traced visibility the fraction of the rays that escaped (f32
+    /// per vertex, written by `env trace`).
     pub fn scale_visibility(&self) -> &Buffer {
         self.buffer("ao")
+    }
+
+    /// With traced visibility: which rays escaped, ceil(grid^2 / 32) u32 words per vertex
+    /// (bit k % 32 of word k / 32: ray k; [`super::cpu::RayBits`]), written by `env trace`
+    /// and read by `env shadow`.
+    pub fn escaped_rays(&self) -> Option<&Buffer> {
+        self.trace.as_ref().map(|_| self.buffer("escaped"))
     }
 
     fn buffer(&self, binding: &str) -> &Buffer {
@@ -491,6 +513,10 @@ impl EnvKernel {
             p.clamp_inside as u32,
             MIN_TRANSMISSION.to_bits(),
         ];
+        let mut words = words.to_vec();
+        if let Some(t) = &self.trace {
+            words.extend([t.config.grid, t.config.seed, CV_SHARPNESS.to_bits()]);
+        }
         Ok(Dispatch::words(
             &words,
             Grid::Invocations([self.vertex_count, 1, 1]),

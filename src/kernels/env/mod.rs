@@ -14,22 +14,30 @@
 //!   ([`cap_occlusion`]). O_js is weighted by the cap's share above the horizon
 //!   ([`pack::above_horizon`]): light from below adds nothing, and a sinking cap fades out
 //!   instead of dropping out (no jump where AO's I_s reaches 0).
-//! - Caps combine by product, and AO's own judgement of the same caps corrects it: with
-//!   I_s AO's exact per-sphere cosine-weighted occlusion and AO(x) its blended (cone-mask
-//!   union), corrected visibility,
-//!   V_j = clamp(AO(x) prod_s ((1 - O_js) / (1 - I_s))^w_s, 0, 1).
-//!   Under a uniform environment the lobes' product ~ AO's product, so the lobes' mean
-//!   visibility is AO's; a lobe behind a cap loses all of it (a lobe inside a cap has
-//!   1 - O_js = 0), one in the open keeps more than AO. The ratio carries AO's overlap handling
-//!   and its static correction (mesh detail the spheres miss) to every lobe.
-//! - A(x), the visibility the split is scaled by ([`EnvVisibility`]): by default the
-//!   fraction of 4 x 4 stratified cosine-weighted rays that escape the posed mesh, cast every
-//!   frame through a BVH built once over the rest pose and refitted to the pose (passes
-//!   `env bvh leaves`, `env bvh refit`, `env trace`); or AO's own visibility. Measured on
-//!   BCN_Epileptic (`vkshade env --reference`): the caps' split scaled by the truth's own
-//!   2048-ray visibility errs 7.9 / 9.2 / 8.7% at three poses, by 16 traced rays 8.7 / 9.6 /
-//!   9.1%, by AO's 7.9 / 15.1 / 16.4% (AO, exact in its bind-pose bake, errs by MAE 0.04 once
-//!   the character moves). The caps give the direction, the rays the amount.
+//! - Caps combine by product: the caps' visibility of lobe j is C_j = prod_s (1 - O_js)^w_s.
+//! - What turns C_j into the lobe's visibility V_j ([`EnvVisibility`]):
+//!   - **Traced rays, per lobe (the default; module `env/shadow_rays`).** Every frame the
+//!     kernel refits a BVH of the posed character (built once over the rest pose) and casts
+//!     4 x 4 stratified cosine-weighted rays a vertex (passes `env bvh leaves`,
+//!     `env bvh refit`, `env trace`). Each ray k has a residual e_k - c_k: whether it escaped
+//!     the mesh, less the caps' own transmission along it (prod over the caps holding the
+//!     ray of [`MIN_TRANSMISSION`]^w_s). The residuals are a control variate for the caps: a
+//!     lobe takes the mean residual of the rays near it,
+//!     V_j = clamp(C_j + sum_k K_jk (e_k - c_k) / sum_k K_jk, 0, 1), with
+//!     K_jk = exp(min(lambda_j, [`CV_SHARPNESS`]) (axis_j . d_k - 1)). Where the caps miss the
+//!     mesh (a gap they close, a part they lack), only the lobes on that side move. On
+//!     BCN_Epileptic (`vkshade env --reference`, 32 lobes, 1024-ray truth): 7.2 / 7.9 / 7.2%
+//!     at three poses, against 8.8 / 9.6 / 9.2% for the same caps scaled by the same rays'
+//!     escaped fraction (one number per vertex, this kernel's method before), and at the
+//!     character frame's three reference poses (16 lobes) 7.5 / 8.3 / 8.4% against
+//!     8.2 / 13.4 / 11.1%.
+//!   - **AO's visibility as a scale (module `env/shadow`).** With I_s AO's exact per-sphere
+//!     cosine-weighted occlusion and AO(x) its blended (cone-mask union), corrected
+//!     visibility, V_j = clamp(AO(x) C_j / prod_s (1 - I_s)^w_s, 0, 1). Under a uniform
+//!     environment the lobes' product ~ AO's product, so the lobes' mean visibility is AO's.
+//!     The ratio carries AO's overlap handling and its static correction to every lobe, but
+//!     AO, exact in its bind-pose bake, errs by MAE 0.04 once the character moves: 7.9 /
+//!     15.1 / 16.4% at the same three poses.
 //! - E_j(n): Hill's fitted SG irradiance, the inner product with the cosine SG below
 //!   lambda = 1 ([`cpu::irradiance`]); E(x) = sum_j V_j E_j(n) amplitude_j, radiometric (no
 //!   1/pi).
@@ -37,8 +45,8 @@
 //! - [`pack`]: the lobes in the GPU's layout and the cap table, checked.
 //! - [`gpu`]: the kernel ([`EnvKernel`]: passes `env rotate`, with traced visibility
 //!   `env bvh leaves`, `env bvh refit`, `env trace`, then `env shadow`).
-//! - [`cpu`]: the CPU twins (same f32 operations: [`cpu::shadow`],
-//!   [`cpu::traced_visibility`]) and the f64 ray-traced truth ([`cpu::ray_traced`]).
+//! - [`cpu`]: the CPU twins (same f32 operations: [`cpu::shadow`], [`cpu::traced_rays`])
+//!   and the f64 ray-traced truth ([`cpu::ray_traced`]).
 
 #![warn(missing_docs)]
 
@@ -60,6 +68,11 @@ pub const COSINE_AMPLITUDE: f32 = 1.17;
 /// Below this sharpness a lobe's irradiance is the inner product with the cosine SG (Hill's fit
 /// fails there).
 pub const HILL_MIN_SHARPNESS: f32 = 1.0;
+/// Sharpest kernel the traced rays' residuals are weighed by per lobe (module
+/// `env/shadow_rays`): K_jk = exp(min(lambda_j, CV_SHARPNESS) (axis_j . d_k - 1)). With 16
+/// cosine-weighted rays (~0.4 sr each) a kernel of sharpness 8 (~0.8 sr) spans about two
+/// rays; sharper lobes would lean on one ray's residual.
+pub const CV_SHARPNESS: f32 = 8.0;
 /// Floor of 1 - O_js and 1 - I_s in the products: a cap that nearly fills the hemisphere (a
 /// receiver touching a sphere) would otherwise make the ratio 0/0, amplifying rounding by 1e6.
 pub const MIN_TRANSMISSION: f32 = 0.02;

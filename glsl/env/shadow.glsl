@@ -1,0 +1,294 @@
+// Environment light shadowed by the character's own sphere tree, per vertex (see
+// src/kernels/env/mod.rs for the method; kernels::env::cpu::shadow_vertex is the twin, step
+// for step). Per lobe j: the product lobe P_j = G_j x cosine SG; for every sphere of AO's cut
+// (the walk of glsl/ao/occlusion.comp: refinement, blend weights, inside fade) above the
+// horizon, the fraction O_js of P_j inside the sphere's cap (table lookup, or centre value x
+// solid angle for caps under 0.3 lobe widths, blended to 0.4) times the cap's share above the
+// horizon. The caps' visibility of lobe j is C_j = prod_s (1 - O_js)^w_s (log space).
+// Module env/shadow: V_j = clamp(A(x) C_j / prod_s (1 - I_s)^w_s, 0, 1), I_s AO's per-sphere
+// cosine-weighted occlusion and A(x) the visibility bound as `ao` (AO's).
+// Module env/shadow_rays (ENV_RAYS): the rays of pass `env trace` correct C_j per lobe,
+// V_j = clamp(C_j + sum_k K_jk (e_k - c_k) / sum_k K_jk, 0, 1): e_k whether ray k escaped
+// the mesh, c_k the caps' transmission along it (prod over the caps holding it of
+// MIN_TRANSMISSION^w_s), K_jk = exp(min(lambda_j, cv_sharpness) (axis_j . d_k - 1)).
+// Irradiance = sum_j V_j E_j(n) amplitude_j.
+#include <common/ao.glsl>
+layout(local_size_x = 64) in;
+
+layout(push_constant) uniform Push {
+    uint vertex_count;
+    uint lobe_count;
+    uint node_count;
+    uint branch;
+    uint first_leaf;
+    float tau;
+    float band;
+    uint refine_extent;
+    uint clamp_inside;
+    float min_transmission;
+#ifdef ENV_RAYS
+    uint grid;            // rays per vertex = grid^2 (<= MAX_RAYS)
+    uint seed;            // pass `env trace`'s seed
+    float cv_sharpness;   // the rays' kernel is no sharper than this
+#endif
+} pc;
+
+layout(std430, set = 0, binding = 0) readonly buffer Positions { vec4 p[]; } pos;
+layout(std430, set = 0, binding = 1) readonly buffer Normals { vec4 n[]; } nrm;
+layout(std430, set = 0, binding = 2) readonly buffer Spheres { vec4 s[]; } sph;
+layout(std430, set = 0, binding = 3) readonly buffer Extents { float e[]; } ext;
+#ifndef ENV_RAYS
+layout(std430, set = 0, binding = 4) readonly buffer Ao { float v[]; } ao;
+#else
+// Pass `env trace`'s escape bits: ceil(grid^2 / 32) words per vertex.
+layout(std430, set = 0, binding = 4) readonly buffer Escaped { uint w[]; } escaped;
+#include <env/rays.glsl>
+// kernels::env::MAX_TRACE_GRID^2.
+const uint MAX_RAYS = 256u;
+#endif
+layout(std430, set = 0, binding = 5) readonly buffer Lobes { vec4 l[]; } lobes;
+// kernels::env::pack::CapTable::quads: per cell the 2 x 2 corners in (alpha, s).
+layout(std430, set = 0, binding = 6) readonly buffer Table { vec4 q[]; } table;
+layout(std430, set = 0, binding = 7) writeonly buffer Visibility { float v[]; } vis;
+layout(std430, set = 0, binding = 8) writeonly buffer Irradiance { vec4 e[]; } irr;
+
+// kernels::env::pack::MAX_LOBES.
+const uint MAX_LOBES = 64u;
+// kernels::ao::cpu::{MAX_DEPTH, INSIDE_FADE}.
+const uint MAX_DEPTH = 8u;
+const float INSIDE_FADE = 0.25;
+// kernels::env::{COSINE_SHARPNESS, COSINE_AMPLITUDE, HILL_MIN_SHARPNESS}.
+const float COS_SHARPNESS = 2.133;
+const float COS_AMPLITUDE = 1.17;
+const float HILL_MIN_SHARPNESS = 1.0;
+// The cap table's axes: kernels::env::pack::{LOG_MIN, LOG_MAX, N_LAMBDA, N_ALPHA, N_S, S_MAX}.
+const float LOG_MIN = -4.0;
+const float LOG_MAX = 14.0;
+const uint N_LAMBDA = 37u;
+const uint N_ALPHA = 49u;
+const uint N_S = 65u;
+const float S_MAX = 8.0;
+const float FRAC_2_PI = 0.636619772367581;
+// kernels::env::pack::{SMALL_CAP, SMALL_CAP_BAND}.
+const float SMALL_CAP = 0.3;
+const float SMALL_CAP_BAND = 0.1;
+
+// As kernels::ao::cpu::refinement.
+float refinement(float size, float d, float tau, float band) {
+    if (size <= 0.0) return 0.0;
+    float t = tau * d / size;
+    if (band > 0.0) return clamp((1.0 + band - t) / band, 0.0, 1.0);
+    return t < 1.0 ? 1.0 : 0.0;
+}
+
+// Fraction of a unit SG (sharpness lambda) inside a cap of half-angle alpha at angle gamma
+// from its axis: kernels::env::pack::CapTable::lookup.
+float cap_lookup(float lambda, float gamma, float alpha) {
+    float s = (gamma - alpha) * sqrt(max(lambda, 4.0));
+    if (s >= S_MAX) return 0.0;
+    float x = clamp((log2(lambda) - LOG_MIN) / (LOG_MAX - LOG_MIN), 0.0, 1.0) * float(N_LAMBDA - 1u);
+    float y = sqrt(clamp(alpha * FRAC_2_PI, 0.0, 1.0)) * float(N_ALPHA - 1u);
+    float z = clamp((s + S_MAX) / (2.0 * S_MAX), 0.0, 1.0) * float(N_S - 1u);
+    uint i = min(uint(x), N_LAMBDA - 2u);
+    uint j = min(uint(y), N_ALPHA - 2u);
+    uint k = min(uint(z), N_S - 2u);
+    float fx = x - float(i);
+    float fy = y - float(j);
+    float fz = z - float(k);
+    // Two loads: the (alpha, s) corners at lambda samples i and i + 1.
+    uint c = (i * (N_ALPHA - 1u) + j) * (N_S - 1u) + k;
+    vec4 q0 = table.q[c];
+    vec4 q1 = table.q[c + (N_ALPHA - 1u) * (N_S - 1u)];
+    float r00 = q0.x + (q0.y - q0.x) * fz;
+    float r01 = q0.z + (q0.w - q0.z) * fz;
+    float r10 = q1.x + (q1.y - q1.x) * fz;
+    float r11 = q1.z + (q1.w - q1.z) * fz;
+    float p0 = r00 + (r01 - r00) * fy;
+    float p1 = r10 + (r11 - r10) * fy;
+    return p0 + (p1 - p0) * fx;
+}
+
+// kernels::env::pack::cap_occlusion.
+float cap_occlusion(float lambda, float cos_g, float alpha, float one_minus_cos_a) {
+    float t = clamp((alpha * sqrt(lambda) - SMALL_CAP) / SMALL_CAP_BAND, 0.0, 1.0);
+    float o = 0.0;
+    if (t < 1.0) {
+        float norm = lambda / (1.0 - exp(-2.0 * lambda));
+        o += (1.0 - t) * min(exp(lambda * (cos_g - 1.0)) * one_minus_cos_a * norm, 1.0);
+    }
+    if (t > 0.0) o += t * cap_lookup(lambda, acos(clamp(cos_g, -1.0, 1.0)), alpha);
+    return o;
+}
+
+// kernels::env::pack::above_horizon.
+float above_horizon(float cos_t, float alpha) {
+    float x = clamp(asin(clamp(cos_t, -1.0, 1.0)) / max(alpha, 1e-6), -1.0, 1.0);
+    return (acos(-x) + x * sqrt(max(1.0 - x * x, 0.0))) / AO_PI;
+}
+
+// Irradiance of a unit SG on normal n (no 1/pi): kernels::env::cpu::irradiance.
+float sg_irradiance(vec3 p, float lambda, vec3 n) {
+    float x = dot(p, n);
+    if (lambda < HILL_MIN_SHARPNESS) {
+        float lc = COS_SHARPNESS;
+        float r = length(p * lambda + n * lc);
+        float e = -2.0 * lambda * lc * max(1.0 - x, 0.0) / (r + lambda + lc);
+        float tail = r > 1e-6 ? (1.0 - exp(-2.0 * r)) / r : 2.0;
+        return 2.0 * AO_PI * COS_AMPLITUDE * exp(e) * tail;
+    }
+    float c0 = 0.36;
+    float c1 = 1.0 / (4.0 * c0);
+    float eml = exp(-lambda);
+    float em2l = eml * eml;
+    float rl = 1.0 / lambda;
+    float scale = 1.0 + 2.0 * em2l - rl;
+    float bias = (eml - em2l) * rl - em2l;
+    float s = sqrt(max(1.0 - scale, 0.0));
+    float x0 = c0 * x;
+    float x1 = c1 * s;
+    float y = abs(x0) <= x1 ? (x0 + x1) * (x0 + x1) / s : clamp(x, 0.0, 1.0);
+    return max((scale * y + bias) * 2.0 * AO_PI * rl, 0.0);
+}
+
+void main() {
+    uint vi = gl_GlobalInvocationID.x;
+    if (vi >= pc.vertex_count) return;
+    vec3 p = pos.p[vi].xyz;
+    vec3 n = nrm.n[vi].xyz;
+    uint nj = min(pc.lobe_count, MAX_LOBES);
+
+    vec4 prod[MAX_LOBES]; // product lobes: axis, sharpness
+    float acc[MAX_LOBES]; // log prod_s (1 - O_js)^w
+    for (uint j = 0u; j < nj; ++j) {
+        vec4 a = lobes.l[2u * j];
+        vec3 r = a.xyz * a.w + n * COS_SHARPNESS;
+        float len = length(r);
+        prod[j] = vec4(len > 0.0 ? r / len : n, len);
+        acc[j] = 0.0;
+    }
+    float u = 0.0; // log prod_s (1 - I_s)^w
+#ifdef ENV_RAYS
+    uint rays = pc.grid * pc.grid;
+    vec3 dirs[MAX_RAYS];
+    float logc[MAX_RAYS]; // log of the caps' transmission along each ray
+    {
+        vec3 t, bt;
+        ray_basis(n, t, bt);
+        for (uint k = 0u; k < rays; ++k) {
+            dirs[k] = ray_direction(vi, k, pc.grid, pc.seed, t, bt, n);
+            logc[k] = 0.0;
+        }
+    }
+    float log_floor = log(pc.min_transmission);
+#endif
+
+    // The cut, as glsl/ao/occlusion.comp walks it (kernels::ao::cpu::walk_cut).
+    vec4 parent_sph[MAX_DEPTH + 1];
+    float parent_w[MAX_DEPTH + 1];
+    float parent_a[MAX_DEPTH + 1];
+    float parent_share[MAX_DEPTH + 1];
+    parent_w[1] = 1.0;
+    parent_a[1] = 1.0;
+    parent_share[1] = 1.0;
+    uint depth = 1u;
+    uint node = 1u;
+    uint B = pc.branch;
+    bool clamp_inside = pc.clamp_inside != 0u;
+    while (node != 0u && node < pc.node_count) {
+        vec4 s = sph.s[node];
+        bool descend = false;
+        if (s.w >= 0.0) {
+            float a_p = parent_a[depth];
+            vec4 eff = s;
+            float w = parent_w[depth];
+            if (a_p < 1.0) {
+                eff = parent_sph[depth] + (s - parent_sph[depth]) * a_p;
+                w *= parent_share[depth] + (1.0 - parent_share[depth]) * a_p;
+            }
+            float a = 0.0;
+            if (node < pc.first_leaf) {
+                float d = length(s.xyz - p);
+                float size = pc.refine_extent != 0u ? ext.e[node] : s.w;
+                a = min(refinement(size, d, pc.tau, pc.band), a_p);
+            }
+            if (a > 0.0) {
+                descend = true;
+                uint first = node * B + 1u;
+                uint used_children = 0u;
+                for (uint c = first; c < first + B; ++c) used_children += uint(sph.s[c].w >= 0.0);
+                depth++;
+                parent_sph[depth] = eff;
+                parent_w[depth] = w;
+                parent_a[depth] = a;
+                parent_share[depth] = 1.0 / float(max(used_children, 1u));
+            } else {
+                vec3 dv = eff.xyz - p;
+                float d = length(dv);
+                if (d > eff.w || clamp_inside) {
+                    float h = d / eff.w;
+                    if (!clamp_inside && h < 1.0 + INSIDE_FADE) h /= max((h - 1.0) / INSIDE_FADE, 1e-6);
+                    float cos_t = d > 0.0 ? dot(n, dv) / d : 1.0;
+                    float occ = sphere_occlusion(cos_t, h);
+                    if (occ > 0.0) {
+                        u += w * log(max(1.0 - occ, pc.min_transmission));
+                        vec3 wc = d > 0.0 ? dv / d : n;
+                        float sin_a = min(1.0 / max(h, 1.0), 1.0);
+                        float alpha = asin(sin_a);
+                        float omc = sin_a * sin_a / (1.0 + sqrt(max(1.0 - sin_a * sin_a, 0.0)));
+                        float up = above_horizon(cos_t, alpha);
+#ifdef ENV_RAYS
+                        float cos_a = sqrt(max(1.0 - sin_a * sin_a, 0.0));
+                        for (uint k = 0u; k < rays; ++k) {
+                            if (dot(dirs[k], wc) >= cos_a) logc[k] += w * log_floor;
+                        }
+#endif
+                        for (uint j = 0u; j < nj; ++j) {
+                            float o = up * cap_occlusion(prod[j].w, dot(prod[j].xyz, wc), alpha, omc);
+                            acc[j] += w * log(max(1.0 - o, pc.min_transmission));
+                        }
+                    }
+                }
+            }
+        }
+        if (descend) {
+            node = node * B + 1u;
+        } else {
+            while (node != 0u && (node - 1u) % B == B - 1u) {
+                node = (node - 1u) / B;
+                depth--;
+            }
+            if (node != 0u) node += 1u;
+        }
+    }
+
+#ifndef ENV_RAYS
+    float a_vis = ao.v[vi];
+#else
+    // logc becomes the residual e_k - c_k of each ray.
+    uint words = (rays + 31u) / 32u;
+    for (uint k = 0u; k < rays; ++k) {
+        float esc = float((escaped.w[vi * words + k / 32u] >> (k & 31u)) & 1u);
+        logc[k] = esc - exp(logc[k]);
+    }
+#endif
+    vec3 e = vec3(0.0);
+    for (uint j = 0u; j < nj; ++j) {
+        vec4 a = lobes.l[2u * j];
+#ifndef ENV_RAYS
+        float vj = clamp(a_vis * exp(acc[j] - u), 0.0, 1.0);
+#else
+        float lk = min(a.w, pc.cv_sharpness);
+        float sk = 0.0;
+        float sr = 0.0;
+        for (uint k = 0u; k < rays; ++k) {
+            float kw = exp(lk * (dot(a.xyz, dirs[k]) - 1.0));
+            sk += kw;
+            sr += kw * logc[k];
+        }
+        float vj = clamp(exp(acc[j]) + sr / max(sk, 1e-30), 0.0, 1.0);
+#endif
+        vis.v[vi * nj + j] = vj;
+        e += vj * sg_irradiance(a.xyz, a.w, n) * lobes.l[2u * j + 1u].xyz;
+    }
+    irr.e[vi] = vec4(e, 0.0);
+}
