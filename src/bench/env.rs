@@ -9,7 +9,7 @@ use super::{BenchConfig, Stats, time_gpu_passes};
 use crate::error::{Error, Result};
 use crate::geom::sg::Lobe;
 use crate::gpu::Context;
-use crate::kernels::ao::AoKernel;
+use crate::kernels::ao::{AoKernel, AoParams};
 use crate::kernels::env::{EnvKernel, EnvVisibility, PASS_ROTATE, PASS_SHADOW, cpu};
 use crate::kernels::pose::PoseKernel;
 use glam::{Mat4, Vec3, Vec4};
@@ -153,7 +153,14 @@ pub fn run(ctx: &Context, cfg: &BenchConfig, input: &EnvBenchInput) -> Result<En
     };
     let (positions, normals) = (v3(&ao_data.positions), v3(&ao_data.normals));
     let spheres: Vec<Vec4> = spheres.iter().map(|s| Vec4::from_array(*s)).collect();
-    let params = *input.ao.params();
+    // The cut the shadow pass walks (with traced visibility coarser than AO's: CV_TAU).
+    let params = match input.trace {
+        EnvVisibility::Ao => *input.ao.params(),
+        EnvVisibility::Traced { .. } => AoParams {
+            tau: input.ao.params().tau.max(crate::kernels::env::CV_TAU),
+            ..*input.ao.params()
+        },
+    };
     let inputs = cpu::ShadowInputs {
         positions: &positions,
         normals: &normals,
@@ -179,6 +186,7 @@ pub fn run(ctx: &Context, cfg: &BenchConfig, input: &EnvBenchInput) -> Result<En
             let (_, b) = cpu::traced_rays(top, &positions, &normals, tcfg);
             bits = Some((b, tcfg.grid, tcfg.seed));
         }
+        debug_assert_eq!(env.ao_params(), &params);
         let inputs = cpu::ShadowInputs {
             rays: bits.as_ref().map(|(bits, grid, seed)| cpu::RayBits {
                 bits,

@@ -7,7 +7,7 @@
 
 use super::cpu::{Shadowed, TraceConfig};
 use super::pack::{CapTable, pack_lobes};
-use super::{CV_SHARPNESS, MIN_TRANSMISSION, check_rotation};
+use super::{CV_SHARPNESS, CV_TAU, MIN_TRANSMISSION, check_rotation};
 use crate::error::{Error, Result};
 use crate::geom::bvh::BvhTopology;
 use crate::geom::sg::Lobe;
@@ -59,10 +59,10 @@ pub enum EnvVisibility<'a> {
 
 /// Strata per axis of the traced visibility by default: 16 rays per vertex. On BCN_Epileptic's
 /// three poses (`vkshade env --reference --trace-grid N`, 1024-ray truth) 4 / 9 / 16 / 36 / 64
-/// rays correcting each lobe gave 12.5 / 9.2 / 7.9 / 6.5 / 6.0% at the worst pose; the same
-/// rays as one scale per vertex 13.2 / 10.6 / 9.6 / 9.5 / 9.3% (the caps' split limits a
-/// scale, the rays' noise the correction), AO's visibility 15.1%. 16 is the fewest within
-/// 10% with a margin.
+/// rays correcting each lobe gave 13.0 / 10.2 / 7.9 / 6.8 / 6.1% at the worst pose; the same
+/// rays as one scale per vertex on the same cut 14.0 / 10.9 / 10.6 / 10.1 / 10.0% (the caps'
+/// split limits a scale, the rays' noise the correction), AO's visibility 15.1%. 16 is the
+/// fewest within 10% with a margin.
 pub const DEFAULT_TRACE_GRID: u32 = 4;
 
 /// Most strata per axis of [`EnvVisibility::Traced`] (256 rays per vertex).
@@ -358,7 +358,14 @@ impl EnvKernel {
             table,
             vertex_count: nv as u32,
             shape: ao.tree_shape(),
-            params: *ao.params(),
+            params: match &trace {
+                // The rays correct a coarser cut's caps (CV_TAU).
+                Some(_) => AoParams {
+                    tau: ao.params().tau.max(CV_TAU),
+                    ..*ao.params()
+                },
+                None => *ao.params(),
+            },
             trace,
         })
     }
@@ -430,7 +437,8 @@ impl EnvKernel {
         &self.table
     }
 
-    /// AO's cut parameters, as taken at construction.
+    /// The cut parameters the shadow pass walks: AO's, as taken at construction, with traced
+    /// visibility coarsened to tau >= [`super::CV_TAU`] (the CPU twin takes these).
     pub fn ao_params(&self) -> &AoParams {
         &self.params
     }

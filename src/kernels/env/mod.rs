@@ -25,12 +25,12 @@
 //!     lobe takes the mean residual of the rays near it,
 //!     V_j = clamp(C_j + sum_k K_jk (e_k - c_k) / sum_k K_jk, 0, 1), with
 //!     K_jk = exp(min(lambda_j, [`CV_SHARPNESS`]) (axis_j . d_k - 1)). Where the caps miss the
-//!     mesh (a gap they close, a part they lack), only the lobes on that side move. On
-//!     BCN_Epileptic (`vkshade env --reference`, 32 lobes, 1024-ray truth): 7.2 / 7.9 / 7.2%
-//!     at three poses, against 8.8 / 9.6 / 9.2% for the same caps scaled by the same rays'
-//!     escaped fraction (one number per vertex, this kernel's method before), and at the
-//!     character frame's three reference poses (16 lobes) 7.5 / 8.3 / 8.4% against
-//!     8.2 / 13.4 / 11.1%.
+//!     mesh (a gap they close, a part they lack), only the lobes on that side move, so the
+//!     pass walks a coarser cut than AO's ([`CV_TAU`]: fewer caps). On BCN_Epileptic
+//!     (`vkshade env --reference`, 32 lobes, 1024-ray truth): 7.6 / 7.8 / 7.9% at three
+//!     poses, against 9.2 / 9.6 / 10.6% for the same caps scaled by the same rays' escaped
+//!     fraction, and at the character frame's three reference poses (16 lobes) 7.6 / 7.9 /
+//!     8.3% against 8.2 / 13.4 / 11.1% for this kernel's method before (that scale, AO's cut).
 //!   - **AO's visibility as a scale (module `env/shadow`).** With I_s AO's exact per-sphere
 //!     cosine-weighted occlusion and AO(x) its blended (cone-mask union), corrected
 //!     visibility, V_j = clamp(AO(x) C_j / prod_s (1 - I_s)^w_s, 0, 1). Under a uniform
@@ -73,6 +73,13 @@ pub const HILL_MIN_SHARPNESS: f32 = 1.0;
 /// cosine-weighted rays (~0.4 sr each) a kernel of sharpness 8 (~0.8 sr) spans about two
 /// rays; sharper lobes would lean on one ray's residual.
 pub const CV_SHARPNESS: f32 = 8.0;
+/// The coarsest refinement threshold of the cut the shadow pass walks with traced rays
+/// (AO's tau if coarser): the rays correct what a coarser cut's caps get wrong, so the pass
+/// evaluates fewer caps. On BCN_Epileptic (CPU twin, 1024-ray truths, worst of three poses;
+/// caps per vertex at that pose) tau 0.8 / 1.0 / 1.2 / 1.6 gave 8.8 / 8.7 / 8.8 / 9.5% at the
+/// frame's poses (16 lobes; 47 / 39 / 34 / 26 caps) and 7.8 / 8.1 / 8.6 / 9.0% at
+/// `vkshade env`'s (32 lobes; 46 / 37 / 31 / 21 caps).
+pub const CV_TAU: f32 = 1.2;
 /// Floor of 1 - O_js and 1 - I_s in the products: a cap that nearly fills the hemisphere (a
 /// receiver touching a sphere) would otherwise make the ratio 0/0, amplifying rounding by 1e6.
 pub const MIN_TRANSMISSION: f32 = 0.02;
