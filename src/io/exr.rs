@@ -164,6 +164,7 @@ pub fn read_rgba(path: &Path) -> Result<FloatImage> {
             ));
         }
     }
+    check_dwa_chunks(path, &bytes)?;
     // The exr crate panics on some corrupt compressed blocks (a fuzzed DWAB file: `Vec::
     // with_capacity` of a length read from the data, "capacity overflow" in its PIZ Huffman
     // decoder). That panic is caught here and becomes an error naming the file; the CLI's
@@ -188,6 +189,91 @@ pub fn read_rgba(path: &Path) -> Result<FloatImage> {
         ));
     }
     Ok(img)
+}
+
+/// Bytes a DWA chunk's leader may claim per sample of its block (f32 samples; the DCT's 8 x 8
+/// blocks pad each side by up to 7 samples, counted in [`check_dwa_chunks`]).
+const DWA_BYTES_PER_SAMPLE: usize = 4;
+
+/// Checks the leader of every DWAA/DWAB-compressed chunk before the exr crate decodes it.
+/// The leader is 11 little-endian u64 counters (version; the unknown section's uncompressed
+/// and compressed sizes; the AC, DC and RLE sections' compressed sizes; the RLE section's
+/// uncompressed and raw sizes; the AC and DC coefficient counts; the AC coder), and the
+/// crate sizes its buffers from them: a fuzzed 64 KiB file whose AC count read 1.2e14 made it
+/// ask for 243 TB, and the process aborted (an allocation failure is not a panic that
+/// [`super::panic_scope`] could catch). Each size and count is refused beyond what the
+/// chunk's block can hold (its samples, padded to the DCT's 8 x 8 blocks, at 4 bytes each),
+/// and each compressed size beyond the chunk's own length. A chunk stored raw (its length
+/// equal to the block's uncompressed size, as the crate decides it) has no leader.
+fn check_dwa_chunks(path: &Path, bytes: &[u8]) -> Result<()> {
+    use exr::block::chunk::CompressedBlock;
+    use exr::compression::Compression;
+    let is_dwa = |c: Compression| matches!(c, Compression::DWAA(_) | Compression::DWAB(_));
+    let unreadable =
+        |e: exr::error::Error| Error::input(path, format!("not a readable OpenEXR image: {e}"));
+    let reader = exr::block::read(std::io::Cursor::new(bytes), false).map_err(unreadable)?;
+    if !reader.headers().iter().any(|h| is_dwa(h.compression)) {
+        return Ok(());
+    }
+    let headers = reader.headers().to_vec();
+    for (n, chunk) in reader.all_chunks(false).map_err(unreadable)?.enumerate() {
+        let chunk = chunk.map_err(unreadable)?;
+        let Some(h) = headers.get(chunk.layer_index) else {
+            continue; // the crate refuses the chunk itself
+        };
+        if !is_dwa(h.compression) {
+            continue;
+        }
+        let data = match &chunk.compressed_block {
+            CompressedBlock::ScanLine(b) => &b.compressed_pixels_le,
+            CompressedBlock::Tile(b) => &b.compressed_pixels_le,
+            _ => continue, // deep data: the crate refuses it
+        };
+        let Ok(rect) = h
+            .get_block_data_indices(&chunk.compressed_block)
+            .and_then(|i| h.get_absolute_block_pixel_coordinates(i))
+        else {
+            continue; // the crate refuses a block outside the layer
+        };
+        let (w, ht) = (rect.size.width(), rect.size.height());
+        if data.len() == w * ht * h.channels.bytes_per_pixel || data.len() < 88 {
+            continue; // stored raw, or too short for a leader (the crate refuses it)
+        }
+        let counter = |i: usize| {
+            let mut c = [0u8; 8];
+            c.copy_from_slice(&data[8 * i..8 * i + 8]);
+            u64::from_le_bytes(c)
+        };
+        let samples = (w + 7) * (ht + 7) * h.channels.list.len();
+        let most = (samples * DWA_BYTES_PER_SAMPLE) as u64;
+        let sizes = [
+            (1, "unknown section's uncompressed size", most),
+            (6, "RLE section's uncompressed size", most),
+            (7, "RLE section's raw size", most),
+            (8, "AC coefficient count", most),
+            (9, "DC coefficient count", most),
+            (2, "unknown section's compressed size", data.len() as u64),
+            (3, "AC section's compressed size", data.len() as u64),
+            (4, "DC section's compressed size", data.len() as u64),
+            (5, "RLE section's compressed size", data.len() as u64),
+        ];
+        for (i, what, limit) in sizes {
+            let v = counter(i);
+            if v > limit {
+                return Err(Error::input(
+                    path,
+                    format!(
+                        "DWA chunk {n} (layer {}, a block of {w} x {ht} texels x {} channels, \
+                         {} bytes): its {what} is {v}, beyond {limit}: a corrupt file",
+                        chunk.layer_index,
+                        h.channels.list.len(),
+                        data.len()
+                    ),
+                ));
+            }
+        }
+    }
+    Ok(())
 }
 
 type RgbaLayer = exr::image::Image<
@@ -267,6 +353,50 @@ mod tests {
         std::fs::write(&forged, &bytes).unwrap();
         let e = read_rgba(&forged).unwrap_err().to_string();
         assert!(e.contains("claims.exr") && e.contains("4096 x 4096"), "{e}");
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
+
+    /// A DWAB file whose first chunk's leader is forged to claim 2^40 AC coefficients (the
+    /// shape of the fuzzed file that made the exr crate ask for 243 TB and abort) is refused
+    /// before the crate decodes it, naming the file and the counter; the unforged file reads.
+    #[test]
+    fn a_dwa_chunk_claiming_more_coefficients_than_its_block_holds_is_refused() {
+        use exr::prelude::{Blocks, Compression, LineOrder};
+        let dir = std::env::temp_dir().join(format!("vkshade-exr-dwa-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let encoding = Encoding {
+            compression: Compression::DWAB(None),
+            blocks: Blocks::ScanLines,
+            line_order: LineOrder::Increasing,
+        };
+        let mut bytes = std::io::Cursor::new(Vec::new());
+        exr::prelude::Image::from_encoded_channels(
+            (64, 64),
+            encoding,
+            SpecificChannels::rgb(|Vec2(x, y)| (x as f32 / 64.0, y as f32 / 64.0, 0.5f32)),
+        )
+        .write()
+        .to_buffered(&mut bytes)
+        .unwrap();
+        let mut bytes = bytes.into_inner();
+        let good = dir.join("good.exr");
+        std::fs::write(&good, &bytes).unwrap();
+        assert!((read_rgba(&good).unwrap().pixels[64 * 10 + 32][0] - 0.5).abs() < 0.01);
+        // One chunk (64 lines of DWAB's 256): the offset table's one entry points just past
+        // itself, then the chunk's y (i32) and length (i32), then its 11-counter leader.
+        let table = (0..bytes.len() - 8)
+            .find(|&p| u64::from_le_bytes(bytes[p..p + 8].try_into().unwrap()) == p as u64 + 8)
+            .expect("the offset table");
+        let leader = table + 8 + 8;
+        let ac_count = leader + 8 * 8;
+        bytes[ac_count..ac_count + 8].copy_from_slice(&(1u64 << 40).to_le_bytes());
+        let forged = dir.join("forged.exr");
+        std::fs::write(&forged, &bytes).unwrap();
+        let e = read_rgba(&forged).unwrap_err().to_string();
+        assert!(
+            e.contains("forged.exr") && e.contains("AC coefficient count is 1099511627776"),
+            "{e}"
+        );
         std::fs::remove_dir_all(&dir).unwrap();
     }
 }
