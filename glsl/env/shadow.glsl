@@ -27,7 +27,7 @@ layout(push_constant) uniform Push {
     uint clamp_inside;
     float min_transmission;
 #ifdef ENV_RAYS
-    uint grid;            // rays per vertex = grid^2 (<= MAX_RAYS)
+    uint grid;            // rays per vertex = grid^2 = RAYS
     uint seed;            // pass `env trace`'s seed
     float cv_sharpness;   // the rays' kernel is no sharper than this
 #endif
@@ -43,8 +43,9 @@ layout(std430, set = 0, binding = 4) readonly buffer Ao { float v[]; } ao;
 // Pass `env trace`'s escape bits: ceil(grid^2 / 32) words per vertex.
 layout(std430, set = 0, binding = 4) readonly buffer Escaped { uint w[]; } escaped;
 #include <env/rays.glsl>
-// kernels::env::MAX_TRACE_GRID^2.
-const uint MAX_RAYS = 256u;
+// Rays per vertex (grid^2), a specialization constant so that the per-ray arrays have a
+// fixed size and the loops over them a fixed count (lavapipe then keeps them in registers).
+layout(constant_id = 0) const uint RAYS = 16u;
 #endif
 layout(std430, set = 0, binding = 5) readonly buffer Lobes { vec4 l[]; } lobes;
 // kernels::env::pack::CapTable::quads: per cell the 2 x 2 corners in (alpha, s).
@@ -168,13 +169,12 @@ void main() {
     }
     float u = 0.0; // log prod_s (1 - I_s)^w
 #ifdef ENV_RAYS
-    uint rays = pc.grid * pc.grid;
-    vec3 dirs[MAX_RAYS];
-    float logc[MAX_RAYS]; // log of the caps' transmission along each ray
+    vec3 dirs[RAYS];
+    float logc[RAYS]; // log of the caps' transmission along each ray
     {
         vec3 t, bt;
         ray_basis(n, t, bt);
-        for (uint k = 0u; k < rays; ++k) {
+        for (uint k = 0u; k < RAYS; ++k) {
             dirs[k] = ray_direction(vi, k, pc.grid, pc.seed, t, bt, n);
             logc[k] = 0.0;
         }
@@ -238,7 +238,7 @@ void main() {
                         float up = above_horizon(cos_t, alpha);
 #ifdef ENV_RAYS
                         float cos_a = sqrt(max(1.0 - sin_a * sin_a, 0.0));
-                        for (uint k = 0u; k < rays; ++k) {
+                        for (uint k = 0u; k < RAYS; ++k) {
                             if (dot(dirs[k], wc) >= cos_a) logc[k] += w * log_floor;
                         }
 #endif
@@ -265,8 +265,8 @@ void main() {
     float a_vis = ao.v[vi];
 #else
     // logc becomes the residual e_k - c_k of each ray.
-    uint words = (rays + 31u) / 32u;
-    for (uint k = 0u; k < rays; ++k) {
+    uint words = (RAYS + 31u) / 32u;
+    for (uint k = 0u; k < RAYS; ++k) {
         float esc = float((escaped.w[vi * words + k / 32u] >> (k & 31u)) & 1u);
         logc[k] = esc - exp(logc[k]);
     }
@@ -280,7 +280,7 @@ void main() {
         float lk = min(a.w, pc.cv_sharpness);
         float sk = 0.0;
         float sr = 0.0;
-        for (uint k = 0u; k < rays; ++k) {
+        for (uint k = 0u; k < RAYS; ++k) {
             float kw = exp(lk * (dot(a.xyz, dirs[k]) - 1.0));
             sk += kw;
             sr += kw * logc[k];

@@ -308,14 +308,15 @@ impl EnvKernel {
             pipeline.bind_from(lookup, &writes)
         };
         let rotate = crate::shaders::pipeline(&ctx, "env/rotate")?;
-        let shadow = crate::shaders::pipeline(
-            &ctx,
-            if traced.is_some() {
-                "env/shadow_rays"
-            } else {
-                "env/shadow"
-            },
-        )?;
+        let shadow = match &traced {
+            // The rays' count sizes the pass's per-ray arrays (a specialization constant).
+            Some((_, config)) => {
+                let name = "env/shadow_rays";
+                let shader = crate::gpu::Shader::from_spirv(name, crate::shaders::spirv(name)?)?;
+                ComputePipeline::specialized(&ctx, &shader, &[("RAYS", config.grid * config.grid)])?
+            }
+            None => crate::shaders::pipeline(&ctx, "env/shadow")?,
+        };
         let rotate_bind = bind(&rotate, &["lobes"])?;
         let shadow_bind = bind(&shadow, &["vis", "irr"])?;
         let trace_parts = match &traced {
