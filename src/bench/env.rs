@@ -9,7 +9,7 @@ use super::{BenchConfig, Stats, time_gpu_passes};
 use crate::error::{Error, Result};
 use crate::geom::sg::Lobe;
 use crate::gpu::Context;
-use crate::kernels::ao::{AoKernel, AoParams};
+use crate::kernels::ao::AoKernel;
 use crate::kernels::env::{EnvKernel, EnvVisibility, PASS_ROTATE, PASS_SHADOW, cpu};
 use crate::kernels::pose::PoseKernel;
 use glam::{Mat4, Vec3, Vec4};
@@ -153,14 +153,9 @@ pub fn run(ctx: &Context, cfg: &BenchConfig, input: &EnvBenchInput) -> Result<En
     };
     let (positions, normals) = (v3(&ao_data.positions), v3(&ao_data.normals));
     let spheres: Vec<Vec4> = spheres.iter().map(|s| Vec4::from_array(*s)).collect();
-    // The cut the shadow pass walks (with traced visibility coarser than AO's: CV_TAU).
-    let params = match input.trace {
-        EnvVisibility::Ao => *input.ao.params(),
-        EnvVisibility::Traced { .. } => AoParams {
-            tau: input.ao.params().tau.max(crate::kernels::env::CV_TAU),
-            ..*input.ao.params()
-        },
-    };
+    // The cut the shadow pass walks.
+    let traced = matches!(input.trace, EnvVisibility::Traced { .. });
+    let params = crate::kernels::env::shadow_cut(input.ao.params(), traced);
     let inputs = cpu::ShadowInputs {
         positions: &positions,
         normals: &normals,

@@ -7,7 +7,7 @@
 
 use super::cpu::{Shadowed, TraceConfig};
 use super::pack::{CapTable, pack_lobes};
-use super::{CV_SHARPNESS, CV_TAU, MIN_TRANSMISSION, check_rotation};
+use super::{CV_SHARPNESS, MIN_TRANSMISSION, check_rotation};
 use crate::error::{Error, Result};
 use crate::geom::bvh::BvhTopology;
 use crate::geom::sg::Lobe;
@@ -359,14 +359,7 @@ impl EnvKernel {
             table,
             vertex_count: nv as u32,
             shape: ao.tree_shape(),
-            params: match &trace {
-                // The rays correct a coarser cut's caps (CV_TAU).
-                Some(_) => AoParams {
-                    tau: ao.params().tau.max(CV_TAU),
-                    ..*ao.params()
-                },
-                None => *ao.params(),
-            },
+            params: super::shadow_cut(ao.params(), trace.is_some()),
             trace,
         })
     }

@@ -80,6 +80,19 @@ pub const CV_SHARPNESS: f32 = 8.0;
 /// frame's poses (16 lobes; 47 / 39 / 34 / 26 caps) and 7.8 / 8.1 / 8.6 / 9.0% at
 /// `vkshade env`'s (32 lobes; 46 / 37 / 31 / 21 caps).
 pub const CV_TAU: f32 = 1.2;
+
+/// The cut the shadow pass walks: AO's, coarsened to tau >= [`CV_TAU`] when traced rays
+/// correct the caps (`traced`).
+pub fn shadow_cut(ao: &crate::kernels::ao::AoParams, traced: bool) -> crate::kernels::ao::AoParams {
+    if traced {
+        crate::kernels::ao::AoParams {
+            tau: ao.tau.max(CV_TAU),
+            ..*ao
+        }
+    } else {
+        *ao
+    }
+}
 /// Floor of 1 - O_js and 1 - I_s in the products: a cap that nearly fills the hemisphere (a
 /// receiver touching a sphere) would otherwise make the ratio 0/0, amplifying rounding by 1e6.
 pub const MIN_TRANSMISSION: f32 = 0.02;
