@@ -229,16 +229,70 @@ fn the_skin_stage_equals_the_sss_kernel_alone_on_the_same_pose() {
         let rb = alone.read_back(&mut rec)?;
         rec.submit_and_wait()?;
         let out = alone.collect(&rb)?;
-        // The same inputs through the same passes: bit for bit.
-        let differ = out
-            .diffuse
+        // The same inputs through the same passes: bit for bit, in the segments the frame
+        // diffused (those its compose pass reads: pass `compose need`).
+        let size = geo.size;
+        let needed = |i: usize| {
+            let (x, y) = ((i % size as usize) as u32, (i / size as usize) as u32);
+            let s = vkshade::kernels::sss::pack::needed_segment(x, y, size);
+            (st.needed[(s / 32) as usize] >> (s % 32)) & 1 == 1
+        };
+        assert!(!st.needed.is_empty(), "the frame diffused every segment");
+        let (mut compared, mut differ) = (0usize, 0usize);
+        for (i, (a, b)) in out.diffuse.iter().zip(&st.diffuse).enumerate() {
+            if needed(i) {
+                compared += 1;
+                differ += usize::from(a != b);
+            }
+        }
+        assert_eq!(
+            differ, 0,
+            "{differ} of {compared} needed texels differ between the frame and SSS alone"
+        );
+        // The camera sees part of the skin: some texels diffused, not all.
+        let surface = out.diffuse.iter().filter(|d| d[3] > 0.0).count();
+        let diffused = (0..out.diffuse.len())
+            .filter(|&i| needed(i) && out.diffuse[i][3] > 0.0)
+            .count();
+        assert!(
+            diffused > 100 && diffused < surface,
+            "{diffused} of {surface} surface texels diffused"
+        );
+        // The compose pass reads diffused texels only: its twin on the frame's diffusion
+        // (the other texels as the frame left them, zero here: its first frame) equals its
+        // twin on the full diffusion of the kernel alone, bit for bit.
+        let params = frame.params();
+        let full = vkshade::frame::Stages {
+            diffuse: out.diffuse.clone(),
+            ..st.clone()
+        };
+        let (culled, _) = frame.compose_twin(&params, &st);
+        let (everywhere, _) = frame.compose_twin(&params, &full);
+        let off = culled
             .iter()
-            .zip(&st.diffuse)
+            .zip(&everywhere)
             .filter(|(a, b)| a != b)
             .count();
         assert_eq!(
-            differ, 0,
-            "{differ} texels differ between the frame and SSS alone"
+            off, 0,
+            "{off} pixels read a texel the frame did not diffuse"
+        );
+        // Pass `compose need` against its CPU twin.
+        let twin = frame
+            .needed_twin(&st)
+            .expect("the frame restricts its diffusion");
+        let set: u32 = twin.iter().map(|w| w.count_ones()).sum();
+        let differ: u32 = twin
+            .iter()
+            .zip(&st.needed)
+            .map(|(a, b)| (a ^ b).count_ones())
+            .sum();
+        // Equal unless a uv lands within rounding of NEED_MARGIN from a texel boundary in one
+        // and not the other: at most one segment in a thousand.
+        assert!(set > 20, "{set} segments marked");
+        assert!(
+            differ <= 1 + set / 1000,
+            "{differ} of {set} needed segments differ from the twin"
         );
         assert!(
             out.diffuse.iter().any(|d| d[0] > 0.0),

@@ -1412,6 +1412,24 @@ fn a_constant_per_vertex_irradiance_adds_exactly_itself() {
             src.buffers(1000.0),
         )?;
         let buffer = vertex_buffer(&mut setup, &ve)?;
+        // Twice the environment, and a needed-segment bitmap marking every other word's 32
+        // segments (set_needed_segments), a stand-in for the frame's `compose need`.
+        let ve2: Vec<[f32; 4]> = ve.iter().map(|e| e.map(|x| 2.0 * x)).collect();
+        let buffer2 = vertex_buffer(&mut setup, &ve2)?;
+        let words = kernel.needed_segment_bytes() / 4;
+        let bits: Vec<u32> = (0..words)
+            .map(|w| if w % 2 == 0 { !0 } else { 0 })
+            .collect();
+        let needed = setup.buffer_with(
+            "sss test needed segments",
+            vkshade::gpu::BufferDesc::storage(words * 4),
+            &bits,
+        )?;
+        let tiny = setup.buffer_with(
+            "sss test tiny bitmap",
+            vkshade::gpu::BufferDesc::storage(4),
+            &[0u32],
+        )?;
         setup.submit_and_wait()?;
         let frame = |kernel: &SssKernel| -> vkshade::Result<SssOutput> {
             let mut rec = ctx.recorder("sss env posed frame")?;
@@ -1421,11 +1439,42 @@ fn a_constant_per_vertex_irradiance_adds_exactly_itself() {
             kernel.collect(&rb)
         };
         let without = frame(&kernel)?;
+        // The bitmap restricts the diffusion of a per-vertex irradiance: refused before one.
+        let e = kernel.set_needed_segments(Some(&needed)).unwrap_err();
+        assert!(e.to_string().contains("set_vertex_irradiance"), "{e}");
         let mut rec = ctx.recorder("sss env set")?;
         kernel.set_vertex_irradiance(&mut rec, Some(&buffer))?;
         rec.submit_and_wait()?;
         let with = frame(&kernel)?;
         let passes = kernel.passes().len();
+        let e = kernel.set_needed_segments(Some(&tiny)).unwrap_err();
+        assert!(e.to_string().contains("bitmap of 4 bytes"), "{e}");
+        // Restricted, then twice the environment (the bitmap stays with the kernel): the
+        // marked segments take the new diffusion, the others keep the last one.
+        kernel.set_needed_segments(Some(&needed))?;
+        let mut rec = ctx.recorder("sss env set twice")?;
+        kernel.set_vertex_irradiance(&mut rec, Some(&buffer2))?;
+        rec.submit_and_wait()?;
+        let culled = frame(&kernel)?;
+        kernel.set_needed_segments(None)?;
+        let full = frame(&kernel)?;
+        let size = kernel.size();
+        let (mut kept, mut fresh) = (0, 0);
+        for i in 0..full.diffuse.len() {
+            let (x, y) = ((i % size as usize) as u32, (i / size as usize) as u32);
+            let seg = vkshade::kernels::sss::pack::needed_segment(x, y, size);
+            if bits[(seg / 32) as usize] >> (seg % 32) & 1 == 1 {
+                assert_eq!(culled.diffuse[i], full.diffuse[i], "texel {i}: marked");
+                fresh += usize::from(full.diffuse[i] != with.diffuse[i]);
+            } else {
+                assert_eq!(culled.diffuse[i], with.diffuse[i], "texel {i}: not marked");
+                kept += usize::from(full.diffuse[i] != with.diffuse[i]);
+            }
+        }
+        assert!(
+            fresh > 500 && kept > 500,
+            "{fresh} marked, {kept} kept texels"
+        );
         // Removed again: the grey path.
         let mut rec = ctx.recorder("sss env unset")?;
         kernel.set_vertex_irradiance(&mut rec, None)?;

@@ -52,6 +52,13 @@ layout(std430, set = 0, binding = 6) writeonly buffer Diffuse { vec4 v[]; } diff
 // segments are never touched (the kernel clears the outputs there once).
 const uint TILE_ROW = 256u;
 layout(std430, set = 0, binding = 7) readonly buffer Tiles { uint v[]; } tiles;
+#ifdef SSS_NEEDED
+// The segments a caller needs this frame (e.g. those the character frame's compose pass reads:
+// glsl/compose/need.comp): bit s of word s / 32 for segment s = y * ceil(size / 8) + x / 8.
+// The other segments are skipped and keep what the output held (a SIMD step is one
+// segment, so the skip is uniform across its lanes).
+layout(std430, set = 0, binding = 8) readonly buffer Needed { uint w[]; } needed;
+#endif
 
 const float TAU = 6.28318530718;
 const uint WALK_ROW = 1024u;
@@ -92,6 +99,10 @@ void main() {
     uint ti = 8u * (gl_WorkGroupID.y * TILE_ROW + gl_WorkGroupID.x) + gl_LocalInvocationID.y;
     if (ti >= pc.tiles) return;
     uint tile = tiles.v[ti];
+#ifdef SSS_NEEDED
+    uint seg = (tile >> 16u) * ((pc.size + 7u) / 8u) + (tile & 0xffffu);
+    if (((needed.w[seg >> 5u] >> (seg & 31u)) & 1u) == 0u) return;
+#endif
     uvec2 xy = uvec2((tile & 0xffffu) * 8u + gl_LocalInvocationID.x, tile >> 16u);
     if (xy.x >= pc.size || xy.y >= pc.size) return;
     float nf = float(pc.size);

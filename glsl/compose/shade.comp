@@ -56,6 +56,8 @@ layout(std430, set = 0, binding = 14) readonly buffer SurfaceTexels { uint t[]; 
 
 const float PI = 3.14159265358979;
 
+#include <compose/skin_uv.glsl>
+
 float schlick(float f0, float c) {
     float x = 1.0 - clamp(c, 0.0, 1.0);
     float x2 = x * x;
@@ -150,8 +152,7 @@ void main() {
     uvec2 px = gl_GlobalInvocationID.xy;
     if (any(greaterThanEqual(px, P.counts.xy))) return;
     uint idx = px.y * P.counts.x + px.x;
-    vec2 s = (vec2(px) + 0.5) / vec2(P.counts.xy) * 2.0 - 1.0;
-    vec3 d = normalize(P.forward.xyz + P.right.xyz * s.x - P.up.xyz * s.y);
+    vec3 d = pixel_ray(px, P.counts.xy, P.forward.xyz, P.right.xyz, P.up.xyz);
     uint lobes_n = P.counts.w;
     vec4 g0 = texelFetch(gbuffer, ivec3(px, 0), 0);
     vec3 radiance;
@@ -166,19 +167,9 @@ void main() {
         if (tri < P.atlas.y) {
             // Skin: the pixel's barycentrics on its triangle (as raster resolve finds them).
             uvec4 t = skin_tris.v[tri];
-            vec3 a = pos.p[t.x].xyz, b = pos.p[t.y].xyz, c = pos.p[t.z].xyz;
-            vec3 e1 = b - a, e2 = c - a;
-            vec3 pv = cross(d, e2);
-            float det = dot(e1, pv);
-            vec3 tv = P.eye.xyz - a;
-            float inv = det != 0.0 ? 1.0 / det : 0.0;
-            float u = clamp(dot(tv, pv) * inv, 0.0, 1.0);
-            vec3 qv = cross(tv, e1);
-            float v = clamp(dot(d, qv) * inv, 0.0, 1.0 - u);
-            float w0 = 1.0 - u - v;
-            vec4 uv01 = skin_uvs.uv[2u * tri];
-            vec2 uv2 = skin_uvs.uv[2u * tri + 1u].xy;
-            vec2 uv = uv01.xy * w0 + uv01.zw * u + uv2 * v;
+            vec3 bc = skin_barycentrics(pos.p[t.x].xyz, pos.p[t.y].xyz, pos.p[t.z].xyz, P.eye.xyz, d);
+            float w0 = bc.x, u = bc.y, v = bc.z;
+            vec2 uv = skin_atlas_uv(skin_uvs.uv[2u * tri], skin_uvs.uv[2u * tri + 1u].xy, bc);
             vec3 n = texelFetch(gbuffer, ivec3(px, 1), 0).xyz;
             vec3 view = -d;
             float nv = max(dot(n, view), 1e-4);

@@ -26,6 +26,7 @@ use crate::kernels::btf::dirs::{Maps, Triangulation};
 use crate::kernels::btf::gpu::{BtfKernel, Prepared as BtfPrepared};
 use crate::kernels::btf::pack::{BtfInputs, Texture};
 use crate::kernels::btf::synth::Btf;
+use crate::kernels::compose::gpu::NeedKernel;
 use crate::kernels::compose::{self, ComposeKernel, ComposeOutput, FrameParams, SkinSpecular};
 use crate::kernels::raster::gpu::{Posed as RasterPosed, Prepared as RasterPrep, RasterKernel};
 use crate::kernels::raster::pack::Camera as RasterCamera;
@@ -468,6 +469,10 @@ struct Skin {
     kernel: SssKernel,
     geo: TexGeometry,
     lights: Vec<SssLight>,
+    /// Pass `compose need`: the atlas segments the compose pass reads this frame, to which
+    /// the diffusion is restricted (with an environment: the diffusion of a per-vertex
+    /// irradiance is the one that takes the bitmap).
+    need: Option<NeedKernel>,
 }
 
 /// The cloth parts sharing one BTF.
@@ -1015,6 +1020,24 @@ impl CharacterFrame {
                 if let Some(e) = &env {
                     kernel.set_vertex_irradiance(&mut rec, Some(e.irradiance()))?;
                 }
+                // The diffusion runs only on the atlas segments the compose pass will read
+                // this frame (every skin pixel's bilinear footprint and a texel around it),
+                // marked from the G-buffer after the raster passes.
+                let need = match &env {
+                    Some(_) => {
+                        let n = NeedKernel::new(
+                            &mut rec,
+                            &compose::Prepared::new(cfg.size, geo)?,
+                            &compose::gpu::NeedInputs {
+                                keys: raster.keys(),
+                                positions: pose.positions(),
+                            },
+                        )?;
+                        kernel.set_needed_segments(Some(n.needed()))?;
+                        Some(n)
+                    }
+                    None => None,
+                };
                 // The diffusion is grey per light: the lights' mean irradiance drives it.
                 let lights = cfg
                     .lights
@@ -1029,6 +1052,7 @@ impl CharacterFrame {
                     kernel,
                     geo: geo.clone(),
                     lights,
+                    need,
                 })
             }
             None => None,
@@ -1195,6 +1219,9 @@ impl CharacterFrame {
         }
         v.extend(self.raster.passes());
         if let Some(s) = &self.sss {
+            if let Some(n) = &s.need {
+                v.extend(n.passes());
+            }
             v.extend(s.kernel.passes());
         }
         for g in &self.cloth {
@@ -1268,6 +1295,9 @@ impl CharacterFrame {
         }
         self.raster.record(rec, &self.camera)?;
         if let Some(s) = &self.sss {
+            if let Some(n) = &s.need {
+                n.record(rec, &self.camera)?;
+            }
             s.kernel.record(rec, &s.lights[..])?;
         }
         for g in &self.cloth {
@@ -1300,6 +1330,10 @@ impl CharacterFrame {
                 Some(s) => Some(rec.read_back(s.kernel.diffuse())?),
                 None => None,
             },
+            needed: match self.sss.as_ref().and_then(|s| s.need.as_ref()) {
+                Some(n) => Some(rec.read_back(n.needed())?),
+                None => None,
+            },
             cloth: match &self.cloth_result {
                 Some(r) => Some(rec.read_back(r)?),
                 None => None,
@@ -1328,6 +1362,10 @@ impl CharacterFrame {
             diffuse: match &rb.diffuse {
                 Some(r) => r.to_vec()?,
                 None => vec![[0.0; 4]; 8],
+            },
+            needed: match &rb.needed {
+                Some(r) => r.to_vec()?,
+                None => Vec::new(),
             },
             cloth: match &rb.cloth {
                 Some(r) => r.to_vec()?,
@@ -1373,6 +1411,26 @@ impl CharacterFrame {
                 lobe_visibility: &st.lobe_visibility,
             },
         )
+    }
+
+    /// Pass `compose need`'s CPU twin on the stages the GPU computed (the keys and posed
+    /// positions): the bitmap of the atlas segments the compose pass reads, or None when the
+    /// frame diffuses every segment (no skin or no environment).
+    pub fn needed_twin(&self, st: &Stages) -> Option<Vec<u32>> {
+        self.sss.as_ref()?.need.as_ref()?;
+        Some(compose::cpu::needed_segments(
+            &self.compose_prep,
+            &self.camera,
+            &compose::cpu::HostInputs {
+                gbuffer: &st.gbuffer,
+                keys: &st.keys,
+                positions: &st.positions,
+                diffuse: &st.diffuse,
+                cloth: &st.cloth,
+                lobes: &st.lobes,
+                lobe_visibility: &st.lobe_visibility,
+            },
+        ))
     }
 
     /// The cloth's BTFs: per BTF, where it came from, its parts (bit p: part p) and, when
@@ -1579,6 +1637,9 @@ impl CharacterFrame {
             + self.compose.memory().used_bytes;
         if let Some(s) = &self.sss {
             b += s.kernel.memory().used_bytes;
+            if let Some(n) = &s.need {
+                b += n.memory().used_bytes;
+            }
         }
         for g in &self.cloth {
             b += g.kernel.memory().used_bytes;
@@ -1602,6 +1663,7 @@ pub struct StageReadback {
     normals: crate::gpu::Readback,
     ao: crate::gpu::Readback,
     diffuse: Option<crate::gpu::Readback>,
+    needed: Option<crate::gpu::Readback>,
     cloth: Option<crate::gpu::Readback>,
     lobes: Option<(
         crate::gpu::Readback,
@@ -1623,8 +1685,13 @@ pub struct Stages {
     pub normals: Vec<[f32; 4]>,
     /// AO's visibility per vertex.
     pub ao: Vec<f32>,
-    /// The skin's diffusion per atlas texel.
+    /// The skin's diffusion per atlas texel: this frame's in the segments `needed` marks
+    /// (every texel when it is empty), what the texel last held elsewhere.
     pub diffuse: Vec<[f32; 4]>,
+    /// Pass `compose need`'s bitmap of the atlas segments diffused this frame
+    /// (`kernels::sss::pack::needed_segment` numbers its bits); empty when the diffusion
+    /// covers every segment (no environment).
+    pub needed: Vec<u32>,
     /// The cloth's radiance per pixel.
     pub cloth: Vec<[f32; 4]>,
     /// The rotated environment lobes (two vec4 each) and the per-vertex, per-lobe

@@ -2,6 +2,8 @@
 //! twin the GPU output is tested against.
 
 use super::pack::{Environment, FrameParams, Prepared};
+use crate::kernels::raster::pack::Camera;
+use crate::kernels::sss::pack::{needed_segment, needed_segment_words};
 use glam::{Vec2, Vec3, Vec4};
 use std::f32::consts::PI;
 
@@ -78,6 +80,87 @@ pub fn srgb(c: f32) -> f32 {
     }
 }
 
+/// The ray through the centre of pixel `px` of a `size` frame (glsl/compose/skin_uv.glsl
+/// `pixel_ray`; `right` and `up` pre-scaled by the half-field tangents).
+fn pixel_ray(px: [u32; 2], size: [u32; 2], fwd: Vec3, right: Vec3, up: Vec3) -> Vec3 {
+    let s = (Vec2::new(px[0] as f32, px[1] as f32) + 0.5)
+        / Vec2::new(size[0] as f32, size[1] as f32)
+        * 2.0
+        - 1.0;
+    (fwd + right * s.x - up * s.y).normalize()
+}
+
+/// A skin pixel's barycentrics (w0, u, v) on skin triangle `tri` along the ray eye + t d,
+/// and the atlas uv they give (glsl/compose/skin_uv.glsl).
+fn skin_uv(prep: &Prepared, positions: &[[f32; 4]], tri: u32, eye: Vec3, d: Vec3) -> (Vec3, Vec2) {
+    let t = prep.skin_tris[tri as usize];
+    let p = |v: u32| Vec4::from_array(positions[v as usize]).truncate();
+    let (a, bb, c) = (p(t[0]), p(t[1]), p(t[2]));
+    let (e1, e2) = (bb - a, c - a);
+    let pv = d.cross(e2);
+    let det = e1.dot(pv);
+    let tv = eye - a;
+    let inv = if det != 0.0 { 1.0 / det } else { 0.0 };
+    let u = (tv.dot(pv) * inv).clamp(0.0, 1.0);
+    let qv = tv.cross(e1);
+    let v = (d.dot(qv) * inv).clamp(0.0, 1.0 - u);
+    let w0 = 1.0 - u - v;
+    let uv01 = prep.skin_uvs[2 * tri as usize];
+    let uv2 = prep.skin_uvs[2 * tri as usize + 1];
+    let uv = Vec2::new(uv01[0], uv01[1]) * w0
+        + Vec2::new(uv01[2], uv01[3]) * u
+        + Vec2::new(uv2[0], uv2[1]) * v;
+    (Vec3::new(w0, u, v), uv)
+}
+
+/// Texels: `compose need` takes the bilinear footprint's floor at t -/+ this, so a coordinate
+/// this close to a texel boundary marks the texels on both sides (the two passes' uv differ
+/// by rounding at most, far less than this).
+pub const NEED_MARGIN: f32 = 0.01;
+
+/// Pass `compose need` on the CPU (glsl/compose/need.comp): the bitmap of the atlas's 8x1
+/// row segments holding the texels [`shade`] reads the diffusion at (the 2 x 2 bilinear
+/// footprint of every skin pixel, widened to 3 where within [`NEED_MARGIN`] of a texel
+/// boundary), in the layout of
+/// `kernels::sss::pack::needed_segment`. A pixel is skin where its key names a skin triangle
+/// (an empty key names none). Reads the keys and the posed positions of `inp`.
+pub fn needed_segments(prep: &Prepared, camera: &Camera, inp: &HostInputs<'_>) -> Vec<u32> {
+    let n = prep.atlas_size;
+    let mut words = vec![0u32; needed_segment_words(n) as usize];
+    let [w, h] = prep.size;
+    let b = camera.basis(prep.size);
+    let (fwd, right, up) = (b.forward, b.right * b.tan_x, b.up * b.tan_y);
+    for y in 0..h {
+        for x in 0..w {
+            let idx = (y * w + x) as usize;
+            let tri = (inp.keys[idx] & 0xFFFF_FFFF) as u32;
+            if tri >= prep.skin_triangles {
+                continue;
+            }
+            let d = pixel_ray([x, y], prep.size, fwd, right, up);
+            let (_, uv) = skin_uv(prep, inp.positions, tri, camera.eye, d);
+            let nf = n as f32;
+            let t = uv * nf - Vec2::splat(0.5);
+            let (lo_b, hi_b) = (Vec2::splat(-2.0), Vec2::splat(nf + 1.0));
+            let lo = (t - Vec2::splat(NEED_MARGIN)).floor().clamp(lo_b, hi_b);
+            let hi = (t + Vec2::splat(NEED_MARGIN)).floor().clamp(lo_b, hi_b);
+            let last = n as i32 - 1;
+            let (ax, ay) = ((lo.x as i32).clamp(0, last), (lo.y as i32).clamp(0, last));
+            let (bx, by) = (
+                (hi.x as i32 + 1).clamp(0, last),
+                (hi.y as i32 + 1).clamp(0, last),
+            );
+            for ty in ay..=by {
+                for tx in [ax as u32, bx as u32] {
+                    let s = needed_segment(tx, ty as u32, n);
+                    words[(s / 32) as usize] |= 1 << (s % 32);
+                }
+            }
+        }
+    }
+    words
+}
+
 /// The pass on the CPU: (linear radiance per pixel, RGBA8 word per pixel).
 pub fn shade(
     prep: &Prepared,
@@ -103,9 +186,7 @@ pub fn shade(
     for y in 0..h {
         for x in 0..w {
             let idx = (y * w + x) as usize;
-            let s =
-                (Vec2::new(x as f32, y as f32) + 0.5) / Vec2::new(w as f32, h as f32) * 2.0 - 1.0;
-            let d = (fwd + right * s.x - up * s.y).normalize();
+            let d = pixel_ray([x, y], prep.size, fwd, right, up);
             let g0 = inp.gbuffer[idx];
             let radiance = if g0[3] == 0.0 {
                 background
@@ -123,22 +204,8 @@ pub fn shade(
                 );
                 if tri < prep.skin_triangles {
                     let t = prep.skin_tris[tri as usize];
-                    let p = |v: u32| Vec4::from_array(inp.positions[v as usize]).truncate();
-                    let (a, bb, c) = (p(t[0]), p(t[1]), p(t[2]));
-                    let (e1, e2) = (bb - a, c - a);
-                    let pv = d.cross(e2);
-                    let det = e1.dot(pv);
-                    let tv = eye - a;
-                    let inv = if det != 0.0 { 1.0 / det } else { 0.0 };
-                    let u = (tv.dot(pv) * inv).clamp(0.0, 1.0);
-                    let qv = tv.cross(e1);
-                    let v = (d.dot(qv) * inv).clamp(0.0, 1.0 - u);
-                    let w0 = 1.0 - u - v;
-                    let uv01 = prep.skin_uvs[2 * tri as usize];
-                    let uv2 = prep.skin_uvs[2 * tri as usize + 1];
-                    let uv = Vec2::new(uv01[0], uv01[1]) * w0
-                        + Vec2::new(uv01[2], uv01[3]) * u
-                        + Vec2::new(uv2[0], uv2[1]) * v;
+                    let (bc, uv) = skin_uv(prep, inp.positions, tri, eye, d);
+                    let (w0, u, v) = (bc.x, bc.y, bc.z);
                     let n = Vec4::from_array(inp.gbuffer[pixels + idx]).truncate();
                     let view = -d;
                     let nv = n.dot(view).max(1e-4);

@@ -7,6 +7,7 @@ use crate::gpu::{
     AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context, Image,
     MemoryReport, Readback, Recorder, Resource,
 };
+use crate::kernels::raster::pack::Camera;
 use crate::kernels::{Dispatch, Grid, Kernel, Pass};
 
 /// The upload of the frame's parameters.
@@ -340,6 +341,165 @@ impl Kernel for ComposeKernel {
         let mut all: Vec<&Buffer> = vec![&self.params, &self.hdr, &self.ldr];
         all.extend(self.own.iter());
         all.extend(self.spare.iter());
+        self.ctx.memory_of(&all)
+    }
+}
+
+/// The clearing of the needed-segment bitmap (an upload of zeros).
+pub const PASS_NEED_CLEAR: &str = "compose need clear";
+/// The marking of the atlas segments the compose pass reads (glsl/compose/need.comp).
+pub const PASS_NEED: &str = "compose need";
+
+/// Pass `compose need`: per frame, the bitmap of the skin atlas's 8x1 row segments that
+/// [`ComposeKernel`]'s shade pass will read the diffusion at (every skin pixel's bilinear
+/// footprint, a texel of margin around it), for `SssKernel::set_needed_segments`, so that the
+/// texture-space diffusion runs only where the frame looks. Recorded after the raster and
+/// pose passes and before the diffusion; its input is the camera the G-buffer was rasterised
+/// with. The twin is [`super::cpu::needed_segments`].
+pub struct NeedKernel {
+    ctx: Context,
+    pipeline: ComputePipeline,
+    bind: BindGroup,
+    needed: Buffer,
+    own: Vec<Buffer>,
+    size: [u32; 2],
+    atlas: u32,
+    skin_triangles: u32,
+}
+
+/// What [`NeedKernel`] reads that other kernels write.
+#[derive(Clone, Copy)]
+pub struct NeedInputs<'a> {
+    /// The rasteriser's per-pixel (depth, triangle) keys, 8 bytes a pixel (an empty key
+    /// names no triangle).
+    pub keys: &'a Buffer,
+    /// Posed positions, vec4 per vertex (`kernels::pose`).
+    pub positions: &'a Buffer,
+}
+
+/// A finished [`NeedKernel`] readback.
+pub struct NeedReadback(Readback);
+
+impl NeedKernel {
+    /// Creates the bitmap and the pass for `prep`'s skin (its triangles' atlas corners) and
+    /// records the uploads. `prep` must have skin triangles.
+    pub fn new(rec: &mut Recorder, prep: &Prepared, inputs: &NeedInputs<'_>) -> Result<NeedKernel> {
+        let ctx = rec.context();
+        let [w, h] = prep.size;
+        let pixels = w as u64 * h as u64;
+        if prep.skin_triangles == 0 || prep.atlas_size == 0 {
+            return Err(Error::InvalidArgument(
+                "compose need: no skin triangles, so no diffusion to restrict".into(),
+            ));
+        }
+        if inputs.keys.size() < pixels * 8 {
+            return Err(too_small("the key buffer", inputs.keys.size(), pixels * 8));
+        }
+        let vertices = inputs.positions.size() / 16;
+        let max_vertex = prep.skin_tris.iter().flat_map(|t| &t[..3]).max();
+        if max_vertex.is_some_and(|&v| v as u64 >= vertices) {
+            return Err(Error::InvalidArgument(format!(
+                "compose need: a skin triangle names vertex {} of {vertices} posed",
+                max_vertex.copied().unwrap_or(0)
+            )));
+        }
+        let storage = BufferDesc::storage;
+        let skin_tris = rec.buffer_with(
+            "compose need skin triangles",
+            storage(prep.skin_tris.len() as u64 * 16),
+            &prep.skin_tris,
+        )?;
+        let skin_uvs = rec.buffer_with(
+            "compose need skin uvs",
+            storage(prep.skin_uvs.len() as u64 * 16),
+            &prep.skin_uvs,
+        )?;
+        let words = crate::kernels::sss::pack::needed_segment_words(prep.atlas_size);
+        let needed = Buffer::new(&ctx, "compose needed segments", storage(words * 4))?;
+        let pipeline = crate::shaders::pipeline(&ctx, "compose/need")?;
+        let own = vec![skin_tris, skin_uvs];
+        let lookup = |name: &str| -> Option<Resource<'_>> {
+            Some(match name {
+                "keys" => Resource::Buffer(inputs.keys),
+                "pos" => Resource::Buffer(inputs.positions),
+                "skin_tris" => Resource::Buffer(&own[0]),
+                "skin_uvs" => Resource::Buffer(&own[1]),
+                "needed" => Resource::Buffer(&needed),
+                _ => return None,
+            })
+        };
+        // Atomic ORs into the cleared bitmap: a read and a write.
+        let rw = A::ComputeShaderReadOther | A::ComputeShaderWrite;
+        let bind = pipeline.bind_from(lookup, &[("needed", rw)])?;
+        Ok(NeedKernel {
+            ctx,
+            pipeline,
+            bind,
+            needed,
+            own,
+            size: prep.size,
+            atlas: prep.atlas_size,
+            skin_triangles: prep.skin_triangles,
+        })
+    }
+
+    /// The bitmap (`kernels::sss::pack::needed_segment` numbers its bits), written by
+    /// `compose need` each frame.
+    pub fn needed(&self) -> &Buffer {
+        &self.needed
+    }
+
+    fn clear_bytes(&self, _camera: &Camera) -> Result<Vec<u8>> {
+        Ok(vec![0u8; self.needed.size() as usize])
+    }
+
+    fn need_args(&self, camera: &Camera) -> Result<Dispatch> {
+        let b = camera.basis(self.size);
+        let v4 = |v: glam::Vec3| [v.x.to_bits(), v.y.to_bits(), v.z.to_bits(), 0];
+        let mut words = Vec::with_capacity(20);
+        words.extend(v4(camera.eye));
+        words.extend(v4(b.forward));
+        words.extend(v4(b.right * b.tan_x));
+        words.extend(v4(b.up * b.tan_y));
+        words.extend([self.size[0], self.size[1], self.atlas, self.skin_triangles]);
+        Ok(Dispatch::words(
+            &words,
+            Grid::Invocations([self.size[0], self.size[1], 1]),
+        ))
+    }
+}
+
+impl Kernel for NeedKernel {
+    type Input = Camera;
+    type Readback = NeedReadback;
+    type Output = Vec<u32>;
+
+    fn name(&self) -> &'static str {
+        "compose need"
+    }
+
+    fn pass_table(&self) -> Vec<Pass<'_, Self>> {
+        vec![
+            Pass::upload(PASS_NEED_CLEAR, &self.needed, Self::clear_bytes),
+            Pass::dispatch(PASS_NEED, &self.pipeline, &self.bind, Self::need_args),
+        ]
+    }
+
+    fn check_input(&self, camera: &Camera) -> Result<()> {
+        camera.check()
+    }
+
+    fn read_back(&self, rec: &mut Recorder) -> Result<NeedReadback> {
+        Ok(NeedReadback(rec.read_back(&self.needed)?))
+    }
+
+    fn collect(&self, rb: &NeedReadback) -> Result<Vec<u32>> {
+        rb.0.to_vec()
+    }
+
+    fn memory(&self) -> MemoryReport {
+        let mut all: Vec<&Buffer> = vec![&self.needed];
+        all.extend(self.own.iter());
         self.ctx.memory_of(&all)
     }
 }

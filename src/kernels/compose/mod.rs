@@ -18,5 +18,7 @@ pub mod cpu;
 pub mod gpu;
 pub mod pack;
 
-pub use gpu::{ComposeKernel, ComposeOutput, PASS_PARAMS, PASS_SHADE};
+pub use gpu::{
+    ComposeKernel, ComposeOutput, NeedKernel, PASS_NEED, PASS_NEED_CLEAR, PASS_PARAMS, PASS_SHADE,
+};
 pub use pack::{Environment, FrameParams, Prepared, SkinSpecular};

@@ -352,6 +352,9 @@ pub struct SssKernel {
     irradiance_kind: AtomicU8,
     /// The per-vertex irradiance added by the irradiance pass, when set.
     env: Option<Env>,
+    /// The caller's bitmap of the atlas segments its diffusion must fill
+    /// ([`SssKernel::set_needed_segments`]), when set.
+    needed: Option<Buffer>,
     settings: Settings,
     /// The per-frame geometry passes of a skinned mesh ([`SssKernel::new_posed`]).
     posed: Option<Posed>,
@@ -555,6 +558,7 @@ impl SssKernel {
             // an irradiance.
             irradiance_kind: AtomicU8::new(IRR_GREY),
             env: None,
+            needed: None,
             settings: Settings {
                 regions,
                 params,
@@ -885,8 +889,8 @@ impl SssKernel {
         };
         let copy = Stage::from_table(&ctx, "sss/vertex_env", &table, &["venv_texels"])?;
         let irradiance = Stage::from_table(&ctx, shader, &table, &["trans", "penv"])?;
-        let diffusion = Stage::from_table(&ctx, "sss/diffusion_env", &table, &["diffuse"])?;
         drop(table);
+        let diffusion = self.env_diffusion(&image, self.needed.as_ref())?;
         self.env = Some(Env {
             image,
             vertex_texels,
@@ -894,6 +898,65 @@ impl SssKernel {
             irradiance,
             diffusion,
         });
+        Ok(())
+    }
+
+    /// The diffusion stage of the per-vertex irradiance's rgb E (`image`), on every occupied
+    /// segment or, with `needed`, on the segments it marks.
+    fn env_diffusion(&self, image: &Image, needed: Option<&Buffer>) -> Result<Stage> {
+        let posed = self.posed.as_ref().map(|p| p.by_binding());
+        let table: Vec<(&'static str, Resource<'_>)> = self
+            .res
+            .by_binding()
+            .into_iter()
+            .chain(posed.into_iter().flatten())
+            .chain([("penv", Resource::storage_image(image))])
+            .chain(needed.map(|b| ("needed", Resource::Buffer(b))))
+            .collect();
+        let shader = match needed {
+            Some(_) => "sss/diffusion_env_needed",
+            None => "sss/diffusion_env",
+        };
+        Stage::from_table(&self.ctx, shader, &table, &["diffuse"])
+    }
+
+    /// Bytes of a needed-segment bitmap for this kernel's atlas
+    /// ([`SssKernel::set_needed_segments`]): one bit per 8x1 row segment, segment
+    /// `y * ceil(size / 8) + x / 8`, in u32 words (at least one).
+    pub fn needed_segment_bytes(&self) -> u64 {
+        pack::needed_segment_words(self.size()) * 4
+    }
+
+    /// Restricts the diffusion of a per-vertex irradiance ([`SssKernel::set_vertex_irradiance`],
+    /// set first) to the atlas segments a caller needs each frame: `needed` is a bitmap of
+    /// [`SssKernel::needed_segment_bytes`] bytes, bit s of word s / 32 for the 8x1 row segment
+    /// s = y * ceil(size / 8) + x / 8, written by an earlier pass of the same recording (the
+    /// character frame marks the segments its compose pass reads: `compose need`). The
+    /// diffusion skips the other segments, whose texels keep what they held: only the marked
+    /// ones are this frame's. `None` diffuses every segment again.
+    pub fn set_needed_segments(&mut self, needed: Option<&Buffer>) -> Result<()> {
+        let Some(env) = &self.env else {
+            return Err(Error::InvalidArgument(
+                "needed segments restrict the diffusion of a per-vertex irradiance: set one \
+                 first (set_vertex_irradiance)"
+                    .into(),
+            ));
+        };
+        if let Some(b) = needed
+            && b.size() < self.needed_segment_bytes()
+        {
+            return Err(Error::InvalidArgument(format!(
+                "needed-segment bitmap of {} bytes for a {}^2 atlas ({} bytes)",
+                b.size(),
+                self.size(),
+                self.needed_segment_bytes()
+            )));
+        }
+        let diffusion = self.env_diffusion(&env.image, needed)?;
+        self.needed = needed.cloned();
+        if let Some(env) = &mut self.env {
+            env.diffusion = diffusion;
+        }
         Ok(())
     }
 

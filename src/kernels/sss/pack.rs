@@ -418,6 +418,20 @@ pub fn contact_entries(contact: &Contact) -> Vec<[u32; 4]> {
         .collect()
 }
 
+/// u32 words of a needed-segment bitmap for a `size`^2 atlas (`SssKernel::set_needed_segments`;
+/// at least one): one bit per 8x1 row segment, [`needed_segment`] numbers them.
+pub fn needed_segment_words(size: u32) -> u64 {
+    (size as u64 * (size as u64).div_ceil(8))
+        .div_ceil(32)
+        .max(1)
+}
+
+/// The segment of texel (x, y) of a `size`^2 atlas in a needed-segment bitmap: bit s % 32 of
+/// word s / 32 for s = y * ceil(size / 8) + x / 8.
+pub fn needed_segment(x: u32, y: u32, size: u32) -> u64 {
+    y as u64 * (size as u64).div_ceil(8) + (x / 8) as u64
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
