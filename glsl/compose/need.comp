@@ -9,6 +9,8 @@
 // span) and any rounding difference between the two passes' uv (far below MARGIN) still
 // finds its texels marked. The bitmap is cleared each frame before this pass.
 // A pixel is skin where its key names a skin triangle (an empty key, ~0, names none).
+// Dispatched indirectly over the rasteriser's list of covered 16 x 4 tiles
+// (glsl/raster/tiles.comp): pixels outside them hold no triangle.
 layout(local_size_x = 16, local_size_y = 4) in;
 
 layout(push_constant) uniform Push {
@@ -25,6 +27,8 @@ layout(std430, set = 0, binding = 2) readonly buffer Positions { vec4 p[]; } pos
 layout(std430, set = 0, binding = 3) readonly buffer SkinTris { uvec4 v[]; } skin_tris;
 layout(std430, set = 0, binding = 4) readonly buffer SkinUvs { vec4 uv[]; } skin_uvs;
 layout(std430, set = 0, binding = 5) buffer Needed { uint w[]; } needed;
+// The tile list: workgroup i marks from the 16 x 4 tile list[i] (index ty * tiles_x + tx).
+layout(std430, set = 0, binding = 6) readonly buffer Tiles { uint head[4]; uint list[]; } tiles;
 
 #include <compose/skin_uv.glsl>
 
@@ -32,31 +36,30 @@ layout(std430, set = 0, binding = 5) buffer Needed { uint w[]; } needed;
 const float MARGIN = 0.01;
 
 void main() {
-    uvec2 px = gl_GlobalInvocationID.xy;
+    uint tile = tiles.list[gl_WorkGroupID.x];
+    uint tiles_x = (pc.counts.x + 15u) / 16u;
+    uvec2 px = uvec2(tile % tiles_x, tile / tiles_x) * uvec2(16u, 4u) + gl_LocalInvocationID.xy;
     if (any(greaterThanEqual(px, pc.counts.xy))) return;
     uint tri = keys.k[px.y * pc.counts.x + px.x].x;
-    // Background or cloth: the compose pass reads no diffusion there. A loop rather than an
-    // `if`: lavapipe runs both sides of a branch under lane masks, but leaves a loop when no
-    // lane is left in it, so a SIMD step of pixels without skin (most) skips the body.
-    for (uint once = 0u; tri < pc.counts.w && once < 1u; once++) {
-        vec3 d = pixel_ray(px, pc.counts.xy, pc.forward.xyz, pc.right.xyz, pc.up.xyz);
-        uvec4 t = skin_tris.v[tri];
-        vec3 bc = skin_barycentrics(pos.p[t.x].xyz, pos.p[t.y].xyz, pos.p[t.z].xyz, pc.eye.xyz, d);
-        vec2 uv = skin_atlas_uv(skin_uvs.uv[2u * tri], skin_uvs.uv[2u * tri + 1u].xy, bc);
-        int n = int(pc.counts.z);
-        // Clamped before the conversion: a uv far outside [0, 1] (or NaN) marks the border.
-        vec2 tc = uv * float(n) - 0.5;
-        vec2 lo = clamp(floor(tc - MARGIN), vec2(-2.0), vec2(float(n) + 1.0));
-        vec2 hi = clamp(floor(tc + MARGIN), vec2(-2.0), vec2(float(n) + 1.0));
-        ivec2 a = clamp(ivec2(lo), ivec2(0), ivec2(n - 1));
-        ivec2 b = clamp(ivec2(hi) + 1, ivec2(0), ivec2(n - 1));
-        uint segs = uint(n + 7) / 8u;
-        int x0 = a.x / 8, x1 = b.x / 8;
-        for (int y = a.y; y <= b.y; y++) {
-            for (int sx = x0; sx <= x1; sx++) {
-                uint seg = uint(y) * segs + uint(sx);
-                atomicOr(needed.w[seg >> 5u], 1u << (seg & 31u));
-            }
+    // Background or cloth: the compose pass reads no diffusion there.
+    if (tri >= pc.counts.w) return;
+    vec3 d = pixel_ray(px, pc.counts.xy, pc.forward.xyz, pc.right.xyz, pc.up.xyz);
+    uvec4 t = skin_tris.v[tri];
+    vec3 bc = skin_barycentrics(pos.p[t.x].xyz, pos.p[t.y].xyz, pos.p[t.z].xyz, pc.eye.xyz, d);
+    vec2 uv = skin_atlas_uv(skin_uvs.uv[2u * tri], skin_uvs.uv[2u * tri + 1u].xy, bc);
+    int n = int(pc.counts.z);
+    // Clamped before the conversion: a uv far outside [0, 1] (or NaN) marks the border.
+    vec2 tc = uv * float(n) - 0.5;
+    vec2 lo = clamp(floor(tc - MARGIN), vec2(-2.0), vec2(float(n) + 1.0));
+    vec2 hi = clamp(floor(tc + MARGIN), vec2(-2.0), vec2(float(n) + 1.0));
+    ivec2 a = clamp(ivec2(lo), ivec2(0), ivec2(n - 1));
+    ivec2 b = clamp(ivec2(hi) + 1, ivec2(0), ivec2(n - 1));
+    uint segs = uint(n + 7) / 8u;
+    int x0 = a.x / 8, x1 = b.x / 8;
+    for (int y = a.y; y <= b.y; y++) {
+        for (int sx = x0; sx <= x1; sx++) {
+            uint seg = uint(y) * segs + uint(sx);
+            atomicOr(needed.w[seg >> 5u], 1u << (seg & 31u));
         }
     }
 }

@@ -1023,20 +1023,21 @@ impl CharacterFrame {
                 // The diffusion runs only on the atlas segments the compose pass will read
                 // this frame (every skin pixel's bilinear footprint and a texel around it),
                 // marked from the G-buffer after the raster passes.
-                let need = match &env {
-                    Some(_) => {
+                let need = match (&env, raster.tiles()) {
+                    (Some(_), Some(tiles)) => {
                         let n = NeedKernel::new(
                             &mut rec,
                             &compose::Prepared::new(cfg.size, geo)?,
                             &compose::gpu::NeedInputs {
                                 keys: raster.keys(),
                                 positions: pose.positions(),
+                                tiles,
                             },
                         )?;
                         kernel.set_needed_segments(Some(n.needed()))?;
                         Some(n)
                     }
-                    None => None,
+                    _ => None,
                 };
                 // The diffusion is grey per light: the lights' mean irradiance drives it.
                 let lights = cfg

@@ -8,7 +8,7 @@ use crate::gpu::{
     MemoryReport, Readback, Recorder, Resource,
 };
 use crate::kernels::raster::pack::Camera;
-use crate::kernels::{Dispatch, Grid, Kernel, Pass};
+use crate::kernels::{Dispatch, Grid, IndirectArgs, Kernel, Pass};
 
 /// The upload of the frame's parameters.
 pub const PASS_PARAMS: &str = "compose params";
@@ -361,6 +361,7 @@ pub struct NeedKernel {
     pipeline: ComputePipeline,
     bind: BindGroup,
     needed: Buffer,
+    tiles: Buffer,
     own: Vec<Buffer>,
     size: [u32; 2],
     atlas: u32,
@@ -375,6 +376,9 @@ pub struct NeedInputs<'a> {
     pub keys: &'a Buffer,
     /// Posed positions, vec4 per vertex (`kernels::pose`).
     pub positions: &'a Buffer,
+    /// The rasteriser's list of covered tiles (`RasterKernel::tiles`): the pass is dispatched
+    /// indirectly over it.
+    pub tiles: &'a Buffer,
 }
 
 /// A finished [`NeedKernel`] readback.
@@ -425,6 +429,7 @@ impl NeedKernel {
                 "skin_tris" => Resource::Buffer(&own[0]),
                 "skin_uvs" => Resource::Buffer(&own[1]),
                 "needed" => Resource::Buffer(&needed),
+                "tiles" => Resource::Buffer(inputs.tiles),
                 _ => return None,
             })
         };
@@ -436,6 +441,7 @@ impl NeedKernel {
             pipeline,
             bind,
             needed,
+            tiles: inputs.tiles.clone(),
             own,
             size: prep.size,
             atlas: prep.atlas_size,
@@ -453,7 +459,7 @@ impl NeedKernel {
         Ok(vec![0u8; self.needed.size() as usize])
     }
 
-    fn need_args(&self, camera: &Camera) -> Result<Dispatch> {
+    fn need_push(&self, camera: &Camera) -> Result<Vec<u8>> {
         let b = camera.basis(self.size);
         let v4 = |v: glam::Vec3| [v.x.to_bits(), v.y.to_bits(), v.z.to_bits(), 0];
         let mut words = Vec::with_capacity(20);
@@ -462,10 +468,7 @@ impl NeedKernel {
         words.extend(v4(b.right * b.tan_x));
         words.extend(v4(b.up * b.tan_y));
         words.extend([self.size[0], self.size[1], self.atlas, self.skin_triangles]);
-        Ok(Dispatch::words(
-            &words,
-            Grid::Invocations([self.size[0], self.size[1], 1]),
-        ))
+        Ok(words.iter().flat_map(|w| w.to_le_bytes()).collect())
     }
 }
 
@@ -481,7 +484,16 @@ impl Kernel for NeedKernel {
     fn pass_table(&self) -> Vec<Pass<'_, Self>> {
         vec![
             Pass::upload(PASS_NEED_CLEAR, &self.needed, Self::clear_bytes),
-            Pass::dispatch(PASS_NEED, &self.pipeline, &self.bind, Self::need_args),
+            Pass::dispatch_indirect(
+                PASS_NEED,
+                &self.pipeline,
+                &self.bind,
+                IndirectArgs {
+                    buffer: &self.tiles,
+                    offset: 0,
+                },
+                Self::need_push,
+            ),
         ]
     }
 
