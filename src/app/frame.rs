@@ -43,6 +43,10 @@ pub struct Args {
     /// (grid^2 rays through the posed mesh, 1..=16); 0: AO's visibility as a scale instead.
     #[arg(long, default_value_t = crate::kernels::env::DEFAULT_TRACE_GRID)]
     pub env_trace_grid: u32,
+    /// Diffuse every atlas segment and shade every pixel, not only what the camera sees (the
+    /// same images, slower: an A/B switch for the culling)
+    #[arg(long)]
+    pub no_cull: bool,
     /// The animation to play.
     #[arg(long, default_value = "Epileptisch")]
     pub anim: String,
@@ -232,6 +236,7 @@ impl Args {
             env_lobes: self.env_lobes,
             env_hdr: self.hdr.policy(),
             env_trace_grid: (self.env_trace_grid > 0).then_some(self.env_trace_grid),
+            cull: !self.no_cull,
             ao_correction_rays: self.ao_correction_rays,
             materials: match self.materials.as_str() {
                 "measured" => crate::frame::Materials::Measured,

@@ -411,6 +411,25 @@ pub const CASES: &[Case] = &[
             "{out}",
         ],
     ),
+    // Every atlas segment and every pixel (modules sss/diffusion_env and compose/shade; the
+    // default culls to what the camera sees).
+    cli(
+        "frame-no-cull",
+        &[
+            "frame",
+            "--frames",
+            "1",
+            "--size",
+            "64",
+            "--atlas",
+            "64",
+            "--samples",
+            "4",
+            "--no-cull",
+            "--out",
+            "{out}",
+        ],
+    ),
     cli(
         "bench-peak",
         &[

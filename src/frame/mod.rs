@@ -115,6 +115,12 @@ pub struct FrameConfig {
     /// per distinct material, each texel diffusing with its own part's profile
     /// ([`crate::kernels::sss::regions`]).
     pub skin_parts: Vec<SkinPart>,
+    /// Work only where the camera looks (the default): with an environment, the skin's
+    /// diffusion runs on the atlas segments the compose pass will read (pass `compose
+    /// need`), and the compose pass shades the rasteriser's covered tiles after filling the
+    /// background (pass `compose background`). Off: every segment and every pixel. The
+    /// images are the same either way (bit for bit).
+    pub cull: bool,
 }
 
 /// A skin part's own scattering material ([`FrameConfig::skin_parts`]).
@@ -282,6 +288,7 @@ impl Default for FrameConfig {
             cloth_parts: Vec::new(),
             skin_material: Material::SKIN1,
             skin_parts: Vec::new(),
+            cull: true,
         }
     }
 }
@@ -1023,7 +1030,7 @@ impl CharacterFrame {
                 // The diffusion runs only on the atlas segments the compose pass will read
                 // this frame (every skin pixel's bilinear footprint and a texel around it),
                 // marked from the G-buffer after the raster passes.
-                let need = match (&env, raster.tiles()) {
+                let need = match (&env, raster.tiles().filter(|_| cfg.cull)) {
                     (Some(_), Some(tiles)) => {
                         let n = NeedKernel::new(
                             &mut rec,
@@ -1185,6 +1192,7 @@ impl CharacterFrame {
                 lobes: env.as_ref().map(|e| (e.lobes(), e.lobe_count() as u32)),
                 lobe_visibility: env.as_ref().map(|e| e.visibility()),
                 background: cfg.background,
+                tiles: raster.tiles().filter(|_| cfg.cull),
             },
         )?;
         rec.submit_and_wait()?;

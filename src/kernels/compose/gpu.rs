@@ -14,6 +14,11 @@ use crate::kernels::{Dispatch, Grid, IndirectArgs, Kernel, Pass};
 pub const PASS_PARAMS: &str = "compose params";
 /// The per-pixel shading, tone mapping and encoding.
 pub const PASS_SHADE: &str = "compose shade";
+/// With a tile list: the background pixel, tone-mapped once.
+pub const PASS_BACKGROUND_VALUE: &str = "compose background value";
+/// With a tile list: every pixel takes the background before `compose shade` shades the
+/// covered tiles.
+pub const PASS_BACKGROUND: &str = "compose background";
 
 /// Bytes of the parameter block (std430 `Params`).
 const PARAMS_BYTES: u64 = 192;
@@ -37,6 +42,11 @@ pub struct Inputs<'a> {
     pub lobe_visibility: Option<&'a Buffer>,
     /// The background behind the character (linear rgb).
     pub background: [f32; 3],
+    /// The rasteriser's list of covered tiles (`RasterKernel::tiles`): with it, pass `compose
+    /// background` fills every pixel and `compose shade` is dispatched indirectly over the
+    /// listed tiles only (the same images; lavapipe pays the whole shader for every pixel it
+    /// runs, background included). None: `compose shade` over every pixel.
+    pub tiles: Option<&'a Buffer>,
 }
 
 /// One frame's images, read back.
@@ -57,6 +67,17 @@ impl ComposeOutput {
     }
 }
 
+/// Pass `compose background` and the tile list `compose shade` is dispatched over.
+struct Tiled {
+    value: ComputePipeline,
+    value_bind: BindGroup,
+    background: ComputePipeline,
+    background_bind: BindGroup,
+    tiles: Buffer,
+    /// The background pixel as the shade pass stores it: HDR (vec4) and LDR (one word).
+    own: [Buffer; 2],
+}
+
 /// The readbacks of a frame's images.
 pub struct ComposeReadback {
     hdr: Readback,
@@ -68,6 +89,8 @@ pub struct ComposeKernel {
     ctx: Context,
     pipeline: ComputePipeline,
     bind: BindGroup,
+    /// With a tile list: pass `compose background` and the list.
+    tiled: Option<Tiled>,
     params: Buffer,
     hdr: Buffer,
     ldr: Buffer,
@@ -226,7 +249,10 @@ impl ComposeKernel {
             }
         };
         let own = vec![skin_tris, skin_uvs, mask, surfaces, texels];
-        let pipeline = crate::shaders::pipeline(&ctx, "compose/shade")?;
+        let pipeline = match inputs.tiles {
+            Some(_) => crate::shaders::pipeline(&ctx, "compose/shade_tiles")?,
+            None => crate::shaders::pipeline(&ctx, "compose/shade")?,
+        };
         let lookup = |name: &str| -> Option<Resource<'_>> {
             Some(match name {
                 "gbuffer" => Resource::texture(inputs.gbuffer),
@@ -244,11 +270,36 @@ impl ComposeKernel {
                 "params" => Resource::Buffer(&params),
                 "hdr" => Resource::Buffer(&hdr),
                 "ldr" => Resource::Buffer(&ldr),
+                "tiles" => Resource::Buffer(inputs.tiles?),
                 _ => return None,
             })
         };
         let w = AccessSet::from(A::ComputeShaderWrite);
         let bind = pipeline.bind_from(lookup, &[("hdr", w), ("ldr", w)])?;
+        let tiled = match inputs.tiles {
+            Some(t) => {
+                let bg_hdr = Buffer::new(&ctx, "compose background hdr", storage(16))?;
+                let bg_ldr = Buffer::new(&ctx, "compose background ldr", storage(4))?;
+                let with_bg = |name: &str| match name {
+                    "bg_hdr" => Some(Resource::Buffer(&bg_hdr)),
+                    "bg_ldr" => Some(Resource::Buffer(&bg_ldr)),
+                    _ => lookup(name),
+                };
+                let value = crate::shaders::pipeline(&ctx, "compose/background_value")?;
+                let value_bind = value.bind_from(with_bg, &[("bg_hdr", w), ("bg_ldr", w)])?;
+                let background = crate::shaders::pipeline(&ctx, "compose/background")?;
+                let background_bind = background.bind_from(with_bg, &[("hdr", w), ("ldr", w)])?;
+                Some(Tiled {
+                    value,
+                    value_bind,
+                    background,
+                    background_bind,
+                    tiles: t.clone(),
+                    own: [bg_hdr.clone(), bg_ldr.clone()],
+                })
+            }
+            None => None,
+        };
         let env = match inputs.lobes {
             Some((_, n)) => Environment::Lobes(n, inputs.background),
             None => Environment::None(inputs.background),
@@ -258,6 +309,7 @@ impl ComposeKernel {
             ctx,
             pipeline,
             bind,
+            tiled,
             params,
             hdr,
             ldr,
@@ -312,10 +364,45 @@ impl Kernel for ComposeKernel {
     }
 
     fn pass_table(&self) -> Vec<Pass<'_, Self>> {
-        vec![
-            Pass::upload(PASS_PARAMS, &self.params, Self::params_bytes),
-            Pass::dispatch(PASS_SHADE, &self.pipeline, &self.bind, Self::shade_args),
-        ]
+        let mut passes = vec![Pass::upload(PASS_PARAMS, &self.params, Self::params_bytes)];
+        match &self.tiled {
+            Some(t) => passes.extend([
+                Pass::dispatch(PASS_BACKGROUND_VALUE, &t.value, &t.value_bind, |_, _| {
+                    Ok(Dispatch {
+                        push: Vec::new(),
+                        grid: Grid::Groups([1, 1, 1]),
+                    })
+                }),
+                Pass::dispatch(
+                    PASS_BACKGROUND,
+                    &t.background,
+                    &t.background_bind,
+                    |k: &ComposeKernel, _| {
+                        Ok(Dispatch::words(
+                            &k.size,
+                            Grid::Invocations([k.size[0], k.size[1], 1]),
+                        ))
+                    },
+                ),
+                Pass::dispatch_indirect(
+                    PASS_SHADE,
+                    &self.pipeline,
+                    &self.bind,
+                    IndirectArgs {
+                        buffer: &t.tiles,
+                        offset: 0,
+                    },
+                    |_, _| Ok(Vec::new()),
+                ),
+            ]),
+            None => passes.push(Pass::dispatch(
+                PASS_SHADE,
+                &self.pipeline,
+                &self.bind,
+                Self::shade_args,
+            )),
+        }
+        passes
     }
 
     fn check_input(&self, p: &FrameParams) -> Result<()> {
@@ -340,6 +427,9 @@ impl Kernel for ComposeKernel {
     fn memory(&self) -> MemoryReport {
         let mut all: Vec<&Buffer> = vec![&self.params, &self.hdr, &self.ldr];
         all.extend(self.own.iter());
+        if let Some(t) = &self.tiled {
+            all.extend(t.own.iter());
+        }
         all.extend(self.spare.iter());
         self.ctx.memory_of(&all)
     }
