@@ -1405,21 +1405,7 @@ impl CharacterFrame {
             ),
             None => (compose::Environment::None(self.cfg.background), false),
         };
-        compose::cpu::shade(
-            &self.compose_prep,
-            params,
-            env,
-            vis,
-            &compose::cpu::HostInputs {
-                gbuffer: &st.gbuffer,
-                keys: &st.keys,
-                positions: &st.positions,
-                diffuse: &st.diffuse,
-                cloth: &st.cloth,
-                lobes: &st.lobes,
-                lobe_visibility: &st.lobe_visibility,
-            },
-        )
+        compose::cpu::shade(&self.compose_prep, params, env, vis, &st.host_inputs())
     }
 
     /// Pass `compose need`'s CPU twin on the stages the GPU computed (the keys and posed
@@ -1430,15 +1416,7 @@ impl CharacterFrame {
         Some(compose::cpu::needed_segments(
             &self.compose_prep,
             &self.camera,
-            &compose::cpu::HostInputs {
-                gbuffer: &st.gbuffer,
-                keys: &st.keys,
-                positions: &st.positions,
-                diffuse: &st.diffuse,
-                cloth: &st.cloth,
-                lobes: &st.lobes,
-                lobe_visibility: &st.lobe_visibility,
-            },
+            &st.host_inputs(),
         ))
     }
 
@@ -1711,6 +1689,21 @@ pub struct Stages {
     pub env_irradiance: Vec<[f32; 4]>,
     /// The frame's images.
     pub output: ComposeOutput,
+}
+
+impl Stages {
+    /// What the compose pass read, as its CPU twins take it.
+    pub fn host_inputs(&self) -> compose::cpu::HostInputs<'_> {
+        compose::cpu::HostInputs {
+            gbuffer: &self.gbuffer,
+            keys: &self.keys,
+            positions: &self.positions,
+            diffuse: &self.diffuse,
+            cloth: &self.cloth,
+            lobes: &self.lobes,
+            lobe_visibility: &self.lobe_visibility,
+        }
+    }
 }
 
 /// One finished frame from [`run`].

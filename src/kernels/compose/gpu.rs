@@ -109,6 +109,22 @@ fn too_small(what: &str, have: u64, need: u64) -> Error {
     ))
 }
 
+/// The skin triangles' vertex ids and atlas corners of `prep`, uploaded (`what` names them).
+fn skin_buffers(rec: &mut Recorder, prep: &Prepared, what: &str) -> Result<[Buffer; 2]> {
+    let storage = BufferDesc::storage;
+    let tris = rec.buffer_with(
+        &format!("{what} skin triangles"),
+        storage(prep.skin_tris.len() as u64 * 16),
+        &prep.skin_tris,
+    )?;
+    let uvs = rec.buffer_with(
+        &format!("{what} skin uvs"),
+        storage(prep.skin_uvs.len() as u64 * 16),
+        &prep.skin_uvs,
+    )?;
+    Ok([tris, uvs])
+}
+
 impl ComposeKernel {
     /// Creates the kernel's buffers and pipeline and records the uploads of `prep` into
     /// `rec`. The inputs are bound once: each frame reads what the kernels writing them
@@ -181,16 +197,7 @@ impl ComposeKernel {
         }
         use bytemuck::cast_slice as bytes;
         let storage = BufferDesc::storage;
-        let skin_tris = rec.buffer_with(
-            "compose skin triangles",
-            storage(prep.skin_tris.len() as u64 * 16),
-            &prep.skin_tris,
-        )?;
-        let skin_uvs = rec.buffer_with(
-            "compose skin uvs",
-            storage(prep.skin_uvs.len() as u64 * 16),
-            &prep.skin_uvs,
-        )?;
+        let [skin_tris, skin_uvs] = skin_buffers(rec, prep, "compose")?;
         let mask = rec.buffer_with(
             "compose atlas mask",
             storage(prep.mask.len() as u64 * 4),
@@ -498,16 +505,7 @@ impl NeedKernel {
             )));
         }
         let storage = BufferDesc::storage;
-        let skin_tris = rec.buffer_with(
-            "compose need skin triangles",
-            storage(prep.skin_tris.len() as u64 * 16),
-            &prep.skin_tris,
-        )?;
-        let skin_uvs = rec.buffer_with(
-            "compose need skin uvs",
-            storage(prep.skin_uvs.len() as u64 * 16),
-            &prep.skin_uvs,
-        )?;
+        let [skin_tris, skin_uvs] = skin_buffers(rec, prep, "compose need")?;
         let words = crate::kernels::sss::pack::needed_segment_words(prep.atlas_size);
         let needed = Buffer::new(&ctx, "compose needed segments", storage(words * 4))?;
         let pipeline = crate::shaders::pipeline(&ctx, "compose/need")?;
