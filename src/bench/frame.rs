@@ -218,12 +218,12 @@ pub fn print(r: &FrameBenchReport) {
         r.config.skin.len()
     );
     println!(
-        "{:<22} {:>9} {:>7} {:>11} {:>8} {:>9}",
+        "{:<24} {:>9} {:>7} {:>11} {:>8} {:>9}",
         "pass", "GPU ms", "share", "bound MiB", "GB/s", "of peak"
     );
     for p in &r.passes {
         println!(
-            "{:<22} {:>9.3} {:>6.1}% {:>11.2} {:>8.2} {:>8.1}%",
+            "{:<24} {:>9.3} {:>6.1}% {:>11.2} {:>8.2} {:>8.1}%",
             p.name,
             p.gpu_ms.median,
             100.0 * p.share,
@@ -234,7 +234,7 @@ pub fn print(r: &FrameBenchReport) {
     }
     let verdict = |ok: bool| if ok { "met" } else { "MISSED" };
     println!(
-        "whole frame            {:.2} ms (spread {:.0}%) = {:.1} fps (target {:.0}: {}), host {:.3} ms/frame (target {:.0}: {})",
+        "whole frame              {:.2} ms (spread {:.0}%) = {:.1} fps (target {:.0}: {}), host {:.3} ms/frame (target {:.0}: {})",
         r.frame_ms.median,
         100.0 * r.frame_ms.spread,
         r.fps,
