@@ -870,18 +870,11 @@ impl SssKernel {
         )?;
         let per_vertex = [VERTEX_ROW, pack::rows(vertices as usize, VERTEX_ROW)];
         let vertex_texels = Image::new(&ctx, "sss vertex E", rgba32f(per_vertex))?;
-        let posed = self.posed.as_ref().map(|p| p.by_binding());
-        let table: Vec<(&'static str, Resource<'_>)> = self
-            .res
-            .by_binding()
-            .into_iter()
-            .chain(posed.into_iter().flatten())
-            .chain([
-                ("venv", Resource::Buffer(buffer)),
-                ("venv_texels", Resource::storage_image(&vertex_texels)),
-                ("penv", Resource::storage_image(&image)),
-            ])
-            .collect();
+        let table = self.table_with([
+            ("venv", Resource::Buffer(buffer)),
+            ("venv_texels", Resource::storage_image(&vertex_texels)),
+            ("penv", Resource::storage_image(&image)),
+        ]);
         let shader = if self.posed.is_some() {
             "sss/irradiance_posed_env"
         } else {
@@ -901,18 +894,28 @@ impl SssKernel {
         Ok(())
     }
 
-    /// The diffusion stage of the per-vertex irradiance's rgb E (`image`), on every occupied
-    /// segment or, with `needed`, on the segments it marks.
-    fn env_diffusion(&self, image: &Image, needed: Option<&Buffer>) -> Result<Stage> {
+    /// The kernel's resources by binding name (the posed geometry's too), then `extra`.
+    fn table_with<'a>(
+        &'a self,
+        extra: impl IntoIterator<Item = (&'static str, Resource<'a>)>,
+    ) -> Vec<(&'static str, Resource<'a>)> {
         let posed = self.posed.as_ref().map(|p| p.by_binding());
-        let table: Vec<(&'static str, Resource<'_>)> = self
-            .res
+        self.res
             .by_binding()
             .into_iter()
             .chain(posed.into_iter().flatten())
-            .chain([("penv", Resource::storage_image(image))])
-            .chain(needed.map(|b| ("needed", Resource::Buffer(b))))
-            .collect();
+            .chain(extra)
+            .collect()
+    }
+
+    /// The diffusion stage of the per-vertex irradiance's rgb E (`image`), on every occupied
+    /// segment or, with `needed`, on the segments it marks.
+    fn env_diffusion(&self, image: &Image, needed: Option<&Buffer>) -> Result<Stage> {
+        let table = self.table_with(
+            [("penv", Resource::storage_image(image))]
+                .into_iter()
+                .chain(needed.map(|b| ("needed", Resource::Buffer(b)))),
+        );
         let shader = match needed {
             Some(_) => "sss/diffusion_env_needed",
             None => "sss/diffusion_env",
