@@ -384,12 +384,23 @@ fn srgb_and_unorm_views_of_one_image() {
                     "unorm texel {i}.{c}: {} vs {b}",
                     u[c]
                 );
-                // Alpha is linear in sRGB formats; 8-bit sRGB decoding is exact to ~1e-3.
-                let want = if c == 3 { b } else { srgb_to_linear(b) };
+                // Alpha is linear in sRGB formats. The decoding of the colour is the exact
+                // curve within one 8-bit step on the devices we know: lavapipe within 1e-3 of
+                // it, NVIDIA (H200, driver 580.159) returned 0.9765625 for 252 (exact
+                // 0.97345, 0.7 of a step toward 253).
+                let (lo, hi) = if c == 3 {
+                    (b - 1e-6, b + 1e-6)
+                } else {
+                    (
+                        srgb_to_linear((b - 1.0 / 255.0).max(0.0)) - 1e-6,
+                        srgb_to_linear((b + 1.0 / 255.0).min(1.0)) + 1e-6,
+                    )
+                };
                 assert!(
-                    (s[c] - want).abs() < 2e-3,
-                    "srgb texel {i}.{c}: {} vs {want}",
-                    s[c]
+                    s[c] >= lo && s[c] <= hi,
+                    "srgb texel {i}.{c}: {} outside [{lo}, {hi}] (byte {})",
+                    s[c],
+                    bytes[4 * i + c]
                 );
             }
         }
@@ -799,8 +810,9 @@ fn bc1_images_upload_and_sample_like_the_cpu_decoder() {
                 let want = bc1::decode_image(w, h, &blocks[layer as usize]);
                 for (i, g) in got.iter().enumerate() {
                     for c in 0..3 {
-                        // The palette may round entries 2 and 3 differently by one step
-                        // (bc1::PALETTE_TOLERANCE); sRGB decoding adds its 2e-3 (as above).
+                        // The vendors' palettes differ in entries 2 and 3 by up to
+                        // bc1::PALETTE_TOLERANCE steps; sRGB decoding adds its 2e-3 (as
+                        // above).
                         let step = bc1::PALETTE_TOLERANCE as f32 / 255.0;
                         let b = want[4 * i + c] as f32 / 255.0;
                         let (lo, hi, slack) = if format == vk::Format::BC1_RGB_SRGB_BLOCK {

@@ -811,12 +811,20 @@ fn quadratic_irradiance_measures_the_second_moment_on_a_stretched_plane() {
                 t2 += b * b;
             }
             // The same sampler on both sides; a sample may land in the neighbouring texel
-            // where the driver's cos / sin rounds differently (here that moves E by 2 x.d).
+            // where the driver's cos / sin rounds differently. A trig error e moves a sample
+            // at the profile's radius (up to 43 texels here) by 43 e texels, so a fraction
+            // p = 2 * 43 e of them changes texel, each changing E by 2 |x| d ~ 0.28 R^2
+            // (d = 6R / 128): per texel 256 samples, a relative RMS of about
+            // sqrt(256 p) * 0.28 / 256 = 0.0175 sqrt(p). Bound for e = 2^-20 (hardware
+            // sin / cos; NVIDIA's is ~2^-21): 2e-4. Measured: lavapipe 1.7e-6, NVIDIA H200
+            // 1.05e-5. The spec allows e = 2^-11, ~4e-3 here: a device using all of that
+            // fails this bound although its sampler is right.
             let twin = (d2 / t2).sqrt();
             eprintln!("{kind:?} ch {c}: GPU vs CPU twin relative RMSE {twin:.2e}");
             assert!(
-                twin < 1e-5,
-                "{kind:?} ch {c}: GPU vs CPU twin relative RMSE {twin}"
+                twin < 2e-4,
+                "{kind:?} ch {c}: GPU vs CPU twin relative RMSE {twin} (a sin / cos less \
+                 precise than 2^-20 also gets here)"
             );
             let n = inner.len() as f64;
             // The sampler reads E at the nearest texel centre: an offset d uniform over the
@@ -1140,9 +1148,15 @@ fn posed_head_geometry_on_the_gpu_equals_the_cpu_rasterisation() {
         if !(wt.shape[0] > 0.0 && wt.shape[2] > 0.0) {
             continue; // a degenerate triangle: its texels never leave it
         }
+        // The frame (l1, x2, y2) in units of the triangle's size, times its conditioning:
+        // the normal cross(e1, e2) of a sliver loses digits as 1 / sin(angle at p0), and the
+        // frame's y axis and y2 with it.
+        let [l1, x2, y2] = wt.shape;
+        let e2 = (x2 * x2 + y2 * y2).sqrt();
+        let (size, sin) = (l1.max(e2), y2.abs() / e2);
         for k in 0..3 {
             let (x, y) = (f32::from_bits(a[0][k]), f32::from_bits(b[0][k]));
-            shape_err = shape_err.max((x - y).abs() / x.abs().max(1e-3));
+            shape_err = shape_err.max((x - y).abs() / size * sin);
         }
         for r in 3..9 {
             for k in 0..4 {
@@ -1152,11 +1166,19 @@ fn posed_head_geometry_on_the_gpu_equals_the_cpu_rasterisation() {
         }
     }
     eprintln!(
-        "walk: shape rel {shape_err:e}, crossing maps {map_err:e} texels, {kinds_differ} \
+        "walk: shape {shape_err:e} of the conditioned size, crossing maps {map_err:e} texels, \
+         {kinds_differ} \
          edge kinds differ"
     );
     assert_eq!(kinds_differ, 0);
-    assert!(shape_err < 1e-5, "triangle frames off by {shape_err}");
+    // Each of length, cross, dot and the divisions is within a few ulp on any conforming
+    // device (the spec: 2.5 ulp for a division, 2 for inversesqrt, mul/add contracted or not),
+    // about 10 operations deep: 64 ulp of the conditioned size. Measured: lavapipe 0.1 ulp,
+    // NVIDIA H200 (driver 580.159) 0.8 ulp.
+    assert!(
+        shape_err < 64.0 * f32::EPSILON,
+        "triangle frames off by {shape_err} of their conditioned size"
+    );
     // The crossing maps are atlas positions (up to 256 texels): f32 unfolding against the
     // CPU's f64 crossing of its f32 unfolding, a few ulp of 256 (3e-5); bound 1e-3 texels,
     // which moves a sample's nearest texel only within 1e-3 of a texel border.

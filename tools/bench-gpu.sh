@@ -53,15 +53,19 @@ prepare() {
   # Debug info is most of the release binary (~75 MB with it): strip it.
   strip -o "$dir/vkshade" "$repo/target/release/vkshade" || die "strip failed (binutils)"
 
-  # The Vulkan loader (the GPU machine has the driver and its ICD, no loader). An x86-64
-  # package whatever this machine is: the GPU machines are x86-64.
+  # The Vulkan loader (the GPU machine has the driver and its ICD, no loader), and libglvnd:
+  # NVIDIA's Vulkan ICD is libGLX_nvidia.so.0, which needs libGLdispatch.so.0 and libGLX.so.0
+  # (without them the loader reports "Could not get 'vkCreateInstance' via
+  # 'vk_icdGetInstanceProcAddr'" and finds no driver, as seen on an H200 machine). x86-64
+  # packages whatever this machine is: the GPU machines are x86-64.
+  local pkgs=(libvulkan1 libglvnd0 libglx0)
   local lists=/tmp/bench-gpu-apt-lists
   local o=(-o APT::Architecture=amd64 -o APT::Architectures=amd64 -o "Dir::State::Lists=$lists")
-  if ! (cd "$dir/debs" && apt-get "${o[@]}" download libvulkan1 >/dev/null 2>&1); then
+  if ! (cd "$dir/debs" && apt-get "${o[@]}" download "${pkgs[@]}" >/dev/null 2>&1); then
     mkdir -p "$lists/partial"
     apt-get "${o[@]}" update >/dev/null || die "apt-get update for amd64 lists failed"
-    (cd "$dir/debs" && apt-get "${o[@]}" download libvulkan1) ||
-      die "could not download libvulkan1 (network, apt sources)"
+    (cd "$dir/debs" && apt-get "${o[@]}" download "${pkgs[@]}") ||
+      die "could not download ${pkgs[*]} (network, apt sources)"
   fi
 
   local f

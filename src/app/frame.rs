@@ -381,6 +381,15 @@ pub struct FrameReport {
     pub reference: Vec<ReferencePose>,
 }
 
+/// The pixel of a reference pose whose compose output differs most from the twin's.
+#[derive(Clone, Copy, Debug, Default, Serialize)]
+pub struct ComposeWorst {
+    pub pixel: usize,
+    pub gpu: [f32; 3],
+    pub twin: [f32; 3],
+    pub skin: bool,
+}
+
 /// One pose of `vkshade frame --reference`: the frame's stages against their truths.
 #[derive(Clone, Debug, Serialize)]
 pub struct ReferencePose {
@@ -396,6 +405,9 @@ pub struct ReferencePose {
     /// radiance, and the largest difference of the 8-bit image (levels).
     pub compose_rel_rms: f64,
     pub compose_max_levels: u32,
+    /// The pixel that differs most from the twin (by |GPU - twin| / max(|twin|, 1e-3) over
+    /// its channels): its index (row-major), GPU and twin radiance, and whether it is skin.
+    pub compose_worst: ComposeWorst,
     /// The cloth: the light basis against the BTF's own quadrature of the same lobes and
     /// visibility, the GPU against the twins; None without cloth.
     pub cloth: Option<crate::frame::ClothErrors>,
@@ -718,10 +730,26 @@ fn reference_poses(
         // The compose pass against its twin.
         let (hdr, ldr) = frame.compose_twin(&frame.params(), &st);
         let (mut num, mut den) = (0.0f64, 0.0f64);
-        for (a, b) in st.output.hdr.iter().zip(&hdr) {
+        let mut worst = (0.0f64, ComposeWorst::default());
+        for (i, (a, b)) in st.output.hdr.iter().zip(&hdr).enumerate() {
             for c in 0..3 {
-                num += (a[c] as f64 - b[c] as f64).powi(2);
+                let d = a[c] as f64 - b[c] as f64;
+                num += d * d;
                 den += (b[c] as f64).powi(2);
+                let rel = d.abs() / (b[c] as f64).abs().max(1e-3);
+                if rel > worst.0 {
+                    worst = (
+                        rel,
+                        ComposeWorst {
+                            pixel: i,
+                            gpu: [a[0], a[1], a[2]],
+                            twin: [b[0], b[1], b[2]],
+                            skin: st.gbuffer[i][3] != 0.0
+                                && ((st.keys[i] & 0xFFFF_FFFF) as usize)
+                                    < frame.setup.skin_triangles,
+                        },
+                    );
+                }
             }
         }
         let compose_max_levels = st
@@ -744,6 +772,7 @@ fn reference_poses(
             rays: args.rays,
             compose_rel_rms: (num / den.max(1e-30)).sqrt(),
             compose_max_levels,
+            compose_worst: worst.1,
             cloth: frame.cloth_errors(&st)?,
             ply: None,
         };

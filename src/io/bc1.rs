@@ -19,16 +19,23 @@
 //! The decoder expands 5/6-bit endpoints by bit replication and forms the interpolated entries
 //! with integer arithmetic truncating toward zero, as Mesa's S3TC decoder does. The BC1
 //! definition (Khronos Data Format spec, "S3TC compressed texture image formats") leaves the
-//! rounding of the 1/3 and 2/3 entries to the implementation: an implementation's entries 2
-//! and 3 may differ from this decoder's by one 8-bit step ([`PALETTE_TOLERANCE`]); entries 0
-//! and 1 are exact.
+//! arithmetic of the 1/3 and 2/3 entries to the implementation, and the vendors differ:
+//! entries 2 and 3 may differ from this decoder's by several 8-bit steps
+//! ([`PALETTE_TOLERANCE`]); entries 0 and 1 are exact.
 
 /// Bytes per 4 x 4 block.
 pub const BLOCK_BYTES: usize = 8;
 
 /// The largest difference, in 8-bit steps of the stored (encoded) value, between this
-/// decoder's interpolated palette entries and a conforming implementation's.
-pub const PALETTE_TOLERANCE: u8 = 1;
+/// decoder's interpolated palette entries and the decoders of the GPUs we know. Lavapipe's
+/// (Mesa 22.3) is within 1 step of it (tests/btf.rs reads the device's own decoding back and
+/// prints the largest difference). NVIDIA's, as published by Castano
+/// (2009, "GPU DXT decompression") and Giesen (2021, "GPU BCn decoding"), forms red and blue
+/// as (2 a + b) 22 / 8 from the 5-bit values (1 step from this decoder at most) and green
+/// with a weight of 80.25 / 256 instead of 1 / 3: up to 6 steps over all 6-bit endpoint
+/// pairs (counted exhaustively). A test that compares a GPU's BC1 texels with this decoder
+/// allows this; one that needs exactness reads the device's own decoding back.
+pub const PALETTE_TOLERANCE: u8 = 6;
 
 fn expand565(c: u16) -> [u8; 3] {
     let r = ((c >> 11) & 31) as u8;
