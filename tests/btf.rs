@@ -264,10 +264,14 @@ fn device_bc1_texels(ctx: &vkshade::gpu::Context, btf: &Btf) -> vkshade::Result<
     use vkshade::kernels::btf::gpu::BC1_FORMAT;
     use vkshade::kernels::btf::synth::{srgb_decode, srgb_encode};
     let [w, h] = btf.size;
+    assert!(w % 4 == 0 && h % 4 == 0, "BC1 tiles are whole 4 x 4 blocks");
     let blocks = encode_bc1(btf);
     let per_slice = (w * h) as usize / 2; // bytes: 8 per 4 x 4 texels
     let slices = blocks.len() / per_slice;
-    let chunk = ctx.limits().max_image_array_layers.min(2048) as usize;
+    // Layers per image: the device's limit, and one dispatch's 65535 groups of 64 texels.
+    let chunk = (ctx.limits().max_image_array_layers as usize)
+        .min(65535 * 64 / (w * h) as usize)
+        .max(1);
     let p = vkshade::shaders::pipeline(ctx, "test/fetch_layers")?;
     let (mut texels, mut residual) = (Vec::with_capacity(slices * (w * h) as usize * 4), 0f64);
     for first in (0..slices).step_by(chunk) {
@@ -344,9 +348,10 @@ fn gpu_matches_the_cpu_interpolation_and_the_direct_ray_cast() {
             Texture::Bc1 => {
                 let ((out, bits), (texels, residual)) =
                     with_gpu_features(BC, |ctx| Ok((run(ctx)?, device_bc1_texels(ctx, btf)?)));
-                // The device's palette against io::bc1's: within the vendors' spread, and
-                // the texture holds the blocks the CPU decodes (a wrong block or a wrong
-                // texel order is tens of steps off).
+                // The device's palette against io::bc1's: within the vendors' spread (and
+                // one step for re-encoding the device's sRGB decoding, itself up to 0.35
+                // of a step off on NVIDIA), and the texture holds the blocks the CPU
+                // decodes (a wrong block or a wrong texel order is tens of steps off).
                 let ours = sampled_texels(btf, Texture::Bc1);
                 let steps = texels
                     .iter()
@@ -359,7 +364,7 @@ fn gpu_matches_the_cpu_interpolation_and_the_direct_ray_cast() {
                      re-encoding residual {residual:.1e}"
                 );
                 assert!(
-                    steps <= vkshade::io::bc1::PALETTE_TOLERANCE,
+                    steps <= vkshade::io::bc1::PALETTE_TOLERANCE + 1,
                     "the device's BC1 texels differ from io::bc1's by {steps} steps"
                 );
                 ((out, bits), Sampled::Texels(texels), residual)

@@ -130,13 +130,16 @@ fn compose_matches_its_cpu_twin_on_a_posed_frame() {
             // barycentrics come from a ray-triangle intersection (a 3x3 determinant) and the
             // diffusion is looked up bilinearly at the resulting atlas uv, where it varies by
             // up to ~10% per texel: an ulp-level uv change (1e-7 x 512 texels) moves the
-            // value by ~1e-5 relative. 2e-4 keeps 10x headroom over the worst measured
-            // (printed below) and is far below what any wrong term would move (a missing
-            // Fresnel or specular term moves skin pixels by > 2%).
+            // value by ~1e-5 relative. In a specular highlight the sharp lobe amplifies
+            // the exp / pow differences: `vkshade frame --reference` at 128^2 has one at
+            // radiance ~50 off by 1e-4 on lavapipe and 7.3e-4 on an NVIDIA H200 (driver
+            // 580.159; report.json's compose_worst). 2e-3 keeps 2.7x over that and is
+            // far below what any wrong term would move (a missing Fresnel or specular term
+            // moves skin pixels by > 2%).
             let err = (g - t).abs() / t.abs().max(1e-3);
             worst = worst.max(err);
             assert!(
-                (g - t).abs() <= 2e-4 * t.abs() + 1e-6,
+                (g - t).abs() <= 2e-3 * t.abs() + 1e-6,
                 "pixel {i} channel {c}: GPU {g} vs CPU {t}"
             );
         }

@@ -387,7 +387,7 @@ fn srgb_and_unorm_views_of_one_image() {
                 // Alpha is linear in sRGB formats. The decoding of the colour is the exact
                 // curve within one 8-bit step on the devices we know: lavapipe within 1e-3 of
                 // it, NVIDIA (H200, driver 580.159) returned 0.9765625 for 252 (exact
-                // 0.97345, 0.7 of a step toward 253).
+                // 0.97345, 0.35 of a step toward 253).
                 let (lo, hi) = if c == 3 {
                     (b - 1e-6, b + 1e-6)
                 } else {
@@ -811,15 +811,15 @@ fn bc1_images_upload_and_sample_like_the_cpu_decoder() {
                 for (i, g) in got.iter().enumerate() {
                     for c in 0..3 {
                         // The vendors' palettes differ in entries 2 and 3 by up to
-                        // bc1::PALETTE_TOLERANCE steps; sRGB decoding adds its 2e-3 (as
-                        // above).
+                        // bc1::PALETTE_TOLERANCE steps; sRGB decoding adds up to 3.1e-3
+                        // (NVIDIA, above; lavapipe 1e-3).
                         let step = bc1::PALETTE_TOLERANCE as f32 / 255.0;
                         let b = want[4 * i + c] as f32 / 255.0;
                         let (lo, hi, slack) = if format == vk::Format::BC1_RGB_SRGB_BLOCK {
                             (
                                 srgb_to_linear((b - step).max(0.0)),
                                 srgb_to_linear((b + step).min(1.0)),
-                                2e-3,
+                                3.5e-3,
                             )
                         } else {
                             (b - step, b + step, 1e-5)

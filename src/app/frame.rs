@@ -405,8 +405,9 @@ pub struct ReferencePose {
     /// radiance, and the largest difference of the 8-bit image (levels).
     pub compose_rel_rms: f64,
     pub compose_max_levels: u32,
-    /// The pixel that differs most from the twin (by |GPU - twin| / max(|twin|, 1e-3) over
-    /// its channels): its index (row-major), GPU and twin radiance, and whether it is skin.
+    /// The pixel that weighs most in `compose_rel_rms` (the largest squared difference from
+    /// the twin over its channels): its index (row-major), GPU and twin radiance, and
+    /// whether it is skin.
     pub compose_worst: ComposeWorst,
     /// The cloth: the light basis against the BTF's own quadrature of the same lobes and
     /// visibility, the GPU against the twins; None without cloth.
@@ -736,10 +737,9 @@ fn reference_poses(
                 let d = a[c] as f64 - b[c] as f64;
                 num += d * d;
                 den += (b[c] as f64).powi(2);
-                let rel = d.abs() / (b[c] as f64).abs().max(1e-3);
-                if rel > worst.0 {
+                if d * d > worst.0 {
                     worst = (
-                        rel,
+                        d * d,
                         ComposeWorst {
                             pixel: i,
                             gpu: [a[0], a[1], a[2]],

@@ -28,8 +28,9 @@ pub const BLOCK_BYTES: usize = 8;
 
 /// The largest difference, in 8-bit steps of the stored (encoded) value, between this
 /// decoder's interpolated palette entries and the decoders of the GPUs we know. Lavapipe's
-/// (Mesa 22.3) is within 1 step of it (tests/btf.rs reads the device's own decoding back and
-/// prints the largest difference). NVIDIA's, as published by Castano
+/// (Mesa 22.3), read back and re-encoded to 8-bit sRGB, is within 1 step of it (tests/btf.rs
+/// reads the device's own decoding back and prints the largest difference; the step may be
+/// the re-encoding's). NVIDIA's, as published by Castano
 /// (2009, "GPU DXT decompression") and Giesen (2021, "GPU BCn decoding"), forms red and blue
 /// as (2 a + b) 22 / 8 from the 5-bit values (1 step from this decoder at most) and green
 /// with a weight of 80.25 / 256 instead of 1 / 3: up to 6 steps over all 6-bit endpoint
