@@ -54,11 +54,12 @@ prepare() {
   strip -o "$dir/vkshade" "$repo/target/release/vkshade" || die "strip failed (binutils)"
 
   # The Vulkan loader (the GPU machine has the driver and its ICD, no loader), and libglvnd:
-  # NVIDIA's Vulkan ICD is libGLX_nvidia.so.0, which needs libGLdispatch.so.0 and libGLX.so.0
-  # (without them the loader reports "Could not get 'vkCreateInstance' via
-  # 'vk_icdGetInstanceProcAddr'" and finds no driver, as seen on an H200 machine). x86-64
-  # packages whatever this machine is: the GPU machines are x86-64.
-  local pkgs=(libvulkan1 libglvnd0 libglx0)
+  # NVIDIA's Vulkan ICD is libGLX_nvidia.so.0, which needs libglvnd's libraries. Without them
+  # the loader reports "Could not get 'vkCreateInstance' via 'vk_icdGetInstanceProcAddr'" and
+  # finds no driver; with libglvnd0 and libglx0 alone it still found none on an H200 machine.
+  # This set is the one that worked there (which of the last four it needs is not
+  # established). x86-64 packages whatever this machine is: the GPU machines are x86-64.
+  local pkgs=(libvulkan1 libglvnd0 libglx0 libegl1 libgl1 libopengl0 libgles2)
   local lists=/tmp/bench-gpu-apt-lists
   local o=(-o APT::Architecture=amd64 -o APT::Architectures=amd64 -o "Dir::State::Lists=$lists")
   if ! (cd "$dir/debs" && apt-get "${o[@]}" download "${pkgs[@]}" >/dev/null 2>&1); then
