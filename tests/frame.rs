@@ -345,6 +345,82 @@ fn frames_in_flight_and_culling_give_the_same_images() {
     assert!(one[0].1 != one[1].1);
 }
 
+/// The environment over this frame's vertex list (`FrameConfig::cull`: passes `vertex mark`
+/// and `vertex list`, then `env trace` and `env shadow` dispatched over the list) against
+/// the same frame shading every vertex (`env_every_vertex`): the list is its twin's (the
+/// skin's vertices and those of every triangle a key names), the visibility and irradiance
+/// at every listed vertex are the same bit for bit, and so are the images. Two poses in a row,
+/// so that the second frame's list differs from the first's and the vertices the second
+/// leaves out hold the first's values, which no listed vertex may read.
+#[test]
+fn the_environment_over_the_vertex_list_equals_it_over_every_vertex() {
+    let run_two = |every: bool| {
+        let cfg = FrameConfig {
+            env_every_vertex: every,
+            ..small()
+        };
+        with_gpu_features(INT64, |ctx| {
+            let frame = CharacterFrame::new(ctx, &cfg, &mut |_| {})?;
+            let names = vkshade::frame::pass_names(&frame);
+            assert_eq!(names.contains(&"vertex list"), !every, "{names:?}");
+            let mut rec = ctx.recorder("frame env list, first pose")?;
+            frame.record(&mut rec, &input(&frame, 2, 24))?;
+            rec.submit_and_wait()?;
+            let mut rec = ctx.recorder("frame env list, second pose")?;
+            frame.record(&mut rec, &input(&frame, 13, 24))?;
+            let rb = frame.read_back_stages(&mut rec)?;
+            rec.submit_and_wait()?;
+            let st = frame.collect_stages(&rb)?;
+            let skin_tris = frame.setup.skin_triangles;
+            let mesh = &frame.character.mesh;
+            let mut skin: Vec<u32> = mesh.triangles[..skin_tris]
+                .iter()
+                .flatten()
+                .copied()
+                .collect();
+            skin.sort_unstable();
+            skin.dedup();
+            let twin = vkshade::kernels::raster::vertices::covered_vertices(
+                &st.keys,
+                &mesh.triangles,
+                &skin,
+            );
+            Ok((st, twin, skin.len(), mesh.positions.len()))
+        })
+    };
+    let (listed, twin, skin, vertices) = run_two(false);
+    let (every, _, _, _) = run_two(true);
+    assert!(every.vertices.is_none());
+    let list = listed
+        .vertices
+        .as_ref()
+        .expect("a culled frame lists its vertices");
+    assert_eq!(list, &twin, "the vertex list against its twin");
+    eprintln!("{} of {vertices} vertices listed ({skin} skin)", list.len());
+    // The camera sees part of the cloth: more than the skin, fewer than every vertex.
+    assert!(
+        list.len() > skin + 100 && list.len() + 100 < vertices,
+        "{} listed of {vertices}, {skin} skin",
+        list.len()
+    );
+    let lobes = listed.lobe_visibility.len() / vertices;
+    assert!(lobes > 0);
+    for &v in list {
+        let v = v as usize;
+        assert_eq!(
+            listed.env_irradiance[v], every.env_irradiance[v],
+            "irradiance at vertex {v}"
+        );
+        let range = v * lobes..(v + 1) * lobes;
+        assert_eq!(
+            listed.lobe_visibility[range.clone()],
+            every.lobe_visibility[range],
+            "visibility at vertex {v}"
+        );
+    }
+    assert!(listed.output.hdr == every.output.hdr && listed.output.ldr == every.output.ldr);
+}
+
 #[test]
 fn bad_frame_input_is_refused() {
     let cfg = small();

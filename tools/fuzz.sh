@@ -43,12 +43,14 @@ mkdir -p logs
 package_seeds() {
     local t=$1 dir="corpus/$1" marker="corpus/$1/.package-seeds"
     [ -e "$marker" ] && return 0
-    add() { # PREFIX FILE...
-        local prefix=$1 f n=0
+    add() { # PREFIX FILE... (PREFIX: hex bytes, e.g. "02" or "010002"; a % in it is
+        # replaced by 00 and 01 in turn, so that seeds alternate between two values)
+        local prefix=$1 f n=0 p
         shift
         for f in "$@"; do
             [ -f "$f" ] && [ "$(stat -c %s "$f")" -lt 65535 ] || continue
-            { [ -n "$prefix" ] && printf "\\x$prefix"; cat "$f"; } \
+            p=${prefix//%/0$((n % 2))}
+            { [ -n "$p" ] && printf "$(printf '%s' "$p" | sed 's/../\\x&/g')"; cat "$f"; } \
                 >"$dir/pkg-$(printf '%s' "$f" | md5sum | cut -c1-12)"
             n=$((n + 1))
         done
@@ -74,6 +76,15 @@ package_seeds() {
         add 00 "${f[@]}"
         mapfile -t f < <(find /usr/share -iname '*.jp*g' -size -16k 2>/dev/null | sort)
         add 02 "${f[@]}" ;;
+    btf_dir)
+        # btf_image's seeds, each as the image of slot 0 (the first image decoded: it sets
+        # the size every other image is checked against) or slot 1, in turn. Without them
+        # the target starts from two tiny PNGs and, at about 4 executions a second (6,561
+        # files per input), spends hours rediscovering the decoders that btf_image covers.
+        mapfile -t f < <(find /usr/share -iname '*.png' -size -16k 2>/dev/null | sort | spread 60)
+        add %0000 "${f[@]}"
+        mapfile -t f < <(find /usr/share -iname '*.jp*g' -size -16k 2>/dev/null | sort)
+        add %0002 "${f[@]}" ;;
     esac
     touch "$marker"
 }

@@ -52,6 +52,7 @@ layout(std430, set = 0, binding = 5) readonly buffer Lobes { vec4 l[]; } lobes;
 layout(std430, set = 0, binding = 6) readonly buffer Table { vec4 q[]; } table;
 layout(std430, set = 0, binding = 7) writeonly buffer Visibility { float v[]; } vis;
 layout(std430, set = 0, binding = 8) writeonly buffer Irradiance { vec4 e[]; } irr;
+#include <env/listed.glsl>
 
 // kernels::env::pack::MAX_LOBES.
 const uint MAX_LOBES = 64u;
@@ -152,8 +153,8 @@ float sg_irradiance(vec3 p, float lambda, vec3 n) {
 }
 
 void main() {
-    uint vi = gl_GlobalInvocationID.x;
-    if (vi >= pc.vertex_count) return;
+    uint vi;
+    if (!listed_vertex(gl_GlobalInvocationID.x, vi)) return;
     vec3 p = pos.p[vi].xyz;
     vec3 n = nrm.n[vi].xyz;
     uint nj = min(pc.lobe_count, MAX_LOBES);

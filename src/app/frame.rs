@@ -237,6 +237,8 @@ impl Args {
             env_hdr: self.hdr.policy(),
             env_trace_grid: (self.env_trace_grid > 0).then_some(self.env_trace_grid),
             cull: !self.no_cull,
+            // The reference compares (and writes) every vertex's environment irradiance.
+            env_every_vertex: self.reference,
             ao_correction_rays: self.ao_correction_rays,
             materials: match self.materials.as_str() {
                 "measured" => crate::frame::Materials::Measured,

@@ -430,6 +430,26 @@ pub const CASES: &[Case] = &[
             "{out}",
         ],
     ),
+    // The environment shadowed with AO's visibility as the scale over the frame's vertex
+    // list (module env/shadow_listed; the default traces rays).
+    cli(
+        "frame-ao-scale",
+        &[
+            "frame",
+            "--frames",
+            "1",
+            "--size",
+            "64",
+            "--atlas",
+            "64",
+            "--samples",
+            "4",
+            "--env-trace-grid",
+            "0",
+            "--out",
+            "{out}",
+        ],
+    ),
     cli(
         "bench-peak",
         &[

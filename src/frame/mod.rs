@@ -30,6 +30,7 @@ use crate::kernels::compose::gpu::NeedKernel;
 use crate::kernels::compose::{self, ComposeKernel, ComposeOutput, FrameParams, SkinSpecular};
 use crate::kernels::raster::gpu::{Posed as RasterPosed, Prepared as RasterPrep, RasterKernel};
 use crate::kernels::raster::pack::Camera as RasterCamera;
+use crate::kernels::raster::vertices::VertexListKernel;
 use crate::kernels::sss::gpu::{PosedBuffers, SssKernel};
 use crate::kernels::sss::profile::{Material, Profile, ProfileKind};
 use crate::kernels::sss::{Light as SssLight, SamplerParams};
@@ -119,8 +120,14 @@ pub struct FrameConfig {
     /// diffusion runs on the atlas segments the compose pass will read (pass `compose
     /// need`), and the compose pass shades the rasteriser's covered tiles after filling the
     /// background (pass `compose background`). Off: every segment and every pixel. The
-    /// images are the same either way (bit for bit).
+    /// images are the same either way (bit for bit). With an environment it also shades
+    /// only the vertices the frame reads (the skin's and those of the triangles covering a
+    /// pixel: passes `vertex mark` and `vertex list`, then `env trace` and `env shadow` over
+    /// that list), unless [`FrameConfig::env_every_vertex`].
     pub cull: bool,
+    /// The environment's passes shade every vertex even when culling (`frame --reference`
+    /// sets it: it compares, and writes, every vertex's environment irradiance).
+    pub env_every_vertex: bool,
 }
 
 /// A skin part's own scattering material ([`FrameConfig::skin_parts`]).
@@ -289,6 +296,7 @@ impl Default for FrameConfig {
             skin_material: Material::SKIN1,
             skin_parts: Vec::new(),
             cull: true,
+            env_every_vertex: false,
         }
     }
 }
@@ -535,6 +543,8 @@ pub struct CharacterFrame {
     pose: pose::PoseKernel,
     ao: ao::gpu::AoKernel,
     raster: RasterKernel,
+    /// The vertices the environment's passes shade this frame (with culling).
+    vertices: Option<VertexListKernel>,
     env: Option<crate::kernels::env::EnvKernel>,
     sss: Option<Skin>,
     /// One group per distinct BTF of the cloth parts, each shading its own parts into
@@ -976,8 +986,41 @@ impl CharacterFrame {
         if let Some(c) = &correction {
             ao.set_correction(&mut rec, c)?;
         }
+        let rprep = RasterPrep::new(mesh, &parts, cfg.size, cfg.tile_scale)?
+            .with_part_uv_scales(&uv_scales)?;
+        let raster = RasterKernel::new(
+            &mut rec,
+            &rprep,
+            &RasterPosed {
+                positions: pose.positions(),
+                normals: pose.normals(),
+                tangents: pose.tangents(),
+            },
+        )?;
+        // The vertices whose environment the frame reads: the skin's (its texture-space
+        // irradiance reads them wherever the camera looks) and those of every triangle
+        // covering a pixel (the cloth's and the skin's shading read them there).
+        let vertices = match (&lobes, raster.tiles()) {
+            (Some(_), Some(_)) if cfg.cull && !cfg.env_every_vertex => {
+                let mut skin: Vec<u32> = mesh.triangles[..skin_triangles]
+                    .iter()
+                    .flatten()
+                    .copied()
+                    .collect();
+                skin.sort_unstable();
+                skin.dedup();
+                Some(VertexListKernel::new(
+                    &mut rec,
+                    &raster,
+                    &mesh.triangles,
+                    pose.vertex_count() as u32,
+                    &skin,
+                )?)
+            }
+            _ => None,
+        };
         let env = match &lobes {
-            Some(l) => Some(crate::kernels::env::EnvKernel::with_visibility(
+            Some(l) => Some(crate::kernels::env::EnvKernel::with_vertex_list(
                 &mut rec,
                 l,
                 &pose,
@@ -990,20 +1033,10 @@ impl CharacterFrame {
                     },
                     None => crate::kernels::env::EnvVisibility::Ao,
                 },
+                vertices.as_ref().map(VertexListKernel::list),
             )?),
             None => None,
         };
-        let rprep = RasterPrep::new(mesh, &parts, cfg.size, cfg.tile_scale)?
-            .with_part_uv_scales(&uv_scales)?;
-        let raster = RasterKernel::new(
-            &mut rec,
-            &rprep,
-            &RasterPosed {
-                positions: pose.positions(),
-                normals: pose.normals(),
-                tangents: pose.tangents(),
-            },
-        )?;
         let lights_toward: Vec<Vec3> = cfg
             .lights
             .iter()
@@ -1206,6 +1239,7 @@ impl CharacterFrame {
             pose,
             ao,
             raster,
+            vertices,
             env,
             sss,
             cloth,
@@ -1223,10 +1257,13 @@ impl CharacterFrame {
         let mut v = Vec::new();
         v.extend(self.pose.passes());
         v.extend(self.ao.passes());
+        v.extend(self.raster.passes());
+        if let Some(l) = &self.vertices {
+            v.extend(l.passes());
+        }
         if let Some(e) = &self.env {
             v.extend(e.passes());
         }
-        v.extend(self.raster.passes());
         if let Some(s) = &self.sss {
             if let Some(n) = &s.need {
                 v.extend(n.passes());
@@ -1299,10 +1336,13 @@ impl CharacterFrame {
         let m = self.matrices(input.time);
         self.pose.record(rec, &m)?;
         Kernel::record(&self.ao, rec, &m)?;
+        self.raster.record(rec, &self.camera)?;
+        if let Some(v) = &self.vertices {
+            v.record(rec, &())?;
+        }
         if let Some(e) = &self.env {
             e.record(rec, &input.env_rotation)?;
         }
-        self.raster.record(rec, &self.camera)?;
         if let Some(s) = &self.sss {
             if let Some(n) = &s.need {
                 n.record(rec, &self.camera)?;
@@ -1343,6 +1383,10 @@ impl CharacterFrame {
                 Some(n) => Some(rec.read_back(n.needed())?),
                 None => None,
             },
+            vertices: match &self.vertices {
+                Some(v) => Some(Kernel::read_back(v, rec)?),
+                None => None,
+            },
             cloth: match &self.cloth_result {
                 Some(r) => Some(rec.read_back(r)?),
                 None => None,
@@ -1375,6 +1419,10 @@ impl CharacterFrame {
             needed: match &rb.needed {
                 Some(r) => r.to_vec()?,
                 None => Vec::new(),
+            },
+            vertices: match (&self.vertices, &rb.vertices) {
+                (Some(k), Some(r)) => Some(k.collect(r)?),
+                _ => None,
             },
             cloth: match &rb.cloth {
                 Some(r) => r.to_vec()?,
@@ -1638,6 +1686,9 @@ impl CharacterFrame {
         if let Some(e) = &self.env {
             b += e.memory().used_bytes;
         }
+        if let Some(l) = &self.vertices {
+            b += l.memory().used_bytes;
+        }
         b
     }
 }
@@ -1651,6 +1702,7 @@ pub struct StageReadback {
     ao: crate::gpu::Readback,
     diffuse: Option<crate::gpu::Readback>,
     needed: Option<crate::gpu::Readback>,
+    vertices: Option<crate::kernels::raster::vertices::VertexListReadback>,
     cloth: Option<crate::gpu::Readback>,
     lobes: Option<(
         crate::gpu::Readback,
@@ -1679,6 +1731,9 @@ pub struct Stages {
     /// (`kernels::sss::pack::needed_segment` numbers its bits); empty when the diffusion
     /// covers every segment (no environment).
     pub needed: Vec<u32>,
+    /// The vertices the environment's passes shaded this frame (sorted), or None when they
+    /// shade every vertex; the environment's outputs at the others are an older frame's.
+    pub vertices: Option<Vec<u32>>,
     /// The cloth's radiance per pixel.
     pub cloth: Vec<[f32; 4]>,
     /// The rotated environment lobes (two vec4 each) and the per-vertex, per-lobe

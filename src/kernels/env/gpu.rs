@@ -18,7 +18,7 @@ use crate::gpu::{
 use crate::kernels::ao::{AoKernel, AoParams, Refine, cpu::TreeShape};
 use crate::kernels::pose::PoseKernel;
 use crate::kernels::sss::pack::{BVH_ROW, rows};
-use crate::kernels::{Dispatch, Grid, Kernel, Pass};
+use crate::kernels::{Dispatch, Grid, IndirectArgs, Kernel, Pass};
 use ash::vk;
 use glam::{Mat3, Vec3};
 
@@ -137,6 +137,8 @@ pub struct EnvKernel {
     shape: TreeShape,
     params: AoParams,
     trace: Option<Trace>,
+    /// The vertex list `env trace` and `env shadow` are dispatched over, when given.
+    listed: Option<Buffer>,
 }
 
 /// The kernel's own buffers (the memory report counts these, and the traced visibility's).
@@ -171,6 +173,36 @@ impl EnvKernel {
         ao: &AoKernel,
         visibility: EnvVisibility<'_>,
     ) -> Result<EnvKernel> {
+        Self::with_vertex_list(rec, lobes, pose, ao, visibility, None)
+    }
+
+    /// As [`EnvKernel::with_visibility`], with `env trace` and `env shadow` shading only the
+    /// vertices of `list` when given: a buffer in the layout of
+    /// [`VertexListKernel::list`](crate::kernels::raster::vertices::VertexListKernel::list)
+    /// (a `VkDispatchIndirectCommand` of 64-lane workgroups, the count, then the vertex ids;
+    /// INDIRECT_BUFFER usage), written before this kernel's passes each frame. Both passes
+    /// are then dispatched indirectly over it, and the visibility and irradiance of the
+    /// vertices it leaves out keep an older frame's values (or none: read only listed
+    /// vertices). Refuses, besides, a list too small for every vertex.
+    pub fn with_vertex_list(
+        rec: &mut Recorder,
+        lobes: &[Lobe],
+        pose: &PoseKernel,
+        ao: &AoKernel,
+        visibility: EnvVisibility<'_>,
+        list: Option<&Buffer>,
+    ) -> Result<EnvKernel> {
+        if let Some(l) = list {
+            let need = 16 + 4 * pose.vertex_count() as u64;
+            if l.size() < need {
+                return Err(Error::InvalidArgument(format!(
+                    "env vertex list '{}': {} bytes, a list of {} vertices needs {need}",
+                    l.name(),
+                    l.size(),
+                    pose.vertex_count()
+                )));
+            }
+        }
         let packed = pack_lobes(lobes)?;
         if ao.vertex_count() != pose.vertex_count() {
             return Err(Error::InvalidArgument(format!(
@@ -205,6 +237,9 @@ impl EnvKernel {
             ("sph", ao.posed_spheres().clone()),
             ("ext", ao.posed_extents().clone()),
         ];
+        if let Some(l) = list {
+            buffers.push(("listed", l.clone()));
+        }
         let mut images: Vec<(&'static str, Image)> = Vec::new();
         let mut traced = None;
         match visibility {
@@ -308,14 +343,20 @@ impl EnvKernel {
             pipeline.bind_from(lookup, &writes)
         };
         let rotate = crate::shaders::pipeline(&ctx, "env/rotate")?;
+        // The passes over the vertex list are the same shaders built with ENV_LISTED
+        // (glsl/env/listed.glsl).
+        let variant = |name: &'static str, listed: &'static str| match list {
+            Some(_) => listed,
+            None => name,
+        };
         let shadow = match &traced {
             // The rays' count sizes the pass's per-ray arrays (a specialization constant).
             Some((_, config)) => {
-                let name = "env/shadow_rays";
+                let name = variant("env/shadow_rays", "env/shadow_rays_listed");
                 let shader = crate::gpu::Shader::from_spirv(name, crate::shaders::spirv(name)?)?;
                 ComputePipeline::specialized(&ctx, &shader, &[("RAYS", config.grid * config.grid)])?
             }
-            None => crate::shaders::pipeline(&ctx, "env/shadow")?,
+            None => crate::shaders::pipeline(&ctx, variant("env/shadow", "env/shadow_listed"))?,
         };
         let rotate_bind = bind(&rotate, &["lobes"])?;
         let shadow_bind = bind(&shadow, &["vis", "irr"])?;
@@ -324,7 +365,8 @@ impl EnvKernel {
             Some(_) => {
                 let leaves = crate::shaders::pipeline(&ctx, "env/bvh_leaves")?;
                 let refit = crate::shaders::pipeline(&ctx, "sss/bvh_refit")?;
-                let trace = crate::shaders::pipeline(&ctx, "env/trace")?;
+                let trace =
+                    crate::shaders::pipeline(&ctx, variant("env/trace", "env/trace_listed"))?;
                 let leaves_bind = bind(&leaves, &["nodes", "tris"])?;
                 let refit_bind = bind(&refit, &[])?;
                 let trace_bind = bind(&trace, &["traced", "escaped"])?;
@@ -361,6 +403,7 @@ impl EnvKernel {
             shape: ao.tree_shape(),
             params: super::shadow_cut(ao.params(), trace.is_some()),
             trace,
+            listed: list.cloned(),
         })
     }
 
@@ -421,7 +464,13 @@ impl EnvKernel {
         self.buffer("irr")
     }
 
-    /// Vertices shaded per frame.
+    /// The vertex list the kernel shades, when built with one
+    /// ([`EnvKernel::with_vertex_list`]).
+    pub fn vertex_list(&self) -> Option<&Buffer> {
+        self.listed.as_ref()
+    }
+
+    /// Vertices of the mesh (all shaded per frame, or those of the vertex list).
     pub fn vertex_count(&self) -> usize {
         self.vertex_count as usize
     }
@@ -556,15 +605,39 @@ impl Kernel for EnvKernel {
                     &t.refit_bind,
                     Self::bvh_refit_args,
                 ),
-                Pass::dispatch(PASS_TRACE, &t.trace, &t.trace_bind, Self::trace_args),
+                match &self.listed {
+                    Some(list) => Pass::dispatch_indirect(
+                        PASS_TRACE,
+                        &t.trace,
+                        &t.trace_bind,
+                        IndirectArgs {
+                            buffer: list,
+                            offset: 0,
+                        },
+                        |k, r| Ok(k.trace_args(r)?.push),
+                    ),
+                    None => Pass::dispatch(PASS_TRACE, &t.trace, &t.trace_bind, Self::trace_args),
+                },
             ]);
         }
-        passes.push(Pass::dispatch(
-            PASS_SHADOW,
-            &self.shadow,
-            &self.shadow_bind,
-            Self::shadow_args,
-        ));
+        passes.push(match &self.listed {
+            Some(list) => Pass::dispatch_indirect(
+                PASS_SHADOW,
+                &self.shadow,
+                &self.shadow_bind,
+                IndirectArgs {
+                    buffer: list,
+                    offset: 0,
+                },
+                |k, r| Ok(k.shadow_args(r)?.push),
+            ),
+            None => Pass::dispatch(
+                PASS_SHADOW,
+                &self.shadow,
+                &self.shadow_bind,
+                Self::shadow_args,
+            ),
+        });
         passes
     }
 

@@ -21,3 +21,4 @@
 pub mod cpu;
 pub mod gpu;
 pub mod pack;
+pub mod vertices;

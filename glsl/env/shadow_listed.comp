@@ -1,0 +1,5 @@
+#version 450
+// Pass `env shadow` over this frame's vertex list (glsl/env/listed.glsl). The method:
+// glsl/env/shadow.glsl.
+#define ENV_LISTED 1
+#include <env/shadow.glsl>

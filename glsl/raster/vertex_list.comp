@@ -1,0 +1,73 @@
+#version 450
+// Pass `vertex list`: this frame's vertex list, the vertices a frame's per-vertex passes must
+// shade (src/kernels/raster/vertices.rs): every vertex of a triangle pass `vertex mark` found
+// covering a pixel, and every vertex of the static mask `always` (e.g. the skin's,
+// whose texture-space passes read them wherever the camera looks). One workgroup (no global
+// counter to reset between frames); it clears both bitmaps as it reads them, so they start
+// the next frame empty.
+// The list (`listed`): head = (ceil(count / 64), 1, 1, count), a VkDispatchIndirectCommand
+// of one 64-lane workgroup per 64 listed vertices, then the `count` vertex ids. Their order
+// is not deterministic (shared atomics); each vertex is listed once, and every pass over the
+// list computes each vertex on its own.
+layout(local_size_x = 256) in;
+
+layout(push_constant) uniform Push {
+    uint triangle_count;
+    uint vertex_count;
+} pc;
+
+layout(std430, set = 0, binding = 0) buffer Covered { uint w[]; } covered;
+// The rasteriser's triangles: vertex ids (xyz), part id.
+layout(std430, set = 0, binding = 1) readonly buffer Triangles { uvec4 t[]; } triangles;
+layout(std430, set = 0, binding = 2) buffer Marked { uint w[]; } marked;
+layout(std430, set = 0, binding = 3) readonly buffer Always { uint w[]; } always;
+layout(std430, set = 0, binding = 4) writeonly buffer Listed { uint head[4]; uint v[]; } listed;
+
+shared uint count;
+
+void mark(uint v) {
+    if (v < pc.vertex_count) atomicOr(marked.w[v >> 5u], 1u << (v & 31u));
+}
+
+void main() {
+    uint lid = gl_LocalInvocationIndex;
+    if (lid == 0u) count = 0u;
+    uint tri_words = (pc.triangle_count + 31u) / 32u;
+    for (uint w = lid; w < tri_words; w += 256u) {
+        uint bits = covered.w[w];
+        if (bits == 0u) continue;
+        covered.w[w] = 0u;
+        while (bits != 0u) {
+            uint b = uint(findLSB(bits));
+            bits &= bits - 1u;
+            uvec4 t = triangles.t[w * 32u + b];
+            mark(t.x);
+            mark(t.y);
+            mark(t.z);
+        }
+    }
+    memoryBarrierBuffer();
+    memoryBarrierShared();
+    barrier();
+    uint vertex_words = (pc.vertex_count + 31u) / 32u;
+    for (uint w = lid; w < vertex_words; w += 256u) {
+        uint m = marked.w[w];
+        uint bits = m | always.w[w];
+        if (m != 0u) marked.w[w] = 0u;
+        if (bits == 0u) continue;
+        uint at = atomicAdd(count, uint(bitCount(bits)));
+        while (bits != 0u) {
+            uint b = uint(findLSB(bits));
+            bits &= bits - 1u;
+            listed.v[at++] = w * 32u + b;
+        }
+    }
+    memoryBarrierShared();
+    barrier();
+    if (lid == 0u) {
+        listed.head[0] = (count + 63u) / 64u;
+        listed.head[1] = 1u;
+        listed.head[2] = 1u;
+        listed.head[3] = count;
+    }
+}

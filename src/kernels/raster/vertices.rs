@@ -1,0 +1,242 @@
+//! The vertices a frame must shade: every vertex of a triangle that covers a pixel of the
+//! rasteriser's visibility buffer this frame, plus a static set given at creation (e.g. the
+//! skin's vertices, which a texture-space pass reads wherever the camera looks). Per-vertex
+//! passes whose results are read only at covered triangles (the environment's rays and
+//! shadowing in the character frame) are then dispatched indirectly over the list instead
+//! of over every vertex; their outputs at the other vertices keep an older frame's values.
+//!
+//! Two passes, recorded after the rasteriser's (they read its keys and tile list):
+//! `vertex mark` (per pixel of the covered tiles: the key's triangle into a bitmap) and
+//! `vertex list` (one workgroup: the marked triangles' vertices and the static set, as a
+//! list headed by its own `VkDispatchIndirectCommand` of one 64-lane workgroup per 64
+//! vertices). Both bitmaps are cleared by the pass that reads them, so no clear is recorded.
+//! The twin is [`covered_vertices`].
+
+use super::gpu::RasterKernel;
+use crate::error::{Error, Result};
+use crate::gpu::{
+    BindGroup, Buffer, BufferDesc, ComputePipeline, Context, MemoryReport, Readback, Recorder,
+    Resource,
+};
+use crate::kernels::{Dispatch, Grid, IndirectArgs, Kernel, Pass};
+use ash::vk;
+
+/// Label of the pass marking the covered triangles.
+pub const PASS_MARK: &str = "vertex mark";
+/// Label of the pass writing the vertex list.
+pub const PASS_LIST: &str = "vertex list";
+
+/// Lanes of a workgroup of a pass dispatched over the list (the command's group count is
+/// ceil(count / LIST_GROUP)).
+pub const LIST_GROUP: u32 = 64;
+
+/// Builds, each frame, the list of the vertices of the rasteriser's covered triangles and a
+/// static set ([`VertexListKernel::list`]).
+pub struct VertexListKernel {
+    ctx: Context,
+    mark: (ComputePipeline, BindGroup),
+    list_pass: (ComputePipeline, BindGroup),
+    tiles: Buffer,
+    covered: Buffer,
+    marked: Buffer,
+    always: Buffer,
+    list: Buffer,
+    size: [u32; 2],
+    triangle_count: u32,
+    vertex_count: u32,
+}
+
+/// A finished [`VertexListKernel`] readback.
+pub struct VertexListReadback(Readback);
+
+impl VertexListKernel {
+    /// Creates the bitmaps, the list and both passes over `raster`'s outputs (which must
+    /// have a tile list, `Tiling::Tiles`) for a mesh of `vertex_count` vertices, with the
+    /// vertices `always` listed every frame; records the initial clears into `rec`. Refuses
+    /// a rasteriser without a tile list, a vertex id of `always` or of a triangle at or
+    /// above `vertex_count`.
+    pub fn new(
+        rec: &mut Recorder,
+        raster: &RasterKernel,
+        triangles: &[[u32; 3]],
+        vertex_count: u32,
+        always: &[u32],
+    ) -> Result<VertexListKernel> {
+        let ctx = rec.context();
+        let tiles = raster.tiles().ok_or_else(|| {
+            Error::InvalidArgument(
+                "vertex list: the rasteriser has no tile list (Tiling::Full)".into(),
+            )
+        })?;
+        if triangles.len() != raster.triangle_count() as usize {
+            return Err(Error::InvalidArgument(format!(
+                "vertex list: {} triangles given, the rasteriser has {}",
+                triangles.len(),
+                raster.triangle_count()
+            )));
+        }
+        let named = triangles.iter().flatten().chain(always);
+        if let Some(&v) = named.clone().find(|&&v| v >= vertex_count) {
+            return Err(Error::InvalidArgument(format!(
+                "vertex list: vertex {v} named, the mesh has {vertex_count}"
+            )));
+        }
+        let words = |n: u32| u64::from(n.div_ceil(32).max(1));
+        let storage = |name: &str, w: u64| Buffer::new(&ctx, name, BufferDesc::storage(w * 4));
+        let covered = storage(
+            "vertex list covered triangles",
+            words(raster.triangle_count()),
+        )?;
+        let marked = storage("vertex list marked vertices", words(vertex_count))?;
+        let mut mask = vec![0u32; words(vertex_count) as usize];
+        for &v in always {
+            mask[v as usize / 32] |= 1 << (v % 32);
+        }
+        let always_buf = rec.buffer_with(
+            "vertex list always",
+            BufferDesc::storage(mask.len() as u64 * 4),
+            &mask[..],
+        )?;
+        let list = Buffer::new(
+            &ctx,
+            "vertex list",
+            BufferDesc::storage(16 + u64::from(vertex_count.max(1)) * 4)
+                .usage(vk::BufferUsageFlags::INDIRECT_BUFFER | vk::BufferUsageFlags::TRANSFER_SRC),
+        )?;
+        // Every frame starts from empty bitmaps (the list pass leaves them so).
+        rec.fill_buffer(&covered, 0)?;
+        rec.fill_buffer(&marked, 0)?;
+        rec.upload(&list, 0, &[0u32, 1, 1, 0])?;
+        let p = crate::shaders::pipeline(&ctx, "raster/vertex_mark")?;
+        let b = p.bind(&[
+            ("keys", Resource::Buffer(raster.keys())),
+            ("tiles", Resource::Buffer(tiles)),
+            ("covered", Resource::Buffer(&covered)),
+        ])?;
+        let mark = (p, b);
+        let p = crate::shaders::pipeline(&ctx, "raster/vertex_list")?;
+        let b = p.bind(&[
+            ("covered", Resource::Buffer(&covered)),
+            ("triangles", Resource::Buffer(raster.triangles())),
+            ("marked", Resource::Buffer(&marked)),
+            ("always", Resource::Buffer(&always_buf)),
+            ("listed", Resource::Buffer(&list)),
+        ])?;
+        Ok(VertexListKernel {
+            ctx,
+            mark,
+            list_pass: (p, b),
+            tiles: tiles.clone(),
+            covered,
+            marked,
+            always: always_buf,
+            list,
+            size: raster.size(),
+            triangle_count: raster.triangle_count(),
+            vertex_count,
+        })
+    }
+
+    /// The list, written by `vertex list` each frame: u32 words `(ceil(count / 64), 1, 1,
+    /// count)` (a `VkDispatchIndirectCommand` at offset 0 of [`LIST_GROUP`]-lane
+    /// workgroups, and the count), then `count` distinct vertex ids in no particular order.
+    /// INDIRECT_BUFFER usage.
+    pub fn list(&self) -> &Buffer {
+        &self.list
+    }
+
+    /// Vertices of the mesh.
+    pub fn vertex_count(&self) -> u32 {
+        self.vertex_count
+    }
+
+    fn mark_push(&self, _: &()) -> Result<Vec<u8>> {
+        let [w, h] = self.size;
+        let words = [w, h, self.triangle_count, 0];
+        Ok(words.iter().flat_map(|x| x.to_le_bytes()).collect())
+    }
+
+    fn list_args(&self, _: &()) -> Result<Dispatch> {
+        Ok(Dispatch::words(
+            &[self.triangle_count, self.vertex_count],
+            Grid::Groups([1, 1, 1]),
+        ))
+    }
+}
+
+impl Kernel for VertexListKernel {
+    type Input = ();
+    type Readback = VertexListReadback;
+    type Output = Vec<u32>;
+
+    fn name(&self) -> &'static str {
+        "vertex list"
+    }
+
+    fn pass_table(&self) -> Vec<Pass<'_, Self>> {
+        vec![
+            Pass::dispatch_indirect(
+                PASS_MARK,
+                &self.mark.0,
+                &self.mark.1,
+                IndirectArgs {
+                    buffer: &self.tiles,
+                    offset: 0,
+                },
+                Self::mark_push,
+            ),
+            Pass::dispatch(
+                PASS_LIST,
+                &self.list_pass.0,
+                &self.list_pass.1,
+                Self::list_args,
+            ),
+        ]
+    }
+
+    fn check_input(&self, _: &()) -> Result<()> {
+        Ok(())
+    }
+
+    fn read_back(&self, rec: &mut Recorder) -> Result<VertexListReadback> {
+        Ok(VertexListReadback(rec.read_back(&self.list)?))
+    }
+
+    /// The listed vertex ids, sorted.
+    fn collect(&self, rb: &VertexListReadback) -> Result<Vec<u32>> {
+        let words: Vec<u32> = rb.0.to_vec()?;
+        let count = words.get(3).copied().unwrap_or(0) as usize;
+        let mut ids = words
+            .get(4..4 + count)
+            .ok_or_else(|| {
+                Error::InvalidArgument(format!(
+                    "vertex list: the list holds {count} vertices, more than its {} words",
+                    words.len().saturating_sub(4)
+                ))
+            })?
+            .to_vec();
+        ids.sort_unstable();
+        Ok(ids)
+    }
+
+    fn memory(&self) -> MemoryReport {
+        self.ctx
+            .memory_of(&[&self.covered, &self.marked, &self.always, &self.list])
+    }
+}
+
+/// The twin of one frame's list: the sorted distinct vertices of the triangles named by the
+/// keys (`key & 0xFFFF_FFFF` below the triangle count; an empty key names none) and of
+/// `always`.
+pub fn covered_vertices(keys: &[u64], triangles: &[[u32; 3]], always: &[u32]) -> Vec<u32> {
+    let mut v: Vec<u32> = keys
+        .iter()
+        .filter_map(|&k| triangles.get((k & 0xFFFF_FFFF) as usize))
+        .flatten()
+        .chain(always)
+        .copied()
+        .collect();
+    v.sort_unstable();
+    v.dedup();
+    v
+}
