@@ -12,6 +12,7 @@ use glam::Mat3;
 use vkshade::frame::{CharacterFrame, FrameConfig, FrameInput, run};
 use vkshade::gpu::Features;
 use vkshade::kernels::Kernel;
+use vkshade::kernels::raster::pack::key_triangle;
 
 const INT64: Features = Features {
     shader_float16: false,
@@ -118,7 +119,7 @@ fn compose_matches_its_cpu_twin_on_a_posed_frame() {
     let mut worst = 0f32;
     for i in 0..pixels {
         let covered = stages.gbuffer[i][3] != 0.0;
-        match (covered, stages.keys[i] & 0xFFFF_FFFF) {
+        match (covered, u64::from(key_triangle(stages.keys[i]))) {
             (false, _) => empty += 1,
             (true, t) if t < skin_tris => skin += 1,
             _ => cloth += 1,

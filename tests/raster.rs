@@ -861,3 +861,89 @@ fn tile_lists_cover_exactly_the_covered_pixels_and_match_the_full_dispatch_bit_f
         previous = want;
     }
 }
+
+/// The vertex list (`kernels::raster::vertices`: passes `vertex mark` and `vertex list` over
+/// the rasteriser's keys and tile list) against its twin over frames whose coverage grows,
+/// shrinks, vanishes (a camera looking away: only the static set is listed) and repeats
+/// (the bitmaps the passes clear as they read them must start each frame empty); and bad
+/// input refused before any GPU work.
+#[test]
+fn the_vertex_list_is_its_twin_frame_after_frame_and_bad_input_is_refused() {
+    use vkshade::kernels::raster::vertices::{VertexListKernel, covered_vertices};
+    let mesh = tube(48, 16);
+    let pose = host_pose(&mesh, None);
+    let prep = Prepared::new(&mesh, &[], [100, 70], 3.0).unwrap();
+    let n = mesh.positions.len() as u32;
+    // A static set: a few vertices the cameras may or may not see, one named twice.
+    let always = [0, 7, 7, n - 1];
+    let away = Camera {
+        eye: Vec3::new(0.0, 0.0, 4.0),
+        target: Vec3::new(0.0, 0.0, 8.0),
+        up: Vec3::Y,
+        fov_y_deg: 40.0,
+        near: 0.1,
+    };
+    let cams = [
+        Camera::framing(Vec3::ZERO, 1.5, Vec3::new(0.5, 0.8, 1.0)),
+        Camera::framing(Vec3::new(0.3, 0.2, 0.0), 4.0, Vec3::new(1.0, 0.2, 0.3)),
+        away,
+        Camera::framing(Vec3::ZERO, 1.4, Vec3::new(-1.0, -0.3, 0.4)),
+        Camera::framing(Vec3::ZERO, 1.4, Vec3::new(-1.0, -0.3, 0.4)),
+    ];
+    let outs = with_gpu_features(INT64, |ctx| {
+        let bufs = PosedBuffers::upload(ctx, &pose)?;
+        let mut rec = ctx.recorder("vertex list setup")?;
+        let raster = RasterKernel::new(&mut rec, &prep, &bufs.posed())?;
+        let full = RasterKernel::with_tiling(&mut rec, &prep, &bufs.posed(), Tiling::Full)?;
+        let refused = |r: vkshade::Result<VertexListKernel>, what: &str| match r {
+            Ok(_) => panic!("{what}: accepted"),
+            Err(e) => assert!(e.to_string().contains(what), "{what}: {e}"),
+        };
+        refused(
+            VertexListKernel::new(&mut rec, &full, &mesh.triangles, n, &always),
+            "no tile list",
+        );
+        refused(
+            VertexListKernel::new(&mut rec, &raster, &mesh.triangles, n, &[n]),
+            &format!("vertex {n} named"),
+        );
+        refused(
+            VertexListKernel::new(&mut rec, &raster, &mesh.triangles, n - 1, &[]),
+            &format!("vertex {} named", n - 1),
+        );
+        refused(
+            VertexListKernel::new(&mut rec, &raster, &mesh.triangles[1..], n, &[]),
+            "triangles given",
+        );
+        let list = VertexListKernel::new(&mut rec, &raster, &mesh.triangles, n, &always)?;
+        rec.submit_and_wait()?;
+        let mut outs = Vec::new();
+        for cam in &cams {
+            let mut rec = ctx.recorder("vertex list frame")?;
+            raster.record(&mut rec, cam)?;
+            list.record(&mut rec, &())?;
+            let rb = raster.read_back(&mut rec)?;
+            let lb = list.read_back(&mut rec)?;
+            rec.submit_and_wait()?;
+            outs.push((raster.collect(&rb)?.keys, list.collect(&lb)?));
+        }
+        Ok(outs)
+    });
+    let mut sizes = Vec::new();
+    for (i, (keys, listed)) in outs.iter().enumerate() {
+        let twin = covered_vertices(keys, &mesh.triangles, &always);
+        assert_eq!(listed, &twin, "frame {i}");
+        sizes.push(listed.len());
+    }
+    // The static set alone when nothing is covered; more, and fewer than every vertex, when
+    // the tube is in view.
+    assert_eq!(sizes[2], 3, "{sizes:?}");
+    assert!(
+        sizes
+            .iter()
+            .enumerate()
+            .all(|(i, &s)| i == 2 || (s > 50 && s < n as usize)),
+        "{sizes:?} of {n}"
+    );
+    assert_eq!(sizes[3], sizes[4]);
+}

@@ -747,7 +747,8 @@ fn reference_poses(
                             gpu: [a[0], a[1], a[2]],
                             twin: [b[0], b[1], b[2]],
                             skin: st.gbuffer[i][3] != 0.0
-                                && ((st.keys[i] & 0xFFFF_FFFF) as usize)
+                                && (crate::kernels::raster::pack::key_triangle(st.keys[i])
+                                    as usize)
                                     < frame.setup.skin_triangles,
                         },
                     );

@@ -29,7 +29,7 @@ use crate::kernels::btf::synth::Btf;
 use crate::kernels::compose::gpu::NeedKernel;
 use crate::kernels::compose::{self, ComposeKernel, ComposeOutput, FrameParams, SkinSpecular};
 use crate::kernels::raster::gpu::{Posed as RasterPosed, Prepared as RasterPrep, RasterKernel};
-use crate::kernels::raster::pack::Camera as RasterCamera;
+use crate::kernels::raster::pack::{Camera as RasterCamera, key_triangle};
 use crate::kernels::raster::vertices::VertexListKernel;
 use crate::kernels::sss::gpu::{PosedBuffers, SssKernel};
 use crate::kernels::sss::profile::{Material, Profile, ProfileKind};
@@ -1529,7 +1529,7 @@ impl CharacterFrame {
             quadrature: None,
         };
         let camera = &self.btf_frame.camera;
-        let tri: Vec<u32> = st.keys.iter().map(|k| (k & 0xFFFF_FFFF) as u32).collect();
+        let tri: Vec<u32> = st.keys.iter().map(|&k| key_triangle(k)).collect();
         let triangles = self.raster_triangles();
         for g in &self.cloth {
             let sampled = Sampled::of(&g.btf, Texture::Rgba8);

@@ -2,7 +2,7 @@
 //! twin the GPU output is tested against.
 
 use super::pack::{Environment, FrameParams, Prepared};
-use crate::kernels::raster::pack::Camera;
+use crate::kernels::raster::pack::{Camera, key_triangle};
 use crate::kernels::sss::pack::{needed_segment, needed_segment_words};
 use glam::{Vec2, Vec3, Vec4};
 use std::f32::consts::PI;
@@ -133,7 +133,7 @@ pub fn needed_segments(prep: &Prepared, camera: &Camera, inp: &HostInputs<'_>) -
     for y in 0..h {
         for x in 0..w {
             let idx = (y * w + x) as usize;
-            let tri = (inp.keys[idx] & 0xFFFF_FFFF) as u32;
+            let tri = key_triangle(inp.keys[idx]);
             if tri >= prep.skin_triangles {
                 continue;
             }
@@ -191,7 +191,7 @@ pub fn shade(
             let radiance = if g0[3] == 0.0 {
                 background
             } else {
-                let tri = (inp.keys[idx] & 0xFFFF_FFFF) as u32;
+                let tri = key_triangle(inp.keys[idx]);
                 let part = (g0[3].abs() + 0.5) as u32 - 1;
                 let gbuffer_uv = [
                     inp.gbuffer[pixels + idx][3],

@@ -12,7 +12,7 @@
 //! the kernel's creation cleared them to (empty keys, G-buffer tag 0), so the outputs are
 //! those of [`Tiling::Full`], which clears and resolves every pixel, bit for bit.
 
-pub use super::pack::{Camera, Counters, Prepared, TILE, counter, tile_grid};
+pub use super::pack::{Camera, Counters, Prepared, TILE, counter, key_triangle, tile_grid};
 
 use super::pack::{resolve_push_mode, visibility_push};
 use crate::error::{Error, Result};
@@ -83,7 +83,7 @@ impl RasterOutput {
     /// The triangle and view depth of pixel `k`, if covered.
     pub fn hit(&self, k: usize) -> Option<(u32, f32)> {
         let key = self.keys[k];
-        (key != u64::MAX).then(|| (key as u32, f32::from_bits((key >> 32) as u32)))
+        (key != u64::MAX).then(|| (key_triangle(key), f32::from_bits((key >> 32) as u32)))
     }
 }
 

@@ -141,6 +141,12 @@ pub fn visibility_push(camera: &Camera, size: [u32; 2], triangles: u32, row: u32
 /// resolve` and `btf shade`, one workgroup per listed tile.
 pub const TILE: [u32; 2] = [16, 4];
 
+/// The triangle a visibility key names: its low 32 bits (keys are `(depth bits << 32) |
+/// triangle`; the empty key, `u64::MAX`, names `u32::MAX`, above every triangle count).
+pub fn key_triangle(key: u64) -> u32 {
+    (key & 0xFFFF_FFFF) as u32
+}
+
 /// Tiles per row and per column of a `size` image.
 pub fn tile_grid(size: [u32; 2]) -> [u32; 2] {
     [size[0].div_ceil(TILE[0]), size[1].div_ceil(TILE[1])]

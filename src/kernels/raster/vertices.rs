@@ -226,12 +226,13 @@ impl Kernel for VertexListKernel {
 }
 
 /// The twin of one frame's list: the sorted distinct vertices of the triangles named by the
-/// keys (`key & 0xFFFF_FFFF` below the triangle count; an empty key names none) and of
+/// keys ([`key_triangle`](super::pack::key_triangle) below the triangle count; an empty key
+/// names none) and of
 /// `always`.
 pub fn covered_vertices(keys: &[u64], triangles: &[[u32; 3]], always: &[u32]) -> Vec<u32> {
     let mut v: Vec<u32> = keys
         .iter()
-        .filter_map(|&k| triangles.get((k & 0xFFFF_FFFF) as usize))
+        .filter_map(|&k| triangles.get(super::pack::key_triangle(k) as usize))
         .flatten()
         .chain(always)
         .copied()
