@@ -43,8 +43,9 @@ pub struct Args {
     /// (grid^2 rays through the posed mesh, 1..=16); 0: AO's visibility as a scale instead.
     #[arg(long, default_value_t = crate::kernels::env::DEFAULT_TRACE_GRID)]
     pub env_trace_grid: u32,
-    /// Diffuse every atlas segment and shade every pixel, not only what the camera sees (the
-    /// same images, slower: an A/B switch for the culling)
+    /// Diffuse every atlas segment, shade every pixel and the environment at every vertex,
+    /// not only what the camera sees (the same images, slower: an A/B switch for the
+    /// culling)
     #[arg(long)]
     pub no_cull: bool,
     /// The animation to play.

@@ -1042,6 +1042,11 @@ impl CharacterFrame {
             .iter()
             .map(|l| Vec3::from_array(l.toward).normalize())
             .collect();
+        // The compose pass's skin tables (pass `compose need` reads the same).
+        let compose_base = match &skin_geo {
+            Some((geo, _)) => compose::Prepared::new(cfg.size, geo)?,
+            None => compose::Prepared::without_skin(cfg.size),
+        };
         let sss = match &skin_geo {
             Some((geo, rest)) => {
                 let params = SamplerParams {
@@ -1067,7 +1072,7 @@ impl CharacterFrame {
                     (Some(_), Some(tiles)) => {
                         let n = NeedKernel::new(
                             &mut rec,
-                            &compose::Prepared::new(cfg.size, geo)?,
+                            &compose_base,
                             &compose::gpu::NeedInputs {
                                 keys: raster.keys(),
                                 positions: pose.positions(),
@@ -1208,11 +1213,7 @@ impl CharacterFrame {
                 kernel: k,
             });
         }
-        let cprep = match &sss {
-            Some(s) => compose::Prepared::new(cfg.size, &s.geo)?,
-            None => compose::Prepared::without_skin(cfg.size),
-        }
-        .with_surfaces(surfaces)?;
+        let cprep = compose_base.with_surfaces(surfaces)?;
         let compose = ComposeKernel::new(
             &mut rec,
             &cprep,
