@@ -735,6 +735,26 @@ fn covered_tiles(out: &RasterOutput, size: [u32; 2]) -> Vec<u32> {
     set.into_iter().collect()
 }
 
+/// Five frames of the tube: the whole tube; from farther away (it shrinks: tiles of frame 0
+/// become stale); a camera looking away (nothing covered: an empty list, every tile of frame
+/// 1 stale); the tube from another side, twice (the second frame has no stale tile).
+fn coverage_cameras() -> [Camera; 5] {
+    let away = Camera {
+        eye: Vec3::new(0.0, 0.0, 4.0),
+        target: Vec3::new(0.0, 0.0, 8.0),
+        up: Vec3::Y,
+        fov_y_deg: 40.0,
+        near: 0.1,
+    };
+    [
+        Camera::framing(Vec3::ZERO, 1.5, Vec3::new(0.5, 0.8, 1.0)),
+        Camera::framing(Vec3::new(0.3, 0.2, 0.0), 4.0, Vec3::new(1.0, 0.2, 0.3)),
+        away,
+        Camera::framing(Vec3::ZERO, 1.4, Vec3::new(-1.0, -0.3, 0.4)),
+        Camera::framing(Vec3::ZERO, 1.4, Vec3::new(-1.0, -0.3, 0.4)),
+    ]
+}
+
 #[test]
 fn tile_lists_cover_exactly_the_covered_pixels_and_match_the_full_dispatch_bit_for_bit() {
     use vkshade::kernels::btf::cloth::{Pattern, SynthConfig};
@@ -750,23 +770,7 @@ fn tile_lists_cover_exactly_the_covered_pixels_and_match_the_full_dispatch_bit_f
     // hang over the image.
     let size = [100, 70];
     let prep = Prepared::new(&mesh, &[], size, 3.0).unwrap();
-    // The whole tube; from farther away (it shrinks: tiles of frame 0 become stale); a camera looking away
-    // (nothing covered: an empty list, every tile of frame 1 stale); the tube from another
-    // side, twice (the second frame has no stale tile).
-    let away = Camera {
-        eye: Vec3::new(0.0, 0.0, 4.0),
-        target: Vec3::new(0.0, 0.0, 8.0),
-        up: Vec3::Y,
-        fov_y_deg: 40.0,
-        near: 0.1,
-    };
-    let cams = [
-        Camera::framing(Vec3::ZERO, 1.5, Vec3::new(0.5, 0.8, 1.0)),
-        Camera::framing(Vec3::new(0.3, 0.2, 0.0), 4.0, Vec3::new(1.0, 0.2, 0.3)),
-        away,
-        Camera::framing(Vec3::ZERO, 1.4, Vec3::new(-1.0, -0.3, 0.4)),
-        Camera::framing(Vec3::ZERO, 1.4, Vec3::new(-1.0, -0.3, 0.4)),
-    ];
+    let cams = coverage_cameras();
     let frame = Frame {
         camera: View::Perspective(cams[0].eye),
         lights: default_lights(),
@@ -876,20 +880,7 @@ fn the_vertex_list_is_its_twin_frame_after_frame_and_bad_input_is_refused() {
     let n = mesh.positions.len() as u32;
     // A static set: a few vertices the cameras may or may not see, one named twice.
     let always = [0, 7, 7, n - 1];
-    let away = Camera {
-        eye: Vec3::new(0.0, 0.0, 4.0),
-        target: Vec3::new(0.0, 0.0, 8.0),
-        up: Vec3::Y,
-        fov_y_deg: 40.0,
-        near: 0.1,
-    };
-    let cams = [
-        Camera::framing(Vec3::ZERO, 1.5, Vec3::new(0.5, 0.8, 1.0)),
-        Camera::framing(Vec3::new(0.3, 0.2, 0.0), 4.0, Vec3::new(1.0, 0.2, 0.3)),
-        away,
-        Camera::framing(Vec3::ZERO, 1.4, Vec3::new(-1.0, -0.3, 0.4)),
-        Camera::framing(Vec3::ZERO, 1.4, Vec3::new(-1.0, -0.3, 0.4)),
-    ];
+    let cams = coverage_cameras();
     let outs = with_gpu_features(INT64, |ctx| {
         let bufs = PosedBuffers::upload(ctx, &pose)?;
         let mut rec = ctx.recorder("vertex list setup")?;
