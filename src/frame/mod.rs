@@ -5,9 +5,11 @@
 //! pass's declared accesses through the recorder's tracking):
 //! 1. `pose` skins the whole character once (skin parts first, then cloth parts);
 //!    `ao` skins the sphere tree and computes per-vertex occlusion from the same pose;
-//!    `env` rotates the environment's SG lobes and shadows each by the sphere tree's caps per
-//!    vertex (visibility per lobe, shadowed irradiance);
-//! 2. `raster` writes the screen G-buffer of the posed character;
+//! 2. `raster` writes the screen G-buffer of the posed character; with culling and an
+//!    environment, `vertex mark` and `vertex list` list the vertices the frame reads (those
+//!    of the covered triangles and the skin's, [`crate::kernels::raster::vertices`]);
+//!    `env` rotates the environment's SG lobes and shadows each by the sphere tree's caps
+//!    per vertex (visibility per lobe, shadowed irradiance), on that list when there is one;
 //! 3. `sss` builds the skin's texture-space geometry from the posed buffers, its irradiance
 //!    (lights with shadows, plus the shadowed environment) and the subsurface diffusion;
 //! 4. `btf` shades the cloth pixels of the G-buffer: the directional lights, then the
