@@ -75,8 +75,8 @@ impl VertexListKernel {
                 raster.triangle_count()
             )));
         }
-        let named = triangles.iter().flatten().chain(always);
-        if let Some(&v) = named.clone().find(|&&v| v >= vertex_count) {
+        let mut named = triangles.iter().flatten().chain(always);
+        if let Some(&v) = named.find(|&&v| v >= vertex_count) {
             return Err(Error::InvalidArgument(format!(
                 "vertex list: vertex {v} named, the mesh has {vertex_count}"
             )));
