@@ -353,17 +353,24 @@ fn frames_in_flight_and_culling_give_the_same_images() {
 /// at every listed vertex are the same bit for bit, and so are the images. Two poses in a row,
 /// so that the second frame's list differs from the first's and the vertices the second
 /// leaves out hold the first's values, which no listed vertex may read.
+///
+/// The frame shading every vertex also computes AO's per-vertex visibility
+/// (`ao_visibility`), which no stage of a traced environment reads: the default frame skips
+/// pass `ao occlusion`, and the images are the same bit for bit with it.
 #[test]
 fn the_environment_over_the_vertex_list_equals_it_over_every_vertex() {
     let run_two = |every: bool| {
         let cfg = FrameConfig {
             env_every_vertex: every,
+            ao_visibility: every,
             ..small()
         };
         with_gpu_features(INT64, |ctx| {
             let frame = CharacterFrame::new(ctx, &cfg, &mut |_| {})?;
             let names = vkshade::frame::pass_names(&frame);
             assert_eq!(names.contains(&"vertex list"), !every, "{names:?}");
+            assert!(names.contains(&"ao skin"), "{names:?}");
+            assert_eq!(names.contains(&"ao occlusion"), every, "{names:?}");
             let mut rec = ctx.recorder("frame env list, first pose")?;
             frame.record(&mut rec, &input(&frame, 2, 24))?;
             rec.submit_and_wait()?;
@@ -392,6 +399,24 @@ fn the_environment_over_the_vertex_list_equals_it_over_every_vertex() {
     let (listed, twin, skin, vertices) = run_two(false);
     let (every, _, _, _) = run_two(true);
     assert!(every.vertices.is_none());
+    assert!(
+        listed.ao.is_none(),
+        "the default frame computes no AO visibility"
+    );
+    let ao = every
+        .ao
+        .as_ref()
+        .expect("ao_visibility computes AO's visibility");
+    assert_eq!(ao.len(), vertices);
+    let (lo, hi) = ao
+        .iter()
+        .fold((f32::INFINITY, f32::NEG_INFINITY), |(l, h), &a| {
+            (l.min(a), h.max(a))
+        });
+    assert!(
+        ao.iter().all(|a| (0.0..=1.0).contains(a)) && hi - lo > 0.5,
+        "AO visibility in [{lo}, {hi}]"
+    );
     let list = listed
         .vertices
         .as_ref()

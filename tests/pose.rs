@@ -241,6 +241,26 @@ fn ao_on_the_shared_pose_equals_ao_posing_its_own() {
             .map(|p| p.name)
             .collect();
         assert_eq!(names, ["ao skin", "ao occlusion"]);
+        // With its occlusion pass off it skins the spheres alone, refuses to read back a
+        // visibility it does not compute, and an environment that would scale by it is
+        // refused.
+        let mut spheres_only = AoKernel::on_pose(&mut rec, &ao_prep, AoParams::default(), &pose)?;
+        spheres_only.set_occlusion(false);
+        let names: Vec<&str> = vkshade::kernels::Kernel::passes(&spheres_only)
+            .iter()
+            .map(|p| p.name)
+            .collect();
+        assert_eq!(names, ["ao skin"]);
+        let e = spheres_only
+            .read_back(&mut rec)
+            .err()
+            .expect("no visibility to read");
+        assert!(e.to_string().contains("occlusion pass is off"), "{e}");
+        let lobe = vkshade::geom::sg::Lobe::new(Vec3::Y, 4.0, [1.0; 3]);
+        let e = vkshade::kernels::env::EnvKernel::new(&mut rec, &[lobe], &pose, &spheres_only)
+            .err()
+            .expect("AO's scale without AO's occlusion is refused");
+        assert!(e.to_string().contains("occlusion pass is off"), "{e}");
         // A pose of another mesh is refused.
         let g = grid(false);
         let other = PoseKernel::new(&mut rec, &Prepared::new(&g.mesh, 1)?)?;

@@ -240,6 +240,8 @@ impl Args {
             cull: !self.no_cull,
             // The reference compares (and writes) every vertex's environment irradiance.
             env_every_vertex: self.reference,
+            // ... and reports the AO-weighted floor beside it.
+            ao_visibility: self.reference,
             ao_correction_rays: self.ao_correction_rays,
             materials: match self.materials.as_str() {
                 "measured" => crate::frame::Materials::Measured,
@@ -781,6 +783,11 @@ fn reference_poses(
             ply: None,
         };
         if let Some(base) = frame.env_lobes() {
+            let ao = st.ao.as_deref().ok_or_else(|| {
+                Error::InvalidArgument(
+                    "frame --reference: the frame computed no AO visibility for the floor".into(),
+                )
+            })?;
             let positions: Vec<glam::Vec3> = st
                 .positions
                 .iter()
@@ -822,9 +829,7 @@ fn reference_poses(
                 .iter()
                 .map(|e| [e[0], e[1], e[2]])
                 .collect();
-            pose.env = Some(env_cpu::against_truth(
-                &lobes, &normals, &st.ao, &mine, &truth,
-            ));
+            pose.env = Some(env_cpu::against_truth(&lobes, &normals, ao, &mine, &truth));
             let ply = args.out.join(format!("reference_{k:04}.ply"));
             super::env::write_truth_ply(
                 &ply,
@@ -838,7 +843,7 @@ fn reference_poses(
                 (&positions, &normals, &mesh.triangles),
                 &mine,
                 &truth,
-                &st.ao,
+                ao,
             )?;
             pose.ply = Some(ply.display().to_string());
         }

@@ -4,7 +4,8 @@
 //! One frame, recorded into one command buffer (barriers between kernels come from each
 //! pass's declared accesses through the recorder's tracking):
 //! 1. `pose` skins the whole character once (skin parts first, then cloth parts);
-//!    `ao` skins the sphere tree and computes per-vertex occlusion from the same pose;
+//!    `ao` skins the sphere tree from the same pose (and computes AO's per-vertex occlusion
+//!    where a stage reads it: [`FrameConfig::ao_visibility`]);
 //! 2. `raster` writes the screen G-buffer of the posed character; with culling and an
 //!    environment, `vertex mark` and `vertex list` list the vertices the frame reads (those
 //!    of the covered triangles and the skin's, [`crate::kernels::raster::vertices`]);
@@ -130,6 +131,14 @@ pub struct FrameConfig {
     /// The environment's passes shade every vertex even when culling (`frame --reference`
     /// sets it: it compares, and writes, every vertex's environment irradiance).
     pub env_every_vertex: bool,
+    /// Computes AO's per-vertex visibility every frame (pass `ao occlusion`;
+    /// [`Stages::ao`]) even when no stage reads it. The image reads it only where the
+    /// environment takes AO's visibility as its scale (`env_trace_grid: None`), and then the
+    /// pass always runs; with traced visibility (the default) the environment's shadow pass
+    /// walks the sphere tree's cut itself and AO's visibility reaches no pixel, so by default
+    /// the frame skins the sphere tree (`ao skin`) and skips the pass. `frame --reference`
+    /// sets it (the AO-weighted floor is reported beside the environment's error).
+    pub ao_visibility: bool,
 }
 
 /// A skin part's own scattering material ([`FrameConfig::skin_parts`]).
@@ -299,6 +308,7 @@ impl Default for FrameConfig {
             skin_parts: Vec::new(),
             cull: true,
             env_every_vertex: false,
+            ao_visibility: false,
         }
     }
 }
@@ -984,7 +994,8 @@ impl CharacterFrame {
         let t = Instant::now();
         let mut rec = ctx.recorder("character frame setup")?;
         let pose = pose::PoseKernel::new(&mut rec, &pose_prep)?;
-        let ao = ao::gpu::AoKernel::on_pose(&mut rec, &ao_prep, ao_params, &pose)?;
+        let mut ao = ao::gpu::AoKernel::on_pose(&mut rec, &ao_prep, ao_params, &pose)?;
+        ao.set_occlusion(cfg.ao_visibility || (lobes.is_some() && cfg.env_trace_grid.is_none()));
         if let Some(c) = &correction {
             ao.set_correction(&mut rec, c)?;
         }
@@ -1377,7 +1388,10 @@ impl CharacterFrame {
             keys: rec.read_back(self.raster.keys())?,
             positions: rec.read_back(self.pose.positions())?,
             normals: rec.read_back(self.pose.normals())?,
-            ao: rec.read_back(self.ao.visibility())?,
+            ao: match self.ao.occlusion() {
+                true => Some(rec.read_back(self.ao.visibility())?),
+                false => None,
+            },
             diffuse: match &self.sss {
                 Some(s) => Some(rec.read_back(s.kernel.diffuse())?),
                 None => None,
@@ -1414,7 +1428,10 @@ impl CharacterFrame {
             keys: rb.keys.to_vec()?,
             positions: rb.positions.to_vec()?,
             normals: rb.normals.to_vec()?,
-            ao: rb.ao.to_vec()?,
+            ao: match &rb.ao {
+                Some(r) => Some(r.to_vec()?),
+                None => None,
+            },
             diffuse: match &rb.diffuse {
                 Some(r) => r.to_vec()?,
                 None => vec![[0.0; 4]; 8],
@@ -1702,7 +1719,7 @@ pub struct StageReadback {
     keys: crate::gpu::Readback,
     positions: crate::gpu::Readback,
     normals: crate::gpu::Readback,
-    ao: crate::gpu::Readback,
+    ao: Option<crate::gpu::Readback>,
     diffuse: Option<crate::gpu::Readback>,
     needed: Option<crate::gpu::Readback>,
     vertices: Option<crate::kernels::raster::vertices::VertexListReadback>,
@@ -1725,8 +1742,9 @@ pub struct Stages {
     /// Posed positions and normals.
     pub positions: Vec<[f32; 4]>,
     pub normals: Vec<[f32; 4]>,
-    /// AO's visibility per vertex.
-    pub ao: Vec<f32>,
+    /// AO's visibility per vertex; None when the frame does not compute it
+    /// ([`FrameConfig::ao_visibility`]).
+    pub ao: Option<Vec<f32>>,
     /// The skin's diffusion per atlas texel: this frame's in the segments `needed` marks
     /// (every texel when it is empty), what the texel last held elsewhere.
     pub diffuse: Vec<[f32; 4]>,

@@ -317,6 +317,8 @@ pub struct AoKernel {
     params: AoParams,
     /// The fixed cut's lists ([`Cut::Fixed`]), chosen at construction.
     fixed: Option<FixedCut>,
+    /// Whether a frame records pass `ao occlusion` ([`AoKernel::set_occlusion`]).
+    occlusion_on: bool,
 }
 
 impl AoKernel {
@@ -418,7 +420,24 @@ impl AoKernel {
             table,
             params,
             fixed,
+            occlusion_on: true,
         })
+    }
+
+    /// Whether a frame ([`AoKernel::record`], [`Kernel::record`]) computes the per-vertex
+    /// visibility (pass `ao occlusion`; on by default). Off, a frame records `ao skin` alone:
+    /// for a caller that reads only the posed sphere tree ([`AoKernel::posed_spheres`],
+    /// [`AoKernel::posed_extents`]), such as the character frame whose environment is
+    /// shadowed by the tree's caps and traced rays and reads no AO visibility. The
+    /// visibility buffer is then not written, and [`AoKernel::read_back`] refuses (its
+    /// contents would be another frame's, or none).
+    pub fn set_occlusion(&mut self, on: bool) {
+        self.occlusion_on = on;
+    }
+
+    /// Whether a frame computes the visibility ([`AoKernel::set_occlusion`]).
+    pub fn occlusion(&self) -> bool {
+        self.occlusion_on
     }
 
     /// The fixed cut's per-vertex lists, when the kernel was built with [`Cut::Fixed`] (the
@@ -504,7 +523,8 @@ impl AoKernel {
     }
 
     /// Records one frame: with its own pose `pose joints` (the joint matrices' upload) and
-    /// `pose skin`, then `ao skin` and `ao occlusion`. Barriers come from the declared accesses through the recorder's
+    /// `pose skin`, then `ao skin` and (unless [`AoKernel::set_occlusion`] turned it off)
+    /// `ao occlusion`. Barriers come from the declared accesses through the recorder's
     /// tracking (or are planned by the caller, see [`Kernel::plan_pass`]). The matrices are
     /// staged through the context's ring, so frames in flight never overwrite each other's.
     pub fn record(&self, rec: &mut Recorder, matrices: &[Mat4]) -> Result<()> {
@@ -520,6 +540,13 @@ impl AoKernel {
 
     /// Records copies of the outputs back to the host (after [`AoKernel::record`]).
     pub fn read_back(&self, rec: &mut Recorder) -> Result<FrameReadback> {
+        if !self.occlusion_on {
+            return Err(crate::error::Error::InvalidArgument(
+                "the AO kernel's occlusion pass is off (AoKernel::set_occlusion(false)): its \
+                 frames compute no visibility to read back"
+                    .into(),
+            ));
+        }
         let b = &self.buffers;
         Ok(FrameReadback {
             visibility: rec.read_back(&b.visibility)?,
@@ -636,15 +663,20 @@ impl Kernel for AoKernel {
                 Self::pose_skin_args,
             ));
         }
-        passes.extend([
-            Pass::dispatch(PASS_SKIN, &self.skin, &self.skin_bind, Self::skin_args),
-            Pass::dispatch(
+        passes.push(Pass::dispatch(
+            PASS_SKIN,
+            &self.skin,
+            &self.skin_bind,
+            Self::skin_args,
+        ));
+        if self.occlusion_on {
+            passes.push(Pass::dispatch(
                 PASS_OCCLUSION,
                 &self.occlusion,
                 &self.occlusion_bind,
                 Self::occlusion_args,
-            ),
-        ]);
+            ));
+        }
         passes
     }
 

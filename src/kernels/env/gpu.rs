@@ -152,7 +152,9 @@ impl EnvKernel {
     /// are the character's (AO built [`AoKernel::on_pose`] on `pose`); their buffers are
     /// bound, not copied, and AO's cut parameters are taken now (build again after
     /// [`AoKernel::set_params`]). Refuses 0 or more than [`super::MAX_LOBES`] lobes, invalid
-    /// lobes, and an AO of another vertex count.
+    /// lobes, an AO of another vertex count, and (AO's visibility as the scale) an AO whose
+    /// occlusion pass is off ([`AoKernel::set_occlusion`]; it must stay on while this kernel
+    /// is in use).
     pub fn new(
         rec: &mut Recorder,
         lobes: &[Lobe],
@@ -243,7 +245,16 @@ impl EnvKernel {
         let mut images: Vec<(&'static str, Image)> = Vec::new();
         let mut traced = None;
         match visibility {
-            EnvVisibility::Ao => buffers.push(("ao", ao.visibility().clone())),
+            EnvVisibility::Ao => {
+                if !ao.occlusion() {
+                    return Err(Error::InvalidArgument(
+                        "the environment takes AO's visibility as its scale, but the AO \
+                         kernel's occlusion pass is off (AoKernel::set_occlusion)"
+                            .into(),
+                    ));
+                }
+                buffers.push(("ao", ao.visibility().clone()))
+            }
             EnvVisibility::Traced {
                 rest,
                 triangles,
