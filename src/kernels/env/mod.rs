@@ -27,10 +27,11 @@
 //!     K_jk = exp(min(lambda_j, [`CV_SHARPNESS`]) (axis_j . d_k - 1)). Where the caps miss the
 //!     mesh (a gap they close, a part they lack), only the lobes on that side move, so the
 //!     pass walks a coarser cut than AO's ([`CV_TAU`]: fewer caps). On BCN_Epileptic
-//!     (`vkshade env --reference`, 32 lobes, 1024-ray truth): 7.6 / 7.8 / 7.9% at three
-//!     poses, against 9.2 / 9.6 / 10.6% for the same caps scaled by the same rays' escaped
-//!     fraction, and at the character frame's three reference poses (16 lobes) 7.6 / 7.9 /
-//!     8.3% against 8.2 / 13.4 / 11.1% for this kernel's method before (that scale, AO's cut).
+//!     (`vkshade env --reference`, 32 lobes, 2048-ray truth): 8.3 / 8.0 / 8.2% at three
+//!     poses (at tau 1.2: 7.5 / 7.7 / 7.9%, against 9.1 / 9.6 / 10.6% for the same caps
+//!     scaled by the same rays' escaped fraction), and at the character frame's three
+//!     reference poses (16 lobes) 7.9 / 8.0 / 8.7% (at tau 1.2: 7.6 / 7.9 / 8.3%, against
+//!     8.2 / 13.4 / 11.1% for this kernel's method before: that scale, AO's cut).
 //!   - **AO's visibility as a scale (module `env/shadow`).** With I_s AO's exact per-sphere
 //!     cosine-weighted occlusion and AO(x) its blended (cone-mask union), corrected
 //!     visibility, V_j = clamp(AO(x) C_j / prod_s (1 - I_s)^w_s, 0, 1). Under a uniform
@@ -75,11 +76,18 @@ pub const HILL_MIN_SHARPNESS: f32 = 1.0;
 pub const CV_SHARPNESS: f32 = 8.0;
 /// The coarsest refinement threshold of the cut the shadow pass walks with traced rays
 /// (AO's tau if coarser): the rays correct what a coarser cut's caps get wrong, so the pass
-/// evaluates fewer caps. On BCN_Epileptic (CPU twin, 1024-ray truths, worst of three poses;
-/// caps per vertex at that pose) tau 0.8 / 1.0 / 1.2 / 1.6 gave 8.8 / 8.7 / 8.8 / 9.5% at the
-/// frame's poses (16 lobes; 47 / 39 / 34 / 26 caps) and 7.8 / 8.1 / 8.6 / 9.0% at
-/// `vkshade env`'s (32 lobes; 46 / 37 / 31 / 21 caps).
-pub const CV_TAU: f32 = 1.2;
+/// evaluates fewer caps. On BCN_Epileptic (1024-ray truths, the worst of three poses; caps
+/// per vertex at that pose, CPU twin) tau 0.8 / 1.0 / 1.2 / 1.6 gave 8.8 / 8.7 / 8.8 / 9.5%
+/// at the frame's poses (16 lobes; 47 / 39 / 34 / 26 caps) and 7.8 / 8.1 / 8.6 / 9.0% at
+/// `vkshade env`'s (32 lobes; 46 / 37 / 31 / 21 caps), before later changes to the method.
+/// Measured again on 2026-12-05 (GPU, `vkshade frame --reference` and `vkshade env
+/// --reference`, their defaults; per pose): tau 1.2 / 1.4 / 1.6 give 7.62 / 7.94 / 8.29%,
+/// 7.88 / 7.97 / 8.65% and 7.95 / 8.29 / 9.15% at the frame's poses, and 7.53 / 7.72 /
+/// 7.87%, 8.27 / 7.98 / 8.18% and 8.33 / 8.16 / 8.40% at `vkshade env`'s; the frame's
+/// `env shadow` took 11.8-12.2 / 9.2-9.3 / 8.6-10.1 ms in `bench frame` (alternating runs
+/// on one 2-core VM; the whole frame's median 62.3 -> 59.6 ms from 1.2 to 1.4). 1.4 keeps
+/// most of the time saved for under half the error added.
+pub const CV_TAU: f32 = 1.4;
 
 /// The cut the shadow pass walks: AO's, coarsened to tau >= [`CV_TAU`] when traced rays
 /// correct the caps (`traced`).
