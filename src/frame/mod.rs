@@ -995,7 +995,9 @@ impl CharacterFrame {
         let mut rec = ctx.recorder("character frame setup")?;
         let pose = pose::PoseKernel::new(&mut rec, &pose_prep)?;
         let mut ao = ao::gpu::AoKernel::on_pose(&mut rec, &ao_prep, ao_params, &pose)?;
-        ao.set_occlusion(cfg.ao_visibility || (lobes.is_some() && cfg.env_trace_grid.is_none()));
+        // The environment scaled by AO's visibility is the only stage that reads it.
+        let env_reads_ao = lobes.is_some() && cfg.env_trace_grid.is_none();
+        ao.set_occlusion(cfg.ao_visibility || env_reads_ao);
         if let Some(c) = &correction {
             ao.set_correction(&mut rec, c)?;
         }
@@ -1388,10 +1390,11 @@ impl CharacterFrame {
             keys: rec.read_back(self.raster.keys())?,
             positions: rec.read_back(self.pose.positions())?,
             normals: rec.read_back(self.pose.normals())?,
-            ao: match self.ao.occlusion() {
-                true => Some(rec.read_back(self.ao.visibility())?),
-                false => None,
-            },
+            ao: self
+                .ao
+                .occlusion()
+                .then(|| rec.read_back(self.ao.visibility()))
+                .transpose()?,
             diffuse: match &self.sss {
                 Some(s) => Some(rec.read_back(s.kernel.diffuse())?),
                 None => None,
@@ -1428,10 +1431,7 @@ impl CharacterFrame {
             keys: rb.keys.to_vec()?,
             positions: rb.positions.to_vec()?,
             normals: rb.normals.to_vec()?,
-            ao: match &rb.ao {
-                Some(r) => Some(r.to_vec()?),
-                None => None,
-            },
+            ao: rb.ao.as_ref().map(|r| r.to_vec()).transpose()?,
             diffuse: match &rb.diffuse {
                 Some(r) => r.to_vec()?,
                 None => vec![[0.0; 4]; 8],
