@@ -109,8 +109,9 @@ pub struct Args {
     /// Rays per vertex of the environment's ray-traced truth (with --reference).
     #[arg(long, default_value_t = 1024)]
     pub rays: usize,
-    /// Rays per vertex of AO's static correction, baked once in the bind pose (0: AO and
-    /// the environment's shadowing by the sphere tree alone).
+    /// Rays per vertex of AO's static correction, baked once in the bind pose where the
+    /// frame computes AO's visibility (--reference, --env-trace-grid 0); 0: AO and the
+    /// environment's shadowing by the sphere tree alone.
     #[arg(long, default_value_t = 1024)]
     pub ao_correction_rays: usize,
     /// Where the parts' colours come from: "gltf", each part's glTF base colour (factor

@@ -105,7 +105,9 @@ pub struct FrameConfig {
     pub env_trace_grid: Option<u32>,
     /// Rays per vertex of AO's static correction, baked once in the bind pose
     /// ([`ao::Correction`]: the detail the spheres miss, such as the skin buried under the
-    /// clothes); 0: AO and the environment's shadowing by the spheres alone.
+    /// clothes); 0: AO and the environment's shadowing by the spheres alone. It scales AO's
+    /// visibility only, so it is baked only where the frame computes that
+    /// ([`FrameConfig::ao_visibility`], or the environment scaled by AO's visibility).
     pub ao_correction_rays: usize,
     /// Where the parts' colours come from.
     pub materials: Materials,
@@ -800,11 +802,16 @@ impl CharacterFrame {
             "sphere tree: {} spheres ({:.0} ms)",
             setup.spheres, setup.ms_tree
         ));
+        // AO's per-vertex visibility runs where a stage reads it: the environment scaled by
+        // it (the traced environment walks the sphere tree's cut itself), or the caller.
+        let env_reads_ao = cfg.env.is_some() && cfg.env_trace_grid.is_none();
+        let ao_occlusion = cfg.ao_visibility || env_reads_ao;
         // AO's static correction, as `vkshade ao` and `vkshade env` bake it: without it the
-        // skin under the clothes reads as half open and takes the environment's light.
+        // skin under the clothes reads as half open and takes the environment's light. It
+        // scales AO's visibility only, so it is baked only when that is computed.
         let t = Instant::now();
         let ao_params = ao::AoParams::default();
-        let correction = if cfg.ao_correction_rays > 0 {
+        let correction = if ao_occlusion && cfg.ao_correction_rays > 0 {
             let c = ao::Correction::bake(mesh, cfg.ao_correction_rays);
             let cpu_ao = ao::cpu::CpuAo::new(ao::formula::OcclusionTable::new(
                 ao::formula::TABLE_SIZE,
@@ -995,9 +1002,7 @@ impl CharacterFrame {
         let mut rec = ctx.recorder("character frame setup")?;
         let pose = pose::PoseKernel::new(&mut rec, &pose_prep)?;
         let mut ao = ao::gpu::AoKernel::on_pose(&mut rec, &ao_prep, ao_params, &pose)?;
-        // The environment scaled by AO's visibility is the only stage that reads it.
-        let env_reads_ao = lobes.is_some() && cfg.env_trace_grid.is_none();
-        ao.set_occlusion(cfg.ao_visibility || env_reads_ao);
+        ao.set_occlusion(ao_occlusion);
         if let Some(c) = &correction {
             ao.set_correction(&mut rec, c)?;
         }
