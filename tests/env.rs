@@ -189,10 +189,23 @@ fn gpu_matches_the_cpu_twin_far_from_the_bind_pose() {
 #[cfg(feature = "gltf")]
 #[test]
 fn traced_visibility_matches_its_twin_far_from_the_bind_pose() {
+    traced_visibility_matches_its_twin(4);
+}
+
+/// As traced_visibility_matches_its_twin_far_from_the_bind_pose with 36 rays per vertex:
+/// `env trace` walks the BVH 16 rays at a time, so these are three walks (16, 16 and 4
+/// rays) whose escape bits share the vertex's first word and start its second.
+#[cfg(feature = "gltf")]
+#[test]
+fn traced_visibility_in_several_ray_packets_matches_its_twin() {
+    traced_visibility_matches_its_twin(6);
+}
+
+#[cfg(feature = "gltf")]
+fn traced_visibility_matches_its_twin(grid: u32) {
     let (c, ao_prep, pose_prep, matrices) = far_pose();
     let lobes = synthetic_lobes();
     let r = vkshade::geom::sg::rotation(Vec3::new(-0.4, 1.0, 0.1), 31.0);
-    let grid = 4;
     let (frame, scale, bits, ao, spheres, extents, table, params, shape, topology, cfg) =
         common::with_gpu(|ctx| {
             let mut rec = ctx.recorder("env traced twin")?;

@@ -8,11 +8,21 @@
 // with them (src/kernels/env/mod.rs). Twin: kernels::env::cpu::traced_rays, the same integer
 // hash and f32 operations (sin and cos may differ in the last bits, so a ray grazing an edge
 // may decide differently).
+//
+// The rays of a vertex share their origin, so they walk the BVH together, PACKET at a time:
+// a node is fetched once and tested against each ray still unblocked, entered when any of
+// them meets it, and a leaf's triangles are fetched once and tested against the rays that
+// met the leaf. Each ray decides as it would alone (common/bvh.glsl any_hit): a child's box
+// lies inside its parent's, and the slab test is monotone in the box's bounds, so a ray
+// that misses a node misses every node under it; the walk only skips the nodes that no ray
+// enters. Per vertex it fetches the union of the rays' paths once instead of every path.
 #include <common/util.glsl>
 #include <env/rays.glsl>
 layout(local_size_x = 64) in;
 
 const uint BVH_ROW = 1024u;
+// Rays walked together (bits of a uint mask; a divisor of 32).
+const uint PACKET = 16u;
 
 layout(push_constant) uniform Push {
     uint vertex_count;
@@ -31,6 +41,58 @@ layout(std430, set = 0, binding = 5) writeonly buffer Escaped { uint w[]; } esca
 #include <common/bvh.glsl>
 #include <env/listed.glsl>
 
+// Which of the rays in `live` (bit i: direction d[i]) escape from o.
+uint escaping(vec3 o, vec3 d[PACKET], uint live) {
+    vec3 inv[PACKET];
+    for (uint i = 0u; i < PACKET; i++) inv[i] = 1.0 / d[i];
+    uint ni = 0u;
+    for (uint step = 0u; ni != LINK_END && live != 0u && step < MAX_STEPS; step++) {
+        uvec4 lo_u = bvh_node(2u * ni);
+        uvec4 hi_u = bvh_node(2u * ni + 1u);
+        vec3 lo = uintBitsToFloat(lo_u.xyz) - o;
+        vec3 hi = uintBitsToFloat(hi_u.xyz) - o;
+        uint meet = 0u;
+        for (uint i = 0u; i < PACKET; i++) {
+            // common/bvh.glsl any_hit's slab test, tmax infinite.
+            vec3 t0 = lo * inv[i];
+            vec3 t1 = hi * inv[i];
+            vec3 tmin = min(t0, t1);
+            vec3 tmx = max(t0, t1);
+            float tnear = max(max(max(tmin.x, tmin.y), tmin.z), 0.0);
+            float tfar = min(min(tmx.x, tmx.y), tmx.z);
+            meet |= (tnear > tfar) ? 0u : (1u << i);
+        }
+        meet &= live;
+        uint first = lo_u.w;
+        uint count = hi_u.w & 0xffu;
+        uint n = meet != 0u ? count : 0u;
+        for (uint t = first; t < first + n; t++) {
+            // common/bvh.glsl hit_tri, the terms that do not depend on the ray taken once.
+            vec3 a = tri_row(3u * t);
+            vec3 e1 = tri_row(3u * t + 1u);
+            vec3 e2 = tri_row(3u * t + 2u);
+            vec3 s = o - a;
+            vec3 q = cross(s, e1);
+            float tq = dot(e2, q);
+            uint hit = 0u;
+            for (uint i = 0u; i < PACKET; i++) {
+                vec3 p = cross(d[i], e2);
+                float det = dot(e1, p);
+                float inv_det = 1.0 / det;
+                float u = dot(s, p) * inv_det;
+                float v = dot(d[i], q) * inv_det;
+                float th = tq * inv_det;
+                bool h = !(abs(det) < 1e-12) && !(u < 0.0 || u > 1.0) && !(v < 0.0 || u + v > 1.0)
+                    && th > 0.0;
+                hit |= h ? (1u << i) : 0u;
+            }
+            live &= ~(hit & meet);
+        }
+        ni = (meet != 0u && count == 0u) ? first : hi_u.w >> 8u;
+    }
+    return live;
+}
+
 void main() {
     uint vi;
     if (!listed_vertex(gl_GlobalInvocationID.x, vi)) return;
@@ -42,17 +104,19 @@ void main() {
     uint g = pc.grid;
     uint rays = g * g;
     uint words = (rays + 31u) / 32u;
-    float inf = uintBitsToFloat(0x7f800000u);
     uint count = 0u;
     uint word = 0u;
-    for (uint k = 0u; k < rays; k++) {
-        vec3 d = ray_direction(vi, k, g, pc.seed, t, bt, n);
-        if (!any_hit(o, d, inf)) {
-            count++;
-            word |= 1u << (k & 31u);
+    for (uint base = 0u; base < rays; base += PACKET) {
+        uint m = min(PACKET, rays - base);
+        vec3 d[PACKET];
+        for (uint i = 0u; i < PACKET; i++) {
+            d[i] = ray_direction(vi, base + min(i, m - 1u), g, pc.seed, t, bt, n);
         }
-        if ((k & 31u) == 31u || k + 1u == rays) {
-            escaped.w[vi * words + k / 32u] = word;
+        uint esc = escaping(o, d, (1u << m) - 1u);
+        count += bitCount(esc);
+        word |= esc << (base & 31u);
+        if (((base + PACKET) & 31u) == 0u || base + PACKET >= rays) {
+            escaped.w[vi * words + base / 32u] = word;
             word = 0u;
         }
     }
