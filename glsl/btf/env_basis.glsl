@@ -7,20 +7,23 @@
 // L_k = sum_j (V_j a_j / pi) Q_jk; then sum_k L_k B_k(uv, view) over the 3 view taps of the
 // direction map (GROUPS filtered fetches each), ADDED to `result` (the pass runs after
 // `btf shade`). V_j: 1, per pixel ([pixel * J + j]) or per vertex ([vertex * J + j],
-// interpolated by the barycentrics of the G-buffer position on the pixel's triangle).
+// interpolated by the barycentrics of the G-buffer position on the pixel's triangle). Mode 3:
+// L_k itself per vertex (pass `btf env vertices`, glsl/btf/env_vertices.comp), interpolated
+// by those barycentrics, the front or back face's as the pixel's normal faces the
+// vertices' (the rasteriser negates a back face's), plus those of the lobes in `plobes`
+// (kernels::btf::basis::BasisData::pixel_lobes) looked up here with the visibility
+// interpolated as in mode 2.
 layout(local_size_x = 16, local_size_y = 4) in;
 
 layout(push_constant) uniform Push {
     vec4 camera; // xyz: camera position; w = 0: xyz is the direction towards an
                  // orthographic camera instead
-    uvec4 dims;  // width, height, lobes J, visibility mode (0 none, 1 per pixel, 2 per vertex)
-    uvec4 info;  // x: part mask (bit p: shade part p)
+    uvec4 dims;  // width, height, lobes J, visibility mode (0 none, 1 per pixel, 2 per vertex,
+                 // 3 light per vertex)
+    uvec4 info;  // x: part mask (bit p: shade part p), y: mode 3's entries of `plobes`
 } pc;
 
-const uint RANK = 8u;   // basis.rs RANK
 const uint GROUPS = 6u; // basis.rs GROUPS
-const uint LAYERS_PER_LOBE = 2u;
-const float PI = 3.14159265358979;
 
 layout(set = 0, binding = 0) uniform texture2DArray coeffs[GROUPS];
 layout(set = 0, binding = 1) uniform sampler coeff_sampler;  // linear, repeat
@@ -39,6 +42,13 @@ layout(std430, set = 0, binding = 12) readonly buffer VertexVisibility { float v
 #ifdef BTF_TILES
 layout(std430, set = 0, binding = 13) readonly buffer Tiles { uint head[4]; uint list[]; } tiles;
 #endif
+// Mode 3: pass `btf env vertices`' light factors (glsl/btf/basis_light.glsl has the layout).
+layout(set = 0, binding = 14, rgba32f) readonly uniform image2D vertex_light;
+// Mode 3: the lobes looked up at each pixel all the same
+// (kernels::btf::basis::BasisData::pixel_lobes).
+layout(std430, set = 0, binding = 15) readonly buffer PixelLobes { uint j[]; } plobes;
+
+#include "basis_light.glsl"
 
 void lookup(vec3 d, out uvec3 index, out vec3 weight) {
     ivec2 n = textureSize(dir_map, 0);
@@ -47,18 +57,6 @@ void lookup(vec3 d, out uvec3 index, out vec3 weight) {
     uvec4 m = texelFetch(dir_map, t, 0);
     index = uvec3(m.x & 0xFFu, (m.x >> 8u) & 0xFFu, (m.x >> 16u) & 0xFFu);
     weight = uintBitsToFloat(m.yzw);
-}
-
-float sgn(float x) {
-    return x >= 0.0 ? 1.0 : -1.0;
-}
-
-// basis.rs oct_encode.
-vec2 oct_encode(vec3 d) {
-    float s = abs(d.x) + abs(d.y) + abs(d.z);
-    vec2 p = d.xy / s;
-    if (d.z < 0.0) p = vec2((1.0 - abs(p.y)) * sgn(p.x), (1.0 - abs(p.x)) * sgn(p.y));
-    return p * 0.5 + 0.5;
 }
 
 // basis.rs barycentrics.
@@ -100,36 +98,42 @@ void main() {
     uint mode = pc.dims.w;
     uvec4 tri = uvec4(0u);
     vec3 bary = vec3(0.0);
-    if (mode == 2u) {
+    if (mode >= 2u) {
         tri = tris.t[keys.k[k].x];
         bary = barycentrics(g0.xyz, pos.p[tri.x].xyz, pos.p[tri.y].xyz, pos.p[tri.z].xyz);
     }
     vec3 l[RANK];
     for (uint q = 0u; q < RANK; q++) l[q] = vec3(0.0);
-    for (uint j = 0u; j < J; j++) {
+    if (mode == 3u) {
+        vec3 nv = bary.x * imageLoad(vertex_light, light_texel(tri.x, LIGHT_NORMAL)).xyz
+            + bary.y * imageLoad(vertex_light, light_texel(tri.y, LIGHT_NORMAL)).xyz
+            + bary.z * imageLoad(vertex_light, light_texel(tri.z, LIGHT_NORMAL)).xyz;
+        uint side = dot(g1.xyz, nv) < 0.0 ? LIGHT_BACK : 0u;
+        float f[RANK * 3u];
+        for (uint i = 0u; i < RANK * 3u / 4u; i++) {
+            vec4 a = bary.x * imageLoad(vertex_light, light_texel(tri.x, side + i))
+                + bary.y * imageLoad(vertex_light, light_texel(tri.y, side + i))
+                + bary.z * imageLoad(vertex_light, light_texel(tri.z, side + i));
+            f[4u * i] = a.x;
+            f[4u * i + 1u] = a.y;
+            f[4u * i + 2u] = a.z;
+            f[4u * i + 3u] = a.w;
+        }
+        for (uint q = 0u; q < RANK; q++) l[q] = vec3(f[3u * q], f[3u * q + 1u], f[3u * q + 2u]);
+    }
+    uint count = mode == 3u ? pc.info.y : J;
+    for (uint m = 0u; m < count; m++) {
+        uint j = mode == 3u ? plobes.j[m] : m;
         vec4 p = lobes.v[2u * j];
         vec3 amp = lobes.v[2u * j + 1u].rgb;
         float v = 1.0;
         if (mode == 1u) {
             v = pixel_vis.v[k * J + j];
-        } else if (mode == 2u) {
+        } else if (mode >= 2u) {
             v = bary.x * vertex_vis.v[tri.x * J + j] + bary.y * vertex_vis.v[tri.y * J + j]
                 + bary.z * vertex_vis.v[tri.z * J + j];
         }
-        vec3 s = amp * (v * (1.0 / PI));
-        vec2 uv = oct_encode(vec3(dot(p.xyz, t), dot(p.xyz, bt), dot(p.xyz, n)));
-        vec4 q0 = textureLod(sampler2DArray(table, table_sampler),
-                             vec3(uv, float(LAYERS_PER_LOBE * j)), 0.0);
-        vec4 q1 = textureLod(sampler2DArray(table, table_sampler),
-                             vec3(uv, float(LAYERS_PER_LOBE * j + 1u)), 0.0);
-        l[0] += s * q0.x;
-        l[1] += s * q0.y;
-        l[2] += s * q0.z;
-        l[3] += s * q0.w;
-        l[4] += s * q1.x;
-        l[5] += s * q1.y;
-        l[6] += s * q1.z;
-        l[7] += s * q1.w;
+        add_lobe(l, amp * (v * (1.0 / PI)), vec3(dot(p.xyz, t), dot(p.xyz, bt), dot(p.xyz, n)), j);
     }
     uvec3 iv;
     vec3 wv;

@@ -43,6 +43,11 @@ pub struct Args {
     /// (grid^2 rays through the posed mesh, 1..=16); 0: AO's visibility as a scale instead.
     #[arg(long, default_value_t = crate::kernels::env::DEFAULT_TRACE_GRID)]
     pub env_trace_grid: u32,
+    /// The brightest lobes the cloth's environment looks up at every pixel; the others' light
+    /// factors are interpolated from the cloth's vertices (0: every lobe from the vertices,
+    /// the fastest; at least --env-lobes: every lobe at every pixel, the most exact)
+    #[arg(long, default_value_t = 0)]
+    pub cloth_pixel_lobes: usize,
     /// Diffuse every atlas segment, shade every pixel and the environment at every vertex,
     /// not only what the camera sees (the same images, slower: an A/B switch for the
     /// culling)
@@ -239,6 +244,7 @@ impl Args {
             env_hdr: self.hdr.policy(),
             env_trace_grid: (self.env_trace_grid > 0).then_some(self.env_trace_grid),
             cull: !self.no_cull,
+            cloth_pixel_lobes: self.cloth_pixel_lobes,
             // The reference compares (and writes) every vertex's environment irradiance.
             env_every_vertex: self.reference,
             // ... and reports the AO-weighted floor beside it.

@@ -422,6 +422,30 @@ pub enum Visibility<'a> {
         triangles: &'a [[u32; 4]],
         visibility: &'a [f32],
     },
+    /// The light factors per vertex (`btf env vertices`, [`BasisData::vertex_light`]) from
+    /// `[vertex * J + j]` in each vertex's frame (posed `normals`, `tangents` with the
+    /// handedness in w), interpolated at the pixel as [`Visibility::PerVertex`] interpolates
+    /// the visibility; the back face's where the pixel's normal faces away from the
+    /// interpolated vertex normal.
+    PerVertexLight {
+        triangle: &'a [u32],
+        positions: &'a [[f32; 4]],
+        triangles: &'a [[u32; 4]],
+        visibility: &'a [f32],
+        normals: &'a [[f32; 4]],
+        tangents: &'a [[f32; 4]],
+    },
+}
+
+/// The light factors of one vertex ([`BasisData::vertex_light`]).
+#[derive(Clone, Copy, Debug)]
+pub struct VertexLight {
+    /// L_k per channel (scalar 3 k + channel) as the front face sees it.
+    pub front: [f64; RANK * 3],
+    /// The same for the back face (the normal negated).
+    pub back: [f64; RANK * 3],
+    /// The unit normal (f32, as the pass stores it).
+    pub normal: Vec3,
 }
 
 /// Barycentrics of `p` on triangle (a, b, c) by least squares in the triangle's plane,
@@ -462,6 +486,28 @@ pub struct BasisData {
     pub lobe_count: usize,
     /// The basis's captured energy ([`LightBasis::captured`]).
     pub captured: f64,
+    /// Under [`Visibility::PerVertexLight`], bit j: lobe j's light factors are looked up at
+    /// each pixel, the other lobes' interpolated from the vertices (0 from
+    /// [`BasisData::new`]: every lobe from the vertices; [`brightest_lobes`] picks some).
+    pub pixel_lobes: u64,
+}
+
+/// The `k` lobes with the most energy (luminance of the amplitude times the lobe's integral
+/// 2 pi (1 - e^(-2 lambda)) / lambda) as a mask (bit j: lobe j), for
+/// [`BasisData::pixel_lobes`]: what the interpolation of the light factors from the vertices
+/// gets wrong grows with a lobe's energy.
+pub fn brightest_lobes(lobes: &[crate::geom::sg::Lobe], k: usize) -> u64 {
+    let energy: Vec<f32> = lobes
+        .iter()
+        .map(|l| {
+            let a = l.amplitude;
+            let lum = 0.2126 * a[0] + 0.7152 * a[1] + 0.0722 * a[2];
+            lum * std::f32::consts::TAU * (1.0 - (-2.0 * l.sharpness).exp()) / l.sharpness
+        })
+        .collect();
+    let mut order: Vec<usize> = (0..lobes.len().min(64)).collect();
+    order.sort_by(|&a, &b| energy[b].total_cmp(&energy[a]));
+    order.iter().take(k).fold(0u64, |m, &j| m | 1 << j)
 }
 
 impl BasisData {
@@ -477,6 +523,7 @@ impl BasisData {
             table: lobe_table(&basis, sharpness)?,
             lobe_count: sharpness.len(),
             captured: basis.captured(),
+            pixel_lobes: 0,
         })
     }
 
@@ -487,11 +534,15 @@ impl BasisData {
         lobes: &[[f32; 4]],
         vis: &dyn Fn(usize) -> f32,
         tbn: [Vec3; 3],
+        mask: u64,
     ) -> [f64; RANK * 3] {
         let side = TABLE_SIDE as usize;
         let layer = side * side;
         let mut l = [0f64; RANK * 3];
         for (j, lb) in lobes.chunks_exact(2).enumerate() {
+            if mask & (1 << j) == 0 {
+                continue;
+            }
             let p = Vec3::new(lb[0][0], lb[0][1], lb[0][2]);
             let local = [p.dot(tbn[0]), p.dot(tbn[1]), p.dot(tbn[2])];
             let uv = oct_encode(local);
@@ -516,6 +567,42 @@ impl BasisData {
         l
     }
 
+    /// The twin of `btf env vertices`: the light factors of vertex `v` under `lobes` with
+    /// visibility `[v * J + j]`, in the vertex's tangent frame (its normal, its tangent
+    /// Gram-Schmidt-orthogonalised against it as the rasteriser's resolve does, f32), for
+    /// the front face and the back face.
+    pub fn vertex_light(
+        &self,
+        lobes: &[[f32; 4]],
+        visibility: &[f32],
+        normal: [f32; 4],
+        tangent: [f32; 4],
+        v: usize,
+    ) -> VertexLight {
+        let j = lobes.len() / 2;
+        let n = Vec3::new(normal[0], normal[1], normal[2]);
+        let len = n.length();
+        let n = if len > 0.0 { n / len } else { Vec3::Z };
+        let tg = Vec3::new(tangent[0], tangent[1], tangent[2]);
+        let hand = if tangent[3] >= 0.0 { 1.0 } else { -1.0 };
+        let mut tt = tg - n * n.dot(tg);
+        if tt.dot(tt) < 1e-12 {
+            tt = if n.x.abs() < 0.9 {
+                n.cross(Vec3::X)
+            } else {
+                n.cross(Vec3::Y)
+            };
+        }
+        let t = tt.normalize();
+        let b = hand * n.cross(t);
+        let vis = |jj: usize| visibility[v * j + jj];
+        VertexLight {
+            front: self.light(lobes, &vis, [t, b, n], !self.pixel_lobes),
+            back: self.light(lobes, &vis, [t, b, -n], !self.pixel_lobes),
+            normal: n,
+        }
+    }
+
     /// The CPU twin of `btf env basis`: per pixel the environment's radiance (alpha 1 where
     /// covered, only parts in `part_mask`), f64 over the f32 lobe frames.
     pub fn shade(
@@ -530,6 +617,24 @@ impl BasisData {
         let j = lobes.len() / 2;
         let n = gbuffer.width as usize * gbuffer.height as usize;
         let texels = (self.size[0] * self.size[1]) as usize;
+        let visibility_of = |jj: usize, v: usize| match visibility {
+            Visibility::PerVertexLight { visibility, .. } => visibility[v * j + jj],
+            _ => 1.0,
+        };
+        // Mode 3: every vertex's light factors first (the pass computes the listed ones; a
+        // pixel reads only its triangle's).
+        let vertex_lights: Vec<VertexLight> = match visibility {
+            Visibility::PerVertexLight {
+                visibility,
+                normals,
+                tangents,
+                ..
+            } => (0..normals.len())
+                .into_par_iter()
+                .map(|v| self.vertex_light(lobes, visibility, normals[v], tangents[v], v))
+                .collect(),
+            _ => Vec::new(),
+        };
         let out = (0..n)
             .into_par_iter()
             .map(|k| {
@@ -559,7 +664,7 @@ impl BasisData {
                 let (_, mv) = maps.texel_of(vt);
                 let ambiguous = mv < super::cpu::AMBIGUOUS_MARGIN;
                 let vis: Box<dyn Fn(usize) -> f32> = match visibility {
-                    Visibility::None => Box::new(|_| 1.0),
+                    Visibility::None | Visibility::PerVertexLight { .. } => Box::new(|_| 1.0),
                     Visibility::PerPixel(v) => Box::new(move |jj| v[k * j + jj]),
                     Visibility::PerVertex {
                         triangle,
@@ -577,7 +682,37 @@ impl BasisData {
                         })
                     }
                 };
-                let l = self.light(lobes, &*vis, [t, b, nn]);
+                let l = match visibility {
+                    Visibility::PerVertexLight {
+                        triangle,
+                        positions,
+                        triangles,
+                        ..
+                    } => {
+                        let tri = triangles[triangle[k] as usize];
+                        let p = |i: u32| v3(positions[i as usize]);
+                        let w = barycentrics(pos, p(tri[0]), p(tri[1]), p(tri[2]));
+                        let vl = |c: usize| &vertex_lights[tri[c] as usize];
+                        let nv: Vec3 = (0..3).map(|c| w[c] * vl(c).normal).sum();
+                        let back = v3(g[1]).dot(nv) < 0.0;
+                        // The lobes looked up at the pixel (pixel_lobes), visibility
+                        // interpolated.
+                        let pvis = |jj: usize| -> f32 {
+                            (0..3)
+                                .map(|c| w[c] * visibility_of(jj, tri[c] as usize))
+                                .sum()
+                        };
+                        let mut l = self.light(lobes, &pvis, [t, b, nn], self.pixel_lobes);
+                        for (c, &wc) in w.iter().enumerate() {
+                            let side = if back { &vl(c).back } else { &vl(c).front };
+                            for (ls, x) in l.iter_mut().zip(side) {
+                                *ls += wc as f64 * x;
+                            }
+                        }
+                        l
+                    }
+                    _ => self.light(lobes, &*vis, [t, b, nn], u64::MAX),
+                };
                 let taps = maps.lookup(vt);
                 let mut sum = [0.0; 3];
                 let mut scale = 0.0;

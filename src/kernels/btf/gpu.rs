@@ -25,6 +25,19 @@ pub const PASS_ENV: &str = "btf env";
 /// after [`PASS_SHADE`] (and [`PASS_ENV`] if both are built).
 pub const PASS_ENV_BASIS: &str = "btf env basis";
 
+/// The per-vertex light pass of [`BasisVisibility::PerVertexLight`], recorded before
+/// [`PASS_ENV_BASIS`].
+pub const PASS_ENV_VERTICES: &str = "btf env vertices";
+
+/// RGBA32F texels per vertex of the per-vertex light image
+/// ([`BasisVisibility::PerVertexLight`]; glsl/btf/basis_light.glsl has the layout): the front
+/// face's 24 light factors, the back face's, the unit normal.
+pub const LIGHT_TEXELS: u32 = 13;
+
+/// Vertices a row of the per-vertex light image holds (the row is
+/// `LIGHT_TEXELS * LIGHT_VERTICES` texels wide).
+pub const LIGHT_VERTICES: u32 = 256;
+
 /// Host copy of one frame: linear RGBA per pixel (alpha 0 where the G-buffer is empty).
 pub type BtfOutput = Vec<[f32; 4]>;
 
@@ -437,6 +450,14 @@ impl Kernel for BtfKernel {
             ));
         }
         if let Some(eb) = &self.env_basis {
+            if let Some(ev) = &eb.vertices {
+                passes.push(Pass::dispatch(
+                    PASS_ENV_VERTICES,
+                    &ev.pipeline,
+                    &ev.bind,
+                    |k, _| k.env_vertices_dispatch(),
+                ));
+            }
             passes.push(match &self.tiles {
                 Some(tiles) => Pass::dispatch_indirect(
                     PASS_ENV_BASIS,
@@ -480,11 +501,20 @@ impl Kernel for BtfKernel {
             .env_basis
             .iter()
             .flat_map(|e| e.coefficients.iter().chain([&e.table]));
-        let basis_buffers = self.env_basis.iter().map(|e| &e.placeholder);
+        let light = self
+            .env_basis
+            .iter()
+            .map(|e| Resource::storage_image(&e.light));
+        let basis_buffers = self.env_basis.iter().flat_map(|e| {
+            [&e.placeholder, &e.pixel_lobes]
+                .into_iter()
+                .chain(e.vertices.iter().flat_map(|v| [&v.list, &v.lobes]))
+        });
         self.ctx.memory_of_resources(
             images
                 .chain(basis_images)
                 .map(Resource::texture)
+                .chain(light)
                 .chain([result])
                 .chain(env.chain(basis_buffers).map(Resource::Buffer)),
         )
@@ -680,6 +710,23 @@ pub enum BasisVisibility<'a> {
         triangles: &'a Buffer,
         visibility: &'a Buffer,
     },
+    /// As [`BasisVisibility::PerVertex`], with the light factors L_k themselves computed per
+    /// vertex (pass [`PASS_ENV_VERTICES`], at the `vertices` listed: those of the shaded
+    /// parts' triangles) in the vertex's tangent frame (`normals` and `tangents` of the pose,
+    /// vec4, handedness in the tangent's w), for the front and the back face, and
+    /// interpolated at each pixel by the same barycentrics: a vertex's lobes are fetched
+    /// once instead of at every pixel of its triangles (bi-scale radiance transfer's
+    /// per-vertex light factor). Twin: [`super::basis::BasisData::shade`] with
+    /// [`super::basis::Visibility::PerVertexLight`].
+    PerVertexLight {
+        keys: &'a Buffer,
+        positions: &'a Buffer,
+        triangles: &'a Buffer,
+        visibility: &'a Buffer,
+        normals: &'a Buffer,
+        tangents: &'a Buffer,
+        vertices: &'a [u32],
+    },
 }
 
 /// What `btf env basis` reads besides the kernel's own G-buffer and direction map.
@@ -696,9 +743,27 @@ pub struct EnvBasisInputs<'a> {
     pub part_mask: u32,
 }
 
+/// Pass [`PASS_ENV_VERTICES`].
+struct EnvVerticesPass {
+    pipeline: ComputePipeline,
+    bind: BindGroup,
+    list: Buffer,
+    /// The lobes it sums (those not in [`super::basis::BasisData::pixel_lobes`]).
+    lobes: Buffer,
+    lobe_count: u32,
+    count: u32,
+    vertex_count: u32,
+}
+
 struct EnvBasisPass {
     pipeline: ComputePipeline,
     bind: BindGroup,
+    /// The per-vertex light factors (a 1 x 1 placeholder unless mode 3).
+    light: Image,
+    /// Mode 3: the lobes looked up per pixel ([`super::basis::BasisData::pixel_lobes`]).
+    pixel_lobes: Buffer,
+    pixel_lobe_count: u32,
+    vertices: Option<EnvVerticesPass>,
     coefficients: Vec<Image>,
     table: Image,
     _samplers: [Sampler; 2],
@@ -706,6 +771,13 @@ struct EnvBasisPass {
     lobe_count: u32,
     mode: u32,
     part_mask: u32,
+}
+
+/// A storage buffer of lobe indices (one entry 0 when `lobes` is empty: the pass then reads
+/// none of it).
+fn lobe_list(rec: &mut Recorder, name: &str, lobes: &[u32]) -> Result<Buffer> {
+    let list = if lobes.is_empty() { &[0][..] } else { lobes };
+    rec.buffer_with(name, BufferDesc::storage(4 * list.len() as u64), list)
 }
 
 /// f32 values (already rounded to f16) as RGBA16F texel words.
@@ -778,6 +850,13 @@ impl BtfKernel {
                 positions,
                 triangles,
                 visibility,
+            }
+            | BasisVisibility::PerVertexLight {
+                keys,
+                positions,
+                triangles,
+                visibility,
+                ..
             } => {
                 let vertices = positions.size() / 16;
                 if keys.size() < 8 * px || visibility.size() < 4 * j * vertices {
@@ -792,8 +871,12 @@ impl BtfKernel {
                         4 * j * vertices
                     ));
                 }
+                let mode = match env.visibility {
+                    BasisVisibility::PerVertexLight { .. } => 3,
+                    _ => 2,
+                };
                 (
-                    2,
+                    mode,
                     None,
                     Some(keys),
                     Some(positions),
@@ -837,6 +920,109 @@ impl BtfKernel {
             )?,
             Sampler::new(&ctx, "btf env basis clamp", linear)?,
         ];
+        let light_desc = |size: [u32; 2]| {
+            ImageDesc::d2(vk::Format::R32G32B32A32_SFLOAT, size)
+                .usage(vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST)
+        };
+        let (light, vertices) = match env.visibility {
+            BasisVisibility::PerVertexLight {
+                positions,
+                visibility,
+                normals,
+                tangents,
+                vertices,
+                ..
+            } => {
+                let nv = positions.size() / 16;
+                if normals.size() < 16 * nv || tangents.size() < 16 * nv {
+                    return bad(format!(
+                        "normals '{}' ({} bytes) and tangents '{}' ({} bytes): {nv} vertices \
+                         need {} bytes each",
+                        normals.name(),
+                        normals.size(),
+                        tangents.name(),
+                        tangents.size(),
+                        16 * nv
+                    ));
+                }
+                if let Some(v) = vertices.iter().find(|&&v| u64::from(v) >= nv) {
+                    return bad(format!("listed vertex {v} of {nv}"));
+                }
+                let rows = nv.div_ceil(u64::from(LIGHT_VERTICES)).max(1);
+                let max = u64::from(rec.context().limits().max_image_dimension_2d);
+                if rows > max {
+                    return bad(format!(
+                        "{nv} vertices need {rows} rows of per-vertex light; the device \
+                         allows {max}"
+                    ));
+                }
+                let light = Image::new(
+                    &rec.context(),
+                    "btf env vertex light",
+                    light_desc([LIGHT_TEXELS * LIGHT_VERTICES, rows as u32]),
+                )?;
+                let list: Vec<u32> = if vertices.is_empty() {
+                    vec![0]
+                } else {
+                    vertices.to_vec()
+                };
+                let list = rec.buffer_with(
+                    "btf env vertices list",
+                    BufferDesc::storage(4 * list.len() as u64),
+                    &list[..],
+                )?;
+                let vertex_lobes: Vec<u32> = (0..j as u32)
+                    .filter(|&jj| data.pixel_lobes & (1 << jj) == 0)
+                    .collect();
+                let vlobes = lobe_list(rec, "btf env vertices lobes", &vertex_lobes)?;
+                let pipeline = crate::shaders::pipeline(&rec.context(), "btf/env_vertices")?;
+                let bind = pipeline.bind_declared(
+                    &[
+                        ("table", Resource::texture(&table)),
+                        ("table_sampler", Resource::Sampler(&samplers[1])),
+                        ("lobes", Resource::Buffer(env.lobes)),
+                        ("nrm", Resource::Buffer(normals)),
+                        ("tan", Resource::Buffer(tangents)),
+                        ("vertex_vis", Resource::Buffer(visibility)),
+                        ("list", Resource::Buffer(&list)),
+                        ("light", Resource::storage_image(&light)),
+                        ("vlobes", Resource::Buffer(&vlobes)),
+                    ],
+                    &[("light", AccessSet::from(A::ComputeShaderWrite))],
+                )?;
+                let pass = EnvVerticesPass {
+                    pipeline,
+                    bind,
+                    list,
+                    lobes: vlobes,
+                    lobe_count: vertex_lobes.len() as u32,
+                    count: vertices.len() as u32,
+                    vertex_count: nv as u32,
+                };
+                (light, Some(pass))
+            }
+            _ => {
+                // Never read outside mode 3; cleared so that nothing reads undefined texels.
+                let light = Image::new(
+                    &rec.context(),
+                    "btf env light placeholder",
+                    light_desc([1, 1]),
+                )?;
+                rec.clear_image(
+                    &light,
+                    crate::gpu::Subresources::mip(light.desc(), 0),
+                    [0.0; 4],
+                )?;
+                (light, None)
+            }
+        };
+        let pixel_lobe_list: Vec<u32> = match mode {
+            3 => (0..j as u32)
+                .filter(|&jj| data.pixel_lobes & (1 << jj) != 0)
+                .collect(),
+            _ => Vec::new(),
+        };
+        let pixel_lobes = lobe_list(rec, "btf env basis pixel lobes", &pixel_lobe_list)?;
         // Over the tile list when `btf shade` runs over it (the pixels it leaves empty stay
         // empty: the pass only adds where the G-buffer is covered).
         let name = match self.tiles {
@@ -863,6 +1049,8 @@ impl BtfKernel {
             ("pos", or(positions)),
             ("tris", or(triangles)),
             ("vertex_vis", or(vertex_vis)),
+            ("vertex_light", Resource::storage_image(&light)),
+            ("plobes", Resource::Buffer(&pixel_lobes)),
         ];
         if let Some(t) = &self.tiles {
             res.push(("tiles", Resource::Buffer(t)));
@@ -874,6 +1062,10 @@ impl BtfKernel {
         self.env_basis = Some(EnvBasisPass {
             pipeline,
             bind,
+            light,
+            vertices,
+            pixel_lobe_count: pixel_lobe_list.len() as u32,
+            pixel_lobes,
             coefficients,
             table,
             _samplers: samplers,
@@ -888,6 +1080,23 @@ impl BtfKernel {
     /// Whether the kernel records `btf env basis`, and how many lobes it reads.
     pub fn env_basis_lobes(&self) -> Option<u32> {
         self.env_basis.as_ref().map(|e| e.lobe_count)
+    }
+
+    fn env_vertices_dispatch(&self) -> Result<Dispatch> {
+        let ev = self
+            .env_basis
+            .as_ref()
+            .and_then(|e| e.vertices.as_ref())
+            .expect("btf env vertices pass without its state");
+        let eb = self.env_basis.as_ref().expect("checked above");
+        let push = [ev.count, eb.lobe_count, ev.vertex_count, ev.lobe_count]
+            .iter()
+            .flat_map(|u| u.to_le_bytes())
+            .collect();
+        Ok(Dispatch {
+            push,
+            grid: Grid::Invocations([ev.count, 1, 1]),
+        })
     }
 
     fn env_basis_dispatch(&self, frame: &Frame) -> Result<Dispatch> {
@@ -908,7 +1117,7 @@ impl BtfKernel {
             eb.lobe_count,
             eb.mode,
             eb.part_mask,
-            0,
+            eb.pixel_lobe_count,
             0,
             0,
         ] {
