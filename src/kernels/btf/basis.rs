@@ -617,10 +617,6 @@ impl BasisData {
         let j = lobes.len() / 2;
         let n = gbuffer.width as usize * gbuffer.height as usize;
         let texels = (self.size[0] * self.size[1]) as usize;
-        let visibility_of = |jj: usize, v: usize| match visibility {
-            Visibility::PerVertexLight { visibility, .. } => visibility[v * j + jj],
-            _ => 1.0,
-        };
         // Mode 3: every vertex's light factors first (the pass computes the listed ones; a
         // pixel reads only its triangle's).
         let vertex_lights: Vec<VertexLight> = match visibility {
@@ -663,27 +659,15 @@ impl BasisData {
                 }
                 let (_, mv) = maps.texel_of(vt);
                 let ambiguous = mv < super::cpu::AMBIGUOUS_MARGIN;
-                let vis: Box<dyn Fn(usize) -> f32> = match visibility {
-                    Visibility::None | Visibility::PerVertexLight { .. } => Box::new(|_| 1.0),
-                    Visibility::PerPixel(v) => Box::new(move |jj| v[k * j + jj]),
+                // The pixel's triangle and its barycentrics there, for the per-vertex forms.
+                let on_triangle = match visibility {
                     Visibility::PerVertex {
                         triangle,
                         positions,
                         triangles,
-                        visibility,
-                    } => {
-                        let tri = triangles[triangle[k] as usize];
-                        let p = |i: u32| v3(positions[i as usize]);
-                        let w = barycentrics(pos, p(tri[0]), p(tri[1]), p(tri[2]));
-                        Box::new(move |jj| {
-                            (0..3)
-                                .map(|c| w[c] * visibility[tri[c] as usize * j + jj])
-                                .sum()
-                        })
+                        ..
                     }
-                };
-                let l = match visibility {
-                    Visibility::PerVertexLight {
+                    | Visibility::PerVertexLight {
                         triangle,
                         positions,
                         triangles,
@@ -691,18 +675,31 @@ impl BasisData {
                     } => {
                         let tri = triangles[triangle[k] as usize];
                         let p = |i: u32| v3(positions[i as usize]);
-                        let w = barycentrics(pos, p(tri[0]), p(tri[1]), p(tri[2]));
+                        Some((tri, barycentrics(pos, p(tri[0]), p(tri[1]), p(tri[2]))))
+                    }
+                    _ => None,
+                };
+                let vis: Box<dyn Fn(usize) -> f32> = match (visibility, on_triangle) {
+                    (Visibility::PerPixel(v), _) => Box::new(move |jj| v[k * j + jj]),
+                    (
+                        Visibility::PerVertex { visibility, .. }
+                        | Visibility::PerVertexLight { visibility, .. },
+                        Some((tri, w)),
+                    ) => Box::new(move |jj| {
+                        (0..3)
+                            .map(|c| w[c] * visibility[tri[c] as usize * j + jj])
+                            .sum()
+                    }),
+                    _ => Box::new(|_| 1.0),
+                };
+                let l = match (visibility, on_triangle) {
+                    (Visibility::PerVertexLight { .. }, Some((tri, w))) => {
                         let vl = |c: usize| &vertex_lights[tri[c] as usize];
                         let nv: Vec3 = (0..3).map(|c| w[c] * vl(c).normal).sum();
                         let back = v3(g[1]).dot(nv) < 0.0;
-                        // The lobes looked up at the pixel (pixel_lobes), visibility
-                        // interpolated.
-                        let pvis = |jj: usize| -> f32 {
-                            (0..3)
-                                .map(|c| w[c] * visibility_of(jj, tri[c] as usize))
-                                .sum()
-                        };
-                        let mut l = self.light(lobes, &pvis, [t, b, nn], self.pixel_lobes);
+                        // The lobes looked up at the pixel (pixel_lobes), then the others
+                        // from the vertices.
+                        let mut l = self.light(lobes, &*vis, [t, b, nn], self.pixel_lobes);
                         for (c, &wc) in w.iter().enumerate() {
                             let side = if back { &vl(c).back } else { &vl(c).front };
                             for (ls, x) in l.iter_mut().zip(side) {
