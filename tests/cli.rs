@@ -945,7 +945,7 @@ fn bench_env_names_its_binding_roofline_under_validation() {
     let r = &v["roofline"];
     let binding = r["binding"].as_str().unwrap();
     assert!(
-        ["fma", "buffer_gather_coherent"].contains(&binding),
+        ["fma", "image_gather_coherent"].contains(&binding),
         "binding {binding}"
     );
     let f = r["fraction"].as_f64().unwrap();

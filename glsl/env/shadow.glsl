@@ -48,8 +48,10 @@ layout(std430, set = 0, binding = 4) readonly buffer Escaped { uint w[]; } escap
 layout(constant_id = 0) const uint RAYS = 16u;
 #endif
 layout(std430, set = 0, binding = 5) readonly buffer Lobes { vec4 l[]; } lobes;
-// kernels::env::pack::CapTable::quads: per cell the 2 x 2 corners in (alpha, s).
-layout(std430, set = 0, binding = 6) readonly buffer Table { vec4 q[]; } table;
+// kernels::env::pack::CapTable::quads: per cell the 2 x 2 corners in (alpha, s), the
+// N_S - 1 cells of one (lambda, alpha) a row (an image: lavapipe loads its texel's four
+// channels at once, a storage buffer's vec4 at a per-lane index as four gathers).
+layout(set = 0, binding = 6, rgba32f) readonly uniform image2D table;
 layout(std430, set = 0, binding = 7) writeonly buffer Visibility { float v[]; } vis;
 layout(std430, set = 0, binding = 8) writeonly buffer Irradiance { vec4 e[]; } irr;
 #include <env/listed.glsl>
@@ -98,9 +100,9 @@ float cap_lookup(float lambda, float gamma, float alpha) {
     float fy = y - float(j);
     float fz = z - float(k);
     // Two loads: the (alpha, s) corners at lambda samples i and i + 1.
-    uint c = (i * (N_ALPHA - 1u) + j) * (N_S - 1u) + k;
-    vec4 q0 = table.q[c];
-    vec4 q1 = table.q[c + (N_ALPHA - 1u) * (N_S - 1u)];
+    int row = int(i * (N_ALPHA - 1u) + j);
+    vec4 q0 = imageLoad(table, ivec2(k, row));
+    vec4 q1 = imageLoad(table, ivec2(k, row + int(N_ALPHA - 1u)));
     float r00 = q0.x + (q0.y - q0.x) * fz;
     float r01 = q0.z + (q0.w - q0.z) * fz;
     float r10 = q1.x + (q1.y - q1.x) * fz;

@@ -78,15 +78,15 @@ pub const FLOP_PER_LOOKUP: f64 = 90.0;
 /// FLOP per sphere of the cut: distance, refinement weight, the parent blend, AO's occlusion
 /// of the cap, its angle and horizon (asin, acos, sqrt), the log of its transmission.
 pub const FLOP_PER_CAP: f64 = 60.0;
-/// Loads a lookup makes: the 8 corners of its trilinear cell as two vec4 (`CapTable::quads`),
-/// at an index that varies per lane (a storage buffer, `table`).
+/// Loads a lookup makes: the 8 corners of its trilinear cell as two rgba32f texels
+/// (`CapTable::quads`, an image `table`) at coordinates that vary per lane.
 pub const GATHERS_PER_LOOKUP: f64 = 2.0;
 
 /// The work model of `env shadow` for `vertices` vertices, `cut` spheres of the cut and
 /// `caps` caps above the horizon per vertex, and `lobes` lobes: FLOP (fma), and the cap
-/// table's loads (buffer_gather_coherent: the table, 1.8 MiB as quads, stays in the caches, which the
-/// random probe's large buffer does not; against the random rate the pass ran at 20x "its
-/// peak"). The table path is counted for every lookup: its blend weight is 0 only for caps
+/// table's loads (image_gather_coherent: the table, 1.8 MiB as quads, stays in the caches,
+/// which the random probe's large buffer does not; against the random buffer-gather rate the
+/// pass ran at 20x "its peak", when the table was a storage buffer). The table path is counted for every lookup: its blend weight is 0 only for caps
 /// under 0.3 lobe widths, and lavapipe's lanes run it when any lane of 8 needs it. The cut's
 /// sphere reads (a few per node, mostly shared by neighbouring vertices) and the per-vertex
 /// lobe setup are left out.
@@ -106,7 +106,7 @@ pub fn roofline_terms(
             lookups * FLOP_PER_LOOKUP + v * cut * FLOP_PER_CAP,
         ),
         Term::new(
-            "buffer_gather_coherent",
+            "image_gather_coherent",
             "cap-table reads (GATHERS_PER_LOOKUP x lookups)",
             lookups * GATHERS_PER_LOOKUP,
         ),

@@ -133,6 +133,8 @@ pub struct EnvKernel {
     buffers: Vec<(&'static str, Buffer)>,
     base: Vec<Lobe>,
     table: CapTable,
+    /// The cap table as the shadow pass reads it ([`CapTable::quads`], N_S - 1 a row).
+    table_image: Image,
     vertex_count: u32,
     shape: TreeShape,
     params: AoParams,
@@ -141,8 +143,9 @@ pub struct EnvKernel {
     listed: Option<Buffer>,
 }
 
-/// The kernel's own buffers (the memory report counts these, and the traced visibility's).
-const OWN: [&str; 5] = ["base", "lobes", "table", "vis", "irr"];
+/// The kernel's own buffers (the memory report counts these, the cap table's image, and the
+/// traced visibility's).
+const OWN: [&str; 4] = ["base", "lobes", "vis", "irr"];
 /// The traced visibility's own buffers.
 const OWN_TRACED: [&str; 4] = ["traced", "escaped", "bvh_topo", "bvh_slots"];
 
@@ -217,11 +220,23 @@ impl EnvKernel {
         let table = CapTable::new();
         let (nv, nj) = (pose.vertex_count() as u64, lobes.len() as u64);
         let base = rec.buffer_with("env base lobes", BufferDesc::storage(nj * 32), &packed[..])?;
+        // The cap table as an rgba32f image, one (lambda, alpha) cell's N_S - 1 quads a row:
+        // lavapipe loads an image texel's four channels at once, where a storage buffer's
+        // vec4 at a per-lane index is four gathers.
         let quads = table.quads();
-        let table_buf = rec.buffer_with(
-            "env cap table",
-            BufferDesc::storage(quads.len() as u64 * 16),
-            &quads[..],
+        let table_desc = ImageDesc::d2(
+            vk::Format::R32G32B32A32_SFLOAT,
+            [
+                super::pack::N_S - 1,
+                super::pack::N_LAMBDA * (super::pack::N_ALPHA - 1),
+            ],
+        )
+        .usage(vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST);
+        let table_image = Image::new(&ctx, "env cap table", table_desc)?;
+        rec.upload_image(
+            &table_image,
+            crate::gpu::ImageRegion::whole(&table_desc),
+            bytemuck::cast_slice(&quads[..]),
         )?;
         let output = |name: &str, size: u64| {
             let desc = BufferDesc::storage(size)
@@ -231,7 +246,6 @@ impl EnvKernel {
         let mut buffers: Vec<(&'static str, Buffer)> = vec![
             ("base", base),
             ("lobes", output("env lobes", nj * 32)?),
-            ("table", table_buf),
             ("vis", output("env visibility", nv * nj * 4)?),
             ("irr", output("env irradiance", nv * 16)?),
             ("pos", pose.positions().clone()),
@@ -348,6 +362,7 @@ impl EnvKernel {
                             .find(|(n, _)| *n == b)
                             .map(|(_, i)| Resource::storage_image(i))
                     })
+                    .or_else(|| (b == "table").then(|| Resource::storage_image(&table_image)))
             };
             let w = AccessSet::from(A::ComputeShaderWrite);
             let writes: Vec<(&str, AccessSet)> = writes.iter().map(|&b| (b, w)).collect();
@@ -410,6 +425,7 @@ impl EnvKernel {
             buffers,
             base: lobes.to_vec(),
             table,
+            table_image,
             vertex_count: nv as u32,
             shape: ao.tree_shape(),
             params: super::shadow_cut(ao.params(), trace.is_some()),
@@ -517,6 +533,7 @@ impl EnvKernel {
         let mut own: Vec<Resource<'_>> = OWN
             .iter()
             .map(|b| Resource::Buffer(self.buffer(b)))
+            .chain([Resource::storage_image(&self.table_image)])
             .collect();
         if let Some(t) = &self.trace {
             own.extend(OWN_TRACED.iter().map(|b| Resource::Buffer(self.buffer(b))));
