@@ -375,14 +375,24 @@ impl EnvKernel {
             Some(_) => listed,
             None => name,
         };
+        // The lobe count sizes the shadow pass's per-lobe arrays and unrolled loops, the rays'
+        // count its per-ray ones (specialization constants).
         let shadow = match &traced {
             // The rays' count sizes the pass's per-ray arrays (a specialization constant).
             Some((_, config)) => {
                 let name = variant("env/shadow_rays", "env/shadow_rays_listed");
                 let shader = crate::gpu::Shader::from_spirv(name, crate::shaders::spirv(name)?)?;
-                ComputePipeline::specialized(&ctx, &shader, &[("RAYS", config.grid * config.grid)])?
+                ComputePipeline::specialized(
+                    &ctx,
+                    &shader,
+                    &[("RAYS", config.grid * config.grid), ("LOBES", nj as u32)],
+                )?
             }
-            None => crate::shaders::pipeline(&ctx, variant("env/shadow", "env/shadow_listed"))?,
+            None => {
+                let name = variant("env/shadow", "env/shadow_listed");
+                let shader = crate::gpu::Shader::from_spirv(name, crate::shaders::spirv(name)?)?;
+                ComputePipeline::specialized(&ctx, &shader, &[("LOBES", nj as u32)])?
+            }
         };
         let rotate_bind = bind(&rotate, &["lobes"])?;
         let shadow_bind = bind(&shadow, &["vis", "irr"])?;
