@@ -87,6 +87,24 @@ vec3 vload(uint k) {
 }
 #endif
 
+// Light l at the texel (position p, normal n): its direction, the shadow ray's reach and
+// its strength there (a point light's falls off with distance); returns n . dir.
+float light_at(uint l, vec3 p, vec3 n, out vec3 dir, out float tmax, out float strength) {
+    vec4 a = lights.v[2u * l];
+    strength = lights.v[2u * l + 1u].x;
+    if (a.w == 0.0) {
+        dir = a.xyz;
+        tmax = uintBitsToFloat(0x7f800000u);
+    } else {
+        vec3 dd = a.xyz - p;
+        float dist = length(dd);
+        dir = dd / dist;
+        tmax = dist - pc.bias;
+        strength = strength / (dist * dist);
+    }
+    return dot(n, dir);
+}
+
 ivec2 vertex_at(uint v) {
     return ivec2(v % VERTEX_ROW, v / VERTEX_ROW);
 }
@@ -136,33 +154,33 @@ void main() {
     ivec2 a0 = vertex_at(cr.x), a1 = vertex_at(cr.y), a2 = vertex_at(cr.z);
     uint b0 = imageLoad(vis, a0).x, b1 = imageLoad(vis, a1).x, b2 = imageLoad(vis, a2).x;
     float e = 0.0;
+    // Lights whose visibility is the texel's own shadow ray: traced after the loop, one at a
+    // time per lane, so that lanes needing rays for different lights share the walks.
+    uint pending = 0u;
     for (uint l = 0u; l < pc.lights; l++) {
-        vec4 a = lights.v[2u * l];
-        float strength = lights.v[2u * l + 1u].x;
         vec3 dir;
-        float tmax;
-        if (a.w == 0.0) {
-            dir = a.xyz;
-            tmax = uintBitsToFloat(0x7f800000u);
-        } else {
-            vec3 dd = a.xyz - p;
-            float dist = length(dd);
-            dir = dd / dist;
-            tmax = dist - pc.bias;
-            strength = strength / (dist * dist);
-        }
-        float c = dot(n, dir);
+        float tmax, strength;
+        float c = light_at(l, p, n, dir, tmax, strength);
         if (c <= 0.0 || strength == 0.0) continue;
         uint c0 = (b0 >> l) & 1u, c1 = (b1 >> l) & 1u, c2 = (b2 >> l) & 1u;
         float v;
         if (c0 == c1 && c1 == c2) {
             v = float(c0);
         } else if (pc.refine != 0u && flag == 1.0) { // gutters (0.5) interpolate
-            v = any_hit(p + n * pc.bias, dir, tmax) ? 0.0 : 1.0;
+            pending |= 1u << l;
+            continue;
         } else {
             v = w0 * float(c0) + w1 * float(c1) + w2 * float(c2);
         }
         e += strength * c * v;
+    }
+    while (pending != 0u) {
+        uint l = uint(findLSB(pending));
+        pending &= pending - 1u;
+        vec3 dir;
+        float tmax, strength;
+        float c = light_at(l, p, n, dir, tmax, strength);
+        if (!any_hit(p + n * pc.bias, dir, tmax)) e += strength * c;
     }
 #ifdef SSS_ENV
     // The caller's per-vertex irradiance at the texel (rgb), added to the lights' E.
