@@ -46,6 +46,17 @@ pub fn pipeline(ctx: &crate::gpu::Context, name: &str) -> Result<crate::gpu::Com
     crate::gpu::ComputePipeline::from_spirv(ctx, name, spirv(name)?)
 }
 
+/// As [`pipeline`], with the module's specialization constants set by name
+/// ([`crate::gpu::ComputePipeline::specialized`]).
+pub fn pipeline_specialized(
+    ctx: &crate::gpu::Context,
+    name: &str,
+    constants: &[(&str, u32)],
+) -> Result<crate::gpu::ComputePipeline> {
+    let shader = crate::gpu::Shader::from_spirv(name, spirv(name)?)?;
+    crate::gpu::ComputePipeline::specialized(ctx, &shader, constants)
+}
+
 /// The cargo feature that compiling GLSL needs.
 const GLSL: &str = "glsl";
 

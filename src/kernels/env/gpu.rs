@@ -81,8 +81,6 @@ struct Trace {
     trace_bind: BindGroup,
     topology: BvhTopology,
     config: TraceConfig,
-    /// BVH nodes and triangles (rgba32ui, BVH_ROW texels a row), rewritten every frame.
-    images: Vec<(&'static str, Image)>,
 }
 
 /// One frame's outputs recorded for readback.
@@ -133,8 +131,10 @@ pub struct EnvKernel {
     buffers: Vec<(&'static str, Buffer)>,
     base: Vec<Lobe>,
     table: CapTable,
-    /// The cap table as the shadow pass reads it ([`CapTable::quads`], N_S - 1 a row).
-    table_image: Image,
+    /// (binding name, image): the cap table as the shadow pass reads it ([`CapTable::quads`],
+    /// N_S - 1 a row) and, with traced visibility, the BVH's nodes and triangles (rgba32ui,
+    /// BVH_ROW texels a row, rewritten every frame).
+    images: Vec<(&'static str, Image)>,
     vertex_count: u32,
     shape: TreeShape,
     params: AoParams,
@@ -143,8 +143,8 @@ pub struct EnvKernel {
     listed: Option<Buffer>,
 }
 
-/// The kernel's own buffers (the memory report counts these, the cap table's image, and the
-/// traced visibility's).
+/// The kernel's own buffers (the memory report counts these, its images, and the traced
+/// visibility's buffers).
 const OWN: [&str; 4] = ["base", "lobes", "vis", "irr"];
 /// The traced visibility's own buffers.
 const OWN_TRACED: [&str; 4] = ["traced", "escaped", "bvh_topo", "bvh_slots"];
@@ -256,7 +256,7 @@ impl EnvKernel {
         if let Some(l) = list {
             buffers.push(("listed", l.clone()));
         }
-        let mut images: Vec<(&'static str, Image)> = Vec::new();
+        let mut images: Vec<(&'static str, Image)> = vec![("table", table_image)];
         let mut traced = None;
         match visibility {
             EnvVisibility::Ao => {
@@ -362,7 +362,6 @@ impl EnvKernel {
                             .find(|(n, _)| *n == b)
                             .map(|(_, i)| Resource::storage_image(i))
                     })
-                    .or_else(|| (b == "table").then(|| Resource::storage_image(&table_image)))
             };
             let w = AccessSet::from(A::ComputeShaderWrite);
             let writes: Vec<(&str, AccessSet)> = writes.iter().map(|&b| (b, w)).collect();
@@ -377,22 +376,18 @@ impl EnvKernel {
         };
         // The lobe count sizes the shadow pass's per-lobe arrays and unrolled loops, the rays'
         // count its per-ray ones (specialization constants).
+        let lobe_count = ("LOBES", nj as u32);
         let shadow = match &traced {
-            // The rays' count sizes the pass's per-ray arrays (a specialization constant).
-            Some((_, config)) => {
-                let name = variant("env/shadow_rays", "env/shadow_rays_listed");
-                let shader = crate::gpu::Shader::from_spirv(name, crate::shaders::spirv(name)?)?;
-                ComputePipeline::specialized(
-                    &ctx,
-                    &shader,
-                    &[("RAYS", config.grid * config.grid), ("LOBES", nj as u32)],
-                )?
-            }
-            None => {
-                let name = variant("env/shadow", "env/shadow_listed");
-                let shader = crate::gpu::Shader::from_spirv(name, crate::shaders::spirv(name)?)?;
-                ComputePipeline::specialized(&ctx, &shader, &[("LOBES", nj as u32)])?
-            }
+            Some((_, config)) => crate::shaders::pipeline_specialized(
+                &ctx,
+                variant("env/shadow_rays", "env/shadow_rays_listed"),
+                &[("RAYS", config.grid * config.grid), lobe_count],
+            )?,
+            None => crate::shaders::pipeline_specialized(
+                &ctx,
+                variant("env/shadow", "env/shadow_listed"),
+                &[lobe_count],
+            )?,
         };
         let rotate_bind = bind(&rotate, &["lobes"])?;
         let shadow_bind = bind(&shadow, &["vis", "irr"])?;
@@ -422,7 +417,6 @@ impl EnvKernel {
                 trace_bind,
                 topology,
                 config,
-                images,
             }),
             _ => None,
         };
@@ -435,7 +429,7 @@ impl EnvKernel {
             buffers,
             base: lobes.to_vec(),
             table,
-            table_image,
+            images,
             vertex_count: nv as u32,
             shape: ao.tree_shape(),
             params: super::shadow_cut(ao.params(), trace.is_some()),
@@ -543,11 +537,10 @@ impl EnvKernel {
         let mut own: Vec<Resource<'_>> = OWN
             .iter()
             .map(|b| Resource::Buffer(self.buffer(b)))
-            .chain([Resource::storage_image(&self.table_image)])
+            .chain(self.images.iter().map(|(_, i)| Resource::storage_image(i)))
             .collect();
-        if let Some(t) = &self.trace {
+        if self.trace.is_some() {
             own.extend(OWN_TRACED.iter().map(|b| Resource::Buffer(self.buffer(b))));
-            own.extend(t.images.iter().map(|(_, i)| Resource::storage_image(i)));
         }
         self.ctx.memory_of_resources(own)
     }
