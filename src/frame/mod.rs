@@ -326,6 +326,13 @@ impl Default for FrameConfig {
 }
 
 impl FrameConfig {
+    /// Whether the cloth's environment interpolates light factors from the vertices (pass
+    /// `btf env vertices`) for a basis of `lobes` lobes: unless every lobe is looked up per
+    /// pixel ([`FrameConfig::cloth_pixel_lobes`]).
+    pub fn cloth_light_per_vertex(&self, lobes: usize) -> bool {
+        self.cloth_pixel_lobes < lobes
+    }
+
     /// The part ids of the cloth (they follow the skin parts' ids), as a mask: bit p for
     /// part p ([`FrameConfig::check`] keeps every id below 32).
     pub fn cloth_part_mask(&self) -> u32 {
@@ -1032,13 +1039,12 @@ impl CharacterFrame {
         // covering a pixel (the cloth's and the skin's shading read them there).
         let vertices = match (&lobes, raster.tiles()) {
             (Some(_), Some(_)) if cfg.cull && !cfg.env_every_vertex => {
-                let mut skin: Vec<u32> = mesh.triangles[..skin_triangles]
-                    .iter()
-                    .flatten()
-                    .copied()
-                    .collect();
-                skin.sort_unstable();
-                skin.dedup();
+                // (The skin's triangles come first.)
+                let skin = part_vertices(
+                    &mesh.triangles[..skin_triangles],
+                    &parts[..skin_triangles],
+                    u32::MAX,
+                );
                 Some(VertexListKernel::new(
                     &mut rec,
                     &raster,
@@ -1227,7 +1233,7 @@ impl CharacterFrame {
                 // pixel (the environment is smooth over a triangle; its visibility was
                 // per vertex already).
                 let vertices = part_vertices(&mesh.triangles, &parts, part_mask);
-                let visibility = if cfg.cloth_pixel_lobes >= data.lobe_count {
+                let visibility = if !cfg.cloth_light_per_vertex(data.lobe_count) {
                     BasisVisibility::PerVertex {
                         keys: raster.keys(),
                         positions: pose.positions(),
@@ -1601,7 +1607,7 @@ impl CharacterFrame {
             let Some(basis) = &g.basis else {
                 continue;
             };
-            let visibility = if self.cfg.cloth_pixel_lobes >= basis.lobe_count {
+            let visibility = if !self.cfg.cloth_light_per_vertex(basis.lobe_count) {
                 Visibility::PerVertex {
                     triangle: &tri,
                     positions: &st.positions,
@@ -1887,8 +1893,8 @@ pub fn run(
     Ok(())
 }
 
-/// The vertices of the triangles whose part is in `part_mask` (bit p: part p), sorted, once
-/// each.
+/// The vertices of the triangles whose part is in `part_mask` (bit p: part p; part ids are
+/// below 32, [`FrameConfig::check`]), sorted, once each.
 fn part_vertices(triangles: &[[u32; 3]], parts: &[u32], part_mask: u32) -> Vec<u32> {
     let mut v: Vec<u32> = triangles
         .iter()

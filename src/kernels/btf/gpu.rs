@@ -729,6 +729,18 @@ pub enum BasisVisibility<'a> {
     },
 }
 
+impl BasisVisibility<'_> {
+    /// The pass's visibility mode (glsl/btf/env_basis.glsl `dims.w`).
+    fn mode(&self) -> u32 {
+        match self {
+            BasisVisibility::None => 0,
+            BasisVisibility::PerPixel(_) => 1,
+            BasisVisibility::PerVertex { .. } => 2,
+            BasisVisibility::PerVertexLight { .. } => 3,
+        }
+    }
+}
+
 /// What `btf env basis` reads besides the kernel's own G-buffer and direction map.
 #[derive(Clone, Copy)]
 pub struct EnvBasisInputs<'a> {
@@ -773,11 +785,20 @@ struct EnvBasisPass {
     part_mask: u32,
 }
 
-/// A storage buffer of lobe indices (one entry 0 when `lobes` is empty: the pass then reads
-/// none of it).
-fn lobe_list(rec: &mut Recorder, name: &str, lobes: &[u32]) -> Result<Buffer> {
-    let list = if lobes.is_empty() { &[0][..] } else { lobes };
+/// A storage buffer of u32 indices (one entry 0 when `indices` is empty: the pass then
+/// reads none of it).
+fn index_list(rec: &mut Recorder, name: &str, indices: &[u32]) -> Result<Buffer> {
+    let list = if indices.is_empty() {
+        &[0][..]
+    } else {
+        indices
+    };
     rec.buffer_with(name, BufferDesc::storage(4 * list.len() as u64), list)
+}
+
+/// The lobes among the first `count` that `keep` keeps.
+fn lobes_where(count: u64, keep: impl Fn(u32) -> bool) -> Vec<u32> {
+    (0..count as u32).filter(|&j| keep(j)).collect()
 }
 
 /// f32 values (already rounded to f16) as RGBA16F texel words.
@@ -832,8 +853,9 @@ impl BtfKernel {
             BufferDesc::storage(16),
             &[0f32; 4],
         )?;
-        let (mode, pixel_vis, keys, positions, triangles, vertex_vis) = match env.visibility {
-            BasisVisibility::None => (0u32, None, None, None, None, None),
+        let mode = env.visibility.mode();
+        let (pixel_vis, keys, positions, triangles, vertex_vis) = match env.visibility {
+            BasisVisibility::None => (None, None, None, None, None),
             BasisVisibility::PerPixel(v) => {
                 if v.size() < 4 * j * px {
                     return bad(format!(
@@ -843,7 +865,7 @@ impl BtfKernel {
                         4 * j * px
                     ));
                 }
-                (1, Some(v), None, None, None, None)
+                (Some(v), None, None, None, None)
             }
             BasisVisibility::PerVertex {
                 keys,
@@ -871,12 +893,7 @@ impl BtfKernel {
                         4 * j * vertices
                     ));
                 }
-                let mode = match env.visibility {
-                    BasisVisibility::PerVertexLight { .. } => 3,
-                    _ => 2,
-                };
                 (
-                    mode,
                     None,
                     Some(keys),
                     Some(positions),
@@ -961,20 +978,9 @@ impl BtfKernel {
                     "btf env vertex light",
                     light_desc([LIGHT_TEXELS * LIGHT_VERTICES, rows as u32]),
                 )?;
-                let list: Vec<u32> = if vertices.is_empty() {
-                    vec![0]
-                } else {
-                    vertices.to_vec()
-                };
-                let list = rec.buffer_with(
-                    "btf env vertices list",
-                    BufferDesc::storage(4 * list.len() as u64),
-                    &list[..],
-                )?;
-                let vertex_lobes: Vec<u32> = (0..j as u32)
-                    .filter(|&jj| data.pixel_lobes & (1 << jj) == 0)
-                    .collect();
-                let vlobes = lobe_list(rec, "btf env vertices lobes", &vertex_lobes)?;
+                let list = index_list(rec, "btf env vertices list", vertices)?;
+                let vertex_lobes = lobes_where(j, |jj| data.pixel_lobes & (1 << jj) == 0);
+                let vlobes = index_list(rec, "btf env vertices lobes", &vertex_lobes)?;
                 let pipeline = crate::shaders::pipeline(&rec.context(), "btf/env_vertices")?;
                 let bind = pipeline.bind_declared(
                     &[
@@ -1016,13 +1022,11 @@ impl BtfKernel {
                 (light, None)
             }
         };
-        let pixel_lobe_list: Vec<u32> = match mode {
-            3 => (0..j as u32)
-                .filter(|&jj| data.pixel_lobes & (1 << jj) != 0)
-                .collect(),
+        let pixel_lobe_list = match mode {
+            3 => lobes_where(j, |jj| data.pixel_lobes & (1 << jj) != 0),
             _ => Vec::new(),
         };
-        let pixel_lobes = lobe_list(rec, "btf env basis pixel lobes", &pixel_lobe_list)?;
+        let pixel_lobes = index_list(rec, "btf env basis pixel lobes", &pixel_lobe_list)?;
         // Over the tile list when `btf shade` runs over it (the pixels it leaves empty stay
         // empty: the pass only adds where the G-buffer is covered).
         let name = match self.tiles {
@@ -1089,14 +1093,10 @@ impl BtfKernel {
             .and_then(|e| e.vertices.as_ref())
             .expect("btf env vertices pass without its state");
         let eb = self.env_basis.as_ref().expect("checked above");
-        let push = [ev.count, eb.lobe_count, ev.vertex_count, ev.lobe_count]
-            .iter()
-            .flat_map(|u| u.to_le_bytes())
-            .collect();
-        Ok(Dispatch {
-            push,
-            grid: Grid::Invocations([ev.count, 1, 1]),
-        })
+        Ok(Dispatch::words(
+            &[ev.count, eb.lobe_count, ev.vertex_count, ev.lobe_count],
+            Grid::Invocations([ev.count, 1, 1]),
+        ))
     }
 
     fn env_basis_dispatch(&self, frame: &Frame) -> Result<Dispatch> {
