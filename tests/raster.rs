@@ -869,8 +869,9 @@ fn tile_lists_cover_exactly_the_covered_pixels_and_match_the_full_dispatch_bit_f
 /// The vertex list (`kernels::raster::vertices`: passes `vertex mark` and `vertex list` over
 /// the rasteriser's keys and tile list) against its twin over frames whose coverage grows,
 /// shrinks, vanishes (a camera looking away: only the static set is listed) and repeats
-/// (the bitmaps the passes clear as they read them must start each frame empty); and bad
-/// input refused before any GPU work.
+/// (the bitmaps the passes clear as they read them must start each frame empty), listed by
+/// id and along a Morton curve (bitmaps indexed by rank); and bad input refused before any
+/// GPU work.
 #[test]
 fn the_vertex_list_is_its_twin_frame_after_frame_and_bad_input_is_refused() {
     use vkshade::kernels::raster::vertices::{VertexListKernel, covered_vertices};
@@ -891,39 +892,62 @@ fn the_vertex_list_is_its_twin_frame_after_frame_and_bad_input_is_refused() {
             Err(e) => assert!(e.to_string().contains(what), "{what}: {e}"),
         };
         refused(
-            VertexListKernel::new(&mut rec, &full, &mesh.triangles, n, &always),
+            VertexListKernel::new(&mut rec, &full, &mesh.triangles, n, &always, None),
             "no tile list",
         );
         refused(
-            VertexListKernel::new(&mut rec, &raster, &mesh.triangles, n, &[n]),
+            VertexListKernel::new(&mut rec, &raster, &mesh.triangles, n, &[n], None),
             &format!("vertex {n} named"),
         );
         refused(
-            VertexListKernel::new(&mut rec, &raster, &mesh.triangles, n - 1, &[]),
+            VertexListKernel::new(&mut rec, &raster, &mesh.triangles, n - 1, &[], None),
             &format!("vertex {} named", n - 1),
         );
         refused(
-            VertexListKernel::new(&mut rec, &raster, &mesh.triangles[1..], n, &[]),
+            VertexListKernel::new(&mut rec, &raster, &mesh.triangles[1..], n, &[], None),
             "triangles given",
         );
-        let list = VertexListKernel::new(&mut rec, &raster, &mesh.triangles, n, &always)?;
+        let order = vkshade::geom::spatial_order(&mesh.positions);
+        assert_ne!(
+            order,
+            (0..n).collect::<Vec<_>>(),
+            "the test needs an order other than ids"
+        );
+        let mut twice = order.clone();
+        twice[1] = twice[0];
+        for bad in [&order[1..], &twice[..]] {
+            refused(
+                VertexListKernel::new(&mut rec, &raster, &mesh.triangles, n, &[], Some(bad)),
+                "not a permutation",
+            );
+        }
+        let list = VertexListKernel::new(&mut rec, &raster, &mesh.triangles, n, &always, None)?;
+        let ordered =
+            VertexListKernel::new(&mut rec, &raster, &mesh.triangles, n, &always, Some(&order))?;
         rec.submit_and_wait()?;
         let mut outs = Vec::new();
         for cam in &cams {
             let mut rec = ctx.recorder("vertex list frame")?;
             raster.record(&mut rec, cam)?;
             list.record(&mut rec, &())?;
+            ordered.record(&mut rec, &())?;
             let rb = raster.read_back(&mut rec)?;
             let lb = list.read_back(&mut rec)?;
+            let ob = ordered.read_back(&mut rec)?;
             rec.submit_and_wait()?;
-            outs.push((raster.collect(&rb)?.keys, list.collect(&lb)?));
+            outs.push((
+                raster.collect(&rb)?.keys,
+                list.collect(&lb)?,
+                ordered.collect(&ob)?,
+            ));
         }
         Ok(outs)
     });
     let mut sizes = Vec::new();
-    for (i, (keys, listed)) in outs.iter().enumerate() {
+    for (i, (keys, listed, ordered)) in outs.iter().enumerate() {
         let twin = covered_vertices(keys, &mesh.triangles, &always);
         assert_eq!(listed, &twin, "frame {i}");
+        assert_eq!(ordered, &twin, "frame {i}, listed along the Morton curve");
         sizes.push(listed.len());
     }
     // The static set alone when nothing is covered; more, and fewer than every vertex, when

@@ -6,9 +6,9 @@
 // counter to reset between frames); it clears both bitmaps as it reads them, so they start
 // the next frame empty.
 // The list (`listed`): head = (ceil(count / 64), 1, 1, count), a VkDispatchIndirectCommand
-// of one 64-lane workgroup per 64 listed vertices, then the `count` vertex ids. Their order
-// is not deterministic (shared atomics); each vertex is listed once, and every pass over the
-// list computes each vertex on its own.
+// of one 64-lane workgroup per 64 listed vertices, then the `count` vertex ids: by rank within
+// each run of 32 ranks, the runs in no deterministic order (shared atomics); each vertex is
+// listed once, and every pass over the list computes each vertex on its own.
 layout(local_size_x = 256) in;
 
 layout(push_constant) uniform Push {
@@ -22,11 +22,18 @@ layout(std430, set = 0, binding = 1) readonly buffer Triangles { uvec4 t[]; } tr
 layout(std430, set = 0, binding = 2) buffer Marked { uint w[]; } marked;
 layout(std430, set = 0, binding = 3) readonly buffer Always { uint w[]; } always;
 layout(std430, set = 0, binding = 4) writeonly buffer Listed { uint head[4]; uint v[]; } listed;
+// The order of the list: the vertex of rank r, and the rank of vertex v (a permutation,
+// e.g. along a Morton curve, so that a pass's lanes over the list are neighbours). The
+// bitmaps `marked` and `always` are indexed by rank.
+layout(std430, set = 0, binding = 5) readonly buffer Order { uint v[]; } order;
+layout(std430, set = 0, binding = 6) readonly buffer Rank { uint r[]; } rank;
 
 shared uint count;
 
 void mark(uint v) {
-    if (v < pc.vertex_count) atomicOr(marked.w[v >> 5u], 1u << (v & 31u));
+    if (v >= pc.vertex_count) return;
+    uint r = rank.r[v];
+    atomicOr(marked.w[r >> 5u], 1u << (r & 31u));
 }
 
 void main() {
@@ -59,7 +66,7 @@ void main() {
         while (bits != 0u) {
             uint b = uint(findLSB(bits));
             bits &= bits - 1u;
-            listed.v[at++] = w * 32u + b;
+            listed.v[at++] = order.v[w * 32u + b];
         }
     }
     memoryBarrierShared();

@@ -1051,6 +1051,7 @@ impl CharacterFrame {
                     &mesh.triangles,
                     pose.vertex_count() as u32,
                     &skin,
+                    Some(&crate::geom::spatial_order(&mesh.positions)),
                 )?)
             }
             _ => None,

@@ -40,6 +40,27 @@ impl Rng {
     }
 }
 
+/// Point indices sorted along a Morton curve through `positions` (10 bits per axis over
+/// their bounding box; ties by index). A GPU pass that takes point `order[i]` in invocation
+/// `i` gives a subgroup's lanes neighbours, whose walks through a tree or a BVH are alike: a
+/// SIMD driver runs every lane's loop as long as the busiest lane's.
+pub fn spatial_order(positions: &[Vec3]) -> Vec<u32> {
+    let lo = positions.iter().fold(Vec3::INFINITY, |a, &p| a.min(p));
+    let hi = positions.iter().fold(Vec3::NEG_INFINITY, |a, &p| a.max(p));
+    let key = |p: Vec3| -> u32 {
+        let q: [u32; 3] = std::array::from_fn(|a| {
+            let span = (hi[a] - lo[a]).max(f32::MIN_POSITIVE);
+            (((p[a] - lo[a]) / span * 1023.0).clamp(0.0, 1023.0)) as u32
+        });
+        (0..10).rev().fold(0u32, |k, bit| {
+            (0..3).fold(k, |k, a| (k << 1) | ((q[a] >> bit) & 1))
+        })
+    };
+    let mut order: Vec<u32> = (0..positions.len() as u32).collect();
+    order.sort_by_key(|&i| (key(positions[i as usize]), i));
+    order
+}
+
 /// Uniform direction on the unit sphere from two uniforms.
 pub fn uniform_sphere(u1: f32, u2: f32) -> Vec3 {
     let z = 1.0 - 2.0 * u1;

@@ -17,7 +17,7 @@ use crate::gpu::{
 use crate::kernels::pose::{self, PoseKernel};
 use crate::kernels::{Dispatch, Grid, Kernel, Pass};
 use ash::vk;
-use glam::Mat4;
+use glam::{Mat4, Vec3};
 
 /// Pass names, as they appear in timings and debug labels: the joint matrices' upload and the
 /// vertex skinning are the pose kernel's (recorded by the AO kernel when it owns its pose).
@@ -70,7 +70,8 @@ struct Buffers {
     shares: Buffer,
     /// [`super::formula::nearest_direction_table`], four indices a word.
     nearest: Buffer,
-    /// The vertices in the order the occlusion pass takes them ([`spatial_order`]).
+    /// The vertices in the order the occlusion pass takes them ([`crate::geom::spatial_order`]: on Testwuson, the mean of the subgroups' longest
+    /// walks fell from 102.8 to 96.6 nodes against 83.0 per vertex).
     order: Buffer,
     /// Per-vertex static correction factors ([`super::Correction`]; 1 until set).
     correction: Buffer,
@@ -123,7 +124,16 @@ impl Buffers {
             table: upload("ao table", bytes(&table.values))?,
             shares: upload("ao child shares", bytes(&child_shares(prep)))?,
             nearest: upload("ao nearest directions", bytes(&nearest_words()))?,
-            order: upload("ao vertex order", bytes(&spatial_order(&prep.positions)))?,
+            order: upload(
+                "ao vertex order",
+                bytes(&crate::geom::spatial_order(
+                    &prep
+                        .positions
+                        .iter()
+                        .map(|p| Vec3::from_slice(&p[..3]))
+                        .collect::<Vec<_>>(),
+                )),
+            )?,
             correction: upload("ao correction", bytes(&vec![1.0f32; nv as usize]))?,
             joint_matrices: pose.joint_matrices().clone(),
             posed_positions: pose.positions().clone(),
@@ -231,33 +241,6 @@ fn occlusion_shader_name(cut: Cut) -> &'static str {
         Cut::Adaptive => "ao/occlusion",
         Cut::Fixed => "ao/fixed",
     }
-}
-
-/// The vertices sorted along a Morton curve through their rest positions (10 bits per axis
-/// over the bounding box). The occlusion pass takes vertex `order[i]` in invocation `i`, so
-/// a subgroup's lanes are neighbours whose cuts through the tree are alike: a SIMD driver
-/// walks every lane's loop as long as the busiest lane's (on Testwuson, the mean of the
-/// subgroups' longest walks fell from 102.8 to 96.6 nodes against 83.0 per vertex).
-fn spatial_order(positions: &[[f32; 4]]) -> Vec<u32> {
-    let (mut lo, mut hi) = ([f32::INFINITY; 3], [f32::NEG_INFINITY; 3]);
-    for p in positions {
-        for a in 0..3 {
-            lo[a] = lo[a].min(p[a]);
-            hi[a] = hi[a].max(p[a]);
-        }
-    }
-    let key = |p: &[f32; 4]| -> u32 {
-        let q: [u32; 3] = std::array::from_fn(|a| {
-            let span = (hi[a] - lo[a]).max(f32::MIN_POSITIVE);
-            (((p[a] - lo[a]) / span * 1023.0).clamp(0.0, 1023.0)) as u32
-        });
-        (0..10).rev().fold(0u32, |k, bit| {
-            (0..3).fold(k, |k, a| (k << 1) | ((q[a] >> bit) & 1))
-        })
-    };
-    let mut order: Vec<u32> = (0..positions.len() as u32).collect();
-    order.sort_by_key(|&i| (key(&positions[i as usize]), i));
-    order
 }
 
 /// Per node, a child's weight share at alpha = 0 in the blended cut: 1 / the node's used

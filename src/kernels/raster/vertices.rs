@@ -40,6 +40,8 @@ pub struct VertexListKernel {
     covered: Buffer,
     marked: Buffer,
     always: Buffer,
+    order: Buffer,
+    rank: Buffer,
     list: Buffer,
     size: [u32; 2],
     triangle_count: u32,
@@ -52,15 +54,19 @@ pub struct VertexListReadback(Readback);
 impl VertexListKernel {
     /// Creates the bitmaps, the list and both passes over `raster`'s outputs (which must
     /// have a tile list, `Tiling::Tiles`) for a mesh of `vertex_count` vertices, with the
-    /// vertices `always` listed every frame; records the initial clears into `rec`. Refuses
-    /// a rasteriser without a tile list, a vertex id of `always` or of a triangle at or
-    /// above `vertex_count`.
+    /// vertices `always` listed every frame; records the initial clears into `rec`. The list
+    /// holds its vertices in the order of `order` (a permutation of the vertex ids, e.g.
+    /// [`crate::geom::spatial_order`] of the rest positions, so that the lanes of a pass over
+    /// the list are neighbours), or by id without one. Refuses a rasteriser without a tile
+    /// list, a vertex id of `always` or of a triangle at or above `vertex_count`, an `order`
+    /// that is not a permutation of `0..vertex_count`.
     pub fn new(
         rec: &mut Recorder,
         raster: &RasterKernel,
         triangles: &[[u32; 3]],
         vertex_count: u32,
         always: &[u32],
+        order: Option<&[u32]>,
     ) -> Result<VertexListKernel> {
         let ctx = rec.context();
         let tiles = raster.tiles().ok_or_else(|| {
@@ -81,6 +87,23 @@ impl VertexListKernel {
                 "vertex list: vertex {v} named, the mesh has {vertex_count}"
             )));
         }
+        let order: Vec<u32> = match order {
+            Some(o) => o.to_vec(),
+            None => (0..vertex_count).collect(),
+        };
+        let mut rank = vec![u32::MAX; vertex_count as usize];
+        let permutation = order.len() == vertex_count as usize
+            && order.iter().enumerate().all(|(r, &v)| {
+                rank.get_mut(v as usize)
+                    .is_some_and(|slot| std::mem::replace(slot, r as u32) == u32::MAX)
+            });
+        if !permutation {
+            return Err(Error::InvalidArgument(format!(
+                "vertex list: the order ({} ids) is not a permutation of the mesh's \
+                 {vertex_count} vertices",
+                order.len()
+            )));
+        }
         let words = |n: u32| u64::from(n.div_ceil(32).max(1));
         let storage = |name: &str, w: u64| Buffer::new(&ctx, name, BufferDesc::storage(w * 4));
         let covered = storage(
@@ -89,9 +112,21 @@ impl VertexListKernel {
         )?;
         let marked = storage("vertex list marked vertices", words(vertex_count))?;
         let mut mask = vec![0u32; words(vertex_count) as usize];
+        // The bitmaps are indexed by rank (a vertex's place in `order`).
         for &v in always {
-            mask[v as usize / 32] |= 1 << (v % 32);
+            let r = rank[v as usize];
+            mask[r as usize / 32] |= 1 << (r % 32);
         }
+        let order_buf = rec.buffer_with(
+            "vertex list order",
+            BufferDesc::storage(u64::from(vertex_count.max(1)) * 4),
+            &order_or_zero(&order)[..],
+        )?;
+        let rank_buf = rec.buffer_with(
+            "vertex list rank",
+            BufferDesc::storage(u64::from(vertex_count.max(1)) * 4),
+            &order_or_zero(&rank)[..],
+        )?;
         let always_buf = rec.buffer_with(
             "vertex list always",
             BufferDesc::storage(mask.len() as u64 * 4),
@@ -121,6 +156,8 @@ impl VertexListKernel {
             ("marked", Resource::Buffer(&marked)),
             ("always", Resource::Buffer(&always_buf)),
             ("listed", Resource::Buffer(&list)),
+            ("order", Resource::Buffer(&order_buf)),
+            ("rank", Resource::Buffer(&rank_buf)),
         ])?;
         Ok(VertexListKernel {
             ctx,
@@ -130,6 +167,8 @@ impl VertexListKernel {
             covered,
             marked,
             always: always_buf,
+            order: order_buf,
+            rank: rank_buf,
             list,
             size: raster.size(),
             triangle_count: raster.triangle_count(),
@@ -220,8 +259,23 @@ impl Kernel for VertexListKernel {
     }
 
     fn memory(&self) -> MemoryReport {
-        self.ctx
-            .memory_of(&[&self.covered, &self.marked, &self.always, &self.list])
+        self.ctx.memory_of(&[
+            &self.covered,
+            &self.marked,
+            &self.always,
+            &self.order,
+            &self.rank,
+            &self.list,
+        ])
+    }
+}
+
+/// `words`, or one 0 for an empty mesh (a buffer is never empty).
+fn order_or_zero(words: &[u32]) -> Vec<u32> {
+    if words.is_empty() {
+        vec![0]
+    } else {
+        words.to_vec()
     }
 }
 
