@@ -192,13 +192,14 @@ fn traced_visibility_matches_its_twin_far_from_the_bind_pose() {
     traced_visibility_matches_its_twin(4);
 }
 
-/// As traced_visibility_matches_its_twin_far_from_the_bind_pose with 36 rays per vertex:
-/// `env trace` walks the BVH 16 rays at a time, so these are three walks (16, 16 and 4
-/// rays) whose escape bits share the vertex's first word and start its second.
+/// As traced_visibility_matches_its_twin_far_from_the_bind_pose with 49 rays per vertex:
+/// `env trace` walks the BVH 4 rays at a time, so these are twelve walks of 4 rays (some
+/// across two azimuth columns of 7) and one of a single ray, whose escape bits fill the
+/// vertex's first word and start its second.
 #[cfg(feature = "gltf")]
 #[test]
 fn traced_visibility_in_several_ray_packets_matches_its_twin() {
-    traced_visibility_matches_its_twin(6);
+    traced_visibility_matches_its_twin(7);
 }
 
 #[cfg(feature = "gltf")]

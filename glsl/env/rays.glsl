@@ -16,12 +16,16 @@ void ray_basis(vec3 n, out vec3 t, out vec3 bt) {
     bt = vec3(b, sgn + n.y * n.y * a, -n.y);
 }
 
-// Ray k of vertex vi (normal n, basis t, bt) of the g x g strata.
+// Ray k of vertex vi (normal n, basis t, bt) of the g x g strata: stratum (row, column) =
+// (k % g, k / g), radius^2 by row and azimuth by column, so consecutive rays run down an
+// azimuth sector (pass `env trace` walks them a few at a time: a narrow packet enters fewer
+// nodes); its jitter is keyed by row * g + column.
 vec3 ray_direction(uint vi, uint k, uint g, uint seed, vec3 t, vec3 bt, vec3 n) {
     uint rays = g * g;
-    uint key = seed ^ (vi * rays + k) * 2u;
-    float u1 = (float(k / g) + unit_float(hash_u32(key))) / float(g);
-    float u2 = (float(k % g) + unit_float(hash_u32(key + 1u))) / float(g);
+    uint row = k % g, col = k / g;
+    uint key = seed ^ (vi * rays + row * g + col) * 2u;
+    float u1 = (float(row) + unit_float(hash_u32(key))) / float(g);
+    float u2 = (float(col) + unit_float(hash_u32(key + 1u))) / float(g);
     u1 = min(u1, 0.999999);
     float r = sqrt(u1);
     float phi = 6.2831855 * u2;

@@ -333,9 +333,15 @@ pub struct TraceConfig {
 pub fn ray_direction(v: u32, k: u32, grid: u32, seed: u32, t: Vec3, b: Vec3, n: Vec3) -> Vec3 {
     let g = grid;
     let rays = g * g;
-    let key = seed ^ v.wrapping_mul(rays).wrapping_add(k).wrapping_mul(2);
-    let u1 = ((k / g) as f32 + unit_float(hash_u32(key))) / g as f32;
-    let u2 = ((k % g) as f32 + unit_float(hash_u32(key.wrapping_add(1)))) / g as f32;
+    // Stratum (row, column) = (k % g, k / g): consecutive rays run down an azimuth sector
+    // (the GPU walks them a few at a time); the jitter is keyed by row * g + column.
+    let (row, col) = (k % g, k / g);
+    let key = seed
+        ^ v.wrapping_mul(rays)
+            .wrapping_add(row * g + col)
+            .wrapping_mul(2);
+    let u1 = (row as f32 + unit_float(hash_u32(key))) / g as f32;
+    let u2 = (col as f32 + unit_float(hash_u32(key.wrapping_add(1)))) / g as f32;
     let u1 = u1.min(0.999_999);
     let r = u1.sqrt();
     let phi = 6.283_185_5 * u2;
