@@ -6,11 +6,10 @@
 //! A file belongs to the row with the longest name that contains it; it may always use its
 //! own row's module. lib.rs's module list must name the top-level rows in the same order.
 //!
-//! The kernels' model modules ([`MODELS`]) are the physics a method and its ground truth
-//! share (a material model, a synthetic material), as opposed to the method itself (its
-//! sampling, shaders, GPU glue, CPU twin). A ground truth (`reference`) may use only the
-//! shared layers (`geom`, `scene`, the leaves) and these modules; a model module may use only
-//! what a truth may, so no truth reaches the method through one.
+//! A ground truth (`reference`) may use only the shared layers (`geom`, `scene`, the leaves):
+//! the physics a method and its truth share (a BRDF, the diffusion profiles, the synthetic
+//! cloth) lives in `geom`, apart from the method itself (its sampling, shaders, GPU glue,
+//! CPU twin).
 //!
 //! Checked: every `crate::` path (use trees expanded, `super::` resolved, `vkshade::` in
 //! main.rs) outside comments, strings and `#[cfg(test)]` items: tests may use anything, e.g.
@@ -19,14 +18,6 @@
 
 use std::collections::BTreeMap;
 use std::path::{Path, PathBuf};
-
-/// The kernels' model modules: what `reference` may use of `kernels`.
-const MODELS: &[&str] = &[
-    // The diffusion profiles Rd(r) of a material (dipole, Burley) and their truncation.
-    "kernels::sss::profile",
-    // The synthetic cloth: periodic heightfields with a known BRDF.
-    "kernels::btf::cloth",
-];
 
 /// The layers, lowest first: (module, the paths its code may use). `error` and `progress`
 /// are leaves (the error type, the progress line).
@@ -38,9 +29,6 @@ const LAYERS: &[(&str, &[&str])] = &[
     ("geom", &["error", "progress"]),
     ("shaders", &["error", "gpu", "io"]),
     ("scene", &["error", "progress", "io", "geom"]),
-    // The model modules (MODELS): what a ground truth may use.
-    ("kernels::sss::profile", &["error", "geom", "scene"]),
-    ("kernels::btf::cloth", &["error", "geom", "scene"]),
     (
         "kernels",
         &["error", "progress", "gpu", "io", "geom", "shaders", "scene"],
@@ -51,17 +39,7 @@ const LAYERS: &[(&str, &[&str])] = &[
             "error", "progress", "gpu", "io", "geom", "shaders", "scene", "kernels",
         ],
     ),
-    (
-        "reference",
-        &[
-            "error",
-            "progress",
-            "geom",
-            "scene",
-            "kernels::sss::profile",
-            "kernels::btf::cloth",
-        ],
-    ),
+    ("reference", &["error", "progress", "geom", "scene"]),
     ("report", &["error", "gpu", "io"]),
     ("render", &["error", "io"]),
     (
@@ -635,21 +613,6 @@ fn the_table_is_an_order() {
         }
         seen.push(name);
     }
-    for m in MODELS {
-        assert!(seen.contains(m), "model module {m} has no row");
-        let reference = &LAYERS.iter().find(|(n, _)| *n == "reference").unwrap().1;
-        assert!(reference.contains(m), "reference may not use model {m}");
-    }
-    // A model module uses only what a truth may (its rules are the truth's, less the truth).
-    let reference = LAYERS.iter().find(|(n, _)| *n == "reference").unwrap().1;
-    for (name, allowed) in LAYERS.iter().filter(|(n, _)| MODELS.contains(n)) {
-        for a in *allowed {
-            assert!(
-                reference.contains(a),
-                "model {name} may use {a}, a truth may not"
-            );
-        }
-    }
 }
 
 #[test]
@@ -675,10 +638,6 @@ fn every_module_has_a_row_and_lib_lists_them_in_order() {
         on_disk, rows,
         "the modules of src/ and the rows of LAYERS differ"
     );
-    for m in MODELS {
-        let file = format!("src/{}.rs", m.replace("::", "/"));
-        assert!(root().join(&file).exists(), "model module {m}: no {file}");
-    }
 
     let lib = read("src/lib.rs");
     let mut declared: Vec<String> = lib
@@ -801,23 +760,35 @@ fn a_truth_using_a_method_is_caught() {
         got.iter()
             .all(|v| v.ends_with("which layer `reference` may not use"))
     );
-    // Through a model module it may.
-    let src = "use crate::kernels::sss::profile::{Profile, ProfileKind};\n\
-               use crate::kernels::btf::cloth::SynthConfig;\nuse crate::geom::sg::Lobe;\n\
+    // Through the shared layers it may, the models a method and its truth share included.
+    let src = "use crate::geom::profile::{Profile, ProfileKind};\n\
+               use crate::geom::cloth::SynthConfig;\nuse crate::geom::sg::Lobe;\n\
                use crate::scene::texspace::TexGeometry;\nuse crate::Result;\n";
     assert!(check("src/reference/btf.rs", src).is_empty());
-    // A model module may not reach into the method either.
+    // Not through the kernels' re-export of a shared model: the path names the method.
     assert_eq!(
-        check("src/kernels/btf/cloth.rs", "use super::dirs::Angles;\n"),
+        check(
+            "src/reference/sss.rs",
+            "use crate::kernels::sss::profile::Profile;\n"
+        )
+        .len(),
+        1
+    );
+    // A shared model may not reach into the method either.
+    assert_eq!(
+        check(
+            "src/geom/cloth.rs",
+            "use crate::kernels::btf::dirs::Angles;\n"
+        ),
         [
-            "src/kernels/btf/cloth.rs:1: imports crate::kernels::btf::dirs::Angles, which layer \
-             `kernels::btf::cloth` may not use"
+            "src/geom/cloth.rs:1: imports crate::kernels::btf::dirs::Angles, which layer \
+             `geom` may not use"
         ]
     );
     assert_eq!(
         check(
-            "src/kernels/sss/profile.rs",
-            "use super::sampler::TABLE_SIZE;\n"
+            "src/geom/profile.rs",
+            "use crate::kernels::sss::sampler::TABLE_SIZE;\n"
         )
         .len(),
         1

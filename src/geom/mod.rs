@@ -5,7 +5,9 @@
 
 pub mod brdf;
 pub mod bvh;
+pub mod cloth;
 pub mod linalg;
+pub mod profile;
 pub mod sg;
 pub mod visibility;
 

@@ -4,7 +4,7 @@
 //! the interpolation error (plus the 8-bit storage).
 
 use crate::geom::bilinear;
-use crate::kernels::btf::cloth::SynthConfig;
+use crate::geom::cloth::SynthConfig;
 use crate::scene::gbuffer::{Frame, GBuffer, frame_of, to_tangent};
 use rayon::prelude::*;
 

@@ -1,7 +1,7 @@
 //! CPU ground truths (f32/f64, rayon): independent of the methods they judge. A truth uses
-//! only the shared layers ([`crate::geom`]: ray-cast visibility, spherical Gaussians;
-//! [`crate::scene`]) and the kernels' model modules, the physics a method and its truth share
-//! (`kernels::sss::profile`, `kernels::btf::cloth`); tests/layers.rs checks it.
+//! only the shared layers ([`crate::geom`]: ray-cast visibility, spherical Gaussians, and the
+//! physics a method and its truth share, the diffusion profiles [`crate::geom::profile`] and
+//! the synthetic cloth [`crate::geom::cloth`]; [`crate::scene`]); tests/layers.rs checks it.
 
 pub mod ao;
 pub mod btf;

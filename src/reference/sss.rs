@@ -11,7 +11,7 @@
 //! Also the analytic plane cases: a uniformly lit plane (B = E K(R), or E R_tot) and a
 //! half-plane shadow edge (a 1D integral over the lit fraction of each circle).
 
-use crate::kernels::sss::profile::{Profile, ProfileKind};
+use crate::geom::profile::{Profile, ProfileKind};
 use crate::scene::texspace::{COVERED, TexGeometry};
 use glam::DVec3;
 use rayon::prelude::*;

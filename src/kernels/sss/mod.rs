@@ -1,7 +1,7 @@
 //! Texture-space importance-sampled subsurface diffusion for skin (kernels.md section 2).
 //!
 //! - [`profile`]: the material model, diffusion profiles Rd(r) (dipole, Burley) and their
-//!   truncation radii; the brute-force truth reads it too.
+//!   truncation radii; it lives in [`crate::geom`] because the brute-force truth reads it too.
 //! - [`sampler`]: how the method samples a profile (the mixture sequence, inverse-CDF
 //!   tables) and the profile's parameters as the shader gets them.
 //! - [`crate::scene::texspace`]: the mesh rasterised into its UV layout (position, normal,
@@ -42,7 +42,7 @@ pub mod cpu;
 pub mod gpu;
 pub mod pack;
 pub mod posed;
-pub mod profile;
+pub use crate::geom::profile;
 pub mod regions;
 pub mod sampler;
 pub mod walk;

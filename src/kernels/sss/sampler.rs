@@ -193,9 +193,9 @@ pub fn numeric_cdf(rd: impl Fn(f64) -> f64, r_max: f64, n: usize) -> (Vec<f64>, 
 
 #[cfg(test)]
 mod tests {
-    use super::super::profile::tests::integrate;
     use super::super::profile::{DEFAULT_ENERGY, Material};
     use super::*;
+    use crate::geom::profile::tests::integrate;
 
     #[test]
     fn inverse_cdf_table_inverts_the_numeric_integral() {

@@ -1,6 +1,6 @@
 //! Diffusion profiles Rd(r) (mm, per channel): the material model of subsurface scattering,
 //! shared by the method and the brute-force truth (`reference::sss`). How the method samples
-//! them and what the shader gets is [`super::sampler`].
+//! them and what the shader gets is [`crate::kernels::sss::sampler`].
 //!
 //! - Dipole (Jensen et al. 2001): from sigma_a, sigma_s' (per mm) and the relative index of
 //!   refraction eta (default [`DEFAULT_ETA`] = 1.3). Total diffuse reflectance and the radial
@@ -321,7 +321,7 @@ impl Profile {
 }
 
 /// Root of increasing `f` in [lo, hi] by bisection.
-pub(super) fn bisect(f: impl Fn(f64) -> f64, mut lo: f64, mut hi: f64) -> f64 {
+pub(crate) fn bisect(f: impl Fn(f64) -> f64, mut lo: f64, mut hi: f64) -> f64 {
     for _ in 0..200 {
         let mid = 0.5 * (lo + hi);
         if f(mid) < 0.0 {
@@ -334,17 +334,12 @@ pub(super) fn bisect(f: impl Fn(f64) -> f64, mut lo: f64, mut hi: f64) -> f64 {
 }
 
 #[cfg(test)]
-pub(super) mod tests {
+pub(crate) mod tests {
     use super::*;
 
     /// Gauss-Legendre (5 points) on n equal panels of [a, b] in sqrt(r) (an integration
     /// independent of the sampler table's Simpson on log-spaced radii).
-    pub(in crate::kernels::sss) fn integrate(
-        f: impl Fn(f64) -> f64,
-        a: f64,
-        b: f64,
-        n: usize,
-    ) -> f64 {
+    pub(crate) fn integrate(f: impl Fn(f64) -> f64, a: f64, b: f64, n: usize) -> f64 {
         let x = [
             0.0,
             -0.538_469_310_105_683,
