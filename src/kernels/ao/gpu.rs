@@ -70,8 +70,9 @@ struct Buffers {
     shares: Buffer,
     /// [`super::formula::nearest_direction_table`], four indices a word.
     nearest: Buffer,
-    /// The vertices in the order the occlusion pass takes them ([`crate::geom::spatial_order`]: on Testwuson, the mean of the subgroups' longest
-    /// walks fell from 102.8 to 96.6 nodes against 83.0 per vertex).
+    /// The vertices in the order the occlusion pass takes them
+    /// ([`crate::geom::spatial_order`]; on Testwuson the mean of the subgroups' longest walks
+    /// fell from 102.8 to 96.6 nodes, against 83.0 per vertex).
     order: Buffer,
     /// Per-vertex static correction factors ([`super::Correction`]; 1 until set).
     correction: Buffer,

@@ -120,12 +120,12 @@ impl VertexListKernel {
         let order_buf = rec.buffer_with(
             "vertex list order",
             BufferDesc::storage(u64::from(vertex_count.max(1)) * 4),
-            &order_or_zero(&order)[..],
+            &at_least_one_word(&order)[..],
         )?;
         let rank_buf = rec.buffer_with(
             "vertex list rank",
             BufferDesc::storage(u64::from(vertex_count.max(1)) * 4),
-            &order_or_zero(&rank)[..],
+            &at_least_one_word(&rank)[..],
         )?;
         let always_buf = rec.buffer_with(
             "vertex list always",
@@ -271,7 +271,7 @@ impl Kernel for VertexListKernel {
 }
 
 /// `words`, or one 0 for an empty mesh (a buffer is never empty).
-fn order_or_zero(words: &[u32]) -> Vec<u32> {
+fn at_least_one_word(words: &[u32]) -> Vec<u32> {
     if words.is_empty() {
         vec![0]
     } else {
