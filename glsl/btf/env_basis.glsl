@@ -14,6 +14,7 @@
 // (kernels::btf::basis::BasisData::pixel_lobes) looked up here with the visibility
 // interpolated as in mode 2.
 layout(local_size_x = 16, local_size_y = 4) in;
+#include <common/tiles.glsl>
 
 layout(push_constant) uniform Push {
     vec4 camera; // xyz: camera position; w = 0: xyz is the direction towards an
@@ -74,8 +75,7 @@ vec3 barycentrics(vec3 p, vec3 a, vec3 b, vec3 c) {
 void main() {
 #ifdef BTF_TILES
     uint tile = tiles.list[gl_WorkGroupID.x];
-    uint tiles_x = (pc.dims.x + 15u) / 16u;
-    uvec2 px = uvec2(tile % tiles_x, tile / tiles_x) * uvec2(16u, 4u) + gl_LocalInvocationID.xy;
+    uvec2 px = tile_pixel(tile, pc.dims.x, gl_LocalInvocationID.xy);
 #else
     uvec2 px = gl_GlobalInvocationID.xy;
 #endif

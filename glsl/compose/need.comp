@@ -12,6 +12,7 @@
 // Dispatched indirectly over the rasteriser's list of covered 16 x 4 tiles
 // (glsl/raster/tiles.comp): pixels outside them hold no triangle.
 layout(local_size_x = 16, local_size_y = 4) in;
+#include <common/tiles.glsl>
 
 layout(push_constant) uniform Push {
     vec4 eye;       // xyz camera position (model units)
@@ -37,8 +38,7 @@ const float MARGIN = 0.01;
 
 void main() {
     uint tile = tiles.list[gl_WorkGroupID.x];
-    uint tiles_x = (pc.counts.x + 15u) / 16u;
-    uvec2 px = uvec2(tile % tiles_x, tile / tiles_x) * uvec2(16u, 4u) + gl_LocalInvocationID.xy;
+    uvec2 px = tile_pixel(tile, pc.counts.x, gl_LocalInvocationID.xy);
     if (any(greaterThanEqual(px, pc.counts.xy))) return;
     uint tri = keys.k[px.y * pc.counts.x + px.x].x;
     // Background or cloth: the compose pass reads no diffusion there.

@@ -23,6 +23,7 @@
 // the linear HDR radiance is kept too. The CPU twin is kernels::compose::cpu::shade.
 #extension GL_EXT_samplerless_texture_functions : require
 layout(local_size_x = 16, local_size_y = 4) in;
+#include <common/tiles.glsl>
 
 layout(set = 0, binding = 0) uniform texture2DArray gbuffer;
 layout(std430, set = 0, binding = 1) readonly buffer Keys { uvec2 k[]; } keys;
@@ -135,8 +136,7 @@ void main() {
     Params P = params.p;
 #ifdef COMPOSE_TILES
     uint tile = tiles.list[gl_WorkGroupID.x];
-    uint tiles_x = (P.counts.x + 15u) / 16u;
-    uvec2 px = uvec2(tile % tiles_x, tile / tiles_x) * uvec2(16u, 4u) + gl_LocalInvocationID.xy;
+    uvec2 px = tile_pixel(tile, P.counts.x, gl_LocalInvocationID.xy);
 #else
     uvec2 px = gl_GlobalInvocationID.xy;
 #endif

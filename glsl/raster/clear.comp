@@ -9,6 +9,7 @@
 //      16 x 4 tile.
 // Workgroup 0 also clears the counters.
 layout(local_size_x = 64) in;
+#include <common/tiles.glsl>
 
 layout(push_constant) uniform Push {
     uvec4 dims;  // width, height, mode, workgroups (mode 1)
@@ -27,12 +28,11 @@ void main() {
         if (p.x < pc.dims.x && p.y < pc.dims.y) vis.key[p.y * pc.dims.x + p.x] = ~0ul;
         return;
     }
-    uint tiles_x = (pc.dims.x + 15u) / 16u;
     uvec2 local = uvec2(gl_LocalInvocationID.x % 16u, gl_LocalInvocationID.x / 16u);
     uint covered = tiles.head[3];
     for (uint i = gl_WorkGroupID.x; i < covered; i += pc.dims.w) {
         uint t = tiles.list[i];
-        uvec2 p = uvec2(t % tiles_x, t / tiles_x) * uvec2(16u, 4u) + local;
+        uvec2 p = tile_pixel(t, pc.dims.x, local);
         if (p.x < pc.dims.x && p.y < pc.dims.y) vis.key[p.y * pc.dims.x + p.x] = ~0ul;
     }
 }

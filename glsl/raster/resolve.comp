@@ -16,6 +16,7 @@
 // tile of the tile list `raster tiles` wrote (dispatched indirectly over it: the tiles
 // covered this frame and those covered only last frame, whose pixels become empty here).
 layout(local_size_x = 16, local_size_y = 4) in;
+#include <common/tiles.glsl>
 
 layout(push_constant) uniform Push {
     vec4 eye;      // xyz: camera position; w: uv scale (tile repeats per unit of uv)
@@ -44,8 +45,7 @@ void main() {
     uvec2 px = gl_GlobalInvocationID.xy;
     if (pc.dims.z != 0u) {
         uint t = tiles.list[gl_WorkGroupID.x];
-        uint tiles_x = (pc.dims.x + 15u) / 16u;
-        px = uvec2(t % tiles_x, t / tiles_x) * uvec2(16u, 4u) + gl_LocalInvocationID.xy;
+        px = tile_pixel(t, pc.dims.x, gl_LocalInvocationID.xy);
     }
     if (any(greaterThanEqual(px, pc.dims.xy))) return;
     uint64_t key = vis.key[px.y * pc.dims.x + px.x];

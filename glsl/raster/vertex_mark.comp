@@ -5,6 +5,7 @@
 // no triangle. A pixel marks its key's triangle unless the pixel to its left in the tile
 // holds the same one (runs of a triangle along a row then cost one atomic).
 layout(local_size_x = 16, local_size_y = 4) in;
+#include <common/tiles.glsl>
 
 layout(push_constant) uniform Push {
     uint width;
@@ -22,9 +23,8 @@ shared uint row_tri[4][16];
 
 void main() {
     uint tile = tiles.list[gl_WorkGroupID.x];
-    uint tiles_x = (pc.width + 15u) / 16u;
     uvec2 lid = gl_LocalInvocationID.xy;
-    uvec2 px = uvec2(tile % tiles_x, tile / tiles_x) * uvec2(16u, 4u) + lid;
+    uvec2 px = tile_pixel(tile, pc.width, lid);
     uint tri = 0xffffffffu;
     if (all(lessThan(px, uvec2(pc.width, pc.height)))) {
         tri = keys.k[px.y * pc.width + px.x].x;

@@ -14,6 +14,7 @@
 // Every covered pixel also flags its 16 x 4 tile (the same value from any invocation), from
 // which `raster tiles` lists the tiles the later passes dispatch over.
 layout(local_size_x = 64) in;
+#include <common/tiles.glsl>
 
 layout(push_constant) uniform Push {
     vec4 eye;      // xyz: camera position (model units); w: near plane distance
@@ -97,7 +98,6 @@ void scan(vec3 s0, vec3 s1, vec3 s2, uint id) {
     int64_t dx0 = -(c.y - b.y) * 256l, dx1 = -(a.y - c.y) * 256l, dx2 = -(b.y - a.y) * 256l;
     int64_t dy0 = (c.x - b.x) * 256l, dy1 = (a.x - c.x) * 256l, dy2 = (b.x - a.x) * 256l;
     float inv_area = 1.0 / float(area);
-    uint tiles_x = (pc.dims.x + 15u) / 16u;
     for (int y = y0; y <= y1; y++) {
         int64_t e0 = r0, e1 = r1, e2 = r2;
         for (int x = x0; x <= x1; x++) {
@@ -107,7 +107,7 @@ void scan(vec3 s0, vec3 s1, vec3 s2, uint id) {
                 float depth = 1.0 / dot(w, iz);
                 uint64_t key = (uint64_t(floatBitsToUint(depth)) << 32) | uint64_t(id);
                 atomicMin(vis.key[uint(y) * pc.dims.x + uint(x)], key);
-                flags.f[(uint(y) / 4u) * tiles_x + uint(x) / 16u] = 1u;
+                flags.f[tile_of(uvec2(x, y), pc.dims.x)] = 1u;
             }
             e0 += dx0; e1 += dx1; e2 += dx2;
         }
