@@ -45,10 +45,7 @@ layout(set = 0, binding = 1, rgba32f) readonly uniform image2D nrm;     // xyz, 
 // The texel's triangle corners (vertex indices) and barycentrics w1, w2 as 16-bit fractions
 // of 2^16 in w (cpu::texel_corners_packed).
 layout(set = 0, binding = 2, rgba32ui) readonly uniform uimage2D corners;
-const uint MAX_LIGHTS = 16u; // cpu::MAX_LIGHTS
-// A uniform buffer: lavapipe reads it at the loop's uniform index as a scalar (a storage
-// buffer would be loaded lane by lane, component by component).
-layout(std140, set = 0, binding = 3) uniform Lights { vec4 v[2 * MAX_LIGHTS]; } lights; // 2 per light
+#include <sss/lights.glsl>
 layout(set = 0, binding = 4, r32ui) readonly uniform uimage2D vis;
 layout(set = 0, binding = 5, rgba32f) readonly uniform image2D vtrans;
 // Transmission: written only when mode != 0 (the kernel clears it when transmission is off;
@@ -86,24 +83,6 @@ vec3 vload(uint k) {
     return imageLoad(vframes, ivec2(k % BVH_ROW, k / BVH_ROW)).xyz;
 }
 #endif
-
-// Light l at the texel (position p, normal n): its direction, the shadow ray's reach and
-// its strength there (a point light's falls off with distance); returns n . dir.
-float light_at(uint l, vec3 p, vec3 n, out vec3 dir, out float tmax, out float strength) {
-    vec4 a = lights.v[2u * l];
-    strength = lights.v[2u * l + 1u].x;
-    if (a.w == 0.0) {
-        dir = a.xyz;
-        tmax = uintBitsToFloat(0x7f800000u);
-    } else {
-        vec3 dd = a.xyz - p;
-        float dist = length(dd);
-        dir = dd / dist;
-        tmax = dist - pc.bias;
-        strength = strength / (dist * dist);
-    }
-    return dot(n, dir);
-}
 
 ivec2 vertex_at(uint v) {
     return ivec2(v % VERTEX_ROW, v / VERTEX_ROW);

@@ -27,10 +27,7 @@ const uint BVH_ROW = 1024u;
 layout(set = 0, binding = 1, rgba32ui) readonly uniform uimage2D nodes;
 layout(set = 0, binding = 2, rgba32ui) readonly uniform uimage2D tris;
 
-const uint MAX_LIGHTS = 16u; // cpu::MAX_LIGHTS
-// A uniform buffer: lavapipe reads it at the loop's uniform index as a scalar (a storage
-// buffer would be loaded lane by lane, component by component).
-layout(std140, set = 0, binding = 3) uniform Lights { vec4 v[2 * MAX_LIGHTS]; } lights; // 2 per light
+#include <sss/lights.glsl>
 // Outputs as images (vertex v at (v % VERTEX_ROW, v / VERTEX_ROW)): the irradiance pass
 // gathers them with one texel fetch each.
 const uint VERTEX_ROW = 1024u;
@@ -51,18 +48,9 @@ uint visibility(vec3 p, vec3 n) {
     vec3 o = p + n * pc.bias;
     uint bits = 0u;
     for (uint l = 0u; l < pc.lights; l++) {
-        vec4 a = lights.v[2u * l];
         vec3 dir;
-        float tmax;
-        if (a.w == 0.0) {
-            dir = a.xyz;
-            tmax = uintBitsToFloat(0x7f800000u);
-        } else {
-            vec3 dd = a.xyz - p;
-            float dist = length(dd);
-            dir = dd / dist;
-            tmax = dist - pc.bias;
-        }
+        float tmax, strength;
+        light_at(l, p, n, dir, tmax, strength);
         if (!any_hit(o, dir, tmax)) bits |= 1u << l;
     }
     return bits;
@@ -73,21 +61,9 @@ float irradiance_at(vec3 p, vec3 n) {
     vec3 o = p + n * pc.bias;
     float e = 0.0;
     for (uint l = 0u; l < pc.lights; l++) {
-        vec4 a = lights.v[2u * l];
-        float strength = lights.v[2u * l + 1u].x;
         vec3 dir;
-        float tmax;
-        if (a.w == 0.0) {
-            dir = a.xyz;
-            tmax = uintBitsToFloat(0x7f800000u);
-        } else {
-            vec3 dd = a.xyz - p;
-            float dist = length(dd);
-            dir = dd / dist;
-            tmax = dist - pc.bias;
-            strength = strength / (dist * dist);
-        }
-        float c = dot(n, dir);
+        float tmax, strength;
+        float c = light_at(l, p, n, dir, tmax, strength);
         if (c <= 0.0 || strength == 0.0) continue;
         if (any_hit(o, dir, tmax)) continue;
         e += strength * c;
