@@ -86,10 +86,10 @@ pub const GATHERS_PER_LOOKUP: f64 = 2.0;
 /// `caps` caps above the horizon per vertex, and `lobes` lobes: FLOP (fma), and the cap
 /// table's loads (image_gather_coherent: the table, 1.8 MiB as quads, stays in the caches,
 /// which the random probe's large buffer does not; against the random buffer-gather rate the
-/// pass ran at 20x "its peak", when the table was a storage buffer). The table path is counted for every lookup: its blend weight is 0 only for caps
-/// under 0.3 lobe widths, and lavapipe's lanes run it when any lane of 8 needs it. The cut's
-/// sphere reads (a few per node, mostly shared by neighbouring vertices) and the per-vertex
-/// lobe setup are left out.
+/// pass ran at 20x "its peak", when the table was a storage buffer). The table path is
+/// counted for every lookup: its blend weight is 0 only for caps under 0.3 lobe widths, and
+/// lavapipe's lanes run it when any lane of 8 needs it. The cut's sphere reads (a few per
+/// node, mostly shared by neighbouring vertices) and the per-vertex lobe setup are left out.
 pub fn roofline_terms(
     vertices: usize,
     cut: f64,

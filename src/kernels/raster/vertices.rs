@@ -120,12 +120,12 @@ impl VertexListKernel {
         let order_buf = rec.buffer_with(
             "vertex list order",
             BufferDesc::storage(u64::from(vertex_count.max(1)) * 4),
-            &at_least_one_word(&order)[..],
+            &order[..],
         )?;
         let rank_buf = rec.buffer_with(
             "vertex list rank",
             BufferDesc::storage(u64::from(vertex_count.max(1)) * 4),
-            &at_least_one_word(&rank)[..],
+            &rank[..],
         )?;
         let always_buf = rec.buffer_with(
             "vertex list always",
@@ -267,15 +267,6 @@ impl Kernel for VertexListKernel {
             &self.rank,
             &self.list,
         ])
-    }
-}
-
-/// `words`, or one 0 for an empty mesh (a buffer is never empty).
-fn at_least_one_word(words: &[u32]) -> Vec<u32> {
-    if words.is_empty() {
-        vec![0]
-    } else {
-        words.to_vec()
     }
 }
 
