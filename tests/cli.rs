@@ -595,8 +595,6 @@ fn srbf_glossy_and_cta_write_their_report_and_refuse_bad_input() {
         "0.4",
         "--ks",
         "0.5",
-        "--views",
-        "6",
         "--camera",
         "0.5,-1,6",
         "--rotate",
@@ -605,19 +603,36 @@ fn srbf_glossy_and_cta_write_their_report_and_refuse_bad_input() {
         "--out",
         dir.to_str().unwrap(),
     ];
-    for (extra, passes) in [
-        (&[][..], &["srbf lighting", "srbf glossy shade"][..]),
+    let cta = [
+        "srbf lighting",
+        "srbf cta light",
+        "srbf cta project",
+        "srbf cta shade",
+    ];
+    // Each view basis, uncompressed and through CTA.
+    for (view, extra, passes) in [
         (
+            ["--views", "6"],
+            &[][..],
+            &["srbf lighting", "srbf glossy shade"][..],
+        ),
+        (
+            ["--views", "6"],
             &["--cta", "--cta-clusters", "8", "--cta-ranks", "4,4,8"][..],
-            &[
-                "srbf lighting",
-                "srbf cta light",
-                "srbf cta project",
-                "srbf cta shade",
-            ][..],
+            &cta[..],
+        ),
+        (
+            ["--terms", "8"],
+            &[][..],
+            &["srbf lighting", "srbf glossy shade"][..],
+        ),
+        (
+            ["--terms", "8"],
+            &["--cta", "--cta-clusters", "8", "--cta-ranks", "4,4,8"][..],
+            &cta[..],
         ),
     ] {
-        let args: Vec<&str> = base.iter().chain(extra).copied().collect();
+        let args: Vec<&str> = base.iter().chain(&view).chain(extra).copied().collect();
         let (ok, stdout, stderr) = vkshade(&args);
         assert!(ok, "{stdout}\n{stderr}");
         assert!(stderr.contains("validation: clean"), "{stderr}");
@@ -635,7 +650,17 @@ fn srbf_glossy_and_cta_write_their_report_and_refuse_bad_input() {
         assert_eq!(v["brdf"]["exponent"].as_f64(), Some(6.0));
         assert_eq!(v["brdf"]["specular"].as_f64(), Some(0.5));
         assert_eq!(v["camera"], serde_json::json!([0.5, -1.0, 6.0]));
-        assert_eq!(v["view_grid"].as_u64(), Some(6));
+        if view[0] == "--views" {
+            assert_eq!(v["view_grid"].as_u64(), Some(6));
+            assert!(v["view_terms"].is_null());
+        } else {
+            assert!(v["view_grid"].is_null());
+            assert_eq!(v["view_terms"].as_u64(), Some(8));
+            // Phong 6 (kd 0.4, ks 0.5) in 8 terms: a truncation between 0 and 1 (0.2 for
+            // Phong 8 with more specular, brdf_factors' tests).
+            let t = v["view_truncation"].as_f64().unwrap();
+            assert!(t > 0.0 && t < 0.4, "truncation {t}");
+        }
         let names: Vec<&str> = v["kernel"]["passes"]
             .as_array()
             .unwrap()
@@ -646,9 +671,9 @@ fn srbf_glossy_and_cta_write_their_report_and_refuse_bad_input() {
         let f = &v["frames"][0];
         // GPU against its CPU twin: f32 sums (see tests/srbf_glossy.rs), 1e-5 relative L2.
         assert!(f["gpu_vs_cpu"]["all"].as_f64().unwrap() < 1e-5, "{f}");
-        // Against the truth: a 6 x 6 view grid and 64 basis functions are coarse for Phong
-        // 6, so this only catches a broken path (a wrong view or frame gives O(1) errors);
-        // tests/srbf_glossy.rs holds the accurate setting to 5%.
+        // Against the truth: a 6 x 6 view grid (or 8 terms) and 64 basis functions are
+        // coarse for Phong 6, so this only catches a broken path (a wrong view or frame gives
+        // O(1) errors); tests/srbf_glossy.rs holds the accurate setting to 5%.
         let e = f["vs_ground_truth"]["all"].as_f64().unwrap();
         assert!(e < 0.5, "vs truth {e}");
     }
@@ -659,6 +684,11 @@ fn srbf_glossy_and_cta_write_their_report_and_refuse_bad_input() {
         ),
         (&["--cta"][..], "--cta compresses the glossy transfer"),
         (&["--brdf", "phong", "--views", "1"][..], "--views"),
+        (&["--brdf", "phong", "--terms", "0"][..], "--terms"),
+        (
+            &["--brdf", "phong", "--terms", "8", "--views", "6"][..],
+            "cannot be used with",
+        ),
         (&["--brdf", "phong", "--camera", "1,2"][..], "--camera"),
         // Refused even where the diffuse BRDF would not read them.
         (&["--kd", "nan"][..], "--kd NaN is not a finite number"),

@@ -1,11 +1,12 @@
 #version 450
+#extension GL_GOOGLE_include_directive : require
 // Glossy shading (src/kernels/srbf/glossy.rs; `GlossyTransfer::shade` is the CPU twin): per
-// vertex, the view direction toward the camera in the vertex's tangent frame (Duff et al.
-// 2017, built from the normal alone), clamped onto the horizon below it, mapped to the
-// parabolic disk p = (x, y) / (1 + z) and looked up bilinearly in the N x N view grid; the
-// radiance is B = albedo * sum_taps w_t (T_v[j_t] . c), T_v[j] the vertex's transfer row
-// toward node j (K floats, rows vertex-major) and c the lighting coefficients of pass
-// `srbf lighting` (a uniform buffer read at uniform indices).
+// vertex, the view's four bilinear taps (view.glsl) and the radiance B = albedo * sum_j
+// g_j (T_v[j] . c), T_v[j] the vertex's transfer row j (K floats, rows vertex-major) and c
+// the lighting coefficients of pass `srbf lighting` (a uniform buffer read at uniform
+// indices). With a view grid (terms = 0) the rows are the N x N view nodes and g the taps'
+// weights on their four rows; with the BRDF's factorisation (terms = m) the rows are its m
+// terms and g_j = sum_taps w_t G[j_t, j], G the factor table (N^2 x m).
 layout(local_size_x = 64) in;
 
 layout(push_constant) uniform Push {
@@ -14,6 +15,7 @@ layout(push_constant) uniform Push {
     uint vertices;
     uint grid;     // N
     uint basis;    // K
+    uint terms;    // m, 0 for a view grid
 } pc;
 
 layout(std430, set = 0, binding = 0) readonly buffer Rows { float t[]; } rows;
@@ -22,39 +24,38 @@ layout(std430, set = 0, binding = 2) readonly buffer Normals { vec4 v[]; } norma
 const uint MAX_BASIS = 1024u;
 layout(std140, set = 0, binding = 3) uniform Coeffs { vec4 v[MAX_BASIS]; } coeffs;
 layout(std430, set = 0, binding = 4) writeonly buffer Radiance { vec4 v[]; } radiance;
+layout(std430, set = 0, binding = 5) readonly buffer Table { float g[]; } table;
+
+#include "view.glsl"
+
+vec3 row_dot(uint base) {
+    vec3 r = vec3(0.0);
+    for (uint k = 0u; k < pc.basis; k++) {
+        r += rows.t[base + k] * coeffs.v[k].rgb;
+    }
+    return r;
+}
 
 void main() {
     uint v = gl_GlobalInvocationID.x;
     if (v >= pc.vertices) return;
-    vec3 x = points.v[v].xyz;
-    vec3 n = normals.v[v].xyz;
-    float sgn = n.z >= 0.0 ? 1.0 : -1.0;
-    float a = -1.0 / (sgn + n.z);
-    float b = n.x * n.y * a;
-    vec3 t = vec3(1.0 + sgn * n.x * n.x * a, sgn * b, -sgn * n.x);
-    vec3 bt = vec3(b, sgn + n.y * n.y * a, -n.y);
-    vec3 o = pc.camera.xyz - x;
-    if (dot(o, o) == 0.0) o = n;
-    vec3 l = vec3(dot(t, o), dot(bt, o), max(dot(n, o), 0.0));
-    if (l.x == 0.0 && l.y == 0.0 && l.z == 0.0) l = vec3(1.0, 0.0, 0.0);
-    l = normalize(l);
-    float s = float(pc.grid - 1u);
-    vec2 p = l.xy / (1.0 + l.z);
-    vec2 u = clamp((p + 1.0) * 0.5 * s, vec2(0.0), vec2(s));
-    uvec2 c = min(uvec2(floor(u)), uvec2(pc.grid - 2u));
-    vec2 f = u - vec2(c);
-    uint views = pc.grid * pc.grid;
-    uint j00 = c.y * pc.grid + c.x;
-    uint idx[4] = uint[4](j00, j00 + 1u, j00 + pc.grid, j00 + pc.grid + 1u);
-    float w[4] = float[4]((1.0 - f.x) * (1.0 - f.y), f.x * (1.0 - f.y), (1.0 - f.x) * f.y, f.x * f.y);
+    uint idx[4];
+    float w[4];
+    view_taps(points.v[v].xyz, normals.v[v].xyz, pc.camera.xyz, pc.grid, idx, w);
     vec3 sum = vec3(0.0);
-    for (uint tap = 0u; tap < 4u; tap++) {
-        uint base = (v * views + idx[tap]) * pc.basis;
-        vec3 r = vec3(0.0);
-        for (uint k = 0u; k < pc.basis; k++) {
-            r += rows.t[base + k] * coeffs.v[k].rgb;
+    if (pc.terms == 0u) {
+        uint views = pc.grid * pc.grid;
+        for (uint tap = 0u; tap < 4u; tap++) {
+            sum += w[tap] * row_dot((v * views + idx[tap]) * pc.basis);
         }
-        sum += w[tap] * r;
+    } else {
+        for (uint j = 0u; j < pc.terms; j++) {
+            float g = 0.0;
+            for (uint tap = 0u; tap < 4u; tap++) {
+                g += w[tap] * table.g[idx[tap] * pc.terms + j];
+            }
+            sum += g * row_dot((v * pc.terms + j) * pc.basis);
+        }
     }
     radiance.v[v] = vec4(pc.albedo.rgb * sum, 1.0);
 }

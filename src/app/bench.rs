@@ -6,6 +6,7 @@ use super::{Gpu, finish, progress};
 use crate::bench::{self, BenchConfig};
 use crate::error::{Error, Result};
 use crate::kernels::btf::gpu::Texture;
+use crate::kernels::srbf::glossy::{DEFAULT_VIEW, ViewSpec};
 use std::path::{Path, PathBuf};
 
 /// The subcommands of `vkshade bench`.
@@ -460,18 +461,21 @@ pub struct CompareArgs {
     /// --compare: clusters of both methods.
     #[arg(long, default_value_t = 16)]
     pub clusters: usize,
-    /// --compare: side of the glossy view grid (6: 36 views, so that the uncompressed
-    /// Testwuson transfer fits one storage buffer on lavapipe).
-    #[arg(long, default_value_t = 6)]
-    pub views: u32,
+    /// --compare: the glossy view basis, M terms of the BRDF's factorisation (default 24:
+    /// the uncompressed Testwuson transfer, 79 MB, fits one storage buffer on lavapipe).
+    #[arg(long, conflicts_with = "views")]
+    pub terms: Option<usize>,
+    /// --compare: the glossy view basis, an N x N view grid instead of --terms.
+    #[arg(long)]
+    pub views: Option<u32>,
     /// --compare: width of the map the truth integrates, or `full` (its own resolution).
     #[arg(long, default_value = "256")]
     pub truth_width: String,
     /// --compare: CTA's view rank (glossy).
-    #[arg(long, default_value_t = 8)]
+    #[arg(long, default_value_t = 24)]
     pub cta_view_rank: usize,
     /// --compare: CTA's light rank (glossy).
-    #[arg(long, default_value_t = 16)]
+    #[arg(long, default_value_t = 32)]
     pub cta_light_rank: usize,
     /// --compare: only diffuse or only glossy (default both).
     #[arg(long)]
@@ -509,7 +513,11 @@ fn srbf_compare(gpu: &Gpu, opts: &Opts, a: &CompareArgs) -> Result<()> {
         bench: opts.config()?,
         bytes: a.bytes.clone(),
         clusters: a.clusters,
-        views: a.views,
+        view: match (a.views, a.terms) {
+            (Some(n), _) => ViewSpec::Grid(n),
+            (None, Some(m)) => ViewSpec::Brdf(m),
+            (None, None) => DEFAULT_VIEW,
+        },
         cta_view_rank: a.cta_view_rank,
         cta_light_rank: a.cta_light_rank,
         truth_width,

@@ -17,7 +17,7 @@ use crate::kernels::srbf::cta_gpu::{
 };
 use crate::kernels::srbf::diffuse_transfer;
 use crate::kernels::srbf::fit::{FitConfig, fit};
-use crate::kernels::srbf::glossy::{GlossyTransfer, ViewGrid};
+use crate::kernels::srbf::glossy::{DEFAULT_VIEW, GlossyTransfer, ViewBasis, ViewSpec};
 use crate::kernels::srbf::glossy_gpu::{GlossyFrame, GlossyInputs, GlossyKernel, PASS_GLOSSY};
 use crate::kernels::srbf::gpu::{
     CompactInputs, PASS_LIGHTING, PASS_PROJECT, PASS_SHADE, PASS_SHARP, SrbfFrame, SrbfInputs,
@@ -130,12 +130,12 @@ pub struct ShadeConfig {
     /// visibility grid's texel holding their axis ([`crate::kernels::srbf::sharp`]).
     pub sun: SunMode,
     /// The surface's BRDF; a glossy one shades toward `camera` through per-vertex transfer
-    /// matrices over a `views` x `views` view grid ([`crate::kernels::srbf::glossy`]).
+    /// matrices over the view basis `view` ([`crate::kernels::srbf::glossy`]).
     pub brdf: Brdf,
     /// The camera position in model units (glossy only); `None`: the default camera,
     /// [`default_camera`].
     pub camera: Option<Vec3>,
-    pub views: u32,
+    pub view: ViewSpec,
     /// Glossy: compress the transfer by clustered tensor approximation with these settings
     /// ([`crate::kernels::srbf::cta`]) and shade it with the CTA kernel; `None`: uncompressed.
     pub cta: Option<CtaConfig>,
@@ -174,7 +174,7 @@ impl Default for ShadeConfig {
             sun: SunMode::Grid,
             brdf: Brdf::Diffuse,
             camera: None,
-            views: 12,
+            view: DEFAULT_VIEW,
             cta: None,
         }
     }
@@ -268,9 +268,9 @@ impl ShadeConfig {
             );
         }
         if self.brdf.is_glossy() {
-            ViewGrid { n: self.views }
+            self.view
                 .check()
-                .map_err(|e| Error::InvalidArgument(format!("--views: {e}")))?;
+                .map_err(|e| Error::InvalidArgument(format!("--views / --terms: {e}")))?;
         }
         for (name, w) in [
             ("fit width", self.fit_width),
@@ -411,9 +411,12 @@ pub struct ShadeReport {
     /// The BRDF and its parameters.
     pub brdf: Brdf,
     /// Glossy runs: the camera position (model units) every frame is shaded toward, and the
-    /// side N of the N x N view grid of the transfer matrices.
+    /// view basis of the transfer matrices: the side N of an N x N view grid, or the number
+    /// of BRDF terms and their truncation error (relative L2 of the kernel).
     pub camera: Option<[f32; 3]>,
     pub view_grid: Option<u32>,
+    pub view_terms: Option<usize>,
+    pub view_truncation: Option<f64>,
     /// With --reference: the map the truth integrated.
     pub reference: Option<ReferenceInfo>,
     pub notes: Vec<String>,
@@ -650,7 +653,7 @@ impl Precomputed {
 /// on the GPU toward the camera and compared with the CPU twin, and with `--reference` with
 /// the glossy brute-force truth over the direction map's texels (the fit's share apart).
 /// Every lobe goes through the basis (no compact lobes on this path). The transfer is
-/// uncompressed: vertices x views^2 x basis f32, refused before the projection when it
+/// uncompressed: vertices x view rows x basis f32, refused before the projection when it
 /// exceeds the device's maxStorageBufferRange.
 fn shade_glossy(
     ctx: &Context,
@@ -659,17 +662,18 @@ fn shade_glossy(
     env: &EnvMap,
     progress: &mut dyn FnMut(&str),
 ) -> Result<ShadeReport> {
-    let grid = ViewGrid { n: cfg.views };
-    let bytes = mesh.positions.len() as u64 * grid.views() as u64 * cfg.basis as u64 * 4;
+    let rows = cfg.view.rows();
+    let bytes = mesh.positions.len() as u64 * rows as u64 * cfg.basis as u64 * 4;
     let limit = ctx.limits().max_storage_buffer_range;
     if bytes > limit && cfg.cta.is_none() {
         return Err(Error::InvalidArgument(format!(
-            "glossy transfer of {}: {} vertices x {} views x {} basis functions = {bytes} bytes \
-             uncompressed; the device's storage buffers hold {limit} (maxStorageBufferRange): \
-             use --cta, fewer --views or --basis, or a smaller mesh",
+            "glossy transfer of {}: {} vertices x {} view rows x {} basis functions = {bytes} \
+             bytes uncompressed; the device's storage buffers hold {limit} \
+             (maxStorageBufferRange): use --cta, fewer --terms / --views or --basis, or a \
+             smaller mesh",
             cfg.mesh.display(),
             mesh.positions.len(),
-            grid.views(),
+            rows,
             cfg.basis
         )));
     }
@@ -687,16 +691,23 @@ fn shade_glossy(
         "fit {} lobes to {}x{}: relative L2 {:.4} ({fit_ms:.0} ms)",
         cfg.lobes, fit_env.width, fit_env.height, fitted.rel_l2
     ));
+    let t = Instant::now();
+    let view = cfg.view.build(&cfg.brdf)?;
+    progress(&format!(
+        "view basis: {} ({:.0} ms)",
+        view.describe(),
+        t.elapsed().as_secs_f64() * 1e3
+    ));
     let dir_env = env.downsampled(cfg.direction_width.min(env.width))?;
     let vis = crate::scene::envmap::texel_visibility(mesh, &dir_env);
     let path = cfg.out.join("glossy.bin");
     let key = format!(
-        "glossy {} {} {} {} {} {:?} {}",
+        "glossy {} {} {} {} {:016x} {:?} {}",
         cfg.mesh.display(),
         mesh.positions.len(),
         cfg.basis,
         dir_env.width,
-        grid.n,
+        view.fingerprint(),
         cfg.brdf,
         std::fs::metadata(&cfg.mesh)
             .and_then(|m| m.modified())
@@ -707,7 +718,7 @@ fn shade_glossy(
     let wrap = |rows: Transfer| GlossyTransfer {
         rows,
         vertices,
-        grid,
+        view: view.clone(),
         brdf: cfg.brdf,
     };
     let (transfer, transfer_cached, transfer_ms) = cached(
@@ -723,7 +734,7 @@ fn shade_glossy(
             crate::kernels::srbf::glossy_transfer(
                 &Basis::fibonacci(cfg.basis),
                 &cfg.brdf,
-                grid,
+                &view,
                 &dir_env,
                 &mesh.normals,
                 &vis,
@@ -732,8 +743,9 @@ fn shade_glossy(
         |t| t.rows.save(&path),
     )?;
     progress(&format!(
-        "glossy transfer: {} views x {} basis SGs per vertex, projection relative L2 ~{:.4}{}",
-        grid.views(),
+        "glossy transfer: {} view rows x {} basis SGs per vertex, projection relative L2 \
+         ~{:.4}{}",
+        rows,
         cfg.basis,
         transfer.rows.projection_rel_l2,
         cost(transfer_cached, transfer_ms)
@@ -748,12 +760,21 @@ fn shade_glossy(
     let (cta, cta_ms) = match &cfg.cta {
         None => (None, 0.0),
         Some(c) => {
+            let mut c = *c;
+            if c.ranks[1] > rows {
+                progress(&format!(
+                    "CTA: view rank {} capped at the view basis' {rows} rows",
+                    c.ranks[1]
+                ));
+                c.ranks[1] = rows;
+            }
+            let c = &c;
             let t0 = Instant::now();
             let cta = Cta::compress(
                 &transfer.rows.basis,
                 &transfer.rows.coeffs,
                 vertices,
-                grid.views(),
+                rows,
                 c,
             )?;
             let ms = t0.elapsed().as_secs_f64() * 1e3;
@@ -769,7 +790,7 @@ fn shade_glossy(
     let cta_inputs = cta.as_ref().map(|t| CtaInputs {
         lobes: &fitted.lobes,
         transfer: t,
-        grid,
+        view: &view,
         positions: &mesh.positions,
         normals: &mesh.normals,
     });
@@ -958,7 +979,15 @@ fn shade_glossy(
         fps: 1000.0 / (lighting + shade_ms),
         brdf: cfg.brdf,
         camera: Some(camera.to_array()),
-        view_grid: Some(grid.n),
+        view_grid: match &view {
+            ViewBasis::Grid(g) => Some(g.n),
+            ViewBasis::Brdf(_) => None,
+        },
+        view_terms: (view.terms() > 0).then_some(view.terms()),
+        view_truncation: match &view {
+            ViewBasis::Grid(_) => None,
+            ViewBasis::Brdf(f) => Some(f.truncation),
+        },
         reference: cfg
             .reference
             .then(|| reference_info(cfg.reference_width, truth_env, env, &truth_ms)),
@@ -1200,6 +1229,8 @@ impl<'a> Session<'a> {
             brdf: Brdf::Diffuse,
             camera: None,
             view_grid: None,
+            view_terms: None,
+            view_truncation: None,
             reference: cfg.reference.then(|| {
                 reference_info(
                     cfg.reference_width,
@@ -1611,7 +1642,7 @@ pub struct ShadeArgs {
     pub hdr: super::Hdr,
     /// The surface's BRDF: diffuse, or phong (kd / pi + ks (n + 2) / (2 pi) cos^n of the
     /// angle to the mirror direction; --exponent, --kd, --ks): glossy, shaded toward
-    /// --camera through per-vertex transfer matrices over a --views x --views view grid.
+    /// --camera through per-vertex transfer matrices over a view basis (--terms or --views).
     #[arg(long, value_enum, default_value_t = BrdfKind::Diffuse)]
     pub brdf: BrdfKind,
     /// Phong exponent n.
@@ -1627,9 +1658,14 @@ pub struct ShadeArgs {
     /// along +Z from the box's centre).
     #[arg(long, value_delimiter = ',', allow_negative_numbers = true)]
     pub camera: Option<Vec<f32>>,
-    /// Side N of the N x N parabolic view grid of the glossy transfer.
-    #[arg(long, default_value_t = 12)]
-    pub views: u32,
+    /// Glossy view basis: the first M terms of the BRDF's separable factorisation (SVD of
+    /// rho cos over view and light hemispheres; default 24).
+    #[arg(long, conflicts_with = "views")]
+    pub terms: Option<usize>,
+    /// Glossy view basis: an N x N parabolic grid of view directions, interpolated
+    /// bilinearly (instead of --terms).
+    #[arg(long)]
+    pub views: Option<u32>,
     /// Glossy: compress the transfer by clustered tensor approximation (Tsai and Shih 2006)
     /// and reconstruct it per vertex on the GPU each frame.
     #[arg(long)]
@@ -1637,8 +1673,9 @@ pub struct ShadeArgs {
     /// CTA clusters.
     #[arg(long, default_value_t = 64)]
     pub cta_clusters: usize,
-    /// CTA core ranks VERTEX,VIEW,LIGHT.
-    #[arg(long, value_delimiter = ',', default_values_t = [8usize, 8, 16])]
+    /// CTA core ranks VERTEX,VIEW,LIGHT (the view rank is capped at the view basis' rows:
+    /// 24 keeps every BRDF term of the default basis).
+    #[arg(long, value_delimiter = ',', default_values_t = [8usize, 24, 32])]
     pub cta_ranks: Vec<usize>,
     /// CTA reassignment + refit rounds.
     #[arg(long, default_value_t = 2)]
@@ -1747,7 +1784,11 @@ impl ShadeArgs {
                     || Error::InvalidArgument("--camera takes three values X,Y,Z".into()),
                 )?)),
             },
-            views: self.views,
+            view: match (self.views, self.terms) {
+                (Some(n), _) => ViewSpec::Grid(n),
+                (None, Some(m)) => ViewSpec::Brdf(m),
+                (None, None) => DEFAULT_VIEW,
+            },
             cta: if self.cta {
                 Some(CtaConfig {
                     clusters: self.cta_clusters,
@@ -1799,10 +1840,17 @@ pub fn display(r: &ShadeReport, cfg: &ShadeConfig) {
         r.transfer_rel_l2,
         r.cpca_rel_l2
     );
-    if let (Some(c), Some(n)) = (r.camera, r.view_grid) {
+    if let Some(c) = r.camera {
+        let basis = match (r.view_grid, r.view_terms) {
+            (Some(n), _) => format!("a {n} x {n} view grid"),
+            (None, Some(m)) => format!(
+                "{m} BRDF terms (truncation {:.4})",
+                r.view_truncation.unwrap_or(f64::NAN)
+            ),
+            (None, None) => "?".into(),
+        };
         println!(
-            "glossy {:?}: shaded toward the camera at {c:?} (model units) through a {n} x {n} \
-             view grid",
+            "glossy {:?}: shaded toward the camera at {c:?} (model units) through {basis}",
             r.brdf
         );
     }

@@ -31,7 +31,7 @@ use crate::kernels::srbf::cpca_matrix::MatrixCpca;
 use crate::kernels::srbf::cta::{Cta, CtaConfig};
 use crate::kernels::srbf::cta_gpu::{CtaInputs, CtaKernel};
 use crate::kernels::srbf::fit::{FitConfig, fit};
-use crate::kernels::srbf::glossy::{GlossyTransfer, ViewGrid};
+use crate::kernels::srbf::glossy::{DEFAULT_VIEW, GlossyTransfer, ViewSpec};
 use crate::kernels::srbf::glossy_gpu::{GlossyFrame, GlossyInputs, GlossyKernel};
 use crate::kernels::srbf::gpu::{SrbfFrame, SrbfInputs};
 use crate::kernels::srbf::transfer::{Basis, Transfer, lighting_coefficients};
@@ -57,8 +57,8 @@ pub struct CompareConfig {
     pub direction_width: u32,
     /// Width of the map the truth integrates (`None`: the map's own resolution).
     pub truth_width: Option<u32>,
-    /// Side of the glossy view grid.
-    pub views: u32,
+    /// The glossy view basis.
+    pub view: ViewSpec,
     pub brdf: Brdf,
     /// Storage points: bytes of transfer streamed per vertex (cluster id included).
     pub bytes: Vec<usize>,
@@ -88,7 +88,7 @@ impl Default for CompareConfig {
             fit_width: 128,
             direction_width: 64,
             truth_width: Some(256),
-            views: 6,
+            view: DEFAULT_VIEW,
             brdf: Brdf::Phong {
                 exponent: 8.0,
                 diffuse: 0.3,
@@ -96,8 +96,8 @@ impl Default for CompareConfig {
             },
             bytes: vec![20, 36, 68, 132],
             clusters: 16,
-            cta_view_rank: 8,
-            cta_light_rank: 16,
+            cta_view_rank: 24,
+            cta_light_rank: 32,
             cta_iterations: 2,
             rotations: vec![([0.0, 1.0, 0.0], 40.0), ([1.0, 0.0, 0.0], 25.0)],
             diffuse: true,
@@ -124,7 +124,7 @@ impl CompareConfig {
         if !(self.diffuse || self.glossy) {
             return bad("nothing to compare (diffuse and glossy both off)".into());
         }
-        ViewGrid { n: self.views }.check()?;
+        self.view.check()?;
         self.brdf.check()?;
         if !self.brdf.is_glossy() {
             return bad("the glossy BRDF must be glossy".into());
@@ -479,21 +479,22 @@ pub fn run(
         }
     }
     if cfg.glossy {
-        let grid = ViewGrid { n: cfg.views };
-        let views = grid.views();
+        let view = cfg.view.build(&cfg.brdf)?;
+        let views = view.views();
         let (rows, cached, ms) = cached_transfer(
             &cfg.out,
             "glossy",
-            key(format!("glossy {} {:?}", cfg.views, cfg.brdf)),
+            key(format!("glossy {:016x} {:?}", view.fingerprint(), cfg.brdf)),
             nv * views,
             cfg.basis,
             || {
-                glossy_transfer(&basis, &cfg.brdf, grid, &dir_env, &mesh.normals, &vis)
+                glossy_transfer(&basis, &cfg.brdf, &view, &dir_env, &mesh.normals, &vis)
                     .map(|g| g.rows)
             },
         )?;
         progress(&format!(
-            "glossy transfer, {views} views{}",
+            "glossy transfer, {}{}",
+            view.describe(),
             if cached {
                 " (cached)".to_string()
             } else {
@@ -503,7 +504,7 @@ pub fn run(
         let transfer = GlossyTransfer {
             rows,
             vertices: nv,
-            grid,
+            view: view.clone(),
             brdf: cfg.brdf,
         };
         transfer.check()?;
@@ -595,7 +596,7 @@ pub fn run(
                 let coeffs = lighting_coefficients(lobes, rotation, &basis);
                 c.shade(
                     &coeffs,
-                    grid,
+                    &view,
                     &mesh.positions,
                     &mesh.normals,
                     camera,
@@ -643,7 +644,7 @@ pub fn run(
             let inputs = CtaInputs {
                 lobes,
                 transfer: &cta,
-                grid,
+                view: &view,
                 positions: &mesh.positions,
                 normals: &mesh.normals,
             };

@@ -13,7 +13,7 @@
 //! 9,216 at 36 views x 256 functions).
 
 use super::cpca::{CpcaConfig, dist2, kmeans};
-use super::glossy::{ViewGrid, local_view};
+use super::glossy::{ViewBasis, local_view};
 use super::transfer::Basis;
 use crate::error::{Error, Result};
 use crate::geom::Rng;
@@ -376,7 +376,7 @@ impl MatrixCpca {
     pub fn shade(
         &self,
         coeffs: &[[f32; 3]],
-        grid: ViewGrid,
+        view: &ViewBasis,
         positions: &[Vec3],
         normals: &[Vec3],
         camera: Vec3,
@@ -384,16 +384,15 @@ impl MatrixCpca {
     ) -> Result<Vec<[f64; 3]>> {
         let k = self.basis.len();
         if coeffs.len() != k
-            || grid.views() != self.views
+            || view.views() != self.views
             || positions.len() != self.vertices
             || normals.len() != self.vertices
         {
             return Err(Error::InvalidArgument(format!(
-                "matrix CPCA shade: {} coefficients, a {} x {} grid, {} positions, {} normals \
-                 for {} vertices x {} views x {k}",
+                "matrix CPCA shade: {} coefficients, a view basis of {} rows, {} positions, {} \
+                 normals for {} vertices x {} views x {k}",
                 coeffs.len(),
-                grid.n,
-                grid.n,
+                view.views(),
                 positions.len(),
                 normals.len(),
                 self.vertices,
@@ -422,7 +421,7 @@ impl MatrixCpca {
                 let p = &projected[c * (m + 1) * views..(c + 1) * (m + 1) * views];
                 let w = &self.weights[v * m..(v + 1) * m];
                 let mut out = [0f64; 3];
-                for (j, tw) in grid.taps(local_view(positions[v], normals[v], camera)) {
+                for (j, tw) in view.weights(local_view(positions[v], normals[v], camera)) {
                     for ch in 0..3 {
                         let mut s = p[j][ch];
                         for i in 0..m {

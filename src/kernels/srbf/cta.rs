@@ -51,7 +51,7 @@ impl Default for CtaConfig {
     fn default() -> Self {
         CtaConfig {
             clusters: 64,
-            ranks: [8, 8, 16],
+            ranks: [8, 24, 32],
             iterations: 3,
             sweeps: 2,
             seed: 1,

@@ -6,7 +6,7 @@
 //! twin of the four.
 
 use super::cta::Cta;
-use super::glossy::{ViewGrid, local_view};
+use super::glossy::{ViewBasis, local_view};
 use super::glossy_gpu::GlossyFrame;
 use super::pack::MAX_BASIS;
 use crate::error::{Error, Result};
@@ -28,11 +28,11 @@ pub const PASS_CTA_SHADE: &str = "srbf cta shade";
 /// The largest view rank `srbf cta shade` holds (its local array).
 pub const MAX_VIEW_RANK: usize = 32;
 
-/// What the CTA kernel is built from: the transfer's views are the nodes of `grid`.
+/// What the CTA kernel is built from: the transfer's view rows are those of `view`.
 pub struct CtaInputs<'a> {
     pub lobes: &'a [Lobe],
     pub transfer: &'a Cta,
-    pub grid: ViewGrid,
+    pub view: &'a ViewBasis,
     pub positions: &'a [Vec3],
     pub normals: &'a [Vec3],
 }
@@ -49,18 +49,25 @@ impl CtaInputs<'_> {
         }
         let t = self.transfer;
         t.check()?;
-        self.grid.check()?;
-        if t.views != self.grid.views() {
+        self.view.check()?;
+        if t.views != self.view.views() {
             return bad(format!(
-                "a transfer of {} views for a {} x {} view grid",
-                t.views, self.grid.n, self.grid.n
+                "a transfer of {} view rows for a view basis of {} ({})",
+                t.views,
+                self.view.views(),
+                self.view.describe()
             ));
         }
-        if t.basis.len() > MAX_BASIS || t.ranks[1] > MAX_VIEW_RANK {
+        // The shader's view row: r_w, or the m terms a factored basis folds in.
+        let rw = match self.view {
+            ViewBasis::Grid(_) => t.ranks[1],
+            ViewBasis::Brdf(f) => f.terms,
+        };
+        if t.basis.len() > MAX_BASIS || rw > MAX_VIEW_RANK {
             return bad(format!(
-                "{} basis functions (1..={MAX_BASIS}), view rank {} (1..={MAX_VIEW_RANK})",
+                "{} basis functions (1..={MAX_BASIS}), view rank (or BRDF terms) {rw} \
+                 (1..={MAX_VIEW_RANK})",
                 t.basis.len(),
-                t.ranks[1]
             ));
         }
         if self.positions.len() != t.vertices || self.normals.len() != t.vertices {
@@ -98,8 +105,8 @@ impl CtaInputs<'_> {
             .map(|v| {
                 let c = t.cluster_of[v] as usize;
                 let taps =
-                    self.grid
-                        .taps(local_view(self.positions[v], self.normals[v], frame.camera));
+                    self.view
+                        .weights(local_view(self.positions[v], self.normals[v], frame.camera));
                 let mut uw = vec![0f64; rw];
                 for (j, w) in taps {
                     for (b, x) in uw.iter_mut().enumerate() {
@@ -122,6 +129,44 @@ impl CtaInputs<'_> {
     }
 }
 
+/// What `srbf cta project` and `srbf cta shade` read for a view basis: (cores, view table,
+/// view rank, whether the table is shared by all clusters). A view grid's are the model's
+/// own (C cores of r_v x r_w x r_l, C view factors of N^2 x r_w). For the BRDF's
+/// factorisation the view factor is folded into the core once here,
+/// G'_c[a, j, l] = sum_b G_c[a, b, l] W_c[j, b] (r_w becomes m), and the view table is the
+/// factor table g_j(o) that every cluster shares: a vertex's view lookup then reads 4 m values
+/// of one 48 x 48 x m table instead of a per-cluster table (expanded at the nodes it would be
+/// 14 MB for 64 clusters at m = r_w = 24, and its gathers missed the cache: 22 ms a frame on
+/// the bunny). The result is what the CPU twin computes, summed in another order.
+fn gpu_view_model(t: &Cta, view: &ViewBasis) -> (Vec<f32>, Vec<f32>, usize, bool) {
+    let [rv, rw, rl] = t.ranks;
+    match view {
+        ViewBasis::Grid(_) => (t.cores.clone(), t.view_factors.clone(), rw, false),
+        ViewBasis::Brdf(f) => {
+            let m = f.terms;
+            let mut cores = vec![0f32; t.clusters * rv * m * rl];
+            cores
+                .par_chunks_mut(rv * m * rl)
+                .enumerate()
+                .for_each(|(c, out)| {
+                    let g = &t.cores[c * rv * rw * rl..(c + 1) * rv * rw * rl];
+                    let w = &t.view_factors[c * m * rw..(c + 1) * m * rw];
+                    for a in 0..rv {
+                        for j in 0..m {
+                            for l in 0..rl {
+                                out[(a * m + j) * rl + l] = (0..rw)
+                                    .map(|b| g[(a * rw + b) * rl + l] as f64 * w[j * rw + b] as f64)
+                                    .sum::<f64>()
+                                    as f32;
+                            }
+                        }
+                    }
+                });
+            (cores, f.view.clone(), m, true)
+        }
+    }
+}
+
 /// The GPU kernel of CTA-compressed glossy transfer.
 pub struct CtaKernel {
     ctx: Context,
@@ -129,7 +174,9 @@ pub struct CtaKernel {
     buffers: Vec<Buffer>,
     vertices: u32,
     grid: u32,
+    /// (r_v, r_w, r_l) as the GPU holds them (r_w = m for a factored view basis).
     ranks: [u32; 3],
+    shared: u32,
     clusters: u32,
     basis: u32,
     lobes: u32,
@@ -144,7 +191,8 @@ impl CtaKernel {
         inputs.check()?;
         let ctx = rec.context();
         let t = inputs.transfer;
-        let [rv, rw, rl] = t.ranks;
+        let (cores, view_table, rw, shared) = gpu_view_model(t, inputs.view);
+        let [rv, _, rl] = t.ranks;
         fn storage<T: bytemuck::Pod>(rec: &mut Recorder, name: &str, data: &[T]) -> Result<Buffer> {
             let bytes: &[u8] = bytemuck::cast_slice(data);
             rec.buffer_with(name, BufferDesc::storage(bytes.len() as u64), bytes)
@@ -173,6 +221,21 @@ impl CtaKernel {
             .iter()
             .map(|l| [l.amplitude[0], l.amplitude[1], l.amplitude[2], 0.0])
             .collect();
+        // The shading order: by cluster, then along a Morton curve of the positions.
+        let morton = crate::geom::spatial_order(inputs.positions);
+        let mut order = morton.clone();
+        order.sort_by_key(|&v| t.cluster_of[v as usize]);
+        let gather = |rows: &[f32], width: usize| -> Vec<f32> {
+            order
+                .iter()
+                .flat_map(|&v| {
+                    rows[v as usize * width..(v as usize + 1) * width]
+                        .iter()
+                        .copied()
+                })
+                .collect()
+        };
+        let sorted = |v: &[Vec3]| -> Vec<Vec3> { order.iter().map(|&i| v[i as usize]).collect() };
         let buffers = vec![
             radiance,
             storage(rec, "srbf cta lobe axes", &lobe_axes)?,
@@ -186,13 +249,21 @@ impl CtaKernel {
             )?,
             storage(rec, "srbf cta light factors", &t.light_factors)?,
             zeros(rec, "srbf cta projected light", t.clusters * rl)?,
-            storage(rec, "srbf cta cores", &t.cores)?,
+            storage(rec, "srbf cta cores", &cores)?,
             zeros(rec, "srbf cta cluster tables", t.clusters * rv * rw)?,
-            storage(rec, "srbf cta vertex coefficients", &t.coeffs)?,
-            storage(rec, "srbf cta clusters", &t.cluster_of)?,
-            storage(rec, "srbf cta view factors", &t.view_factors)?,
-            storage(rec, "srbf cta positions", &vec4(inputs.positions))?,
-            storage(rec, "srbf cta normals", &vec4(inputs.normals))?,
+            storage(rec, "srbf cta vertex coefficients", &gather(&t.coeffs, rv))?,
+            storage(
+                rec,
+                "srbf cta clusters",
+                &order
+                    .iter()
+                    .map(|&v| t.cluster_of[v as usize])
+                    .collect::<Vec<u32>>(),
+            )?,
+            storage(rec, "srbf cta view factors", &view_table)?,
+            storage(rec, "srbf cta positions", &vec4(&sorted(inputs.positions)))?,
+            storage(rec, "srbf cta normals", &vec4(&sorted(inputs.normals)))?,
+            storage(rec, "srbf cta order", &order)?,
         ];
         let [
             _,
@@ -209,6 +280,7 @@ impl CtaKernel {
             view,
             points,
             normals,
+            shade_order,
         ] = std::array::from_fn(|i| &buffers[i]);
         let (b, w) = (Resource::Buffer, AccessSet::from(A::ComputeShaderWrite));
         let pipeline = |name| crate::shaders::pipeline(&ctx, name);
@@ -242,6 +314,7 @@ impl CtaKernel {
                 ("points", b(points)),
                 ("normals", b(normals)),
                 ("radiance", b(&buffers[RADIANCE])),
+                ("order", b(shade_order)),
             ],
             &[("radiance", w)],
         )?;
@@ -254,8 +327,9 @@ impl CtaKernel {
                 (shade, shade_bind),
             ],
             vertices: t.vertices as u32,
-            grid: inputs.grid.n,
-            ranks: t.ranks.map(|r| r as u32),
+            grid: inputs.view.grid().n,
+            ranks: [rv, rw, rl].map(|r| r as u32),
+            shared: shared as u32,
             clusters: t.clusters as u32,
             basis: t.basis.len() as u32,
             lobes: inputs.lobes.len() as u32,
@@ -309,9 +383,15 @@ impl CtaKernel {
             .iter()
             .flat_map(|x| x.to_le_bytes())
             .chain(
-                [self.vertices, self.grid, self.ranks[0], self.ranks[1]]
-                    .iter()
-                    .flat_map(|x| x.to_le_bytes()),
+                [
+                    self.vertices,
+                    self.grid,
+                    self.ranks[0],
+                    self.ranks[1],
+                    self.shared,
+                ]
+                .iter()
+                .flat_map(|x| x.to_le_bytes()),
             )
             .collect();
         Ok(Dispatch {

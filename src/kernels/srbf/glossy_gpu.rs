@@ -4,7 +4,7 @@
 //! [`GlossyTransfer::shade`] is its CPU twin). Every lobe goes through the basis (no compact
 //! lobes on this path).
 
-use super::glossy::GlossyTransfer;
+use super::glossy::{GlossyTransfer, ViewBasis};
 use super::inputs::SrbfFrame;
 use super::pack::MAX_BASIS;
 use crate::error::{Error, Result};
@@ -108,14 +108,24 @@ impl GlossyInputs<'_> {
     }
 }
 
+/// The view table the shading passes read: a factored basis' g_j at the table's nodes
+/// (N^2 x m), or one unread zero for a view grid (a binding needs a buffer).
+pub(crate) fn view_table(view: &ViewBasis) -> Vec<f32> {
+    match view {
+        ViewBasis::Grid(_) => vec![0.0],
+        ViewBasis::Brdf(f) => f.view.clone(),
+    }
+}
+
 /// The GPU kernel of glossy transfer.
 pub struct GlossyKernel {
     ctx: Context,
     lighting: (ComputePipeline, BindGroup),
     shade: (ComputePipeline, BindGroup),
-    buffers: [Buffer; 8],
+    buffers: [Buffer; 9],
     vertices: u32,
     grid: u32,
+    terms: u32,
     basis: u32,
     lobes: u32,
     sharpness: f32,
@@ -130,6 +140,7 @@ const ROWS: usize = 4;
 const POINTS: usize = 5;
 const NORMALS: usize = 6;
 const RADIANCE: usize = 7;
+const TABLE: usize = 8;
 
 impl GlossyKernel {
     /// Checks `inputs` (and the transfer's size against maxStorageBufferRange), creates the
@@ -186,6 +197,7 @@ impl GlossyKernel {
                 BufferDesc::storage(t.vertices as u64 * 16)
                     .usage(vk::BufferUsageFlags::VERTEX_BUFFER),
             )?,
+            storage(rec, "srbf glossy view table", &view_table(&t.view))?,
         ];
         let lighting = crate::shaders::pipeline(&ctx, "srbf/lighting")?;
         let shade = crate::shaders::pipeline(&ctx, "srbf/glossy")?;
@@ -206,6 +218,7 @@ impl GlossyKernel {
                 ("normals", b(&buffers[NORMALS])),
                 ("coeffs", b(&buffers[COEFFS])),
                 ("radiance", b(&buffers[RADIANCE])),
+                ("table", b(&buffers[TABLE])),
             ],
             &[("radiance", w)],
         )?;
@@ -215,7 +228,8 @@ impl GlossyKernel {
             shade: (shade, shade_bind),
             buffers,
             vertices: t.vertices as u32,
-            grid: t.grid.n,
+            grid: t.view.grid().n,
+            terms: t.view.terms() as u32,
             basis: basis.len() as u32,
             lobes: inputs.lobes.len() as u32,
             sharpness: basis.sharpness,
@@ -250,7 +264,7 @@ impl GlossyKernel {
             .iter()
             .flat_map(|x| x.to_le_bytes())
             .chain(
-                [self.vertices, self.grid, self.basis]
+                [self.vertices, self.grid, self.basis, self.terms]
                     .iter()
                     .flat_map(|x| x.to_le_bytes()),
             )

@@ -5,6 +5,7 @@
 //! closed-form SG inner products, shade every vertex. `inputs`: what the kernel is built
 //! from and checks; `pack`: its data as the GPU holds it; `gpu`: the kernel; `cpu`: its twin.
 
+pub mod brdf_factors;
 pub mod cpca;
 pub mod cpca_matrix;
 pub mod cpu;
@@ -46,12 +47,12 @@ pub fn diffuse_transfer(
 }
 
 /// The glossy transfer of a mesh ([`glossy::project`]): V_v(w) rho(w, o_j) max(0, n . w)
-/// for every view node o_j of `grid`, at the texel directions of `dir_env` (those `vis` was
+/// for every row of `view` (a view node o_j, or a term of the BRDF's factorisation), at the texel directions of `dir_env` (those `vis` was
 /// cast for), projected onto `basis`.
 pub fn glossy_transfer(
     basis: &Basis,
     brdf: &crate::geom::brdf::Brdf,
-    grid: glossy::ViewGrid,
+    view: &glossy::ViewBasis,
     dir_env: &EnvMap,
     normals: &[glam::Vec3],
     vis: &Visibility,
@@ -59,7 +60,7 @@ pub fn glossy_transfer(
     let samples = dir_env.samples();
     let directions: Vec<glam::Vec3> = samples.iter().map(|s| s.0).collect();
     let solid_angles: Vec<f64> = samples.iter().map(|s| s.1).collect();
-    glossy::project(basis, brdf, grid, &directions, &solid_angles, normals, vis)
+    glossy::project(basis, brdf, view, &directions, &solid_angles, normals, vis)
 }
 
 /// The built-in mesh of `vkshade srbf shade` and `bench srbf` (Debian package glmark2-data).
