@@ -204,6 +204,69 @@ pub fn orthonormalise(q: &mut [f64], k: usize) {
     }
 }
 
+/// The p leading eigenpairs of a symmetric positive semi-definite operator on R^n by block
+/// subspace iteration and a Rayleigh-Ritz step: `apply` maps p rows of length n (row-major)
+/// to the operator applied to each. The block starts from the rows of `init` (at most p;
+/// e.g. a previous solution) completed by random rows (`seed`), and iterates until the
+/// captured trace changes by at most `tol` or `max_steps` steps. Returns the p Ritz values in
+/// decreasing order and their vectors as p rows of length n, each with its largest entry
+/// positive (a deterministic sign). For such an operator the Ritz values never fall from one
+/// step to the next, so the result captures at least what `init` did.
+pub fn subspace_eigen(
+    n: usize,
+    p: usize,
+    init: &[f64],
+    seed: u64,
+    max_steps: usize,
+    tol: f64,
+    apply: impl Fn(&[f64]) -> Vec<f64>,
+) -> (Vec<f64>, Vec<f64>) {
+    let mut rng = crate::geom::Rng::new(seed);
+    let mut x: Vec<f64> = (0..p * n).map(|_| rng.f32() as f64 - 0.5).collect();
+    let given = (init.len() / n).min(p);
+    x[..given * n].copy_from_slice(&init[..given * n]);
+    orthonormalise(&mut x, n);
+    let mut last = f64::NEG_INFINITY;
+    for _ in 0..max_steps {
+        let mut y = apply(&x);
+        let captured: f64 = x.iter().zip(&y).map(|(u, v)| u * v).sum();
+        orthonormalise(&mut y, n);
+        x = y;
+        if (captured - last).abs() <= tol {
+            break;
+        }
+        last = captured;
+    }
+    let y = apply(&x);
+    let mut t = vec![0f64; p * p];
+    for i in 0..p {
+        for j in 0..p {
+            t[i * p + j] = dot(&x[i * n..(i + 1) * n], &y[j * n..(j + 1) * n]);
+        }
+    }
+    let (vals, vecs) = jacobi_eigen(t, p);
+    let mut order: Vec<usize> = (0..p).collect();
+    order.sort_by(|&i, &j| vals[j].total_cmp(&vals[i]).then(i.cmp(&j)));
+    let mut out = vec![0f64; p * n];
+    for (c, &e) in order.iter().enumerate() {
+        let row = &mut out[c * n..(c + 1) * n];
+        for i in 0..p {
+            let s = vecs[i * p + e];
+            for (o, xv) in row.iter_mut().zip(&x[i * n..(i + 1) * n]) {
+                *o += s * xv;
+            }
+        }
+        let big = row
+            .iter()
+            .cloned()
+            .fold(0f64, |m, v| if v.abs() > m.abs() { v } else { m });
+        if big < 0.0 {
+            row.iter_mut().for_each(|v| *v = -*v);
+        }
+    }
+    (order.iter().map(|&i| vals[i]).collect(), out)
+}
+
 /// Eigen-decomposition of a symmetric n x n matrix by cyclic Jacobi rotations: (eigenvalues,
 /// eigenvectors as columns, row-major).
 pub fn jacobi_eigen(mut a: Vec<f64>, n: usize) -> (Vec<f64>, Vec<f64>) {

@@ -28,9 +28,8 @@
 
 use super::glossy::ViewGrid;
 use crate::error::{Error, Result};
-use crate::geom::Rng;
 use crate::geom::brdf::Brdf;
-use crate::geom::linalg::{jacobi_eigen, orthonormalise};
+use crate::geom::linalg::subspace_eigen;
 use glam::{DVec3, Vec3};
 use rayon::prelude::*;
 
@@ -113,9 +112,6 @@ impl BrdfFactors {
         let total: f64 = a.iter().map(|x| x * x).sum();
         // Block subspace iteration on A A^T: p rows of length `count`.
         let p = (terms + terms / 2 + 8).min(count);
-        let mut rng = Rng::new(0x5eed_b4df);
-        let mut x: Vec<f64> = (0..p * count).map(|_| rng.f32() as f64 - 0.5).collect();
-        orthonormalise(&mut x, count);
         let a = &a;
         let apply = |x: &[f64]| -> Vec<f64> {
             // y = A (A^T x) per row of x.
@@ -139,62 +135,25 @@ impl BrdfFactors {
                 })
                 .collect()
         };
-        let mut last = f64::INFINITY;
-        for _ in 0..200 {
-            let mut y = apply(&x);
-            // The captured energy sum |A^T x_c|^2 = sum x_c . y_c, converging from below.
-            let energy: f64 = x.iter().zip(&y).map(|(a, b)| a * b).sum();
-            orthonormalise(&mut y, count);
-            x = y;
-            if (energy - last).abs() <= 1e-13 * total {
-                break;
-            }
-            last = energy;
-        }
-        // Rayleigh-Ritz: T = X A A^T X^T (p x p), its eigenvectors rotate X.
-        let y = apply(&x);
-        let mut t = vec![0f64; p * p];
-        for r in 0..p {
-            for c in 0..p {
-                t[r * p + c] = x[r * count..(r + 1) * count]
-                    .iter()
-                    .zip(&y[c * count..(c + 1) * count])
-                    .map(|(a, b)| a * b)
-                    .sum();
-            }
-        }
-        let (vals, vecs) = jacobi_eigen(t, p);
-        let mut order: Vec<usize> = (0..p).collect();
-        order.sort_by(|&i, &j| vals[j].total_cmp(&vals[i]).then(i.cmp(&j)));
-        let sigma: Vec<f64> = order.iter().map(|&i| vals[i].max(0.0).sqrt()).collect();
+        // The captured energy sum |A^T x_c|^2 converges from below to sum sigma^2.
+        let (vals, u) = subspace_eigen(count, p, &[], 0x5eed_b4df, 200, 1e-13 * total, apply);
+        let sigma: Vec<f64> = vals.iter().map(|v| v.max(0.0).sqrt()).collect();
         if sigma[0] <= 0.0 {
             return Err(Error::InvalidArgument(
                 "BRDF factorisation: the kernel is zero".into(),
             ));
         }
-        // Right singular vectors v_j = A^T u_j / sigma_j, u_j = sum_r vecs[r][j] x_r.
-        let light_vecs: Vec<Vec<f64>> = order
-            .iter()
+        // Right singular vectors v_j = A^T u_j / sigma_j (u_j's sign: its largest entry
+        // positive).
+        let light_vecs: Vec<Vec<f64>> = u
+            .chunks_exact(count)
             .take(terms)
             .zip(&sigma)
-            .map(|(&e, s)| {
-                let mut u = vec![0f64; count];
-                for r in 0..p {
-                    let c = vecs[r * p + e];
-                    for (ui, xi) in u.iter_mut().zip(&x[r * count..(r + 1) * count]) {
-                        *ui += c * xi;
-                    }
-                }
-                // A deterministic sign: the largest entry positive.
-                let big = u
-                    .iter()
-                    .cloned()
-                    .fold(0f64, |m, v| if v.abs() > m.abs() { v } else { m });
-                let sgn = if big < 0.0 { -1.0 } else { 1.0 };
+            .map(|(u, s)| {
                 let mut v = vec![0f64; count];
                 for (i, ui) in u.iter().enumerate() {
                     for (vl, al) in v.iter_mut().zip(&a[i * count..(i + 1) * count]) {
-                        *vl += sgn * ui * al;
+                        *vl += ui * al;
                     }
                 }
                 v.iter_mut().for_each(|vl| *vl /= s.max(1e-300));
@@ -277,6 +236,7 @@ impl BrdfFactors {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::geom::Rng;
 
     const PHONG8: Brdf = Brdf::Phong {
         exponent: 8.0,

@@ -31,7 +31,7 @@
 use super::transfer::Basis;
 use crate::error::{Error, Result};
 use crate::geom::Rng;
-use crate::geom::linalg::{jacobi_eigen, orthonormalise, solve_upper_transposed};
+use crate::geom::linalg::{jacobi_eigen, orthonormalise, solve_upper_transposed, subspace_eigen};
 use rayon::prelude::*;
 
 /// How to compress.
@@ -201,10 +201,11 @@ impl Data<'_> {
 /// ranks 8 x 32) most of a fit's time; above 64 rows and when r is small against n, the
 /// leading subspace is found by block subspace iteration instead (n^2 (r + 8) per step, to
 /// a relative change of the captured trace below 1e-10, at most 40 steps from a random
-/// start and 12 from a warm one), and only the small Rayleigh-Ritz matrix goes to Jacobi. For a positive semi-definite matrix the Ritz
-/// values of subspace iteration never fall, so a block started from the previous HOOI
-/// step's factor ([`leading_from`]) captures at least what that factor did even when the
-/// step cap ends it early: the fit's error still never increases.
+/// start and 12 from a warm one; [`subspace_eigen`]), and only the small Rayleigh-Ritz matrix
+/// goes to Jacobi. For a positive semi-definite matrix the Ritz values of subspace iteration
+/// never fall, so a block started from the previous HOOI step's factor ([`leading_from`])
+/// captures at least what that factor did even when the step cap ends it early: the fit's
+/// error still never increases.
 fn leading(a: Vec<f64>, n: usize, r: usize) -> (Vec<f64>, Vec<f64>) {
     leading_from(a, n, r, None)
 }
@@ -218,17 +219,13 @@ fn leading_from(a: Vec<f64>, n: usize, r: usize, init: Option<&[f64]>) -> (Vec<f
         return leading_jacobi(a, n, r);
     }
     let warm = init.is_some_and(|i| i.len() == n * r && i.iter().any(|v| *v != 0.0));
-    let mut rng = Rng::new(0x1ead_1e55 ^ n as u64);
-    // X: p rows of length n (orthonormal), the first r from `init` when given.
-    let mut x: Vec<f64> = (0..p * n).map(|_| rng.f32() as f64 - 0.5).collect();
-    if let Some(init) = init.filter(|_| warm) {
-        for c in 0..r {
-            for row in 0..n {
-                x[c * n + row] = init[row * r + c];
-            }
-        }
-    }
-    orthonormalise(&mut x, n);
+    // The warm start as rows.
+    let start: Vec<f64> = match init.filter(|_| warm) {
+        Some(init) => (0..r)
+            .flat_map(|c| (0..n).map(move |row| init[row * r + c]))
+            .collect(),
+        None => Vec::new(),
+    };
     // Y = X A, row i of A read once for all p rows of X (A is n^2 f64: 4.7 MB at n = 768,
     // so one pass per row of X would stream it p times).
     let apply = |x: &[f64]| -> Vec<f64> {
@@ -246,51 +243,22 @@ fn leading_from(a: Vec<f64>, n: usize, r: usize, init: Option<&[f64]>) -> (Vec<f
         y
     };
     let trace: f64 = (0..n).map(|i| a[i * n + i].abs()).sum::<f64>().max(1e-300);
-    let mut last = f64::NEG_INFINITY;
-    for _ in 0..if warm { 12 } else { 40 } {
-        let mut y = apply(&x);
-        let captured: f64 = x.iter().zip(&y).map(|(u, v)| u * v).sum();
-        orthonormalise(&mut y, n);
-        x = y;
-        if (captured - last).abs() <= 1e-10 * trace {
-            break;
-        }
-        last = captured;
-    }
-    // Rayleigh-Ritz on X A X^T.
-    let y = apply(&x);
-    let mut t = vec![0f64; p * p];
-    for i in 0..p {
-        for j in 0..p {
-            t[i * p + j] = x[i * n..(i + 1) * n]
-                .iter()
-                .zip(&y[j * n..(j + 1) * n])
-                .map(|(u, v)| u * v)
-                .sum();
-        }
-    }
-    let (small, vals) = leading_jacobi(t, p, r);
-    // Columns of the result: sum_i small[i][c] x_i.
+    let (vals, rows) = subspace_eigen(
+        n,
+        p,
+        &start,
+        0x1ead_1e55 ^ n as u64,
+        if warm { 12 } else { 40 },
+        1e-10 * trace,
+        apply,
+    );
     let mut out = vec![0f64; n * r];
     for c in 0..r {
-        let mut col = vec![0f64; n];
-        for i in 0..p {
-            let s = small[i * r + c];
-            for (o, xv) in col.iter_mut().zip(&x[i * n..(i + 1) * n]) {
-                *o += s * xv;
-            }
-        }
-        // The deterministic sign of leading_jacobi: the largest entry positive.
-        let big = col
-            .iter()
-            .cloned()
-            .fold(0f64, |m, v| if v.abs() > m.abs() { v } else { m });
-        let sgn = if big < 0.0 { -1.0 } else { 1.0 };
-        for (row, v) in col.iter().enumerate() {
-            out[row * r + c] = sgn * v;
+        for row in 0..n {
+            out[row * r + c] = rows[c * n + row];
         }
     }
-    (out, vals)
+    (out, vals[..r].iter().map(|v| v.max(0.0)).collect())
 }
 
 /// [`leading`] by a full Jacobi eigen-decomposition.
