@@ -686,6 +686,10 @@ fn srbf_glossy_and_cta_write_their_report_and_refuse_bad_input() {
         (&["--brdf", "phong", "--views", "1"][..], "--views"),
         (&["--brdf", "phong", "--terms", "0"][..], "--terms"),
         (
+            &["--brdf", "phong", "--terms", "40", "--cta"][..],
+            "at most 32 BRDF terms",
+        ),
+        (
             &["--brdf", "phong", "--terms", "8", "--views", "6"][..],
             "cannot be used with",
         ),

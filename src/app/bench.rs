@@ -6,7 +6,7 @@ use super::{Gpu, finish, progress};
 use crate::bench::{self, BenchConfig};
 use crate::error::{Error, Result};
 use crate::kernels::btf::gpu::Texture;
-use crate::kernels::srbf::glossy::{DEFAULT_VIEW, ViewSpec};
+use crate::kernels::srbf::glossy::ViewSpec;
 use std::path::{Path, PathBuf};
 
 /// The subcommands of `vkshade bench`.
@@ -513,11 +513,7 @@ fn srbf_compare(gpu: &Gpu, opts: &Opts, a: &CompareArgs) -> Result<()> {
         bench: opts.config()?,
         bytes: a.bytes.clone(),
         clusters: a.clusters,
-        view: match (a.views, a.terms) {
-            (Some(n), _) => ViewSpec::Grid(n),
-            (None, Some(m)) => ViewSpec::Brdf(m),
-            (None, None) => DEFAULT_VIEW,
-        },
+        view: ViewSpec::from_args(a.views, a.terms),
         cta_view_rank: a.cta_view_rank,
         cta_light_rank: a.cta_light_rank,
         truth_width,

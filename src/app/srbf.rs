@@ -271,6 +271,9 @@ impl ShadeConfig {
             self.view
                 .check()
                 .map_err(|e| Error::InvalidArgument(format!("--views / --terms: {e}")))?;
+            if self.cta.is_some() {
+                self.view.check_for_cta()?;
+            }
         }
         for (name, w) in [
             ("fit width", self.fit_width),
@@ -1784,11 +1787,7 @@ impl ShadeArgs {
                     || Error::InvalidArgument("--camera takes three values X,Y,Z".into()),
                 )?)),
             },
-            view: match (self.views, self.terms) {
-                (Some(n), _) => ViewSpec::Grid(n),
-                (None, Some(m)) => ViewSpec::Brdf(m),
-                (None, None) => DEFAULT_VIEW,
-            },
+            view: ViewSpec::from_args(self.views, self.terms),
             cta: if self.cta {
                 Some(CtaConfig {
                     clusters: self.cta_clusters,

@@ -125,6 +125,7 @@ impl CompareConfig {
             return bad("nothing to compare (diffuse and glossy both off)".into());
         }
         self.view.check()?;
+        self.view.check_for_cta()?;
         self.brdf.check()?;
         if !self.brdf.is_glossy() {
             return bad("the glossy BRDF must be glossy".into());
@@ -469,7 +470,7 @@ pub fn run(
                 gpu_ms: None,
                 fps: None,
                 gpu_note: Some(
-                    "no diffuse CTA kernel (the CTA kernel shades over a view grid of >= 2 x 2)"
+                    "no diffuse CTA kernel (the CTA kernel shades glossy transfer, V >= 2 view rows)"
                         .into(),
                 ),
                 cpu_ms: cpu.median,

@@ -35,8 +35,8 @@ use rayon::prelude::*;
 
 /// Most terms of a factorisation.
 pub const MAX_TERMS: usize = 64;
-/// The tables' default grid side: 48 nodes, 0.087 rad apart at the pole (half that at the
-/// horizon), under a third of a Phong-16 lobe's width (1 / sqrt(16) rad).
+/// The tables' default grid side: 48 nodes, 0.085 rad apart at the pole (half that at the
+/// horizon), about a third of a Phong-16 lobe's width (1 / sqrt(16) rad).
 pub const DEFAULT_GRID: u32 = 48;
 
 /// m separable terms of a BRDF times the cosine, tabulated (see the module).
@@ -135,13 +135,23 @@ impl BrdfFactors {
                 })
                 .collect()
         };
-        // The captured energy sum |A^T x_c|^2 converges from below to sum sigma^2.
+        // The captured energy sum |A^T x_c|^2 converges from below to the top p sigma^2.
         let (vals, u) = subspace_eigen(count, p, &[], 0x5eed_b4df, 200, 1e-13 * total, apply);
         let sigma: Vec<f64> = vals.iter().map(|v| v.max(0.0).sqrt()).collect();
         if sigma[0] <= 0.0 {
             return Err(Error::InvalidArgument(
                 "BRDF factorisation: the kernel is zero".into(),
             ));
+        }
+        // A term of (numerically) zero weight has no direction to tabulate (g_j divides by
+        // sigma_j): a BRDF of lower rank than asked for, e.g. Phong exponent 0 (one term), is
+        // refused rather than tabulated from rounding noise.
+        let significant = sigma.iter().filter(|s| **s > 1e-6 * sigma[0]).count();
+        if significant < terms {
+            return Err(Error::InvalidArgument(format!(
+                "{brdf:?} has {significant} significant separable term(s) (singular values \
+                 above 1e-6 of the largest); ask for at most that many (--terms {significant})"
+            )));
         }
         // Right singular vectors v_j = A^T u_j / sigma_j (u_j's sign: its largest entry
         // positive).
@@ -311,6 +321,23 @@ mod tests {
         let mut h = [1f32];
         f.light_values(Vec3::new(0.3, 0.1, -0.2), &mut h);
         assert_eq!(h[0], 0.0);
+    }
+
+    /// Phong exponent 0 is constant x cosine, one term: asking for more is refused with the
+    /// count, one is exact.
+    #[test]
+    fn a_brdf_of_lower_rank_than_asked_is_refused() {
+        let flat = Brdf::Phong {
+            exponent: 0.0,
+            diffuse: 0.3,
+            specular: 0.7,
+        };
+        let e = BrdfFactors::new(&flat, 4, ViewGrid { n: 16 })
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("1 significant"), "{e}");
+        let one = BrdfFactors::new(&flat, 1, ViewGrid { n: 16 }).unwrap();
+        assert!(one.truncation < 1e-6, "{}", one.truncation);
     }
 
     #[test]

@@ -116,9 +116,10 @@ impl Data<'_> {
     }
 
     /// p_v = vec(W^T Y_v L) (r_w x r_l), contracted in the cheaper order: (Y_v L) first
-    /// (V K r_l + V r_w r_l multiply-adds) or (W^T Y_v) first (r_w V K + r_w K r_l); the
-    /// second wins when the light rank exceeds the view rank (e.g. 114 k against 202 k at
-    /// V 24, K 256, ranks 8 and 32). This product is most of the fit's time.
+    /// (V K r_l + V r_w r_l multiply-adds) or (W^T Y_v) first (r_w V K + r_w K r_l). The
+    /// second wins when the view rank is well below V (e.g. 114 k against 202 k at V 24, K
+    /// 256, view rank 8, light rank 32); at the default view rank (all 24 rows of the
+    /// factored basis) the first is used.
     fn project(&self, m: &Model, v: usize) -> Vec<f64> {
         let [_, rw, rl] = self.ranks;
         let (vv, k) = (self.views, self.k);
@@ -197,8 +198,8 @@ impl Data<'_> {
 /// The `r` leading eigenvectors (columns, n x r row-major) and eigenvalues of a symmetric
 /// positive semi-definite n x n matrix, eigenvalues in decreasing order.
 ///
-/// Cyclic Jacobi costs ~n^3 per sweep, which made the vertex step's Gram (n = r_w r_l: 256 at
-/// ranks 8 x 32) most of a fit's time; above 64 rows and when r is small against n, the
+/// Cyclic Jacobi costs ~n^3 per sweep, which made the vertex step's Gram (n = r_w r_l: 768 at
+/// the default view and light ranks 24 and 32) most of a fit's time; above 64 rows and when r is small against n, the
 /// leading subspace is found by block subspace iteration instead (n^2 (r + 8) per step, to
 /// a relative change of the captured trace below 1e-10, at most 40 steps from a random
 /// start and 12 from a warm one; [`subspace_eigen`]), and only the small Rayleigh-Ritz matrix

@@ -146,6 +146,31 @@ pub enum ViewSpec {
 pub const DEFAULT_VIEW: ViewSpec = ViewSpec::Brdf(24);
 
 impl ViewSpec {
+    /// The basis of the CLI's `--views N` / `--terms M` (at most one given; neither: the
+    /// default).
+    pub fn from_args(views: Option<u32>, terms: Option<usize>) -> ViewSpec {
+        match (views, terms) {
+            (Some(n), _) => ViewSpec::Grid(n),
+            (None, Some(m)) => ViewSpec::Brdf(m),
+            (None, None) => DEFAULT_VIEW,
+        }
+    }
+
+    /// Checks that CTA can shade this basis on the GPU: its shading pass holds at most
+    /// [`super::cta_gpu::MAX_VIEW_RANK`] view values per vertex, and a factored basis folds
+    /// all m terms in (a grid is limited by the view rank instead). Called before any work.
+    pub fn check_for_cta(&self) -> Result<()> {
+        if let ViewSpec::Brdf(m) = *self
+            && m > super::cta_gpu::MAX_VIEW_RANK
+        {
+            return Err(Error::InvalidArgument(format!(
+                "--cta shades at most {} BRDF terms on the GPU (--terms {m})",
+                super::cta_gpu::MAX_VIEW_RANK
+            )));
+        }
+        Ok(())
+    }
+
     /// Rows per vertex.
     pub fn rows(&self) -> usize {
         match *self {
@@ -238,7 +263,8 @@ impl ViewBasis {
                     || f.view.iter().chain(&f.light).any(|x| !x.is_finite())
                 {
                     return Err(Error::InvalidArgument(format!(
-                        "BRDF factors: {} terms with tables of {} and {} values for a {} x {}                          grid (need 1..={} terms, finite)",
+                        "BRDF factors: {} terms with tables of {} and {} values for a {} x {} \
+                         grid (need 1..={} terms, finite)",
                         f.terms,
                         f.view.len(),
                         f.light.len(),
