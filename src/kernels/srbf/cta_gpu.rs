@@ -222,8 +222,7 @@ impl CtaKernel {
             .map(|l| [l.amplitude[0], l.amplitude[1], l.amplitude[2], 0.0])
             .collect();
         // The shading order: by cluster, then along a Morton curve of the positions.
-        let morton = crate::geom::spatial_order(inputs.positions);
-        let mut order = morton.clone();
+        let mut order = crate::geom::spatial_order(inputs.positions);
         order.sort_by_key(|&v| t.cluster_of[v as usize]);
         let gather = |rows: &[f32], width: usize| -> Vec<f32> {
             order

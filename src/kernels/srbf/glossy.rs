@@ -278,6 +278,22 @@ impl ViewBasis {
         }
     }
 
+    /// [`ViewBasis::check`] for a transfer of `brdf` (checked too): a factored basis must be
+    /// that BRDF's factorisation.
+    pub fn check_for(&self, brdf: &Brdf) -> Result<()> {
+        self.check()?;
+        brdf.check()?;
+        if let ViewBasis::Brdf(f) = self
+            && f.brdf != *brdf
+        {
+            return Err(Error::InvalidArgument(format!(
+                "glossy transfer: factors of {:?} for a transfer of {brdf:?}",
+                f.brdf
+            )));
+        }
+        Ok(())
+    }
+
     /// The (row, weight) pairs of a local view direction `o` (any length > 0; below the
     /// horizon it is clamped onto it): the grid's 4 taps, or every term j with g_j(o).
     pub fn weights(&self, o: Vec3) -> Vec<(usize, f32)> {
@@ -342,16 +358,7 @@ impl GlossyTransfer {
 
     /// Checks sizes and values (the GPU indexes with them).
     pub fn check(&self) -> Result<()> {
-        self.view.check()?;
-        self.brdf.check()?;
-        if let ViewBasis::Brdf(f) = &self.view
-            && f.brdf != self.brdf
-        {
-            return Err(Error::InvalidArgument(format!(
-                "glossy transfer: factors of {:?} for a transfer of {:?}",
-                f.brdf, self.brdf
-            )));
-        }
+        self.view.check_for(&self.brdf)?;
         self.rows.basis.check()?;
         let k = self.rows.basis.len();
         if self.vertices == 0
@@ -452,16 +459,7 @@ pub fn project(
     vis: &Visibility,
 ) -> Result<GlossyTransfer> {
     basis.check()?;
-    brdf.check()?;
-    view.check()?;
-    if let ViewBasis::Brdf(f) = view
-        && f.brdf != *brdf
-    {
-        return Err(Error::InvalidArgument(format!(
-            "glossy projection: factors of {:?} for {brdf:?}",
-            f.brdf
-        )));
-    }
+    view.check_for(brdf)?;
     let n_dirs = directions.len();
     if n_dirs == 0 || solid_angles.len() != n_dirs || vis.directions.len() != n_dirs {
         return Err(Error::InvalidArgument(format!(
