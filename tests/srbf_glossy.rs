@@ -75,6 +75,7 @@ fn inputs(s: &Scene) -> GlossyInputs<'_> {
         transfer: &s.transfer,
         positions: &s.positions,
         normals: &s.normals,
+        compact: None,
     }
 }
 
@@ -190,6 +191,94 @@ fn bad_glossy_inputs_are_refused() {
     }
     let e = short.check().unwrap_err().to_string();
     assert!(e.contains("BRDF factors"), "{e}");
+    // Compact lobes: shaded with another BRDF than the transfer's, a visibility of other
+    // vertices, a grid the visibility was not cast for, an invalid lobe, a NaN ray offset.
+    {
+        use vkshade::geom::visibility::direction_visibility;
+        use vkshade::kernels::srbf::glossy_sharp::{CompactShadow, GlossyCompact};
+        use vkshade::kernels::srbf::gpu::SunRays;
+        let grid =
+            vkshade::scene::envmap::EnvMap::from_texels(8, 4, vec![[0.0; 3]; 32], "g").unwrap();
+        let dirs: Vec<Vec3> = grid.samples().iter().map(|x| x.0).collect();
+        let bvh = vkshade::geom::Bvh::build(&[], &[]);
+        let vis =
+            |n: usize| direction_visibility(&s.positions[..n], &s.normals[..n], &bvh, &dirs, 0.0);
+        let (ten, nine) = (vis(10), vis(9));
+        let sun = [Lobe::new(Vec3::Y, 5000.0, [10.0; 3])];
+        let bad_sun = [Lobe::new(Vec3::Y, f32::NAN, [10.0; 3])];
+        let grid_of = |v| CompactShadow::Grid {
+            visibility: v,
+            width: 8,
+            height: 4,
+        };
+        let ok = GlossyCompact {
+            lobes: &sun,
+            shadow: grid_of(&ten),
+            brdf: PHONG,
+        };
+        assert!(
+            GlossyInputs {
+                compact: Some(ok),
+                ..inputs(&s)
+            }
+            .check()
+            .is_ok()
+        );
+        for (compact, says) in [
+            (
+                GlossyCompact {
+                    brdf: Brdf::Diffuse,
+                    ..ok
+                },
+                "compact lobes shaded with Diffuse",
+            ),
+            (
+                GlossyCompact {
+                    shadow: grid_of(&nine),
+                    ..ok
+                },
+                "a visibility of 9 vertices",
+            ),
+            (
+                GlossyCompact {
+                    shadow: CompactShadow::Grid {
+                        visibility: &ten,
+                        width: 4,
+                        height: 8,
+                    },
+                    ..ok
+                },
+                "is not the centre of texel",
+            ),
+            (
+                GlossyCompact {
+                    lobes: &bad_sun,
+                    ..ok
+                },
+                "lobe 0 is not a valid SG",
+            ),
+            (
+                GlossyCompact {
+                    shadow: CompactShadow::Rays(SunRays {
+                        positions: &s.positions,
+                        bvh: &bvh,
+                        offset: f32::NAN,
+                    }),
+                    ..ok
+                },
+                "ray offset NaN",
+            ),
+        ] {
+            let e = GlossyInputs {
+                compact: Some(compact),
+                ..inputs(&s)
+            }
+            .check()
+            .unwrap_err()
+            .to_string();
+            assert!(e.contains(says), "{e}");
+        }
+    }
     common::with_gpu(|ctx| {
         let mut rec = ctx.recorder("bad glossy")?;
         let kernel = GlossyKernel::new(&mut rec, &inputs(&s))?;
@@ -311,6 +400,7 @@ fn glossy_bunny_against_the_brute_force_truth() {
             transfer: &transfer,
             positions: &points,
             normals: &normals,
+            compact: None,
         };
         for (deg, axis, cam) in [
             (0.0f32, Vec3::Y, Vec3::new(0.3, 0.2, 1.0)),
@@ -420,6 +510,7 @@ fn cta_gpu_matches_its_twin_with(s: Scene) {
         view: &t.view,
         positions: &s.positions,
         normals: &s.normals,
+        compact: None,
     };
     let frames: Vec<GlossyFrame> = [
         (0.0f32, Vec3::new(0.0, 0.5, 4.0)),
@@ -446,6 +537,7 @@ fn cta_gpu_matches_its_twin_with(s: Scene) {
             transfer: &dense,
             positions: &s.positions,
             normals: &s.normals,
+            compact: None,
         }
         .cpu_pipeline(f)
         .unwrap();
@@ -480,6 +572,160 @@ fn cta_gpu_matches_its_twin_with(s: Scene) {
             Ok(())
         })?;
         assert_eq!(done, frames.len());
+        Ok(())
+    });
+}
+
+/// Compact lobes on the glossy path (pass `srbf glossy sharp`) against the CPU twin, for both
+/// shadowings (the grid's texel bit, a shadow ray at the exact axis) and both transfers
+/// (uncompressed, CTA): random points and normals under random occluding triangles, four
+/// suns. A vertex may differ where the GPU's ray (or its texel lookup, atan in f32) decides a
+/// bit the other way than the twin's, a few in a thousand; every other vertex matches to
+/// 1e-4 of the scale. The compact part must matter (>= 20% of the radiance's scale) and be
+/// shadowed at some vertices, so that the comparison means something.
+#[test]
+fn glossy_compact_lobes_match_the_cpu_twin() {
+    use vkshade::geom::Bvh;
+    use vkshade::geom::visibility::direction_visibility;
+    use vkshade::kernels::srbf::cta::{Cta, CtaConfig};
+    use vkshade::kernels::srbf::cta_gpu::{CtaInputs, CtaKernel};
+    use vkshade::kernels::srbf::glossy_sharp::{CompactShadow, GlossyCompact};
+    use vkshade::kernels::srbf::gpu::SunRays;
+    use vkshade::scene::envmap::EnvMap;
+    let s = scene(800, factored());
+    let mut rng = Rng::new(23);
+    let n = s.positions.len();
+    let mut points = s.positions.clone();
+    let mut triangles = Vec::new();
+    for t in 0..12u32 {
+        let c = Vec3::new(rng.f32(), rng.f32(), rng.f32()) * 3.0 - 1.5;
+        for _ in 0..3 {
+            points.push(c + Vec3::new(rng.f32(), rng.f32(), rng.f32()) * 1.2 - 0.6);
+        }
+        let first = n as u32 + 3 * t;
+        triangles.push([first, first + 1, first + 2]);
+    }
+    let bvh = Bvh::build(&points, &triangles);
+    let grid = EnvMap::from_texels(64, 32, vec![[0.0; 3]; 64 * 32], "grid").unwrap();
+    let dirs: Vec<Vec3> = grid.samples().iter().map(|x| x.0).collect();
+    let vis = direction_visibility(&s.positions, &s.normals, &bvh, &dirs, 1e-4);
+    let suns: Vec<Lobe> = (0..4)
+        .map(|i| {
+            let axis = vkshade::geom::uniform_sphere(rng.f32(), rng.f32());
+            Lobe::new(axis, 3000.0 + 1000.0 * i as f32, [9e3, 6e3, 3e3])
+        })
+        .collect();
+    // The occluders shadow the suns: of the (vertex, sun) pairs facing the sun, the twin's
+    // rays find some blocked (and most not).
+    let taps = vkshade::kernels::srbf::sharp::ray_taps(&suns, Mat3::IDENTITY);
+    let bits = vkshade::kernels::srbf::sharp::ray_bits(&taps, &s.positions, &s.normals, &bvh, 1e-4);
+    let facing: usize = (0..n)
+        .map(|v| {
+            taps.iter()
+                .filter(|t| s.normals[v].dot(t.dir) > 0.0)
+                .count()
+        })
+        .sum();
+    let lit: usize = bits.iter().map(|b| b.count_ones() as usize).sum();
+    assert!(
+        lit * 20 < facing * 19 && lit * 2 > facing,
+        "{lit} of {facing}"
+    );
+    let t = &s.transfer;
+    let cta = Cta::compress(
+        &t.rows.basis,
+        &t.rows.coeffs,
+        t.vertices,
+        t.views(),
+        &CtaConfig {
+            clusters: 4,
+            ranks: [4, 6, 8],
+            iterations: 1,
+            ..CtaConfig::default()
+        },
+    )
+    .unwrap();
+    let frames: Vec<GlossyFrame> = [
+        (0.0f32, Vec3::new(0.0, 0.5, 4.0)),
+        (61.0, Vec3::new(-3.0, 1.0, 0.2)),
+        (200.0, Vec3::new(0.1, 0.2, -0.3)),
+    ]
+    .iter()
+    .map(|&(deg, camera)| GlossyFrame {
+        rotation: sg::rotation(Vec3::new(0.3, 1.0, -0.6), deg),
+        albedo: [0.8, 0.6, 0.4],
+        camera,
+    })
+    .collect();
+    let shadows = [
+        CompactShadow::Grid {
+            visibility: &vis,
+            width: 64,
+            height: 32,
+        },
+        CompactShadow::Rays(SunRays {
+            positions: &s.positions,
+            bvh: &bvh,
+            offset: 1e-4,
+        }),
+    ];
+    common::with_gpu(|ctx| {
+        for shadow in shadows {
+            let compact = GlossyCompact {
+                lobes: &suns,
+                shadow,
+                brdf: PHONG,
+            };
+            let dense = GlossyInputs {
+                compact: Some(compact),
+                ..inputs(&s)
+            };
+            let tensor = CtaInputs {
+                lobes: &s.lobes,
+                transfer: &cta,
+                view: &t.view,
+                positions: &s.positions,
+                normals: &s.normals,
+                compact: Some(compact),
+            };
+            let mut setup = ctx.recorder("glossy compact setup")?;
+            let k1 = GlossyKernel::new(&mut setup, &dense)?;
+            let k2 = CtaKernel::new(&mut setup, &tensor)?;
+            setup.submit_and_wait()?;
+            assert_eq!((k1.compact_count(), k2.compact_count()), (4, 4));
+            for names in [
+                k1.passes().iter().map(|p| p.name).collect::<Vec<_>>(),
+                k2.passes().iter().map(|p| p.name).collect(),
+            ] {
+                assert_eq!(names.last(), Some(&"srbf glossy sharp"), "{names:?}");
+            }
+            let (mut off, mut total) = (0usize, 0usize);
+            let mut check = |got: &[[f32; 3]], frame: &GlossyFrame, twin: Vec<[f64; 3]>| {
+                // What the compact lobes add, alone.
+                let mut only = vec![[0f64; 3]; n];
+                compact.add(frame, &s.positions, &s.normals, &mut only)?;
+                let scale = twin.iter().flatten().fold(0f64, |m, x| m.max(x.abs()));
+                let part = only.iter().flatten().fold(0f64, |m, x| m.max(x.abs()));
+                assert!(part >= 0.2 * scale, "compact part {part} of {scale}");
+                for (g, w) in got.iter().zip(&twin) {
+                    total += 1;
+                    if (0..3).any(|c| (g[c] as f64 - w[c]).abs() > 1e-4 * scale) {
+                        off += 1;
+                    }
+                }
+                vkshade::Result::Ok(())
+            };
+            run_frames(ctx, &k1, &frames, 2, |r| {
+                let f = &frames[r.index];
+                check(&r.output, f, dense.cpu_pipeline(f)?)
+            })?;
+            run_frames(ctx, &k2, &frames, 2, |r| {
+                let f = &frames[r.index];
+                check(&r.output, f, tensor.cpu_pipeline(f)?)
+            })?;
+            eprintln!("glossy compact: {off} of {total} vertex-frames off");
+            assert!(off * 200 <= total, "{off} of {total} vertex-frames differ");
+        }
         Ok(())
     });
 }

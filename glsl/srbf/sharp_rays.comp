@@ -31,16 +31,15 @@ layout(set = 0, binding = 6, rgba32ui) readonly uniform uimage2D nodes;
 layout(set = 0, binding = 7, rgba32ui) readonly uniform uimage2D tris;
 
 #include <common/bvh.glsl>
+#include "texel.glsl"
 
 void main() {
     uint slot = gl_GlobalInvocationID.x;
     mat3 R = mat3(pc.rot[0].xyz, pc.rot[1].xyz, pc.rot[2].xyz);
     if (slot < pc.lobes) {
         vec4 a = lobe_axes.v[slot];
-        // The lobe's integral 2 pi (1 - e^(-2 lambda)) / lambda, over pi.
-        float scale = 2.0 * (1.0 - exp(-2.0 * a.w)) / a.w;
         taps.v[2u * slot] = vec4(normalize(R * a.xyz), float(slot));
-        taps.v[2u * slot + 1u] = vec4(lobe_amps.v[slot].rgb * scale, 0.0);
+        taps.v[2u * slot + 1u] = vec4(lobe_amps.v[slot].rgb * integral_over_pi(a.w), 0.0);
     }
     if (slot >= pc.slots) return;
     vec3 n = normals.v[slot].xyz;

@@ -19,6 +19,7 @@ use crate::kernels::srbf::diffuse_transfer;
 use crate::kernels::srbf::fit::{FitConfig, fit};
 use crate::kernels::srbf::glossy::{DEFAULT_VIEW, GlossyTransfer, ViewBasis, ViewSpec};
 use crate::kernels::srbf::glossy_gpu::{GlossyFrame, GlossyInputs, GlossyKernel, PASS_GLOSSY};
+use crate::kernels::srbf::glossy_sharp::{CompactShadow, GlossyCompact, PASS_GLOSSY_SHARP};
 use crate::kernels::srbf::gpu::{
     CompactInputs, PASS_LIGHTING, PASS_PROJECT, PASS_SHADE, PASS_SHARP, SrbfFrame, SrbfInputs,
     SrbfKernel, SrbfOutput, SunRays, sun_offset,
@@ -655,9 +656,10 @@ impl Precomputed {
 /// transfer projected once and cached (`glossy.bin` beside the outputs), every frame shaded
 /// on the GPU toward the camera and compared with the CPU twin, and with `--reference` with
 /// the glossy brute-force truth over the direction map's texels (the fit's share apart).
-/// Every lobe goes through the basis (no compact lobes on this path). The transfer is
-/// uncompressed: vertices x view rows x basis f32, refused before the projection when it
-/// exceeds the device's maxStorageBufferRange.
+/// Compact lobes (a sun, lamps) are shaded directly as on the diffuse path
+/// ([`crate::kernels::srbf::glossy_sharp`]), shadowed by the grid or by rays (`--sun`). The
+/// transfer is uncompressed (vertices x view rows x basis f32, refused before the projection
+/// when it exceeds the device's maxStorageBufferRange) or CTA-compressed.
 fn shade_glossy(
     ctx: &Context,
     cfg: &ShadeConfig,
@@ -754,14 +756,57 @@ fn shade_glossy(
         cost(transfer_cached, transfer_ms)
     ));
     let camera = cfg.camera.unwrap_or_else(|| default_camera(mesh));
+    let (smooth, compact_lobes) = match crate::kernels::srbf::sharp::split(
+        &fitted.lobes,
+        transfer.rows.basis.sharpness,
+        cfg.sharp_factor,
+        cfg.compact_lobes,
+    ) {
+        // Every lobe compact (e.g. --lobes 1 under a sun): the basis path needs one.
+        (smooth, _) if smooth.is_empty() => (fitted.lobes.clone(), Vec::new()),
+        split => split,
+    };
+    let bvh = (cfg.sun == SunMode::Rays && !compact_lobes.is_empty())
+        .then(|| Bvh::build(&mesh.positions, &mesh.triangles));
+    let compact = (!compact_lobes.is_empty()).then(|| GlossyCompact {
+        lobes: &compact_lobes,
+        shadow: match &bvh {
+            Some(bvh) => CompactShadow::Rays(SunRays {
+                positions: &mesh.positions,
+                bvh,
+                offset: sun_offset(&mesh.positions),
+            }),
+            None => CompactShadow::Grid {
+                visibility: &vis,
+                width: dir_env.width,
+                height: dir_env.height,
+            },
+        },
+        brdf: cfg.brdf,
+    });
+    if !compact_lobes.is_empty() {
+        progress(&format!(
+            "{} compact lobes (sharpness > {} x {:.1}, >= {}% of the energy) shaded directly \
+             with the BRDF toward the camera, shadowed {}",
+            compact_lobes.len(),
+            cfg.sharp_factor,
+            transfer.rows.basis.sharpness,
+            crate::kernels::srbf::sharp::MIN_SHARE * 100.0,
+            match cfg.sun {
+                SunMode::Rays => "by a ray per vertex at their rotated directions",
+                SunMode::Grid => "from the visibility grid's texel holding their axes",
+            }
+        ));
+    }
     let inputs = GlossyInputs {
-        lobes: &fitted.lobes,
+        lobes: &smooth,
         transfer: &transfer,
         positions: &mesh.positions,
         normals: &mesh.normals,
+        compact,
     };
-    let (cta, cta_ms) = match &cfg.cta {
-        None => (None, 0.0),
+    let (cta, cta_cached, cta_ms) = match &cfg.cta {
+        None => (None, false, 0.0),
         Some(c) => {
             let mut c = *c;
             if c.ranks[1] > rows {
@@ -772,30 +817,48 @@ fn shade_glossy(
                 c.ranks[1] = rows;
             }
             let c = &c;
-            let t0 = Instant::now();
-            let cta = Cta::compress(
-                &transfer.rows.basis,
-                &transfer.rows.coeffs,
-                vertices,
-                rows,
-                c,
+            // Cached beside the transfer while the transfer (its key) and the settings are
+            // the same.
+            let cta_path = cfg.out.join("glossy.cta");
+            let (cta, cached_cta, ms) = cached(
+                &cfg.out.join("glossy.cta.key"),
+                &format!("{key} {c:?}"),
+                || {
+                    Cta::load(&cta_path)
+                        .ok()
+                        .filter(|t| t.vertices == vertices && t.views == rows)
+                },
+                || {
+                    Cta::compress(
+                        &transfer.rows.basis,
+                        &transfer.rows.coeffs,
+                        vertices,
+                        rows,
+                        c,
+                    )
+                },
+                |t| t.save(&cta_path),
             )?;
-            let ms = t0.elapsed().as_secs_f64() * 1e3;
             let (stream, amortised) = cta.bytes_per_vertex();
             progress(&format!(
                 "CTA: {} clusters, ranks {:?}: relative L2 {:.4} (history {:?}); {stream} B per \
-                 vertex streamed, {amortised:.1} B amortised ({ms:.0} ms)",
-                cta.clusters, cta.ranks, cta.rel_l2, cta.history
+                 vertex streamed, {amortised:.1} B amortised{}",
+                cta.clusters,
+                cta.ranks,
+                cta.rel_l2,
+                cta.history,
+                cost(cached_cta, ms)
             ));
-            (Some(cta), ms)
+            (Some(cta), cached_cta, ms)
         }
     };
     let cta_inputs = cta.as_ref().map(|t| CtaInputs {
-        lobes: &fitted.lobes,
+        lobes: &smooth,
         transfer: t,
         view: &view,
         positions: &mesh.positions,
         normals: &mesh.normals,
+        compact,
     });
     let mut setup = ctx.recorder("srbf glossy setup")?;
     let kernel = match &cta_inputs {
@@ -821,6 +884,7 @@ fn shade_glossy(
     let mut truth_ms = Vec::new();
     let mut frames = Vec::with_capacity(frames_in.len());
     let mut on_frame = |r: FrameResult<Vec<[f32; 3]>>, shade_ms: f64| -> Result<()> {
+        let sharp_ms = r.timings.get(PASS_GLOSSY_SHARP).unwrap_or(0.0);
         let frame = &frames_in[r.index];
         let dense = inputs.cpu_pipeline(frame)?;
         let cpu = match &cta_inputs {
@@ -871,7 +935,7 @@ fn shade_glossy(
             rotation: frame.rotation.to_cols_array(),
             gpu_ms_lighting: r.timings.get(PASS_LIGHTING).unwrap_or(f64::NAN),
             gpu_ms_project: 0.0,
-            gpu_ms_sharp: 0.0,
+            gpu_ms_sharp: sharp_ms,
             gpu_ms_shade: shade_ms,
             gpu_vs_cpu: RelL2::of(&gpu, &cpu),
             vs_ground_truth: truth.as_ref().map(|t| RelL2::of(&gpu, t)),
@@ -907,6 +971,7 @@ fn shade_glossy(
     };
     let lighting = median(&|f| f.gpu_ms_lighting);
     let shade_ms = median(&|f| f.gpu_ms_shade);
+    let sharp_ms = median(&|f| f.gpu_ms_sharp);
     let mut notes = Vec::new();
     if ctx.info().device_type == "CPU" {
         notes.push("the device is a CPU implementation (lavapipe): times measure the CPU".into());
@@ -915,8 +980,8 @@ fn shade_glossy(
     notes.push(format!(
         "glossy: radiance toward the camera; ground truth over the {}x{} texel directions \
          ({}), visibility ray-cast along every rotated direction, f64; fit and transfer \
-         shares against the {}x{} direction map's truth; every lobe through the basis (no \
-         compact lobes)",
+         shares against the {}x{} direction map's truth; {} compact lobes shaded directly \
+         (pass srbf glossy sharp, gpu_ms_sharp)",
         truth_env.width,
         truth_env.height,
         if truth_env.width == env.width {
@@ -925,7 +990,8 @@ fn shade_glossy(
             "solid-angle-weighted downsampling"
         },
         dir_env.width,
-        dir_env.height
+        dir_env.height,
+        compact_lobes.len()
     ));
     if let Some(c) = &cta {
         let (stream, amortised) = c.bytes_per_vertex();
@@ -933,14 +999,19 @@ fn shade_glossy(
             "CTA: {} clusters, ranks (vertex, view, light) {:?}, {} iterations; {stream} B per \
              vertex streamed (f32 coefficients + cluster id), {amortised:.1} B per vertex with \
              the cluster tables; relative L2 (function space) {:.4}; history of the squared \
-             error {:?}; compression {cta_ms:.0} ms (not cached); gpu_ms_shade sums the \
+             error {:?}; compression {cta_ms:.0} ms{}; gpu_ms_shade sums the \
              cta light, project and shade passes; uncompressed_vs_ground_truth is the \
              uncompressed transfer (CPU)",
             c.clusters,
             c.ranks,
             cfg.cta.map_or(0, |x| x.iterations),
             c.rel_l2,
-            c.history
+            c.history,
+            if cta_cached {
+                " (cached: glossy.cta)"
+            } else {
+                ""
+            }
         ));
     }
     let report = ShadeReport {
@@ -951,7 +1022,7 @@ fn shade_glossy(
         env: cfg.env.display().to_string(),
         env_size: [env.width, env.height],
         lobes: cfg.lobes,
-        compact_lobes: 0,
+        compact_lobes: compact_lobes.len(),
         sharp_factor: cfg.sharp_factor,
         sun: cfg.sun,
         basis: cfg.basis,
@@ -966,7 +1037,7 @@ fn shade_glossy(
         components: 0,
         cpca_rel_l2: cta.as_ref().map_or(0.0, |c| c.rel_l2),
         cpca_ms: cta_ms,
-        cpca_cached: false,
+        cpca_cached: cta_cached,
         transfer_bytes_per_vertex: cta
             .as_ref()
             .map_or(transfer.bytes_per_vertex(), |c| c.bytes_per_vertex().0),
@@ -977,9 +1048,9 @@ fn shade_glossy(
         },
         gpu_ms_lighting_median: lighting,
         gpu_ms_project_median: 0.0,
-        gpu_ms_sharp_median: 0.0,
+        gpu_ms_sharp_median: sharp_ms,
         gpu_ms_shade_median: shade_ms,
-        fps: 1000.0 / (lighting + shade_ms),
+        fps: 1000.0 / (lighting + shade_ms + sharp_ms),
         brdf: cfg.brdf,
         camera: Some(camera.to_array()),
         view_grid: match &view {

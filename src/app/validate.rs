@@ -391,6 +391,8 @@ pub const CASES: &[Case] = &[
             "8",
             "--cta-iterations",
             "1",
+            "--sun",
+            "rays",
             "--out",
             "{out}",
         ],

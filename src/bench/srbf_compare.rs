@@ -548,6 +548,7 @@ pub fn run(
             transfer: &transfer,
             positions: &mesh.positions,
             normals: &mesh.normals,
+            compact: None,
         };
         let (rgb, all) = error_over(&truths, |i| dense.cpu_pipeline(&frames[i]))?;
         let cpu = time_cpu(cfg.cpu_runs, || dense.cpu_pipeline(&frames[0]));
@@ -648,6 +649,7 @@ pub fn run(
                 view: &view,
                 positions: &mesh.positions,
                 normals: &mesh.normals,
+                compact: None,
             };
             let (rgb, all) = error_over(&truths, |i| inputs.cpu_pipeline(&frames[i]))?;
             let cpu = time_cpu(cfg.cpu_runs, || inputs.cpu_pipeline(&frames[0]));

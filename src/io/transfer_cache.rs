@@ -1,11 +1,14 @@
 //! The SRBF transfer cache files that `vkshade srbf shade` keeps beside its outputs: the
-//! projected transfer (`transfer.bin`) and its clustered-PCA form (`transfer.cpca`).
+//! projected transfer (`transfer.bin`, and `glossy.bin` for a glossy BRDF), its clustered-PCA
+//! form (`transfer.cpca`) and the glossy transfer's clustered tensor approximation
+//! (`glossy.cta`).
 //!
 //! Both are little endian: an 8-byte magic, a version (u32), a fixed header, the arrays as
 //! 32-bit words, then an FNV-1a 64 checksum of everything before it. Writes are atomic; a
 //! read checks the magic, version, size and checksum, and every error names the file. What
 //! the values mean (unit axes, cluster ids in range, finite numbers) is checked by the types
-//! that own them (`kernels::srbf::transfer::Transfer`, `kernels::srbf::cpca::Cpca`).
+//! that own them (`kernels::srbf::transfer::Transfer`, `kernels::srbf::cpca::Cpca`,
+//! `kernels::srbf::cta::Cta`).
 
 use crate::error::{Error, Result};
 use glam::Vec3;
@@ -46,6 +49,33 @@ pub struct CpcaFile<'a> {
     pub weights: Cow<'a, [f32]>,
     pub rel_l2: f64,
 }
+
+/// A clustered tensor approximation as `glossy.cta` holds it: magic "VKSGCTA\0", version
+/// u32, K u32, views V u32, clusters C u32, ranks r_v, r_w, r_l u32, sharpness f32, history
+/// length H u32, vertices n u64, rel_l2 f64, K axes (3 f32 each), a u32 cluster per vertex,
+/// C x V x r_w view factors, C x K x r_l light factors, C x r_v x r_w x r_l cores, n x r_v
+/// coefficients (f32), H history values (f64), checksum.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CtaFile<'a> {
+    pub axes: Cow<'a, [Vec3]>,
+    pub sharpness: f32,
+    pub vertices: usize,
+    pub views: usize,
+    pub clusters: usize,
+    pub ranks: [usize; 3],
+    pub cluster_of: Cow<'a, [u32]>,
+    pub view_factors: Cow<'a, [f32]>,
+    pub light_factors: Cow<'a, [f32]>,
+    pub cores: Cow<'a, [f32]>,
+    pub coeffs: Cow<'a, [f32]>,
+    pub rel_l2: f64,
+    pub history: Cow<'a, [f64]>,
+}
+
+const CTA_MAGIC: &[u8; 8] = b"VKSGCTA\0";
+const CTA_VERSION: u32 = 1;
+/// magic, version, K, V, C, r_v, r_w, r_l, sharpness, H, vertices (u64), rel_l2 (f64).
+const CTA_HEADER: usize = 8 + 4 * 9 + 8 + 8;
 
 const TRANSFER_MAGIC: &[u8; 8] = b"VKSGTRF\0";
 const TRANSFER_VERSION: u32 = 1;
@@ -386,6 +416,184 @@ impl CpcaFile<'static> {
     }
 }
 
+impl CtaFile<'_> {
+    /// The array lengths the counts call for: (view factors, light factors, cores,
+    /// coefficients), None on overflow.
+    fn lengths(k: u128, v: u128, c: u128, n: u128, r: [u128; 3]) -> Option<[u128; 4]> {
+        let [rv, rw, rl] = r;
+        Some([
+            c.checked_mul(v)?.checked_mul(rw)?,
+            c.checked_mul(k)?.checked_mul(rl)?,
+            c.checked_mul(rv)?.checked_mul(rw)?.checked_mul(rl)?,
+            n.checked_mul(rv)?,
+        ])
+    }
+
+    /// Writes the file (see the type), atomically. An error if the arrays' lengths do not
+    /// match the counts or a value is out of bounds.
+    pub fn save(&self, path: &Path) -> Result<()> {
+        let k = self.axes.len();
+        let r = self.ranks.map(|x| x as u128);
+        let want = Self::lengths(
+            k as u128,
+            self.views as u128,
+            self.clusters as u128,
+            self.vertices as u128,
+            r,
+        );
+        let have = [
+            self.view_factors.len(),
+            self.light_factors.len(),
+            self.cores.len(),
+            self.coeffs.len(),
+        ]
+        .map(|x| x as u128);
+        if want != Some(have) || self.cluster_of.len() != self.vertices {
+            return Err(Error::input(
+                path,
+                format!(
+                    "CTA transfer to save has arrays of {have:?} values and {} cluster ids for \
+                     {} vertices, {} views, {} clusters, K = {k} and ranks {:?}",
+                    self.cluster_of.len(),
+                    self.vertices,
+                    self.views,
+                    self.clusters,
+                    self.ranks
+                ),
+            ));
+        }
+        if let Some(m) = self.bad_value() {
+            return Err(Error::input(
+                path,
+                format!("not written: CTA transfer: {m}"),
+            ));
+        }
+        let header = [
+            CTA_VERSION,
+            header_u32(path, k, "basis functions")?,
+            header_u32(path, self.views, "views")?,
+            header_u32(path, self.clusters, "clusters")?,
+            header_u32(path, self.ranks[0], "vertex ranks")?,
+            header_u32(path, self.ranks[1], "view ranks")?,
+            header_u32(path, self.ranks[2], "light ranks")?,
+            self.sharpness.to_bits(),
+            header_u32(path, self.history.len(), "history values")?,
+        ];
+        let mut b = Vec::new();
+        b.extend_from_slice(CTA_MAGIC);
+        for x in header {
+            b.extend_from_slice(&x.to_le_bytes());
+        }
+        b.extend_from_slice(&(self.vertices as u64).to_le_bytes());
+        b.extend_from_slice(&self.rel_l2.to_le_bytes());
+        let words = self
+            .axes
+            .iter()
+            .flat_map(|a| a.to_array())
+            .map(f32::to_bits)
+            .chain(self.cluster_of.iter().copied())
+            .chain(
+                [
+                    &self.view_factors,
+                    &self.light_factors,
+                    &self.cores,
+                    &self.coeffs,
+                ]
+                .into_iter()
+                .flat_map(|a| a.iter().map(|x| x.to_bits())),
+            );
+        for w in words {
+            b.extend_from_slice(&w.to_le_bytes());
+        }
+        for h in self.history.iter() {
+            b.extend_from_slice(&h.to_le_bytes());
+        }
+        seal_and_write(path, b)
+    }
+
+    /// The first value out of [`MAX_MAGNITUDE`] (or non-finite), named.
+    fn bad_value(&self) -> Option<String> {
+        out_of_bounds(
+            "axis component",
+            self.axes.iter().flat_map(|a| a.to_array()),
+        )
+        .or_else(|| out_of_bounds("sharpness", [self.sharpness]))
+        .or_else(|| out_of_bounds("view factor", self.view_factors.iter().copied()))
+        .or_else(|| out_of_bounds("light factor", self.light_factors.iter().copied()))
+        .or_else(|| out_of_bounds("core value", self.cores.iter().copied()))
+        .or_else(|| out_of_bounds("coefficient", self.coeffs.iter().copied()))
+        .or_else(|| (!self.rel_l2.is_finite()).then(|| format!("error {}", self.rel_l2)))
+        .or_else(|| {
+            self.history
+                .iter()
+                .position(|h| !h.is_finite())
+                .map(|i| format!("history value {i} is {}", self.history[i]))
+        })
+    }
+}
+
+impl CtaFile<'static> {
+    /// Reads a file written by [`CtaFile::save`], checking magic, version, size and
+    /// checksum; every error names the file.
+    pub fn load(path: &Path) -> Result<CtaFile<'static>> {
+        let file = Sealed::open(path, "CTA transfer", CTA_MAGIC, CTA_VERSION, CTA_HEADER)?;
+        let field = |i: usize| file.u32_at(12 + 4 * i) as u128;
+        let (k, v, c) = (field(0), field(1), field(2));
+        let r = [field(3), field(4), field(5)];
+        let sharpness = f32::from_bits(file.u32_at(12 + 4 * 6));
+        let h = field(7);
+        let n = file.u64_at(12 + 4 * 8) as u128;
+        let rel_l2 = f64::from_bits(file.u64_at(12 + 4 * 8 + 8));
+        let needs = || {
+            format!(
+                "K = {k}, {v} views, {c} clusters, ranks {r:?}, {h} history values and {n} \
+                 vertices"
+            )
+        };
+        let lengths = Self::lengths(k, v, c, n, r)
+            .ok_or_else(|| file.bad(format!("{} overflow", needs())))?;
+        let words = 3 * k + n + lengths.iter().sum::<u128>();
+        file.check_size(CTA_HEADER as u128 + 4 * words + 8 * h + 8, needs)?;
+        let [lv, ll, lc, lu] = lengths.map(|x| x as usize);
+        let (k, n, h) = (k as usize, n as usize, h as usize);
+        let mut at = CTA_HEADER;
+        let mut take = |count: usize| {
+            let from = at;
+            at += 4 * count;
+            from
+        };
+        let axes = file.axes(take(3 * k), k);
+        let cluster_of = file.words(take(n), n);
+        let view_factors = file.floats(take(lv), lv);
+        let light_factors = file.floats(take(ll), ll);
+        let cores = file.floats(take(lc), lc);
+        let coeffs = file.floats(take(lu), lu);
+        let from = take(2 * h);
+        let history: Vec<f64> = (0..h)
+            .map(|i| f64::from_bits(file.u64_at(from + 8 * i)))
+            .collect();
+        let t = CtaFile {
+            axes: axes.into(),
+            sharpness,
+            vertices: n,
+            views: v as usize,
+            clusters: c as usize,
+            ranks: r.map(|x| x as usize),
+            cluster_of: cluster_of.into(),
+            view_factors: view_factors.into(),
+            light_factors: light_factors.into(),
+            cores: cores.into(),
+            coeffs: coeffs.into(),
+            rel_l2,
+            history: history.into(),
+        };
+        match t.bad_value() {
+            Some(m) => Err(file.bad(m)),
+            None => Ok(t),
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -589,5 +797,60 @@ mod tests {
             let _ = std::fs::remove_dir_all(p.parent().unwrap());
         }
         let _ = std::fs::remove_dir_all(temp("w.cpca").parent().unwrap());
+    }
+
+    /// A CTA file round-trips; a truncated one, a flipped bit, a forged NaN core value under
+    /// a valid checksum and arrays that do not match the counts are refused naming the file.
+    #[test]
+    fn cta_file_round_trip_and_refusals() {
+        let cta = CtaFile {
+            axes: vec![Vec3::X, Vec3::Z].into(),
+            sharpness: 3.5,
+            vertices: 3,
+            views: 2,
+            clusters: 1,
+            ranks: [2, 1, 2],
+            cluster_of: vec![0, 0, 0].into(),
+            view_factors: vec![0.6, 0.8].into(),
+            light_factors: vec![1.0, 0.0, 0.0, 1.0].into(),
+            cores: vec![1.5, -0.5, 0.25, 2.0].into(),
+            coeffs: vec![1.0, 0.0, 0.0, 1.0, 0.5, 0.5].into(),
+            rel_l2: 0.02,
+            history: vec![3.0, 2.5].into(),
+        };
+        let path = temp("t.cta");
+        let name = path.display().to_string();
+        cta.save(&path).unwrap();
+        assert_eq!(CtaFile::load(&path).unwrap(), cta);
+        let good = std::fs::read(&path).unwrap();
+        assert_eq!(
+            good.len(),
+            CTA_HEADER + 4 * (6 + 3 + 2 + 4 + 4 + 6) + 16 + 8
+        );
+        let mut flipped = good.clone();
+        flipped[CTA_HEADER + 5] ^= 0x10;
+        let truncated = good[..good.len() - 8].to_vec();
+        // The first core value, forged to NaN under a valid checksum.
+        let mut forged = good[..good.len() - 8].to_vec();
+        let at = CTA_HEADER + 4 * (6 + 3 + 2 + 4);
+        forged[at..at + 4].copy_from_slice(&f32::NAN.to_le_bytes());
+        let sum = fnv1a(&forged);
+        forged.extend(sum.to_le_bytes());
+        for (bytes, says) in [
+            (flipped, "checksum mismatch"),
+            (truncated, "2 history values and 3 vertices need"),
+            (forged, "core value 0 is NaN"),
+        ] {
+            std::fs::write(&path, &bytes).unwrap();
+            let e = CtaFile::load(&path).unwrap_err().to_string();
+            assert!(e.contains(&name) && e.contains(says), "{e}");
+        }
+        let short = CtaFile {
+            cores: vec![1.0; 3].into(),
+            ..cta.clone()
+        };
+        let e = short.save(&path).unwrap_err().to_string();
+        assert!(e.contains(&name) && e.contains("arrays of"), "{e}");
+        let _ = std::fs::remove_dir_all(path.parent().unwrap());
     }
 }

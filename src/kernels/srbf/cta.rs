@@ -32,7 +32,10 @@ use super::transfer::Basis;
 use crate::error::{Error, Result};
 use crate::geom::Rng;
 use crate::geom::linalg::{jacobi_eigen, orthonormalise, solve_upper_transposed, subspace_eigen};
+use crate::io::transfer_cache::CtaFile;
 use rayon::prelude::*;
+use std::borrow::Cow;
+use std::path::Path;
 
 /// How to compress.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
@@ -767,6 +770,54 @@ impl Cta {
             ));
         }
         Ok(())
+    }
+
+    /// Writes the compressed transfer as a cache file ([`CtaFile`]), atomically.
+    pub fn save(&self, path: &Path) -> Result<()> {
+        self.check()
+            .map_err(|e| Error::input(path, e.to_string()))?;
+        CtaFile {
+            axes: Cow::Borrowed(&self.basis.axes),
+            sharpness: self.basis.sharpness,
+            vertices: self.vertices,
+            views: self.views,
+            clusters: self.clusters,
+            ranks: self.ranks,
+            cluster_of: Cow::Borrowed(&self.cluster_of),
+            view_factors: Cow::Borrowed(&self.view_factors),
+            light_factors: Cow::Borrowed(&self.light_factors),
+            cores: Cow::Borrowed(&self.cores),
+            coeffs: Cow::Borrowed(&self.coeffs),
+            rel_l2: self.rel_l2,
+            history: Cow::Borrowed(&self.history),
+        }
+        .save(path)
+    }
+
+    /// Reads a file written by [`Cta::save`], checking the file ([`CtaFile::load`]) and the
+    /// values ([`Cta::check`]); every error names the file.
+    pub fn load(path: &Path) -> Result<Cta> {
+        let f = CtaFile::load(path)?;
+        let c = Cta {
+            basis: Basis {
+                axes: f.axes.into_owned(),
+                sharpness: f.sharpness,
+            },
+            vertices: f.vertices,
+            views: f.views,
+            clusters: f.clusters,
+            ranks: f.ranks,
+            cluster_of: f.cluster_of.into_owned(),
+            view_factors: f.view_factors.into_owned(),
+            light_factors: f.light_factors.into_owned(),
+            cores: f.cores.into_owned(),
+            coeffs: f.coeffs.into_owned(),
+            rel_l2: f.rel_l2,
+            history: f.history.into_owned(),
+        };
+        c.check()
+            .map_err(|e| Error::input(path, format!("CTA transfer file: {e}")))?;
+        Ok(c)
     }
 
     /// Vertex v's reconstructed V x K transfer matrix (f64 sums of the f32 factors).

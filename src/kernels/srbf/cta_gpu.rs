@@ -2,12 +2,14 @@
 //! frame: `srbf lighting` (the lighting's coefficients on the basis), `srbf cta light`
 //! (per cluster y_c = L_c^T c^), `srbf cta project` (per cluster M_c = G_c x_3 y_c, an
 //! r_v x r_w RGB table) and `srbf cta shade` (per vertex: the view taps, the interpolated
-//! view-factor row u_w and B = albedo u_v^T M_c u_w). [`CtaInputs::cpu_pipeline`] is the CPU
-//! twin of the four.
+//! view-factor row u_w and B = albedo u_v^T M_c u_w), then with compact lobes
+//! ([`super::glossy_sharp`]) `srbf glossy sharp`, which adds them onto that radiance.
+//! [`CtaInputs::cpu_pipeline`] is the CPU twin of them all.
 
 use super::cta::Cta;
 use super::glossy::{ViewBasis, local_view};
-use super::glossy_gpu::GlossyFrame;
+use super::glossy_gpu::{GlossyFrame, compact_args};
+use super::glossy_sharp::{CompactStage, GlossyCompact, PASS_GLOSSY_SHARP};
 use super::pack::MAX_BASIS;
 use crate::error::{Error, Result};
 use crate::geom::sg::Lobe;
@@ -35,6 +37,8 @@ pub struct CtaInputs<'a> {
     pub view: &'a ViewBasis,
     pub positions: &'a [Vec3],
     pub normals: &'a [Vec3],
+    /// The lobes shaded directly (`lobes` are those through the basis).
+    pub compact: Option<GlossyCompact<'a>>,
 }
 
 impl CtaInputs<'_> {
@@ -88,6 +92,9 @@ impl CtaInputs<'_> {
         {
             return bad(format!("normal {i} is not a unit vector"));
         }
+        if let Some(c) = &self.compact {
+            c.check(t.vertices)?;
+        }
         Ok(())
     }
 
@@ -100,7 +107,7 @@ impl CtaInputs<'_> {
         let m = t.project(&coeffs)?;
         let [rv, rw, _] = t.ranks;
         let views = t.views;
-        Ok((0..t.vertices)
+        let mut out: Vec<[f64; 3]> = (0..t.vertices)
             .into_par_iter()
             .map(|v| {
                 let c = t.cluster_of[v] as usize;
@@ -125,7 +132,11 @@ impl CtaInputs<'_> {
                 }
                 [0, 1, 2].map(|ch| out[ch] * frame.albedo[ch] as f64)
             })
-            .collect())
+            .collect();
+        if let Some(c) = &self.compact {
+            c.add(frame, self.positions, self.normals, &mut out)?;
+        }
+        Ok(out)
     }
 }
 
@@ -171,6 +182,8 @@ fn gpu_view_model(t: &Cta, view: &ViewBasis) -> (Vec<f32>, Vec<f32>, usize, bool
 pub struct CtaKernel {
     ctx: Context,
     stages: [(ComputePipeline, BindGroup); 4],
+    /// Pass `srbf glossy sharp` (None without compact lobes).
+    compact: Option<CompactStage>,
     buffers: Vec<Buffer>,
     vertices: u32,
     grid: u32,
@@ -317,8 +330,15 @@ impl CtaKernel {
             ],
             &[("radiance", w)],
         )?;
+        let compact = match &inputs.compact {
+            Some(c) => {
+                CompactStage::new(rec, c, inputs.positions, inputs.normals, &buffers[RADIANCE])?
+            }
+            None => None,
+        };
         Ok(CtaKernel {
             ctx,
+            compact,
             stages: [
                 (lighting, lighting_bind),
                 (light_p, light_bind),
@@ -376,6 +396,15 @@ impl CtaKernel {
         ))
     }
 
+    fn compact_args(&self, frame: &GlossyFrame) -> Result<Dispatch> {
+        compact_args(&self.compact, frame)
+    }
+
+    /// The compact lobes pass `srbf glossy sharp` adds (0: no such pass).
+    pub fn compact_count(&self) -> usize {
+        self.compact.as_ref().map_or(0, CompactStage::lobes)
+    }
+
     fn shade_args(&self, frame: &GlossyFrame) -> Result<Dispatch> {
         let (c, a) = (frame.camera, frame.albedo);
         let push: Vec<u8> = [c.x, c.y, c.z, 0.0, a[0], a[1], a[2], 0.0]
@@ -411,12 +440,21 @@ impl Kernel for CtaKernel {
 
     fn pass_table(&self) -> Vec<Pass<'_, Self>> {
         let [l, y, m, s] = &self.stages;
-        vec![
+        let mut passes = vec![
             Pass::dispatch(PASS_LIGHTING, &l.0, &l.1, Self::lighting_args),
             Pass::dispatch(PASS_CTA_LIGHT, &y.0, &y.1, Self::light_args),
             Pass::dispatch(PASS_CTA_PROJECT, &m.0, &m.1, Self::project_args),
             Pass::dispatch(PASS_CTA_SHADE, &s.0, &s.1, Self::shade_args),
-        ]
+        ];
+        if let Some(c) = &self.compact {
+            passes.push(Pass::dispatch(
+                PASS_GLOSSY_SHARP,
+                &c.pipeline,
+                &c.bind,
+                Self::compact_args,
+            ));
+        }
+        passes
     }
 
     fn check_input(&self, frame: &GlossyFrame) -> Result<()> {
@@ -433,7 +471,11 @@ impl Kernel for CtaKernel {
     }
 
     fn memory(&self) -> MemoryReport {
-        let all: Vec<&Buffer> = self.buffers.iter().collect();
-        self.ctx.memory_of(&all)
+        self.ctx.memory_of_resources(
+            self.buffers
+                .iter()
+                .map(Resource::Buffer)
+                .chain(self.compact.iter().flat_map(CompactStage::resources)),
+        )
     }
 }

@@ -1,10 +1,11 @@
 //! The glossy SRBF kernel on the GPU: pass `srbf lighting` (the diffuse kernel's: the
 //! rotated lobes' coefficients on the transfer basis), then pass `srbf glossy shade`: every
 //! vertex's radiance toward the camera from its transfer matrix (glsl/srbf/glossy.comp;
-//! [`GlossyTransfer::shade`] is its CPU twin). Every lobe goes through the basis (no compact
-//! lobes on this path).
+//! [`GlossyTransfer::shade`] is its CPU twin), then with compact lobes
+//! ([`super::glossy_sharp`]) pass `srbf glossy sharp`, which adds them onto that radiance.
 
 use super::glossy::{GlossyTransfer, ViewBasis};
+use super::glossy_sharp::{CompactStage, GlossyCompact, PASS_GLOSSY_SHARP};
 use super::inputs::SrbfFrame;
 use super::pack::MAX_BASIS;
 use crate::error::{Error, Result};
@@ -45,12 +46,14 @@ impl GlossyFrame {
     }
 }
 
-/// What the glossy kernel is built from.
+/// What the glossy kernel is built from: the lobes through the transfer basis and, shaded
+/// directly, the compact ones.
 pub struct GlossyInputs<'a> {
     pub lobes: &'a [Lobe],
     pub transfer: &'a GlossyTransfer,
     pub positions: &'a [Vec3],
     pub normals: &'a [Vec3],
+    pub compact: Option<GlossyCompact<'a>>,
 }
 
 impl GlossyInputs<'_> {
@@ -89,6 +92,15 @@ impl GlossyInputs<'_> {
         {
             return bad(format!("normal {i} is not a unit vector"));
         }
+        if let Some(c) = &self.compact {
+            c.check(t.vertices)?;
+            if c.brdf != t.brdf {
+                return bad(format!(
+                    "compact lobes shaded with {:?} for a transfer of {:?}",
+                    c.brdf, t.brdf
+                ));
+            }
+        }
         Ok(())
     }
 
@@ -98,14 +110,26 @@ impl GlossyInputs<'_> {
         frame.check()?;
         let basis = &self.transfer.rows.basis;
         let coeffs = super::transfer::lighting_coefficients(self.lobes, frame.rotation, basis);
-        self.transfer.shade(
+        let mut out = self.transfer.shade(
             &coeffs,
             self.positions,
             self.normals,
             frame.camera,
             frame.albedo,
-        )
+        )?;
+        if let Some(c) = &self.compact {
+            c.add(frame, self.positions, self.normals, &mut out)?;
+        }
+        Ok(out)
     }
+}
+
+/// The dispatch of pass `srbf glossy sharp` (an error when the kernel has no such pass).
+pub(crate) fn compact_args(stage: &Option<CompactStage>, frame: &GlossyFrame) -> Result<Dispatch> {
+    stage
+        .as_ref()
+        .map(|c| c.args(frame))
+        .ok_or_else(|| Error::InvalidArgument("the kernel has no compact lobes".into()))
 }
 
 /// The view table the shading passes read: a factored basis' g_j at the table's nodes
@@ -122,6 +146,8 @@ pub struct GlossyKernel {
     ctx: Context,
     lighting: (ComputePipeline, BindGroup),
     shade: (ComputePipeline, BindGroup),
+    /// Pass `srbf glossy sharp` (None without compact lobes).
+    compact: Option<CompactStage>,
     buffers: [Buffer; 9],
     vertices: u32,
     grid: u32,
@@ -222,10 +248,17 @@ impl GlossyKernel {
             ],
             &[("radiance", w)],
         )?;
+        let compact = match &inputs.compact {
+            Some(c) => {
+                CompactStage::new(rec, c, inputs.positions, inputs.normals, &buffers[RADIANCE])?
+            }
+            None => None,
+        };
         Ok(GlossyKernel {
             ctx,
             lighting: (lighting, lighting_bind),
             shade: (shade, shade_bind),
+            compact,
             buffers,
             vertices: t.vertices as u32,
             grid: t.view.grid().n,
@@ -239,6 +272,15 @@ impl GlossyKernel {
     /// Per-vertex RGB radiance toward the camera (vec4, alpha 1).
     pub fn radiance(&self) -> &Buffer {
         &self.buffers[RADIANCE]
+    }
+
+    /// The compact lobes pass `srbf glossy sharp` adds (0: no such pass).
+    pub fn compact_count(&self) -> usize {
+        self.compact.as_ref().map_or(0, CompactStage::lobes)
+    }
+
+    fn compact_args(&self, frame: &GlossyFrame) -> Result<Dispatch> {
+        compact_args(&self.compact, frame)
     }
 
     fn lighting_args(&self, frame: &GlossyFrame) -> Result<Dispatch> {
@@ -286,7 +328,7 @@ impl Kernel for GlossyKernel {
     }
 
     fn pass_table(&self) -> Vec<Pass<'_, Self>> {
-        vec![
+        let mut passes = vec![
             Pass::dispatch(
                 PASS_LIGHTING,
                 &self.lighting.0,
@@ -294,7 +336,16 @@ impl Kernel for GlossyKernel {
                 Self::lighting_args,
             ),
             Pass::dispatch(PASS_GLOSSY, &self.shade.0, &self.shade.1, Self::shade_args),
-        ]
+        ];
+        if let Some(c) = &self.compact {
+            passes.push(Pass::dispatch(
+                PASS_GLOSSY_SHARP,
+                &c.pipeline,
+                &c.bind,
+                Self::compact_args,
+            ));
+        }
+        passes
     }
 
     fn check_input(&self, frame: &GlossyFrame) -> Result<()> {
@@ -311,7 +362,11 @@ impl Kernel for GlossyKernel {
     }
 
     fn memory(&self) -> MemoryReport {
-        let all: Vec<&Buffer> = self.buffers.iter().collect();
-        self.ctx.memory_of(&all)
+        self.ctx.memory_of_resources(
+            self.buffers
+                .iter()
+                .map(Resource::Buffer)
+                .chain(self.compact.iter().flat_map(CompactStage::resources)),
+        )
     }
 }

@@ -64,19 +64,7 @@ impl SunResources {
     /// Creates the images and buffers for `prep` and records their uploads.
     fn new(rec: &mut Recorder, prep: &Prepared) -> Result<SunResources> {
         let ctx = rec.context();
-        let image = |name: &str, texels: usize| {
-            let rows = (texels as u32).div_ceil(BVH_ROW).max(1);
-            Image::new(
-                &ctx,
-                name,
-                ImageDesc::d2(vk::Format::R32G32B32A32_UINT, [BVH_ROW, rows])
-                    .usage(vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST),
-            )
-        };
-        let nodes = image("srbf sun bvh nodes", 2 * prep.bvh_nodes.len())?;
-        let triangles = image("srbf sun bvh triangles", 3 * prep.bvh_triangles.len())?;
-        rec.upload_image_rows(&nodes, &prep.bvh_nodes)?;
-        rec.upload_image_rows(&triangles, &prep.bvh_triangles)?;
+        let (nodes, triangles) = bvh_images(rec, "srbf sun", &prep.bvh_nodes, &prep.bvh_triangles)?;
         let bytes: &[u8] = bytemuck::cast_slice(&prep.positions);
         let positions = rec.buffer_with(
             "srbf sun positions",
@@ -96,6 +84,32 @@ impl SunResources {
             bits,
         })
     }
+}
+
+/// The BVH of glsl/common/bvh.glsl as its two images, `BVH_ROW` texels wide (nodes with
+/// links, [`crate::geom::bvh::with_links`], and triangles, [`crate::geom::Bvh::flat`]), their
+/// uploads recorded into `rec`.
+pub(super) fn bvh_images(
+    rec: &mut Recorder,
+    prefix: &str,
+    nodes: &[[f32; 8]],
+    triangles: &[[f32; 12]],
+) -> Result<(Image, Image)> {
+    let ctx = rec.context();
+    let image = |name: String, texels: usize| {
+        let rows = (texels as u32).div_ceil(BVH_ROW).max(1);
+        Image::new(
+            &ctx,
+            &name,
+            ImageDesc::d2(vk::Format::R32G32B32A32_UINT, [BVH_ROW, rows])
+                .usage(vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST),
+        )
+    };
+    let node_image = image(format!("{prefix} bvh nodes"), 2 * nodes.len())?;
+    let triangle_image = image(format!("{prefix} bvh triangles"), 3 * triangles.len())?;
+    rec.upload_image_rows(&node_image, nodes)?;
+    rec.upload_image_rows(&triangle_image, triangles)?;
+    Ok((node_image, triangle_image))
 }
 
 /// A pass's pipeline and its bindings.

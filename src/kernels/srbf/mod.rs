@@ -14,6 +14,7 @@ pub mod cta_gpu;
 pub mod fit;
 pub mod glossy;
 pub mod glossy_gpu;
+pub mod glossy_sharp;
 pub mod gpu;
 pub mod inputs;
 pub mod pack;

@@ -1,0 +1,30 @@
+// The W x H equirectangular grid of the visibility (src/kernels/srbf/sharp.rs `taps` and
+// `texel_of` are the CPU twin, in the same f32 arithmetic): the texel holding a direction and
+// a texel's centre direction. Shared by sharp.comp and glossy_sharp.comp.
+
+const float PI = 3.14159265359;
+const float TAU = 6.28318530718;
+
+vec3 direction(float u, float v) {
+    float theta = PI * v, phi = TAU * (u - 0.5);
+    return vec3(sin(theta) * sin(phi), cos(theta), -sin(theta) * cos(phi));
+}
+
+// (column, row) of the texel holding unit direction `axis`.
+uvec2 texel_of(vec3 axis, uint width, uint height) {
+    float theta = atan(length(axis.xz), axis.y);
+    float phi = atan(axis.x, -axis.z);
+    uint x = uint(max(floor((0.5 + phi / TAU) * float(width)), 0.0)) % width;
+    uint y = min(uint(max(floor(theta / PI * float(height)), 0.0)), height - 1u);
+    return uvec2(x, y);
+}
+
+// Centre direction of texel (x, y).
+vec3 texel_direction(uvec2 t, uint width, uint height) {
+    return direction((float(t.x) + 0.5) / float(width), (float(t.y) + 0.5) / float(height));
+}
+
+// A lobe's integral 2 pi (1 - e^(-2 lambda)) / lambda, over pi.
+float integral_over_pi(float sharpness) {
+    return 2.0 * (1.0 - exp(-2.0 * sharpness)) / sharpness;
+}
