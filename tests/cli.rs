@@ -573,7 +573,7 @@ fn srbf_shade_with_sun_rays() {
 
 /// A glossy Testwuson under Blender's sunrise against the brute-force truth: the sun is a
 /// compact lobe shaded directly with the BRDF toward the camera (pass `srbf glossy sharp`).
-/// Through the 256-SG basis it erred 7.4-12.5% over these rotations (`--compact-lobes 0`);
+/// Through the 256-SG basis it erred 6.3-12.5% over these rotations (`--compact-lobes 0`);
 /// directly 0.5-0.7%. Bound 2%: a sun lost, doubled or shaded with the wrong BRDF or
 /// shadow costs several times that.
 #[test]

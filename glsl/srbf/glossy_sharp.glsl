@@ -4,11 +4,12 @@
 //   B_v += albedo * sum_j E_j V_v(w_j) rho(w_j, o_v) max(0, n_v . w_j),
 // E_j lobe j's integral (amplitude x 2 pi (1 - e^(-2 lambda)) / lambda), o_v the view
 // direction toward the camera clamped onto the horizon (src/geom/brdf.rs view_direction) and
-// rho the modified Phong BRDF. The includer defines the tap of lobe j at vertex v,
-//   float seen_at(uint v, vec3 x, vec3 n, vec3 axis, out vec3 w)
-// (the direction w the lobe is put at, and 1.0 where it is seen, else 0.0): the grid's texel
-// centre and visibility bit (glossy_sharp.comp), or the exact rotated axis and a shadow ray
-// (glossy_sharp_rays.comp). One invocation per vertex, in the vertices' own order.
+// rho the modified Phong BRDF. The includer defines lobe j's tap at vertex v,
+//   float seen_at(uint j, vec3 x, vec3 n, out vec3 w, out vec3 e)
+// (the direction w the lobe is put at, its E_j per channel, and 1.0 where it is seen, else
+// 0.0): the grid's texel centre and visibility bit (glossy_sharp.comp, from the taps pass
+// `srbf sharp` wrote), or the exact rotated axis and a shadow ray (glossy_sharp_rays.comp).
+// One invocation per vertex, in the vertices' own order.
 
 layout(push_constant) uniform Push {
     vec4 rot[3];   // columns of R (xyz)
@@ -17,18 +18,15 @@ layout(push_constant) uniform Push {
     vec4 brdf;     // Phong exponent, kd, ks
     uint lobes;    // compact lobes
     uint vertices;
-    uint width;    // visibility grid (grid taps)
-    uint height;
+    uint words;    // visibility words per vertex (grid taps)
     float offset;  // shadow ray origin offset along the normal (ray taps)
 } pc;
 
-layout(std430, set = 0, binding = 0) readonly buffer LobeAxes { vec4 v[]; } lobe_axes;   // xyz, sharpness
-layout(std430, set = 0, binding = 1) readonly buffer LobeAmps { vec4 v[]; } lobe_amps;   // rgb
-layout(std430, set = 0, binding = 2) readonly buffer Points { vec4 v[]; } points;
-layout(std430, set = 0, binding = 3) readonly buffer Normals { vec4 v[]; } normals;
-layout(std430, set = 0, binding = 4) buffer Radiance { vec4 v[]; } radiance;
+layout(std430, set = 0, binding = 0) readonly buffer Points { vec4 v[]; } points;
+layout(std430, set = 0, binding = 1) readonly buffer Normals { vec4 v[]; } normals;
+layout(std430, set = 0, binding = 2) buffer Radiance { vec4 v[]; } radiance;
 
-float seen_at(uint v, vec3 x, vec3 n, vec3 axis, out vec3 w);
+float seen_at(uint j, vec3 x, vec3 n, out vec3 w, out vec3 e);
 
 // Brdf::view_direction.
 vec3 view_direction(vec3 n, vec3 x) {
@@ -52,14 +50,11 @@ void main() {
     vec3 x = points.v[v].xyz;
     vec3 n = normals.v[v].xyz;
     vec3 o = view_direction(n, x);
-    mat3 R = mat3(pc.rot[0].xyz, pc.rot[1].xyz, pc.rot[2].xyz);
     vec3 sum = vec3(0.0);
     for (uint j = 0u; j < pc.lobes; j++) {
-        vec4 a = lobe_axes.v[j];
-        vec3 w;
-        float seen = seen_at(v, x, n, normalize(R * a.xyz), w);
-        float cosine = max(dot(n, w), 0.0);
-        sum += lobe_amps.v[j].rgb * (PI * integral_over_pi(a.w) * seen * cosine * rho(n, w, o));
+        vec3 w, e;
+        float seen = seen_at(j, x, n, w, e);
+        sum += e * (seen * max(dot(n, w), 0.0) * rho(n, w, o));
     }
     radiance.v[v] += vec4(pc.albedo.rgb * sum, 0.0);
 }

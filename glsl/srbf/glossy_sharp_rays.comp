@@ -7,6 +7,8 @@ layout(local_size_x = 64) in;
 
 #include "texel.glsl"
 
+layout(std430, set = 0, binding = 3) readonly buffer LobeAxes { vec4 v[]; } lobe_axes;   // xyz, sharpness
+layout(std430, set = 0, binding = 4) readonly buffer LobeAmps { vec4 v[]; } lobe_amps;   // rgb
 const uint BVH_ROW = 1024u;
 layout(set = 0, binding = 5, rgba32ui) readonly uniform uimage2D nodes;
 layout(set = 0, binding = 6, rgba32ui) readonly uniform uimage2D tris;
@@ -14,8 +16,11 @@ layout(set = 0, binding = 6, rgba32ui) readonly uniform uimage2D tris;
 #include <common/bvh.glsl>
 #include "glossy_sharp.glsl"
 
-float seen_at(uint v, vec3 x, vec3 n, vec3 axis, out vec3 w) {
-    w = axis;
+float seen_at(uint j, vec3 x, vec3 n, out vec3 w, out vec3 e) {
+    vec4 a = lobe_axes.v[j];
+    mat3 R = mat3(pc.rot[0].xyz, pc.rot[1].xyz, pc.rot[2].xyz);
+    w = normalize(R * a.xyz);
+    e = PI * integral_over_pi(a.w) * lobe_amps.v[j].rgb;
     float inf = uintBitsToFloat(0x7f800000u);
     return dot(n, w) > 0.0 && !any_hit(x + n * pc.offset, w, inf) ? 1.0 : 0.0;
 }

@@ -1,6 +1,7 @@
 // The W x H equirectangular grid of the visibility (src/kernels/srbf/sharp.rs `taps` and
 // `texel_of` are the CPU twin, in the same f32 arithmetic): the texel holding a direction and
-// a texel's centre direction. Shared by sharp.comp and glossy_sharp.comp.
+// a texel's centre direction, and a lobe's integral. Shared by the compact-lobe passes
+// (sharp.comp, sharp_rays.comp, glossy_sharp.comp, glossy_sharp_rays.comp).
 
 const float PI = 3.14159265359;
 const float TAU = 6.28318530718;

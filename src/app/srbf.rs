@@ -335,7 +335,8 @@ pub struct FrameReport {
     pub gpu_ms_lighting: f64,
     #[serde(serialize_with = "crate::io::finite::nan_as_null")]
     pub gpu_ms_project: f64,
-    /// Taps of the compact lobes (see `compact_lobes`).
+    /// Pass `srbf sharp` (diffuse: the compact lobes' taps, and with `--sun rays` their
+    /// shadow rays) or `srbf glossy sharp` (glossy: the compact lobes added to the radiance).
     #[serde(serialize_with = "crate::io::finite::nan_as_null")]
     pub gpu_ms_sharp: f64,
     #[serde(serialize_with = "crate::io::finite::nan_as_null")]
@@ -374,8 +375,9 @@ pub struct ShadeReport {
     pub env: String,
     pub env_size: [u32; 2],
     pub lobes: usize,
-    /// Of the lobes, those sharper than `sharp_factor` x the basis sharpness: shaded from the
-    /// visibility at the grid's texel directions, not through the basis.
+    /// Of the lobes, those sharper than `sharp_factor` x the basis sharpness (holding >= 2% of
+    /// the energy): shaded directly at their rotated directions, shadowed as `sun` says, not
+    /// through the basis.
     pub compact_lobes: usize,
     pub sharp_factor: f32,
     /// How compact lobes were shadowed: "rays" (a ray per vertex and compact lobe at its
@@ -462,8 +464,11 @@ fn transfer_for(
 }
 
 /// A result kept in a file beside a key file: `load` is tried when the stored key equals
-/// `key`, else `compute` runs and `save` stores its result, then the key. Returns the value,
-/// whether it came from the cache, and the compute time in ms (0 when cached).
+/// `key`, else `compute` runs and `save` stores its result, then the key. The old key is
+/// removed before the result is saved, so a run stopped between the two writes leaves no
+/// key that names another result. A cache that cannot be written is a warning, not an
+/// error: the computed value is used. Returns the value, whether it came from the cache,
+/// and the compute time in ms (0 when cached).
 fn cached<T>(
     key_path: &Path,
     key: &str,
@@ -479,8 +484,10 @@ fn cached<T>(
     let t0 = Instant::now();
     let v = compute()?;
     let ms = t0.elapsed().as_secs_f64() * 1e3;
-    save(&v)?;
-    crate::io::write_atomic(key_path, key.as_bytes())?;
+    let _ = std::fs::remove_file(key_path);
+    if let Err(e) = save(&v).and_then(|()| crate::io::write_atomic(key_path, key.as_bytes())) {
+        log::warn!("{e}; the result is used but not cached");
+    }
     Ok((v, false, ms))
 }
 
@@ -824,9 +831,14 @@ fn shade_glossy(
                 &cfg.out.join("glossy.cta.key"),
                 &format!("{key} {c:?}"),
                 || {
-                    Cta::load(&cta_path)
-                        .ok()
-                        .filter(|t| t.vertices == vertices && t.views == rows)
+                    Cta::load(&cta_path).ok().filter(|t| {
+                        t.vertices == vertices
+                            && t.views == rows
+                            && t.clusters == c.clusters
+                            && t.ranks == c.ranks
+                            && t.basis.axes == transfer.rows.basis.axes
+                            && t.basis.sharpness == transfer.rows.basis.sharpness
+                    })
                 },
                 || {
                     Cta::compress(
@@ -884,7 +896,14 @@ fn shade_glossy(
     let mut truth_ms = Vec::new();
     let mut frames = Vec::with_capacity(frames_in.len());
     let mut on_frame = |r: FrameResult<Vec<[f32; 3]>>, shade_ms: f64| -> Result<()> {
-        let sharp_ms = r.timings.get(PASS_GLOSSY_SHARP).unwrap_or(0.0);
+        // `srbf sharp` (the taps; grid taps only) and `srbf glossy sharp`.
+        let sharp_ms = match compact_lobes.len() {
+            0 => 0.0,
+            _ => {
+                r.timings.get(PASS_SHARP).unwrap_or(0.0)
+                    + r.timings.get(PASS_GLOSSY_SHARP).unwrap_or(f64::NAN)
+            }
+        };
         let frame = &frames_in[r.index];
         let dense = inputs.cpu_pipeline(frame)?;
         let cpu = match &cta_inputs {
@@ -981,7 +1000,7 @@ fn shade_glossy(
         "glossy: radiance toward the camera; ground truth over the {}x{} texel directions \
          ({}), visibility ray-cast along every rotated direction, f64; fit and transfer \
          shares against the {}x{} direction map's truth; {} compact lobes shaded directly \
-         (pass srbf glossy sharp, gpu_ms_sharp)",
+         (passes srbf sharp and srbf glossy sharp, gpu_ms_sharp)",
         truth_env.width,
         truth_env.height,
         if truth_env.width == env.width {

@@ -3,7 +3,7 @@
 //! form (`transfer.cpca`) and the glossy transfer's clustered tensor approximation
 //! (`glossy.cta`).
 //!
-//! Both are little endian: an 8-byte magic, a version (u32), a fixed header, the arrays as
+//! All are little endian: an 8-byte magic, a version (u32), a fixed header, the arrays as
 //! 32-bit words, then an FNV-1a 64 checksum of everything before it. Writes are atomic; a
 //! read checks the magic, version, size and checksum, and every error names the file. What
 //! the values mean (unit axes, cluster ids in range, finite numbers) is checked by the types
@@ -550,10 +550,15 @@ impl CtaFile<'static> {
                  vertices"
             )
         };
-        let lengths = Self::lengths(k, v, c, n, r)
-            .ok_or_else(|| file.bad(format!("{} overflow", needs())))?;
-        let words = 3 * k + n + lengths.iter().sum::<u128>();
-        file.check_size(CTA_HEADER as u128 + 4 * words + 8 * h + 8, needs)?;
+        let overflow = || file.bad(format!("{} overflow the file's size", needs()));
+        let lengths = Self::lengths(k, v, c, n, r).ok_or_else(overflow)?;
+        let expected = lengths
+            .iter()
+            .try_fold(3 * k + n, |sum, x| sum.checked_add(*x))
+            .and_then(|words| words.checked_mul(4))
+            .and_then(|bytes| bytes.checked_add(8 * h + CTA_HEADER as u128 + 8))
+            .ok_or_else(overflow)?;
+        file.check_size(expected, needs)?;
         let [lv, ll, lc, lu] = lengths.map(|x| x as usize);
         let (k, n, h) = (k as usize, n as usize, h as usize);
         let mut at = CTA_HEADER;
@@ -836,7 +841,13 @@ mod tests {
         forged[at..at + 4].copy_from_slice(&f32::NAN.to_le_bytes());
         let sum = fnv1a(&forged);
         forged.extend(sum.to_le_bytes());
+        // Counts whose arrays would overflow any size: C and the three ranks at u32::MAX.
+        let mut huge = good.clone();
+        for field in 2..6 {
+            huge[12 + 4 * field..16 + 4 * field].copy_from_slice(&u32::MAX.to_le_bytes());
+        }
         for (bytes, says) in [
+            (huge, "overflow the file's size"),
             (flipped, "checksum mismatch"),
             (truncated, "2 history values and 3 vertices need"),
             (forged, "core value 0 is NaN"),

@@ -9,7 +9,7 @@
 use super::cta::Cta;
 use super::glossy::{ViewBasis, local_view};
 use super::glossy_gpu::{GlossyFrame, compact_args};
-use super::glossy_sharp::{CompactStage, GlossyCompact, PASS_GLOSSY_SHARP};
+use super::glossy_sharp::{CompactStage, GlossyCompact};
 use super::pack::MAX_BASIS;
 use crate::error::{Error, Result};
 use crate::geom::sg::Lobe;
@@ -93,7 +93,7 @@ impl CtaInputs<'_> {
             return bad(format!("normal {i} is not a unit vector"));
         }
         if let Some(c) = &self.compact {
-            c.check(t.vertices)?;
+            c.check_for(t.vertices, Some(self.positions))?;
         }
         Ok(())
     }
@@ -396,8 +396,12 @@ impl CtaKernel {
         ))
     }
 
+    fn compact_taps_args(&self, frame: &GlossyFrame) -> Result<Dispatch> {
+        compact_args(&self.compact, frame, CompactStage::taps_args)
+    }
+
     fn compact_args(&self, frame: &GlossyFrame) -> Result<Dispatch> {
-        compact_args(&self.compact, frame)
+        compact_args(&self.compact, frame, CompactStage::add_args)
     }
 
     /// The compact lobes pass `srbf glossy sharp` adds (0: no such pass).
@@ -447,12 +451,7 @@ impl Kernel for CtaKernel {
             Pass::dispatch(PASS_CTA_SHADE, &s.0, &s.1, Self::shade_args),
         ];
         if let Some(c) = &self.compact {
-            passes.push(Pass::dispatch(
-                PASS_GLOSSY_SHARP,
-                &c.pipeline,
-                &c.bind,
-                Self::compact_args,
-            ));
+            passes.extend(c.passes(Self::compact_taps_args, Self::compact_args));
         }
         passes
     }

@@ -5,7 +5,7 @@
 //! ([`super::glossy_sharp`]) pass `srbf glossy sharp`, which adds them onto that radiance.
 
 use super::glossy::{GlossyTransfer, ViewBasis};
-use super::glossy_sharp::{CompactStage, GlossyCompact, PASS_GLOSSY_SHARP};
+use super::glossy_sharp::{CompactStage, GlossyCompact};
 use super::inputs::SrbfFrame;
 use super::pack::MAX_BASIS;
 use crate::error::{Error, Result};
@@ -93,7 +93,7 @@ impl GlossyInputs<'_> {
             return bad(format!("normal {i} is not a unit vector"));
         }
         if let Some(c) = &self.compact {
-            c.check(t.vertices)?;
+            c.check_for(t.vertices, Some(self.positions))?;
             if c.brdf != t.brdf {
                 return bad(format!(
                     "compact lobes shaded with {:?} for a transfer of {:?}",
@@ -124,11 +124,16 @@ impl GlossyInputs<'_> {
     }
 }
 
-/// The dispatch of pass `srbf glossy sharp` (an error when the kernel has no such pass).
-pub(crate) fn compact_args(stage: &Option<CompactStage>, frame: &GlossyFrame) -> Result<Dispatch> {
+/// The dispatch `args` gives for one of the compact stage's passes (an error when the kernel
+/// has no such stage).
+pub(crate) fn compact_args(
+    stage: &Option<CompactStage>,
+    frame: &GlossyFrame,
+    args: fn(&CompactStage, &GlossyFrame) -> Dispatch,
+) -> Result<Dispatch> {
     stage
         .as_ref()
-        .map(|c| c.args(frame))
+        .map(|c| args(c, frame))
         .ok_or_else(|| Error::InvalidArgument("the kernel has no compact lobes".into()))
 }
 
@@ -279,8 +284,12 @@ impl GlossyKernel {
         self.compact.as_ref().map_or(0, CompactStage::lobes)
     }
 
+    fn compact_taps_args(&self, frame: &GlossyFrame) -> Result<Dispatch> {
+        compact_args(&self.compact, frame, CompactStage::taps_args)
+    }
+
     fn compact_args(&self, frame: &GlossyFrame) -> Result<Dispatch> {
-        compact_args(&self.compact, frame)
+        compact_args(&self.compact, frame, CompactStage::add_args)
     }
 
     fn lighting_args(&self, frame: &GlossyFrame) -> Result<Dispatch> {
@@ -338,12 +347,7 @@ impl Kernel for GlossyKernel {
             Pass::dispatch(PASS_GLOSSY, &self.shade.0, &self.shade.1, Self::shade_args),
         ];
         if let Some(c) = &self.compact {
-            passes.push(Pass::dispatch(
-                PASS_GLOSSY_SHARP,
-                &c.pipeline,
-                &c.bind,
-                Self::compact_args,
-            ));
+            passes.extend(c.passes(Self::compact_taps_args, Self::compact_args));
         }
         passes
     }

@@ -22,8 +22,10 @@
 //!
 //! The GPU adds the taps in pass `srbf glossy sharp` (glsl/srbf/glossy_sharp.comp, or
 //! glossy_sharp_rays.comp for rays), after the glossy or CTA shade pass, onto its radiance
-//! buffer: one invocation per vertex in the vertices' own order. [`GlossyCompact::add`] is
-//! its CPU twin.
+//! buffer: one invocation per vertex in the vertices' own order. Grid taps are placed once
+//! per frame before it by pass `srbf sharp` (the diffuse path's glsl/srbf/sharp.comp) and
+//! read from a uniform buffer; placing them per vertex (two atan and four sin/cos per lane)
+//! had cost 2.0 ms a frame on the bunny. [`GlossyCompact::add`] is the CPU twin.
 
 use super::glossy_gpu::GlossyFrame;
 use super::inputs::SunRays;
@@ -33,13 +35,18 @@ use crate::geom::brdf::Brdf;
 use crate::geom::sg::Lobe;
 use crate::geom::visibility::Visibility;
 use crate::gpu::{
-    AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Image, Recorder, Resource,
+    AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Image, Recorder,
+    Resource,
 };
-use crate::kernels::{Dispatch, Grid};
+use crate::kernels::contract::DispatchArgs;
+use crate::kernels::{Dispatch, Grid, Kernel, Pass};
+use ash::vk;
 use glam::{Mat3, Vec3};
 use rayon::prelude::*;
 
 pub const PASS_GLOSSY_SHARP: &str = "srbf glossy sharp";
+/// The taps pass (grid taps only): the diffuse path's `srbf sharp` shader.
+pub use super::gpu::PASS_SHARP;
 
 /// How compact lobes are shadowed.
 #[derive(Clone, Copy)]
@@ -69,6 +76,12 @@ pub struct GlossyCompact<'a> {
 impl GlossyCompact<'_> {
     /// Checks the lobes, the BRDF and the shadowing's sizes against `vertices`.
     pub fn check(&self, vertices: usize) -> Result<()> {
+        self.check_for(vertices, None)
+    }
+
+    /// [`GlossyCompact::check`], and with `positions` (the shaded vertices) that shadow
+    /// rays start from them.
+    pub fn check_for(&self, vertices: usize, positions: Option<&[Vec3]>) -> Result<()> {
         let bad = |what: String| Err(Error::InvalidArgument(format!("compact lobes: {what}")));
         if self.lobes.len() > MAX_LOBES {
             return bad(format!("{} lobes (at most {MAX_LOBES})", self.lobes.len()));
@@ -96,6 +109,15 @@ impl GlossyCompact<'_> {
                     return bad(format!(
                         "{} ray origins for {vertices} vertices",
                         r.positions.len()
+                    ));
+                }
+                if let Some(p) =
+                    positions.and_then(|p| p.iter().zip(r.positions).position(|(a, b)| a != b))
+                {
+                    return bad(format!(
+                        "ray origin {p} ({}) is not the shaded vertex's position (the GPU casts \
+                         from the vertices)",
+                        r.positions[p]
                     ));
                 }
                 if !(r.offset.is_finite() && r.offset >= 0.0) {
@@ -133,7 +155,7 @@ impl GlossyCompact<'_> {
                 normals.len()
             )));
         }
-        self.check(n)?;
+        self.check_for(n, Some(positions))?;
         if self.lobes.is_empty() {
             return Ok(());
         }
@@ -175,10 +197,12 @@ impl GlossyCompact<'_> {
 }
 
 /// Pass `srbf glossy sharp` on the GPU: its pipeline, bindings and buffers, added to a glossy
-/// kernel's radiance buffer (bound read-write).
+/// kernel's radiance buffer (bound read-write); with grid taps, pass `srbf sharp` before it
+/// (glsl/srbf/sharp.comp, the diffuse path's) writes the frame's taps once.
 pub(crate) struct CompactStage {
-    pub(crate) pipeline: ComputePipeline,
-    pub(crate) bind: BindGroup,
+    /// Pass `srbf sharp` (grid taps only).
+    taps: Option<(ComputePipeline, BindGroup)>,
+    add: (ComputePipeline, BindGroup),
     buffers: Vec<Buffer>,
     images: Vec<Image>,
     lobes: u32,
@@ -190,8 +214,8 @@ pub(crate) struct CompactStage {
 
 impl CompactStage {
     /// Checks `compact`, creates the stage's buffers (the lobes, the vertices' positions and
-    /// normals in their own order, the grid's bits or the BVH) and records their uploads.
-    /// None when there are no compact lobes.
+    /// normals in their own order, the taps and the grid's bits, or the BVH) and records
+    /// their uploads. None when there are no compact lobes.
     pub(crate) fn new(
         rec: &mut Recorder,
         compact: &GlossyCompact<'_>,
@@ -200,7 +224,7 @@ impl CompactStage {
         radiance: &Buffer,
     ) -> Result<Option<CompactStage>> {
         let vertices = positions.len();
-        compact.check(vertices)?;
+        compact.check_for(vertices, Some(positions))?;
         if normals.len() != vertices {
             return Err(Error::InvalidArgument(format!(
                 "compact lobes: {vertices} positions and {} normals",
@@ -227,58 +251,89 @@ impl CompactStage {
             .iter()
             .map(|l| [l.amplitude[0], l.amplitude[1], l.amplitude[2], 0.0])
             .collect();
+        // 0, 1: the lobes; 2, 3: the vertices; grid taps: 4 the taps, 5 the bits.
         let mut buffers = vec![
             storage(rec, "srbf glossy compact axes", &axes)?,
             storage(rec, "srbf glossy compact amplitudes", &amps)?,
             storage(rec, "srbf glossy compact positions", &vec4(positions))?,
             storage(rec, "srbf glossy compact normals", &vec4(normals))?,
         ];
+        let b = Resource::Buffer;
         let mut images = Vec::new();
-        let (name, grid, offset) = match compact.shadow {
+        let (taps, add, grid, offset) = match compact.shadow {
             CompactShadow::Grid {
                 visibility,
                 width,
                 height,
             } => {
-                let words = ((width * height) as usize).div_ceil(32);
+                let words = (width as usize * height as usize).div_ceil(32);
                 let bits: Vec<u32> = (0..vertices)
                     .flat_map(|v| (0..words).map(move |w| visibility.word32(v, w)))
                     .collect();
+                buffers.push(
+                    rec.buffer_with(
+                        "srbf glossy compact taps",
+                        BufferDesc::storage(2 * MAX_LOBES as u64 * 16)
+                            .usage(vk::BufferUsageFlags::UNIFORM_BUFFER),
+                        &vec![[0f32; 4]; 2 * MAX_LOBES],
+                    )?,
+                );
                 buffers.push(storage(rec, "srbf glossy compact visibility", &bits)?);
-                ("srbf/glossy_sharp", [width, height], 0.0)
+                let taps = crate::shaders::pipeline(&ctx, "srbf/sharp")?;
+                let taps_bind = taps.bind_declared(
+                    &[
+                        ("lobe_axes", b(&buffers[0])),
+                        ("lobe_amps", b(&buffers[1])),
+                        ("taps", b(&buffers[4])),
+                    ],
+                    &[("taps", AccessSet::from(A::ComputeShaderWrite))],
+                )?;
+                let add = crate::shaders::pipeline(&ctx, "srbf/glossy_sharp")?;
+                let add_bind = add.bind_declared(
+                    &[
+                        ("points", b(&buffers[2])),
+                        ("normals", b(&buffers[3])),
+                        ("radiance", b(radiance)),
+                        ("taps", b(&buffers[4])),
+                        ("visible", b(&buffers[5])),
+                    ],
+                    &[(
+                        "radiance",
+                        A::ComputeShaderReadOther | A::ComputeShaderWrite,
+                    )],
+                )?;
+                (
+                    Some((taps, taps_bind)),
+                    (add, add_bind),
+                    [width, height],
+                    0.0,
+                )
             }
             CompactShadow::Rays(r) => {
                 let (nodes, tris) = r.bvh.flat();
                 let nodes = crate::geom::bvh::with_links(nodes)?;
-                let (a, b) = super::gpu::bvh_images(rec, "srbf glossy compact", &nodes, &tris)?;
+                let (a, t) = super::gpu::bvh_images(rec, "srbf glossy compact", &nodes, &tris)?;
                 images.push(a);
-                images.push(b);
-                ("srbf/glossy_sharp_rays", [1, 1], r.offset)
+                images.push(t);
+                let add = crate::shaders::pipeline(&ctx, "srbf/glossy_sharp_rays")?;
+                let add_bind = add.bind_declared(
+                    &[
+                        ("points", b(&buffers[2])),
+                        ("normals", b(&buffers[3])),
+                        ("radiance", b(radiance)),
+                        ("lobe_axes", b(&buffers[0])),
+                        ("lobe_amps", b(&buffers[1])),
+                        ("nodes", Resource::storage_image(&images[0])),
+                        ("tris", Resource::storage_image(&images[1])),
+                    ],
+                    &[(
+                        "radiance",
+                        A::ComputeShaderReadOther | A::ComputeShaderWrite,
+                    )],
+                )?;
+                (None, (add, add_bind), [1, 1], r.offset)
             }
         };
-        let pipeline = crate::shaders::pipeline(&ctx, name)?;
-        let b = Resource::Buffer;
-        let mut resources = vec![
-            ("lobe_axes", b(&buffers[0])),
-            ("lobe_amps", b(&buffers[1])),
-            ("points", b(&buffers[2])),
-            ("normals", b(&buffers[3])),
-            ("radiance", b(radiance)),
-        ];
-        match images.as_slice() {
-            [nodes, tris] => {
-                resources.push(("nodes", Resource::storage_image(nodes)));
-                resources.push(("tris", Resource::storage_image(tris)));
-            }
-            _ => resources.push(("visible", b(&buffers[4]))),
-        }
-        let bind = pipeline.bind_declared(
-            &resources,
-            &[(
-                "radiance",
-                A::ComputeShaderReadOther | A::ComputeShaderWrite,
-            )],
-        )?;
         let brdf = match compact.brdf {
             Brdf::Diffuse => [0.0, 1.0, 0.0, 0.0],
             Brdf::Phong {
@@ -288,8 +343,8 @@ impl CompactStage {
             } => [exponent, diffuse, specular, 0.0],
         };
         Ok(Some(CompactStage {
-            pipeline,
-            bind,
+            taps,
+            add,
             buffers,
             images,
             lobes: compact.lobes.len() as u32,
@@ -305,9 +360,47 @@ impl CompactStage {
         self.lobes as usize
     }
 
-    /// The dispatch of one frame.
-    pub(crate) fn args(&self, frame: &GlossyFrame) -> Dispatch {
-        let mut push: Vec<u8> = Vec::with_capacity(96);
+    /// The stage's passes for kernel `K`: `srbf sharp` (grid taps only), then
+    /// `srbf glossy sharp`, dispatched by `taps_args` and `add_args` (which call
+    /// [`CompactStage::taps_args`] and [`CompactStage::add_args`]).
+    pub(crate) fn passes<K: Kernel>(
+        &self,
+        taps_args: DispatchArgs<K>,
+        add_args: DispatchArgs<K>,
+    ) -> Vec<Pass<'_, K>> {
+        let mut passes = Vec::with_capacity(2);
+        if let Some((p, b)) = &self.taps {
+            passes.push(Pass::dispatch(PASS_SHARP, p, b, taps_args));
+        }
+        passes.push(Pass::dispatch(
+            PASS_GLOSSY_SHARP,
+            &self.add.0,
+            &self.add.1,
+            add_args,
+        ));
+        passes
+    }
+
+    /// Pass `srbf sharp`'s dispatch of one frame (glsl/srbf/sharp.comp's push constants).
+    pub(crate) fn taps_args(&self, frame: &GlossyFrame) -> Dispatch {
+        let mut push = Vec::with_capacity(60);
+        for c in 0..3 {
+            for x in frame.rotation.col(c).extend(0.0).to_array() {
+                push.extend_from_slice(&x.to_le_bytes());
+            }
+        }
+        for x in [self.lobes, self.grid[0], self.grid[1]] {
+            push.extend_from_slice(&x.to_le_bytes());
+        }
+        Dispatch {
+            push,
+            grid: Grid::Invocations([self.lobes, 1, 1]),
+        }
+    }
+
+    /// Pass `srbf glossy sharp`'s dispatch of one frame.
+    pub(crate) fn add_args(&self, frame: &GlossyFrame) -> Dispatch {
+        let mut push: Vec<u8> = Vec::with_capacity(116);
         let mut f32s = Vec::with_capacity(24);
         for c in 0..3 {
             f32s.extend(frame.rotation.col(c).extend(0.0).to_array());
@@ -318,7 +411,8 @@ impl CompactStage {
         for x in f32s {
             push.extend_from_slice(&x.to_le_bytes());
         }
-        for x in [self.lobes, self.vertices, self.grid[0], self.grid[1]] {
+        let words = (self.grid[0] as usize * self.grid[1] as usize).div_ceil(32) as u32;
+        for x in [self.lobes, self.vertices, words] {
             push.extend_from_slice(&x.to_le_bytes());
         }
         push.extend_from_slice(&self.offset.to_le_bytes());
