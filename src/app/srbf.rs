@@ -792,17 +792,11 @@ fn shade_glossy(
         brdf: cfg.brdf,
     });
     if !compact_lobes.is_empty() {
-        progress(&format!(
-            "{} compact lobes (sharpness > {} x {:.1}, >= {}% of the energy) shaded directly \
-             with the BRDF toward the camera, shadowed {}",
+        progress(&compact_note(
+            cfg,
             compact_lobes.len(),
-            cfg.sharp_factor,
             transfer.rows.basis.sharpness,
-            crate::kernels::srbf::sharp::MIN_SHARE * 100.0,
-            match cfg.sun {
-                SunMode::Rays => "by a ray per vertex at their rotated directions",
-                SunMode::Grid => "from the visibility grid's texel holding their axes",
-            }
+            " with the BRDF toward the camera",
         ));
     }
     let inputs = GlossyInputs {
@@ -1097,6 +1091,21 @@ enum GlossyOrCta {
     Cta(CtaKernel),
 }
 
+/// The progress line saying how many compact lobes are shaded directly (`how`: e.g. " with
+/// the BRDF toward the camera") and how they are shadowed.
+fn compact_note(cfg: &ShadeConfig, count: usize, basis_sharpness: f32, how: &str) -> String {
+    format!(
+        "{count} compact lobes (sharpness > {} x {basis_sharpness:.1}, >= {}% of the energy) \
+         shaded directly{how}, shadowed {}",
+        cfg.sharp_factor,
+        crate::kernels::srbf::sharp::MIN_SHARE * 100.0,
+        match cfg.sun {
+            SunMode::Rays => "by a ray per vertex at their rotated directions",
+            SunMode::Grid => "from the visibility grid's texel holding their axes",
+        }
+    )
+}
+
 /// " (cached)" or " (N ms)": where a precomputed result came from.
 fn cost(cached: bool, ms: f64) -> String {
     if cached {
@@ -1150,17 +1159,11 @@ impl<'a> Session<'a> {
         let (smooth, _) = inputs.split();
         let kernel = SrbfKernel::new(&mut setup, &inputs)?;
         if kernel.compact_count() > 0 {
-            progress(&format!(
-                "{} compact lobes (sharpness > {} x {:.1}, >= {}% of the energy) shaded \
-                 directly, shadowed {}",
+            progress(&compact_note(
+                cfg,
                 kernel.compact_count(),
-                cfg.sharp_factor,
                 pre.transfer.basis.sharpness,
-                crate::kernels::srbf::sharp::MIN_SHARE * 100.0,
-                match cfg.sun {
-                    SunMode::Rays => "by a ray per vertex at their rotated directions",
-                    SunMode::Grid => "from the visibility grid's texel holding their axes",
-                }
+                "",
             ));
         }
         setup.submit_and_wait()?;

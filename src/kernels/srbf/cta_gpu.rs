@@ -224,16 +224,7 @@ impl CtaKernel {
             "srbf cta radiance",
             BufferDesc::storage(t.vertices as u64 * 16).usage(vk::BufferUsageFlags::VERTEX_BUFFER),
         )?;
-        let lobe_axes: Vec<[f32; 4]> = inputs
-            .lobes
-            .iter()
-            .map(|l| [l.axis[0], l.axis[1], l.axis[2], l.sharpness])
-            .collect();
-        let lobe_amps: Vec<[f32; 4]> = inputs
-            .lobes
-            .iter()
-            .map(|l| [l.amplitude[0], l.amplitude[1], l.amplitude[2], 0.0])
-            .collect();
+        let (lobe_axes, lobe_amps) = super::glossy_gpu::lobe_arrays(inputs.lobes);
         // The shading order: by cluster, then along a Morton curve of the positions.
         let mut order = crate::geom::spatial_order(inputs.positions);
         order.sort_by_key(|&v| t.cluster_of[v as usize]);

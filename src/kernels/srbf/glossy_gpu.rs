@@ -124,6 +124,19 @@ impl GlossyInputs<'_> {
     }
 }
 
+/// The lobes as the shaders read them: (axis xyz, sharpness) and (amplitude rgb, 0).
+pub(crate) fn lobe_arrays(lobes: &[Lobe]) -> (Vec<[f32; 4]>, Vec<[f32; 4]>) {
+    let axes = lobes
+        .iter()
+        .map(|l| [l.axis[0], l.axis[1], l.axis[2], l.sharpness])
+        .collect();
+    let amps = lobes
+        .iter()
+        .map(|l| [l.amplitude[0], l.amplitude[1], l.amplitude[2], 0.0])
+        .collect();
+    (axes, amps)
+}
+
 /// The dispatch `args` gives for one of the compact stage's passes (an error when the kernel
 /// has no such stage).
 pub(crate) fn compact_args(
@@ -198,16 +211,7 @@ impl GlossyKernel {
         }
         let vec4 =
             |v: &[Vec3]| -> Vec<[f32; 4]> { v.iter().map(|x| x.extend(0.0).into()).collect() };
-        let lobe_axes: Vec<[f32; 4]> = inputs
-            .lobes
-            .iter()
-            .map(|l| [l.axis[0], l.axis[1], l.axis[2], l.sharpness])
-            .collect();
-        let lobe_amps: Vec<[f32; 4]> = inputs
-            .lobes
-            .iter()
-            .map(|l| [l.amplitude[0], l.amplitude[1], l.amplitude[2], 0.0])
-            .collect();
+        let (lobe_axes, lobe_amps) = lobe_arrays(inputs.lobes);
         let basis = &t.rows.basis;
         let buffers = [
             storage(rec, "srbf glossy lobe axes", &lobe_axes)?,

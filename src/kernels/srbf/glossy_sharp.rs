@@ -241,16 +241,7 @@ impl CompactStage {
         }
         let vec4 =
             |v: &[Vec3]| -> Vec<[f32; 4]> { v.iter().map(|x| x.extend(0.0).into()).collect() };
-        let axes: Vec<[f32; 4]> = compact
-            .lobes
-            .iter()
-            .map(|l| [l.axis[0], l.axis[1], l.axis[2], l.sharpness])
-            .collect();
-        let amps: Vec<[f32; 4]> = compact
-            .lobes
-            .iter()
-            .map(|l| [l.amplitude[0], l.amplitude[1], l.amplitude[2], 0.0])
-            .collect();
+        let (axes, amps) = super::glossy_gpu::lobe_arrays(compact.lobes);
         // 0, 1: the lobes; 2, 3: the vertices; grid taps: 4 the taps, 5 the bits.
         let mut buffers = vec![
             storage(rec, "srbf glossy compact axes", &axes)?,
