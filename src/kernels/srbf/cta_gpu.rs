@@ -354,13 +354,7 @@ impl CtaKernel {
     }
 
     fn lighting_args(&self, frame: &GlossyFrame) -> Result<Dispatch> {
-        let mut push: Vec<u8> = Vec::with_capacity(64);
-        for c in 0..3 {
-            let col = frame.rotation.col(c);
-            for x in [col.x, col.y, col.z, 0.0] {
-                push.extend_from_slice(&x.to_le_bytes());
-            }
-        }
+        let mut push = super::gpu::rotation_push(frame.rotation);
         push.extend_from_slice(&self.lobes.to_le_bytes());
         push.extend_from_slice(&self.basis.to_le_bytes());
         push.extend_from_slice(&self.sharpness.to_le_bytes());

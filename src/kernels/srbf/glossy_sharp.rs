@@ -374,12 +374,7 @@ impl CompactStage {
 
     /// Pass `srbf sharp`'s dispatch of one frame (glsl/srbf/sharp.comp's push constants).
     pub(crate) fn taps_args(&self, frame: &GlossyFrame) -> Dispatch {
-        let mut push = Vec::with_capacity(60);
-        for c in 0..3 {
-            for x in frame.rotation.col(c).extend(0.0).to_array() {
-                push.extend_from_slice(&x.to_le_bytes());
-            }
-        }
+        let mut push = super::gpu::rotation_push(frame.rotation);
         for x in [self.lobes, self.grid[0], self.grid[1]] {
             push.extend_from_slice(&x.to_le_bytes());
         }
@@ -391,11 +386,8 @@ impl CompactStage {
 
     /// Pass `srbf glossy sharp`'s dispatch of one frame.
     pub(crate) fn add_args(&self, frame: &GlossyFrame) -> Dispatch {
-        let mut push: Vec<u8> = Vec::with_capacity(116);
-        let mut f32s = Vec::with_capacity(24);
-        for c in 0..3 {
-            f32s.extend(frame.rotation.col(c).extend(0.0).to_array());
-        }
+        let mut push = super::gpu::rotation_push(frame.rotation);
+        let mut f32s = Vec::with_capacity(12);
         f32s.extend(frame.camera.extend(0.0).to_array());
         f32s.extend([frame.albedo[0], frame.albedo[1], frame.albedo[2], 0.0]);
         f32s.extend(self.brdf);

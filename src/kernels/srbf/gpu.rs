@@ -442,8 +442,8 @@ impl SrbfKernel {
 }
 
 /// The columns of a rotation as three vec4 (push-constant layout of `srbf lighting` and
-/// `srbf sharp`).
-fn rotation_push(r: Mat3) -> Vec<u8> {
+/// `srbf sharp`, and the first 48 bytes of the glossy passes' `srbf glossy sharp`).
+pub(super) fn rotation_push(r: Mat3) -> Vec<u8> {
     let mut push: Vec<u8> = Vec::with_capacity(64);
     for c in 0..3 {
         let col = r.col(c);
