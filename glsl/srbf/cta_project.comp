@@ -11,7 +11,10 @@ layout(push_constant) uniform Push {
 
 layout(std430, set = 0, binding = 0) readonly buffer Cores { float g[]; } cores;  // C x r_v x r_w x r_l
 layout(std430, set = 0, binding = 1) readonly buffer Y { vec4 v[]; } y;           // C x r_l
-layout(std430, set = 0, binding = 2) writeonly buffer M { vec4 v[]; } m;          // C x r_v x r_w
+// C x r_v x r_w texels, CTA_ROW wide (texel e at (e % CTA_ROW, e / CTA_ROW)): what
+// `srbf cta shade` reads.
+layout(set = 0, binding = 2, rgba32f) uniform writeonly image2D m;
+const uint CTA_ROW = 4096u;
 
 void main() {
     uint e = gl_GlobalInvocationID.x;
@@ -21,5 +24,5 @@ void main() {
     for (uint i = 0u; i < pc.rl; i++) {
         sum += cores.g[e * pc.rl + i] * y.v[c * pc.rl + i].rgb;
     }
-    m.v[e] = vec4(sum, 0.0);
+    imageStore(m, ivec2(int(e % CTA_ROW), int(e / CTA_ROW)), vec4(sum, 0.0));
 }

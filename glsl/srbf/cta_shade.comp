@@ -1,5 +1,6 @@
 #version 450
 #extension GL_GOOGLE_include_directive : require
+#extension GL_EXT_control_flow_attributes : require
 // CTA shading per vertex: the view's four bilinear taps (view.glsl) in the N x N grid, the
 // interpolated view row u_w = sum_t w_t W[j_t] (r_w) and the radiance
 // B = albedo * sum_a u_v[a] sum_b M_c[a, b] u_w[b], M_c from pass `srbf cta project`. With a
@@ -10,30 +11,46 @@
 // (by cluster, then along a Morton curve: a lane's neighbours read the same cluster's
 // tables at nearby nodes); the per-vertex inputs are uploaded in that order and the
 // radiance is written to the vertex's own slot, order[i].
+// The ranks are specialization constants and every loop over them is unrolled, so the view
+// row u_w stays in registers (indexed at run time it was a select ladder per read). The view
+// table, M_c and the vertex coefficients are read from images, not storage buffers: lavapipe
+// runs a storage-buffer load at a per-lane address as a loop over the lanes with a branch
+// per component, an image load as one vector gather (on the bunny at ranks 15,24,32 the
+// three CTA passes took 20.7 ms with buffers, 8.4-8.9 ms so; README). The images are CTA_ROW
+// texels wide, texel t at (t % CTA_ROW, t / CTA_ROW).
 layout(local_size_x = 64) in;
+
+layout(constant_id = 0) const uint RV = 8u;    // vertex rank r_v
+layout(constant_id = 1) const uint RW = 24u;   // view rank r_w (<= 32)
+const uint KW = (RW + 3u) / 4u;                // view-table texels per node (4 terms each)
+const uint KV = (RV + 3u) / 4u;                // coefficient texels per vertex
+const uint CTA_ROW = 4096u;
 
 layout(push_constant) uniform Push {
     vec4 camera;   // xyz, model units
     vec4 albedo;   // rgb
     uint vertices;
     uint grid;     // N
-    uint rv;
-    uint rw;
     uint one_table; // 1: one view table for all clusters
 } pc;
 
-layout(std430, set = 0, binding = 0) readonly buffer Coeffs { float u[]; } vcoeffs;   // n x r_v
+// n x KV texels: coefficients 4q .. 4q + 3 of the i-th vertex in texel i * KV + q.
+layout(set = 0, binding = 0, rgba32f) uniform readonly image2D vcoeffs;
 layout(std430, set = 0, binding = 1) readonly buffer Cluster { uint c[]; } cluster;   // n
-layout(std430, set = 0, binding = 2) readonly buffer View { float w[]; } view;         // C (or 1) x V x r_w
-layout(std430, set = 0, binding = 3) readonly buffer M { vec4 v[]; } m;               // C x r_v x r_w
+// (C or 1) x V nodes x KW texels: terms 4q .. 4q + 3 of node j in texel j * KW + q.
+layout(set = 0, binding = 2, rgba32f) uniform readonly image2D view;
+// C x r_v x r_w texels (rgb): M_c[a, b] in texel (c * r_v + a) * r_w + b.
+layout(set = 0, binding = 3, rgba32f) uniform readonly image2D m;
 layout(std430, set = 0, binding = 4) readonly buffer Points { vec4 v[]; } points;
 layout(std430, set = 0, binding = 5) readonly buffer Normals { vec4 v[]; } normals;
 layout(std430, set = 0, binding = 6) writeonly buffer Radiance { vec4 v[]; } radiance;
 layout(std430, set = 0, binding = 7) readonly buffer Order { uint v[]; } order;      // n
 
-const uint MAX_RW = 32u;
-
 #include "view.glsl"
+
+ivec2 cta_texel(uint t) {
+    return ivec2(int(t % CTA_ROW), int(t / CTA_ROW));
+}
 
 void main() {
     uint v = gl_GlobalInvocationID.x;
@@ -42,23 +59,25 @@ void main() {
     float wt[4];
     view_taps(points.v[v].xyz, normals.v[v].xyz, pc.camera.xyz, pc.grid, idx, wt);
     uint c = cluster.c[v];
-    float uw[MAX_RW];
     uint vbase = pc.one_table != 0u ? 0u : c * pc.grid * pc.grid;
-    for (uint k = 0u; k < pc.rw; k++) {
-        float sum = 0.0;
-        for (uint tap = 0u; tap < 4u; tap++) {
-            sum += wt[tap] * view.w[(vbase + idx[tap]) * pc.rw + k];
+    vec4 uw[KW];
+    [[unroll]] for (uint q = 0u; q < KW; q++) {
+        vec4 sum = vec4(0.0);
+        [[unroll]] for (uint tap = 0u; tap < 4u; tap++) {
+            sum += wt[tap] * imageLoad(view, cta_texel((vbase + idx[tap]) * KW + q));
         }
-        uw[k] = sum;
+        uw[q] = sum;
     }
+    vec4 uv[KV];
+    [[unroll]] for (uint q = 0u; q < KV; q++) uv[q] = imageLoad(vcoeffs, cta_texel(v * KV + q));
     vec3 sum = vec3(0.0);
-    uint mbase = c * pc.rv * pc.rw;
-    for (uint i = 0u; i < pc.rv; i++) {
+    uint mbase = c * RV * RW;
+    [[unroll]] for (uint i = 0u; i < RV; i++) {
         vec3 row = vec3(0.0);
-        for (uint k = 0u; k < pc.rw; k++) {
-            row += m.v[mbase + i * pc.rw + k].rgb * uw[k];
+        [[unroll]] for (uint k = 0u; k < RW; k++) {
+            row += imageLoad(m, cta_texel(mbase + i * RW + k)).rgb * uw[k / 4u][k % 4u];
         }
-        sum += vcoeffs.u[v * pc.rv + i] * row;
+        sum += uv[i / 4u][i % 4u] * row;
     }
     radiance.v[order.v[v]] = vec4(pc.albedo.rgb * sum, 1.0);
 }

@@ -14,8 +14,8 @@ use super::pack::MAX_BASIS;
 use crate::error::{Error, Result};
 use crate::geom::sg::Lobe;
 use crate::gpu::{
-    AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context,
-    MemoryReport, Readback, Recorder, Resource,
+    AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context, Image,
+    ImageDesc, MemoryReport, Readback, Recorder, Resource,
 };
 use crate::kernels::{Dispatch, Grid, Kernel, Pass};
 use ash::vk;
@@ -29,6 +29,9 @@ pub const PASS_CTA_SHADE: &str = "srbf cta shade";
 
 /// The largest view rank `srbf cta shade` holds (its local array).
 pub const MAX_VIEW_RANK: usize = 32;
+/// Texels per row of the CTA shade's images (`CTA_ROW` in glsl/srbf/cta_shade.comp and
+/// cta_project.comp).
+const CTA_ROW: u32 = 4096;
 
 /// What the CTA kernel is built from: the transfer's view rows are those of `view`.
 pub struct CtaInputs<'a> {
@@ -185,6 +188,9 @@ pub struct CtaKernel {
     /// Pass `srbf glossy sharp` (None without compact lobes).
     compact: Option<CompactStage>,
     buffers: Vec<Buffer>,
+    /// The view table, the per-cluster tables M_c and the vertex coefficients
+    /// (glsl/srbf/cta_shade.comp).
+    images: [Image; 3],
     vertices: u32,
     grid: u32,
     /// (r_v, r_w, r_l) as the GPU holds them (r_w = m for a factored view basis).
@@ -253,8 +259,6 @@ impl CtaKernel {
             storage(rec, "srbf cta light factors", &t.light_factors)?,
             zeros(rec, "srbf cta projected light", t.clusters * rl)?,
             storage(rec, "srbf cta cores", &cores)?,
-            zeros(rec, "srbf cta cluster tables", t.clusters * rv * rw)?,
-            storage(rec, "srbf cta vertex coefficients", &gather(&t.coeffs, rv))?,
             storage(
                 rec,
                 "srbf cta clusters",
@@ -263,7 +267,6 @@ impl CtaKernel {
                     .map(|&v| t.cluster_of[v as usize])
                     .collect::<Vec<u32>>(),
             )?,
-            storage(rec, "srbf cta view factors", &view_table)?,
             storage(rec, "srbf cta positions", &vec4(&sorted(inputs.positions)))?,
             storage(rec, "srbf cta normals", &vec4(&sorted(inputs.normals)))?,
             storage(rec, "srbf cta order", &order)?,
@@ -277,15 +280,56 @@ impl CtaKernel {
             light,
             y,
             cores,
-            m,
-            vc,
             clusters,
-            view,
             points,
             normals,
             shade_order,
         ] = std::array::from_fn(|i| &buffers[i]);
+        // The view table, KW = ceil(r_w / 4) texels a node (zero-padded), and M_c: images
+        // CTA_ROW texels wide (glsl/srbf/cta_shade.comp).
+        let kw = rw.div_ceil(4);
+        let view_texels: Vec<[f32; 4]> = view_table
+            .chunks_exact(rw)
+            .flat_map(|node| {
+                (0..kw).map(move |q| {
+                    std::array::from_fn(|j| node.get(4 * q + j).copied().unwrap_or(0.0))
+                })
+            })
+            .collect();
+        let image = |name: &str, texels: usize| -> Result<Image> {
+            let rows = texels.div_ceil(CTA_ROW as usize).max(1);
+            let max = ctx.limits().max_image_dimension_2d;
+            if rows > max as usize {
+                return Err(Error::InvalidArgument(format!(
+                    "{name}: {texels} texels need {rows} rows of {CTA_ROW}, more than the \
+                     device's maxImageDimension2D ({max}); use fewer clusters or lower ranks"
+                )));
+            }
+            Image::new(
+                &ctx,
+                name,
+                ImageDesc::d2(vk::Format::R32G32B32A32_SFLOAT, [CTA_ROW, rows as u32])
+                    .usage(vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST),
+            )
+        };
+        let view_image = image("srbf cta view factors", view_texels.len())?;
+        rec.upload_image_rows(&view_image, &view_texels)?;
+        let m_image = image("srbf cta cluster tables", t.clusters * rv * rw)?;
+        let kv = rv.div_ceil(4);
+        let coeff_texels: Vec<[f32; 4]> = gather(&t.coeffs, rv)
+            .chunks_exact(rv)
+            .flat_map(|u| {
+                (0..kv)
+                    .map(move |q| std::array::from_fn(|j| u.get(4 * q + j).copied().unwrap_or(0.0)))
+            })
+            .collect();
+        let coeff_image = image("srbf cta vertex coefficients", coeff_texels.len())?;
+        rec.upload_image_rows(&coeff_image, &coeff_texels)?;
         let (b, w) = (Resource::Buffer, AccessSet::from(A::ComputeShaderWrite));
+        let (view, m) = (
+            Resource::storage_image(&view_image),
+            Resource::storage_image(&m_image),
+        );
         let pipeline = |name| crate::shaders::pipeline(&ctx, name);
         let lighting = pipeline("srbf/lighting")?;
         let lighting_bind = lighting.bind_declared(
@@ -304,16 +348,20 @@ impl CtaKernel {
         )?;
         let project = pipeline("srbf/cta_project")?;
         let project_bind = project.bind_declared(
-            &[("cores", b(cores)), ("y", b(y)), ("m", b(m))],
+            &[("cores", b(cores)), ("y", b(y)), ("m", m.clone())],
             &[("m", w)],
         )?;
-        let shade = pipeline("srbf/cta_shade")?;
+        let shade = crate::shaders::pipeline_specialized(
+            &ctx,
+            "srbf/cta_shade",
+            &[("RV", rv as u32), ("RW", rw as u32)],
+        )?;
         let shade_bind = shade.bind_declared(
             &[
-                ("vcoeffs", b(vc)),
+                ("vcoeffs", Resource::storage_image(&coeff_image)),
                 ("cluster", b(clusters)),
-                ("view", b(view)),
-                ("m", b(m)),
+                ("view", view),
+                ("m", m),
                 ("points", b(points)),
                 ("normals", b(normals)),
                 ("radiance", b(&buffers[RADIANCE])),
@@ -345,6 +393,7 @@ impl CtaKernel {
             lobes: inputs.lobes.len() as u32,
             sharpness: t.basis.sharpness,
             buffers,
+            images: [view_image, m_image, coeff_image],
         })
     }
 
@@ -400,15 +449,9 @@ impl CtaKernel {
             .iter()
             .flat_map(|x| x.to_le_bytes())
             .chain(
-                [
-                    self.vertices,
-                    self.grid,
-                    self.ranks[0],
-                    self.ranks[1],
-                    self.shared,
-                ]
-                .iter()
-                .flat_map(|x| x.to_le_bytes()),
+                [self.vertices, self.grid, self.shared]
+                    .iter()
+                    .flat_map(|x| x.to_le_bytes()),
             )
             .collect();
         Ok(Dispatch {
@@ -459,6 +502,7 @@ impl Kernel for CtaKernel {
             self.buffers
                 .iter()
                 .map(Resource::Buffer)
+                .chain(self.images.iter().map(Resource::storage_image))
                 .chain(self.compact.iter().flat_map(CompactStage::resources)),
         )
     }
