@@ -3,7 +3,9 @@
 // axes, zero-padded to a whole number of groups of four), p_r = sum_k row_rk c_k (RGB), c_k
 // the lighting's coefficients in the transfer basis. Rows are stored in groups of four basis
 // functions, group-major: rows4[g * rows + r], so neighbouring invocations read neighbouring
-// vec4s; the coefficients are the same for every invocation (a uniform buffer: scalar loads).
+// vec4s, from an image (one vector gather on lavapipe, where a storage-buffer load is a loop
+// over the lanes); the coefficients are the same for every invocation (a uniform buffer).
+// p_r goes to texel (r, 0) of the image `srbf shade` reads.
 layout(local_size_x = 64) in;
 
 layout(push_constant) uniform Push {
@@ -11,10 +13,11 @@ layout(push_constant) uniform Push {
     uint groups;   // ceil(basis / 4)
 } pc;
 
-layout(std430, set = 0, binding = 0) readonly buffer Rows { vec4 r[]; } rows;
+layout(set = 0, binding = 0, rgba32f) uniform readonly image2D rows;  // SRBF_ROW texels wide
+const uint SRBF_ROW = 4096u;
 const uint MAX_BASIS = 1024u;
 layout(std140, set = 0, binding = 1) uniform Coeffs { vec4 v[MAX_BASIS]; } coeffs; // zero-padded
-layout(std430, set = 0, binding = 2) writeonly buffer Projected { vec4 v[]; } projected;
+layout(set = 0, binding = 2, rgba32f) uniform writeonly image2D projected;
 
 void main() {
     uint r = gl_GlobalInvocationID.x;
@@ -22,11 +25,11 @@ void main() {
     vec3 sum = vec3(0.0);
     uint index = r;
     for (uint g = 0u; g < pc.groups; g++) {
-        vec4 t = rows.r[index];
+        vec4 t = imageLoad(rows, ivec2(int(index % SRBF_ROW), int(index / SRBF_ROW)));
         uint k = 4u * g;
         sum += t.x * coeffs.v[k].rgb + t.y * coeffs.v[k + 1u].rgb + t.z * coeffs.v[k + 2u].rgb
             + t.w * coeffs.v[k + 3u].rgb;
         index += pc.rows;
     }
-    projected.v[r] = vec4(sum, 0.0);
+    imageStore(projected, ivec2(r, 0), vec4(sum, 0.0));
 }

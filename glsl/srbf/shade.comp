@@ -3,11 +3,13 @@
 // p the lighting projected onto the rows of the vertex's cluster c (pass `srbf project`).
 // Vertices are sorted by cluster and every workgroup holds vertices of one cluster only
 // (slots padded per cluster), so the cluster and every row index are uniform across the
-// workgroup: the projected rows come from a uniform buffer with uniform indices (scalar
-// loads on CPU implementations, broadcasts on GPUs) and only the weights are streamed, in
-// half precision, eight per uvec4, group-major: w8[g * slots + slot], neighbouring
-// invocations reading neighbouring uvec4s (half the loads of f32 weights: on lavapipe every
-// per-lane load is a gather). A padding slot (vertex index ~0u) computes and writes nothing.
+// workgroup, and only the weights are streamed, in half precision, eight per uvec4,
+// group-major: w8[g * slots + slot], neighbouring invocations reading neighbouring uvec4s
+// (half the loads of f32 weights: on lavapipe every per-lane load is a gather). The projected
+// rows are an image (one texel a row, written by `srbf project`): lavapipe turns a
+// uniform-buffer read at a run-time index into one scalar load per lane and component, an
+// image load into one vector gather (the pass took 0.55-0.6 ms on the bunny instead of
+// 0.72-0.74). A padding slot (vertex index ~0u) computes and writes nothing.
 // Compact lobes (src/kernels/srbf/sharp.rs) add sum_t weight_t V(w_t) max(0, n . w_t) over the
 // taps of pass `srbf sharp` (a uniform buffer read at uniform indices), from the vertex's
 // normal and visibility bits (word-major over slots: bits[word * slots + slot], so that a
@@ -31,7 +33,7 @@ layout(std430, set = 0, binding = 1) readonly buffer Slots { uint v[]; } slot_ve
 const uint MAX_GROUPS = 16384u;
 layout(std140, set = 0, binding = 2) uniform Groups { uvec4 c[MAX_GROUPS / 4u]; } group_cluster;
 const uint MAX_ROWS = 4096u;
-layout(std140, set = 0, binding = 3) uniform Projected { vec4 v[MAX_ROWS]; } projected;
+layout(set = 0, binding = 3, rgba32f) uniform readonly image2D projected;  // MAX_ROWS x 1
 layout(std430, set = 0, binding = 4) writeonly buffer Radiance { vec4 v[]; } radiance;
 layout(std430, set = 0, binding = 5) readonly buffer Normals { vec4 v[]; } normals;  // per slot
 layout(std430, set = 0, binding = 6) readonly buffer Visible { uint w[]; } visible;
@@ -46,7 +48,7 @@ void main() {
     uint vertex = slot_vertex.v[slot];
     uint group = gl_WorkGroupID.x;
     uint base = group_cluster.c[group / 4u][group % 4u] * pc.stride;
-    vec3 sum = projected.v[base].rgb;
+    vec3 sum = imageLoad(projected, ivec2(base, 0)).rgb;
     uint index = slot;
     for (uint g = 0u; g < pc.groups; g++) {
         uvec4 h = weights.w[index];
@@ -55,10 +57,10 @@ void main() {
         vec2 c = unpackHalf2x16(h.z);
         vec2 d = unpackHalf2x16(h.w);
         uint k = base + 1u + 8u * g;
-        sum += a.x * projected.v[k].rgb + a.y * projected.v[k + 1u].rgb
-            + b.x * projected.v[k + 2u].rgb + b.y * projected.v[k + 3u].rgb
-            + c.x * projected.v[k + 4u].rgb + c.y * projected.v[k + 5u].rgb
-            + d.x * projected.v[k + 6u].rgb + d.y * projected.v[k + 7u].rgb;
+        sum += a.x * imageLoad(projected, ivec2(k, 0)).rgb + a.y * imageLoad(projected, ivec2(k + 1u, 0)).rgb
+            + b.x * imageLoad(projected, ivec2(k + 2u, 0)).rgb + b.y * imageLoad(projected, ivec2(k + 3u, 0)).rgb
+            + c.x * imageLoad(projected, ivec2(k + 4u, 0)).rgb + c.y * imageLoad(projected, ivec2(k + 5u, 0)).rgb
+            + d.x * imageLoad(projected, ivec2(k + 6u, 0)).rgb + d.y * imageLoad(projected, ivec2(k + 7u, 0)).rgb;
         index += pc.slots;
     }
     if (pc.taps > 0u) {

@@ -15,7 +15,7 @@ pub use super::pack::{
     MAX_BASIS, MAX_ROWS, MAX_SHADE_GROUPS, MAX_TAPS, Prepared, Shape, rows_needed, stride,
 };
 
-use crate::error::Result;
+use crate::error::{Error, Result};
 use crate::gpu::{
     AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context, Image,
     ImageDesc, MemoryReport, Readback, Recorder, Resource,
@@ -59,6 +59,8 @@ struct SunResources {
 
 /// Width of the BVH images (glsl/srbf/sharp_rays.comp's BVH_ROW).
 const BVH_ROW: u32 = 1024;
+/// Texels per row of the CPCA rows' image (glsl/srbf/project.comp's SRBF_ROW).
+const SRBF_ROW: u32 = 4096;
 
 impl SunResources {
     /// Creates the images and buffers for `prep` and records their uploads.
@@ -138,7 +140,7 @@ struct Buffers {
     visible: Buffer,
     basis_axes: Buffer,
     /// The clustered-PCA transfer: rows and weights.
-    rows: Buffer,
+    rows: Image,
     weights: Buffer,
     slot_vertex: Buffer,
     /// The cluster of each shade workgroup (a uniform buffer).
@@ -146,7 +148,7 @@ struct Buffers {
     /// Written by one pass, read as a uniform buffer by the next: the lighting
     /// coefficients, the projected rows and the compact taps.
     coeffs: Buffer,
-    projected: Buffer,
+    projected: Image,
     taps: Buffer,
     /// Per-vertex RGB radiance, written by `srbf shade`.
     radiance: Buffer,
@@ -154,7 +156,7 @@ struct Buffers {
 
 impl Buffers {
     /// Every buffer (for the memory report).
-    fn all(&self) -> [&Buffer; 15] {
+    fn all(&self) -> [&Buffer; 13] {
         [
             &self.lobe_axes,
             &self.lobe_amps,
@@ -163,12 +165,10 @@ impl Buffers {
             &self.normals,
             &self.visible,
             &self.basis_axes,
-            &self.rows,
             &self.weights,
             &self.slot_vertex,
             &self.group_cluster,
             &self.coeffs,
-            &self.projected,
             &self.taps,
             &self.radiance,
         ]
@@ -243,9 +243,9 @@ impl SrbfKernel {
         )?;
         let project = project.bind_declared(
             &[
-                ("rows", b(&buffers.rows)),
+                ("rows", Resource::storage_image(&buffers.rows)),
                 ("coeffs", b(&buffers.coeffs)),
-                ("projected", b(&buffers.projected)),
+                ("projected", Resource::storage_image(&buffers.projected)),
             ],
             &[("projected", w)],
         )?;
@@ -278,7 +278,7 @@ impl SrbfKernel {
                 ("weights", b(&buffers.weights)),
                 ("slot_vertex", b(&buffers.slot_vertex)),
                 ("group_cluster", b(&buffers.group_cluster)),
-                ("projected", b(&buffers.projected)),
+                ("projected", Resource::storage_image(&buffers.projected)),
                 ("radiance", b(&buffers.radiance)),
                 ("normals", b(&buffers.normals)),
                 ("visible", b(visible)),
@@ -315,7 +315,25 @@ impl SrbfKernel {
             normals: storage(rec, "srbf slot normals", &prep.normals)?,
             visible: storage(rec, "srbf slot visibility", &prep.visible)?,
             basis_axes: storage(rec, "srbf basis axes", &prep.basis_axes)?,
-            rows: storage(rec, "srbf cpca rows", &layout.rows)?,
+            rows: {
+                let texels = layout.rows.len();
+                let height = texels.div_ceil(SRBF_ROW as usize).max(1) as u32;
+                let max = rec.context().limits().max_image_dimension_2d;
+                if height > max {
+                    return Err(Error::InvalidArgument(format!(
+                        "srbf cpca rows: {texels} texels need {height} rows of {SRBF_ROW}, \
+                         more than the device's maxImageDimension2D ({max})"
+                    )));
+                }
+                let image = Image::new(
+                    &rec.context(),
+                    "srbf cpca rows",
+                    ImageDesc::d2(vk::Format::R32G32B32A32_SFLOAT, [SRBF_ROW, height])
+                        .usage(vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST),
+                )?;
+                rec.upload_image_rows(&image, &layout.rows)?;
+                image
+            },
             weights: storage(rec, "srbf cpca weights", &layout.weights)?,
             slot_vertex: storage(rec, "srbf slot vertices", &layout.slot_vertex)?,
             // A uniform buffer sized for shade.comp's fixed array.
@@ -325,7 +343,12 @@ impl SrbfKernel {
                 &groups,
             )?,
             coeffs: ubo(rec, "srbf coefficients", MAX_BASIS)?,
-            projected: ubo(rec, "srbf projected rows", MAX_ROWS)?,
+            projected: Image::new(
+                &rec.context(),
+                "srbf projected rows",
+                ImageDesc::d2(vk::Format::R32G32B32A32_SFLOAT, [MAX_ROWS as u32, 1])
+                    .usage(vk::ImageUsageFlags::STORAGE),
+            )?,
             taps: ubo(rec, "srbf compact taps", 2 * MAX_TAPS)?,
             radiance: Buffer::new(
                 &rec.context(),
@@ -499,6 +522,7 @@ impl Kernel for SrbfKernel {
                 .all()
                 .into_iter()
                 .map(Resource::Buffer)
+                .chain([&self.buffers.rows, &self.buffers.projected].map(Resource::storage_image))
                 .chain(sun),
         )
     }

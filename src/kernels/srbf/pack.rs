@@ -13,8 +13,8 @@ use crate::geom::sg::Lobe;
 /// Most transfer basis functions (the size of the uniform coefficient array that `srbf
 /// project` reads; a 16 KiB uniform buffer, the smallest maxUniformBufferRange Vulkan allows).
 pub const MAX_BASIS: usize = 1024;
-/// Most projected rows, [`rows_needed`] (`srbf shade`'s uniform array: 64 KiB,
-/// the maxUniformBufferRange of lavapipe and of most desktop GPUs; checked at run time).
+/// Most projected rows, [`rows_needed`]: the width of the image `srbf project` writes and
+/// `srbf shade` reads (4096, the smallest maxImageDimension2D Vulkan allows).
 pub const MAX_ROWS: usize = 4096;
 /// Invocations per workgroup of `srbf shade` (its local_size_x): one cluster per workgroup.
 pub const SHADE_GROUP: usize = 64;
@@ -173,11 +173,12 @@ impl Prepared {
     /// dispatches the shade slots.
     pub fn check_device(&self, max_uniform_range: u64, max_group_count: u32) -> Result<()> {
         let ubo_limit = max_uniform_range as usize;
-        if ubo_limit < MAX_ROWS * 16 {
+        // `srbf shade`'s workgroup-to-cluster table is the largest uniform array.
+        if ubo_limit < MAX_SHADE_GROUPS * 4 {
             return Err(Error::InvalidArgument(format!(
                 "SRBF needs uniform buffers of {} bytes; the device allows {ubo_limit} \
                  (maxUniformBufferRange)",
-                MAX_ROWS * 16
+                MAX_SHADE_GROUPS * 4
             )));
         }
         let max_groups = (max_group_count as usize).min(MAX_SHADE_GROUPS);
