@@ -49,17 +49,32 @@ layout(push_constant) uniform Push {
 
 layout(std430, set = 0, binding = 0) readonly buffer Positions { vec4 p[]; } pos;
 layout(std430, set = 0, binding = 1) readonly buffer Normals { vec4 n[]; } nrm;
-layout(std430, set = 0, binding = 2) readonly buffer Spheres { vec4 s[]; } sph;
-layout(std430, set = 0, binding = 3) readonly buffer Table { float v[]; } table;
+// The table as quads (Buffers::table_quads): texel (i, j) holds entries (i, j), (i + 1, j),
+// (i, j + 1), (i + 1, j + 1), so a bilinear lookup is one image load.
+layout(set = 0, binding = 3, rgba32f) uniform readonly image2D table_quads;
 layout(std430, set = 0, binding = 4) readonly buffer Correction { float c[]; } correction;
 layout(std430, set = 0, binding = 5) writeonly buffer Visibility { float v[]; } ao;
 layout(std430, set = 0, binding = 6) writeonly buffer Stats { uvec2 tested_used[]; } stats;
-layout(std430, set = 0, binding = 7) readonly buffer Extents { float e[]; } ext;
-// Per inner node: 1 / its used children (a child's weight share at alpha = 0), static per
-// tree; loading it beats counting the children in every iteration.
-layout(std430, set = 0, binding = 8) readonly buffer Shares { float s[]; } share;
+// Written by `ao skin`, two texels a node (glsl/ao/skin.comp): the posed sphere, then
+// (extent, share, 0, 0), share = 1 / the node's used children (a child's weight share at
+// alpha = 0, static per tree; loading it beats counting the children in every iteration).
+// An image, not storage buffers: on lavapipe an image load is one vector gather, a
+// storage-buffer load at a per-lane address a loop over the lanes.
+layout(set = 0, binding = 2, rgba32f) uniform readonly image2D nodes;
+const uint NODE_ROW = 4096u;
+
+vec4 node_sphere(uint n) {
+    uint t = 2u * n;
+    return imageLoad(nodes, ivec2(int(t % NODE_ROW), int(t / NODE_ROW)));
+}
+
+// (extent, share) of node n.
+vec2 node_extra(uint n) {
+    uint t = 2u * n + 1u;
+    return imageLoad(nodes, ivec2(int(t % NODE_ROW), int(t / NODE_ROW))).xy;
+}
 // formula::nearest_direction_table, four 8-bit direction indices a word.
-layout(std430, set = 0, binding = 9) readonly buffer Nearest { uint k[]; } nearest;
+layout(set = 0, binding = 9, r32ui) uniform readonly uimage2D nearest;  // width: words
 // The vertices along a Morton curve (gpu::spatial_order): neighbouring lanes walk alike cuts.
 layout(std430, set = 0, binding = 10) readonly buffer Order { uint i[]; } order;
 
@@ -89,10 +104,9 @@ float table_lookup(float cos_t, float h) {
     uint j0 = min(uint(y), pc.table_n_theta - 2u);
     float fx = x - float(i0);
     float fy = y - float(j0);
-    uint r0 = j0 * pc.table_n_psi + i0;
-    uint r1 = r0 + pc.table_n_psi;
-    float a = table.v[r0] + (table.v[r0 + 1u] - table.v[r0]) * fx;
-    float b = table.v[r1] + (table.v[r1 + 1u] - table.v[r1]) * fx;
+    vec4 q = imageLoad(table_quads, ivec2(int(i0), int(j0)));
+    float a = q.x + (q.y - q.x) * fx;
+    float b = q.z + (q.w - q.z) * fx;
     return a + (b - a) * fy;
 }
 
@@ -103,7 +117,8 @@ uint nearest_direction(vec3 wl) {
     uint iy = uint(clamp((wl.y * 0.5 + 0.5) * float(AO_NEAREST_RES), 0.0, last));
     uint below = wl.z < 0.0 ? 1u : 0u;
     uint i = (below * AO_NEAREST_RES + iy) * AO_NEAREST_RES + ix;
-    return (nearest.k[i >> 2u] >> ((i & 3u) * 8u)) & 255u;
+    uint word = imageLoad(nearest, ivec2(int(i >> 2u), 0)).x;
+    return (word >> ((i & 3u) * 8u)) & 255u;
 }
 
 // The parent state of `node` (at `depth`) as the walk's descent left it: from depth 1 down
@@ -126,7 +141,8 @@ void ancestor_state(uint node, uint depth, vec3 p, out vec4 p_sph, out float p_w
     uint first_j = 1u;
     for (uint j = 1u; j < depth; ++j) {
         uint n = first_j + i / span;
-        vec4 s = sph.s[n];
+        vec4 s = node_sphere(n);
+        vec2 extra = node_extra(n);
         vec4 eff = s;
         float w = p_w;
         if (p_a < 1.0) {
@@ -134,12 +150,12 @@ void ancestor_state(uint node, uint depth, vec3 p, out vec4 p_sph, out float p_w
             w *= p_share + (1.0 - p_share) * p_a;
         }
         float d = length(s.xyz - p);
-        float size = REFINE == 1u ? ext.e[n] : s.w;
+        float size = REFINE == 1u ? extra.x : s.w;
         float a = min(ao_refinement(size, d, pc.tau, pc.band), p_a);
         p_sph = eff;
         p_w = w;
         p_a = a;
-        p_share = share.s[n];
+        p_share = extra.y;
         first_j = first_j * B + 1u;
         span /= B;
     }
@@ -178,7 +194,8 @@ void main() {
     uint node = 1u;
     uint B = BRANCH;
     while (node != 0u && node < pc.node_count) {
-        vec4 s = sph.s[node];
+        vec4 s = node_sphere(node);
+        vec2 extra = node_extra(node);
         bool descend = false;
         if (s.w >= 0.0) {
             tested++;
@@ -191,7 +208,7 @@ void main() {
             float a = 0.0;
             if (node < pc.first_leaf) {
                 float d = length(s.xyz - p);
-                float size = REFINE == 1u ? ext.e[node] : s.w;
+                float size = REFINE == 1u ? extra.x : s.w;
                 a = min(ao_refinement(size, d, pc.tau, pc.band), p_a);
             }
             if (a > 0.0) {
@@ -200,7 +217,7 @@ void main() {
                 p_sph = eff;
                 p_w = w;
                 p_a = a;
-                p_share = share.s[node];
+                p_share = extra.y;
             } else {
                 vec3 dv = eff.xyz - p;
                 float d = length(dv);

@@ -17,6 +17,20 @@ layout(std430, set = 0, binding = 2) readonly buffer SphereJoints { uvec2 j[]; }
 layout(std430, set = 0, binding = 3) readonly buffer SphereWeights { vec4 w[]; } sweights;
 layout(std430, set = 0, binding = 4) writeonly buffer Spheres { vec4 s[]; } sph;
 layout(std430, set = 0, binding = 5) writeonly buffer Extents { float e[]; } ext;
+layout(std430, set = 0, binding = 6) readonly buffer Shares { float s[]; } share;
+// What `ao occlusion` walks, two texels a node, NODE_ROW texels a row: texel 2s the posed
+// sphere (centre, radius), texel 2s + 1 (extent, child share, 0, 0). An image because
+// lavapipe loads an image texel with one vector gather and a storage-buffer element at a
+// per-lane address with a loop over the lanes.
+layout(set = 0, binding = 7, rgba32f) uniform writeonly image2D nodes;
+const uint NODE_ROW = 4096u;
+
+void store_node(uint s, vec4 sphere, float extent) {
+    uint t = 2u * s;
+    imageStore(nodes, ivec2(int(t % NODE_ROW), int(t / NODE_ROW)), sphere);
+    t += 1u;
+    imageStore(nodes, ivec2(int(t % NODE_ROW), int(t / NODE_ROW)), vec4(extent, share.s[s], 0.0, 0.0));
+}
 
 mat4 blend(uvec2 packed, vec4 w) {
     uvec4 j = uvec4(packed.x & 0xffffu, packed.x >> 16, packed.y & 0xffffu, packed.y >> 16);
@@ -35,6 +49,7 @@ void main() {
     if (rest.w < 0.0) {
         sph.s[s] = rest; // unused slot stays unused
         ext.e[s] = rest.w;
+        store_node(s, rest, rest.w);
         return;
     }
     mat4 m = blend(sjoints.j[s], sweights.w[s]);
@@ -57,4 +72,5 @@ void main() {
         }
     }
     ext.e[s] = extent;
+    store_node(s, vec4(c, rest.w), extent);
 }

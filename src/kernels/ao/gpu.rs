@@ -11,8 +11,8 @@ use super::pack::{check_correction, check_matrices};
 use super::{AoParams, Cut, Prepared, cpu};
 use crate::error::Result;
 use crate::gpu::{
-    AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context,
-    MemoryReport, Readback, Recorder, Resource, Shader,
+    AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context, Image,
+    ImageDesc, MemoryReport, Readback, Recorder, Resource, Shader,
 };
 use crate::kernels::pose::{self, PoseKernel};
 use crate::kernels::{Dispatch, Grid, Kernel, Pass};
@@ -68,8 +68,6 @@ struct Buffers {
     table: Buffer,
     /// Per node: 1 / its used children ([`child_shares`]).
     shares: Buffer,
-    /// [`super::formula::nearest_direction_table`], four indices a word.
-    nearest: Buffer,
     /// The vertices in the order the occlusion pass takes them
     /// ([`crate::geom::spatial_order`]; on Testwuson the mean of the subgroups' longest walks
     /// fell from 102.8 to 96.6 nodes, against 83.0 per vertex).
@@ -84,6 +82,12 @@ struct Buffers {
     /// buffers that can also feed a renderer's vertex input directly.
     posed_spheres: Buffer,
     posed_extents: Buffer,
+    /// The posed tree as `ao occlusion` walks it, written by `ao skin` (glsl/ao/skin.comp).
+    nodes: Image,
+    /// The occlusion table as bilinear quads and [`super::formula::nearest_direction_table`]
+    /// four indices a word, as `ao occlusion` reads them (glsl/ao/occlusion.comp).
+    table_quads: Image,
+    nearest_image: Image,
     visibility: Buffer,
     stats: Buffer,
     /// The fixed cut's lists and the pairwise overlap table ([`Cut::Fixed`] only).
@@ -110,6 +114,44 @@ impl Buffers {
     ) -> Result<Buffers> {
         use bytemuck::cast_slice as bytes;
         let ctx = rec.context();
+        let table_quads = {
+            let (w, h) = (table.n_psi as usize, table.n_theta as usize);
+            let v = &table.values;
+            let quads: Vec<[f32; 4]> = (0..h - 1)
+                .flat_map(|j| {
+                    (0..w - 1).map(move |i| {
+                        [
+                            v[j * w + i],
+                            v[j * w + i + 1],
+                            v[(j + 1) * w + i],
+                            v[(j + 1) * w + i + 1],
+                        ]
+                    })
+                })
+                .collect();
+            let image = Image::new(
+                &ctx,
+                "ao table quads",
+                ImageDesc::d2(
+                    vk::Format::R32G32B32A32_SFLOAT,
+                    [w as u32 - 1, h as u32 - 1],
+                )
+                .usage(vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST),
+            )?;
+            rec.upload_image_rows(&image, &quads)?;
+            image
+        };
+        let nearest_image = {
+            let words = nearest_words();
+            let image = Image::new(
+                &ctx,
+                "ao nearest directions",
+                ImageDesc::d2(vk::Format::R32_UINT, [words.len() as u32, 1])
+                    .usage(vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST),
+            )?;
+            rec.upload_image_rows(&image, &words)?;
+            image
+        };
         let mut upload = |name: &str, data: &[u8]| {
             rec.buffer_with(name, BufferDesc::storage(data.len() as u64), data)
         };
@@ -124,7 +166,6 @@ impl Buffers {
             sphere_weights: upload("ao sphere weights", bytes(&prep.sphere_weights))?,
             table: upload("ao table", bytes(&table.values))?,
             shares: upload("ao child shares", bytes(&child_shares(prep)))?,
-            nearest: upload("ao nearest directions", bytes(&nearest_words()))?,
             order: upload(
                 "ao vertex order",
                 bytes(&crate::geom::spatial_order(
@@ -141,6 +182,25 @@ impl Buffers {
             posed_normals: pose.normals().clone(),
             posed_spheres: output("ao posed spheres", ns * 16)?,
             posed_extents: output("ao posed extents", ns * 4)?,
+            nodes: {
+                let texels = 2 * ns;
+                let rows = texels.div_ceil(NODE_ROW as u64).max(1);
+                let max = ctx.limits().max_image_dimension_2d;
+                if rows > max as u64 {
+                    return Err(crate::error::Error::InvalidArgument(format!(
+                        "AO: {ns} tree nodes need {rows} image rows of {NODE_ROW} texels, more \
+                         than the device's maxImageDimension2D ({max})"
+                    )));
+                }
+                Image::new(
+                    &ctx,
+                    "ao tree nodes",
+                    ImageDesc::d2(vk::Format::R32G32B32A32_SFLOAT, [NODE_ROW, rows as u32])
+                        .usage(vk::ImageUsageFlags::STORAGE),
+                )?
+            },
+            table_quads,
+            nearest_image,
             visibility: output("ao visibility", nv * 4)?,
             stats: output("ao stats", nv * 8)?,
             fixed: match fixed {
@@ -158,7 +218,6 @@ impl Buffers {
         let mut all = vec![
             ("order", &self.order),
             ("share", &self.shares),
-            ("nearest", &self.nearest),
             ("rest_sph", &self.rest_spheres),
             ("sjoints", &self.sphere_joints),
             ("sweights", &self.sphere_weights),
@@ -185,7 +244,6 @@ impl Buffers {
             &self.order,
             &self.rest_spheres,
             &self.shares,
-            &self.nearest,
             &self.sphere_joints,
             &self.sphere_weights,
             &self.table,
@@ -206,6 +264,12 @@ impl Buffers {
     fn bind(&self, pipeline: &ComputePipeline, writes: &[&str]) -> Result<BindGroup> {
         let table = self.by_binding();
         let lookup = |b: &str| {
+            match b {
+                "nodes" => return Some(Resource::storage_image(&self.nodes)),
+                "table_quads" => return Some(Resource::storage_image(&self.table_quads)),
+                "nearest" => return Some(Resource::storage_image(&self.nearest_image)),
+                _ => {}
+            }
             table
                 .iter()
                 .find(|(n, _)| *n == b)
@@ -277,7 +341,9 @@ fn nearest_words() -> Vec<u32> {
 }
 
 /// The skinning pass writes the posed spheres and extents.
-const SKIN_WRITES: [&str; 2] = ["sph", "ext"];
+const SKIN_WRITES: [&str; 3] = ["sph", "ext", "nodes"];
+/// Texels per row of the node image (`NODE_ROW` in glsl/ao/skin.comp and occlusion.comp).
+const NODE_ROW: u32 = 4096;
 /// The occlusion pass writes the visibility and stats.
 const OCCLUSION_WRITES: [&str; 2] = ["ao", "stats"];
 
@@ -551,7 +617,13 @@ impl AoKernel {
     /// `used_bytes` and `allocations` are the kernel's own; `reserved_bytes` is the
     /// context's (blocks are shared).
     pub fn memory(&self) -> MemoryReport {
-        let own = self.ctx.memory_of(&self.buffers.own());
+        let b = &self.buffers;
+        let own =
+            self.ctx.memory_of_resources(
+                self.buffers.own().into_iter().map(Resource::Buffer).chain(
+                    [&b.nodes, &b.table_quads, &b.nearest_image].map(Resource::storage_image),
+                ),
+            );
         match &self.own_pose {
             Some(p) => {
                 let pose = p.memory();
