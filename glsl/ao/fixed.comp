@@ -27,15 +27,26 @@ layout(push_constant) uniform Push {
 
 layout(std430, set = 0, binding = 0) readonly buffer Positions { vec4 p[]; } pos;
 layout(std430, set = 0, binding = 1) readonly buffer Normals { vec4 n[]; } nrm;
-layout(std430, set = 0, binding = 2) readonly buffer Spheres { vec4 s[]; } sph;
-layout(std430, set = 0, binding = 3) readonly buffer Table { float v[]; } table;
+// The tables and the tree are images (one vector gather a load on lavapipe, where a
+// storage-buffer load at a per-lane address is a loop over the lanes), laid out as
+// occlusion.comp's: the posed tree two texels a node (glsl/ao/skin.comp; the sphere is texel
+// 2n), the 2D table as bilinear quads.
+layout(set = 0, binding = 2, rgba32f) uniform readonly image2D nodes;
+layout(set = 0, binding = 3, rgba32f) uniform readonly image2D table_quads;
 layout(std430, set = 0, binding = 4) readonly buffer Correction { float c[]; } correction;
 layout(std430, set = 0, binding = 5) writeonly buffer Visibility { float v[]; } ao;
 layout(std430, set = 0, binding = 6) writeonly buffer Stats { uvec2 tested_used[]; } stats;
-// Slot-major lists: fixed.k[slot * vertex_count + vertex]; NO_NODE ends a list.
-layout(std430, set = 0, binding = 7) readonly buffer Fixed { uint k[]; } fixed_nodes;
-// formula::OverlapTable: values[(k * n + j) * n + i].
-layout(std430, set = 0, binding = 8) readonly buffer Overlap { float v[]; } overlap;
+// Slot-major lists: entry slot * vertex_count + vertex, NODE_ROW texels a row; NO_NODE ends
+// a list.
+layout(set = 0, binding = 7, r32ui) uniform readonly uimage2D fixed_nodes;
+// formula::OverlapTable as quads: texel (i, j, k) holds entries (i, j), (i + 1, j),
+// (i, j + 1), (i + 1, j + 1) of slice k, so a trilinear lookup is two image loads.
+layout(set = 0, binding = 8, rgba32f) uniform readonly image3D overlap_quads;
+const uint NODE_ROW = 4096u;
+
+ivec2 row_texel(uint t) {
+    return ivec2(int(t % NODE_ROW), int(t / NODE_ROW));
+}
 
 // fixed::FIXED_SLOTS and fixed::NO_NODE.
 const uint MAX_SLOTS = 32u;
@@ -59,10 +70,9 @@ float table_lookup(float cos_t, float h) {
     uint j0 = min(uint(y), pc.table_n_theta - 2u);
     float fx = x - float(i0);
     float fy = y - float(j0);
-    uint r0 = j0 * pc.table_n_psi + i0;
-    uint r1 = r0 + pc.table_n_psi;
-    float a = table.v[r0] + (table.v[r0 + 1u] - table.v[r0]) * fx;
-    float b = table.v[r1] + (table.v[r1 + 1u] - table.v[r1]) * fx;
+    vec4 q = imageLoad(table_quads, ivec2(int(i0), int(j0)));
+    float a = q.x + (q.y - q.x) * fx;
+    float b = q.z + (q.w - q.z) * fx;
     return a + (b - a) * fy;
 }
 
@@ -95,10 +105,9 @@ float overlap_lookup(float cos_a1, float cos_a2, float cos_g) {
     float fz = z - float(k0);
     float p[2];
     for (uint q = 0u; q < 2u; ++q) {
-        uint r0 = ((k0 + q) * n + j0) * n + i0;
-        uint r1 = r0 + n;
-        float a = overlap.v[r0] + (overlap.v[r0 + 1u] - overlap.v[r0]) * fx;
-        float b = overlap.v[r1] + (overlap.v[r1 + 1u] - overlap.v[r1]) * fx;
+        vec4 t = imageLoad(overlap_quads, ivec3(int(i0), int(j0), int(k0 + q)));
+        float a = t.x + (t.y - t.x) * fx;
+        float b = t.z + (t.w - t.z) * fx;
         p[q] = a + (b - a) * fy;
     }
     return p[0] + (p[1] - p[0]) * fz;
@@ -116,10 +125,10 @@ void main() {
     uint tested = 0u;
     uint used = 0u;
     for (uint slot = 0u; slot < pc.slots; ++slot) {
-        uint node = fixed_nodes.k[slot * pc.vertex_count + vi];
+        uint node = imageLoad(fixed_nodes, row_texel(slot * pc.vertex_count + vi)).x;
         if (node == NO_NODE) break;
         tested++;
-        vec4 s = sph.s[node];
+        vec4 s = imageLoad(nodes, row_texel(2u * node));
         vec3 dv = s.xyz - p;
         float d = length(dv);
         if (!(d > s.w || CLAMP_INSIDE)) continue;

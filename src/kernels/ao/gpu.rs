@@ -12,7 +12,7 @@ use super::{AoParams, Cut, Prepared, cpu};
 use crate::error::Result;
 use crate::gpu::{
     AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context, Image,
-    ImageDesc, MemoryReport, Readback, Recorder, Resource, Shader,
+    ImageDesc, ImageRegion, MemoryReport, Readback, Recorder, Resource, Shader,
 };
 use crate::kernels::pose::{self, PoseKernel};
 use crate::kernels::{Dispatch, Grid, Kernel, Pass};
@@ -94,12 +94,13 @@ struct Buffers {
     fixed: Option<FixedBuffers>,
 }
 
-/// What the fixed cut reads besides the shared buffers.
+/// What the fixed cut reads besides the shared resources (images, as glsl/ao/fixed.comp
+/// reads them).
 struct FixedBuffers {
-    /// [`FixedCut::nodes`], slot-major.
-    nodes: Buffer,
-    /// [`super::formula::OverlapTable`].
-    overlap: Buffer,
+    /// [`FixedCut::nodes`], slot-major, `NODE_ROW` texels a row.
+    nodes: Image,
+    /// [`super::formula::OverlapTable`] as bilinear quads per slice.
+    overlap: Image,
 }
 
 impl Buffers {
@@ -152,6 +153,63 @@ impl Buffers {
             rec.upload_image_rows(&image, &words)?;
             image
         };
+        let fixed = match fixed {
+            Some(f) => Some(FixedBuffers {
+                nodes: {
+                    let rows = f.nodes.len().div_ceil(NODE_ROW as usize).max(1);
+                    let max = ctx.limits().max_image_dimension_2d as usize;
+                    if rows > max {
+                        return Err(crate::error::Error::InvalidArgument(format!(
+                            "AO fixed cut: {} list entries need {rows} image rows of \
+                             {NODE_ROW} texels, more than the device's maxImageDimension2D \
+                             ({max})",
+                            f.nodes.len()
+                        )));
+                    }
+                    let image = Image::new(
+                        &ctx,
+                        "ao fixed cut",
+                        ImageDesc::d2(vk::Format::R32_UINT, [NODE_ROW, rows as u32]).usage(
+                            vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST,
+                        ),
+                    )?;
+                    rec.upload_image_rows(&image, &f.nodes)?;
+                    image
+                },
+                overlap: {
+                    let t = overlap_table();
+                    let n = t.n as usize;
+                    let v = &t.values;
+                    let at = |i: usize, j: usize, k: usize| v[(k * n + j) * n + i];
+                    let quads: Vec<[f32; 4]> = (0..n)
+                        .flat_map(|k| {
+                            (0..n - 1).flat_map(move |j| {
+                                (0..n - 1).map(move |i| {
+                                    [
+                                        at(i, j, k),
+                                        at(i + 1, j, k),
+                                        at(i, j + 1, k),
+                                        at(i + 1, j + 1, k),
+                                    ]
+                                })
+                            })
+                        })
+                        .collect();
+                    let image = Image::new(
+                        &ctx,
+                        "ao overlap table",
+                        ImageDesc::d3(vk::Format::R32G32B32A32_SFLOAT, [t.n - 1, t.n - 1, t.n])
+                            .usage(
+                                vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST,
+                            ),
+                    )?;
+                    let region = ImageRegion::whole(image.desc());
+                    rec.upload_image(&image, region, bytemuck::cast_slice(&quads))?;
+                    image
+                },
+            }),
+            None => None,
+        };
         let mut upload = |name: &str, data: &[u8]| {
             rec.buffer_with(name, BufferDesc::storage(data.len() as u64), data)
         };
@@ -203,19 +261,13 @@ impl Buffers {
             nearest_image,
             visibility: output("ao visibility", nv * 4)?,
             stats: output("ao stats", nv * 8)?,
-            fixed: match fixed {
-                Some(f) => Some(FixedBuffers {
-                    nodes: upload("ao fixed cut", bytes(&f.nodes))?,
-                    overlap: upload("ao overlap table", bytes(&overlap_table().values))?,
-                }),
-                None => None,
-            },
+            fixed,
         })
     }
 
     /// Every buffer, with the name the shaders bind it by: the passes bind by these names.
     fn by_binding(&self) -> Vec<(&'static str, &Buffer)> {
-        let mut all = vec![
+        let all = vec![
             ("order", &self.order),
             ("share", &self.shares),
             ("rest_sph", &self.rest_spheres),
@@ -231,16 +283,13 @@ impl Buffers {
             ("ao", &self.visibility),
             ("stats", &self.stats),
         ];
-        if let Some(f) = &self.fixed {
-            all.extend([("fixed_nodes", &f.nodes), ("overlap", &f.overlap)]);
-        }
         all
     }
 
     /// The buffers the AO kernel owns (the memory report counts these; the pose's are the
     /// pose kernel's).
     fn own(&self) -> Vec<&Buffer> {
-        let mut own = vec![
+        let own = vec![
             &self.order,
             &self.rest_spheres,
             &self.shares,
@@ -253,9 +302,6 @@ impl Buffers {
             &self.visibility,
             &self.stats,
         ];
-        if let Some(f) = &self.fixed {
-            own.extend([&f.nodes, &f.overlap]);
-        }
         own
     }
 
@@ -268,6 +314,18 @@ impl Buffers {
                 "nodes" => return Some(Resource::storage_image(&self.nodes)),
                 "table_quads" => return Some(Resource::storage_image(&self.table_quads)),
                 "nearest" => return Some(Resource::storage_image(&self.nearest_image)),
+                "fixed_nodes" => {
+                    return self
+                        .fixed
+                        .as_ref()
+                        .map(|f| Resource::storage_image(&f.nodes));
+                }
+                "overlap_quads" => {
+                    return self
+                        .fixed
+                        .as_ref()
+                        .map(|f| Resource::storage_image(&f.overlap));
+                }
                 _ => {}
             }
             table
@@ -618,12 +676,18 @@ impl AoKernel {
     /// context's (blocks are shared).
     pub fn memory(&self) -> MemoryReport {
         let b = &self.buffers;
-        let own =
-            self.ctx.memory_of_resources(
-                self.buffers.own().into_iter().map(Resource::Buffer).chain(
-                    [&b.nodes, &b.table_quads, &b.nearest_image].map(Resource::storage_image),
+        let own = self.ctx.memory_of_resources(
+            self.buffers
+                .own()
+                .into_iter()
+                .map(Resource::Buffer)
+                .chain([&b.nodes, &b.table_quads, &b.nearest_image].map(Resource::storage_image))
+                .chain(
+                    b.fixed
+                        .iter()
+                        .flat_map(|f| [&f.nodes, &f.overlap].map(Resource::storage_image)),
                 ),
-            );
+        );
         match &self.own_pose {
             Some(p) => {
                 let pose = p.memory();
