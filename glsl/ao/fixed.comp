@@ -42,7 +42,7 @@ layout(set = 0, binding = 7, r32ui) uniform readonly uimage2D fixed_nodes;
 // formula::OverlapTable as quads: texel (i, j, k) holds entries (i, j), (i + 1, j),
 // (i, j + 1), (i + 1, j + 1) of slice k, so a trilinear lookup is two image loads.
 layout(set = 0, binding = 8, rgba32f) uniform readonly image3D overlap_quads;
-const uint NODE_ROW = 4096u;
+layout(constant_id = 3) const uint NODE_ROW = 4096u; // kernels::table_row
 
 ivec2 row_texel(uint t) {
     return ivec2(int(t % NODE_ROW), int(t / NODE_ROW));

@@ -61,7 +61,7 @@ layout(std430, set = 0, binding = 6) writeonly buffer Stats { uvec2 tested_used[
 // An image, not storage buffers: on lavapipe an image load is one vector gather, a
 // storage-buffer load at a per-lane address a loop over the lanes.
 layout(set = 0, binding = 2, rgba32f) uniform readonly image2D nodes;
-const uint NODE_ROW = 4096u;
+layout(constant_id = 6) const uint NODE_ROW = 4096u; // kernels::table_row
 
 vec4 node_sphere(uint n) {
     uint t = 2u * n;
@@ -74,7 +74,7 @@ vec2 node_extra(uint n) {
     return imageLoad(nodes, ivec2(int(t % NODE_ROW), int(t / NODE_ROW))).xy;
 }
 // formula::nearest_direction_table, four 8-bit direction indices a word.
-layout(set = 0, binding = 9, r32ui) uniform readonly uimage2D nearest;  // width: words
+layout(set = 0, binding = 9, r32ui) uniform readonly uimage2D nearest;  // NODE_ROW words a row
 // The vertices along a Morton curve (gpu::spatial_order): neighbouring lanes walk alike cuts.
 layout(std430, set = 0, binding = 10) readonly buffer Order { uint i[]; } order;
 
@@ -117,7 +117,8 @@ uint nearest_direction(vec3 wl) {
     uint iy = uint(clamp((wl.y * 0.5 + 0.5) * float(AO_NEAREST_RES), 0.0, last));
     uint below = wl.z < 0.0 ? 1u : 0u;
     uint i = (below * AO_NEAREST_RES + iy) * AO_NEAREST_RES + ix;
-    uint word = imageLoad(nearest, ivec2(int(i >> 2u), 0)).x;
+    uint w = i >> 2u;
+    uint word = imageLoad(nearest, ivec2(int(w % NODE_ROW), int(w / NODE_ROW))).x;
     return (word >> ((i & 3u) * 8u)) & 255u;
 }
 

@@ -23,7 +23,7 @@ layout(std430, set = 0, binding = 6) readonly buffer Shares { float s[]; } share
 // lavapipe loads an image texel with one vector gather and a storage-buffer element at a
 // per-lane address with a loop over the lanes.
 layout(set = 0, binding = 7, rgba32f) uniform writeonly image2D nodes;
-const uint NODE_ROW = 4096u;
+layout(constant_id = 0) const uint NODE_ROW = 4096u; // kernels::table_row
 
 void store_node(uint s, vec4 sphere, float extent) {
     uint t = 2u * s;

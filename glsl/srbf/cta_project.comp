@@ -14,7 +14,7 @@ layout(std430, set = 0, binding = 1) readonly buffer Y { vec4 v[]; } y;         
 // C x r_v x r_w texels, CTA_ROW wide (texel e at (e % CTA_ROW, e / CTA_ROW)): what
 // `srbf cta shade` reads.
 layout(set = 0, binding = 2, rgba32f) uniform writeonly image2D m;
-const uint CTA_ROW = 4096u;
+layout(constant_id = 0) const uint CTA_ROW = 4096u; // kernels::table_row
 
 void main() {
     uint e = gl_GlobalInvocationID.x;

@@ -24,7 +24,7 @@ layout(constant_id = 0) const uint RV = 8u;    // vertex rank r_v
 layout(constant_id = 1) const uint RW = 24u;   // view rank r_w (<= 32)
 const uint KW = (RW + 3u) / 4u;                // view-table texels per node (4 terms each)
 const uint KV = (RV + 3u) / 4u;                // coefficient texels per vertex
-const uint CTA_ROW = 4096u;
+layout(constant_id = 2) const uint CTA_ROW = 4096u; // kernels::table_row
 
 layout(push_constant) uniform Push {
     vec4 camera;   // xyz, model units

@@ -5,7 +5,7 @@
 // functions, group-major: rows4[g * rows + r], so neighbouring invocations read neighbouring
 // vec4s, from an image (one vector gather on lavapipe, where a storage-buffer load is a loop
 // over the lanes); the coefficients are the same for every invocation (a uniform buffer).
-// p_r goes to texel (r, 0) of the image `srbf shade` reads.
+// p_r goes to texel r (SRBF_ROW a row) of the image `srbf shade` reads.
 layout(local_size_x = 64) in;
 
 layout(push_constant) uniform Push {
@@ -14,7 +14,7 @@ layout(push_constant) uniform Push {
 } pc;
 
 layout(set = 0, binding = 0, rgba32f) uniform readonly image2D rows;  // SRBF_ROW texels wide
-const uint SRBF_ROW = 4096u;
+layout(constant_id = 0) const uint SRBF_ROW = 4096u; // kernels::table_row
 const uint MAX_BASIS = 1024u;
 layout(std140, set = 0, binding = 1) uniform Coeffs { vec4 v[MAX_BASIS]; } coeffs; // zero-padded
 layout(set = 0, binding = 2, rgba32f) uniform writeonly image2D projected;
@@ -31,5 +31,5 @@ void main() {
             + t.w * coeffs.v[k + 3u].rgb;
         index += pc.rows;
     }
-    imageStore(projected, ivec2(r, 0), vec4(sum, 0.0));
+    imageStore(projected, ivec2(int(r % SRBF_ROW), int(r / SRBF_ROW)), vec4(sum, 0.0));
 }

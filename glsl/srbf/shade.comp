@@ -32,8 +32,12 @@ layout(std430, set = 0, binding = 1) readonly buffer Slots { uint v[]; } slot_ve
 // lavapipe: 7x slower uncompressed).
 const uint MAX_GROUPS = 16384u;
 layout(std140, set = 0, binding = 2) uniform Groups { uvec4 c[MAX_GROUPS / 4u]; } group_cluster;
-const uint MAX_ROWS = 4096u;
-layout(set = 0, binding = 3, rgba32f) uniform readonly image2D projected;  // MAX_ROWS x 1
+layout(set = 0, binding = 3, rgba32f) uniform readonly image2D projected;  // SRBF_ROW a row
+layout(constant_id = 0) const uint SRBF_ROW = 4096u; // kernels::table_row
+
+vec3 projected_row(uint k) {
+    return imageLoad(projected, ivec2(int(k % SRBF_ROW), int(k / SRBF_ROW))).rgb;
+}
 layout(std430, set = 0, binding = 4) writeonly buffer Radiance { vec4 v[]; } radiance;
 layout(std430, set = 0, binding = 5) readonly buffer Normals { vec4 v[]; } normals;  // per slot
 layout(std430, set = 0, binding = 6) readonly buffer Visible { uint w[]; } visible;
@@ -48,7 +52,7 @@ void main() {
     uint vertex = slot_vertex.v[slot];
     uint group = gl_WorkGroupID.x;
     uint base = group_cluster.c[group / 4u][group % 4u] * pc.stride;
-    vec3 sum = imageLoad(projected, ivec2(base, 0)).rgb;
+    vec3 sum = projected_row(base);
     uint index = slot;
     for (uint g = 0u; g < pc.groups; g++) {
         uvec4 h = weights.w[index];
@@ -57,10 +61,10 @@ void main() {
         vec2 c = unpackHalf2x16(h.z);
         vec2 d = unpackHalf2x16(h.w);
         uint k = base + 1u + 8u * g;
-        sum += a.x * imageLoad(projected, ivec2(k, 0)).rgb + a.y * imageLoad(projected, ivec2(k + 1u, 0)).rgb
-            + b.x * imageLoad(projected, ivec2(k + 2u, 0)).rgb + b.y * imageLoad(projected, ivec2(k + 3u, 0)).rgb
-            + c.x * imageLoad(projected, ivec2(k + 4u, 0)).rgb + c.y * imageLoad(projected, ivec2(k + 5u, 0)).rgb
-            + d.x * imageLoad(projected, ivec2(k + 6u, 0)).rgb + d.y * imageLoad(projected, ivec2(k + 7u, 0)).rgb;
+        sum += a.x * projected_row(k) + a.y * projected_row(k + 1u)
+            + b.x * projected_row(k + 2u) + b.y * projected_row(k + 3u)
+            + c.x * projected_row(k + 4u) + c.y * projected_row(k + 5u)
+            + d.x * projected_row(k + 6u) + d.y * projected_row(k + 7u);
         index += pc.slots;
     }
     if (pc.taps > 0u) {

@@ -24,3 +24,11 @@ pub use crate::shaders::GeneratedInclude;
 pub fn generated_includes() -> impl Iterator<Item = GeneratedInclude> {
     [ao::GENERATED_INCLUDES].into_iter().flatten().copied()
 }
+
+/// Texels per row of the images that hold a kernel's long tables (the tree in `ao skin`'s
+/// image, the CTA and CPCA tables): 4096, or the device's `maxImageDimension2D` when it is
+/// smaller. The shaders take it as a specialization constant (`NODE_ROW`, `CTA_ROW`,
+/// `SRBF_ROW`), so texel t at (t % row, t / row) divides by a constant.
+pub(crate) fn table_row(ctx: &crate::gpu::Context) -> u32 {
+    ctx.limits().max_image_dimension_2d.clamp(1, 4096)
+}

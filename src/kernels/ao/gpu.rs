@@ -97,7 +97,7 @@ struct Buffers {
 /// What the fixed cut reads besides the shared resources (images, as glsl/ao/fixed.comp
 /// reads them).
 struct FixedBuffers {
-    /// [`FixedCut::nodes`], slot-major, `NODE_ROW` texels a row.
+    /// [`FixedCut::nodes`], slot-major, [`crate::kernels::table_row`] texels a row.
     nodes: Image,
     /// [`super::formula::OverlapTable`] as bilinear quads per slice.
     overlap: Image,
@@ -115,6 +115,8 @@ impl Buffers {
     ) -> Result<Buffers> {
         use bytemuck::cast_slice as bytes;
         let ctx = rec.context();
+        // Texels per row of the tree's, the words' and the lists' images (`NODE_ROW`).
+        let row = crate::kernels::table_row(&ctx);
         let table_quads = {
             let (w, h) = (table.n_psi as usize, table.n_theta as usize);
             let v = &table.values;
@@ -147,8 +149,11 @@ impl Buffers {
             let image = Image::new(
                 &ctx,
                 "ao nearest directions",
-                ImageDesc::d2(vk::Format::R32_UINT, [words.len() as u32, 1])
-                    .usage(vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST),
+                ImageDesc::d2(
+                    vk::Format::R32_UINT,
+                    [row, (words.len() as u32).div_ceil(row)],
+                )
+                .usage(vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST),
             )?;
             rec.upload_image_rows(&image, &words)?;
             image
@@ -156,12 +161,12 @@ impl Buffers {
         let fixed = match fixed {
             Some(f) => Some(FixedBuffers {
                 nodes: {
-                    let rows = f.nodes.len().div_ceil(NODE_ROW as usize).max(1);
+                    let rows = f.nodes.len().div_ceil(row as usize).max(1);
                     let max = ctx.limits().max_image_dimension_2d as usize;
                     if rows > max {
                         return Err(crate::error::Error::InvalidArgument(format!(
                             "AO fixed cut: {} list entries need {rows} image rows of \
-                             {NODE_ROW} texels, more than the device's maxImageDimension2D \
+                             {row} texels, more than the device's maxImageDimension2D \
                              ({max})",
                             f.nodes.len()
                         )));
@@ -169,7 +174,7 @@ impl Buffers {
                     let image = Image::new(
                         &ctx,
                         "ao fixed cut",
-                        ImageDesc::d2(vk::Format::R32_UINT, [NODE_ROW, rows as u32]).usage(
+                        ImageDesc::d2(vk::Format::R32_UINT, [row, rows as u32]).usage(
                             vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST,
                         ),
                     )?;
@@ -242,18 +247,18 @@ impl Buffers {
             posed_extents: output("ao posed extents", ns * 4)?,
             nodes: {
                 let texels = 2 * ns;
-                let rows = texels.div_ceil(NODE_ROW as u64).max(1);
+                let rows = texels.div_ceil(row as u64).max(1);
                 let max = ctx.limits().max_image_dimension_2d;
                 if rows > max as u64 {
                     return Err(crate::error::Error::InvalidArgument(format!(
-                        "AO: {ns} tree nodes need {rows} image rows of {NODE_ROW} texels, more \
+                        "AO: {ns} tree nodes need {rows} image rows of {row} texels, more \
                          than the device's maxImageDimension2D ({max})"
                     )));
                 }
                 Image::new(
                     &ctx,
                     "ao tree nodes",
-                    ImageDesc::d2(vk::Format::R32G32B32A32_SFLOAT, [NODE_ROW, rows as u32])
+                    ImageDesc::d2(vk::Format::R32G32B32A32_SFLOAT, [row, rows as u32])
                         .usage(vk::ImageUsageFlags::STORAGE),
                 )?
             },
@@ -343,9 +348,9 @@ impl Buffers {
 /// factor (the walk divides by it; a divisor known when the pipeline is built compiles to
 /// shifts or multiplications where a push constant is divided lane by lane on SIMD drivers).
 /// The fixed cut's pipeline (`ao/fixed`) takes the per-sphere modes only.
-fn occlusion_constants(params: &AoParams, branch: u32) -> Vec<(&'static str, u32)> {
+fn occlusion_constants(params: &AoParams, branch: u32, row: u32) -> Vec<(&'static str, u32)> {
     let spec = params.specialization();
-    match params.cut {
+    let mut c: Vec<(&'static str, u32)> = match params.cut {
         Cut::Adaptive => {
             let mut c = spec.to_vec();
             c.push(("BRANCH", branch));
@@ -355,7 +360,9 @@ fn occlusion_constants(params: &AoParams, branch: u32) -> Vec<(&'static str, u32
             .into_iter()
             .filter(|(name, _)| ["EXACT", "CLAMP_INSIDE", "CORRECT"].contains(name))
             .collect(),
-    }
+    };
+    c.push(("NODE_ROW", row));
+    c
 }
 
 /// The occlusion pass's shader for a cut.
@@ -400,8 +407,6 @@ fn nearest_words() -> Vec<u32> {
 
 /// The skinning pass writes the posed spheres and extents.
 const SKIN_WRITES: [&str; 3] = ["sph", "ext", "nodes"];
-/// Texels per row of the node image (`NODE_ROW` in glsl/ao/skin.comp and occlusion.comp).
-const NODE_ROW: u32 = 4096;
 /// The occlusion pass writes the visibility and stats.
 const OCCLUSION_WRITES: [&str; 2] = ["ao", "stats"];
 
@@ -498,7 +503,11 @@ impl AoKernel {
         pose: &PoseKernel,
     ) -> Result<AoKernel> {
         let ctx = rec.context();
-        let skin = crate::shaders::pipeline(&ctx, "ao/skin")?;
+        let skin = crate::shaders::pipeline_specialized(
+            &ctx,
+            "ao/skin",
+            &[("NODE_ROW", crate::kernels::table_row(&ctx))],
+        )?;
         let name = occlusion_shader_name(params.cut);
         let occlusion_shader = Shader::from_spirv(name, crate::shaders::spirv(name)?)?;
         let table = OcclusionTable::new(TABLE_SIZE, TABLE_SIZE);
@@ -511,7 +520,7 @@ impl AoKernel {
         let occlusion = ComputePipeline::specialized(
             &ctx,
             &occlusion_shader,
-            &occlusion_constants(&params, prep.shape.branch),
+            &occlusion_constants(&params, prep.shape.branch, crate::kernels::table_row(&ctx)),
         )?;
         Ok(AoKernel {
             own_pose: None,
@@ -588,7 +597,11 @@ impl AoKernel {
             )));
         }
         if params.specialization() != self.params.specialization() {
-            let constants = occlusion_constants(&params, self.shape.branch);
+            let constants = occlusion_constants(
+                &params,
+                self.shape.branch,
+                crate::kernels::table_row(&self.ctx),
+            );
             let occlusion =
                 ComputePipeline::specialized(&self.ctx, &self.occlusion_shader, &constants)?;
             self.occlusion_bind = self.buffers.bind(&occlusion, &OCCLUSION_WRITES)?;

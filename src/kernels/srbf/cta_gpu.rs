@@ -29,9 +29,6 @@ pub const PASS_CTA_SHADE: &str = "srbf cta shade";
 
 /// The largest view rank `srbf cta shade` holds (its local array).
 pub const MAX_VIEW_RANK: usize = 32;
-/// Texels per row of the CTA shade's images (`CTA_ROW` in glsl/srbf/cta_shade.comp and
-/// cta_project.comp).
-const CTA_ROW: u32 = 4096;
 
 /// What the CTA kernel is built from: the transfer's view rows are those of `view`.
 pub struct CtaInputs<'a> {
@@ -286,7 +283,8 @@ impl CtaKernel {
             shade_order,
         ] = std::array::from_fn(|i| &buffers[i]);
         // The view table, KW = ceil(r_w / 4) texels a node (zero-padded), and M_c: images
-        // CTA_ROW texels wide (glsl/srbf/cta_shade.comp).
+        // `row` texels wide (`CTA_ROW` in glsl/srbf/cta_shade.comp).
+        let row = crate::kernels::table_row(&ctx);
         let kw = rw.div_ceil(4);
         let view_texels: Vec<[f32; 4]> = view_table
             .chunks_exact(rw)
@@ -297,18 +295,18 @@ impl CtaKernel {
             })
             .collect();
         let image = |name: &str, texels: usize| -> Result<Image> {
-            let rows = texels.div_ceil(CTA_ROW as usize).max(1);
+            let rows = texels.div_ceil(row as usize).max(1);
             let max = ctx.limits().max_image_dimension_2d;
             if rows > max as usize {
                 return Err(Error::InvalidArgument(format!(
-                    "{name}: {texels} texels need {rows} rows of {CTA_ROW}, more than the \
+                    "{name}: {texels} texels need {rows} rows of {row}, more than the \
                      device's maxImageDimension2D ({max}); use fewer clusters or lower ranks"
                 )));
             }
             Image::new(
                 &ctx,
                 name,
-                ImageDesc::d2(vk::Format::R32G32B32A32_SFLOAT, [CTA_ROW, rows as u32])
+                ImageDesc::d2(vk::Format::R32G32B32A32_SFLOAT, [row, rows as u32])
                     .usage(vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST),
             )
         };
@@ -346,7 +344,8 @@ impl CtaKernel {
             &[("light", b(light)), ("coeffs", b(coeffs)), ("y", b(y))],
             &[("y", w)],
         )?;
-        let project = pipeline("srbf/cta_project")?;
+        let project =
+            crate::shaders::pipeline_specialized(&ctx, "srbf/cta_project", &[("CTA_ROW", row)])?;
         let project_bind = project.bind_declared(
             &[("cores", b(cores)), ("y", b(y)), ("m", m.clone())],
             &[("m", w)],
@@ -354,7 +353,7 @@ impl CtaKernel {
         let shade = crate::shaders::pipeline_specialized(
             &ctx,
             "srbf/cta_shade",
-            &[("RV", rv as u32), ("RW", rw as u32)],
+            &[("RV", rv as u32), ("RW", rw as u32), ("CTA_ROW", row)],
         )?;
         let shade_bind = shade.bind_declared(
             &[

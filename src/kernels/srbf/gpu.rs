@@ -59,8 +59,6 @@ struct SunResources {
 
 /// Width of the BVH images (glsl/srbf/sharp_rays.comp's BVH_ROW).
 const BVH_ROW: u32 = 1024;
-/// Texels per row of the CPCA rows' image (glsl/srbf/project.comp's SRBF_ROW).
-const SRBF_ROW: u32 = 4096;
 
 impl SunResources {
     /// Creates the images and buffers for `prep` and records their uploads.
@@ -193,14 +191,17 @@ impl SrbfKernel {
         )?;
         let pipeline = |name| crate::shaders::pipeline(&ctx, name);
         let lighting = pipeline("srbf/lighting")?;
-        let project = pipeline("srbf/project")?;
-        let shade = pipeline("srbf/shade")?;
+        // The rows' and projected rows' images, `row` texels a row (`SRBF_ROW`).
+        let row = crate::kernels::table_row(&ctx);
+        let project =
+            crate::shaders::pipeline_specialized(&ctx, "srbf/project", &[("SRBF_ROW", row)])?;
+        let shade = crate::shaders::pipeline_specialized(&ctx, "srbf/shade", &[("SRBF_ROW", row)])?;
         let sharp = pipeline(if prep.shape.rays {
             "srbf/sharp_rays"
         } else {
             "srbf/sharp"
         })?;
-        let buffers = Self::buffers(rec, prep)?;
+        let buffers = Self::buffers(rec, prep, row)?;
         let sun = match prep.shape.rays {
             true => Some(SunResources::new(rec, prep)?),
             false => None,
@@ -291,7 +292,7 @@ impl SrbfKernel {
 
     /// The kernel's buffers, the uploads of the inputs recorded and the intermediates
     /// zeroed.
-    fn buffers(rec: &mut Recorder, prep: &Prepared) -> Result<Buffers> {
+    fn buffers(rec: &mut Recorder, prep: &Prepared, row: u32) -> Result<Buffers> {
         fn storage<T: bytemuck::Pod>(rec: &mut Recorder, name: &str, data: &[T]) -> Result<Buffer> {
             let bytes: &[u8] = bytemuck::cast_slice(data);
             rec.buffer_with(name, BufferDesc::storage(bytes.len() as u64), bytes)
@@ -317,18 +318,18 @@ impl SrbfKernel {
             basis_axes: storage(rec, "srbf basis axes", &prep.basis_axes)?,
             rows: {
                 let texels = layout.rows.len();
-                let height = texels.div_ceil(SRBF_ROW as usize).max(1) as u32;
+                let height = texels.div_ceil(row as usize).max(1) as u32;
                 let max = rec.context().limits().max_image_dimension_2d;
                 if height > max {
                     return Err(Error::InvalidArgument(format!(
-                        "srbf cpca rows: {texels} texels need {height} rows of {SRBF_ROW}, \
+                        "srbf cpca rows: {texels} texels need {height} rows of {row}, \
                          more than the device's maxImageDimension2D ({max})"
                     )));
                 }
                 let image = Image::new(
                     &rec.context(),
                     "srbf cpca rows",
-                    ImageDesc::d2(vk::Format::R32G32B32A32_SFLOAT, [SRBF_ROW, height])
+                    ImageDesc::d2(vk::Format::R32G32B32A32_SFLOAT, [row, height])
                         .usage(vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST),
                 )?;
                 rec.upload_image_rows(&image, &layout.rows)?;
@@ -346,8 +347,11 @@ impl SrbfKernel {
             projected: Image::new(
                 &rec.context(),
                 "srbf projected rows",
-                ImageDesc::d2(vk::Format::R32G32B32A32_SFLOAT, [MAX_ROWS as u32, 1])
-                    .usage(vk::ImageUsageFlags::STORAGE),
+                ImageDesc::d2(
+                    vk::Format::R32G32B32A32_SFLOAT,
+                    [row, (MAX_ROWS as u32).div_ceil(row)],
+                )
+                .usage(vk::ImageUsageFlags::STORAGE),
             )?,
             taps: ubo(rec, "srbf compact taps", 2 * MAX_TAPS)?,
             radiance: Buffer::new(
