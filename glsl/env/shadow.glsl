@@ -36,8 +36,17 @@ layout(push_constant) uniform Push {
 
 layout(std430, set = 0, binding = 0) readonly buffer Positions { vec4 p[]; } pos;
 layout(std430, set = 0, binding = 1) readonly buffer Normals { vec4 n[]; } nrm;
-layout(std430, set = 0, binding = 2) readonly buffer Spheres { vec4 s[]; } sph;
-layout(std430, set = 0, binding = 3) readonly buffer Extents { float e[]; } ext;
+// AO's posed tree as `ao skin` writes it (AoKernel::tree_image, glsl/ao/skin.comp): texel 2n
+// the sphere, texel 2n + 1 (extent, share = 1 / the node's used children, 0, 0), NODE_ROW
+// texels a row. An image: lavapipe loads an image texel with one vector gather, a
+// storage-buffer element at a per-lane address with a loop over the lanes (and the share
+// was counted here from the B children's radii at every descent).
+layout(set = 0, binding = 2, rgba32f) readonly uniform image2D tree;
+layout(constant_id = 2) const uint NODE_ROW = 4096u; // kernels::table_row
+
+vec4 tree_texel(uint t) {
+    return imageLoad(tree, ivec2(int(t % NODE_ROW), int(t / NODE_ROW)));
+}
 #ifndef ENV_RAYS
 layout(std430, set = 0, binding = 4) readonly buffer Ao { float v[]; } ao;
 #else
@@ -222,7 +231,8 @@ void main() {
     uint B = pc.branch;
     bool clamp_inside = pc.clamp_inside != 0u;
     while (node != 0u && node < pc.node_count) {
-        vec4 s = sph.s[node];
+        vec4 s = tree_texel(2u * node);
+        vec2 extra = tree_texel(2u * node + 1u).xy;
         bool descend = false;
         if (s.w >= 0.0) {
             float a_p = parent_a[depth];
@@ -235,19 +245,16 @@ void main() {
             float a = 0.0;
             if (node < pc.first_leaf) {
                 float d = length(s.xyz - p);
-                float size = pc.refine_extent != 0u ? ext.e[node] : s.w;
+                float size = pc.refine_extent != 0u ? extra.x : s.w;
                 a = min(refinement(size, d, pc.tau, pc.band), a_p);
             }
             if (a > 0.0) {
                 descend = true;
-                uint first = node * B + 1u;
-                uint used_children = 0u;
-                for (uint c = first; c < first + B; ++c) used_children += uint(sph.s[c].w >= 0.0);
                 depth++;
                 parent_sph[depth] = eff;
                 parent_w[depth] = w;
                 parent_a[depth] = a;
-                parent_share[depth] = 1.0 / float(max(used_children, 1u));
+                parent_share[depth] = extra.y;
             } else {
                 vec3 dv = eff.xyz - p;
                 float d = length(dv);

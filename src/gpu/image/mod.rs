@@ -78,7 +78,11 @@ impl Drop for ImageInner {
     }
 }
 
-/// A Vulkan image (the owning handle).
+/// A Vulkan image. A shared handle, as [`super::Buffer`] is: clones are the same image (one
+/// tracked state per subresource, one name), so a kernel can bind an image another kernel
+/// writes (AO's posed tree, read by the environment's shadow pass); the image is retired
+/// when the last clone is dropped and the work using it completes.
+#[derive(Clone)]
 pub struct Image {
     inner: Arc<ImageInner>,
 }

@@ -250,13 +250,12 @@ impl EnvKernel {
             ("irr", output("env irradiance", nv * 16)?),
             ("pos", pose.positions().clone()),
             ("nrm", pose.normals().clone()),
-            ("sph", ao.posed_spheres().clone()),
-            ("ext", ao.posed_extents().clone()),
         ];
         if let Some(l) = list {
             buffers.push(("listed", l.clone()));
         }
-        let mut images: Vec<(&'static str, Image)> = vec![("table", table_image)];
+        let mut images: Vec<(&'static str, Image)> =
+            vec![("table", table_image), ("tree", ao.tree_image().clone())];
         let mut traced = None;
         match visibility {
             EnvVisibility::Ao => {
@@ -377,16 +376,18 @@ impl EnvKernel {
         // The lobe count sizes the shadow pass's per-lobe arrays and unrolled loops, the rays'
         // count its per-ray ones (specialization constants).
         let lobe_count = ("LOBES", nj as u32);
+        // The row width of AO's tree image (`NODE_ROW`).
+        let node_row = ("NODE_ROW", crate::kernels::table_row(&ctx));
         let shadow = match &traced {
             Some((_, config)) => crate::shaders::pipeline_specialized(
                 &ctx,
                 variant("env/shadow_rays", "env/shadow_rays_listed"),
-                &[("RAYS", config.grid * config.grid), lobe_count],
+                &[("RAYS", config.grid * config.grid), lobe_count, node_row],
             )?,
             None => crate::shaders::pipeline_specialized(
                 &ctx,
                 variant("env/shadow", "env/shadow_listed"),
-                &[lobe_count],
+                &[lobe_count, node_row],
             )?,
         };
         let rotate_bind = bind(&rotate, &["lobes"])?;
