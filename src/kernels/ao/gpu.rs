@@ -543,8 +543,9 @@ impl AoKernel {
 
     /// The posed tree as an image, written by `ao skin` each frame beside
     /// [`AoKernel::posed_spheres`] and [`AoKernel::posed_extents`]: rgba32f,
-    /// [`crate::kernels::table_row`] texels a row, texel 2n node n's sphere (centre, radius),
-    /// texel 2n + 1 (its extent, 1 / its used children, 0, 0). What `ao occlusion` and the
+    /// 4096 texels a row (fewer where `maxImageDimension2D` is smaller), texel 2n node n's
+    /// sphere (centre, radius), texel 2n + 1 (its extent, 1 / its used children, 0, 0).
+    /// What `ao occlusion` and the
     /// environment's shadow pass walk: on lavapipe an image load is one vector gather, a
     /// storage-buffer load at a per-lane address a loop over the lanes.
     pub fn tree_image(&self) -> &Image {
