@@ -64,8 +64,6 @@ struct Buffers {
     rest_spheres: Buffer,
     sphere_joints: Buffer,
     sphere_weights: Buffer,
-    /// The occlusion table ([`OcclusionTable`]).
-    table: Buffer,
     /// Per node: 1 / its used children ([`child_shares`]).
     shares: Buffer,
     /// The vertices in the order the occlusion pass takes them
@@ -227,7 +225,6 @@ impl Buffers {
             rest_spheres: upload("ao rest spheres", bytes(&prep.spheres))?,
             sphere_joints: upload("ao sphere joints", bytes(&prep.sphere_joints))?,
             sphere_weights: upload("ao sphere weights", bytes(&prep.sphere_weights))?,
-            table: upload("ao table", bytes(&table.values))?,
             shares: upload("ao child shares", bytes(&child_shares(prep)))?,
             order: upload(
                 "ao vertex order",
@@ -278,7 +275,6 @@ impl Buffers {
             ("rest_sph", &self.rest_spheres),
             ("sjoints", &self.sphere_joints),
             ("sweights", &self.sphere_weights),
-            ("table", &self.table),
             ("correction", &self.correction),
             ("joints", &self.joint_matrices),
             ("pos", &self.posed_positions),
@@ -300,7 +296,6 @@ impl Buffers {
             &self.shares,
             &self.sphere_joints,
             &self.sphere_weights,
-            &self.table,
             &self.correction,
             &self.posed_spheres,
             &self.posed_extents,
