@@ -472,3 +472,54 @@ fn back_to_back_uses_of_one_image_are_chained() {
         Ok(())
     });
 }
+
+/// Found by tests/fuzz_api.rs (seeds 90 and 194): a dispatch writes a storage image, a
+/// declared read follows with no command that reads, then a readback transitions the image.
+/// The tracker had dropped the write from the state after the read's barrier, so the
+/// transition's barrier named only the read as its source, and synchronization validation
+/// reported SYNC-HAZARD-WRITE-AFTER-WRITE on the transition. The last write now stays a
+/// source until the next write.
+#[test]
+fn a_transition_after_a_declared_read_still_waits_for_the_write() {
+    with_gpu(|ctx| {
+        let storage = |name: &str| {
+            Image::new(
+                ctx,
+                name,
+                ImageDesc::d2(vk::Format::R32G32B32A32_SFLOAT, [W, W]).usage(
+                    vk::ImageUsageFlags::STORAGE
+                        | vk::ImageUsageFlags::SAMPLED
+                        | vk::ImageUsageFlags::TRANSFER_SRC
+                        | vk::ImageUsageFlags::TRANSFER_DST,
+                ),
+            )
+        };
+        let a = storage("a")?;
+        let b = storage("b")?;
+        let c = storage("c")?;
+        clear(ctx, &a, 1.0)?;
+        clear(ctx, &c, 1.0)?;
+        let p = ComputePipeline::from_spirv(ctx, "test/pingpong", spirv("test/pingpong")?)?;
+        let bind = p.bind(&[
+            ("src", Resource::StorageImage((&a).into())),
+            ("dst", Resource::StorageImage((&b).into())),
+        ])?;
+        let push = [
+            W.to_le_bytes(),
+            W.to_le_bytes(),
+            0.5f32.to_le_bytes(),
+            0.25f32.to_le_bytes(),
+        ]
+        .concat();
+        let mut rec = ctx.recorder("write, declared read, transition")?;
+        rec.begin_pass("p");
+        rec.dispatch_invocations_tracked(&p, &bind, &push, [W, W, 1])?;
+        rec.end_pass();
+        rec.use_image(&b, b.all(), A::ComputeShaderReadOther)?;
+        rec.clear_image(&c, c.all(), [0.5; 4])?;
+        let rb = rec.read_back_image(&b, ImageRegion::whole(b.desc()))?;
+        rec.submit_and_wait()?;
+        assert_eq!(rb.to_vec::<f32>()?[0], 0.75);
+        Ok(())
+    });
+}
