@@ -523,3 +523,42 @@ fn a_transition_after_a_declared_read_still_waits_for_the_write() {
         Ok(())
     });
 }
+
+/// One buffer bound to a write binding and then to a read binding of one dispatch (an
+/// in-place kernel) is one use that writes. Applied binding by binding, the read's barrier
+/// was queued before the dispatch and the tracker took the read for the last access, so a
+/// later dispatch reading the buffer the same way got no barrier after the write
+/// (SYNC-HAZARD-READ-AFTER-WRITE).
+#[test]
+fn a_buffer_bound_twice_is_one_use() {
+    with_gpu(|ctx| {
+        let n = 256u32;
+        let desc = BufferDesc::storage(4 * n as u64)
+            .usage(vk::BufferUsageFlags::TRANSFER_DST | vk::BufferUsageFlags::TRANSFER_SRC);
+        let buf = Buffer::new(ctx, "in place", desc)?;
+        let out = Buffer::new(ctx, "out", desc)?;
+        let in_place = ComputePipeline::from_spirv(ctx, "test/in_place", spirv("test/in_place")?)?;
+        let scale =
+            ComputePipeline::from_spirv(ctx, "test/chain_scale", spirv("test/chain_scale")?)?;
+        let twice = in_place.bind(&[
+            ("dst", Resource::Buffer(&buf)),
+            ("src", Resource::Buffer(&buf)),
+        ])?;
+        let read = scale.bind(&[
+            ("src", Resource::Buffer(&buf)),
+            ("dst", Resource::Buffer(&out)),
+        ])?;
+        let x: Vec<f32> = (0..n).map(|i| i as f32).collect();
+        let mut rec = ctx.recorder("bound twice")?;
+        rec.upload(&buf, 0, &x)?;
+        rec.dispatch_invocations_tracked(&in_place, &twice, &scale_push(2.0, 1.0, n), [n, 1, 1])?;
+        rec.dispatch_invocations_tracked(&scale, &read, &scale_push(3.0, 0.0, n), [n, 1, 1])?;
+        let rb = rec.read_back(&out)?;
+        rec.submit_and_wait()?;
+        let y = rb.to_vec::<f32>()?;
+        for (i, v) in y.iter().enumerate() {
+            assert_eq!(*v, 3.0 * (2.0 * i as f32 + 1.0), "element {i}");
+        }
+        Ok(())
+    });
+}

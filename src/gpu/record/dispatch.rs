@@ -4,6 +4,7 @@
 
 use super::Recorder;
 use crate::error::{Error, Result};
+use crate::gpu::image::{ImageInner, Subresources};
 use crate::gpu::memory::{Buffer, BufferInner, require_buffer_usage};
 use crate::gpu::pipeline::{BindGroup, BindGroupInner, ComputePipeline, Target};
 use crate::gpu::sync::{AccessSet, AccessType};
@@ -25,27 +26,64 @@ pub fn dispatched_pipelines() -> std::collections::BTreeMap<String, u64> {
 }
 
 /// The uses of a dispatch: the bind group's declared accesses, plus an indirect read of
-/// `indirect` (merged into its binding's access when the buffer is also bound, so one
-/// barrier covers both).
+/// `indirect`, one use per resource (or per image subresource).
+///
+/// Bindings of one resource are merged into one access: applied one after another, a write
+/// binding followed by a read binding of the same buffer would queue the read's barrier
+/// before the dispatch (which then writes) and leave the tracker believing the last access
+/// a read, so a later read of the same kind got no barrier after the dispatch's write.
 pub(super) fn dispatch_uses(
     inner: &BindGroupInner,
     indirect: Option<&Arc<BufferInner>>,
 ) -> Vec<(Target, AccessSet)> {
-    let mut uses: Vec<(Target, AccessSet)> = inner
-        .uses
-        .iter()
-        .map(|u| (u.target.clone(), u.access))
+    let mut buffers: Vec<(Arc<BufferInner>, AccessSet)> = Vec::new();
+    let mut images: Vec<(Arc<ImageInner>, Vec<(Subresources, AccessSet)>)> = Vec::new();
+    let bound = inner.uses.iter().map(|u| (&u.target, u.access));
+    let args = indirect.map(|b| Target::Buffer(b.clone()));
+    let all = bound.chain(args.iter().map(|t| (t, AccessType::IndirectBuffer.into())));
+    for (target, access) in all {
+        match target {
+            Target::Buffer(b) => match buffers.iter_mut().find(|(o, _)| Arc::ptr_eq(o, b)) {
+                Some((_, a)) => *a = *a | access,
+                None => buffers.push((b.clone(), access)),
+            },
+            Target::Image(i, range) => match images.iter_mut().find(|(o, _)| Arc::ptr_eq(o, i)) {
+                Some((_, ranges)) => ranges.push((*range, access)),
+                None => images.push((i.clone(), vec![(*range, access)])),
+            },
+        }
+    }
+    let mut uses: Vec<(Target, AccessSet)> = buffers
+        .into_iter()
+        .map(|(b, a)| (Target::Buffer(b), a))
         .collect();
-    if let Some(args) = indirect {
-        let bound = uses
-            .iter_mut()
-            .find(|(t, _)| matches!(t, Target::Buffer(b) if Arc::ptr_eq(b, args)));
-        match bound {
-            Some((_, access)) => *access = *access | AccessType::IndirectBuffer,
-            None => uses.push((
-                Target::Buffer(args.clone()),
-                AccessType::IndirectBuffer.into(),
-            )),
+    for (image, ranges) in images {
+        let first = ranges[0].0;
+        if ranges.iter().all(|(r, _)| *r == first) {
+            let access = ranges.iter().fold(AccessSet::EMPTY, |u, (_, a)| u | *a);
+            uses.push((Target::Image(image, first), access));
+            continue;
+        }
+        // Different ranges of one image (say mip 0 sampled, mip 1 stored): one use per
+        // subresource, with the accesses of every binding that covers it. Bindings that
+        // overlap share a layout (checked when the group was made).
+        let mut subs: Vec<((u32, u32), AccessSet)> = Vec::new();
+        for (range, access) in &ranges {
+            for sub in range.iter() {
+                match subs.iter_mut().find(|(s, _)| *s == sub) {
+                    Some((_, a)) => *a = *a | *access,
+                    None => subs.push((sub, *access)),
+                }
+            }
+        }
+        for ((mip, layer), access) in subs {
+            let one = Subresources {
+                base_mip: mip,
+                mip_count: 1,
+                base_layer: layer,
+                layer_count: 1,
+            };
+            uses.push((Target::Image(image.clone(), one), access));
         }
     }
     uses
