@@ -32,3 +32,30 @@ pub fn generated_includes() -> impl Iterator<Item = GeneratedInclude> {
 pub(crate) fn table_row(ctx: &crate::gpu::Context) -> u32 {
     ctx.limits().max_image_dimension_2d.clamp(1, 4096)
 }
+
+/// A 2D image for a table of `texels` texels laid out in rows of [`table_row`] texels
+/// (texel t at (t % row, t / row)). More rows than the device's `maxImageDimension2D` is
+/// an error naming the table (`name`) and what to change (`advice`, may be empty).
+pub(crate) fn row_image(
+    ctx: &crate::gpu::Context,
+    name: &str,
+    format: ash::vk::Format,
+    texels: u64,
+    usage: ash::vk::ImageUsageFlags,
+    advice: &str,
+) -> crate::error::Result<crate::gpu::Image> {
+    let row = table_row(ctx);
+    let rows = texels.div_ceil(u64::from(row)).max(1);
+    let max = ctx.limits().max_image_dimension_2d;
+    if rows > u64::from(max) {
+        return Err(crate::error::Error::InvalidArgument(format!(
+            "{name}: {texels} texels need {rows} image rows of {row}, more than the device's \
+             maxImageDimension2D ({max}){advice}"
+        )));
+    }
+    crate::gpu::Image::new(
+        ctx,
+        name,
+        crate::gpu::ImageDesc::d2(format, [row, rows as u32]).usage(usage),
+    )
+}

@@ -113,8 +113,7 @@ impl Buffers {
     ) -> Result<Buffers> {
         use bytemuck::cast_slice as bytes;
         let ctx = rec.context();
-        // Texels per row of the tree's, the words' and the lists' images (`NODE_ROW`).
-        let row = crate::kernels::table_row(&ctx);
+        // The tree's, the words' and the lists' images are `row_image`s (`NODE_ROW` wide).
         let table_quads = {
             let (w, h) = (table.n_psi as usize, table.n_theta as usize);
             let v = &table.values;
@@ -144,14 +143,13 @@ impl Buffers {
         };
         let nearest_image = {
             let words = nearest_words();
-            let image = Image::new(
+            let image = crate::kernels::row_image(
                 &ctx,
                 "ao nearest directions",
-                ImageDesc::d2(
-                    vk::Format::R32_UINT,
-                    [row, (words.len() as u32).div_ceil(row)],
-                )
-                .usage(vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST),
+                vk::Format::R32_UINT,
+                words.len() as u64,
+                vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST,
+                "",
             )?;
             rec.upload_image_rows(&image, &words)?;
             image
@@ -159,22 +157,13 @@ impl Buffers {
         let fixed = match fixed {
             Some(f) => Some(FixedBuffers {
                 nodes: {
-                    let rows = f.nodes.len().div_ceil(row as usize).max(1);
-                    let max = ctx.limits().max_image_dimension_2d as usize;
-                    if rows > max {
-                        return Err(crate::error::Error::InvalidArgument(format!(
-                            "AO fixed cut: {} list entries need {rows} image rows of \
-                             {row} texels, more than the device's maxImageDimension2D \
-                             ({max})",
-                            f.nodes.len()
-                        )));
-                    }
-                    let image = Image::new(
+                    let image = crate::kernels::row_image(
                         &ctx,
                         "ao fixed cut",
-                        ImageDesc::d2(vk::Format::R32_UINT, [row, rows as u32]).usage(
-                            vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST,
-                        ),
+                        vk::Format::R32_UINT,
+                        f.nodes.len() as u64,
+                        vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST,
+                        "",
                     )?;
                     rec.upload_image_rows(&image, &f.nodes)?;
                     image
@@ -242,23 +231,14 @@ impl Buffers {
             posed_normals: pose.normals().clone(),
             posed_spheres: output("ao posed spheres", ns * 16)?,
             posed_extents: output("ao posed extents", ns * 4)?,
-            nodes: {
-                let texels = 2 * ns;
-                let rows = texels.div_ceil(row as u64).max(1);
-                let max = ctx.limits().max_image_dimension_2d;
-                if rows > max as u64 {
-                    return Err(crate::error::Error::InvalidArgument(format!(
-                        "AO: {ns} tree nodes need {rows} image rows of {row} texels, more \
-                         than the device's maxImageDimension2D ({max})"
-                    )));
-                }
-                Image::new(
-                    &ctx,
-                    "ao tree nodes",
-                    ImageDesc::d2(vk::Format::R32G32B32A32_SFLOAT, [row, rows as u32])
-                        .usage(vk::ImageUsageFlags::STORAGE),
-                )?
-            },
+            nodes: crate::kernels::row_image(
+                &ctx,
+                "ao tree nodes",
+                vk::Format::R32G32B32A32_SFLOAT,
+                2 * ns,
+                vk::ImageUsageFlags::STORAGE,
+                "",
+            )?,
             table_quads,
             nearest_image,
             visibility: output("ao visibility", nv * 4)?,

@@ -15,7 +15,7 @@ use crate::error::{Error, Result};
 use crate::geom::sg::Lobe;
 use crate::gpu::{
     AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context, Image,
-    ImageDesc, MemoryReport, Readback, Recorder, Resource,
+    MemoryReport, Readback, Recorder, Resource,
 };
 use crate::kernels::{Dispatch, Grid, Kernel, Pass};
 use ash::vk;
@@ -295,19 +295,13 @@ impl CtaKernel {
             })
             .collect();
         let image = |name: &str, texels: usize| -> Result<Image> {
-            let rows = texels.div_ceil(row as usize).max(1);
-            let max = ctx.limits().max_image_dimension_2d;
-            if rows > max as usize {
-                return Err(Error::InvalidArgument(format!(
-                    "{name}: {texels} texels need {rows} rows of {row}, more than the \
-                     device's maxImageDimension2D ({max}); use fewer clusters or lower ranks"
-                )));
-            }
-            Image::new(
+            crate::kernels::row_image(
                 &ctx,
                 name,
-                ImageDesc::d2(vk::Format::R32G32B32A32_SFLOAT, [row, rows as u32])
-                    .usage(vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST),
+                vk::Format::R32G32B32A32_SFLOAT,
+                texels as u64,
+                vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST,
+                "; use fewer clusters or lower ranks",
             )
         };
         let view_image = image("srbf cta view factors", view_texels.len())?;

@@ -15,7 +15,7 @@ pub use super::pack::{
     MAX_BASIS, MAX_ROWS, MAX_SHADE_GROUPS, MAX_TAPS, Prepared, Shape, rows_needed, stride,
 };
 
-use crate::error::{Error, Result};
+use crate::error::Result;
 use crate::gpu::{
     AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context, Image,
     ImageDesc, MemoryReport, Readback, Recorder, Resource,
@@ -201,7 +201,7 @@ impl SrbfKernel {
         } else {
             "srbf/sharp"
         })?;
-        let buffers = Self::buffers(rec, prep, row)?;
+        let buffers = Self::buffers(rec, prep)?;
         let sun = match prep.shape.rays {
             true => Some(SunResources::new(rec, prep)?),
             false => None,
@@ -292,7 +292,7 @@ impl SrbfKernel {
 
     /// The kernel's buffers, the uploads of the inputs recorded and the intermediates
     /// zeroed.
-    fn buffers(rec: &mut Recorder, prep: &Prepared, row: u32) -> Result<Buffers> {
+    fn buffers(rec: &mut Recorder, prep: &Prepared) -> Result<Buffers> {
         fn storage<T: bytemuck::Pod>(rec: &mut Recorder, name: &str, data: &[T]) -> Result<Buffer> {
             let bytes: &[u8] = bytemuck::cast_slice(data);
             rec.buffer_with(name, BufferDesc::storage(bytes.len() as u64), bytes)
@@ -317,20 +317,13 @@ impl SrbfKernel {
             visible: storage(rec, "srbf slot visibility", &prep.visible)?,
             basis_axes: storage(rec, "srbf basis axes", &prep.basis_axes)?,
             rows: {
-                let texels = layout.rows.len();
-                let height = texels.div_ceil(row as usize).max(1) as u32;
-                let max = rec.context().limits().max_image_dimension_2d;
-                if height > max {
-                    return Err(Error::InvalidArgument(format!(
-                        "srbf cpca rows: {texels} texels need {height} rows of {row}, \
-                         more than the device's maxImageDimension2D ({max})"
-                    )));
-                }
-                let image = Image::new(
+                let image = crate::kernels::row_image(
                     &rec.context(),
                     "srbf cpca rows",
-                    ImageDesc::d2(vk::Format::R32G32B32A32_SFLOAT, [row, height])
-                        .usage(vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST),
+                    vk::Format::R32G32B32A32_SFLOAT,
+                    layout.rows.len() as u64,
+                    vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST,
+                    "",
                 )?;
                 rec.upload_image_rows(&image, &layout.rows)?;
                 image
@@ -344,14 +337,13 @@ impl SrbfKernel {
                 &groups,
             )?,
             coeffs: ubo(rec, "srbf coefficients", MAX_BASIS)?,
-            projected: Image::new(
+            projected: crate::kernels::row_image(
                 &rec.context(),
                 "srbf projected rows",
-                ImageDesc::d2(
-                    vk::Format::R32G32B32A32_SFLOAT,
-                    [row, (MAX_ROWS as u32).div_ceil(row)],
-                )
-                .usage(vk::ImageUsageFlags::STORAGE),
+                vk::Format::R32G32B32A32_SFLOAT,
+                MAX_ROWS as u64,
+                vk::ImageUsageFlags::STORAGE,
+                "",
             )?,
             taps: ubo(rec, "srbf compact taps", 2 * MAX_TAPS)?,
             radiance: Buffer::new(
