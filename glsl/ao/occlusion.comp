@@ -35,6 +35,7 @@ layout(constant_id = 2) const bool CLAMP_INSIDE = false; // receiver inside a le
 layout(constant_id = 3) const bool CORRECT = true;      // apply the static correction
 layout(constant_id = 4) const uint REFINE = 1u;         // 0 radius, 1 extent
 layout(constant_id = 5) const uint BRANCH = 8u;         // the tree's branch factor
+layout(constant_id = 7) const uint LEVELS = 3u;         // the tree's levels below the root
 
 layout(push_constant) uniform Push {
     uint vertex_count;
@@ -191,6 +192,15 @@ void main() {
     float p_a = 1.0;
     float p_share = 1.0;
     uint depth = 1u;
+    // The parent state of depth 2 (set when a level-1 node is refined): a climb back to
+    // depth 1 or 2 restores its state instead of recomputing it. ancestor_state is compiled
+    // in only for trees of more than 3 levels: a loop costs lavapipe even when no lane
+    // enters it, and its mere presence cost ~20% of the pass (the 8/64/512 tree never
+    // needs it).
+    vec4 s2_sph = vec4(0.0);
+    float s2_w = 1.0;
+    float s2_a = 1.0;
+    float s2_share = 1.0;
 
     uint node = 1u;
     uint B = BRANCH;
@@ -219,6 +229,12 @@ void main() {
                 p_w = w;
                 p_a = a;
                 p_share = extra.y;
+                if (depth == 2u) {
+                    s2_sph = eff;
+                    s2_w = w;
+                    s2_a = a;
+                    s2_share = extra.y;
+                }
             } else {
                 vec3 dv = eff.xyz - p;
                 float d = length(dv);
@@ -268,7 +284,21 @@ void main() {
             }
             if (node != 0u) {
                 node += 1u;
-                if (depth < from) ancestor_state(node, depth, p, p_sph, p_w, p_a, p_share);
+                if (depth < from) {
+                    if (depth == 1u) {
+                        p_sph = vec4(0.0);
+                        p_w = 1.0;
+                        p_a = 1.0;
+                        p_share = 1.0;
+                    } else if (depth == 2u) {
+                        p_sph = s2_sph;
+                        p_w = s2_w;
+                        p_a = s2_a;
+                        p_share = s2_share;
+                    } else if (LEVELS > 3u) {
+                        ancestor_state(node, depth, p, p_sph, p_w, p_a, p_share);
+                    }
+                }
             }
         }
     }

@@ -99,6 +99,19 @@ pub struct TreeShape {
     pub first_leaf: u32,
 }
 
+impl TreeShape {
+    /// Levels below the root: the depth of `first_leaf` in the implicit `branch`-ary tree
+    /// (3 for 8/64/512).
+    pub fn levels(&self) -> u32 {
+        let (mut first, mut levels) = (0u64, 0u32);
+        while first < u64::from(self.first_leaf) && levels <= MAX_DEPTH as u32 {
+            first = first * u64::from(self.branch) + 1;
+            levels += 1;
+        }
+        levels
+    }
+}
+
 /// Without `clamp_inside`, a sphere's radius grows from 0 to its own as the receiver's
 /// distance from its centre goes from 1 to 1 + INSIDE_FADE radii (no jump when it starts or
 /// stops holding the receiver).

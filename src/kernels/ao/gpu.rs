@@ -323,12 +323,17 @@ impl Buffers {
 /// factor (the walk divides by it; a divisor known when the pipeline is built compiles to
 /// shifts or multiplications where a push constant is divided lane by lane on SIMD drivers).
 /// The fixed cut's pipeline (`ao/fixed`) takes the per-sphere modes only.
-fn occlusion_constants(params: &AoParams, branch: u32, row: u32) -> Vec<(&'static str, u32)> {
+fn occlusion_constants(
+    params: &AoParams,
+    shape: cpu::TreeShape,
+    row: u32,
+) -> Vec<(&'static str, u32)> {
     let spec = params.specialization();
     let mut c: Vec<(&'static str, u32)> = match params.cut {
         Cut::Adaptive => {
             let mut c = spec.to_vec();
-            c.push(("BRANCH", branch));
+            c.push(("BRANCH", shape.branch));
+            c.push(("LEVELS", shape.levels()));
             c
         }
         Cut::Fixed => spec
@@ -495,7 +500,7 @@ impl AoKernel {
         let occlusion = ComputePipeline::specialized(
             &ctx,
             &occlusion_shader,
-            &occlusion_constants(&params, prep.shape.branch, crate::kernels::table_row(&ctx)),
+            &occlusion_constants(&params, prep.shape, crate::kernels::table_row(&ctx)),
         )?;
         Ok(AoKernel {
             own_pose: None,
@@ -583,11 +588,8 @@ impl AoKernel {
             )));
         }
         if params.specialization() != self.params.specialization() {
-            let constants = occlusion_constants(
-                &params,
-                self.shape.branch,
-                crate::kernels::table_row(&self.ctx),
-            );
+            let constants =
+                occlusion_constants(&params, self.shape, crate::kernels::table_row(&self.ctx));
             let occlusion =
                 ComputePipeline::specialized(&self.ctx, &self.occlusion_shader, &constants)?;
             self.occlusion_bind = self.buffers.bind(&occlusion, &OCCLUSION_WRITES)?;
