@@ -195,7 +195,15 @@ impl SrbfKernel {
         let row = crate::kernels::table_row(&ctx);
         let project =
             crate::shaders::pipeline_specialized(&ctx, "srbf/project", &[("SRBF_ROW", row)])?;
-        let shade = crate::shaders::pipeline_specialized(&ctx, "srbf/shade", &[("SRBF_ROW", row)])?;
+        let shade = crate::shaders::pipeline_specialized(
+            &ctx,
+            "srbf/shade",
+            &[
+                ("SRBF_ROW", row),
+                ("GROUPS", prep.shape.components.div_ceil(8)),
+                ("TAPS", prep.shape.compact),
+            ],
+        )?;
         let sharp = pipeline(if prep.shape.rays {
             "srbf/sharp_rays"
         } else {
@@ -449,9 +457,7 @@ impl SrbfKernel {
             .iter()
             .flat_map(|x| x.to_le_bytes())
             .chain(s.slots.to_le_bytes())
-            .chain(s.components.div_ceil(8).to_le_bytes())
             .chain(s.stride.to_le_bytes())
-            .chain(s.compact.to_le_bytes())
             .collect();
         Ok(Dispatch {
             push,
