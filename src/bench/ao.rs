@@ -327,7 +327,8 @@ pub fn run(
     let tau_sweep = setup.tau_sweep(&frames, &counter, progress)?;
     let cut_comparison = setup.cut_comparison(&frames, &counter, progress)?;
     drop(counter);
-    let targets = check_targets(&targets["ao"], &headline, &tau_sweep);
+    let vs_cpu = cpu_same_method_ms.median / headline.total_ms;
+    let targets = check_targets(&targets["ao"], &headline, &tau_sweep, vs_cpu);
     let terms = work_model(&headline, setup.base_tree.spheres.len());
     progress("rates of the work model (probes)");
     let rates = super::roofline::measure_rates(ctx, &cfg.bench, &terms, Some(setup.peak))?;
@@ -345,7 +346,7 @@ pub fn run(
             ("mask", flop_model::MASK),
         ],
         peak_fma_gflops: setup.peak,
-        speedup_vs_cpu: cpu_same_method_ms.median / headline.total_ms,
+        speedup_vs_cpu: vs_cpu,
         speedup_vs_raytrace: raytrace_ms.median / headline.total_ms,
         gpu_memory_bytes: headline.gpu_memory_bytes,
         headline,
@@ -731,8 +732,14 @@ impl<'a> Setup<'a> {
     }
 }
 
-/// The targets of bench/targets.json (`ao` section) against the headline and the tau sweep.
-fn check_targets(t: &serde_json::Value, headline: &Point, tau_sweep: &[Point]) -> Vec<TargetCheck> {
+/// The targets of bench/targets.json (`ao` section) against the headline, the tau sweep and
+/// the headline's speed-up over its CPU twin (`vs_cpu`, both timed in this run).
+fn check_targets(
+    t: &serde_json::Value,
+    headline: &Point,
+    tau_sweep: &[Point],
+    vs_cpu: f64,
+) -> Vec<TargetCheck> {
     let defaults = AoParams::default();
     let mae_default = tau_sweep
         .iter()
@@ -758,6 +765,12 @@ fn check_targets(t: &serde_json::Value, headline: &Point, tau_sweep: &[Point]) -
             t["gpu_memory_mib_max"].as_f64(),
             headline.gpu_memory_bytes as f64 / (1 << 20) as f64,
             false,
+        ),
+        check(
+            "GPU speed-up over the CPU twin (same run)",
+            t["vs_cpu_min"].as_f64(),
+            vs_cpu,
+            true,
         ),
     ]
     .into_iter()
