@@ -37,7 +37,9 @@ pub(super) fn dispatch_uses(
     indirect: Option<&Arc<BufferInner>>,
 ) -> Vec<(Target, AccessSet)> {
     let mut buffers: Vec<(Arc<BufferInner>, AccessSet)> = Vec::new();
-    let mut images: Vec<(Arc<ImageInner>, Vec<(Subresources, AccessSet)>)> = Vec::new();
+    // Per image, the ranges its bindings cover and their accesses.
+    type Ranges = Vec<(Subresources, AccessSet)>;
+    let mut images: Vec<(Arc<ImageInner>, Ranges)> = Vec::new();
     let bound = inner.uses.iter().map(|u| (&u.target, u.access));
     let args = indirect.map(|b| Target::Buffer(b.clone()));
     let all = bound.chain(args.iter().map(|t| (t, AccessType::IndirectBuffer.into())));
