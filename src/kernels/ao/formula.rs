@@ -66,6 +66,26 @@ impl OcclusionTable {
         }
     }
 
+    /// The table as bilinear quads, (n_psi - 1) x (n_theta - 1) row-major: quad (i, j) holds
+    /// entries (i, j), (i + 1, j), (i, j + 1), (i + 1, j + 1), so that the shaders' lookup is
+    /// one image load.
+    pub fn quads(&self) -> Vec<[f32; 4]> {
+        let (w, h) = (self.n_psi as usize, self.n_theta as usize);
+        let v = &self.values;
+        (0..h - 1)
+            .flat_map(|j| {
+                (0..w - 1).map(move |i| {
+                    [
+                        v[j * w + i],
+                        v[j * w + i + 1],
+                        v[(j + 1) * w + i],
+                        v[(j + 1) * w + i + 1],
+                    ]
+                })
+            })
+            .collect()
+    }
+
     /// Bilinear lookup at (cos theta, h), as the shader does it.
     pub fn lookup(&self, cos_t: f32, h: f32) -> f32 {
         let (u, v) = table_coords(cos_t, h);
@@ -235,6 +255,29 @@ impl OverlapTable {
             })
             .collect();
         OverlapTable { n, values }
+    }
+
+    /// The table as bilinear quads per slice k, (n - 1) x (n - 1) x n (i fastest): quad
+    /// (i, j, k) holds entries (i, j, k), (i + 1, j, k), (i, j + 1, k), (i + 1, j + 1, k), so
+    /// that the shader's trilinear lookup is two image loads.
+    pub fn quads(&self) -> Vec<[f32; 4]> {
+        let n = self.n as usize;
+        let v = &self.values;
+        let at = move |i: usize, j: usize, k: usize| v[(k * n + j) * n + i];
+        (0..n)
+            .flat_map(|k| {
+                (0..n - 1).flat_map(move |j| {
+                    (0..n - 1).map(move |i| {
+                        [
+                            at(i, j, k),
+                            at(i + 1, j, k),
+                            at(i, j + 1, k),
+                            at(i + 1, j + 1, k),
+                        ]
+                    })
+                })
+            })
+            .collect()
     }
 
     /// Trilinear lookup of F at (cos a1, cos a2, cos g), as the shader does it.
@@ -441,6 +484,46 @@ mod tests {
             d.iter()
                 .all(|v| (Vec3::new(v[0], v[1], v[2]).length() - 1.0).abs() < 1e-5)
         );
+    }
+
+    /// The quads the shaders read: quad (i, j[, k]) at row-major index, i fastest, holds the
+    /// entry and its +i, +j, +i+j neighbours (glsl/ao/occlusion.comp and fixed.comp index
+    /// them so; the GPU-vs-twin tests check the lookups themselves).
+    #[test]
+    fn table_quads_hold_each_cell_corners_in_shader_order() {
+        let t = OcclusionTable::new(7, 5);
+        let q = t.quads();
+        let (w, h) = (t.n_psi as usize, t.n_theta as usize);
+        assert_eq!(q.len(), (w - 1) * (h - 1));
+        let at = |i: usize, j: usize| t.values[j * w + i];
+        for j in 0..h - 1 {
+            for i in 0..w - 1 {
+                let want = [at(i, j), at(i + 1, j), at(i, j + 1), at(i + 1, j + 1)];
+                assert_eq!(q[j * (w - 1) + i], want, "quad ({i}, {j})");
+            }
+        }
+        let o = OverlapTable::new(4);
+        let q = o.quads();
+        let n = o.n as usize;
+        assert_eq!(q.len(), (n - 1) * (n - 1) * n);
+        let at = |i: usize, j: usize, k: usize| o.values[(k * n + j) * n + i];
+        for k in 0..n {
+            for j in 0..n - 1 {
+                for i in 0..n - 1 {
+                    let want = [
+                        at(i, j, k),
+                        at(i + 1, j, k),
+                        at(i, j + 1, k),
+                        at(i + 1, j + 1, k),
+                    ];
+                    assert_eq!(
+                        q[(k * (n - 1) + j) * (n - 1) + i],
+                        want,
+                        "quad ({i}, {j}, {k})"
+                    );
+                }
+            }
+        }
     }
 
     /// The overlap table against direct integration (its interpolation error), and the

@@ -115,28 +115,13 @@ impl Buffers {
         let ctx = rec.context();
         // The tree's, the words' and the lists' images are `row_image`s (`NODE_ROW` wide).
         let table_quads = {
-            let (w, h) = (table.n_psi as usize, table.n_theta as usize);
-            let v = &table.values;
-            let quads: Vec<[f32; 4]> = (0..h - 1)
-                .flat_map(|j| {
-                    (0..w - 1).map(move |i| {
-                        [
-                            v[j * w + i],
-                            v[j * w + i + 1],
-                            v[(j + 1) * w + i],
-                            v[(j + 1) * w + i + 1],
-                        ]
-                    })
-                })
-                .collect();
+            let (w, h) = (table.n_psi, table.n_theta);
+            let quads = table.quads();
             let image = Image::new(
                 &ctx,
                 "ao table quads",
-                ImageDesc::d2(
-                    vk::Format::R32G32B32A32_SFLOAT,
-                    [w as u32 - 1, h as u32 - 1],
-                )
-                .usage(vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST),
+                ImageDesc::d2(vk::Format::R32G32B32A32_SFLOAT, [w - 1, h - 1])
+                    .usage(vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST),
             )?;
             rec.upload_image_rows(&image, &quads)?;
             image
@@ -170,23 +155,7 @@ impl Buffers {
                 },
                 overlap: {
                     let t = overlap_table();
-                    let n = t.n as usize;
-                    let v = &t.values;
-                    let at = |i: usize, j: usize, k: usize| v[(k * n + j) * n + i];
-                    let quads: Vec<[f32; 4]> = (0..n)
-                        .flat_map(|k| {
-                            (0..n - 1).flat_map(move |j| {
-                                (0..n - 1).map(move |i| {
-                                    [
-                                        at(i, j, k),
-                                        at(i + 1, j, k),
-                                        at(i, j + 1, k),
-                                        at(i + 1, j + 1, k),
-                                    ]
-                                })
-                            })
-                        })
-                        .collect();
+                    let quads = t.quads();
                     let image = Image::new(
                         &ctx,
                         "ao overlap table",
