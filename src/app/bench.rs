@@ -441,6 +441,10 @@ fn print_ao(r: &bench::ao::AoBenchReport) {
             c.mae_alone
         );
     }
+    println!(
+        "                       (MAE, p95: the CPU twin's visibility against the ray-traced mesh \
+         over the reference frames; tests/ao.rs holds the GPU to the twin within MAE 1e-4)"
+    );
     print_targets(&r.targets);
 }
 

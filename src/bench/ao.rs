@@ -134,7 +134,8 @@ pub struct Point {
     pub gpu_memory_bytes: u64,
     /// Device memory the context's allocator holds in blocks (used or not) at this point.
     pub gpu_memory_reserved_bytes: u64,
-    /// Against the ray-traced mesh, mean over the reference frames (tau sweep only).
+    /// The CPU twin's visibility against the ray-traced mesh, mean over the reference frames
+    /// (tau sweep and cut comparison; tests/ao.rs holds the GPU to the twin within MAE 1e-4).
     pub mae: Option<f64>,
     pub p95: Option<f64>,
 }
@@ -146,7 +147,8 @@ pub struct CutPoint {
     pub cut: Cut,
     /// GPU times, work and the configured method's error (with the static correction).
     pub point: Point,
-    /// MAE of the method alone (no static correction), mean over the reference frames.
+    /// MAE of the method alone (no static correction; the CPU twin's, as `Point::mae`), mean
+    /// over the reference frames.
     pub mae_alone: f64,
     /// The CPU twin of the same cut (rayon): skinning + occlusion of one frame.
     pub cpu_twin_ms: Stats,
