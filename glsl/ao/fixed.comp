@@ -1,4 +1,5 @@
 #version 450
+#include <common/util.glsl>
 // The published variant of sphere AO (Cut::Fixed): per vertex a fixed list of tree nodes,
 // chosen once in the bind pose (src/kernels/ao/fixed.rs) and read here at their skinned
 // centres; overlap handled pairwise with the 3D table of formula::OverlapTable. Mirrors
@@ -45,7 +46,7 @@ layout(set = 0, binding = 8, rgba32f) uniform readonly image3D overlap_quads;
 layout(constant_id = 3) const uint NODE_ROW = 4096u; // kernels::table_row
 
 ivec2 row_texel(uint t) {
-    return ivec2(int(t % NODE_ROW), int(t / NODE_ROW));
+    return table_texel(t, NODE_ROW);
 }
 
 // fixed::FIXED_SLOTS and fixed::NO_NODE.

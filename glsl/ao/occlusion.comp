@@ -1,4 +1,5 @@
 #version 450
+#include <common/util.glsl>
 // Per-vertex ambient visibility from a cut through a skinned sphere tree.
 //
 // Cut: preorder walk of the implicit B-ary tree (children of n: n*B+1 .. n*B+B), starting at
@@ -66,13 +67,13 @@ layout(constant_id = 6) const uint NODE_ROW = 4096u; // kernels::table_row
 
 vec4 node_sphere(uint n) {
     uint t = 2u * n;
-    return imageLoad(nodes, ivec2(int(t % NODE_ROW), int(t / NODE_ROW)));
+    return imageLoad(nodes, table_texel(t, NODE_ROW));
 }
 
 // (extent, share) of node n.
 vec2 node_extra(uint n) {
     uint t = 2u * n + 1u;
-    return imageLoad(nodes, ivec2(int(t % NODE_ROW), int(t / NODE_ROW))).xy;
+    return imageLoad(nodes, table_texel(t, NODE_ROW)).xy;
 }
 // formula::nearest_direction_table, four 8-bit direction indices a word.
 layout(set = 0, binding = 9, r32ui) uniform readonly uimage2D nearest;  // NODE_ROW words a row
@@ -119,7 +120,7 @@ uint nearest_direction(vec3 wl) {
     uint below = wl.z < 0.0 ? 1u : 0u;
     uint i = (below * AO_NEAREST_RES + iy) * AO_NEAREST_RES + ix;
     uint w = i >> 2u;
-    uint word = imageLoad(nearest, ivec2(int(w % NODE_ROW), int(w / NODE_ROW))).x;
+    uint word = imageLoad(nearest, table_texel(w, NODE_ROW)).x;
     return (word >> ((i & 3u) * 8u)) & 255u;
 }
 

@@ -1,4 +1,5 @@
 #version 450
+#include <common/util.glsl>
 // Linear-blend skinning of the sphere-tree centres (radii are rigid), with the frame's joint
 // matrices (the pose kernel's; the vertices are posed there). Each node also gets its
 // extent: the farthest reach of its skinned leaf spheres from its own skinned centre (a
@@ -27,9 +28,9 @@ layout(constant_id = 0) const uint NODE_ROW = 4096u; // kernels::table_row
 
 void store_node(uint s, vec4 sphere, float extent) {
     uint t = 2u * s;
-    imageStore(nodes, ivec2(int(t % NODE_ROW), int(t / NODE_ROW)), sphere);
+    imageStore(nodes, table_texel(t, NODE_ROW), sphere);
     t += 1u;
-    imageStore(nodes, ivec2(int(t % NODE_ROW), int(t / NODE_ROW)), vec4(extent, share.s[s], 0.0, 0.0));
+    imageStore(nodes, table_texel(t, NODE_ROW), vec4(extent, share.s[s], 0.0, 0.0));
 }
 
 mat4 blend(uvec2 packed, vec4 w) {

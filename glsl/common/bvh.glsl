@@ -1,3 +1,4 @@
+#include <common/util.glsl>
 // The stackless BVH traversal shared by the kernels that cast rays on the GPU (SSS: pass
 // `sss vertex light` and the texel refinement of `sss irradiance`; SRBF: the compact lobes'
 // shadow rays of `srbf sharp`). The same traversal and two-sided Moller-Trumbore test as
@@ -10,11 +11,11 @@
 //   layout(rgba32ui) readonly uniform uimage2D tris;
 
 uvec4 bvh_node(uint k) {
-    return imageLoad(nodes, ivec2(k % BVH_ROW, k / BVH_ROW));
+    return imageLoad(nodes, table_texel(k, BVH_ROW));
 }
 
 vec3 tri_row(uint k) {
-    return uintBitsToFloat(imageLoad(tris, ivec2(k % BVH_ROW, k / BVH_ROW)).xyz);
+    return uintBitsToFloat(imageLoad(tris, table_texel(k, BVH_ROW)).xyz);
 }
 
 // Parameter of the hit of triangle t in (0, tmax], or -1.

@@ -1,3 +1,4 @@
+#include <common/util.glsl>
 // Per-frame BVH of a skinned mesh, step 1, shared by pass `sss bvh leaves` (the skin's vertex
 // frames, mm) and pass `env bvh leaves` (the character's posed positions): the topology is
 // built once over the rest pose (src/kernels/sss/posed.rs BvhTopology); per leaf, its
@@ -16,7 +17,7 @@ layout(set = 0, binding = 3, rgba32ui) writeonly uniform uimage2D nodes;
 layout(set = 0, binding = 4, rgba32ui) writeonly uniform uimage2D tris;
 
 ivec2 at(uint k) {
-    return ivec2(k % BVH_ROW, k / BVH_ROW);
+    return table_texel(k, BVH_ROW);
 }
 
 void main() {

@@ -13,6 +13,7 @@
 // MIN_TRANSMISSION^w_s), K_jk = exp(min(lambda_j, cv_sharpness) (axis_j . d_k - 1)).
 // Irradiance = sum_j V_j E_j(n) amplitude_j.
 #extension GL_EXT_control_flow_attributes : require
+#include <common/util.glsl>
 #include <common/ao.glsl>
 layout(local_size_x = 64) in;
 
@@ -45,7 +46,7 @@ layout(set = 0, binding = 2, rgba32f) readonly uniform image2D tree;
 layout(constant_id = 2) const uint NODE_ROW = 4096u; // kernels::table_row
 
 vec4 tree_texel(uint t) {
-    return imageLoad(tree, ivec2(int(t % NODE_ROW), int(t / NODE_ROW)));
+    return imageLoad(tree, table_texel(t, NODE_ROW));
 }
 #ifndef ENV_RAYS
 layout(std430, set = 0, binding = 4) readonly buffer Ao { float v[]; } ao;

@@ -1,4 +1,5 @@
 #version 450
+#include <common/util.glsl>
 // CTA, per frame, per cluster c and core row (a, b): M_c[a, b] = sum_i G_c[a, b, i] y_c[i] (RGB),
 // the core contracted with the projected lighting of pass `srbf cta light`.
 layout(local_size_x = 64) in;
@@ -24,5 +25,5 @@ void main() {
     for (uint i = 0u; i < pc.rl; i++) {
         sum += cores.g[e * pc.rl + i] * y.v[c * pc.rl + i].rgb;
     }
-    imageStore(m, ivec2(int(e % CTA_ROW), int(e / CTA_ROW)), vec4(sum, 0.0));
+    imageStore(m, table_texel(e, CTA_ROW), vec4(sum, 0.0));
 }

@@ -1,6 +1,7 @@
 #version 450
 #extension GL_GOOGLE_include_directive : require
 #extension GL_EXT_control_flow_attributes : require
+#include <common/util.glsl>
 // CTA shading per vertex: the view's four bilinear taps (view.glsl) in the N x N grid, the
 // interpolated view row u_w = sum_t w_t W[j_t] (r_w) and the radiance
 // B = albedo * sum_a u_v[a] sum_b M_c[a, b] u_w[b], M_c from pass `srbf cta project`. With a
@@ -49,7 +50,7 @@ layout(std430, set = 0, binding = 7) readonly buffer Order { uint v[]; } order; 
 #include "view.glsl"
 
 ivec2 cta_texel(uint t) {
-    return ivec2(int(t % CTA_ROW), int(t / CTA_ROW));
+    return table_texel(t, CTA_ROW);
 }
 
 void main() {

@@ -1,4 +1,5 @@
 #version 450
+#include <common/util.glsl>
 // Clustered-PCA projection: for every row r of every cluster (its mean, then its principal
 // axes, zero-padded to a whole number of groups of four), p_r = sum_k row_rk c_k (RGB), c_k
 // the lighting's coefficients in the transfer basis. Rows are stored in groups of four basis
@@ -25,11 +26,11 @@ void main() {
     vec3 sum = vec3(0.0);
     uint index = r;
     for (uint g = 0u; g < pc.groups; g++) {
-        vec4 t = imageLoad(rows, ivec2(int(index % SRBF_ROW), int(index / SRBF_ROW)));
+        vec4 t = imageLoad(rows, table_texel(index, SRBF_ROW));
         uint k = 4u * g;
         sum += t.x * coeffs.v[k].rgb + t.y * coeffs.v[k + 1u].rgb + t.z * coeffs.v[k + 2u].rgb
             + t.w * coeffs.v[k + 3u].rgb;
         index += pc.rows;
     }
-    imageStore(projected, ivec2(int(r % SRBF_ROW), int(r / SRBF_ROW)), vec4(sum, 0.0));
+    imageStore(projected, table_texel(r, SRBF_ROW), vec4(sum, 0.0));
 }

@@ -1,4 +1,5 @@
 #version 450
+#include <common/util.glsl>
 // Per-vertex shading with clustered-PCA transfer: L_o,v = albedo * (p_c,0 + sum_i w_vi p_c,i),
 // p the lighting projected onto the rows of the vertex's cluster c (pass `srbf project`).
 // Vertices are sorted by cluster and every workgroup holds vertices of one cluster only
@@ -39,7 +40,7 @@ layout(constant_id = 1) const uint GROUPS = 2u; // ceil(components / 8)
 layout(constant_id = 2) const uint TAPS = 0u;   // compact lobes (one tap each)
 
 vec3 projected_row(uint k) {
-    return imageLoad(projected, ivec2(int(k % SRBF_ROW), int(k / SRBF_ROW))).rgb;
+    return imageLoad(projected, table_texel(k, SRBF_ROW)).rgb;
 }
 layout(std430, set = 0, binding = 4) writeonly buffer Radiance { vec4 v[]; } radiance;
 layout(std430, set = 0, binding = 5) readonly buffer Normals { vec4 v[]; } normals;  // per slot

@@ -1,4 +1,5 @@
 #version 450
+#include <common/util.glsl>
 // Per-frame BVH of a skinned mesh, step 2 (pass `sss bvh refit`): the inner nodes' boxes, the
 // union of their children's, one level of the tree after the other from the deepest (the
 // leaves' boxes come from pass `sss bvh leaves`). One workgroup: a level's nodes are spread
@@ -17,7 +18,7 @@ layout(std430, set = 0, binding = 0) readonly buffer Topo { uint v[]; } bvh_topo
 layout(set = 0, binding = 1, rgba32ui) coherent uniform uimage2D nodes;
 
 ivec2 at(uint k) {
-    return ivec2(k % BVH_ROW, k / BVH_ROW);
+    return table_texel(k, BVH_ROW);
 }
 
 void main() {

@@ -1,3 +1,4 @@
+#include <common/util.glsl>
 // Texture-space irradiance (glsl/sss/irradiance*.comp). SSS_POSED: the texel's position and
 // normal are computed here from its triangle and barycentrics (fixed by the UV layout) and this
 // pose's vertex frames (what pass `sss pose texels` writes for a diagnostic readback), instead
@@ -80,12 +81,12 @@ layout(std430, set = 0, binding = 11) readonly buffer Tiles { uint v[]; } tiles;
 
 #ifdef SSS_POSED
 vec3 vload(uint k) {
-    return imageLoad(vframes, ivec2(k % BVH_ROW, k / BVH_ROW)).xyz;
+    return imageLoad(vframes, table_texel(k, BVH_ROW)).xyz;
 }
 #endif
 
 ivec2 vertex_at(uint v) {
-    return ivec2(v % VERTEX_ROW, v / VERTEX_ROW);
+    return table_texel(v, VERTEX_ROW);
 }
 
 void main() {
@@ -121,7 +122,7 @@ void main() {
         p = vload(2u * cr.x) * s0 + vload(2u * cr.y) * s1 + vload(2u * cr.z) * s2;
         n = vload(2u * cr.x + 1u) * s0 + vload(2u * cr.y + 1u) * s1 + vload(2u * cr.z + 1u) * s2;
         float ln = length(n);
-        n = ln > 0.0 ? n * (1.0 / ln) : imageLoad(trirec, ivec2(src.x % BVH_ROW, src.x / BVH_ROW)).xyz;
+        n = ln > 0.0 ? n * (1.0 / ln) : imageLoad(trirec, table_texel(src.x, BVH_ROW)).xyz;
     }
 #else
     vec3 p = p4.xyz;

@@ -1,4 +1,5 @@
 #version 450
+#include <common/util.glsl>
 // Per-frame geometry of a skinned mesh, step 3 (pass `sss pose texels`): per texel of the
 // occupied row segments, its position (mm) and flag, its unit normal and area, from its
 // triangle and the barycentrics of its centre (fixed by the UV layout, `source`), the vertex
@@ -28,7 +29,7 @@ layout(set = 0, binding = 5, rgba32f) writeonly uniform image2D nrm;     // xyz,
 layout(std430, set = 0, binding = 6) readonly buffer Tiles { uint v[]; } tiles;
 
 vec3 vload(uint k) {
-    return imageLoad(vframes, ivec2(k % BVH_ROW, k / BVH_ROW)).xyz;
+    return imageLoad(vframes, table_texel(k, BVH_ROW)).xyz;
 }
 
 void main() {
@@ -46,7 +47,7 @@ void main() {
     float w0 = 1.0 - w1 - w2;
     vec3 p = vload(2u * c.x) * w0 + vload(2u * c.y) * w1 + vload(2u * c.z) * w2;
     vec3 n = vload(2u * c.x + 1u) * w0 + vload(2u * c.y + 1u) * w1 + vload(2u * c.z + 1u) * w2;
-    vec4 tr = imageLoad(trirec, ivec2(s.x % BVH_ROW, s.x / BVH_ROW));
+    vec4 tr = imageLoad(trirec, table_texel(s.x, BVH_ROW));
     float l = length(n);
     n = l > 0.0 ? n * (1.0 / l) : tr.xyz;
     imageStore(pos, at, vec4(p, flag));

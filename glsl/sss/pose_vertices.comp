@@ -1,4 +1,5 @@
 #version 450
+#include <common/util.glsl>
 // Per-frame geometry of a skinned mesh, step 1 (pass `sss pose vertices`): the vertex frames
 // the other passes read (`verts`: position in mm, unit normal), from the posed vertex buffers
 // (model units, vec4 per vertex). Each vertex takes the posed position of the first vertex at
@@ -31,6 +32,6 @@ void main() {
     verts.v[2u * v] = vec4(p, 0.0);
     verts.v[2u * v + 1u] = vec4(n, 0.0);
     uint k = 2u * v;
-    imageStore(vframes, ivec2(k % BVH_ROW, k / BVH_ROW), vec4(p, 0.0));
-    imageStore(vframes, ivec2((k + 1u) % BVH_ROW, (k + 1u) / BVH_ROW), vec4(n, 0.0));
+    imageStore(vframes, table_texel(k, BVH_ROW), vec4(p, 0.0));
+    imageStore(vframes, table_texel((k + 1u), BVH_ROW), vec4(n, 0.0));
 }

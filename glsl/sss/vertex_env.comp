@@ -1,4 +1,5 @@
 #version 450
+#include <common/util.glsl>
 // Pass `sss vertex irradiance` (with a per-vertex irradiance set only): copies the caller's
 // per-vertex rgb irradiance (a storage buffer, vec4 per vertex) into an image, vertex v at
 // (v % VERTEX_ROW, v / VERTEX_ROW), which the irradiance pass reads three texels of per
@@ -18,5 +19,5 @@ layout(set = 0, binding = 1, rgba32f) writeonly uniform image2D venv_texels;
 void main() {
     uint v = gl_GlobalInvocationID.x;
     if (v >= pc.vertices) return;
-    imageStore(venv_texels, ivec2(v % VERTEX_ROW, v / VERTEX_ROW), venv.v[v]);
+    imageStore(venv_texels, table_texel(v, VERTEX_ROW), venv.v[v]);
 }

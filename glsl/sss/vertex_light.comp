@@ -1,4 +1,5 @@
 #version 450
+#include <common/util.glsl>
 // Shadowing and transmission per mesh vertex (pass `sss vertex light`), for the irradiance
 // pass to interpolate over each triangle (glsl/sss/irradiance.comp): the head has far fewer
 // vertices than a 512^2 texture has texels, and a BVH ray is the costly part.
@@ -86,7 +87,7 @@ void main() {
     if (v >= pc.vertices) return;
     vec3 p = verts.v[2u * v].xyz;
     vec3 n = verts.v[2u * v + 1u].xyz;
-    ivec2 at = ivec2(v % VERTEX_ROW, v / VERTEX_ROW);
+    ivec2 at = table_texel(v, VERTEX_ROW);
     imageStore(vis, at, uvec4(visibility(p, n)));
     vec4 tr = vec4(0.0);
     if (pc.mode != 0u) {
