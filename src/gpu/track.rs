@@ -131,12 +131,8 @@ impl AccessState {
         // ordering the write before a layout transition (SYNC-HAZARD-WRITE-AFTER-WRITE,
         // found by tests/fuzz_api.rs; see tests/safe_api.rs). Naming an already available
         // write again costs nothing on the GPU.
-        let written = AccessSet::from_bits(
-            self.last
-                .iter()
-                .filter(|a| a.is_write())
-                .fold(0, |bits, a| bits | AccessSet::from(a).bits()),
-        );
+        let written =
+            (self.last.iter().filter(|a| a.is_write())).fold(AccessSet::EMPTY, |s, a| s | a);
         self.reads = self.reads | missing;
         self.last = self.reads | written;
         Some(t)
