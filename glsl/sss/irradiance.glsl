@@ -13,13 +13,22 @@
 // the triangle's three corners agree, V is theirs (0 or 1); where they disagree (a shadow
 // boundary crosses the triangle) and refine is on, the texel casts its own shadow ray through
 // the BVH (the same traversal as the vertex pass), else V is interpolated with the texel
-// centre's barycentrics. White lights: one grey E. Transmission (mode != 0):
+// centre's barycentrics. The texels' own rays are a second pass (SSS_RAYS, `sss irradiance
+// rays`): the shading pass lists each texel that needs them with its lights (binding 17),
+// and the ray pass, dispatched indirectly over that list, adds their light to its output.
+// About 9% of the head's texels need rays, in runs that fill about half of an 8-texel
+// segment: traced where they were found, half of each SIMD step's lanes idled through the
+// BVH walks of the others; listed, the walks run on full steps. White lights: one grey E. Transmission (mode != 0):
 // the per-vertex (rgb, thickness) interpolated. What this changes against a ray per texel is
 // measured by `vkshade sss` (report.json `shadowing`): shadows smaller than a triangle that
 // touch none of its corners are missed. Everything per texel is an image (lavapipe fetches a texel's four channels at
 // once; a storage-buffer load at a per-lane index loops over the lanes for each component).
 // The CPU twin is src/kernels/sss/cpu.rs.
+#ifdef SSS_RAYS
+layout(local_size_x = 64) in;
+#else
 layout(local_size_x = 8, local_size_y = 8) in;
+#endif
 
 layout(push_constant) uniform Push {
     uint size;     // texture is size x size
@@ -47,11 +56,13 @@ layout(set = 0, binding = 1, rgba32f) readonly uniform image2D nrm;     // xyz, 
 // of 2^16 in w (cpu::texel_corners_packed).
 layout(set = 0, binding = 2, rgba32ui) readonly uniform uimage2D corners;
 #include <sss/lights.glsl>
+#ifndef SSS_RAYS
 layout(set = 0, binding = 4, r32ui) readonly uniform uimage2D vis;
 layout(set = 0, binding = 5, rgba32f) readonly uniform image2D vtrans;
 // Transmission: written only when mode != 0 (the kernel clears it when transmission is off;
 // lavapipe stores a texel lane by lane, and a store per texel costs ~2.5 ms at 512^2).
 layout(set = 0, binding = 7, rgba32f) writeonly uniform image2D trans;  // rgb, t
+#endif
 // The BVH as images (row BVH_ROW; lavapipe fetches a texel's four channels at once): nodes
 // 2 texels each (lo xyz, first; hi xyz, link word), triangles 3 (a, e1, e2), float bits.
 const uint BVH_ROW = 1024u;
@@ -63,19 +74,40 @@ layout(set = 0, binding = 9, rgba32ui) readonly uniform uimage2D tris;
 #ifdef SSS_ENV
 // Per vertex of the posed mesh: rgb irradiance (radiometric, no 1/pi), the caller's buffer
 // copied into an image (vertex v at (v % VERTEX_ROW, v / VERTEX_ROW); glsl/sss/vertex_env.comp).
+#ifndef SSS_RAYS
 layout(set = 0, binding = 15, rgba32f) readonly uniform image2D venv_texels;
+#endif
 // The output: rgb E, alpha 1 on the surface, -1 where no surface (the kernel clears it
 // once; the diffusion's gathers read it: glsl/sss/diffusion_env.comp).
+#ifdef SSS_RAYS
+layout(set = 0, binding = 16, rgba32f) uniform image2D penv;
+#else
 layout(set = 0, binding = 16, rgba32f) writeonly uniform image2D penv;
+#endif
+#elif defined(SSS_RAYS)
+layout(set = 0, binding = 10, r32f) uniform image2D pe;
 #else
 layout(set = 0, binding = 10, r32f) writeonly uniform image2D pe;
+#endif
+// The texels whose lights need their own shadow rays, appended by the shading pass in no
+// set order: per listed texel (x | y << 16, a bit per light), room for every texel; and its
+// head (ceil(count / 64), 1, 1, count), the ray pass's VkDispatchIndirectCommand of 64-lane
+// workgroups and the count (the kernel resets it to (0, 1, 1, 0) before each shading pass).
+#ifdef SSS_RAYS
+layout(std430, set = 0, binding = 17) readonly buffer RayHead { uint head[4]; } ray_head;
+layout(std430, set = 0, binding = 18) readonly buffer Rays { uvec2 job[]; } rays;
+#else
+layout(std430, set = 0, binding = 17) buffer RayHead { uint head[4]; } ray_head;
+layout(std430, set = 0, binding = 18) writeonly buffer Rays { uvec2 job[]; } rays;
 #endif
 // The occupied 8x1 row segments of the atlas (x / 8 | y << 16, built once per mesh: the UV
 // layout does not change when it is skinned): workgroup (x, y) shades segments
 // 8 (y * TILE_ROW + x) + local y, a SIMD step of 8 lanes per segment; texels of empty
 // segments are never touched (the kernel clears the outputs there once).
 const uint TILE_ROW = 256u;
+#ifndef SSS_RAYS
 layout(std430, set = 0, binding = 11) readonly buffer Tiles { uint v[]; } tiles;
+#endif
 
 #include <common/bvh.glsl>
 
@@ -89,6 +121,60 @@ ivec2 vertex_at(uint v) {
     return table_texel(v, VERTEX_ROW);
 }
 
+// The texel's position (mm) and unit normal.
+#ifdef SSS_POSED
+// As glsl/sss/pose_texels.comp (the same arithmetic), from its source (triangle, s1, s2 bits).
+void texel_frame(ivec2 at, uvec4 src, uvec4 cr, out vec3 p, out vec3 n) {
+    float s1 = uintBitsToFloat(src.y), s2 = uintBitsToFloat(src.z);
+    float s0 = 1.0 - s1 - s2;
+    p = vload(2u * cr.x) * s0 + vload(2u * cr.y) * s1 + vload(2u * cr.z) * s2;
+    n = vload(2u * cr.x + 1u) * s0 + vload(2u * cr.y + 1u) * s1 + vload(2u * cr.z + 1u) * s2;
+    float ln = length(n);
+    n = ln > 0.0 ? n * (1.0 / ln) : imageLoad(trirec, table_texel(src.x, BVH_ROW)).xyz;
+}
+#else
+void texel_frame(ivec2 at, vec4 p4, uvec4 cr, out vec3 p, out vec3 n) {
+    p = p4.xyz;
+    n = imageLoad(nrm, at).xyz;
+}
+#endif
+
+#ifdef SSS_POSED
+#define TEXEL_SOURCE(at) imageLoad(source, at)
+#else
+#define TEXEL_SOURCE(at) imageLoad(pos, at)
+#endif
+
+#ifdef SSS_RAYS
+// Pass `sss irradiance rays`: listed texel i casts a shadow ray for each light its bits name
+// (the texel's own position and normal, as the shading pass) and adds the light of those
+// that escape to the texel's E.
+void main() {
+    uint i = gl_GlobalInvocationID.x;
+    if (i >= ray_head.head[3] || i >= uint(rays.job.length())) return;
+    uvec2 job = rays.job[i];
+    ivec2 at = ivec2(job.x & 0xffffu, job.x >> 16u);
+    vec3 p, n;
+    texel_frame(at, TEXEL_SOURCE(at), imageLoad(corners, at), p, n);
+    float e = 0.0;
+    uint pending = job.y;
+    while (pending != 0u) {
+        uint l = uint(findLSB(pending));
+        pending &= pending - 1u;
+        vec3 dir;
+        float tmax, strength;
+        float c = light_at(l, p, n, dir, tmax, strength);
+        if (!any_hit(p + n * pc.bias, dir, tmax)) e += strength * c;
+    }
+    if (e == 0.0) return;
+#ifdef SSS_ENV
+    vec4 v = imageLoad(penv, at);
+    imageStore(penv, at, vec4(v.rgb + vec3(e), v.a));
+#else
+    imageStore(pe, at, vec4(imageLoad(pe, at).x + e));
+#endif
+}
+#else
 void main() {
     uint ti = 8u * (gl_WorkGroupID.y * TILE_ROW + gl_WorkGroupID.x) + gl_LocalInvocationID.y;
     if (ti >= pc.tiles) return;
@@ -113,20 +199,11 @@ void main() {
         return;
     }
     uvec4 cr = imageLoad(corners, at);
-#ifdef SSS_POSED
-    // As glsl/sss/pose_texels.comp (the same arithmetic).
     vec3 p, n;
-    {
-        float s1 = uintBitsToFloat(src.y), s2 = uintBitsToFloat(src.z);
-        float s0 = 1.0 - s1 - s2;
-        p = vload(2u * cr.x) * s0 + vload(2u * cr.y) * s1 + vload(2u * cr.z) * s2;
-        n = vload(2u * cr.x + 1u) * s0 + vload(2u * cr.y + 1u) * s1 + vload(2u * cr.z + 1u) * s2;
-        float ln = length(n);
-        n = ln > 0.0 ? n * (1.0 / ln) : imageLoad(trirec, table_texel(src.x, BVH_ROW)).xyz;
-    }
+#ifdef SSS_POSED
+    texel_frame(at, src, cr, p, n);
 #else
-    vec3 p = p4.xyz;
-    vec3 n = imageLoad(nrm, at).xyz;
+    texel_frame(at, p4, cr, p, n);
 #endif
     const float Q = 1.0 / 65536.0;
     float w1 = float(cr.w & 0xffffu) * Q, w2 = float(cr.w >> 16u) * Q;
@@ -134,8 +211,7 @@ void main() {
     ivec2 a0 = vertex_at(cr.x), a1 = vertex_at(cr.y), a2 = vertex_at(cr.z);
     uint b0 = imageLoad(vis, a0).x, b1 = imageLoad(vis, a1).x, b2 = imageLoad(vis, a2).x;
     float e = 0.0;
-    // Lights whose visibility is the texel's own shadow ray: traced after the loop, one at a
-    // time per lane, so that lanes needing rays for different lights share the walks.
+    // Lights whose visibility is the texel's own shadow ray: listed for the ray pass.
     uint pending = 0u;
     for (uint l = 0u; l < pc.lights; l++) {
         vec3 dir;
@@ -154,13 +230,11 @@ void main() {
         }
         e += strength * c * v;
     }
-    while (pending != 0u) {
-        uint l = uint(findLSB(pending));
-        pending &= pending - 1u;
-        vec3 dir;
-        float tmax, strength;
-        float c = light_at(l, p, n, dir, tmax, strength);
-        if (!any_hit(p + n * pc.bias, dir, tmax)) e += strength * c;
+    if (pending != 0u) {
+        uint k = atomicAdd(ray_head.head[3], 1u);
+        // The list has a slot for every texel of the atlas: k < its length always.
+        if (k < uint(rays.job.length())) rays.job[k] = uvec2(xy.x | (xy.y << 16u), pending);
+        if ((k & 63u) == 0u) atomicAdd(ray_head.head[0], 1u);
     }
 #ifdef SSS_ENV
     // The caller's per-vertex irradiance at the texel (rgb), added to the lights' E.
@@ -175,3 +249,4 @@ void main() {
         imageStore(trans, at, tr);
     }
 }
+#endif

@@ -22,7 +22,9 @@ use crate::kernels::pose::{PoseKernel, Prepared};
 use crate::kernels::sss::Regions;
 use crate::kernels::sss::contact::Contact;
 use crate::kernels::sss::cpu::{self, DiffusionGeometry, Light, SamplerParams};
-use crate::kernels::sss::gpu::{PASS_DIFFUSION, PASS_IRRADIANCE, PASS_VERTEX};
+use crate::kernels::sss::gpu::{
+    PASS_DIFFUSION, PASS_IRRADIANCE, PASS_IRRADIANCE_RAYS, PASS_VERTEX,
+};
 use crate::kernels::sss::posed;
 use crate::kernels::sss::profile::DEFAULT_ENERGY;
 use crate::kernels::sss::{
@@ -477,11 +479,13 @@ struct CpuTwin {
     ms_diffusion: f64,
 }
 
-/// The GPU times of a frame: (vertex + irradiance passes, diffusion pass).
+/// The GPU times of a frame: (vertex + irradiance passes (with the texels' rays, when
+/// refined), diffusion pass).
 fn pass_times(timings: &Timings) -> (f64, f64) {
     (
         timings.get(PASS_VERTEX).unwrap_or(f64::NAN)
-            + timings.get(PASS_IRRADIANCE).unwrap_or(f64::NAN),
+            + timings.get(PASS_IRRADIANCE).unwrap_or(f64::NAN)
+            + timings.get(PASS_IRRADIANCE_RAYS).unwrap_or(0.0),
         timings.get(PASS_DIFFUSION).unwrap_or(f64::NAN),
     )
 }

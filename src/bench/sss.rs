@@ -12,7 +12,9 @@ use crate::gpu::Context;
 use crate::kernels::Kernel;
 use crate::kernels::sss::Regions;
 use crate::kernels::sss::cpu::{self, Light, SamplerParams};
-use crate::kernels::sss::gpu::{PASS_DIFFUSION, PASS_IRRADIANCE, PASS_VERTEX};
+use crate::kernels::sss::gpu::{
+    PASS_DIFFUSION, PASS_IRRADIANCE, PASS_IRRADIANCE_RAYS, PASS_VERTEX,
+};
 use crate::kernels::sss::load_mesh;
 use crate::kernels::sss::{Material, Profile, ProfileKind, SssKernel, TexGeometry};
 use crate::reference::sss::{ChannelError, Sources, brute_force};
@@ -104,6 +106,9 @@ pub struct Point {
     pub vertex_light_ms: Stats,
     /// Pass `sss irradiance`: per texel, the vertices' shadowing interpolated.
     pub irradiance_ms: Stats,
+    /// Pass `sss irradiance rays`: the shadow rays of the texels whose triangle a shadow
+    /// boundary crosses.
+    pub irradiance_rays_ms: Stats,
     pub diffusion_ms: Stats,
     pub total_ms: f64,
     pub fps: f64,
@@ -197,7 +202,8 @@ fn measure(
             .unwrap_or_else(Stats::none)
     };
     let (v, e, d) = (get(PASS_VERTEX), get(PASS_IRRADIANCE), get(PASS_DIFFUSION));
-    let total = v.median + e.median + d.median;
+    let r = get(PASS_IRRADIANCE_RAYS);
+    let total = v.median + e.median + r.median + d.median;
     let texels = geo.pos.iter().filter(|p| p[3] > 0.0).count() as f64;
     let n = texels * samples as f64;
     let per_s = n / (d.median * 1e-3);
@@ -223,6 +229,7 @@ fn measure(
         samples,
         vertex_light_ms: v,
         irradiance_ms: e,
+        irradiance_rays_ms: r,
         diffusion_ms: d,
         total_ms: total,
         fps: 1000.0 / total,
@@ -292,9 +299,10 @@ pub fn run(
             let t = (size == cfg.error_size).then_some(&truth);
             let p = measure(ctx, cfg, &geo, &regions, s, peaks, t)?;
             progress(&format!(
-                "  {size}^2 x {s}: vertex light {:.1} + irradiance {:.1} + diffusion {:.1} ms = {:.2} fps{}",
+                "  {size}^2 x {s}: vertex light {:.1} + irradiance {:.1} + its rays {:.1} + diffusion {:.1} ms = {:.2} fps{}",
                 p.vertex_light_ms.median,
                 p.irradiance_ms.median,
+                p.irradiance_rays_ms.median,
                 p.diffusion_ms.median,
                 p.fps,
                 p.error
@@ -330,9 +338,10 @@ pub fn run(
     let two = Regions::new(vec![profile.clone(), skin2], halves(&geo))?;
     let two_regions = measure(ctx, cfg, &geo, &two, hn, peaks, None)?;
     progress(&format!(
-        "  {hs}^2 x {hn}, two skin regions: vertex light {:.1} + irradiance {:.1} + diffusion {:.1} ms = {:.2} fps",
+        "  {hs}^2 x {hn}, two skin regions: vertex light {:.1} + irradiance {:.1} + its rays {:.1} + diffusion {:.1} ms = {:.2} fps",
         two_regions.vertex_light_ms.median,
         two_regions.irradiance_ms.median,
+        two_regions.irradiance_rays_ms.median,
         two_regions.diffusion_ms.median,
         two_regions.fps
     ));
@@ -645,8 +654,8 @@ pub fn run_anim(
 }
 
 /// What a per-vertex rgb irradiance ([`SssKernel::set_vertex_irradiance`], the character
-/// frame's environment term) costs: the irradiance and diffusion passes of the same frame
-/// without it (grey E) and with it (rgb E).
+/// frame's environment term) costs: the irradiance (with its rays pass) and diffusion passes
+/// of the same frame without it (grey E) and with it (rgb E).
 #[derive(Clone, Debug, Serialize)]
 pub struct RgbPathCost {
     pub grey_irradiance_ms: f64,
@@ -688,9 +697,9 @@ fn time_rgb_path(
     kernel.set_vertex_irradiance(&mut rec, None)?;
     rec.submit_and_wait()?;
     Ok(RgbPathCost {
-        grey_irradiance_ms: of(&grey, PASS_IRRADIANCE),
+        grey_irradiance_ms: of(&grey, PASS_IRRADIANCE) + of(&grey, PASS_IRRADIANCE_RAYS),
         grey_diffusion_ms: of(&grey, PASS_DIFFUSION),
-        rgb_irradiance_ms: of(&rgb, PASS_IRRADIANCE),
+        rgb_irradiance_ms: of(&rgb, PASS_IRRADIANCE) + of(&rgb, PASS_IRRADIANCE_RAYS),
         rgb_diffusion_ms: of(&rgb, PASS_DIFFUSION),
     })
 }
@@ -806,10 +815,15 @@ impl<'a> AllBench<'a> {
                 t,
             )
         });
-        let within = [&p.vertex_light_ms, &p.irradiance_ms, &p.diffusion_ms]
-            .iter()
-            .map(|s| s.iqr_rel)
-            .fold(0.0, f64::max);
+        let within = [
+            &p.vertex_light_ms,
+            &p.irradiance_ms,
+            &p.irradiance_rays_ms,
+            &p.diffusion_ms,
+        ]
+        .iter()
+        .map(|s| s.iqr_rel)
+        .fold(0.0, f64::max);
         Ok(super::all::Round {
             kernel: "sss",
             headline: format!("BCN head, {}^2 texels x {} samples", p.size, p.samples),

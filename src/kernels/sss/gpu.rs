@@ -49,7 +49,7 @@ use crate::gpu::{
     ImageDesc, ImageRegion, MemoryReport, Readback, Recorder, Resource, Subresources,
 };
 use crate::kernels::contract::DispatchArgs;
-use crate::kernels::{Dispatch, Grid, Kernel, Pass};
+use crate::kernels::{Dispatch, Grid, IndirectArgs, Kernel, Pass};
 use ash::vk;
 use std::sync::Mutex;
 use std::sync::atomic::{AtomicU8, Ordering};
@@ -57,6 +57,11 @@ use std::sync::atomic::{AtomicU8, Ordering};
 pub const PASS_LIGHTS: &str = "sss lights";
 pub const PASS_VERTEX: &str = "sss vertex light";
 pub const PASS_IRRADIANCE: &str = "sss irradiance";
+/// The shadow rays of the texels `sss irradiance` lists (where a shadow boundary crosses the
+/// texel's triangle), dispatched indirectly over the list.
+pub const PASS_IRRADIANCE_RAYS: &str = "sss irradiance rays";
+/// The reset of that list before `sss irradiance` appends to it.
+pub const PASS_RAY_LIST: &str = "sss ray list";
 pub const PASS_DIFFUSION: &str = "sss diffusion";
 /// Per-frame geometry of a skinned mesh ([`SssKernel::new_posed`]): the vertex frames (mm)
 /// from the posed buffers.
@@ -148,6 +153,11 @@ struct Resources {
     /// list on the host (compared on a geometry update).
     occupied_tiles: Buffer,
     tile_list: Mutex<Vec<u32>>,
+    /// The texels whose lights need their own shadow rays, appended by `sss irradiance`: a
+    /// (texel, light bits) pair of u32 per listed texel, room for every texel; and its head,
+    /// u32 (ceil(count / 64), 1, 1, count), the indirect command of `sss irradiance rays`.
+    rays: Buffer,
+    ray_head: Buffer,
 }
 
 /// An RGBA32UI storage image the host fills (and can read back, for the tests of the
@@ -221,12 +231,17 @@ impl Resources {
             diffuse: buffer("sss diffuse", BufferDesc::storage(texel_bytes))?,
             occupied_tiles: buffer("sss tiles", BufferDesc::storage(tiles * 4))?,
             tile_list: Mutex::new(Vec::new()),
+            rays: buffer("sss shadow rays", BufferDesc::storage(texel_bytes / 2))?,
+            ray_head: buffer(
+                "sss shadow ray count",
+                BufferDesc::storage(16).usage(vk::BufferUsageFlags::INDIRECT_BUFFER),
+            )?,
         })
     }
 
     /// Every resource, with the name the shaders bind it by: the passes bind by these names,
     /// and the memory report counts them all.
-    fn by_binding(&self) -> [(&'static str, Resource<'_>); 20] {
+    fn by_binding(&self) -> [(&'static str, Resource<'_>); 22] {
         let image = Resource::storage_image;
         [
             ("verts", Resource::Buffer(&self.vertex_frames)),
@@ -249,6 +264,8 @@ impl Resources {
             ("pe", image(&self.irradiance_grey)),
             ("diffuse", Resource::Buffer(&self.diffuse)),
             ("tiles", Resource::Buffer(&self.occupied_tiles)),
+            ("rays", Resource::Buffer(&self.rays)),
+            ("ray_head", Resource::Buffer(&self.ray_head)),
         ]
     }
 
@@ -335,11 +352,55 @@ impl Stage {
     }
 }
 
+/// An irradiance shader (glsl/sss/irradiance.glsl) and its ray pass (`NAME_rays`).
+struct Irradiance {
+    shade: Stage,
+    rays: Stage,
+}
+
+impl Irradiance {
+    /// The shader `name` and `name`_rays, their resources looked up in `table`; `writes`:
+    /// the shading pass's write-only bindings (the ray pass reads and writes its output).
+    fn from_table(
+        ctx: &Context,
+        name: &str,
+        table: &[(&'static str, Resource<'_>)],
+        writes: &[&str],
+    ) -> Result<Irradiance> {
+        Ok(Irradiance {
+            shade: Stage::from_table(ctx, name, table, &[writes, &["rays"]].concat())?,
+            rays: Stage::from_table(ctx, &format!("{name}_rays"), table, &[])?,
+        })
+    }
+
+    /// The list's reset, the shading pass and, with `refine`, the ray pass over the list
+    /// (`head`: the list's head).
+    fn passes<'k>(&'k self, head: &'k Buffer, refine: bool) -> Vec<Pass<'k, SssKernel>> {
+        let mut passes = vec![
+            Pass::upload(PASS_RAY_LIST, head, SssKernel::ray_list_reset),
+            self.shade.pass(PASS_IRRADIANCE, SssKernel::irradiance_args),
+        ];
+        if refine {
+            passes.push(Pass::dispatch_indirect(
+                PASS_IRRADIANCE_RAYS,
+                &self.rays.pipeline,
+                &self.rays.bind,
+                IndirectArgs {
+                    buffer: head,
+                    offset: 0,
+                },
+                SssKernel::irradiance_rays_push,
+            ));
+        }
+        passes
+    }
+}
+
 pub struct SssKernel {
     ctx: Context,
     res: Resources,
     vertex_light: Stage,
-    irradiance: Stage,
+    irradiance: Irradiance,
     /// The diffusion of a caller's rgb irradiance: two gathers a sample.
     diffusion_rgb: Stage,
     /// The diffusion of the irradiance pass's grey E: one gather a sample.
@@ -446,7 +507,7 @@ struct Posed {
     /// [`SssKernel::read_back_geometry`] for diagnostics.
     texels: Stage,
     /// The irradiance of a posed frame (glsl/sss/irradiance_posed.comp).
-    irradiance: Stage,
+    irradiance: Irradiance,
     bvh_leaves: Stage,
     bvh_refit: Stage,
     triangle_count: u32,
@@ -479,7 +540,7 @@ struct Env {
     /// v / VERTEX_ROW)), written by `sss vertex irradiance`.
     vertex_texels: Image,
     copy: Stage,
-    irradiance: Stage,
+    irradiance: Irradiance,
     diffusion: Stage,
 }
 
@@ -534,7 +595,8 @@ impl SssKernel {
         let res = Resources::new(&ctx, &room, regions.len())?;
         let stage = |name, writes: &[&str]| Stage::new(&ctx, name, &res, writes);
         let vertex_light = stage("sss/vertex_light", &["vis", "vtrans"])?;
-        let irradiance = stage("sss/irradiance", &["trans", "pe"])?;
+        let irradiance =
+            Irradiance::from_table(&ctx, "sss/irradiance", &res.by_binding(), &["trans", "pe"])?;
         let diffusion_rgb = stage("sss/diffusion", &["diffuse"])?;
         let diffusion_grey = stage("sss/diffusion_grey", &["diffuse"])?;
         let pattern = Pattern::new(&regions, params.samples);
@@ -656,7 +718,8 @@ impl SssKernel {
         let vertices_stage = stage("sss/pose_vertices", &["verts", "vframes"])?;
         let triangles_stage = stage("sss/pose_triangles", &["walk", "trirec"])?;
         let texels = stage("sss/pose_texels", &["pos", "nrm"])?;
-        let irradiance = stage("sss/irradiance_posed", &["trans", "pe"])?;
+        let irradiance =
+            Irradiance::from_table(&ctx, "sss/irradiance_posed", &table, &["trans", "pe"])?;
         let bvh_leaves = stage("sss/bvh_leaves", &["nodes", "tris"])?;
         let bvh_refit = stage("sss/bvh_refit", &[])?;
         drop(table);
@@ -881,7 +944,7 @@ impl SssKernel {
             "sss/irradiance_env"
         };
         let copy = Stage::from_table(&ctx, "sss/vertex_env", &table, &["venv_texels"])?;
-        let irradiance = Stage::from_table(&ctx, shader, &table, &["trans", "penv"])?;
+        let irradiance = Irradiance::from_table(&ctx, shader, &table, &["trans", "penv"])?;
         drop(table);
         let diffusion = self.env_diffusion(&image, self.needed.as_ref())?;
         self.env = Some(Env {
@@ -1007,6 +1070,22 @@ impl SssKernel {
         Ok(Dispatch::words(&words, Grid::Groups(tile_groups(tiles))))
     }
 
+    /// The ray list emptied: (0 workgroups, 1, 1, 0 texels).
+    fn ray_list_reset(&self, _lights: &[Light]) -> Result<Vec<u8>> {
+        Ok([0u32, 1, 1, 0]
+            .iter()
+            .flat_map(|w| w.to_le_bytes())
+            .collect())
+    }
+
+    /// The ray pass's push constants: the shading pass's.
+    fn irradiance_rays_push(&self, lights: &[Light]) -> Result<Vec<u8>> {
+        let words = self
+            .settings
+            .irradiance_push(lights.len() as u32, self.res.tile_count());
+        Ok(words.iter().flat_map(|w| w.to_le_bytes()).collect())
+    }
+
     fn posed(&self) -> Result<&Posed> {
         self.posed
             .as_ref()
@@ -1095,10 +1174,8 @@ impl Kernel for SssKernel {
             irradiance = &env.irradiance;
             diffusion = &env.diffusion;
         }
-        passes.extend([
-            irradiance.pass(PASS_IRRADIANCE, Self::irradiance_args),
-            diffusion.pass(PASS_DIFFUSION, Self::diffusion_args),
-        ]);
+        passes.extend(irradiance.passes(&self.res.ray_head, self.settings.params.shadow_refine));
+        passes.push(diffusion.pass(PASS_DIFFUSION, Self::diffusion_args));
         passes
     }
 

@@ -14,7 +14,8 @@
 //! - [`pack`]: what the kernel uploads, packed and checked on the CPU.
 //! - [`posed`]: what a skinned mesh's UV layout fixes (built once), and the CPU twins of
 //!   the BVH refit.
-//! - [`gpu`]: the kernel (passes `sss lights`, `sss vertex light`, `sss irradiance`,
+//! - [`gpu`]: the kernel (passes `sss lights`, `sss vertex light`, `sss ray list`,
+//!   `sss irradiance`, `sss irradiance rays` (the shadow rays of the texels it listed),
 //!   `sss diffusion`; posed: `sss pose vertices`, `sss pose triangles`, `sss bvh leaves`,
 //!   `sss bvh refit` first, and the irradiance computes the texel geometry itself). An
 //!   optional per-vertex rgb irradiance (e.g. the environment shadowed by the character) is

@@ -1,0 +1,5 @@
+#version 450
+// Pass `sss irradiance rays` of glsl/sss/irradiance_posed.comp (Lights only, the texel geometry from this pose's vertex frames). The method: glsl/sss/irradiance.glsl.
+#define SSS_POSED 1
+#define SSS_RAYS 1
+#include <sss/irradiance.glsl>
