@@ -518,9 +518,11 @@ impl Data {
                 }
                 let (mut gx, mut gl) = (DVec3::ZERO, 0.0);
                 let (mut ex, mut el) = (DVec3::ZERO, 0.0);
-                for ((r, w), d_omega) in residual.iter().zip(&self.dirs).zip(&self.weights) {
+                // dO_p G_j(w_p) is row j of the weighted design matrix `b`, computed above from
+                // the same axis and sharpness.
+                for ((r, w), wg) in residual.iter().zip(&self.dirs).zip(&b[j * n..(j + 1) * n]) {
                     let cos = axis.dot(*w);
-                    let wg = d_omega * (lam * (cos - 1.0)).exp();
+                    let wg = *wg;
                     let weight = wg * (r[0] * amp[0] + r[1] * amp[1] + r[2] * amp[2]);
                     gx += weight * *w;
                     gl += weight * (cos - 1.0);
