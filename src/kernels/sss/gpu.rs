@@ -155,7 +155,8 @@ struct Resources {
     tile_list: Mutex<Vec<u32>>,
     /// The texels whose lights need their own shadow rays, appended by `sss irradiance`: a
     /// (texel, light bits) pair of u32 per listed texel, room for every texel; and its head,
-    /// u32 (ceil(count / 64), 1, 1, count), the indirect command of `sss irradiance rays`.
+    /// u32 (ceil(count / 256), 1, 1, count), the indirect command of `sss irradiance rays`
+    /// (64 lanes a workgroup, 4 entries a lane).
     rays: Buffer,
     ray_head: Buffer,
 }
