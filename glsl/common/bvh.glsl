@@ -37,6 +37,18 @@ float hit_t(vec3 o, vec3 d, uint t, float tmax) {
     return (t_hit > 0.0 && t_hit <= tmax) ? t_hit : -1.0;
 }
 
+// Whether the ray o + t d, t in [0, tmax], meets the box [lo, hi], given lo - o, hi - o and
+// 1 / d (the slab test every traversal here uses).
+bool slab_meets(vec3 lo_o, vec3 hi_o, vec3 inv, float tmax) {
+    vec3 t0 = lo_o * inv;
+    vec3 t1 = hi_o * inv;
+    vec3 tmin = min(t0, t1);
+    vec3 tmx = max(t0, t1);
+    float tnear = max(max(max(tmin.x, tmin.y), tmin.z), 0.0);
+    float tfar = min(min(min(tmx.x, tmx.y), tmx.z), tmax);
+    return !(tnear > tfar);
+}
+
 bool hit_tri(vec3 o, vec3 d, uint t, float tmax) {
     vec3 a = tri_row(3u * t);
     vec3 e1 = tri_row(3u * t + 1u);
@@ -71,13 +83,7 @@ bool any_hit(vec3 o, vec3 d, float tmax) {
         uvec4 hi_u = bvh_node(2u * ni + 1u);
         vec3 lo = uintBitsToFloat(lo_u.xyz);
         vec3 hi = uintBitsToFloat(hi_u.xyz);
-        vec3 t0 = (lo - o) * inv;
-        vec3 t1 = (hi - o) * inv;
-        vec3 tmin = min(t0, t1);
-        vec3 tmx = max(t0, t1);
-        float tnear = max(max(max(tmin.x, tmin.y), tmin.z), 0.0);
-        float tfar = min(min(min(tmx.x, tmx.y), tmx.z), tmax);
-        bool meets = !(tnear > tfar);
+        bool meets = slab_meets(lo - o, hi - o, inv, tmax);
         uint first = lo_u.w;
         uint count = hi_u.w & 0xffu;
         uint n = meets ? count : 0u;
@@ -101,13 +107,7 @@ vec2 closest_hit(vec3 o, vec3 d, float tmax) {
         uvec4 hi_u = bvh_node(2u * ni + 1u);
         vec3 lo = uintBitsToFloat(lo_u.xyz);
         vec3 hi = uintBitsToFloat(hi_u.xyz);
-        vec3 t0 = (lo - o) * inv;
-        vec3 t1 = (hi - o) * inv;
-        vec3 tmin = min(t0, t1);
-        vec3 tmx = max(t0, t1);
-        float tnear = max(max(max(tmin.x, tmin.y), tmin.z), 0.0);
-        float tfar = min(min(min(tmx.x, tmx.y), tmx.z), best >= 0.0 ? best : tmax);
-        bool meets = !(tnear > tfar);
+        bool meets = slab_meets(lo - o, hi - o, inv, best >= 0.0 ? best : tmax);
         uint first = lo_u.w;
         uint count = hi_u.w & 0xffu;
         uint n = meets ? count : 0u;

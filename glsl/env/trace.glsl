@@ -57,14 +57,8 @@ uint escaping(vec3 o, vec3 d[PACKET], uint live) {
         vec3 hi = uintBitsToFloat(hi_u.xyz) - o;
         uint meet = 0u;
         for (uint i = 0u; i < PACKET; i++) {
-            // common/bvh.glsl any_hit's slab test, tmax infinite.
-            vec3 t0 = lo * inv[i];
-            vec3 t1 = hi * inv[i];
-            vec3 tmin = min(t0, t1);
-            vec3 tmx = max(t0, t1);
-            float tnear = max(max(max(tmin.x, tmin.y), tmin.z), 0.0);
-            float tfar = min(min(tmx.x, tmx.y), tmx.z);
-            meet |= (tnear > tfar) ? 0u : (1u << i);
+            // tmax infinite.
+            meet |= slab_meets(lo, hi, inv[i], uintBitsToFloat(0x7f800000u)) ? (1u << i) : 0u;
         }
         meet &= live;
         uint first = lo_u.w;

@@ -169,13 +169,7 @@ uint blocked_rays(vec3 o[RAY_PACKET], vec3 d[RAY_PACKET], float tmax[RAY_PACKET]
         vec3 hi = uintBitsToFloat(hi_u.xyz);
         uint meet = 0u;
         for (uint i = 0u; i < RAY_PACKET; i++) {
-            vec3 t0 = (lo - o[i]) * inv[i];
-            vec3 t1 = (hi - o[i]) * inv[i];
-            vec3 tmin = min(t0, t1);
-            vec3 tmx = max(t0, t1);
-            float tnear = max(max(max(tmin.x, tmin.y), tmin.z), 0.0);
-            float tfar = min(min(min(tmx.x, tmx.y), tmx.z), tmax[i]);
-            meet |= (tnear > tfar) ? 0u : (1u << i);
+            meet |= slab_meets(lo - o[i], hi - o[i], inv[i], tmax[i]) ? (1u << i) : 0u;
         }
         meet &= live;
         uint first = lo_u.w;
