@@ -228,41 +228,6 @@ fn testwuson() -> Character {
     })
 }
 
-/// The GPU frame against the CPU twin's: visibility within the bounds below and the same
-/// cut (spheres tested and used) on >= 99.5% of vertices. Returns the largest difference.
-///
-/// GPU and CPU run the same f32 operations in the same order. They differ where Vulkan
-/// allows it: acos/atan need only be exact to 4096 ulp (~5e-4 near 1; Mesa uses polynomial
-/// approximations), sqrt and division to a few ulp, and FMA contraction is the driver's
-/// choice. Per sphere that is ~1e-4; over ~35 spheres of random sign, a few 1e-4. A
-/// comparison tied at that precision (refinement, a mask bit) can flip, moving one vertex by
-/// at most one sphere's share. Measured on lavapipe: MAE 1.3e-5, p95 4.3e-5, max 1.3e-4,
-/// identical cuts. Bounds: MAE < 1e-4, p95 < 5e-4, max < 1e-2.
-fn assert_matches_twin(gpu: &FrameData, cpu: &[cpu::VertexAo], params: &AoParams) -> f64 {
-    let cpu_vis: Vec<f32> = cpu.iter().map(|v| v.visibility).collect();
-    let e = ErrorStats::of(&gpu.visibility, &cpu_vis);
-    let same_cut = gpu
-        .stats
-        .iter()
-        .zip(cpu)
-        .filter(|(g, c)| **g == [c.tested, c.used])
-        .count();
-    eprintln!(
-        "{params:?}: GPU vs CPU {e:?}; same cut on {same_cut}/{} vertices",
-        cpu.len()
-    );
-    assert!(
-        e.mae < 1e-4 && e.p95 < 5e-4 && e.max < 1e-2,
-        "{params:?}: {e:?}"
-    );
-    assert!(
-        same_cut as f64 >= 0.995 * cpu.len() as f64,
-        "{params:?}: cut differs on {} vertices",
-        cpu.len() - same_cut
-    );
-    e.max
-}
-
 #[test]
 fn gpu_matches_the_cpu_implementation_on_testwuson() {
     let c = testwuson();
@@ -305,7 +270,7 @@ fn gpu_matches_the_cpu_implementation_on_testwuson() {
             let gpu = gpu_frame(ctx, &c, &tree, params, Some(&factors), &m)?;
             let posed = cpu::skin(&prep, &m);
             let cpu = cpu_ao.frame(&posed, prep.shape, &params, Some(&factors));
-            let max = assert_matches_twin(&gpu, &cpu, &params);
+            let max = common::assert_ao_matches_twin(&gpu, &cpu, &params);
             let pos = gpu
                 .positions
                 .iter()
@@ -351,7 +316,7 @@ fn gpu_matches_the_cpu_implementation_on_a_deep_tree() {
             let gpu = gpu_frame(ctx, &c, &tree, params, None, &m)?;
             let posed = cpu::skin(&prep, &m);
             let cpu = cpu_ao.frame(&posed, prep.shape, &params, None);
-            assert_matches_twin(&gpu, &cpu, &params);
+            common::assert_ao_matches_twin(&gpu, &cpu, &params);
         }
         Ok(())
     });

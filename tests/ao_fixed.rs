@@ -84,33 +84,7 @@ fn fixed_cut_gpu_matches_its_cpu_twin_on_testwuson() {
             assert_eq!(chosen.nodes, fixed.nodes, "{params:?}: lists differ");
             let posed = cpu::skin(&prep, &m);
             let twin = cpu_ao.fixed_frame(&posed, &fixed, &params, Some(&factors));
-            let e = ErrorStats::of(&gpu.visibility, &visibility(&twin));
-            let same = gpu
-                .stats
-                .iter()
-                .zip(&twin)
-                .filter(|(g, t)| **g == [t.tested, t.used])
-                .count();
-            eprintln!(
-                "{params:?}: GPU vs CPU twin {e:?}; same counts on {same}/{} vertices",
-                twin.len()
-            );
-            // Same f32 operations in the same order; they differ where Vulkan allows it:
-            // acos/atan to 4096 ulp (~5e-4 near 1: the 2D lookup's angle and the three arc
-            // cosines of every overlap lookup), sqrt and division to a few ulp, FMA
-            // contraction. Per sphere ~1e-4, over ~30 spheres and their overlaps a few 1e-4;
-            // a tie (the inside test, the disjoint-caps test) can flip one sphere's share.
-            // Bounds as the adaptive cut's twin test: MAE < 1e-4, p95 < 5e-4, max < 1e-2,
-            // and the same tested/used counts on >= 99.5% of vertices.
-            assert!(
-                e.mae < 1e-4 && e.p95 < 5e-4 && e.max < 1e-2,
-                "{params:?}: {e:?}"
-            );
-            assert!(
-                same as f64 >= 0.995 * twin.len() as f64,
-                "{params:?}: counts differ on {} vertices",
-                twin.len() - same
-            );
+            common::assert_ao_matches_twin(&gpu, &twin, &params);
         }
         Ok(())
     });
