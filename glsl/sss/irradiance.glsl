@@ -123,9 +123,14 @@ ivec2 vertex_at(uint v) {
     return table_texel(v, VERTEX_ROW);
 }
 
-// The texel's position (mm) and unit normal.
+// A texel's source, the first load: posed, (triangle, s1, s2, flag) bits, fixed by the UV
+// layout; else the per-texel image's (position, flag). Its flag (0: no surface, 0.5: gutter,
+// 1: covered), and with its corners, its position (mm) and unit normal (`texel_frame`).
 #ifdef SSS_POSED
-// As glsl/sss/pose_texels.comp (the same arithmetic), from its source (triangle, s1, s2 bits).
+#define TexelSource uvec4
+uvec4 texel_source(ivec2 at) { return imageLoad(source, at); }
+float source_flag(uvec4 src) { return uintBitsToFloat(src.w); }
+// As glsl/sss/pose_texels.comp (the same arithmetic).
 void texel_frame(ivec2 at, uvec4 src, uvec4 cr, out vec3 p, out vec3 n) {
     float s1 = uintBitsToFloat(src.y), s2 = uintBitsToFloat(src.z);
     float s0 = 1.0 - s1 - s2;
@@ -135,16 +140,13 @@ void texel_frame(ivec2 at, uvec4 src, uvec4 cr, out vec3 p, out vec3 n) {
     n = ln > 0.0 ? n * (1.0 / ln) : imageLoad(trirec, table_texel(src.x, BVH_ROW)).xyz;
 }
 #else
-void texel_frame(ivec2 at, vec4 p4, uvec4 cr, out vec3 p, out vec3 n) {
-    p = p4.xyz;
+#define TexelSource vec4
+vec4 texel_source(ivec2 at) { return imageLoad(pos, at); }
+float source_flag(vec4 src) { return src.w; }
+void texel_frame(ivec2 at, vec4 src, uvec4 cr, out vec3 p, out vec3 n) {
+    p = src.xyz;
     n = imageLoad(nrm, at).xyz;
 }
-#endif
-
-#ifdef SSS_POSED
-#define TEXEL_SOURCE(at) imageLoad(source, at)
-#else
-#define TEXEL_SOURCE(at) imageLoad(pos, at)
 #endif
 
 #ifdef SSS_RAYS
@@ -218,7 +220,7 @@ void main() {
         at[k] = ivec2(job.x & 0xffffu, job.x >> 16u);
         mask[k] = first + k < listed ? job.y : 0u;
         lights_needed |= mask[k];
-        texel_frame(at[k], TEXEL_SOURCE(at[k]), imageLoad(corners, at[k]), p[k], n[k]);
+        texel_frame(at[k], texel_source(at[k]), imageLoad(corners, at[k]), p[k], n[k]);
         e[k] = 0.0;
     }
     while (lights_needed != 0u) {
@@ -257,13 +259,8 @@ void main() {
     uvec2 xy = uvec2((tile & 0xffffu) * 8u + gl_LocalInvocationID.x, tile >> 16u);
     if (xy.x >= pc.size || xy.y >= pc.size) return;
     ivec2 at = ivec2(xy);
-#ifdef SSS_POSED
-    uvec4 src = imageLoad(source, at);
-    float flag = uintBitsToFloat(src.w);
-#else
-    vec4 p4 = imageLoad(pos, at);
-    float flag = p4.w;
-#endif
+    TexelSource src = texel_source(at);
+    float flag = source_flag(src);
     if (flag == 0.0) {
         if (pc.mode != 0u) imageStore(trans, at, vec4(0.0));
 #ifdef SSS_ENV
@@ -275,11 +272,7 @@ void main() {
     }
     uvec4 cr = imageLoad(corners, at);
     vec3 p, n;
-#ifdef SSS_POSED
     texel_frame(at, src, cr, p, n);
-#else
-    texel_frame(at, p4, cr, p, n);
-#endif
     const float Q = 1.0 / 65536.0;
     float w1 = float(cr.w & 0xffffu) * Q, w2 = float(cr.w >> 16u) * Q;
     float w0 = 1.0 - w1 - w2;

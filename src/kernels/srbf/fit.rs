@@ -520,9 +520,8 @@ impl Data {
                 let (mut ex, mut el) = (DVec3::ZERO, 0.0);
                 // dO_p G_j(w_p) is row j of the weighted design matrix `b`, computed above from
                 // the same axis and sharpness.
-                for ((r, w), wg) in residual.iter().zip(&self.dirs).zip(&b[j * n..(j + 1) * n]) {
+                for ((r, w), &wg) in residual.iter().zip(&self.dirs).zip(&b[j * n..(j + 1) * n]) {
                     let cos = axis.dot(*w);
-                    let wg = *wg;
                     let weight = wg * (r[0] * amp[0] + r[1] * amp[1] + r[2] * amp[2]);
                     gx += weight * *w;
                     gl += weight * (cos - 1.0);

@@ -374,15 +374,17 @@ impl Irradiance {
         })
     }
 
-    /// The list's reset, the shading pass and, with `refine`, the ray pass over the list
-    /// (`head`: the list's head).
+    /// The shading pass and, with `refine`, the list's reset before it and the ray pass over
+    /// the list after it (`head`: the list's head; without `refine` nothing is listed).
     fn passes<'k>(&'k self, head: &'k Buffer, refine: bool) -> Vec<Pass<'k, SssKernel>> {
-        let mut passes = vec![
+        let shade = self.shade.pass(PASS_IRRADIANCE, SssKernel::irradiance_args);
+        if !refine {
+            return vec![shade];
+        }
+        vec![
             Pass::upload(PASS_RAY_LIST, head, SssKernel::ray_list_reset),
-            self.shade.pass(PASS_IRRADIANCE, SssKernel::irradiance_args),
-        ];
-        if refine {
-            passes.push(Pass::dispatch_indirect(
+            shade,
+            Pass::dispatch_indirect(
                 PASS_IRRADIANCE_RAYS,
                 &self.rays.pipeline,
                 &self.rays.bind,
@@ -391,9 +393,8 @@ impl Irradiance {
                     offset: 0,
                 },
                 SssKernel::irradiance_rays_push,
-            ));
-        }
-        passes
+            ),
+        ]
     }
 }
 
@@ -1073,10 +1074,7 @@ impl SssKernel {
 
     /// The ray list emptied: (0 workgroups, 1, 1, 0 texels).
     fn ray_list_reset(&self, _lights: &[Light]) -> Result<Vec<u8>> {
-        Ok([0u32, 1, 1, 0]
-            .iter()
-            .flat_map(|w| w.to_le_bytes())
-            .collect())
+        Ok(bytemuck::cast_slice(&[0u32, 1, 1, 0]).to_vec())
     }
 
     /// The ray pass's push constants: the shading pass's.
@@ -1084,7 +1082,7 @@ impl SssKernel {
         let words = self
             .settings
             .irradiance_push(lights.len() as u32, self.res.tile_count());
-        Ok(words.iter().flat_map(|w| w.to_le_bytes()).collect())
+        Ok(bytemuck::cast_slice(&words).to_vec())
     }
 
     fn posed(&self) -> Result<&Posed> {
