@@ -12,6 +12,7 @@ use glam::Mat3;
 use vkshade::frame::{CharacterFrame, FrameConfig, FrameInput, run};
 use vkshade::gpu::Features;
 use vkshade::kernels::Kernel;
+use vkshade::kernels::btf::pack::{GPU_CPU_BOUND_BLOCK, Texture};
 use vkshade::kernels::raster::pack::key_triangle;
 
 const INT64: Features = Features {
@@ -547,17 +548,18 @@ fn bad_frame_input_is_refused() {
 /// over another BTF's parts fails the comparison on the Torso's pixels.
 #[test]
 fn the_cloth_stage_equals_its_twins_with_the_environment() {
-    cloth_stage_equals_its_twins(0, 0.05);
+    cloth_stage_equals_its_twins(0, 0.05, Texture::Block);
 }
 
 /// As the_cloth_stage_equals_its_twins_with_the_environment with every lobe looked up at
-/// every pixel (no `btf env vertices` pass).
+/// every pixel (no `btf env vertices` pass), and the BTF in the sampled RGBA8 format instead
+/// of the default blocks (the sampler's filtering, not the shader's).
 #[test]
 fn the_cloth_stage_with_every_lobe_per_pixel_equals_its_twins() {
-    cloth_stage_equals_its_twins(usize::MAX, 0.03);
+    cloth_stage_equals_its_twins(usize::MAX, 0.03, Texture::Rgba8);
 }
 
-fn cloth_stage_equals_its_twins(pixel_lobes: usize, quadrature_bound: f64) {
+fn cloth_stage_equals_its_twins(pixel_lobes: usize, quadrature_bound: f64, texture: Texture) {
     use vkshade::frame::{BtfSource, ClothPart};
     use vkshade::kernels::btf::cloth::Pattern;
     let cfg = FrameConfig {
@@ -567,6 +569,7 @@ fn cloth_stage_equals_its_twins(pixel_lobes: usize, quadrature_bound: f64) {
             tile_scale: Some(11.0),
         }],
         cloth_pixel_lobes: pixel_lobes,
+        cloth_texture: texture,
         ..small()
     };
     let (stages, light, bits, tw, errors) = with_gpu_features(INT64, |ctx| {
@@ -615,7 +618,13 @@ fn cloth_stage_equals_its_twins(pixel_lobes: usize, quadrature_bound: f64) {
             continue;
         }
         compared += 1;
-        let bound = (2.0 * q + 1.1e-3) * light + 4.0 * q * tw.env.scale[k] + 1e-5;
+        // The direct lights: f32 rounding for blocks (decoded and filtered in the shader as
+        // in the twin), the sampler's sub-texel weights for the sampled formats.
+        let direct = match texture {
+            Texture::Block => GPU_CPU_BOUND_BLOCK * light,
+            _ => (2.0 * q + 1.1e-3) * light,
+        };
+        let bound = direct + 4.0 * q * tw.env.scale[k] + 1e-5;
         for (c, gc) in g.iter().take(3).enumerate() {
             let want = tw.direct[k][c] + tw.env.radiance[k][c];
             assert!(

@@ -48,6 +48,12 @@ pub struct Args {
     /// the fastest; at least --env-lobes: every lobe at every pixel, the most exact)
     #[arg(long, default_value_t = 0)]
     pub cloth_pixel_lobes: usize,
+    /// The cloth BTF's texel format for `btf shade`: block (decoded and filtered in the
+    /// shader, the fastest on lavapipe), rgba8 (sRGB) or bc1 (sRGB BC1, needs the device
+    /// feature textureCompressionBC).
+    #[arg(long, default_value = "block",
+          value_parser = super::choice::<crate::kernels::btf::pack::Texture>("texture format"))]
+    pub cloth_texture: crate::kernels::btf::pack::Texture,
     /// Diffuse every atlas segment, shade every pixel and the environment at every vertex,
     /// not only what the camera sees (the same images, slower: an A/B switch for the
     /// culling)
@@ -245,6 +251,7 @@ impl Args {
             env_trace_grid: (self.env_trace_grid > 0).then_some(self.env_trace_grid),
             cull: !self.no_cull,
             cloth_pixel_lobes: self.cloth_pixel_lobes,
+            cloth_texture: self.cloth_texture,
             // The reference compares (and writes) every vertex's environment irradiance.
             env_every_vertex: self.reference,
             // ... and reports the AO-weighted floor beside it.

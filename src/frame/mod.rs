@@ -150,6 +150,12 @@ pub struct FrameConfig {
     /// own quadrature reads ~4% with 0 (the default), ~3% with 4, ~2% with all, and the
     /// pass costs ~2.6 ms less on a 2-core lavapipe VM with 0 than with all.
     pub cloth_pixel_lobes: usize,
+    /// The texel format the cloth's BTFs are packed in for `btf shade`
+    /// ([`Texture`]): `Block` (the default) is decoded and filtered by
+    /// the shader from one fetch per tap; the sampled formats run lavapipe's software sRGB
+    /// (and BC1) decode on every filtered texel, ~3x the pass's time there (`bench frame`:
+    /// `btf shade` 10.2 ms with `Rgba8`, see the CHANGELOG).
+    pub cloth_texture: Texture,
 }
 
 /// A skin part's own scattering material ([`FrameConfig::skin_parts`]).
@@ -321,6 +327,7 @@ impl Default for FrameConfig {
             env_every_vertex: false,
             cloth_pixel_lobes: 0,
             ao_visibility: false,
+            cloth_texture: Texture::Block,
         }
     }
 }
@@ -1207,7 +1214,7 @@ impl CharacterFrame {
                 break;
             };
             let unused = GBuffer::tile([1, 1]);
-            let inputs = BtfInputs::new(&btf, maps, &unused, Texture::Rgba8);
+            let inputs = BtfInputs::new(&btf, maps, &unused, cfg.cloth_texture);
             let l = ctx.limits();
             let bprep = BtfPrepared::for_gpu_gbuffer(
                 &inputs,
@@ -1597,7 +1604,7 @@ impl CharacterFrame {
         let tri: Vec<u32> = st.keys.iter().map(|&k| key_triangle(k)).collect();
         let triangles = self.raster_triangles();
         for g in &self.cloth {
-            let sampled = Sampled::of(&g.btf, Texture::Rgba8);
+            let sampled = Sampled::of(&g.btf, self.cfg.cloth_texture);
             let packed = sampled.packed(g.btf.size);
             let (direct, direct_ambiguous) =
                 crate::kernels::btf::cpu::shade(&packed, maps, &gb, &self.btf_frame);
@@ -1645,8 +1652,19 @@ impl CharacterFrame {
                         .sum();
                 }
             }
+            // The BTF's own quadrature reads its texels at 8-bit sRGB whatever format `btf
+            // shade` packs them in: the basis was fitted to the BTF, not to its encoding
+            // (blocks add their own error, ~0.3 dB PSNR against the ray-cast truth).
+            let (sampled8, packed8);
+            let texels = if self.cfg.cloth_texture == Texture::Rgba8 {
+                &packed
+            } else {
+                sampled8 = Sampled::of(&g.btf, Texture::Rgba8);
+                packed8 = sampled8.packed(g.btf.size);
+                &packed8
+            };
             let (q, _) = crate::kernels::btf::env::shade(
-                &packed,
+                texels,
                 maps,
                 &group_gb,
                 camera,
