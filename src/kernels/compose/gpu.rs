@@ -216,7 +216,7 @@ impl ComposeKernel {
         )?;
         let params = Buffer::new(&ctx, "compose params", storage(PARAMS_BYTES))?;
         let hdr = Buffer::new(&ctx, "compose hdr", storage(pixels * 16))?;
-        let ldr = Buffer::new(&ctx, "compose ldr", storage(pixels * 4))?;
+        let ldr = Buffer::new(&ctx, "compose ldr", storage(ldr_bytes(pixels)))?;
         // Stand-ins for absent inputs: zeros, never read where the input is absent (no skin
         // triangle, no cloth triangle, no lobe) but bound because the layout is fixed.
         let small = |rec: &mut Recorder, name: &str| {
@@ -385,10 +385,11 @@ impl Kernel for ComposeKernel {
                     &t.background,
                     &t.background_bind,
                     |k: &ComposeKernel, _| {
-                        Ok(Dispatch::words(
-                            &k.size,
-                            Grid::Invocations([k.size[0], k.size[1], 1]),
-                        ))
+                        // One invocation per 4 pixels, BACKGROUND_ROW of them a row.
+                        let quads = (k.size[0] as u64 * k.size[1] as u64).div_ceil(4);
+                        let rows = quads.div_ceil(BACKGROUND_ROW as u64) as u32;
+                        let row = quads.min(BACKGROUND_ROW as u64) as u32;
+                        Ok(Dispatch::words(&k.size, Grid::Invocations([row, rows, 1])))
                     },
                 ),
                 Pass::dispatch_indirect(
@@ -419,7 +420,12 @@ impl Kernel for ComposeKernel {
     fn read_back(&self, rec: &mut Recorder) -> Result<ComposeReadback> {
         Ok(ComposeReadback {
             hdr: rec.read_back(&self.hdr)?,
-            ldr: rec.read_back(&self.ldr)?,
+            // The pixels' words, not the padding after them.
+            ldr: rec.read_back_range(
+                &self.ldr,
+                0,
+                4 * self.size[0] as u64 * self.size[1] as u64,
+            )?,
         })
     }
 
@@ -440,6 +446,16 @@ impl Kernel for ComposeKernel {
         all.extend(self.spare.iter());
         self.ctx.memory_of(&all)
     }
+}
+
+/// Quads of 4 pixels per dispatch row of pass `compose background`
+/// (glsl/compose/background.comp `ROW`).
+const BACKGROUND_ROW: u32 = 4096;
+
+/// Bytes of the LDR output for `pixels` pixels: one word each, padded to whole 16-byte
+/// quads (pass `compose background` stores 4 words at once; the padding is never read).
+fn ldr_bytes(pixels: u64) -> u64 {
+    pixels.div_ceil(4) * 16
 }
 
 /// The clearing of the needed-segment bitmap (an upload of zeros).
