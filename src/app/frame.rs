@@ -319,7 +319,7 @@ impl Args {
     pub fn run(&self, gpu: &Gpu) -> Result<()> {
         let cfg = self.config()?;
         crate::io::outdir::check_claimable(&self.out, "frame")?;
-        let ctx = context(gpu)?;
+        let ctx = context_for(gpu, cfg.cloth_texture)?;
         eprintln!("vkshade frame on {}", ctx.info().name);
         let t = Instant::now();
         let report = render(&ctx, &cfg, self, &mut |l| super::progress(l))?;
@@ -331,9 +331,29 @@ impl Args {
 
 /// The context a character frame needs: 64-bit buffer atomics for the rasteriser.
 pub fn context(gpu: &Gpu) -> Result<crate::gpu::Context> {
+    context_for(gpu, crate::kernels::btf::pack::Texture::Block)
+}
+
+/// As [`context`], with the device feature textureCompressionBC when the cloth's BTF is
+/// packed as BC1 (`--cloth-texture bc1`), saying which option needs it when it is missing.
+fn context_for(
+    gpu: &Gpu,
+    cloth_texture: crate::kernels::btf::pack::Texture,
+) -> Result<crate::gpu::Context> {
+    let bc1 = cloth_texture == crate::kernels::btf::pack::Texture::Bc1;
     gpu.context_with(crate::gpu::Features {
         buffer_int64_atomics: true,
+        texture_compression_bc: bc1,
         ..Default::default()
+    })
+    .map_err(|e| match e {
+        crate::Error::Unsupported { device, what } if bc1 => crate::Error::Unsupported {
+            device,
+            what: format!(
+                "{what} (--cloth-texture bc1 needs it; use --cloth-texture block or rgba8)"
+            ),
+        },
+        e => e,
     })
 }
 
