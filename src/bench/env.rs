@@ -70,21 +70,22 @@ pub struct EnvBenchReport {
     pub roofline: super::roofline::Roofline,
 }
 
-/// FLOP the model counts per cap-lobe lookup: the product lobe's angle to the cap (dot,
-/// acos), the small-cap closed form (exp, the normalisation), the table's coordinates (log2,
-/// sqrt, clamps) and its trilinear blend (7 lerps), the horizon share, log(1 - o) and the
-/// accumulation. Transcendentals count as the few FMAs lavapipe expands them to (~8 each).
-pub const FLOP_PER_LOOKUP: f64 = 90.0;
+/// FLOP the model counts per cap-lobe lookup: the product lobe's angle to the cap (dot, a
+/// cubic acos), the small-cap closed form (exp, the normalisation), the table's s coordinate
+/// (clamps) and its bilinear blend (3 lerps), the horizon share, and the factor of the
+/// product (with traced rays; a log without). Transcendentals count as the few FMAs lavapipe
+/// expands them to (~8 each). The lobe's own terms (log2, sqrt) are taken once per lobe.
+pub const FLOP_PER_LOOKUP: f64 = 70.0;
 /// FLOP per sphere of the cut: distance, refinement weight, the parent blend, AO's occlusion
 /// of the cap, its angle and horizon (asin, acos, sqrt), the log of its transmission.
 pub const FLOP_PER_CAP: f64 = 60.0;
-/// Loads a lookup makes: the 8 corners of its trilinear cell as two rgba32f texels
-/// (`CapTable::quads`, an image `table`) at coordinates that vary per lane.
-pub const GATHERS_PER_LOOKUP: f64 = 2.0;
+/// Loads a lookup makes: the 4 corners of its bilinear cell at the nearest lambda sample as
+/// one rgba32f texel (`CapTable::quads`, an image `table`) at coordinates that vary per lane.
+pub const GATHERS_PER_LOOKUP: f64 = 1.0;
 
 /// The work model of `env shadow` for `vertices` vertices, `cut` spheres of the cut and
 /// `caps` caps above the horizon per vertex, and `lobes` lobes: FLOP (fma), and the cap
-/// table's loads (image_gather_coherent: the table, 1.8 MiB as quads, stays in the caches,
+/// table's loads (image_gather_coherent: the table, 7.1 MiB as quads, of which a lobe's sharpness row (49 KiB) is read, stays in the caches,
 /// which the random probe's large buffer does not; against the random buffer-gather rate the
 /// pass ran at 20x "its peak", when the table was a storage buffer). The table path is
 /// counted for every lookup: its blend weight is 0 only for caps under 0.3 lobe widths, and

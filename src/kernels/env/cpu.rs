@@ -168,8 +168,10 @@ pub fn shadow_vertex(
             (if len > 0.0 { r / len } else { n }, len)
         })
         .collect();
-    // log prod_s (1 - O_js)^w per lobe, and log prod_s (1 - I_s)^w.
-    let mut s = vec![0.0f32; lobes.len()];
+    // Per lobe, with rays prod_s (1 - w (1 - max(1 - O_js, floor))) (the weighted factor
+    // linear in w), without log prod_s max(1 - O_js, floor)^w; and log prod_s (1 - I_s)^w.
+    let traced = inp.rays.is_some();
+    let mut s = vec![if traced { 1.0f32 } else { 0.0 }; lobes.len()];
     let mut u = 0.0f32;
     let params = inp.params;
     // With rays: their directions and the log of the caps' transmission along each.
@@ -218,7 +220,12 @@ pub fn shadow_vertex(
                 }
                 for (j, &(axis, lambda)) in prod.iter().enumerate() {
                     let o = up * cap_occlusion(table, lambda, axis.dot(wc), alpha, omc);
-                    s[j] += w * (1.0 - o).max(MIN_TRANSMISSION).ln();
+                    let f = (1.0 - o).max(MIN_TRANSMISSION);
+                    if traced {
+                        s[j] *= 1.0 - w * (1.0 - f);
+                    } else {
+                        s[j] += w * f.ln();
+                    }
                 }
             }
         },
@@ -249,7 +256,7 @@ pub fn shadow_vertex(
                     sk += kw;
                     sr += kw * res;
                 }
-                (sj.exp() + sr / sk.max(1e-30)).clamp(0.0, 1.0)
+                (sj + sr / sk.max(1e-30)).clamp(0.0, 1.0)
             } else {
                 (ao * (sj - u).exp()).clamp(0.0, 1.0)
             };
