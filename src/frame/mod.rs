@@ -1093,8 +1093,14 @@ impl CharacterFrame {
         };
         let sss = match &skin_geo {
             Some((geo, rest)) => {
+                // No thin-part transmission: the compose pass does not read it (the skin's
+                // light is the diffusion's, with the entry and exit Fresnel), and it cost
+                // `sss vertex light` a thickness ray per vertex and light and `sss
+                // irradiance` three loads and a store per texel: ~2 ms of the frame on a
+                // 2-core VM (`bench frame`, alternated).
                 let params = SamplerParams {
                     samples: cfg.samples,
+                    transmission: false,
                     ..SamplerParams::default()
                 };
                 let src = PosedBuffers {
