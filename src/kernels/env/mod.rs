@@ -9,7 +9,7 @@
 //!   half-angle a = asin(r / d) at angle g from P_j's axis: O_js = the fraction of P_j inside
 //!   the cap, exact as the 1D integral 2 pi int_0^a e^(lambda (cos(g - t) - 1))
 //!   i0e(lambda sin g sin t) sin t dt / int P_j, tabulated once over (log2 lambda, a,
-//!   (g - a) sqrt(lambda)) ([`pack::CapTable`]: trilinear in (a, s), the nearest of 8 samples
+//!   (g - a) sqrt(lambda)) ([`pack::CapTable`]: bilinear in (a, s), the nearest of 8 samples
 //!   an octave in lambda); caps smaller than 0.3 lobe widths by the
 //!   lobe's value at their centre times their solid angle, blended into the table up to 0.4
 //!   ([`cap_occlusion`]). O_js is weighted by the cap's share above the horizon
