@@ -247,7 +247,7 @@ pub fn shadow_vertex(
         .iter()
         .zip(&s)
         .map(|(l, &sj)| {
-            let vj = if inp.rays.is_some() {
+            let vj = if traced {
                 let lk = l.sharpness.min(CV_SHARPNESS);
                 let axis = l.axis();
                 let (mut sk, mut sr) = (0.0f32, 0.0f32);
