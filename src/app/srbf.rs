@@ -463,6 +463,58 @@ fn transfer_for(
     )
 }
 
+/// The mesh's visibility toward the direction map's texels (a ray per vertex and texel),
+/// cached beside the outputs as `visibility.bin` (reused when the mesh and the direction
+/// map's size are the same, and the file's directions are the map's). Every later result,
+/// the truth's included, is computed from it.
+fn visibility_for(
+    cfg_out: &Path,
+    mesh_path: &Path,
+    mesh: &Mesh,
+    dir_env: &EnvMap,
+) -> Result<(Visibility, bool, f64)> {
+    let path = cfg_out.join("visibility.bin");
+    let key = format!(
+        "visibility {} {} {} {}x{} {}",
+        mesh_path.display(),
+        mesh.positions.len(),
+        mesh.triangles.len(),
+        dir_env.width,
+        dir_env.height,
+        std::fs::metadata(mesh_path)
+            .and_then(|m| m.modified())
+            .map(|t| format!("{t:?}"))
+            .unwrap_or_default()
+    );
+    let directions: Vec<Vec3> = dir_env.samples().iter().map(|s| s.0).collect();
+    cached(
+        &cfg_out.join("visibility.key"),
+        &key,
+        || {
+            crate::io::transfer_cache::VisibilityFile::load(&path)
+                .inspect_err(|e| log::warn!("{e}; casting the visibility again"))
+                .ok()
+                .filter(|f| f.vertices == mesh.positions.len() && *f.directions == *directions)
+                .and_then(|f| {
+                    Visibility::from_bits(
+                        f.directions.into_owned(),
+                        f.vertices,
+                        f.bits.into_owned(),
+                    )
+                })
+        },
+        || Ok(crate::scene::envmap::texel_visibility(mesh, dir_env)),
+        |v| {
+            crate::io::transfer_cache::VisibilityFile {
+                directions: std::borrow::Cow::Borrowed(&v.directions),
+                vertices: v.vertices,
+                bits: std::borrow::Cow::Borrowed(v.bits()),
+            }
+            .save(&path)
+        },
+    )
+}
+
 /// A result kept in a file beside a key file: `load` is tried when the stored key equals
 /// `key`, else `compute` runs and `save` stores its result, then the key. The old key is
 /// removed before the result is saved, so a run stopped between the two writes leaves no
@@ -617,7 +669,8 @@ impl Precomputed {
             cfg.lobes, fit_env.width, fit_env.height, fitted.rel_l2
         ));
         let dir_env = env.downsampled(cfg.direction_width.min(env.width))?;
-        let vis = crate::scene::envmap::texel_visibility(mesh, &dir_env);
+        let (vis, vis_cached, vis_ms) = visibility_for(&cfg.out, &cfg.mesh, mesh, &dir_env)?;
+        progress(&visibility_line(&vis, vis_cached, vis_ms));
         let (transfer, cached, transfer_ms) = transfer_for(cfg, mesh, &dir_env, &vis)?;
         progress(&format!(
             "transfer: {} basis SGs (sharpness {:.1}), projection relative L2 {:.4}{}",
@@ -711,7 +764,8 @@ fn shade_glossy(
         t.elapsed().as_secs_f64() * 1e3
     ));
     let dir_env = env.downsampled(cfg.direction_width.min(env.width))?;
-    let vis = crate::scene::envmap::texel_visibility(mesh, &dir_env);
+    let (vis, vis_cached, vis_ms) = visibility_for(&cfg.out, &cfg.mesh, mesh, &dir_env)?;
+    progress(&visibility_line(&vis, vis_cached, vis_ms));
     let path = cfg.out.join("glossy.bin");
     let key = format!(
         "glossy {} {} {} {} {:016x} {:?} {}",
@@ -1103,6 +1157,16 @@ fn compact_note(cfg: &ShadeConfig, count: usize, basis_sharpness: f32, how: &str
             SunMode::Rays => "by a ray per vertex at their rotated directions",
             SunMode::Grid => "from the visibility grid's texel holding their axes",
         }
+    )
+}
+
+/// The progress line of [`visibility_for`].
+fn visibility_line(vis: &Visibility, cached: bool, ms: f64) -> String {
+    format!(
+        "visibility: {} vertices x {} directions{}",
+        vis.vertices,
+        vis.directions.len(),
+        cost(cached, ms)
     )
 }
 

@@ -120,6 +120,23 @@ impl Visibility {
     pub(crate) fn row(&self, vertex: usize) -> &[u64] {
         &self.bits[vertex * self.words..(vertex + 1) * self.words]
     }
+
+    /// Every row, vertex-major: ceil(D / 64) words per vertex (as [`Visibility::row`]).
+    pub fn bits(&self) -> &[u64] {
+        &self.bits
+    }
+
+    /// A visibility from its directions and rows (as [`Visibility::bits`] gives them); `None`
+    /// unless `bits` holds `vertices` rows of ceil(D / 64) words.
+    pub fn from_bits(directions: Vec<Vec3>, vertices: usize, bits: Vec<u64>) -> Option<Visibility> {
+        let words = directions.len().div_ceil(64);
+        (bits.len() == vertices.checked_mul(words)?).then_some(Visibility {
+            directions,
+            vertices,
+            bits,
+            words,
+        })
+    }
 }
 
 /// Casts a ray from every vertex (from p + offset * n) along every direction with n . w > 0;

@@ -1,7 +1,8 @@
 //! The SRBF transfer cache files that `vkshade srbf shade` keeps beside its outputs: the
 //! projected transfer (`transfer.bin`, and `glossy.bin` for a glossy BRDF), its clustered-PCA
 //! form (`transfer.cpca`) and the glossy transfer's clustered tensor approximation
-//! (`glossy.cta`).
+//! (`glossy.cta`), and the mesh's visibility toward the direction map's texels
+//! (`visibility.bin`), which all of them and the ground truth are computed from.
 //!
 //! All are little endian: an 8-byte magic, a version (u32), a fixed header, the arrays as
 //! 32-bit words, then an FNV-1a 64 checksum of everything before it. Writes are atomic; a
@@ -72,6 +73,18 @@ pub struct CtaFile<'a> {
     pub history: Cow<'a, [f64]>,
 }
 
+/// A mesh's visibility toward D directions as `visibility.bin` holds it: magic
+/// "VKSGVIS\0", version u32, D u32, vertices u64, D directions (3 f32 each), then per vertex
+/// ceil(D / 64) u64 words of bits (direction d is bit d % 64 of word d / 64; the bits past D
+/// are 0), checksum.
+#[derive(Clone, Debug, PartialEq)]
+pub struct VisibilityFile<'a> {
+    pub directions: Cow<'a, [Vec3]>,
+    pub vertices: usize,
+    /// Vertex-major, ceil(D / 64) words per vertex.
+    pub bits: Cow<'a, [u64]>,
+}
+
 const CTA_MAGIC: &[u8; 8] = b"VKSGCTA\0";
 const CTA_VERSION: u32 = 1;
 /// magic, version, K, V, C, r_v, r_w, r_l, sharpness, H, vertices (u64), rel_l2 (f64).
@@ -81,6 +94,11 @@ const TRANSFER_MAGIC: &[u8; 8] = b"VKSGTRF\0";
 const TRANSFER_VERSION: u32 = 1;
 /// magic, version, K, sharpness, vertices (u64), projection_rel_l2 (f64).
 const TRANSFER_HEADER: usize = 8 + 4 + 4 + 4 + 8 + 8;
+
+const VISIBILITY_MAGIC: &[u8; 8] = b"VKSGVIS\0";
+const VISIBILITY_VERSION: u32 = 1;
+/// magic, version, D, vertices (u64).
+const VISIBILITY_HEADER: usize = 8 + 4 + 4 + 8;
 
 const CPCA_MAGIC: &[u8; 8] = b"VKSGCPC\0";
 const CPCA_VERSION: u32 = 1;
@@ -292,6 +310,105 @@ impl TransferFile<'static> {
         match t.bad_value() {
             Some(m) => Err(file.bad(m)),
             None => Ok(t),
+        }
+    }
+}
+
+impl VisibilityFile<'_> {
+    /// Writes the file (see the type), atomically. An error if the bits are not
+    /// `vertices` x ceil(D / 64) words, a bit past D is set, or a direction is not finite.
+    pub fn save(&self, path: &Path) -> Result<()> {
+        let words = self.directions.len().div_ceil(64);
+        if self.bits.len() != self.vertices.saturating_mul(words) {
+            return Err(Error::input(
+                path,
+                format!(
+                    "visibility to save has {} words for {} vertices x {words}",
+                    self.bits.len(),
+                    self.vertices
+                ),
+            ));
+        }
+        if let Some(m) = self.bad_value() {
+            return Err(Error::input(path, format!("not written: visibility: {m}")));
+        }
+        let d32 = header_u32(path, self.directions.len(), "directions")?;
+        let mut b = Vec::with_capacity(
+            VISIBILITY_HEADER + 12 * self.directions.len() + 8 * self.bits.len() + 8,
+        );
+        b.extend_from_slice(VISIBILITY_MAGIC);
+        b.extend_from_slice(&VISIBILITY_VERSION.to_le_bytes());
+        b.extend_from_slice(&d32.to_le_bytes());
+        b.extend_from_slice(&(self.vertices as u64).to_le_bytes());
+        for a in self.directions.iter() {
+            for c in a.to_array() {
+                b.extend_from_slice(&c.to_le_bytes());
+            }
+        }
+        for w in self.bits.iter() {
+            b.extend_from_slice(&w.to_le_bytes());
+        }
+        seal_and_write(path, b)
+    }
+
+    /// A direction component that is not finite or beyond 1 in magnitude, or a bit set past
+    /// the last direction, named.
+    fn bad_value(&self) -> Option<String> {
+        let d = self.directions.len();
+        if let Some((i, x)) = self
+            .directions
+            .iter()
+            .flat_map(|a| a.to_array())
+            .enumerate()
+            .find(|(_, x)| !(x.is_finite() && x.abs() <= 1.0))
+        {
+            return Some(format!("direction component {i} is {x:e}"));
+        }
+        let words = d.div_ceil(64);
+        let spare = !0u64 << (d % 64);
+        if d % 64 == 0 || words == 0 {
+            return None;
+        }
+        self.bits
+            .chunks_exact(words)
+            .position(|row| row[words - 1] & spare != 0)
+            .map(|v| format!("vertex {v} has a bit set past direction {d}"))
+    }
+}
+
+impl VisibilityFile<'static> {
+    /// Reads a file written by [`VisibilityFile::save`], checking magic, version, size,
+    /// checksum and values; every error names the file.
+    pub fn load(path: &Path) -> Result<VisibilityFile<'static>> {
+        let file = Sealed::open(
+            path,
+            "visibility",
+            VISIBILITY_MAGIC,
+            VISIBILITY_VERSION,
+            VISIBILITY_HEADER,
+        )?;
+        let d = file.u32_at(12) as usize;
+        let vertices = file.u64_at(16);
+        let words = d.div_ceil(64) as u128;
+        let expected =
+            (vertices as u128) * words * 8 + (d as u128) * 12 + VISIBILITY_HEADER as u128 + 8;
+        file.check_size(expected, || {
+            format!("{d} directions and {vertices} vertices")
+        })?;
+        let vertices = vertices as usize;
+        let from = VISIBILITY_HEADER + 12 * d;
+        let v = VisibilityFile {
+            directions: file.axes(VISIBILITY_HEADER, d).into(),
+            vertices,
+            bits: file.bytes[from..file.bytes.len() - 8]
+                .chunks_exact(8)
+                .map(|c| u64::from_le_bytes([c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]]))
+                .collect::<Vec<u64>>()
+                .into(),
+        };
+        match v.bad_value() {
+            Some(m) => Err(file.bad(m)),
+            None => Ok(v),
         }
     }
 }
@@ -693,6 +810,54 @@ mod tests {
             ..file.clone()
         };
         assert!(wrong.save(&path).is_err());
+        let _ = std::fs::remove_dir_all(path.parent().unwrap());
+    }
+
+    /// The bytes of a small visibility (3 directions, 2 vertices), from the documented
+    /// layout: written and read back; a bit past the last direction, or a row of the wrong
+    /// length, is refused by the writer, and by the reader under a valid checksum.
+    #[test]
+    fn visibility_file_layout_and_refusals() {
+        let file = VisibilityFile {
+            directions: vec![Vec3::X, Vec3::Y, Vec3::new(0.0, -0.6, 0.8)].into(),
+            vertices: 2,
+            bits: vec![0b101, 0b010].into(),
+        };
+        let mut want = b"VKSGVIS\0".to_vec();
+        want.extend(le(&[1, 3]));
+        want.extend(2u64.to_le_bytes());
+        let floats = [1.0f32, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, -0.6, 0.8];
+        want.extend(le(&floats.map(f32::to_bits)));
+        want.extend(5u64.to_le_bytes());
+        want.extend(2u64.to_le_bytes());
+        want.extend(fnv1a(&want).to_le_bytes());
+        let path = temp("visibility.bin");
+        file.save(&path).unwrap();
+        assert_eq!(std::fs::read(&path).unwrap(), want);
+        assert_eq!(VisibilityFile::load(&path).unwrap(), file);
+        let stray = VisibilityFile {
+            bits: vec![0b1000, 0].into(),
+            ..file.clone()
+        };
+        let e = stray.save(&path).unwrap_err().to_string();
+        assert!(e.contains("vertex 0 has a bit set past direction 3"), "{e}");
+        let short = VisibilityFile {
+            vertices: 3,
+            ..file.clone()
+        };
+        assert!(short.save(&path).is_err());
+        // The stray bit forged under a valid checksum.
+        let mut forged = want.clone();
+        forged.truncate(forged.len() - 8);
+        let at = forged.len() - 16;
+        forged[at] |= 0b1000;
+        forged.extend(fnv1a(&forged).to_le_bytes());
+        std::fs::write(&path, &forged).unwrap();
+        let e = VisibilityFile::load(&path).unwrap_err().to_string();
+        assert!(
+            e.contains(&path.display().to_string()) && e.contains("past direction 3"),
+            "{e}"
+        );
         let _ = std::fs::remove_dir_all(path.parent().unwrap());
     }
 
