@@ -51,7 +51,7 @@ fn scratch_names(target: &str) -> &'static [&'static str] {
         "ply" => &["in.ply"],
         "sph" => &["in.sph"],
         "envmap" => &["in.exr", "in.hdr"],
-        "transfer" => &["transfer.bin", "transfer.cpca"],
+        "transfer" => &["transfer.bin", "transfer.cpca", "visibility.bin"],
         "btf_json" => &[""], // parsed from bytes: no file
         "btf_image" => &["image."],
         _ => &["btf"],

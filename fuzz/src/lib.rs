@@ -7,6 +7,7 @@
 //! is one), named per process and thread, and the loader reads it back.
 
 use std::path::{Path, PathBuf};
+use vkshade::io::transfer_cache::VisibilityFile;
 use vkshade::kernels::btf::{cloth::SynthConfig, dirs, load, synth::Btf};
 use vkshade::kernels::srbf::{cpca::Cpca, transfer::Transfer};
 use vkshade::scene::static_load;
@@ -128,7 +129,7 @@ pub fn envmap(data: &[u8]) -> Outcome {
     }
 }
 
-/// The SRBF transfer caches. The input is the file without its FNV-1a checksum, which is
+/// The SRBF transfer caches (and the visibility cached beside them). The input is the file without its FNV-1a checksum, which is
 /// appended here, so that mutations reach the header and value checks behind it (a forged
 /// file with a valid checksum is what those checks are for).
 pub fn transfer(data: &[u8]) -> Outcome {
@@ -136,6 +137,8 @@ pub fn transfer(data: &[u8]) -> Outcome {
     bytes.extend_from_slice(&fnv1a(data).to_le_bytes());
     if data.starts_with(b"VKSGCPC") {
         done(Cpca::load(&file("transfer.cpca", &bytes)))
+    } else if data.starts_with(b"VKSGVIS") {
+        done(VisibilityFile::load(&file("visibility.bin", &bytes)))
     } else {
         done(Transfer::load(&file("transfer.bin", &bytes)))
     }
