@@ -65,7 +65,7 @@ for i in "${!files[@]}"; do
   fi
 done
 
-# The copy: the sources and target/release, times kept (the dependencies stay fresh).
+# The copy: the sources, and target/release's dependencies (times kept, so they stay fresh).
 work=$(mktemp -d "${TMPDIR:-/tmp}/vkshade-mutants-smoke.XXXXXX")
 if [ -z "${VKSHADE_MUTANTS_KEEP:-}" ]; then
   trap 'rm -rf "$work"' EXIT
@@ -74,23 +74,45 @@ for entry in "$root"/* "$root"/.cargo; do
   case "$(basename "$entry")" in target) continue ;; esac
   cp -a "$entry" "$work/"
 done
-if [ -d "$root/target/release" ]; then
-  mkdir -p "$work/target"
-  cp -a "$root/target/release" "$work/target/"
+# The dependencies are hard links (instant; a fresh dependency is never written, and a
+# dependency that compiles here fails the run, below). vkshade's own entries are copied (its
+# build script's output among them, which a rerun writes), bar its build outputs in deps/
+# (gigabytes of test binaries), which every build here makes anew.
+rel="$root/target/release"
+if [ -d "$rel" ]; then
+  for sub in deps build .fingerprint; do
+    [ -d "$rel/$sub" ] || continue
+    mkdir -p "$work/target/release/$sub"
+    find "$rel/$sub" -mindepth 1 -maxdepth 1 ! -name '*vkshade*' \
+      ! \( -type f -executable ! -name '*.*' \) -print0 |
+      xargs -0 -r cp -al -t "$work/target/release/$sub"
+    [ "$sub" = deps ] && continue
+    find "$rel/$sub" -mindepth 1 -maxdepth 1 -name '*vkshade*' -print0 |
+      xargs -0 -r cp -a -t "$work/target/release/$sub"
+  done
 fi
 echo "mutants-smoke: copied the tree to $work in $(( $(date +%s) - start )) s"
 cd "$work"
 export CARGO_INCREMENTAL=1
-# vkshade alone at opt-level 1 (its dependencies keep the release profile's, so none
-# rebuilds): the library compiles about twice as fast, and Rust's float arithmetic does not
-# depend on the optimisation level, so the tests' verdicts do not either.
-cargo_cfg=(--config 'profile.release.package.vkshade.opt-level=1')
+# vkshade alone at opt-level 0 without debug info (its dependencies keep the release
+# profile's, so none rebuilds): an incremental rebuild takes seconds, and Rust's float
+# arithmetic does not depend on the optimisation level, so the tests' verdicts do not either.
+cargo_cfg=(--config 'profile.release.package.vkshade.opt-level=0'
+  --config 'profile.release.package.vkshade.debug=false')
 
 # `test:` is a cargo test argument list (e.g. `--lib -- kernels::sss::sampler`); word-split.
 run_tests() {
   local -a args
   read -r -a args <<<"$1"
   cargo test --release "${cargo_cfg[@]}" "${args[@]}"
+}
+# A dependency compiled here would have written through its hard links into the tree's own
+# target/: stop (it means the copy was not fresh, which this script relies on).
+no_dependency_built() {
+  if grep -E '^ *Compiling ' "$1" | grep -vE '^ *Compiling vkshade '; then
+    echo "mutants-smoke: a dependency was rebuilt in the copy (see above): target/release is stale; run cargo build --release first" >&2
+    exit 1
+  fi
 }
 build_tests() {
   local -a args=() before=()
@@ -109,10 +131,12 @@ for t in "${tests[@]}"; do
   seen[$t]=1
   t0=$(date +%s)
   if ! run_tests "$t" >"$work/baseline.log" 2>&1; then
+    no_dependency_built "$work/baseline.log"
     tail -40 "$work/baseline.log" >&2
     echo "mutants-smoke: the unmutated tree fails: cargo test --release $t" >&2
     exit 1
   fi
+  no_dependency_built "$work/baseline.log"
   echo "mutants-smoke: unmutated: cargo test --release $t passed ($(( $(date +%s) - t0 )) s)"
 done
 
@@ -127,7 +151,10 @@ for i in "${!files[@]}"; do
   printf '%s' "${content/"$from"/"$to"}" >"$f"
   label=${to#"${to%%[![:space:]]*}"}
   label="mutant $((i + 1)) ($f: '${from#"${from%%[![:space:]]*}"}' -> '${label:0:60}')"
-  if ! build_tests "$t" >"$work/mutant.log" 2>&1; then
+  build_ok=1
+  build_tests "$t" >"$work/mutant.log" 2>&1 || build_ok=0
+  no_dependency_built "$work/mutant.log"
+  if [ "$build_ok" = 0 ]; then
     tail -30 "$work/mutant.log" >&2
     echo "mutants-smoke: $label does not build: fix the list" >&2
     exit 1
