@@ -364,11 +364,11 @@ impl VisibilityFile<'_> {
         {
             return Some(format!("direction component {i} is {x:e}"));
         }
-        let words = d.div_ceil(64);
-        let spare = !0u64 << (d % 64);
-        if d % 64 == 0 || words == 0 {
+        if d.is_multiple_of(64) {
             return None;
         }
+        let words = d.div_ceil(64);
+        let spare = !0u64 << (d % 64);
         self.bits
             .chunks_exact(words)
             .position(|row| row[words - 1] & spare != 0)
