@@ -121,7 +121,8 @@ impl Visibility {
         &self.bits[vertex * self.words..(vertex + 1) * self.words]
     }
 
-    /// Every row, vertex-major: ceil(D / 64) words per vertex (as [`Visibility::row`]).
+    /// Every row, vertex-major: ceil(D / 64) words per vertex, direction d in bit d % 64 of
+    /// word d / 64.
     pub fn bits(&self) -> &[u64] {
         &self.bits
     }
