@@ -327,8 +327,8 @@ fn bench_ao_reports_sweeps_baselines_and_targets() {
 
 /// `srbf shade` on the bunny (the default mesh) under Blender's studio light `light`, from
 /// `x:START` about +X for `frames` frames, under validation, with the ray-cast truth: each
-/// frame's relative L2 error against it, and whether the run read its transfer and that
-/// transfer's compression from the cache in `dir`.
+/// frame's relative L2 error against it, and whether the run read its visibility, its
+/// transfer and that transfer's compression from the cache in `dir`.
 fn srbf_bunny_spun_about_x(
     dir: &std::path::Path,
     light: &str,
@@ -371,14 +371,15 @@ fn srbf_bunny_spun_about_x(
         .map(|f| f["vs_ground_truth"]["all"].as_f64().unwrap())
         .collect();
     assert_eq!(errors.len(), frames as usize);
-    let cached = v["transfer_cached"] == true && v["cpca_cached"] == true;
+    let cached =
+        v["visibility_cached"] == true && v["transfer_cached"] == true && v["cpca_cached"] == true;
     (errors, cached)
 }
 
 /// The README's off-grid figures spun about +X on its own mesh, the bunny, with defaults
-/// otherwise. One test, so that the eight runs share an output folder: the transfer and its
-/// compression (the mesh's alone) are computed by the first run and read from the cache by
-/// the seven others, as a user's next run would (which is checked too).
+/// otherwise. One test, so that the eight runs share an output folder: the visibility, the
+/// transfer and its compression (the mesh's alone) are computed by the first run and read
+/// from the cache by the seven others, as a user's next run would (which is checked too).
 ///
 /// First its claim "<= 4.6% spun about +X": Blender's night (the worst of the eight lights
 /// there) at 90 and 270 degrees, the rotations that do not map the 64 x 32 directions onto

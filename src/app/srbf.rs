@@ -389,6 +389,10 @@ pub struct ShadeReport {
     /// Fit of the lobes to the environment (at `fit_width`): solid-angle-weighted relative L2.
     pub fit_rel_l2: f64,
     pub fit_ms: f64,
+    /// The mesh's visibility toward the direction map's texels: ray-casting time (0 when
+    /// read from `visibility.bin`).
+    pub visibility_ms: f64,
+    pub visibility_cached: bool,
     /// Mean over vertices of the transfer projection's relative L2.
     pub transfer_rel_l2: f64,
     pub transfer_ms: f64,
@@ -633,6 +637,8 @@ struct Precomputed {
     /// compact lobes' visibility and the ground truth.
     dir_env: EnvMap,
     vis: Visibility,
+    vis_cached: bool,
+    vis_ms: f64,
     /// The static mesh's BVH for the compact lobes' shadow rays (`--sun rays` only).
     bvh: Option<Bvh>,
     transfer: Transfer,
@@ -701,6 +707,8 @@ impl Precomputed {
             fit_ms,
             dir_env,
             vis,
+            vis_cached,
+            vis_ms,
             bvh: (cfg.sun == SunMode::Rays).then(|| Bvh::build(&mesh.positions, &mesh.triangles)),
             transfer,
             transfer_cached: cached,
@@ -1097,6 +1105,8 @@ fn shade_glossy(
         albedo: cfg.albedo,
         fit_rel_l2: fitted.rel_l2,
         fit_ms,
+        visibility_ms: vis_ms,
+        visibility_cached: vis_cached,
         transfer_rel_l2: transfer.rows.projection_rel_l2,
         transfer_ms,
         transfer_cached,
@@ -1366,6 +1376,8 @@ impl<'a> Session<'a> {
             albedo: cfg.albedo,
             fit_rel_l2: pre.fitted.rel_l2,
             fit_ms: pre.fit_ms,
+            visibility_ms: pre.vis_ms,
+            visibility_cached: pre.vis_cached,
             transfer_rel_l2: pre.transfer.projection_rel_l2,
             transfer_ms: pre.transfer_ms,
             transfer_cached: pre.transfer_cached,
