@@ -418,7 +418,7 @@ fn srbf_spun_about_x_keeps_the_readmes_figures_on_the_bunny() {
         let (e, cached) = srbf_bunny_spun_about_x(&dir, light, start_deg, 1);
         assert!(
             cached,
-            "{light}: the transfer of the run before was not reused"
+            "{light}: the visibility, transfer or compression the first run cached was not reused"
         );
         let e = e[0];
         eprintln!("bunny, {light}, x:{start_deg} vs ground truth: {e:.4} (README {readme})");

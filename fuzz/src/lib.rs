@@ -129,9 +129,10 @@ pub fn envmap(data: &[u8]) -> Outcome {
     }
 }
 
-/// The SRBF transfer caches (and the visibility cached beside them). The input is the file without its FNV-1a checksum, which is
-/// appended here, so that mutations reach the header and value checks behind it (a forged
-/// file with a valid checksum is what those checks are for).
+/// The SRBF transfer caches (and the visibility cached beside them). The input is the file
+/// without its FNV-1a checksum, which is appended here, so that mutations reach the header
+/// and value checks behind it (a forged file with a valid checksum is what those checks are
+/// for).
 pub fn transfer(data: &[u8]) -> Outcome {
     let mut bytes = data.to_vec();
     bytes.extend_from_slice(&fnv1a(data).to_le_bytes());

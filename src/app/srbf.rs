@@ -448,10 +448,7 @@ fn transfer_for(
         mesh.positions.len(),
         cfg.basis,
         dir_env.width,
-        std::fs::metadata(&cfg.mesh)
-            .and_then(|m| m.modified())
-            .map(|t| format!("{t:?}"))
-            .unwrap_or_default()
+        modified_stamp(&cfg.mesh)
     );
     cached(
         &key_path,
@@ -465,6 +462,14 @@ fn transfer_for(
         || diffuse_transfer(&Basis::fibonacci(cfg.basis), dir_env, &mesh.normals, vis),
         |t| t.save(&path),
     )
+}
+
+/// `path`'s modification time as the cache keys hold it (empty when it cannot be read).
+fn modified_stamp(path: &Path) -> String {
+    std::fs::metadata(path)
+        .and_then(|m| m.modified())
+        .map(|t| format!("{t:?}"))
+        .unwrap_or_default()
 }
 
 /// The mesh's visibility toward the direction map's texels (a ray per vertex and texel),
@@ -485,10 +490,7 @@ fn visibility_for(
         mesh.triangles.len(),
         dir_env.width,
         dir_env.height,
-        std::fs::metadata(mesh_path)
-            .and_then(|m| m.modified())
-            .map(|t| format!("{t:?}"))
-            .unwrap_or_default()
+        modified_stamp(mesh_path)
     );
     let directions: Vec<Vec3> = dir_env.samples().iter().map(|s| s.0).collect();
     cached(
@@ -783,10 +785,7 @@ fn shade_glossy(
         dir_env.width,
         view.fingerprint(),
         cfg.brdf,
-        std::fs::metadata(&cfg.mesh)
-            .and_then(|m| m.modified())
-            .map(|t| format!("{t:?}"))
-            .unwrap_or_default()
+        modified_stamp(&cfg.mesh)
     );
     let vertices = mesh.positions.len();
     let wrap = |rows: Transfer| GlossyTransfer {

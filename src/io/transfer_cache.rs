@@ -5,7 +5,7 @@
 //! (`visibility.bin`), which all of them and the ground truth are computed from.
 //!
 //! All are little endian: an 8-byte magic, a version (u32), a fixed header, the arrays as
-//! 32-bit words, then an FNV-1a 64 checksum of everything before it. Writes are atomic; a
+//! 32-bit words (the visibility's rows as 64-bit words), then an FNV-1a 64 checksum of everything before it. Writes are atomic; a
 //! read checks the magic, version, size and checksum, and every error names the file. What
 //! the values mean (unit axes, cluster ids in range, finite numbers) is checked by the types
 //! that own them (`kernels::srbf::transfer::Transfer`, `kernels::srbf::cpca::Cpca`,
@@ -400,9 +400,8 @@ impl VisibilityFile<'static> {
         let v = VisibilityFile {
             directions: file.axes(VISIBILITY_HEADER, d).into(),
             vertices,
-            bits: file.bytes[from..file.bytes.len() - 8]
-                .chunks_exact(8)
-                .map(|c| u64::from_le_bytes([c[0], c[1], c[2], c[3], c[4], c[5], c[6], c[7]]))
+            bits: (0..vertices * words as usize)
+                .map(|i| file.u64_at(from + 8 * i))
                 .collect::<Vec<u64>>()
                 .into(),
         };
