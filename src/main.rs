@@ -77,7 +77,36 @@ enum Command {
     Validate(app::validate::Args),
 }
 
+/// Prints the library's warnings to stderr (`warning: ...`): e.g. a damaged cache file that
+/// is set aside and recomputed (`srbf shade`), or an environment map's small negative samples
+/// set to 0. Nothing below the warning level.
+struct StderrLog;
+
+impl log::Log for StderrLog {
+    fn enabled(&self, meta: &log::Metadata) -> bool {
+        meta.level() <= log::Level::Warn
+    }
+
+    fn log(&self, record: &log::Record) {
+        if self.enabled(record.metadata()) {
+            let level = match record.level() {
+                log::Level::Error => "error",
+                _ => "warning",
+            };
+            eprintln!("{level}: {}", record.args());
+        }
+    }
+
+    fn flush(&self) {}
+}
+
+static LOG: StderrLog = StderrLog;
+
 fn main() -> ExitCode {
+    // Only fails when a logger is already set, which nothing here does before this line.
+    if log::set_logger(&LOG).is_ok() {
+        log::set_max_level(log::LevelFilter::Warn);
+    }
     // A third-party decoder's panic that vkshade catches and reports as an error naming the
     // file (vkshade::io::panic_scope) is not printed; any other panic is, as before.
     let default_hook = std::panic::take_hook();

@@ -327,14 +327,14 @@ fn bench_ao_reports_sweeps_baselines_and_targets() {
 
 /// `srbf shade` on the bunny (the default mesh) under Blender's studio light `light`, from
 /// `x:START` about +X for `frames` frames, under validation, with the ray-cast truth: each
-/// frame's relative L2 error against it, and whether the run read its visibility, its
-/// transfer and that transfer's compression from the cache in `dir`.
+/// frame's relative L2 error against it, whether the run read its visibility, its
+/// transfer and that transfer's compression from the cache in `dir`, and its stderr.
 fn srbf_bunny_spun_about_x(
     dir: &std::path::Path,
     light: &str,
     start_deg: u32,
     frames: u32,
-) -> (Vec<f64>, bool) {
+) -> (Vec<f64>, bool, String) {
     let env = format!("/usr/share/blender/datafiles/studiolights/world/{light}.exr");
     let rotate = format!("x:{start_deg}");
     let frames_arg = frames.to_string();
@@ -373,13 +373,14 @@ fn srbf_bunny_spun_about_x(
     assert_eq!(errors.len(), frames as usize);
     let cached =
         v["visibility_cached"] == true && v["transfer_cached"] == true && v["cpca_cached"] == true;
-    (errors, cached)
+    (errors, cached, stderr)
 }
 
 /// The README's off-grid figures spun about +X on its own mesh, the bunny, with defaults
 /// otherwise. One test, so that the eight runs share an output folder: the visibility, the
 /// transfer and its compression (the mesh's alone) are computed by the first run and read
-/// from the cache by the seven others, as a user's next run would (which is checked too).
+/// from the cache by the six after it, as a user's next run would (which is checked too);
+/// the last run finds the visibility damaged, warns and casts it again.
 ///
 /// First its claim "<= 4.6% spun about +X": Blender's night (the worst of the eight lights
 /// there) at 90 and 270 degrees, the rotations that do not map the 64 x 32 directions onto
@@ -399,7 +400,7 @@ fn srbf_bunny_spun_about_x(
 #[test]
 fn srbf_spun_about_x_keeps_the_readmes_figures_on_the_bunny() {
     let dir = temp("srbf-spin-x");
-    let (errors, _) = srbf_bunny_spun_about_x(&dir, "night", 90, 2);
+    let (errors, _, _) = srbf_bunny_spun_about_x(&dir, "night", 90, 2);
     eprintln!("bunny, night, x:90 and x:270 vs ground truth: {errors:?}");
     assert!(
         errors.iter().all(|&e| e <= 0.0465),
@@ -415,11 +416,31 @@ fn srbf_spun_about_x_keeps_the_readmes_figures_on_the_bunny() {
         ("sunrise", 270, 0.043),
         ("sunset", 270, 0.011),
     ] {
-        let (e, cached) = srbf_bunny_spun_about_x(&dir, light, start_deg, 1);
-        assert!(
-            cached,
-            "{light}: the visibility, transfer or compression the first run cached was not reused"
-        );
+        // Before the last run the cached visibility is damaged (one byte flipped): that run
+        // says so on stderr (the binary's logger), casts the visibility again and keeps
+        // its figure.
+        let damaged = light == "sunset";
+        if damaged {
+            let path = dir.join("visibility.bin");
+            let mut bytes = std::fs::read(&path).unwrap();
+            let mid = bytes.len() / 2;
+            bytes[mid] ^= 0x10;
+            std::fs::write(&path, bytes).unwrap();
+        }
+        let (e, cached, stderr) = srbf_bunny_spun_about_x(&dir, light, start_deg, 1);
+        if damaged {
+            assert!(!cached, "{light}: a damaged visibility read from the cache");
+            assert!(
+                stderr.contains("warning:") && stderr.contains("casting the visibility again"),
+                "{light}: no warning for the damaged cache: {stderr}"
+            );
+        } else {
+            assert!(
+                cached,
+                "{light}: the visibility, transfer or compression the first run cached was not \
+                 reused"
+            );
+        }
         let e = e[0];
         eprintln!("bunny, {light}, x:{start_deg} vs ground truth: {e:.4} (README {readme})");
         if e > readme + 0.0005 || e > 0.05 {

@@ -499,9 +499,7 @@ fn load_exr(path: &Path, policy: HdrPolicy) -> Result<EnvMap> {
             shaped.solid_angle(y as u32)
         })
         .map_err(|m| Error::input(path, m))?;
-        if let Some(r) = &repair {
-            log::warn!("{}: {r}", path.display());
-        }
+        // What the repair changed is the map's `repair`, which the commands print.
         let mut map = EnvMap::from_texels(img.width, img.height, texels, path)?;
         map.repair = repair;
         return Ok(map);
