@@ -538,10 +538,11 @@ fn gpu_cpu_bound(bits: u32) -> f64 {
 
 /// The rasteriser's G-buffer shaded by the BTF kernel equals the CPU twin, in both packings
 /// and both dispatches the library offers: 'rows' over every pixel
-/// (`btf/shade_rows`), and 'layers' over the rasteriser's tile list
-/// (`btf/shade_layers_tiles`, what `btf render --anim --layout layers` runs). A tile-list
-/// shader that skipped or misplaced a tile, or a layers packing that indexed the wrong
-/// array or layer, fails the per-pixel comparison.
+/// (`btf/shade_rows`), and 'layers' over the pixels that pass `btf pixels` lists from the
+/// rasteriser's tile list (`btf/shade_layers_pixels`, what `btf render --anim --layout
+/// layers` runs; the empty pixels of the tiles take the background there). A list that
+/// skipped or misplaced a pixel, or a layers packing that indexed the wrong array or layer,
+/// fails the per-pixel comparison.
 #[test]
 fn btf_shades_the_gpu_gbuffer_like_its_cpu_twin() {
     use vkshade::kernels::btf::gpu::Layout;

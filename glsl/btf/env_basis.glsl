@@ -13,7 +13,12 @@
 // vertices' (the rasteriser negates a back face's), plus those of the lobes in `plobes`
 // (kernels::btf::basis::BasisData::pixel_lobes) looked up here with the visibility
 // interpolated as in mode 2.
+#ifdef BTF_PIXELS
+// Over the list of pass `btf pixels` (glsl/btf/pixels.comp): 64 listed pixels a workgroup.
+layout(local_size_x = 64) in;
+#else
 layout(local_size_x = 16, local_size_y = 4) in;
+#endif
 #include <common/tiles.glsl>
 
 layout(push_constant) uniform Push {
@@ -42,6 +47,10 @@ layout(std430, set = 0, binding = 11) readonly buffer Triangles { uvec4 t[]; } t
 layout(std430, set = 0, binding = 12) readonly buffer VertexVisibility { float v[]; } vertex_vis;
 #ifdef BTF_TILES
 layout(std430, set = 0, binding = 13) readonly buffer Tiles { uint head[4]; uint list[]; } tiles;
+#endif
+#ifdef BTF_PIXELS
+layout(std430, set = 0, binding = 16) readonly buffer PixelHead { uint head[4]; } pixel_head;
+layout(std430, set = 0, binding = 17) readonly buffer Pixels { uint list[]; } pixels;
 #endif
 // Mode 3: pass `btf env vertices`' light factors (glsl/btf/basis_light.glsl has the layout).
 layout(set = 0, binding = 14, rgba32f) readonly uniform image2D vertex_light;
@@ -73,7 +82,12 @@ vec3 barycentrics(vec3 p, vec3 a, vec3 b, vec3 c) {
 }
 
 void main() {
-#ifdef BTF_TILES
+#ifdef BTF_PIXELS
+    uint i = gl_GlobalInvocationID.x;
+    if (i >= min(pixel_head.head[3], uint(pixels.list.length()))) return;
+    uint pk = pixels.list[i];
+    uvec2 px = uvec2(pk % pc.dims.x, pk / pc.dims.x);
+#elif defined(BTF_TILES)
     uint tile = tiles.list[gl_WorkGroupID.x];
     uvec2 px = tile_pixel(tile, pc.dims.x, gl_LocalInvocationID.xy);
 #else

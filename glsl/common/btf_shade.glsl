@@ -1,7 +1,8 @@
 // BTF shading over a G-buffer, included by btf/shade_rows.comp (BTF_MODE 1),
-// btf/shade_layers.comp (BTF_MODE 0) and btf/shade_block.comp (BTF_MODE 2): one pipeline
-// per layout, each with only its own sampling code (lavapipe inlines the sampler per call
-// site; five sites cost 3x one).
+// btf/shade_layers.comp (BTF_MODE 0) and btf/shade_block.comp (BTF_MODE 2), over every
+// pixel, and their `_pixels` twins (BTF_PIXELS) over the list of pass `btf pixels`: one
+// pipeline per layout, each with only its own sampling code (lavapipe inlines the sampler
+// per call site; five sites cost 3x one).
 // Per pixel: the view and each light in the tangent frame, two lookups in the parabolic
 // map (nearest texel: indices are never filtered), and 3 x 3 = 9 taps of the packed BTF,
 // weighted and summed:
@@ -22,8 +23,12 @@
 // 16 x 4: on lavapipe (8 lanes along x) 20% less CPU time than 8 x 8 for `block` (4 x 8: 2x
 // more).
 #extension GL_EXT_control_flow_attributes : require
+#ifdef BTF_PIXELS
+// Over the list of pass `btf pixels` (glsl/btf/pixels.comp): 64 listed pixels a workgroup.
+layout(local_size_x = 64) in;
+#else
 layout(local_size_x = 16, local_size_y = 4) in;
-#include <common/tiles.glsl>
+#endif
 
 const uint MAX_LIGHTS = 2u;
 layout(push_constant) uniform Push {
@@ -49,11 +54,11 @@ layout(set = 0, binding = 2) uniform utexture2D dir_map;
 // s * (1 + part), s = +-1 the frame's handedness (src/scene/gbuffer.rs).
 layout(set = 0, binding = 4) uniform texture2DArray gbuffer;
 layout(std430, set = 0, binding = 5) writeonly buffer Result { vec4 v[]; } result;
-#ifdef BTF_TILES
-// The rasteriser's tile list (glsl/raster/tiles.comp), dispatched indirectly: workgroup i
-// shades the 16 x 4 tile list[i] (index ty * tiles_x + tx); pixels outside every listed tile
-// keep what they hold (background, 0).
-layout(std430, set = 0, binding = 6) readonly buffer Tiles { uint head[4]; uint list[]; } tiles;
+#ifdef BTF_PIXELS
+// The pixels of the masked parts (pass `btf pixels`, which also gave the empty ones their
+// background), dispatched indirectly: pixels outside the list keep what they hold.
+layout(std430, set = 0, binding = 7) readonly buffer PixelHead { uint head[4]; } pixel_head;
+layout(std430, set = 0, binding = 8) readonly buffer Pixels { uint list[]; } pixels;
 #endif
 
 #if BTF_MODE == 2
@@ -142,9 +147,11 @@ void lookup(vec3 d, out uvec3 index, out vec3 weight) {
 }
 
 void main() {
-#ifdef BTF_TILES
-    uint tile = tiles.list[gl_WorkGroupID.x];
-    uvec2 px = tile_pixel(tile, pc.dims.x, gl_LocalInvocationID.xy);
+#ifdef BTF_PIXELS
+    uint i = gl_GlobalInvocationID.x;
+    if (i >= min(pixel_head.head[3], uint(pixels.list.length()))) return;
+    uint pk = pixels.list[i];
+    uvec2 px = uvec2(pk % pc.dims.x, pk / pc.dims.x);
 #else
     uvec2 px = gl_GlobalInvocationID.xy;
 #endif
@@ -170,8 +177,8 @@ void main() {
         uvec3 iv;
         vec3 wv;
         lookup(vt, iv, wv);
-#if BTF_MODE == 2 && defined(BTF_TILES)
-        // Blocks over the tile list (the character frame's cloth): both loops unrolled for
+#if BTF_MODE == 2 && defined(BTF_PIXELS)
+        // Blocks over the pixel list (the character frame's cloth): both loops unrolled for
         // MAX_LIGHTS lights (a light past pc.dims.z has zero direction and strength, and
         // adds nothing). A block tap is one fetch and a few instructions, so its 18 copies
         // cost less than the loops' mask bookkeeping: `btf shade` in `bench frame` (two
@@ -194,7 +201,7 @@ void main() {
             // unless all 8 skip it, and one loop keeps one call site of the sampling code
             // (inlined per call site: unrolled, the sampled paths ran 3x slower; two nested
             // loops cost `block` 8% more). Blocks over the tile list unroll it (above).
-#if BTF_MODE == 2 && defined(BTF_TILES)
+#if BTF_MODE == 2 && defined(BTF_PIXELS)
             [[unroll]]
 #endif
             for (int j = 0; j < 9; j++) {

@@ -614,7 +614,7 @@ pub struct GarmentConfig {
     /// Texel format of the BTF.
     pub texture: Texture,
     /// How the BTF's images are packed into array textures (`Texture::default_layout`
-    /// unless asked; 'layers' shades through `btf/shade_layers_tiles`).
+    /// unless asked; 'layers' shades through `btf/shade_layers_pixels`).
     pub layout: Layout,
     /// Lights (1..=2).
     #[serde(skip)]

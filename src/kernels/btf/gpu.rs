@@ -18,6 +18,11 @@ use crate::scene::gbuffer::{Frame, MAX_LIGHTS};
 use ash::vk;
 
 pub const PASS_SHADE: &str = "btf shade";
+/// Over a tile list ([`BtfKernel::on_gbuffer_tiles`]): the reset of the pixel list, then its
+/// filling from the tiles (the masked parts' pixels; glsl/btf/pixels.comp), which `btf shade`
+/// and `btf env basis` run over.
+pub const PASS_PIXEL_LIST: &str = "btf pixel list";
+pub const PASS_PIXELS: &str = "btf pixels";
 /// The environment pass ([`BtfKernel::on_gbuffer_env`]), recorded after [`PASS_SHADE`].
 pub const PASS_ENV: &str = "btf env";
 
@@ -57,6 +62,8 @@ pub struct BtfKernel {
     /// The rasteriser's tile list when the pass is dispatched over it
     /// ([`BtfKernel::on_gbuffer_tiles`]).
     tiles: Option<Buffer>,
+    /// Over a tile list: the masked parts' pixels, listed from the tiles each frame.
+    pixels: Option<PixelList>,
     size: [u32; 2],
     /// Bit p: `btf shade` shades part p of the G-buffer (all ones: every part).
     part_mask: u32,
@@ -103,11 +110,14 @@ impl BtfKernel {
 
     /// As [`BtfKernel::on_gbuffer`], shading only the tiles of the rasteriser's tile list
     /// `tiles` ([`crate::kernels::raster::gpu::RasterKernel::tiles`]: this frame's covered
-    /// tiles and last frame's, one workgroup each, dispatched indirectly), which a pass of
-    /// the same frame writes before this one. Every other pixel of the result keeps the
-    /// background (0) it is cleared to here (recorded into `rec`), so the output equals
-    /// [`BtfKernel::on_gbuffer`]'s as long as the pass runs after every frame of the
-    /// rasteriser that wrote the list.
+    /// tiles and last frame's), which a pass of the same frame writes before this one. Pass
+    /// `btf pixels` (one workgroup a tile, dispatched indirectly) lists the tiles' covered
+    /// pixels and gives their empty ones the background; `btf shade` (and `btf env basis`)
+    /// then run over that list, dispatched indirectly: on lavapipe a lane that returns early
+    /// still runs the rest of a shader, so the tiles' empty pixels cost as much as shaded
+    /// ones. Every pixel outside the tiles keeps the background (0) it is cleared to here
+    /// (recorded into `rec`), so the output equals [`BtfKernel::on_gbuffer`]'s as long as
+    /// the passes run after every frame of the rasteriser that wrote the list.
     pub fn on_gbuffer_tiles(
         rec: &mut Recorder,
         prep: &Prepared,
@@ -217,14 +227,15 @@ impl BtfKernel {
         let packing = prep.packing;
         // One module per layout (not a specialization constant: lavapipe 22.3.6 ignored the
         // constant's value in this shader; and a runtime branch keeps all five sampling call
-        // sites, which lavapipe inlines each: 3x slower); `_tiles`: over a tile list.
+        // sites, which lavapipe inlines each: 3x slower); `_pixels`: over the pixel list
+        // that pass `btf pixels` fills from a tile list.
         let name = match (packing.layout, packing.texture, tiles.is_some()) {
             (_, Texture::Block, false) => "btf/shade_block",
             (Layout::Rows, _, false) => "btf/shade_rows",
             (Layout::Layers, _, false) => "btf/shade_layers",
-            (_, Texture::Block, true) => "btf/shade_block_tiles",
-            (Layout::Rows, _, true) => "btf/shade_rows_tiles",
-            (Layout::Layers, _, true) => "btf/shade_layers_tiles",
+            (_, Texture::Block, true) => "btf/shade_block_pixels",
+            (Layout::Rows, _, true) => "btf/shade_rows_pixels",
+            (Layout::Layers, _, true) => "btf/shade_layers_pixels",
         };
         let pipeline = crate::shaders::pipeline(&ctx, name)?;
         let arrays = Self::arrays_of(rec, prep)?;
@@ -240,7 +251,11 @@ impl BtfKernel {
                 BufferDesc::storage(w as u64 * h as u64 * 16),
             )?,
         };
-        let images = (&map, gbuffer, &result, tiles.as_ref());
+        let pixels = match &tiles {
+            Some(t) => Some(PixelList::new(&ctx, prep.size, gbuffer, &result, t)?),
+            None => None,
+        };
+        let images = (&map, gbuffer, &result, pixels.as_ref());
         let (bind, _sampler) = Self::bind(&ctx, &pipeline, packing.texture, &arrays, images)?;
         Ok(BtfKernel {
             ctx,
@@ -253,6 +268,7 @@ impl BtfKernel {
             gbuffer: None,
             result,
             tiles,
+            pixels,
             size: prep.size,
             part_mask: u32::MAX,
             env: None,
@@ -279,21 +295,22 @@ impl BtfKernel {
     }
 
     /// The bind group of `btf shade` (and the tile sampler of the sampled formats) over the
-    /// arrays, then the direction map, G-buffer, result and tile list.
+    /// arrays, then the direction map, G-buffer, result and pixel list.
     fn bind(
         ctx: &Context,
         pipeline: &ComputePipeline,
         texture: Texture,
         arrays: &[Image],
-        (map, gbuffer, result, tiles): (&Image, &Image, &Buffer, Option<&Buffer>),
+        (map, gbuffer, result, pixels): (&Image, &Image, &Buffer, Option<&PixelList>),
     ) -> Result<(BindGroup, Option<Sampler>)> {
         let mut common = vec![
             ("dir_map", Resource::texture(map)),
             ("gbuffer", Resource::texture(gbuffer)),
             ("result", Resource::Buffer(result)),
         ];
-        if let Some(t) = tiles {
-            common.push(("tiles", Resource::Buffer(t)));
+        if let Some(p) = pixels {
+            common.push(("pixel_head", Resource::Buffer(&p.head)));
+            common.push(("pixels", Resource::Buffer(&p.list)));
         }
         let writes = [("result", AccessSet::from(A::ComputeShaderWrite))];
         if texture == Texture::Block {
@@ -392,6 +409,66 @@ impl BtfKernel {
     }
 }
 
+impl BtfKernel {
+    /// Pass `btf pixels`' push constants: width, height, part mask.
+    fn pixels_push(&self) -> Vec<u8> {
+        let words = [self.size[0], self.size[1], self.part_mask, 0];
+        bytemuck::cast_slice(&words).to_vec()
+    }
+}
+
+/// The pixels `btf shade` and `btf env basis` run over when the kernel shades a tile list,
+/// filled each frame by pass `btf pixels` (glsl/btf/pixels.comp).
+struct PixelList {
+    /// (ceil(count / 64), 1, 1, count): the shading passes' indirect command.
+    head: Buffer,
+    /// The pixels (y * width + x), room for every pixel.
+    list: Buffer,
+    pipeline: ComputePipeline,
+    bind: BindGroup,
+}
+
+impl PixelList {
+    fn new(
+        ctx: &Context,
+        [w, h]: [u32; 2],
+        gbuffer: &Image,
+        result: &Buffer,
+        tiles: &Buffer,
+    ) -> Result<PixelList> {
+        let head = Buffer::new(
+            ctx,
+            "btf pixel count",
+            BufferDesc::storage(16).usage(vk::BufferUsageFlags::INDIRECT_BUFFER),
+        )?;
+        let list = Buffer::new(
+            ctx,
+            "btf pixel list",
+            BufferDesc::storage(4 * w as u64 * h as u64),
+        )?;
+        let pipeline = crate::shaders::pipeline(ctx, "btf/pixels")?;
+        let bind = pipeline.bind_declared(
+            &[
+                ("gbuffer", Resource::texture(gbuffer)),
+                ("result", Resource::Buffer(result)),
+                ("tiles", Resource::Buffer(tiles)),
+                ("pixel_head", Resource::Buffer(&head)),
+                ("pixels", Resource::Buffer(&list)),
+            ],
+            &[
+                ("result", AccessSet::from(A::ComputeShaderWrite)),
+                ("pixels", AccessSet::from(A::ComputeShaderWrite)),
+            ],
+        )?;
+        Ok(PixelList {
+            head,
+            list,
+            pipeline,
+            bind,
+        })
+    }
+}
+
 /// A new image `name` with `data` (its whole extent) uploaded through `rec`.
 fn image_with<T: bytemuck::Pod>(
     rec: &mut Recorder,
@@ -418,18 +495,33 @@ impl Kernel for BtfKernel {
     }
 
     fn pass_table(&self) -> Vec<Pass<'_, Self>> {
-        let mut passes: Vec<Pass<'_, Self>> = match &self.tiles {
-            Some(tiles) => vec![Pass::dispatch_indirect(
-                PASS_SHADE,
-                &self.pipeline,
-                &self.bind,
-                IndirectArgs {
-                    buffer: tiles,
-                    offset: 0,
-                },
-                |k, frame| k.push(frame),
-            )],
-            None => vec![Pass::dispatch(
+        let mut passes: Vec<Pass<'_, Self>> = match (&self.tiles, &self.pixels) {
+            (Some(tiles), Some(px)) => vec![
+                Pass::upload(PASS_PIXEL_LIST, &px.head, |_, _| {
+                    Ok(bytemuck::cast_slice(&[0u32, 1, 1, 0]).to_vec())
+                }),
+                Pass::dispatch_indirect(
+                    PASS_PIXELS,
+                    &px.pipeline,
+                    &px.bind,
+                    IndirectArgs {
+                        buffer: tiles,
+                        offset: 0,
+                    },
+                    |k, _| Ok(k.pixels_push()),
+                ),
+                Pass::dispatch_indirect(
+                    PASS_SHADE,
+                    &self.pipeline,
+                    &self.bind,
+                    IndirectArgs {
+                        buffer: &px.head,
+                        offset: 0,
+                    },
+                    |k, frame| k.push(frame),
+                ),
+            ],
+            _ => vec![Pass::dispatch(
                 PASS_SHADE,
                 &self.pipeline,
                 &self.bind,
@@ -458,13 +550,13 @@ impl Kernel for BtfKernel {
                     |k, _| k.env_vertices_dispatch(),
                 ));
             }
-            passes.push(match &self.tiles {
-                Some(tiles) => Pass::dispatch_indirect(
+            passes.push(match eb.over.as_ref() {
+                Some(list) => Pass::dispatch_indirect(
                     PASS_ENV_BASIS,
                     &eb.pipeline,
                     &eb.bind,
                     IndirectArgs {
-                        buffer: tiles,
+                        buffer: list,
                         offset: 0,
                     },
                     |k, frame| Ok(k.env_basis_dispatch(frame)?.push),
@@ -496,6 +588,7 @@ impl Kernel for BtfKernel {
             .chain([&self.map])
             .chain(self.gbuffer.as_ref());
         let result = Resource::Buffer(&self.result);
+        let pixel_list = self.pixels.iter().flat_map(|p| [&p.head, &p.list]);
         let env = self.env.iter().flat_map(|e| [&e.cells, &e.placeholder]);
         let basis_images = self
             .env_basis
@@ -516,7 +609,11 @@ impl Kernel for BtfKernel {
                 .map(Resource::texture)
                 .chain(light)
                 .chain([result])
-                .chain(env.chain(basis_buffers).map(Resource::Buffer)),
+                .chain(
+                    env.chain(basis_buffers)
+                        .chain(pixel_list)
+                        .map(Resource::Buffer),
+                ),
         )
     }
 }
@@ -770,6 +867,8 @@ struct EnvVerticesPass {
 struct EnvBasisPass {
     pipeline: ComputePipeline,
     bind: BindGroup,
+    /// The list the pass is dispatched over (the pixel or tile list), if any.
+    over: Option<Buffer>,
     /// The per-vertex light factors (a 1 x 1 placeholder unless mode 3).
     light: Image,
     /// Mode 3: the lobes looked up per pixel ([`super::basis::BasisData::pixel_lobes`]).
@@ -1027,11 +1126,17 @@ impl BtfKernel {
             _ => Vec::new(),
         };
         let pixel_lobes = index_list(rec, "btf env basis pixel lobes", &pixel_lobe_list)?;
-        // Over the tile list when `btf shade` runs over it (the pixels it leaves empty stay
+        // Over the pixel list when `btf shade` runs over it and it holds every part this
+        // pass shades; else over the tile list (the pixels `btf shade` leaves empty stay
         // empty: the pass only adds where the G-buffer is covered).
-        let name = match self.tiles {
-            Some(_) => "btf/env_basis_tiles",
-            None => "btf/env_basis",
+        let over_pixels = self
+            .pixels
+            .as_ref()
+            .filter(|_| env.part_mask & !self.part_mask == 0);
+        let name = match (over_pixels, &self.tiles) {
+            (Some(_), _) => "btf/env_basis_pixels",
+            (None, Some(_)) => "btf/env_basis_tiles",
+            (None, None) => "btf/env_basis",
         };
         let pipeline = crate::shaders::pipeline(&ctx, name)?;
         let ph = &placeholder;
@@ -1056,9 +1161,18 @@ impl BtfKernel {
             ("vertex_light", Resource::storage_image(&light)),
             ("plobes", Resource::Buffer(&pixel_lobes)),
         ];
-        if let Some(t) = &self.tiles {
-            res.push(("tiles", Resource::Buffer(t)));
-        }
+        let over = match (over_pixels, &self.tiles) {
+            (Some(px), _) => {
+                res.push(("pixel_head", Resource::Buffer(&px.head)));
+                res.push(("pixels", Resource::Buffer(&px.list)));
+                Some(px.head.clone())
+            }
+            (None, Some(t)) => {
+                res.push(("tiles", Resource::Buffer(t)));
+                Some(t.clone())
+            }
+            (None, None) => None,
+        };
         let bind = pipeline.bind_declared(
             &res,
             &[("result", A::ComputeShaderReadOther | A::ComputeShaderWrite)],
@@ -1066,6 +1180,7 @@ impl BtfKernel {
         self.env_basis = Some(EnvBasisPass {
             pipeline,
             bind,
+            over,
             light,
             vertices,
             pixel_lobe_count: pixel_lobe_list.len() as u32,
