@@ -1,6 +1,6 @@
-// `btf env basis`, included by btf/env_basis.comp (every pixel) and btf/env_basis_tiles.comp
-// (BTF_TILES: one workgroup per 16 x 4 tile of the rasteriser's tile list, dispatched
-// indirectly, as `btf shade` over tiles): cloth under the SG environment through the BTF's light basis
+// `btf env basis`, included by btf/env_basis.comp (every pixel) and btf/env_basis_pixels.comp
+// (BTF_PIXELS: over the pixel list of pass `btf pixels`, 64 pixels a workgroup, dispatched
+// indirectly, as `btf shade` over it): cloth under the SG environment through the BTF's light basis
 // (src/kernels/btf/basis.rs has the method; BasisData::shade is the CPU twin). Per covered
 // pixel of a part in the mask: each lobe's axis into the tangent frame, its RANK basis
 // weights Q_jk from the lobe's octahedral table (2 filtered fetches), summed as
@@ -19,7 +19,6 @@ layout(local_size_x = 64) in;
 #else
 layout(local_size_x = 16, local_size_y = 4) in;
 #endif
-#include <common/tiles.glsl>
 
 layout(push_constant) uniform Push {
     vec4 camera; // xyz: camera position; w = 0: xyz is the direction towards an
@@ -45,9 +44,6 @@ layout(std430, set = 0, binding = 9) readonly buffer Keys { uvec2 k[]; } keys;
 layout(std430, set = 0, binding = 10) readonly buffer Positions { vec4 p[]; } pos;
 layout(std430, set = 0, binding = 11) readonly buffer Triangles { uvec4 t[]; } tris;
 layout(std430, set = 0, binding = 12) readonly buffer VertexVisibility { float v[]; } vertex_vis;
-#ifdef BTF_TILES
-layout(std430, set = 0, binding = 13) readonly buffer Tiles { uint head[4]; uint list[]; } tiles;
-#endif
 #ifdef BTF_PIXELS
 layout(std430, set = 0, binding = 16) readonly buffer PixelHead { uint head[4]; } pixel_head;
 layout(std430, set = 0, binding = 17) readonly buffer Pixels { uint list[]; } pixels;
@@ -87,9 +83,6 @@ void main() {
     if (i >= min(pixel_head.head[3], uint(pixels.list.length()))) return;
     uint pk = pixels.list[i];
     uvec2 px = uvec2(pk % pc.dims.x, pk / pc.dims.x);
-#elif defined(BTF_TILES)
-    uint tile = tiles.list[gl_WorkGroupID.x];
-    uvec2 px = tile_pixel(tile, pc.dims.x, gl_LocalInvocationID.xy);
 #else
     uvec2 px = gl_GlobalInvocationID.xy;
 #endif

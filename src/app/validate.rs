@@ -584,7 +584,7 @@ fn sss_posed_geometry(gpu: &Gpu) -> Result<()> {
 }
 
 /// The BTF's environment light-basis pass on a kernel that is not over a tile list
-/// (`btf/env_basis`; the frame runs `btf/env_basis_tiles`): an 8-texel weave on a 48 x 40
+/// (`btf/env_basis`; the frame runs `btf/env_basis_pixels`): an 8-texel weave on a 48 x 40
 /// sphere, eight lobes.
 fn btf_env_basis(gpu: &Gpu) -> Result<()> {
     use crate::geom::sg::{Lobe, fibonacci_sphere};

@@ -867,7 +867,7 @@ struct EnvVerticesPass {
 struct EnvBasisPass {
     pipeline: ComputePipeline,
     bind: BindGroup,
-    /// The list the pass is dispatched over (the pixel or tile list), if any.
+    /// The head of the pixel list the pass is dispatched over, if any (else every pixel).
     over: Option<Buffer>,
     /// The per-vertex light factors (a 1 x 1 placeholder unless mode 3).
     light: Image,
@@ -1127,16 +1127,15 @@ impl BtfKernel {
         };
         let pixel_lobes = index_list(rec, "btf env basis pixel lobes", &pixel_lobe_list)?;
         // Over the pixel list when `btf shade` runs over it and it holds every part this
-        // pass shades; else over the tile list (the pixels `btf shade` leaves empty stay
-        // empty: the pass only adds where the G-buffer is covered).
+        // pass shades; else over every pixel (the pass only adds where the G-buffer is
+        // covered by one of its parts, so the pixels `btf shade` leaves empty stay empty).
         let over_pixels = self
             .pixels
             .as_ref()
             .filter(|_| env.part_mask & !self.part_mask == 0);
-        let name = match (over_pixels, &self.tiles) {
-            (Some(_), _) => "btf/env_basis_pixels",
-            (None, Some(_)) => "btf/env_basis_tiles",
-            (None, None) => "btf/env_basis",
+        let name = match over_pixels {
+            Some(_) => "btf/env_basis_pixels",
+            None => "btf/env_basis",
         };
         let pipeline = crate::shaders::pipeline(&ctx, name)?;
         let ph = &placeholder;
@@ -1161,18 +1160,11 @@ impl BtfKernel {
             ("vertex_light", Resource::storage_image(&light)),
             ("plobes", Resource::Buffer(&pixel_lobes)),
         ];
-        let over = match (over_pixels, &self.tiles) {
-            (Some(px), _) => {
-                res.push(("pixel_head", Resource::Buffer(&px.head)));
-                res.push(("pixels", Resource::Buffer(&px.list)));
-                Some(px.head.clone())
-            }
-            (None, Some(t)) => {
-                res.push(("tiles", Resource::Buffer(t)));
-                Some(t.clone())
-            }
-            (None, None) => None,
-        };
+        let over = over_pixels.map(|px| {
+            res.push(("pixel_head", Resource::Buffer(&px.head)));
+            res.push(("pixels", Resource::Buffer(&px.list)));
+            px.head.clone()
+        });
         let bind = pipeline.bind_declared(
             &res,
             &[("result", A::ComputeShaderReadOther | A::ComputeShaderWrite)],
