@@ -13,12 +13,6 @@
 // vertices' (the rasteriser negates a back face's), plus those of the lobes in `plobes`
 // (kernels::btf::basis::BasisData::pixel_lobes) looked up here with the visibility
 // interpolated as in mode 2.
-#ifdef BTF_PIXELS
-// Over the list of pass `btf pixels` (glsl/btf/pixels.comp): 64 listed pixels a workgroup.
-layout(local_size_x = 64) in;
-#else
-layout(local_size_x = 16, local_size_y = 4) in;
-#endif
 
 layout(push_constant) uniform Push {
     vec4 camera; // xyz: camera position; w = 0: xyz is the direction towards an
@@ -44,10 +38,7 @@ layout(std430, set = 0, binding = 9) readonly buffer Keys { uvec2 k[]; } keys;
 layout(std430, set = 0, binding = 10) readonly buffer Positions { vec4 p[]; } pos;
 layout(std430, set = 0, binding = 11) readonly buffer Triangles { uvec4 t[]; } tris;
 layout(std430, set = 0, binding = 12) readonly buffer VertexVisibility { float v[]; } vertex_vis;
-#ifdef BTF_PIXELS
-layout(std430, set = 0, binding = 16) readonly buffer PixelHead { uint head[4]; } pixel_head;
-layout(std430, set = 0, binding = 17) readonly buffer Pixels { uint list[]; } pixels;
-#endif
+#include <common/btf_pixels.glsl>
 // Mode 3: pass `btf env vertices`' light factors (glsl/btf/basis_light.glsl has the layout).
 layout(set = 0, binding = 14, rgba32f) readonly uniform image2D vertex_light;
 // Mode 3: the lobes looked up at each pixel all the same
@@ -78,15 +69,8 @@ vec3 barycentrics(vec3 p, vec3 a, vec3 b, vec3 c) {
 }
 
 void main() {
-#ifdef BTF_PIXELS
-    uint i = gl_GlobalInvocationID.x;
-    if (i >= min(pixel_head.head[3], uint(pixels.list.length()))) return;
-    uint pk = pixels.list[i];
-    uvec2 px = uvec2(pk % pc.dims.x, pk / pc.dims.x);
-#else
-    uvec2 px = gl_GlobalInvocationID.xy;
-#endif
-    if (any(greaterThanEqual(px, pc.dims.xy))) return;
+    uvec2 px;
+    if (!shaded_pixel(pc.dims.xy, px)) return;
     uint k = px.y * pc.dims.x + px.x;
     vec4 g0 = texelFetch(gbuffer, ivec3(px, 0), 0);
     if (abs(g0.w) < 0.5) return;

@@ -23,8 +23,9 @@ layout(std430, set = 0, binding = 6) readonly buffer Tiles { uint head[4]; uint 
 // The list's head (ceil(count / 64), 1, 1, count), the shading passes' indirect command
 // (the kernel resets it to (0, 1, 1, 0) before this pass), and the pixels, room for every
 // pixel.
-layout(std430, set = 0, binding = 7) buffer PixelHead { uint head[4]; } pixel_head;
-layout(std430, set = 0, binding = 8) writeonly buffer Pixels { uint list[]; } pixels;
+// (common/btf_pixels.glsl reads it.)
+layout(std430, set = 0, binding = 16) buffer PixelHead { uint head[4]; } pixel_head;
+layout(std430, set = 0, binding = 17) writeonly buffer Pixels { uint list[]; } pixels;
 
 void main() {
     uint tile = tiles.list[gl_WorkGroupID.x];

@@ -20,15 +20,7 @@
 // The G-buffer and the maps are textures read with texelFetch: lavapipe gathers texel
 // fetches across lanes but loads from a storage buffer at a per-lane index one lane at a
 // time (three vec4 storage-buffer loads per pixel cost as much as the 9 taps of `block`).
-// 16 x 4: on lavapipe (8 lanes along x) 20% less CPU time than 8 x 8 for `block` (4 x 8: 2x
-// more).
 #extension GL_EXT_control_flow_attributes : require
-#ifdef BTF_PIXELS
-// Over the list of pass `btf pixels` (glsl/btf/pixels.comp): 64 listed pixels a workgroup.
-layout(local_size_x = 64) in;
-#else
-layout(local_size_x = 16, local_size_y = 4) in;
-#endif
 
 const uint MAX_LIGHTS = 2u;
 layout(push_constant) uniform Push {
@@ -54,12 +46,7 @@ layout(set = 0, binding = 2) uniform utexture2D dir_map;
 // s * (1 + part), s = +-1 the frame's handedness (src/scene/gbuffer.rs).
 layout(set = 0, binding = 4) uniform texture2DArray gbuffer;
 layout(std430, set = 0, binding = 5) writeonly buffer Result { vec4 v[]; } result;
-#ifdef BTF_PIXELS
-// The pixels of the masked parts (pass `btf pixels`, which also gave the empty ones their
-// background), dispatched indirectly: pixels outside the list keep what they hold.
-layout(std430, set = 0, binding = 7) readonly buffer PixelHead { uint head[4]; } pixel_head;
-layout(std430, set = 0, binding = 8) readonly buffer Pixels { uint list[]; } pixels;
-#endif
+#include <common/btf_pixels.glsl>
 
 #if BTF_MODE == 2
 // The footprint of a pixel's uv, shared by its 9 taps: block, bit shifts of its 4 texels'
@@ -147,15 +134,8 @@ void lookup(vec3 d, out uvec3 index, out vec3 weight) {
 }
 
 void main() {
-#ifdef BTF_PIXELS
-    uint i = gl_GlobalInvocationID.x;
-    if (i >= min(pixel_head.head[3], uint(pixels.list.length()))) return;
-    uint pk = pixels.list[i];
-    uvec2 px = uvec2(pk % pc.dims.x, pk / pc.dims.x);
-#else
-    uvec2 px = gl_GlobalInvocationID.xy;
-#endif
-    if (any(greaterThanEqual(px, pc.dims.xy))) return;
+    uvec2 px;
+    if (!shaded_pixel(pc.dims.xy, px)) return;
     uint k = px.y * pc.dims.x + px.x;
     vec4 g0 = texelFetch(gbuffer, ivec3(px, 0), 0);
     if (abs(g0.w) < 0.5) {

@@ -5,11 +5,11 @@
 //! (`visibility.bin`), which all of them and the ground truth are computed from.
 //!
 //! All are little endian: an 8-byte magic, a version (u32), a fixed header, the arrays as
-//! 32-bit words (the visibility's rows as 64-bit words), then an FNV-1a 64 checksum of everything before it. Writes are atomic; a
-//! read checks the magic, version, size and checksum, and every error names the file. What
-//! the values mean (unit axes, cluster ids in range, finite numbers) is checked by the types
-//! that own them (`kernels::srbf::transfer::Transfer`, `kernels::srbf::cpca::Cpca`,
-//! `kernels::srbf::cta::Cta`).
+//! 32-bit words (the visibility's rows as 64-bit words), then an FNV-1a 64 checksum of
+//! everything before it. Writes are atomic; a read checks the magic, version, size and
+//! checksum, and every error names the file. What the values mean (unit axes, cluster ids in
+//! range, finite numbers) is checked by the types that own them
+//! (`kernels::srbf::transfer::Transfer`, `kernels::srbf::cpca::Cpca`, `kernels::srbf::cta::Cta`).
 
 use crate::error::{Error, Result};
 use glam::Vec3;

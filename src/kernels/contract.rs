@@ -108,6 +108,12 @@ pub type UploadBytes<K> = fn(&K, &<K as Kernel>::Input) -> Result<Vec<u8>>;
 /// reflected block; the workgroup counts come from the GPU).
 pub type PushBytes<K> = fn(&K, &<K as Kernel>::Input) -> Result<Vec<u8>>;
 
+/// The head of an empty GPU-appended list: (0 workgroups, 1, 1, 0 entries), the
+/// `VkDispatchIndirectCommand` of the pass over the list followed by its count, as the
+/// passes that append to such a list (the rasteriser's tiles, the frame's vertex list,
+/// the SSS texels' shadow rays, the BTF's pixels) expect it reset before each frame.
+pub const EMPTY_LIST_HEAD: [u32; 4] = [0, 1, 1, 0];
+
 /// Where an indirect dispatch reads its workgroup counts: a `VkDispatchIndirectCommand`
 /// (three u32) at `offset` in `buffer`, written on the GPU by an earlier pass.
 #[derive(Clone, Copy)]

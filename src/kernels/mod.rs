@@ -12,8 +12,8 @@ pub mod srbf;
 pub mod sss;
 
 pub use contract::{
-    Dispatch, FrameResult, Grid, IndirectArgs, Kernel, KernelInfo, Pass, PassInfo, Step, UseInfo,
-    record_as_graph, run_frames,
+    Dispatch, EMPTY_LIST_HEAD, FrameResult, Grid, IndirectArgs, Kernel, KernelInfo, Pass, PassInfo,
+    Step, UseInfo, record_as_graph, run_frames,
 };
 pub use env::EnvKernel;
 

@@ -59,10 +59,8 @@ pub struct BtfKernel {
     /// kept alive by the bind group.
     gbuffer: Option<Image>,
     result: Buffer,
-    /// The rasteriser's tile list when the pass is dispatched over it
-    /// ([`BtfKernel::on_gbuffer_tiles`]).
-    tiles: Option<Buffer>,
-    /// Over a tile list: the masked parts' pixels, listed from the tiles each frame.
+    /// Over the rasteriser's tile list ([`BtfKernel::on_gbuffer_tiles`]): the masked parts'
+    /// pixels, listed from the tiles each frame.
     pixels: Option<PixelList>,
     size: [u32; 2],
     /// Bit p: `btf shade` shades part p of the G-buffer (all ones: every part).
@@ -251,7 +249,7 @@ impl BtfKernel {
                 BufferDesc::storage(w as u64 * h as u64 * 16),
             )?,
         };
-        let pixels = match &tiles {
+        let pixels = match tiles {
             Some(t) => Some(PixelList::new(&ctx, prep.size, gbuffer, &result, t)?),
             None => None,
         };
@@ -267,7 +265,6 @@ impl BtfKernel {
             map,
             gbuffer: None,
             result,
-            tiles,
             pixels,
             size: prep.size,
             part_mask: u32::MAX,
@@ -373,6 +370,12 @@ impl BtfKernel {
         self.size
     }
 
+    /// Pass `btf pixels`' push constants: width, height, part mask.
+    fn pixels_push(&self) -> Vec<u8> {
+        let words = [self.size[0], self.size[1], self.part_mask, 0];
+        bytemuck::cast_slice(&words).to_vec()
+    }
+
     fn push(&self, frame: &Frame) -> Result<Vec<u8>> {
         frame.check()?;
         let mut f = Vec::with_capacity(24);
@@ -409,17 +412,11 @@ impl BtfKernel {
     }
 }
 
-impl BtfKernel {
-    /// Pass `btf pixels`' push constants: width, height, part mask.
-    fn pixels_push(&self) -> Vec<u8> {
-        let words = [self.size[0], self.size[1], self.part_mask, 0];
-        bytemuck::cast_slice(&words).to_vec()
-    }
-}
-
 /// The pixels `btf shade` and `btf env basis` run over when the kernel shades a tile list,
 /// filled each frame by pass `btf pixels` (glsl/btf/pixels.comp).
 struct PixelList {
+    /// The rasteriser's tile list the pixels are listed from.
+    tiles: Buffer,
     /// (ceil(count / 64), 1, 1, count): the shading passes' indirect command.
     head: Buffer,
     /// The pixels (y * width + x), room for every pixel.
@@ -434,7 +431,7 @@ impl PixelList {
         [w, h]: [u32; 2],
         gbuffer: &Image,
         result: &Buffer,
-        tiles: &Buffer,
+        tiles: Buffer,
     ) -> Result<PixelList> {
         let head = Buffer::new(
             ctx,
@@ -451,7 +448,7 @@ impl PixelList {
             &[
                 ("gbuffer", Resource::texture(gbuffer)),
                 ("result", Resource::Buffer(result)),
-                ("tiles", Resource::Buffer(tiles)),
+                ("tiles", Resource::Buffer(&tiles)),
                 ("pixel_head", Resource::Buffer(&head)),
                 ("pixels", Resource::Buffer(&list)),
             ],
@@ -461,6 +458,7 @@ impl PixelList {
             ],
         )?;
         Ok(PixelList {
+            tiles,
             head,
             list,
             pipeline,
@@ -495,17 +493,17 @@ impl Kernel for BtfKernel {
     }
 
     fn pass_table(&self) -> Vec<Pass<'_, Self>> {
-        let mut passes: Vec<Pass<'_, Self>> = match (&self.tiles, &self.pixels) {
-            (Some(tiles), Some(px)) => vec![
+        let mut passes: Vec<Pass<'_, Self>> = match &self.pixels {
+            Some(px) => vec![
                 Pass::upload(PASS_PIXEL_LIST, &px.head, |_, _| {
-                    Ok(bytemuck::cast_slice(&[0u32, 1, 1, 0]).to_vec())
+                    Ok(bytemuck::cast_slice(&crate::kernels::EMPTY_LIST_HEAD).to_vec())
                 }),
                 Pass::dispatch_indirect(
                     PASS_PIXELS,
                     &px.pipeline,
                     &px.bind,
                     IndirectArgs {
-                        buffer: tiles,
+                        buffer: &px.tiles,
                         offset: 0,
                     },
                     |k, _| Ok(k.pixels_push()),
@@ -521,7 +519,7 @@ impl Kernel for BtfKernel {
                     |k, frame| k.push(frame),
                 ),
             ],
-            _ => vec![Pass::dispatch(
+            None => vec![Pass::dispatch(
                 PASS_SHADE,
                 &self.pipeline,
                 &self.bind,
@@ -550,13 +548,14 @@ impl Kernel for BtfKernel {
                     |k, _| k.env_vertices_dispatch(),
                 ));
             }
-            passes.push(match eb.over.as_ref() {
-                Some(list) => Pass::dispatch_indirect(
+            let list = self.pixels.as_ref().filter(|_| eb.over_pixels);
+            passes.push(match list {
+                Some(px) => Pass::dispatch_indirect(
                     PASS_ENV_BASIS,
                     &eb.pipeline,
                     &eb.bind,
                     IndirectArgs {
-                        buffer: list,
+                        buffer: &px.head,
                         offset: 0,
                     },
                     |k, frame| Ok(k.env_basis_dispatch(frame)?.push),
@@ -867,8 +866,8 @@ struct EnvVerticesPass {
 struct EnvBasisPass {
     pipeline: ComputePipeline,
     bind: BindGroup,
-    /// The head of the pixel list the pass is dispatched over, if any (else every pixel).
-    over: Option<Buffer>,
+    /// Dispatched over the kernel's pixel list (else over every pixel).
+    over_pixels: bool,
     /// The per-vertex light factors (a 1 x 1 placeholder unless mode 3).
     light: Image,
     /// Mode 3: the lobes looked up per pixel ([`super::basis::BasisData::pixel_lobes`]).
@@ -1160,11 +1159,10 @@ impl BtfKernel {
             ("vertex_light", Resource::storage_image(&light)),
             ("plobes", Resource::Buffer(&pixel_lobes)),
         ];
-        let over = over_pixels.map(|px| {
+        if let Some(px) = over_pixels {
             res.push(("pixel_head", Resource::Buffer(&px.head)));
             res.push(("pixels", Resource::Buffer(&px.list)));
-            px.head.clone()
-        });
+        }
         let bind = pipeline.bind_declared(
             &res,
             &[("result", A::ComputeShaderReadOther | A::ComputeShaderWrite)],
@@ -1172,7 +1170,7 @@ impl BtfKernel {
         self.env_basis = Some(EnvBasisPass {
             pipeline,
             bind,
-            over,
+            over_pixels: over_pixels.is_some(),
             light,
             vertices,
             pixel_lobe_count: pixel_lobe_list.len() as u32,

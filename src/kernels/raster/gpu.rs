@@ -231,7 +231,7 @@ impl RasterKernel {
         // flag, an empty list, an empty G-buffer.
         rec.fill_buffer(&keys, u32::MAX)?;
         rec.fill_buffer(&flags, 0)?;
-        rec.upload(&tiles, 0, &[0u32, 1, 1, 0])?;
+        rec.upload(&tiles, 0, &crate::kernels::EMPTY_LIST_HEAD)?;
         rec.clear_image(&gbuffer, gbuffer.all(), [0.0; 4])?;
 
         let write = AccessSet::from(A::ComputeShaderWrite);

@@ -141,7 +141,7 @@ impl VertexListKernel {
         // Every frame starts from empty bitmaps (the list pass leaves them so).
         rec.fill_buffer(&covered, 0)?;
         rec.fill_buffer(&marked, 0)?;
-        rec.upload(&list, 0, &[0u32, 1, 1, 0])?;
+        rec.upload(&list, 0, &crate::kernels::EMPTY_LIST_HEAD)?;
         let p = crate::shaders::pipeline(&ctx, "raster/vertex_mark")?;
         let b = p.bind(&[
             ("keys", Resource::Buffer(raster.keys())),

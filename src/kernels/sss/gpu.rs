@@ -1074,7 +1074,7 @@ impl SssKernel {
 
     /// The ray list emptied: (0 workgroups, 1, 1, 0 texels).
     fn ray_list_reset(&self, _lights: &[Light]) -> Result<Vec<u8>> {
-        Ok(bytemuck::cast_slice(&[0u32, 1, 1, 0]).to_vec())
+        Ok(bytemuck::cast_slice(&crate::kernels::EMPTY_LIST_HEAD).to_vec())
     }
 
     /// The ray pass's push constants: the shading pass's.
