@@ -50,14 +50,16 @@ layout(std430, set = 0, binding = 6) writeonly buffer Diffuse { vec4 v[]; } diff
 // layout does not change when it is skinned): workgroup (x, y) shades segments
 // 8 (y * TILE_ROW + x) + local y, a SIMD step of 8 lanes per segment; texels of empty
 // segments are never touched (the kernel clears the outputs there once).
+// SSS_LISTED: the segments a caller needs this frame instead (e.g. those the character
+// frame's compose pass reads: glsl/compose/need.comp), listed by pass `sss needed list`
+// (glsl/sss/needed_list.comp) with their count in the list's head; workgroup (x, y) shades
+// list entries 8 (y * gx + x) + local y, gx the dispatch's width. The other segments keep
+// what the output held.
 const uint TILE_ROW = 256u;
+#ifdef SSS_LISTED
+layout(std430, set = 0, binding = 20) readonly buffer NeededList { uint head[4]; uint v[]; } needed_list;
+#else
 layout(std430, set = 0, binding = 7) readonly buffer Tiles { uint v[]; } tiles;
-#ifdef SSS_NEEDED
-// The segments a caller needs this frame (e.g. those the character frame's compose pass reads:
-// glsl/compose/need.comp): bit s of word s / 32 for segment s = y * ceil(size / 8) + x / 8.
-// The other segments are skipped and keep what the output held (a SIMD step is one
-// segment, so the skip is uniform across its lanes).
-layout(std430, set = 0, binding = 8) readonly buffer Needed { uint w[]; } needed;
 #endif
 
 const float TAU = 6.28318530718;
@@ -96,12 +98,14 @@ bool source(ivec2 j, out vec3 e) {
 }
 
 void main() {
+#ifdef SSS_LISTED
+    uint ti = 8u * (gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x) + gl_LocalInvocationID.y;
+    if (ti >= needed_list.head[3]) return;
+    uint tile = needed_list.v[ti];
+#else
     uint ti = 8u * (gl_WorkGroupID.y * TILE_ROW + gl_WorkGroupID.x) + gl_LocalInvocationID.y;
     if (ti >= pc.tiles) return;
     uint tile = tiles.v[ti];
-#ifdef SSS_NEEDED
-    uint seg = (tile >> 16u) * ((pc.size + 7u) / 8u) + (tile & 0xffffu);
-    if (((needed.w[seg >> 5u] >> (seg & 31u)) & 1u) == 0u) return;
 #endif
     uvec2 xy = uvec2((tile & 0xffffu) * 8u + gl_LocalInvocationID.x, tile >> 16u);
     if (xy.x >= pc.size || xy.y >= pc.size) return;

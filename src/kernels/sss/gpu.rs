@@ -63,6 +63,9 @@ pub const PASS_IRRADIANCE_RAYS: &str = "sss irradiance rays";
 /// The reset of that list before `sss irradiance` appends to it.
 pub const PASS_RAY_LIST: &str = "sss ray list";
 pub const PASS_DIFFUSION: &str = "sss diffusion";
+/// With needed segments set ([`SssKernel::set_needed_segments`]): the occupied segments the
+/// caller's bitmap marks, listed for the diffusion (dispatched indirectly over the list).
+pub const PASS_NEEDED_LIST: &str = "sss needed list";
 /// Per-frame geometry of a skinned mesh ([`SssKernel::new_posed`]): the vertex frames (mm)
 /// from the posed buffers.
 pub const PASS_POSE_VERTICES: &str = "sss pose vertices";
@@ -153,6 +156,11 @@ struct Resources {
     /// list on the host (compared on a geometry update).
     occupied_tiles: Buffer,
     tile_list: Mutex<Vec<u32>>,
+    /// The occupied tiles as a bitmap of [`pack::needed_segment`]s (uploaded with the list),
+    /// and the list `sss needed list` writes: its head (the diffusion's
+    /// VkDispatchIndirectCommand, then the count) and room for every tile.
+    occupied_segments: Buffer,
+    needed_list: Buffer,
     /// The texels whose lights need their own shadow rays, appended by `sss irradiance`: a
     /// (texel, light bits) pair of u32 per listed texel, room for every texel; and its head,
     /// u32 (ceil(count / 256), 1, 1, count), the indirect command of `sss irradiance rays`
@@ -232,6 +240,14 @@ impl Resources {
             diffuse: buffer("sss diffuse", BufferDesc::storage(texel_bytes))?,
             occupied_tiles: buffer("sss tiles", BufferDesc::storage(tiles * 4))?,
             tile_list: Mutex::new(Vec::new()),
+            occupied_segments: buffer(
+                "sss occupied segments",
+                BufferDesc::storage(pack::needed_segment_words(room.size) * 4),
+            )?,
+            needed_list: buffer(
+                "sss needed segments",
+                BufferDesc::storage(16 + tiles * 4).usage(vk::BufferUsageFlags::INDIRECT_BUFFER),
+            )?,
             rays: buffer("sss shadow rays", BufferDesc::storage(texel_bytes / 2))?,
             ray_head: buffer(
                 "sss shadow ray count",
@@ -242,7 +258,7 @@ impl Resources {
 
     /// Every resource, with the name the shaders bind it by: the passes bind by these names,
     /// and the memory report counts them all.
-    fn by_binding(&self) -> [(&'static str, Resource<'_>); 22] {
+    fn by_binding(&self) -> [(&'static str, Resource<'_>); 24] {
         let image = Resource::storage_image;
         [
             ("verts", Resource::Buffer(&self.vertex_frames)),
@@ -267,6 +283,8 @@ impl Resources {
             ("tiles", Resource::Buffer(&self.occupied_tiles)),
             ("rays", Resource::Buffer(&self.rays)),
             ("ray_head", Resource::Buffer(&self.ray_head)),
+            ("occupied", Resource::Buffer(&self.occupied_segments)),
+            ("needed_list", Resource::Buffer(&self.needed_list)),
         ]
     }
 
@@ -306,6 +324,8 @@ impl Resources {
         if !list.is_empty() {
             rec.upload(&self.occupied_tiles, 0, &list)?;
         }
+        let size = self.irradiance_grey.desc().extent[0];
+        rec.upload(&self.occupied_segments, 0, &pack::tile_bitmap(&list, size))?;
         let grey = Subresources::mip(self.irradiance_grey.desc(), 0);
         rec.clear_image(&self.irradiance_grey, grey, [-1.0, 0.0, 0.0, 0.0])?;
         rec.fill_buffer(&self.diffuse, 0)?;
@@ -415,9 +435,10 @@ pub struct SssKernel {
     irradiance_kind: AtomicU8,
     /// The per-vertex irradiance added by the irradiance pass, when set.
     env: Option<Env>,
-    /// The caller's bitmap of the atlas segments its diffusion must fill
-    /// ([`SssKernel::set_needed_segments`]), when set.
-    needed: Option<Buffer>,
+    /// The pass `sss needed list` over the caller's bitmap of the atlas segments its
+    /// diffusion must fill ([`SssKernel::set_needed_segments`]; its bind group holds the
+    /// bitmap), when set: the diffusion then runs over the list.
+    needed: Option<Stage>,
     settings: Settings,
     /// The per-frame geometry passes of a skinned mesh ([`SssKernel::new_posed`]).
     posed: Option<Posed>,
@@ -948,7 +969,7 @@ impl SssKernel {
         let copy = Stage::from_table(&ctx, "sss/vertex_env", &table, &["venv_texels"])?;
         let irradiance = Irradiance::from_table(&ctx, shader, &table, &["trans", "penv"])?;
         drop(table);
-        let diffusion = self.env_diffusion(&image, self.needed.as_ref())?;
+        let diffusion = self.env_diffusion(&image, self.needed.is_some())?;
         self.env = Some(Env {
             image,
             vertex_texels,
@@ -974,16 +995,13 @@ impl SssKernel {
     }
 
     /// The diffusion stage of the per-vertex irradiance's rgb E (`image`), on every occupied
-    /// segment or, with `needed`, on the segments it marks.
-    fn env_diffusion(&self, image: &Image, needed: Option<&Buffer>) -> Result<Stage> {
-        let table = self.table_with(
-            [("penv", Resource::storage_image(image))]
-                .into_iter()
-                .chain(needed.map(|b| ("needed", Resource::Buffer(b)))),
-        );
-        let shader = match needed {
-            Some(_) => "sss/diffusion_env_needed",
-            None => "sss/diffusion_env",
+    /// segment or, `listed`, on those of the needed list (`sss needed list`).
+    fn env_diffusion(&self, image: &Image, listed: bool) -> Result<Stage> {
+        let table = self.table_with([("penv", Resource::storage_image(image))]);
+        let shader = if listed {
+            "sss/diffusion_env_listed"
+        } else {
+            "sss/diffusion_env"
         };
         Stage::from_table(&self.ctx, shader, &table, &["diffuse"])
     }
@@ -999,9 +1017,10 @@ impl SssKernel {
     /// set first) to the atlas segments a caller needs each frame: `needed` is a bitmap of
     /// [`SssKernel::needed_segment_bytes`] bytes, bit s of word s / 32 for the 8x1 row segment
     /// s = y * ceil(size / 8) + x / 8, written by an earlier pass of the same recording (the
-    /// character frame marks the segments its compose pass reads: `compose need`). The
-    /// diffusion skips the other segments, whose texels keep what they held: only the marked
-    /// ones are this frame's. `None` diffuses every segment again.
+    /// character frame marks the segments its compose pass reads: `compose need`). A pass
+    /// (`sss needed list`) lists the occupied segments it marks and the diffusion is
+    /// dispatched indirectly over that list; the other segments' texels keep what they held:
+    /// only the marked ones are this frame's. `None` diffuses every segment again.
     pub fn set_needed_segments(&mut self, needed: Option<&Buffer>) -> Result<()> {
         let Some(env) = &self.env else {
             return Err(Error::InvalidArgument(
@@ -1020,8 +1039,19 @@ impl SssKernel {
                 self.needed_segment_bytes()
             )));
         }
-        let diffusion = self.env_diffusion(&env.image, needed)?;
-        self.needed = needed.cloned();
+        let diffusion = self.env_diffusion(&env.image, needed.is_some())?;
+        self.needed = match needed {
+            Some(bitmap) => {
+                let table = self.table_with([("needed", Resource::Buffer(bitmap))]);
+                Some(Stage::from_table(
+                    &self.ctx,
+                    "sss/needed_list",
+                    &table,
+                    &["needed_list"],
+                )?)
+            }
+            None => None,
+        };
         if let Some(env) = &mut self.env {
             env.diffusion = diffusion;
         }
@@ -1035,12 +1065,28 @@ impl SssKernel {
 
     /// Records the diffusion dispatch alone (barriers from the declared accesses), of the
     /// irradiance last recorded: the grey one (one gather per sample) after the irradiance
-    /// pass, the rgb one with a per-vertex irradiance set (one rgba gather), the rgb one of
-    /// an upload (two gathers).
+    /// pass, the rgb one with a per-vertex irradiance set (one rgba gather; with needed
+    /// segments set, `sss needed list` and the diffusion over its list), the rgb one of an
+    /// upload (two gathers).
     pub fn record_diffusion(&self, rec: &mut Recorder) -> Result<()> {
         let stage = match (self.irradiance_kind.load(Ordering::Relaxed), &self.env) {
             (IRR_UPLOAD, _) => &self.diffusion_rgb,
-            (IRR_ENV, Some(env)) => &env.diffusion,
+            (IRR_ENV, Some(env)) => {
+                if let Some(list) = &self.needed {
+                    // The needed segments listed, then the diffusion over the list.
+                    self.needed_list_args(&[])?
+                        .record(rec, &list.pipeline, &list.bind)?;
+                    let push = self.diffusion_push(&[])?;
+                    return rec.dispatch_indirect_tracked(
+                        &env.diffusion.pipeline,
+                        &env.diffusion.bind,
+                        &push,
+                        &self.res.needed_list,
+                        0,
+                    );
+                }
+                &env.diffusion
+            }
             _ => &self.diffusion_grey,
         };
         self.diffusion_args(&[])?
@@ -1130,6 +1176,17 @@ impl SssKernel {
         let words = self.settings.diffusion_push(tiles);
         Ok(Dispatch::words(&words, Grid::Groups(tile_groups(tiles))))
     }
+
+    /// The diffusion's push constants over the needed list (its workgroups: the list's head).
+    fn diffusion_push(&self, lights: &[Light]) -> Result<Vec<u8>> {
+        Ok(self.diffusion_args(lights)?.push)
+    }
+
+    /// `sss needed list`: one workgroup.
+    fn needed_list_args(&self, _lights: &[Light]) -> Result<Dispatch> {
+        let words = self.settings.needed_list_push();
+        Ok(Dispatch::words(&words, Grid::Groups([1, 1, 1])))
+    }
 }
 
 impl Kernel for SssKernel {
@@ -1174,7 +1231,22 @@ impl Kernel for SssKernel {
             diffusion = &env.diffusion;
         }
         passes.extend(irradiance.passes(&self.res.ray_head, self.settings.params.shadow_refine));
-        passes.push(diffusion.pass(PASS_DIFFUSION, Self::diffusion_args));
+        match (&self.env, &self.needed) {
+            (Some(env), Some(list)) => passes.extend([
+                list.pass(PASS_NEEDED_LIST, Self::needed_list_args),
+                Pass::dispatch_indirect(
+                    PASS_DIFFUSION,
+                    &env.diffusion.pipeline,
+                    &env.diffusion.bind,
+                    IndirectArgs {
+                        buffer: &self.res.needed_list,
+                        offset: 0,
+                    },
+                    Self::diffusion_push,
+                ),
+            ]),
+            _ => passes.push(diffusion.pass(PASS_DIFFUSION, Self::diffusion_args)),
+        }
         passes
     }
 

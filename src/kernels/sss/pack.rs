@@ -281,6 +281,12 @@ impl Settings {
     pub fn diffusion_push(&self, tiles: u32) -> Vec<u32> {
         vec![self.room.size, self.params.samples, tiles]
     }
+
+    /// `sss needed list`'s push constants: the bitmap's words, segments a row.
+    pub fn needed_list_push(&self) -> Vec<u32> {
+        let size = self.room.size;
+        vec![needed_segment_words(size) as u32, size.div_ceil(8)]
+    }
 }
 
 /// Checks a caller's irradiance for a `size`^2 texture: one finite rgba per texel.
@@ -430,6 +436,19 @@ pub fn needed_segment_words(size: u32) -> u64 {
 /// word s / 32 for s = y * ceil(size / 8) + x / 8.
 pub fn needed_segment(x: u32, y: u32, size: u32) -> u64 {
     y as u64 * (size as u64).div_ceil(8) + (x / 8) as u64
+}
+
+/// The segments of a tile list ([`occupied_tiles`]'s `x / 8 | y << 16`) as a
+/// needed-segment bitmap of a `size`^2 atlas ([`needed_segment_words`] words).
+pub fn tile_bitmap(tiles: &[u32], size: u32) -> Vec<u32> {
+    let mut words = vec![0u32; needed_segment_words(size) as usize];
+    for &t in tiles {
+        let s = needed_segment((t & 0xffff) * 8, t >> 16, size);
+        if let Some(w) = words.get_mut((s / 32) as usize) {
+            *w |= 1 << (s % 32);
+        }
+    }
+    words
 }
 
 #[cfg(test)]
@@ -585,6 +604,8 @@ mod tests {
             ("sss/irradiance_posed", s.irradiance_push(2, 7)),
             ("sss/irradiance_posed_env", s.irradiance_push(2, 7)),
             ("sss/diffusion_env", s.diffusion_push(7)),
+            ("sss/diffusion_env_listed", s.diffusion_push(7)),
+            ("sss/needed_list", s.needed_list_push()),
             ("sss/vertex_env", vec![7]),
             ("sss/diffusion", s.diffusion_push(7)),
             ("sss/diffusion_grey", s.diffusion_push(7)),
