@@ -888,6 +888,8 @@ fn the_vertex_list_is_its_twin_frame_after_frame_and_bad_input_is_refused() {
     let n = mesh.positions.len() as u32;
     // A static set: a few vertices the cameras may or may not see, one named twice.
     let always = [0, 7, 7, n - 1];
+    // A subset: every third vertex and the static set's 7.
+    let subset: Vec<u32> = (0..n).filter(|v| v % 3 == 0).chain([7]).collect();
     let cams = coverage_cameras();
     let outs = with_gpu_features(INT64, |ctx| {
         let bufs = PosedBuffers::upload(ctx, &pose)?;
@@ -929,8 +931,13 @@ fn the_vertex_list_is_its_twin_frame_after_frame_and_bad_input_is_refused() {
             );
         }
         let list = VertexListKernel::new(&mut rec, &raster, &mesh.triangles, n, &always, None)?;
-        let ordered =
+        let mut ordered =
             VertexListKernel::new(&mut rec, &raster, &mesh.triangles, n, &always, Some(&order))?;
+        // The subset's list: the subset's vertices on covered triangles (not its `always`
+        // ones elsewhere).
+        let e = ordered.set_subset(&mut rec, &[0, n]).unwrap_err();
+        assert!(e.to_string().contains(&format!("vertex {n} named")), "{e}");
+        ordered.set_subset(&mut rec, &subset)?;
         rec.submit_and_wait()?;
         let mut outs = Vec::new();
         for cam in &cams {
@@ -941,20 +948,32 @@ fn the_vertex_list_is_its_twin_frame_after_frame_and_bad_input_is_refused() {
             let rb = raster.read_back(&mut rec)?;
             let lb = list.read_back(&mut rec)?;
             let ob = ordered.read_back(&mut rec)?;
+            let sb = ordered.read_back_subset(&mut rec)?;
             rec.submit_and_wait()?;
             outs.push((
                 raster.collect(&rb)?.keys,
                 list.collect(&lb)?,
                 ordered.collect(&ob)?,
+                ordered.collect(&sb)?,
             ));
         }
         Ok(outs)
     });
     let mut sizes = Vec::new();
-    for (i, (keys, listed, ordered)) in outs.iter().enumerate() {
+    for (i, (keys, listed, ordered, sub)) in outs.iter().enumerate() {
         let twin = covered_vertices(keys, &mesh.triangles, &always);
         assert_eq!(listed, &twin, "frame {i}");
         assert_eq!(ordered, &twin, "frame {i}, listed along the Morton curve");
+        let sub_twin: Vec<u32> = covered_vertices(keys, &mesh.triangles, &[])
+            .into_iter()
+            .filter(|v| subset.contains(v))
+            .collect();
+        assert_eq!(sub, &sub_twin, "frame {i}, the subset's list");
+        assert!(
+            i == 2 || sub.len() > 10,
+            "frame {i}: {} in the subset",
+            sub.len()
+        );
         sizes.push(listed.len());
     }
     // The static set alone when nothing is covered; more, and fewer than every vertex, when

@@ -9,6 +9,9 @@
 // of one 64-lane workgroup per 64 listed vertices, then the `count` vertex ids: by rank within
 // each run of 32 ranks, the runs in no deterministic order (shared atomics); each vertex is
 // listed once, and every pass over the list computes each vertex on its own.
+// The subset list (`sub_listed`, the same layout): the marked vertices (those of covered
+// triangles) that the static mask `subset` holds, e.g. the cloth's, for a pass that reads
+// them only at covered triangles (`btf env vertices`); empty while the mask is.
 layout(local_size_x = 256) in;
 
 layout(push_constant) uniform Push {
@@ -27,8 +30,11 @@ layout(std430, set = 0, binding = 4) writeonly buffer Listed { uint head[4]; uin
 // bitmaps `marked` and `always` are indexed by rank.
 layout(std430, set = 0, binding = 5) readonly buffer Order { uint v[]; } order;
 layout(std430, set = 0, binding = 6) readonly buffer Rank { uint r[]; } rank;
+layout(std430, set = 0, binding = 7) readonly buffer Subset { uint w[]; } subset;
+layout(std430, set = 0, binding = 8) writeonly buffer SubListed { uint head[4]; uint v[]; } sub_listed;
 
 shared uint count;
+shared uint sub_count;
 
 void mark(uint v) {
     if (v >= pc.vertex_count) return;
@@ -38,7 +44,10 @@ void mark(uint v) {
 
 void main() {
     uint lid = gl_LocalInvocationIndex;
-    if (lid == 0u) count = 0u;
+    if (lid == 0u) {
+        count = 0u;
+        sub_count = 0u;
+    }
     uint tri_words = (pc.triangle_count + 31u) / 32u;
     for (uint w = lid; w < tri_words; w += 256u) {
         uint bits = covered.w[w];
@@ -62,6 +71,15 @@ void main() {
         uint bits = m | always.w[w];
         if (m != 0u) marked.w[w] = 0u;
         if (bits == 0u) continue;
+        uint sub = m & subset.w[w];
+        if (sub != 0u) {
+            uint at = atomicAdd(sub_count, uint(bitCount(sub)));
+            while (sub != 0u) {
+                uint b = uint(findLSB(sub));
+                sub &= sub - 1u;
+                sub_listed.v[at++] = order.v[w * 32u + b];
+            }
+        }
         uint at = atomicAdd(count, uint(bitCount(bits)));
         while (bits != 0u) {
             uint b = uint(findLSB(bits));
@@ -76,5 +94,9 @@ void main() {
         listed.head[1] = 1u;
         listed.head[2] = 1u;
         listed.head[3] = count;
+        sub_listed.head[0] = (sub_count + 63u) / 64u;
+        sub_listed.head[1] = 1u;
+        sub_listed.head[2] = 1u;
+        sub_listed.head[3] = sub_count;
     }
 }

@@ -1044,7 +1044,7 @@ impl CharacterFrame {
         // The vertices whose environment the frame reads: the skin's (its texture-space
         // irradiance reads them wherever the camera looks) and those of every triangle
         // covering a pixel (the cloth's and the skin's shading read them there).
-        let vertices = match (&lobes, raster.tiles()) {
+        let mut vertices = match (&lobes, raster.tiles()) {
             (Some(_), Some(_)) if cfg.cull && !cfg.env_every_vertex => {
                 // (The skin's triangles come first.)
                 let skin = part_vertices(
@@ -1215,6 +1215,9 @@ impl CharacterFrame {
             None => None,
         };
         let mut cloth = Vec::with_capacity(btfs.len());
+        // The parts whose light factors `btf env vertices` computes per vertex: with a
+        // vertex list, over its subset of these parts' vertices on covered triangles.
+        let mut light_parts = 0u32;
         for (((source, part_mask), btf), basis) in groups.into_iter().zip(btfs).zip(bases) {
             let (Some(maps), Some(result)) = (&cloth_maps, &cloth_result) else {
                 break;
@@ -1246,7 +1249,7 @@ impl CharacterFrame {
                 // The light factors per vertex of these parts' triangles, interpolated per
                 // pixel (the environment is smooth over a triangle; its visibility was
                 // per vertex already).
-                let vertices = part_vertices(&mesh.triangles, &parts, part_mask);
+                let part_verts = part_vertices(&mesh.triangles, &parts, part_mask);
                 let visibility = if !cfg.cloth_light_per_vertex(data.lobe_count) {
                     BasisVisibility::PerVertex {
                         keys: raster.keys(),
@@ -1262,9 +1265,13 @@ impl CharacterFrame {
                         visibility: e.visibility(),
                         normals: pose.normals(),
                         tangents: pose.tangents(),
-                        vertices: &vertices,
+                        vertices: &part_verts,
+                        listed: vertices.as_ref().map(VertexListKernel::subset_list),
                     }
                 };
+                if let BasisVisibility::PerVertexLight { .. } = visibility {
+                    light_parts |= part_mask;
+                }
                 k.add_env_basis(
                     &mut rec,
                     Some(raster.gbuffer()),
@@ -1283,6 +1290,14 @@ impl CharacterFrame {
                 basis,
                 kernel: k,
             });
+        }
+        if let Some(list) = &mut vertices
+            && light_parts != 0
+        {
+            list.set_subset(
+                &mut rec,
+                &part_vertices(&mesh.triangles, &parts, light_parts),
+            )?;
         }
         let cprep = compose_base.with_surfaces(surfaces)?;
         let compose = ComposeKernel::new(

@@ -541,12 +541,21 @@ impl Kernel for BtfKernel {
         }
         if let Some(eb) = &self.env_basis {
             if let Some(ev) = &eb.vertices {
-                passes.push(Pass::dispatch(
-                    PASS_ENV_VERTICES,
-                    &ev.pipeline,
-                    &ev.bind,
-                    |k, _| k.env_vertices_dispatch(),
-                ));
+                passes.push(match &ev.listed {
+                    Some(l) => Pass::dispatch_indirect(
+                        PASS_ENV_VERTICES,
+                        &ev.pipeline,
+                        &ev.bind,
+                        IndirectArgs {
+                            buffer: l,
+                            offset: 0,
+                        },
+                        |k, _| Ok(k.env_vertices_dispatch()?.push),
+                    ),
+                    None => Pass::dispatch(PASS_ENV_VERTICES, &ev.pipeline, &ev.bind, |k, _| {
+                        k.env_vertices_dispatch()
+                    }),
+                });
             }
             let list = self.pixels.as_ref().filter(|_| eb.over_pixels);
             passes.push(match list {
@@ -814,6 +823,14 @@ pub enum BasisVisibility<'a> {
     /// once instead of at every pixel of its triangles (bi-scale radiance transfer's
     /// per-vertex light factor). Twin: [`super::basis::BasisData::shade`] with
     /// [`super::basis::Visibility::PerVertexLight`].
+    ///
+    /// `listed`: a list written on the GPU each frame before the pass (e.g.
+    /// [`crate::kernels::raster::vertices::VertexListKernel::subset_list`]: those of
+    /// `vertices` on triangles covering a pixel), in that list's layout (u32 words
+    /// `(ceil(count / 64), 1, 1, count)`, then the ids; INDIRECT_BUFFER usage): the pass is
+    /// dispatched indirectly over it instead of over `vertices`, and the other vertices keep
+    /// an older frame's factors. It must hold every vertex of every triangle the pass's
+    /// pixels lie on.
     PerVertexLight {
         keys: &'a Buffer,
         positions: &'a Buffer,
@@ -822,6 +839,7 @@ pub enum BasisVisibility<'a> {
         normals: &'a Buffer,
         tangents: &'a Buffer,
         vertices: &'a [u32],
+        listed: Option<&'a Buffer>,
     },
 }
 
@@ -861,6 +879,8 @@ struct EnvVerticesPass {
     lobe_count: u32,
     count: u32,
     vertex_count: u32,
+    /// The GPU-written list it is dispatched over instead of `list`, when given.
+    listed: Option<Buffer>,
 }
 
 struct EnvBasisPass {
@@ -1046,9 +1066,21 @@ impl BtfKernel {
                 normals,
                 tangents,
                 vertices,
+                listed,
                 ..
             } => {
                 let nv = positions.size() / 16;
+                if let Some(l) = listed
+                    && (l.size() < 16 || !l.usage().contains(vk::BufferUsageFlags::INDIRECT_BUFFER))
+                {
+                    return bad(format!(
+                        "vertex list '{}' ({} bytes, usage {:?}): a list needs its 16-byte head \
+                         and INDIRECT_BUFFER usage",
+                        l.name(),
+                        l.size(),
+                        l.usage()
+                    ));
+                }
                 if normals.size() < 16 * nv || tangents.size() < 16 * nv {
                     return bad(format!(
                         "normals '{}' ({} bytes) and tangents '{}' ({} bytes): {nv} vertices \
@@ -1079,7 +1111,11 @@ impl BtfKernel {
                 let list = index_list(rec, "btf env vertices list", vertices)?;
                 let vertex_lobes = lobes_where(j, |jj| data.pixel_lobes & (1 << jj) == 0);
                 let vlobes = index_list(rec, "btf env vertices lobes", &vertex_lobes)?;
-                let pipeline = crate::shaders::pipeline(&rec.context(), "btf/env_vertices")?;
+                let shader = match listed {
+                    Some(_) => "btf/env_vertices_listed",
+                    None => "btf/env_vertices",
+                };
+                let pipeline = crate::shaders::pipeline(&rec.context(), shader)?;
                 let bind = pipeline.bind_declared(
                     &[
                         ("table", Resource::texture(&table)),
@@ -1088,7 +1124,7 @@ impl BtfKernel {
                         ("nrm", Resource::Buffer(normals)),
                         ("tan", Resource::Buffer(tangents)),
                         ("vertex_vis", Resource::Buffer(visibility)),
-                        ("list", Resource::Buffer(&list)),
+                        ("list", Resource::Buffer(listed.unwrap_or(&list))),
                         ("light", Resource::storage_image(&light)),
                         ("vlobes", Resource::Buffer(&vlobes)),
                     ],
@@ -1102,6 +1138,7 @@ impl BtfKernel {
                     lobe_count: vertex_lobes.len() as u32,
                     count: vertices.len() as u32,
                     vertex_count: nv as u32,
+                    listed: listed.cloned(),
                 };
                 (light, Some(pass))
             }

@@ -10,6 +10,10 @@
 //! `vertex list` (one workgroup: the marked triangles' vertices and the static set, as a
 //! list headed by its own `VkDispatchIndirectCommand` of one 64-lane workgroup per 64
 //! vertices). Both bitmaps are cleared by the pass that reads them, so no clear is recorded.
+//! With a subset set ([`VertexListKernel::set_subset`], e.g. the cloth's vertices), the list
+//! pass also writes a second list: the vertices of covered triangles in that subset
+//! ([`VertexListKernel::subset_list`]), for a pass that reads them only at covered
+//! triangles. Its twin: [`covered_vertices`] with nothing `always`, intersected with it.
 //! The twin is [`covered_vertices`].
 
 use super::gpu::RasterKernel;
@@ -43,6 +47,11 @@ pub struct VertexListKernel {
     order: Buffer,
     rank: Buffer,
     list: Buffer,
+    /// The rank of each vertex (host copy of `rank`).
+    rank_host: Vec<u32>,
+    /// The subset's mask (by rank) and its list.
+    subset: Buffer,
+    sub_list: Buffer,
     size: [u32; 2],
     triangle_count: u32,
     vertex_count: u32,
@@ -132,16 +141,24 @@ impl VertexListKernel {
             BufferDesc::storage(mask.len() as u64 * 4),
             &mask[..],
         )?;
-        let list = Buffer::new(
-            &ctx,
-            "vertex list",
-            BufferDesc::storage(16 + u64::from(vertex_count.max(1)) * 4)
-                .usage(vk::BufferUsageFlags::INDIRECT_BUFFER | vk::BufferUsageFlags::TRANSFER_SRC),
-        )?;
-        // Every frame starts from empty bitmaps (the list pass leaves them so).
+        let list_buffer = |name: &str| {
+            Buffer::new(
+                &ctx,
+                name,
+                BufferDesc::storage(16 + u64::from(vertex_count.max(1)) * 4).usage(
+                    vk::BufferUsageFlags::INDIRECT_BUFFER | vk::BufferUsageFlags::TRANSFER_SRC,
+                ),
+            )
+        };
+        let list = list_buffer("vertex list")?;
+        let sub_list = list_buffer("vertex list subset")?;
+        let subset = storage("vertex list subset mask", words(vertex_count))?;
+        // Every frame starts from empty bitmaps (the list pass leaves them so); no subset.
         rec.fill_buffer(&covered, 0)?;
         rec.fill_buffer(&marked, 0)?;
+        rec.fill_buffer(&subset, 0)?;
         rec.upload(&list, 0, &crate::kernels::EMPTY_LIST_HEAD)?;
+        rec.upload(&sub_list, 0, &crate::kernels::EMPTY_LIST_HEAD)?;
         let p = crate::shaders::pipeline(&ctx, "raster/vertex_mark")?;
         let b = p.bind(&[
             ("keys", Resource::Buffer(raster.keys())),
@@ -158,6 +175,8 @@ impl VertexListKernel {
             ("listed", Resource::Buffer(&list)),
             ("order", Resource::Buffer(&order_buf)),
             ("rank", Resource::Buffer(&rank_buf)),
+            ("subset", Resource::Buffer(&subset)),
+            ("sub_listed", Resource::Buffer(&sub_list)),
         ])?;
         Ok(VertexListKernel {
             ctx,
@@ -170,6 +189,9 @@ impl VertexListKernel {
             order: order_buf,
             rank: rank_buf,
             list,
+            rank_host: rank,
+            subset,
+            sub_list,
             size: raster.size(),
             triangle_count: raster.triangle_count(),
             vertex_count,
@@ -182,6 +204,37 @@ impl VertexListKernel {
     /// INDIRECT_BUFFER usage.
     pub fn list(&self) -> &Buffer {
         &self.list
+    }
+
+    /// Sets the subset whose covered vertices the list pass also lists
+    /// ([`VertexListKernel::subset_list`]), for the frames recorded after `rec`: vertex ids
+    /// below the mesh's vertex count (refused otherwise), in any order, repeats allowed;
+    /// empty for none.
+    pub fn set_subset(&mut self, rec: &mut Recorder, subset: &[u32]) -> Result<()> {
+        let mut mask = vec![0u32; self.rank_host.len().div_ceil(32).max(1)];
+        for &v in subset {
+            let r = *self.rank_host.get(v as usize).ok_or_else(|| {
+                Error::InvalidArgument(format!(
+                    "vertex list subset: vertex {v} named, the mesh has {}",
+                    self.vertex_count
+                ))
+            })?;
+            mask[r as usize / 32] |= 1 << (r % 32);
+        }
+        rec.upload(&self.subset, 0, &mask)
+    }
+
+    /// The subset's list ([`VertexListKernel::set_subset`]), written by `vertex list` each
+    /// frame in the layout of [`VertexListKernel::list`]: the vertices of the triangles
+    /// covering a pixel that the subset holds. INDIRECT_BUFFER usage.
+    pub fn subset_list(&self) -> &Buffer {
+        &self.sub_list
+    }
+
+    /// Records the readback of the subset's list ([`Kernel::collect`] reads it as the
+    /// list's: its ids, sorted).
+    pub fn read_back_subset(&self, rec: &mut Recorder) -> Result<VertexListReadback> {
+        Ok(VertexListReadback(rec.read_back(&self.sub_list)?))
     }
 
     /// Vertices of the mesh.
@@ -266,6 +319,8 @@ impl Kernel for VertexListKernel {
             &self.order,
             &self.rank,
             &self.list,
+            &self.subset,
+            &self.sub_list,
         ])
     }
 }
