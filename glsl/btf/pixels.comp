@@ -27,20 +27,37 @@ layout(std430, set = 0, binding = 6) readonly buffer Tiles { uint head[4]; uint 
 layout(std430, set = 0, binding = 16) buffer PixelHead { uint head[4]; } pixel_head;
 layout(std430, set = 0, binding = 17) writeonly buffer Pixels { uint list[]; } pixels;
 
+shared uint wg_count;
+shared uint wg_base;
+
 void main() {
+    uint lid = gl_LocalInvocationIndex;
+    if (lid == 0u) wg_count = 0u;
+    barrier();
     uint tile = tiles.list[gl_WorkGroupID.x];
     uvec2 px = tile_pixel(tile, pc.dims.x, gl_LocalInvocationID.xy);
-    if (any(greaterThanEqual(px, pc.dims.xy))) return;
+    bool inside = all(lessThan(px, pc.dims.xy));
     uint k = px.y * pc.dims.x + px.x;
-    float tag = texelFetch(gbuffer, ivec3(px, 0), 0).w;
-    if (abs(tag) < 0.5) {
-        result.v[k] = vec4(0.0);
-        return;
-    }
+    float tag = inside ? texelFetch(gbuffer, ivec3(px, 0), 0).w : 0.0;
+    if (inside && abs(tag) < 0.5) result.v[k] = vec4(0.0);
     uint part = uint(abs(tag) + 0.5) - 1u;
-    if (pc.dims.z != 0xFFFFFFFFu && (part >= 32u || (pc.dims.z & (1u << part)) == 0u)) return;
-    uint j = atomicAdd(pixel_head.head[3], 1u);
+    bool listed = inside && abs(tag) >= 0.5
+        && (pc.dims.z == 0xFFFFFFFFu || (part < 32u && (pc.dims.z & (1u << part)) != 0u));
+    // The workgroup's pixels take consecutive slots: a place in the workgroup from a shared
+    // counter, then one global atomic a workgroup (lavapipe runs an atomic lane by lane).
+    uint at = listed ? atomicAdd(wg_count, 1u) : 0u;
+    barrier();
+    if (lid == 0u) {
+        uint n = wg_count;
+        uint first = atomicAdd(pixel_head.head[3], n);
+        wg_base = first;
+        // The 64-pixel workgroups of the shading passes: ceil(count / 64), grown by the
+        // multiples of 64 this workgroup's slots [first, first + n) reach past.
+        uint groups = (first + n + 63u) / 64u - (first + 63u) / 64u;
+        if (groups != 0u) atomicAdd(pixel_head.head[0], groups);
+    }
+    barrier();
+    uint j = wg_base + at;
     // The list has a slot for every pixel: j < its length always.
-    if (j < uint(pixels.list.length())) pixels.list[j] = k;
-    if (j % 64u == 0u) atomicAdd(pixel_head.head[0], 1u);
+    if (listed && j < uint(pixels.list.length())) pixels.list[j] = k;
 }
