@@ -153,57 +153,9 @@ void texel_frame(ivec2 at, vec4 src, uvec4 cr, out vec3 p, out vec3 n) {
 // Pass `sss irradiance rays`: each lane takes RAY_PACKET consecutive entries of the list
 // (neighbouring texels, mostly toward the same light: the shading pass appends a segment's
 // lanes in order) and, for each light any of them needs, walks the BVH with their rays
-// together: a node is fetched once and entered when any unblocked ray meets it, a leaf's
-// triangles fetched once and tested against each ray that met the leaf. Each ray decides as
-// it would alone (common/bvh.glsl any_hit): a child's box lies inside its parent's (the
-// refit makes it so) and the slab test is monotone in the box, so a ray that misses a node
-// misses everything under it. The light of the rays that escape is added to their texels' E.
-// Which rays of `live` (bit i: origin o[i], direction d[i], reach tmax[i]) are blocked.
-uint blocked_rays(vec3 o[RAY_PACKET], vec3 d[RAY_PACKET], float tmax[RAY_PACKET], uint live) {
-    vec3 inv[RAY_PACKET];
-    for (uint i = 0u; i < RAY_PACKET; i++) inv[i] = 1.0 / d[i];
-    uint blocked = 0u;
-    uint ni = 0u;
-    for (uint step = 0u; ni != LINK_END && live != 0u && step < MAX_STEPS; step++) {
-        uvec4 lo_u = bvh_node(2u * ni);
-        uvec4 hi_u = bvh_node(2u * ni + 1u);
-        vec3 lo = uintBitsToFloat(lo_u.xyz);
-        vec3 hi = uintBitsToFloat(hi_u.xyz);
-        uint meet = 0u;
-        for (uint i = 0u; i < RAY_PACKET; i++) {
-            meet |= slab_meets(lo - o[i], hi - o[i], inv[i], tmax[i]) ? (1u << i) : 0u;
-        }
-        meet &= live;
-        uint first = lo_u.w;
-        uint count = hi_u.w & 0xffu;
-        uint n = meet != 0u ? count : 0u;
-        for (uint t = first; t < first + n; t++) {
-            vec3 a = tri_row(3u * t);
-            vec3 e1 = tri_row(3u * t + 1u);
-            vec3 e2 = tri_row(3u * t + 2u);
-            uint hit = 0u;
-            for (uint i = 0u; i < RAY_PACKET; i++) {
-                // common/bvh.glsl hit_tri, the same operations.
-                vec3 p = cross(d[i], e2);
-                float det = dot(e1, p);
-                float inv_det = 1.0 / det;
-                vec3 s = o[i] - a;
-                float u = dot(s, p) * inv_det;
-                vec3 q = cross(s, e1);
-                float v = dot(d[i], q) * inv_det;
-                float th = dot(e2, q) * inv_det;
-                bool h = !(abs(det) < 1e-12) && !(u < 0.0 || u > 1.0) && !(v < 0.0 || u + v > 1.0)
-                    && th > 0.0 && th <= tmax[i];
-                hit |= h ? (1u << i) : 0u;
-            }
-            hit &= meet;
-            blocked |= hit;
-            live &= ~hit;
-        }
-        ni = (meet != 0u && count == 0u) ? first : hi_u.w >> 8u;
-    }
-    return blocked;
-}
+// together (glsl/sss/packet.glsl). The light of the rays that escape is added to their
+// texels' E.
+#include <sss/packet.glsl>
 
 void main() {
     uint first = gl_GlobalInvocationID.x * RAY_PACKET;

@@ -45,14 +45,26 @@ layout(std430, set = 0, binding = 7) readonly buffer VRegion { uint v[]; } vregi
 #include <common/bvh.glsl>
 
 // Visibility bits of the lights from p (normal n), rays from p + n * bias.
+// A vertex's shadow rays toward RAY_PACKET lights at a time walk the BVH together
+// (glsl/sss/packet.glsl: each decides as it would alone).
+const uint RAY_PACKET = 2u;
+#include <sss/packet.glsl>
+
 uint visibility(vec3 p, vec3 n) {
     vec3 o = p + n * pc.bias;
     uint bits = 0u;
-    for (uint l = 0u; l < pc.lights; l++) {
-        vec3 dir;
-        float tmax, strength;
-        light_at(l, p, n, dir, tmax, strength);
-        if (!any_hit(o, dir, tmax)) bits |= 1u << l;
+    for (uint base = 0u; base < pc.lights; base += RAY_PACKET) {
+        vec3 os[RAY_PACKET], ds[RAY_PACKET];
+        float tmax[RAY_PACKET];
+        uint live = 0u;
+        for (uint k = 0u; k < RAY_PACKET; k++) {
+            // Past the last light: the last again, not walked.
+            float strength;
+            light_at(min(base + k, pc.lights - 1u), p, n, ds[k], tmax[k], strength);
+            os[k] = o;
+            live |= (base + k < pc.lights ? 1u : 0u) << k;
+        }
+        bits |= (live & ~blocked_rays(os, ds, tmax, live)) << base;
     }
     return bits;
 }
