@@ -3,6 +3,7 @@
 //! Every GPU run is under validation (see common/).
 
 mod common;
+use common::scratch;
 
 use glam::{Mat4, Vec3, Vec4};
 use vkshade::gpu::Context;
@@ -330,8 +331,7 @@ fn method_against_the_ray_traced_mesh_on_testwuson() {
     let mesh = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/testwuson.glb");
     let _ = testwuson(); // a clear message if setup has not run
     for anim in ["Run", "Walk"] {
-        let out =
-            std::env::temp_dir().join(format!("vkshade-ao-test-{anim}-{}", std::process::id()));
+        let out = scratch::dir(&format!("ao-{anim}"));
         let cfg = AoRunConfig {
             mesh: mesh.clone(),
             animation: Some(anim.into()),
@@ -1029,7 +1029,7 @@ fn fitted_proxy_per_level_and_sph_round_trip() {
         assert!(ef < 0.05, "level {level}: fitted proxy error {ef}");
     }
     // The fitted tree survives the .sph round trip (7 decimals).
-    let path = std::env::temp_dir().join(format!("vkshade-fit-{}.sph", std::process::id()));
+    let path = scratch::dir("ao-fit").join("fitted.sph");
     fitted.write_sph(&path).unwrap();
     let back = SphereTree::read_sph(&path).unwrap();
     std::fs::remove_file(&path).unwrap();

@@ -1,6 +1,7 @@
 //! `vkshade bench compare` and `bench table` on synthetic `bench all` JSONs with known noise
 //! (no GPU), and a smoke run of `bench all` under the validation layer.
 
+mod scratch;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -17,9 +18,7 @@ fn vkshade(args: &[&str]) -> (bool, String, String) {
 }
 
 fn temp(name: &str) -> PathBuf {
-    let dir = std::env::temp_dir().join(format!("vkshade-bench-tools-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir.join(name)
+    scratch::dir("bench-tools").join(name)
 }
 
 /// Median, type-7 quartiles and relative IQR of `values`, as `bench all` writes them.

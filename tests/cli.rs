@@ -1,5 +1,6 @@
 //! The command-line tool, run as a user would.
 
+mod scratch;
 use std::process::Command;
 
 fn vkshade(args: &[&str]) -> (bool, String, String) {
@@ -15,9 +16,7 @@ fn vkshade(args: &[&str]) -> (bool, String, String) {
 }
 
 fn temp(name: &str) -> std::path::PathBuf {
-    let dir = std::env::temp_dir().join(format!("vkshade-cli-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    dir.join(name)
+    scratch::dir("cli").join(name)
 }
 
 #[test]

@@ -1,6 +1,7 @@
 //! Output files: linear EXR images (round trip, bad files named in errors), atomic writes,
 //! and the side-by-side reference picture every kernel uses.
 
+mod scratch;
 use vkshade::io::FloatImage;
 use vkshade::io::exr::{self, Channels};
 use vkshade::render::{Picture, SideBySideLayout, heat, label, side_by_side, side_by_side_linear};
@@ -8,9 +9,7 @@ use vkshade::render::{Picture, SideBySideLayout, heat, label, side_by_side, side
 /// A scratch folder of its own for test `test` (tests run in parallel: a shared one let one
 /// test see another's temporary files, as the leftover check below did).
 fn dir(test: &str) -> std::path::PathBuf {
-    let d = std::env::temp_dir().join(format!("vkshade-io-{test}-{}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
+    scratch::dir(&format!("io-{test}"))
 }
 
 fn gradient(w: u32, h: u32) -> FloatImage {

@@ -2,6 +2,7 @@
 //! directory writes into a new or empty one, or one it made before (its `.vkshade-output`
 //! marker), and refuses anything else, leaving what is there byte for byte.
 
+mod scratch;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
@@ -21,10 +22,7 @@ fn vkshade(args: &[&str]) -> (bool, String) {
 }
 
 fn scratch(tag: &str) -> PathBuf {
-    let d = std::env::temp_dir().join(format!("vkshade-outputs-{tag}-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&d);
-    std::fs::create_dir_all(&d).unwrap();
-    d
+    scratch::fresh(&format!("outputs-{tag}"))
 }
 
 /// Every entry under `dir` (relative path -> bytes; folders as None), sorted.

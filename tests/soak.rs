@@ -1,6 +1,7 @@
 //! The short soak CI runs: 400 AO frames under validation. Its own test binary: host RSS is
 //! the process's, so no other test may run beside it.
 
+mod scratch;
 use vkshade::app::Gpu;
 use vkshade::app::validate::{self, SoakKernel, soak_run};
 use vkshade::bench::soak::SoakConfig;
@@ -26,8 +27,7 @@ fn a_short_soak_stays_flat() {
             .iter()
             .all(|s| s.rss_bytes > 0 && s.device_used_bytes > 0)
     );
-    let dir = std::env::temp_dir().join(format!("vkshade-test-soak-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&dir);
+    let dir = scratch::fresh("soak");
     validate::write_soak(&dir, &r).unwrap();
     let csv = std::fs::read_to_string(dir.join("soak.csv")).unwrap();
     assert_eq!(csv.lines().count(), 1 + r.samples.len());

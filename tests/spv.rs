@@ -109,8 +109,7 @@ fn copy_dir(from: &std::path::Path, to: &std::path::Path) {
 #[cfg(feature = "glsl")]
 #[test]
 fn build_tool_detects_and_repairs_stale_missing_and_orphaned_modules() {
-    let root = std::env::temp_dir().join(format!("vkshade-spv-test-{}", std::process::id()));
-    let _ = std::fs::remove_dir_all(&root);
+    let root = common::scratch::fresh("spv");
     copy_dir(&source_root().join("glsl"), &root.join("glsl"));
     copy_dir(&source_root().join("spv"), &root.join("spv"));
     // A semantic change (a comment alone compiles to identical SPIR-V), a deleted module and

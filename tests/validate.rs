@@ -1,6 +1,7 @@
 //! `vkshade validate` on a reduced set of cases (through its library function, GPU-assisted
 //! rows in the real `vkshade` binary).
 
+mod scratch;
 use std::time::Duration;
 use vkshade::app::Gpu;
 use vkshade::app::validate::{self, FeatureSet, Status, ValidateConfig};
@@ -14,7 +15,7 @@ fn gpu() -> Gpu {
 }
 
 fn fresh_dir(name: &str) -> std::path::PathBuf {
-    let d = std::env::temp_dir().join(format!("vkshade-test-{name}-{}", std::process::id()));
+    let d = scratch::dir(&format!("validate-{name}"));
     let _ = std::fs::remove_dir_all(&d);
     d
 }

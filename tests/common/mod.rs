@@ -3,6 +3,9 @@
 //! A missing Vulkan device fails too, with the message saying what to install.
 #![allow(dead_code)]
 
+#[path = "../scratch/mod.rs"]
+pub mod scratch;
+
 use std::cell::RefCell;
 use std::sync::{Mutex, MutexGuard, PoisonError};
 use vkshade::gpu::{Context, ContextDesc, ValidationMessage};
@@ -137,9 +140,7 @@ pub fn ball() -> vkshade::scene::Character {
 
 /// A scratch folder for the test file `tag`, unique to this process.
 pub fn temp_dir(tag: &str) -> std::path::PathBuf {
-    let d = std::env::temp_dir().join(format!("vkshade-{tag}-test-{}", std::process::id()));
-    std::fs::create_dir_all(&d).unwrap();
-    d
+    scratch::dir(tag)
 }
 
 /// Writes `bytes` to `name` in [`temp_dir`]`(tag)`.
