@@ -306,3 +306,70 @@ fn gpu_matches_the_cpu_twin() {
     }
     assert_eq!(RANK % 4, 0);
 }
+
+/// `BasisVisibility::PerVertexLight`'s `listed` is a GPU-written list the pass is dispatched
+/// over indirectly: a buffer without INDIRECT_BUFFER usage, or shorter than the list's head,
+/// is refused when the pass is added, naming the buffer.
+#[test]
+fn a_per_vertex_light_list_without_indirect_usage_is_refused() {
+    let gbuffer = render_object(Object::Sphere, 16, 12).unwrap();
+    let base = test_lobes();
+    let data = BasisData::new(weave(), &base).unwrap();
+    let lobes: Vec<f32> = lobe_texels(&base).into_iter().flatten().collect();
+    let (px, j, nv) = (16 * 12u64, base.len() as u64, 3u64);
+    with_gpu(|ctx| {
+        let prep = prepared(ctx, &gbuffer)?;
+        let mut rec = ctx.recorder("btf env basis listed check")?;
+        let zeros = |rec: &mut vkshade::gpu::Recorder, name: &str, desc: BufferDesc| {
+            let words = vec![0u32; (desc.size / 4) as usize];
+            rec.buffer_with(name, desc, &words[..])
+        };
+        let lobe_buf = rec.buffer_with(
+            "lobes",
+            BufferDesc::storage(4 * lobes.len() as u64),
+            &lobes[..],
+        )?;
+        let keys = zeros(&mut rec, "keys", BufferDesc::storage(8 * px))?;
+        let positions = zeros(&mut rec, "positions", BufferDesc::storage(16 * nv))?;
+        let triangles = zeros(&mut rec, "triangles", BufferDesc::storage(16))?;
+        let visibility = zeros(&mut rec, "visibility", BufferDesc::storage(4 * j * nv))?;
+        let normals = zeros(&mut rec, "normals", BufferDesc::storage(16 * nv))?;
+        let tangents = zeros(&mut rec, "tangents", BufferDesc::storage(16 * nv))?;
+        let plain = zeros(&mut rec, "plain list", BufferDesc::storage(16 + 4 * nv))?;
+        let short = zeros(
+            &mut rec,
+            "short list",
+            BufferDesc::storage(8).usage(ash::vk::BufferUsageFlags::INDIRECT_BUFFER),
+        )?;
+        for (list, name) in [(&plain, "plain list"), (&short, "short list")] {
+            let mut k = BtfKernel::from_prepared(&mut rec, &prep)?;
+            let e = k
+                .add_env_basis(
+                    &mut rec,
+                    None,
+                    EnvBasisInputs {
+                        lobes: &lobe_buf,
+                        data: &data,
+                        visibility: BasisVisibility::PerVertexLight {
+                            keys: &keys,
+                            positions: &positions,
+                            triangles: &triangles,
+                            visibility: &visibility,
+                            normals: &normals,
+                            tangents: &tangents,
+                            vertices: &[0, 1, 2],
+                            listed: Some(list),
+                        },
+                        part_mask: u32::MAX,
+                    },
+                )
+                .unwrap_err();
+            let msg = e.to_string();
+            assert!(
+                msg.contains(name) && msg.contains("INDIRECT_BUFFER"),
+                "{msg}"
+            );
+        }
+        rec.submit_and_wait()
+    });
+}
