@@ -213,6 +213,14 @@ impl<'k, K: Kernel + ?Sized> Pass<'k, K> {
         }
     }
 
+    /// An upload pass that empties a GPU-appended list: [`EMPTY_LIST_HEAD`] into the head
+    /// at the start of `buffer`, before the pass that appends to it.
+    pub fn list_reset(name: &'static str, buffer: &'k Buffer) -> Self {
+        Pass::upload(name, buffer, |_, _| {
+            Ok(bytemuck::cast_slice(&EMPTY_LIST_HEAD).to_vec())
+        })
+    }
+
     /// The pass's name and declared uses, for reports.
     pub fn info(&self) -> PassInfo {
         let uses = match &self.step {

@@ -495,9 +495,7 @@ impl Kernel for BtfKernel {
     fn pass_table(&self) -> Vec<Pass<'_, Self>> {
         let mut passes: Vec<Pass<'_, Self>> = match &self.pixels {
             Some(px) => vec![
-                Pass::upload(PASS_PIXEL_LIST, &px.head, |_, _| {
-                    Ok(bytemuck::cast_slice(&crate::kernels::EMPTY_LIST_HEAD).to_vec())
-                }),
+                Pass::list_reset(PASS_PIXEL_LIST, &px.head),
                 Pass::dispatch_indirect(
                     PASS_PIXELS,
                     &px.pipeline,
@@ -541,20 +539,21 @@ impl Kernel for BtfKernel {
         }
         if let Some(eb) = &self.env_basis {
             if let Some(ev) = &eb.vertices {
-                passes.push(match &ev.listed {
-                    Some(l) => Pass::dispatch_indirect(
+                passes.push(if ev.listed {
+                    Pass::dispatch_indirect(
                         PASS_ENV_VERTICES,
                         &ev.pipeline,
                         &ev.bind,
                         IndirectArgs {
-                            buffer: l,
+                            buffer: &ev.list,
                             offset: 0,
                         },
                         |k, _| Ok(k.env_vertices_dispatch()?.push),
-                    ),
-                    None => Pass::dispatch(PASS_ENV_VERTICES, &ev.pipeline, &ev.bind, |k, _| {
+                    )
+                } else {
+                    Pass::dispatch(PASS_ENV_VERTICES, &ev.pipeline, &ev.bind, |k, _| {
                         k.env_vertices_dispatch()
-                    }),
+                    })
                 });
             }
             let list = self.pixels.as_ref().filter(|_| eb.over_pixels);
@@ -609,7 +608,10 @@ impl Kernel for BtfKernel {
         let basis_buffers = self.env_basis.iter().flat_map(|e| {
             [&e.placeholder, &e.pixel_lobes]
                 .into_iter()
-                .chain(e.vertices.iter().flat_map(|v| [&v.list, &v.lobes]))
+                .chain(e.vertices.iter().flat_map(|v| {
+                    // (a caller's list is counted by its owner)
+                    (!v.listed).then_some(&v.list).into_iter().chain([&v.lobes])
+                }))
         });
         self.ctx.memory_of_resources(
             images
@@ -873,14 +875,15 @@ pub struct EnvBasisInputs<'a> {
 struct EnvVerticesPass {
     pipeline: ComputePipeline,
     bind: BindGroup,
+    /// The vertices it runs over: the kernel's own static list, or (`listed`) the caller's
+    /// GPU-written list, dispatched indirectly (its memory is the caller's).
     list: Buffer,
+    listed: bool,
     /// The lobes it sums (those not in [`super::basis::BasisData::pixel_lobes`]).
     lobes: Buffer,
     lobe_count: u32,
     count: u32,
     vertex_count: u32,
-    /// The GPU-written list it is dispatched over instead of `list`, when given.
-    listed: Option<Buffer>,
 }
 
 struct EnvBasisPass {
@@ -1108,7 +1111,11 @@ impl BtfKernel {
                     "btf env vertex light",
                     light_desc([LIGHT_TEXELS * LIGHT_VERTICES, rows as u32]),
                 )?;
-                let list = index_list(rec, "btf env vertices list", vertices)?;
+                // Over the caller's list when given (no static list to upload then).
+                let list = match listed {
+                    Some(l) => l.clone(),
+                    None => index_list(rec, "btf env vertices list", vertices)?,
+                };
                 let vertex_lobes = lobes_where(j, |jj| data.pixel_lobes & (1 << jj) == 0);
                 let vlobes = index_list(rec, "btf env vertices lobes", &vertex_lobes)?;
                 let shader = match listed {
@@ -1124,7 +1131,7 @@ impl BtfKernel {
                         ("nrm", Resource::Buffer(normals)),
                         ("tan", Resource::Buffer(tangents)),
                         ("vertex_vis", Resource::Buffer(visibility)),
-                        ("list", Resource::Buffer(listed.unwrap_or(&list))),
+                        ("list", Resource::Buffer(&list)),
                         ("light", Resource::storage_image(&light)),
                         ("vlobes", Resource::Buffer(&vlobes)),
                     ],
@@ -1138,7 +1145,7 @@ impl BtfKernel {
                     lobe_count: vertex_lobes.len() as u32,
                     count: vertices.len() as u32,
                     vertex_count: nv as u32,
-                    listed: listed.cloned(),
+                    listed: listed.is_some(),
                 };
                 (light, Some(pass))
             }

@@ -13,8 +13,9 @@
 //! With a subset set ([`VertexListKernel::set_subset`], e.g. the cloth's vertices), the list
 //! pass also writes a second list: the vertices of covered triangles in that subset
 //! ([`VertexListKernel::subset_list`]), for a pass that reads them only at covered
-//! triangles. Its twin: [`covered_vertices`] with nothing `always`, intersected with it.
-//! The twin is [`covered_vertices`].
+//! triangles.
+//! The twin is [`covered_vertices`] (of the subset's list: with nothing `always`,
+//! intersected with the subset).
 
 use super::gpu::RasterKernel;
 use crate::error::{Error, Result};
@@ -120,12 +121,9 @@ impl VertexListKernel {
             words(raster.triangle_count()),
         )?;
         let marked = storage("vertex list marked vertices", words(vertex_count))?;
-        let mut mask = vec![0u32; words(vertex_count) as usize];
-        // The bitmaps are indexed by rank (a vertex's place in `order`).
-        for &v in always {
-            let r = rank[v as usize];
-            mask[r as usize / 32] |= 1 << (r % 32);
-        }
+        // The bitmaps are indexed by rank (a vertex's place in `order`); `always` was
+        // checked against the vertex count above.
+        let mask = rank_mask(&rank, always)?;
         let order_buf = rec.buffer_with(
             "vertex list order",
             BufferDesc::storage(u64::from(vertex_count.max(1)) * 4),
@@ -211,17 +209,7 @@ impl VertexListKernel {
     /// below the mesh's vertex count (refused otherwise), in any order, repeats allowed;
     /// empty for none.
     pub fn set_subset(&mut self, rec: &mut Recorder, subset: &[u32]) -> Result<()> {
-        let mut mask = vec![0u32; self.rank_host.len().div_ceil(32).max(1)];
-        for &v in subset {
-            let r = *self.rank_host.get(v as usize).ok_or_else(|| {
-                Error::InvalidArgument(format!(
-                    "vertex list subset: vertex {v} named, the mesh has {}",
-                    self.vertex_count
-                ))
-            })?;
-            mask[r as usize / 32] |= 1 << (r % 32);
-        }
-        rec.upload(&self.subset, 0, &mask)
+        rec.upload(&self.subset, 0, &rank_mask(&self.rank_host, subset)?)
     }
 
     /// The subset's list ([`VertexListKernel::set_subset`]), written by `vertex list` each
@@ -323,6 +311,22 @@ impl Kernel for VertexListKernel {
             &self.sub_list,
         ])
     }
+}
+
+/// The bitmap (bit r % 32 of word r / 32, at least one word) of the ranks of `ids`
+/// (`rank[v]`: vertex v's place in the list's order); refuses an id past `rank`.
+fn rank_mask(rank: &[u32], ids: &[u32]) -> Result<Vec<u32>> {
+    let mut mask = vec![0u32; rank.len().div_ceil(32).max(1)];
+    for &v in ids {
+        let r = *rank.get(v as usize).ok_or_else(|| {
+            Error::InvalidArgument(format!(
+                "vertex list: vertex {v} named, the mesh has {}",
+                rank.len()
+            ))
+        })?;
+        mask[r as usize / 32] |= 1 << (r % 32);
+    }
+    Ok(mask)
 }
 
 /// The twin of one frame's list: the sorted distinct vertices of the triangles named by the

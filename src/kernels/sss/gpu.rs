@@ -402,7 +402,7 @@ impl Irradiance {
             return vec![shade];
         }
         vec![
-            Pass::upload(PASS_RAY_LIST, head, SssKernel::ray_list_reset),
+            Pass::list_reset(PASS_RAY_LIST, head),
             shade,
             Pass::dispatch_indirect(
                 PASS_IRRADIANCE_RAYS,
@@ -1116,11 +1116,6 @@ impl SssKernel {
         };
         self.irradiance_kind.store(kind, Ordering::Relaxed);
         Ok(Dispatch::words(&words, Grid::Groups(tile_groups(tiles))))
-    }
-
-    /// The ray list emptied: (0 workgroups, 1, 1, 0 texels).
-    fn ray_list_reset(&self, _lights: &[Light]) -> Result<Vec<u8>> {
-        Ok(bytemuck::cast_slice(&crate::kernels::EMPTY_LIST_HEAD).to_vec())
     }
 
     /// The ray pass's push constants: the shading pass's.
