@@ -1548,3 +1548,178 @@ fn a_constant_per_vertex_irradiance_adds_exactly_itself() {
         }
     }
 }
+
+/// The reach (`SssKernel::set_reach`): with needed segments set, the irradiance runs only on
+/// the segments the needed segments' diffusion can read (the landings of its samples through
+/// the surface walk, its contact entries), bounded each frame from the posed walk records.
+/// On a posed head: the diffusion of the needed segments equals the unrestricted kernel's
+/// bit for bit, on a first frame (the segments the reach leaves out hold no surface yet, so
+/// a sample landing there would be lost and the texel would differ) and on a second frame
+/// with another irradiance (they hold the first frame's); the reach leaves segments out
+/// (else this would test nothing); the triangles it marks in the caller's bitmap (from bit
+/// `first`) are exactly those with a texel in a reached segment; recording the front and the
+/// back apart is recording the frame; misuse is refused.
+#[test]
+fn the_reach_restricts_the_irradiance_and_leaves_the_diffusion_unchanged() {
+    use vkshade::gpu::BufferDesc;
+    use vkshade::kernels::sss::PosedSource;
+    use vkshade::kernels::sss::gpu::ReachMarks;
+    let size = 256;
+    let (ch, posed) = posed_head(0.6);
+    let rest = TexGeometry::build(&ch.mesh, size, 1000.0).unwrap();
+    let p = Profile::new(ProfileKind::Dipole, Material::SKIN1, 0.995).unwrap();
+    let lights = [Light::Directional {
+        toward: Vec3::new(0.3, 0.4, 1.0).normalize(),
+        e: 1.0,
+    }];
+    let params = SamplerParams::default();
+    let ve = vertex_irradiance(&rest);
+    let ve2: Vec<[f32; 4]> = ve.iter().map(|e| [e[2], e[0], e[1], 0.0]).collect();
+    // The needed segments: a band of rows across the atlas.
+    let row = size.div_ceil(8);
+    let band = |seg: u32| (size / 3..size / 2).contains(&(seg / row));
+    let first = 37u32;
+    let triangles = rest.triangles.len() as u32;
+    let out = common::with_gpu(|ctx| {
+        let mut setup = ctx.recorder("sss reach setup")?;
+        let src = PosedSource::upload(&mut setup, &posed.positions, &posed.normals)?;
+        let make = |setup: &mut vkshade::gpu::Recorder| {
+            SssKernel::new_posed(
+                setup,
+                &rest,
+                &ch.mesh.positions,
+                &p,
+                params,
+                src.buffers(1000.0),
+            )
+        };
+        let mut full = make(&mut setup)?;
+        let mut reach = make(&mut setup)?;
+        let buffers = [
+            vertex_buffer(&mut setup, &ve)?,
+            vertex_buffer(&mut setup, &ve2)?,
+        ];
+        let words = reach.needed_segment_bytes() / 4;
+        let bits: Vec<u32> = (0..words as u32)
+            .map(|w| (0..32).filter(|b| band(w * 32 + b)).map(|b| 1 << b).sum())
+            .collect();
+        let needed = setup.buffer_with(
+            "sss test needed band",
+            BufferDesc::storage(words * 4),
+            &bits,
+        )?;
+        let mark_words = (first + triangles).div_ceil(32) as u64;
+        let marks = setup.buffer_with(
+            "sss test reach marks",
+            BufferDesc::storage(mark_words * 4),
+            &vec![0u32; mark_words as usize],
+        )?;
+        let short =
+            setup.buffer_with("sss test short marks", BufferDesc::storage(8), &[0u32; 2])?;
+        // Refused before a per-vertex irradiance and needed segments.
+        let e = reach.set_reach(Some(None)).unwrap_err();
+        assert!(e.to_string().contains("set_needed_segments"), "{e}");
+        full.set_vertex_irradiance(&mut setup, Some(&buffers[0]))?;
+        reach.set_vertex_irradiance(&mut setup, Some(&buffers[0]))?;
+        reach.set_needed_segments(Some(&needed))?;
+        let e = reach
+            .set_reach(Some(Some(ReachMarks {
+                bitmap: &short,
+                first,
+            })))
+            .unwrap_err();
+        assert!(e.to_string().contains("bitmap of 8 bytes"), "{e}");
+        reach.set_reach(Some(Some(ReachMarks {
+            bitmap: &marks,
+            first,
+        })))?;
+        setup.submit_and_wait()?;
+        assert_eq!(reach.front_passes(), 9, "{:?}", reach.passes());
+        let mut frames = Vec::new();
+        for (k, b) in buffers.iter().enumerate() {
+            if k == 1 {
+                let mut rec = ctx.recorder("sss reach second irradiance")?;
+                full.set_vertex_irradiance(&mut rec, Some(b))?;
+                reach.set_vertex_irradiance(&mut rec, Some(b))?;
+                rec.submit_and_wait()?;
+            }
+            let mut rec = ctx.recorder("sss reach frame")?;
+            // Frame 0 through record, frame 1 as the front and the back apart.
+            rec.fill_buffer(&marks, 0)?;
+            if k == 0 {
+                reach.record(&mut rec, &lights[..])?;
+            } else {
+                reach.record_front(&mut rec)?;
+                reach.record_back(&mut rec, &lights[..])?;
+            }
+            full.record(&mut rec, &lights[..])?;
+            let a = reach.read_back(&mut rec)?;
+            let b = full.read_back(&mut rec)?;
+            let list = reach.read_back_reach(&mut rec)?;
+            let m = rec.read_back(&marks)?;
+            rec.submit_and_wait()?;
+            frames.push((
+                reach.collect(&a)?,
+                full.collect(&b)?,
+                reach.reach_segments(&list)?,
+                m.to_vec::<u32>()?,
+            ));
+        }
+        Ok(frames)
+    });
+    let occupied: std::collections::HashSet<u32> = rest
+        .texel_tri
+        .iter()
+        .enumerate()
+        .filter(|(_, t)| t[0] < triangles)
+        .map(|(i, _)| ((i as u32 % size) / 8) | ((i as u32 / size) << 16))
+        .collect();
+    for (k, (reached, full, list, marks)) in out.iter().enumerate() {
+        let (mut compared, mut lit) = (0, 0);
+        for i in 0..full.diffuse.len() {
+            let (x, y) = ((i % size as usize) as u32, (i / size as usize) as u32);
+            if !band(vkshade::kernels::sss::pack::needed_segment(x, y, size) as u32) {
+                continue;
+            }
+            compared += 1;
+            lit += usize::from(full.diffuse[i][0] > 0.0);
+            assert_eq!(
+                reached.diffuse[i], full.diffuse[i],
+                "frame {k}, texel ({x}, {y}): the reach left out a texel its diffusion reads"
+            );
+        }
+        assert!(
+            compared > 1000 && lit > 500,
+            "{compared} compared, {lit} lit"
+        );
+        let set: std::collections::HashSet<u32> = list.iter().copied().collect();
+        assert_eq!(set.len(), list.len(), "a segment listed twice");
+        assert!(set.is_subset(&occupied));
+        let needed = occupied
+            .iter()
+            .filter(|&&s| band((s & 0xffff) + (s >> 16) * row))
+            .count();
+        assert!(
+            set.len() > needed && set.len() + occupied.len() / 10 < occupied.len(),
+            "frame {k}: {} reached of {} occupied segments, {needed} needed",
+            set.len(),
+            occupied.len()
+        );
+        // The marks' twin: triangles with a texel in a reached segment.
+        let mut twin = vec![0u32; marks.len()];
+        for (i, t) in rest.texel_tri.iter().enumerate() {
+            let seg = ((i as u32 % size) / 8) | ((i as u32 / size) << 16);
+            if t[0] < triangles && set.contains(&seg) {
+                let b = first + t[0];
+                twin[(b / 32) as usize] |= 1 << (b % 32);
+            }
+        }
+        assert_eq!(marks, &twin, "frame {k}: the reach's triangle marks");
+        eprintln!(
+            "frame {k}: {} of {} occupied segments reached ({needed} needed), {} triangles marked",
+            set.len(),
+            occupied.len(),
+            twin.iter().map(|w| w.count_ones()).sum::<u32>()
+        );
+    }
+}

@@ -107,7 +107,13 @@ layout(std430, set = 0, binding = 18) writeonly buffer Rays { uvec2 job[]; } ray
 // 8 (y * TILE_ROW + x) + local y, a SIMD step of 8 lanes per segment; texels of empty
 // segments are never touched (the kernel clears the outputs there once).
 const uint TILE_ROW = 256u;
-#ifndef SSS_RAYS
+// SSS_LISTED: the segments of this frame's reach instead (SssKernel::set_reach), listed by
+// pass `sss reach list` (glsl/sss/reach_list.comp) with their count in the list's head;
+// workgroup (x, y) shades entries 8 (y * gx + x) + local y, gx the dispatch's width. The
+// other segments keep what they held (the diffusion of the needed segments reads none).
+#ifdef SSS_LISTED
+layout(std430, set = 0, binding = 25) readonly buffer ReachList { uint head[4]; uint v[]; } reach_list;
+#elif !defined(SSS_RAYS)
 layout(std430, set = 0, binding = 11) readonly buffer Tiles { uint v[]; } tiles;
 #endif
 
@@ -205,9 +211,15 @@ void main() {
 }
 #else
 void main() {
+#ifdef SSS_LISTED
+    uint ti = 8u * (gl_WorkGroupID.y * gl_NumWorkGroups.x + gl_WorkGroupID.x) + gl_LocalInvocationID.y;
+    if (ti >= reach_list.head[3]) return;
+    uint tile = reach_list.v[ti];
+#else
     uint ti = 8u * (gl_WorkGroupID.y * TILE_ROW + gl_WorkGroupID.x) + gl_LocalInvocationID.y;
     if (ti >= pc.tiles) return;
     uint tile = tiles.v[ti];
+#endif
     uvec2 xy = uvec2((tile & 0xffffu) * 8u + gl_LocalInvocationID.x, tile >> 16u);
     if (xy.x >= pc.size || xy.y >= pc.size) return;
     ivec2 at = ivec2(xy);

@@ -7,12 +7,16 @@
 //!    `ao` skins the sphere tree from the same pose (and computes AO's per-vertex occlusion
 //!    where a stage reads it: [`FrameConfig::ao_visibility`]);
 //! 2. `raster` writes the screen G-buffer of the posed character; with culling and an
-//!    environment, `vertex mark` and `vertex list` list the vertices the frame reads (those
-//!    of the covered triangles and the skin's, [`crate::kernels::raster::vertices`]);
-//!    `env` rotates the environment's SG lobes and shadows each by the sphere tree's caps
-//!    per vertex (visibility per lobe, shadowed irradiance), on that list when there is one;
-//! 3. `sss` builds the skin's texture-space geometry from the posed buffers, its irradiance
-//!    (lights with shadows, plus the shadowed environment) and the subsurface diffusion;
+//!    environment, `compose need` marks the skin's atlas segments the compose pass reads,
+//!    `sss` builds the skin's texture-space geometry from the posed buffers and its reach
+//!    (the segments the diffusion of the needed ones reads, and the skin triangles they lie
+//!    in: [`SssKernel::set_reach`]), then `vertex mark` and `vertex list` list the vertices
+//!    the frame reads (those of the covered triangles and of the reach's,
+//!    [`crate::kernels::raster::vertices`]); `env` rotates the environment's SG lobes and
+//!    shadows each by the sphere tree's caps per vertex (visibility per lobe, shadowed
+//!    irradiance), on that list when there is one;
+//! 3. `sss` computes the skin's irradiance (lights with shadows, plus the shadowed
+//!    environment; on the reach when there is one) and the subsurface diffusion;
 //! 4. `btf` shades the cloth pixels of the G-buffer: the directional lights, then the
 //!    environment's lobes with their per-vertex visibility through the BTF's light basis
 //!    (`btf env basis`, [`crate::kernels::btf::basis`]);
@@ -34,7 +38,7 @@ use crate::kernels::compose::{self, ComposeKernel, ComposeOutput, FrameParams, S
 use crate::kernels::raster::gpu::{Posed as RasterPosed, Prepared as RasterPrep, RasterKernel};
 use crate::kernels::raster::pack::{Camera as RasterCamera, key_triangle};
 use crate::kernels::raster::vertices::VertexListKernel;
-use crate::kernels::sss::gpu::{PosedBuffers, SssKernel};
+use crate::kernels::sss::gpu::{PosedBuffers, ReachMarks, SssKernel};
 use crate::kernels::sss::profile::{Material, Profile, ProfileKind};
 use crate::kernels::sss::{Light as SssLight, SamplerParams};
 use crate::kernels::{Kernel, ao, pose};
@@ -126,9 +130,11 @@ pub struct FrameConfig {
     /// need`), and the compose pass shades the rasteriser's covered tiles after filling the
     /// background (pass `compose background`). Off: every segment and every pixel. The
     /// images are the same either way (bit for bit). With an environment it also shades
-    /// only the vertices the frame reads (the skin's and those of the triangles covering a
-    /// pixel: passes `vertex mark` and `vertex list`, then `env trace` and `env shadow` over
-    /// that list), unless [`FrameConfig::env_every_vertex`].
+    /// only the vertices the frame reads (those of the triangles covering a pixel and of the
+    /// skin triangles the diffusion reads through its irradiance: passes `sss reach *`,
+    /// `vertex mark` and `vertex list`, then `env trace` and `env shadow` over that list),
+    /// unless [`FrameConfig::env_every_vertex`], and the skin's irradiance only on the
+    /// segments that diffusion reads.
     pub cull: bool,
     /// The environment's passes shade every vertex even when culling (`frame --reference`
     /// sets it: it compares, and writes, every vertex's environment irradiance).
@@ -1041,26 +1047,19 @@ impl CharacterFrame {
                 tangents: pose.tangents(),
             },
         )?;
-        // The vertices whose environment the frame reads: the skin's (its texture-space
-        // irradiance reads them wherever the camera looks) and those of every triangle
-        // covering a pixel (the cloth's and the skin's shading read them there).
+        // The vertices whose environment the frame reads: those of every triangle covering a
+        // pixel (the cloth's and the skin's shading read them there) and those of the skin
+        // triangles whose texture-space irradiance the skin's diffusion reads this frame
+        // (the SSS reach marks them in the list's triangle bitmap: `sss reach triangles`).
         let mut vertices = match (&lobes, raster.tiles()) {
-            (Some(_), Some(_)) if cfg.cull && !cfg.env_every_vertex => {
-                // (The skin's triangles come first.)
-                let skin = part_vertices(
-                    &mesh.triangles[..skin_triangles],
-                    &parts[..skin_triangles],
-                    u32::MAX,
-                );
-                Some(VertexListKernel::new(
-                    &mut rec,
-                    &raster,
-                    &mesh.triangles,
-                    pose.vertex_count() as u32,
-                    &skin,
-                    Some(&crate::geom::spatial_order(&mesh.positions)),
-                )?)
-            }
+            (Some(_), Some(_)) if cfg.cull && !cfg.env_every_vertex => Some(VertexListKernel::new(
+                &mut rec,
+                &raster,
+                &mesh.triangles,
+                pose.vertex_count() as u32,
+                &[],
+                Some(&crate::geom::spatial_order(&mesh.positions)),
+            )?),
             _ => None,
         };
         let env = match &lobes {
@@ -1130,6 +1129,14 @@ impl CharacterFrame {
                             },
                         )?;
                         kernel.set_needed_segments(Some(n.needed()))?;
+                        // The irradiance only where the diffusion of those segments reads
+                        // it, and the environment only at the corners of its triangles
+                        // (the skin's triangles come first in the frame's mesh, as in the
+                        // skin's own).
+                        kernel.set_reach(Some(vertices.as_ref().map(|v| ReachMarks {
+                            bitmap: v.covered(),
+                            first: 0,
+                        })))?;
                         Some(n)
                     }
                     _ => None,
@@ -1424,6 +1431,14 @@ impl CharacterFrame {
         self.pose.record(rec, &m)?;
         Kernel::record(&self.ao, rec, &m)?;
         self.raster.record(rec, &self.camera)?;
+        // The skin's geometry and reach come before the vertex list: the reach marks the
+        // skin triangles whose vertices the environment's passes shade.
+        if let Some(s) = &self.sss {
+            if let Some(n) = &s.need {
+                n.record(rec, &self.camera)?;
+            }
+            s.kernel.record_front(rec)?;
+        }
         if let Some(v) = &self.vertices {
             v.record(rec, &())?;
         }
@@ -1431,10 +1446,7 @@ impl CharacterFrame {
             e.record(rec, &input.env_rotation)?;
         }
         if let Some(s) = &self.sss {
-            if let Some(n) = &s.need {
-                n.record(rec, &self.camera)?;
-            }
-            s.kernel.record(rec, &s.lights[..])?;
+            s.kernel.record_back(rec, &s.lights[..])?;
         }
         for g in &self.cloth {
             g.kernel.record(rec, &self.btf_frame)?;
@@ -1475,6 +1487,10 @@ impl CharacterFrame {
                 Some(n) => Some(rec.read_back(n.needed())?),
                 None => None,
             },
+            reach: match self.sss.as_ref().filter(|s| s.need.is_some()) {
+                Some(s) => Some(s.kernel.read_back_reach(rec)?),
+                None => None,
+            },
             vertices: match &self.vertices {
                 Some(v) => Some(Kernel::read_back(v, rec)?),
                 None => None,
@@ -1512,6 +1528,10 @@ impl CharacterFrame {
             needed: match &rb.needed {
                 Some(r) => r.to_vec()?,
                 None => Vec::new(),
+            },
+            reach: match (&self.sss, &rb.reach) {
+                (Some(s), Some(r)) => Some(s.kernel.reach_segments(r)?),
+                _ => None,
             },
             vertices: match (&self.vertices, &rb.vertices) {
                 (Some(k), Some(r)) => Some(k.collect(r)?),
@@ -1812,6 +1832,7 @@ pub struct StageReadback {
     ao: Option<crate::gpu::Readback>,
     diffuse: Option<crate::gpu::Readback>,
     needed: Option<crate::gpu::Readback>,
+    reach: Option<crate::gpu::Readback>,
     vertices: Option<crate::kernels::raster::vertices::VertexListReadback>,
     cloth: Option<crate::gpu::Readback>,
     lobes: Option<(
@@ -1844,6 +1865,10 @@ pub struct Stages {
     /// (`kernels::sss::pack::needed_segment` numbers its bits); empty when the diffusion
     /// covers every segment (no environment).
     pub needed: Vec<u32>,
+    /// The atlas segments (x / 8 | y << 16, in no set order) whose irradiance the skin's
+    /// reach computed this frame ([`SssKernel::set_reach`]), or None when it computes every
+    /// segment's (no needed segments).
+    pub reach: Option<Vec<u32>>,
     /// The vertices the environment's passes shaded this frame (sorted), or None when they
     /// shade every vertex; the environment's outputs at the others are an older frame's.
     pub vertices: Option<Vec<u32>>,

@@ -10,6 +10,9 @@
 //! `vertex list` (one workgroup: the marked triangles' vertices and the static set, as a
 //! list headed by its own `VkDispatchIndirectCommand` of one 64-lane workgroup per 64
 //! vertices). Both bitmaps are cleared by the pass that reads them, so no clear is recorded.
+//! Another kernel's pass recorded before `vertex list` may mark more triangles in the same
+//! bitmap ([`VertexListKernel::covered`]; the character frame's SSS reach marks the skin
+//! triangles whose texture-space irradiance its diffusion reads).
 //! With a subset set ([`VertexListKernel::set_subset`], e.g. the cloth's vertices), the list
 //! pass also writes a second list: the vertices of covered triangles in that subset
 //! ([`VertexListKernel::subset_list`]), for a pass that reads them only at covered
@@ -202,6 +205,14 @@ impl VertexListKernel {
     /// INDIRECT_BUFFER usage.
     pub fn list(&self) -> &Buffer {
         &self.list
+    }
+
+    /// The bitmap of this frame's covered triangles (bit t % 32 of u32 word t / 32) that
+    /// `vertex mark` writes and `vertex list` reads and clears: a pass recorded between the
+    /// two may mark more triangles (atomically), whose vertices are then listed too (the
+    /// SSS reach marks the skin triangles its irradiance needs: `SssKernel::set_reach`).
+    pub fn covered(&self) -> &Buffer {
+        &self.covered
     }
 
     /// Sets the subset whose covered vertices the list pass also lists

@@ -35,6 +35,14 @@
 //! texel by the irradiance pass and added to the lights' E; the irradiance is then rgb, in
 //! one rgba image whose alpha marks the surface, and the diffusion gathers it with one load
 //! per sample (glsl/sss/irradiance*_env.comp, diffusion_env.comp).
+//!
+//! A caller that reads only part of the atlas marks the segments it needs
+//! ([`SssKernel::set_needed_segments`]): the diffusion runs over a list of them. The reach
+//! ([`SssKernel::set_reach`]) restricts the irradiance of a posed kernel the same way, to
+//! the segments that diffusion can read, bounded each frame from the posed walk records
+//! (passes `sss reach *`, before the lights; [`SssKernel::record_front`]); it can also mark
+//! the triangles whose per-vertex irradiance those segments interpolate, so that the
+//! caller computes that irradiance at their corners only.
 
 use super::TexGeometry;
 use super::cpu::{Light, MAX_LIGHTS, SamplerParams, check_lights, shadow_bias};
@@ -66,6 +74,15 @@ pub const PASS_DIFFUSION: &str = "sss diffusion";
 /// With needed segments set ([`SssKernel::set_needed_segments`]): the occupied segments the
 /// caller's bitmap marks, listed for the diffusion (dispatched indirectly over the list).
 pub const PASS_NEEDED_LIST: &str = "sss needed list";
+/// With the reach set ([`SssKernel::set_reach`]): the needed texels' triangles and their
+/// contact entries' sources.
+pub const PASS_REACH_MARK: &str = "sss reach mark";
+/// The atlas blocks where the marked triangles' diffusion samples can land.
+pub const PASS_REACH_BOXES: &str = "sss reach boxes";
+/// With triangle marks: the triangles with a texel in the reach, into the caller's bitmap.
+pub const PASS_REACH_TRIANGLES: &str = "sss reach triangles";
+/// The occupied segments in the reach, listed for the irradiance.
+pub const PASS_REACH_LIST: &str = "sss reach list";
 /// Per-frame geometry of a skinned mesh ([`SssKernel::new_posed`]): the vertex frames (mm)
 /// from the posed buffers.
 pub const PASS_POSE_VERTICES: &str = "sss pose vertices";
@@ -167,6 +184,15 @@ struct Resources {
     /// (64 lanes a workgroup, 4 entries a lane).
     rays: Buffer,
     ray_head: Buffer,
+    /// The reach ([`SssKernel::set_reach`]): a bit per triangle (`sss reach mark`, cleared
+    /// by `sss reach boxes`), a bit per 8 x 8 atlas block ([`pack::reach_block_words`];
+    /// cleared by `sss reach list`), per triangle what the UV layout fixes
+    /// ([`pack::reach_static`]), and the list of the reached occupied segments (the
+    /// irradiance's VkDispatchIndirectCommand, the count, room for every tile).
+    reach_tris: Buffer,
+    reach_blocks: Buffer,
+    reach_static: Buffer,
+    reach_list: Buffer,
 }
 
 /// An RGBA32UI storage image the host fills (and can read back, for the tests of the
@@ -253,12 +279,28 @@ impl Resources {
                 "sss shadow ray count",
                 BufferDesc::storage(16).usage(vk::BufferUsageFlags::INDIRECT_BUFFER),
             )?,
+            reach_tris: buffer(
+                "sss reach triangles",
+                BufferDesc::storage((room.triangles as u64).div_ceil(32).max(1) * 4),
+            )?,
+            reach_blocks: buffer(
+                "sss reach blocks",
+                BufferDesc::storage(pack::reach_block_words(room.size) * 4),
+            )?,
+            reach_static: buffer(
+                "sss reach layout",
+                BufferDesc::storage(room.reach_entries as u64 * 16),
+            )?,
+            reach_list: buffer(
+                "sss reach segments",
+                BufferDesc::storage(16 + tiles * 4).usage(vk::BufferUsageFlags::INDIRECT_BUFFER),
+            )?,
         })
     }
 
     /// Every resource, with the name the shaders bind it by: the passes bind by these names,
     /// and the memory report counts them all.
-    fn by_binding(&self) -> [(&'static str, Resource<'_>); 24] {
+    fn by_binding(&self) -> [(&'static str, Resource<'_>); 28] {
         let image = Resource::storage_image;
         [
             ("verts", Resource::Buffer(&self.vertex_frames)),
@@ -285,6 +327,10 @@ impl Resources {
             ("ray_head", Resource::Buffer(&self.ray_head)),
             ("occupied", Resource::Buffer(&self.occupied_segments)),
             ("needed_list", Resource::Buffer(&self.needed_list)),
+            ("reach_tris", Resource::Buffer(&self.reach_tris)),
+            ("reach_blocks", Resource::Buffer(&self.reach_blocks)),
+            ("reach_static", Resource::Buffer(&self.reach_static)),
+            ("reach_list", Resource::Buffer(&self.reach_list)),
         ]
     }
 
@@ -295,6 +341,18 @@ impl Resources {
         rec.upload_image_rows(&self.texel_normals, p.texel_normals)?;
         rec.upload_image_rows(&self.texel_corners, &p.texel_corners)?;
         rec.upload_image_rows(&self.diffusion_start, &p.diffusion_start)?;
+        let reach = pack::reach_static(&p.diffusion_start, &p.contact_entries, p.size, p.triangles);
+        if reach.len() as u64 * 16 > self.reach_static.size() {
+            return Err(Error::InvalidArgument(format!(
+                "{} reach entries (triangles and contact blocks) where the kernel made room \
+                 for {}",
+                reach.len(),
+                self.reach_static.size() / 16
+            )));
+        }
+        rec.upload(&self.reach_static, 0, &reach)?;
+        rec.fill_buffer(&self.reach_tris, 0)?;
+        rec.fill_buffer(&self.reach_blocks, 0)?;
         rec.upload_image_rows(&self.walk_records, &at_least_one(&p.walk_records))?;
         rec.upload_image_rows(&self.contact_entries, &at_least_one(&p.contact_entries))?;
         self.set_tiles(rec, p.tiles)?;
@@ -396,8 +454,27 @@ impl Irradiance {
 
     /// The shading pass and, with `refine`, the list's reset before it and the ray pass over
     /// the list after it (`head`: the list's head; without `refine` nothing is listed).
-    fn passes<'k>(&'k self, head: &'k Buffer, refine: bool) -> Vec<Pass<'k, SssKernel>> {
-        let shade = self.shade.pass(PASS_IRRADIANCE, SssKernel::irradiance_args);
+    /// `listed`: the shading stage over a list of segments and the list (its head the
+    /// dispatch's command), in place of the shading over every occupied segment.
+    fn passes<'k>(
+        &'k self,
+        head: &'k Buffer,
+        refine: bool,
+        listed: Option<(&'k Stage, &'k Buffer)>,
+    ) -> Vec<Pass<'k, SssKernel>> {
+        let shade = match listed {
+            Some((stage, list)) => Pass::dispatch_indirect(
+                PASS_IRRADIANCE,
+                &stage.pipeline,
+                &stage.bind,
+                IndirectArgs {
+                    buffer: list,
+                    offset: 0,
+                },
+                SssKernel::irradiance_listed_push,
+            ),
+            None => self.shade.pass(PASS_IRRADIANCE, SssKernel::irradiance_args),
+        };
         if !refine {
             return vec![shade];
         }
@@ -439,6 +516,8 @@ pub struct SssKernel {
     /// diffusion must fill ([`SssKernel::set_needed_segments`]; its bind group holds the
     /// bitmap), when set: the diffusion then runs over the list.
     needed: Option<Stage>,
+    /// The reach of the needed segments ([`SssKernel::set_reach`]), when set.
+    reach: Option<Reach>,
     settings: Settings,
     /// The per-frame geometry passes of a skinned mesh ([`SssKernel::new_posed`]).
     posed: Option<Posed>,
@@ -562,9 +641,31 @@ struct Env {
     /// The caller's per-vertex irradiance as an image (vertex v at (v % VERTEX_ROW,
     /// v / VERTEX_ROW)), written by `sss vertex irradiance`.
     vertex_texels: Image,
+    /// The caller's per-vertex buffer.
+    venv: Buffer,
     copy: Stage,
     irradiance: Irradiance,
     diffusion: Stage,
+    /// With the reach set: the shading pass over the reach's list
+    /// (glsl/sss/irradiance_posed_env_listed.comp).
+    listed: Option<Stage>,
+}
+
+/// The passes of the reach ([`SssKernel::set_reach`]).
+struct Reach {
+    mark: Stage,
+    boxes: Stage,
+    /// With triangle marks: the pass and the bit of triangle 0 in the caller's bitmap.
+    triangles: Option<(Stage, u32)>,
+    list: Stage,
+}
+
+/// Where [`SssKernel::set_reach`] marks the triangles whose irradiance the reach needs: a
+/// caller's bitmap (bit i % 32 of u32 word i / 32), triangle t at bit `first + t`.
+#[derive(Clone, Copy)]
+pub struct ReachMarks<'a> {
+    pub bitmap: &'a Buffer,
+    pub first: u32,
 }
 
 /// The per-frame geometry as the GPU computed it, read back (tests and diagnostics; not part
@@ -644,11 +745,13 @@ impl SssKernel {
             irradiance_kind: AtomicU8::new(IRR_GREY),
             env: None,
             needed: None,
+            reach: None,
             settings: Settings {
                 regions,
                 params,
                 shadow_bias: shadow_bias(geo.extent_mm()),
                 room,
+                reach_radius: pattern.radius(),
             },
             posed: None,
         })
@@ -882,6 +985,7 @@ impl SssKernel {
         let s = &mut self.settings;
         let pattern = Pattern::new(&s.regions, params.samples);
         rec.upload_image_rows(&self.res.sample_pattern, &pattern.texels(&s.regions))?;
+        s.reach_radius = pattern.radius();
         if s.params.transmission && !params.transmission {
             self.res.clear_transmission(rec)?;
         }
@@ -970,13 +1074,111 @@ impl SssKernel {
         let irradiance = Irradiance::from_table(&ctx, shader, &table, &["trans", "penv"])?;
         drop(table);
         let diffusion = self.env_diffusion(&image, self.needed.is_some())?;
+        let listed = match &self.reach {
+            Some(_) => Some(self.listed_irradiance(buffer, &vertex_texels, &image)?),
+            None => None,
+        };
         self.env = Some(Env {
             image,
             vertex_texels,
+            venv: buffer.clone(),
             copy,
             irradiance,
             diffusion,
+            listed,
         });
+        Ok(())
+    }
+
+    /// The env irradiance's shading pass over the reach's list (`venv`: the caller's
+    /// per-vertex buffer, `vertex_texels` and `image` the [`Env`]'s).
+    fn listed_irradiance(
+        &self,
+        venv: &Buffer,
+        vertex_texels: &Image,
+        image: &Image,
+    ) -> Result<Stage> {
+        let table = self.table_with([
+            ("venv", Resource::Buffer(venv)),
+            ("venv_texels", Resource::storage_image(vertex_texels)),
+            ("penv", Resource::storage_image(image)),
+        ]);
+        Stage::from_table(
+            &self.ctx,
+            "sss/irradiance_posed_env_listed",
+            &table,
+            &["trans", "penv"],
+        )
+    }
+
+    /// Restricts the irradiance to the reach of the needed segments: the texels the
+    /// diffusion of the needed segments can read. Needs a posed kernel
+    /// ([`SssKernel::new_posed`]) with a per-vertex irradiance and needed segments set
+    /// ([`SssKernel::set_vertex_irradiance`], [`SssKernel::set_needed_segments`]); `None`
+    /// computes the irradiance of every occupied segment again.
+    ///
+    /// Each frame, after the geometry passes and `sss needed list`: `sss reach mark` marks
+    /// the needed texels' triangles and the blocks of their contact entries' sources; `sss
+    /// reach boxes` bounds, per marked triangle, where its samples land through its own UV map
+    /// and through the maps of its shared edges (every landing of a texel at most the
+    /// patterns' longest offset from its centre, glsl/sss/reach_boxes.comp), in 8 x 8 atlas
+    /// blocks; `sss reach list` lists the occupied segments of those blocks, and the
+    /// irradiance runs over that list (the other segments keep what they held: the
+    /// diffusion of the needed segments reads none of them). The diffusion's output is the
+    /// same as without the reach, bit for bit.
+    ///
+    /// With `marks`, `sss reach triangles` also marks every triangle with a texel in a
+    /// reached block in the caller's bitmap, so that a pass before the irradiance (the
+    /// character frame's vertex list) can compute the per-vertex irradiance of those
+    /// triangles' corners only. The passes that write the marks come before the lights:
+    /// [`SssKernel::record_front`] records them, [`SssKernel::record_back`] the rest.
+    pub fn set_reach(&mut self, reach: Option<Option<ReachMarks<'_>>>) -> Result<()> {
+        let Some(marks) = reach else {
+            self.reach = None;
+            if let Some(env) = &mut self.env {
+                env.listed = None;
+            }
+            return Ok(());
+        };
+        let env = match (&self.env, &self.needed, &self.posed) {
+            (Some(env), Some(_), Some(_)) => env,
+            _ => {
+                return Err(Error::InvalidArgument(
+                    "the reach restricts the irradiance of a posed kernel with a per-vertex \
+                     irradiance and needed segments: set them first (new_posed, \
+                     set_vertex_irradiance, set_needed_segments)"
+                        .into(),
+                ));
+            }
+        };
+        let triangles = self.settings.room.triangles as u64;
+        let triangles = match marks {
+            Some(m) => {
+                let bits = m.first as u64 + triangles;
+                if m.bitmap.size() < bits.div_ceil(32) * 4 {
+                    return Err(Error::InvalidArgument(format!(
+                        "reach marks: a bitmap of {} bytes for bits {}..{bits}",
+                        m.bitmap.size(),
+                        m.first
+                    )));
+                }
+                let table = self.table_with([("reach_marks", Resource::Buffer(m.bitmap))]);
+                let stage = Stage::from_table(&self.ctx, "sss/reach_triangles", &table, &[])?;
+                Some((stage, m.first))
+            }
+            None => None,
+        };
+        let listed = self.listed_irradiance(&env.venv, &env.vertex_texels, &env.image)?;
+        let stage = |name: &str, writes: &[&str]| Stage::new(&self.ctx, name, &self.res, writes);
+        self.reach = Some(Reach {
+            mark: stage("sss/reach_mark", &[])?,
+            boxes: stage("sss/reach_boxes", &[])?,
+            triangles,
+            list: stage("sss/reach_list", &["reach_list"])?,
+        });
+        if let Some(env) = &mut self.env {
+            env.listed = Some(listed);
+        }
         Ok(())
     }
 
@@ -1058,6 +1260,58 @@ impl SssKernel {
         Ok(())
     }
 
+    /// The passes of a frame before the lights ([`Kernel::passes`] up to `sss lights`): the
+    /// geometry of a posed kernel and, with the reach set ([`SssKernel::set_reach`]), the
+    /// needed list and the reach. They read neither the lights nor the per-vertex
+    /// irradiance, so a caller can record them earlier ([`SssKernel::record_front`]), e.g.
+    /// before the passes that compute the per-vertex irradiance of the triangles the reach
+    /// marks.
+    pub fn front_passes(&self) -> usize {
+        self.pass_table()
+            .iter()
+            .position(|p| p.name == PASS_LIGHTS)
+            .unwrap_or(0)
+    }
+
+    /// Records the passes before the lights ([`SssKernel::front_passes`]).
+    pub fn record_front(&self, rec: &mut Recorder) -> Result<()> {
+        for pass in self.pass_table().iter().take(self.front_passes()) {
+            pass.record(self, rec, &[])?;
+        }
+        Ok(())
+    }
+
+    /// Records the rest of a frame after [`SssKernel::record_front`]: [`Kernel::record`]
+    /// is the two in a row.
+    pub fn record_back(&self, rec: &mut Recorder, lights: &[Light]) -> Result<()> {
+        self.check_input(lights)?;
+        let front = self.front_passes();
+        for pass in self.pass_table().iter().skip(front) {
+            pass.record(self, rec, lights)?;
+        }
+        Ok(())
+    }
+
+    /// Records the readback of the reach's list of segments (what `sss reach list` last
+    /// wrote; [`SssKernel::reach_segments`] reads it).
+    pub fn read_back_reach(&self, rec: &mut Recorder) -> Result<Readback> {
+        rec.read_back(&self.res.reach_list)
+    }
+
+    /// The reached occupied segments (x / 8 | y << 16, in no set order) of a
+    /// [`SssKernel::read_back_reach`], once its submission is complete.
+    pub fn reach_segments(&self, rb: &Readback) -> Result<Vec<u32>> {
+        let words: Vec<u32> = rb.to_vec()?;
+        let n = words.get(3).copied().unwrap_or(0) as usize;
+        if 4 + n > words.len() {
+            return Err(Error::InvalidArgument(format!(
+                "the reach list counts {n} segments, room for {}",
+                words.len().saturating_sub(4)
+            )));
+        }
+        Ok(words[4..4 + n].to_vec())
+    }
+
     /// Whether a per-vertex irradiance is set ([`SssKernel::set_vertex_irradiance`]).
     pub fn has_vertex_irradiance(&self) -> bool {
         self.env.is_some()
@@ -1116,6 +1370,47 @@ impl SssKernel {
         };
         self.irradiance_kind.store(kind, Ordering::Relaxed);
         Ok(Dispatch::words(&words, Grid::Groups(tile_groups(tiles))))
+    }
+
+    /// The shading pass's push constants over the reach's list (its workgroups: the list's
+    /// head).
+    fn irradiance_listed_push(&self, lights: &[Light]) -> Result<Vec<u8>> {
+        Ok(self.irradiance_args(lights)?.push)
+    }
+
+    /// `sss reach mark`'s push constants (its workgroups: the needed list's head).
+    fn reach_push(&self, _lights: &[Light]) -> Result<Vec<u8>> {
+        Ok(bytemuck::cast_slice(&self.settings.reach_push()).to_vec())
+    }
+
+    /// `sss reach boxes`: a lane per triangle.
+    fn reach_boxes_args(&self, _lights: &[Light]) -> Result<Dispatch> {
+        let n = self.settings.room.triangles as u32;
+        Ok(Dispatch::words(
+            &self.settings.reach_push(),
+            Grid::Invocations([n.max(1), 1, 1]),
+        ))
+    }
+
+    /// `sss reach triangles`: a lane per triangle.
+    fn reach_triangles_args(&self, _lights: &[Light]) -> Result<Dispatch> {
+        let first = match self.reach.as_ref().and_then(|r| r.triangles.as_ref()) {
+            Some((_, first)) => *first,
+            None => 0,
+        };
+        let n = self.settings.room.triangles as u32;
+        Ok(Dispatch::words(
+            &self.settings.reach_triangles_push(first),
+            Grid::Invocations([n.max(1), 1, 1]),
+        ))
+    }
+
+    /// `sss reach list`: one workgroup.
+    fn reach_list_args(&self, _lights: &[Light]) -> Result<Dispatch> {
+        Ok(Dispatch::words(
+            &self.settings.reach_list_push(),
+            Grid::Groups([1, 1, 1]),
+        ))
     }
 
     /// The ray pass's push constants: the shading pass's.
@@ -1199,7 +1494,7 @@ impl Kernel for SssKernel {
     /// texel geometry from them (no `sss pose texels` pass: the texels' positions and normals
     /// are not stored).
     fn pass_table(&self) -> Vec<Pass<'_, Self>> {
-        let mut passes = Vec::with_capacity(8);
+        let mut passes = Vec::with_capacity(16);
         let mut irradiance = &self.irradiance;
         if let Some(p) = &self.posed {
             passes.extend([
@@ -1211,6 +1506,31 @@ impl Kernel for SssKernel {
                 p.bvh_refit.pass(PASS_BVH_REFIT, Self::bvh_refit_args),
             ]);
             irradiance = &p.irradiance;
+        }
+        // The reach, before the lights: the needed list, then the reach's passes.
+        let reach = match (&self.env, &self.needed, &self.reach) {
+            (Some(env), Some(list), Some(r)) => env.listed.as_ref().map(|l| (list, r, l)),
+            _ => None,
+        };
+        if let Some((list, r, _)) = reach {
+            passes.extend([
+                list.pass(PASS_NEEDED_LIST, Self::needed_list_args),
+                Pass::dispatch_indirect(
+                    PASS_REACH_MARK,
+                    &r.mark.pipeline,
+                    &r.mark.bind,
+                    IndirectArgs {
+                        buffer: &self.res.needed_list,
+                        offset: 0,
+                    },
+                    Self::reach_push,
+                ),
+                r.boxes.pass(PASS_REACH_BOXES, Self::reach_boxes_args),
+            ]);
+            if let Some((t, _)) = &r.triangles {
+                passes.push(t.pass(PASS_REACH_TRIANGLES, Self::reach_triangles_args));
+            }
+            passes.push(r.list.pass(PASS_REACH_LIST, Self::reach_list_args));
         }
         let mut diffusion = &self.diffusion_grey;
         passes.extend([
@@ -1225,11 +1545,17 @@ impl Kernel for SssKernel {
             irradiance = &env.irradiance;
             diffusion = &env.diffusion;
         }
-        passes.extend(irradiance.passes(&self.res.ray_head, self.settings.params.shadow_refine));
+        passes.extend(irradiance.passes(
+            &self.res.ray_head,
+            self.settings.params.shadow_refine,
+            reach.map(|(_, _, l)| (l, &self.res.reach_list)),
+        ));
         match (&self.env, &self.needed) {
-            (Some(env), Some(list)) => passes.extend([
-                list.pass(PASS_NEEDED_LIST, Self::needed_list_args),
-                Pass::dispatch_indirect(
+            (Some(env), Some(list)) => {
+                if reach.is_none() {
+                    passes.push(list.pass(PASS_NEEDED_LIST, Self::needed_list_args));
+                }
+                passes.push(Pass::dispatch_indirect(
                     PASS_DIFFUSION,
                     &env.diffusion.pipeline,
                     &env.diffusion.bind,
@@ -1238,8 +1564,8 @@ impl Kernel for SssKernel {
                         offset: 0,
                     },
                     Self::diffusion_push,
-                ),
-            ]),
+                ));
+            }
             _ => passes.push(diffusion.pass(PASS_DIFFUSION, Self::diffusion_args)),
         }
         passes

@@ -101,6 +101,10 @@ pub struct Room {
     pub bvh_node_rows: u32,
     pub bvh_triangle_rows: u32,
     pub contact_rows: u32,
+    /// Entries of the reach's per-triangle data ([`reach_static`]): this pose's (the blocks
+    /// of a triangle's texels are the UV layout's), and room for as many contact blocks as
+    /// contact entries besides.
+    pub reach_entries: usize,
 }
 
 /// Writes each triangle's region into its walk record (texel 2 of
@@ -137,6 +141,14 @@ impl Room {
             bvh_node_rows: rows(2 * nodes, BVH_ROW),
             bvh_triangle_rows: rows(3 * p.bvh_triangles.len(), BVH_ROW),
             contact_rows: rows(contact, BVH_ROW),
+            reach_entries: reach_static(
+                &p.diffusion_start,
+                &p.contact_entries,
+                p.size,
+                p.triangles,
+            )
+            .len()
+                + contact,
         }
     }
 
@@ -210,6 +222,17 @@ impl Pattern {
         }
     }
 
+    /// The longest sample offset of any region's pattern (mm): how far from its texel's
+    /// centre a diffusion sample lands in the plane of the texel's triangle (the bound of
+    /// `sss reach boxes`, [`Settings::reach_push`]).
+    pub fn radius(&self) -> f32 {
+        self.regions
+            .iter()
+            .flat_map(|(texels, _)| texels)
+            .map(|t| t[0].hypot(t[1]))
+            .fold(0.0, f32::max)
+    }
+
     /// The image's texels, rows [`PATTERN_WIDTH`] wide, for `regions` (R_tot per region).
     pub fn texels(&self, regions: &Regions) -> Vec<[f32; 4]> {
         let w = PATTERN_WIDTH as usize;
@@ -249,6 +272,8 @@ pub struct Settings {
     pub shadow_bias: f32,
     /// The texture and mesh the kernel was made for.
     pub room: Room,
+    /// The longest offset of the sample patterns (mm, [`Pattern::radius`]).
+    pub reach_radius: f32,
 }
 
 impl Settings {
@@ -287,6 +312,117 @@ impl Settings {
         let size = self.room.size;
         vec![needed_segment_words(size) as u32, size.div_ceil(8)]
     }
+
+    /// `sss reach mark` and `sss reach boxes`: size, triangles, blocks a block row, the
+    /// samples' longest offset (mm) with a margin of 1e-4 for its rounding.
+    pub fn reach_push(&self) -> Vec<u32> {
+        let size = self.room.size;
+        let radius = self.reach_radius * (1.0 + 1e-4);
+        vec![
+            size,
+            self.room.triangles as u32,
+            size.div_ceil(8),
+            radius.to_bits(),
+        ]
+    }
+
+    /// `sss reach triangles`: triangles, blocks a block row, the bit of triangle 0 in the
+    /// caller's bitmap.
+    pub fn reach_triangles_push(&self, first: u32) -> Vec<u32> {
+        vec![
+            self.room.triangles as u32,
+            self.room.size.div_ceil(8),
+            first,
+            0,
+        ]
+    }
+
+    /// `sss reach list`: the segment bitmap's words, segments a row, the block bitmap's
+    /// words.
+    pub fn reach_list_push(&self) -> Vec<u32> {
+        let size = self.room.size;
+        vec![
+            needed_segment_words(size) as u32,
+            size.div_ceil(8),
+            reach_block_words(size) as u32,
+            0,
+        ]
+    }
+}
+
+/// u32 words of the reach's block bitmap of a `size`^2 atlas (at least one): a bit per 8 x 8
+/// block, block (x / 8, y / 8) at bit (y / 8) ceil(size / 8) + x / 8.
+pub fn reach_block_words(size: u32) -> u64 {
+    let (size, rows) = (size as u64, REACH_BLOCK_ROWS as u64);
+    (size.div_ceil(8) * size.div_ceil(rows)).div_ceil(32).max(1)
+}
+
+/// Texel rows of a block of the reach (8 texels wide: a block row holds whole segments).
+pub const REACH_BLOCK_ROWS: u32 = 2;
+
+/// What the reach passes know of each triangle from the UV layout and the contact entries
+/// (`start`: per texel its triangle, centre's barycentrics and contact range,
+/// [`start_texels`]; `contact`: [`contact_entries`]; `triangles` of them). Two entries a
+/// triangle: (m1, m2, m0 as f32 bits, n), m the least barycentrics of the centres of the
+/// texels that start from it (w0 = 1 - w1 - w2 in f32, as the diffusion computes it);
+/// (own, k, 0, first). From entry `own`, the k distinct blocks of those texels; from entry
+/// `first`, the n distinct blocks of the sources of those texels' contact entries; one block
+/// an entry, (block, 0, 0, 0). A triangle no texel starts from has two zero entries. Blocks
+/// are 8 x [`REACH_BLOCK_ROWS`] texels, block (x / 8, y / REACH_BLOCK_ROWS) numbered
+/// (y / REACH_BLOCK_ROWS) ceil(size / 8) + x / 8.
+pub fn reach_static(
+    start: &[[u32; 4]],
+    contact: &[[u32; 4]],
+    size: u32,
+    triangles: usize,
+) -> Vec<[u32; 4]> {
+    let row = size.div_ceil(8);
+    let block = |i: u32| (i / size / REACH_BLOCK_ROWS) * row + (i % size) / 8;
+    let mut mins = vec![[f32::INFINITY; 3]; triangles];
+    let mut own: Vec<Vec<u32>> = vec![Vec::new(); triangles];
+    let mut touched: Vec<Vec<u32>> = vec![Vec::new(); triangles];
+    for (i, s) in start.iter().enumerate() {
+        let t = s[0] as usize;
+        if t >= triangles {
+            continue;
+        }
+        let (w1, w2) = (f32::from_bits(s[1]), f32::from_bits(s[2]));
+        let w0 = 1.0 - w1 - w2;
+        let m = &mut mins[t];
+        for (k, w) in [w1, w2, w0].into_iter().enumerate() {
+            m[k] = m[k].min(w);
+        }
+        own[t].push(block(i as u32));
+        let (first, count) = ((s[3] >> 5) as usize, (s[3] & 31) as usize);
+        for e in contact.iter().skip(first).take(count) {
+            touched[t].push(block(e[0]));
+        }
+    }
+    let mut out = Vec::with_capacity(2 * triangles.max(1));
+    out.resize(2 * triangles, [0; 4]);
+    for (t, ((m, mine), blocks)) in mins.iter().zip(&mut own).zip(&mut touched).enumerate() {
+        if !m[0].is_finite() {
+            continue;
+        }
+        for list in [&mut *mine, &mut *blocks] {
+            list.sort_unstable();
+            list.dedup();
+        }
+        let at = out.len() as u32;
+        let first = at + mine.len() as u32;
+        out[2 * t] = [
+            m[0].to_bits(),
+            m[1].to_bits(),
+            m[2].to_bits(),
+            blocks.len() as u32,
+        ];
+        out[2 * t + 1] = [at, mine.len() as u32, 0, first];
+        out.extend(mine.iter().chain(blocks.iter()).map(|&k| [k, 0, 0, 0]));
+    }
+    if out.is_empty() {
+        out.resize(2, [0; 4]);
+    }
+    out
 }
 
 /// Checks a caller's irradiance for a `size`^2 texture: one finite rgba per texel.
@@ -484,6 +620,73 @@ mod tests {
         }
     }
 
+    /// The reach's shaders number the blocks as the host does.
+    #[test]
+    fn reach_shaders_agree_with_the_host() {
+        for src in [
+            include_str!("../../../glsl/sss/reach_mark.comp"),
+            include_str!("../../../glsl/sss/reach_boxes.comp"),
+            include_str!("../../../glsl/sss/reach_list.comp"),
+        ] {
+            let line = format!("const uint BLOCK_ROWS = {REACH_BLOCK_ROWS}u;");
+            assert!(src.contains(&line), "a reach shader lacks `{line}`");
+        }
+        let src = include_str!("../../../glsl/sss/reach_boxes.comp");
+        for line in [
+            format!("const uint WALK_RECORD = {}u;", walk::RECORD_TEXELS),
+            format!("const uint WALK_ROW = {BVH_ROW}u;"),
+            format!("const uint EDGE_SHARED = {}u;", walk::EDGE_SHARED),
+        ] {
+            assert!(
+                src.contains(&line),
+                "glsl/sss/reach_boxes.comp lacks `{line}`"
+            );
+        }
+    }
+
+    /// The reach's per-triangle data: the least barycentrics, the distinct blocks of a
+    /// triangle's texels and of its contact entries' sources.
+    #[test]
+    fn reach_static_lists_each_triangles_blocks_once() {
+        let size = 32;
+        let b = |x: f32| x.to_bits();
+        // Triangle 1: texels (0, 0), (1, 0) (one block), (9, 5) (another); triangle 0 none.
+        // Contact ranges: first << 5 | count.
+        let mut start = vec![[u32::MAX, 0, 0, 0]; (size * size) as usize];
+        start[0] = [1, b(0.25), b(0.5), 2];
+        start[1] = [1, b(-0.125), b(0.5), 1];
+        start[(5 * size + 9) as usize] = [1, b(0.5), b(0.25), 2 << 5 | 1];
+        // Contact sources: texel (31, 31), (30, 31) (one block), (0, 0).
+        let contact = vec![
+            [31 * size + 31, 0, 0, 0],
+            [31 * size + 30, 0, 0, 0],
+            [0, 0, 0, 0],
+        ];
+        let r = reach_static(&start, &contact, size, 2);
+        assert_eq!(r[0], [0; 4]);
+        assert_eq!(r[1], [0; 4]);
+        let m = r[2];
+        let (m1, m2, m0) = (
+            f32::from_bits(m[0]),
+            f32::from_bits(m[1]),
+            f32::from_bits(m[2]),
+        );
+        assert_eq!((m1, m2, m0), (-0.125, 0.25, 0.25));
+        let [own, k, _, first] = r[3];
+        let block = |x: u32, y: u32| (y / REACH_BLOCK_ROWS) * size.div_ceil(8) + x / 8;
+        let mine: Vec<u32> = r[own as usize..(own + k) as usize]
+            .iter()
+            .map(|e| e[0])
+            .collect();
+        assert_eq!(mine, vec![block(0, 0), block(9, 5)]);
+        let theirs: Vec<u32> = r[first as usize..(first + m[3]) as usize]
+            .iter()
+            .map(|e| e[0])
+            .collect();
+        assert_eq!(theirs, vec![block(0, 0), block(31, 31)]);
+        assert_eq!(r.len(), 4 + 2 + 2);
+    }
+
     /// The transmission's block of region tails is the size the host writes.
     #[test]
     fn vertex_light_shader_takes_every_region() {
@@ -596,6 +799,7 @@ mod tests {
             params: SamplerParams::default(),
             shadow_bias: 0.01,
             room: Room::of(&packed),
+            reach_radius: 1.0,
         };
         for (name, words) in [
             ("sss/vertex_light", s.vertex_light_push(2)),
@@ -606,6 +810,11 @@ mod tests {
             ("sss/diffusion_env", s.diffusion_push(7)),
             ("sss/diffusion_env_listed", s.diffusion_push(7)),
             ("sss/needed_list", s.needed_list_push()),
+            ("sss/irradiance_posed_env_listed", s.irradiance_push(2, 7)),
+            ("sss/reach_mark", s.reach_push()),
+            ("sss/reach_boxes", s.reach_push()),
+            ("sss/reach_triangles", s.reach_triangles_push(3)),
+            ("sss/reach_list", s.reach_list_push()),
             ("sss/vertex_env", vec![7]),
             ("sss/diffusion", s.diffusion_push(7)),
             ("sss/diffusion_grey", s.diffusion_push(7)),

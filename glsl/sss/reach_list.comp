@@ -1,0 +1,63 @@
+#version 450
+// Pass `sss reach list` (SssKernel::set_reach): the occupied atlas segments in a block of
+// this frame's reach (`reach_blocks`, written by `sss reach mark` and `sss reach boxes`),
+// listed for the irradiance (glsl/sss/irradiance_posed_env_listed.comp, dispatched
+// indirectly over the list), as `sss needed list` lists the needed ones (the same head:
+// (gx, gy, 1) 8-segment workgroups, then the count). It clears the blocks once every lane
+// has read them (the next frame starts empty). One workgroup.
+layout(local_size_x = 256) in;
+
+layout(push_constant) uniform Push {
+    uint words;        // words of the segment bitmap
+    uint row_segments; // ceil(atlas size / 8)
+    uint block_words;  // words of the block bitmap
+    uint pad;
+} pc;
+
+layout(std430, set = 0, binding = 19) readonly buffer Occupied { uint w[]; } occupied;
+layout(std430, set = 0, binding = 22) buffer ReachBlocks { uint w[]; } reach_blocks;
+layout(std430, set = 0, binding = 25) writeonly buffer ReachList { uint head[4]; uint v[]; } reach_list;
+
+const uint MAX_GROUPS = 65535u;
+const uint BLOCK_ROWS = 2u; // kernels::sss::pack::REACH_BLOCK_ROWS
+
+shared uint count;
+
+void main() {
+    uint lane = gl_LocalInvocationID.x;
+    if (lane == 0u) count = 0u;
+    barrier();
+    for (uint w = lane; w < pc.words; w += gl_WorkGroupSize.x) {
+        uint bits = occupied.w[w];
+        uint keep = 0u;
+        uint scan = bits;
+        while (scan != 0u) {
+            uint b = uint(findLSB(scan));
+            scan &= scan - 1u;
+            uint seg = w * 32u + b;
+            uint y = seg / pc.row_segments, sx = seg % pc.row_segments;
+            uint blk = (y / BLOCK_ROWS) * pc.row_segments + sx;
+            keep |= ((reach_blocks.w[blk >> 5u] >> (blk & 31u)) & 1u) << b;
+        }
+        if (keep == 0u) continue;
+        uint k = atomicAdd(count, uint(bitCount(keep)));
+        while (keep != 0u) {
+            uint seg = w * 32u + uint(findLSB(keep));
+            keep &= keep - 1u;
+            reach_list.v[k] = (seg % pc.row_segments) | ((seg / pc.row_segments) << 16u);
+            k++;
+        }
+    }
+    barrier();
+    for (uint w = lane; w < pc.block_words; w += gl_WorkGroupSize.x) reach_blocks.w[w] = 0u;
+    if (lane == 0u) {
+        uint n = count;
+        uint groups = (n + 7u) / 8u;
+        uint gy = (groups + MAX_GROUPS - 1u) / MAX_GROUPS;
+        uint gx = gy == 0u ? 0u : (groups + gy - 1u) / gy;
+        reach_list.head[0] = gx;
+        reach_list.head[1] = max(gy, 1u);
+        reach_list.head[2] = 1u;
+        reach_list.head[3] = n;
+    }
+}

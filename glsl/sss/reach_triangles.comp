@@ -1,0 +1,34 @@
+#version 450
+// Pass `sss reach triangles` (SssKernel::set_reach with triangle marks): every triangle with
+// a texel in a block of this frame's reach is marked in the caller's triangle bitmap
+// (`reach_marks`, bit first + t; the character frame's `vertex mark` bitmap, so that the
+// environment's per-vertex passes shade the corners whose irradiance the texture-space
+// irradiance of the reach interpolates). A triangle's texels' blocks are bounded by a box
+// are listed with the UV layout (kernels::sss::pack::reach_static); any reached one marks it.
+layout(local_size_x = 64) in;
+
+layout(push_constant) uniform Push {
+    uint triangles;
+    uint row_segments;
+    uint first;         // the bit of triangle 0 in reach_marks
+    uint pad;
+} pc;
+
+layout(std430, set = 0, binding = 22) readonly buffer ReachBlocks { uint w[]; } reach_blocks;
+layout(std430, set = 0, binding = 23) readonly buffer ReachStatic { uvec4 v[]; } reach_static;
+layout(std430, set = 0, binding = 24) buffer ReachMarks { uint w[]; } reach_marks;
+
+void main() {
+    uint t = gl_GlobalInvocationID.x;
+    if (t >= pc.triangles) return;
+    uvec4 own = reach_static.v[2u * t + 1u];
+    bool hit = false;
+    for (uint c = 0u; c < own.y; c++) {
+        uint b = reach_static.v[own.x + c].x;
+        hit = hit || ((reach_blocks.w[b >> 5u] >> (b & 31u)) & 1u) != 0u;
+    }
+    if (hit) {
+        uint m = pc.first + t;
+        atomicOr(reach_marks.w[m >> 5u], 1u << (m & 31u));
+    }
+}
