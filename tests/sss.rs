@@ -1634,7 +1634,7 @@ fn the_reach_restricts_the_irradiance_and_leaves_the_diffusion_unchanged() {
             first,
         })))?;
         setup.submit_and_wait()?;
-        assert_eq!(reach.front_passes(), 9, "{:?}", reach.passes());
+        assert_eq!(reach.front_passes(), 8, "{:?}", reach.passes());
         let mut frames = Vec::new();
         for (k, b) in buffers.iter().enumerate() {
             if k == 1 {

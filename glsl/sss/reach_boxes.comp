@@ -1,7 +1,10 @@
 #version 450
-// Pass `sss reach boxes` (SssKernel::set_reach): for each triangle pass `sss reach mark`
-// marked, the 8 x 8 blocks of the atlas its diffusion samples can land in, marked in
-// `reach_blocks`; it clears `reach_tris` as it reads it (the next frame starts empty).
+// Pass `sss reach boxes` (SssKernel::set_reach): for each triangle with a texel in a needed
+// segment (the caller's bitmap `needed`, through the triangle's list of segments), the
+// 8 x BLOCK_ROWS blocks of the atlas its diffusion samples can land in and the blocks of its
+// texels' contact entries' sources, marked in `reach_blocks`; and the blocks of its needed
+// segments themselves (a texel reads its own E, and a gutter texel's centre lies outside its
+// triangle's UV triangle). A texel with no surface starts from no triangle and reads nothing.
 //
 // A texel of triangle T samples at barycentrics b = w + J p, w its centre's (fixed by the
 // UV layout), p the sample's offset in T's plane rotated by the texel's angle, |p| <= R
@@ -26,17 +29,18 @@ layout(push_constant) uniform Push {
 } pc;
 
 layout(set = 0, binding = 2, rgba32ui) readonly uniform uimage2D walk;
-layout(std430, set = 0, binding = 21) buffer ReachTris { uint w[]; } reach_tris;
+layout(std430, set = 0, binding = 8) readonly buffer Needed { uint w[]; } needed;
 layout(std430, set = 0, binding = 22) buffer ReachBlocks { uint w[]; } reach_blocks;
-// Per triangle two entries: (m1, m2, m0 as float bits, n) and (the blocks its texels cover,
-// for pass `sss reach triangles`; first); entries first.. the n distinct blocks of its texels'
-// contact entries' sources (kernels::sss::pack::reach_static).
+// Per triangle two entries, (m1, m2, m0 as float bits, n) and (first, k, j, 0); from entry
+// first the k blocks of its texels (pass `sss reach triangles`), the j segments they lie
+// in, the n blocks of its texels' contact entries' sources (kernels::sss::pack::
+// reach_static).
 layout(std430, set = 0, binding = 23) readonly buffer ReachStatic { uvec4 v[]; } reach_static;
 
 const uint WALK_ROW = 1024u;
 const uint WALK_RECORD = 9u;
 const uint EDGE_SHARED = 0u;
-const uint BLOCK_ROWS = 2u; // kernels::sss::pack::REACH_BLOCK_ROWS
+const uint BLOCK_ROWS = 4u; // kernels::sss::pack::REACH_BLOCK_ROWS
 
 uvec4 record(uint tri, uint k) {
     uint i = tri * WALK_RECORD + k;
@@ -67,11 +71,19 @@ void mark_box(vec2 lo, vec2 hi) {
 
 void main() {
     uint t = gl_GlobalInvocationID.x;
-    uint word = t < pc.triangles ? reach_tris.w[t >> 5u] : 0u;
-    barrier();
-    // This workgroup's 64 triangles are two whole words: cleared once both are read.
-    if (t < pc.triangles && (t & 31u) == 0u && word != 0u) reach_tris.w[t >> 5u] = 0u;
-    if (t >= pc.triangles || ((word >> (t & 31u)) & 1u) == 0u) return;
+    if (t >= pc.triangles) return;
+    uvec4 st0 = reach_static.v[2u * t];
+    uvec4 st1 = reach_static.v[2u * t + 1u];
+    // Its needed segments' own blocks.
+    bool marked = false;
+    for (uint c = 0u; c < st1.z; c++) {
+        uint s = reach_static.v[st1.x + st1.y + c].x;
+        if (((needed.w[s >> 5u] >> (s & 31u)) & 1u) == 0u) continue;
+        marked = true;
+        uint b = (s / pc.row_segments / BLOCK_ROWS) * pc.row_segments + s % pc.row_segments;
+        atomicOr(reach_blocks.w[b >> 5u], 1u << (b & 31u));
+    }
+    if (!marked) return;
     uvec4 ra = record(t, 0u);
     uvec4 rb = record(t, 1u);
     uvec4 rc = record(t, 2u);
@@ -79,10 +91,9 @@ void main() {
     uint kinds = ra.w;
     // J: (d1, d2) = J p.
     float j00 = sh.x, j01 = -sh.x * sh.y * sh.z, j11 = sh.z;
-    uvec4 st0 = reach_static.v[2u * t];
     vec3 m = uintBitsToFloat(st0.xyz);
     // The contact entries' sources, read as they are.
-    uint first = reach_static.v[2u * t + 1u].w;
+    uint first = st1.x + st1.y + st1.z;
     for (uint c = 0u; c < st0.w; c++) {
         uint b = reach_static.v[first + c].x;
         atomicOr(reach_blocks.w[b >> 5u], 1u << (b & 31u));

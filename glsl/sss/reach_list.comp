@@ -1,6 +1,6 @@
 #version 450
 // Pass `sss reach list` (SssKernel::set_reach): the occupied atlas segments in a block of
-// this frame's reach (`reach_blocks`, written by `sss reach mark` and `sss reach boxes`),
+// this frame's reach (`reach_blocks`, written by `sss reach boxes`),
 // listed for the irradiance (glsl/sss/irradiance_posed_env_listed.comp, dispatched
 // indirectly over the list), as `sss needed list` lists the needed ones (the same head:
 // (gx, gy, 1) 8-segment workgroups, then the count). It clears the blocks once every lane
@@ -19,7 +19,7 @@ layout(std430, set = 0, binding = 22) buffer ReachBlocks { uint w[]; } reach_blo
 layout(std430, set = 0, binding = 25) writeonly buffer ReachList { uint head[4]; uint v[]; } reach_list;
 
 const uint MAX_GROUPS = 65535u;
-const uint BLOCK_ROWS = 2u; // kernels::sss::pack::REACH_BLOCK_ROWS
+const uint BLOCK_ROWS = 4u; // kernels::sss::pack::REACH_BLOCK_ROWS
 
 shared uint count;
 

@@ -21,7 +21,7 @@ layout(std430, set = 0, binding = 24) buffer ReachMarks { uint w[]; } reach_mark
 void main() {
     uint t = gl_GlobalInvocationID.x;
     if (t >= pc.triangles) return;
-    uvec4 own = reach_static.v[2u * t + 1u];
+    uvec4 own = reach_static.v[2u * t + 1u]; // (first, k, ...): the k blocks from first
     bool hit = false;
     for (uint c = 0u; c < own.y; c++) {
         uint b = reach_static.v[own.x + c].x;

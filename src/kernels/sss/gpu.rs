@@ -74,10 +74,8 @@ pub const PASS_DIFFUSION: &str = "sss diffusion";
 /// With needed segments set ([`SssKernel::set_needed_segments`]): the occupied segments the
 /// caller's bitmap marks, listed for the diffusion (dispatched indirectly over the list).
 pub const PASS_NEEDED_LIST: &str = "sss needed list";
-/// With the reach set ([`SssKernel::set_reach`]): the needed texels' triangles and their
-/// contact entries' sources.
-pub const PASS_REACH_MARK: &str = "sss reach mark";
-/// The atlas blocks where the marked triangles' diffusion samples can land.
+/// With the reach set ([`SssKernel::set_reach`]): the atlas blocks where the diffusion
+/// samples of the needed segments' triangles can land, and their contact entries' sources.
 pub const PASS_REACH_BOXES: &str = "sss reach boxes";
 /// With triangle marks: the triangles with a texel in the reach, into the caller's bitmap.
 pub const PASS_REACH_TRIANGLES: &str = "sss reach triangles";
@@ -184,12 +182,10 @@ struct Resources {
     /// (64 lanes a workgroup, 4 entries a lane).
     rays: Buffer,
     ray_head: Buffer,
-    /// The reach ([`SssKernel::set_reach`]): a bit per triangle (`sss reach mark`, cleared
-    /// by `sss reach boxes`), a bit per 8 x 8 atlas block ([`pack::reach_block_words`];
-    /// cleared by `sss reach list`), per triangle what the UV layout fixes
-    /// ([`pack::reach_static`]), and the list of the reached occupied segments (the
-    /// irradiance's VkDispatchIndirectCommand, the count, room for every tile).
-    reach_tris: Buffer,
+    /// The reach ([`SssKernel::set_reach`]): a bit per atlas block
+    /// ([`pack::reach_block_words`]; cleared by `sss reach list`), per triangle what the UV
+    /// layout fixes ([`pack::reach_static`]), and the list of the reached occupied segments
+    /// (the irradiance's VkDispatchIndirectCommand, the count, room for every tile).
     reach_blocks: Buffer,
     reach_static: Buffer,
     reach_list: Buffer,
@@ -279,10 +275,6 @@ impl Resources {
                 "sss shadow ray count",
                 BufferDesc::storage(16).usage(vk::BufferUsageFlags::INDIRECT_BUFFER),
             )?,
-            reach_tris: buffer(
-                "sss reach triangles",
-                BufferDesc::storage((room.triangles as u64).div_ceil(32).max(1) * 4),
-            )?,
             reach_blocks: buffer(
                 "sss reach blocks",
                 BufferDesc::storage(pack::reach_block_words(room.size) * 4),
@@ -300,7 +292,7 @@ impl Resources {
 
     /// Every resource, with the name the shaders bind it by: the passes bind by these names,
     /// and the memory report counts them all.
-    fn by_binding(&self) -> [(&'static str, Resource<'_>); 28] {
+    fn by_binding(&self) -> [(&'static str, Resource<'_>); 27] {
         let image = Resource::storage_image;
         [
             ("verts", Resource::Buffer(&self.vertex_frames)),
@@ -327,7 +319,6 @@ impl Resources {
             ("ray_head", Resource::Buffer(&self.ray_head)),
             ("occupied", Resource::Buffer(&self.occupied_segments)),
             ("needed_list", Resource::Buffer(&self.needed_list)),
-            ("reach_tris", Resource::Buffer(&self.reach_tris)),
             ("reach_blocks", Resource::Buffer(&self.reach_blocks)),
             ("reach_static", Resource::Buffer(&self.reach_static)),
             ("reach_list", Resource::Buffer(&self.reach_list)),
@@ -351,7 +342,6 @@ impl Resources {
             )));
         }
         rec.upload(&self.reach_static, 0, &reach)?;
-        rec.fill_buffer(&self.reach_tris, 0)?;
         rec.fill_buffer(&self.reach_blocks, 0)?;
         rec.upload_image_rows(&self.walk_records, &at_least_one(&p.walk_records))?;
         rec.upload_image_rows(&self.contact_entries, &at_least_one(&p.contact_entries))?;
@@ -516,6 +506,8 @@ pub struct SssKernel {
     /// diffusion must fill ([`SssKernel::set_needed_segments`]; its bind group holds the
     /// bitmap), when set: the diffusion then runs over the list.
     needed: Option<Stage>,
+    /// The caller's needed bitmap, when set (the reach reads it too).
+    needed_bitmap: Option<Buffer>,
     /// The reach of the needed segments ([`SssKernel::set_reach`]), when set.
     reach: Option<Reach>,
     settings: Settings,
@@ -653,7 +645,7 @@ struct Env {
 
 /// The passes of the reach ([`SssKernel::set_reach`]).
 struct Reach {
-    mark: Stage,
+    /// `sss reach boxes` (its bind group holds the caller's needed bitmap).
     boxes: Stage,
     /// With triangle marks: the pass and the bit of triangle 0 in the caller's bitmap.
     triangles: Option<(Stage, u32)>,
@@ -745,6 +737,7 @@ impl SssKernel {
             irradiance_kind: AtomicU8::new(IRR_GREY),
             env: None,
             needed: None,
+            needed_bitmap: None,
             reach: None,
             settings: Settings {
                 regions,
@@ -1117,12 +1110,12 @@ impl SssKernel {
     /// ([`SssKernel::set_vertex_irradiance`], [`SssKernel::set_needed_segments`]); `None`
     /// computes the irradiance of every occupied segment again.
     ///
-    /// Each frame, after the geometry passes and `sss needed list`: `sss reach mark` marks
-    /// the needed texels' triangles and the blocks of their contact entries' sources; `sss
-    /// reach boxes` bounds, per marked triangle, where its samples land through its own UV map
-    /// and through the maps of its shared edges (every landing of a texel at most the
-    /// patterns' longest offset from its centre, glsl/sss/reach_boxes.comp), in 8 x 8 atlas
-    /// blocks; `sss reach list` lists the occupied segments of those blocks, and the
+    /// Each frame, after the geometry passes and `sss needed list`: `sss reach boxes` bounds,
+    /// per triangle with a texel in a needed segment, where its samples land through its own
+    /// UV map and through the maps of its shared edges (every landing of a texel at most the
+    /// patterns' longest offset from its centre, glsl/sss/reach_boxes.comp) and where its
+    /// contact entries read, in blocks of 8 x [`pack::REACH_BLOCK_ROWS`] texels; `sss reach
+    /// list` lists the occupied segments of those blocks, and the
     /// irradiance runs over that list (the other segments keep what they held: the
     /// diffusion of the needed segments reads none of them). The diffusion's output is the
     /// same as without the reach, bit for bit.
@@ -1140,8 +1133,8 @@ impl SssKernel {
             }
             return Ok(());
         };
-        let env = match (&self.env, &self.needed, &self.posed) {
-            (Some(env), Some(_), Some(_)) => env,
+        let (env, needed) = match (&self.env, &self.needed_bitmap, &self.posed) {
+            (Some(env), Some(needed), Some(_)) => (env, needed),
             _ => {
                 return Err(Error::InvalidArgument(
                     "the reach restricts the irradiance of a posed kernel with a per-vertex \
@@ -1169,12 +1162,10 @@ impl SssKernel {
             None => None,
         };
         let listed = self.listed_irradiance(&env.venv, &env.vertex_texels, &env.image)?;
-        let stage = |name: &str, writes: &[&str]| Stage::new(&self.ctx, name, &self.res, writes);
         self.reach = Some(Reach {
-            mark: stage("sss/reach_mark", &[])?,
-            boxes: stage("sss/reach_boxes", &[])?,
+            boxes: self.reach_boxes(needed)?,
             triangles,
-            list: stage("sss/reach_list", &["reach_list"])?,
+            list: Stage::new(&self.ctx, "sss/reach_list", &self.res, &["reach_list"])?,
         });
         if let Some(env) = &mut self.env {
             env.listed = Some(listed);
@@ -1254,10 +1245,23 @@ impl SssKernel {
             }
             None => None,
         };
+        self.needed_bitmap = needed.cloned();
         if let Some(env) = &mut self.env {
             env.diffusion = diffusion;
         }
+        if let (Some(bitmap), Some(_)) = (needed, &self.reach) {
+            let boxes = self.reach_boxes(bitmap)?;
+            if let Some(r) = &mut self.reach {
+                r.boxes = boxes;
+            }
+        }
         Ok(())
+    }
+
+    /// Pass `sss reach boxes` over the needed bitmap `needed`.
+    fn reach_boxes(&self, needed: &Buffer) -> Result<Stage> {
+        let table = self.table_with([("needed", Resource::Buffer(needed))]);
+        Stage::from_table(&self.ctx, "sss/reach_boxes", &table, &[])
     }
 
     /// The passes of a frame before the lights ([`Kernel::passes`] up to `sss lights`): the
@@ -1376,11 +1380,6 @@ impl SssKernel {
     /// head).
     fn irradiance_listed_push(&self, lights: &[Light]) -> Result<Vec<u8>> {
         Ok(self.irradiance_args(lights)?.push)
-    }
-
-    /// `sss reach mark`'s push constants (its workgroups: the needed list's head).
-    fn reach_push(&self, _lights: &[Light]) -> Result<Vec<u8>> {
-        Ok(bytemuck::cast_slice(&self.settings.reach_push()).to_vec())
     }
 
     /// `sss reach boxes`: a lane per triangle.
@@ -1515,16 +1514,6 @@ impl Kernel for SssKernel {
         if let Some((list, r, _)) = reach {
             passes.extend([
                 list.pass(PASS_NEEDED_LIST, Self::needed_list_args),
-                Pass::dispatch_indirect(
-                    PASS_REACH_MARK,
-                    &r.mark.pipeline,
-                    &r.mark.bind,
-                    IndirectArgs {
-                        buffer: &self.res.needed_list,
-                        offset: 0,
-                    },
-                    Self::reach_push,
-                ),
                 r.boxes.pass(PASS_REACH_BOXES, Self::reach_boxes_args),
             ]);
             if let Some((t, _)) = &r.triangles {

@@ -313,8 +313,8 @@ impl Settings {
         vec![needed_segment_words(size) as u32, size.div_ceil(8)]
     }
 
-    /// `sss reach mark` and `sss reach boxes`: size, triangles, blocks a block row, the
-    /// samples' longest offset (mm) with a margin of 1e-4 for its rounding.
+    /// `sss reach boxes`: size, triangles, blocks a block row, the samples' longest offset
+    /// (mm) with a margin of 1e-4 for its rounding.
     pub fn reach_push(&self) -> Vec<u32> {
         let size = self.room.size;
         let radius = self.reach_radius * (1.0 + 1e-4);
@@ -358,18 +358,19 @@ pub fn reach_block_words(size: u32) -> u64 {
 }
 
 /// Texel rows of a block of the reach (8 texels wide: a block row holds whole segments).
-pub const REACH_BLOCK_ROWS: u32 = 2;
+pub const REACH_BLOCK_ROWS: u32 = 4;
 
 /// What the reach passes know of each triangle from the UV layout and the contact entries
 /// (`start`: per texel its triangle, centre's barycentrics and contact range,
 /// [`start_texels`]; `contact`: [`contact_entries`]; `triangles` of them). Two entries a
 /// triangle: (m1, m2, m0 as f32 bits, n), m the least barycentrics of the centres of the
 /// texels that start from it (w0 = 1 - w1 - w2 in f32, as the diffusion computes it);
-/// (own, k, 0, first). From entry `own`, the k distinct blocks of those texels; from entry
-/// `first`, the n distinct blocks of the sources of those texels' contact entries; one block
-/// an entry, (block, 0, 0, 0). A triangle no texel starts from has two zero entries. Blocks
-/// are 8 x [`REACH_BLOCK_ROWS`] texels, block (x / 8, y / REACH_BLOCK_ROWS) numbered
-/// (y / REACH_BLOCK_ROWS) ceil(size / 8) + x / 8.
+/// (own, k, j, 0). From entry `own`: the k distinct blocks of those texels, the j distinct
+/// 8 x 1 segments they lie in ([`needed_segment`] numbers them), then the n distinct blocks
+/// of the sources of those texels' contact entries; one an entry, (index, 0, 0, 0). A
+/// triangle no texel starts from has two zero entries. Blocks are 8 x [`REACH_BLOCK_ROWS`]
+/// texels, block (x / 8, y / REACH_BLOCK_ROWS) numbered (y / REACH_BLOCK_ROWS)
+/// ceil(size / 8) + x / 8.
 pub fn reach_static(
     start: &[[u32; 4]],
     contact: &[[u32; 4]],
@@ -380,6 +381,7 @@ pub fn reach_static(
     let block = |i: u32| (i / size / REACH_BLOCK_ROWS) * row + (i % size) / 8;
     let mut mins = vec![[f32::INFINITY; 3]; triangles];
     let mut own: Vec<Vec<u32>> = vec![Vec::new(); triangles];
+    let mut segments: Vec<Vec<u32>> = vec![Vec::new(); triangles];
     let mut touched: Vec<Vec<u32>> = vec![Vec::new(); triangles];
     for (i, s) in start.iter().enumerate() {
         let t = s[0] as usize;
@@ -393,6 +395,7 @@ pub fn reach_static(
             m[k] = m[k].min(w);
         }
         own[t].push(block(i as u32));
+        segments[t].push(needed_segment(i as u32 % size, i as u32 / size, size) as u32);
         let (first, count) = ((s[3] >> 5) as usize, (s[3] & 31) as usize);
         for e in contact.iter().skip(first).take(count) {
             touched[t].push(block(e[0]));
@@ -400,24 +403,24 @@ pub fn reach_static(
     }
     let mut out = Vec::with_capacity(2 * triangles.max(1));
     out.resize(2 * triangles, [0; 4]);
-    for (t, ((m, mine), blocks)) in mins.iter().zip(&mut own).zip(&mut touched).enumerate() {
+    for (t, m) in mins.iter().enumerate() {
         if !m[0].is_finite() {
             continue;
         }
-        for list in [&mut *mine, &mut *blocks] {
+        let lists = [&mut own[t], &mut segments[t], &mut touched[t]];
+        for list in lists {
             list.sort_unstable();
             list.dedup();
         }
-        let at = out.len() as u32;
-        let first = at + mine.len() as u32;
+        let (mine, segs, blocks) = (&own[t], &segments[t], &touched[t]);
         out[2 * t] = [
             m[0].to_bits(),
             m[1].to_bits(),
             m[2].to_bits(),
             blocks.len() as u32,
         ];
-        out[2 * t + 1] = [at, mine.len() as u32, 0, first];
-        out.extend(mine.iter().chain(blocks.iter()).map(|&k| [k, 0, 0, 0]));
+        out[2 * t + 1] = [out.len() as u32, mine.len() as u32, segs.len() as u32, 0];
+        out.extend(mine.iter().chain(segs).chain(blocks).map(|&k| [k, 0, 0, 0]));
     }
     if out.is_empty() {
         out.resize(2, [0; 4]);
@@ -624,7 +627,6 @@ mod tests {
     #[test]
     fn reach_shaders_agree_with_the_host() {
         for src in [
-            include_str!("../../../glsl/sss/reach_mark.comp"),
             include_str!("../../../glsl/sss/reach_boxes.comp"),
             include_str!("../../../glsl/sss/reach_list.comp"),
         ] {
@@ -672,19 +674,19 @@ mod tests {
             f32::from_bits(m[2]),
         );
         assert_eq!((m1, m2, m0), (-0.125, 0.25, 0.25));
-        let [own, k, _, first] = r[3];
+        let [own, k, j, _] = r[3];
         let block = |x: u32, y: u32| (y / REACH_BLOCK_ROWS) * size.div_ceil(8) + x / 8;
-        let mine: Vec<u32> = r[own as usize..(own + k) as usize]
-            .iter()
-            .map(|e| e[0])
-            .collect();
-        assert_eq!(mine, vec![block(0, 0), block(9, 5)]);
-        let theirs: Vec<u32> = r[first as usize..(first + m[3]) as usize]
-            .iter()
-            .map(|e| e[0])
-            .collect();
-        assert_eq!(theirs, vec![block(0, 0), block(31, 31)]);
-        assert_eq!(r.len(), 4 + 2 + 2);
+        let list = |from: u32, n: u32| -> Vec<u32> {
+            r[from as usize..(from + n) as usize]
+                .iter()
+                .map(|e| e[0])
+                .collect()
+        };
+        assert_eq!(list(own, k), vec![block(0, 0), block(9, 5)]);
+        let seg = |x, y| needed_segment(x, y, size) as u32;
+        assert_eq!(list(own + k, j), vec![seg(0, 0), seg(9, 5)]);
+        assert_eq!(list(own + k + j, m[3]), vec![block(0, 0), block(31, 31)]);
+        assert_eq!(r.len(), 4 + 2 + 2 + 2);
     }
 
     /// The transmission's block of region tails is the size the host writes.
@@ -811,7 +813,6 @@ mod tests {
             ("sss/diffusion_env_listed", s.diffusion_push(7)),
             ("sss/needed_list", s.needed_list_push()),
             ("sss/irradiance_posed_env_listed", s.irradiance_push(2, 7)),
-            ("sss/reach_mark", s.reach_push()),
             ("sss/reach_boxes", s.reach_push()),
             ("sss/reach_triangles", s.reach_triangles_push(3)),
             ("sss/reach_list", s.reach_list_push()),
