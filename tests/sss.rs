@@ -1558,13 +1558,19 @@ fn a_constant_per_vertex_irradiance_adds_exactly_itself() {
 /// with another irradiance (they hold the first frame's); the reach leaves segments out
 /// (else this would test nothing); the triangles it marks in the caller's bitmap (from bit
 /// `first`) are exactly those with a texel in a reached segment; recording the front and the
-/// back apart is recording the frame; misuse is refused.
+/// back apart is recording the frame; misuse is refused. At 256^2 (atlas rows of whole
+/// bitmap words: `sss reach list` takes a word at a time) and 200^2 (a segment at a time).
 #[test]
 fn the_reach_restricts_the_irradiance_and_leaves_the_diffusion_unchanged() {
+    for size in [256, 200] {
+        reach_at(size);
+    }
+}
+
+fn reach_at(size: u32) {
     use vkshade::gpu::BufferDesc;
     use vkshade::kernels::sss::PosedSource;
     use vkshade::kernels::sss::gpu::ReachMarks;
-    let size = 256;
     let (ch, posed) = posed_head(0.6);
     let rest = TexGeometry::build(&ch.mesh, size, 1000.0).unwrap();
     let p = Profile::new(ProfileKind::Dipole, Material::SKIN1, 0.995).unwrap();
@@ -1716,7 +1722,7 @@ fn the_reach_restricts_the_irradiance_and_leaves_the_diffusion_unchanged() {
         }
         assert_eq!(marks, &twin, "frame {k}: the reach's triangle marks");
         eprintln!(
-            "frame {k}: {} of {} occupied segments reached ({needed} needed), {} triangles marked",
+            "{size}^2, frame {k}: {} of {} occupied segments reached ({needed} needed), {} triangles marked",
             set.len(),
             occupied.len(),
             twin.iter().map(|w| w.count_ones()).sum::<u32>()

@@ -30,14 +30,22 @@ void main() {
     for (uint w = lane; w < pc.words; w += gl_WorkGroupSize.x) {
         uint bits = occupied.w[w];
         uint keep = 0u;
-        uint scan = bits;
-        while (scan != 0u) {
-            uint b = uint(findLSB(scan));
-            scan &= scan - 1u;
-            uint seg = w * 32u + b;
-            uint y = seg / pc.row_segments, sx = seg % pc.row_segments;
-            uint blk = (y / BLOCK_ROWS) * pc.row_segments + sx;
-            keep |= ((reach_blocks.w[blk >> 5u] >> (blk & 31u)) & 1u) << b;
+        if ((pc.row_segments & 31u) == 0u) {
+            // Rows of whole words (atlas sizes that are multiples of 256): the word of the
+            // block row holds the same 32 segment columns.
+            uint row_words = pc.row_segments >> 5u;
+            uint y = w / row_words;
+            keep = bits & reach_blocks.w[(y / BLOCK_ROWS) * row_words + w % row_words];
+        } else {
+            uint scan = bits;
+            while (scan != 0u) {
+                uint b = uint(findLSB(scan));
+                scan &= scan - 1u;
+                uint seg = w * 32u + b;
+                uint y = seg / pc.row_segments, sx = seg % pc.row_segments;
+                uint blk = (y / BLOCK_ROWS) * pc.row_segments + sx;
+                keep |= ((reach_blocks.w[blk >> 5u] >> (blk & 31u)) & 1u) << b;
+            }
         }
         if (keep == 0u) continue;
         uint k = atomicAdd(count, uint(bitCount(keep)));
