@@ -1555,7 +1555,8 @@ fn a_constant_per_vertex_irradiance_adds_exactly_itself() {
 /// On a posed head: the diffusion of the needed segments equals the unrestricted kernel's
 /// bit for bit, on a first frame (the segments the reach leaves out hold no surface yet, so
 /// a sample landing there would be lost and the texel would differ) and on a second frame
-/// with another irradiance (they hold the first frame's); the reach leaves segments out
+/// of another pose with another irradiance written into the same buffers (they hold the
+/// first frame's); the reach leaves segments out
 /// (else this would test nothing); the triangles it marks in the caller's bitmap (from bit
 /// `first`) are exactly those with a texel in a reached segment; recording the front and the
 /// back apart is recording the frame; misuse is refused. At 256^2 (atlas rows of whole
@@ -1572,6 +1573,7 @@ fn reach_at(size: u32) {
     use vkshade::kernels::sss::PosedSource;
     use vkshade::kernels::sss::gpu::ReachMarks;
     let (ch, posed) = posed_head(0.6);
+    let (_, posed2) = posed_head(0.25);
     let rest = TexGeometry::build(&ch.mesh, size, 1000.0).unwrap();
     let p = Profile::new(ProfileKind::Dipole, Material::SKIN1, 0.995).unwrap();
     let lights = [Light::Directional {
@@ -1601,10 +1603,7 @@ fn reach_at(size: u32) {
         };
         let mut full = make(&mut setup)?;
         let mut reach = make(&mut setup)?;
-        let buffers = [
-            vertex_buffer(&mut setup, &ve)?,
-            vertex_buffer(&mut setup, &ve2)?,
-        ];
+        let buffer = vertex_buffer(&mut setup, &ve)?;
         let words = reach.needed_segment_bytes() / 4;
         let bits: Vec<u32> = (0..words as u32)
             .map(|w| (0..32).filter(|b| band(w * 32 + b)).map(|b| 1 << b).sum())
@@ -1625,8 +1624,8 @@ fn reach_at(size: u32) {
         // Refused before a per-vertex irradiance and needed segments.
         let e = reach.set_reach(Some(None)).unwrap_err();
         assert!(e.to_string().contains("set_needed_segments"), "{e}");
-        full.set_vertex_irradiance(&mut setup, Some(&buffers[0]))?;
-        reach.set_vertex_irradiance(&mut setup, Some(&buffers[0]))?;
+        full.set_vertex_irradiance(&mut setup, Some(&buffer))?;
+        reach.set_vertex_irradiance(&mut setup, Some(&buffer))?;
         reach.set_needed_segments(Some(&needed))?;
         let e = reach
             .set_reach(Some(Some(ReachMarks {
@@ -1642,14 +1641,14 @@ fn reach_at(size: u32) {
         setup.submit_and_wait()?;
         assert_eq!(reach.front_passes(), 8, "{:?}", reach.passes());
         let mut frames = Vec::new();
-        for (k, b) in buffers.iter().enumerate() {
-            if k == 1 {
-                let mut rec = ctx.recorder("sss reach second irradiance")?;
-                full.set_vertex_irradiance(&mut rec, Some(b))?;
-                reach.set_vertex_irradiance(&mut rec, Some(b))?;
-                rec.submit_and_wait()?;
-            }
+        for k in 0..2 {
             let mut rec = ctx.recorder("sss reach frame")?;
+            if k == 1 {
+                // Another pose and irradiance in the same buffers: the outputs keep the
+                // first frame's values where this frame does not write.
+                src.write(&mut rec, &posed2.positions, &posed2.normals)?;
+                rec.upload(&buffer, 0, &ve2)?;
+            }
             // Frame 0 through record, frame 1 as the front and the back apart.
             rec.fill_buffer(&marks, 0)?;
             if k == 0 {

@@ -101,7 +101,11 @@ void main() {
     // Inside T a sample reads through T's own map, at a point of T: its UV triangle.
     vec2 uv0 = uintBitsToFloat(rb.xy), du1 = uintBitsToFloat(rb.zw), du2 = uintBitsToFloat(rc.xy);
     vec2 a1 = uv0 + du1, a2 = uv0 + du2;
-    mark_box(min(uv0, min(a1, a2)), max(uv0, max(a1, a2)));
+    // (widened by 1e-4 of the offsets' reach through this map: the diffusion rounds
+    // uvt + mx ux + my uy, whose terms grow with it)
+    vec2 h0 = pc.radius * vec2(length(vec2(du1.x * j00, du1.x * j01 + du2.x * j11)),
+                               length(vec2(du1.y * j00, du1.y * j01 + du2.y * j11)));
+    mark_box(min(uv0, min(a1, a2)) - 1e-4 * h0, max(uv0, max(a1, a2)) + 1e-4 * h0);
     // Texel centres all in T (m >= 0): a sample leaving through edge e crosses it at a
     // point of that edge, at most R before it lands, so its landing is within R of the
     // edge (corners e + 1, e + 2). Otherwise (gutter texels whose centres lie outside T):

@@ -56,6 +56,7 @@ void main() {
             k++;
         }
     }
+    memoryBarrierBuffer();
     barrier();
     for (uint w = lane; w < pc.block_words; w += gl_WorkGroupSize.x) reach_blocks.w[w] = 0u;
     if (lane == 0u) {

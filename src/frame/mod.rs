@@ -1352,17 +1352,26 @@ impl CharacterFrame {
         v.extend(self.pose.passes());
         v.extend(self.ao.passes());
         v.extend(self.raster.passes());
+        // As `record`: the skin's passes before the lights come before the vertex list.
+        let skin = self.sss.as_ref().map(|s| {
+            let mut all = s.kernel.passes();
+            let back = all.split_off(s.kernel.front_passes());
+            (s, all, back)
+        });
+        if let Some((s, front, _)) = &skin {
+            if let Some(n) = &s.need {
+                v.extend(n.passes());
+            }
+            v.extend(front.iter().cloned());
+        }
         if let Some(l) = &self.vertices {
             v.extend(l.passes());
         }
         if let Some(e) = &self.env {
             v.extend(e.passes());
         }
-        if let Some(s) = &self.sss {
-            if let Some(n) = &s.need {
-                v.extend(n.passes());
-            }
-            v.extend(s.kernel.passes());
+        if let Some((_, _, back)) = skin {
+            v.extend(back);
         }
         for g in &self.cloth {
             v.extend(g.kernel.passes());

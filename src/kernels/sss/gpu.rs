@@ -332,17 +332,6 @@ impl Resources {
         rec.upload_image_rows(&self.texel_normals, p.texel_normals)?;
         rec.upload_image_rows(&self.texel_corners, &p.texel_corners)?;
         rec.upload_image_rows(&self.diffusion_start, &p.diffusion_start)?;
-        let reach = pack::reach_static(&p.diffusion_start, &p.contact_entries, p.size, p.triangles);
-        if reach.len() as u64 * 16 > self.reach_static.size() {
-            return Err(Error::InvalidArgument(format!(
-                "{} reach entries (triangles and contact blocks) where the kernel made room \
-                 for {}",
-                reach.len(),
-                self.reach_static.size() / 16
-            )));
-        }
-        rec.upload(&self.reach_static, 0, &reach)?;
-        rec.fill_buffer(&self.reach_blocks, 0)?;
         rec.upload_image_rows(&self.walk_records, &at_least_one(&p.walk_records))?;
         rec.upload_image_rows(&self.contact_entries, &at_least_one(&p.contact_entries))?;
         self.set_tiles(rec, p.tiles)?;
@@ -724,6 +713,18 @@ impl SssKernel {
             .map(u32::from)
             .collect();
         rec.upload(&res.vertex_regions, 0, &at_least_one(&vertex_regions))?;
+        // The reach's data ([`SssKernel::set_reach`], posed kernels only: their UV layout and
+        // contact entries are those of this first pose for good), its empty block bitmap
+        // and list.
+        let reach = pack::reach_static(
+            &packed.diffusion_start,
+            &packed.contact_entries,
+            packed.size,
+            packed.triangles,
+        );
+        rec.upload(&res.reach_static, 0, &reach)?;
+        rec.fill_buffer(&res.reach_blocks, 0)?;
+        rec.upload(&res.reach_list, 0, &crate::kernels::EMPTY_LIST_HEAD)?;
         res.upload(rec, packed)?;
         Ok(SssKernel {
             ctx,

@@ -101,9 +101,8 @@ pub struct Room {
     pub bvh_node_rows: u32,
     pub bvh_triangle_rows: u32,
     pub contact_rows: u32,
-    /// Entries of the reach's per-triangle data ([`reach_static`]): this pose's (the blocks
-    /// of a triangle's texels are the UV layout's), and room for as many contact blocks as
-    /// contact entries besides.
+    /// Entries of the reach's per-triangle data ([`reach_static`]) of the first pose, the
+    /// only one a posed kernel packs (the reach is for posed kernels).
     pub reach_entries: usize,
 }
 
@@ -147,8 +146,7 @@ impl Room {
                 p.size,
                 p.triangles,
             )
-            .len()
-                + contact,
+            .len(),
         }
     }
 
@@ -350,8 +348,9 @@ impl Settings {
     }
 }
 
-/// u32 words of the reach's block bitmap of a `size`^2 atlas (at least one): a bit per 8 x 8
-/// block, block (x / 8, y / 8) at bit (y / 8) ceil(size / 8) + x / 8.
+/// u32 words of the reach's block bitmap of a `size`^2 atlas (at least one): a bit per block
+/// of 8 x [`REACH_BLOCK_ROWS`] texels, block (x / 8, y / REACH_BLOCK_ROWS) at bit
+/// (y / REACH_BLOCK_ROWS) ceil(size / 8) + x / 8.
 pub fn reach_block_words(size: u32) -> u64 {
     let (size, rows) = (size as u64, REACH_BLOCK_ROWS as u64);
     (size.div_ceil(8) * size.div_ceil(rows)).div_ceil(32).max(1)
