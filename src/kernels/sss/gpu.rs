@@ -217,7 +217,8 @@ fn rgba32f(size: [u32; 2]) -> ImageDesc {
 impl Resources {
     /// Creates the images and buffers `room` asks for, the pattern image with rows for
     /// `regions` skin regions (nothing uploaded).
-    fn new(ctx: &Context, room: &Room, regions: usize) -> Result<Resources> {
+    /// `reach_entries`: of the reach's per-triangle data ([`pack::reach_static`]).
+    fn new(ctx: &Context, room: &Room, regions: usize, reach_entries: usize) -> Result<Resources> {
         let image = |name: &str, desc: ImageDesc| Image::new(ctx, name, desc);
         let buffer = |name: &str, desc: BufferDesc| Buffer::new(ctx, name, desc);
         let rows = |rows: u32| uint_image([BVH_ROW, rows]);
@@ -281,7 +282,7 @@ impl Resources {
             )?,
             reach_static: buffer(
                 "sss reach layout",
-                BufferDesc::storage(room.reach_entries as u64 * 16),
+                BufferDesc::storage(reach_entries as u64 * 16),
             )?,
             reach_list: buffer(
                 "sss reach segments",
@@ -632,6 +633,14 @@ struct Env {
     listed: Option<Stage>,
 }
 
+/// The passes of a pass table before the lights ([`SssKernel::front_passes`]).
+fn front_len(table: &[Pass<'_, SssKernel>]) -> usize {
+    table
+        .iter()
+        .position(|p| p.name == PASS_LIGHTS)
+        .unwrap_or(0)
+}
+
 /// The passes of the reach ([`SssKernel::set_reach`]).
 struct Reach {
     /// `sss reach boxes` (its bind group holds the caller's needed bitmap).
@@ -697,7 +706,15 @@ impl SssKernel {
             )));
         }
         let room = Room::of(&packed);
-        let res = Resources::new(&ctx, &room, regions.len())?;
+        // The reach's data ([`SssKernel::set_reach`], posed kernels only: their UV layout and
+        // contact entries are those of this first pose for good).
+        let reach = pack::reach_static(
+            &packed.diffusion_start,
+            &packed.contact_entries,
+            packed.size,
+            packed.triangles,
+        );
+        let res = Resources::new(&ctx, &room, regions.len(), reach.len())?;
         let stage = |name, writes: &[&str]| Stage::new(&ctx, name, &res, writes);
         let vertex_light = stage("sss/vertex_light", &["vis", "vtrans"])?;
         let irradiance =
@@ -713,15 +730,7 @@ impl SssKernel {
             .map(u32::from)
             .collect();
         rec.upload(&res.vertex_regions, 0, &at_least_one(&vertex_regions))?;
-        // The reach's data ([`SssKernel::set_reach`], posed kernels only: their UV layout and
-        // contact entries are those of this first pose for good), its empty block bitmap
-        // and list.
-        let reach = pack::reach_static(
-            &packed.diffusion_start,
-            &packed.contact_entries,
-            packed.size,
-            packed.triangles,
-        );
+        // The reach's data, its empty block bitmap and list.
         rec.upload(&res.reach_static, 0, &reach)?;
         rec.fill_buffer(&res.reach_blocks, 0)?;
         rec.upload(&res.reach_list, 0, &crate::kernels::EMPTY_LIST_HEAD)?;
@@ -1054,11 +1063,7 @@ impl SssKernel {
         )?;
         let per_vertex = [VERTEX_ROW, pack::rows(vertices as usize, VERTEX_ROW)];
         let vertex_texels = Image::new(&ctx, "sss vertex E", rgba32f(per_vertex))?;
-        let table = self.table_with([
-            ("venv", Resource::Buffer(buffer)),
-            ("venv_texels", Resource::storage_image(&vertex_texels)),
-            ("penv", Resource::storage_image(&image)),
-        ]);
+        let table = self.env_table(buffer, &vertex_texels, &image);
         let shader = if self.posed.is_some() {
             "sss/irradiance_posed_env"
         } else {
@@ -1084,19 +1089,29 @@ impl SssKernel {
         Ok(())
     }
 
-    /// The env irradiance's shading pass over the reach's list (`venv`: the caller's
-    /// per-vertex buffer, `vertex_texels` and `image` the [`Env`]'s).
+    /// The resources of the per-vertex irradiance's passes (`venv`: the caller's per-vertex
+    /// buffer, `vertex_texels` and `image` the [`Env`]'s).
+    fn env_table<'a>(
+        &'a self,
+        venv: &'a Buffer,
+        vertex_texels: &'a Image,
+        image: &'a Image,
+    ) -> Vec<(&'static str, Resource<'a>)> {
+        self.table_with([
+            ("venv", Resource::Buffer(venv)),
+            ("venv_texels", Resource::storage_image(vertex_texels)),
+            ("penv", Resource::storage_image(image)),
+        ])
+    }
+
+    /// The env irradiance's shading pass over the reach's list ([`SssKernel::env_table`]).
     fn listed_irradiance(
         &self,
         venv: &Buffer,
         vertex_texels: &Image,
         image: &Image,
     ) -> Result<Stage> {
-        let table = self.table_with([
-            ("venv", Resource::Buffer(venv)),
-            ("venv_texels", Resource::storage_image(vertex_texels)),
-            ("penv", Resource::storage_image(image)),
-        ]);
+        let table = self.env_table(venv, vertex_texels, image);
         Stage::from_table(
             &self.ctx,
             "sss/irradiance_posed_env_listed",
@@ -1272,15 +1287,13 @@ impl SssKernel {
     /// before the passes that compute the per-vertex irradiance of the triangles the reach
     /// marks.
     pub fn front_passes(&self) -> usize {
-        self.pass_table()
-            .iter()
-            .position(|p| p.name == PASS_LIGHTS)
-            .unwrap_or(0)
+        front_len(&self.pass_table())
     }
 
     /// Records the passes before the lights ([`SssKernel::front_passes`]).
     pub fn record_front(&self, rec: &mut Recorder) -> Result<()> {
-        for pass in self.pass_table().iter().take(self.front_passes()) {
+        let table = self.pass_table();
+        for pass in &table[..front_len(&table)] {
             pass.record(self, rec, &[])?;
         }
         Ok(())
@@ -1290,8 +1303,8 @@ impl SssKernel {
     /// is the two in a row.
     pub fn record_back(&self, rec: &mut Recorder, lights: &[Light]) -> Result<()> {
         self.check_input(lights)?;
-        let front = self.front_passes();
-        for pass in self.pass_table().iter().skip(front) {
+        let table = self.pass_table();
+        for pass in &table[front_len(&table)..] {
             pass.record(self, rec, lights)?;
         }
         Ok(())

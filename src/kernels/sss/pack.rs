@@ -101,9 +101,6 @@ pub struct Room {
     pub bvh_node_rows: u32,
     pub bvh_triangle_rows: u32,
     pub contact_rows: u32,
-    /// Entries of the reach's per-triangle data ([`reach_static`]) of the first pose, the
-    /// only one a posed kernel packs (the reach is for posed kernels).
-    pub reach_entries: usize,
 }
 
 /// Writes each triangle's region into its walk record (texel 2 of
@@ -140,13 +137,6 @@ impl Room {
             bvh_node_rows: rows(2 * nodes, BVH_ROW),
             bvh_triangle_rows: rows(3 * p.bvh_triangles.len(), BVH_ROW),
             contact_rows: rows(contact, BVH_ROW),
-            reach_entries: reach_static(
-                &p.diffusion_start,
-                &p.contact_entries,
-                p.size,
-                p.triangles,
-            )
-            .len(),
         }
     }
 
