@@ -72,25 +72,39 @@ bool hit_tri(vec3 o, vec3 d, uint t, float tmax) {
 // entering an inner node goes to its left child, a leaf's triangles are tested and then its
 // skip is taken. The root's skip (0xffffff) ends it; every step moves forward in the
 // depth-first order (MAX_STEPS only guards a malformed table).
+// One loop whose step is either a node or one triangle of the leaf just entered, not a loop
+// over the leaf's triangles inside the node loop: the lanes of a SIMD step walk different
+// paths, and a nested loop ran, at every node step, as many triangle steps as the lane with
+// the most (every lane waiting, masked, while one tested a leaf). Measured on lavapipe
+// (`bench frame`, alternated runs): `env trace` 7.3-7.7 -> 6.2-6.4 ms, `sss irradiance
+// rays` 3.2-3.3 -> 2.8 ms, `sss vertex light` 0.84-0.98 -> 0.68-0.71 ms (the same shape in
+// env/trace.glsl and sss/packet.glsl).
 const uint LINK_END = 0xffffffu;
 const uint MAX_STEPS = 1u << 22u;
 
 bool any_hit(vec3 o, vec3 d, float tmax) {
     vec3 inv = 1.0 / d;
     uint ni = 0u;
-    for (uint step = 0u; ni != LINK_END && step < MAX_STEPS; step++) {
-        uvec4 lo_u = bvh_node(2u * ni);
-        uvec4 hi_u = bvh_node(2u * ni + 1u);
-        vec3 lo = uintBitsToFloat(lo_u.xyz);
-        vec3 hi = uintBitsToFloat(hi_u.xyz);
-        bool meets = slab_meets(lo - o, hi - o, inv, tmax);
-        uint first = lo_u.w;
-        uint count = hi_u.w & 0xffu;
-        uint n = meets ? count : 0u;
-        for (uint t = first; t < first + n; t++) {
+    uint t = 0u;
+    uint tend = 0u;
+    for (uint step = 0u; (ni != LINK_END || t < tend) && step < MAX_STEPS; step++) {
+        if (t < tend) {
             if (hit_tri(o, d, t, tmax)) return true;
+            t++;
+        } else {
+            uvec4 lo_u = bvh_node(2u * ni);
+            uvec4 hi_u = bvh_node(2u * ni + 1u);
+            vec3 lo = uintBitsToFloat(lo_u.xyz);
+            vec3 hi = uintBitsToFloat(hi_u.xyz);
+            bool meets = slab_meets(lo - o, hi - o, inv, tmax);
+            uint first = lo_u.w;
+            uint count = hi_u.w & 0xffu;
+            if (meets && count != 0u) {
+                t = first;
+                tend = first + count;
+            }
+            ni = (meets && count == 0u) ? first : hi_u.w >> 8u;
         }
-        ni = (meets && count == 0u) ? first : hi_u.w >> 8u;
     }
     return false;
 }
@@ -102,23 +116,30 @@ vec2 closest_hit(vec3 o, vec3 d, float tmax) {
     float best = -1.0;
     uint best_tri = 0u;
     uint ni = 0u;
-    for (uint step = 0u; ni != LINK_END && step < MAX_STEPS; step++) {
-        uvec4 lo_u = bvh_node(2u * ni);
-        uvec4 hi_u = bvh_node(2u * ni + 1u);
-        vec3 lo = uintBitsToFloat(lo_u.xyz);
-        vec3 hi = uintBitsToFloat(hi_u.xyz);
-        bool meets = slab_meets(lo - o, hi - o, inv, best >= 0.0 ? best : tmax);
-        uint first = lo_u.w;
-        uint count = hi_u.w & 0xffu;
-        uint n = meets ? count : 0u;
-        for (uint t = first; t < first + n; t++) {
+    uint t = 0u;
+    uint tend = 0u;
+    for (uint step = 0u; (ni != LINK_END || t < tend) && step < MAX_STEPS; step++) {
+        if (t < tend) {
             float th = hit_t(o, d, t, tmax);
             if (th >= 0.0 && (best < 0.0 || th < best)) {
                 best = th;
                 best_tri = t;
             }
+            t++;
+        } else {
+            uvec4 lo_u = bvh_node(2u * ni);
+            uvec4 hi_u = bvh_node(2u * ni + 1u);
+            vec3 lo = uintBitsToFloat(lo_u.xyz);
+            vec3 hi = uintBitsToFloat(hi_u.xyz);
+            bool meets = slab_meets(lo - o, hi - o, inv, best >= 0.0 ? best : tmax);
+            uint first = lo_u.w;
+            uint count = hi_u.w & 0xffu;
+            if (meets && count != 0u) {
+                t = first;
+                tend = first + count;
+            }
+            ni = (meets && count == 0u) ? first : hi_u.w >> 8u;
         }
-        ni = (meets && count == 0u) ? first : hi_u.w >> 8u;
     }
     return vec2(best, uintBitsToFloat(best_tri));
 }

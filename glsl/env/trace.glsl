@@ -50,22 +50,11 @@ uint escaping(vec3 o, vec3 d[PACKET], uint live) {
     vec3 inv[PACKET];
     for (uint i = 0u; i < PACKET; i++) inv[i] = 1.0 / d[i];
     uint ni = 0u;
-    for (uint step = 0u; ni != LINK_END && live != 0u && step < MAX_STEPS; step++) {
-        uvec4 lo_u = bvh_node(2u * ni);
-        uvec4 hi_u = bvh_node(2u * ni + 1u);
-        vec3 lo = uintBitsToFloat(lo_u.xyz) - o;
-        vec3 hi = uintBitsToFloat(hi_u.xyz) - o;
-        uint meet = 0u;
-        for (uint i = 0u; i < PACKET; i++) {
-            // tmax infinite.
-            meet |= slab_meets(lo, hi, inv[i], uintBitsToFloat(0x7f800000u)) ? (1u << i) : 0u;
-        }
-        meet &= live;
-        uint first = lo_u.w;
-        uint count = hi_u.w & 0xffu;
-        uint n = meet != 0u ? count : 0u;
-        for (uint t = first; t < first + n; t++) {
-            // common/bvh.glsl hit_tri, the terms that do not depend on the ray taken once.
+    uint t = 0u;
+    uint tend = 0u;
+    uint leaf_meet = 0u;
+    for (uint step = 0u; (ni != LINK_END || t < tend) && live != 0u && step < MAX_STEPS; step++) {
+        if (t < tend) {
             vec3 a = tri_row(3u * t);
             vec3 e1 = tri_row(3u * t + 1u);
             vec3 e2 = tri_row(3u * t + 2u);
@@ -84,9 +73,28 @@ uint escaping(vec3 o, vec3 d[PACKET], uint live) {
                     && th > 0.0;
                 hit |= h ? (1u << i) : 0u;
             }
-            live &= ~(hit & meet);
+            live &= ~(hit & leaf_meet);
+            t++;
+        } else {
+            uvec4 lo_u = bvh_node(2u * ni);
+            uvec4 hi_u = bvh_node(2u * ni + 1u);
+            vec3 lo = uintBitsToFloat(lo_u.xyz) - o;
+            vec3 hi = uintBitsToFloat(hi_u.xyz) - o;
+            uint meet = 0u;
+            for (uint i = 0u; i < PACKET; i++) {
+                // tmax infinite.
+                meet |= slab_meets(lo, hi, inv[i], uintBitsToFloat(0x7f800000u)) ? (1u << i) : 0u;
+            }
+            meet &= live;
+            uint first = lo_u.w;
+            uint count = hi_u.w & 0xffu;
+            if (meet != 0u && count != 0u) {
+                t = first;
+                tend = first + count;
+                leaf_meet = meet;
+            }
+            ni = (meet != 0u && count == 0u) ? first : hi_u.w >> 8u;
         }
-        ni = (meet != 0u && count == 0u) ? first : hi_u.w >> 8u;
     }
     return live;
 }

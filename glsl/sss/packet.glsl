@@ -14,20 +14,11 @@ uint blocked_rays(vec3 o[RAY_PACKET], vec3 d[RAY_PACKET], float tmax[RAY_PACKET]
     for (uint i = 0u; i < RAY_PACKET; i++) inv[i] = 1.0 / d[i];
     uint blocked = 0u;
     uint ni = 0u;
-    for (uint step = 0u; ni != LINK_END && live != 0u && step < MAX_STEPS; step++) {
-        uvec4 lo_u = bvh_node(2u * ni);
-        uvec4 hi_u = bvh_node(2u * ni + 1u);
-        vec3 lo = uintBitsToFloat(lo_u.xyz);
-        vec3 hi = uintBitsToFloat(hi_u.xyz);
-        uint meet = 0u;
-        for (uint i = 0u; i < RAY_PACKET; i++) {
-            meet |= slab_meets(lo - o[i], hi - o[i], inv[i], tmax[i]) ? (1u << i) : 0u;
-        }
-        meet &= live;
-        uint first = lo_u.w;
-        uint count = hi_u.w & 0xffu;
-        uint n = meet != 0u ? count : 0u;
-        for (uint t = first; t < first + n; t++) {
+    uint t = 0u;
+    uint tend = 0u;
+    uint leaf_meet = 0u;
+    for (uint step = 0u; (ni != LINK_END || t < tend) && live != 0u && step < MAX_STEPS; step++) {
+        if (t < tend) {
             vec3 a = tri_row(3u * t);
             vec3 e1 = tri_row(3u * t + 1u);
             vec3 e2 = tri_row(3u * t + 2u);
@@ -46,11 +37,29 @@ uint blocked_rays(vec3 o[RAY_PACKET], vec3 d[RAY_PACKET], float tmax[RAY_PACKET]
                     && th > 0.0 && th <= tmax[i];
                 hit |= h ? (1u << i) : 0u;
             }
-            hit &= meet;
+            hit &= leaf_meet;
             blocked |= hit;
             live &= ~hit;
+            t++;
+        } else {
+            uvec4 lo_u = bvh_node(2u * ni);
+            uvec4 hi_u = bvh_node(2u * ni + 1u);
+            vec3 lo = uintBitsToFloat(lo_u.xyz);
+            vec3 hi = uintBitsToFloat(hi_u.xyz);
+            uint meet = 0u;
+            for (uint i = 0u; i < RAY_PACKET; i++) {
+                meet |= slab_meets(lo - o[i], hi - o[i], inv[i], tmax[i]) ? (1u << i) : 0u;
+            }
+            meet &= live;
+            uint first = lo_u.w;
+            uint count = hi_u.w & 0xffu;
+            if (meet != 0u && count != 0u) {
+                t = first;
+                tend = first + count;
+                leaf_meet = meet;
+            }
+            ni = (meet != 0u && count == 0u) ? first : hi_u.w >> 8u;
         }
-        ni = (meet != 0u && count == 0u) ? first : hi_u.w >> 8u;
     }
     return blocked;
 }
