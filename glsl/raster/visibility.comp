@@ -98,20 +98,31 @@ void scan(vec3 s0, vec3 s1, vec3 s2, uint id) {
     int64_t dx0 = -(c.y - b.y) * 256l, dx1 = -(a.y - c.y) * 256l, dx2 = -(b.y - a.y) * 256l;
     int64_t dy0 = (c.x - b.x) * 256l, dy1 = (a.x - c.x) * 256l, dy2 = (b.x - a.x) * 256l;
     float inv_area = 1.0 / float(area);
-    for (int y = y0; y <= y1; y++) {
-        int64_t e0 = r0, e1 = r1, e2 = r2;
-        for (int x = x0; x <= x1; x++) {
-            if (e0 >= 0l && e1 >= 0l && e2 >= 0l) {
-                // The bias is removed from the barycentrics (it only decides ties).
-                vec3 w = vec3(float(e0 - b0), float(e1 - b1), float(e2 - b2)) * inv_area;
-                float depth = 1.0 / dot(w, iz);
-                uint64_t key = (uint64_t(floatBitsToUint(depth)) << 32) | uint64_t(id);
-                atomicMin(vis.key[uint(y) * pc.dims.x + uint(x)], key);
-                flags.f[tile_of(uvec2(x, y), pc.dims.x)] = 1u;
-            }
-            e0 += dx0; e1 += dx1; e2 += dx2;
+    // One loop over the box's pixels, row by row: the lanes of a SIMD step scan boxes of
+    // different shapes, and nested loops over rows and columns ran the tallest lane's rows
+    // times the widest lane's columns; one loop runs the largest lane's pixel count.
+    uint width = uint(x1 - x0 + 1);
+    uint count = width * uint(y1 - y0 + 1);
+    int x = x0, y = y0;
+    int64_t e0 = r0, e1 = r1, e2 = r2;
+    for (uint k = 0u; k < count; k++) {
+        if (e0 >= 0l && e1 >= 0l && e2 >= 0l) {
+            // The bias is removed from the barycentrics (it only decides ties).
+            vec3 w = vec3(float(e0 - b0), float(e1 - b1), float(e2 - b2)) * inv_area;
+            float depth = 1.0 / dot(w, iz);
+            uint64_t key = (uint64_t(floatBitsToUint(depth)) << 32) | uint64_t(id);
+            atomicMin(vis.key[uint(y) * pc.dims.x + uint(x)], key);
+            flags.f[tile_of(uvec2(x, y), pc.dims.x)] = 1u;
         }
-        r0 += dy0; r1 += dy1; r2 += dy2;
+        bool row_end = x == x1;
+        r0 += row_end ? dy0 : 0l;
+        r1 += row_end ? dy1 : 0l;
+        r2 += row_end ? dy2 : 0l;
+        e0 = row_end ? r0 : e0 + dx0;
+        e1 = row_end ? r1 : e1 + dx1;
+        e2 = row_end ? r2 : e2 + dx2;
+        y += row_end ? 1 : 0;
+        x = row_end ? x0 : x + 1;
     }
 }
 
