@@ -70,8 +70,9 @@ bool hit_tri(vec3 o, vec3 d, uint t, float tmax) {
 // Stackless traversal (src/kernels/sss/posed.rs link_words): a node's hi.w is its
 // triangle count | its skip << 8, the node visited next when the ray does not enter it;
 // entering an inner node goes to its left child, a leaf's triangles are tested and then its
-// skip is taken. The root's skip (0xffffff) ends it; every step moves forward in the
-// depth-first order (MAX_STEPS only guards a malformed table).
+// skip is taken. The root's skip (0xffffff) ends it; every node step moves forward in the
+// depth-first order (MAX_STEPS, which counts node and triangle steps, only guards a malformed
+// table).
 // One loop whose step is either a node or one triangle of the leaf just entered, not a loop
 // over the leaf's triangles inside the node loop: the lanes of a SIMD step walk different
 // paths, and a nested loop ran, at every node step, as many triangle steps as the lane with

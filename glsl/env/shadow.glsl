@@ -233,9 +233,10 @@ void main() {
     // steps include the nodes it descends through and the spheres under the horizon; shaded
     // where the walk found each cap, the lobes' loop ran (masked) at every step of the lane
     // with the longest walk (lavapipe runs both sides of an `if`); buffered, it runs once per
-    // cap of the lane with the most. The same caps in the same order: the products are the
-    // twin's. `bench frame`, alternated runs: `env shadow` 6.0-6.5 -> 5.0 ms with 64 caps a
-    // round (16: 5.9-6.1; 128: no better than 64).
+    // cap of the lane with the most in each round. The same caps in the same order: the
+    // products are the twin's. `bench frame`, alternated runs: `env shadow` 6.0-6.5 -> 5.0 ms
+    // with 64 caps a round (16: 5.9-6.1; 128: no better than 64). On a discrete GPU these
+    // per-invocation arrays (1.5 KiB) likely live in scratch memory; not measured there.
     const uint CAPS = 64u;
     vec4 cap_axis[CAPS];
     vec2 cap_weight[CAPS];

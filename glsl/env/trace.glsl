@@ -55,6 +55,7 @@ uint escaping(vec3 o, vec3 d[PACKET], uint live) {
     uint leaf_meet = 0u;
     for (uint step = 0u; (ni != LINK_END || t < tend) && live != 0u && step < MAX_STEPS; step++) {
         if (t < tend) {
+            // common/bvh.glsl hit_tri, the terms that do not depend on the ray taken once.
             vec3 a = tri_row(3u * t);
             vec3 e1 = tri_row(3u * t + 1u);
             vec3 e2 = tri_row(3u * t + 2u);
