@@ -1,10 +1,9 @@
 #version 450
 // Pass `sss reach list` (SssKernel::set_reach): the occupied atlas segments in a block of
-// this frame's reach (`reach_blocks`, written by `sss reach boxes`),
-// listed for the irradiance (glsl/sss/irradiance_posed_env_listed.comp, dispatched
-// indirectly over the list), as `sss needed list` lists the needed ones (the same head:
-// (gx, gy, 1) 8-segment workgroups, then the count). It clears the blocks once every lane
-// has read them (the next frame starts empty). One workgroup.
+// this frame's reach (`reach_blocks`, written by `sss reach boxes`), listed for the
+// irradiance (glsl/sss/irradiance_posed_env_listed.comp, dispatched indirectly over the
+// list) as `sss needed list` lists the needed ones (glsl/sss/segment_list.glsl). It clears
+// the blocks once every lane has read them (the next frame starts empty). One workgroup.
 layout(local_size_x = 256) in;
 
 layout(push_constant) uniform Push {
@@ -18,15 +17,14 @@ layout(std430, set = 0, binding = 19) readonly buffer Occupied { uint w[]; } occ
 layout(std430, set = 0, binding = 22) buffer ReachBlocks { uint w[]; } reach_blocks;
 layout(std430, set = 0, binding = 25) writeonly buffer ReachList { uint head[4]; uint v[]; } reach_list;
 
-const uint MAX_GROUPS = 65535u;
 const uint BLOCK_ROWS = 4u; // kernels::sss::pack::REACH_BLOCK_ROWS
 
-shared uint count;
+#define SEGMENT_LIST reach_list
+#include <sss/segment_list.glsl>
 
 void main() {
     uint lane = gl_LocalInvocationID.x;
-    if (lane == 0u) count = 0u;
-    barrier();
+    segment_list_begin();
     for (uint w = lane; w < pc.words; w += gl_WorkGroupSize.x) {
         uint bits = occupied.w[w];
         uint keep = 0u;
@@ -47,26 +45,10 @@ void main() {
                 keep |= ((reach_blocks.w[blk >> 5u] >> (blk & 31u)) & 1u) << b;
             }
         }
-        if (keep == 0u) continue;
-        uint k = atomicAdd(count, uint(bitCount(keep)));
-        while (keep != 0u) {
-            uint seg = w * 32u + uint(findLSB(keep));
-            keep &= keep - 1u;
-            reach_list.v[k] = (seg % pc.row_segments) | ((seg / pc.row_segments) << 16u);
-            k++;
-        }
+        segment_list_append(w, keep);
     }
     memoryBarrierBuffer();
     barrier();
     for (uint w = lane; w < pc.block_words; w += gl_WorkGroupSize.x) reach_blocks.w[w] = 0u;
-    if (lane == 0u) {
-        uint n = count;
-        uint groups = (n + 7u) / 8u;
-        uint gy = (groups + MAX_GROUPS - 1u) / MAX_GROUPS;
-        uint gx = gy == 0u ? 0u : (groups + gy - 1u) / gy;
-        reach_list.head[0] = gx;
-        reach_list.head[1] = max(gy, 1u);
-        reach_list.head[2] = 1u;
-        reach_list.head[3] = n;
-    }
+    if (lane == 0u) segment_list_head();
 }

@@ -3,8 +3,8 @@
 // a texel in a block of this frame's reach is marked in the caller's triangle bitmap
 // (`reach_marks`, bit first + t; the character frame's `vertex mark` bitmap, so that the
 // environment's per-vertex passes shade the corners whose irradiance the texture-space
-// irradiance of the reach interpolates). A triangle's texels' blocks are bounded by a box
-// are listed with the UV layout (kernels::sss::pack::reach_static); any reached one marks it.
+// irradiance of the reach interpolates). A triangle's texels' blocks are listed with the UV
+// layout (kernels::sss::pack::reach_static); any reached one marks it.
 layout(local_size_x = 64) in;
 
 layout(push_constant) uniform Push {
