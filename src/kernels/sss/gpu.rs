@@ -492,12 +492,10 @@ pub struct SssKernel {
     irradiance_kind: AtomicU8,
     /// The per-vertex irradiance added by the irradiance pass, when set.
     env: Option<Env>,
-    /// The pass `sss needed list` over the caller's bitmap of the atlas segments its
-    /// diffusion must fill ([`SssKernel::set_needed_segments`]; its bind group holds the
-    /// bitmap), when set: the diffusion then runs over the list.
-    needed: Option<Stage>,
-    /// The caller's needed bitmap, when set (the reach reads it too).
-    needed_bitmap: Option<Buffer>,
+    /// The caller's bitmap of the atlas segments its diffusion must fill
+    /// ([`SssKernel::set_needed_segments`]), when set: the diffusion then runs over their
+    /// list.
+    needed: Option<Needed>,
     /// The reach of the needed segments ([`SssKernel::set_reach`]), when set.
     reach: Option<Reach>,
     settings: Settings,
@@ -641,6 +639,14 @@ fn front_len(table: &[Pass<'_, SssKernel>]) -> usize {
         .unwrap_or(0)
 }
 
+/// The needed segments ([`SssKernel::set_needed_segments`]).
+struct Needed {
+    /// Pass `sss needed list` (its bind group holds the bitmap).
+    list: Stage,
+    /// The caller's bitmap (the reach reads it too).
+    bitmap: Buffer,
+}
+
 /// The passes of the reach ([`SssKernel::set_reach`]).
 struct Reach {
     /// `sss reach boxes` (its bind group holds the caller's needed bitmap).
@@ -747,7 +753,6 @@ impl SssKernel {
             irradiance_kind: AtomicU8::new(IRR_GREY),
             env: None,
             needed: None,
-            needed_bitmap: None,
             reach: None,
             settings: Settings {
                 regions,
@@ -1149,8 +1154,8 @@ impl SssKernel {
             }
             return Ok(());
         };
-        let (env, needed) = match (&self.env, &self.needed_bitmap, &self.posed) {
-            (Some(env), Some(needed), Some(_)) => (env, needed),
+        let (env, needed) = match (&self.env, &self.needed, &self.posed) {
+            (Some(env), Some(needed), Some(_)) => (env, &needed.bitmap),
             _ => {
                 return Err(Error::InvalidArgument(
                     "the reach restricts the irradiance of a posed kernel with a per-vertex \
@@ -1252,16 +1257,18 @@ impl SssKernel {
         self.needed = match needed {
             Some(bitmap) => {
                 let table = self.table_with([("needed", Resource::Buffer(bitmap))]);
-                Some(Stage::from_table(
-                    &self.ctx,
-                    "sss/needed_list",
-                    &table,
-                    &["needed_list"],
-                )?)
+                Some(Needed {
+                    list: Stage::from_table(
+                        &self.ctx,
+                        "sss/needed_list",
+                        &table,
+                        &["needed_list"],
+                    )?,
+                    bitmap: bitmap.clone(),
+                })
             }
             None => None,
         };
-        self.needed_bitmap = needed.cloned();
         if let Some(env) = &mut self.env {
             env.diffusion = diffusion;
         }
@@ -1344,7 +1351,7 @@ impl SssKernel {
         let stage = match (self.irradiance_kind.load(Ordering::Relaxed), &self.env) {
             (IRR_UPLOAD, _) => &self.diffusion_rgb,
             (IRR_ENV, Some(env)) => {
-                if let Some(list) = &self.needed {
+                if let Some(Needed { list, .. }) = &self.needed {
                     // The needed segments listed, then the diffusion over the list.
                     self.needed_list_args(&[])?
                         .record(rec, &list.pipeline, &list.bind)?;
@@ -1522,7 +1529,7 @@ impl Kernel for SssKernel {
         }
         // The reach, before the lights: the needed list, then the reach's passes.
         let reach = match (&self.env, &self.needed, &self.reach) {
-            (Some(env), Some(list), Some(r)) => env.listed.as_ref().map(|l| (list, r, l)),
+            (Some(env), Some(n), Some(r)) => env.listed.as_ref().map(|l| (&n.list, r, l)),
             _ => None,
         };
         if let Some((list, r, _)) = reach {
@@ -1554,7 +1561,7 @@ impl Kernel for SssKernel {
             reach.map(|(_, _, l)| (l, &self.res.reach_list)),
         ));
         match (&self.env, &self.needed) {
-            (Some(env), Some(list)) => {
+            (Some(env), Some(Needed { list, .. })) => {
                 if reach.is_none() {
                     passes.push(list.pass(PASS_NEEDED_LIST, Self::needed_list_args));
                 }
