@@ -30,11 +30,8 @@ layout(set = 0, binding = 4, rgba32f) readonly uniform image2D irr;
 // Per texel: its triangle, the barycentrics w1, w2 of its centre (float bits), and its contact
 // entries (first << 5 | count) (src/kernels/sss/walk.rs, contact.rs).
 layout(set = 0, binding = 1, rgba32ui) readonly uniform uimage2D start;
-// Per triangle, WALK_RECORD texels, WALK_ROW texels a row (src/kernels/sss/walk.rs,
-// SurfaceWalk::records): (1 / l1, x2, 1 / y2, edge kinds), (uv0, uv1 - uv0), (uv2 - uv0, region, 0),
-// then per edge the map from this triangle's barycentrics to the atlas through the neighbour
-// unfolded across that edge: uv = s + V (b1, b2), (V row-major), (s, 0, 0).
-layout(set = 0, binding = 2, rgba32ui) readonly uniform uimage2D walk;
+// Per triangle its walk record (binding 2, `walk`: glsl/sss/walk_record.glsl).
+#include <sss/walk_record.glsl>
 // Contact entries, WALK_ROW a row: (source texel, f_r, f_g, f_b bits).
 layout(set = 0, binding = 3, rgba32ui) readonly uniform uimage2D contact;
 // The patterns (cpu::sample_pattern) of the skin regions (src/kernels/sss/regions.rs; one for
@@ -63,21 +60,12 @@ layout(std430, set = 0, binding = 7) readonly buffer Tiles { uint v[]; } tiles;
 #endif
 
 const float TAU = 6.28318530718;
-const uint WALK_ROW = 1024u;
-const uint WALK_RECORD = 9u;
-const uint EDGE_SHARED = 0u; // walk::EDGE_*
-const uint EDGE_OPEN = 1u;
 const uint MAX_REGIONS = 8u; // regions::MAX_REGIONS
 
 uint pcg(uint v) {
     uint state = v * 747796405u + 2891336453u;
     uint word = ((state >> ((state >> 28u) + 4u)) ^ state) * 277803737u;
     return (word >> 22u) ^ word;
-}
-
-uvec4 record(uint tri, uint k) {
-    uint i = tri * WALK_RECORD + k;
-    return imageLoad(walk, ivec2(i % WALK_ROW, i / WALK_ROW));
 }
 
 // E at texel j (rgb); false where no surface.

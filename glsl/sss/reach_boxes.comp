@@ -28,7 +28,7 @@ layout(push_constant) uniform Push {
     float radius;
 } pc;
 
-layout(set = 0, binding = 2, rgba32ui) readonly uniform uimage2D walk;
+#include <sss/walk_record.glsl>
 layout(std430, set = 0, binding = 8) readonly buffer Needed { uint w[]; } needed;
 layout(std430, set = 0, binding = 22) buffer ReachBlocks { uint w[]; } reach_blocks;
 // Per triangle two entries, (m1, m2, m0 as float bits, n) and (first, k, j, 0); from entry
@@ -37,15 +37,7 @@ layout(std430, set = 0, binding = 22) buffer ReachBlocks { uint w[]; } reach_blo
 // reach_static).
 layout(std430, set = 0, binding = 23) readonly buffer ReachStatic { uvec4 v[]; } reach_static;
 
-const uint WALK_ROW = 1024u;
-const uint WALK_RECORD = 9u;
-const uint EDGE_SHARED = 0u;
 const uint BLOCK_ROWS = 4u; // kernels::sss::pack::REACH_BLOCK_ROWS
-
-uvec4 record(uint tri, uint k) {
-    uint i = tri * WALK_RECORD + k;
-    return imageLoad(walk, ivec2(i % WALK_ROW, i / WALK_ROW));
-}
 
 // Marks the blocks of the texels nearest to the points of [lo, hi].
 void mark_box(vec2 lo, vec2 hi) {

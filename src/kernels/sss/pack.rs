@@ -596,7 +596,12 @@ mod tests {
     /// The diffusion shader's layout constants are the ones the host writes with.
     #[test]
     fn diffusion_shader_agrees_with_the_host() {
-        let src = include_str!("../../../glsl/common/sss_diffusion.glsl");
+        // (with the walk records' include)
+        let src = [
+            include_str!("../../../glsl/common/sss_diffusion.glsl"),
+            include_str!("../../../glsl/sss/walk_record.glsl"),
+        ]
+        .concat();
         for (name, value) in [
             ("WALK_RECORD", walk::RECORD_TEXELS as u32),
             ("WALK_ROW", BVH_ROW),
@@ -607,7 +612,7 @@ mod tests {
             let line = format!("const uint {name} = {value}u;");
             assert!(
                 src.contains(&line),
-                "glsl/common/sss_diffusion.glsl lacks `{line}`"
+                "glsl/common/sss_diffusion.glsl with glsl/sss/walk_record.glsl lacks `{line}`"
             );
         }
     }
@@ -622,7 +627,11 @@ mod tests {
             let line = format!("const uint BLOCK_ROWS = {REACH_BLOCK_ROWS}u;");
             assert!(src.contains(&line), "a reach shader lacks `{line}`");
         }
-        let src = include_str!("../../../glsl/sss/reach_boxes.comp");
+        let src = include_str!("../../../glsl/sss/walk_record.glsl");
+        assert!(
+            include_str!("../../../glsl/sss/reach_boxes.comp")
+                .contains("#include <sss/walk_record.glsl>")
+        );
         for line in [
             format!("const uint WALK_RECORD = {}u;", walk::RECORD_TEXELS),
             format!("const uint WALK_ROW = {BVH_ROW}u;"),
@@ -630,7 +639,7 @@ mod tests {
         ] {
             assert!(
                 src.contains(&line),
-                "glsl/sss/reach_boxes.comp lacks `{line}`"
+                "glsl/sss/walk_record.glsl lacks `{line}`"
             );
         }
     }
