@@ -229,18 +229,21 @@ void main() {
     float log_floor = log(pc.min_transmission);
 #endif
     // The caps the walk finds above the horizon, shaded after it: per cap (axis toward the
-    // sphere, sin of its half-angle) and (blend weight, share above the horizon, half-angle).
-    // The walk's steps include the nodes it descends through and the spheres under the
-    // horizon; shaded where the walk found each cap, the lobes' loop ran (masked) at every
+    // sphere, sin of its half-angle) and (blend weight, cosine of the sphere's angle to the
+    // normal). The walk's steps include the nodes it descends through and the spheres under
+    // the horizon; shaded where the walk found each cap, the lobes' loop ran (masked) at every
     // step of the lane with the longest walk (lavapipe runs both sides of an `if`); buffered,
     // it runs once per cap of the lane with the most in each round. The same caps in the same
     // order: the products are the twin's. `bench frame`, alternated runs: `env shadow`
-    // 6.0-6.5 -> 5.0 ms with 64 caps a round (16: 5.9-6.1; 128: no better than 64). On a
-    // discrete GPU these per-invocation arrays (1.8 KiB) likely live in scratch memory; not
-    // measured there.
+    // 6.0-6.5 -> 5.0 ms with 64 caps a round (16: 5.9-6.1; 128: no better than 64). The
+    // half-angle (an asin) and the share above the horizon are taken where the cap is shaded:
+    // taken in the walk they ran, masked, at every step, and a third channel per cap was
+    // stored (lavapipe stores a per-lane array element lane by lane) and loaded
+    // (`bench env`, 16 lobes: 17.1-17.2 -> 16.1-16.7 ms). On a discrete GPU these
+    // per-invocation arrays (1.5 KiB) likely live in scratch memory; not measured there.
     const uint CAPS = 64u;
     vec4 cap_axis[CAPS];
-    vec3 cap_weight[CAPS];
+    vec2 cap_weight[CAPS];
 
     // The cut, as glsl/ao/occlusion.comp walks it (kernels::ao::cpu::walk_cut).
     vec4 parent_sph[MAX_DEPTH + 1];
@@ -294,10 +297,8 @@ void main() {
                             u += w * log(max(1.0 - occ, pc.min_transmission));
                             vec3 wc = d > 0.0 ? dv / d : n;
                             float sin_a = min(1.0 / max(h, 1.0), 1.0);
-                            float alpha = asin(sin_a);
-                            float up = above_horizon(cos_t, alpha);
                             cap_axis[caps] = vec4(wc, sin_a);
-                            cap_weight[caps] = vec3(w, up, alpha);
+                            cap_weight[caps] = vec2(w, cos_t);
                             caps++;
                         }
                     }
@@ -318,8 +319,8 @@ void main() {
             vec3 wc = cap_axis[c].xyz;
             float sin_a = cap_axis[c].w;
             float w = cap_weight[c].x;
-            float up = cap_weight[c].y;
-            float alpha = cap_weight[c].z;
+            float alpha = asin(sin_a);
+            float up = above_horizon(cap_weight[c].y, alpha);
             float omc = sin_a * sin_a / (1.0 + sqrt(max(1.0 - sin_a * sin_a, 0.0)));
 #ifdef ENV_RAYS
             float cos_a = sqrt(max(1.0 - sin_a * sin_a, 0.0));
