@@ -378,16 +378,28 @@ impl EnvKernel {
         let lobe_count = ("LOBES", nj as u32);
         // The row width of AO's tree image (`NODE_ROW`).
         let node_row = ("NODE_ROW", crate::kernels::table_row(&ctx));
+        // The tree's levels below the root: the depths the walk's parent state takes.
+        let levels = (
+            "LEVELS",
+            ao.tree_shape()
+                .levels()
+                .min(crate::kernels::ao::cpu::MAX_DEPTH as u32),
+        );
         let shadow = match &traced {
             Some((_, config)) => crate::shaders::pipeline_specialized(
                 &ctx,
                 variant("env/shadow_rays", "env/shadow_rays_listed"),
-                &[("RAYS", config.grid * config.grid), lobe_count, node_row],
+                &[
+                    ("RAYS", config.grid * config.grid),
+                    lobe_count,
+                    node_row,
+                    levels,
+                ],
             )?,
             None => crate::shaders::pipeline_specialized(
                 &ctx,
                 variant("env/shadow", "env/shadow_listed"),
-                &[lobe_count, node_row],
+                &[lobe_count, node_row, levels],
             )?,
         };
         let rotate_bind = bind(&rotate, &["lobes"])?;
