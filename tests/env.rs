@@ -90,10 +90,10 @@ fn gpu_matches_the_cpu_twin_far_from_the_bind_pose() {
 }
 
 /// As gpu_matches_the_cpu_twin_far_from_the_bind_pose with a cut refined nearly to the
-/// leaves (tau 0.05): most vertices then shade more than two rounds of the caps `env shadow`
-/// buffers (64 a round, glsl/env/shadow.glsl), which must give the twin's products (with the
-/// default cut the median vertex shades 40 caps, one round, and a few hundred vertices two
-/// or three). About four times the caps of the default cut (median 163), each with its
+/// leaves (tau 0.05): most vertices then shade more than sixteen rounds of the caps `env
+/// shadow` buffers (8 a round, glsl/env/shadow.glsl), which must give the twin's products
+/// (with the default cut the median vertex shades 40 caps, five rounds, and some vertices
+/// twenty). About four times the caps of the default cut (median 163), each with its
 /// asin/acos ulps (see the bounds there): measured max |dV_j|
 /// 2.6e-2, 99.9th percentile 1.6e-3, max |dE| 2.3e-4 of the peak, the same to the digit as
 /// the pass that shaded each cap where its walk found it. Bound on any V_j 4e-2; the
@@ -109,8 +109,8 @@ fn caps_shaded_over_several_rounds_match_the_twin() {
         4e-2,
     );
     assert!(
-        median > 2 * 64,
-        "the median vertex shades {median} caps: not several rounds"
+        median > 16 * 8,
+        "the median vertex shades {median} caps: fewer than sixteen rounds"
     );
 }
 

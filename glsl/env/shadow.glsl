@@ -238,14 +238,15 @@ void main() {
     // the horizon; shaded where the walk found each cap, the lobes' loop ran (masked) at every
     // step of the lane with the longest walk (lavapipe runs both sides of an `if`); buffered,
     // it runs once per cap of the lane with the most in each round. The same caps in the same
-    // order: the products are the twin's. `bench frame`, alternated runs: `env shadow`
-    // 6.0-6.5 -> 5.0 ms with 64 caps a round (16: 5.9-6.1; 128: no better than 64). The
-    // half-angle (an asin) and the share above the horizon are taken where the cap is shaded:
-    // taken in the walk they ran, masked, at every step, and a third channel per cap was
-    // stored (lavapipe stores a per-lane array element lane by lane) and loaded
-    // (`bench env`, 16 lobes: 17.1-17.2 -> 16.1-16.7 ms). On a discrete GPU these
-    // per-invocation arrays (1.5 KiB) likely live in scratch memory; not measured there.
-    const uint CAPS = 64u;
+    // order: the products are the twin's. The buffer is read and written only at constant
+    // indices, through unrolled loops over its CAPS slots (a select per slot), so that it
+    // lives in registers: indexed by the lane's count it was per-lane memory, stored lane by
+    // lane at every walk step and loaded per cap (64 slots then; `bench env`, 16 lobes:
+    // 11.4-12.3 -> 8.8-9.3 ms with 8 slots; 4 slots: 10.8-10.9, the rounds' walks wait on
+    // each other more; 16: no better than 8). The half-angle (an asin) and the share above
+    // the horizon are taken where the cap is shaded: in the walk they ran, masked, at every
+    // step.
+    const uint CAPS = 8u;
     vec4 cap_axis[CAPS];
     vec2 cap_weight[CAPS];
 
@@ -317,8 +318,12 @@ void main() {
                             u += w * log(max(1.0 - occ, pc.min_transmission));
                             vec3 wc = d > 0.0 ? dv / d : n;
                             float sin_a = min(1.0 / max(h, 1.0), 1.0);
-                            cap_axis[caps] = vec4(wc, sin_a);
-                            cap_weight[caps] = vec2(w, cos_t);
+                            [[unroll]] for (uint i = 0u; i < CAPS; ++i) {
+                                if (caps == i) {
+                                    cap_axis[i] = vec4(wc, sin_a);
+                                    cap_weight[i] = vec2(w, cos_t);
+                                }
+                            }
                             caps++;
                         }
                     }
@@ -336,11 +341,19 @@ void main() {
         }
 
         for (uint c = 0u; c < caps; ++c) {
-            vec3 wc = cap_axis[c].xyz;
-            float sin_a = cap_axis[c].w;
-            float w = cap_weight[c].x;
+            vec4 ca = cap_axis[0];
+            vec2 cw = cap_weight[0];
+            [[unroll]] for (uint i = 1u; i < CAPS; ++i) {
+                if (c == i) {
+                    ca = cap_axis[i];
+                    cw = cap_weight[i];
+                }
+            }
+            vec3 wc = ca.xyz;
+            float sin_a = ca.w;
+            float w = cw.x;
             float alpha = asin(sin_a);
-            float up = above_horizon(cap_weight[c].y, alpha);
+            float up = above_horizon(cw.y, alpha);
             float omc = sin_a * sin_a / (1.0 + sqrt(max(1.0 - sin_a * sin_a, 0.0)));
 #ifdef ENV_RAYS
             float cos_a = sqrt(max(1.0 - sin_a * sin_a, 0.0));
