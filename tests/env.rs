@@ -13,6 +13,8 @@ use vkshade::kernels::Kernel;
 use vkshade::kernels::ao::{AoKernel, AoParams, Prepared as AoPrepared, cpu::TreeShape};
 use vkshade::kernels::env::{EnvKernel, EnvVisibility, MAX_LOBES, MAX_TRACE_GRID, cpu};
 use vkshade::kernels::pose::{PoseKernel, Prepared as PosePrepared};
+#[cfg(feature = "gltf")]
+use vkshade::scene::spheretree::BuildConfig;
 
 /// 32 lobes over the sphere with sharpness from 0.5 to ~5000 (the whole cap table) and
 /// coloured amplitudes.
@@ -53,12 +55,25 @@ fn far_pose() -> (
     PosePrepared,
     Vec<glam::Mat4>,
 ) {
-    use vkshade::scene::spheretree::{BuildConfig, SphereTree};
+    far_pose_with(&BuildConfig::default())
+}
+
+/// As far_pose, with the sphere tree built by `tree`.
+#[cfg(feature = "gltf")]
+fn far_pose_with(
+    tree: &BuildConfig,
+) -> (
+    vkshade::scene::Character,
+    AoPrepared,
+    PosePrepared,
+    Vec<glam::Mat4>,
+) {
+    use vkshade::scene::spheretree::SphereTree;
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("data/bcn_epileptic.glb");
     let c = vkshade::scene::load(&path)
         .unwrap_or_else(|e| panic!("{e}\nThe test character comes from tools/setup.sh."));
     let joints = c.rig.joints.len();
-    let (tree, _) = SphereTree::build(&c.mesh, &BuildConfig::default()).unwrap();
+    let (tree, _) = SphereTree::build(&c.mesh, tree).unwrap();
     let ao_prep = AoPrepared::new(&c.mesh, &tree, joints).unwrap();
     let pose_prep = PosePrepared::new(&c.mesh, joints).unwrap();
     let anim = c.animation("Epileptisch").unwrap();
@@ -86,14 +101,14 @@ fn far_pose() -> (
 #[cfg(feature = "gltf")]
 #[test]
 fn gpu_matches_the_cpu_twin_far_from_the_bind_pose() {
-    shadow_matches_its_twin(AoParams::default(), 2e-2);
+    shadow_matches_its_twin(&BuildConfig::default(), AoParams::default(), 2e-2);
 }
 
 /// As gpu_matches_the_cpu_twin_far_from_the_bind_pose with a cut refined nearly to the
-/// leaves (tau 0.05): most vertices then shade more than sixteen rounds of the caps `env
-/// shadow` buffers (8 a round, glsl/env/shadow.glsl), which must give the twin's products
-/// (with the default cut the median vertex shades 40 caps, five rounds, and some vertices
-/// twenty). About four times the caps of the default cut (median 163), each with its
+/// leaves (tau 0.05): about four times the caps of the default cut, so that the walk's
+/// rounds (`env shadow` shades the caps it buffers 8 a round, glsl/env/shadow.glsl) resume
+/// over and over, more than sixteen times at most vertices (with the default cut: median 40
+/// caps, five rounds, at most 166 caps), and must give the twin's products. Median 163 caps, each with its
 /// asin/acos ulps (see the bounds there): measured max |dV_j|
 /// 2.6e-2, 99.9th percentile 1.6e-3, max |dE| 2.3e-4 of the peak, the same to the digit as
 /// the pass that shaded each cap where its walk found it. Bound on any V_j 4e-2; the
@@ -102,6 +117,7 @@ fn gpu_matches_the_cpu_twin_far_from_the_bind_pose() {
 #[test]
 fn caps_shaded_over_several_rounds_match_the_twin() {
     let median = shadow_matches_its_twin(
+        &BuildConfig::default(),
         AoParams {
             tau: 0.05,
             ..AoParams::default()
@@ -110,15 +126,42 @@ fn caps_shaded_over_several_rounds_match_the_twin() {
     );
     assert!(
         median > 16 * 8,
-        "the median vertex shades {median} caps: fewer than sixteen rounds"
+        "the median vertex shades {median} caps: sixteen rounds or fewer"
     );
+}
+
+/// Trees of other depths than 8/64/512 (3 levels): the walk keeps its parent state in
+/// registers, one slot per level (the shadow modules' LEVELS), selected by the lane's depth.
+/// A tree of 5 levels of branch 3, refined through a band so that the parent blend is taken
+/// at the depths below, and a tree of 1 level (no descent at all), against the twin with the
+/// bounds of gpu_matches_the_cpu_twin_far_from_the_bind_pose. Measured: max |dV_j| 1.6e-2
+/// on the 5-level tree (median 30 caps), 7.8e-3 on the 1-level tree (median 4); with the
+/// slots cut to 3 levels the 5-level tree errs by 0.66.
+#[cfg(feature = "gltf")]
+#[test]
+fn gpu_matches_the_cpu_twin_on_deeper_and_shallower_trees() {
+    for (depth, branch) in [(5, 3), (1, 8)] {
+        let tree = BuildConfig {
+            depth,
+            branch,
+            ..BuildConfig::default()
+        };
+        let params = AoParams {
+            tau: 0.5,
+            band: 0.5,
+            ..AoParams::default()
+        };
+        let median = shadow_matches_its_twin(&tree, params, 2e-2);
+        eprintln!("{depth} levels of branch {branch}: median {median} caps");
+        assert!(median > 0);
+    }
 }
 
 /// The shadow pass against its twin far from the bind pose, with these AO parameters, no V_j
 /// off by `max_dv` or more; the median count of the caps the pass shades per vertex there.
 #[cfg(feature = "gltf")]
-fn shadow_matches_its_twin(ao_params: AoParams, max_dv: f32) -> usize {
-    let (_, ao_prep, pose_prep, matrices) = far_pose();
+fn shadow_matches_its_twin(tree: &BuildConfig, ao_params: AoParams, max_dv: f32) -> usize {
+    let (_, ao_prep, pose_prep, matrices) = far_pose_with(tree);
     let lobes = synthetic_lobes();
     let r = vkshade::geom::sg::rotation(Vec3::new(0.3, 1.0, -0.2), 73.0);
     let (frame, spheres, extents, ao, table, params, shape) = common::with_gpu(|ctx| {
