@@ -46,21 +46,10 @@ fn v3(v: &[[f32; 4]]) -> Vec<Vec3> {
     v.iter().map(|p| Vec4::from_array(*p).truncate()).collect()
 }
 
-/// BCN_Epileptic with its sphere tree, and the skinning matrices of the Epileptisch frame (of
-/// 16) that moves its vertices farthest from the bind pose.
+/// BCN_Epileptic with its sphere tree built by `tree`, and the skinning matrices of the
+/// Epileptisch frame (of 16) that moves its vertices farthest from the bind pose.
 #[cfg(feature = "gltf")]
-fn far_pose() -> (
-    vkshade::scene::Character,
-    AoPrepared,
-    PosePrepared,
-    Vec<glam::Mat4>,
-) {
-    far_pose_with(&BuildConfig::default())
-}
-
-/// As far_pose, with the sphere tree built by `tree`.
-#[cfg(feature = "gltf")]
-fn far_pose_with(
+fn far_pose(
     tree: &BuildConfig,
 ) -> (
     vkshade::scene::Character,
@@ -108,9 +97,9 @@ fn gpu_matches_the_cpu_twin_far_from_the_bind_pose() {
 /// leaves (tau 0.05): about four times the caps of the default cut, so that the walk's
 /// rounds (`env shadow` shades the caps it buffers 8 a round, glsl/env/shadow.glsl) resume
 /// over and over, more than sixteen times at most vertices (with the default cut: median 40
-/// caps, five rounds, at most 166 caps), and must give the twin's products. Median 163 caps, each with its
-/// asin/acos ulps (see the bounds there): measured max |dV_j|
-/// 2.6e-2, 99.9th percentile 1.6e-3, max |dE| 2.3e-4 of the peak, the same to the digit as
+/// caps, five rounds, at most 166 caps), and must give the twin's products. Median 163
+/// caps, each with its asin/acos ulps (see the bounds there): measured max |dV_j| 2.6e-2,
+/// 99.9th percentile 1.6e-3, max |dE| 2.3e-4 of the peak, the same to the digit as
 /// the pass that shaded each cap where its walk found it. Bound on any V_j 4e-2; the
 /// percentile and E bounds as there (a skipped or repeated round errs by O(0.1-1)).
 #[cfg(feature = "gltf")]
@@ -161,7 +150,7 @@ fn gpu_matches_the_cpu_twin_on_deeper_and_shallower_trees() {
 /// off by `max_dv` or more; the median count of the caps the pass shades per vertex there.
 #[cfg(feature = "gltf")]
 fn shadow_matches_its_twin(tree: &BuildConfig, ao_params: AoParams, max_dv: f32) -> usize {
-    let (_, ao_prep, pose_prep, matrices) = far_pose_with(tree);
+    let (_, ao_prep, pose_prep, matrices) = far_pose(tree);
     let lobes = synthetic_lobes();
     let r = vkshade::geom::sg::rotation(Vec3::new(0.3, 1.0, -0.2), 73.0);
     let (frame, spheres, extents, ao, table, params, shape) = common::with_gpu(|ctx| {
@@ -321,7 +310,7 @@ fn traced_visibility_in_several_ray_packets_matches_its_twin() {
 
 #[cfg(feature = "gltf")]
 fn traced_visibility_matches_its_twin(grid: u32) {
-    let (c, ao_prep, pose_prep, matrices) = far_pose();
+    let (c, ao_prep, pose_prep, matrices) = far_pose(&BuildConfig::default());
     let lobes = synthetic_lobes();
     let r = vkshade::geom::sg::rotation(Vec3::new(-0.4, 1.0, 0.1), 31.0);
     let (frame, scale, bits, ao, spheres, extents, table, params, shape, topology, cfg) =

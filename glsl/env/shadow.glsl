@@ -361,6 +361,7 @@ void main() {
                 if (dot(dirs[k], wc) >= cos_a) logc[k] += w * log_floor;
             }
 #endif
+            // The cap's terms of the table's lookup (its alpha axis).
             float ya = sqrt(clamp(alpha * FRAC_2_PI, 0.0, 1.0)) * float(N_ALPHA - 1u);
             uint ja = min(uint(ya), N_ALPHA - 2u);
             float fy = ya - float(ja);
