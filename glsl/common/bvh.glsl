@@ -14,8 +14,14 @@ uvec4 bvh_node(uint k) {
     return imageLoad(nodes, table_texel(k, BVH_ROW));
 }
 
+// With BVH_TRI_BASE defined, one table: the triangles' rows follow the nodes in `nodes`,
+// from texel BVH_TRI_BASE (no `tris` image).
 vec3 tri_row(uint k) {
+#ifdef BVH_TRI_BASE
+    return uintBitsToFloat(imageLoad(nodes, table_texel(BVH_TRI_BASE + k, BVH_ROW)).xyz);
+#else
     return uintBitsToFloat(imageLoad(tris, table_texel(k, BVH_ROW)).xyz);
+#endif
 }
 
 // Parameter of the hit of triangle t in (0, tmax], or -1.

@@ -14,7 +14,14 @@ layout(std430, set = 0, binding = 1) readonly buffer Topo { uint v[]; } bvh_topo
 // Per triangle slot: the mesh's vertex indices (v0, v1, v2, 0).
 layout(std430, set = 0, binding = 2) readonly buffer Slots { uvec4 v[]; } bvh_slots;
 layout(set = 0, binding = 3, rgba32ui) writeonly uniform uimage2D nodes;
+#ifdef BVH_TRI_BASE
+// One table: the triangles' slots follow the nodes, from texel BVH_TRI_BASE.
+#define BVH_TRI_IMAGE nodes
+#else
 layout(set = 0, binding = 4, rgba32ui) writeonly uniform uimage2D tris;
+#define BVH_TRI_IMAGE tris
+#define BVH_TRI_BASE 0u
+#endif
 
 ivec2 at(uint k) {
     return table_texel(k, BVH_ROW);
@@ -32,9 +39,10 @@ void main() {
     for (uint s = first; s < first + count; s++) {
         uvec4 c = bvh_slots.v[s];
         vec3 a = BVH_VERTEX(c.x), b = BVH_VERTEX(c.y), d = BVH_VERTEX(c.z);
-        imageStore(tris, at(3u * s), uvec4(floatBitsToUint(a), 0u));
-        imageStore(tris, at(3u * s + 1u), uvec4(floatBitsToUint(b - a), 0u));
-        imageStore(tris, at(3u * s + 2u), uvec4(floatBitsToUint(d - a), 0u));
+        uint k = BVH_TRI_BASE + 3u * s;
+        imageStore(BVH_TRI_IMAGE, at(k), uvec4(floatBitsToUint(a), 0u));
+        imageStore(BVH_TRI_IMAGE, at(k + 1u), uvec4(floatBitsToUint(b - a), 0u));
+        imageStore(BVH_TRI_IMAGE, at(k + 2u), uvec4(floatBitsToUint(d - a), 0u));
         lo = min(lo, min(a, min(b, d)));
         hi = max(hi, max(a, max(b, d)));
     }

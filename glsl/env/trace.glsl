@@ -38,7 +38,9 @@ layout(push_constant) uniform Push {
 layout(std430, set = 0, binding = 0) readonly buffer Positions { vec4 p[]; } pos;
 layout(std430, set = 0, binding = 1) readonly buffer Normals { vec4 n[]; } nrm;
 layout(set = 0, binding = 2, rgba32ui) readonly uniform uimage2D nodes;
-layout(set = 0, binding = 3, rgba32ui) readonly uniform uimage2D tris;
+// Where the triangles' slots start in the one table (2 x the node count).
+layout(constant_id = 0) const uint TRI_BASE = 0u;
+#define BVH_TRI_BASE TRI_BASE
 layout(std430, set = 0, binding = 4) writeonly buffer Traced { float v[]; } traced;
 layout(std430, set = 0, binding = 5) writeonly buffer Escaped { uint w[]; } escaped;
 
@@ -54,11 +56,20 @@ uint escaping(vec3 o, vec3 d[PACKET], uint live) {
     uint tend = 0u;
     uint leaf_meet = 0u;
     for (uint step = 0u; (ni != LINK_END || t < tend) && live != 0u && step < MAX_STEPS; step++) {
-        if (t < tend) {
+        // One step reads three texels of the one table, a triangle's (a, e1, e2) or a
+        // node's (lo, first; hi, link; and the next texel, unused): the lanes of a SIMD step
+        // run both kinds masked, and one address per lane costs 3 loads, not 2 + 3. Measured
+        // on lavapipe (`bench frame`, 4 alternated pairs): 5.5-5.9 -> 4.7-4.8 ms.
+        bool tri_step = t < tend;
+        uint k = tri_step ? TRI_BASE + 3u * t : 2u * ni;
+        uvec4 r0 = bvh_node(k);
+        uvec4 r1 = bvh_node(k + 1u);
+        uvec4 r2 = bvh_node(k + 2u);
+        if (tri_step) {
             // common/bvh.glsl hit_tri, the terms that do not depend on the ray taken once.
-            vec3 a = tri_row(3u * t);
-            vec3 e1 = tri_row(3u * t + 1u);
-            vec3 e2 = tri_row(3u * t + 2u);
+            vec3 a = uintBitsToFloat(r0.xyz);
+            vec3 e1 = uintBitsToFloat(r1.xyz);
+            vec3 e2 = uintBitsToFloat(r2.xyz);
             vec3 s = o - a;
             vec3 q = cross(s, e1);
             float tq = dot(e2, q);
@@ -77,24 +88,22 @@ uint escaping(vec3 o, vec3 d[PACKET], uint live) {
             live &= ~(hit & leaf_meet);
             t++;
         } else {
-            uvec4 lo_u = bvh_node(2u * ni);
-            uvec4 hi_u = bvh_node(2u * ni + 1u);
-            vec3 lo = uintBitsToFloat(lo_u.xyz) - o;
-            vec3 hi = uintBitsToFloat(hi_u.xyz) - o;
+            vec3 lo = uintBitsToFloat(r0.xyz) - o;
+            vec3 hi = uintBitsToFloat(r1.xyz) - o;
             uint meet = 0u;
             for (uint i = 0u; i < PACKET; i++) {
                 // tmax infinite.
                 meet |= slab_meets(lo, hi, inv[i], uintBitsToFloat(0x7f800000u)) ? (1u << i) : 0u;
             }
             meet &= live;
-            uint first = lo_u.w;
-            uint count = hi_u.w & 0xffu;
+            uint first = r0.w;
+            uint count = r1.w & 0xffu;
             if (meet != 0u && count != 0u) {
                 t = first;
                 tend = first + count;
                 leaf_meet = meet;
             }
-            ni = (meet != 0u && count == 0u) ? first : hi_u.w >> 8u;
+            ni = (meet != 0u && count == 0u) ? first : r1.w >> 8u;
         }
     }
     return live;

@@ -329,15 +329,15 @@ impl EnvKernel {
                     .usage(vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST);
                     Image::new(&ctx, name, desc)
                 };
-                let nodes = uint_image("env bvh nodes", 2 * topology.nodes.max(1))?;
-                let tris = uint_image("env bvh triangles", 3 * slots)?;
+                // One table: the nodes (2 texels each), then the triangles' slots (3 each)
+                // from texel `tri_base` (glsl/env/trace.glsl reads either kind of record
+                // with the same three loads).
+                let tri_base = 2 * topology.nodes.max(1);
+                let nodes = uint_image("env bvh", tri_base + 3 * slots)?;
                 // Every frame writes the texels the traversal reads; cleared once so that the
                 // rows' tails hold defined data too.
-                for image in [&nodes, &tris] {
-                    rec.clear_image(image, Subresources::mip(image.desc(), 0), [0.0; 4])?;
-                }
+                rec.clear_image(&nodes, Subresources::mip(nodes.desc(), 0), [0.0; 4])?;
                 images.push(("nodes", nodes));
-                images.push(("tris", tris));
                 let traced_buf = output("env traced visibility", nv.max(1) * 4)?;
                 let words = u64::from(grid * grid).div_ceil(32);
                 let escaped = output("env traced rays", nv.max(1) * words * 4)?;
@@ -407,11 +407,19 @@ impl EnvKernel {
         let trace_parts = match &traced {
             None => None,
             Some(_) => {
-                let leaves = crate::shaders::pipeline(&ctx, "env/bvh_leaves")?;
+                let tri_base = (
+                    "TRI_BASE",
+                    2 * traced.as_ref().map_or(1, |(t, _)| t.nodes.max(1)) as u32,
+                );
+                let leaves =
+                    crate::shaders::pipeline_specialized(&ctx, "env/bvh_leaves", &[tri_base])?;
                 let refit = crate::shaders::pipeline(&ctx, "sss/bvh_refit")?;
-                let trace =
-                    crate::shaders::pipeline(&ctx, variant("env/trace", "env/trace_listed"))?;
-                let leaves_bind = bind(&leaves, &["nodes", "tris"])?;
+                let trace = crate::shaders::pipeline_specialized(
+                    &ctx,
+                    variant("env/trace", "env/trace_listed"),
+                    &[tri_base],
+                )?;
+                let leaves_bind = bind(&leaves, &["nodes"])?;
                 let refit_bind = bind(&refit, &[])?;
                 let trace_bind = bind(&trace, &["traced", "escaped"])?;
                 Some((leaves, leaves_bind, refit, refit_bind, trace, trace_bind))
