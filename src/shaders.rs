@@ -57,6 +57,23 @@ pub fn pipeline_specialized(
     crate::gpu::ComputePipeline::specialized(ctx, &shader, constants)
 }
 
+/// As [`pipeline_specialized`], setting only the constants of `constants` that the module
+/// declares: for a kernel whose modules share a value that only some of them use (SSS: the
+/// BVH table's `TRI_BASE`, declared by the modules that include glsl/common/bvh.glsl).
+pub fn pipeline_declaring(
+    ctx: &crate::gpu::Context,
+    name: &str,
+    constants: &[(&str, u32)],
+) -> Result<crate::gpu::ComputePipeline> {
+    let shader = crate::gpu::Shader::from_spirv(name, spirv(name)?)?;
+    let declared: Vec<(&str, u32)> = constants
+        .iter()
+        .filter(|(c, _)| shader.spec_constants.iter().any(|s| s.name == *c))
+        .copied()
+        .collect();
+    crate::gpu::ComputePipeline::specialized(ctx, &shader, &declared)
+}
+
 /// The cargo feature that compiling GLSL needs.
 const GLSL: &str = "glsl";
 

@@ -4,31 +4,42 @@
 // shadow rays of `srbf sharp`). The same traversal and two-sided Moller-Trumbore test as
 // src/geom/bvh.rs (its CPU twin); the table layout is src/geom/bvh.rs `Bvh::flat` with
 // `with_links` in place of the counts.
-// The includer declares `const uint BVH_ROW` and the images, row BVH_ROW texels wide (lavapipe
-// fetches a texel's four channels at once): nodes 2 texels each (lo xyz, first; hi xyz, link
-// word), triangles 3 (a, e1, e2), float bits:
+// The includer declares `const uint BVH_ROW` and the table, an image BVH_ROW texels a row
+// (lavapipe fetches a texel's four channels at once): the nodes from texel 0, 2 texels each
+// (lo xyz, first; hi xyz, link word), then the triangles from texel TRI_BASE, 3 each (a, e1,
+// e2), float bits. TRI_BASE is a specialization constant of every pipeline that includes
+// this (src/geom/bvh.rs `tri_base`, `table_texels`):
 //   layout(rgba32ui) readonly uniform uimage2D nodes;
-//   layout(rgba32ui) readonly uniform uimage2D tris;
+// One table rather than one image of nodes and one of triangles: a traversal step is either
+// kind, the lanes of a SIMD step run both kinds masked (lavapipe), and reading three texels
+// at one address per lane costs 3 loads where a node's and a triangle's cost 2 + 3.
+// Measured on lavapipe (`bench frame`, alternated runs): `env trace` 5.5-5.9 -> 4.7-4.8 ms.
+#ifndef VKSHADE_BVH_TRI_BASE
+#define VKSHADE_BVH_TRI_BASE
+layout(constant_id = 16) const uint TRI_BASE = 0u;
+#endif
 
-uvec4 bvh_node(uint k) {
+// Texel k of the table.
+uvec4 bvh_texel(uint k) {
     return imageLoad(nodes, table_texel(k, BVH_ROW));
 }
 
-// With BVH_TRI_BASE defined, one table: the triangles' rows follow the nodes in `nodes`,
-// from texel BVH_TRI_BASE (no `tris` image).
+// Row k of the triangles (row 3 t: triangle t's a, + 1 its e1, + 2 its e2).
 vec3 tri_row(uint k) {
-#ifdef BVH_TRI_BASE
-    return uintBitsToFloat(imageLoad(nodes, table_texel(BVH_TRI_BASE + k, BVH_ROW)).xyz);
-#else
-    return uintBitsToFloat(imageLoad(tris, table_texel(k, BVH_ROW)).xyz);
-#endif
+    return uintBitsToFloat(bvh_texel(TRI_BASE + k).xyz);
 }
 
-// Parameter of the hit of triangle t in (0, tmax], or -1.
-float hit_t(vec3 o, vec3 d, uint t, float tmax) {
-    vec3 a = tri_row(3u * t);
-    vec3 e1 = tri_row(3u * t + 1u);
-    vec3 e2 = tri_row(3u * t + 2u);
+// The texels of a traversal step: triangle t's three rows when `tri_step`, else node ni's
+// two (r0: lo, first; r1: hi, link word) and the texel after them (unused).
+void step_texels(bool tri_step, uint ni, uint t, out uvec4 r0, out uvec4 r1, out uvec4 r2) {
+    uint k = tri_step ? TRI_BASE + 3u * t : 2u * ni;
+    r0 = bvh_texel(k);
+    r1 = bvh_texel(k + 1u);
+    r2 = bvh_texel(k + 2u);
+}
+
+// Parameter of the hit of the triangle (a, a + e1, a + e2) in (0, tmax], or -1.
+float hit_t(vec3 o, vec3 d, vec3 a, vec3 e1, vec3 e2, float tmax) {
     vec3 p = cross(d, e2);
     float det = dot(e1, p);
     if (abs(det) < 1e-12) return -1.0;
@@ -55,24 +66,6 @@ bool slab_meets(vec3 lo_o, vec3 hi_o, vec3 inv, float tmax) {
     return !(tnear > tfar);
 }
 
-bool hit_tri(vec3 o, vec3 d, uint t, float tmax) {
-    vec3 a = tri_row(3u * t);
-    vec3 e1 = tri_row(3u * t + 1u);
-    vec3 e2 = tri_row(3u * t + 2u);
-    vec3 p = cross(d, e2);
-    float det = dot(e1, p);
-    if (abs(det) < 1e-12) return false;
-    float inv = 1.0 / det;
-    vec3 s = o - a;
-    float u = dot(s, p) * inv;
-    if (u < 0.0 || u > 1.0) return false;
-    vec3 q = cross(s, e1);
-    float v = dot(d, q) * inv;
-    if (v < 0.0 || u + v > 1.0) return false;
-    float t_hit = dot(e2, q) * inv;
-    return t_hit > 0.0 && t_hit <= tmax;
-}
-
 // Stackless traversal (src/kernels/sss/posed.rs link_words): a node's hi.w is its
 // triangle count | its skip << 8, the node visited next when the ray does not enter it;
 // entering an inner node goes to its left child, a leaf's triangles are tested and then its
@@ -95,22 +88,26 @@ bool any_hit(vec3 o, vec3 d, float tmax) {
     uint t = 0u;
     uint tend = 0u;
     for (uint step = 0u; (ni != LINK_END || t < tend) && step < MAX_STEPS; step++) {
-        if (t < tend) {
-            if (hit_tri(o, d, t, tmax)) return true;
+        bool tri_step = t < tend;
+        uvec4 r0, r1, r2;
+        step_texels(tri_step, ni, t, r0, r1, r2);
+        if (tri_step) {
+            vec3 a = uintBitsToFloat(r0.xyz);
+            if (hit_t(o, d, a, uintBitsToFloat(r1.xyz), uintBitsToFloat(r2.xyz), tmax) >= 0.0) {
+                return true;
+            }
             t++;
         } else {
-            uvec4 lo_u = bvh_node(2u * ni);
-            uvec4 hi_u = bvh_node(2u * ni + 1u);
-            vec3 lo = uintBitsToFloat(lo_u.xyz);
-            vec3 hi = uintBitsToFloat(hi_u.xyz);
+            vec3 lo = uintBitsToFloat(r0.xyz);
+            vec3 hi = uintBitsToFloat(r1.xyz);
             bool meets = slab_meets(lo - o, hi - o, inv, tmax);
-            uint first = lo_u.w;
-            uint count = hi_u.w & 0xffu;
+            uint first = r0.w;
+            uint count = r1.w & 0xffu;
             if (meets && count != 0u) {
                 t = first;
                 tend = first + count;
             }
-            ni = (meets && count == 0u) ? first : hi_u.w >> 8u;
+            ni = (meets && count == 0u) ? first : r1.w >> 8u;
         }
     }
     return false;
@@ -126,26 +123,28 @@ vec2 closest_hit(vec3 o, vec3 d, float tmax) {
     uint t = 0u;
     uint tend = 0u;
     for (uint step = 0u; (ni != LINK_END || t < tend) && step < MAX_STEPS; step++) {
-        if (t < tend) {
-            float th = hit_t(o, d, t, tmax);
+        bool tri_step = t < tend;
+        uvec4 r0, r1, r2;
+        step_texels(tri_step, ni, t, r0, r1, r2);
+        if (tri_step) {
+            vec3 a = uintBitsToFloat(r0.xyz);
+            float th = hit_t(o, d, a, uintBitsToFloat(r1.xyz), uintBitsToFloat(r2.xyz), tmax);
             if (th >= 0.0 && (best < 0.0 || th < best)) {
                 best = th;
                 best_tri = t;
             }
             t++;
         } else {
-            uvec4 lo_u = bvh_node(2u * ni);
-            uvec4 hi_u = bvh_node(2u * ni + 1u);
-            vec3 lo = uintBitsToFloat(lo_u.xyz);
-            vec3 hi = uintBitsToFloat(hi_u.xyz);
+            vec3 lo = uintBitsToFloat(r0.xyz);
+            vec3 hi = uintBitsToFloat(r1.xyz);
             bool meets = slab_meets(lo - o, hi - o, inv, best >= 0.0 ? best : tmax);
-            uint first = lo_u.w;
-            uint count = hi_u.w & 0xffu;
+            uint first = r0.w;
+            uint count = r1.w & 0xffu;
             if (meets && count != 0u) {
                 t = first;
                 tend = first + count;
             }
-            ni = (meets && count == 0u) ? first : hi_u.w >> 8u;
+            ni = (meets && count == 0u) ? first : r1.w >> 8u;
         }
     }
     return vec2(best, uintBitsToFloat(best_tri));

@@ -3,7 +3,7 @@
 // frames, mm) and pass `env bvh leaves` (the character's posed positions): the topology is
 // built once over the rest pose (src/kernels/sss/posed.rs BvhTopology); per leaf, its
 // triangles from this pose's vertices, stored as (a, b - a, c - a) in the triangle slots the
-// traversal reads (`tris`), and its box (`nodes`: lo xyz, first; hi xyz, link). Pass
+// traversal reads, and its box (lo xyz, first; hi xyz, link), both in the one table. Pass
 // `sss bvh refit` then fits the inner nodes. The CPU twin is posed::refit.
 // The includer declares `const uint BVH_ROW`, its vertex buffer at binding 0 and
 // `#define BVH_VERTEX(i)`, the position of vertex i (a vec3).
@@ -13,14 +13,11 @@
 layout(std430, set = 0, binding = 1) readonly buffer Topo { uint v[]; } bvh_topo;
 // Per triangle slot: the mesh's vertex indices (v0, v1, v2, 0).
 layout(std430, set = 0, binding = 2) readonly buffer Slots { uvec4 v[]; } bvh_slots;
+// The table of glsl/common/bvh.glsl: nodes from texel 0, triangle slots from TRI_BASE.
 layout(set = 0, binding = 3, rgba32ui) writeonly uniform uimage2D nodes;
-#ifdef BVH_TRI_BASE
-// One table: the triangles' slots follow the nodes, from texel BVH_TRI_BASE.
-#define BVH_TRI_IMAGE nodes
-#else
-layout(set = 0, binding = 4, rgba32ui) writeonly uniform uimage2D tris;
-#define BVH_TRI_IMAGE tris
-#define BVH_TRI_BASE 0u
+#ifndef VKSHADE_BVH_TRI_BASE
+#define VKSHADE_BVH_TRI_BASE
+layout(constant_id = 16) const uint TRI_BASE = 0u;
 #endif
 
 ivec2 at(uint k) {
@@ -39,10 +36,10 @@ void main() {
     for (uint s = first; s < first + count; s++) {
         uvec4 c = bvh_slots.v[s];
         vec3 a = BVH_VERTEX(c.x), b = BVH_VERTEX(c.y), d = BVH_VERTEX(c.z);
-        uint k = BVH_TRI_BASE + 3u * s;
-        imageStore(BVH_TRI_IMAGE, at(k), uvec4(floatBitsToUint(a), 0u));
-        imageStore(BVH_TRI_IMAGE, at(k + 1u), uvec4(floatBitsToUint(b - a), 0u));
-        imageStore(BVH_TRI_IMAGE, at(k + 2u), uvec4(floatBitsToUint(d - a), 0u));
+        uint k = TRI_BASE + 3u * s;
+        imageStore(nodes, at(k), uvec4(floatBitsToUint(a), 0u));
+        imageStore(nodes, at(k + 1u), uvec4(floatBitsToUint(b - a), 0u));
+        imageStore(nodes, at(k + 2u), uvec4(floatBitsToUint(d - a), 0u));
         lo = min(lo, min(a, min(b, d)));
         hi = max(hi, max(a, max(b, d)));
     }

@@ -5,9 +5,6 @@
 layout(local_size_x = 64) in;
 
 const uint BVH_ROW = 1024u;
-// Where the triangles' slots start in the one table (2 x the node count).
-layout(constant_id = 0) const uint TRI_BASE = 0u;
-#define BVH_TRI_BASE TRI_BASE
 
 layout(std430, set = 0, binding = 0) readonly buffer Positions { vec4 p[]; } pos;
 #define BVH_VERTEX(i) pos.p[i].xyz

@@ -38,9 +38,6 @@ layout(push_constant) uniform Push {
 layout(std430, set = 0, binding = 0) readonly buffer Positions { vec4 p[]; } pos;
 layout(std430, set = 0, binding = 1) readonly buffer Normals { vec4 n[]; } nrm;
 layout(set = 0, binding = 2, rgba32ui) readonly uniform uimage2D nodes;
-// Where the triangles' slots start in the one table (2 x the node count).
-layout(constant_id = 0) const uint TRI_BASE = 0u;
-#define BVH_TRI_BASE TRI_BASE
 layout(std430, set = 0, binding = 4) writeonly buffer Traced { float v[]; } traced;
 layout(std430, set = 0, binding = 5) writeonly buffer Escaped { uint w[]; } escaped;
 
@@ -56,17 +53,11 @@ uint escaping(vec3 o, vec3 d[PACKET], uint live) {
     uint tend = 0u;
     uint leaf_meet = 0u;
     for (uint step = 0u; (ni != LINK_END || t < tend) && live != 0u && step < MAX_STEPS; step++) {
-        // One step reads three texels of the one table, a triangle's (a, e1, e2) or a
-        // node's (lo, first; hi, link; and the next texel, unused): the lanes of a SIMD step
-        // run both kinds masked, and one address per lane costs 3 loads, not 2 + 3. Measured
-        // on lavapipe (`bench frame`, 4 alternated pairs): 5.5-5.9 -> 4.7-4.8 ms.
         bool tri_step = t < tend;
-        uint k = tri_step ? TRI_BASE + 3u * t : 2u * ni;
-        uvec4 r0 = bvh_node(k);
-        uvec4 r1 = bvh_node(k + 1u);
-        uvec4 r2 = bvh_node(k + 2u);
+        uvec4 r0, r1, r2;
+        step_texels(tri_step, ni, t, r0, r1, r2);
         if (tri_step) {
-            // common/bvh.glsl hit_tri, the terms that do not depend on the ray taken once.
+            // common/bvh.glsl hit_t, the terms that do not depend on the ray taken once.
             vec3 a = uintBitsToFloat(r0.xyz);
             vec3 e1 = uintBitsToFloat(r1.xyz);
             vec3 e2 = uintBitsToFloat(r2.xyz);

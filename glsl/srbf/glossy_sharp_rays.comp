@@ -11,7 +11,6 @@ layout(std430, set = 0, binding = 3) readonly buffer LobeAxes { vec4 v[]; } lobe
 layout(std430, set = 0, binding = 4) readonly buffer LobeAmps { vec4 v[]; } lobe_amps;   // rgb
 const uint BVH_ROW = 1024u;
 layout(set = 0, binding = 5, rgba32ui) readonly uniform uimage2D nodes;
-layout(set = 0, binding = 6, rgba32ui) readonly uniform uimage2D tris;
 
 #include <common/bvh.glsl>
 #include "glossy_sharp.glsl"

@@ -28,7 +28,6 @@ layout(std430, set = 0, binding = 4) readonly buffer Normals { vec4 v[]; } norma
 layout(std430, set = 0, binding = 5) writeonly buffer SunBits { uint v[]; } sun_bits;    // per slot
 const uint BVH_ROW = 1024u;
 layout(set = 0, binding = 6, rgba32ui) readonly uniform uimage2D nodes;
-layout(set = 0, binding = 7, rgba32ui) readonly uniform uimage2D tris;
 
 #include <common/bvh.glsl>
 #include "texel.glsl"

@@ -63,11 +63,10 @@ layout(set = 0, binding = 5, rgba32f) readonly uniform image2D vtrans;
 // lavapipe stores a texel lane by lane, and a store per texel costs ~2.5 ms at 512^2).
 layout(set = 0, binding = 7, rgba32f) writeonly uniform image2D trans;  // rgb, t
 #endif
-// The BVH as images (row BVH_ROW; lavapipe fetches a texel's four channels at once): nodes
-// 2 texels each (lo xyz, first; hi xyz, link word), triangles 3 (a, e1, e2), float bits.
+// The BVH as one table (row BVH_ROW; glsl/common/bvh.glsl): nodes 2 texels each, then
+// triangles 3 each from texel TRI_BASE.
 const uint BVH_ROW = 1024u;
 layout(set = 0, binding = 8, rgba32ui) readonly uniform uimage2D nodes;
-layout(set = 0, binding = 9, rgba32ui) readonly uniform uimage2D tris;
 // The output: the grey E for the diffusion's gathers (glsl/sss/diffusion_grey.comp: one
 // channel, the cheapest gather), E >= 0, -1 where no surface. The kernel reads the
 // irradiance back from it (rgb = E, alpha 1; 0 where E < 0).

@@ -18,13 +18,16 @@ uint blocked_rays(vec3 o[RAY_PACKET], vec3 d[RAY_PACKET], float tmax[RAY_PACKET]
     uint tend = 0u;
     uint leaf_meet = 0u;
     for (uint step = 0u; (ni != LINK_END || t < tend) && live != 0u && step < MAX_STEPS; step++) {
-        if (t < tend) {
-            vec3 a = tri_row(3u * t);
-            vec3 e1 = tri_row(3u * t + 1u);
-            vec3 e2 = tri_row(3u * t + 2u);
+        bool tri_step = t < tend;
+        uvec4 r0, r1, r2;
+        step_texels(tri_step, ni, t, r0, r1, r2);
+        if (tri_step) {
+            vec3 a = uintBitsToFloat(r0.xyz);
+            vec3 e1 = uintBitsToFloat(r1.xyz);
+            vec3 e2 = uintBitsToFloat(r2.xyz);
             uint hit = 0u;
             for (uint i = 0u; i < RAY_PACKET; i++) {
-                // common/bvh.glsl hit_tri, the same operations.
+                // common/bvh.glsl hit_t, the same operations.
                 vec3 p = cross(d[i], e2);
                 float det = dot(e1, p);
                 float inv_det = 1.0 / det;
@@ -42,23 +45,21 @@ uint blocked_rays(vec3 o[RAY_PACKET], vec3 d[RAY_PACKET], float tmax[RAY_PACKET]
             live &= ~hit;
             t++;
         } else {
-            uvec4 lo_u = bvh_node(2u * ni);
-            uvec4 hi_u = bvh_node(2u * ni + 1u);
-            vec3 lo = uintBitsToFloat(lo_u.xyz);
-            vec3 hi = uintBitsToFloat(hi_u.xyz);
+            vec3 lo = uintBitsToFloat(r0.xyz);
+            vec3 hi = uintBitsToFloat(r1.xyz);
             uint meet = 0u;
             for (uint i = 0u; i < RAY_PACKET; i++) {
                 meet |= slab_meets(lo - o[i], hi - o[i], inv[i], tmax[i]) ? (1u << i) : 0u;
             }
             meet &= live;
-            uint first = lo_u.w;
-            uint count = hi_u.w & 0xffu;
+            uint first = r0.w;
+            uint count = r1.w & 0xffu;
             if (meet != 0u && count != 0u) {
                 t = first;
                 tend = first + count;
                 leaf_meet = meet;
             }
-            ni = (meet != 0u && count == 0u) ? first : hi_u.w >> 8u;
+            ni = (meet != 0u && count == 0u) ? first : r1.w >> 8u;
         }
     }
     return blocked;

@@ -22,11 +22,10 @@ layout(push_constant) uniform Push {
 } pc;
 
 layout(std430, set = 0, binding = 0) readonly buffer Verts { vec4 v[]; } verts;   // pos, normal
-// The BVH as images (row BVH_ROW; lavapipe fetches a texel's four channels at once): nodes
-// 2 texels each (lo xyz, first; hi xyz, link word), triangles 3 (a, e1, e2), float bits.
+// The BVH as one table (row BVH_ROW; glsl/common/bvh.glsl): nodes 2 texels each, then
+// triangles 3 each from texel TRI_BASE.
 const uint BVH_ROW = 1024u;
 layout(set = 0, binding = 1, rgba32ui) readonly uniform uimage2D nodes;
-layout(set = 0, binding = 2, rgba32ui) readonly uniform uimage2D tris;
 
 #include <sss/lights.glsl>
 // Outputs as images (vertex v at (v % VERTEX_ROW, v / VERTEX_ROW)): the irradiance pass

@@ -556,6 +556,42 @@ pub fn sah_cost(nodes: &[[f32; 8]]) -> f64 {
         / ra
 }
 
+/// The first texel of the triangles in the GPU table of glsl/common/bvh.glsl (every
+/// pipeline's specialization constant `TRI_BASE`): after room for `nodes` nodes (2 texels
+/// each), rounded up to whole rows of `row` texels (at least one row).
+pub fn tri_base(nodes: usize, row: u32) -> u32 {
+    (2 * nodes as u32).div_ceil(row).max(1) * row
+}
+
+/// The GPU table of glsl/common/bvh.glsl (texels of four 32-bit words, float bits): `nodes`
+/// ([`with_links`]) 2 texels each from texel 0, then `tris` 3 texels each from texel
+/// `tri_base`. One table rather than an image of each: a traversal step reads three texels
+/// at one address, whichever kind it is (the shader's header says why).
+pub fn table_texels(
+    nodes: &[[f32; 8]],
+    tris: &[[f32; 12]],
+    tri_base: u32,
+) -> Result<Vec<[f32; 4]>> {
+    let base = tri_base as usize;
+    if 2 * nodes.len() > base {
+        return Err(Error::InvalidArgument(format!(
+            "BVH table: {} nodes do not fit before the triangles at texel {base}",
+            nodes.len()
+        )));
+    }
+    let mut texels = vec![[0f32; 4]; base + 3 * tris.len()];
+    for (k, n) in nodes.iter().enumerate() {
+        texels[2 * k].copy_from_slice(&n[..4]);
+        texels[2 * k + 1].copy_from_slice(&n[4..]);
+    }
+    for (k, t) in tris.iter().enumerate() {
+        for r in 0..3 {
+            texels[base + 3 * k + r].copy_from_slice(&t[4 * r..4 * r + 4]);
+        }
+    }
+    Ok(texels)
+}
+
 /// Whether a ray from `o` along `d` hits a triangle of the flat BVH in (0, tmax]: the
 /// shaders' stackless traversal (glsl/common/bvh.glsl) on the CPU, over nodes whose
 /// counts are [`link_words`], to check a refitted BVH against one built for the pose.
@@ -618,6 +654,26 @@ pub fn flat_any_hit(nodes: &[[f32; 8]], tris: &[[f32; 12]], o: Vec3, d: Vec3, tm
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn the_gpu_table_puts_triangles_after_the_node_rows() {
+        let node = |k: f32| [k, k, k, f32::from_bits(7), k + 1.0, k + 1.0, k + 1.0, 0.0];
+        let nodes = [node(1.0), node(2.0), node(3.0)];
+        let tris = [[5.0; 12], [6.0; 12]];
+        let base = tri_base(nodes.len(), 4);
+        assert_eq!(base, 8, "6 node texels in rows of 4: two rows");
+        let t = table_texels(&nodes, &tris, base).unwrap();
+        assert_eq!(t.len(), 8 + 6);
+        assert_eq!(t[2], [2.0, 2.0, 2.0, f32::from_bits(7)]);
+        assert_eq!(t[5], [3.0 + 1.0, 4.0, 4.0, 0.0]);
+        assert_eq!(t[6], [0.0; 4], "the node rows' tail");
+        assert_eq!(t[8 + 3], [6.0; 4]);
+        assert!(
+            table_texels(&nodes, &tris, 4).is_err(),
+            "nodes past the base"
+        );
+        assert_eq!(tri_base(0, 4), 4, "at least one row");
+    }
+
     use super::*;
     use crate::scene::texspace::{TexGeometry, plane_mesh};
 

@@ -329,10 +329,8 @@ impl EnvKernel {
                     .usage(vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST);
                     Image::new(&ctx, name, desc)
                 };
-                // One table: the nodes (2 texels each), then the triangles' slots (3 each)
-                // from texel `tri_base` (glsl/env/trace.glsl reads either kind of record
-                // with the same three loads).
-                let tri_base = 2 * topology.nodes.max(1);
+                // The table of glsl/common/bvh.glsl: the nodes, then the triangles' slots.
+                let tri_base = crate::geom::bvh::tri_base(topology.nodes, BVH_ROW) as usize;
                 let nodes = uint_image("env bvh", tri_base + 3 * slots)?;
                 // Every frame writes the texels the traversal reads; cleared once so that the
                 // rows' tails hold defined data too.
@@ -407,10 +405,8 @@ impl EnvKernel {
         let trace_parts = match &traced {
             None => None,
             Some(_) => {
-                let tri_base = (
-                    "TRI_BASE",
-                    2 * traced.as_ref().map_or(1, |(t, _)| t.nodes.max(1)) as u32,
-                );
+                let nodes = traced.as_ref().map_or(0, |(t, _)| t.nodes);
+                let tri_base = ("TRI_BASE", crate::geom::bvh::tri_base(nodes, BVH_ROW));
                 let leaves =
                     crate::shaders::pipeline_specialized(&ctx, "env/bvh_leaves", &[tri_base])?;
                 let refit = crate::shaders::pipeline(&ctx, "sss/bvh_refit")?;

@@ -303,10 +303,14 @@ impl CompactStage {
             CompactShadow::Rays(r) => {
                 let (nodes, tris) = r.bvh.flat();
                 let nodes = crate::geom::bvh::with_links(nodes)?;
-                let (a, t) = super::gpu::bvh_images(rec, "srbf glossy compact", &nodes, &tris)?;
-                images.push(a);
-                images.push(t);
-                let add = crate::shaders::pipeline(&ctx, "srbf/glossy_sharp_rays")?;
+                let (table, tri_base) =
+                    super::gpu::bvh_table(rec, "srbf glossy compact", &nodes, &tris)?;
+                images.push(table);
+                let add = crate::shaders::pipeline_specialized(
+                    &ctx,
+                    "srbf/glossy_sharp_rays",
+                    &[("TRI_BASE", tri_base)],
+                )?;
                 let add_bind = add.bind_declared(
                     &[
                         ("points", b(&buffers[2])),
@@ -315,7 +319,6 @@ impl CompactStage {
                         ("lobe_axes", b(&buffers[0])),
                         ("lobe_amps", b(&buffers[1])),
                         ("nodes", Resource::storage_image(&images[0])),
-                        ("tris", Resource::storage_image(&images[1])),
                     ],
                     &[(
                         "radiance",

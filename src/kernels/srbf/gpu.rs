@@ -7,8 +7,8 @@
 //! buffers from it and records the passes. With shadow rays ([`super::inputs::SunRays`]),
 //! pass `srbf sharp` runs glsl/srbf/sharp_rays.comp instead of sharp.comp: the taps at the
 //! compact lobes' exact rotated axes and a shadow ray per slot and compact lobe against the
-//! static mesh's BVH (two images, uploaded once), whose bits `srbf shade` reads in place of
-//! the grid's visibility.
+//! static mesh's BVH (one table image, uploaded once), whose bits `srbf shade` reads in place
+//! of the grid's visibility.
 
 pub use super::inputs::{CompactInputs, SrbfFrame, SrbfInputs, SunRays, sun_offset};
 pub use super::pack::{
@@ -49,8 +49,8 @@ pub struct SrbfKernel {
 /// What pass `srbf sharp` casts shadow rays with: the static mesh's BVH as the images
 /// glsl/common/bvh.glsl traverses, the slots' positions and the bits it writes.
 struct SunResources {
+    /// The BVH's table (nodes, then triangles).
     nodes: Image,
-    triangles: Image,
     positions: Buffer,
     /// Per slot: bit j set when compact lobe j is seen (written by `srbf sharp`, read by
     /// `srbf shade`).
@@ -64,7 +64,7 @@ impl SunResources {
     /// Creates the images and buffers for `prep` and records their uploads.
     fn new(rec: &mut Recorder, prep: &Prepared) -> Result<SunResources> {
         let ctx = rec.context();
-        let (nodes, triangles) = bvh_images(rec, "srbf sun", &prep.bvh_nodes, &prep.bvh_triangles)?;
+        let (nodes, _) = bvh_table(rec, "srbf sun", &prep.bvh_nodes, &prep.bvh_triangles)?;
         let bytes: &[u8] = bytemuck::cast_slice(&prep.positions);
         let positions = rec.buffer_with(
             "srbf sun positions",
@@ -79,37 +79,34 @@ impl SunResources {
         )?;
         Ok(SunResources {
             nodes,
-            triangles,
             positions,
             bits,
         })
     }
 }
 
-/// The BVH of glsl/common/bvh.glsl as its two images, `BVH_ROW` texels wide (nodes with
-/// links, [`crate::geom::bvh::with_links`], and triangles, [`crate::geom::Bvh::flat`]), their
-/// uploads recorded into `rec`.
-pub(super) fn bvh_images(
+/// The BVH of glsl/common/bvh.glsl as its table, `BVH_ROW` texels wide (nodes with links,
+/// [`crate::geom::bvh::with_links`], then triangles, [`crate::geom::Bvh::flat`], from texel
+/// [`crate::geom::bvh::tri_base`], the second value: the pipelines' `TRI_BASE`), its upload
+/// recorded into `rec`.
+pub(super) fn bvh_table(
     rec: &mut Recorder,
     prefix: &str,
     nodes: &[[f32; 8]],
     triangles: &[[f32; 12]],
-) -> Result<(Image, Image)> {
+) -> Result<(Image, u32)> {
     let ctx = rec.context();
-    let image = |name: String, texels: usize| {
-        let rows = (texels as u32).div_ceil(BVH_ROW).max(1);
-        Image::new(
-            &ctx,
-            &name,
-            ImageDesc::d2(vk::Format::R32G32B32A32_UINT, [BVH_ROW, rows])
-                .usage(vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST),
-        )
-    };
-    let node_image = image(format!("{prefix} bvh nodes"), 2 * nodes.len())?;
-    let triangle_image = image(format!("{prefix} bvh triangles"), 3 * triangles.len())?;
-    rec.upload_image_rows(&node_image, nodes)?;
-    rec.upload_image_rows(&triangle_image, triangles)?;
-    Ok((node_image, triangle_image))
+    let tri_base = crate::geom::bvh::tri_base(nodes.len(), BVH_ROW);
+    let texels = crate::geom::bvh::table_texels(nodes, triangles, tri_base)?;
+    let rows = (texels.len() as u32).div_ceil(BVH_ROW).max(1);
+    let image = Image::new(
+        &ctx,
+        &format!("{prefix} bvh"),
+        ImageDesc::d2(vk::Format::R32G32B32A32_UINT, [BVH_ROW, rows])
+            .usage(vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST),
+    )?;
+    rec.upload_image_rows(&image, &texels)?;
+    Ok((image, tri_base))
 }
 
 /// A pass's pipeline and its bindings.
@@ -204,11 +201,18 @@ impl SrbfKernel {
                 ("TAPS", prep.shape.compact),
             ],
         )?;
-        let sharp = pipeline(if prep.shape.rays {
-            "srbf/sharp_rays"
-        } else {
-            "srbf/sharp"
-        })?;
+        let sharp = match prep.shape.rays {
+            // Where SunResources::new's table holds the triangles.
+            true => crate::shaders::pipeline_specialized(
+                &ctx,
+                "srbf/sharp_rays",
+                &[(
+                    "TRI_BASE",
+                    crate::geom::bvh::tri_base(prep.bvh_nodes.len(), BVH_ROW),
+                )],
+            )?,
+            false => pipeline("srbf/sharp")?,
+        };
         let buffers = Self::buffers(rec, prep)?;
         let sun = match prep.shape.rays {
             true => Some(SunResources::new(rec, prep)?),
@@ -276,7 +280,6 @@ impl SrbfKernel {
                     ("normals", b(&buffers.normals)),
                     ("sun_bits", b(&sun.bits)),
                     ("nodes", Resource::storage_image(&sun.nodes)),
-                    ("tris", Resource::storage_image(&sun.triangles)),
                 ],
                 &[("taps", w), ("sun_bits", w)],
             )?,
@@ -514,7 +517,6 @@ impl Kernel for SrbfKernel {
         let sun = self.sun.iter().flat_map(|s| {
             [
                 Resource::storage_image(&s.nodes),
-                Resource::storage_image(&s.triangles),
                 Resource::Buffer(&s.positions),
                 Resource::Buffer(&s.bits),
             ]

@@ -132,9 +132,11 @@ pub struct SssReadback {
 struct Resources {
     /// Per mesh vertex: position, normal (two vec4).
     vertex_frames: Buffer,
-    /// The BVH, RGBA32UI, [`BVH_ROW`] texels a row (float bits; nodes 2 texels, triangles 3).
-    bvh_nodes: Image,
-    bvh_triangles: Image,
+    /// The BVH's table (glsl/common/bvh.glsl), RGBA32UI, [`BVH_ROW`] texels a row (float
+    /// bits): the nodes, 2 texels each, then from texel `tri_base` the triangles, 3 each.
+    bvh: Image,
+    /// The pipelines' `TRI_BASE`: the room's node rows, whole.
+    tri_base: u32,
     /// The skin regions' sample patterns, RGBA32F, one texel per sample, two rows a region
     /// ([`Pattern::texels`]; lavapipe loads a uniform buffer at a loop index lane by lane: a
     /// vec4 from it cost more than the irradiance gather of a sample).
@@ -234,8 +236,8 @@ impl Resources {
                 "sss vertices",
                 BufferDesc::storage(room.vertices as u64 * 32),
             )?,
-            bvh_nodes: image("sss bvh nodes", rows(room.bvh_node_rows))?,
-            bvh_triangles: image("sss bvh triangles", rows(room.bvh_triangle_rows))?,
+            bvh: image("sss bvh", rows(room.bvh_node_rows + room.bvh_triangle_rows))?,
+            tri_base: room.bvh_node_rows * BVH_ROW,
             sample_pattern: image(
                 "sss sample pattern",
                 rgba32f([PATTERN_WIDTH, 2 * regions.clamp(1, MAX_REGIONS) as u32]),
@@ -293,12 +295,11 @@ impl Resources {
 
     /// Every resource, with the name the shaders bind it by: the passes bind by these names,
     /// and the memory report counts them all.
-    fn by_binding(&self) -> [(&'static str, Resource<'_>); 27] {
+    fn by_binding(&self) -> [(&'static str, Resource<'_>); 26] {
         let image = Resource::storage_image;
         [
             ("verts", Resource::Buffer(&self.vertex_frames)),
-            ("nodes", image(&self.bvh_nodes)),
-            ("tris", image(&self.bvh_triangles)),
+            ("nodes", image(&self.bvh)),
             ("seq", image(&self.sample_pattern)),
             ("tails", Resource::Buffer(&self.region_tails)),
             ("vregion", Resource::Buffer(&self.vertex_regions)),
@@ -337,8 +338,8 @@ impl Resources {
         rec.upload_image_rows(&self.contact_entries, &at_least_one(&p.contact_entries))?;
         self.set_tiles(rec, p.tiles)?;
         rec.upload(&self.vertex_frames, 0, &p.vertex_frames)?;
-        rec.upload_image_rows(&self.bvh_nodes, &at_least_one(&p.bvh_nodes))?;
-        rec.upload_image_rows(&self.bvh_triangles, &at_least_one(&p.bvh_triangles))
+        let table = crate::geom::bvh::table_texels(&p.bvh_nodes, &p.bvh_triangles, self.tri_base)?;
+        rec.upload_image_rows(&self.bvh, &table)
     }
 
     /// Records the clearing of the transmission image (the irradiance pass leaves it alone
@@ -388,17 +389,19 @@ impl Stage {
     /// The embedded shader `name`, each of its bindings bound to the kernel's resource of
     /// that name; those in `writes` are declared as written only (`writeonly` in GLSL).
     fn new(ctx: &Context, name: &str, res: &Resources, writes: &[&str]) -> Result<Stage> {
-        Stage::from_table(ctx, name, &res.by_binding(), writes)
+        Stage::from_table(ctx, name, &res.by_binding(), writes, res.tri_base)
     }
 
-    /// As [`Stage::new`], the resources looked up by name in `table`.
+    /// As [`Stage::new`], the resources looked up by name in `table`; `tri_base`: the
+    /// BVH table's (the `TRI_BASE` of the shaders that traverse or build it).
     fn from_table(
         ctx: &Context,
         name: &str,
         table: &[(&'static str, Resource<'_>)],
         writes: &[&str],
+        tri_base: u32,
     ) -> Result<Stage> {
-        let pipeline = crate::shaders::pipeline(ctx, name)?;
+        let pipeline = crate::shaders::pipeline_declaring(ctx, name, &[("TRI_BASE", tri_base)])?;
         let lookup = |b: &str| table.iter().find(|(n, _)| *n == b).map(|(_, r)| r.clone());
         let w = AccessSet::from(A::ComputeShaderWrite);
         let writes: Vec<(&str, AccessSet)> = writes.iter().map(|&b| (b, w)).collect();
@@ -425,10 +428,12 @@ impl Irradiance {
         name: &str,
         table: &[(&'static str, Resource<'_>)],
         writes: &[&str],
+        tri_base: u32,
     ) -> Result<Irradiance> {
+        let shade_writes = [writes, &["rays"]].concat();
         Ok(Irradiance {
-            shade: Stage::from_table(ctx, name, table, &[writes, &["rays"]].concat())?,
-            rays: Stage::from_table(ctx, &format!("{name}_rays"), table, &[])?,
+            shade: Stage::from_table(ctx, name, table, &shade_writes, tri_base)?,
+            rays: Stage::from_table(ctx, &format!("{name}_rays"), table, &[], tri_base)?,
         })
     }
 
@@ -686,8 +691,7 @@ pub struct GeometryReadback {
     pos: Readback,
     nrm: Readback,
     walk: Readback,
-    nodes: Readback,
-    tris: Readback,
+    bvh: Readback,
 }
 
 impl SssKernel {
@@ -723,8 +727,13 @@ impl SssKernel {
         let res = Resources::new(&ctx, &room, regions.len(), reach.len())?;
         let stage = |name, writes: &[&str]| Stage::new(&ctx, name, &res, writes);
         let vertex_light = stage("sss/vertex_light", &["vis", "vtrans"])?;
-        let irradiance =
-            Irradiance::from_table(&ctx, "sss/irradiance", &res.by_binding(), &["trans", "pe"])?;
+        let irradiance = Irradiance::from_table(
+            &ctx,
+            "sss/irradiance",
+            &res.by_binding(),
+            &["trans", "pe"],
+            res.tri_base,
+        )?;
         let diffusion_rgb = stage("sss/diffusion", &["diffuse"])?;
         let diffusion_grey = stage("sss/diffusion_grey", &["diffuse"])?;
         let pattern = Pattern::new(&regions, params.samples);
@@ -848,13 +857,20 @@ impl SssKernel {
                 ("bvh_slots", Resource::Buffer(&bvh_slots)),
             ])
             .collect();
-        let stage = |name: &str, writes: &[&str]| Stage::from_table(&ctx, name, &table, writes);
+        let tri_base = kernel.res.tri_base;
+        let stage =
+            |name: &str, writes: &[&str]| Stage::from_table(&ctx, name, &table, writes, tri_base);
         let vertices_stage = stage("sss/pose_vertices", &["verts", "vframes"])?;
         let triangles_stage = stage("sss/pose_triangles", &["walk", "trirec"])?;
         let texels = stage("sss/pose_texels", &["pos", "nrm"])?;
-        let irradiance =
-            Irradiance::from_table(&ctx, "sss/irradiance_posed", &table, &["trans", "pe"])?;
-        let bvh_leaves = stage("sss/bvh_leaves", &["nodes", "tris"])?;
+        let irradiance = Irradiance::from_table(
+            &ctx,
+            "sss/irradiance_posed",
+            &table,
+            &["trans", "pe"],
+            tri_base,
+        )?;
+        let bvh_leaves = stage("sss/bvh_leaves", &["nodes"])?;
         let bvh_refit = stage("sss/bvh_refit", &[])?;
         drop(table);
         kernel.posed = Some(Posed {
@@ -901,8 +917,7 @@ impl SssKernel {
             pos: rec.read_back_image(&r.texel_positions, whole(&r.texel_positions))?,
             nrm: rec.read_back_image(&r.texel_normals, whole(&r.texel_normals))?,
             walk: rec.read_back_image(&r.walk_records, whole(&r.walk_records))?,
-            nodes: rec.read_back_image(&r.bvh_nodes, whole(&r.bvh_nodes))?,
-            tris: rec.read_back_image(&r.bvh_triangles, whole(&r.bvh_triangles))?,
+            bvh: rec.read_back_image(&r.bvh, whole(&r.bvh))?,
         })
     }
 
@@ -916,7 +931,8 @@ impl SssKernel {
         };
         let mut walk_records: Vec<[u32; 4]> = rb.walk.to_vec()?;
         walk_records.truncate(walk_texels);
-        let node_texels: Vec<[u32; 4]> = rb.nodes.to_vec()?;
+        let texels: Vec<[u32; 4]> = rb.bvh.to_vec()?;
+        let (node_texels, tri_texels) = texels.split_at(self.res.tri_base as usize);
         let bvh_nodes = node_texels
             .chunks_exact(2)
             .take(nodes)
@@ -929,7 +945,6 @@ impl SssKernel {
                 n
             })
             .collect();
-        let tri_texels: Vec<[u32; 4]> = rb.tris.to_vec()?;
         let bvh_triangles = tri_texels
             .chunks_exact(3)
             .take(room.triangles)
@@ -1074,8 +1089,10 @@ impl SssKernel {
         } else {
             "sss/irradiance_env"
         };
-        let copy = Stage::from_table(&ctx, "sss/vertex_env", &table, &["venv_texels"])?;
-        let irradiance = Irradiance::from_table(&ctx, shader, &table, &["trans", "penv"])?;
+        let tri_base = self.res.tri_base;
+        let copy = Stage::from_table(&ctx, "sss/vertex_env", &table, &["venv_texels"], tri_base)?;
+        let irradiance =
+            Irradiance::from_table(&ctx, shader, &table, &["trans", "penv"], tri_base)?;
         drop(table);
         let diffusion = self.env_diffusion(&image, self.needed.is_some())?;
         let listed = match &self.reach {
@@ -1122,6 +1139,7 @@ impl SssKernel {
             "sss/irradiance_posed_env_listed",
             &table,
             &["trans", "penv"],
+            self.res.tri_base,
         )
     }
 
@@ -1177,7 +1195,13 @@ impl SssKernel {
                     )));
                 }
                 let table = self.table_with([("reach_marks", Resource::Buffer(m.bitmap))]);
-                let stage = Stage::from_table(&self.ctx, "sss/reach_triangles", &table, &[])?;
+                let stage = Stage::from_table(
+                    &self.ctx,
+                    "sss/reach_triangles",
+                    &table,
+                    &[],
+                    self.res.tri_base,
+                )?;
                 Some((stage, m.first))
             }
             None => None,
@@ -1217,7 +1241,7 @@ impl SssKernel {
         } else {
             "sss/diffusion_env"
         };
-        Stage::from_table(&self.ctx, shader, &table, &["diffuse"])
+        Stage::from_table(&self.ctx, shader, &table, &["diffuse"], self.res.tri_base)
     }
 
     /// Bytes of a needed-segment bitmap for this kernel's atlas
@@ -1263,6 +1287,7 @@ impl SssKernel {
                         "sss/needed_list",
                         &table,
                         &["needed_list"],
+                        self.res.tri_base,
                     )?,
                     bitmap: bitmap.clone(),
                 })
@@ -1284,7 +1309,7 @@ impl SssKernel {
     /// Pass `sss reach boxes` over the needed bitmap `needed`.
     fn reach_boxes(&self, needed: &Buffer) -> Result<Stage> {
         let table = self.table_with([("needed", Resource::Buffer(needed))]);
-        Stage::from_table(&self.ctx, "sss/reach_boxes", &table, &[])
+        Stage::from_table(&self.ctx, "sss/reach_boxes", &table, &[], self.res.tri_base)
     }
 
     /// The passes of a frame before the lights ([`Kernel::passes`] up to `sss lights`): the
