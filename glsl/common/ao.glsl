@@ -22,6 +22,14 @@ float sphere_occlusion(float cos_t, float h) {
     return clamp((term + atan(sqrt(k2 / (h2 - 1.0)))) / AO_PI, 0.0, 1.0);
 }
 
+// Whether any of the sphere (distance / radius h, cosine cos_t of its centre to the normal)
+// lies above the horizon: the exact sphere_occlusion is positive exactly when h cos_t > -1.
+// For a caller that needs only whether the sphere counts (a branch of acos, atan and three
+// square roots less). kernels::ao::formula::sphere_above_horizon.
+bool sphere_above_horizon(float cos_t, float h) {
+    return max(h, 1.0 + 1e-6) * clamp(cos_t, -1.0, 1.0) > -1.0;
+}
+
 // Table coordinates: u = psi / 2pi = 1 - sqrt(1 - 1/h^2), v = theta / pi.
 vec2 ao_table_coords(float cos_t, float h) {
     float inv_h2 = 1.0 / max(h * h, 1.0);

@@ -22,7 +22,6 @@ layout(push_constant) uniform Push {
     uint vertex_count;
     uint lobe_count;
     uint node_count;
-    uint branch;
     uint first_leaf;
     float tau;
     float band;
@@ -80,6 +79,11 @@ const uint MAX_DEPTH = 8u;
 // the deepest the walk's parent state goes: a specialization constant, so that the loops
 // over the depths below have a fixed count.
 layout(constant_id = 3) const uint LEVELS = MAX_DEPTH;
+// The tree's branch factor (kernels::ao::cpu::TreeShape::branch), a specialization constant
+// as in glsl/ao/occlusion.comp: the walk's climb divides by it, and a division by a value
+// known only at run time is one scalar division per lane (8 a SIMD step on lavapipe), by a
+// constant a multiply or, for 8, a shift (`bench env`, 16 lobes: MEASURE).
+layout(constant_id = 4) const uint BRANCH = 8u;
 const float INSIDE_FADE = 0.25;
 // kernels::env::{COSINE_SHARPNESS, COSINE_AMPLITUDE, HILL_MIN_SHARPNESS}.
 const float COS_SHARPNESS = 2.133;
@@ -266,7 +270,7 @@ void main() {
     }
     uint depth = 1u;
     uint node = 1u;
-    uint B = pc.branch;
+    uint B = BRANCH;
     bool clamp_inside = pc.clamp_inside != 0u;
     // The walk in rounds of at most CAPS caps, each round's caps shaded after it.
     do {
@@ -313,9 +317,15 @@ void main() {
                         float h = d / eff.w;
                         if (!clamp_inside && h < 1.0 + INSIDE_FADE) h /= max((h - 1.0) / INSIDE_FADE, 1e-6);
                         float cos_t = d > 0.0 ? dot(n, dv) / d : 1.0;
-                        float occ = sphere_occlusion(cos_t, h);
-                        if (occ > 0.0) {
+                        // Whether the sphere counts; its occlusion only for AO's
+                        // product u, which only the module without rays divides by (with
+                        // rays the acos, atan and roots ran at every step for nothing:
+                        // `bench env`, 8 lobes, fastest of 5 alternated runs: MEASURE).
+                        if (sphere_above_horizon(cos_t, h)) {
+#ifndef ENV_RAYS
+                            float occ = sphere_occlusion(cos_t, h);
                             u += w * log(max(1.0 - occ, pc.min_transmission));
+#endif
                             vec3 wc = d > 0.0 ? dv / d : n;
                             float sin_a = min(1.0 / max(h, 1.0), 1.0);
                             [[unroll]] for (uint i = 0u; i < CAPS; ++i) {

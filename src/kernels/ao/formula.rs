@@ -28,6 +28,14 @@ pub fn sphere_occlusion(cos_t: f32, h: f32) -> f32 {
     ((term + (k2 / (h2 - 1.0)).sqrt().atan()) / PI).clamp(0.0, 1.0)
 }
 
+/// Whether any of the sphere (distance / radius `h`, cosine `cos_t` of its centre to the
+/// normal) lies above the horizon: the exact [`sphere_occlusion`] is positive exactly when
+/// h cos_t > -1 (its f32 value may round to 0 just above that). For a caller that needs
+/// only whether the sphere counts (glsl/common/ao.glsl, the same operations).
+pub fn sphere_above_horizon(cos_t: f32, h: f32) -> bool {
+    h.max(1.0 + 1e-6) * cos_t.clamp(-1.0, 1.0) > -1.0
+}
+
 /// The occlusion table: `I(psi, theta)` sampled on a regular grid over
 /// u = psi / 2pi = 1 - sqrt(1 - 1/h^2) in [0, 1] and v = theta / pi in [0, 1].
 #[derive(Clone, Debug)]

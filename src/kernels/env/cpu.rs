@@ -9,7 +9,10 @@ use super::{
 use crate::geom::sg::Lobe;
 use crate::geom::{Bvh, Rng, orthonormal_basis};
 use crate::kernels::ao::cpu::{INSIDE_FADE, TreeShape, walk_cut};
-use crate::kernels::ao::{AoParams, formula::sphere_occlusion};
+use crate::kernels::ao::{
+    AoParams,
+    formula::{sphere_above_horizon, sphere_occlusion},
+};
 use glam::{DVec3, Mat3, Vec3, Vec4};
 use rayon::prelude::*;
 use std::f32::consts::PI;
@@ -203,9 +206,13 @@ pub fn shadow_vertex(
                 h /= ((h - 1.0) / INSIDE_FADE).max(1e-6);
             }
             let cos_t = if d > 0.0 { n.dot(dv) / d } else { 1.0 };
-            let occ = sphere_occlusion(cos_t, h);
-            if occ > 0.0 {
-                u += w * (1.0 - occ).max(MIN_TRANSMISSION).ln();
+            if sphere_above_horizon(cos_t, h) {
+                if !traced {
+                    u += w
+                        * (1.0 - sphere_occlusion(cos_t, h))
+                            .max(MIN_TRANSMISSION)
+                            .ln();
+                }
                 let wc = if d > 0.0 { dv / d } else { n };
                 let sin_a = (1.0 / h.max(1.0)).min(1.0);
                 let alpha = sin_a.asin();
@@ -299,7 +306,7 @@ pub fn caps_per_vertex(inp: &ShadowInputs) -> (f64, f64) {
                         h /= ((h - 1.0) / INSIDE_FADE).max(1e-6);
                     }
                     let cos_t = if d > 0.0 { n.dot(dv) / d } else { 1.0 };
-                    if sphere_occlusion(cos_t, h) > 0.0 {
+                    if sphere_above_horizon(cos_t, h) {
                         caps += 1;
                     }
                 },

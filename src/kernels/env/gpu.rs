@@ -383,6 +383,7 @@ impl EnvKernel {
                 .levels()
                 .min(crate::kernels::ao::cpu::MAX_DEPTH as u32),
         );
+        let branch = ("BRANCH", ao.tree_shape().branch);
         let shadow = match &traced {
             Some((_, config)) => crate::shaders::pipeline_specialized(
                 &ctx,
@@ -392,12 +393,13 @@ impl EnvKernel {
                     lobe_count,
                     node_row,
                     levels,
+                    branch,
                 ],
             )?,
             None => crate::shaders::pipeline_specialized(
                 &ctx,
                 variant("env/shadow", "env/shadow_listed"),
-                &[lobe_count, node_row, levels],
+                &[lobe_count, node_row, levels, branch],
             )?,
         };
         let rotate_bind = bind(&rotate, &["lobes"])?;
@@ -604,7 +606,6 @@ impl EnvKernel {
             self.vertex_count,
             self.base.len() as u32,
             s.node_count,
-            s.branch,
             s.first_leaf,
             p.tau.to_bits(),
             p.band.to_bits(),
