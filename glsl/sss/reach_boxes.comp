@@ -24,9 +24,11 @@ layout(local_size_x = 64) in;
 layout(push_constant) uniform Push {
     uint size;
     uint triangles;
-    uint row_segments;
     float radius;
 } pc;
+// Segments a row, ceil(atlas size / 8): a specialization constant (SssKernel's stages), so
+// that dividing by it is a shift or a multiply, not a scalar division per lane.
+layout(constant_id = 17) const uint ROW_SEGMENTS = 64u;
 
 #include <sss/walk_record.glsl>
 layout(std430, set = 0, binding = 8) readonly buffer Needed { uint w[]; } needed;
@@ -50,8 +52,8 @@ void mark_box(vec2 lo, vec2 hi) {
     uvec2 b0 = uvec2(clamp(a, vec2(0.0), vec2(top))) / uvec2(8u, BLOCK_ROWS);
     uvec2 b1 = uvec2(clamp(z, vec2(0.0), vec2(top))) / uvec2(8u, BLOCK_ROWS);
     for (uint by = b0.y; by <= b1.y; by++) {
-        uint first = by * pc.row_segments + b0.x;
-        uint last = by * pc.row_segments + b1.x;
+        uint first = by * ROW_SEGMENTS + b0.x;
+        uint last = by * ROW_SEGMENTS + b1.x;
         for (uint w = first >> 5u; w <= last >> 5u; w++) {
             uint lo_bit = w == (first >> 5u) ? (first & 31u) : 0u;
             uint hi_bit = w == (last >> 5u) ? (last & 31u) : 31u;
@@ -72,7 +74,7 @@ void main() {
         uint s = reach_static.v[st1.x + st1.y + c].x;
         if (((needed.w[s >> 5u] >> (s & 31u)) & 1u) == 0u) continue;
         marked = true;
-        uint b = (s / pc.row_segments / BLOCK_ROWS) * pc.row_segments + s % pc.row_segments;
+        uint b = (s / ROW_SEGMENTS / BLOCK_ROWS) * ROW_SEGMENTS + s % ROW_SEGMENTS;
         atomicOr(reach_blocks.w[b >> 5u], 1u << (b & 31u));
     }
     if (!marked) return;

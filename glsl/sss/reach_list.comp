@@ -8,10 +8,11 @@ layout(local_size_x = 256) in;
 
 layout(push_constant) uniform Push {
     uint words;        // words of the segment bitmap
-    uint row_segments; // ceil(atlas size / 8)
     uint block_words;  // words of the block bitmap
-    uint pad;
 } pc;
+// Segments a row, ceil(atlas size / 8): a specialization constant (SssKernel's stages), so
+// that dividing by it is a shift or a multiply, not a scalar division per lane.
+layout(constant_id = 17) const uint ROW_SEGMENTS = 64u;
 
 layout(std430, set = 0, binding = 19) readonly buffer Occupied { uint w[]; } occupied;
 layout(std430, set = 0, binding = 22) buffer ReachBlocks { uint w[]; } reach_blocks;
@@ -28,10 +29,10 @@ void main() {
     for (uint w = lane; w < pc.words; w += gl_WorkGroupSize.x) {
         uint bits = occupied.w[w];
         uint keep = 0u;
-        if ((pc.row_segments & 31u) == 0u) {
+        if ((ROW_SEGMENTS & 31u) == 0u) {
             // Rows of whole words (atlas sizes that are multiples of 256): the word of the
             // block row holds the same 32 segment columns.
-            uint row_words = pc.row_segments >> 5u;
+            uint row_words = ROW_SEGMENTS >> 5u;
             uint y = w / row_words;
             keep = bits & reach_blocks.w[(y / BLOCK_ROWS) * row_words + w % row_words];
         } else {
@@ -40,8 +41,8 @@ void main() {
                 uint b = uint(findLSB(scan));
                 scan &= scan - 1u;
                 uint seg = w * 32u + b;
-                uint y = seg / pc.row_segments, sx = seg % pc.row_segments;
-                uint blk = (y / BLOCK_ROWS) * pc.row_segments + sx;
+                uint y = seg / ROW_SEGMENTS, sx = seg % ROW_SEGMENTS;
+                uint blk = (y / BLOCK_ROWS) * ROW_SEGMENTS + sx;
                 keep |= ((reach_blocks.w[blk >> 5u] >> (blk & 31u)) & 1u) << b;
             }
         }

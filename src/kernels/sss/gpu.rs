@@ -133,10 +133,13 @@ struct Resources {
     /// Per mesh vertex: position, normal (two vec4).
     vertex_frames: Buffer,
     /// The BVH's table (glsl/common/bvh.glsl), RGBA32UI, [`BVH_ROW`] texels a row (float
-    /// bits): the nodes, 2 texels each, then from texel `tri_base` the triangles, 3 each.
+    /// bits): the nodes, 2 texels each, then from texel [`Resources::tri_base`] the
+    /// triangles, 3 each.
     bvh: Image,
-    /// The pipelines' `TRI_BASE`: the room's node rows, whole.
-    tri_base: u32,
+    /// The specialization constants the kernel's stages take where they declare them: the
+    /// BVH table's `TRI_BASE` (the room's node rows, whole) and `ROW_SEGMENTS`
+    /// ([`Room::row_segments`]).
+    constants: [(&'static str, u32); 2],
     /// The skin regions' sample patterns, RGBA32F, one texel per sample, two rows a region
     /// ([`Pattern::texels`]; lavapipe loads a uniform buffer at a loop index lane by lane: a
     /// vec4 from it cost more than the irradiance gather of a sample).
@@ -217,6 +220,11 @@ fn rgba32f(size: [u32; 2]) -> ImageDesc {
 }
 
 impl Resources {
+    /// The first texel of the BVH table's triangles.
+    fn tri_base(&self) -> u32 {
+        self.constants[0].1
+    }
+
     /// Creates the images and buffers `room` asks for, the pattern image with rows for
     /// `regions` skin regions (nothing uploaded).
     /// `reach_entries`: of the reach's per-triangle data ([`pack::reach_static`]).
@@ -237,7 +245,10 @@ impl Resources {
                 BufferDesc::storage(room.vertices as u64 * 32),
             )?,
             bvh: image("sss bvh", rows(room.bvh_node_rows + room.bvh_triangle_rows))?,
-            tri_base: room.bvh_node_rows * BVH_ROW,
+            constants: [
+                ("TRI_BASE", room.bvh_node_rows * BVH_ROW),
+                ("ROW_SEGMENTS", room.row_segments()),
+            ],
             sample_pattern: image(
                 "sss sample pattern",
                 rgba32f([PATTERN_WIDTH, 2 * regions.clamp(1, MAX_REGIONS) as u32]),
@@ -338,7 +349,8 @@ impl Resources {
         rec.upload_image_rows(&self.contact_entries, &at_least_one(&p.contact_entries))?;
         self.set_tiles(rec, p.tiles)?;
         rec.upload(&self.vertex_frames, 0, &p.vertex_frames)?;
-        let table = crate::geom::bvh::table_texels(&p.bvh_nodes, &p.bvh_triangles, self.tri_base)?;
+        let table =
+            crate::geom::bvh::table_texels(&p.bvh_nodes, &p.bvh_triangles, self.tri_base())?;
         rec.upload_image_rows(&self.bvh, &table)
     }
 
@@ -389,19 +401,19 @@ impl Stage {
     /// The embedded shader `name`, each of its bindings bound to the kernel's resource of
     /// that name; those in `writes` are declared as written only (`writeonly` in GLSL).
     fn new(ctx: &Context, name: &str, res: &Resources, writes: &[&str]) -> Result<Stage> {
-        Stage::from_table(ctx, name, &res.by_binding(), writes, res.tri_base)
+        Stage::from_table(ctx, name, &res.by_binding(), writes, &res.constants)
     }
 
-    /// As [`Stage::new`], the resources looked up by name in `table`; `tri_base`: the
-    /// BVH table's (the `TRI_BASE` of the shaders that traverse or build it).
+    /// As [`Stage::new`], the resources looked up by name in `table`; of `constants`
+    /// ([`Resources::constants`]), those the shader declares are set.
     fn from_table(
         ctx: &Context,
         name: &str,
         table: &[(&'static str, Resource<'_>)],
         writes: &[&str],
-        tri_base: u32,
+        constants: &[(&str, u32)],
     ) -> Result<Stage> {
-        let pipeline = crate::shaders::pipeline_declaring(ctx, name, &[("TRI_BASE", tri_base)])?;
+        let pipeline = crate::shaders::pipeline_declaring(ctx, name, constants)?;
         let lookup = |b: &str| table.iter().find(|(n, _)| *n == b).map(|(_, r)| r.clone());
         let w = AccessSet::from(A::ComputeShaderWrite);
         let writes: Vec<(&str, AccessSet)> = writes.iter().map(|&b| (b, w)).collect();
@@ -428,12 +440,12 @@ impl Irradiance {
         name: &str,
         table: &[(&'static str, Resource<'_>)],
         writes: &[&str],
-        tri_base: u32,
+        constants: &[(&str, u32)],
     ) -> Result<Irradiance> {
         let shade_writes = [writes, &["rays"]].concat();
         Ok(Irradiance {
-            shade: Stage::from_table(ctx, name, table, &shade_writes, tri_base)?,
-            rays: Stage::from_table(ctx, &format!("{name}_rays"), table, &[], tri_base)?,
+            shade: Stage::from_table(ctx, name, table, &shade_writes, constants)?,
+            rays: Stage::from_table(ctx, &format!("{name}_rays"), table, &[], constants)?,
         })
     }
 
@@ -732,7 +744,7 @@ impl SssKernel {
             "sss/irradiance",
             &res.by_binding(),
             &["trans", "pe"],
-            res.tri_base,
+            &res.constants,
         )?;
         let diffusion_rgb = stage("sss/diffusion", &["diffuse"])?;
         let diffusion_grey = stage("sss/diffusion_grey", &["diffuse"])?;
@@ -857,9 +869,9 @@ impl SssKernel {
                 ("bvh_slots", Resource::Buffer(&bvh_slots)),
             ])
             .collect();
-        let tri_base = kernel.res.tri_base;
+        let constants = kernel.res.constants;
         let stage =
-            |name: &str, writes: &[&str]| Stage::from_table(&ctx, name, &table, writes, tri_base);
+            |name: &str, writes: &[&str]| Stage::from_table(&ctx, name, &table, writes, &constants);
         let vertices_stage = stage("sss/pose_vertices", &["verts", "vframes"])?;
         let triangles_stage = stage("sss/pose_triangles", &["walk", "trirec"])?;
         let texels = stage("sss/pose_texels", &["pos", "nrm"])?;
@@ -868,7 +880,7 @@ impl SssKernel {
             "sss/irradiance_posed",
             &table,
             &["trans", "pe"],
-            tri_base,
+            &constants,
         )?;
         let bvh_leaves = stage("sss/bvh_leaves", &["nodes"])?;
         let bvh_refit = stage("sss/bvh_refit", &[])?;
@@ -932,7 +944,7 @@ impl SssKernel {
         let mut walk_records: Vec<[u32; 4]> = rb.walk.to_vec()?;
         walk_records.truncate(walk_texels);
         let texels: Vec<[u32; 4]> = rb.bvh.to_vec()?;
-        let (node_texels, tri_texels) = texels.split_at(self.res.tri_base as usize);
+        let (node_texels, tri_texels) = texels.split_at(self.res.tri_base() as usize);
         let bvh_nodes = node_texels
             .chunks_exact(2)
             .take(nodes)
@@ -1089,10 +1101,10 @@ impl SssKernel {
         } else {
             "sss/irradiance_env"
         };
-        let tri_base = self.res.tri_base;
-        let copy = Stage::from_table(&ctx, "sss/vertex_env", &table, &["venv_texels"], tri_base)?;
+        let constants = self.res.constants;
+        let copy = Stage::from_table(&ctx, "sss/vertex_env", &table, &["venv_texels"], &constants)?;
         let irradiance =
-            Irradiance::from_table(&ctx, shader, &table, &["trans", "penv"], tri_base)?;
+            Irradiance::from_table(&ctx, shader, &table, &["trans", "penv"], &constants)?;
         drop(table);
         let diffusion = self.env_diffusion(&image, self.needed.is_some())?;
         let listed = match &self.reach {
@@ -1139,7 +1151,7 @@ impl SssKernel {
             "sss/irradiance_posed_env_listed",
             &table,
             &["trans", "penv"],
-            self.res.tri_base,
+            &self.res.constants,
         )
     }
 
@@ -1200,7 +1212,7 @@ impl SssKernel {
                     "sss/reach_triangles",
                     &table,
                     &[],
-                    self.res.tri_base,
+                    &self.res.constants,
                 )?;
                 Some((stage, m.first))
             }
@@ -1241,7 +1253,7 @@ impl SssKernel {
         } else {
             "sss/diffusion_env"
         };
-        Stage::from_table(&self.ctx, shader, &table, &["diffuse"], self.res.tri_base)
+        Stage::from_table(&self.ctx, shader, &table, &["diffuse"], &self.res.constants)
     }
 
     /// Bytes of a needed-segment bitmap for this kernel's atlas
@@ -1287,7 +1299,7 @@ impl SssKernel {
                         "sss/needed_list",
                         &table,
                         &["needed_list"],
-                        self.res.tri_base,
+                        &self.res.constants,
                     )?,
                     bitmap: bitmap.clone(),
                 })
@@ -1309,7 +1321,13 @@ impl SssKernel {
     /// Pass `sss reach boxes` over the needed bitmap `needed`.
     fn reach_boxes(&self, needed: &Buffer) -> Result<Stage> {
         let table = self.table_with([("needed", Resource::Buffer(needed))]);
-        Stage::from_table(&self.ctx, "sss/reach_boxes", &table, &[], self.res.tri_base)
+        Stage::from_table(
+            &self.ctx,
+            "sss/reach_boxes",
+            &table,
+            &[],
+            &self.res.constants,
+        )
     }
 
     /// The passes of a frame before the lights ([`Kernel::passes`] up to `sss lights`): the

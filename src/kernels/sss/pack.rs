@@ -122,6 +122,12 @@ pub fn rows(texels: usize, row: u32) -> u32 {
 }
 
 impl Room {
+    /// Segments (8 texels) a row of the atlas: the `ROW_SEGMENTS` of the stages that
+    /// address the segment and block bitmaps.
+    pub fn row_segments(&self) -> u32 {
+        self.size.div_ceil(8)
+    }
+
     /// The room for the first pose `p`, with some for other poses.
     pub fn of(p: &Packed) -> Room {
         // Any hierarchy over this many triangles (a rebuilt one may have more nodes): at
@@ -295,23 +301,19 @@ impl Settings {
         vec![self.room.size, self.params.samples, tiles]
     }
 
-    /// `sss needed list`'s push constants: the bitmap's words, segments a row.
+    /// `sss needed list`'s push constants: the bitmap's words (segments a row are the
+    /// stage's `ROW_SEGMENTS`, [`Room::row_segments`]).
     pub fn needed_list_push(&self) -> Vec<u32> {
         let size = self.room.size;
-        vec![needed_segment_words(size) as u32, size.div_ceil(8)]
+        vec![needed_segment_words(size) as u32]
     }
 
-    /// `sss reach boxes`: size, triangles, blocks a block row, the samples' longest offset
-    /// (mm) with a margin of 1e-4 for its rounding.
+    /// `sss reach boxes`: size, triangles, the samples' longest offset (mm) with a margin
+    /// of 1e-4 for its rounding.
     pub fn reach_push(&self) -> Vec<u32> {
         let size = self.room.size;
         let radius = self.reach_radius * (1.0 + 1e-4);
-        vec![
-            size,
-            self.room.triangles as u32,
-            size.div_ceil(8),
-            radius.to_bits(),
-        ]
+        vec![size, self.room.triangles as u32, radius.to_bits()]
     }
 
     /// `sss reach triangles`: triangles, blocks a block row, the bit of triangle 0 in the
@@ -325,15 +327,12 @@ impl Settings {
         ]
     }
 
-    /// `sss reach list`: the segment bitmap's words, segments a row, the block bitmap's
-    /// words.
+    /// `sss reach list`: the segment bitmap's words, the block bitmap's words.
     pub fn reach_list_push(&self) -> Vec<u32> {
         let size = self.room.size;
         vec![
             needed_segment_words(size) as u32,
-            size.div_ceil(8),
             reach_block_words(size) as u32,
-            0,
         ]
     }
 }
