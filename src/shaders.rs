@@ -58,8 +58,9 @@ pub fn pipeline_specialized(
 }
 
 /// As [`pipeline_specialized`], setting only the constants of `constants` that the module
-/// declares: for a kernel whose modules share a value that only some of them use (SSS: the
-/// BVH table's `TRI_BASE`, declared by the modules that include glsl/common/bvh.glsl).
+/// declares: for a kernel whose modules share values that only some of them use (SSS: the
+/// BVH table's `TRI_BASE`, declared by the modules that include glsl/common/bvh.glsl, and
+/// the atlas's `ROW_SEGMENTS`, by the segment lists').
 pub fn pipeline_declaring(
     ctx: &crate::gpu::Context,
     name: &str,
