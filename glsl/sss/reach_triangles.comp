@@ -9,9 +9,7 @@ layout(local_size_x = 64) in;
 
 layout(push_constant) uniform Push {
     uint triangles;
-    uint row_segments;
     uint first;         // the bit of triangle 0 in reach_marks
-    uint pad;
 } pc;
 
 layout(std430, set = 0, binding = 22) readonly buffer ReachBlocks { uint w[]; } reach_blocks;

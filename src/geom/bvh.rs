@@ -565,8 +565,9 @@ pub fn tri_base(nodes: usize, row: u32) -> u32 {
 
 /// The GPU table of glsl/common/bvh.glsl (texels of four 32-bit words, float bits): `nodes`
 /// ([`with_links`]) 2 texels each from texel 0, then `tris` 3 texels each from texel
-/// `tri_base`. One table rather than an image of each: a traversal step reads three texels
-/// at one address, whichever kind it is (the shader's header says why).
+/// `tri_base` (room for one zeroed triangle at least: a node step reads the texel after its
+/// two). One table rather than an image of each: a traversal step reads three texels at one
+/// address, whichever kind it is (the shader's header says why).
 pub fn table_texels(
     nodes: &[[f32; 8]],
     tris: &[[f32; 12]],
@@ -579,7 +580,7 @@ pub fn table_texels(
             nodes.len()
         )));
     }
-    let mut texels = vec![[0f32; 4]; base + 3 * tris.len()];
+    let mut texels = vec![[0f32; 4]; base + 3 * tris.len().max(1)];
     for (k, n) in nodes.iter().enumerate() {
         texels[2 * k].copy_from_slice(&n[..4]);
         texels[2 * k + 1].copy_from_slice(&n[4..]);
@@ -663,6 +664,11 @@ mod tests {
         assert_eq!(base, 8, "6 node texels in rows of 4: two rows");
         let t = table_texels(&nodes, &tris, base).unwrap();
         assert_eq!(t.len(), 8 + 6);
+        assert_eq!(
+            table_texels(&nodes, &[], base).unwrap().len(),
+            8 + 3,
+            "one zeroed triangle"
+        );
         assert_eq!(t[2], [2.0, 2.0, 2.0, f32::from_bits(7)]);
         assert_eq!(t[5], [3.0 + 1.0, 4.0, 4.0, 0.0]);
         assert_eq!(t[6], [0.0; 4], "the node rows' tail");

@@ -391,6 +391,50 @@ pub fn cap_overlap_fraction_f64(a1: f64, a2: f64, g: f64, rings: usize) -> f64 {
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn a_sphere_counts_exactly_when_its_occlusion_is_positive() {
+        // The occlusion in f64 (the same closed form), to see what f32 rounds to 0.
+        let exact = |c: f64, h: f64| {
+            let (h2, hc) = (h * h, h * c);
+            if hc >= 1.0 {
+                return c / h2;
+            }
+            if hc <= -1.0 {
+                return 0.0;
+            }
+            let k2 = 1.0 - hc * hc;
+            let a = (-c * ((h2 - 1.0) / (1.0 - c * c).max(1e-24)).sqrt()).clamp(-1.0, 1.0);
+            let term = (c * a.acos() - (k2 * (h2 - 1.0)).sqrt()) / h2;
+            (term + (k2 / (h2 - 1.0)).sqrt().atan()) / std::f64::consts::PI
+        };
+        let (mut compared, mut differ) = (0, 0);
+        for i in 0..=400 {
+            let cos_t = -1.0 + 2.0 * i as f32 / 400.0;
+            for k in 1..=200 {
+                let h = 1.0 + 0.05 * k as f32;
+                let counts = sphere_above_horizon(cos_t, h);
+                let occ = sphere_occlusion(cos_t, h);
+                compared += 1;
+                // A positive occlusion always counts.
+                assert!(
+                    occ <= 0.0 || counts,
+                    "cos_t {cos_t}, h {h}: {occ} > 0 uncounted"
+                );
+                if counts != (occ > 0.0) {
+                    // Counted where f32 rounded the occlusion to 0: just above the horizon,
+                    // where it is negligible.
+                    differ += 1;
+                    let e = exact(f64::from(cos_t), f64::from(h));
+                    assert!(
+                        e > 0.0 && e < 1e-5,
+                        "cos_t {cos_t}, h {h}: exact occlusion {e}"
+                    );
+                }
+            }
+        }
+        assert!(differ * 100 < compared, "{differ} of {compared} differ");
+    }
+
     use super::*;
     use crate::geom::{Rng, cosine_hemisphere};
     use glam::Vec3;

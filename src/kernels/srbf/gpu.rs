@@ -46,25 +46,27 @@ pub struct SrbfKernel {
     shape: Shape,
 }
 
-/// What pass `srbf sharp` casts shadow rays with: the static mesh's BVH as the images
+/// What pass `srbf sharp` casts shadow rays with: the static mesh's BVH as the table
 /// glsl/common/bvh.glsl traverses, the slots' positions and the bits it writes.
 struct SunResources {
-    /// The BVH's table (nodes, then triangles).
+    /// The BVH's table (nodes, then triangles from texel `tri_base`: `srbf sharp`'s
+    /// `TRI_BASE`).
     nodes: Image,
+    tri_base: u32,
     positions: Buffer,
     /// Per slot: bit j set when compact lobe j is seen (written by `srbf sharp`, read by
     /// `srbf shade`).
     bits: Buffer,
 }
 
-/// Width of the BVH images (glsl/srbf/sharp_rays.comp's BVH_ROW).
+/// Width of the BVH's table (glsl/srbf/sharp_rays.comp's BVH_ROW).
 const BVH_ROW: u32 = 1024;
 
 impl SunResources {
     /// Creates the images and buffers for `prep` and records their uploads.
     fn new(rec: &mut Recorder, prep: &Prepared) -> Result<SunResources> {
         let ctx = rec.context();
-        let (nodes, _) = bvh_table(rec, "srbf sun", &prep.bvh_nodes, &prep.bvh_triangles)?;
+        let (nodes, tri_base) = bvh_table(rec, "srbf sun", &prep.bvh_nodes, &prep.bvh_triangles)?;
         let bytes: &[u8] = bytemuck::cast_slice(&prep.positions);
         let positions = rec.buffer_with(
             "srbf sun positions",
@@ -79,6 +81,7 @@ impl SunResources {
         )?;
         Ok(SunResources {
             nodes,
+            tri_base,
             positions,
             bits,
         })
@@ -201,22 +204,18 @@ impl SrbfKernel {
                 ("TAPS", prep.shape.compact),
             ],
         )?;
-        let sharp = match prep.shape.rays {
-            // Where SunResources::new's table holds the triangles.
-            true => crate::shaders::pipeline_specialized(
-                &ctx,
-                "srbf/sharp_rays",
-                &[(
-                    "TRI_BASE",
-                    crate::geom::bvh::tri_base(prep.bvh_nodes.len(), BVH_ROW),
-                )],
-            )?,
-            false => pipeline("srbf/sharp")?,
-        };
         let buffers = Self::buffers(rec, prep)?;
         let sun = match prep.shape.rays {
             true => Some(SunResources::new(rec, prep)?),
             false => None,
+        };
+        let sharp = match &sun {
+            Some(s) => crate::shaders::pipeline_specialized(
+                &ctx,
+                "srbf/sharp_rays",
+                &[("TRI_BASE", s.tri_base)],
+            )?,
+            None => pipeline("srbf/sharp")?,
         };
         let [lighting_bind, project_bind, sharp_bind, shade_bind] = Self::binds(
             [&lighting, &project, &sharp, &shade],

@@ -96,8 +96,8 @@ pub struct Room {
     pub vertices: u32,
     pub triangles: usize,
     pub walk_records: usize,
-    /// Rows of [`BVH_ROW`] texels of the BVH images (nodes, triangles) and the contact
-    /// entries.
+    /// Rows of [`BVH_ROW`] texels of the BVH's table (its node rows, then its triangle
+    /// rows) and of the contact entries.
     pub bvh_node_rows: u32,
     pub bvh_triangle_rows: u32,
     pub contact_rows: u32,
@@ -316,15 +316,9 @@ impl Settings {
         vec![size, self.room.triangles as u32, radius.to_bits()]
     }
 
-    /// `sss reach triangles`: triangles, blocks a block row, the bit of triangle 0 in the
-    /// caller's bitmap.
+    /// `sss reach triangles`: triangles, the bit of triangle 0 in the caller's bitmap.
     pub fn reach_triangles_push(&self, first: u32) -> Vec<u32> {
-        vec![
-            self.room.triangles as u32,
-            self.room.size.div_ceil(8),
-            first,
-            0,
-        ]
+        vec![self.room.triangles as u32, first]
     }
 
     /// `sss reach list`: the segment bitmap's words, the block bitmap's words.
