@@ -256,9 +256,16 @@ impl ComposeKernel {
             }
         };
         let own = vec![skin_tris, skin_uvs, mask, surfaces, texels];
+        // Without a textured part the shader's textured path compiles away.
+        let textured = [(
+            "TEXTURED",
+            prep.surfaces.iter().any(|s| s.texture.is_some()) as u32,
+        )];
         let pipeline = match inputs.tiles {
-            Some(_) => crate::shaders::pipeline(&ctx, "compose/shade_tiles")?,
-            None => crate::shaders::pipeline(&ctx, "compose/shade")?,
+            Some(_) => {
+                crate::shaders::pipeline_specialized(&ctx, "compose/shade_tiles", &textured)?
+            }
+            None => crate::shaders::pipeline_specialized(&ctx, "compose/shade", &textured)?,
         };
         let lookup = |name: &str| -> Option<Resource<'_>> {
             Some(match name {
