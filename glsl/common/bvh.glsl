@@ -14,10 +14,7 @@
 // kind, the lanes of a SIMD step run both kinds masked (lavapipe), and reading three texels
 // at one address per lane costs 3 loads where a node's and a triangle's cost 2 + 3.
 // Measured on lavapipe (`bench frame`, alternated runs): `env trace` 5.5-5.9 -> 4.7-4.8 ms.
-#ifndef VKSHADE_BVH_TRI_BASE
-#define VKSHADE_BVH_TRI_BASE
-layout(constant_id = 16) const uint TRI_BASE = 0u;
-#endif
+#include <common/bvh_table.glsl>
 
 // Texel k of the table.
 uvec4 bvh_texel(uint k) {
@@ -36,6 +33,21 @@ void step_texels(bool tri_step, uint ni, uint t, out uvec4 r0, out uvec4 r1, out
     r0 = bvh_texel(k);
     r1 = bvh_texel(k + 1u);
     r2 = bvh_texel(k + 2u);
+}
+
+// A node step's move, given its texels r0, r1 (step_texels) and whether a ray that counts
+// meets its box: into a leaf's triangles [first, first + count) (returns true), down to an
+// inner node's left child, or past the node to its skip.
+bool node_step(bool meets, uvec4 r0, uvec4 r1, inout uint ni, inout uint t, inout uint tend) {
+    uint first = r0.w;
+    uint count = r1.w & 0xffu;
+    bool leaf = meets && count != 0u;
+    if (leaf) {
+        t = first;
+        tend = first + count;
+    }
+    ni = (meets && count == 0u) ? first : r1.w >> 8u;
+    return leaf;
 }
 
 // Parameter of the hit of the triangle (a, a + e1, a + e2) in (0, tmax], or -1.
@@ -100,14 +112,7 @@ bool any_hit(vec3 o, vec3 d, float tmax) {
         } else {
             vec3 lo = uintBitsToFloat(r0.xyz);
             vec3 hi = uintBitsToFloat(r1.xyz);
-            bool meets = slab_meets(lo - o, hi - o, inv, tmax);
-            uint first = r0.w;
-            uint count = r1.w & 0xffu;
-            if (meets && count != 0u) {
-                t = first;
-                tend = first + count;
-            }
-            ni = (meets && count == 0u) ? first : r1.w >> 8u;
+            node_step(slab_meets(lo - o, hi - o, inv, tmax), r0, r1, ni, t, tend);
         }
     }
     return false;
@@ -138,13 +143,7 @@ vec2 closest_hit(vec3 o, vec3 d, float tmax) {
             vec3 lo = uintBitsToFloat(r0.xyz);
             vec3 hi = uintBitsToFloat(r1.xyz);
             bool meets = slab_meets(lo - o, hi - o, inv, best >= 0.0 ? best : tmax);
-            uint first = r0.w;
-            uint count = r1.w & 0xffu;
-            if (meets && count != 0u) {
-                t = first;
-                tend = first + count;
-            }
-            ni = (meets && count == 0u) ? first : r1.w >> 8u;
+            node_step(meets, r0, r1, ni, t, tend);
         }
     }
     return vec2(best, uintBitsToFloat(best_tri));

@@ -15,10 +15,7 @@ layout(std430, set = 0, binding = 1) readonly buffer Topo { uint v[]; } bvh_topo
 layout(std430, set = 0, binding = 2) readonly buffer Slots { uvec4 v[]; } bvh_slots;
 // The table of glsl/common/bvh.glsl: nodes from texel 0, triangle slots from TRI_BASE.
 layout(set = 0, binding = 3, rgba32ui) writeonly uniform uimage2D nodes;
-#ifndef VKSHADE_BVH_TRI_BASE
-#define VKSHADE_BVH_TRI_BASE
-layout(constant_id = 16) const uint TRI_BASE = 0u;
-#endif
+#include <common/bvh_table.glsl>
 
 ivec2 at(uint k) {
     return table_texel(k, BVH_ROW);

@@ -87,14 +87,7 @@ uint escaping(vec3 o, vec3 d[PACKET], uint live) {
                 meet |= slab_meets(lo, hi, inv[i], uintBitsToFloat(0x7f800000u)) ? (1u << i) : 0u;
             }
             meet &= live;
-            uint first = r0.w;
-            uint count = r1.w & 0xffu;
-            if (meet != 0u && count != 0u) {
-                t = first;
-                tend = first + count;
-                leaf_meet = meet;
-            }
-            ni = (meet != 0u && count == 0u) ? first : r1.w >> 8u;
+            if (node_step(meet != 0u, r0, r1, ni, t, tend)) leaf_meet = meet;
         }
     }
     return live;

@@ -52,14 +52,7 @@ uint blocked_rays(vec3 o[RAY_PACKET], vec3 d[RAY_PACKET], float tmax[RAY_PACKET]
                 meet |= slab_meets(lo - o[i], hi - o[i], inv[i], tmax[i]) ? (1u << i) : 0u;
             }
             meet &= live;
-            uint first = r0.w;
-            uint count = r1.w & 0xffu;
-            if (meet != 0u && count != 0u) {
-                t = first;
-                tend = first + count;
-                leaf_meet = meet;
-            }
-            ni = (meet != 0u && count == 0u) ? first : r1.w >> 8u;
+            if (node_step(meet != 0u, r0, r1, ni, t, tend)) leaf_meet = meet;
         }
     }
     return blocked;

@@ -26,9 +26,7 @@ layout(push_constant) uniform Push {
     uint triangles;
     float radius;
 } pc;
-// Segments a row, ceil(atlas size / 8): a specialization constant (SssKernel's stages), so
-// that dividing by it is a shift or a multiply, not a scalar division per lane.
-layout(constant_id = 17) const uint ROW_SEGMENTS = 64u;
+#include <sss/segments.glsl>
 
 #include <sss/walk_record.glsl>
 layout(std430, set = 0, binding = 8) readonly buffer Needed { uint w[]; } needed;

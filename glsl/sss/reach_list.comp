@@ -10,9 +10,7 @@ layout(push_constant) uniform Push {
     uint words;        // words of the segment bitmap
     uint block_words;  // words of the block bitmap
 } pc;
-// Segments a row, ceil(atlas size / 8): a specialization constant (SssKernel's stages), so
-// that dividing by it is a shift or a multiply, not a scalar division per lane.
-layout(constant_id = 17) const uint ROW_SEGMENTS = 64u;
+#include <sss/segments.glsl>
 
 layout(std430, set = 0, binding = 19) readonly buffer Occupied { uint w[]; } occupied;
 layout(std430, set = 0, binding = 22) buffer ReachBlocks { uint w[]; } reach_blocks;

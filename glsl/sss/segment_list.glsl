@@ -1,7 +1,7 @@
 // Appending atlas segments to a list that is its own VkDispatchIndirectCommand, shared by
 // passes `sss needed list` and `sss reach list` (one workgroup each). The includer defines
 // SEGMENT_LIST, the list's buffer ({ uint head[4]; uint v[]; }: the head, then segments as
-// x / 8 | y << 16), and ROW_SEGMENTS (ceil(atlas size / 8)). segment_list_begin() before
+// x / 8 | y << 16), and ROW_SEGMENTS (glsl/sss/segments.glsl). segment_list_begin() before
 // any append (every lane), segment_list_append(w, bits) for the segments of bitmap word w
 // set in `bits`, at a place reserved with a shared counter, and, after a barrier,
 // segment_list_head() from one lane: the consumers' 8-segment workgroups (gx, gy, 1) with

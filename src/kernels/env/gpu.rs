@@ -257,6 +257,9 @@ impl EnvKernel {
         let mut images: Vec<(&'static str, Image)> =
             vec![("table", table_image), ("tree", ao.tree_image().clone())];
         let mut traced = None;
+        // With traced visibility: where the BVH's table holds the triangles (the leaf and
+        // trace modules' `TRI_BASE`).
+        let mut tri_base = 0;
         match visibility {
             EnvVisibility::Ao => {
                 if !ao.occlusion() {
@@ -330,8 +333,8 @@ impl EnvKernel {
                     Image::new(&ctx, name, desc)
                 };
                 // The table of glsl/common/bvh.glsl: the nodes, then the triangles' slots.
-                let tri_base = crate::geom::bvh::tri_base(topology.nodes, BVH_ROW) as usize;
-                let nodes = uint_image("env bvh", tri_base + 3 * slots)?;
+                tri_base = crate::geom::bvh::tri_base(topology.nodes, BVH_ROW);
+                let nodes = uint_image("env bvh", tri_base as usize + 3 * slots)?;
                 // Every frame writes the texels the traversal reads; cleared once so that the
                 // rows' tails hold defined data too.
                 rec.clear_image(&nodes, Subresources::mip(nodes.desc(), 0), [0.0; 4])?;
@@ -407,8 +410,7 @@ impl EnvKernel {
         let trace_parts = match &traced {
             None => None,
             Some(_) => {
-                let nodes = traced.as_ref().map_or(0, |(t, _)| t.nodes);
-                let tri_base = ("TRI_BASE", crate::geom::bvh::tri_base(nodes, BVH_ROW));
+                let tri_base = ("TRI_BASE", tri_base);
                 let leaves =
                     crate::shaders::pipeline_specialized(&ctx, "env/bvh_leaves", &[tri_base])?;
                 let refit = crate::shaders::pipeline(&ctx, "sss/bvh_refit")?;
