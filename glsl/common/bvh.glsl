@@ -89,8 +89,9 @@ bool slab_meets(vec3 lo_o, vec3 hi_o, vec3 inv, float tmax) {
 // paths, and a nested loop ran, at every node step, as many triangle steps as the lane with
 // the most (every lane waiting, masked, while one tested a leaf). Measured on lavapipe
 // (`bench frame`, alternated runs): `env trace` 7.3-7.7 -> 6.2-6.4 ms, `sss irradiance
-// rays` 3.2-3.3 -> 2.8 ms, `sss vertex light` 0.84-0.98 -> 0.68-0.71 ms (the same shape in
-// env/trace.glsl and sss/packet.glsl).
+// rays` 3.2-3.3 -> 2.8 ms, `sss vertex light` 0.84-0.98 -> 0.68-0.71 ms. The packet walks
+// (env/trace.glsl, sss/packet.glsl) go further: a step of either kind still pays both, so
+// they walk nodes only until a few leaves are met and then test those leaves' triangles.
 const uint LINK_END = 0xffffffu;
 const uint MAX_STEPS = 1u << 22u;
 

@@ -8,23 +8,57 @@
 // vertex's rays toward its lights).
 #ifndef VKSHADE_SSS_PACKET_GLSL
 #define VKSHADE_SSS_PACKET_GLSL
+#extension GL_EXT_control_flow_attributes : require
+// Leaves gathered by a round's walk before their triangles are tested (env/trace.glsl
+// escaping has the same rounds).
+const uint PACKET_LEAVES = 4u;
+
 // Which rays of `live` (bit i: origin o[i], direction d[i], reach tmax[i]) are blocked.
+// In rounds: nodes only until PACKET_LEAVES leaves are met (or the walk ends), then each
+// leaf's triangles against the rays that met it, as env/trace.glsl escaping (`bench
+// frame`, 4 alternated pairs: `sss irradiance rays` 2.3-3.6 -> 2.05-2.15 ms).
 uint blocked_rays(vec3 o[RAY_PACKET], vec3 d[RAY_PACKET], float tmax[RAY_PACKET], uint live) {
     vec3 inv[RAY_PACKET];
     for (uint i = 0u; i < RAY_PACKET; i++) inv[i] = 1.0 / d[i];
     uint blocked = 0u;
     uint ni = 0u;
-    uint t = 0u;
-    uint tend = 0u;
-    uint leaf_meet = 0u;
-    for (uint step = 0u; (ni != LINK_END || t < tend) && live != 0u && step < MAX_STEPS; step++) {
-        bool tri_step = t < tend;
-        uvec4 r0, r1, r2;
-        step_texels(tri_step, ni, t, r0, r1, r2);
-        if (tri_step) {
-            vec3 a = uintBitsToFloat(r0.xyz);
-            vec3 e1 = uintBitsToFloat(r1.xyz);
-            vec3 e2 = uintBitsToFloat(r2.xyz);
+    uint steps = 0u;
+    do {
+        // (first triangle, triangle count, the rays that met it), at constant indices only.
+        uvec3 leaf[PACKET_LEAVES];
+        uint found = 0u;
+        while (ni != LINK_END && found < PACKET_LEAVES && steps < MAX_STEPS) {
+            steps++;
+            uvec4 r0 = bvh_texel(2u * ni);
+            uvec4 r1 = bvh_texel(2u * ni + 1u);
+            vec3 lo = uintBitsToFloat(r0.xyz);
+            vec3 hi = uintBitsToFloat(r1.xyz);
+            uint meet = 0u;
+            for (uint i = 0u; i < RAY_PACKET; i++) {
+                meet |= slab_meets(lo - o[i], hi - o[i], inv[i], tmax[i]) ? (1u << i) : 0u;
+            }
+            meet &= live;
+            uint first = r0.w;
+            uint count = r1.w & 0xffu;
+            if (meet != 0u && count != 0u) {
+                [[unroll]] for (uint k = 0u; k < PACKET_LEAVES; k++) {
+                    if (found == k) leaf[k] = uvec3(first, count, meet);
+                }
+                found++;
+            }
+            ni = (meet != 0u && count == 0u) ? first : r1.w >> 8u;
+        }
+        uint k = 0u;
+        uint j = 0u;
+        while (k < found && live != 0u) {
+            uvec3 lf = leaf[0];
+            [[unroll]] for (uint i = 1u; i < PACKET_LEAVES; i++) {
+                if (k == i) lf = leaf[i];
+            }
+            uint t = TRI_BASE + 3u * (lf.x + j);
+            vec3 a = uintBitsToFloat(bvh_texel(t).xyz);
+            vec3 e1 = uintBitsToFloat(bvh_texel(t + 1u).xyz);
+            vec3 e2 = uintBitsToFloat(bvh_texel(t + 2u).xyz);
             uint hit = 0u;
             for (uint i = 0u; i < RAY_PACKET; i++) {
                 // common/bvh.glsl hit_t, the same operations.
@@ -40,21 +74,16 @@ uint blocked_rays(vec3 o[RAY_PACKET], vec3 d[RAY_PACKET], float tmax[RAY_PACKET]
                     && th > 0.0 && th <= tmax[i];
                 hit |= h ? (1u << i) : 0u;
             }
-            hit &= leaf_meet;
+            hit &= lf.z;
             blocked |= hit;
             live &= ~hit;
-            t++;
-        } else {
-            vec3 lo = uintBitsToFloat(r0.xyz);
-            vec3 hi = uintBitsToFloat(r1.xyz);
-            uint meet = 0u;
-            for (uint i = 0u; i < RAY_PACKET; i++) {
-                meet |= slab_meets(lo - o[i], hi - o[i], inv[i], tmax[i]) ? (1u << i) : 0u;
+            j++;
+            if (j == lf.y) {
+                j = 0u;
+                k++;
             }
-            meet &= live;
-            if (node_step(meet != 0u, r0, r1, ni, t, tend)) leaf_meet = meet;
         }
-    }
+    } while (ni != LINK_END && live != 0u && steps < MAX_STEPS);
     return blocked;
 }
 #endif
