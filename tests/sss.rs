@@ -529,11 +529,9 @@ fn two_skin_regions_each_diffuse_with_their_own_profile() {
     }
 }
 
-#[test]
-fn back_lit_thin_slab_transmits_red() {
-    // Two parallel planes 3 mm apart, facing away from each other (front +z at z = 0, back -z at
-    // z = -3), their UVs side by side; lit from behind (-z). The front gets no irradiance,
-    // only the transmission E (R_tot - F(3 mm)), red far above blue.
+/// Two parallel planes `t` = 3 mm apart, facing away from each other (front +z at z = 0,
+/// back -z at z = -3), their UVs side by side, at 64^2 texels.
+fn slab() -> (TexGeometry, f32) {
     use vkshade::scene::mesh::{Mesh, MeshData};
     let (w, t) = (60.0f32, 3.0f32);
     let mut d = MeshData {
@@ -575,6 +573,15 @@ fn back_lit_thin_slab_transmits_red() {
     d.normals = Some(normals);
     let mesh = Mesh::from_data(d, std::path::Path::new("<slab>")).unwrap();
     let geo = TexGeometry::build(&mesh, 64, 1.0).unwrap();
+    (geo, t)
+}
+
+#[test]
+fn back_lit_thin_slab_transmits_red() {
+    // Two parallel planes 3 mm apart, facing away from each other (front +z at z = 0, back -z at
+    // z = -3), their UVs side by side; lit from behind (-z). The front gets no irradiance,
+    // only the transmission E (R_tot - F(3 mm)), red far above blue.
+    let (geo, t) = slab();
     let p = profile(ProfileKind::Dipole);
     let lights = [Light::Directional {
         toward: -Vec3::Z,
@@ -652,6 +659,63 @@ fn back_lit_thin_slab_transmits_red() {
         }
     }
     assert!(seen.iter().all(|&n| n > 200), "texels per region {seen:?}");
+}
+
+/// Catches: a transmission switch that records the wrong build of `sss vertex light` or `sss
+/// irradiance` (each is built with its transmission code compiled in and compiled out,
+/// glsl/sss/transmission.glsl, and the params pick one), or that leaves the old transmission
+/// behind. One kernel on the back-lit slab: with transmission the front transmits; switched
+/// off (`set_params`) the transmission image holds zeros and the rest is unchanged; switched
+/// on again, the first frame's output bit for bit.
+#[test]
+fn switching_transmission_off_and_on_records_the_matching_passes() {
+    let (geo, _) = slab();
+    let p = profile(ProfileKind::Dipole);
+    let lights = [Light::Directional {
+        toward: -Vec3::Z,
+        e: 1.0,
+    }];
+    let on = SamplerParams {
+        samples: 4,
+        transmission: true,
+        ..Default::default()
+    };
+    let off = SamplerParams {
+        transmission: false,
+        ..on
+    };
+    let [with, without, again] = common::with_gpu(|ctx| {
+        let mut setup = ctx.recorder("sss setup")?;
+        let mut kernel = SssKernel::new(&mut setup, &geo, &p, on)?;
+        setup.submit_and_wait()?;
+        let mut outs = Vec::new();
+        for params in [on, off, on] {
+            let mut rec = ctx.recorder("sss params")?;
+            kernel.set_params(&mut rec, params)?;
+            rec.submit_and_wait()?;
+            run_frames(ctx, &kernel, [&lights[..]], 1, |r| {
+                outs.push(r.output);
+                Ok(())
+            })?;
+        }
+        Ok(<[SssOutput; 3]>::try_from(outs).unwrap())
+    });
+    let front: Vec<usize> = (0..geo.texels())
+        .filter(|&i| geo.pos[i][3] == COVERED && geo.pos[i][2] == 0.0)
+        .collect();
+    assert!(front.len() > 1000, "{} front texels", front.len());
+    assert!(
+        front.iter().all(|&i| with.transmission[i][0] > 0.0),
+        "the front does not transmit with transmission on"
+    );
+    assert!(
+        without.transmission.iter().all(|t| *t == [0.0; 4]),
+        "transmission left in the image with transmission off"
+    );
+    assert_eq!(with.irradiance, without.irradiance);
+    assert_eq!(with.diffuse, without.diffuse);
+    assert_eq!(with.transmission, again.transmission);
+    assert_eq!(with.irradiance, again.irradiance);
 }
 
 /// Catches: `SssKernel::update_geometry` made a no-op (or uploading only some of the

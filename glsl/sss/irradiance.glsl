@@ -56,6 +56,7 @@ layout(set = 0, binding = 1, rgba32f) readonly uniform image2D nrm;     // xyz, 
 // of 2^16 in w (cpu::texel_corners_packed).
 layout(set = 0, binding = 2, rgba32ui) readonly uniform uimage2D corners;
 #include <sss/lights.glsl>
+#include <sss/transmission.glsl>
 #ifndef SSS_RAYS
 layout(set = 0, binding = 4, r32ui) readonly uniform uimage2D vis;
 layout(set = 0, binding = 5, rgba32f) readonly uniform image2D vtrans;
@@ -225,7 +226,7 @@ void main() {
     TexelSource src = texel_source(at);
     float flag = source_flag(src);
     if (flag == 0.0) {
-        if (pc.mode != 0u) imageStore(trans, at, vec4(0.0));
+        if (TRANSMISSION && pc.mode != 0u) imageStore(trans, at, vec4(0.0));
 #ifdef SSS_ENV
         imageStore(penv, at, vec4(0.0, 0.0, 0.0, -1.0));
 #else
@@ -276,7 +277,7 @@ void main() {
 #else
     imageStore(pe, at, vec4(e));
 #endif
-    if (pc.mode != 0u) {
+    if (TRANSMISSION && pc.mode != 0u) {
         vec4 tr = w0 * imageLoad(vtrans, a0) + w1 * imageLoad(vtrans, a1) + w2 * imageLoad(vtrans, a2);
         imageStore(trans, at, tr);
     }

@@ -48,6 +48,7 @@ layout(std430, set = 0, binding = 7) readonly buffer VRegion { uint v[]; } vregi
 // (glsl/sss/packet.glsl: each decides as it would alone).
 const uint RAY_PACKET = 2u;
 #include <sss/packet.glsl>
+#include <sss/transmission.glsl>
 
 uint visibility(vec3 p, vec3 n) {
     vec3 o = p + n * pc.bias;
@@ -101,7 +102,7 @@ void main() {
     ivec2 at = table_texel(v, VERTEX_ROW);
     imageStore(vis, at, uvec4(visibility(p, n)));
     vec4 tr = vec4(0.0);
-    if (pc.mode != 0u) {
+    if (TRANSMISSION && pc.mode != 0u) {
         uint r = min(vregion.v[v], MAX_REGIONS - 1u);
         vec3 o = p - n * pc.bias;
         vec2 h = closest_hit(o, -n, tails.v[4u * r + 3u].x);

@@ -426,9 +426,42 @@ impl Stage {
     }
 }
 
+/// A stage whose shader reads the specialization constant `TRANSMISSION`
+/// (glsl/sss/transmission.glsl), built both ways: the stage the params ask for is recorded
+/// ([`SamplerParams::transmission`]), and without transmission its code is compiled out
+/// (lavapipe runs the body of an `if` on a push word even when no lane takes it).
+struct Switched {
+    off: Stage,
+    on: Stage,
+}
+
+impl Switched {
+    fn from_table(
+        ctx: &Context,
+        name: &str,
+        table: &[(&'static str, Resource<'_>)],
+        writes: &[&str],
+        constants: &[(&str, u32)],
+    ) -> Result<Switched> {
+        let with = |on: bool| {
+            let mut c = constants.to_vec();
+            c.push(("TRANSMISSION", u32::from(on)));
+            Stage::from_table(ctx, name, table, writes, &c)
+        };
+        Ok(Switched {
+            off: with(false)?,
+            on: with(true)?,
+        })
+    }
+
+    fn get(&self, transmission: bool) -> &Stage {
+        if transmission { &self.on } else { &self.off }
+    }
+}
+
 /// An irradiance shader (glsl/sss/irradiance.glsl) and its ray pass (`NAME_rays`).
 struct Irradiance {
-    shade: Stage,
+    shade: Switched,
     rays: Stage,
 }
 
@@ -444,7 +477,7 @@ impl Irradiance {
     ) -> Result<Irradiance> {
         let shade_writes = [writes, &["rays"]].concat();
         Ok(Irradiance {
-            shade: Stage::from_table(ctx, name, table, &shade_writes, constants)?,
+            shade: Switched::from_table(ctx, name, table, &shade_writes, constants)?,
             rays: Stage::from_table(ctx, &format!("{name}_rays"), table, &[], constants)?,
         })
     }
@@ -453,13 +486,15 @@ impl Irradiance {
     /// the list after it (`head`: the list's head; without `refine` nothing is listed).
     /// `listed`: the shading stage over a list of segments and the list (its head the
     /// dispatch's command), in place of the shading over every occupied segment.
+    /// `transmission`: the shading stages' variant ([`Switched`]).
     fn passes<'k>(
         &'k self,
         head: &'k Buffer,
         refine: bool,
-        listed: Option<(&'k Stage, &'k Buffer)>,
+        listed: Option<(&'k Switched, &'k Buffer)>,
+        transmission: bool,
     ) -> Vec<Pass<'k, SssKernel>> {
-        let shade = match listed {
+        let shade = match listed.map(|(s, list)| (s.get(transmission), list)) {
             Some((stage, list)) => Pass::dispatch_indirect(
                 PASS_IRRADIANCE,
                 &stage.pipeline,
@@ -470,7 +505,9 @@ impl Irradiance {
                 },
                 SssKernel::irradiance_listed_push,
             ),
-            None => self.shade.pass(PASS_IRRADIANCE, SssKernel::irradiance_args),
+            None => {
+                (self.shade.get(transmission)).pass(PASS_IRRADIANCE, SssKernel::irradiance_args)
+            }
         };
         if !refine {
             return vec![shade];
@@ -495,7 +532,7 @@ impl Irradiance {
 pub struct SssKernel {
     ctx: Context,
     res: Resources,
-    vertex_light: Stage,
+    vertex_light: Switched,
     irradiance: Irradiance,
     /// The diffusion of a caller's rgb irradiance: two gathers a sample.
     diffusion_rgb: Stage,
@@ -645,7 +682,7 @@ struct Env {
     diffusion: Stage,
     /// With the reach set: the shading pass over the reach's list
     /// (glsl/sss/irradiance_posed_env_listed.comp).
-    listed: Option<Stage>,
+    listed: Option<Switched>,
 }
 
 /// The passes of a pass table before the lights ([`SssKernel::front_passes`]).
@@ -738,7 +775,13 @@ impl SssKernel {
         );
         let res = Resources::new(&ctx, &room, regions.len(), reach.len())?;
         let stage = |name, writes: &[&str]| Stage::new(&ctx, name, &res, writes);
-        let vertex_light = stage("sss/vertex_light", &["vis", "vtrans"])?;
+        let vertex_light = Switched::from_table(
+            &ctx,
+            "sss/vertex_light",
+            &res.by_binding(),
+            &["vis", "vtrans"],
+            &res.constants,
+        )?;
         let irradiance = Irradiance::from_table(
             &ctx,
             "sss/irradiance",
@@ -1144,9 +1187,9 @@ impl SssKernel {
         venv: &Buffer,
         vertex_texels: &Image,
         image: &Image,
-    ) -> Result<Stage> {
+    ) -> Result<Switched> {
         let table = self.env_table(venv, vertex_texels, image);
-        Stage::from_table(
+        Switched::from_table(
             &self.ctx,
             "sss/irradiance_posed_env_listed",
             &table,
@@ -1557,6 +1600,7 @@ impl Kernel for SssKernel {
     /// texel geometry from them (no `sss pose texels` pass: the texels' positions and normals
     /// are not stored).
     fn pass_table(&self) -> Vec<Pass<'_, Self>> {
+        let transmission = self.settings.params.transmission;
         let mut passes = Vec::with_capacity(16);
         let mut irradiance = &self.irradiance;
         if let Some(p) = &self.posed {
@@ -1588,7 +1632,7 @@ impl Kernel for SssKernel {
         let mut diffusion = &self.diffusion_grey;
         passes.extend([
             Pass::upload(PASS_LIGHTS, &self.res.lights, Self::light_bytes),
-            self.vertex_light.pass(PASS_VERTEX, Self::vertex_light_args),
+            (self.vertex_light.get(transmission)).pass(PASS_VERTEX, Self::vertex_light_args),
         ]);
         if let Some(env) = &self.env {
             passes.push(
@@ -1602,6 +1646,7 @@ impl Kernel for SssKernel {
             &self.res.ray_head,
             self.settings.params.shadow_refine,
             reach.map(|(_, _, l)| (l, &self.res.reach_list)),
+            transmission,
         ));
         match (&self.env, &self.needed) {
             (Some(env), Some(Needed { list, .. })) => {
