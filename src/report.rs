@@ -94,6 +94,13 @@ pub struct MachineInfo {
     pub driver: String,
     pub api_version: String,
     pub host_cpus: usize,
+    /// The host CPU as Linux names it: model name, family, model and stepping, the vector
+    /// extensions a CPU device compiles for (avx2, avx512f), and the kernel's
+    /// gather-data-sampling status; "unknown" where /proc/cpuinfo cannot be read. lavapipe's
+    /// times depend on the host's microarchitecture as much as on its peaks (a gather, which
+    /// every per-lane image load is, costs many times more on a CPU with that mitigation), so
+    /// two recordings compare only beside these.
+    pub host_cpu: String,
 }
 
 impl MachineInfo {
@@ -107,6 +114,71 @@ impl MachineInfo {
             host_cpus: std::thread::available_parallelism()
                 .map(|n| n.get())
                 .unwrap_or(1),
+            host_cpu: host_cpu(),
         }
+    }
+}
+
+/// [`MachineInfo::host_cpu`].
+pub fn host_cpu() -> String {
+    let Ok(info) = std::fs::read_to_string("/proc/cpuinfo") else {
+        return "unknown".into();
+    };
+    let gds =
+        std::fs::read_to_string("/sys/devices/system/cpu/vulnerabilities/gather_data_sampling")
+            .map(|s| s.trim().to_string())
+            .unwrap_or_else(|_| "unknown".into());
+    describe_cpu(&info, &gds)
+}
+
+/// The description [`host_cpu`] gives of the first processor in a /proc/cpuinfo text, with
+/// `gds` the gather-data-sampling status.
+pub fn describe_cpu(cpuinfo: &str, gds: &str) -> String {
+    let first = cpuinfo.split("\n\n").next().unwrap_or("");
+    let field = |name: &str| {
+        first.lines().find_map(|l| {
+            let (k, v) = l.split_once(':')?;
+            (k.trim() == name).then(|| v.trim().to_string())
+        })
+    };
+    let flags = field("flags").unwrap_or_default();
+    let has = |f: &str| flags.split_whitespace().any(|x| x == f);
+    let vector: Vec<&str> = ["avx2", "avx512f"].into_iter().filter(|f| has(f)).collect();
+    format!(
+        "{} (family {}, model {}, stepping {}; {}; gather data sampling: {gds})",
+        field("model name").unwrap_or_else(|| "unknown model".into()),
+        field("cpu family").unwrap_or_else(|| "?".into()),
+        field("model").unwrap_or_else(|| "?".into()),
+        field("stepping").unwrap_or_else(|| "?".into()),
+        if vector.is_empty() {
+            "no avx2".to_string()
+        } else {
+            vector.join(" ")
+        }
+    )
+}
+
+#[cfg(test)]
+mod tests {
+    use super::describe_cpu;
+
+    #[test]
+    fn the_host_cpu_is_described_from_the_first_processor() {
+        let info = "processor\t: 0\nvendor_id\t: GenuineIntel\ncpu family\t: 6\nmodel\t\t: 85\n\
+                    model name\t: Intel(R) Xeon(R) Platinum 8259CL CPU @ 2.50GHz\nstepping\t: 7\n\
+                    flags\t\t: fpu sse2 avx avx2 avx512f avx512dq\n\n\
+                    processor\t: 1\nmodel name\t: something else\n";
+        assert_eq!(
+            describe_cpu(info, "Mitigation: Microcode"),
+            "Intel(R) Xeon(R) Platinum 8259CL CPU @ 2.50GHz (family 6, model 85, stepping 7; \
+             avx2 avx512f; gather data sampling: Mitigation: Microcode)"
+        );
+        // A field missing or flags without AVX2: said so, not guessed.
+        let old = "model name\t: Old CPU\ncpu family\t: 6\nflags\t: sse2 sse4_2\n";
+        assert_eq!(
+            describe_cpu(old, "unknown"),
+            "Old CPU (family 6, model ?, stepping ?; no avx2; gather data sampling: unknown)"
+        );
+        assert!(describe_cpu("", "unknown").starts_with("unknown model"));
     }
 }

@@ -447,13 +447,14 @@ pub fn table(r: &AllReport) -> String {
         }
     };
     s.push_str(&format!(
-        "{} ({}, {}), {} rounds x {} submissions, {}\n\n",
+        "{} ({}, {}), {} rounds x {} submissions, {}\n\nhost CPU: {}\n\n",
         r.machine.device,
         r.machine.driver,
         r.date,
         r.config.rounds,
         r.config.bench.samples,
-        format_args!("{:.0} s", r.wall_s)
+        format_args!("{:.0} s", r.wall_s),
+        r.machine.host_cpu
     ));
     s.push_str("| kernel | headline | fps (IQR) | binding roofline | fraction of it (IQR) | FMA fraction | vs CPU twin | target |\n");
     s.push_str("|---|---|---|---|---|---|---|---|\n");

@@ -229,7 +229,7 @@ pub fn render(a: &Run, b: &Run, c: &Comparison) -> String {
 }
 
 /// The README's results table from `bench all` JSONs, one `(name, text)` per recorded
-/// machine: per machine a heading (device, driver, date, host CPUs, the FMA and streaming
+/// machine: per machine a heading (device, driver, date, host CPUs and their model, the FMA and streaming
 /// peaks before and after), then one row per kernel. Nothing is typed by hand.
 pub fn readme_table(runs: &[(String, String)]) -> Result<String> {
     let mut s = String::new();
@@ -252,10 +252,14 @@ pub fn readme_table(runs: &[(String, String)]) -> Result<String> {
             .and_then(|k| k.as_array())
             .ok_or_else(|| missing("kernels"))?;
         s.push_str(&format!(
-            "**{}** ({}; {} host CPUs), `bench all` of {} ({} rounds): FMA {:.1} / {:.1} GFLOP/s, stream {:.2} / {:.2} GB/s (before / after the kernels)\n\n",
+            "**{}** ({}; {} host CPUs, {}), `bench all` of {} ({} rounds): FMA {:.1} / {:.1} GFLOP/s, stream {:.2} / {:.2} GB/s (before / after the kernels)\n\n",
             str_at("/machine/device")?,
             str_at("/machine/driver")?,
             num_at(&v, "/machine/host_cpus"),
+            // (recordings made before the host CPU was recorded)
+            v.pointer("/machine/host_cpu")
+                .and_then(|x| x.as_str())
+                .unwrap_or("CPU model not recorded"),
             str_at("/date")?,
             num_at(&v, "/config/rounds"),
             num_at(&v, "/peak_before/fma_gflops"),

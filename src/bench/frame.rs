@@ -204,6 +204,7 @@ impl<'a> AllBench<'a> {
 /// The table `bench frame` prints.
 pub fn print(r: &FrameBenchReport) {
     println!("device                 {}", r.machine.device);
+    println!("host CPU               {}", r.machine.host_cpu);
     println!(
         "peaks (this run)       stream {:.2} GB/s, FMA {:.1} GFLOP/s",
         r.stream_gb_s, r.fma_gflops
