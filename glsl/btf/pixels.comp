@@ -35,7 +35,7 @@ void main() {
     if (lid == 0u) wg_count = 0u;
     barrier();
     uint tile = tiles.list[gl_WorkGroupID.x];
-    uvec2 px = tile_pixel(tile, pc.dims.x, gl_LocalInvocationID.xy);
+    uvec2 px = tile_pixel(tile, gl_LocalInvocationID.xy);
     bool inside = all(lessThan(px, pc.dims.xy));
     uint k = px.y * pc.dims.x + px.x;
     float tag = inside ? texelFetch(gbuffer, ivec3(px, 0), 0).w : 0.0;

@@ -28,7 +28,8 @@ layout(std430, set = 0, binding = 2) readonly buffer Positions { vec4 p[]; } pos
 layout(std430, set = 0, binding = 3) readonly buffer SkinTris { uvec4 v[]; } skin_tris;
 layout(std430, set = 0, binding = 4) readonly buffer SkinUvs { vec4 uv[]; } skin_uvs;
 layout(std430, set = 0, binding = 5) buffer Needed { uint w[]; } needed;
-// The tile list: workgroup i marks from the 16 x 4 tile list[i] (index ty * tiles_x + tx).
+// The tile list: workgroup i marks from the 16 x 4 tile list[i] (tile_entry(tx, ty),
+// glsl/common/tiles.glsl).
 layout(std430, set = 0, binding = 6) readonly buffer Tiles { uint head[4]; uint list[]; } tiles;
 
 #include <compose/skin_uv.glsl>
@@ -38,7 +39,7 @@ const float MARGIN = 0.01;
 
 void main() {
     uint tile = tiles.list[gl_WorkGroupID.x];
-    uvec2 px = tile_pixel(tile, pc.counts.x, gl_LocalInvocationID.xy);
+    uvec2 px = tile_pixel(tile, gl_LocalInvocationID.xy);
     if (any(greaterThanEqual(px, pc.counts.xy))) return;
     uint tri = keys.k[px.y * pc.counts.x + px.x].x;
     // Background or cloth: the compose pass reads no diffusion there.

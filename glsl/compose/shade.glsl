@@ -41,8 +41,8 @@ layout(std430, set = 0, binding = 13) readonly buffer Surfaces { uvec4 s[]; } su
 layout(std430, set = 0, binding = 14) readonly buffer SurfaceTexels { uint t[]; } texels;
 #ifdef COMPOSE_TILES
 // The rasteriser's list of covered 16 x 4 tiles (glsl/raster/tiles.comp), dispatched
-// indirectly: workgroup i shades tile list[i] (index ty * tiles_x + tx); pass `compose
-// background` has written every pixel's background before.
+// indirectly: workgroup i shades tile list[i] (tile_entry(tx, ty), glsl/common/tiles.glsl);
+// pass `compose background` has written every pixel's background before.
 layout(std430, set = 0, binding = 15) readonly buffer Tiles { uint head[4]; uint list[]; } tiles;
 #endif
 #include <compose/output.glsl>
@@ -144,7 +144,7 @@ void main() {
     Params P = params.p;
 #ifdef COMPOSE_TILES
     uint tile = tiles.list[gl_WorkGroupID.x];
-    uvec2 px = tile_pixel(tile, P.counts.x, gl_LocalInvocationID.xy);
+    uvec2 px = tile_pixel(tile, gl_LocalInvocationID.xy);
 #else
     uvec2 px = gl_GlobalInvocationID.xy;
 #endif

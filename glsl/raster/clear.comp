@@ -17,7 +17,8 @@ layout(push_constant) uniform Push {
 
 layout(std430, set = 0, binding = 0) writeonly buffer Visibility { uint64_t key[]; } vis;
 layout(std430, set = 0, binding = 1) writeonly buffer Counters { uint c[8]; } counters;
-// head: (list length, 1, 1, covered tiles); list: tile index (ty * tiles_x + tx).
+// head: (list length, 1, 1, covered tiles); list: tile entries (tile_entry(tx, ty),
+// glsl/common/tiles.glsl).
 layout(std430, set = 0, binding = 2) readonly buffer Tiles { uint head[4]; uint list[]; } tiles;
 
 void main() {
@@ -32,7 +33,7 @@ void main() {
     uint covered = tiles.head[3];
     for (uint i = gl_WorkGroupID.x; i < covered; i += pc.dims.w) {
         uint t = tiles.list[i];
-        uvec2 p = tile_pixel(t, pc.dims.x, local);
+        uvec2 p = tile_pixel(t, local);
         if (p.x < pc.dims.x && p.y < pc.dims.y) vis.key[p.y * pc.dims.x + p.x] = ~0ul;
     }
 }

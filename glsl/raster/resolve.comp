@@ -45,7 +45,7 @@ void main() {
     uvec2 px = gl_GlobalInvocationID.xy;
     if (pc.dims.z != 0u) {
         uint t = tiles.list[gl_WorkGroupID.x];
-        px = tile_pixel(t, pc.dims.x, gl_LocalInvocationID.xy);
+        px = tile_pixel(t, gl_LocalInvocationID.xy);
     }
     if (any(greaterThanEqual(px, pc.dims.xy))) return;
     uint64_t key = vis.key[px.y * pc.dims.x + px.x];

@@ -15,7 +15,8 @@ layout(push_constant) uniform Push {
 } pc;
 
 layout(std430, set = 0, binding = 0) readonly buffer Keys { uvec2 k[]; } keys;
-// The tile list: workgroup i marks from the 16 x 4 tile list[i] (index ty * tiles_x + tx).
+// The tile list: workgroup i marks from the 16 x 4 tile list[i] (tile_entry(tx, ty),
+// glsl/common/tiles.glsl).
 layout(std430, set = 0, binding = 1) readonly buffer Tiles { uint head[4]; uint list[]; } tiles;
 layout(std430, set = 0, binding = 2) buffer Covered { uint w[]; } covered;
 
@@ -24,7 +25,7 @@ shared uint row_tri[4][16];
 void main() {
     uint tile = tiles.list[gl_WorkGroupID.x];
     uvec2 lid = gl_LocalInvocationID.xy;
-    uvec2 px = tile_pixel(tile, pc.width, lid);
+    uvec2 px = tile_pixel(tile, lid);
     uint tri = 0xffffffffu;
     if (all(lessThan(px, uvec2(pc.width, pc.height)))) {
         tri = keys.k[px.y * pc.width + px.x].x;

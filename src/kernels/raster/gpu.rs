@@ -45,7 +45,8 @@ pub enum Tiling {
     Full,
 }
 
-/// The tile list of one frame, read back: tile indices `ty * tiles_x + tx` ([`tile_grid`]).
+/// The tile list of one frame, read back: tile indices `ty * tiles_x + tx` ([`tile_grid`]; the
+/// GPU's list holds `tx | ty << 16`, converted here).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct TileList {
     /// Tiles holding a covered pixel this frame (sorted).
@@ -304,8 +305,9 @@ impl RasterKernel {
     /// The tile list `raster tiles` writes each frame ([`Tiling::Tiles`]; `None` for
     /// [`Tiling::Full`]), for a pass shading the G-buffer over the same tiles. u32 words:
     /// `(length, 1, 1, covered)` (a `VkDispatchIndirectCommand` at offset 0: one workgroup
-    /// per listed tile), then `length` tile indices `ty * tiles_x + tx` of [`TILE`]-sized
-    /// tiles ([`tile_grid`]): first the tiles covered this frame, then those covered only
+    /// per listed tile), then `length` tile entries `tx | ty << 16` of [`TILE`]-sized tiles
+    /// ([`tile_grid`]; a pass finds a tile's pixels without dividing by the tiles a row,
+    /// glsl/common/tiles.glsl): first the tiles covered this frame, then those covered only
     /// last frame (empty in this frame's G-buffer). A pass shading every listed tile each
     /// frame keeps empty pixels empty everywhere, provided it starts from an all-empty
     /// output. INDIRECT_BUFFER usage.
@@ -452,7 +454,9 @@ impl Kernel for RasterKernel {
             },
             keys: rb.keys.to_vec()?,
             counters,
-            tiles: rb.tiles.as_ref().map(tile_list).transpose()?,
+            tiles: (rb.tiles.as_ref())
+                .map(|t| tile_list(t, tile_grid(self.size)[0]))
+                .transpose()?,
         })
     }
 
@@ -474,8 +478,9 @@ impl Kernel for RasterKernel {
     }
 }
 
-/// The covered and stale parts of a read-back tile list, each sorted.
-fn tile_list(rb: &Readback) -> Result<TileList> {
+/// The covered and stale parts of a read-back tile list, each sorted, as tile indices
+/// `ty * tiles_x + tx` (the list holds `tx | ty << 16`).
+fn tile_list(rb: &Readback, tiles_x: u32) -> Result<TileList> {
     let words: Vec<u32> = rb.to_vec()?;
     let (len, covered) = (words[0] as usize, words[3] as usize);
     let list = words.get(4..4 + len).ok_or_else(|| {
@@ -484,9 +489,10 @@ fn tile_list(rb: &Readback) -> Result<TileList> {
             words.len()
         ))
     })?;
-    let (mut c, mut s) = (
-        list[..covered.min(len)].to_vec(),
-        list[covered.min(len)..].to_vec(),
+    let index = |e: &u32| (e >> 16) * tiles_x + (e & 0xffff);
+    let (mut c, mut s): (Vec<u32>, Vec<u32>) = (
+        list[..covered.min(len)].iter().map(index).collect(),
+        list[covered.min(len)..].iter().map(index).collect(),
     );
     c.sort_unstable();
     s.sort_unstable();
