@@ -59,5 +59,5 @@ void main() {
     barrier();
     uint j = wg_base + at;
     // The list has a slot for every pixel: j < its length always.
-    if (listed && j < uint(pixels.list.length())) pixels.list[j] = k;
+    if (listed && j < uint(pixels.list.length())) pixels.list[j] = px.x | (px.y << 16u);
 }

@@ -6,8 +6,9 @@
 #define VKSHADE_BTF_PIXELS_GLSL
 #ifdef BTF_PIXELS
 layout(local_size_x = 64) in;
-// The masked parts' pixels (y * width + x; pass `btf pixels` also gave the tiles' empty ones
-// their background): pixels outside the list keep what they hold.
+// The masked parts' pixels (x | y << 16: a pixel's coordinates without dividing by the width,
+// a push-constant value, which lavapipe does lane by lane; pass `btf pixels` also gave the
+// tiles' empty ones their background): pixels outside the list keep what they hold.
 layout(std430, set = 0, binding = 16) readonly buffer PixelHead { uint head[4]; } pixel_head;
 layout(std430, set = 0, binding = 17) readonly buffer Pixels { uint list[]; } pixels;
 #else
@@ -23,7 +24,7 @@ bool shaded_pixel(uvec2 size, out uvec2 px) {
     px = uvec2(0u);
     if (i >= min(pixel_head.head[3], uint(pixels.list.length()))) return false;
     uint k = pixels.list[i];
-    px = uvec2(k % size.x, k / size.x);
+    px = uvec2(k & 0xffffu, k >> 16u);
 #else
     px = gl_GlobalInvocationID.xy;
 #endif
