@@ -661,12 +661,14 @@ fn back_lit_thin_slab_transmits_red() {
     assert!(seen.iter().all(|&n| n > 200), "texels per region {seen:?}");
 }
 
-/// Catches: a transmission switch that records the wrong build of `sss vertex light` or `sss
-/// irradiance` (each is built with its transmission code compiled in and compiled out,
-/// glsl/sss/transmission.glsl, and the params pick one), or that leaves the old transmission
-/// behind. One kernel on the back-lit slab: with transmission the front transmits; switched
-/// off (`set_params`) the transmission image holds zeros and the rest is unchanged; switched
-/// on again, the first frame's output bit for bit.
+/// Catches: a transmission switch that records the build of `sss vertex light` or `sss
+/// irradiance` with the transmission compiled out while transmission is on (each is built
+/// with its transmission code compiled in and compiled out, glsl/sss/transmission.glsl, and
+/// the params pick one), or that leaves the old transmission behind. One kernel on the
+/// back-lit slab: with transmission the front transmits; switched off (`set_params`) the
+/// transmission image holds zeros and the rest is unchanged; switched on again, the first
+/// frame's output bit for bit. (The build with transmission compiled in, recorded while it is
+/// off, gives the same images, its push word saying off: only slower.)
 #[test]
 fn switching_transmission_off_and_on_records_the_matching_passes() {
     let (geo, _) = slab();

@@ -3,7 +3,7 @@
 // Pass `btf pixels`: the pixels `btf shade` and `btf env basis` shade this frame, listed.
 // Over the rasteriser's tile list (one 16 x 4 workgroup a tile, dispatched indirectly, as the
 // shading passes were): a pixel whose G-buffer tag is a part in the mask is appended to
-// `pixels` (y * width + x); an empty pixel gets the background (0) in `result`, as `btf
+// `pixels` (x | y << 16); an empty pixel gets the background (0) in `result`, as `btf
 // shade` over the tiles gave it; another part's pixel keeps what it holds. The shading
 // passes then run over the list (BTF_PIXELS), 64 listed pixels a workgroup: on lavapipe a
 // lane that returns early still runs the rest of the shader under its mask (a shading pass

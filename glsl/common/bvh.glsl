@@ -10,9 +10,11 @@
 // e2), float bits. TRI_BASE is a specialization constant of every pipeline that includes
 // this (src/geom/bvh.rs `tri_base`, `table_texels`):
 //   layout(rgba32ui) readonly uniform uimage2D nodes;
-// One table rather than one image of nodes and one of triangles: a traversal step is either
-// kind, the lanes of a SIMD step run both kinds masked (lavapipe), and reading three texels
-// at one address per lane costs 3 loads where a node's and a triangle's cost 2 + 3.
+// One table rather than one image of nodes and one of triangles: a step of the single-ray
+// walks below is either kind, the lanes of a SIMD step run both kinds masked (lavapipe), and
+// reading three texels at one address per lane costs 3 loads where a node's and a
+// triangle's cost 2 + 3. (The packet walks, env/trace.glsl and sss/packet.glsl, take node
+// steps and triangle steps in separate loops: 2 texels a node, 3 a triangle.)
 // Measured on lavapipe (`bench frame`, alternated runs): `env trace` 5.5-5.9 -> 4.7-4.8 ms.
 #include <common/bvh_table.glsl>
 
@@ -82,8 +84,9 @@ bool slab_meets(vec3 lo_o, vec3 hi_o, vec3 inv, float tmax) {
 // triangle count | its skip << 8, the node visited next when the ray does not enter it;
 // entering an inner node goes to its left child, a leaf's triangles are tested and then its
 // skip is taken. The root's skip (0xffffff) ends it; every node step moves forward in the
-// depth-first order (MAX_STEPS, which counts node and triangle steps, only guards a malformed
-// table).
+// depth-first order (MAX_STEPS, which counts node and triangle steps here and node steps in
+// the packet walks, each of whose node steps brings at most 255 triangle steps, only guards a
+// malformed table).
 // One loop whose step is either a node or one triangle of the leaf just entered, not a loop
 // over the leaf's triangles inside the node loop: the lanes of a SIMD step walk different
 // paths, and a nested loop ran, at every node step, as many triangle steps as the lane with

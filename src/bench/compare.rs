@@ -229,8 +229,8 @@ pub fn render(a: &Run, b: &Run, c: &Comparison) -> String {
 }
 
 /// The README's results table from `bench all` JSONs, one `(name, text)` per recorded
-/// machine: per machine a heading (device, driver, date, host CPUs and their model, the FMA and streaming
-/// peaks before and after), then one row per kernel. Nothing is typed by hand.
+/// machine: per machine a heading (device, driver, date, host CPUs and their model, the FMA
+/// and streaming peaks before and after), then one row per kernel. Nothing is typed by hand.
 pub fn readme_table(runs: &[(String, String)]) -> Result<String> {
     let mut s = String::new();
     for (name, text) in runs {

@@ -173,6 +173,13 @@ impl BtfKernel {
     }
 
     fn check_tiles(prep: &Prepared, tiles: &Buffer) -> Result<()> {
+        if prep.size.iter().any(|&s| s > 1 << 16) {
+            return Err(Error::InvalidArgument(format!(
+                "a {} x {} image over a tile list: the pixel list holds x | y << 16, so at most \
+                 65536 pixels a side",
+                prep.size[0], prep.size[1]
+            )));
+        }
         let [tx, ty] = crate::kernels::raster::pack::tile_grid(prep.size);
         let need = 16 + 4 * tx as u64 * ty as u64;
         if tiles.size() < need
@@ -419,7 +426,8 @@ struct PixelList {
     tiles: Buffer,
     /// (ceil(count / 64), 1, 1, count): the shading passes' indirect command.
     head: Buffer,
-    /// The pixels (y * width + x), room for every pixel.
+    /// The pixels (x | y << 16: the shading passes find a pixel without dividing by the
+    /// width), room for every pixel.
     list: Buffer,
     pipeline: ComputePipeline,
     bind: BindGroup,
