@@ -6,7 +6,8 @@
 // with a mask and a shift, where dividing by tiles_x, a push-constant value, was a scalar
 // division per lane (lavapipe), twice per invocation of every pass over the tiles
 // (`bench frame`, fastest of 5 alternated runs each: `raster clear`, `raster resolve`,
-// `compose need`, `vertex mark`, `btf pixels` and `compose shade` 4.9 -> 4.3 ms together).
+// `compose need`, `vertex mark`, `btf pixels` and `compose shade` 4.9 -> 4.3 ms together;
+// 4.8 -> 4.6 in a later set of 6 on a loaded host).
 #ifndef VKSHADE_TILES_GLSL
 #define VKSHADE_TILES_GLSL
 const uvec2 TILE_SIZE = uvec2(16u, 4u);
