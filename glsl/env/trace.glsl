@@ -43,34 +43,20 @@ layout(std430, set = 0, binding = 4) writeonly buffer Traced { float v[]; } trac
 layout(std430, set = 0, binding = 5) writeonly buffer Escaped { uint w[]; } escaped;
 
 #include <common/bvh.glsl>
+#include <common/bvh_rounds.glsl>
 #include <env/listed.glsl>
 
-// Leaves gathered by a round's walk before their triangles are tested (below).
-const uint LEAVES = 4u;
-
-// Which of the rays in `live` (bit i: direction d[i]) escape from o.
-// In rounds: the walk goes through nodes only until it has met LEAVES leaves (or ends),
-// then the rays that met each leaf are tested against its triangles, the blocked ones
-// leave `live`, and the walk goes on from where it stopped. A SIMD step's lanes run both
-// sides of a branch (lavapipe), so a loop whose step is a node or a triangle pays both at
-// every step; here a node step pays a node's two texels and slab tests, a triangle step a
-// triangle's three texels and ray tests. A ray blocked in a round's first leaf still walks
-// to the round's end; each ray's answer is the same (it escapes when no triangle of a
-// leaf it meets blocks it). Measured on lavapipe (`bench frame`, 6 alternated pairs):
-// `env trace` 4.7-5.3 -> 4.4-4.9 ms; 2 leaves a round no better, 8 worse (the lanes wait
-// longer on each other's rounds).
+// Which of the rays in `live` (bit i: direction d[i]) escape from o, in the rounds of
+// common/bvh_rounds.glsl.
 uint escaping(vec3 o, vec3 d[PACKET], uint live) {
     vec3 inv[PACKET];
     for (uint i = 0u; i < PACKET; i++) inv[i] = 1.0 / d[i];
     uint ni = 0u;
     uint steps = 0u;
     do {
-        // The leaves met: (first triangle, triangle count, the rays that met it). Read and
-        // written at constant indices only (a select per slot) so that they stay in
-        // registers.
-        uvec3 leaf[LEAVES];
+        uvec3 leaf[ROUND_LEAVES];
         uint found = 0u;
-        while (ni != LINK_END && found < LEAVES && steps < MAX_STEPS) {
+        while (ni != LINK_END && found < ROUND_LEAVES && steps < MAX_STEPS) {
             steps++;
             uvec4 r0 = bvh_texel(2u * ni);
             uvec4 r1 = bvh_texel(2u * ni + 1u);
@@ -81,25 +67,13 @@ uint escaping(vec3 o, vec3 d[PACKET], uint live) {
                 // tmax infinite.
                 meet |= slab_meets(lo, hi, inv[i], uintBitsToFloat(0x7f800000u)) ? (1u << i) : 0u;
             }
-            meet &= live;
-            uint first = r0.w;
-            uint count = r1.w & 0xffu;
-            if (meet != 0u && count != 0u) {
-                [[unroll]] for (uint k = 0u; k < LEAVES; k++) {
-                    if (found == k) leaf[k] = uvec3(first, count, meet);
-                }
-                found++;
-            }
-            ni = (meet != 0u && count == 0u) ? first : r1.w >> 8u;
+            round_node(meet & live, r0, r1, ni, leaf, found);
         }
         uint k = 0u;
         uint j = 0u;
         while (k < found && live != 0u) {
-            uvec3 lf = leaf[0];
-            [[unroll]] for (uint i = 1u; i < LEAVES; i++) {
-                if (k == i) lf = leaf[i];
-            }
-            uint t = TRI_BASE + 3u * (lf.x + j);
+            uvec2 tri = round_triangle(leaf, k, j);
+            uint t = tri.x;
             // common/bvh.glsl hit_t, the terms that do not depend on the ray taken once.
             vec3 a = uintBitsToFloat(bvh_texel(t).xyz);
             vec3 e1 = uintBitsToFloat(bvh_texel(t + 1u).xyz);
@@ -119,12 +93,7 @@ uint escaping(vec3 o, vec3 d[PACKET], uint live) {
                     && th > 0.0;
                 hit |= h ? (1u << i) : 0u;
             }
-            live &= ~(hit & lf.z);
-            j++;
-            if (j == lf.y) {
-                j = 0u;
-                k++;
-            }
+            live &= ~(hit & tri.y);
         }
     } while (ni != LINK_END && live != 0u && steps < MAX_STEPS);
     return live;

@@ -9,14 +9,9 @@
 #ifndef VKSHADE_SSS_PACKET_GLSL
 #define VKSHADE_SSS_PACKET_GLSL
 #extension GL_EXT_control_flow_attributes : require
-// Leaves gathered by a round's walk before their triangles are tested (env/trace.glsl
-// escaping has the same rounds).
-const uint PACKET_LEAVES = 4u;
-
+#include <common/bvh_rounds.glsl>
 // Which rays of `live` (bit i: origin o[i], direction d[i], reach tmax[i]) are blocked.
-// In rounds: nodes only until PACKET_LEAVES leaves are met (or the walk ends), then each
-// leaf's triangles against the rays that met it, as env/trace.glsl escaping (`bench
-// frame`, 4 alternated pairs: `sss irradiance rays` 2.3-3.6 -> 2.05-2.15 ms).
+// In the rounds of common/bvh_rounds.glsl.
 uint blocked_rays(vec3 o[RAY_PACKET], vec3 d[RAY_PACKET], float tmax[RAY_PACKET], uint live) {
     vec3 inv[RAY_PACKET];
     for (uint i = 0u; i < RAY_PACKET; i++) inv[i] = 1.0 / d[i];
@@ -24,10 +19,9 @@ uint blocked_rays(vec3 o[RAY_PACKET], vec3 d[RAY_PACKET], float tmax[RAY_PACKET]
     uint ni = 0u;
     uint steps = 0u;
     do {
-        // (first triangle, triangle count, the rays that met it), at constant indices only.
-        uvec3 leaf[PACKET_LEAVES];
+        uvec3 leaf[ROUND_LEAVES];
         uint found = 0u;
-        while (ni != LINK_END && found < PACKET_LEAVES && steps < MAX_STEPS) {
+        while (ni != LINK_END && found < ROUND_LEAVES && steps < MAX_STEPS) {
             steps++;
             uvec4 r0 = bvh_texel(2u * ni);
             uvec4 r1 = bvh_texel(2u * ni + 1u);
@@ -37,25 +31,13 @@ uint blocked_rays(vec3 o[RAY_PACKET], vec3 d[RAY_PACKET], float tmax[RAY_PACKET]
             for (uint i = 0u; i < RAY_PACKET; i++) {
                 meet |= slab_meets(lo - o[i], hi - o[i], inv[i], tmax[i]) ? (1u << i) : 0u;
             }
-            meet &= live;
-            uint first = r0.w;
-            uint count = r1.w & 0xffu;
-            if (meet != 0u && count != 0u) {
-                [[unroll]] for (uint k = 0u; k < PACKET_LEAVES; k++) {
-                    if (found == k) leaf[k] = uvec3(first, count, meet);
-                }
-                found++;
-            }
-            ni = (meet != 0u && count == 0u) ? first : r1.w >> 8u;
+            round_node(meet & live, r0, r1, ni, leaf, found);
         }
         uint k = 0u;
         uint j = 0u;
         while (k < found && live != 0u) {
-            uvec3 lf = leaf[0];
-            [[unroll]] for (uint i = 1u; i < PACKET_LEAVES; i++) {
-                if (k == i) lf = leaf[i];
-            }
-            uint t = TRI_BASE + 3u * (lf.x + j);
+            uvec2 tri = round_triangle(leaf, k, j);
+            uint t = tri.x;
             vec3 a = uintBitsToFloat(bvh_texel(t).xyz);
             vec3 e1 = uintBitsToFloat(bvh_texel(t + 1u).xyz);
             vec3 e2 = uintBitsToFloat(bvh_texel(t + 2u).xyz);
@@ -74,14 +56,9 @@ uint blocked_rays(vec3 o[RAY_PACKET], vec3 d[RAY_PACKET], float tmax[RAY_PACKET]
                     && th > 0.0 && th <= tmax[i];
                 hit |= h ? (1u << i) : 0u;
             }
-            hit &= lf.z;
+            hit &= tri.y;
             blocked |= hit;
             live &= ~hit;
-            j++;
-            if (j == lf.y) {
-                j = 0u;
-                k++;
-            }
         }
     } while (ni != LINK_END && live != 0u && steps < MAX_STEPS);
     return blocked;
