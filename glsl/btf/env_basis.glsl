@@ -23,6 +23,12 @@ layout(push_constant) uniform Push {
 } pc;
 
 const uint GROUPS = 6u; // basis.rs GROUPS
+// Whether any lobe is looked up per pixel: false only in mode 3 with no entry in `plobes`
+// (BtfKernel::add_env_basis sets it; the character frame's default). A loop whose count is a
+// push word runs its first iteration's body on lavapipe even when it counts 0 (under a lane
+// mask: two filtered table fetches and the visibility loads every pixel), so without such
+// lobes it is compiled out (`bench frame`, fastest of 6 alternated runs: 2.26 -> 2.08 ms).
+layout(constant_id = 0) const bool PER_PIXEL_LOBES = true;
 
 layout(set = 0, binding = 0) uniform texture2DArray coeffs[GROUPS];
 layout(set = 0, binding = 1) uniform sampler coeff_sampler;  // linear, repeat
@@ -113,7 +119,7 @@ void main() {
         for (uint q = 0u; q < RANK; q++) l[q] = vec3(f[3u * q], f[3u * q + 1u], f[3u * q + 2u]);
     }
     uint count = mode == 3u ? pc.info.y : J;
-    for (uint m = 0u; m < count; m++) {
+    if (PER_PIXEL_LOBES) for (uint m = 0u; m < count; m++) {
         uint j = mode == 3u ? plobes.j[m] : m;
         vec4 p = lobes.v[2u * j];
         vec3 amp = lobes.v[2u * j + 1u].rgb;

@@ -1188,7 +1188,13 @@ impl BtfKernel {
             Some(_) => "btf/env_basis_pixels",
             None => "btf/env_basis",
         };
-        let pipeline = crate::shaders::pipeline(&ctx, name)?;
+        // The per-pixel lobe loop is compiled out where it would count 0 (see the shader).
+        let per_pixel_lobes = mode != 3 || !pixel_lobe_list.is_empty();
+        let pipeline = crate::shaders::pipeline_specialized(
+            &ctx,
+            name,
+            &[("PER_PIXEL_LOBES", u32::from(per_pixel_lobes))],
+        )?;
         let ph = &placeholder;
         let or = |b: Option<&'a Buffer>| Resource::Buffer(b.unwrap_or(ph));
         let mut res = vec![
