@@ -357,7 +357,34 @@ fn triangles_crossing_the_near_plane_are_clipped_and_those_behind_culled() {
         fov_y_deg: 100.0,
         near: 0.45,
     };
-    let out = &raster_frames(&pose, &prep, &[cam])[0];
+    // The same eye with a wider view: there the near plane cuts the walls inside the image
+    // (at 100 degrees the cuts lie just past its left and right edges), so the clipped
+    // polygons' pixels, the second triangle of a clipped quad's among them, are compared.
+    // A rasteriser that scanned only the first triangle of each clipped polygon passes the
+    // first camera and fails this one.
+    let wide = Camera {
+        fov_y_deg: 140.0,
+        ..cam
+    };
+    let outs = raster_frames(&pose, &prep, &[cam, wide]);
+    let wide_want = twin::visibility(&pose.positions, &prep, &wide);
+    assert_matches("inside the tube, wide", &outs[1], &wide_want);
+    let forward = (wide.target - wide.eye).normalize();
+    let clipped_pixels = (0..wide_want.id.len())
+        .filter(|&k| {
+            let t = wide_want.id[k];
+            wide_want.robust[k]
+                && t != u32::MAX
+                && prep.triangles[t as usize]
+                    .iter()
+                    .any(|&i| (pose.positions[i as usize] - wide.eye).dot(forward) < wide.near)
+        })
+        .count();
+    assert!(
+        clipped_pixels > 500,
+        "{clipped_pixels} compared pixels of clipped triangles"
+    );
+    let out = &outs[0];
     let want = twin::visibility(&pose.positions, &prep, &cam);
     let (_, covered) = assert_matches("inside the tube", out, &want);
     assert!(covered > 4000, "{covered} pixels compared");
