@@ -358,10 +358,13 @@ fn triangles_crossing_the_near_plane_are_clipped_and_those_behind_culled() {
         near: 0.45,
     };
     // The same eye with a wider view: there the near plane cuts the walls inside the image
-    // (at 100 degrees the cuts lie just past its left and right edges), so the clipped
-    // polygons' pixels, the second triangle of a clipped quad's among them, are compared.
-    // A rasteriser that scanned only the first triangle of each clipped polygon passes the
-    // first camera and fails this one.
+    // (at 100 degrees the cuts lie just past its left and right edges), so pixels of the
+    // clipped triangles are compared too. A rasteriser that scanned only the first triangle
+    // of each clipped polygon passed the first camera and failed this one (measured when
+    // the scan moved into one loop). Each camera also accounts for every piece: a triangle
+    // with two vertices in front of the near plane is two pieces, with one or three one
+    // piece, and each piece is scanned or counted as culled past the guard band, of zero
+    // area or off screen.
     let wide = Camera {
         fov_y_deg: 140.0,
         ..cam
@@ -384,6 +387,29 @@ fn triangles_crossing_the_near_plane_are_clipped_and_those_behind_culled() {
         clipped_pixels > 500,
         "{clipped_pixels} compared pixels of clipped triangles"
     );
+    for (cam, out) in [cam, wide].iter().zip(&outs) {
+        let forward = (cam.target - cam.eye).normalize();
+        let (mut pieces, mut quads) = (0u32, 0u32);
+        for t in &prep.triangles {
+            let inside = t
+                .iter()
+                .filter(|&&i| (pose.positions[i as usize] - cam.eye).dot(forward) >= cam.near)
+                .count();
+            pieces += [0, 1, 2, 1][inside];
+            quads += u32::from(inside == 2);
+        }
+        let ended: u32 = [
+            counter::SCANNED,
+            counter::GUARD_CULLED,
+            counter::ZERO_AREA,
+            counter::OFF_SCREEN,
+        ]
+        .iter()
+        .map(|&c| out.counters[c])
+        .sum();
+        assert_eq!(ended, pieces, "{:?}", out.counters);
+        assert!(quads > 10, "{quads} triangles clipped into two pieces");
+    }
     let out = &outs[0];
     let want = twin::visibility(&pose.positions, &prep, &cam);
     let (_, covered) = assert_matches("inside the tube", out, &want);
