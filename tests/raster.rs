@@ -361,7 +361,8 @@ fn triangles_crossing_the_near_plane_are_clipped_and_those_behind_culled() {
     // (at 100 degrees the cuts lie just past its left and right edges), so pixels of the
     // clipped triangles are compared too. A rasteriser that scanned only the first triangle
     // of each clipped polygon passed the first camera and failed this one (measured when
-    // the scan moved into one loop). Each camera also accounts for every piece: a triangle
+    // the scan moved into one loop). Both cameras compare the counters with the twin's and
+    // account for every piece: a triangle
     // with two vertices in front of the near plane is two pieces, with one or three one
     // piece, and each piece is scanned or counted as culled past the guard band, of zero
     // area or off screen.
@@ -370,34 +371,35 @@ fn triangles_crossing_the_near_plane_are_clipped_and_those_behind_culled() {
         ..cam
     };
     let outs = raster_frames(&pose, &prep, &[cam, wide]);
-    let wide_want = twin::visibility(&pose.positions, &prep, &wide);
-    assert_matches("inside the tube, wide", &outs[1], &wide_want);
-    let forward = (wide.target - wide.eye).normalize();
-    let clipped_pixels = (0..wide_want.id.len())
-        .filter(|&k| {
-            let t = wide_want.id[k];
-            wide_want.robust[k]
-                && t != u32::MAX
-                && prep.triangles[t as usize]
-                    .iter()
-                    .any(|&i| (pose.positions[i as usize] - wide.eye).dot(forward) < wide.near)
-        })
-        .count();
-    assert!(
-        clipped_pixels > 500,
-        "{clipped_pixels} compared pixels of clipped triangles"
-    );
+    let mut compared = Vec::new();
     for (cam, out) in [cam, wide].iter().zip(&outs) {
-        let forward = (cam.target - cam.eye).normalize();
-        let (mut pieces, mut quads) = (0u32, 0u32);
-        for t in &prep.triangles {
-            let inside = t
-                .iter()
-                .filter(|&&i| (pose.positions[i as usize] - cam.eye).dot(forward) >= cam.near)
-                .count();
-            pieces += [0, 1, 2, 1][inside];
-            quads += u32::from(inside == 2);
+        let want = twin::visibility(&pose.positions, &prep, cam);
+        let what = format!("inside the tube, {} degrees", cam.fov_y_deg);
+        let (_, covered) = assert_matches(&what, out, &want);
+        for c in [
+            counter::NEAR_CLIPPED,
+            counter::NEAR_CULLED,
+            counter::BACK_FACING,
+        ] {
+            assert_eq!(
+                out.counters[c], want.counters[c],
+                "counter {c}: {:?}",
+                out.counters
+            );
         }
+        // Per triangle, its vertices in front of the near plane.
+        let forward = (cam.target - cam.eye).normalize();
+        let in_front: Vec<usize> = prep
+            .triangles
+            .iter()
+            .map(|t| {
+                t.iter()
+                    .filter(|&&i| (pose.positions[i as usize] - cam.eye).dot(forward) >= cam.near)
+                    .count()
+            })
+            .collect();
+        let pieces: u32 = in_front.iter().map(|&n| [0, 1, 2, 1][n]).sum();
+        let quads = in_front.iter().filter(|&&n| n == 2).count();
         let ended: u32 = [
             counter::SCANNED,
             counter::GUARD_CULLED,
@@ -409,22 +411,20 @@ fn triangles_crossing_the_near_plane_are_clipped_and_those_behind_culled() {
         .sum();
         assert_eq!(ended, pieces, "{:?}", out.counters);
         assert!(quads > 10, "{quads} triangles clipped into two pieces");
+        let clipped_pixels = (0..want.id.len())
+            .filter(|&k| {
+                want.robust[k] && want.id[k] != u32::MAX && in_front[want.id[k] as usize] < 3
+            })
+            .count();
+        compared.push((covered, clipped_pixels));
     }
+    assert!(compared[0].0 > 4000, "{:?} pixels compared", compared[0]);
+    assert!(
+        compared[1].1 > 500,
+        "{:?} compared pixels of clipped triangles",
+        compared[1]
+    );
     let out = &outs[0];
-    let want = twin::visibility(&pose.positions, &prep, &cam);
-    let (_, covered) = assert_matches("inside the tube", out, &want);
-    assert!(covered > 4000, "{covered} pixels compared");
-    for c in [
-        counter::NEAR_CLIPPED,
-        counter::NEAR_CULLED,
-        counter::BACK_FACING,
-    ] {
-        assert_eq!(
-            out.counters[c], want.counters[c],
-            "counter {c}: {:?}",
-            out.counters
-        );
-    }
     assert!(
         out.counters[counter::NEAR_CLIPPED] > 20,
         "{:?}",
