@@ -108,8 +108,8 @@ void scan(vec3 s0, vec3 s1, vec3 s2, uint id) {
     int64_t e0 = r0, e1 = r1, e2 = r2;
     // The last tile this invocation flagged: a tile's flag is stored only when it differs
     // from that one, once per run of covered pixels in a tile (a storage-buffer store at a
-    // per-lane address runs lane by lane on
-    // lavapipe; flagging every covered pixel cost ~0.17 of the pass's ~1.85 ms).
+    // per-lane address runs lane by lane on lavapipe; flagging every covered pixel cost
+    // ~0.17 of the pass's ~1.85 ms).
     uint flagged = ~0u;
     for (uint k = 0u; k < count; k++) {
         if (e0 >= 0l && e1 >= 0l && e2 >= 0l) {
@@ -136,23 +136,33 @@ void scan(vec3 s0, vec3 s1, vec3 s2, uint id) {
     }
 }
 
+// Appends x to the clipped polygon (q0, q1, q2, q3) of n vertices: a select per slot, so
+// that the polygon stays in registers (an array at a lane's own index n would live in
+// per-lane memory).
+void append(vec3 x, inout vec3 q0, inout vec3 q1, inout vec3 q2, inout vec3 q3, inout uint n) {
+    q0 = n == 0u ? x : q0;
+    q1 = n == 1u ? x : q1;
+    q2 = n == 2u ? x : q2;
+    q3 = n == 3u ? x : q3;
+    n++;
+}
+
 void main() {
     uint id = gl_GlobalInvocationID.y * pc.dims.w + gl_GlobalInvocationID.x;
     if (gl_GlobalInvocationID.x >= pc.dims.w || id >= pc.dims.z) return;
     uvec4 t = tris.t[id];
-    vec3 v0 = to_view(pos.p[t.x].xyz), v1 = to_view(pos.p[t.y].xyz), v2 = to_view(pos.p[t.z].xyz);
+    vec3 v[3] = vec3[3](to_view(pos.p[t.x].xyz), to_view(pos.p[t.y].xyz), to_view(pos.p[t.z].xyz));
     float near = pc.eye.w;
     // Back-facing: the geometric normal cross(b - a, c - a) faces away from the eye. The
     // view basis (right, up, forward) is left-handed, so in its coordinates the cross
     // product is the world one negated: front faces have dot(vn, v0) > 0.
-    vec3 vn = cross(v1 - v0, v2 - v0);
-    bool in0 = v0.z >= near, in1 = v1.z >= near, in2 = v2.z >= near;
-    uint inside = uint(in0) + uint(in1) + uint(in2);
+    vec3 vn = cross(v[1] - v[0], v[2] - v[0]);
+    uint inside = uint(v[0].z >= near) + uint(v[1].z >= near) + uint(v[2].z >= near);
     if (inside == 0u) {
         atomicAdd(counters.c[2], 1u);
         return;
     }
-    if (dot(vn, v0) < 0.0) atomicAdd(counters.c[4], 1u);
+    if (dot(vn, v[0]) < 0.0) atomicAdd(counters.c[4], 1u);
     if (inside < 3u) atomicAdd(counters.c[1], 1u);
     // Sutherland-Hodgman against z >= near: walk the edges, keep inside vertices and the
     // crossings; a triangle wholly in front keeps (v0, v1, v2). Every triangle takes this
@@ -160,27 +170,15 @@ void main() {
     // inlined once: lavapipe ran the clipped path's two further copies under a lane mask
     // for every triangle, clipped or not (~0.34 of the pass's ~1.85 ms by ablation; with the
     // tile flags' runs above, 1.88 -> 1.57 ms, fastest of 6 alternated `bench frame` runs;
-    // the same keys, counters and flags: tests/raster.rs). The polygon is
-    // four variables written through a select ladder: an array at a lane's own index would
-    // live in per-lane memory.
-    vec3 q0 = v0, q1 = v1, q2 = v2, q3 = v2;
+    // the same keys, counters and flags: tests/raster.rs). The edge loop is unrolled, so
+    // `v` is read at constant indices only.
+    vec3 q0 = v[0], q1 = v[1], q2 = v[2], q3 = v[2];
     uint n = 0u;
     [[unroll]] for (uint i = 0u; i < 3u; i++) {
-        vec3 a = i == 0u ? v0 : (i == 1u ? v1 : v2);
-        vec3 b = i == 0u ? v1 : (i == 1u ? v2 : v0);
-        bool ain = i == 0u ? in0 : (i == 1u ? in1 : in2);
-        bool bin = i == 0u ? in1 : (i == 1u ? in2 : in0);
-        for (uint k = 0u; k < 2u; k++) {
-            bool keep = k == 0u ? ain : ain != bin;
-            vec3 x = k == 0u ? a : mix(a, b, (near - a.z) / (b.z - a.z));
-            if (keep) {
-                q0 = n == 0u ? x : q0;
-                q1 = n == 1u ? x : q1;
-                q2 = n == 2u ? x : q2;
-                q3 = n == 3u ? x : q3;
-                n++;
-            }
-        }
+        vec3 a = v[i], b = v[(i + 1u) % 3u];
+        bool ain = a.z >= near, bin = b.z >= near;
+        if (ain) append(a, q0, q1, q2, q3, n);
+        if (ain != bin) append(mix(a, b, (near - a.z) / (b.z - a.z)), q0, q1, q2, q3, n);
     }
     vec3 s0 = to_screen(q0);
     for (uint sub = 0u; sub < n - 2u; sub++) {
