@@ -720,6 +720,79 @@ fn switching_transmission_off_and_on_records_the_matching_passes() {
     assert_eq!(with.irradiance, again.irradiance);
 }
 
+/// Catches: a diffusion pipeline left with the sample pattern of the kernel's first params.
+/// With one region and at most `pack::MAX_UNIFORM_SAMPLES` samples the diffusion holds the
+/// pattern (and its sample count) as specialization constants, so `set_params` must build it
+/// again when the count changes. One kernel on a plane lit off centre by a point light, its
+/// sample count changed 8 -> 32 (constants) -> 48 (the pattern image) -> 8: each frame's
+/// diffusion equals the CPU twin at that count, and each differs from the count before it.
+#[test]
+fn changing_the_sample_count_rebuilds_the_diffusion_with_its_pattern() {
+    let p = profile(ProfileKind::Dipole);
+    let rmax = p.max_radius() as f32;
+    let geo = TexGeometry::build(&plane_mesh(4.0 * rmax, 4.0 * rmax, 4).unwrap(), 64, 1.0).unwrap();
+    let lights = [Light::Point {
+        pos: Vec3::new(0.5 * rmax, 0.2 * rmax, 0.5 * rmax),
+        i: 1.0e3,
+    }];
+    let counts = [8, 32, 48, 8];
+    let with = |samples| SamplerParams {
+        samples,
+        ..Default::default()
+    };
+    let outs = common::with_gpu(|ctx| {
+        let mut setup = ctx.recorder("sss setup")?;
+        let mut kernel = SssKernel::new(&mut setup, &geo, &p, with(counts[0]))?;
+        setup.submit_and_wait()?;
+        let mut outs = Vec::new();
+        for samples in counts {
+            let mut rec = ctx.recorder("sss params")?;
+            kernel.set_params(&mut rec, with(samples))?;
+            rec.submit_and_wait()?;
+            run_frames(ctx, &kernel, [&lights[..]], 1, |r| {
+                outs.push(r.output);
+                Ok(())
+            })?;
+        }
+        Ok(outs)
+    });
+    let covered: Vec<usize> = (0..geo.texels())
+        .filter(|&i| geo.pos[i][3] == COVERED)
+        .collect();
+    assert!(covered.len() > 3000);
+    let regions = Regions::from(&p);
+    let mut last: Option<&[[f32; 4]]> = None;
+    for (out, samples) in outs.iter().zip(counts) {
+        let twin = cpu::diffusion(&geo, &regions, &out.irradiance, &with(samples));
+        let (mut worst, mut moved) = (0f32, 0f32);
+        for &i in &covered {
+            for c in 0..3 {
+                let b = out.diffuse[i][c];
+                let scale = b.max(1e-3 * p.r_tot[c] as f32);
+                worst = worst.max((b - twin[i][c]).abs() / scale);
+                if let Some(prev) = last {
+                    moved = moved.max((b - prev[i][c]).abs() / scale);
+                }
+            }
+        }
+        eprintln!("{samples} samples: GPU vs twin {worst:.2e}");
+        // The same pattern and arithmetic: f32 rounding only (measured 0 at every count).
+        assert!(
+            worst <= 1e-5,
+            "{samples} samples: GPU vs twin off by {worst}"
+        );
+        // Another count is another pattern: a frame that kept the last one would match it.
+        if last.is_some() {
+            eprintln!("{samples} samples: {moved:.3} from the count before");
+            assert!(
+                moved > 1e-3,
+                "{samples} samples: the same diffusion as before"
+            );
+        }
+        last = Some(&out.diffuse);
+    }
+}
+
 /// Catches: `SssKernel::update_geometry` made a no-op (or uploading only some of the
 /// geometry). The kernel is built for a square plane, then the next frame's geometry (the
 /// same triangles and UVs, stretched 2:1 in 3D) is uploaded and lit by a point light off

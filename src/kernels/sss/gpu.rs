@@ -140,6 +140,8 @@ struct Resources {
     /// BVH table's `TRI_BASE` (the room's node rows, whole) and `ROW_SEGMENTS`
     /// ([`Room::row_segments`]).
     constants: [(&'static str, u32); 2],
+    /// The diffusion's besides, from the sample pattern ([`Pattern::constants`]).
+    pattern_constants: Vec<(String, u32)>,
     /// The skin regions' sample patterns, RGBA32F, one texel per sample, two rows a region
     /// ([`Pattern::texels`]; lavapipe loads a uniform buffer at a loop index lane by lane: a
     /// vec4 from it cost more than the irradiance gather of a sample).
@@ -219,10 +221,38 @@ fn rgba32f(size: [u32; 2]) -> ImageDesc {
     float_image(vk::Format::R32G32B32A32_SFLOAT, size)
 }
 
+/// The specialization constants of the diffusion's stages: the kernel's (`base`) and those of
+/// a sample pattern ([`Pattern::constants`]).
+fn diffusion_constants<'a>(
+    base: &[(&'static str, u32)],
+    pattern: &'a [(String, u32)],
+) -> Vec<(&'a str, u32)> {
+    let own = pattern.iter().map(|(n, v)| (n.as_str(), *v));
+    base.iter().copied().chain(own).collect()
+}
+
 impl Resources {
     /// The first texel of the BVH table's triangles.
     fn tri_base(&self) -> u32 {
         self.constants[0].1
+    }
+
+    /// Records the upload of `pattern` (the image's rows for `regions`) and keeps its
+    /// constants (for the diffusion's pipelines built after).
+    fn upload_pattern(
+        &mut self,
+        rec: &mut Recorder,
+        pattern: &Pattern,
+        regions: &Regions,
+    ) -> Result<()> {
+        rec.upload_image_rows(&self.sample_pattern, &pattern.texels(regions))?;
+        self.pattern_constants = pattern.constants();
+        Ok(())
+    }
+
+    /// The specialization constants of the diffusion's stages for the uploaded pattern.
+    fn diffusion_constants(&self) -> Vec<(&str, u32)> {
+        diffusion_constants(&self.constants, &self.pattern_constants)
     }
 
     /// Creates the images and buffers `room` asks for, the pattern image with rows for
@@ -249,6 +279,7 @@ impl Resources {
                 ("TRI_BASE", room.bvh_node_rows * BVH_ROW),
                 ("ROW_SEGMENTS", room.row_segments()),
             ],
+            pattern_constants: Vec::new(),
             sample_pattern: image(
                 "sss sample pattern",
                 rgba32f([PATTERN_WIDTH, 2 * regions.clamp(1, MAX_REGIONS) as u32]),
@@ -773,8 +804,9 @@ impl SssKernel {
             packed.size,
             packed.triangles,
         );
-        let res = Resources::new(&ctx, &room, regions.len(), reach.len())?;
-        let stage = |name, writes: &[&str]| Stage::new(&ctx, name, &res, writes);
+        let mut res = Resources::new(&ctx, &room, regions.len(), reach.len())?;
+        let pattern = Pattern::new(&regions, params.samples);
+        res.upload_pattern(rec, &pattern, &regions)?;
         let vertex_light = Switched::from_table(
             &ctx,
             "sss/vertex_light",
@@ -789,10 +821,12 @@ impl SssKernel {
             &["trans", "pe"],
             &res.constants,
         )?;
-        let diffusion_rgb = stage("sss/diffusion", &["diffuse"])?;
-        let diffusion_grey = stage("sss/diffusion_grey", &["diffuse"])?;
-        let pattern = Pattern::new(&regions, params.samples);
-        rec.upload_image_rows(&res.sample_pattern, &pattern.texels(&regions))?;
+        let diffusion = |name| {
+            let constants = res.diffusion_constants();
+            Stage::from_table(&ctx, name, &res.by_binding(), &["diffuse"], &constants)
+        };
+        let diffusion_rgb = diffusion("sss/diffusion")?;
+        let diffusion_grey = diffusion("sss/diffusion_grey")?;
         rec.upload(&res.region_tails, 0, &pack::region_tails(&regions))?;
         let vertex_regions: Vec<u32> = regions
             .of_vertices(&geo.triangles, geo.positions.len())
@@ -1060,9 +1094,36 @@ impl SssKernel {
     /// Changes the sampler settings: records the upload of the new sample sequence.
     pub fn set_params(&mut self, rec: &mut Recorder, params: SamplerParams) -> Result<()> {
         params.check()?;
+        let pattern = Pattern::new(&self.settings.regions, params.samples);
+        // The diffusion's stages hold the pattern's constants: built again where they change,
+        // before anything is recorded (an error leaves the kernel as it was).
+        let pattern_constants = pattern.constants();
+        let rebuilt = if pattern_constants != self.res.pattern_constants {
+            let constants = diffusion_constants(&self.res.constants, &pattern_constants);
+            let stage = |name| {
+                let table = self.res.by_binding();
+                Stage::from_table(&self.ctx, name, &table, &["diffuse"], &constants)
+            };
+            let env = match &self.env {
+                Some(env) => {
+                    Some(self.env_diffusion(&env.image, self.needed.is_some(), &constants)?)
+                }
+                None => None,
+            };
+            Some((stage("sss/diffusion")?, stage("sss/diffusion_grey")?, env))
+        } else {
+            None
+        };
+        self.res
+            .upload_pattern(rec, &pattern, &self.settings.regions)?;
+        if let Some((rgb, grey, env)) = rebuilt {
+            self.diffusion_rgb = rgb;
+            self.diffusion_grey = grey;
+            if let (Some(e), Some(d)) = (&mut self.env, env) {
+                e.diffusion = d;
+            }
+        }
         let s = &mut self.settings;
-        let pattern = Pattern::new(&s.regions, params.samples);
-        rec.upload_image_rows(&self.res.sample_pattern, &pattern.texels(&s.regions))?;
         s.reach_radius = pattern.radius();
         if s.params.transmission && !params.transmission {
             self.res.clear_transmission(rec)?;
@@ -1149,7 +1210,11 @@ impl SssKernel {
         let irradiance =
             Irradiance::from_table(&ctx, shader, &table, &["trans", "penv"], &constants)?;
         drop(table);
-        let diffusion = self.env_diffusion(&image, self.needed.is_some())?;
+        let diffusion = self.env_diffusion(
+            &image,
+            self.needed.is_some(),
+            &self.res.diffusion_constants(),
+        )?;
         let listed = match &self.reach {
             Some(_) => Some(self.listed_irradiance(buffer, &vertex_texels, &image)?),
             None => None,
@@ -1289,14 +1354,19 @@ impl SssKernel {
 
     /// The diffusion stage of the per-vertex irradiance's rgb E (`image`), on every occupied
     /// segment or, `listed`, on those of the needed list (`sss needed list`).
-    fn env_diffusion(&self, image: &Image, listed: bool) -> Result<Stage> {
+    fn env_diffusion(
+        &self,
+        image: &Image,
+        listed: bool,
+        constants: &[(&str, u32)],
+    ) -> Result<Stage> {
         let table = self.table_with([("penv", Resource::storage_image(image))]);
         let shader = if listed {
             "sss/diffusion_env_listed"
         } else {
             "sss/diffusion_env"
         };
-        Stage::from_table(&self.ctx, shader, &table, &["diffuse"], &self.res.constants)
+        Stage::from_table(&self.ctx, shader, &table, &["diffuse"], constants)
     }
 
     /// Bytes of a needed-segment bitmap for this kernel's atlas
@@ -1332,7 +1402,11 @@ impl SssKernel {
                 self.needed_segment_bytes()
             )));
         }
-        let diffusion = self.env_diffusion(&env.image, needed.is_some())?;
+        let diffusion = self.env_diffusion(
+            &env.image,
+            needed.is_some(),
+            &self.res.diffusion_constants(),
+        )?;
         self.needed = match needed {
             Some(bitmap) => {
                 let table = self.table_with([("needed", Resource::Buffer(bitmap))]);

@@ -201,6 +201,11 @@ pub struct Pattern {
 /// Texels per row of the pattern image (the most samples a texel takes).
 pub const PATTERN_WIDTH: u32 = 4096;
 
+/// The most samples whose pattern the diffusion takes as specialization constants
+/// (glsl/common/sss_diffusion.glsl `MAX_UNIFORM_SAMPLES`): with one region and at most this
+/// many samples the loop over them is unrolled ([`Pattern::constants`]).
+pub const MAX_UNIFORM_SAMPLES: usize = 32;
+
 impl Pattern {
     pub fn new(regions: &Regions, samples: u32) -> Pattern {
         Pattern {
@@ -225,6 +230,35 @@ impl Pattern {
             .flat_map(|(texels, _)| texels)
             .map(|t| t[0].hypot(t[1]))
             .fold(0.0, f32::max)
+    }
+
+    /// The diffusion's specialization constant `UNIFORM_SAMPLES`: the sample count where the
+    /// pattern is one region's of at most [`MAX_UNIFORM_SAMPLES`] samples (the shader then
+    /// takes the pattern as constants, [`Pattern::constants`], in a loop it unrolls), else 0
+    /// (it reads the image's rows at the texel's region).
+    pub fn uniform_samples(&self) -> u32 {
+        match self.regions.as_slice() {
+            [(texels, _)] if (1..=MAX_UNIFORM_SAMPLES).contains(&texels.len()) => {
+                texels.len() as u32
+            }
+            _ => 0,
+        }
+    }
+
+    /// The diffusion's specialization constants for this pattern
+    /// (glsl/common/sss_diffusion.glsl): `UNIFORM_SAMPLES` ([`Pattern::uniform_samples`]) and,
+    /// where that is set, sample s's entry as `PAT_Xs`, `PAT_Ys`, `PAT_Zs`, `PAT_Ws` (f32 bits).
+    pub fn constants(&self) -> Vec<(String, u32)> {
+        let n = self.uniform_samples();
+        let mut out = vec![("UNIFORM_SAMPLES".to_string(), n)];
+        if n > 0 {
+            for (s, texel) in self.regions[0].0.iter().enumerate() {
+                for (c, v) in ["X", "Y", "Z", "W"].iter().zip(texel) {
+                    out.push((format!("PAT_{c}{s}"), v.to_bits()));
+                }
+            }
+        }
+        out
     }
 
     /// The image's texels, rows [`PATTERN_WIDTH`] wide, for `regions` (R_tot per region).
