@@ -1091,7 +1091,10 @@ impl SssKernel {
         &self.settings.params
     }
 
-    /// Changes the sampler settings: records the upload of the new sample sequence.
+    /// Changes the sampler settings: records the upload of the new sample sequence. Where
+    /// the diffusion holds the pattern as constants (one region, at most
+    /// [`pack::MAX_UNIFORM_SAMPLES`] samples, before or after), a new pattern also builds the
+    /// diffusion's pipelines again.
     pub fn set_params(&mut self, rec: &mut Recorder, params: SamplerParams) -> Result<()> {
         params.check()?;
         let pattern = Pattern::new(&self.settings.regions, params.samples);
