@@ -722,10 +722,12 @@ fn switching_transmission_off_and_on_records_the_matching_passes() {
 
 /// Catches: a diffusion pipeline left with the sample pattern of the kernel's first params.
 /// With one region and at most `pack::MAX_UNIFORM_SAMPLES` samples the diffusion holds the
-/// pattern (and its sample count) as specialization constants, so `set_params` must build it
-/// again when the count changes. One kernel on a plane lit off centre by a point light, its
-/// sample count changed 8 -> 32 (constants) -> 48 (the pattern image) -> 8: each frame's
-/// diffusion equals the CPU twin at that count, and each differs from the count before it.
+/// pattern (and its sample count) as specialization constants, so `set_params` must build its
+/// pipelines again when the count changes: the grey one (after the irradiance pass), the rgb
+/// one (an uploaded irradiance) and that of a per-vertex irradiance. One kernel per pipeline
+/// on a plane lit off centre by a point light, its sample count changed 8 -> 32 (constants)
+/// -> 48 (the pattern image) -> 8: each frame's diffusion equals the CPU twin at that count,
+/// and each differs from the count before it.
 #[test]
 fn changing_the_sample_count_rebuilds_the_diffusion_with_its_pattern() {
     let p = profile(ProfileKind::Dipole);
@@ -735,24 +737,47 @@ fn changing_the_sample_count_rebuilds_the_diffusion_with_its_pattern() {
         pos: Vec3::new(0.5 * rmax, 0.2 * rmax, 0.5 * rmax),
         i: 1.0e3,
     }];
+    let uploaded = cpu::irradiance(
+        &geo,
+        &Bvh::build(&geo.positions, &geo.triangles),
+        &lights,
+        true,
+    );
+    let ve = vertex_irradiance(&geo);
     let counts = [8, 32, 48, 8];
     let with = |samples| SamplerParams {
         samples,
         ..Default::default()
     };
+    let paths = ["grey", "rgb", "per-vertex"];
     let outs = common::with_gpu(|ctx| {
-        let mut setup = ctx.recorder("sss setup")?;
-        let mut kernel = SssKernel::new(&mut setup, &geo, &p, with(counts[0]))?;
-        setup.submit_and_wait()?;
         let mut outs = Vec::new();
-        for samples in counts {
-            let mut rec = ctx.recorder("sss params")?;
-            kernel.set_params(&mut rec, with(samples))?;
-            rec.submit_and_wait()?;
-            run_frames(ctx, &kernel, [&lights[..]], 1, |r| {
-                outs.push(r.output);
-                Ok(())
-            })?;
+        for path in paths {
+            let mut setup = ctx.recorder("sss setup")?;
+            let mut kernel = SssKernel::new(&mut setup, &geo, &p, with(counts[0]))?;
+            let buffer = vertex_buffer(&mut setup, &ve)?;
+            if path == "per-vertex" {
+                kernel.set_vertex_irradiance(&mut setup, Some(&buffer))?;
+            }
+            setup.submit_and_wait()?;
+            for samples in counts {
+                let mut rec = ctx.recorder("sss params")?;
+                kernel.set_params(&mut rec, with(samples))?;
+                rec.submit_and_wait()?;
+                if path == "rgb" {
+                    let mut rec = ctx.recorder("sss uploaded diffusion")?;
+                    kernel.upload_irradiance(&mut rec, &uploaded)?;
+                    kernel.record_diffusion(&mut rec)?;
+                    let rb = kernel.read_back(&mut rec)?;
+                    rec.submit_and_wait()?;
+                    outs.push(kernel.collect(&rb)?);
+                } else {
+                    run_frames(ctx, &kernel, [&lights[..]], 1, |r| {
+                        outs.push(r.output);
+                        Ok(())
+                    })?;
+                }
+            }
         }
         Ok(outs)
     });
@@ -761,35 +786,37 @@ fn changing_the_sample_count_rebuilds_the_diffusion_with_its_pattern() {
         .collect();
     assert!(covered.len() > 3000);
     let regions = Regions::from(&p);
-    let mut last: Option<&[[f32; 4]]> = None;
-    for (out, samples) in outs.iter().zip(counts) {
-        let twin = cpu::diffusion(&geo, &regions, &out.irradiance, &with(samples));
-        let (mut worst, mut moved) = (0f32, 0f32);
-        for &i in &covered {
-            for c in 0..3 {
-                let b = out.diffuse[i][c];
-                let scale = b.max(1e-3 * p.r_tot[c] as f32);
-                worst = worst.max((b - twin[i][c]).abs() / scale);
-                if let Some(prev) = last {
-                    moved = moved.max((b - prev[i][c]).abs() / scale);
+    for (path, runs) in paths.iter().zip(outs.chunks(counts.len())) {
+        let mut last: Option<&[[f32; 4]]> = None;
+        for (out, samples) in runs.iter().zip(counts) {
+            let twin = cpu::diffusion(&geo, &regions, &out.irradiance, &with(samples));
+            let (mut worst, mut moved) = (0f32, 0f32);
+            for &i in &covered {
+                for c in 0..3 {
+                    let b = out.diffuse[i][c];
+                    let scale = b.max(1e-3 * p.r_tot[c] as f32);
+                    worst = worst.max((b - twin[i][c]).abs() / scale);
+                    if let Some(prev) = last {
+                        moved = moved.max((b - prev[i][c]).abs() / scale);
+                    }
                 }
             }
-        }
-        eprintln!("{samples} samples: GPU vs twin {worst:.2e}");
-        // The same pattern and arithmetic: f32 rounding only (measured 0 at every count).
-        assert!(
-            worst <= 1e-5,
-            "{samples} samples: GPU vs twin off by {worst}"
-        );
-        // Another count is another pattern: a frame that kept the last one would match it.
-        if last.is_some() {
-            eprintln!("{samples} samples: {moved:.3} from the count before");
+            eprintln!("{path}, {samples} samples: GPU vs twin {worst:.2e}");
+            // The same pattern and arithmetic: f32 rounding only (measured 0 at every count).
             assert!(
-                moved > 1e-3,
-                "{samples} samples: the same diffusion as before"
+                worst <= 1e-5,
+                "{path}, {samples} samples: GPU vs twin off by {worst}"
             );
+            // Another count is another pattern: a frame that kept the last one would match it.
+            if last.is_some() {
+                eprintln!("{path}, {samples} samples: {moved:.3} from the count before");
+                assert!(
+                    moved > 1e-3,
+                    "{path}, {samples} samples: the same diffusion as before"
+                );
+            }
+            last = Some(&out.diffuse);
         }
-        last = Some(&out.diffuse);
     }
 }
 

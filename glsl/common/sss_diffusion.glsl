@@ -41,7 +41,8 @@ layout(set = 0, binding = 3, rgba32ui) readonly uniform uimage2D contact;
 // per channel R_tot (the untruncated total), texel 1 the sum of each channel's weights over
 // its pattern (pack::Pattern::texels). A texel diffuses with its triangle's region's (the
 // exit point's profile). An image: lavapipe loads a uniform buffer at the loop index lane by
-// lane, component by component.
+// lane, component by component. With the pattern as constants (UNIFORM_SAMPLES, below) only
+// row 1 is read here.
 layout(set = 0, binding = 5, rgba32f) readonly uniform image2D seq;
 // With one region and at most MAX_UNIFORM_SAMPLES samples (SssKernel sets them; 0
 // otherwise): the sample count, and the pattern is region 0's row as specialization
@@ -65,8 +66,8 @@ PATTERN_SAMPLE(18) PATTERN_SAMPLE(19) PATTERN_SAMPLE(20) PATTERN_SAMPLE(21) PATT
 PATTERN_SAMPLE(24) PATTERN_SAMPLE(25) PATTERN_SAMPLE(26) PATTERN_SAMPLE(27) PATTERN_SAMPLE(28) PATTERN_SAMPLE(29)
 PATTERN_SAMPLE(30) PATTERN_SAMPLE(31)
 #define PAT(s) vec4(PAT_X##s, PAT_Y##s, PAT_Z##s, PAT_W##s)
-// Entry s of that pattern: a select per entry, folded to the constant itself where s is
-// one (the unrolled loop's).
+// Entry s of that pattern: a select per entry, folded to the constant itself where s is a
+// constant (the unrolled loop's).
 vec4 pattern_entry(uint s) {
     vec4 q = vec4(0.0);
 #define PAT_CASE(k) if (s == uint(k)) q = PAT(k);

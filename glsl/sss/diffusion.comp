@@ -1,9 +1,11 @@
 #version 450
 // Texture-space subsurface diffusion, importance sampled, one sample set for the three
-// channels (one-sample MIS over channels, as pbrt-v3's BSSRDF sampling). The pattern comes
-// from an image computed on the CPU (cpu::sample_pattern): radii r_s stratified over the
-// mixture pdf p = mean_c p_c, per-channel weights w_c(r_s) = p_c(r_s) / p(r_s), directions on
-// the golden-angle spiral; each texel turns the whole pattern by its own hashed angle.
+// channels (one-sample MIS over channels, as pbrt-v3's BSSRDF sampling). The pattern is
+// computed on the CPU (cpu::sample_pattern) and read from an image, or compiled in as
+// specialization constants (one region, at most 32 samples: glsl/common/sss_diffusion.glsl
+// UNIFORM_SAMPLES): radii r_s stratified over the mixture pdf p = mean_c p_c, per-channel
+// weights w_c(r_s) = p_c(r_s) / p(r_s), directions on the golden-angle spiral; each texel
+// turns the whole pattern by its own hashed angle.
 // A sample is an offset r (cos phi, sin phi) in the plane of the receiver's triangle:
 // inside the triangle it is read through the triangle's UV map (the circle becomes its
 // ellipse: the deformation correction, exact for the current pose; area is accounted for

@@ -140,11 +140,14 @@ struct Resources {
     /// BVH table's `TRI_BASE` (the room's node rows, whole) and `ROW_SEGMENTS`
     /// ([`Room::row_segments`]).
     constants: [(&'static str, u32); 2],
-    /// The diffusion's besides, from the sample pattern ([`Pattern::constants`]).
+    /// The diffusion's specialization constants from the sample pattern
+    /// ([`Pattern::constants`]), besides those.
     pattern_constants: Vec<(String, u32)>,
     /// The skin regions' sample patterns, RGBA32F, one texel per sample, two rows a region
     /// ([`Pattern::texels`]; lavapipe loads a uniform buffer at a loop index lane by lane: a
-    /// vec4 from it cost more than the irradiance gather of a sample).
+    /// vec4 from it cost more than the irradiance gather of a sample). Where the diffusion
+    /// holds the pattern as constants (one region, at most [`pack::MAX_UNIFORM_SAMPLES`]
+    /// samples) it reads only the region's R_tot and weight totals here.
     sample_pattern: Image,
     /// The regions' transmission tails ([`pack::region_tails`]), a uniform buffer, and each
     /// vertex's region ([`Regions::of_vertices`], a u32 each).
@@ -231,26 +234,26 @@ fn diffusion_constants<'a>(
     base.iter().copied().chain(own).collect()
 }
 
+/// The diffusion's stages over every occupied segment, with `constants`
+/// ([`diffusion_constants`]): of a caller's rgb irradiance (two gathers a sample) and of the
+/// irradiance pass's grey E (one).
+fn diffusion_stages(
+    ctx: &Context,
+    res: &Resources,
+    constants: &[(&str, u32)],
+) -> Result<(Stage, Stage)> {
+    let table = res.by_binding();
+    let stage = |name| Stage::from_table(ctx, name, &table, &["diffuse"], constants);
+    Ok((stage("sss/diffusion")?, stage("sss/diffusion_grey")?))
+}
+
 impl Resources {
     /// The first texel of the BVH table's triangles.
     fn tri_base(&self) -> u32 {
         self.constants[0].1
     }
 
-    /// Records the upload of `pattern` (the image's rows for `regions`) and keeps its
-    /// constants (for the diffusion's pipelines built after).
-    fn upload_pattern(
-        &mut self,
-        rec: &mut Recorder,
-        pattern: &Pattern,
-        regions: &Regions,
-    ) -> Result<()> {
-        rec.upload_image_rows(&self.sample_pattern, &pattern.texels(regions))?;
-        self.pattern_constants = pattern.constants();
-        Ok(())
-    }
-
-    /// The specialization constants of the diffusion's stages for the uploaded pattern.
+    /// The specialization constants of the diffusion's stages for the pattern uploaded.
     fn diffusion_constants(&self) -> Vec<(&str, u32)> {
         diffusion_constants(&self.constants, &self.pattern_constants)
     }
@@ -806,7 +809,8 @@ impl SssKernel {
         );
         let mut res = Resources::new(&ctx, &room, regions.len(), reach.len())?;
         let pattern = Pattern::new(&regions, params.samples);
-        res.upload_pattern(rec, &pattern, &regions)?;
+        rec.upload_image_rows(&res.sample_pattern, &pattern.texels(&regions))?;
+        res.pattern_constants = pattern.constants();
         let vertex_light = Switched::from_table(
             &ctx,
             "sss/vertex_light",
@@ -821,12 +825,8 @@ impl SssKernel {
             &["trans", "pe"],
             &res.constants,
         )?;
-        let diffusion = |name| {
-            let constants = res.diffusion_constants();
-            Stage::from_table(&ctx, name, &res.by_binding(), &["diffuse"], &constants)
-        };
-        let diffusion_rgb = diffusion("sss/diffusion")?;
-        let diffusion_grey = diffusion("sss/diffusion_grey")?;
+        let (diffusion_rgb, diffusion_grey) =
+            diffusion_stages(&ctx, &res, &res.diffusion_constants())?;
         rec.upload(&res.region_tails, 0, &pack::region_tails(&regions))?;
         let vertex_regions: Vec<u32> = regions
             .of_vertices(&geo.triangles, geo.positions.len())
@@ -1099,26 +1099,29 @@ impl SssKernel {
         params.check()?;
         let pattern = Pattern::new(&self.settings.regions, params.samples);
         // The diffusion's stages hold the pattern's constants: built again where they change,
-        // before anything is recorded (an error leaves the kernel as it was).
+        // before anything is recorded, so that a pipeline that fails to build leaves the
+        // kernel as it was.
         let pattern_constants = pattern.constants();
         let rebuilt = if pattern_constants != self.res.pattern_constants {
             let constants = diffusion_constants(&self.res.constants, &pattern_constants);
-            let stage = |name| {
-                let table = self.res.by_binding();
-                Stage::from_table(&self.ctx, name, &table, &["diffuse"], &constants)
-            };
+            let (rgb, grey) = diffusion_stages(&self.ctx, &self.res, &constants)?;
             let env = match &self.env {
                 Some(env) => {
                     Some(self.env_diffusion(&env.image, self.needed.is_some(), &constants)?)
                 }
                 None => None,
             };
-            Some((stage("sss/diffusion")?, stage("sss/diffusion_grey")?, env))
+            Some((rgb, grey, env))
         } else {
             None
         };
-        self.res
-            .upload_pattern(rec, &pattern, &self.settings.regions)?;
+        if self.settings.params.transmission && !params.transmission {
+            self.res.clear_transmission(rec)?;
+        }
+        rec.upload_image_rows(
+            &self.res.sample_pattern,
+            &pattern.texels(&self.settings.regions),
+        )?;
         if let Some((rgb, grey, env)) = rebuilt {
             self.diffusion_rgb = rgb;
             self.diffusion_grey = grey;
@@ -1126,11 +1129,9 @@ impl SssKernel {
                 e.diffusion = d;
             }
         }
+        self.res.pattern_constants = pattern_constants;
         let s = &mut self.settings;
         s.reach_radius = pattern.radius();
-        if s.params.transmission && !params.transmission {
-            self.res.clear_transmission(rec)?;
-        }
         s.params = params;
         Ok(())
     }

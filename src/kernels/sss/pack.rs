@@ -644,6 +644,43 @@ mod tests {
         }
     }
 
+    /// Every constant of a pattern the diffusion takes as constants is declared, under its
+    /// name, by the four diffusion shaders (the pipelines set only the constants a shader
+    /// declares, so a name the shaders lack would be dropped without a word); more samples
+    /// than that, or two regions, keep the pattern image (`UNIFORM_SAMPLES` 0).
+    #[test]
+    fn pattern_constants_are_the_diffusion_shaders_own() {
+        let one = profile();
+        let p = Pattern::new(&one, MAX_UNIFORM_SAMPLES as u32);
+        let constants = p.constants();
+        assert_eq!(constants.len(), 1 + 4 * MAX_UNIFORM_SAMPLES);
+        assert_eq!(
+            constants[0],
+            ("UNIFORM_SAMPLES".into(), MAX_UNIFORM_SAMPLES as u32)
+        );
+        for name in [
+            "sss/diffusion",
+            "sss/diffusion_grey",
+            "sss/diffusion_env",
+            "sss/diffusion_env_listed",
+        ] {
+            let spirv = crate::shaders::spirv(name).unwrap();
+            let shader = crate::gpu::Shader::from_spirv(name, spirv).unwrap();
+            for (c, _) in &constants {
+                assert!(
+                    shader.spec_constants.iter().any(|s| &s.name == c),
+                    "{name} does not declare {c}"
+                );
+            }
+        }
+        let more = Pattern::new(&one, MAX_UNIFORM_SAMPLES as u32 + 1);
+        assert_eq!(more.constants(), vec![("UNIFORM_SAMPLES".into(), 0)]);
+        let p2 = one.profile(0).clone();
+        let two = Regions::new(vec![p2.clone(), p2], vec![0, 1]).unwrap();
+        let regions = Pattern::new(&two, 8);
+        assert_eq!(regions.constants(), vec![("UNIFORM_SAMPLES".into(), 0)]);
+    }
+
     /// The reach's shaders number the blocks as the host does.
     #[test]
     fn reach_shaders_agree_with_the_host() {
