@@ -49,8 +49,8 @@ layout(set = 0, binding = 5, rgba32f) readonly uniform image2D seq;
 // constants, read in a loop of that fixed count, unrolled. The pattern's entries are then
 // constants compiled into the loop instead of an image gather at each lane's row for every
 // sample (`bench frame`, fastest of 4 alternated runs, 32 samples: 3.07 -> 2.17 ms; from a
-// uniform buffer at the unrolled loop's constant offsets, 2.82: lavapipe loads it lane by
-// lane). Sample s is (PAT_Xs, PAT_Ys, PAT_Zs, PAT_Ws), constant_id 32 + 4 s + component
+// uniform buffer at the unrolled loop's constant offsets, 2.82: the constants folded into the
+// arithmetic save more than the gather). Sample s is (PAT_Xs, PAT_Ys, PAT_Zs, PAT_Ws), constant_id 32 + 4 s + component
 // (kernels::sss::pack::Pattern::constants).
 layout(constant_id = 19) const uint UNIFORM_SAMPLES = 0u;
 const uint MAX_UNIFORM_SAMPLES = 32u; // pack::MAX_UNIFORM_SAMPLES
