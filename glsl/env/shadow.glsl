@@ -2,9 +2,8 @@
 // src/kernels/env/mod.rs for the method; kernels::env::cpu::shadow_vertex is the twin, step
 // for step). Per lobe j: the product lobe P_j = G_j x cosine SG; for every sphere of AO's cut
 // (the walk of glsl/ao/occlusion.comp: refinement, blend weights, inside fade) above the
-// horizon, the fraction O_js of P_j inside the sphere's cap (table lookup, or centre value x
-// solid angle for caps under 0.3 lobe widths, blended to 0.4) times the cap's share above the
-// horizon. The caps' visibility of lobe j is C_j = prod_s (1 - O_js)^w_s (log space; with
+// horizon, the fraction O_js of P_j inside the sphere's cap (a table lookup, small caps and
+// large alike) times the cap's share above the horizon. The caps' visibility of lobe j is C_j = prod_s (1 - O_js)^w_s (log space; with
 // ENV_RAYS a product of 1 - w_s (1 - (1 - O_js)), the weighted factor linear in w_s).
 // Module env/shadow: V_j = clamp(A(x) C_j / prod_s (1 - I_s)^w_s, 0, 1), I_s AO's per-sphere
 // cosine-weighted occlusion and A(x) the visibility bound as `ao` (AO's).
@@ -98,9 +97,6 @@ const uint N_ALPHA = 49u;
 const uint N_S = 65u;
 const float S_MAX = 8.0;
 const float FRAC_2_PI = 0.636619772367581;
-// kernels::env::pack::{SMALL_CAP, SMALL_CAP_BAND}.
-const float SMALL_CAP = 0.3;
-const float SMALL_CAP_BAND = 0.1;
 
 // As kernels::ao::cpu::refinement.
 float refinement(float size, float d, float tau, float band) {
@@ -110,31 +106,32 @@ float refinement(float size, float d, float tau, float band) {
     return t < 1.0 ? 1.0 : 0.0;
 }
 
-// The lobe's terms of cap_occlusion and the cap table's lookup, taken once per lobe
-// (kernels::env::pack::{cap_occlusion, CapTable::lookup}, the same operations):
-// sqrt(lambda), sqrt(max(lambda, 4)), lambda / (1 - e^(-2 lambda)), and the lambda axis' row
-// offset and fraction.
+// The lobe's terms of the cap table's lookup, taken once per lobe
+// (kernels::env::pack::CapTable::lookup, the same operations): sqrt(max(lambda, 4)),
+// max(lambda, 1) and the lambda axis' row offset.
 struct LobeTerms {
-    float sl;
     float sq4;
-    float norm;
+    float l1;
     int row;
 };
 
 LobeTerms lobe_terms(float lambda) {
     LobeTerms l;
-    l.sl = sqrt(lambda);
     l.sq4 = sqrt(max(lambda, 4.0));
-    l.norm = lambda / (1.0 - exp(-2.0 * lambda));
+    l.l1 = max(lambda, 1.0);
     float x = clamp((log2(lambda) - LOG_MIN) / (LOG_MAX - LOG_MIN), 0.0, 1.0) * float(N_LAMBDA - 1u);
     uint i = min(uint(x + 0.5), N_LAMBDA - 1u);
     l.row = int(i * (N_ALPHA - 1u));
     return l;
 }
 
-// Fraction of a unit SG (terms lt) inside a cap of half-angle alpha (the alpha axis' cell
-// ja, fraction fy) at angle gamma from its axis: kernels::env::pack::CapTable::lookup.
-float cap_lookup(LobeTerms lt, float gamma, float alpha, int ja, float fy) {
+// Fraction of a unit SG (terms lt) inside a cap of half-angle alpha (1 - cos alpha =
+// one_minus_cos_a; the alpha axis' cell ja, fraction fy) at angle gamma from its axis:
+// kernels::env::pack::CapTable::lookup. The table holds the fraction over m = x / (1 + x),
+// x = (1 - cos alpha) max(lambda, 1) (the cap's size against the lobe's), so that a small
+// cap's fraction, ~ x, interpolates as well as a large one's.
+float cap_lookup(LobeTerms lt, float gamma, float alpha, float one_minus_cos_a, int ja,
+                 float fy) {
     float s = (gamma - alpha) * lt.sq4;
     if (s >= S_MAX) return 0.0;
     float z = clamp((s + S_MAX) / (2.0 * S_MAX), 0.0, 1.0) * float(N_S - 1u);
@@ -144,7 +141,8 @@ float cap_lookup(LobeTerms lt, float gamma, float alpha, int ja, float fy) {
     vec4 q = imageLoad(table, ivec2(k, lt.row + ja));
     float r0 = q.x + (q.y - q.x) * fz;
     float r1 = q.z + (q.w - q.z) * fz;
-    return r0 + (r1 - r0) * fy;
+    float m = one_minus_cos_a * lt.l1;
+    return (r0 + (r1 - r0) * fy) * (m / (1.0 + m));
 }
 
 // kernels::env::pack::acos_fast: acos within 6.7e-5 rad (Abramowitz and Stegun 4.4.45), for
@@ -157,15 +155,9 @@ float acos_fast(float x) {
 }
 
 // kernels::env::pack::cap_occlusion.
-float cap_occlusion(LobeTerms lt, float lambda, float cos_g, float alpha, float one_minus_cos_a,
-                    int ja, float fy) {
-    float t = clamp((alpha * lt.sl - SMALL_CAP) / SMALL_CAP_BAND, 0.0, 1.0);
-    float o = 0.0;
-    if (t < 1.0) {
-        o += (1.0 - t) * min(exp(lambda * (cos_g - 1.0)) * one_minus_cos_a * lt.norm, 1.0);
-    }
-    if (t > 0.0) o += t * cap_lookup(lt, acos_fast(clamp(cos_g, -1.0, 1.0)), alpha, ja, fy);
-    return o;
+float cap_occlusion(LobeTerms lt, float cos_g, float alpha, float one_minus_cos_a, int ja,
+                    float fy) {
+    return cap_lookup(lt, acos_fast(clamp(cos_g, -1.0, 1.0)), alpha, one_minus_cos_a, ja, fy);
 }
 
 // kernels::env::pack::above_horizon.
@@ -379,8 +371,8 @@ void main() {
             uint ja = min(uint(ya), N_ALPHA - 2u);
             float fy = ya - float(ja);
             [[unroll]] for (uint j = 0u; j < LOBES; ++j) {
-                float o = up * cap_occlusion(terms[j], prod[j].w, dot(prod[j].xyz, wc),
-                                             alpha, omc, int(ja), fy);
+                float o = up * cap_occlusion(terms[j], dot(prod[j].xyz, wc), alpha, omc,
+                                             int(ja), fy);
                 float f = max(1.0 - o, pc.min_transmission);
 #ifdef ENV_RAYS
                 acc[j] *= 1.0 - w * (1.0 - f);

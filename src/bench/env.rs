@@ -71,11 +71,11 @@ pub struct EnvBenchReport {
 }
 
 /// FLOP the model counts per cap-lobe lookup: the product lobe's angle to the cap (dot, a
-/// cubic acos), the small-cap closed form (exp, the normalisation), the table's s coordinate
-/// (clamps) and its bilinear blend (3 lerps), the horizon share, and the factor of the
-/// product (with traced rays; a log without). Transcendentals count as the few FMAs lavapipe
-/// expands them to (~8 each). The lobe's own terms (log2, sqrt) are taken once per lobe.
-pub const FLOP_PER_LOOKUP: f64 = 70.0;
+/// cubic acos), the table's s coordinate (clamps), its bilinear blend (3 lerps) and the cap's
+/// size against the lobe's (a division), the horizon share, and the factor of the product
+/// (with traced rays; a log without). Transcendentals count as the few FMAs lavapipe expands
+/// them to (~8 each). The lobe's own terms (log2, sqrt) are taken once per lobe.
+pub const FLOP_PER_LOOKUP: f64 = 52.0;
 /// FLOP per sphere of the cut: distance, refinement weight, the parent blend, AO's occlusion
 /// of the cap, its angle and horizon (asin, acos, sqrt), the log of its transmission.
 pub const FLOP_PER_CAP: f64 = 60.0;
@@ -87,9 +87,8 @@ pub const GATHERS_PER_LOOKUP: f64 = 1.0;
 /// `caps` caps above the horizon per vertex, and `lobes` lobes: FLOP (fma), and the cap
 /// table's loads (image_gather_coherent: the table, 7.1 MiB as quads, of which a lobe's sharpness row (49 KiB) is read, stays in the caches,
 /// which the random probe's large buffer does not; against the random buffer-gather rate the
-/// pass ran at 20x "its peak", when the table was a storage buffer). The table path is
-/// counted for every lookup: its blend weight is 0 only for caps under 0.3 lobe widths, and
-/// lavapipe's lanes run it when any lane of 8 needs it. The cut's sphere reads (a few per
+/// pass ran at 20x "its peak", when the table was a storage buffer). Every cap and lobe
+/// takes one lookup. The cut's sphere reads (a few per
 /// node, mostly shared by neighbouring vertices) and the per-vertex lobe setup are left out.
 pub fn roofline_terms(
     vertices: usize,

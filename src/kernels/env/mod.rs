@@ -10,9 +10,8 @@
 //!   the cap, exact as the 1D integral 2 pi int_0^a e^(lambda (cos(g - t) - 1))
 //!   i0e(lambda sin g sin t) sin t dt / int P_j, tabulated once over (log2 lambda, a,
 //!   (g - a) sqrt(lambda)) ([`pack::CapTable`]: bilinear in (a, s), the nearest of 8 samples
-//!   an octave in lambda); caps smaller than 0.3 lobe widths by the
-//!   lobe's value at their centre times their solid angle, blended into the table up to 0.4
-//!   ([`cap_occlusion`]). O_js is weighted by the cap's share above the horizon
+//!   an octave in lambda, the values over the cap's size against the lobe's so that small
+//!   caps and large take the same lookup; [`cap_occlusion`]). O_js is weighted by the cap's share above the horizon
 //!   ([`pack::above_horizon`]): light from below adds nothing, and a sinking cap fades out
 //!   instead of dropping out (no jump where AO's I_s reaches 0).
 //! - Caps combine by product: the caps' visibility of lobe j is C_j = prod_s (1 - O_js)^w_s

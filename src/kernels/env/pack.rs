@@ -57,9 +57,13 @@ pub const S_MAX: f32 = 8.0;
 /// The fraction of a unit SG (sharpness lambda) inside a cap of half-angle `a` whose axis is at
 /// angle `g` from the lobe's, tabulated over (log2 lambda, a, s = (g - a) sqrt(max(lambda,
 /// 4))): the last coordinate measures the lobe's distance from the cap's edge in lobe widths,
-/// so sharp lobes are resolved where they cross the edge. Values from [`cap_fraction`] (f64);
-/// lookups bilinear in (a, s) at the nearest lambda sample ([`CapTable::lookup`], as the
-/// shader does it).
+/// so sharp lobes are resolved where they cross the edge. Values from [`cap_fraction`] (f64),
+/// divided by the cap's size against the lobe's, m = x / (1 + x) with x = (1 - cos a)
+/// max(lambda, 1): a small cap's fraction grows as x (the lobe's value at its centre times
+/// its solid angle), which the a axis' linear steps would bend, and m divides that out; for a
+/// cap larger than the lobe m nears 1 and leaves the fraction, a function of the lobe's
+/// distance from the edge, as it is. So one lookup serves every cap size. Lookups bilinear in (a, s) at the nearest lambda sample, times m
+/// ([`CapTable::lookup`], as the shader does it).
 #[derive(Clone, Debug)]
 pub struct CapTable {
     /// [(l * N_ALPHA + a) * N_S + s].
@@ -73,7 +77,7 @@ impl Default for CapTable {
 }
 
 impl CapTable {
-    /// Computes the table (rayon; ~80 k entries, 24-node quadrature each).
+    /// Computes the table (rayon; ~460 k entries, 24-node quadrature each).
     pub fn new() -> CapTable {
         let (nl, na, ns) = (N_LAMBDA as usize, N_ALPHA as usize, N_S as usize);
         let values = (0..nl * na * ns)
@@ -85,7 +89,16 @@ impl CapTable {
                 let alpha = std::f64::consts::FRAC_PI_2 * (a as f64 / (na - 1) as f64).powi(2);
                 let s = -(S_MAX as f64) + 2.0 * S_MAX as f64 * s as f64 / (ns - 1) as f64;
                 let g = (alpha + s / lambda.max(4.0).sqrt()).clamp(0.0, std::f64::consts::PI);
-                cap_fraction(lambda, g, alpha) as f32
+                let x = (1.0 - alpha.cos()) * lambda.max(1.0);
+                if x > 0.0 {
+                    (cap_fraction(lambda, g, alpha) * (1.0 + x) / x) as f32
+                } else {
+                    // A vanishing cap's limit: the lobe's value at the cap over the lobe's
+                    // integral, 2 pi / (2 pi (1 - e^(-2 lambda)) / lambda), per unit x.
+                    ((-2.0 * lambda * (g * 0.5).sin().powi(2)).exp() / -(-2.0 * lambda).exp_m1()
+                        * lambda
+                        / lambda.max(1.0)) as f32
+                }
             })
             .collect();
         CapTable { values }
@@ -114,10 +127,10 @@ impl CapTable {
         out
     }
 
-    /// The lookup (the nearest lambda sample, bilinear in (alpha, s)), operation for
-    /// operation as `glsl/env/shadow.glsl`'s `cap_lookup` (lambda > 0, gamma in [0, pi],
-    /// alpha in [0, pi/2]).
-    pub fn lookup(&self, lambda: f32, gamma: f32, alpha: f32) -> f32 {
+    /// The lookup (the nearest lambda sample, bilinear in (alpha, s), times m of the cap's
+    /// `one_minus_cos_a`), operation for operation as `glsl/env/shadow.glsl`'s `cap_lookup`
+    /// (lambda > 0, gamma in [0, pi], alpha in [0, pi/2]).
+    pub fn lookup(&self, lambda: f32, gamma: f32, alpha: f32, one_minus_cos_a: f32) -> f32 {
         let s = (gamma - alpha) * lambda.max(4.0).sqrt();
         if s >= S_MAX {
             return 0.0;
@@ -136,23 +149,23 @@ impl CapTable {
         let lerp = |a: f32, b: f32, t: f32| a + (b - a) * t;
         let row = |i: u32, j: u32| lerp(at(i, j, k), at(i, j, k + 1), fz);
         let plane = |i: u32| lerp(row(i, j), row(i, j + 1), fy);
-        plane(i)
+        let m = one_minus_cos_a * lambda.max(1.0);
+        plane(i) * (m / (1.0 + m))
     }
 }
 
-/// Below this cap radius in lobe widths (a sqrt(lambda)) a cap's fraction is the lobe's value
-/// at its centre times its solid angle ([`cap_occlusion`]); above it plus [`SMALL_CAP_BAND`],
-/// the table; in between, a linear blend of the two (no jump where the form changes).
-pub const SMALL_CAP: f32 = 0.3;
-/// See [`SMALL_CAP`].
-pub const SMALL_CAP_BAND: f32 = 0.1;
-
 /// The fraction of a unit SG (sharpness `lambda`) inside a cap of half-angle `alpha`
 /// (`1 - cos(alpha)` = `one_minus_cos_a`) at cos(gamma) = `cos_g` from its axis, as the shadow
-/// pass evaluates it: small caps by the lobe's value at the cap's centre times the cap's solid
-/// angle, e^(lambda (cos_g - 1)) 2 pi (1 - cos alpha) / (2 pi (1 - e^(-2 lambda)) / lambda),
-/// larger ones by the table, blended over [`SMALL_CAP`] .. + [`SMALL_CAP_BAND`] widths. As
-/// `glsl/env/shadow.comp`'s `cap_occlusion`.
+/// pass evaluates it: the table at gamma = [`acos_fast`]`(cos_g)`, for caps of every size. As
+/// `glsl/env/shadow.glsl`'s `cap_occlusion`.
+///
+/// Until 2026-12-07 caps under 0.3 lobe widths (alpha sqrt(lambda)) took the lobe's value at
+/// their centre times their solid angle, an exp per cap and lobe, blended into the table up to
+/// 0.4; lavapipe ran both forms for every cap and lobe (the lanes of a SIMD step run both
+/// sides of a branch). With the table divided by m, one lookup is as near the exact form
+/// (`table_lookups_stay_near_the_exact_form`: worst 0.0122, was 0.0147; small caps 0.0015,
+/// was 0.0085 by the centre form), and `env shadow` in `bench frame` took 3.72 -> 3.23 ms
+/// (fastest of 5 alternated runs, 2-core VM).
 pub fn cap_occlusion(
     table: &CapTable,
     lambda: f32,
@@ -160,16 +173,12 @@ pub fn cap_occlusion(
     alpha: f32,
     one_minus_cos_a: f32,
 ) -> f32 {
-    let t = ((alpha * lambda.sqrt() - SMALL_CAP) / SMALL_CAP_BAND).clamp(0.0, 1.0);
-    let mut o = 0.0;
-    if t < 1.0 {
-        let norm = lambda / (1.0 - (-2.0 * lambda).exp());
-        o += (1.0 - t) * ((lambda * (cos_g - 1.0)).exp() * one_minus_cos_a * norm).min(1.0);
-    }
-    if t > 0.0 {
-        o += t * table.lookup(lambda, acos_fast(cos_g.clamp(-1.0, 1.0)), alpha);
-    }
-    o
+    table.lookup(
+        lambda,
+        acos_fast(cos_g.clamp(-1.0, 1.0)),
+        alpha,
+        one_minus_cos_a,
+    )
 }
 
 /// acos(x) within 6.7e-5 rad (Abramowitz and Stegun 4.4.45: sqrt(1 - |x|) times a cubic,
@@ -332,7 +341,7 @@ mod tests {
             let lambda = 2f64.powf(-3.0 + 16.0 * rng.f32() as f64);
             let a = 1.5 * rng.f32() as f64;
             let g = std::f64::consts::PI * rng.f32() as f64;
-            let t = table.lookup(lambda as f32, g as f32, a as f32) as f64;
+            let t = table.lookup(lambda as f32, g as f32, a as f32, (1.0 - a.cos()) as f32) as f64;
             let e = (t - cap_fraction(lambda, g, a)).abs();
             if e > worst {
                 worst = e;
@@ -344,22 +353,22 @@ mod tests {
         );
         // The nearest of 8 samples an octave in lambda, bilinear over steps of 1/48 in
         // sqrt(a / (pi/2)) and a quarter lobe width in s (1/8 rad below lambda 4): measured
-        // 0.0147 (a lobe of sharpness 7 well inside a cap of 0.55 rad; trilinear over half
-        // octaves measured 0.0085); a regression (a wrong index, a swapped axis) errs by
-        // O(0.1-1).
+        // 0.0122 (a lobe of sharpness 1.1 opposite a cap of 1.43 rad; 0.0147 before the
+        // values were divided by m, at sharpness 7 well inside a cap of 0.55 rad; trilinear
+        // over half octaves measured 0.0085); a regression (a wrong index, a swapped axis, m
+        // left out) errs by O(0.1-1).
         assert!(worst < 0.02, "{worst}");
     }
 
     #[test]
-    fn small_caps_by_their_centre_stay_near_the_exact_form() {
+    fn small_caps_stay_near_the_exact_form() {
         let table = CapTable::new();
         let mut rng = Rng::new(11);
         let (mut worst, mut at) = (0.0f64, (0.0, 0.0, 0.0));
         for _ in 0..20000 {
             let lambda = 2f64.powf(-3.0 + 16.0 * rng.f32() as f64);
-            // Caps up to the end of the blend, spread over the lobe (g up to 6 widths + a).
-            let a =
-                ((SMALL_CAP + SMALL_CAP_BAND) as f64 / lambda.sqrt()).min(1.5) * rng.f32() as f64;
+            // Caps up to 0.4 lobe widths, spread over the lobe (g up to 6 widths + a).
+            let a = (0.4 / lambda.sqrt()).min(1.5) * rng.f32() as f64;
             let g = ((a + 6.0 / lambda.sqrt()) * rng.f32() as f64).min(std::f64::consts::PI);
             let omc = (1.0 - a.cos()) as f32;
             let o = cap_occlusion(&table, lambda as f32, g.cos() as f32, a as f32, omc);
@@ -369,10 +378,12 @@ mod tests {
                 at = (lambda, g, a);
             }
         }
-        eprintln!("small caps: worst |centre x solid angle - exact| {worst:.5} at {at:.3?}");
-        // The lobe varies across a cap of radius 0.4 widths by e^(+-0.4 sqrt(lambda) a sin g)
-        // at most; measured worst below; a wrong normalisation errs by O(0.1).
-        assert!(worst < 0.01, "{worst}");
+        eprintln!("small caps: worst |lookup - exact| {worst:.5} at {at:.3?}");
+        // Measured 0.0015 (a lobe of sharpness 1.1, a cap of 0.37 rad); the lobe's value at
+        // the centre times the solid angle, the form small caps took before the table was
+        // divided by m, measured 0.0085 (it ignores the lobe's change across the cap); the
+        // table without m errs by O(0.1-1) here.
+        assert!(worst < 0.005, "{worst}");
     }
 
     #[test]
