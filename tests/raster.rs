@@ -362,10 +362,9 @@ fn triangles_crossing_the_near_plane_are_clipped_and_those_behind_culled() {
     // clipped triangles are compared too. A rasteriser that scanned only the first triangle
     // of each clipped polygon passed the first camera and failed this one (measured when
     // the scan moved into one loop). Both cameras compare the counters with the twin's and
-    // account for every piece: a triangle
-    // with two vertices in front of the near plane is two pieces, with one or three one
-    // piece, and each piece is scanned or counted as culled past the guard band, of zero
-    // area or off screen.
+    // account for every piece: a triangle with two vertices in front of the near plane is
+    // two pieces, with one or three one piece, and each piece is scanned or counted as
+    // culled past the guard band, of zero area or off screen.
     let wide = Camera {
         fov_y_deg: 140.0,
         ..cam
