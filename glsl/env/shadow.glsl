@@ -3,8 +3,9 @@
 // for step). Per lobe j: the product lobe P_j = G_j x cosine SG; for every sphere of AO's cut
 // (the walk of glsl/ao/occlusion.comp: refinement, blend weights, inside fade) above the
 // horizon, the fraction O_js of P_j inside the sphere's cap (a table lookup, small caps and
-// large alike) times the cap's share above the horizon. The caps' visibility of lobe j is C_j = prod_s (1 - O_js)^w_s (log space; with
-// ENV_RAYS a product of 1 - w_s (1 - (1 - O_js)), the weighted factor linear in w_s).
+// large alike) times the cap's share above the horizon. The caps' visibility of lobe j is
+// C_j = prod_s (1 - O_js)^w_s (log space; with ENV_RAYS a product of 1 - w_s (1 - (1 - O_js)),
+// the weighted factor linear in w_s).
 // Module env/shadow: V_j = clamp(A(x) C_j / prod_s (1 - I_s)^w_s, 0, 1), I_s AO's per-sphere
 // cosine-weighted occlusion and A(x) the visibility bound as `ao` (AO's).
 // Module env/shadow_rays (ENV_RAYS): the rays of pass `env trace` correct C_j per lobe,

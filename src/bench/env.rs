@@ -85,11 +85,12 @@ pub const GATHERS_PER_LOOKUP: f64 = 1.0;
 
 /// The work model of `env shadow` for `vertices` vertices, `cut` spheres of the cut and
 /// `caps` caps above the horizon per vertex, and `lobes` lobes: FLOP (fma), and the cap
-/// table's loads (image_gather_coherent: the table, 7.1 MiB as quads, of which a lobe's sharpness row (49 KiB) is read, stays in the caches,
-/// which the random probe's large buffer does not; against the random buffer-gather rate the
-/// pass ran at 20x "its peak", when the table was a storage buffer). Every cap and lobe
-/// takes one lookup. The cut's sphere reads (a few per
-/// node, mostly shared by neighbouring vertices) and the per-vertex lobe setup are left out.
+/// table's loads (image_gather_coherent: the table, 7.1 MiB as quads, of which a lobe's
+/// sharpness row (49 KiB) is read, stays in the caches, which the random probe's large buffer
+/// does not; against the random buffer-gather rate the pass ran at 20x "its peak", when the
+/// table was a storage buffer). Every cap and lobe takes one lookup. The cut's sphere reads
+/// (a few per node, mostly shared by neighbouring vertices) and the per-vertex lobe setup are
+/// left out.
 pub fn roofline_terms(
     vertices: usize,
     cut: f64,

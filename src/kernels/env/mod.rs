@@ -9,11 +9,11 @@
 //!   half-angle a = asin(r / d) at angle g from P_j's axis: O_js = the fraction of P_j inside
 //!   the cap, exact as the 1D integral 2 pi int_0^a e^(lambda (cos(g - t) - 1))
 //!   i0e(lambda sin g sin t) sin t dt / int P_j, tabulated once over (log2 lambda, a,
-//!   (g - a) sqrt(lambda)) ([`pack::CapTable`]: bilinear in (a, s), the nearest of 8 samples
-//!   an octave in lambda, the values over the cap's size against the lobe's so that small
-//!   caps and large take the same lookup; [`cap_occlusion`]). O_js is weighted by the cap's share above the horizon
-//!   ([`pack::above_horizon`]): light from below adds nothing, and a sinking cap fades out
-//!   instead of dropping out (no jump where AO's I_s reaches 0).
+//!   (g - a) sqrt(max(lambda, 4))) ([`pack::CapTable`]: bilinear in (a, s), the nearest of 8
+//!   samples an octave in lambda, the values over the cap's size against the lobe's so that
+//!   small caps and large take the same lookup; [`cap_occlusion`]). O_js is weighted by the
+//!   cap's share above the horizon ([`pack::above_horizon`]): light from below adds nothing,
+//!   and a sinking cap fades out instead of dropping out (no jump where AO's I_s reaches 0).
 //! - Caps combine by product: the caps' visibility of lobe j is C_j = prod_s (1 - O_js)^w_s
 //!   (each factor floored at [`MIN_TRANSMISSION`]); with traced rays each weighted factor is
 //!   taken linear in w_s, 1 - w_s (1 - (1 - O_js)), exact at w_s = 0 and 1 (the weights are

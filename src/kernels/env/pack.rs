@@ -44,7 +44,8 @@ pub const LOG_MAX: f32 = 14.0;
 /// Samples along log2(sharpness) (step 1/8). A lookup takes the nearest, so that it reads one
 /// quad of (a, s) corners instead of two: `env shadow` in `bench frame` 9.1-10.5 -> 7.6-9.5
 /// ms (alternated runs, 2-core VM), for a worst lookup error of 0.0147 instead of 0.0085
-/// (trilinear over steps of 0.5; [`CapTable`]'s test).
+/// (trilinear over steps of 0.5; [`CapTable`]'s test); 0.0122 since the values are divided by
+/// the cap's size ([`CapTable`]).
 pub const N_LAMBDA: u32 = 145;
 /// Samples of the cap's half-angle over [0, pi/2], uniform in sqrt(a / (pi/2)) (small caps of
 /// sharp lobes need the finer steps).
@@ -59,10 +60,12 @@ pub const S_MAX: f32 = 8.0;
 /// 4))): the last coordinate measures the lobe's distance from the cap's edge in lobe widths,
 /// so sharp lobes are resolved where they cross the edge. Values from [`cap_fraction`] (f64),
 /// divided by the cap's size against the lobe's, m = x / (1 + x) with x = (1 - cos a)
-/// max(lambda, 1): a small cap's fraction grows as x (the lobe's value at its centre times
-/// its solid angle), which the a axis' linear steps would bend, and m divides that out; for a
-/// cap larger than the lobe m nears 1 and leaves the fraction, a function of the lobe's
-/// distance from the edge, as it is. So one lookup serves every cap size. Lookups bilinear in (a, s) at the nearest lambda sample, times m
+/// max(lambda, 1) (for lambda >= 1 the cap's solid angle over ~ the lobe's, 2 pi / lambda): a
+/// small cap's fraction grows as x, the lobe's value at its centre times its solid angle, and
+/// x grows as the fourth power of the a axis' coordinate (uniform in sqrt a), which bilinear
+/// steps misfit; m divides it out. For a cap larger than the lobe m nears 1 and leaves the
+/// fraction, a function of the lobe's distance from the edge, as it is. So one lookup serves
+/// every cap size. Lookups bilinear in (a, s) at the nearest lambda sample, times m
 /// ([`CapTable::lookup`], as the shader does it).
 #[derive(Clone, Debug)]
 pub struct CapTable {
@@ -93,8 +96,9 @@ impl CapTable {
                 if x > 0.0 {
                     (cap_fraction(lambda, g, alpha) * (1.0 + x) / x) as f32
                 } else {
-                    // A vanishing cap's limit: the lobe's value at the cap over the lobe's
-                    // integral, 2 pi / (2 pi (1 - e^(-2 lambda)) / lambda), per unit x.
+                    // A vanishing cap's limit: its fraction e^(-2 lambda sin^2(g / 2)) 2 pi
+                    // (1 - cos a) / (2 pi (1 - e^(-2 lambda)) / lambda) (the lobe's value at
+                    // the cap times its solid angle over the lobe's integral) over x.
                     ((-2.0 * lambda * (g * 0.5).sin().powi(2)).exp() / -(-2.0 * lambda).exp_m1()
                         * lambda
                         / lambda.max(1.0)) as f32
@@ -159,13 +163,9 @@ impl CapTable {
 /// pass evaluates it: the table at gamma = [`acos_fast`]`(cos_g)`, for caps of every size. As
 /// `glsl/env/shadow.glsl`'s `cap_occlusion`.
 ///
-/// Until 2026-12-07 caps under 0.3 lobe widths (alpha sqrt(lambda)) took the lobe's value at
-/// their centre times their solid angle, an exp per cap and lobe, blended into the table up to
-/// 0.4; lavapipe ran both forms for every cap and lobe (the lanes of a SIMD step run both
-/// sides of a branch). With the table divided by m, one lookup is as near the exact form
-/// (`table_lookups_stay_near_the_exact_form`: worst 0.0122, was 0.0147; small caps 0.0015,
-/// was 0.0085 by the centre form), and `env shadow` in `bench frame` took 3.72 -> 3.23 ms
-/// (fastest of 5 alternated runs, 2-core VM).
+/// Until 2026-12-07 caps under 0.3 lobe widths took the lobe's value at their centre times
+/// their solid angle, blended into the table up to 0.4; the table divided by m is nearer the
+/// exact form for them, and cheaper (README, "One lookup for every cap").
 pub fn cap_occlusion(
     table: &CapTable,
     lambda: f32,
@@ -360,6 +360,37 @@ mod tests {
         assert!(worst < 0.02, "{worst}");
     }
 
+    /// The a = 0 row holds the vanishing cap's limit, which no lookup of a cap above 0 reads
+    /// alone: against the exact form of a cap of 1e-4 rad, divided by its m.
+    #[test]
+    fn the_vanishing_caps_row_is_the_limit_of_small_caps() {
+        let table = CapTable::new();
+        let (nl, na, ns) = (N_LAMBDA as usize, N_ALPHA as usize, N_S as usize);
+        let a = 1e-4f64;
+        let mut compared = 0;
+        for l in (0..nl).step_by(9) {
+            let lambda =
+                2f64.powf(LOG_MIN as f64 + (LOG_MAX - LOG_MIN) as f64 * l as f64 / (nl - 1) as f64);
+            for k in (0..ns).step_by(4) {
+                let s = -(S_MAX as f64) + 2.0 * S_MAX as f64 * k as f64 / (ns - 1) as f64;
+                let g = (s / lambda.max(4.0).sqrt()).clamp(0.0, std::f64::consts::PI);
+                let x = (1.0 - a.cos()) * lambda.max(1.0);
+                let exact = cap_fraction(lambda, g, a) * (1.0 + x) / x;
+                let row = table.values[l * na * ns + k] as f64;
+                // The limit and a cap of 1e-4 rad differ by O(a lambda^(1/2)) relative (the
+                // lobe's change across the cap), under 1e-3 of the value; 1e-5 absolute where
+                // [`cap_fraction`]'s window (7 lobe widths) leaves out a lobe's far tail. A row
+                // of zeros, or doubled, errs by O(1).
+                assert!(
+                    (row - exact).abs() <= 1e-3 * exact + 1e-5,
+                    "lambda {lambda:.3} g {g:.4}: row {row} vs exact {exact}"
+                );
+                compared += usize::from(exact > 1e-3);
+            }
+        }
+        assert!(compared > 40, "{compared} values above 1e-3 compared");
+    }
+
     #[test]
     fn small_caps_stay_near_the_exact_form() {
         let table = CapTable::new();
@@ -379,10 +410,10 @@ mod tests {
             }
         }
         eprintln!("small caps: worst |lookup - exact| {worst:.5} at {at:.3?}");
-        // Measured 0.0015 (a lobe of sharpness 1.1, a cap of 0.37 rad); the lobe's value at
-        // the centre times the solid angle, the form small caps took before the table was
-        // divided by m, measured 0.0085 (it ignores the lobe's change across the cap); the
-        // table without m errs by O(0.1-1) here.
+        // Measured 0.0015 (a lobe of sharpness 1.1, a cap of 0.37 rad). The forms small caps
+        // took before measured 0.0085 (the lobe's value at the centre times the solid angle:
+        // it ignores the lobe's change across the cap) and 0.0119 (the table of undivided
+        // fractions); the divided table looked up without the factor m errs by ~1.
         assert!(worst < 0.005, "{worst}");
     }
 
