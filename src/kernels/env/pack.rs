@@ -377,10 +377,11 @@ mod tests {
                 let x = (1.0 - a.cos()) * lambda.max(1.0);
                 let exact = cap_fraction(lambda, g, a) * (1.0 + x) / x;
                 let row = table.values[l * na * ns + k] as f64;
-                // The limit and a cap of 1e-4 rad differ by O(a lambda^(1/2)) relative (the
-                // lobe's change across the cap), under 1e-3 of the value; 1e-5 absolute where
-                // [`cap_fraction`]'s window (7 lobe widths) leaves out a lobe's far tail. A row
-                // of zeros, or doubled, errs by O(1).
+                // The limit and a cap of 1e-4 rad differ by the lobe's change across the cap,
+                // second order in a sqrt(lambda) <= 0.013 (its linear part averages out over
+                // the cap): under 1e-3 of the value near the lobe; 1e-5 absolute in the far
+                // tail (which [`cap_fraction`]'s window of 7 lobe widths leaves out). A row of
+                // zeros, or doubled, errs by O(1).
                 assert!(
                     (row - exact).abs() <= 1e-3 * exact + 1e-5,
                     "lambda {lambda:.3} g {g:.4}: row {row} vs exact {exact}"
