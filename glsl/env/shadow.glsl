@@ -126,14 +126,24 @@ LobeTerms lobe_terms(float lambda) {
     return l;
 }
 
+// kernels::env::pack::acos_fast: acos within 6.7e-5 rad (Abramowitz and Stegun 4.4.45), for
+// the table's s axis (a quarter lobe width a cell). lavapipe's acos took 1.3 of `env shadow`'s
+// 9.2 ms.
+float acos_fast(float x) {
+    float a = abs(x);
+    float r = sqrt(max(1.0 - a, 0.0)) * (1.5707288 + a * (-0.2121144 + a * (0.0742610 + a * -0.0187293)));
+    return x < 0.0 ? AO_PI - r : r;
+}
+
 // Fraction of a unit SG (terms lt) inside a cap of half-angle alpha (1 - cos alpha =
-// one_minus_cos_a; the alpha axis' cell ja, fraction fy) at angle gamma from its axis:
-// kernels::env::pack::CapTable::lookup. The table holds the fraction over m = x / (1 + x),
-// x = (1 - cos alpha) max(lambda, 1) (the cap's size against the lobe's), so that a small
-// cap's fraction, ~ x, interpolates as well as a large one's.
-float cap_lookup(LobeTerms lt, float gamma, float alpha, float one_minus_cos_a, int ja,
-                 float fy) {
-    float s = (gamma - alpha) * lt.sq4;
+// one_minus_cos_a; the alpha axis' cell ja, fraction fy) whose axis is at cos_g from the
+// lobe's: kernels::env::pack::cap_occlusion, the table's lookup (CapTable::lookup) at gamma =
+// acos_fast(cos_g). The table holds the fraction over m = x / (1 + x), x = (1 - cos alpha)
+// max(lambda, 1) (the cap's size against the lobe's), so that a small cap's fraction, ~ x,
+// interpolates as well as a large one's: one lookup for caps of every size.
+float cap_occlusion(LobeTerms lt, float cos_g, float alpha, float one_minus_cos_a, int ja,
+                    float fy) {
+    float s = (acos_fast(clamp(cos_g, -1.0, 1.0)) - alpha) * lt.sq4;
     if (s >= S_MAX) return 0.0;
     float z = clamp((s + S_MAX) / (2.0 * S_MAX), 0.0, 1.0) * float(N_S - 1u);
     uint k = min(uint(z), N_S - 2u);
@@ -144,21 +154,6 @@ float cap_lookup(LobeTerms lt, float gamma, float alpha, float one_minus_cos_a, 
     float r1 = q.z + (q.w - q.z) * fz;
     float m = one_minus_cos_a * lt.l1;
     return (r0 + (r1 - r0) * fy) * (m / (1.0 + m));
-}
-
-// kernels::env::pack::acos_fast: acos within 6.7e-5 rad (Abramowitz and Stegun 4.4.45), for
-// the table's s axis (a quarter lobe width a cell). lavapipe's acos took 1.3 of `env shadow`'s
-// 9.2 ms.
-float acos_fast(float x) {
-    float a = abs(x);
-    float r = sqrt(max(1.0 - a, 0.0)) * (1.5707288 + a * (-0.2121144 + a * (0.0742610 + a * -0.0187293)));
-    return x < 0.0 ? AO_PI - r : r;
-}
-
-// kernels::env::pack::cap_occlusion.
-float cap_occlusion(LobeTerms lt, float cos_g, float alpha, float one_minus_cos_a, int ja,
-                    float fy) {
-    return cap_lookup(lt, acos_fast(clamp(cos_g, -1.0, 1.0)), alpha, one_minus_cos_a, ja, fy);
 }
 
 // kernels::env::pack::above_horizon.

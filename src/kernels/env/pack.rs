@@ -132,7 +132,7 @@ impl CapTable {
     }
 
     /// The lookup (the nearest lambda sample, bilinear in (alpha, s), times m of the cap's
-    /// `one_minus_cos_a`), operation for operation as `glsl/env/shadow.glsl`'s `cap_lookup`
+    /// `one_minus_cos_a`), operation for operation as `glsl/env/shadow.glsl`'s `cap_occlusion`
     /// (lambda > 0, gamma in [0, pi], alpha in [0, pi/2]).
     pub fn lookup(&self, lambda: f32, gamma: f32, alpha: f32, one_minus_cos_a: f32) -> f32 {
         let s = (gamma - alpha) * lambda.max(4.0).sqrt();
