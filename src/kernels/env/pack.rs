@@ -86,12 +86,7 @@ impl CapTable {
         let values = (0..nl * na * ns)
             .into_par_iter()
             .map(|k| {
-                let (l, a, s) = (k / (na * ns), (k / ns) % na, k % ns);
-                let lambda = 2f64
-                    .powf(LOG_MIN as f64 + (LOG_MAX - LOG_MIN) as f64 * l as f64 / (nl - 1) as f64);
-                let alpha = std::f64::consts::FRAC_PI_2 * (a as f64 / (na - 1) as f64).powi(2);
-                let s = -(S_MAX as f64) + 2.0 * S_MAX as f64 * s as f64 / (ns - 1) as f64;
-                let g = (alpha + s / lambda.max(4.0).sqrt()).clamp(0.0, std::f64::consts::PI);
+                let (lambda, alpha, g) = Self::sample(k / (na * ns), (k / ns) % na, k % ns);
                 let x = (1.0 - alpha.cos()) * lambda.max(1.0);
                 if x > 0.0 {
                     (cap_fraction(lambda, g, alpha) * (1.0 + x) / x) as f32
@@ -106,6 +101,19 @@ impl CapTable {
             })
             .collect();
         CapTable { values }
+    }
+
+    /// The sample (lambda, alpha, gamma) of table entry (l, a, s): lambda over log2 from
+    /// [`LOG_MIN`] to [`LOG_MAX`], alpha uniform in sqrt(alpha / (pi/2)), s = (gamma - alpha)
+    /// sqrt(max(lambda, 4)) from -[`S_MAX`] to [`S_MAX`] (gamma clamped into [0, pi]).
+    fn sample(l: usize, a: usize, s: usize) -> (f64, f64, f64) {
+        let (nl, na, ns) = (N_LAMBDA as usize, N_ALPHA as usize, N_S as usize);
+        let lambda =
+            2f64.powf(LOG_MIN as f64 + (LOG_MAX - LOG_MIN) as f64 * l as f64 / (nl - 1) as f64);
+        let alpha = std::f64::consts::FRAC_PI_2 * (a as f64 / (na - 1) as f64).powi(2);
+        let s = -(S_MAX as f64) + 2.0 * S_MAX as f64 * s as f64 / (ns - 1) as f64;
+        let g = (alpha + s / lambda.max(4.0).sqrt()).clamp(0.0, std::f64::consts::PI);
+        (lambda, alpha, g)
     }
 
     /// The table as the shadow pass reads it: per cell (l, a, s) with a < N_ALPHA - 1 and
@@ -293,6 +301,12 @@ mod tests {
     use super::*;
     use crate::geom::Rng;
 
+    /// The table, built once for the tests that read it (~460 k quadratures).
+    fn table() -> &'static CapTable {
+        static TABLE: std::sync::OnceLock<CapTable> = std::sync::OnceLock::new();
+        TABLE.get_or_init(CapTable::new)
+    }
+
     /// Brute force: midpoint rule in (t, phi) over the cap, f64.
     fn brute(lambda: f64, g: f64, a: f64) -> f64 {
         let (nt, np) = (2000, 256);
@@ -333,7 +347,7 @@ mod tests {
 
     #[test]
     fn table_lookups_stay_near_the_exact_form() {
-        let table = CapTable::new();
+        let table = table();
         let mut rng = Rng::new(7);
         let mut worst: f64 = 0.0;
         let mut at = (0.0, 0.0, 0.0);
@@ -364,16 +378,13 @@ mod tests {
     /// alone: against the exact form of a cap of 1e-4 rad, divided by its m.
     #[test]
     fn the_vanishing_caps_row_is_the_limit_of_small_caps() {
-        let table = CapTable::new();
+        let table = table();
         let (nl, na, ns) = (N_LAMBDA as usize, N_ALPHA as usize, N_S as usize);
         let a = 1e-4f64;
         let mut compared = 0;
         for l in (0..nl).step_by(9) {
-            let lambda =
-                2f64.powf(LOG_MIN as f64 + (LOG_MAX - LOG_MIN) as f64 * l as f64 / (nl - 1) as f64);
             for k in (0..ns).step_by(4) {
-                let s = -(S_MAX as f64) + 2.0 * S_MAX as f64 * k as f64 / (ns - 1) as f64;
-                let g = (s / lambda.max(4.0).sqrt()).clamp(0.0, std::f64::consts::PI);
+                let (lambda, _, g) = CapTable::sample(l, 0, k);
                 let x = (1.0 - a.cos()) * lambda.max(1.0);
                 let exact = cap_fraction(lambda, g, a) * (1.0 + x) / x;
                 let row = table.values[l * na * ns + k] as f64;
@@ -394,7 +405,7 @@ mod tests {
 
     #[test]
     fn small_caps_stay_near_the_exact_form() {
-        let table = CapTable::new();
+        let table = table();
         let mut rng = Rng::new(11);
         let (mut worst, mut at) = (0.0f64, (0.0, 0.0, 0.0));
         for _ in 0..20000 {
@@ -403,7 +414,7 @@ mod tests {
             let a = (0.4 / lambda.sqrt()).min(1.5) * rng.f32() as f64;
             let g = ((a + 6.0 / lambda.sqrt()) * rng.f32() as f64).min(std::f64::consts::PI);
             let omc = (1.0 - a.cos()) as f32;
-            let o = cap_occlusion(&table, lambda as f32, g.cos() as f32, a as f32, omc);
+            let o = cap_occlusion(table, lambda as f32, g.cos() as f32, a as f32, omc);
             let e = (o as f64 - cap_fraction(lambda, g, a)).abs();
             if e > worst {
                 worst = e;
