@@ -755,8 +755,8 @@ fn changing_the_sample_count_rebuilds_the_diffusion_with_its_pattern() {
         for path in paths {
             let mut setup = ctx.recorder("sss setup")?;
             let mut kernel = SssKernel::new(&mut setup, &geo, &p, with(counts[0]))?;
-            let buffer = vertex_buffer(&mut setup, &ve)?;
             if path == "per-vertex" {
+                let buffer = vertex_buffer(&mut setup, &ve)?;
                 kernel.set_vertex_irradiance(&mut setup, Some(&buffer))?;
             }
             setup.submit_and_wait()?;
