@@ -404,6 +404,43 @@ fn frames_in_flight_and_culling_give_the_same_images() {
     assert!(one[0].1 != one[1].1);
 }
 
+/// The compose pass over the rasteriser's tile list leaves the pixels outside it as it
+/// stored them at earlier frames (pass `compose background` refills only the tiles that might
+/// not hold the background): an exposure that changes between frames changes the background
+/// pixel, and every pixel must follow it. Culled frames (the tile list) against unculled
+/// (every pixel shaded), four poses, the exposure raised before the third.
+#[test]
+fn an_exposure_change_reaches_every_background_pixel() {
+    let frames = |cull: bool| {
+        let cfg = FrameConfig { cull, ..small() };
+        with_gpu_features(INT64, |ctx| {
+            let mut frame = CharacterFrame::new(ctx, &cfg, &mut |_| {})?;
+            let mut out = Vec::new();
+            for (k, exposure) in [1.0, 1.0, 2.5, 2.5].into_iter().enumerate() {
+                frame.set_exposure(exposure)?;
+                let mut rec = ctx.recorder("frame")?;
+                frame.record(&mut rec, &input(&frame, 3 * k + 1, 12))?;
+                let rb = frame.read_back(&mut rec)?;
+                rec.submit()?.wait()?;
+                out.push(frame.collect(&rb)?);
+            }
+            assert!(frame.set_exposure(0.0).is_err() && frame.set_exposure(f32::NAN).is_err());
+            Ok(out)
+        })
+    };
+    let culled = frames(true);
+    let full = frames(false);
+    for (k, (a, b)) in culled.iter().zip(&full).enumerate() {
+        assert!(
+            a.hdr == b.hdr && a.ldr == b.ldr,
+            "frame {k} differs with culling"
+        );
+    }
+    // Pixel 0 is background, and its word changed with the exposure.
+    assert_eq!(culled[1].hdr[0][3], 0.0);
+    assert_ne!(culled[1].ldr[0], culled[2].ldr[0]);
+}
+
 /// The environment over this frame's vertex list (`FrameConfig::cull`: passes `vertex mark`
 /// and `vertex list`, then `env trace` and `env shadow` dispatched over the list) against
 /// the same frame shading every vertex (`env_every_vertex`): the list is its twin's (the

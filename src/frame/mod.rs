@@ -1399,9 +1399,23 @@ impl CharacterFrame {
         &self.character.animations[self.anim]
     }
 
-    /// The configuration the frame was built from.
+    /// The configuration the frame was built from (with the exposure of
+    /// [`CharacterFrame::set_exposure`]).
     pub fn config(&self) -> &FrameConfig {
         &self.cfg
+    }
+
+    /// Sets the exposure of the frames recorded from now on (at first
+    /// [`FrameConfig::exposure`]), e.g. a renderer's eye adaptation; frames already recorded
+    /// keep theirs. Must be finite and > 0.
+    pub fn set_exposure(&mut self, exposure: f32) -> Result<()> {
+        if !(exposure.is_finite() && exposure > 0.0) {
+            return Err(Error::InvalidArgument(format!(
+                "exposure {exposure} must be finite and > 0"
+            )));
+        }
+        self.cfg.exposure = exposure;
+        Ok(())
     }
 
     /// The skinning matrices at `time` seconds (wrapped into the animation).

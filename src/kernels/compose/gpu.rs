@@ -7,21 +7,24 @@ use crate::gpu::{
     AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context, Image,
     MemoryReport, Readback, Recorder, Resource,
 };
-use crate::kernels::raster::pack::Camera;
+use crate::kernels::raster::pack::{Camera, tile_grid};
 use crate::kernels::{Dispatch, Grid, IndirectArgs, Kernel, Pass};
 
 /// The upload of the frame's parameters.
 pub const PASS_PARAMS: &str = "compose params";
 /// The per-pixel shading, tone mapping and encoding.
 pub const PASS_SHADE: &str = "compose shade";
-/// With a tile list: the background pixel, tone-mapped once.
+/// With a tile list: the background pixel, tone-mapped once, and the dispatch of `compose
+/// background` (none unless the pixel changed).
 pub const PASS_BACKGROUND_VALUE: &str = "compose background value";
-/// With a tile list: every pixel takes the background before `compose shade` shades the
-/// covered tiles.
+/// With a tile list, on a frame whose background pixel changed: after `compose shade` over
+/// the listed tiles, every other tile takes the background (glsl/compose/background.comp).
 pub const PASS_BACKGROUND: &str = "compose background";
 
 /// Bytes of the parameter block (std430 `Params`).
 const PARAMS_BYTES: u64 = 192;
+/// Bytes of the background's state (std430 `Background`, glsl/compose/output.glsl).
+const BACKGROUND_BYTES: u64 = 48;
 
 /// The buffers and image the pass reads that other kernels write.
 #[derive(Clone, Copy)]
@@ -42,10 +45,15 @@ pub struct Inputs<'a> {
     pub lobe_visibility: Option<&'a Buffer>,
     /// The background behind the character (linear rgb).
     pub background: [f32; 3],
-    /// The rasteriser's list of covered tiles (`RasterKernel::tiles`): with it, pass `compose
-    /// background` fills every pixel and `compose shade` is dispatched indirectly over the
-    /// listed tiles only (the same images; lavapipe pays the whole shader for every pixel it
-    /// runs, background included). None: `compose shade` over every pixel.
+    /// The rasteriser's list of covered tiles (`RasterKernel::tiles`): with it, `compose
+    /// shade` is dispatched indirectly over the listed tiles only (lavapipe pays the whole
+    /// shader for every pixel it runs, background included), and the pixels outside them
+    /// keep the background this kernel stored: pass `compose background` stores it in every
+    /// tile not listed, but only on the first frame and on a frame whose background pixel
+    /// differs from the previous frame's (e.g. a new exposure). So the list must hold every
+    /// tile covered at the previous frame as well as this frame's, as the rasteriser's does
+    /// (its stale tiles) when both kernels record every frame; the images are then those of
+    /// `compose shade` over every pixel. None: `compose shade` over every pixel.
     pub tiles: Option<&'a Buffer>,
 }
 
@@ -67,14 +75,16 @@ impl ComposeOutput {
     }
 }
 
-/// Pass `compose background` and the tile list `compose shade` is dispatched over.
+/// Passes `compose background value` and `compose background`, and the tile list `compose
+/// shade` is dispatched over.
 struct Tiled {
     value: ComputePipeline,
     value_bind: BindGroup,
     background: ComputePipeline,
     background_bind: BindGroup,
     tiles: Buffer,
-    /// The background pixel as the shade pass stores it: HDR (vec4) and LDR (one word).
+    /// The background's state (glsl/compose/output.glsl `Background`) and a stamp word per
+    /// 16 x 4 tile, both zero when made.
     own: [Buffer; 2],
 }
 
@@ -216,7 +226,7 @@ impl ComposeKernel {
         )?;
         let params = Buffer::new(&ctx, "compose params", storage(PARAMS_BYTES))?;
         let hdr = Buffer::new(&ctx, "compose hdr", storage(pixels * 16))?;
-        let ldr = Buffer::new(&ctx, "compose ldr", storage(ldr_bytes(pixels)))?;
+        let ldr = Buffer::new(&ctx, "compose ldr", storage(pixels * 4))?;
         // Stand-ins for absent inputs: zeros, never read where the input is absent (no skin
         // triangle, no cloth triangle, no lobe) but bound because the layout is fixed.
         let small = |rec: &mut Recorder, name: &str| {
@@ -256,6 +266,26 @@ impl ComposeKernel {
             }
         };
         let own = vec![skin_tris, skin_uvs, mask, surfaces, texels];
+        // With a tile list: the background's state and the tiles' stamps, zero when made.
+        let background_state = match inputs.tiles {
+            Some(_) => {
+                let state = Buffer::new(
+                    &ctx,
+                    "compose background state",
+                    storage(BACKGROUND_BYTES).usage(ash::vk::BufferUsageFlags::INDIRECT_BUFFER),
+                )?;
+                let [tx, ty] = tile_grid(prep.size);
+                let stamps = Buffer::new(
+                    &ctx,
+                    "compose tile stamps",
+                    storage(tx as u64 * ty as u64 * 4),
+                )?;
+                rec.fill_buffer(&state, 0)?;
+                rec.fill_buffer(&stamps, 0)?;
+                Some([state, stamps])
+            }
+            None => None,
+        };
         // Without a textured part the shader's textured path compiles away.
         let textured = [(
             "TEXTURED",
@@ -285,34 +315,29 @@ impl ComposeKernel {
                 "hdr" => Resource::Buffer(&hdr),
                 "ldr" => Resource::Buffer(&ldr),
                 "tiles" => Resource::Buffer(inputs.tiles?),
+                "bg" => Resource::Buffer(&background_state.as_ref()?[0]),
+                "stamps" => Resource::Buffer(&background_state.as_ref()?[1]),
                 _ => return None,
             })
         };
         let w = AccessSet::from(A::ComputeShaderWrite);
         let bind = pipeline.bind_from(lookup, &[("hdr", w), ("ldr", w)])?;
-        let tiled = match inputs.tiles {
-            Some(t) => {
-                let bg_hdr = Buffer::new(&ctx, "compose background hdr", storage(16))?;
-                let bg_ldr = Buffer::new(&ctx, "compose background ldr", storage(4))?;
-                let with_bg = |name: &str| match name {
-                    "bg_hdr" => Some(Resource::Buffer(&bg_hdr)),
-                    "bg_ldr" => Some(Resource::Buffer(&bg_ldr)),
-                    _ => lookup(name),
-                };
+        let tiled = match (inputs.tiles, &background_state) {
+            (Some(t), Some(own)) => {
                 let value = crate::shaders::pipeline(&ctx, "compose/background_value")?;
-                let value_bind = value.bind_from(with_bg, &[("bg_hdr", w), ("bg_ldr", w)])?;
+                let value_bind = value.bind_from(lookup, &[])?;
                 let background = crate::shaders::pipeline(&ctx, "compose/background")?;
-                let background_bind = background.bind_from(with_bg, &[("hdr", w), ("ldr", w)])?;
+                let background_bind = background.bind_from(lookup, &[("hdr", w), ("ldr", w)])?;
                 Some(Tiled {
                     value,
                     value_bind,
                     background,
                     background_bind,
                     tiles: t.clone(),
-                    own: [bg_hdr.clone(), bg_ldr.clone()],
+                    own: own.clone(),
                 })
             }
-            None => None,
+            _ => None,
         };
         let env = match inputs.lobes {
             Some((_, n)) => Environment::Lobes(n, inputs.background),
@@ -387,18 +412,6 @@ impl Kernel for ComposeKernel {
                         grid: Grid::Groups([1, 1, 1]),
                     })
                 }),
-                Pass::dispatch(
-                    PASS_BACKGROUND,
-                    &t.background,
-                    &t.background_bind,
-                    |k: &ComposeKernel, _| {
-                        // One invocation per 4 pixels, BACKGROUND_ROW of them a row.
-                        let quads = (k.size[0] as u64 * k.size[1] as u64).div_ceil(4);
-                        let rows = quads.div_ceil(BACKGROUND_ROW as u64) as u32;
-                        let row = quads.min(BACKGROUND_ROW as u64) as u32;
-                        Ok(Dispatch::words(&k.size, Grid::Invocations([row, rows, 1])))
-                    },
-                ),
                 Pass::dispatch_indirect(
                     PASS_SHADE,
                     &self.pipeline,
@@ -408,6 +421,17 @@ impl Kernel for ComposeKernel {
                         offset: 0,
                     },
                     |_, _| Ok(Vec::new()),
+                ),
+                // Its groups (one invocation per tile) or none, written by the value pass.
+                Pass::dispatch_indirect(
+                    PASS_BACKGROUND,
+                    &t.background,
+                    &t.background_bind,
+                    IndirectArgs {
+                        buffer: &t.own[0],
+                        offset: 0,
+                    },
+                    |k: &ComposeKernel, _| Ok(bytemuck::cast_slice(&k.size).to_vec()),
                 ),
             ]),
             None => passes.push(Pass::dispatch(
@@ -427,12 +451,7 @@ impl Kernel for ComposeKernel {
     fn read_back(&self, rec: &mut Recorder) -> Result<ComposeReadback> {
         Ok(ComposeReadback {
             hdr: rec.read_back(&self.hdr)?,
-            // The pixels' words, not the padding after them.
-            ldr: rec.read_back_range(
-                &self.ldr,
-                0,
-                4 * self.size[0] as u64 * self.size[1] as u64,
-            )?,
+            ldr: rec.read_back(&self.ldr)?,
         })
     }
 
@@ -453,16 +472,6 @@ impl Kernel for ComposeKernel {
         all.extend(self.spare.iter());
         self.ctx.memory_of(&all)
     }
-}
-
-/// Quads of 4 pixels per dispatch row of pass `compose background`
-/// (glsl/compose/background.comp `ROW`).
-const BACKGROUND_ROW: u32 = 4096;
-
-/// Bytes of the LDR output for `pixels` pixels: one word each, padded to whole 16-byte
-/// quads (pass `compose background` stores 4 words at once; the padding is never read).
-fn ldr_bytes(pixels: u64) -> u64 {
-    pixels.div_ceil(4) * 16
 }
 
 /// The clearing of the needed-segment bitmap (an upload of zeros).
