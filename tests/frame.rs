@@ -408,11 +408,16 @@ fn frames_in_flight_and_culling_give_the_same_images() {
 /// stored them at earlier frames (pass `compose background` refills only the tiles that might
 /// not hold the background): an exposure that changes between frames changes the background
 /// pixel, and every pixel must follow it. Culled frames (the tile list) against unculled
-/// (every pixel shaded), four poses, the exposure raised before the third.
+/// (every pixel shaded), four poses, the exposure raised before the third; 150 x 158
+/// pixels, so that the last column and row of 16 x 4 tiles are partial.
 #[test]
 fn an_exposure_change_reaches_every_background_pixel() {
     let frames = |cull: bool| {
-        let cfg = FrameConfig { cull, ..small() };
+        let cfg = FrameConfig {
+            cull,
+            size: [150, 158],
+            ..small()
+        };
         with_gpu_features(INT64, |ctx| {
             let mut frame = CharacterFrame::new(ctx, &cfg, &mut |_| {})?;
             let mut out = Vec::new();

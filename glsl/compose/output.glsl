@@ -20,18 +20,18 @@ struct Params {
 
 layout(std430, set = 0, binding = 10) readonly buffer FrameParams { Params p; } params;
 
-// What pass `compose background value` keeps between frames for the passes over the tiles
-// (binding 16 of each; glsl/compose/background.comp has the method): the dispatch of pass
-// `compose background` (a VkDispatchIndirectCommand: its groups on a frame whose background
-// pixel differs from the previous frame's, else none), the background pixel as
-// `store_pixel` stores it, the frame's stamp (never 0), whether the pixel was ever stored.
+// What pass `compose background value` keeps between frames (binding 16 of the background
+// passes; glsl/compose/background.comp has the method): the arguments of pass `compose
+// background` (a VkDispatchIndirectCommand: every pixel on a frame whose background pixel
+// differs from the previous frame's, else none), the background pixel as `store_pixel`
+// stores it, and whether it was ever stored.
 struct Background {
     uvec4 dispatch;
     vec4 hdr;
     uint ldr;
-    uint stamp;
     uint stored;
-    uint unused;
+    uint unused0;
+    uint unused1;
 };
 
 vec3 aces(vec3 x) {

@@ -1,6 +1,6 @@
 // The character frame's last pass: one invocation per pixel of the screen G-buffer
-// (compose/shade.comp), or per pixel of the rasteriser's listed tiles, pass `compose
-// background` filling the rest where needed (COMPOSE_TILES: compose/shade_tiles.comp).
+// (compose/shade.comp), or per pixel of the rasteriser's listed tiles, the rest holding
+// the background (pass `compose background`; COMPOSE_TILES: compose/shade_tiles.comp).
 // - Skin pixels (triangles below the skin triangle count: the skin parts come first in the
 //   character's mesh) look the texture-space diffusion up at the pixel's atlas uv (the
 //   triangle's atlas corners interpolated with the pixel's barycentrics; bilinear over the
@@ -41,16 +41,11 @@ layout(std430, set = 0, binding = 13) readonly buffer Surfaces { uvec4 s[]; } su
 layout(std430, set = 0, binding = 14) readonly buffer SurfaceTexels { uint t[]; } texels;
 #ifdef COMPOSE_TILES
 // The rasteriser's list of covered 16 x 4 tiles (glsl/raster/tiles.comp), dispatched
-// indirectly: workgroup i shades tile list[i] (tile_entry(tx, ty), glsl/common/tiles.glsl),
-// and stamps it with the frame's stamp for pass `compose background`
-// (glsl/compose/background.comp).
+// indirectly: workgroup i shades tile list[i] (tile_entry(tx, ty), glsl/common/tiles.glsl);
+// outside them, the pixels hold the background (glsl/compose/background.comp).
 layout(std430, set = 0, binding = 15) readonly buffer Tiles { uint head[4]; uint list[]; } tiles;
 #endif
 #include <compose/output.glsl>
-#ifdef COMPOSE_TILES
-layout(std430, set = 0, binding = 16) readonly buffer State { Background s; } bg;
-layout(std430, set = 0, binding = 17) writeonly buffer Stamps { uint s[]; } stamps;
-#endif
 
 const float PI = 3.14159265358979;
 
@@ -150,9 +145,6 @@ void main() {
 #ifdef COMPOSE_TILES
     uint tile = tiles.list[gl_WorkGroupID.x];
     uvec2 px = tile_pixel(tile, gl_LocalInvocationID.xy);
-    if (gl_LocalInvocationIndex == 0u) {
-        stamps.s[(tile >> 16u) * tiles_across(P.counts.x) + (tile & 0xffffu)] = bg.s.stamp;
-    }
 #else
     uvec2 px = gl_GlobalInvocationID.xy;
 #endif

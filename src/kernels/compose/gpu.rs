@@ -7,18 +7,18 @@ use crate::gpu::{
     AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context, Image,
     MemoryReport, Readback, Recorder, Resource,
 };
-use crate::kernels::raster::pack::{Camera, tile_grid};
+use crate::kernels::raster::pack::Camera;
 use crate::kernels::{Dispatch, Grid, IndirectArgs, Kernel, Pass};
 
 /// The upload of the frame's parameters.
 pub const PASS_PARAMS: &str = "compose params";
 /// The per-pixel shading, tone mapping and encoding.
 pub const PASS_SHADE: &str = "compose shade";
-/// With a tile list: the background pixel, tone-mapped once, and the dispatch of `compose
-/// background` (none unless the pixel changed).
+/// With a tile list: the background pixel, tone-mapped once, and the indirect arguments of
+/// `compose background` (no pixel unless the background pixel changed).
 pub const PASS_BACKGROUND_VALUE: &str = "compose background value";
-/// With a tile list, on a frame whose background pixel changed: after `compose shade` over
-/// the listed tiles, every other tile takes the background (glsl/compose/background.comp).
+/// With a tile list, on a frame whose background pixel changed: every pixel takes the
+/// background before `compose shade` shades the listed tiles (glsl/compose/background.comp).
 pub const PASS_BACKGROUND: &str = "compose background";
 
 /// Bytes of the parameter block (std430 `Params`).
@@ -49,8 +49,8 @@ pub struct Inputs<'a> {
     /// shade` is dispatched indirectly over the listed tiles only (lavapipe pays the whole
     /// shader for every pixel it runs, background included), and the pixels outside them
     /// keep the background this kernel stored: pass `compose background` stores it in every
-    /// tile not listed, but only on the first frame and on a frame whose background pixel
-    /// differs from the previous frame's (e.g. a new exposure). So the list must hold every
+    /// pixel, but only on the first frame and on a frame whose background pixel differs
+    /// from the previous frame's (e.g. a new exposure). So the list must hold every
     /// tile covered at the previous frame as well as this frame's, as the rasteriser's does
     /// (its stale tiles) when both kernels record every frame; the images are then those of
     /// `compose shade` over every pixel. None: `compose shade` over every pixel.
@@ -83,9 +83,8 @@ struct Tiled {
     background: ComputePipeline,
     background_bind: BindGroup,
     tiles: Buffer,
-    /// The background's state (glsl/compose/output.glsl `Background`) and a stamp word per
-    /// 16 x 4 tile, both zero when made.
-    own: [Buffer; 2],
+    /// The background's state (glsl/compose/output.glsl `Background`), zero when made.
+    state: Buffer,
 }
 
 /// The readbacks of a frame's images.
@@ -226,7 +225,7 @@ impl ComposeKernel {
         )?;
         let params = Buffer::new(&ctx, "compose params", storage(PARAMS_BYTES))?;
         let hdr = Buffer::new(&ctx, "compose hdr", storage(pixels * 16))?;
-        let ldr = Buffer::new(&ctx, "compose ldr", storage(pixels * 4))?;
+        let ldr = Buffer::new(&ctx, "compose ldr", storage(ldr_bytes(pixels)))?;
         // Stand-ins for absent inputs: zeros, never read where the input is absent (no skin
         // triangle, no cloth triangle, no lobe) but bound because the layout is fixed.
         let small = |rec: &mut Recorder, name: &str| {
@@ -266,7 +265,7 @@ impl ComposeKernel {
             }
         };
         let own = vec![skin_tris, skin_uvs, mask, surfaces, texels];
-        // With a tile list: the background's state and the tiles' stamps, zero when made.
+        // With a tile list: the background's state, zero when made.
         let background_state = match inputs.tiles {
             Some(_) => {
                 let state = Buffer::new(
@@ -274,15 +273,8 @@ impl ComposeKernel {
                     "compose background state",
                     storage(BACKGROUND_BYTES).usage(ash::vk::BufferUsageFlags::INDIRECT_BUFFER),
                 )?;
-                let [tx, ty] = tile_grid(prep.size);
-                let stamps = Buffer::new(
-                    &ctx,
-                    "compose tile stamps",
-                    storage(tx as u64 * ty as u64 * 4),
-                )?;
                 rec.fill_buffer(&state, 0)?;
-                rec.fill_buffer(&stamps, 0)?;
-                Some([state, stamps])
+                Some(state)
             }
             None => None,
         };
@@ -315,15 +307,14 @@ impl ComposeKernel {
                 "hdr" => Resource::Buffer(&hdr),
                 "ldr" => Resource::Buffer(&ldr),
                 "tiles" => Resource::Buffer(inputs.tiles?),
-                "bg" => Resource::Buffer(&background_state.as_ref()?[0]),
-                "stamps" => Resource::Buffer(&background_state.as_ref()?[1]),
+                "bg" => Resource::Buffer(background_state.as_ref()?),
                 _ => return None,
             })
         };
         let w = AccessSet::from(A::ComputeShaderWrite);
         let bind = pipeline.bind_from(lookup, &[("hdr", w), ("ldr", w)])?;
-        let tiled = match (inputs.tiles, &background_state) {
-            (Some(t), Some(own)) => {
+        let tiled = match inputs.tiles.zip(background_state.as_ref()) {
+            Some((t, own)) => {
                 let value = crate::shaders::pipeline(&ctx, "compose/background_value")?;
                 let value_bind = value.bind_from(lookup, &[])?;
                 let background = crate::shaders::pipeline(&ctx, "compose/background")?;
@@ -334,10 +325,10 @@ impl ComposeKernel {
                     background,
                     background_bind,
                     tiles: t.clone(),
-                    own: own.clone(),
+                    state: own.clone(),
                 })
             }
-            _ => None,
+            None => None,
         };
         let env = match inputs.lobes {
             Some((_, n)) => Environment::Lobes(n, inputs.background),
@@ -412,6 +403,17 @@ impl Kernel for ComposeKernel {
                         grid: Grid::Groups([1, 1, 1]),
                     })
                 }),
+                // Every pixel or none, as the value pass wrote.
+                Pass::dispatch_indirect(
+                    PASS_BACKGROUND,
+                    &t.background,
+                    &t.background_bind,
+                    IndirectArgs {
+                        buffer: &t.state,
+                        offset: 0,
+                    },
+                    |k: &ComposeKernel, _| Ok(bytemuck::cast_slice(&k.size).to_vec()),
+                ),
                 Pass::dispatch_indirect(
                     PASS_SHADE,
                     &self.pipeline,
@@ -421,17 +423,6 @@ impl Kernel for ComposeKernel {
                         offset: 0,
                     },
                     |_, _| Ok(Vec::new()),
-                ),
-                // Its groups (one invocation per tile) or none, written by the value pass.
-                Pass::dispatch_indirect(
-                    PASS_BACKGROUND,
-                    &t.background,
-                    &t.background_bind,
-                    IndirectArgs {
-                        buffer: &t.own[0],
-                        offset: 0,
-                    },
-                    |k: &ComposeKernel, _| Ok(bytemuck::cast_slice(&k.size).to_vec()),
                 ),
             ]),
             None => passes.push(Pass::dispatch(
@@ -451,7 +442,12 @@ impl Kernel for ComposeKernel {
     fn read_back(&self, rec: &mut Recorder) -> Result<ComposeReadback> {
         Ok(ComposeReadback {
             hdr: rec.read_back(&self.hdr)?,
-            ldr: rec.read_back(&self.ldr)?,
+            // The pixels' words, not the padding after them.
+            ldr: rec.read_back_range(
+                &self.ldr,
+                0,
+                4 * self.size[0] as u64 * self.size[1] as u64,
+            )?,
         })
     }
 
@@ -467,11 +463,17 @@ impl Kernel for ComposeKernel {
         let mut all: Vec<&Buffer> = vec![&self.params, &self.hdr, &self.ldr];
         all.extend(self.own.iter());
         if let Some(t) = &self.tiled {
-            all.extend(t.own.iter());
+            all.push(&t.state);
         }
         all.extend(self.spare.iter());
         self.ctx.memory_of(&all)
     }
+}
+
+/// Bytes of the LDR output for `pixels` pixels: one word each, padded to whole 16-byte
+/// quads (pass `compose background` stores 4 words at once; the padding is never read).
+fn ldr_bytes(pixels: u64) -> u64 {
+    pixels.div_ceil(4) * 16
 }
 
 /// The clearing of the needed-segment bitmap (an upload of zeros).
