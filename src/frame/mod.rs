@@ -129,8 +129,8 @@ pub struct FrameConfig {
     /// diffusion runs on the atlas segments the compose pass will read (pass `compose
     /// need`), and the compose pass shades the rasteriser's listed tiles, storing the
     /// background in the others only on frames when it changed (pass `compose background`).
-    /// Off: every segment and every pixel. The
-    /// images are the same either way (bit for bit). With an environment it also shades
+    /// Off: every segment and every pixel. The images are the same either way (bit for
+    /// bit). With an environment it also shades
     /// only the vertices the frame reads (those of the triangles covering a pixel and of the
     /// skin triangles the diffusion reads through its irradiance: passes `sss reach *`,
     /// `vertex mark` and `vertex list`, then `env trace` and `env shadow` over that list),

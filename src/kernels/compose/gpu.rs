@@ -314,7 +314,7 @@ impl ComposeKernel {
         let w = AccessSet::from(A::ComputeShaderWrite);
         let bind = pipeline.bind_from(lookup, &[("hdr", w), ("ldr", w)])?;
         let tiled = match inputs.tiles.zip(background_state.as_ref()) {
-            Some((t, own)) => {
+            Some((t, state)) => {
                 let value = crate::shaders::pipeline(&ctx, "compose/background_value")?;
                 let value_bind = value.bind_from(lookup, &[])?;
                 let background = crate::shaders::pipeline(&ctx, "compose/background")?;
@@ -325,7 +325,7 @@ impl ComposeKernel {
                     background,
                     background_bind,
                     tiles: t.clone(),
-                    state: own.clone(),
+                    state: state.clone(),
                 })
             }
             None => None,
@@ -403,7 +403,9 @@ impl Kernel for ComposeKernel {
                         grid: Grid::Groups([1, 1, 1]),
                     })
                 }),
-                // Every pixel or none, as the value pass wrote.
+                // Every pixel or none, as the value pass wrote: at most ceil(pixels / 2^14)
+                // groups along y, under the 65,535 every device allows while the HDR buffer
+                // (16 bytes a pixel) fits a storage-buffer binding (at most 4 GiB).
                 Pass::dispatch_indirect(
                     PASS_BACKGROUND,
                     &t.background,
