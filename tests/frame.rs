@@ -405,9 +405,9 @@ fn frames_in_flight_and_culling_give_the_same_images() {
 }
 
 /// The compose pass over the rasteriser's tile list leaves the pixels outside it as it
-/// stored them at earlier frames (pass `compose background` refills only the tiles that might
-/// not hold the background): an exposure that changes between frames changes the background
-/// pixel, and every pixel must follow it. Culled frames (the tile list) against unculled
+/// stored them at earlier frames (pass `compose background` stores the background in every
+/// pixel only on a frame whose background pixel changed): an exposure that changes between
+/// frames changes the background pixel, and every pixel must follow it. Culled frames (the tile list) against unculled
 /// (every pixel shaded), four poses, the exposure raised before the third; 150 x 158
 /// pixels, so that the last column and row of 16 x 4 tiles are partial.
 #[test]
