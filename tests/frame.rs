@@ -109,6 +109,37 @@ fn compose_matches_its_cpu_twin_on_a_posed_frame() {
         rec.submit_and_wait()?;
         let st = frame.collect_stages(&rb)?;
         let twin = frame.compose_twin(&frame.params(), &st);
+        // Pass `compose classify` against its twin: the same two sets of tiles (the GPU
+        // appends in no fixed order; both sides sort). A tile wrongly without skin would be
+        // shaded without the skin's path.
+        let (plain, skin) = frame
+            .tile_classes_twin(&st)
+            .expect("a culled frame with skin");
+        let (listed, gpu) = st.tile_classes.as_ref().expect("read back");
+        assert_eq!((&gpu.plain, &gpu.skin), (&plain, &skin));
+        // And from the keys alone: every 16 x 4 tile holding a skin key is a skin tile.
+        let width = cfg.size[0];
+        let skin_tris = stages_skin_triangles();
+        let mut from_keys: Vec<u32> = st
+            .keys
+            .iter()
+            .enumerate()
+            .filter(|(_, k)| u64::from(key_triangle(**k)) < skin_tris)
+            .map(|(i, _)| {
+                let (x, y) = (i as u32 % width, i as u32 / width);
+                (x / 16) | ((y / 4) << 16)
+            })
+            .collect();
+        from_keys.sort_unstable();
+        from_keys.dedup();
+        assert_eq!(gpu.skin, from_keys);
+        assert!(
+            !plain.is_empty() && !skin.is_empty(),
+            "{} / {}",
+            plain.len(),
+            skin.len()
+        );
+        eprintln!("{} tiles listed: {} with skin", listed.len(), skin.len());
         Ok((st, twin))
     });
     let (hdr, ldr) = twin;
@@ -376,7 +407,12 @@ fn frames_in_flight_and_culling_give_the_same_images() {
         with_gpu_features(INT64, |ctx| {
             let frame = CharacterFrame::new(ctx, &cfg, &mut |_| {})?;
             let names = vkshade::frame::pass_names(&frame);
-            for p in ["compose need", "compose background"] {
+            for p in [
+                "compose need",
+                "compose background",
+                "compose classify",
+                "compose shade skin",
+            ] {
                 assert_eq!(names.contains(&p), cull, "{p} in {names:?}");
             }
             let inputs: Vec<FrameInput> = (0..4).map(|k| input(&frame, 3 * k + 1, 12)).collect();

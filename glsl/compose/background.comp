@@ -1,6 +1,6 @@
 #version 450
-// Pass `compose background`, before `compose shade` over the rasteriser's listed tiles
-// (glsl/compose/shade_tiles.comp), dispatched indirectly with the arguments pass `compose
+// Pass `compose background`, before `compose shade` (and `compose shade skin`) over the
+// rasteriser's listed tiles (glsl/compose/shade_tiles.comp), dispatched indirectly with the arguments pass `compose
 // background value` writes: every pixel takes the background pixel on a frame whose
 // background pixel differs from the previous frame's (or on the first), and no pixel on the
 // others. There the pixels outside the listed tiles already hold it: the rasteriser's list

@@ -9,8 +9,9 @@
 // span) and any rounding difference between the two passes' uv (far below MARGIN) still
 // finds its texels marked. The bitmap is cleared each frame before this pass.
 // A pixel is skin where its key names a skin triangle (an empty key, ~0, names none).
-// Dispatched indirectly over the rasteriser's list of covered 16 x 4 tiles
-// (glsl/raster/tiles.comp): pixels outside them hold no triangle.
+// Dispatched indirectly over a list of 16 x 4 tiles holding every skin pixel: the
+// rasteriser's list of covered tiles (glsl/raster/tiles.comp), or its tiles with a skin pixel
+// (glsl/compose/classify.comp), as the character frame passes.
 layout(local_size_x = 16, local_size_y = 4) in;
 #include <common/tiles.glsl>
 

@@ -40,9 +40,10 @@ layout(std430, set = 0, binding = 9) readonly buffer LobeVisibility { float v[];
 layout(std430, set = 0, binding = 13) readonly buffer Surfaces { uvec4 s[]; } surfaces;
 layout(std430, set = 0, binding = 14) readonly buffer SurfaceTexels { uint t[]; } texels;
 #ifdef COMPOSE_TILES
-// The rasteriser's list of covered 16 x 4 tiles (glsl/raster/tiles.comp), dispatched
+// The rasteriser's list of covered 16 x 4 tiles (glsl/raster/tiles.comp), or one of the two
+// parts pass `compose classify` splits it into (glsl/compose/classify.comp), dispatched
 // indirectly: workgroup i shades tile list[i] (tile_entry(tx, ty), glsl/common/tiles.glsl);
-// outside them, the pixels hold the background (glsl/compose/background.comp).
+// outside the rasteriser's list, the pixels hold the background (glsl/compose/background.comp).
 layout(std430, set = 0, binding = 15) readonly buffer Tiles { uint head[4]; uint list[]; } tiles;
 #endif
 #include <compose/output.glsl>
@@ -111,6 +112,13 @@ int wrap(int i, int n, uint mode) {
 // host: `compose shade` 4.7 / 4.9 / 3.4 / 3.2 -> 3.3 / 3.2 / 2.5 / 1.8 ms).
 layout(constant_id = 0) const bool TEXTURED = true;
 
+// Whether the pixels shaded may be skin: false in the pipeline over the tiles that pass
+// `compose classify` found without a skin pixel (glsl/compose/classify.comp), so that the
+// skin's path, which lavapipe runs masked at every pixel when present, compiles away there;
+// also false for a character without skin. Where it is false no pixel may name a skin
+// triangle (one would be shaded as cloth).
+layout(constant_id = 1) const bool SKIN = true;
+
 // Part `part`'s colour at a pixel whose G-buffer holds uv `gbuffer_uv` (the mesh's uv times
 // the part's uv scale; the table holds its inverse).
 vec3 surface_colour(uint part, vec2 gbuffer_uv, uint count) {
@@ -157,12 +165,12 @@ void main() {
     if (g0.w == 0.0) {
         radiance = P.background.rgb;
     } else {
-        uint tri = keys.k[idx].x;
+        uint tri = SKIN ? keys.k[idx].x : ~0u;
         uint part = uint(abs(g0.w) + 0.5) - 1u;
         vec2 gbuffer_uv = vec2(texelFetch(gbuffer, ivec3(px, 1), 0).w,
                                texelFetch(gbuffer, ivec3(px, 2), 0).w);
         vec3 colour = surface_colour(part, gbuffer_uv, P.atlas.w);
-        if (tri < P.atlas.y) {
+        if (SKIN && tri < P.atlas.y) {
             // Skin: the pixel's barycentrics on its triangle (as raster resolve finds them).
             uvec4 t = skin_tris.v[tri];
             vec3 bc = skin_barycentrics(pos.p[t.x].xyz, pos.p[t.y].xyz, pos.p[t.z].xyz, P.eye.xyz, d);

@@ -6,8 +6,9 @@
 //! 1. `pose` skins the whole character once (skin parts first, then cloth parts);
 //!    `ao` skins the sphere tree from the same pose (and computes AO's per-vertex occlusion
 //!    where a stage reads it: [`FrameConfig::ao_visibility`]);
-//! 2. `raster` writes the screen G-buffer of the posed character; with culling and an
-//!    environment, `compose need` marks the skin's atlas segments the compose pass reads,
+//! 2. `raster` writes the screen G-buffer of the posed character; with culling and skin,
+//!    `compose classify` splits the rasteriser's tiles by whether they hold a skin pixel; with an
+//!    environment too, `compose need` marks the skin's atlas segments the compose pass reads,
 //!    `sss` builds the skin's texture-space geometry from the posed buffers and its reach
 //!    (the segments the diffusion of the needed ones reads, and the skin triangles they lie
 //!    in: [`SssKernel::set_reach`]), then `vertex mark` and `vertex list` list the vertices
@@ -21,7 +22,8 @@
 //!    environment's lobes with their per-vertex visibility through the BTF's light basis
 //!    (`btf env basis`, [`crate::kernels::btf::basis`]);
 //! 5. `compose` shades the skin pixels through the G-buffer (diffusion with Fresnel, a
-//!    specular layer), takes the cloth's radiance, a background colour behind, tone maps.
+//!    specular layer; with culling, over the skin's tiles only), takes the cloth's radiance,
+//!    a background colour behind, tone maps.
 //!
 //! What is built once per character ([`CharacterFrame::new`]): the sphere tree, the skin's
 //! UV layout and texture-space structure, the BTF tile, the camera framing the whole
@@ -33,7 +35,7 @@ use crate::kernels::btf::dirs::{Maps, Triangulation};
 use crate::kernels::btf::gpu::{BtfKernel, Prepared as BtfPrepared};
 use crate::kernels::btf::pack::{BtfInputs, Texture};
 use crate::kernels::btf::synth::Btf;
-use crate::kernels::compose::gpu::NeedKernel;
+use crate::kernels::compose::gpu::{NeedKernel, TileClassInputs, TileClassKernel};
 use crate::kernels::compose::{self, ComposeKernel, ComposeOutput, FrameParams, SkinSpecular};
 use crate::kernels::raster::gpu::{Posed as RasterPosed, Prepared as RasterPrep, RasterKernel};
 use crate::kernels::raster::pack::{Camera as RasterCamera, key_triangle};
@@ -127,8 +129,11 @@ pub struct FrameConfig {
     pub skin_parts: Vec<SkinPart>,
     /// Work only where the camera looks (the default): with an environment, the skin's
     /// diffusion runs on the atlas segments the compose pass will read (pass `compose
-    /// need`), and the compose pass shades the rasteriser's listed tiles, storing the
-    /// background in the others only on frames when it changed (pass `compose background`).
+    /// need`, over the tiles holding a skin pixel: `compose classify`), and the compose pass
+    /// shades the rasteriser's listed tiles (the skin's shading only over the listed tiles
+    /// holding a skin pixel),
+    /// storing the background in the others only on frames when it changed (pass `compose
+    /// background`).
     /// Off: every segment and every pixel. The images are the same either way (bit for
     /// bit). With an environment it also shades
     /// only the vertices the frame reads (those of the triangles covering a pixel and of the
@@ -588,6 +593,9 @@ pub struct CharacterFrame {
     pose: pose::PoseKernel,
     ao: ao::gpu::AoKernel,
     raster: RasterKernel,
+    /// With culling and skin: the rasteriser's tiles split by whether they hold a skin pixel
+    /// (pass `compose classify`), for `compose need` and the compose pass.
+    classify: Option<TileClassKernel>,
     /// The vertices the environment's passes shade this frame (with culling).
     vertices: Option<VertexListKernel>,
     env: Option<crate::kernels::env::EnvKernel>,
@@ -1091,6 +1099,19 @@ impl CharacterFrame {
             Some((geo, _)) => compose::Prepared::new(cfg.size, geo)?,
             None => compose::Prepared::without_skin(cfg.size),
         };
+        // With culling and skin: the tiles holding a skin pixel, apart, so that the skin's
+        // shading runs only over them.
+        let classify = match raster.tiles().filter(|_| cfg.cull) {
+            Some(tiles) if compose_base.skin_triangles > 0 => Some(TileClassKernel::new(
+                &mut rec,
+                &compose_base,
+                &TileClassInputs {
+                    keys: raster.keys(),
+                    tiles,
+                },
+            )?),
+            _ => None,
+        };
         let sss = match &skin_geo {
             Some((geo, rest)) => {
                 // No thin-part transmission: the compose pass does not read it (the skin's
@@ -1118,15 +1139,15 @@ impl CharacterFrame {
                 // The diffusion runs only on the atlas segments the compose pass will read
                 // this frame (every skin pixel's bilinear footprint and a texel around it),
                 // marked from the G-buffer after the raster passes.
-                let need = match (&env, raster.tiles().filter(|_| cfg.cull)) {
-                    (Some(_), Some(tiles)) => {
+                let need = match (&env, &classify) {
+                    (Some(_), Some(classify)) => {
                         let n = NeedKernel::new(
                             &mut rec,
                             &compose_base,
                             &compose::gpu::NeedInputs {
                                 keys: raster.keys(),
                                 positions: pose.positions(),
-                                tiles,
+                                tiles: classify.classes().skin,
                             },
                         )?;
                         kernel.set_needed_segments(Some(n.needed()))?;
@@ -1321,6 +1342,7 @@ impl CharacterFrame {
                 lobe_visibility: env.as_ref().map(|e| e.visibility()),
                 background: cfg.background,
                 tiles: raster.tiles().filter(|_| cfg.cull),
+                classes: classify.as_ref().map(TileClassKernel::classes),
             },
         )?;
         rec.submit_and_wait()?;
@@ -1334,6 +1356,7 @@ impl CharacterFrame {
             pose,
             ao,
             raster,
+            classify,
             vertices,
             env,
             sss,
@@ -1353,6 +1376,9 @@ impl CharacterFrame {
         v.extend(self.pose.passes());
         v.extend(self.ao.passes());
         v.extend(self.raster.passes());
+        if let Some(c) = &self.classify {
+            v.extend(c.passes());
+        }
         // As `record`: the skin's passes before the lights come before the vertex list.
         let skin = self.sss.as_ref().map(|s| {
             let mut all = s.kernel.passes();
@@ -1455,6 +1481,9 @@ impl CharacterFrame {
         self.pose.record(rec, &m)?;
         Kernel::record(&self.ao, rec, &m)?;
         self.raster.record(rec, &self.camera)?;
+        if let Some(c) = &self.classify {
+            c.record(rec, &())?;
+        }
         // The skin's geometry and reach come before the vertex list: the reach marks the
         // skin triangles whose vertices the environment's passes shade.
         if let Some(s) = &self.sss {
@@ -1519,6 +1548,10 @@ impl CharacterFrame {
                 Some(v) => Some(Kernel::read_back(v, rec)?),
                 None => None,
             },
+            classes: match (&self.classify, self.raster.tiles()) {
+                (Some(c), Some(t)) => Some((rec.read_back(t)?, c.read_back(rec)?)),
+                _ => None,
+            },
             cloth: match &self.cloth_result {
                 Some(r) => Some(rec.read_back(r)?),
                 None => None,
@@ -1559,6 +1592,14 @@ impl CharacterFrame {
             },
             vertices: match (&self.vertices, &rb.vertices) {
                 (Some(k), Some(r)) => Some(k.collect(r)?),
+                _ => None,
+            },
+            tile_classes: match (&self.classify, &rb.classes) {
+                // The list: head (length, 1, 1, covered), then `length` entries.
+                (Some(k), Some((t, c))) => Some((
+                    compose::gpu::list_entries(&t.to_vec::<u32>()?, "raster tiles")?,
+                    k.collect(c)?,
+                )),
                 _ => None,
             },
             cloth: match &rb.cloth {
@@ -1602,6 +1643,18 @@ impl CharacterFrame {
             &self.compose_prep,
             &self.camera,
             &st.host_inputs(),
+        ))
+    }
+
+    /// Pass `compose classify`'s CPU twin on the stages the GPU computed (the keys and the
+    /// rasteriser's tile list): (the tiles without a skin pixel, those with one), sorted, or
+    /// None when the frame does not split its tiles (no culling or no skin).
+    pub fn tile_classes_twin(&self, st: &Stages) -> Option<(Vec<u32>, Vec<u32>)> {
+        let (tiles, _) = st.tile_classes.as_ref()?;
+        Some(compose::cpu::tile_classes(
+            &self.compose_prep,
+            &st.keys,
+            tiles,
         ))
     }
 
@@ -1822,6 +1875,7 @@ impl CharacterFrame {
         let mut b = self.pose.memory().used_bytes
             + Kernel::memory(&self.ao).used_bytes
             + self.raster.memory().used_bytes
+            + self.classify.as_ref().map_or(0, |c| c.memory().used_bytes)
             + self.compose.memory().used_bytes;
         if let Some(s) = &self.sss {
             b += s.kernel.memory().used_bytes;
@@ -1858,6 +1912,8 @@ pub struct StageReadback {
     needed: Option<crate::gpu::Readback>,
     reach: Option<crate::gpu::Readback>,
     vertices: Option<crate::kernels::raster::vertices::VertexListReadback>,
+    /// The rasteriser's tile list and pass `compose classify`'s split of it.
+    classes: Option<(crate::gpu::Readback, compose::gpu::TileClassReadback)>,
     cloth: Option<crate::gpu::Readback>,
     lobes: Option<(
         crate::gpu::Readback,
@@ -1896,6 +1952,9 @@ pub struct Stages {
     /// The vertices the environment's passes shaded this frame (sorted), or None when they
     /// shade every vertex; the environment's outputs at the others are an older frame's.
     pub vertices: Option<Vec<u32>>,
+    /// With culling and skin: the rasteriser's listed tiles this frame (entries `tx | ty <<
+    /// 16`, sorted) and pass `compose classify`'s split of them.
+    pub tile_classes: Option<(Vec<u32>, compose::gpu::TileClassOutput)>,
     /// The cloth's radiance per pixel.
     pub cloth: Vec<[f32; 4]>,
     /// The rotated environment lobes (two vec4 each) and the per-vertex, per-lobe

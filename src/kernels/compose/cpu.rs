@@ -161,6 +161,26 @@ pub fn needed_segments(prep: &Prepared, camera: &Camera, inp: &HostInputs<'_>) -
     words
 }
 
+/// Pass `compose classify` on the CPU: the tile entries of `tiles` (`tx | ty << 16`, of the
+/// rasteriser's 16 x 4 tiles) split into (those without a skin pixel, those with one), each
+/// sorted; a pixel is skin where its key names a triangle below `prep.skin_triangles`.
+pub fn tile_classes(prep: &Prepared, keys: &[u64], tiles: &[u32]) -> (Vec<u32>, Vec<u32>) {
+    let [w, h] = prep.size;
+    let [tw, th] = crate::kernels::raster::pack::TILE;
+    let (mut plain, mut skin) = (Vec::new(), Vec::new());
+    for &e in tiles {
+        let (x0, y0) = ((e & 0xffff) * tw, (e >> 16) * th);
+        let has_skin = (y0..(y0 + th).min(h)).any(|y| {
+            (x0..(x0 + tw).min(w))
+                .any(|x| key_triangle(keys[(y * w + x) as usize]) < prep.skin_triangles)
+        });
+        if has_skin { &mut skin } else { &mut plain }.push(e);
+    }
+    plain.sort_unstable();
+    skin.sort_unstable();
+    (plain, skin)
+}
+
 /// The pass on the CPU: (linear radiance per pixel, RGBA8 word per pixel).
 pub fn shade(
     prep: &Prepared,

@@ -1,5 +1,9 @@
 //! The compose kernel on the GPU: `compose params` uploads the frame's parameters,
-//! `compose shade` shades every pixel (glsl/compose/shade.comp).
+//! `compose shade` shades every pixel (glsl/compose/shade.comp), or, with the rasteriser's
+//! tile list, the listed tiles; with the list split by [`TileClassKernel`] (`compose
+//! classify`: the tiles holding a skin pixel and the others), `compose shade` shades the
+//! others in a pipeline without the skin's path and `compose shade skin` the skin's tiles
+//! (glsl/compose/classify.comp has why).
 
 use super::pack::{Environment, FrameParams, Prepared};
 use crate::error::{Error, Result};
@@ -18,8 +22,12 @@ pub const PASS_SHADE: &str = "compose shade";
 /// `compose background` (no pixel unless the background pixel changed).
 pub const PASS_BACKGROUND_VALUE: &str = "compose background value";
 /// With a tile list, on a frame whose background pixel changed: every pixel takes the
-/// background before `compose shade` shades the listed tiles (glsl/compose/background.comp).
+/// background before `compose shade` (and `compose shade skin`) shade the listed tiles
+/// (glsl/compose/background.comp).
 pub const PASS_BACKGROUND: &str = "compose background";
+/// With the tile list split ([`Inputs::classes`]): the shading of the tiles holding a skin
+/// pixel (the others are [`PASS_SHADE`]'s, in a pipeline without the skin's path).
+pub const PASS_SHADE_SKIN: &str = "compose shade skin";
 
 /// Bytes of the parameter block (std430 `Params`).
 const PARAMS_BYTES: u64 = 192;
@@ -55,6 +63,12 @@ pub struct Inputs<'a> {
     /// (its stale tiles) when both kernels record every frame; the images are then those of
     /// `compose shade` over every pixel. None: `compose shade` over every pixel.
     pub tiles: Option<&'a Buffer>,
+    /// With `tiles`: that list split by a [`TileClassKernel`] made for the same frame size,
+    /// skin triangles and tile list and recorded earlier in the same frame, so that only the
+    /// tiles holding a skin pixel run the skin's shading (`compose shade skin`; the others,
+    /// `compose shade`, in a pipeline without it: a skin pixel there would be shaded as
+    /// cloth). None: every listed tile runs it. Refused without `tiles`.
+    pub classes: Option<TileClasses<'a>>,
 }
 
 /// One frame's images, read back.
@@ -75,8 +89,8 @@ impl ComposeOutput {
     }
 }
 
-/// Passes `compose background value` and `compose background`, and the tile list `compose
-/// shade` is dispatched over.
+/// Passes `compose background value` and `compose background`, and the rasteriser's tile
+/// list (`compose shade` is dispatched over it, or over its plain part with `classes`).
 struct Tiled {
     value: ComputePipeline,
     value_bind: BindGroup,
@@ -85,6 +99,17 @@ struct Tiled {
     tiles: Buffer,
     /// The background's state (glsl/compose/output.glsl `Background`), zero when made.
     state: Buffer,
+    /// With [`Inputs::classes`]: the split list's buffers and the pass over the skin's
+    /// tiles (the kernel's own pipeline, built without the skin's path, shades the others).
+    classes: Option<Classes>,
+}
+
+/// [`Inputs::classes`], held, and pass `compose shade skin`.
+struct Classes {
+    plain: Buffer,
+    skin: Buffer,
+    skin_pipeline: ComputePipeline,
+    skin_bind: BindGroup,
 }
 
 /// The readbacks of a frame's images.
@@ -138,7 +163,11 @@ impl ComposeKernel {
     /// Creates the kernel's buffers and pipeline and records the uploads of `prep` into
     /// `rec`. The inputs are bound once: each frame reads what the kernels writing them
     /// wrote earlier in the same recording (ordered by their declared accesses).
-    pub fn new(rec: &mut Recorder, prep: &Prepared, inputs: &Inputs<'_>) -> Result<ComposeKernel> {
+    pub fn new<'a>(
+        rec: &mut Recorder,
+        prep: &Prepared,
+        inputs: &Inputs<'a>,
+    ) -> Result<ComposeKernel> {
         let ctx = rec.context();
         let [w, h] = prep.size;
         let pixels = w as u64 * h as u64;
@@ -202,6 +231,22 @@ impl ComposeKernel {
                     v.size(),
                     vertices * lobe_count as u64 * 4,
                 ));
+            }
+        }
+        if let Some(c) = inputs.classes {
+            if inputs.tiles.is_none() {
+                return Err(Error::InvalidArgument(
+                    "compose: tile classes without the tile list they split".into(),
+                ));
+            }
+            let need = 16 + tile_count(prep.size) * 4;
+            for (what, b) in [
+                ("the plain tile list", c.plain),
+                ("the skin tile list", c.skin),
+            ] {
+                if b.size() < need {
+                    return Err(too_small(what, b.size(), need));
+                }
             }
         }
         use bytemuck::cast_slice as bytes;
@@ -278,16 +323,23 @@ impl ComposeKernel {
             }
             None => None,
         };
-        // Without a textured part the shader's textured path compiles away.
-        let textured = [(
-            "TEXTURED",
-            prep.surfaces.iter().any(|s| s.texture.is_some()) as u32,
-        )];
-        let pipeline = match inputs.tiles {
-            Some(_) => {
-                crate::shaders::pipeline_specialized(&ctx, "compose/shade_tiles", &textured)?
-            }
-            None => crate::shaders::pipeline_specialized(&ctx, "compose/shade", &textured)?,
+        // Without a textured part the shader's textured path compiles away; so does the
+        // skin's without skin, and over the tile list, in the pipeline of the tiles without
+        // a skin pixel (`compose classify` splits the list).
+        let textured = prep.surfaces.iter().any(|s| s.texture.is_some()) as u32;
+        let skin = prep.skin_triangles > 0;
+        let specialized = |name: &str, skin: bool| {
+            crate::shaders::pipeline_specialized(
+                &ctx,
+                name,
+                &[("TEXTURED", textured), ("SKIN", skin as u32)],
+            )
+        };
+        let classes = inputs.classes;
+        let pipeline = match (inputs.tiles, classes) {
+            (Some(_), Some(_)) => specialized("compose/shade_tiles", false)?,
+            (Some(_), None) => specialized("compose/shade_tiles", skin)?,
+            (None, _) => specialized("compose/shade", skin)?,
         };
         let lookup = |name: &str| -> Option<Resource<'_>> {
             Some(match name {
@@ -311,14 +363,36 @@ impl ComposeKernel {
                 _ => return None,
             })
         };
+        // The shading pipelines over a split list read their part in place of the
+        // rasteriser's list.
+        let over = |part: fn(TileClasses<'a>) -> &'a Buffer| {
+            move |name: &str| match (name, classes) {
+                ("tiles", Some(c)) => Some(Resource::Buffer(part(c))),
+                _ => lookup(name),
+            }
+        };
         let w = AccessSet::from(A::ComputeShaderWrite);
-        let bind = pipeline.bind_from(lookup, &[("hdr", w), ("ldr", w)])?;
+        let bind = pipeline.bind_from(over(|c| c.plain), &[("hdr", w), ("ldr", w)])?;
         let tiled = match inputs.tiles.zip(background_state.as_ref()) {
             Some((t, state)) => {
                 let value = crate::shaders::pipeline(&ctx, "compose/background_value")?;
                 let value_bind = value.bind_from(lookup, &[])?;
                 let background = crate::shaders::pipeline(&ctx, "compose/background")?;
                 let background_bind = background.bind_from(lookup, &[("hdr", w), ("ldr", w)])?;
+                let classes = match classes {
+                    Some(c) => {
+                        let skin_pipeline = specialized("compose/shade_tiles", true)?;
+                        let skin_bind =
+                            skin_pipeline.bind_from(over(|c| c.skin), &[("hdr", w), ("ldr", w)])?;
+                        Some(Classes {
+                            plain: c.plain.clone(),
+                            skin: c.skin.clone(),
+                            skin_pipeline,
+                            skin_bind,
+                        })
+                    }
+                    None => None,
+                };
                 Some(Tiled {
                     value,
                     value_bind,
@@ -326,6 +400,7 @@ impl ComposeKernel {
                     background_bind,
                     tiles: t.clone(),
                     state: state.clone(),
+                    classes,
                 })
             }
             None => None,
@@ -396,37 +471,56 @@ impl Kernel for ComposeKernel {
     fn pass_table(&self) -> Vec<Pass<'_, Self>> {
         let mut passes = vec![Pass::upload(PASS_PARAMS, &self.params, Self::params_bytes)];
         match &self.tiled {
-            Some(t) => passes.extend([
-                Pass::dispatch(PASS_BACKGROUND_VALUE, &t.value, &t.value_bind, |_, _| {
-                    Ok(Dispatch {
-                        push: Vec::new(),
-                        grid: Grid::Groups([1, 1, 1]),
-                    })
-                }),
-                // Every pixel or none, as the value pass wrote: at most ceil(pixels / 2^14)
-                // groups along y, under the 65,535 every device allows while the HDR buffer
-                // (16 bytes a pixel) fits a storage-buffer binding (at most 4 GiB).
-                Pass::dispatch_indirect(
-                    PASS_BACKGROUND,
-                    &t.background,
-                    &t.background_bind,
-                    IndirectArgs {
-                        buffer: &t.state,
-                        offset: 0,
+            Some(t) => {
+                passes.push(Pass::dispatch(
+                    PASS_BACKGROUND_VALUE,
+                    &t.value,
+                    &t.value_bind,
+                    |_, _| {
+                        Ok(Dispatch {
+                            push: Vec::new(),
+                            grid: Grid::Groups([1, 1, 1]),
+                        })
                     },
-                    |k: &ComposeKernel, _| Ok(bytemuck::cast_slice(&k.size).to_vec()),
-                ),
-                Pass::dispatch_indirect(
-                    PASS_SHADE,
-                    &self.pipeline,
-                    &self.bind,
-                    IndirectArgs {
-                        buffer: &t.tiles,
-                        offset: 0,
-                    },
-                    |_, _| Ok(Vec::new()),
-                ),
-            ]),
+                ));
+                passes.extend([
+                    // Every pixel or none, as the value pass wrote: at most ceil(pixels / 2^14)
+                    // groups along y, under the 65,535 every device allows while the HDR buffer
+                    // (16 bytes a pixel) fits a storage-buffer binding (at most 4 GiB).
+                    Pass::dispatch_indirect(
+                        PASS_BACKGROUND,
+                        &t.background,
+                        &t.background_bind,
+                        IndirectArgs {
+                            buffer: &t.state,
+                            offset: 0,
+                        },
+                        |k: &ComposeKernel, _| Ok(bytemuck::cast_slice(&k.size).to_vec()),
+                    ),
+                    Pass::dispatch_indirect(
+                        PASS_SHADE,
+                        &self.pipeline,
+                        &self.bind,
+                        IndirectArgs {
+                            buffer: t.classes.as_ref().map_or(&t.tiles, |c| &c.plain),
+                            offset: 0,
+                        },
+                        |_, _| Ok(Vec::new()),
+                    ),
+                ]);
+                if let Some(c) = &t.classes {
+                    passes.push(Pass::dispatch_indirect(
+                        PASS_SHADE_SKIN,
+                        &c.skin_pipeline,
+                        &c.skin_bind,
+                        IndirectArgs {
+                            buffer: &c.skin,
+                            offset: 0,
+                        },
+                        |_, _| Ok(Vec::new()),
+                    ));
+                }
+            }
             None => passes.push(Pass::dispatch(
                 PASS_SHADE,
                 &self.pipeline,
@@ -484,7 +578,7 @@ pub const PASS_NEED_CLEAR: &str = "compose need clear";
 pub const PASS_NEED: &str = "compose need";
 
 /// Pass `compose need`: per frame, the bitmap of the skin atlas's 8x1 row segments that
-/// [`ComposeKernel`]'s shade pass will read the diffusion at (every skin pixel's bilinear
+/// [`ComposeKernel`]'s shade passes will read the diffusion at (every skin pixel's bilinear
 /// footprint, a texel of margin around it), for `SssKernel::set_needed_segments`, so that the
 /// texture-space diffusion runs only where the frame looks. Recorded after the raster and
 /// pose passes and before the diffusion; its input is the camera the G-buffer was rasterised
@@ -509,8 +603,9 @@ pub struct NeedInputs<'a> {
     pub keys: &'a Buffer,
     /// Posed positions, vec4 per vertex (`kernels::pose`).
     pub positions: &'a Buffer,
-    /// The rasteriser's list of covered tiles (`RasterKernel::tiles`): the pass is dispatched
-    /// indirectly over it.
+    /// A tile list holding every tile with a skin pixel, the pass dispatched indirectly over
+    /// it: the rasteriser's list of covered tiles (`RasterKernel::tiles`) or, cheaper, the
+    /// skin's tiles of that list ([`TileClasses::skin`], as the character frame passes).
     pub tiles: &'a Buffer,
 }
 
@@ -638,4 +733,199 @@ impl Kernel for NeedKernel {
         all.extend(self.own.iter());
         self.ctx.memory_of(&all)
     }
+}
+
+/// Resetting the list of tiles without a skin pixel, before [`PASS_CLASSIFY`] appends to it.
+pub const PASS_PLAIN_RESET: &str = "compose plain tiles reset";
+/// Resetting the list of tiles holding a skin pixel.
+pub const PASS_SKIN_RESET: &str = "compose skin tiles reset";
+/// The rasteriser's listed tiles split by whether they hold a skin pixel
+/// (glsl/compose/classify.comp).
+pub const PASS_CLASSIFY: &str = "compose classify";
+
+/// The two lists [`TileClassKernel`] writes each frame. Each is a head, the indirect command
+/// of one workgroup a tile, `(count, 1, 1, 0)`, then `count` tile entries `tx | ty << 16`
+/// (the rasteriser's, glsl/common/tiles.glsl) in no fixed order.
+#[derive(Clone, Copy)]
+pub struct TileClasses<'a> {
+    /// The listed tiles without a skin pixel.
+    pub plain: &'a Buffer,
+    /// The listed tiles holding a skin pixel (a key naming a triangle below
+    /// [`Prepared::skin_triangles`]).
+    pub skin: &'a Buffer,
+}
+
+/// What [`TileClassKernel`] reads that other kernels write.
+#[derive(Clone, Copy)]
+pub struct TileClassInputs<'a> {
+    /// The rasteriser's per-pixel (depth, triangle) keys, 8 bytes a pixel.
+    pub keys: &'a Buffer,
+    /// The rasteriser's list of covered tiles (`RasterKernel::tiles`), the list it splits.
+    pub tiles: &'a Buffer,
+}
+
+/// The two lists, read back: tile entries `tx | ty << 16`, each list sorted.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct TileClassOutput {
+    pub plain: Vec<u32>,
+    pub skin: Vec<u32>,
+}
+
+/// A finished [`TileClassKernel`] readback.
+pub struct TileClassReadback([Readback; 2]);
+
+/// Pass `compose classify` (glsl/compose/classify.comp): each frame, the rasteriser's listed
+/// tiles split into those holding a skin pixel and the others ([`TileClasses`]), so that
+/// [`ComposeKernel`] runs the skin's shading only where a pixel needs it and [`NeedKernel`]
+/// marks the atlas from the skin's tiles only (lavapipe runs a shader's skin path, masked,
+/// at every pixel it is dispatched over). Recorded after the raster passes, before the
+/// kernels that read the lists. The twin is [`super::cpu::tile_classes`].
+pub struct TileClassKernel {
+    ctx: Context,
+    pipeline: ComputePipeline,
+    bind: BindGroup,
+    plain: Buffer,
+    skin: Buffer,
+    size: [u32; 2],
+    skin_triangles: u32,
+    /// Tiles in the image: the pass's grid, one invocation a tile.
+    tiles: u32,
+}
+
+impl TileClassKernel {
+    /// Creates the two lists (empty) and the pass for `prep`'s frame size and skin triangles,
+    /// and records the lists' first reset.
+    pub fn new(
+        rec: &mut Recorder,
+        prep: &Prepared,
+        inputs: &TileClassInputs<'_>,
+    ) -> Result<TileClassKernel> {
+        let ctx = rec.context();
+        let [w, h] = prep.size;
+        let pixels = w as u64 * h as u64;
+        if inputs.keys.size() < pixels * 8 {
+            return Err(too_small("the key buffer", inputs.keys.size(), pixels * 8));
+        }
+        let tiles = tile_count(prep.size);
+        let tiles_u32 = u32::try_from(tiles)
+            .map_err(|_| Error::InvalidArgument(format!("compose classify: {tiles} tiles")))?;
+        if inputs.tiles.size() < 16 + tiles * 4 {
+            return Err(too_small(
+                "the tile list",
+                inputs.tiles.size(),
+                16 + tiles * 4,
+            ));
+        }
+        let list = |rec: &mut Recorder, name: &str| -> Result<Buffer> {
+            let desc = BufferDesc::storage(16 + tiles * 4)
+                .usage(ash::vk::BufferUsageFlags::INDIRECT_BUFFER);
+            let b = Buffer::new(&ctx, name, desc)?;
+            rec.upload(&b, 0, &crate::kernels::EMPTY_LIST_HEAD)?;
+            Ok(b)
+        };
+        let plain = list(rec, "compose plain tiles")?;
+        let skin = list(rec, "compose skin tiles")?;
+        let pipeline = crate::shaders::pipeline(&ctx, "compose/classify")?;
+        let lookup = |name: &str| -> Option<Resource<'_>> {
+            Some(match name {
+                "keys" => Resource::Buffer(inputs.keys),
+                "tiles" => Resource::Buffer(inputs.tiles),
+                "plain" => Resource::Buffer(&plain),
+                "skin" => Resource::Buffer(&skin),
+                _ => return None,
+            })
+        };
+        // Appended by atomics: a read and a write.
+        let rw = A::ComputeShaderReadOther | A::ComputeShaderWrite;
+        let bind = pipeline.bind_from(lookup, &[("plain", rw), ("skin", rw)])?;
+        Ok(TileClassKernel {
+            ctx,
+            pipeline,
+            bind,
+            plain,
+            skin,
+            size: prep.size,
+            skin_triangles: prep.skin_triangles,
+            tiles: tiles_u32,
+        })
+    }
+
+    /// The lists the pass writes, for [`Inputs::classes`] and [`NeedInputs::tiles`].
+    pub fn classes(&self) -> TileClasses<'_> {
+        TileClasses {
+            plain: &self.plain,
+            skin: &self.skin,
+        }
+    }
+
+    fn classify_args(&self, _: &()) -> Result<Dispatch> {
+        Ok(Dispatch {
+            push: bytemuck::cast_slice(&[self.size[0], self.size[1], self.skin_triangles, 0])
+                .to_vec(),
+            grid: Grid::Invocations([self.tiles, 1, 1]),
+        })
+    }
+}
+
+impl Kernel for TileClassKernel {
+    type Input = ();
+    type Readback = TileClassReadback;
+    type Output = TileClassOutput;
+
+    fn name(&self) -> &'static str {
+        "compose classify"
+    }
+
+    fn pass_table(&self) -> Vec<Pass<'_, Self>> {
+        vec![
+            Pass::list_reset(PASS_PLAIN_RESET, &self.plain),
+            Pass::list_reset(PASS_SKIN_RESET, &self.skin),
+            Pass::dispatch(
+                PASS_CLASSIFY,
+                &self.pipeline,
+                &self.bind,
+                Self::classify_args,
+            ),
+        ]
+    }
+
+    fn read_back(&self, rec: &mut Recorder) -> Result<TileClassReadback> {
+        Ok(TileClassReadback([
+            rec.read_back(&self.plain)?,
+            rec.read_back(&self.skin)?,
+        ]))
+    }
+
+    fn collect(&self, rb: &TileClassReadback) -> Result<TileClassOutput> {
+        Ok(TileClassOutput {
+            plain: list_entries(&rb.0[0].to_vec::<u32>()?, "compose plain tiles")?,
+            skin: list_entries(&rb.0[1].to_vec::<u32>()?, "compose skin tiles")?,
+        })
+    }
+
+    fn memory(&self) -> MemoryReport {
+        self.ctx.memory_of(&[&self.plain, &self.skin])
+    }
+}
+
+/// Tiles of the rasteriser's tile grid for a `size` frame.
+fn tile_count(size: [u32; 2]) -> u64 {
+    let [tx, ty] = crate::kernels::raster::pack::tile_grid(size);
+    tx as u64 * ty as u64
+}
+
+/// The entries of a tile list read back (a head whose first word counts them, then the
+/// entries), sorted; `what` names the list in the error when the count exceeds its room.
+pub fn list_entries(words: &[u32], what: &str) -> Result<Vec<u32>> {
+    let n = words.first().copied().unwrap_or(0) as usize;
+    let room = words.len().saturating_sub(4);
+    let mut v = words
+        .get(4..)
+        .and_then(|w| w.get(..n))
+        .map(<[u32]>::to_vec)
+        .ok_or_else(|| {
+            Error::InvalidArgument(format!("{what}: a list of {n} tiles in room for {room}"))
+        })?;
+    v.sort_unstable();
+    Ok(v)
 }

@@ -19,7 +19,7 @@ pub mod gpu;
 pub mod pack;
 
 pub use gpu::{
-    ComposeKernel, ComposeOutput, NeedKernel, PASS_BACKGROUND, PASS_NEED, PASS_NEED_CLEAR,
-    PASS_PARAMS, PASS_SHADE,
+    ComposeKernel, ComposeOutput, NeedKernel, PASS_BACKGROUND, PASS_CLASSIFY, PASS_NEED,
+    PASS_NEED_CLEAR, PASS_PARAMS, PASS_SHADE, PASS_SHADE_SKIN, TileClassKernel, TileClasses,
 };
 pub use pack::{Environment, FrameParams, Prepared, SkinSpecular};
