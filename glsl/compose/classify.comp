@@ -9,8 +9,9 @@
 // taking it, 1.15 ms with it compiled out (`bench frame`, fastest of 4 alternated runs).
 // One invocation per listed tile (the grid covers every tile of the image; invocations past
 // the list's length return), which reads its tile's 64 keys and appends the tile to one
-// list: no barrier, one atomic a tile. Each list is (head, entries): head (count, 1, 1, 0),
-// the indirect command of one workgroup a tile, reset to (0, 1, 1, 0) before this pass; the
+// list: no barrier, two atomics a tile. Each list is (head, entries): head (count, 1, 1,
+// count), the indirect command of one workgroup a tile followed by the entry count, as every
+// GPU-appended list (kernels::EMPTY_LIST_HEAD), reset to (0, 1, 1, 0) before this pass; the
 // entries as the rasteriser's (tile_entry(tx, ty), glsl/common/tiles.glsl), in no fixed
 // order.
 layout(local_size_x = 64) in;
@@ -41,9 +42,12 @@ void main() {
             has_skin = keys.k[px.y * pc.dims.x + px.x].x < pc.dims.z;
         }
     }
+    // The slot from the entry count, and a workgroup more for the pass over the list.
     if (has_skin) {
-        skin.list[atomicAdd(skin.head[0], 1u)] = e;
+        skin.list[atomicAdd(skin.head[3], 1u)] = e;
+        atomicAdd(skin.head[0], 1u);
     } else {
-        plain.list[atomicAdd(plain.head[0], 1u)] = e;
+        plain.list[atomicAdd(plain.head[3], 1u)] = e;
+        atomicAdd(plain.head[0], 1u);
     }
 }

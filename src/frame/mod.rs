@@ -1596,10 +1596,14 @@ impl CharacterFrame {
             },
             tile_classes: match (&self.classify, &rb.classes) {
                 // The list: head (length, 1, 1, covered), then `length` entries.
-                (Some(k), Some((t, c))) => Some((
-                    compose::gpu::list_entries(&t.to_vec::<u32>()?, "raster tiles")?,
-                    k.collect(c)?,
-                )),
+                (Some(k), Some((t, c))) => {
+                    let words: Vec<u32> = t.to_vec()?;
+                    let n = words.first().copied().unwrap_or(0) as usize;
+                    let mut tiles =
+                        crate::kernels::list_entries(&words, n, "raster tiles")?.to_vec();
+                    tiles.sort_unstable();
+                    Some((tiles, k.collect(c)?))
+                }
                 _ => None,
             },
             cloth: match &rb.cloth {

@@ -114,6 +114,17 @@ pub type PushBytes<K> = fn(&K, &<K as Kernel>::Input) -> Result<Vec<u8>>;
 /// the SSS texels' shadow rays, the BTF's pixels) expect it reset before each frame.
 pub const EMPTY_LIST_HEAD: [u32; 4] = [0, 1, 1, 0];
 
+/// The first `count` entries of a GPU-appended list read back whole (`words`: the four-word
+/// head, then the entries), or an error naming `what` when `count` exceeds the buffer's room.
+pub fn list_entries<'w>(words: &'w [u32], count: usize, what: &str) -> Result<&'w [u32]> {
+    words.get(4..).and_then(|e| e.get(..count)).ok_or_else(|| {
+        Error::InvalidArgument(format!(
+            "{what}: the list counts {count} entries, room for {}",
+            words.len().saturating_sub(4)
+        ))
+    })
+}
+
 /// Where an indirect dispatch reads its workgroup counts: a `VkDispatchIndirectCommand`
 /// (three u32) at `offset` in `buffer`, written on the GPU by an earlier pass.
 #[derive(Clone, Copy)]

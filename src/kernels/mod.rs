@@ -13,7 +13,7 @@ pub mod sss;
 
 pub use contract::{
     Dispatch, EMPTY_LIST_HEAD, FrameResult, Grid, IndirectArgs, Kernel, KernelInfo, Pass, PassInfo,
-    Step, UseInfo, record_as_graph, run_frames,
+    Step, UseInfo, list_entries, record_as_graph, run_frames,
 };
 pub use env::EnvKernel;
 

@@ -143,6 +143,15 @@ fn too_small(what: &str, have: u64, need: u64) -> Error {
     ))
 }
 
+/// The rasteriser's key buffer holds a key (8 bytes) for every pixel of a `size` frame.
+fn check_keys(keys: &Buffer, size: [u32; 2]) -> Result<()> {
+    let need = size[0] as u64 * size[1] as u64 * 8;
+    if keys.size() < need {
+        return Err(too_small("the key buffer", keys.size(), need));
+    }
+    Ok(())
+}
+
 /// The skin triangles' vertex ids and atlas corners of `prep`, uploaded (`what` names them).
 fn skin_buffers(rec: &mut Recorder, prep: &Prepared, what: &str) -> Result<[Buffer; 2]> {
     let storage = BufferDesc::storage;
@@ -178,9 +187,7 @@ impl ComposeKernel {
                 d.extent[0], d.extent[1], d.layers
             )));
         }
-        if inputs.keys.size() < pixels * 8 {
-            return Err(too_small("the key buffer", inputs.keys.size(), pixels * 8));
-        }
+        check_keys(inputs.keys, prep.size)?;
         let vertices = inputs.positions.size() / 16;
         let atlas_texels = prep.atlas_size as u64 * prep.atlas_size as u64;
         if prep.mask.len() as u64 != atlas_texels {
@@ -617,16 +624,12 @@ impl NeedKernel {
     /// records the uploads. `prep` must have skin triangles.
     pub fn new(rec: &mut Recorder, prep: &Prepared, inputs: &NeedInputs<'_>) -> Result<NeedKernel> {
         let ctx = rec.context();
-        let [w, h] = prep.size;
-        let pixels = w as u64 * h as u64;
         if prep.skin_triangles == 0 || prep.atlas_size == 0 {
             return Err(Error::InvalidArgument(
                 "compose need: no skin triangles, so no diffusion to restrict".into(),
             ));
         }
-        if inputs.keys.size() < pixels * 8 {
-            return Err(too_small("the key buffer", inputs.keys.size(), pixels * 8));
-        }
+        check_keys(inputs.keys, prep.size)?;
         let vertices = inputs.positions.size() / 16;
         let max_vertex = prep.skin_tris.iter().flat_map(|t| &t[..3]).max();
         if max_vertex.is_some_and(|&v| v as u64 >= vertices) {
@@ -744,8 +747,9 @@ pub const PASS_SKIN_RESET: &str = "compose skin tiles reset";
 pub const PASS_CLASSIFY: &str = "compose classify";
 
 /// The two lists [`TileClassKernel`] writes each frame. Each is a head, the indirect command
-/// of one workgroup a tile, `(count, 1, 1, 0)`, then `count` tile entries `tx | ty << 16`
-/// (the rasteriser's, glsl/common/tiles.glsl) in no fixed order.
+/// of one workgroup a tile followed by the entry count, `(count, 1, 1, count)` (as
+/// [`crate::kernels::EMPTY_LIST_HEAD`] lays out every GPU-appended list), then `count` tile
+/// entries `tx | ty << 16` (the rasteriser's, glsl/common/tiles.glsl) in no fixed order.
 #[derive(Clone, Copy)]
 pub struct TileClasses<'a> {
     /// The listed tiles without a skin pixel.
@@ -801,11 +805,7 @@ impl TileClassKernel {
         inputs: &TileClassInputs<'_>,
     ) -> Result<TileClassKernel> {
         let ctx = rec.context();
-        let [w, h] = prep.size;
-        let pixels = w as u64 * h as u64;
-        if inputs.keys.size() < pixels * 8 {
-            return Err(too_small("the key buffer", inputs.keys.size(), pixels * 8));
-        }
+        check_keys(inputs.keys, prep.size)?;
         let tiles = tile_count(prep.size);
         let tiles_u32 = u32::try_from(tiles)
             .map_err(|_| Error::InvalidArgument(format!("compose classify: {tiles} tiles")))?;
@@ -897,9 +897,16 @@ impl Kernel for TileClassKernel {
     }
 
     fn collect(&self, rb: &TileClassReadback) -> Result<TileClassOutput> {
+        let sorted = |r: &Readback, what: &str| -> Result<Vec<u32>> {
+            let words: Vec<u32> = r.to_vec()?;
+            let count = words.get(3).copied().unwrap_or(0) as usize;
+            let mut v = crate::kernels::list_entries(&words, count, what)?.to_vec();
+            v.sort_unstable();
+            Ok(v)
+        };
         Ok(TileClassOutput {
-            plain: list_entries(&rb.0[0].to_vec::<u32>()?, "compose plain tiles")?,
-            skin: list_entries(&rb.0[1].to_vec::<u32>()?, "compose skin tiles")?,
+            plain: sorted(&rb.0[0], "compose plain tiles")?,
+            skin: sorted(&rb.0[1], "compose skin tiles")?,
         })
     }
 
@@ -912,20 +919,4 @@ impl Kernel for TileClassKernel {
 fn tile_count(size: [u32; 2]) -> u64 {
     let [tx, ty] = crate::kernels::raster::pack::tile_grid(size);
     tx as u64 * ty as u64
-}
-
-/// The entries of a tile list read back (a head whose first word counts them, then the
-/// entries), sorted; `what` names the list in the error when the count exceeds its room.
-pub fn list_entries(words: &[u32], what: &str) -> Result<Vec<u32>> {
-    let n = words.first().copied().unwrap_or(0) as usize;
-    let room = words.len().saturating_sub(4);
-    let mut v = words
-        .get(4..)
-        .and_then(|w| w.get(..n))
-        .map(<[u32]>::to_vec)
-        .ok_or_else(|| {
-            Error::InvalidArgument(format!("{what}: a list of {n} tiles in room for {room}"))
-        })?;
-    v.sort_unstable();
-    Ok(v)
 }

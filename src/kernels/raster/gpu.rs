@@ -482,13 +482,9 @@ impl Kernel for RasterKernel {
 /// `ty * tiles_x + tx` (the list holds `tx | ty << 16`).
 fn tile_list(rb: &Readback, tiles_x: u32) -> Result<TileList> {
     let words: Vec<u32> = rb.to_vec()?;
+    // One workgroup a tile: the length is the head's workgroup count; word 3 the covered.
     let (len, covered) = (words[0] as usize, words[3] as usize);
-    let list = words.get(4..4 + len).ok_or_else(|| {
-        Error::InvalidArgument(format!(
-            "tile list of {len} entries in a buffer of {} words",
-            words.len()
-        ))
-    })?;
+    let list = crate::kernels::list_entries(&words, len, "raster tiles")?;
     let index = |e: &u32| (e >> 16) * tiles_x + (e & 0xffff);
     let (mut c, mut s): (Vec<u32>, Vec<u32>) = (
         list[..covered.min(len)].iter().map(index).collect(),

@@ -297,15 +297,7 @@ impl Kernel for VertexListKernel {
     fn collect(&self, rb: &VertexListReadback) -> Result<Vec<u32>> {
         let words: Vec<u32> = rb.0.to_vec()?;
         let count = words.get(3).copied().unwrap_or(0) as usize;
-        let mut ids = words
-            .get(4..4 + count)
-            .ok_or_else(|| {
-                Error::InvalidArgument(format!(
-                    "vertex list: the list holds {count} vertices, more than its {} words",
-                    words.len().saturating_sub(4)
-                ))
-            })?
-            .to_vec();
+        let mut ids = crate::kernels::list_entries(&words, count, "vertex list")?.to_vec();
         ids.sort_unstable();
         Ok(ids)
     }

@@ -1492,13 +1492,7 @@ impl SssKernel {
     pub fn reach_segments(&self, rb: &Readback) -> Result<Vec<u32>> {
         let words: Vec<u32> = rb.to_vec()?;
         let n = words.get(3).copied().unwrap_or(0) as usize;
-        if 4 + n > words.len() {
-            return Err(Error::InvalidArgument(format!(
-                "the reach list counts {n} segments, room for {}",
-                words.len().saturating_sub(4)
-            )));
-        }
-        Ok(words[4..4 + n].to_vec())
+        Ok(crate::kernels::list_entries(&words, n, "the reach list")?.to_vec())
     }
 
     /// Whether a per-vertex irradiance is set ([`SssKernel::set_vertex_irradiance`]).
