@@ -27,7 +27,10 @@ const uint EDGE_LOST = 2u;
 // The vertex frames (position mm, normal), vertex v at texels 2v, 2v + 1 (pass `sss pose
 // vertices`).
 layout(set = 0, binding = 0, rgba32f) readonly uniform image2D vframes;
-layout(std430, set = 0, binding = 1) readonly buffer Topo { uvec4 v[]; } walk_topo;
+// TOPOLOGY texels a triangle, WALK_ROW a row (an image: lavapipe loads a texel with one
+// vector gather, a storage buffer's uvec4 at a per-lane index with a loop over the lanes per
+// component).
+layout(set = 0, binding = 1, rgba32ui) readonly uniform uimage2D walk_topo;
 layout(set = 0, binding = 2, rgba32ui) writeonly uniform uimage2D walk;
 layout(set = 0, binding = 3, rgba32f) writeonly uniform image2D trirec;
 
@@ -38,12 +41,17 @@ struct Tri {
     vec3 shape;  // l1, x2, y2 (zero when degenerate)
 };
 
+// Texel k of the topology.
+uvec4 topo(uint k) {
+    return imageLoad(walk_topo, ivec2(k % WALK_ROW, k / WALK_ROW));
+}
+
 vec3 vload(uint k) {
     return imageLoad(vframes, ivec2(k % WALK_ROW, k / WALK_ROW)).xyz;
 }
 
 Tri load(uint t) {
-    uvec4 c = walk_topo.v[TOPOLOGY * t];
+    uvec4 c = topo(TOPOLOGY * t);
     Tri r;
     r.p[0] = vload(2u * c.x);
     r.p[1] = vload(2u * c.y);
@@ -91,10 +99,10 @@ vec2 turn(vec2 a, vec2 b) {
 void main() {
     uint t = gl_GlobalInvocationID.x;
     if (t >= pc.triangles) return;
-    uvec4 c = walk_topo.v[TOPOLOGY * t];
-    uvec4 nb = walk_topo.v[TOPOLOGY * t + 1u];
-    uvec4 uva = walk_topo.v[TOPOLOGY * t + 2u];
-    uvec4 uvb = walk_topo.v[TOPOLOGY * t + 3u];
+    uvec4 c = topo(TOPOLOGY * t);
+    uvec4 nb = topo(TOPOLOGY * t + 1u);
+    uvec4 uva = topo(TOPOLOGY * t + 2u);
+    uvec4 uvb = topo(TOPOLOGY * t + 3u);
     Tri a = load(t);
     bool a_ok = a.shape.x > 0.0 && a.shape.z > 0.0;
     float il1 = a_ok ? 1.0 / a.shape.x : 0.0;
@@ -144,8 +152,8 @@ void main() {
             if (b_ok) {
                 // This triangle's barycentrics (b1, b2) -> its 2D point -> the neighbour's
                 // frame -> the neighbour's barycentrics -> the atlas through its UV map.
-                uvec4 nuva = walk_topo.v[TOPOLOGY * n + 2u];
-                uvec4 nuvb = walk_topo.v[TOPOLOGY * n + 3u];
+                uvec4 nuva = topo(TOPOLOGY * n + 2u);
+                uvec4 nuvb = topo(TOPOLOGY * n + 3u);
                 vec2 uv0 = uintBitsToFloat(nuva.xy);
                 vec2 du1 = uintBitsToFloat(nuva.zw), du2 = uintBitsToFloat(nuvb.xy);
                 float m1 = b.shape.x, mx2 = b.shape.y, my2 = b.shape.z;

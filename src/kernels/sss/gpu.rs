@@ -658,8 +658,9 @@ struct Posed {
     mm_per_unit: f32,
     /// Per vertex: the vertex whose posed position it takes.
     weld: Buffer,
-    /// Per triangle: the surface walk's topology ([`posed::walk_topology`]).
-    walk_topo: Buffer,
+    /// Per triangle: the surface walk's topology ([`posed::walk_topology`]), TOPOLOGY_TEXELS
+    /// texels from texel TOPOLOGY_TEXELS t, BVH_ROW a row.
+    walk_topo: Image,
     /// Per triangle (BVH_ROW a row): face normal and texel area, written each frame.
     trirec: Image,
     /// The vertex frames as an image (vertex v at texels 2v, 2v + 1, BVH_ROW a row), written
@@ -691,7 +692,7 @@ impl Posed {
         [
             ("vframes", Resource::storage_image(&self.vframes)),
             ("weld", Resource::Buffer(&self.weld)),
-            ("walk_topo", Resource::Buffer(&self.walk_topo)),
+            ("walk_topo", Resource::storage_image(&self.walk_topo)),
             ("trirec", Resource::storage_image(&self.trirec)),
             ("source", Resource::storage_image(&self.texel_source)),
             ("bvh_topo", Resource::Buffer(&self.bvh_topo)),
@@ -901,9 +902,13 @@ impl SssKernel {
         let ctx = kernel.ctx.clone();
         let buffer = |name: &str, bytes: u64| Buffer::new(&ctx, name, BufferDesc::storage(bytes));
         let weld = buffer("sss weld", layout.weld.len().max(1) as u64 * 4)?;
-        let walk_topo = buffer(
+        // An image, not a buffer: `sss pose triangles` reads four texels of each triangle and
+        // of its three neighbours, at per-lane addresses (lavapipe loads a storage buffer's
+        // uvec4 there as a loop over the lanes per component, an image texel as one gather).
+        let walk_topo = Image::new(
+            &ctx,
             "sss walk topology",
-            layout.walk_topology.len().max(1) as u64 * 16,
+            uint_image([BVH_ROW, pack::rows(layout.walk_topology.len(), BVH_ROW)]),
         )?;
         let topo = layout.bvh.gpu();
         let bvh_topo = buffer("sss bvh topology", topo.len() as u64 * 4)?;
@@ -922,7 +927,7 @@ impl SssKernel {
         let size = geo.size;
         let texel_source = Image::new(&ctx, "sss texel source", uint_image([size, size]))?;
         rec.upload(&weld, 0, &at_least_one(&layout.weld))?;
-        rec.upload(&walk_topo, 0, &at_least_one(&layout.walk_topology))?;
+        rec.upload_image_rows(&walk_topo, &layout.walk_topology)?;
         rec.upload(&bvh_topo, 0, &topo)?;
         rec.upload(&bvh_slots, 0, &at_least_one(&layout.bvh.slots))?;
         rec.upload_image_rows(&texel_source, &layout.texel_source)?;
@@ -938,7 +943,7 @@ impl SssKernel {
                 ("posed_pos", Resource::Buffer(src.positions)),
                 ("posed_nrm", Resource::Buffer(src.normals)),
                 ("weld", Resource::Buffer(&weld)),
-                ("walk_topo", Resource::Buffer(&walk_topo)),
+                ("walk_topo", Resource::storage_image(&walk_topo)),
                 ("trirec", Resource::storage_image(&trirec)),
                 ("vframes", Resource::storage_image(&vframes)),
                 ("source", Resource::storage_image(&texel_source)),
