@@ -34,8 +34,16 @@ layout(std430, set = 0, binding = 22) buffer ReachBlocks { uint w[]; } reach_blo
 // Per triangle two entries, (m1, m2, m0 as float bits, n) and (first, k, j, 0); from entry
 // first the k blocks of its texels (pass `sss reach triangles`), the j segments they lie
 // in, the n blocks of its texels' contact entries' sources (kernels::sss::pack::
-// reach_static).
-layout(std430, set = 0, binding = 23) readonly buffer ReachStatic { uvec4 v[]; } reach_static;
+// reach_static). REACH_ROW texels a row: an image, as lavapipe loads a texel with one
+// gather and a storage buffer's uvec4 at a per-lane index with a loop over the lanes per
+// component.
+layout(set = 0, binding = 23, rgba32ui) readonly uniform uimage2D reach_static;
+const uint REACH_ROW = 1024u; // pack::BVH_ROW
+
+// Entry k of the reach's layout.
+uvec4 reach_entry(uint k) {
+    return imageLoad(reach_static, ivec2(k % REACH_ROW, k / REACH_ROW));
+}
 
 const uint BLOCK_ROWS = 4u; // kernels::sss::pack::REACH_BLOCK_ROWS
 
@@ -64,12 +72,12 @@ void mark_box(vec2 lo, vec2 hi) {
 void main() {
     uint t = gl_GlobalInvocationID.x;
     if (t >= pc.triangles) return;
-    uvec4 st0 = reach_static.v[2u * t];
-    uvec4 st1 = reach_static.v[2u * t + 1u];
+    uvec4 st0 = reach_entry(2u * t);
+    uvec4 st1 = reach_entry(2u * t + 1u);
     // Its needed segments' own blocks.
     bool marked = false;
     for (uint c = 0u; c < st1.z; c++) {
-        uint s = reach_static.v[st1.x + st1.y + c].x;
+        uint s = reach_entry(st1.x + st1.y + c).x;
         if (((needed.w[s >> 5u] >> (s & 31u)) & 1u) == 0u) continue;
         marked = true;
         uint b = (s / ROW_SEGMENTS / BLOCK_ROWS) * ROW_SEGMENTS + s % ROW_SEGMENTS;
@@ -87,7 +95,7 @@ void main() {
     // The contact entries' sources, read as they are.
     uint first = st1.x + st1.y + st1.z;
     for (uint c = 0u; c < st0.w; c++) {
-        uint b = reach_static.v[first + c].x;
+        uint b = reach_entry(first + c).x;
         atomicOr(reach_blocks.w[b >> 5u], 1u << (b & 31u));
     }
     // Inside T a sample reads through T's own map, at a point of T: its UV triangle.

@@ -13,16 +13,25 @@ layout(push_constant) uniform Push {
 } pc;
 
 layout(std430, set = 0, binding = 22) readonly buffer ReachBlocks { uint w[]; } reach_blocks;
-layout(std430, set = 0, binding = 23) readonly buffer ReachStatic { uvec4 v[]; } reach_static;
+// The reach's per-triangle layout (kernels::sss::pack::reach_static), REACH_ROW texels a row:
+// an image, as lavapipe loads a texel with one gather and a storage buffer's uvec4 at a
+// per-lane index with a loop over the lanes per component.
+layout(set = 0, binding = 23, rgba32ui) readonly uniform uimage2D reach_static;
+const uint REACH_ROW = 1024u; // pack::BVH_ROW
 layout(std430, set = 0, binding = 24) buffer ReachMarks { uint w[]; } reach_marks;
+
+// Entry k of the reach's layout.
+uvec4 reach_entry(uint k) {
+    return imageLoad(reach_static, ivec2(k % REACH_ROW, k / REACH_ROW));
+}
 
 void main() {
     uint t = gl_GlobalInvocationID.x;
     if (t >= pc.triangles) return;
-    uvec4 own = reach_static.v[2u * t + 1u]; // (first, k, ...): the k blocks from first
+    uvec4 own = reach_entry(2u * t + 1u); // (first, k, ...): the k blocks from first
     bool hit = false;
     for (uint c = 0u; c < own.y; c++) {
-        uint b = reach_static.v[own.x + c].x;
+        uint b = reach_entry(own.x + c).x;
         hit = hit || ((reach_blocks.w[b >> 5u] >> (b & 31u)) & 1u) != 0u;
     }
     if (hit) {

@@ -197,7 +197,9 @@ struct Resources {
     /// layout fixes ([`pack::reach_static`]), and the list of the reached occupied segments
     /// (the irradiance's VkDispatchIndirectCommand, the count, room for every tile).
     reach_blocks: Buffer,
-    reach_static: Buffer,
+    /// An image (BVH_ROW texels a row): the reach passes read it at per-lane addresses, where
+    /// lavapipe loads a storage buffer's uvec4 as a loop over the lanes per component.
+    reach_static: Image,
     reach_list: Buffer,
 }
 
@@ -327,10 +329,7 @@ impl Resources {
                 "sss reach blocks",
                 BufferDesc::storage(pack::reach_block_words(room.size) * 4),
             )?,
-            reach_static: buffer(
-                "sss reach layout",
-                BufferDesc::storage(reach_entries as u64 * 16),
-            )?,
+            reach_static: image("sss reach layout", rows(pack::rows(reach_entries, BVH_ROW)))?,
             reach_list: buffer(
                 "sss reach segments",
                 BufferDesc::storage(16 + tiles * 4).usage(vk::BufferUsageFlags::INDIRECT_BUFFER),
@@ -367,7 +366,7 @@ impl Resources {
             ("occupied", Resource::Buffer(&self.occupied_segments)),
             ("needed_list", Resource::Buffer(&self.needed_list)),
             ("reach_blocks", Resource::Buffer(&self.reach_blocks)),
-            ("reach_static", Resource::Buffer(&self.reach_static)),
+            ("reach_static", Resource::storage_image(&self.reach_static)),
             ("reach_list", Resource::Buffer(&self.reach_list)),
         ]
     }
@@ -836,7 +835,7 @@ impl SssKernel {
             .collect();
         rec.upload(&res.vertex_regions, 0, &at_least_one(&vertex_regions))?;
         // The reach's data, its empty block bitmap and list.
-        rec.upload(&res.reach_static, 0, &reach)?;
+        rec.upload_image_rows(&res.reach_static, &reach)?;
         rec.fill_buffer(&res.reach_blocks, 0)?;
         rec.upload(&res.reach_list, 0, &crate::kernels::EMPTY_LIST_HEAD)?;
         res.upload(rec, packed)?;
