@@ -901,9 +901,10 @@ impl SssKernel {
         let ctx = kernel.ctx.clone();
         let buffer = |name: &str, bytes: u64| Buffer::new(&ctx, name, BufferDesc::storage(bytes));
         let weld = buffer("sss weld", layout.weld.len().max(1) as u64 * 4)?;
-        // An image, not a buffer: `sss pose triangles` reads four texels of each triangle and
-        // of its three neighbours, at per-lane addresses (lavapipe loads a storage buffer's
-        // uvec4 there as a loop over the lanes per component, an image texel as one gather).
+        // An image, not a buffer: `sss pose triangles` reads 13 texels per triangle (its own
+        // four, three of each neighbour's), at per-lane addresses (lavapipe loads a storage
+        // buffer's uvec4 there as a loop over the lanes per component, an image texel as one
+        // gather).
         let walk_topo = Image::new(
             &ctx,
             "sss walk topology",
@@ -926,7 +927,7 @@ impl SssKernel {
         let size = geo.size;
         let texel_source = Image::new(&ctx, "sss texel source", uint_image([size, size]))?;
         rec.upload(&weld, 0, &at_least_one(&layout.weld))?;
-        rec.upload_image_rows(&walk_topo, &layout.walk_topology)?;
+        rec.upload_image_rows(&walk_topo, &at_least_one(&layout.walk_topology))?;
         rec.upload(&bvh_topo, 0, &topo)?;
         rec.upload(&bvh_slots, 0, &at_least_one(&layout.bvh.slots))?;
         rec.upload_image_rows(&texel_source, &layout.texel_source)?;

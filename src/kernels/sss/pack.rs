@@ -17,7 +17,8 @@ use crate::geom::bvh::Bvh;
 
 /// Vertices per row of the per-vertex images (the shaders' VERTEX_ROW).
 pub const VERTEX_ROW: u32 = 1024;
-/// Texels per row of the BVH, walk and contact images (the shaders' BVH_ROW and WALK_ROW).
+/// Texels per row of the BVH, walk, contact, walk-topology and reach-layout images (the
+/// shaders' BVH_ROW, WALK_ROW and REACH_ROW).
 pub const BVH_ROW: u32 = 1024;
 /// Workgroups (8 x 8 invocations: 8 row segments) per row of the irradiance and diffusion
 /// dispatches (the shaders' TILE_ROW).
@@ -689,6 +690,14 @@ mod tests {
             include_str!("../../../glsl/sss/reach_list.comp"),
         ] {
             let line = format!("const uint BLOCK_ROWS = {REACH_BLOCK_ROWS}u;");
+            assert!(src.contains(&line), "a reach shader lacks `{line}`");
+        }
+        // The layout's image (SssKernel: `reach_static`, BVH_ROW texels a row).
+        for src in [
+            include_str!("../../../glsl/sss/reach_boxes.comp"),
+            include_str!("../../../glsl/sss/reach_triangles.comp"),
+        ] {
+            let line = format!("const uint REACH_ROW = {BVH_ROW}u;");
             assert!(src.contains(&line), "a reach shader lacks `{line}`");
         }
         let src = include_str!("../../../glsl/sss/walk_record.glsl");
