@@ -131,9 +131,8 @@ pub struct FrameConfig {
     /// diffusion runs on the atlas segments the compose pass will read (pass `compose
     /// need`, over the tiles holding a skin pixel: `compose classify`), and the compose pass
     /// shades the rasteriser's listed tiles (the skin's shading only over the listed tiles
-    /// holding a skin pixel),
-    /// storing the background in the others only on frames when it changed (pass `compose
-    /// background`).
+    /// holding a skin pixel), storing the background in the others only on frames when it
+    /// changed (pass `compose background`).
     /// Off: every segment and every pixel. The images are the same either way (bit for
     /// bit). With an environment it also shades
     /// only the vertices the frame reads (those of the triangles covering a pixel and of the

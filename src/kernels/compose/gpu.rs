@@ -246,7 +246,7 @@ impl ComposeKernel {
                     "compose: tile classes without the tile list they split".into(),
                 ));
             }
-            let need = 16 + tile_count(prep.size) * 4;
+            let need = tile_list_bytes(prep.size);
             for (what, b) in [
                 ("the plain tile list", c.plain),
                 ("the skin tile list", c.skin),
@@ -479,18 +479,13 @@ impl Kernel for ComposeKernel {
         let mut passes = vec![Pass::upload(PASS_PARAMS, &self.params, Self::params_bytes)];
         match &self.tiled {
             Some(t) => {
-                passes.push(Pass::dispatch(
-                    PASS_BACKGROUND_VALUE,
-                    &t.value,
-                    &t.value_bind,
-                    |_, _| {
+                passes.extend([
+                    Pass::dispatch(PASS_BACKGROUND_VALUE, &t.value, &t.value_bind, |_, _| {
                         Ok(Dispatch {
                             push: Vec::new(),
                             grid: Grid::Groups([1, 1, 1]),
                         })
-                    },
-                ));
-                passes.extend([
+                    }),
                     // Every pixel or none, as the value pass wrote: at most ceil(pixels / 2^14)
                     // groups along y, under the 65,535 every device allows while the HDR buffer
                     // (16 bytes a pixel) fits a storage-buffer binding (at most 4 GiB).
@@ -809,16 +804,12 @@ impl TileClassKernel {
         let tiles = tile_count(prep.size);
         let tiles_u32 = u32::try_from(tiles)
             .map_err(|_| Error::InvalidArgument(format!("compose classify: {tiles} tiles")))?;
-        if inputs.tiles.size() < 16 + tiles * 4 {
-            return Err(too_small(
-                "the tile list",
-                inputs.tiles.size(),
-                16 + tiles * 4,
-            ));
+        let bytes = tile_list_bytes(prep.size);
+        if inputs.tiles.size() < bytes {
+            return Err(too_small("the tile list", inputs.tiles.size(), bytes));
         }
         let list = |rec: &mut Recorder, name: &str| -> Result<Buffer> {
-            let desc = BufferDesc::storage(16 + tiles * 4)
-                .usage(ash::vk::BufferUsageFlags::INDIRECT_BUFFER);
+            let desc = BufferDesc::storage(bytes).usage(ash::vk::BufferUsageFlags::INDIRECT_BUFFER);
             let b = Buffer::new(&ctx, name, desc)?;
             rec.upload(&b, 0, &crate::kernels::EMPTY_LIST_HEAD)?;
             Ok(b)
@@ -919,4 +910,9 @@ impl Kernel for TileClassKernel {
 fn tile_count(size: [u32; 2]) -> u64 {
     let [tx, ty] = crate::kernels::raster::pack::tile_grid(size);
     tx as u64 * ty as u64
+}
+
+/// Bytes of a list holding every tile of a `size` frame: the four-word head, a word a tile.
+fn tile_list_bytes(size: [u32; 2]) -> u64 {
+    16 + tile_count(size) * 4
 }
