@@ -341,6 +341,10 @@ pub struct FrameReport {
     pub gpu_ms_sharp: f64,
     #[serde(serialize_with = "crate::io::finite::nan_as_null")]
     pub gpu_ms_shade: f64,
+    /// CTA: passes `srbf cta light`, `srbf cta project` and `srbf cta shade` (ms), whose sum
+    /// is `gpu_ms_shade`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub gpu_ms_cta: Option<[f64; 3]>,
     /// GPU against the same pipeline on the CPU (f64).
     pub gpu_vs_cpu: RelL2,
     /// With --reference: the method against the brute-force ground truth (at
@@ -1011,6 +1015,10 @@ fn shade_glossy(
             gpu_ms_project: 0.0,
             gpu_ms_sharp: sharp_ms,
             gpu_ms_shade: shade_ms,
+            gpu_ms_cta: cta_inputs.as_ref().map(|_| {
+                [PASS_CTA_LIGHT, PASS_CTA_PROJECT, PASS_CTA_SHADE]
+                    .map(|p| r.timings.get(p).unwrap_or(f64::NAN))
+            }),
             gpu_vs_cpu: RelL2::of(&gpu, &cpu),
             vs_ground_truth: truth.as_ref().map(|t| RelL2::of(&gpu, t)),
             direction_map_vs_ground_truth: grid_share,
@@ -1071,7 +1079,7 @@ fn shade_glossy(
         let (stream, amortised) = c.bytes_per_vertex();
         notes.push(format!(
             "CTA: {} clusters, ranks (vertex, view, light) {:?}, {} iterations; {stream} B per \
-             vertex streamed (f32 coefficients + cluster id), {amortised:.1} B per vertex with \
+             vertex streamed (f16 coefficients + cluster id), {amortised:.1} B per vertex with \
              the cluster tables; relative L2 (function space) {:.4}; history of the squared \
              error {:?}; compression {cta_ms:.0} ms{}; gpu_ms_shade sums the \
              cta light, project and shade passes; uncompressed_vs_ground_truth is the \
@@ -1301,6 +1309,7 @@ impl<'a> Session<'a> {
             gpu_ms_project: r.timings.get(PASS_PROJECT).unwrap_or(f64::NAN),
             gpu_ms_sharp: r.timings.get(PASS_SHARP).unwrap_or(f64::NAN),
             gpu_ms_shade: r.timings.get(PASS_SHADE).unwrap_or(f64::NAN),
+            gpu_ms_cta: None,
             gpu_vs_cpu: RelL2::of(&gpu, &cpu),
             vs_ground_truth: truth.as_ref().map(|t| RelL2::of(&gpu, t)),
             direction_map_vs_ground_truth: match (&self.pre.reference_env, &grid_truth, &truth) {
@@ -1477,13 +1486,17 @@ struct StageErrors {
 /// ground truth where there is one.
 fn frame_line(report: &FrameReport) -> String {
     format!(
-        "frame {}: lighting {:.3} + project {:.3} + sharp {:.3} + shade {:.3} ms GPU; GPU vs \
-         CPU {:.1e}{}{}",
+        "frame {}: lighting {:.3} + project {:.3} + sharp {:.3} + shade {:.3} ms GPU{}; GPU \
+         vs CPU {:.1e}{}{}",
         report.index,
         report.gpu_ms_lighting,
         report.gpu_ms_project,
         report.gpu_ms_sharp,
         report.gpu_ms_shade,
+        match report.gpu_ms_cta {
+            Some([l, p, s]) => format!(" (cta light {l:.3} + project {p:.3} + shade {s:.3})"),
+            None => String::new(),
+        },
         report.gpu_vs_cpu.all,
         match (
             report.vs_ground_truth,
