@@ -18,13 +18,15 @@
 // runs a storage-buffer load at a per-lane address as a loop over the lanes with a branch
 // per component, an image load as one vector gather (on the bunny at ranks 15,24,32 the
 // three CTA passes took 20.7 ms with buffers, 8.4-8.9 ms so; README). The images are CTA_ROW
-// texels wide, texel t at (t % CTA_ROW, t / CTA_ROW).
+// texels wide, texel t at (t % CTA_ROW, t / CTA_ROW). The vertex coefficients are half
+// precision, eight a texel (rgba32ui, two a component, unpackHalf2x16): the streamed bytes
+// of a vertex are 2 r_v + 4 (its cluster id) and its coefficient loads ceil(r_v / 8).
 layout(local_size_x = 64) in;
 
 layout(constant_id = 0) const uint RV = 8u;    // vertex rank r_v
 layout(constant_id = 1) const uint RW = 24u;   // view rank r_w (<= 32)
 const uint KW = (RW + 3u) / 4u;                // view-table texels per node (4 terms each)
-const uint KV = (RV + 3u) / 4u;                // coefficient texels per vertex
+const uint KV = (RV + 7u) / 8u;                // coefficient texels per vertex (8 halves each)
 layout(constant_id = 2) const uint CTA_ROW = 4096u; // kernels::table_row
 
 layout(push_constant) uniform Push {
@@ -35,12 +37,16 @@ layout(push_constant) uniform Push {
     uint one_table; // 1: one view table for all clusters
 } pc;
 
-// n x KV texels: coefficients 4q .. 4q + 3 of the i-th vertex in texel i * KV + q.
-layout(set = 0, binding = 0, rgba32f) uniform readonly image2D vcoeffs;
+// n x KV texels: coefficients 8q .. 8q + 7 of the i-th vertex in texel i * KV + q, component
+// j holding 8q + 2j (low half) and 8q + 2j + 1 (high half).
+layout(set = 0, binding = 0, rgba32ui) uniform readonly uimage2D vcoeffs;
 layout(std430, set = 0, binding = 1) readonly buffer Cluster { uint c[]; } cluster;   // n
 // (C or 1) x V nodes x KW texels: terms 4q .. 4q + 3 of node j in texel j * KW + q.
 layout(set = 0, binding = 2, rgba32f) uniform readonly image2D view;
-// C x r_v x r_w texels (rgb): M_c[a, b] in texel (c * r_v + a) * r_w + b.
+// C x r_v x 3 x KW texels: channel ch of M_c[a, 4q .. 4q + 3] in texel
+// ((c r_v + a) 3 + ch) KW + q (pass `srbf cta project`; one channel a texel, so a load is
+// a dot product with the view row's quad, and the loads per vertex are 3 r_v KW rather than
+// r_v r_w).
 layout(set = 0, binding = 3, rgba32f) uniform readonly image2D m;
 layout(std430, set = 0, binding = 4) readonly buffer Points { vec4 v[]; } points;
 layout(std430, set = 0, binding = 5) readonly buffer Normals { vec4 v[]; } normals;
@@ -69,16 +75,18 @@ void main() {
         }
         uw[q] = sum;
     }
-    vec4 uv[KV];
+    uvec4 uv[KV];
     [[unroll]] for (uint q = 0u; q < KV; q++) uv[q] = imageLoad(vcoeffs, cta_texel(v * KV + q));
     vec3 sum = vec3(0.0);
-    uint mbase = c * RV * RW;
+    uint mbase = c * RV * 3u * KW;
     [[unroll]] for (uint i = 0u; i < RV; i++) {
         vec3 row = vec3(0.0);
-        [[unroll]] for (uint k = 0u; k < RW; k++) {
-            row += imageLoad(m, cta_texel(mbase + i * RW + k)).rgb * uw[k / 4u][k % 4u];
+        [[unroll]] for (uint ch = 0u; ch < 3u; ch++) {
+            [[unroll]] for (uint q = 0u; q < KW; q++) {
+                row[ch] += dot(imageLoad(m, cta_texel(mbase + (i * 3u + ch) * KW + q)), uw[q]);
+            }
         }
-        sum += uv[i / 4u][i % 4u] * row;
+        sum += unpackHalf2x16(uv[i / 8u][(i / 2u) % 4u])[i % 2u] * row;
     }
     radiance.v[order.v[v]] = vec4(pc.albedo.rgb * sum, 1.0);
 }

@@ -6,10 +6,10 @@
 //! a GPU path exists, the CPU twin's time and the compression time.
 //!
 //! Matching (`bytes`, each B = 4 + payload: a u32 cluster id and the per-vertex weights):
-//! CTA stores r_v f32 coefficients (r_v = (B - 4) / 4); diffuse CPCA, as shipped, stores M
-//! half-precision weights (M = (B - 4) / 2, so twice CTA's count at the same bytes); glossy
-//! CPCA ([`MatrixCpca`], whole V x K matrices per vertex) stores M f32 weights
-//! (M = (B - 4) / 4). Both methods use the same cluster count. CPCA keeps a mean per cluster;
+//! every method streams its per-vertex values in half precision: CTA r_v coefficients
+//! (r_v = (B - 4) / 2), diffuse CPCA M weights (M = (B - 4) / 2), glossy CPCA
+//! ([`MatrixCpca`], whole V x K matrices per vertex) M weights (M = (B - 4) / 2). The CPU
+//! twins round them as the GPU holds them. Both methods use the same cluster count. CPCA keeps a mean per cluster;
 //! plain Tucker (CTA) has none.
 //!
 //! Error: relative L2 over vertices of the shaded linear RGB radiance (albedo 1), all three
@@ -113,8 +113,8 @@ impl CompareConfig {
         let bad = |m: String| Err(Error::InvalidArgument(format!("bench srbf --compare: {m}")));
         if self.bytes.is_empty() || self.bytes.iter().any(|b| !(8..=4 + 4 * 32).contains(b)) {
             return bad(format!(
-                "--bytes {:?}: each point must be in 8..=132 (4 bytes of cluster id plus 1 to \
-                 32 f32 coefficients)",
+                "--bytes {:?}: each point must be in 8..=132 (4 bytes of cluster id plus 2 to \
+                 64 half-precision coefficients)",
                 self.bytes
             ));
         }
@@ -314,8 +314,8 @@ pub fn run(
          channels, mean over the rotations, of each method's CPU twin against the f64 \
          brute-force truth; every lobe through the basis (no compact lobes)"
             .to_string(),
-        "bytes: streamed = per-vertex weights + a 4-byte cluster id; amortised adds the \
-         per-cluster tables (f32) divided by the vertex count"
+        "bytes: streamed = per-vertex weights (f16) + a 4-byte cluster id; amortised adds \
+         the per-cluster tables (f32) divided by the vertex count"
             .to_string(),
     ];
     if ctx.info().device_type == "CPU" {
@@ -426,7 +426,7 @@ pub fn run(
             points.push(p);
         }
         for &b in &cfg.bytes {
-            let rv = (b - 4) / 4;
+            let rv = (b - 4) / 2;
             let ccfg = CtaConfig {
                 clusters: cfg.clusters,
                 ranks: [rv, 1, rv.min(cfg.basis)],
@@ -444,7 +444,7 @@ pub fn run(
                         let c = cta.cluster_of[v] as usize;
                         let mut out = [0f64; 3];
                         for a in 0..rv {
-                            let u = cta.coeffs[v * rv + a] as f64;
+                            let u = cta.coeff(v, a) as f64;
                             for ch in 0..3 {
                                 out[ch] += u * m[c * rv + a][ch];
                             }
@@ -459,7 +459,7 @@ pub fn run(
             let p = ComparePoint {
                 brdf: "diffuse",
                 method: "cta",
-                settings: format!("{} clusters, ranks {:?} (f32)", cta.clusters, cta.ranks),
+                settings: format!("{} clusters, ranks {:?} (f16 coefficients)", cta.clusters, cta.ranks),
                 per_vertex_values: rv,
                 stream_bytes_per_vertex: stream,
                 amortised_bytes_per_vertex: amortised,
@@ -585,7 +585,7 @@ pub fn run(
         progress(&line(&p));
         points.push(p);
         for &b in &cfg.bytes {
-            let m = (b - 4) / 4;
+            let m = (b - 4) / 2;
             let settings = CpcaConfig {
                 clusters: cfg.clusters,
                 components: m,
@@ -612,7 +612,7 @@ pub fn run(
                 brdf: "glossy",
                 method: "cpca",
                 settings: format!(
-                    "{} clusters x {m} components of {views} x {} matrices (f32)",
+                    "{} clusters x {m} components (f16) of {views} x {} matrices (f32)",
                     c.clusters, cfg.basis
                 ),
                 per_vertex_values: m,
@@ -631,7 +631,7 @@ pub fn run(
             points.push(p);
         }
         for &b in &cfg.bytes {
-            let rv = (b - 4) / 4;
+            let rv = (b - 4) / 2;
             let rw = cfg.cta_view_rank.min(views);
             let rl = cfg.cta_light_rank.min(cfg.basis);
             let ccfg = CtaConfig {
@@ -661,7 +661,10 @@ pub fn run(
             let p = ComparePoint {
                 brdf: "glossy",
                 method: "cta",
-                settings: format!("{} clusters, ranks {:?} (f32)", cta.clusters, cta.ranks),
+                settings: format!(
+                    "{} clusters, ranks {:?} (f16 coefficients)",
+                    cta.clusters, cta.ranks
+                ),
                 per_vertex_values: cta.ranks[0],
                 stream_bytes_per_vertex: stream,
                 amortised_bytes_per_vertex: amortised,

@@ -18,6 +18,7 @@ use super::transfer::Basis;
 use crate::error::{Error, Result};
 use crate::geom::Rng;
 use crate::geom::linalg::{jacobi_eigen, orthonormalise, solve_upper_transposed};
+use crate::io::f16::half_round;
 use glam::Vec3;
 use rayon::prelude::*;
 
@@ -40,7 +41,8 @@ pub struct MatrixCpca {
     /// Per cluster, M + 1 matrices of V x K coefficients (row-major): the mean, then the
     /// axes.
     pub matrices: Vec<f32>,
-    /// Vertex-major, M per vertex.
+    /// Vertex-major, M per vertex (the model's f32; [`MatrixCpca::shade`] rounds them to
+    /// half precision).
     pub weights: Vec<f32>,
     /// sqrt(sum_v |T~_v - T^_v|^2 / sum_v |T~_v|^2), function-space L2 summed over the views.
     pub rel_l2: f64,
@@ -419,7 +421,11 @@ impl MatrixCpca {
             .map(|v| {
                 let c = self.cluster_of[v] as usize;
                 let p = &projected[c * (m + 1) * views..(c + 1) * (m + 1) * views];
-                let w = &self.weights[v * m..(v + 1) * m];
+                // Half precision, as a runtime would stream them (and CTA's coefficients are).
+                let w: Vec<f32> = self.weights[v * m..(v + 1) * m]
+                    .iter()
+                    .map(|w| half_round(*w))
+                    .collect();
                 let mut out = [0f64; 3];
                 for (j, tw) in view.weights(local_view(positions[v], normals[v], camera)) {
                     for ch in 0..3 {
@@ -435,10 +441,11 @@ impl MatrixCpca {
             .collect())
     }
 
-    /// Bytes per vertex as a runtime would stream them (M f32 weights and a u32 cluster id)
-    /// and with the per-cluster matrices (f32) amortised over the vertices.
+    /// Bytes per vertex as a runtime would stream them (M half-precision weights, as
+    /// [`MatrixCpca::shade`] uses them, and a u32 cluster id) and with the per-cluster
+    /// matrices (f32) amortised over the vertices.
     pub fn bytes_per_vertex(&self) -> (usize, f64) {
-        let stream = 4 * self.components + 4;
+        let stream = 2 * self.components + 4;
         let tables = 4 * self.clusters * (self.components + 1) * self.views * self.basis.len();
         (stream, stream as f64 + tables as f64 / self.vertices as f64)
     }

@@ -32,6 +32,7 @@ use super::transfer::Basis;
 use crate::error::{Error, Result};
 use crate::geom::Rng;
 use crate::geom::linalg::{jacobi_eigen, orthonormalise, solve_upper_transposed, subspace_eigen};
+use crate::io::f16::half_round;
 use crate::io::transfer_cache::CtaFile;
 use rayon::prelude::*;
 use std::borrow::Cow;
@@ -62,6 +63,9 @@ impl Default for CtaConfig {
     }
 }
 
+/// The largest finite half-precision value.
+const HALF_MAX: f32 = 65504.0;
+
 /// Clusters a vertex may move to in a reassignment: its own and the nearest by feature.
 const CANDIDATES: usize = 6;
 
@@ -82,7 +86,8 @@ pub struct Cta {
     pub light_factors: Vec<f32>,
     /// Per cluster: r_v x r_w x r_l.
     pub cores: Vec<f32>,
-    /// Per vertex: r_v.
+    /// Per vertex: r_v, the model's (f32). The runtime streams them in half precision
+    /// ([`Cta::coeff`]): the GPU reads f16 and the CPU twin rounds alike.
     pub coeffs: Vec<f32>,
     /// Function-space relative L2 of the reconstruction against the input, over all vertices.
     pub rel_l2: f64,
@@ -759,6 +764,13 @@ impl Cta {
                 self.cluster_of[v]
             )));
         }
+        if let Some(i) = self.coeffs.iter().position(|x| x.abs() > HALF_MAX) {
+            return Err(Error::InvalidArgument(format!(
+                "CTA transfer: vertex coefficient {i} ({}) is beyond half precision's range \
+                 (+-{HALF_MAX}), in which the GPU streams the coefficients",
+                self.coeffs[i]
+            )));
+        }
         let finite = |x: &[f32]| x.iter().all(|v| v.is_finite());
         if !(finite(&self.coeffs)
             && finite(&self.cores)
@@ -820,7 +832,14 @@ impl Cta {
         Ok(c)
     }
 
-    /// Vertex v's reconstructed V x K transfer matrix (f64 sums of the f32 factors).
+    /// Vertex v's coefficient a as the runtime holds it: half precision (the GPU's
+    /// coefficient image is f16; [`Cta::check`] keeps the model's values in its range).
+    pub fn coeff(&self, v: usize, a: usize) -> f32 {
+        half_round(self.coeffs[v * self.ranks[0] + a])
+    }
+
+    /// Vertex v's reconstructed V x K transfer matrix (f64 sums of the f32 factors and the
+    /// model's f32 coefficients, before their rounding to half precision).
     pub fn reconstruct(&self, v: usize) -> Vec<f64> {
         let [rv, rw, rl] = self.ranks;
         let (k, vv) = (self.basis.len(), self.views);
@@ -886,11 +905,11 @@ impl Cta {
         Ok(out)
     }
 
-    /// Transfer bytes per vertex as streamed (f32 coefficients and a u32 cluster id) and the
-    /// per-cluster tables amortised over the vertices.
+    /// Transfer bytes per vertex as streamed (f16 coefficients and a u32 cluster id) and the
+    /// per-cluster tables (f32) amortised over the vertices.
     pub fn bytes_per_vertex(&self) -> (usize, f64) {
         let [rv, rw, rl] = self.ranks;
-        let stream = 4 * rv + 4;
+        let stream = 2 * rv + 4;
         let tables = 4 * self.clusters * (rv * rw * rl + self.views * rw + self.basis.len() * rl);
         (stream, stream as f64 + tables as f64 / self.vertices as f64)
     }
@@ -1110,5 +1129,40 @@ mod tests {
         let mut cta = Cta::compress(&basis, &rows, n, vv, &cfg).unwrap();
         cta.cluster_of[5] = 9;
         assert!(cta.check().unwrap_err().to_string().contains("vertex 5"));
+        // A coefficient half precision cannot hold (the GPU streams them as f16).
+        let mut cta = Cta::compress(&basis, &rows, n, vv, &cfg).unwrap();
+        cta.coeffs[3] = 7.0e4;
+        let e = cta.check().unwrap_err().to_string();
+        assert!(e.contains("coefficient 3") && e.contains("half"), "{e}");
+    }
+
+    /// The runtime's coefficients are the model's rounded to half precision: within half an
+    /// f16 ulp (2^-11 relative) and exactly representable.
+    #[test]
+    fn streamed_coefficients_are_the_model_in_half_precision() {
+        let (basis, rows, n, vv) = synthetic(0.01, 4);
+        let cta = Cta::compress(
+            &basis,
+            &rows,
+            n,
+            vv,
+            &CtaConfig {
+                clusters: 2,
+                ranks: [2, 3, 4],
+                ..CtaConfig::default()
+            },
+        )
+        .unwrap();
+        for v in 0..n {
+            for a in 0..2 {
+                let (model, streamed) = (cta.coeffs[v * 2 + a], cta.coeff(v, a));
+                assert!(
+                    (model - streamed).abs() <= model.abs() * 2f32.powi(-11) + 3e-8,
+                    "{model} {streamed}"
+                );
+                assert_eq!(half_round(streamed), streamed);
+            }
+        }
+        assert_eq!(cta.bytes_per_vertex().0, 2 * 2 + 4);
     }
 }

@@ -17,6 +17,7 @@ use crate::gpu::{
     AccessSet, AccessType as A, BindGroup, Buffer, BufferDesc, ComputePipeline, Context, Image,
     MemoryReport, Readback, Recorder, Resource,
 };
+use crate::io::f16::f16_bits;
 use crate::kernels::{Dispatch, Grid, Kernel, Pass};
 use ash::vk;
 use glam::Vec3;
@@ -122,7 +123,7 @@ impl CtaInputs<'_> {
                 }
                 let mut out = [0f64; 3];
                 for a in 0..rv {
-                    let u = t.coeffs[v * rv + a] as f64;
+                    let u = t.coeff(v, a) as f64;
                     for (b, x) in uw.iter().enumerate() {
                         let mm = m[(c * rv + a) * rw + b];
                         for ch in 0..3 {
@@ -186,8 +187,9 @@ pub struct CtaKernel {
     compact: Option<CompactStage>,
     buffers: Vec<Buffer>,
     /// The view table, the per-cluster tables M_c and the vertex coefficients
-    /// (glsl/srbf/cta_shade.comp).
-    images: [Image; 3],
+    /// (glsl/srbf/cta_shade.comp); the light factors, the cores and the projected light
+    /// (cta_light.comp, cta_project.comp).
+    images: [Image; 6],
     vertices: u32,
     grid: u32,
     /// (r_v, r_w, r_l) as the GPU holds them (r_w = m for a factored view basis).
@@ -215,13 +217,6 @@ impl CtaKernel {
         }
         let vec4 =
             |v: &[Vec3]| -> Vec<[f32; 4]> { v.iter().map(|x| x.extend(0.0).into()).collect() };
-        let zeros = |rec: &mut Recorder, name: &str, n: usize| {
-            rec.buffer_with(
-                name,
-                BufferDesc::storage(n as u64 * 16),
-                &vec![[0f32; 4]; n],
-            )
-        };
         let radiance = Buffer::new(
             &ctx,
             "srbf cta radiance",
@@ -253,9 +248,6 @@ impl CtaKernel {
                     .usage(vk::BufferUsageFlags::UNIFORM_BUFFER),
                 &vec![[0f32; 4]; MAX_BASIS],
             )?,
-            storage(rec, "srbf cta light factors", &t.light_factors)?,
-            zeros(rec, "srbf cta projected light", t.clusters * rl)?,
-            storage(rec, "srbf cta cores", &cores)?,
             storage(
                 rec,
                 "srbf cta clusters",
@@ -274,9 +266,6 @@ impl CtaKernel {
             amps,
             basis_axes,
             coeffs,
-            light,
-            y,
-            cores,
             clusters,
             points,
             normals,
@@ -306,16 +295,59 @@ impl CtaKernel {
         };
         let view_image = image("srbf cta view factors", view_texels.len())?;
         rec.upload_image_rows(&view_image, &view_texels)?;
-        let m_image = image("srbf cta cluster tables", t.clusters * rv * rw)?;
-        let kv = rv.div_ceil(4);
-        let coeff_texels: Vec<[f32; 4]> = gather(&t.coeffs, rv)
-            .chunks_exact(rv)
-            .flat_map(|u| {
-                (0..kv)
-                    .map(move |q| std::array::from_fn(|j| u.get(4 * q + j).copied().unwrap_or(0.0)))
+        let m_image = image("srbf cta cluster tables", t.clusters * rv * 3 * kw)?;
+        // The light factor (C x K x KL texels) and the core (C x r_v x 4 KW x KL texels),
+        // four light ranks a texel, zero-padded in r_l and (the core) in r_w; y, the lighting
+        // on each cluster's light factor, C x 3 x KL texels (glsl/srbf/cta_light.comp,
+        // cta_project.comp).
+        let kl = rl.div_ceil(4);
+        let quads = |rows: &[f32], width: usize| -> Vec<[f32; 4]> {
+            rows.chunks_exact(width)
+                .flat_map(|r| {
+                    (0..kl).map(move |p| {
+                        std::array::from_fn(|j| r.get(4 * p + j).copied().unwrap_or(0.0))
+                    })
+                })
+                .collect()
+        };
+        let light_texels = quads(&t.light_factors, rl);
+        let light_image = image("srbf cta light factors", light_texels.len())?;
+        rec.upload_image_rows(&light_image, &light_texels)?;
+        let padded_cores: Vec<f32> = cores
+            .chunks_exact(rw * rl)
+            .flat_map(|g| {
+                g.iter()
+                    .copied()
+                    .chain(std::iter::repeat_n(0.0, (4 * kw - rw) * rl))
             })
             .collect();
-        let coeff_image = image("srbf cta vertex coefficients", coeff_texels.len())?;
+        let core_texels = quads(&padded_cores, rl);
+        let core_image = image("srbf cta cores", core_texels.len())?;
+        rec.upload_image_rows(&core_image, &core_texels)?;
+        let y_image = image("srbf cta projected light", t.clusters * 3 * kl)?;
+        // Half precision, eight coefficients a texel (u32 j of texel q holds coefficients
+        // 8q + 2j, low half, and 8q + 2j + 1): the image loads per vertex stay those of
+        // four f32 a texel at half the ranks.
+        let kv = rv.div_ceil(8);
+        let half = |u: &[f32], i: usize| u.get(i).map_or(0, |x| f16_bits(*x) as u32);
+        let coeff_texels: Vec<[u32; 4]> = gather(&t.coeffs, rv)
+            .chunks_exact(rv)
+            .flat_map(|u| {
+                (0..kv).map(move |q| {
+                    std::array::from_fn(|j| {
+                        half(u, 8 * q + 2 * j) | half(u, 8 * q + 2 * j + 1) << 16
+                    })
+                })
+            })
+            .collect();
+        let coeff_image = crate::kernels::row_image(
+            &ctx,
+            "srbf cta vertex coefficients",
+            vk::Format::R32G32B32A32_UINT,
+            coeff_texels.len() as u64,
+            vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST,
+            "; use fewer vertices or a lower vertex rank",
+        )?;
         rec.upload_image_rows(&coeff_image, &coeff_texels)?;
         let (b, w) = (Resource::Buffer, AccessSet::from(A::ComputeShaderWrite));
         let (view, m) = (
@@ -333,15 +365,25 @@ impl CtaKernel {
             ],
             &[("coeffs", w)],
         )?;
-        let light_p = pipeline("srbf/cta_light")?;
+        let light_p =
+            crate::shaders::pipeline_specialized(&ctx, "srbf/cta_light", &[("CTA_ROW", row)])?;
+        let y = Resource::storage_image(&y_image);
         let light_bind = light_p.bind_declared(
-            &[("light", b(light)), ("coeffs", b(coeffs)), ("y", b(y))],
+            &[
+                ("light", Resource::storage_image(&light_image)),
+                ("coeffs", b(coeffs)),
+                ("y", y.clone()),
+            ],
             &[("y", w)],
         )?;
         let project =
             crate::shaders::pipeline_specialized(&ctx, "srbf/cta_project", &[("CTA_ROW", row)])?;
         let project_bind = project.bind_declared(
-            &[("cores", b(cores)), ("y", b(y)), ("m", m.clone())],
+            &[
+                ("cores", Resource::storage_image(&core_image)),
+                ("y", y),
+                ("m", m.clone()),
+            ],
             &[("m", w)],
         )?;
         let shade = crate::shaders::pipeline_specialized(
@@ -386,7 +428,14 @@ impl CtaKernel {
             lobes: inputs.lobes.len() as u32,
             sharpness: t.basis.sharpness,
             buffers,
-            images: [view_image, m_image, coeff_image],
+            images: [
+                view_image,
+                m_image,
+                coeff_image,
+                light_image,
+                core_image,
+                y_image,
+            ],
         })
     }
 
@@ -407,18 +456,20 @@ impl CtaKernel {
     }
 
     fn light_args(&self, _frame: &GlossyFrame) -> Result<Dispatch> {
-        let entries = self.clusters * self.ranks[2];
+        let kl = self.ranks[2].div_ceil(4);
+        let entries = self.clusters * kl;
         Ok(Dispatch::words(
-            &[entries, self.ranks[2], self.basis],
+            &[entries, kl, self.basis],
             Grid::Invocations([entries, 1, 1]),
         ))
     }
 
     fn project_args(&self, _frame: &GlossyFrame) -> Result<Dispatch> {
-        let rows = self.ranks[0] * self.ranks[1];
-        let entries = self.clusters * rows;
+        let [rv, rw, rl] = self.ranks;
+        let kw = rw.div_ceil(4);
+        let entries = self.clusters * rv * kw;
         Ok(Dispatch::words(
-            &[entries, rows, self.ranks[2]],
+            &[entries, kw, rv, rl.div_ceil(4)],
             Grid::Invocations([entries, 1, 1]),
         ))
     }
