@@ -19,8 +19,11 @@
 // per component, an image load as one vector gather (on the bunny at ranks 15,24,32 the
 // three CTA passes took 20.7 ms with buffers, 8.4-8.9 ms so; README). The images are CTA_ROW
 // texels wide, texel t at (t % CTA_ROW, t / CTA_ROW). The vertex coefficients are half
-// precision, eight a texel (rgba32ui, two a component, unpackHalf2x16): the streamed bytes
-// of a vertex are 2 r_v + 4 (its cluster id) and its coefficient loads ceil(r_v / 8).
+// precision, eight a texel (rgba32ui, two a component, unpackHalf2x16), so a vertex's
+// coefficient loads are ceil(r_v / 8); where its last texel has a free component (r_v % 8
+// in 1..=6) that component holds the vertex's cluster id and the cluster buffer is not read
+// (PACKED_CLUSTER): a vertex then reads 16 ceil(r_v / 8) bytes, else that and 4 more
+// (kernels::srbf::cta::Cta::bytes_per_vertex).
 layout(local_size_x = 64) in;
 
 layout(constant_id = 0) const uint RV = 8u;    // vertex rank r_v
@@ -28,6 +31,8 @@ layout(constant_id = 1) const uint RW = 24u;   // view rank r_w (<= 32)
 const uint KW = (RW + 3u) / 4u;                // view-table texels per node (4 terms each)
 const uint KV = (RV + 7u) / 8u;                // coefficient texels per vertex (8 halves each)
 layout(constant_id = 2) const uint CTA_ROW = 4096u; // kernels::table_row
+// 1: the cluster id is component w of the vertex's last coefficient texel.
+layout(constant_id = 3) const uint PACKED_CLUSTER = 0u;
 
 layout(push_constant) uniform Push {
     vec4 camera;   // xyz, model units
@@ -38,7 +43,8 @@ layout(push_constant) uniform Push {
 } pc;
 
 // n x KV texels: coefficients 8q .. 8q + 7 of the i-th vertex in texel i * KV + q, component
-// j holding 8q + 2j (low half) and 8q + 2j + 1 (high half).
+// j holding 8q + 2j (low half) and 8q + 2j + 1 (high half); with PACKED_CLUSTER the last
+// texel's w is the cluster id.
 layout(set = 0, binding = 0, rgba32ui) uniform readonly uimage2D vcoeffs;
 layout(std430, set = 0, binding = 1) readonly buffer Cluster { uint c[]; } cluster;   // n
 // (C or 1) x V nodes x KW texels: terms 4q .. 4q + 3 of node j in texel j * KW + q.
@@ -65,7 +71,9 @@ void main() {
     uint idx[4];
     float wt[4];
     view_taps(points.v[v].xyz, normals.v[v].xyz, pc.camera.xyz, pc.grid, idx, wt);
-    uint c = cluster.c[v];
+    uvec4 uv[KV];
+    [[unroll]] for (uint q = 0u; q < KV; q++) uv[q] = imageLoad(vcoeffs, cta_texel(v * KV + q));
+    uint c = PACKED_CLUSTER != 0u ? uv[KV - 1u].w : cluster.c[v];
     uint vbase = pc.one_table != 0u ? 0u : c * pc.grid * pc.grid;
     vec4 uw[KW];
     [[unroll]] for (uint q = 0u; q < KW; q++) {
@@ -75,8 +83,6 @@ void main() {
         }
         uw[q] = sum;
     }
-    uvec4 uv[KV];
-    [[unroll]] for (uint q = 0u; q < KV; q++) uv[q] = imageLoad(vcoeffs, cta_texel(v * KV + q));
     vec3 sum = vec3(0.0);
     uint mbase = c * RV * 3u * KW;
     [[unroll]] for (uint i = 0u; i < RV; i++) {

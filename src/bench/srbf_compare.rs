@@ -8,8 +8,11 @@
 //! Matching (`bytes`, each B = 4 + payload: a u32 cluster id and the per-vertex weights):
 //! every method streams its per-vertex values in half precision: CTA r_v coefficients
 //! (r_v = (B - 4) / 2), diffuse CPCA M weights (M = (B - 4) / 2), glossy CPCA
-//! ([`MatrixCpca`], whole V x K matrices per vertex) M weights (M = (B - 4) / 2). The CPU
-//! twins round them as the GPU holds them. Both methods use the same cluster count. CPCA keeps a mean per cluster;
+//! ([`MatrixCpca`], whole V x K matrices per vertex) M weights (M = (B - 4) / 2), each
+//! CPU twin rounding them to half precision as a GPU would hold them. CTA reports the bytes
+//! its GPU reads (whole texels of eight coefficients, the cluster id inside the last one
+//! where it has room: `Cta::bytes_per_vertex`), which are B at the default points. Both
+//! methods use the same cluster count. CPCA keeps a mean per cluster;
 //! plain Tucker (CTA) has none.
 //!
 //! Error: relative L2 over vertices of the shaded linear RGB radiance (albedo 1), all three
@@ -111,10 +114,15 @@ impl Default for CompareConfig {
 impl CompareConfig {
     pub fn check(&self) -> Result<()> {
         let bad = |m: String| Err(Error::InvalidArgument(format!("bench srbf --compare: {m}")));
-        if self.bytes.is_empty() || self.bytes.iter().any(|b| !(8..=4 + 4 * 32).contains(b)) {
+        if self.bytes.is_empty()
+            || self
+                .bytes
+                .iter()
+                .any(|b| !(8..=4 + 2 * 64).contains(b) || b % 2 != 0)
+        {
             return bad(format!(
-                "--bytes {:?}: each point must be in 8..=132 (4 bytes of cluster id plus 2 to \
-                 64 half-precision coefficients)",
+                "--bytes {:?}: each point must be even and in 8..=132 (4 bytes of cluster id \
+                 plus 2 to 64 half-precision coefficients)",
                 self.bytes
             ));
         }
@@ -314,8 +322,9 @@ pub fn run(
          channels, mean over the rotations, of each method's CPU twin against the f64 \
          brute-force truth; every lobe through the basis (no compact lobes)"
             .to_string(),
-        "bytes: streamed = per-vertex weights (f16) + a 4-byte cluster id; amortised adds \
-         the per-cluster tables (f32) divided by the vertex count"
+        "bytes: streamed = the compressed methods' per-vertex weights (f16) + a 4-byte \
+         cluster id, the uncompressed rows (f32); amortised adds the per-cluster tables \
+         (f32) divided by the vertex count"
             .to_string(),
     ];
     if ctx.info().device_type == "CPU" {

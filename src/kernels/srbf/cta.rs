@@ -764,13 +764,6 @@ impl Cta {
                 self.cluster_of[v]
             )));
         }
-        if let Some(i) = self.coeffs.iter().position(|x| x.abs() > HALF_MAX) {
-            return Err(Error::InvalidArgument(format!(
-                "CTA transfer: vertex coefficient {i} ({}) is beyond half precision's range \
-                 (+-{HALF_MAX}), in which the GPU streams the coefficients",
-                self.coeffs[i]
-            )));
-        }
         let finite = |x: &[f32]| x.iter().all(|v| v.is_finite());
         if !(finite(&self.coeffs)
             && finite(&self.cores)
@@ -780,6 +773,13 @@ impl Cta {
             return Err(Error::InvalidArgument(
                 "CTA transfer: a value is not finite".into(),
             ));
+        }
+        if let Some(i) = self.coeffs.iter().position(|x| x.abs() > HALF_MAX) {
+            return Err(Error::InvalidArgument(format!(
+                "CTA transfer: vertex coefficient {i} ({}) is beyond half precision's range \
+                 (+-{HALF_MAX}), in which the GPU streams the coefficients",
+                self.coeffs[i]
+            )));
         }
         Ok(())
     }
@@ -905,11 +905,20 @@ impl Cta {
         Ok(out)
     }
 
-    /// Transfer bytes per vertex as streamed (f16 coefficients and a u32 cluster id) and the
-    /// per-cluster tables (f32) amortised over the vertices.
+    /// Whether the GPU keeps a vertex's u32 cluster id in its last coefficient texel: eight
+    /// half-precision coefficients fill a texel, and r_v % 8 in 1..=6 leaves its last
+    /// component free (glsl/srbf/cta_shade.comp, `PACKED_CLUSTER`).
+    pub fn cluster_in_texel(&self) -> bool {
+        (1..=6).contains(&(self.ranks[0] % 8))
+    }
+
+    /// Transfer bytes per vertex as the GPU reads them each frame (the f16 coefficients in
+    /// whole 16-byte texels of eight, and the u32 cluster id unless it fits in the last
+    /// texel: 2 r_v + 4 when r_v % 8 is 0 or 6, more otherwise) and with the per-cluster
+    /// tables (f32) amortised over the vertices.
     pub fn bytes_per_vertex(&self) -> (usize, f64) {
         let [rv, rw, rl] = self.ranks;
-        let stream = 2 * rv + 4;
+        let stream = 16 * rv.div_ceil(8) + if self.cluster_in_texel() { 0 } else { 4 };
         let tables = 4 * self.clusters * (rv * rw * rl + self.views * rw + self.basis.len() * rl);
         (stream, stream as f64 + tables as f64 / self.vertices as f64)
     }
@@ -1163,6 +1172,24 @@ mod tests {
                 assert_eq!(half_round(streamed), streamed);
             }
         }
-        assert_eq!(cta.bytes_per_vertex().0, 2 * 2 + 4);
+        assert!(
+            (0..n * 2).any(|i| cta.coeff(i / 2, i % 2) != cta.coeffs[i]),
+            "no coefficient was rounded"
+        );
+        // Bytes read per vertex: whole texels of eight halves, plus the cluster id unless
+        // the last texel has room for it.
+        for (rv, bytes) in [
+            (2, 16),
+            (6, 16),
+            (7, 20),
+            (8, 20),
+            (15, 36),
+            (30, 64),
+            (32, 68),
+        ] {
+            let mut c = cta.clone();
+            c.ranks[0] = rv;
+            assert_eq!(c.bytes_per_vertex().0, bytes, "r_v {rv}");
+        }
     }
 }

@@ -327,15 +327,23 @@ impl CtaKernel {
         let y_image = image("srbf cta projected light", t.clusters * 3 * kl)?;
         // Half precision, eight coefficients a texel (u32 j of texel q holds coefficients
         // 8q + 2j, low half, and 8q + 2j + 1): the image loads per vertex stay those of
-        // four f32 a texel at half the ranks.
+        // four f32 a texel at half the ranks. Where the last texel's w is free it holds the
+        // vertex's cluster id (`Cta::cluster_in_texel`).
         let kv = rv.div_ceil(8);
+        let packed = t.cluster_in_texel();
         let half = |u: &[f32], i: usize| u.get(i).map_or(0, |x| f16_bits(*x) as u32);
         let coeff_texels: Vec<[u32; 4]> = gather(&t.coeffs, rv)
             .chunks_exact(rv)
-            .flat_map(|u| {
+            .zip(&order)
+            .flat_map(|(u, &v)| {
+                let cluster = t.cluster_of[v as usize];
                 (0..kv).map(move |q| {
                     std::array::from_fn(|j| {
-                        half(u, 8 * q + 2 * j) | half(u, 8 * q + 2 * j + 1) << 16
+                        if packed && q == kv - 1 && j == 3 {
+                            cluster
+                        } else {
+                            half(u, 8 * q + 2 * j) | half(u, 8 * q + 2 * j + 1) << 16
+                        }
                     })
                 })
             })
@@ -389,7 +397,12 @@ impl CtaKernel {
         let shade = crate::shaders::pipeline_specialized(
             &ctx,
             "srbf/cta_shade",
-            &[("RV", rv as u32), ("RW", rw as u32), ("CTA_ROW", row)],
+            &[
+                ("RV", rv as u32),
+                ("RW", rw as u32),
+                ("CTA_ROW", row),
+                ("PACKED_CLUSTER", packed as u32),
+            ],
         )?;
         let shade_bind = shade.bind_declared(
             &[
