@@ -1033,21 +1033,21 @@ mod tests {
         (basis, rows, n, vv)
     }
 
+    /// [`synthetic`] data compressed into 2 clusters at ranks (2, 3, 4).
+    fn two_groups(noise: f32, seed: u64) -> (Cta, Basis, Vec<f32>, usize, usize) {
+        let (basis, rows, n, vv) = synthetic(noise, seed);
+        let cfg = CtaConfig {
+            clusters: 2,
+            ranks: [2, 3, 4],
+            ..CtaConfig::default()
+        };
+        let cta = Cta::compress(&basis, &rows, n, vv, &cfg).unwrap();
+        (cta, basis, rows, n, vv)
+    }
+
     #[test]
     fn exact_tucker_data_is_reconstructed() {
-        let (basis, rows, n, vv) = synthetic(0.0, 3);
-        let cta = Cta::compress(
-            &basis,
-            &rows,
-            n,
-            vv,
-            &CtaConfig {
-                clusters: 2,
-                ranks: [2, 3, 4],
-                ..CtaConfig::default()
-            },
-        )
-        .unwrap();
+        let (cta, basis, rows, n, vv) = two_groups(0.0, 3);
         cta.check().unwrap();
         // The groups alternate; each cluster ends holding one group.
         for v in 2..n {
@@ -1149,19 +1149,7 @@ mod tests {
     /// f16 ulp (2^-11 relative) and exactly representable.
     #[test]
     fn streamed_coefficients_are_the_model_in_half_precision() {
-        let (basis, rows, n, vv) = synthetic(0.01, 4);
-        let cta = Cta::compress(
-            &basis,
-            &rows,
-            n,
-            vv,
-            &CtaConfig {
-                clusters: 2,
-                ranks: [2, 3, 4],
-                ..CtaConfig::default()
-            },
-        )
-        .unwrap();
+        let (cta, _, _, n, _) = two_groups(0.01, 4);
         for v in 0..n {
             for a in 0..2 {
                 let (model, streamed) = (cta.coeffs[v * 2 + a], cta.coeff(v, a));
