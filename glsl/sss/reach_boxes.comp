@@ -1,4 +1,6 @@
 #version 450
+#extension GL_GOOGLE_include_directive : require
+#include <common/util.glsl>
 // Pass `sss reach boxes` (SssKernel::set_reach): for each triangle with a texel in a needed
 // segment (the caller's bitmap `needed`, through the triangle's list of segments), the
 // 8 x BLOCK_ROWS blocks of the atlas its diffusion samples can land in and the blocks of its
@@ -42,7 +44,7 @@ const uint REACH_ROW = 1024u; // pack::BVH_ROW
 
 // Entry k of the reach's layout.
 uvec4 reach_entry(uint k) {
-    return imageLoad(reach_static, ivec2(k % REACH_ROW, k / REACH_ROW));
+    return imageLoad(reach_static, table_texel(k, REACH_ROW));
 }
 
 const uint BLOCK_ROWS = 4u; // kernels::sss::pack::REACH_BLOCK_ROWS

@@ -1,4 +1,6 @@
 #version 450
+#extension GL_GOOGLE_include_directive : require
+#include <common/util.glsl>
 // Pass `sss reach triangles` (SssKernel::set_reach with triangle marks): every triangle with
 // a texel in a block of this frame's reach is marked in the caller's triangle bitmap
 // (`reach_marks`, bit first + t; the character frame's `vertex mark` bitmap, so that the
@@ -22,7 +24,7 @@ layout(std430, set = 0, binding = 24) buffer ReachMarks { uint w[]; } reach_mark
 
 // Entry k of the reach's layout.
 uvec4 reach_entry(uint k) {
-    return imageLoad(reach_static, ivec2(k % REACH_ROW, k / REACH_ROW));
+    return imageLoad(reach_static, table_texel(k, REACH_ROW));
 }
 
 void main() {
