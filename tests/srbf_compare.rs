@@ -116,3 +116,37 @@ fn compare_and_matrix_cpca_refuse_bad_input() {
     };
     assert!(MatrixCpca::compress(&basis, &[0.0; 16], 2, 1, &zero).is_err());
 }
+
+/// The CPCA matched to CTA's total storage: the cluster count chosen keeps its amortised
+/// bytes per vertex (as `MatrixCpca::bytes_per_vertex` counts them) within the total, and
+/// one cluster more would not.
+#[test]
+fn matched_total_cpca_fits_the_budget_and_one_more_cluster_does_not() {
+    use vkshade::bench::srbf_compare::matrix_cpca_clusters_within;
+    let basis = Basis::fibonacci(12);
+    let (views, n, m) = (3usize, 60usize, 2usize);
+    let mut rng = Rng::new(9);
+    let rows: Vec<f32> = (0..n * views * 12).map(|_| rng.f32() - 0.5).collect();
+    let amortised = |clusters| {
+        let cfg = CpcaConfig {
+            clusters,
+            components: m,
+            ..CpcaConfig::default()
+        };
+        MatrixCpca::compress(&basis, &rows, n, views, &cfg)
+            .unwrap()
+            .bytes_per_vertex()
+            .1
+    };
+    for total in [20.0, 60.0, 97.5, 150.0] {
+        let c = matrix_cpca_clusters_within(total, m, views, 12, n);
+        if c > 0 {
+            assert!(amortised(c) <= total, "{c} clusters exceed {total}");
+        }
+        assert!(amortised(c + 1) > total, "{} clusters fit {total}", c + 1);
+    }
+    // One cluster's tables (3 matrices of 144 B) exceed the 2 B per vertex that 10 leaves
+    // beside the 8 streamed, over 60 vertices.
+    assert_eq!(matrix_cpca_clusters_within(10.0, m, views, 12, n), 0);
+    assert_eq!(matrix_cpca_clusters_within(f64::NAN, m, views, 12, n), 0);
+}

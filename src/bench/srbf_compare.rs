@@ -15,6 +15,12 @@
 //! methods use the same cluster count. CPCA keeps a mean per cluster;
 //! plain Tucker (CTA) has none.
 //!
+//! Matched streamed bytes alone favour glossy CPCA: each of its clusters holds M + 1 whole
+//! V x K matrices, so at the same cluster count its tables are several times CTA's. So each
+//! glossy CTA point is also matched in total storage (streamed + tables amortised): CPCA
+//! with the same M and as many clusters as CTA's total pays for (`cpca-total`; none when the
+//! full cluster count already fits, or one cluster does not).
+//!
 //! Error: relative L2 over vertices of the shaded linear RGB radiance (albedo 1), all three
 //! channels together (`error`) and per channel (`error_rgb`), against
 //! [`shade_ground_truth`] / [`shade_glossy_truth`] over the map at `truth_width` (f64, every
@@ -147,7 +153,7 @@ impl CompareConfig {
 pub struct ComparePoint {
     /// diffuse or glossy.
     pub brdf: &'static str,
-    /// uncompressed, cpca or cta.
+    /// uncompressed, cpca, cta, or cpca-total (glossy CPCA within CTA's total bytes).
     pub method: &'static str,
     pub settings: String,
     /// Weights per vertex (CPCA's M, CTA's r_v; the basis size x views uncompressed).
@@ -593,49 +599,53 @@ pub fn run(
         };
         progress(&line(&p));
         points.push(p);
+        // Glossy CPCA at M weights and `clusters` clusters (`method` names the series).
+        let matrix_cpca_point =
+            |m: usize, clusters: usize, method: &'static str| -> Result<ComparePoint> {
+                let settings = CpcaConfig {
+                    clusters,
+                    components: m,
+                    ..CpcaConfig::default()
+                };
+                let t0 = Instant::now();
+                let c = MatrixCpca::compress(&basis, &transfer.rows.coeffs, nv, views, &settings)?;
+                let ms = t0.elapsed().as_secs_f64() * 1e3;
+                let eval = |rotation: Mat3, camera: Vec3| {
+                    let coeffs = lighting_coefficients(lobes, rotation, &basis);
+                    c.shade(
+                        &coeffs,
+                        &view,
+                        &mesh.positions,
+                        &mesh.normals,
+                        camera,
+                        [1.0; 3],
+                    )
+                };
+                let (rgb, all) = error_over(&truths, |i| eval(rotations[i], camera))?;
+                let cpu = time_cpu(cfg.cpu_runs, || eval(rotations[0], camera));
+                let (stream, amortised) = c.bytes_per_vertex();
+                Ok(ComparePoint {
+                    brdf: "glossy",
+                    method,
+                    settings: format!(
+                        "{} clusters x {m} components (f16) of {views} x {} matrices (f32)",
+                        c.clusters, cfg.basis
+                    ),
+                    per_vertex_values: m,
+                    stream_bytes_per_vertex: stream,
+                    amortised_bytes_per_vertex: amortised,
+                    transfer_rel_l2: c.rel_l2,
+                    error: all,
+                    error_rgb: rgb,
+                    compress_ms: ms,
+                    gpu_ms: None,
+                    fps: None,
+                    gpu_note: Some("no GPU path for matrix CPCA: CPU twin only".into()),
+                    cpu_ms: cpu.median,
+                })
+            };
         for &b in &cfg.bytes {
-            let m = (b - 4) / 2;
-            let settings = CpcaConfig {
-                clusters: cfg.clusters,
-                components: m,
-                ..CpcaConfig::default()
-            };
-            let t0 = Instant::now();
-            let c = MatrixCpca::compress(&basis, &transfer.rows.coeffs, nv, views, &settings)?;
-            let ms = t0.elapsed().as_secs_f64() * 1e3;
-            let eval = |rotation: Mat3, camera: Vec3| {
-                let coeffs = lighting_coefficients(lobes, rotation, &basis);
-                c.shade(
-                    &coeffs,
-                    &view,
-                    &mesh.positions,
-                    &mesh.normals,
-                    camera,
-                    [1.0; 3],
-                )
-            };
-            let (rgb, all) = error_over(&truths, |i| eval(rotations[i], camera))?;
-            let cpu = time_cpu(cfg.cpu_runs, || eval(rotations[0], camera));
-            let (stream, amortised) = c.bytes_per_vertex();
-            let p = ComparePoint {
-                brdf: "glossy",
-                method: "cpca",
-                settings: format!(
-                    "{} clusters x {m} components (f16) of {views} x {} matrices (f32)",
-                    c.clusters, cfg.basis
-                ),
-                per_vertex_values: m,
-                stream_bytes_per_vertex: stream,
-                amortised_bytes_per_vertex: amortised,
-                transfer_rel_l2: c.rel_l2,
-                error: all,
-                error_rgb: rgb,
-                compress_ms: ms,
-                gpu_ms: None,
-                fps: None,
-                gpu_note: Some("no GPU path for matrix CPCA: CPU twin only".into()),
-                cpu_ms: cpu.median,
-            };
+            let p = matrix_cpca_point((b - 4) / 2, cfg.clusters, "cpca")?;
             progress(&line(&p));
             points.push(p);
         }
@@ -689,6 +699,44 @@ pub fn run(
             progress(&line(&p));
             points.push(p);
         }
+        // CPCA at CTA's total storage as well as its streamed bytes: the same M, as many
+        // clusters as CTA's amortised bytes pay for (a CPCA cluster holds M + 1 whole
+        // matrices, so at matched streamed bytes alone its tables are several times CTA's).
+        // The CTA points, in `cfg.bytes` order.
+        let targets: Vec<(usize, usize, f64)> = cfg
+            .bytes
+            .iter()
+            .zip(
+                points
+                    .iter()
+                    .filter(|p| p.brdf == "glossy" && p.method == "cta"),
+            )
+            .map(|(&b, p)| (b, p.stream_bytes_per_vertex, p.amortised_bytes_per_vertex))
+            .collect();
+        for (b, stream, total) in targets {
+            let m = (b - 4) / 2;
+            let clusters = matrix_cpca_clusters_within(total, m, views, cfg.basis, nv);
+            if clusters == 0 {
+                notes.push(format!(
+                    "glossy CPCA at CTA's total of {total:.1} B/vertex ({stream} streamed): \
+                     one cluster's {} matrices of {views} x {} exceed it; no point",
+                    m + 1,
+                    cfg.basis
+                ));
+                continue;
+            }
+            if clusters >= cfg.clusters {
+                notes.push(format!(
+                    "glossy CPCA at CTA's total of {total:.1} B/vertex ({stream} streamed): \
+                     the {}-cluster point already fits it",
+                    cfg.clusters
+                ));
+                continue;
+            }
+            let p = matrix_cpca_point(m, clusters, "cpca-total")?;
+            progress(&line(&p));
+            points.push(p);
+        }
     }
     Ok(CompareReport {
         benchmark: "vkshade bench srbf --compare",
@@ -701,6 +749,26 @@ pub fn run(
         points,
         notes,
     })
+}
+
+/// The most clusters a glossy CPCA with `m` weights per vertex ([`MatrixCpca`]: M + 1
+/// whole `views` x `basis` f32 matrices per cluster, M half-precision weights and a 4-byte
+/// cluster id per vertex) can have while its bytes per vertex, tables amortised over
+/// `vertices`, stay within `total` (0 when not even one cluster fits).
+pub fn matrix_cpca_clusters_within(
+    total: f64,
+    m: usize,
+    views: usize,
+    basis: usize,
+    vertices: usize,
+) -> usize {
+    let stream = (2 * m + 4) as f64;
+    let table = (4 * (m + 1) * views * basis) as f64;
+    let budget = (total - stream) * vertices as f64;
+    if budget.is_nan() || budget < table {
+        return 0;
+    }
+    (budget / table).floor() as usize
 }
 
 /// One progress line.
@@ -808,9 +876,16 @@ pub fn panels(r: &CompareReport) -> Vec<super::plot::Panel> {
             let lo = xs.iter().copied().fold(f64::INFINITY, f64::min);
             let hi = xs.iter().copied().fold(0.0, f64::max);
             let mut series = Vec::new();
-            for method in ["cpca", "cta"] {
+            for (method, name) in [
+                ("cpca", format!("CPCA, {} clusters", r.config.clusters)),
+                ("cpca-total", "CPCA within CTA's total bytes".to_string()),
+                ("cta", format!("CTA, {} clusters", r.config.clusters)),
+            ] {
+                if !pts.iter().any(|p| p.method == method) {
+                    continue;
+                }
                 series.push(Series {
-                    name: method.to_uppercase(),
+                    name,
                     points: pts
                         .iter()
                         .filter(|p| p.method == method)
