@@ -285,6 +285,16 @@ fn bad_srbf_inputs_and_frames_are_refused() {
             .err()
             .unwrap();
         assert!(e.to_string().contains("vertex 3"), "{e}");
+        // A weight that half precision cannot hold (the GPU streams the weights as f16).
+        let mut huge = s.transfer.clone();
+        huge.weights[5] = 7.0e4;
+        let e = SrbfKernel::new(&mut rec, &SrbfInputs::new(&s.lobes, &huge))
+            .err()
+            .unwrap();
+        assert!(
+            e.to_string().contains("weight 5") && e.to_string().contains("half precision"),
+            "{e}"
+        );
         let mut bad_lobes = s.lobes.clone();
         bad_lobes[2].sharpness = f32::NAN;
         let e = SrbfKernel::new(

@@ -1,6 +1,16 @@
 //! IEEE 754 binary16 ("half") encoding: the SRBF transfer's per-vertex weights are stored
 //! on the GPU in half precision, and the CPU twin rounds through the same codec.
 
+/// The largest finite half-precision value.
+pub const HALF_MAX: f32 = 65504.0;
+
+/// The index of the first value of `xs` that half precision cannot hold (beyond +-[`HALF_MAX`]
+/// or not finite): a weight streamed to the GPU in half precision from there would be
+/// infinite there.
+pub fn first_beyond_half(xs: &[f32]) -> Option<usize> {
+    xs.iter().position(|x| !(x.abs() <= HALF_MAX))
+}
+
 /// IEEE binary16 bits of `x`, rounded to nearest even (overflow to infinity, NaN kept).
 pub fn f16_bits(x: f32) -> u16 {
     let b = x.to_bits();
@@ -85,6 +95,12 @@ mod tests {
         assert_eq!(f16_bits(1.0 + 3.0 / 2048.0), 0x3c02); // tie: to even (up)
         assert_eq!(f16_bits(70000.0), 0x7c00);
         assert!(half_round(f32::NAN).is_nan());
+        // What half precision cannot hold: beyond +-HALF_MAX (infinite there) or not finite.
+        assert_eq!(half_round(HALF_MAX), HALF_MAX);
+        assert_eq!(first_beyond_half(&[1.0, -HALF_MAX, HALF_MAX]), None);
+        assert_eq!(first_beyond_half(&[1.0, -65600.0, 0.0]), Some(1));
+        assert_eq!(first_beyond_half(&[0.5, f32::NAN]), Some(1));
+        assert_eq!(first_beyond_half(&[f32::INFINITY]), Some(0));
         let mut rng = Rng::new(3);
         for _ in 0..10_000 {
             let x = (rng.f32() - 0.5) * 10f32.powi((rng.f32() * 8.0) as i32 - 4);

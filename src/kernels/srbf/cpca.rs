@@ -19,7 +19,7 @@ use super::transfer::{Basis, Transfer};
 use crate::error::{Error, Result};
 use crate::geom::Rng;
 use crate::geom::linalg::{dot, jacobi_eigen, orthonormalise, solve_upper_transposed};
-use crate::io::f16::half_round;
+use crate::io::f16::{HALF_MAX, first_beyond_half, half_round};
 use crate::io::transfer_cache::CpcaFile;
 use rayon::prelude::*;
 use std::borrow::Cow;
@@ -260,6 +260,13 @@ impl Cpca {
         }
         if let Some(i) = self.weights.iter().position(|x| !x.is_finite()) {
             return bad(format!("weight {i} is not finite"));
+        }
+        if let Some(i) = first_beyond_half(&self.weights) {
+            return bad(format!(
+                "weight {i} ({}) is beyond half precision's range (+-{HALF_MAX}), in which \
+                 the GPU streams the weights",
+                self.weights[i]
+            ));
         }
         Ok(())
     }

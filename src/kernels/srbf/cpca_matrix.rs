@@ -18,7 +18,7 @@ use super::transfer::Basis;
 use crate::error::{Error, Result};
 use crate::geom::Rng;
 use crate::geom::linalg::{jacobi_eigen, orthonormalise, solve_upper_transposed};
-use crate::io::f16::half_round;
+use crate::io::f16::{HALF_MAX, first_beyond_half, half_round};
 use glam::Vec3;
 use rayon::prelude::*;
 
@@ -322,6 +322,15 @@ impl MatrixCpca {
             .iter()
             .fold((0.0, 0.0), |(e, n), (_, ev, nv)| (e + ev, n + nv));
         let weights: Vec<f32> = per_vertex.into_iter().flat_map(|(w, _, _)| w).collect();
+        if let Some(i) = first_beyond_half(&weights) {
+            return Err(Error::InvalidArgument(format!(
+                "matrix CPCA: vertex {} weight {} ({}) is beyond half precision's range \
+                 (+-{HALF_MAX}), in which the weights are streamed",
+                i / m,
+                i % m,
+                weights[i]
+            )));
+        }
         // Back to coefficient space, row by row: t = L^-T y.
         let mut matrices = vec![0f32; clusters * (m + 1) * d];
         matrices.par_chunks_mut(k).enumerate().for_each(|(r, out)| {

@@ -32,7 +32,7 @@ use super::transfer::Basis;
 use crate::error::{Error, Result};
 use crate::geom::Rng;
 use crate::geom::linalg::{jacobi_eigen, orthonormalise, solve_upper_transposed, subspace_eigen};
-use crate::io::f16::half_round;
+use crate::io::f16::{HALF_MAX, first_beyond_half, half_round};
 use crate::io::transfer_cache::CtaFile;
 use rayon::prelude::*;
 use std::borrow::Cow;
@@ -62,9 +62,6 @@ impl Default for CtaConfig {
         }
     }
 }
-
-/// The largest finite half-precision value.
-const HALF_MAX: f32 = 65504.0;
 
 /// Clusters a vertex may move to in a reassignment: its own and the nearest by feature.
 const CANDIDATES: usize = 6;
@@ -774,7 +771,7 @@ impl Cta {
                 "CTA transfer: a value is not finite".into(),
             ));
         }
-        if let Some(i) = self.coeffs.iter().position(|x| x.abs() > HALF_MAX) {
+        if let Some(i) = first_beyond_half(&self.coeffs) {
             return Err(Error::InvalidArgument(format!(
                 "CTA transfer: vertex coefficient {i} ({}) is beyond half precision's range \
                  (+-{HALF_MAX}), in which the GPU streams the coefficients",
