@@ -248,13 +248,20 @@ impl CtaKernel {
                     .usage(vk::BufferUsageFlags::UNIFORM_BUFFER),
                 &vec![[0f32; 4]; MAX_BASIS],
             )?,
+            // With the cluster id packed into the coefficient texels the shader never reads
+            // this buffer (PACKED_CLUSTER is a specialization constant), so one placeholder
+            // word fills the binding.
             storage(
                 rec,
                 "srbf cta clusters",
-                &order
-                    .iter()
-                    .map(|&v| t.cluster_of[v as usize])
-                    .collect::<Vec<u32>>(),
+                &if t.cluster_in_texel() {
+                    vec![0u32]
+                } else {
+                    order
+                        .iter()
+                        .map(|&v| t.cluster_of[v as usize])
+                        .collect::<Vec<u32>>()
+                },
             )?,
             storage(rec, "srbf cta positions", &vec4(&sorted(inputs.positions)))?,
             storage(rec, "srbf cta normals", &vec4(&sorted(inputs.normals)))?,
