@@ -290,13 +290,21 @@ impl CtaKernel {
                 })
             })
             .collect();
-        let image = |name: &str, texels: usize| -> Result<Image> {
+        let image_of = |name: &str, format: vk::Format, texels: usize, hint: &str| {
             crate::kernels::row_image(
                 &ctx,
                 name,
-                vk::Format::R32G32B32A32_SFLOAT,
+                format,
                 texels as u64,
                 vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST,
+                hint,
+            )
+        };
+        let image = |name: &str, texels: usize| -> Result<Image> {
+            image_of(
+                name,
+                vk::Format::R32G32B32A32_SFLOAT,
+                texels,
                 "; use fewer clusters or lower ranks",
             )
         };
@@ -355,12 +363,10 @@ impl CtaKernel {
                 })
             })
             .collect();
-        let coeff_image = crate::kernels::row_image(
-            &ctx,
+        let coeff_image = image_of(
             "srbf cta vertex coefficients",
             vk::Format::R32G32B32A32_UINT,
-            coeff_texels.len() as u64,
-            vk::ImageUsageFlags::STORAGE | vk::ImageUsageFlags::TRANSFER_DST,
+            coeff_texels.len(),
             "; use fewer vertices or a lower vertex rank",
         )?;
         rec.upload_image_rows(&coeff_image, &coeff_texels)?;
