@@ -8,7 +8,7 @@ pub const HALF_MAX: f32 = 65504.0;
 /// or not finite): a weight streamed to the GPU in half precision from there would be
 /// infinite there.
 pub fn first_beyond_half(xs: &[f32]) -> Option<usize> {
-    xs.iter().position(|x| !(x.abs() <= HALF_MAX))
+    xs.iter().position(|x| x.is_nan() || x.abs() > HALF_MAX)
 }
 
 /// IEEE binary16 bits of `x`, rounded to nearest even (overflow to infinity, NaN kept).
