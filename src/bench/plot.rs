@@ -172,6 +172,11 @@ fn draw_panel(
                     .copied()
                     .filter(|(x, y)| x.is_finite() && y.is_finite())
                     .collect();
+                // An empty series keeps its colour slot (so a series keeps its colour
+                // across panels that lack another) but draws nothing and takes no legend.
+                if pts.is_empty() {
+                    continue;
+                }
                 chart
                     .draw_series(LineSeries::new(pts.clone(), color.stroke_width(2)))?
                     .label(s.name.as_str())

@@ -649,6 +649,8 @@ pub fn run(
             progress(&line(&p));
             points.push(p);
         }
+        // (B, streamed, total bytes per vertex) of each CTA point, for the matched CPCA below.
+        let mut cta_totals = Vec::new();
         for &b in &cfg.bytes {
             let rv = (b - 4) / 2;
             let rw = cfg.cta_view_rank.min(views);
@@ -677,6 +679,7 @@ pub fn run(
             setup.submit_and_wait()?;
             let gpu = gpu_ms(ctx, &cfg.bench, &k, &frames[0])?;
             let (stream, amortised) = cta.bytes_per_vertex();
+            cta_totals.push((b, stream, amortised));
             let p = ComparePoint {
                 brdf: "glossy",
                 method: "cta",
@@ -702,18 +705,7 @@ pub fn run(
         // CPCA at CTA's total storage as well as its streamed bytes: the same M, as many
         // clusters as CTA's amortised bytes pay for (a CPCA cluster holds M + 1 whole
         // matrices, so at matched streamed bytes alone its tables are several times CTA's).
-        // The CTA points, in `cfg.bytes` order.
-        let targets: Vec<(usize, usize, f64)> = cfg
-            .bytes
-            .iter()
-            .zip(
-                points
-                    .iter()
-                    .filter(|p| p.brdf == "glossy" && p.method == "cta"),
-            )
-            .map(|(&b, p)| (b, p.stream_bytes_per_vertex, p.amortised_bytes_per_vertex))
-            .collect();
-        for (b, stream, total) in targets {
+        for (b, stream, total) in cta_totals {
             let m = (b - 4) / 2;
             let clusters = matrix_cpca_clusters_within(total, m, views, cfg.basis, nv);
             if clusters == 0 {
@@ -762,13 +754,19 @@ pub fn matrix_cpca_clusters_within(
     basis: usize,
     vertices: usize,
 ) -> usize {
-    let stream = (2 * m + 4) as f64;
-    let table = (4 * (m + 1) * views * basis) as f64;
-    let budget = (total - stream) * vertices as f64;
-    if budget.is_nan() || budget < table {
+    // Bytes per vertex are affine in the cluster count: stream + clusters x one cluster's.
+    let (stream, _) = MatrixCpca::storage(m, 0, views, basis, vertices);
+    let per_cluster = MatrixCpca::storage(m, 1, views, basis, vertices).1 - stream as f64;
+    let room = total - stream as f64;
+    if room.is_nan() || room < per_cluster {
         return 0;
     }
-    (budget / table).floor() as usize
+    let mut clusters = (room / per_cluster).floor() as usize;
+    // Guard the division's rounding: never a count whose bytes exceed the total.
+    while clusters > 0 && MatrixCpca::storage(m, clusters, views, basis, vertices).1 > total {
+        clusters -= 1;
+    }
+    clusters
 }
 
 /// One progress line.
@@ -876,14 +874,13 @@ pub fn panels(r: &CompareReport) -> Vec<super::plot::Panel> {
             let lo = xs.iter().copied().fold(f64::INFINITY, f64::min);
             let hi = xs.iter().copied().fold(0.0, f64::max);
             let mut series = Vec::new();
+            // Every method's series in every panel (empty where it has no points: the plot
+            // skips it), so each keeps its colour across panels.
             for (method, name) in [
                 ("cpca", format!("CPCA, {} clusters", r.config.clusters)),
                 ("cpca-total", "CPCA within CTA's total bytes".to_string()),
                 ("cta", format!("CTA, {} clusters", r.config.clusters)),
             ] {
-                if !pts.iter().any(|p| p.method == method) {
-                    continue;
-                }
                 series.push(Series {
                     name,
                     points: pts

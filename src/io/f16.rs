@@ -4,9 +4,9 @@
 /// The largest finite half-precision value.
 pub const HALF_MAX: f32 = 65504.0;
 
-/// The index of the first value of `xs` that half precision cannot hold (beyond +-[`HALF_MAX`]
-/// or not finite): a weight streamed to the GPU in half precision from there would be
-/// infinite there.
+/// The index of the first value of `xs` beyond +-[`HALF_MAX`] or not finite: values that a
+/// half-precision weight may not represent (those up to 65520 still round to 65504, so the
+/// check is conservative).
 pub fn first_beyond_half(xs: &[f32]) -> Option<usize> {
     xs.iter().position(|x| x.is_nan() || x.abs() > HALF_MAX)
 }

@@ -263,8 +263,10 @@ impl Cpca {
         }
         if let Some(i) = first_beyond_half(&self.weights) {
             return bad(format!(
-                "weight {i} ({}) is beyond half precision's range (+-{HALF_MAX}), in which \
-                 the GPU streams the weights",
+                "weight {i} (vertex {} component {}: {}) is beyond half precision's range \
+                 (+-{HALF_MAX}), in which the GPU streams the weights",
+                i / m,
+                i % m,
                 self.weights[i]
             ));
         }

@@ -325,7 +325,7 @@ impl MatrixCpca {
         if let Some(i) = first_beyond_half(&weights) {
             return Err(Error::InvalidArgument(format!(
                 "matrix CPCA: vertex {} weight {} ({}) is beyond half precision's range \
-                 (+-{HALF_MAX}), in which the weights are streamed",
+                 (+-{HALF_MAX}), in which the weights are held (as a GPU would stream them)",
                 i / m,
                 i % m,
                 weights[i]
@@ -454,8 +454,27 @@ impl MatrixCpca {
     /// [`MatrixCpca::shade`] uses them, and a u32 cluster id) and with the per-cluster
     /// matrices (f32) amortised over the vertices.
     pub fn bytes_per_vertex(&self) -> (usize, f64) {
-        let stream = 2 * self.components + 4;
-        let tables = 4 * self.clusters * (self.components + 1) * self.views * self.basis.len();
-        (stream, stream as f64 + tables as f64 / self.vertices as f64)
+        Self::storage(
+            self.components,
+            self.clusters,
+            self.views,
+            self.basis.len(),
+            self.vertices,
+        )
+    }
+
+    /// [`MatrixCpca::bytes_per_vertex`] of a compression with `m` weights, `clusters`
+    /// clusters of `views` x `basis` matrices over `vertices` vertices: (streamed, with the
+    /// tables amortised).
+    pub fn storage(
+        m: usize,
+        clusters: usize,
+        views: usize,
+        basis: usize,
+        vertices: usize,
+    ) -> (usize, f64) {
+        let stream = 2 * m + 4;
+        let tables = 4 * clusters * (m + 1) * views * basis;
+        (stream, stream as f64 + tables as f64 / vertices as f64)
     }
 }
