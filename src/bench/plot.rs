@@ -188,7 +188,7 @@ fn draw_panel(
             if panel.series.len() > 1 || panel.series.iter().any(|s| !s.name.is_empty()) {
                 chart
                     .configure_series_labels()
-                    .position(SeriesLabelPosition::UpperLeft)
+                    .position(legend_corner(panel, (x0, x1), (y0, y1)))
                     .background_style(WHITE.mix(0.8))
                     .border_style(BLACK)
                     .label_font(("sans-serif", 13))
@@ -207,6 +207,38 @@ fn draw_panel(
         (true, true) => finish!(builder.build_cartesian_2d(lx(), ly())?),
     }
     Ok(())
+}
+
+/// Where the legend goes: the upper corner (left unless the right one is emptier) with
+/// fewer of the panel's points under it, in the axes' own (linear or log) coordinates, the
+/// legend taken to cover the top 40% and the outer 45% of the width.
+#[cfg(feature = "plots")]
+fn legend_corner(panel: &Panel, x: (f64, f64), y: (f64, f64)) -> SeriesLabelPosition {
+    let unit = |v: f64, (lo, hi): (f64, f64), log: bool| {
+        if log {
+            (v.ln() - lo.ln()) / (hi.ln() - lo.ln())
+        } else {
+            (v - lo) / (hi - lo)
+        }
+    };
+    let (mut left, mut right) = (0, 0);
+    for &(px, py) in panel.series.iter().flat_map(|s| s.points.iter()) {
+        let (u, v) = (unit(px, x, panel.log_x), unit(py, y, panel.log_y));
+        if !(u.is_finite() && v.is_finite()) || v < 0.6 {
+            continue;
+        }
+        if u < 0.45 {
+            left += 1;
+        }
+        if u > 0.55 {
+            right += 1;
+        }
+    }
+    if right < left {
+        SeriesLabelPosition::UpperRight
+    } else {
+        SeriesLabelPosition::UpperLeft
+    }
 }
 
 /// 1, 2 and 5 times the powers of ten in [lo, hi] (lo > 0), the ends too when fewer than
