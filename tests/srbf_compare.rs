@@ -149,4 +149,8 @@ fn matched_total_cpca_fits_the_budget_and_one_more_cluster_does_not() {
     // beside the 8 streamed, over 60 vertices.
     assert_eq!(matrix_cpca_clusters_within(10.0, m, views, 12, n), 0);
     assert_eq!(matrix_cpca_clusters_within(f64::NAN, m, views, 12, n), 0);
+    assert_eq!(
+        matrix_cpca_clusters_within(f64::INFINITY, m, views, 12, n),
+        n
+    );
 }

@@ -746,7 +746,7 @@ pub fn run(
 /// The most clusters a glossy CPCA with `m` weights per vertex ([`MatrixCpca`]: M + 1
 /// whole `views` x `basis` f32 matrices per cluster, M half-precision weights and a 4-byte
 /// cluster id per vertex) can have while its bytes per vertex, tables amortised over
-/// `vertices`, stay within `total` (0 when not even one cluster fits).
+/// `vertices`, stay within `total` (0 when not even one cluster fits; at most `vertices`).
 pub fn matrix_cpca_clusters_within(
     total: f64,
     m: usize,
@@ -761,7 +761,8 @@ pub fn matrix_cpca_clusters_within(
     if room.is_nan() || room < per_cluster {
         return 0;
     }
-    let mut clusters = (room / per_cluster).floor() as usize;
+    // At most one cluster per vertex (also keeps an infinite total from overflowing).
+    let mut clusters = ((room / per_cluster).floor() as usize).min(vertices);
     // Guard the division's rounding: never a count whose bytes exceed the total.
     while clusters > 0 && MatrixCpca::storage(m, clusters, views, basis, vertices).1 > total {
         clusters -= 1;
