@@ -179,6 +179,17 @@ fn gpu_view_model(t: &Cta, view: &ViewBasis) -> (Vec<f32>, Vec<f32>, usize, bool
     }
 }
 
+/// `rows` of `width` values as texels of four, each row zero-padded to ceil(width / 4)
+/// texels (the layout of the view table, the light factors and the cores).
+fn quads(rows: &[f32], width: usize) -> Vec<[f32; 4]> {
+    rows.chunks_exact(width)
+        .flat_map(|r| {
+            r.chunks(4)
+                .map(|c| std::array::from_fn(|j| c.get(j).copied().unwrap_or(0.0)))
+        })
+        .collect()
+}
+
 /// The GPU kernel of CTA-compressed glossy transfer.
 pub struct CtaKernel {
     ctx: Context,
@@ -282,14 +293,7 @@ impl CtaKernel {
         // `row` texels wide (`CTA_ROW` in glsl/srbf/cta_shade.comp).
         let row = crate::kernels::table_row(&ctx);
         let kw = rw.div_ceil(4);
-        let view_texels: Vec<[f32; 4]> = view_table
-            .chunks_exact(rw)
-            .flat_map(|node| {
-                (0..kw).map(move |q| {
-                    std::array::from_fn(|j| node.get(4 * q + j).copied().unwrap_or(0.0))
-                })
-            })
-            .collect();
+        let view_texels = quads(&view_table, rw);
         let image_of = |name: &str, format: vk::Format, texels: usize, hint: &str| {
             crate::kernels::row_image(
                 &ctx,
@@ -316,15 +320,6 @@ impl CtaKernel {
         // on each cluster's light factor, C x 3 x KL texels (glsl/srbf/cta_light.comp,
         // cta_project.comp).
         let kl = rl.div_ceil(4);
-        let quads = |rows: &[f32], width: usize| -> Vec<[f32; 4]> {
-            rows.chunks_exact(width)
-                .flat_map(|r| {
-                    (0..kl).map(move |p| {
-                        std::array::from_fn(|j| r.get(4 * p + j).copied().unwrap_or(0.0))
-                    })
-                })
-                .collect()
-        };
         let light_texels = quads(&t.light_factors, rl);
         let light_image = image("srbf cta light factors", light_texels.len())?;
         rec.upload_image_rows(&light_image, &light_texels)?;
