@@ -430,20 +430,20 @@ impl MatrixCpca {
             .map(|v| {
                 let c = self.cluster_of[v] as usize;
                 let p = &projected[c * (m + 1) * views..(c + 1) * (m + 1) * views];
-                // Half precision, as a runtime would stream them (and CTA's coefficients are).
-                let w: Vec<f32> = self.weights[v * m..(v + 1) * m]
-                    .iter()
-                    .map(|w| half_round(*w))
-                    .collect();
+                let taps = view.weights(local_view(positions[v], normals[v], camera));
+                // The mean's row, then each weighted axis's, at the view's taps.
                 let mut out = [0f64; 3];
-                for (j, tw) in view.weights(local_view(positions[v], normals[v], camera)) {
-                    for ch in 0..3 {
-                        let mut s = p[j][ch];
-                        for i in 0..m {
-                            s += w[i] as f64 * p[(i + 1) * views + j][ch];
+                let mut add = |weight: f64, matrix: usize| {
+                    for &(j, tw) in &taps {
+                        for ch in 0..3 {
+                            out[ch] += tw as f64 * weight * p[matrix * views + j][ch];
                         }
-                        out[ch] += tw as f64 * s;
                     }
+                };
+                add(1.0, 0);
+                for (i, w) in self.weights[v * m..(v + 1) * m].iter().enumerate() {
+                    // Half precision, as a runtime would stream them (and CTA's are).
+                    add(half_round(*w) as f64, i + 1);
                 }
                 [0, 1, 2].map(|ch| out[ch] * albedo[ch] as f64)
             })
