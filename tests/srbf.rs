@@ -30,11 +30,12 @@ struct Compact {
 }
 
 impl Scene {
-    /// The same scene with three compact lobes added (sharpness 800-3000, far above 32 x the
-    /// basis's 8, each holding several % of the energy) and the data to shade them.
+    /// The same scene with three compact lobes added (sharpness 800-9000, far above 32 x the
+    /// basis's 8, each holding several % of the energy) and the data to shade them: a point
+    /// source (above the fit's cap wherever it points) and two resolved lobes.
     fn with_compact(mut self) -> Scene {
         let mut rng = Rng::new(11);
-        for (sharpness, amp) in [(3000.0, 9000.0), (1500.0, 3000.0), (800.0, 2500.0)] {
+        for (sharpness, amp) in [(9000.0, 27000.0), (1500.0, 3000.0), (800.0, 2500.0)] {
             let axis = vkshade::geom::uniform_sphere(rng.f32(), rng.f32());
             self.lobes.push(Lobe {
                 axis: axis.to_array(),
@@ -127,8 +128,8 @@ fn scene(lobes: usize, k: usize, vertices: usize, clusters: usize, components: u
 /// The pipeline in f64: c_k = sum_j a_j <G_j(R xi_j), G_k>,
 /// L_v = albedo sum_k (m_ck + sum_i w_vi a_cik) c_k, with the weights w at half precision.
 /// Compact lobes (selected by `sharp::split`, unit-tested in the library) add, per vertex,
-/// albedo / pi * sum_j amp_j integral(lambda_j) V(p_j) max(0, n . w_p_j), p_j the grid texel
-/// of the rotated axis and w_p_j its centre direction.
+/// albedo / pi * sum_j amp_j integral(lambda_j) sum_p share_jp V(p) max(0, n . w_p) over
+/// their taps ([`compact_taps`]): w_p the texel centre directions.
 fn cpu(s: &Scene, frame: &SrbfFrame) -> Vec<[f64; 3]> {
     let t = &s.transfer;
     let (smooth, compact) = match &s.compact {
@@ -175,19 +176,71 @@ fn cpu(s: &Scene, frame: &SrbfFrame) -> Vec<[f64; 3]> {
             if let Some(cs) = &s.compact {
                 let n = cs.normals[v].as_dvec3();
                 for l in &compact {
-                    let (x, y) = cs.grid.texel_of(frame.rotation * l.axis());
-                    let p = (y * cs.grid.width + x) as usize;
-                    if cs.vis.visible(v, p) {
-                        let cos = n.dot(cs.grid.direction(x, y).as_dvec3()).max(0.0);
-                        let g = sg::integral(l.sharpness as f64) / std::f64::consts::PI;
-                        for (o, a) in out.iter_mut().zip(l.amplitude) {
-                            *o += a as f64 * g * cos;
+                    for (x, y, share) in compact_taps(&cs.grid, l, frame.rotation) {
+                        let p = (y * cs.grid.width + x) as usize;
+                        if cs.vis.visible(v, p) {
+                            let cos = n.dot(cs.grid.direction(x, y).as_dvec3()).max(0.0);
+                            let g = sg::integral(l.sharpness as f64) / std::f64::consts::PI;
+                            for (o, a) in out.iter_mut().zip(l.amplitude) {
+                                *o += a as f64 * g * share * cos;
+                            }
                         }
                     }
                 }
             }
             [0, 1, 2].map(|ch| out[ch] * frame.albedo[ch] as f64)
         })
+        .collect()
+}
+
+/// Compact lobe `l` rotated by `rotation` on `grid`, as (column, row, share of its integral):
+/// a point source ([`sharp::is_point`]) whole at the texel of its axis; a resolved lobe over
+/// the 2 x 2 texels whose centres surround its axis, each share its integral over the texel
+/// (8 x 8 sub-samples, solid-angle weighted, f64), renormalised.
+fn compact_taps(grid: &EnvMap, l: &Lobe, rotation: Mat3) -> Vec<(u32, u32, f64)> {
+    let axis = (rotation * l.axis()).normalize();
+    let (x0, y0) = grid.texel_of(axis);
+    if sharp::is_point(l, sharp::DEFAULT_FIT_WIDTH) {
+        return vec![(x0, y0, 1.0)];
+    }
+    let (w, h) = (grid.width as i64, grid.height as i64);
+    // The side of the texel's centre the axis lies on, in u and in v.
+    let a = axis.as_dvec3();
+    let u = 0.5 + a.x.atan2(-a.z) / std::f64::consts::TAU;
+    let v = a.x.hypot(a.z).atan2(a.y) / std::f64::consts::PI;
+    let dx = if u * w as f64 - (x0 as f64) < 0.5 {
+        -1
+    } else {
+        1
+    };
+    let dy = if v * h as f64 - (y0 as f64) < 0.5 {
+        -1
+    } else {
+        1
+    };
+    let mut cells = Vec::new();
+    for (sx, sy) in [(0, 0), (dx, 0), (0, dy), (dx, dy)] {
+        let y = y0 as i64 + sy;
+        if !(0..h).contains(&y) {
+            continue;
+        }
+        let x = (x0 as i64 + sx).rem_euclid(w);
+        let mut e = 0.0;
+        for j in 0..8 {
+            for i in 0..8 {
+                let u = (x as f64 + (i as f64 + 0.5) / 8.0) / w as f64;
+                let v = (y as f64 + (j as f64 + 0.5) / 8.0) / h as f64;
+                let d = vkshade::scene::envmap::direction_of(u, v);
+                let g = (l.sharpness as f64 * (a.dot(d) - 1.0)).exp();
+                e += g * (std::f64::consts::PI * v).sin();
+            }
+        }
+        cells.push((x as u32, y as u32, e));
+    }
+    let total: f64 = cells.iter().map(|c| c.2).sum();
+    cells
+        .into_iter()
+        .map(|(x, y, e)| (x, y, e / total))
         .collect()
 }
 
@@ -201,6 +254,7 @@ fn inputs(s: &Scene) -> SrbfInputs<'_> {
             height: c.grid.height,
             factor: sharp::DEFAULT_FACTOR,
             max_lobes: 4,
+            fit_width: sharp::DEFAULT_FIT_WIDTH,
         }),
         None => i,
     }
@@ -239,6 +293,15 @@ fn gpu_matches_cpu(s: &Scene) {
         );
         let compact = s.compact.as_ref().map_or(0, |_| 3);
         assert_eq!(kernel.compact_count(), compact);
+        if compact > 0 {
+            // Both kinds of compact lobe: the resolved ones spread over four taps.
+            let (_, lobes) = inputs(s).split();
+            let points = sharp::points(&lobes, sharp::DEFAULT_FIT_WIDTH);
+            assert!(
+                points.contains(&true) && points.contains(&false),
+                "{points:?}"
+            );
+        }
         let mut done = 0;
         run_frames(ctx, &kernel, &frames, 2, |r| {
             let want = cpu(s, &frames[r.index]);
@@ -317,6 +380,7 @@ fn bad_srbf_inputs_and_frames_are_refused() {
             height: 16,
             factor: sharp::DEFAULT_FACTOR,
             max_lobes: 4,
+            fit_width: sharp::DEFAULT_FIT_WIDTH,
         };
         let e = SrbfKernel::new(
             &mut rec,
@@ -337,6 +401,19 @@ fn bad_srbf_inputs_and_frames_are_refused() {
         .err()
         .unwrap();
         assert!(e.to_string().contains("9 normals"), "{e}");
+        // A fit width the fit refuses (odd): which compact lobes are points is undefined.
+        let e = SrbfKernel::new(
+            &mut rec,
+            &SrbfInputs::new(&c.lobes, &c.transfer).with_compact(CompactInputs {
+                width: 64,
+                height: 32,
+                fit_width: 127,
+                ..wrong_grid
+            }),
+        )
+        .err()
+        .unwrap();
+        assert!(e.to_string().contains("fit width 127"), "{e}");
         let kernel = SrbfKernel::new(&mut rec, &inputs(&s))?;
         let e = kernel
             .record(
@@ -425,6 +502,7 @@ fn ground_truth_case(env_path: &str, off_grid_bound: f64) {
         height: dir_env.height,
         factor: sharp::DEFAULT_FACTOR,
         max_lobes: sharp::DEFAULT_MAX_LOBES,
+        fit_width: sharp::DEFAULT_FIT_WIDTH,
     });
     let rotations: Vec<(String, Mat3)> = [0.0f32, 45.0, 90.0, 180.0, 270.0]
         .iter()

@@ -10,6 +10,7 @@ use vkshade::geom::sg::{self, Lobe};
 use vkshade::kernels::srbf::brdf_factors::BrdfFactors;
 use vkshade::kernels::srbf::glossy::{GlossyTransfer, ViewBasis, ViewGrid};
 use vkshade::kernels::srbf::glossy_gpu::{GlossyFrame, GlossyInputs, GlossyKernel};
+use vkshade::kernels::srbf::sharp;
 use vkshade::kernels::srbf::transfer::{Basis, Transfer};
 use vkshade::kernels::{Kernel, run_frames};
 
@@ -215,6 +216,7 @@ fn bad_glossy_inputs_are_refused() {
             lobes: &sun,
             shadow: grid_of(&ten),
             brdf: PHONG,
+            fit_width: sharp::DEFAULT_FIT_WIDTH,
         };
         assert!(
             GlossyInputs {
@@ -268,6 +270,7 @@ fn bad_glossy_inputs_are_refused() {
                 },
                 "ray offset NaN",
             ),
+            (GlossyCompact { fit_width: 0, ..ok }, "fit width 0"),
         ] {
             let e = GlossyInputs {
                 compact: Some(compact),
@@ -621,12 +624,18 @@ fn glossy_compact_lobes_match_the_cpu_twin() {
     let grid = EnvMap::from_texels(64, 32, vec![[0.0; 3]; 64 * 32], "grid").unwrap();
     let dirs: Vec<Vec3> = grid.samples().iter().map(|x| x.0).collect();
     let vis = direction_visibility(&s.positions, &s.normals, &bvh, &dirs, 1e-4);
-    let suns: Vec<Lobe> = (0..4)
-        .map(|i| {
+    // Two resolved lamps (spread over four grid taps each) and two suns (one tap).
+    let suns: Vec<Lobe> = [1200.0, 1600.0, 9000.0, 10000.0]
+        .iter()
+        .map(|&sharpness| {
             let axis = vkshade::geom::uniform_sphere(rng.f32(), rng.f32());
-            Lobe::new(axis, 3000.0 + 1000.0 * i as f32, [9e3, 6e3, 3e3])
+            Lobe::new(axis, sharpness, [9e3, 6e3, 3e3])
         })
         .collect();
+    assert_eq!(
+        sharp::points(&suns, sharp::DEFAULT_FIT_WIDTH),
+        [false, false, true, true]
+    );
     // The occluders shadow the suns: of the (vertex, sun) pairs facing the sun, the twin's
     // rays find some blocked (and most not).
     let taps = vkshade::kernels::srbf::sharp::ray_taps(&suns, Mat3::IDENTITY);
@@ -687,6 +696,7 @@ fn glossy_compact_lobes_match_the_cpu_twin() {
                 lobes: &suns,
                 shadow,
                 brdf: PHONG,
+                fit_width: sharp::DEFAULT_FIT_WIDTH,
             };
             let dense = GlossyInputs {
                 compact: Some(compact),

@@ -59,6 +59,7 @@ impl Setup {
             height: self.grid.height,
             factor: sharp::DEFAULT_FACTOR,
             max_lobes: sharp::MAX_LOBES,
+            fit_width: sharp::DEFAULT_FIT_WIDTH,
         });
         if rays {
             i.with_rays(SunRays {
@@ -159,6 +160,7 @@ fn sun_rays_on_the_gpu_match_the_cpu_twin() {
             height: 32,
             factor: sharp::DEFAULT_FACTOR,
             max_lobes: 4,
+            fit_width: sharp::DEFAULT_FIT_WIDTH,
         })
         .with_rays(SunRays {
             positions: &positions,
@@ -579,6 +581,7 @@ fn testwuson_under_a_sun_half_a_texel_off_the_grid() {
         height: dir_env.height,
         factor: sharp::DEFAULT_FACTOR,
         max_lobes: sharp::DEFAULT_MAX_LOBES,
+        fit_width: sharp::DEFAULT_FIT_WIDTH,
     };
     let grid_inputs = SrbfInputs::new(&fitted.lobes, &cpca).with_compact(compact);
     let rays_inputs = SrbfInputs::new(&fitted.lobes, &cpca)

@@ -1,8 +1,9 @@
 #version 450
 #extension GL_GOOGLE_include_directive : require
 // Pass `srbf glossy sharp` with grid taps (glossy_sharp.glsl): each compact lobe at the
-// centre of the visibility grid's texel holding its rotated axis, seen through the vertex's
-// visibility bit for that texel (the diffuse path's grid tap, src/kernels/srbf/sharp.rs).
+// centres of the 2 x 2 visibility grid texels around its rotated axis, seen
+// through the vertex's visibility bit for each (the diffuse path's grid taps,
+// src/kernels/srbf/sharp.rs; `lobes` counts the taps, four a lobe).
 // The taps come from pass `srbf sharp` (glsl/srbf/sharp.comp), once per frame, through a
 // uniform buffer read at uniform indices (scalar loads on lavapipe): computing them per
 // vertex (two atan and four sin/cos per lane) made this pass 2.0 ms on the bunny.
@@ -10,7 +11,7 @@ layout(local_size_x = 64) in;
 
 #include "texel.glsl"
 
-const uint MAX_TAPS = 32u;   // sharp::MAX_LOBES
+const uint MAX_TAPS = 128u;   // pack::MAX_TAPS: sharp::MAX_LOBES x sharp::SPREAD_TAPS
 // Two vec4 per tap: (texel centre direction xyz, texel index as a float), (integral / pi x
 // amplitude rgb, 0).
 layout(std140, set = 0, binding = 3) uniform Taps { vec4 v[2u * MAX_TAPS]; } taps;
@@ -23,6 +24,8 @@ float seen_at(uint j, vec3 x, vec3 n, out vec3 w, out vec3 e) {
     vec4 d = taps.v[2u * j];
     w = d.xyz;
     e = PI * taps.v[2u * j + 1u].rgb;
+    // A point lobe's other three taps are zero: no load (the same for every lane).
+    if (e == vec3(0.0)) return 0.0;
     uint texel = uint(d.w);
     uint v = gl_GlobalInvocationID.x;
     return float((visible.w[v * pc.words + texel / 32u] >> (texel % 32u)) & 1u);

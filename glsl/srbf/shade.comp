@@ -37,7 +37,7 @@ layout(constant_id = 0) const uint SRBF_ROW = 4096u; // kernels::table_row
 // lavapipe a loop costs its mask bookkeeping every iteration and its code even when no lane
 // enters it (push-constant counts: shade 0.56-0.57 ms on the bunny; constants 0.42-0.43).
 layout(constant_id = 1) const uint GROUPS = 2u; // ceil(components / 8)
-layout(constant_id = 2) const uint TAPS = 0u;   // compact lobes (one tap each)
+layout(constant_id = 2) const uint TAPS = 0u;   // compact taps (sharp.comp: four a lobe; rays: one)
 
 vec3 projected_row(uint k) {
     return imageLoad(projected, table_texel(k, SRBF_ROW)).rgb;
@@ -45,7 +45,7 @@ vec3 projected_row(uint k) {
 layout(std430, set = 0, binding = 4) writeonly buffer Radiance { vec4 v[]; } radiance;
 layout(std430, set = 0, binding = 5) readonly buffer Normals { vec4 v[]; } normals;  // per slot
 layout(std430, set = 0, binding = 6) readonly buffer Visible { uint w[]; } visible;
-const uint MAX_TAPS = 32u;   // sharp::MAX_LOBES
+const uint MAX_TAPS = 128u;   // pack::MAX_TAPS: sharp::MAX_LOBES x sharp::SPREAD_TAPS
 // Pass `srbf sharp`'s output, two vec4 per tap: (direction xyz, texel index as a float),
 // (weight rgb, 0).
 layout(std140, set = 0, binding = 7) uniform Taps { vec4 v[2u * MAX_TAPS]; } taps;
@@ -74,11 +74,14 @@ void main() {
     if (TAPS > 0u) {
         vec3 n = normals.v[slot].xyz;
         for (uint t = 0u; t < TAPS; t++) {
+            // A point lobe's other three taps are zero: skipped (the same for every lane).
+            vec3 weight = taps.v[2u * t + 1u].rgb;
+            if (weight == vec3(0.0)) continue;
             vec4 d = taps.v[2u * t];
             uint texel = uint(d.w);
             uint bits = visible.w[(texel >> 5u) * pc.slots + slot];
             float seen = float((bits >> (texel & 31u)) & 1u);
-            sum += taps.v[2u * t + 1u].rgb * (seen * max(dot(n, d.xyz), 0.0));
+            sum += weight * (seen * max(dot(n, d.xyz), 0.0));
         }
     }
     if (vertex != 0xFFFFFFFFu) {

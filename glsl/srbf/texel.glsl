@@ -1,6 +1,6 @@
-// The W x H equirectangular grid of the visibility (src/kernels/srbf/sharp.rs `taps` and
-// `texel_of` are the CPU twin, in the same f32 arithmetic): the texel holding a direction and
-// a texel's centre direction, and a lobe's integral. Shared by the compact-lobe passes
+// The W x H equirectangular grid of the visibility (src/kernels/srbf/sharp.rs `taps`,
+// `texel_of` and `texel_coords` are the CPU twin, in the same f32 arithmetic): a direction
+// in texel units, the texel holding it, a texel's centre direction, and a lobe's integral. Shared by the compact-lobe passes
 // (sharp.comp, sharp_rays.comp, glossy_sharp.comp, glossy_sharp_rays.comp).
 
 const float PI = 3.14159265359;
@@ -11,12 +11,18 @@ vec3 direction(float u, float v) {
     return vec3(sin(theta) * sin(phi), cos(theta), -sin(theta) * cos(phi));
 }
 
-// (column, row) of the texel holding unit direction `axis`.
-uvec2 texel_of(vec3 axis, uint width, uint height) {
+// Unit direction `axis` in texel units of the W x H grid: (u W, v H).
+vec2 texel_coords(vec3 axis, uint width, uint height) {
     float theta = atan(length(axis.xz), axis.y);
     float phi = atan(axis.x, -axis.z);
-    uint x = uint(max(floor((0.5 + phi / TAU) * float(width)), 0.0)) % width;
-    uint y = min(uint(max(floor(theta / PI * float(height)), 0.0)), height - 1u);
+    return vec2((0.5 + phi / TAU) * float(width), theta / PI * float(height));
+}
+
+// (column, row) of the texel holding unit direction `axis`.
+uvec2 texel_of(vec3 axis, uint width, uint height) {
+    vec2 p = texel_coords(axis, width, height);
+    uint x = uint(max(floor(p.x), 0.0)) % width;
+    uint y = min(uint(max(floor(p.y), 0.0)), height - 1u);
     return uvec2(x, y);
 }
 

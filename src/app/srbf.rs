@@ -658,6 +658,8 @@ struct Precomputed {
     reference_env: Option<EnvMap>,
     /// The loaded map's width.
     reference_width_of_env: u32,
+    /// Width of the map the lobes were fitted to.
+    fit_width: u32,
 }
 
 impl Precomputed {
@@ -709,6 +711,7 @@ impl Precomputed {
         Ok(Precomputed {
             reference_env,
             reference_width_of_env: env.width,
+            fit_width: fit_env.width,
             fitted,
             fit_ms,
             dir_env,
@@ -855,6 +858,7 @@ fn shade_glossy(
             },
         },
         brdf: cfg.brdf,
+        fit_width: fit_env.width,
     });
     if !compact_lobes.is_empty() {
         progress(&compact_note(
@@ -1228,6 +1232,7 @@ impl<'a> Session<'a> {
             height: pre.dir_env.height,
             factor: cfg.sharp_factor,
             max_lobes: cfg.compact_lobes,
+            fit_width: pre.fit_width,
         };
         let mut inputs = SrbfInputs::new(&pre.fitted.lobes, &pre.cpca).with_compact(compact);
         if let Some(bvh) = &pre.bvh {

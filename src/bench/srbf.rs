@@ -18,6 +18,7 @@ use crate::kernels::srbf::gpu::{
     CompactInputs, PASS_LIGHTING, PASS_PROJECT, PASS_SHADE, PASS_SHARP, SrbfFrame, SrbfInputs,
     SrbfKernel,
 };
+use crate::kernels::srbf::sharp::DEFAULT_FIT_WIDTH;
 use crate::kernels::srbf::transfer::Basis;
 use crate::reference::srbf::shade_brute_force;
 use crate::scene::envmap::EnvMap;
@@ -263,7 +264,7 @@ pub fn run(
     let env = EnvMap::load(&cfg.env)?;
     let (hl, hk) = cfg.headline;
     let fitted = fit(
-        &env.downsampled(128.min(env.width))?.samples(),
+        &env.downsampled(DEFAULT_FIT_WIDTH.min(env.width))?.samples(),
         &FitConfig {
             lobes: hl,
             ..FitConfig::default()
@@ -282,6 +283,7 @@ pub fn run(
         height: dir_env.height,
         factor: crate::kernels::srbf::sharp::DEFAULT_FACTOR,
         max_lobes: crate::kernels::srbf::sharp::DEFAULT_MAX_LOBES,
+        fit_width: DEFAULT_FIT_WIDTH.min(env.width),
     };
     let headline = measure(
         ctx,
@@ -412,6 +414,8 @@ pub struct AllBench<'a> {
     lobes: Vec<Lobe>,
     /// The visibility for compact lobes and its grid (None: a synthetic transfer).
     vis: Option<(crate::geom::visibility::Visibility, u32, u32)>,
+    /// Width of the map the lobes were fitted to (with `vis`).
+    fit_width: u32,
     cpca: Cpca,
     fps_min: Option<f64>,
 }
@@ -439,13 +443,14 @@ impl<'a> AllBench<'a> {
                 normals: character.mesh.normals.clone(),
                 lobes: synthetic_lobes(hl, 3),
                 vis: None,
+                fit_width: DEFAULT_FIT_WIDTH,
                 cpca: synthetic_cpca(hk, nv, &cfg.cpca, 2),
                 fps_min,
             });
         }
         let env = EnvMap::load(&cfg.env)?;
         let fitted = fit(
-            &env.downsampled(128.min(env.width))?.samples(),
+            &env.downsampled(DEFAULT_FIT_WIDTH.min(env.width))?.samples(),
             &FitConfig {
                 lobes: hl,
                 ..FitConfig::default()
@@ -466,6 +471,7 @@ impl<'a> AllBench<'a> {
             normals: character.mesh.normals.clone(),
             lobes: fitted.lobes,
             vis: Some((vis, dir_env.width, dir_env.height)),
+            fit_width: DEFAULT_FIT_WIDTH.min(env.width),
             cpca,
             fps_min,
         })
@@ -480,6 +486,7 @@ impl<'a> AllBench<'a> {
             height: *height,
             factor: crate::kernels::srbf::sharp::DEFAULT_FACTOR,
             max_lobes: crate::kernels::srbf::sharp::DEFAULT_MAX_LOBES,
+            fit_width: self.fit_width,
         });
         let p = measure(
             self.ctx,

@@ -42,7 +42,8 @@ impl SrbfInputs<'_> {
                     sharp::shade_bits(&taps, c.normals, &bits)?
                 }
                 None => {
-                    let taps = sharp::taps(compact, frame.rotation, c.width, c.height);
+                    let points = self.compact_points(compact);
+                    let taps = sharp::taps(compact, &points, frame.rotation, c.width, c.height);
                     sharp::shade(&taps, c.normals, c.visibility)?
                 }
             };

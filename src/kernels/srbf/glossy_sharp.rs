@@ -29,7 +29,8 @@
 
 use super::glossy_gpu::GlossyFrame;
 use super::inputs::SunRays;
-use super::sharp::{self, MAX_LOBES};
+use super::pack::MAX_TAPS;
+use super::sharp::{self, MAX_LOBES, SPREAD_TAPS};
 use crate::error::{Error, Result};
 use crate::geom::brdf::Brdf;
 use crate::geom::sg::Lobe;
@@ -71,6 +72,9 @@ pub struct GlossyCompact<'a> {
     pub shadow: CompactShadow<'a>,
     /// The surface's BRDF (the transfer's).
     pub brdf: Brdf,
+    /// Width of the map the lobes were fitted to: which are point sources
+    /// ([`sharp::is_point`]; grid taps only).
+    pub fit_width: u32,
 }
 
 impl GlossyCompact<'_> {
@@ -90,6 +94,7 @@ impl GlossyCompact<'_> {
             return bad(format!("lobe {i} is not a valid SG: {:?}", self.lobes[i]));
         }
         self.brdf.check()?;
+        sharp::check_fit_width(self.fit_width)?;
         match self.shadow {
             CompactShadow::Grid {
                 visibility,
@@ -131,9 +136,13 @@ impl GlossyCompact<'_> {
     /// The taps of one frame: (direction, E_j / pi per channel), as the shaders place them.
     fn taps(&self, rotation: Mat3) -> Vec<sharp::Tap> {
         match self.shadow {
-            CompactShadow::Grid { width, height, .. } => {
-                sharp::taps(self.lobes, rotation, width, height)
-            }
+            CompactShadow::Grid { width, height, .. } => sharp::taps(
+                self.lobes,
+                &sharp::points(self.lobes, self.fit_width),
+                rotation,
+                width,
+                height,
+            ),
             CompactShadow::Rays(_) => sharp::ray_taps(self.lobes, rotation),
         }
     }
@@ -206,6 +215,8 @@ pub(crate) struct CompactStage {
     buffers: Vec<Buffer>,
     images: Vec<Image>,
     lobes: u32,
+    /// Taps pass `srbf glossy sharp` adds: four a lobe on the grid, one with rays.
+    added: u32,
     vertices: u32,
     grid: [u32; 2],
     offset: f32,
@@ -242,6 +253,7 @@ impl CompactStage {
         let vec4 =
             |v: &[Vec3]| -> Vec<[f32; 4]> { v.iter().map(|x| x.extend(0.0).into()).collect() };
         let (axes, amps) = super::glossy_gpu::lobe_arrays(compact.lobes);
+        let amps = sharp::flag_resolved(amps, &sharp::points(compact.lobes, compact.fit_width));
         // 0, 1: the lobes; 2, 3: the vertices; grid taps: 4 the taps, 5 the bits.
         let mut buffers = vec![
             storage(rec, "srbf glossy compact axes", &axes)?,
@@ -264,9 +276,9 @@ impl CompactStage {
                 buffers.push(
                     rec.buffer_with(
                         "srbf glossy compact taps",
-                        BufferDesc::storage(2 * MAX_LOBES as u64 * 16)
+                        BufferDesc::storage(2 * MAX_TAPS as u64 * 16)
                             .usage(vk::BufferUsageFlags::UNIFORM_BUFFER),
-                        &vec![[0f32; 4]; 2 * MAX_LOBES],
+                        &vec![[0f32; 4]; 2 * MAX_TAPS],
                     )?,
                 );
                 buffers.push(storage(rec, "srbf glossy compact visibility", &bits)?);
@@ -342,6 +354,10 @@ impl CompactStage {
             buffers,
             images,
             lobes: compact.lobes.len() as u32,
+            added: match compact.shadow {
+                CompactShadow::Grid { .. } => (compact.lobes.len() * SPREAD_TAPS) as u32,
+                CompactShadow::Rays(_) => compact.lobes.len() as u32,
+            },
             vertices: vertices as u32,
             grid,
             offset,
@@ -398,7 +414,7 @@ impl CompactStage {
             push.extend_from_slice(&x.to_le_bytes());
         }
         let words = (self.grid[0] as usize * self.grid[1] as usize).div_ceil(32) as u32;
-        for x in [self.lobes, self.vertices, words] {
+        for x in [self.added, self.vertices, words] {
             push.extend_from_slice(&x.to_le_bytes());
         }
         push.extend_from_slice(&self.offset.to_le_bytes());

@@ -89,6 +89,9 @@ pub struct CompactInputs<'a> {
     pub height: u32,
     pub factor: f32,
     pub max_lobes: usize,
+    /// Width of the map the lobes were fitted to (its height half that): a lobe the fit
+    /// could not resolve is a point source ([`super::sharp::is_point`]).
+    pub fit_width: u32,
 }
 
 impl<'a> SrbfInputs<'a> {
@@ -127,6 +130,15 @@ impl<'a> SrbfInputs<'a> {
         }
     }
 
+    /// For each of `compact` (the second part of [`Self::split`]), whether it is a point
+    /// source ([`sharp::is_point`]); all points without compact inputs.
+    pub fn compact_points(&self, compact: &[Lobe]) -> Vec<bool> {
+        match &self.compact {
+            Some(c) => sharp::points(compact, c.fit_width),
+            None => vec![true; compact.len()],
+        }
+    }
+
     /// Checks the compact-lobe inputs, if any (part of [`Self::check`]).
     pub(super) fn check_compact(&self) -> Result<()> {
         let bad = |what: String| Err(Error::InvalidArgument(format!("SRBF input: {what}")));
@@ -155,6 +167,7 @@ impl<'a> SrbfInputs<'a> {
         if c.factor.is_nan() || c.factor < 0.0 {
             return bad(format!("sharpness factor {} must be >= 0", c.factor));
         }
+        sharp::check_fit_width(c.fit_width)?;
         self.check_rays()
     }
 

@@ -34,9 +34,8 @@ pub fn rows_needed(clusters: usize, components: usize) -> usize {
 /// A padding slot of `srbf shade`.
 pub const NO_VERTEX: u32 = u32::MAX;
 
-/// Most compact-lobe taps (`srbf shade`'s uniform array).
-pub const MAX_TAPS: usize = 32;
-const _: () = assert!(sharp::MAX_LOBES <= MAX_TAPS);
+/// Most compact-lobe taps (`srbf shade`'s uniform array): four a lobe on the grid.
+pub const MAX_TAPS: usize = sharp::MAX_LOBES * sharp::SPREAD_TAPS;
 
 /// The sizes the passes' push constants and grids carry.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -60,6 +59,17 @@ pub struct Shape {
     /// them), and the rays' origin offset along the normal; false: the grid tap.
     pub rays: bool,
     pub ray_offset: f32,
+}
+
+impl Shape {
+    /// The compact taps `srbf shade` adds: one a lobe with rays, [`sharp::SPREAD_TAPS`] on
+    /// the grid.
+    pub fn taps(&self) -> u32 {
+        match self.rays {
+            true => self.compact,
+            false => self.compact * sharp::SPREAD_TAPS as u32,
+        }
+    }
 }
 
 /// Everything the SRBF passes read, checked and packed (see the module documentation).
@@ -152,7 +162,7 @@ impl Prepared {
             lobe_axes: axes_of(&smooth),
             lobe_amps: amps_of(&smooth),
             compact_axes: axes_of(&compact),
-            compact_amps: amps_of(&compact),
+            compact_amps: sharp::flag_resolved(amps_of(&compact), &inputs.compact_points(&compact)),
             basis_axes: t
                 .basis
                 .axes
@@ -429,6 +439,7 @@ mod tests {
             height: 4,
             factor: sharp::DEFAULT_FACTOR,
             max_lobes: 4,
+            fit_width: super::sharp::DEFAULT_FIT_WIDTH,
         };
         let p = Prepared::new(&SrbfInputs::new(&lobes, &t).with_compact(compact)).unwrap();
         assert_eq!(

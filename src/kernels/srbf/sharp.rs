@@ -13,14 +13,28 @@
 //!
 //! over the texel directions w_t of the visibility grid (the W x H equirectangular grid whose
 //! texel centres the visibility was ray-cast for; the same one the transfer was projected
-//! from). Each compact lobe, rotated, is one tap: its whole integral / pi at the texel that
-//! holds its axis. Compact lobes are narrower than a texel (above [`DEFAULT_FACTOR`] x the
-//! basis sharpness, 980 for a 256 basis: 1 / sqrt(lambda) <= 1.8 deg, against 5.6 deg texels
-//! at 64 x 32), so the grid cannot resolve their shape anyway. Spreading each over the 3 x 3
-//! texels around its axis by its integral over each texel was tried and measured worse against
-//! the ground truth (bunny, 8 rotations: sunrise 0.9-1.4% against 0.4-0.5% with one tap,
-//! interior 2.5-3.2% against 2.1-2.5%, city 1.5-1.9% against 1.3-1.4%): the map itself, box-
-//! filtered to the grid, holds a sun in the texel of its centre.
+//! from). Each compact lobe, rotated, takes the 2 x 2 texels whose centres surround its axis
+//! ([`SPREAD_TAPS`] taps; [`taps`]), two kinds:
+//!
+//! - **A point source** (a sun): the whole integral / pi at the texel holding the axis, the
+//!   other three taps zero. A lobe is a point when the fit could not resolve it: its sharpness
+//!   is at least [`POINT_FRACTION`] of the fit's cap, 2 pi / dO for the fit grid's texels
+//!   around its axis ([`is_point`]; see [`super::fit`]), so its width is the fit grid's, not
+//!   the light's. Spreading such a lobe by its shape was measured worse against the ground
+//!   truth (bunny, 8 rotations: sunrise 0.9-1.4% against 0.4-0.5% with one tap, interior
+//!   2.5-3.2% against 2.1-2.5%, city 1.5-1.9% against 1.3-1.4%; glossy sunrise 1.9-2.2%
+//!   against 0.5-0.9%): the map itself, box-filtered to the grid, holds a sun in the texel of
+//!   its centre.
+//! - **A resolved lobe** (a lamp, a softbox: sharper than the basis, broader than the fit's
+//!   texel): its integral over each of the four texels, by [`SPREAD_SUB`]^2 sub-samples,
+//!   renormalised to the lobe's whole integral. Its width (1 / sqrt(lambda) about 1.3-1.8 deg
+//!   for Blender's studio lamps) is a third of a 5.6-degree texel, so an axis off a texel's
+//!   centre puts a tenth or more of the light in a neighbour, whose visibility and, on the
+//!   glossy path, BRDF differ (studio's four lamps put 4-47% of their light outside the
+//!   texel of their axis): one tap there took the glossy bunny under studio from 2.4-3.6% to
+//!   4.0-5.1% (uncompressed, 8 rotations). The 2 x 2 block holds all but 0.2-3.4% of each of
+//!   those lamps (a 3 x 3 block, measured first, gave the same errors to the four decimals
+//!   printed at 2.25x the taps).
 //!
 //! The GPU computes the taps in pass `srbf sharp` (glsl/srbf/sharp.comp), and pass
 //! `srbf shade` adds them from the visibility bits: one visibility load per compact lobe and
@@ -56,6 +70,66 @@ use glam::{Mat3, Vec3};
 
 /// Lobes sharper than this factor times the basis sharpness are compact candidates.
 pub const DEFAULT_FACTOR: f32 = 32.0;
+/// Grid taps per compact lobe: the 2 x 2 texels whose centres surround its rotated axis
+/// ([`taps`]; the first is the texel holding it).
+pub const SPREAD_TAPS: usize = 4;
+/// Sub-samples per side of a texel when a resolved lobe is integrated over it.
+pub const SPREAD_SUB: u32 = 8;
+/// A lobe at least this fraction of the fit's sharpness cap is a point source ([`is_point`]).
+/// The suns of Blender's studio lights end at 0.93-1.0 of it, their lamps at 0.5-0.74.
+pub const POINT_FRACTION: f64 = 0.85;
+/// The fit width of `srbf shade`, `bench srbf` and the character frame (`--fit-width`).
+pub const DEFAULT_FIT_WIDTH: u32 = 128;
+/// The sharpness cap of the fit's default configuration ([`super::fit::FitConfig`]).
+pub const FIT_MAX_SHARPNESS: f64 = 10_000.0;
+
+/// [`is_point`] for each lobe.
+pub fn points(lobes: &[Lobe], fit_width: u32) -> Vec<bool> {
+    lobes.iter().map(|l| is_point(l, fit_width)).collect()
+}
+
+/// Refuses a fit width that is not even and at least 2 (the fit's own rule).
+pub fn check_fit_width(fit_width: u32) -> Result<()> {
+    if fit_width < 2 || !fit_width.is_multiple_of(2) {
+        return Err(Error::InvalidArgument(format!(
+            "compact lobes: fit width {fit_width} (the lobes' map width: even, at least 2)"
+        )));
+    }
+    Ok(())
+}
+
+/// The compact lobes' (amplitude, flag) rows for glsl/srbf/sharp.comp: w = 1 where the lobe
+/// is resolved (spread over its texels), 0 where it is a point (`points[j]`).
+pub fn flag_resolved(mut amps: Vec<[f32; 4]>, points: &[bool]) -> Vec<[f32; 4]> {
+    for (a, p) in amps.iter_mut().zip(points) {
+        a[3] = if *p { 0.0 } else { 1.0 };
+    }
+    amps
+}
+
+/// Whether `lobe`, fitted to a `fit_width` x `fit_width / 2` map, is a point source: its
+/// sharpness is at least [`POINT_FRACTION`] of the fit's cap min([`FIT_MAX_SHARPNESS`],
+/// 2 pi / dO), dO the largest texel solid angle of the fit grid's rows next to its axis (the
+/// fit clamps a lobe at the cap of the sample nearest its axis, which may lie a row away).
+pub fn is_point(lobe: &Lobe, fit_width: u32) -> bool {
+    let w = fit_width.max(2) as f64;
+    let h = (fit_width / 2).max(1) as i64;
+    let axis = lobe.axis().as_dvec3().normalize();
+    let theta = axis.y.clamp(-1.0, 1.0).acos();
+    let row = ((theta / std::f64::consts::PI * h as f64).floor() as i64).clamp(0, h - 1);
+    let d_omega = (row - 1..=row + 1)
+        .filter(|r| (0..h).contains(r))
+        .map(|r| {
+            let (t0, t1) = (
+                std::f64::consts::PI * r as f64 / h as f64,
+                std::f64::consts::PI * (r + 1) as f64 / h as f64,
+            );
+            std::f64::consts::TAU / w * (t0.cos() - t1.cos())
+        })
+        .fold(0.0, f64::max);
+    let cap = FIT_MAX_SHARPNESS.min(std::f64::consts::TAU / d_omega);
+    lobe.sharpness as f64 >= POINT_FRACTION * cap
+}
 /// Of the candidates, those holding at least this share of the lighting's energy
 /// (luminance-weighted integral) are shaded directly, the strongest first.
 pub const MIN_SHARE: f32 = 0.02;
@@ -117,36 +191,111 @@ fn direction(u: f32, v: f32) -> Vec3 {
 }
 
 /// The taps of the compact lobes rotated by `rotation` (L_R(w) = L(R^-1 w)) on a W x H grid,
-/// one per lobe, in order: the texel holding the rotated axis, its centre direction and the
-/// lobe's integral / pi. The same arithmetic as glsl/srbf/sharp.comp, in f32.
-pub fn taps(compact: &[Lobe], rotation: Mat3, width: u32, height: u32) -> Vec<Tap> {
-    compact
-        .iter()
-        .map(|lobe| {
-            let axis = (rotation * lobe.axis()).normalize();
-            let (x, y) = texel_of(axis, width, height);
-            let scale = sg::integral(lobe.sharpness as f64) as f32 / std::f32::consts::PI;
-            Tap {
-                texel: y * width + x,
-                dir: direction(
-                    (x as f32 + 0.5) / width as f32,
-                    (y as f32 + 0.5) / height as f32,
-                ),
-                weight: lobe.amplitude.map(|a| a * scale),
+/// [`SPREAD_TAPS`] per lobe, in order: the texel holding the rotated axis, its neighbour
+/// across the nearer side in u, the one across the nearer side in v, and the one across both
+/// (the 2 x 2 block of texels whose centres surround the axis; [`footprint`]), each with its
+/// centre direction and its share of the lobe's integral / pi. `points[j]` says whether lobe
+/// j is a point source ([`is_point`]): its whole integral at the first tap. Otherwise each
+/// texel's share is the lobe integrated over it on a [`SPREAD_SUB`]^2 grid of sub-samples
+/// (solid-angle weighted), renormalised to the lobe's integral. A tap off the grid (a row
+/// past a pole) or with no share is zero at the first texel. The same arithmetic as
+/// glsl/srbf/sharp.comp, in f32.
+pub fn taps(
+    compact: &[Lobe],
+    points: &[bool],
+    rotation: Mat3,
+    width: u32,
+    height: u32,
+) -> Vec<Tap> {
+    let mut out = Vec::with_capacity(compact.len() * SPREAD_TAPS);
+    for (j, lobe) in compact.iter().enumerate() {
+        let axis = (rotation * lobe.axis()).normalize();
+        let cells = footprint(axis, width, height);
+        let (x0, y0) = cells[0].unwrap_or_default();
+        let scale = sg::integral(lobe.sharpness as f64) as f32 / std::f32::consts::PI;
+        let tap = |x: u32, y: u32, share: f32| Tap {
+            texel: y * width + x,
+            dir: direction(
+                (x as f32 + 0.5) / width as f32,
+                (y as f32 + 0.5) / height as f32,
+            ),
+            weight: lobe.amplitude.map(|a| a * scale * share),
+        };
+        let shares = match points.get(j).copied().unwrap_or(true) {
+            true => None,
+            false => spread_shares(axis, lobe.sharpness, &cells, width, height),
+        };
+        for (c, cell) in cells.iter().enumerate() {
+            out.push(match (&shares, cell) {
+                (Some(s), Some((x, y))) if s[c] > 0.0 => tap(*x, *y, s[c]),
+                (None, _) if c == 0 => tap(x0, y0, 1.0),
+                _ => tap(x0, y0, 0.0),
+            });
+        }
+    }
+    out
+}
+
+/// The 2 x 2 texels around unit direction `axis` on a W x H grid, in [`taps`]' order: the
+/// texel holding it, then across the nearer side in u (the column wraps), in v, and both; a
+/// row past a pole is None.
+fn footprint(axis: Vec3, width: u32, height: u32) -> [Option<(u32, u32)>; SPREAD_TAPS] {
+    let (x0, y0) = texel_of(axis, width, height);
+    let (fu, fv) = texel_coords(axis, width, height);
+    let dx: i64 = if fu - (x0 as f32) < 0.5 { -1 } else { 1 };
+    let dy: i64 = if fv - (y0 as f32) < 0.5 { -1 } else { 1 };
+    let at = |sx: i64, sy: i64| {
+        let y = y0 as i64 + sy;
+        let x = (x0 as i64 + sx).rem_euclid(width as i64) as u32;
+        (0..height as i64).contains(&y).then_some((x, y as u32))
+    };
+    [at(0, 0), at(dx, 0), at(0, dy), at(dx, dy)]
+}
+
+/// Each texel's share of a lobe of `sharpness` at unit `axis` (sub-sampled, summed to 1);
+/// None when the lobe has no weight at any sub-sample.
+fn spread_shares(
+    axis: Vec3,
+    sharpness: f32,
+    cells: &[Option<(u32, u32)>; SPREAD_TAPS],
+    width: u32,
+    height: u32,
+) -> Option<[f32; SPREAD_TAPS]> {
+    let mut e = [0f32; SPREAD_TAPS];
+    let sub = SPREAD_SUB as f32;
+    for (ec, cell) in e.iter_mut().zip(cells) {
+        let Some((x, y)) = *cell else {
+            continue;
+        };
+        for j in 0..SPREAD_SUB {
+            let v = (y as f32 + (j as f32 + 0.5) / sub) / height as f32;
+            let sin_theta = (std::f32::consts::PI * v).sin();
+            for i in 0..SPREAD_SUB {
+                let u = (x as f32 + (i as f32 + 0.5) / sub) / width as f32;
+                let d = direction(u, v);
+                *ec += (sharpness * (axis.dot(d) - 1.0)).exp() * sin_theta;
             }
-        })
-        .collect()
+        }
+    }
+    let total: f32 = e.iter().sum();
+    (total > 0.0 && total.is_finite()).then(|| e.map(|x| x / total))
 }
 
 /// Texel (column, row) holding direction `d` on a W x H grid.
 fn texel_of(d: Vec3, width: u32, height: u32) -> (u32, u32) {
+    let (u, v) = texel_coords(d, width, height);
+    let x = (u.floor().max(0.0) as u32) % width;
+    let y = (v.floor().max(0.0) as u32).min(height - 1);
+    (x, y)
+}
+
+/// Direction `d` in texel units of a W x H grid: (u W, v H).
+fn texel_coords(d: Vec3, width: u32, height: u32) -> (f32, f32) {
     let theta = d.x.hypot(d.z).atan2(d.y);
     let phi = d.x.atan2(-d.z);
     let u = 0.5 + phi / std::f32::consts::TAU;
     let v = theta / std::f32::consts::PI;
-    let x = ((u * width as f32).floor().max(0.0) as u32) % width;
-    let y = ((v * height as f32).floor().max(0.0) as u32).min(height - 1);
-    (x, y)
+    (u * width as f32, v * height as f32)
 }
 
 /// The compact lobes' radiance per vertex, from the taps and the visibility (whose
@@ -336,17 +485,23 @@ mod tests {
             Vec3::new(-1e-4, -0.2, -1.0),
         ] {
             let l = Lobe::new(axis, 2500.0, [2.0, 1.0, 0.5]);
-            let t = taps(&[l], r, 64, 32);
-            assert_eq!(t.len(), 1);
+            let t = taps(&[l], &[true], r, 64, 32);
+            assert_eq!(t.len(), SPREAD_TAPS);
             let want = sg::integral(2500.0) / std::f64::consts::PI;
+            let middle = t[0];
             for c in 0..3 {
                 let expect = want * l.amplitude[c] as f64;
-                assert!((t[0].weight[c] as f64 - expect).abs() < 1e-6 * expect);
+                assert!((middle.weight[c] as f64 - expect).abs() < 1e-6 * expect);
             }
             let rotated = (r * l.axis()).normalize();
             let (x, y) = env.texel_of(rotated);
-            assert_eq!(t[0].texel, y * 64 + x);
-            assert!((t[0].dir - env.direction(x, y)).length() < 1e-5);
+            assert_eq!(middle.texel, y * 64 + x);
+            assert!((middle.dir - env.direction(x, y)).length() < 1e-5);
+            // A point source: the other three taps carry nothing.
+            for (c, tap) in t.iter().enumerate().skip(1) {
+                assert_eq!(tap.weight, [0.0; 3], "tap {c}");
+                assert_eq!(tap.texel, middle.texel, "tap {c}");
+            }
         }
     }
 
@@ -368,7 +523,7 @@ mod tests {
         check_grid(&vis, 64, 32).unwrap();
         let l = Lobe::new(Vec3::new(0.4, 0.6, 0.7), 2.0e6, [1.0e3, 2.0e3, 3.0e3]);
         let r = sg::rotation(Vec3::Z, 20.0);
-        let t = taps(&[l], r, 64, 32);
+        let t = taps(&[l], &[true], r, 64, 32);
         let got = shade(&t, &normals, &vis).unwrap();
         let raster = rasterise_lobes(&[l], r, &env);
         let want = shade_brute_force_radiance(&env, &raster, &normals, &vis, [1.0; 3]).unwrap();
@@ -381,5 +536,99 @@ mod tests {
                 );
             }
         }
+    }
+
+    /// A resolved lobe (a lamp: sharper than the basis, broader than the fit's texel) against
+    /// the reference rasteriser (16 x 16 sub-samples a texel over the whole grid): each tap
+    /// holds the lobe's integral over its texel, so away from the poles shading from the taps
+    /// follows the brute-force grid sum of the rasterised lobe up to the light the 2 x 2
+    /// block leaves out (renormalised into it) and the 8 x 8 sub-samples' quadrature.
+    /// Measured: 4.8e-3 and 1.9e-4 of the largest radiance off the poles against 2.9e-2 and
+    /// 5.0e-2 with one tap; bound 1e-2, and one tap must err 3x more. By a pole a texel is
+    /// narrow in u and the lobe covers the whole first row: there the four taps err as one
+    /// tap does (1.0e-2 both), and the test holds them to 1.5e-2.
+    #[test]
+    fn a_resolved_lobe_spreads_over_its_texels_as_the_rasteriser_does() {
+        use crate::geom::visibility::direction_visibility;
+        use crate::reference::srbf::{rasterise_lobes, shade_brute_force_radiance};
+        let env =
+            crate::scene::EnvMap::from_texels(64, 32, vec![[0.0; 3]; 64 * 32], "grid").unwrap();
+        let dirs: Vec<Vec3> = env.samples().iter().map(|s| s.0).collect();
+        let bvh = crate::geom::Bvh::build(&[], &[]);
+        let normals = sg::fibonacci_sphere(400);
+        let positions = vec![Vec3::ZERO; normals.len()];
+        let vis = direction_visibility(&positions, &normals, &bvh, &dirs, 0.0);
+        // Axes off their texels' centres, one by a pole and one across the u seam.
+        for axis in [
+            Vec3::new(0.4, 0.6, 0.7),
+            Vec3::new(0.02, 1.0, 0.05),
+            Vec3::new(-0.01, -0.1, -1.0),
+        ] {
+            let l = Lobe::new(axis, 1500.0, [1.0e3, 2.0e3, 3.0e3]);
+            assert!(!is_point(&l, DEFAULT_FIT_WIDTH));
+            let r = sg::rotation(Vec3::Z, 20.0);
+            let t = taps(&[l], &[false], r, 64, 32);
+            assert_eq!(t.len(), SPREAD_TAPS);
+            // The shares sum to the lobe's integral, and more than one tap holds light.
+            let sum: f64 = t.iter().map(|x| x.weight[2] as f64).sum();
+            let want = sg::integral(1500.0) / std::f64::consts::PI * 3.0e3;
+            assert!((sum - want).abs() < 1e-5 * want, "{sum} vs {want}");
+            assert!(t.iter().filter(|x| x.weight[2] > 0.01 * sum as f32).count() > 1);
+            let got = shade(&t, &normals, &vis).unwrap();
+            let raster = rasterise_lobes(&[l], r, &env);
+            let want = shade_brute_force_radiance(&env, &raster, &normals, &vis, [1.0; 3]).unwrap();
+            let scale = want.iter().map(|w| w[2]).fold(0.0f64, f64::max);
+            let worst = got
+                .iter()
+                .zip(&want)
+                .flat_map(|(g, w)| (0..3).map(move |c| (g[c] as f64 - w[c]).abs()))
+                .fold(0.0f64, f64::max);
+            eprintln!(
+                "axis {axis}: worst {:.2e} of the largest radiance",
+                worst / scale
+            );
+            let polar = axis.y.abs() > 0.99;
+            let bound = if polar { 1.5e-2 } else { 1e-2 };
+            assert!(
+                worst < bound * scale,
+                "axis {axis}: {worst} vs scale {scale}"
+            );
+            // One tap at the axis's texel instead misses the neighbours' share.
+            let one = shade(&taps(&[l], &[true], r, 64, 32), &normals, &vis).unwrap();
+            let worst_one = one
+                .iter()
+                .zip(&want)
+                .flat_map(|(g, w)| (0..3).map(move |c| (g[c] as f64 - w[c]).abs()))
+                .fold(0.0f64, f64::max);
+            eprintln!("  one tap: {:.2e}", worst_one / scale);
+            assert!(polar || worst_one > 3.0 * worst, "{worst_one} vs {worst}");
+        }
+    }
+
+    /// A lobe at the fit's sharpness cap is a point source, one at half of it is resolved;
+    /// the cap is 2 pi / dO of the fit grid's texels by the axis, and at most 10,000.
+    #[test]
+    fn point_sources_are_the_lobes_at_the_fits_cap() {
+        // At the equator of a 128 x 64 fit grid: dO = (2 pi / 128) (pi / 64) sin(~90 deg).
+        let d_omega = std::f64::consts::TAU / 128.0
+            * ((31.0 * std::f64::consts::PI / 64.0).cos()
+                - (32.0 * std::f64::consts::PI / 64.0).cos());
+        let cap = (std::f64::consts::TAU / d_omega) as f32;
+        let at = |axis: Vec3, sharpness: f32| Lobe::new(axis, sharpness, [1.0; 3]);
+        let equator = Vec3::new(0.3, 0.01, -0.95);
+        assert!(is_point(&at(equator, cap), 128));
+        assert!(is_point(&at(equator, 0.9 * cap), 128));
+        assert!(!is_point(&at(equator, 0.5 * cap), 128));
+        // Blender's studio lamps (1342-2159) are resolved on the default grid, its suns
+        // (2423-2615 by the horizon) points.
+        assert!(!is_point(&at(equator, 2159.0), 128));
+        assert!(is_point(&at(equator, 2423.0), 128));
+        // By the pole the texels are small: the cap is the fit's own 10,000.
+        assert!(is_point(&at(Vec3::Y, 9000.0), 128));
+        assert!(!is_point(&at(Vec3::Y, 5000.0), 128));
+        // A finer fit resolves more: the sun of a 128-wide fit is a lamp of a 512-wide one.
+        assert!(!is_point(&at(equator, 2423.0), 512));
+        assert!(check_fit_width(128).is_ok());
+        assert!(check_fit_width(0).is_err() && check_fit_width(127).is_err());
     }
 }
