@@ -863,7 +863,7 @@ fn shade_glossy(
     if !compact_lobes.is_empty() {
         progress(&compact_note(
             cfg,
-            compact_lobes.len(),
+            &crate::kernels::srbf::sharp::points(&compact_lobes, fit_env.width),
             transfer.rows.basis.sharpness,
             " with the BRDF toward the camera",
         ));
@@ -1168,15 +1168,22 @@ enum GlossyOrCta {
 
 /// The progress line saying how many compact lobes are shaded directly (`how`: e.g. " with
 /// the BRDF toward the camera") and how they are shadowed.
-fn compact_note(cfg: &ShadeConfig, count: usize, basis_sharpness: f32, how: &str) -> String {
+fn compact_note(cfg: &ShadeConfig, points: &[bool], basis_sharpness: f32, how: &str) -> String {
+    let count = points.len();
+    let resolved = points.iter().filter(|p| !**p).count();
     format!(
         "{count} compact lobes (sharpness > {} x {basis_sharpness:.1}, >= {}% of the energy) \
-         shaded directly{how}, shadowed {}",
+         shaded directly{how}, {}",
         cfg.sharp_factor,
         crate::kernels::srbf::sharp::MIN_SHARE * 100.0,
         match cfg.sun {
-            SunMode::Rays => "by a ray per vertex at their rotated directions",
-            SunMode::Grid => "from the visibility grid's texel holding their axes",
+            SunMode::Rays => "each at its rotated axis, shadowed by a ray per vertex".to_string(),
+            SunMode::Grid => format!(
+                "shadowed from the visibility grid: {} point sources (one tap at the texel \
+                 holding the axis), {resolved} resolved by the fit (spread over the 2 x 2 \
+                 texels around the axis)",
+                count - resolved
+            ),
         }
     )
 }
@@ -1242,12 +1249,12 @@ impl<'a> Session<'a> {
                 offset: sun_offset(&mesh.positions),
             });
         }
-        let (smooth, _) = inputs.split();
+        let (smooth, compact) = inputs.split();
         let kernel = SrbfKernel::new(&mut setup, &inputs)?;
         if kernel.compact_count() > 0 {
             progress(&compact_note(
                 cfg,
-                kernel.compact_count(),
+                &inputs.compact_points(&compact),
                 pre.transfer.basis.sharpness,
                 "",
             ));

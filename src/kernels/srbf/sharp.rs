@@ -22,23 +22,23 @@
 //!   around its axis ([`is_point`]; see [`super::fit`]), so its width is the fit grid's, not
 //!   the light's. Spreading such a lobe by its shape was measured worse against the ground
 //!   truth (bunny, 8 rotations: sunrise 0.9-1.4% against 0.4-0.5% with one tap, interior
-//!   2.5-3.2% against 2.1-2.5%, city 1.5-1.9% against 1.3-1.4%; glossy sunrise 1.9-2.2%
-//!   against 0.5-0.9%): the map itself, box-filtered to the grid, holds a sun in the texel of
-//!   its centre.
+//!   2.5-3.2% against 2.1-2.5%, city 1.5-1.9% against 1.3-1.4%; glossy sunrise,
+//!   uncompressed, 4 rotations: 1.9-2.2% against 0.6-0.9%): the map itself, box-filtered to
+//!   the grid, holds a sun in the texel of its centre.
 //! - **A resolved lobe** (a lamp, a softbox: sharper than the basis, broader than the fit's
 //!   texel): its integral over each of the four texels, by [`SPREAD_SUB`]^2 sub-samples,
 //!   renormalised to the lobe's whole integral. Its width (1 / sqrt(lambda) about 1.3-1.8 deg
 //!   for Blender's studio lamps) is a third of a 5.6-degree texel, so an axis off a texel's
 //!   centre puts a tenth or more of the light in a neighbour, whose visibility and, on the
-//!   glossy path, BRDF differ (studio's four lamps put 4-47% of their light outside the
+//!   glossy path, BRDF differ (studio's four lamps have 47-53% of their light outside the
 //!   texel of their axis): one tap there took the glossy bunny under studio from 2.4-3.6% to
-//!   4.0-5.1% (uncompressed, 8 rotations). The 2 x 2 block holds all but 0.2-3.4% of each of
-//!   those lamps (a 3 x 3 block, measured first, gave the same errors to the four decimals
-//!   printed at 2.25x the taps).
+//!   4.0-5.1% (uncompressed, 8 rotations). The 2 x 2 block holds 99.1-99.8% of what the
+//!   3 x 3 block around each of those lamps does (the 3 x 3 block, measured first, gave the
+//!   same errors to the four decimals printed at 2.25x the taps).
 //!
 //! The GPU computes the taps in pass `srbf sharp` (glsl/srbf/sharp.comp), and pass
-//! `srbf shade` adds them from the visibility bits: one visibility load per compact lobe and
-//! vertex.
+//! `srbf shade` adds them from the visibility bits: one visibility load per nonzero tap and
+//! vertex (a point's three zero taps are skipped).
 //!
 //! **A sun at any rotation** (issue 19, item 5). The grid tap above shadows a lobe with the
 //! visibility of the texel centre that holds its rotated axis: a sun between two grid
