@@ -3,7 +3,7 @@
 // Pass `srbf glossy sharp` with grid taps (glossy_sharp.glsl): each compact lobe at the
 // centres of the 2 x 2 visibility grid texels around its rotated axis, seen
 // through the vertex's visibility bit for each (the diffuse path's grid taps,
-// src/kernels/srbf/sharp.rs; `lobes` counts the taps, four a lobe).
+// src/kernels/srbf/sharp.rs; `lobes` counts the taps, sharp::tap_count).
 // The taps come from pass `srbf sharp` (glsl/srbf/sharp.comp), once per frame, through a
 // uniform buffer read at uniform indices (scalar loads on lavapipe): computing them per
 // vertex (two atan and four sin/cos per lane) made this pass 2.0 ms on the bunny.
@@ -24,8 +24,6 @@ float seen_at(uint j, vec3 x, vec3 n, out vec3 w, out vec3 e) {
     vec4 d = taps.v[2u * j];
     w = d.xyz;
     e = PI * taps.v[2u * j + 1u].rgb;
-    // A point lobe's other three taps are zero: no load (the same for every lane).
-    if (e == vec3(0.0)) return 0.0;
     uint texel = uint(d.w);
     uint v = gl_GlobalInvocationID.x;
     return float((visible.w[v * pc.words + texel / 32u] >> (texel % 32u)) & 1u);

@@ -16,7 +16,7 @@ layout(push_constant) uniform Push {
     vec4 camera;   // xyz, model units
     vec4 albedo;   // rgb
     vec4 brdf;     // Phong exponent, kd, ks
-    uint lobes;    // taps: grid, four a compact lobe; rays, one
+    uint lobes;    // taps: grid, sharp::tap_count; rays, one a lobe
     uint vertices;
     uint words;    // visibility words per vertex (grid taps)
     float offset;  // shadow ray origin offset along the normal (ray taps)
@@ -54,8 +54,7 @@ void main() {
     for (uint j = 0u; j < pc.lobes; j++) {
         vec3 w, e;
         float seen = seen_at(j, x, n, w, e);
-        if (seen == 0.0) continue;
-        sum += e * (max(dot(n, w), 0.0) * rho(n, w, o));
+        sum += e * (seen * max(dot(n, w), 0.0) * rho(n, w, o));
     }
     radiance.v[v] += vec4(pc.albedo.rgb * sum, 0.0);
 }

@@ -37,7 +37,7 @@ layout(constant_id = 0) const uint SRBF_ROW = 4096u; // kernels::table_row
 // lavapipe a loop costs its mask bookkeeping every iteration and its code even when no lane
 // enters it (push-constant counts: shade 0.56-0.57 ms on the bunny; constants 0.42-0.43).
 layout(constant_id = 1) const uint GROUPS = 2u; // ceil(components / 8)
-layout(constant_id = 2) const uint TAPS = 0u;   // compact taps (sharp.comp: four a lobe; rays: one)
+layout(constant_id = 2) const uint TAPS = 0u;   // compact taps (sharp::tap_count; rays: one a lobe)
 
 vec3 projected_row(uint k) {
     return imageLoad(projected, table_texel(k, SRBF_ROW)).rgb;
@@ -74,14 +74,11 @@ void main() {
     if (TAPS > 0u) {
         vec3 n = normals.v[slot].xyz;
         for (uint t = 0u; t < TAPS; t++) {
-            // A point lobe's other three taps are zero: skipped (the same for every lane).
-            vec3 weight = taps.v[2u * t + 1u].rgb;
-            if (weight == vec3(0.0)) continue;
             vec4 d = taps.v[2u * t];
             uint texel = uint(d.w);
             uint bits = visible.w[(texel >> 5u) * pc.slots + slot];
             float seen = float((bits >> (texel & 31u)) & 1u);
-            sum += weight * (seen * max(dot(n, d.xyz), 0.0));
+            sum += taps.v[2u * t + 1u].rgb * (seen * max(dot(n, d.xyz), 0.0));
         }
     }
     if (vertex != 0xFFFFFFFFu) {

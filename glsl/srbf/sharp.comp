@@ -1,13 +1,14 @@
 #version 450
 #extension GL_GOOGLE_include_directive : require
-// Taps of the compact lighting lobes (src/kernels/srbf/sharp.rs; its `taps` is the CPU twin):
-// lobe j, rotated by R, takes the 2 x 2 texels of the W x H visibility grid whose centres
-// surround its axis (SPREAD_TAPS taps: the texel holding the axis, then across the nearer
-// side in u, in v, and both). A point source (amplitude w = 0) puts its whole integral / pi
-// at the first tap; a resolved lobe (w = 1) shares it among the four by its integral over
-// each texel, SPREAD_SUB^2 sub-samples a texel, renormalised. A tap off the grid or with no
-// share is zero at the first texel. Output per tap: two vec4, (texel centre direction xyz,
-// texel index as a float), (weight rgb, 0).
+// Taps of the compact lighting lobes (src/kernels/srbf/sharp.rs; its `taps` is the CPU twin),
+// lobe by lobe. A point source (amplitude w = 0) is one tap: its whole integral / pi at the
+// texel of the W x H visibility grid that holds its rotated axis. A resolved lobe (w = 1) is
+// SPREAD_TAPS taps, the 2 x 2 texels whose centres surround its axis (the texel holding it,
+// then across the nearer side in u, in v, and both), sharing the integral by the lobe's
+// integral over each texel (SPREAD_SUB^2 sub-samples a texel, renormalised); a tap off the
+// grid or with no share is zero at the first texel. Lobe j's taps start after the taps of
+// lobes 0..j-1. Output per tap: two vec4, (texel centre direction xyz, texel index as a
+// float), (weight rgb, 0).
 layout(local_size_x = 64) in;
 
 layout(push_constant) uniform Push {
@@ -64,10 +65,15 @@ void main() {
         total += e[c];
     }
     bool spread = total > 0.0 && !isinf(total);
-    for (uint c = 0u; c < SPREAD_TAPS; c++) {
+    uint base = 0u;
+    for (uint i = 0u; i < j; i++) {
+        base += lobe_amps.v[i].w != 0.0 ? SPREAD_TAPS : 1u;
+    }
+    uint count = amp.w != 0.0 ? SPREAD_TAPS : 1u;
+    for (uint c = 0u; c < count; c++) {
         float share = spread ? e[c] / total : (c == 0u ? 1.0 : 0.0);
         uvec2 t = (spread && on[c] && share > 0.0) ? cell[c] : t0;
-        uint k = SPREAD_TAPS * j + c;
+        uint k = base + c;
         taps.v[2u * k] = vec4(texel_direction(t, pc.width, pc.height), float(t.y * pc.width + t.x));  // exact below 2^24 texels
         taps.v[2u * k + 1u] = vec4(weight * share, 0.0);
     }

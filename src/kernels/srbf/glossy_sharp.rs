@@ -30,7 +30,7 @@
 use super::glossy_gpu::GlossyFrame;
 use super::inputs::SunRays;
 use super::pack::MAX_TAPS;
-use super::sharp::{self, MAX_LOBES, SPREAD_TAPS};
+use super::sharp::{self, MAX_LOBES};
 use crate::error::{Error, Result};
 use crate::geom::brdf::Brdf;
 use crate::geom::sg::Lobe;
@@ -215,7 +215,8 @@ pub(crate) struct CompactStage {
     buffers: Vec<Buffer>,
     images: Vec<Image>,
     lobes: u32,
-    /// Taps pass `srbf glossy sharp` adds: four a lobe on the grid, one with rays.
+    /// Taps pass `srbf glossy sharp` adds: [`sharp::tap_count`] on the grid, one a lobe with
+    /// rays.
     added: u32,
     vertices: u32,
     grid: [u32; 2],
@@ -355,7 +356,9 @@ impl CompactStage {
             images,
             lobes: compact.lobes.len() as u32,
             added: match compact.shadow {
-                CompactShadow::Grid { .. } => (compact.lobes.len() * SPREAD_TAPS) as u32,
+                CompactShadow::Grid { .. } => {
+                    sharp::tap_count(&sharp::points(compact.lobes, compact.fit_width)) as u32
+                }
                 CompactShadow::Rays(_) => compact.lobes.len() as u32,
             },
             vertices: vertices as u32,

@@ -201,7 +201,7 @@ impl SrbfKernel {
             &[
                 ("SRBF_ROW", row),
                 ("GROUPS", prep.shape.components.div_ceil(8)),
-                ("TAPS", prep.shape.taps()),
+                ("TAPS", prep.shape.taps),
             ],
         )?;
         let buffers = Self::buffers(rec, prep)?;

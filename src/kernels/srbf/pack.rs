@@ -34,7 +34,7 @@ pub fn rows_needed(clusters: usize, components: usize) -> usize {
 /// A padding slot of `srbf shade`.
 pub const NO_VERTEX: u32 = u32::MAX;
 
-/// Most compact-lobe taps (`srbf shade`'s uniform array): four a lobe on the grid.
+/// Most compact-lobe taps (`srbf shade`'s uniform array): four a resolved lobe on the grid.
 pub const MAX_TAPS: usize = sharp::MAX_LOBES * sharp::SPREAD_TAPS;
 
 /// The sizes the passes' push constants and grids carry.
@@ -59,17 +59,9 @@ pub struct Shape {
     /// them), and the rays' origin offset along the normal; false: the grid tap.
     pub rays: bool,
     pub ray_offset: f32,
-}
-
-impl Shape {
-    /// The compact taps `srbf shade` adds: one a lobe with rays, [`sharp::SPREAD_TAPS`] on
-    /// the grid.
-    pub fn taps(&self) -> u32 {
-        match self.rays {
-            true => self.compact,
-            false => self.compact * sharp::SPREAD_TAPS as u32,
-        }
-    }
+    /// The compact taps `srbf shade` adds: one a lobe with rays, [`sharp::tap_count`] on the
+    /// grid.
+    pub taps: u32,
 }
 
 /// Everything the SRBF passes read, checked and packed (see the module documentation).
@@ -101,6 +93,7 @@ impl Prepared {
         inputs.check()?;
         let t = inputs.transfer;
         let (smooth, compact) = inputs.split();
+        let points = inputs.compact_points(&compact);
         let layout = Layout::of(t);
         let slots = layout.slot_vertex.len();
         let rays = inputs.rays.filter(|_| !compact.is_empty());
@@ -158,11 +151,15 @@ impl Prepared {
                 slots: slots as u32,
                 rays: rays.is_some(),
                 ray_offset: rays.map_or(0.0, |r| r.offset),
+                taps: match rays {
+                    Some(_) => compact.len() as u32,
+                    None => sharp::tap_count(&points) as u32,
+                },
             },
             lobe_axes: axes_of(&smooth),
             lobe_amps: amps_of(&smooth),
             compact_axes: axes_of(&compact),
-            compact_amps: sharp::flag_resolved(amps_of(&compact), &inputs.compact_points(&compact)),
+            compact_amps: sharp::flag_resolved(amps_of(&compact), &points),
             basis_axes: t
                 .basis
                 .axes

@@ -13,11 +13,10 @@
 //!
 //! over the texel directions w_t of the visibility grid (the W x H equirectangular grid whose
 //! texel centres the visibility was ray-cast for; the same one the transfer was projected
-//! from). Each compact lobe, rotated, takes the 2 x 2 texels whose centres surround its axis
-//! ([`SPREAD_TAPS`] taps; [`taps`]), two kinds:
+//! from). Each compact lobe, rotated, is one of two kinds ([`taps`]):
 //!
-//! - **A point source** (a sun): the whole integral / pi at the texel holding the axis, the
-//!   other three taps zero. A lobe is a point when the fit could not resolve it: its sharpness
+//! - **A point source** (a sun): one tap, the whole integral / pi at the texel holding the
+//!   axis. A lobe is a point when the fit could not resolve it: its sharpness
 //!   is at least [`POINT_FRACTION`] of the fit's cap, 2 pi / dO for the fit grid's texels
 //!   around its axis ([`is_point`]; see [`super::fit`]), so its width is the fit grid's, not
 //!   the light's. Spreading such a lobe by its shape was measured worse against the ground
@@ -26,7 +25,8 @@
 //!   uncompressed, 4 rotations: 1.9-2.2% against 0.6-0.9%): the map itself, box-filtered to
 //!   the grid, holds a sun in the texel of its centre.
 //! - **A resolved lobe** (a lamp, a softbox: sharper than the basis, broader than the fit's
-//!   texel): its integral over each of the four texels, by [`SPREAD_SUB`]^2 sub-samples,
+//!   texel): [`SPREAD_TAPS`] taps, the 2 x 2 texels whose centres surround its axis, each its
+//!   integral over the texel, by [`SPREAD_SUB`]^2 sub-samples,
 //!   renormalised to the lobe's whole integral. Its width (1 / sqrt(lambda) about 1.3-1.8 deg
 //!   for Blender's studio lamps) is a third of a 5.6-degree texel, so an axis off a texel's
 //!   centre puts a tenth or more of the light in a neighbour, whose visibility and, on the
@@ -37,8 +37,11 @@
 //!   same errors to the four decimals printed at 2.25x the taps).
 //!
 //! The GPU computes the taps in pass `srbf sharp` (glsl/srbf/sharp.comp), and pass
-//! `srbf shade` adds them from the visibility bits: one visibility load per nonzero tap and
-//! vertex (a point's three zero taps are skipped).
+//! `srbf shade` adds them from the visibility bits: one visibility load per tap and vertex.
+//! Which lobes are points is known when the kernel is made, so the taps' count is a
+//! specialization constant: skipping a point's three zero taps in the shading loop instead
+//! (a uniform branch per tap) made `srbf shade` 2.3x slower on lavapipe (bench srbf:
+//! 1.0 -> 2.35 ms).
 //!
 //! **A sun at any rotation** (issue 19, item 5). The grid tap above shadows a lobe with the
 //! visibility of the texel centre that holds its rotated axis: a sun between two grid
@@ -70,8 +73,8 @@ use glam::{Mat3, Vec3};
 
 /// Lobes sharper than this factor times the basis sharpness are compact candidates.
 pub const DEFAULT_FACTOR: f32 = 32.0;
-/// Grid taps per compact lobe: the 2 x 2 texels whose centres surround its rotated axis
-/// ([`taps`]; the first is the texel holding it).
+/// Grid taps of a resolved compact lobe: the 2 x 2 texels whose centres surround its rotated
+/// axis ([`taps`]; the first is the texel holding it). A point source has one.
 pub const SPREAD_TAPS: usize = 4;
 /// Sub-samples per side of a texel when a resolved lobe is integrated over it.
 pub const SPREAD_SUB: u32 = 8;
@@ -82,6 +85,15 @@ pub const POINT_FRACTION: f64 = 0.85;
 pub const DEFAULT_FIT_WIDTH: u32 = 128;
 /// The sharpness cap of the fit's default configuration ([`super::fit::FitConfig`]).
 pub const FIT_MAX_SHARPNESS: f64 = 10_000.0;
+
+/// Grid taps of compact lobes with these point flags: one a point source, [`SPREAD_TAPS`]
+/// a resolved lobe.
+pub fn tap_count(points: &[bool]) -> usize {
+    points
+        .iter()
+        .map(|p| if *p { 1 } else { SPREAD_TAPS })
+        .sum()
+}
 
 /// [`is_point`] for each lobe.
 pub fn points(lobes: &[Lobe], fit_width: u32) -> Vec<bool> {
@@ -191,15 +203,15 @@ fn direction(u: f32, v: f32) -> Vec3 {
 }
 
 /// The taps of the compact lobes rotated by `rotation` (L_R(w) = L(R^-1 w)) on a W x H grid,
-/// [`SPREAD_TAPS`] per lobe, in order: the texel holding the rotated axis, its neighbour
-/// across the nearer side in u, the one across the nearer side in v, and the one across both
-/// (the 2 x 2 block of texels whose centres surround the axis; [`footprint`]), each with its
-/// centre direction and its share of the lobe's integral / pi. `points[j]` says whether lobe
-/// j is a point source ([`is_point`]): its whole integral at the first tap. Otherwise each
-/// texel's share is the lobe integrated over it on a [`SPREAD_SUB`]^2 grid of sub-samples
-/// (solid-angle weighted), renormalised to the lobe's integral. A tap off the grid (a row
-/// past a pole) or with no share is zero at the first texel. The same arithmetic as
-/// glsl/srbf/sharp.comp, in f32.
+/// lobe by lobe ([`tap_count`] in all), each with its texel's centre direction and its share
+/// of the lobe's integral / pi. `points[j]` says whether lobe j is a point source
+/// ([`is_point`]): one tap, its whole integral at the texel holding its rotated axis.
+/// Otherwise [`SPREAD_TAPS`] taps: that texel, its neighbour across the nearer side in u, the
+/// one across the nearer side in v, and the one across both (the 2 x 2 block of texels whose
+/// centres surround the axis; [`footprint`]), each share the lobe integrated over the texel
+/// on a [`SPREAD_SUB`]^2 grid of sub-samples (solid-angle weighted), renormalised to the
+/// lobe's integral; a tap off the grid (a row past a pole) or with no share is zero at the
+/// first texel. The same arithmetic as glsl/srbf/sharp.comp, in f32.
 pub fn taps(
     compact: &[Lobe],
     points: &[bool],
@@ -221,10 +233,11 @@ pub fn taps(
             ),
             weight: lobe.amplitude.map(|a| a * scale * share),
         };
-        let shares = match points.get(j).copied().unwrap_or(true) {
-            true => None,
-            false => spread_shares(axis, lobe.sharpness, &cells, width, height),
-        };
+        if points.get(j).copied().unwrap_or(true) {
+            out.push(tap(x0, y0, 1.0));
+            continue;
+        }
+        let shares = spread_shares(axis, lobe.sharpness, &cells, width, height);
         for (c, cell) in cells.iter().enumerate() {
             out.push(match (&shares, cell) {
                 (Some(s), Some((x, y))) if s[c] > 0.0 => tap(*x, *y, s[c]),
@@ -486,7 +499,7 @@ mod tests {
         ] {
             let l = Lobe::new(axis, 2500.0, [2.0, 1.0, 0.5]);
             let t = taps(&[l], &[true], r, 64, 32);
-            assert_eq!(t.len(), SPREAD_TAPS);
+            assert_eq!(t.len(), 1);
             let want = sg::integral(2500.0) / std::f64::consts::PI;
             let middle = t[0];
             for c in 0..3 {
@@ -497,11 +510,6 @@ mod tests {
             let (x, y) = env.texel_of(rotated);
             assert_eq!(middle.texel, y * 64 + x);
             assert!((middle.dir - env.direction(x, y)).length() < 1e-5);
-            // A point source: the other three taps carry nothing.
-            for (c, tap) in t.iter().enumerate().skip(1) {
-                assert_eq!(tap.weight, [0.0; 3], "tap {c}");
-                assert_eq!(tap.texel, middle.texel, "tap {c}");
-            }
         }
     }
 
