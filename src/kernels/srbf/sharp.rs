@@ -208,7 +208,7 @@ fn direction(u: f32, v: f32) -> Vec3 {
 /// ([`is_point`]): one tap, its whole integral at the texel holding its rotated axis.
 /// Otherwise [`SPREAD_TAPS`] taps: that texel, its neighbour across the nearer side in u, the
 /// one across the nearer side in v, and the one across both (the 2 x 2 block of texels whose
-/// centres surround the axis; [`footprint`]), each share the lobe integrated over the texel
+/// centres surround the axis), each share the lobe integrated over the texel
 /// on a [`SPREAD_SUB`]^2 grid of sub-samples (solid-angle weighted), renormalised to the
 /// lobe's integral; a tap off the grid (a row past a pole) or with no share is zero at the
 /// first texel. The same arithmetic as glsl/srbf/sharp.comp, in f32.
@@ -513,21 +513,27 @@ mod tests {
         }
     }
 
+    /// A black 64 x 32 grid, `n` normals spread over the sphere and their visibility of the
+    /// grid's texel centres with no geometry (n . w > 0).
+    fn open_grid(n: usize) -> (crate::scene::EnvMap, Vec<Vec3>, Visibility) {
+        let env =
+            crate::scene::EnvMap::from_texels(64, 32, vec![[0.0; 3]; 64 * 32], "grid").unwrap();
+        let dirs: Vec<Vec3> = env.samples().iter().map(|s| s.0).collect();
+        let bvh = crate::geom::Bvh::build(&[], &[]);
+        let normals = sg::fibonacci_sphere(n);
+        let positions = vec![Vec3::ZERO; n];
+        let vis =
+            crate::geom::visibility::direction_visibility(&positions, &normals, &bvh, &dirs, 0.0);
+        (env, normals, vis)
+    }
+
     /// Against the brute-force sum over the same grid with the lobe rasterised into it: a
     /// lobe narrower than a sub-texel lands in the texel of its axis there too, so the two
     /// agree to rounding (texel indexing, the cosine at the texel centre, the scale).
     #[test]
     fn shading_matches_the_grid_sum_of_the_rasterised_lobe() {
-        use crate::geom::visibility::direction_visibility;
         use crate::reference::srbf::{rasterise_lobes, shade_brute_force_radiance};
-        let env =
-            crate::scene::EnvMap::from_texels(64, 32, vec![[0.0; 3]; 64 * 32], "grid").unwrap();
-        let dirs: Vec<Vec3> = env.samples().iter().map(|s| s.0).collect();
-        // No geometry: visibility is n . w > 0.
-        let bvh = crate::geom::Bvh::build(&[], &[]);
-        let normals = sg::fibonacci_sphere(50);
-        let positions = vec![Vec3::ZERO; normals.len()];
-        let vis = direction_visibility(&positions, &normals, &bvh, &dirs, 0.0);
+        let (env, normals, vis) = open_grid(50);
         check_grid(&vis, 64, 32).unwrap();
         let l = Lobe::new(Vec3::new(0.4, 0.6, 0.7), 2.0e6, [1.0e3, 2.0e3, 3.0e3]);
         let r = sg::rotation(Vec3::Z, 20.0);
@@ -557,15 +563,8 @@ mod tests {
     /// tap does (1.0e-2 both), and the test holds them to 1.5e-2.
     #[test]
     fn a_resolved_lobe_spreads_over_its_texels_as_the_rasteriser_does() {
-        use crate::geom::visibility::direction_visibility;
         use crate::reference::srbf::{rasterise_lobes, shade_brute_force_radiance};
-        let env =
-            crate::scene::EnvMap::from_texels(64, 32, vec![[0.0; 3]; 64 * 32], "grid").unwrap();
-        let dirs: Vec<Vec3> = env.samples().iter().map(|s| s.0).collect();
-        let bvh = crate::geom::Bvh::build(&[], &[]);
-        let normals = sg::fibonacci_sphere(400);
-        let positions = vec![Vec3::ZERO; normals.len()];
-        let vis = direction_visibility(&positions, &normals, &bvh, &dirs, 0.0);
+        let (env, normals, vis) = open_grid(400);
         // Axes off their texels' centres, one by a pole and one across the u seam.
         for axis in [
             Vec3::new(0.4, 0.6, 0.7),
