@@ -12,8 +12,8 @@ layout(local_size_x = 64) in;
 #include "texel.glsl"
 
 const uint MAX_TAPS = 128u;   // pack::MAX_TAPS: sharp::MAX_LOBES x sharp::SPREAD_TAPS
-// Two vec4 per tap: (texel centre direction xyz, texel index as a float), (integral / pi x
-// amplitude rgb, 0).
+// Two vec4 per tap: (texel centre direction xyz, texel index as a float), (share of the
+// lobe's integral / pi x amplitude rgb, 0).
 layout(std140, set = 0, binding = 3) uniform Taps { vec4 v[2u * MAX_TAPS]; } taps;
 // Per vertex, the W x H grid's bits, vertex-major: bits[v * words + texel / 32].
 layout(std430, set = 0, binding = 4) readonly buffer Visible { uint w[]; } visible;

@@ -2,13 +2,15 @@
 // `GlossyCompact::add` is the CPU twin), added per vertex onto the radiance the glossy or CTA
 // shade pass wrote:
 //   B_v += albedo * sum_j E_j V_v(w_j) rho(w_j, o_v) max(0, n_v . w_j),
-// E_j lobe j's integral (amplitude x 2 pi (1 - e^(-2 lambda)) / lambda), o_v the view
-// direction toward the camera clamped onto the horizon (src/geom/brdf.rs view_direction) and
-// rho the modified Phong BRDF. The includer defines lobe j's tap at vertex v,
+// over taps j, E_j the tap's share of its lobe's integral (amplitude x 2 pi (1 - e^(-2
+// lambda)) / lambda), o_v the view direction toward the camera clamped onto the horizon
+// (src/geom/brdf.rs view_direction) and rho the modified Phong BRDF. The includer defines tap
+// j at vertex v,
 //   float seen_at(uint j, vec3 x, vec3 n, out vec3 w, out vec3 e)
-// (the direction w the lobe is put at, its E_j per channel, and 1.0 where it is seen, else
-// 0.0): the grid's texel centre and visibility bit (glossy_sharp.comp, from the taps pass
-// `srbf sharp` wrote), or the exact rotated axis and a shadow ray (glossy_sharp_rays.comp).
+// (the tap's direction w, its E_j per channel, and 1.0 where it is seen, else 0.0): a grid
+// texel centre and its visibility bit (glossy_sharp.comp, from the taps pass `srbf sharp`
+// wrote: one a point source, four a resolved lobe), or a lobe's exact rotated axis and a
+// shadow ray (glossy_sharp_rays.comp).
 // One invocation per vertex, in the vertices' own order.
 
 layout(push_constant) uniform Push {

@@ -385,7 +385,8 @@ pub struct ShadeReport {
     pub compact_lobes: usize,
     pub sharp_factor: f32,
     /// How compact lobes were shadowed: "rays" (a ray per vertex and compact lobe at its
-    /// exact rotated direction, every frame) or "grid" (the grid texel holding its axis).
+    /// exact rotated direction, every frame) or "grid" (its taps' grid texels: the one
+    /// holding its axis, or the 2 x 2 around it for a lobe the fit resolved).
     pub sun: SunMode,
     pub basis: usize,
     pub basis_sharpness: f32,

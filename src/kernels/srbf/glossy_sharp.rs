@@ -6,17 +6,18 @@
 //! path that was 3-5% of error; on the glossy path, where each vertex's rows are products of
 //! the visibility with a BRDF factor, the bunny under Blender's sunrise erred 7-20% (CTA,
 //! 8 rotations, the transfer's share 4-12%) with every lobe in the basis. So, as for diffuse,
-//! the lobes [`super::sharp::split`] finds compact leave the basis, and each is one tap:
+//! the lobes [`super::sharp::split`] finds compact leave the basis, each as one tap or more:
 //!
 //! ```text
-//! B_v += albedo * sum_j E_j V_v(w_j) rho(w_j, o_v) max(0, n_v . w_j)
+//! B_v += albedo * sum_t E_t V_v(w_t) rho(w_t, o_v) max(0, n_v . w_t)
 //! ```
 //!
-//! E_j the lobe's integral (amplitude x 2 pi (1 - e^(-2 lambda)) / lambda), o_v the view
-//! direction of [`Brdf::view_direction`] and rho the BRDF itself, evaluated exactly per vertex
-//! (no view basis: a tap is one light direction). The tap's direction w_j and visibility
-//! are the diffuse path's ([`CompactShadow`]): the centre of the visibility grid's texel that
-//! holds the rotated axis with that texel's bit ([`super::sharp::taps`]), or the exact rotated
+//! E_t the tap's share of its lobe's integral (amplitude x 2 pi (1 - e^(-2 lambda)) /
+//! lambda), o_v the view direction of [`Brdf::view_direction`] and rho the BRDF itself,
+//! evaluated exactly per vertex (no view basis: a tap is one light direction). The taps'
+//! directions w_t and visibility are the diffuse path's ([`CompactShadow`]): grid texel
+//! centres with their bits, one texel for a point source and the 2 x 2 around the rotated
+//! axis for a lobe the fit resolved ([`super::sharp::taps`]), or one tap at the exact rotated
 //! axis and a shadow ray against the static mesh's BVH ([`super::sharp::ray_taps`],
 //! [`super::sharp::ray_bits`]).
 //!
@@ -52,7 +53,7 @@ pub use super::gpu::PASS_SHARP;
 /// How compact lobes are shadowed.
 #[derive(Clone, Copy)]
 pub enum CompactShadow<'a> {
-    /// The bit of the visibility grid's texel holding each rotated axis; `visibility` was
+    /// The bits of the visibility grid's texels of each lobe's taps ([`sharp::taps`]); `visibility` was
     /// cast for the texel centres of the `width` x `height` grid ([`sharp::check_grid`]).
     Grid {
         visibility: &'a Visibility,

@@ -444,6 +444,9 @@ mod tests {
             (1, 1, [8, 4])
         );
         assert_eq!(p.compact_axes, vec![[0.6, 0.0, 0.8, 3000.0]]);
+        // At the equator a lobe of sharpness 3000 is past the 128-wide fit's cap: a point,
+        // one grid tap, flagged 0 for glsl/srbf/sharp.comp.
+        assert_eq!((p.shape.taps, p.compact_amps[0][3]), (1, 0.0));
         let slots = p.shape.slots as usize;
         assert_eq!((p.normals.len(), p.visible.len()), (slots, slots));
         for (slot, &v) in p.layout.slot_vertex.iter().enumerate() {
