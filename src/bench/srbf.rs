@@ -246,6 +246,20 @@ pub(super) fn measure(
     })
 }
 
+/// `lobes` lobes fitted to `env` downsampled to `srbf shade`'s default fit width, and the
+/// width of the map they were fitted to (which decides which compact lobes are points).
+fn fit_lobes(env: &EnvMap, lobes: usize) -> Result<(crate::kernels::srbf::fit::Fit, u32)> {
+    let small = env.downsampled(DEFAULT_FIT_WIDTH.min(env.width))?;
+    let fitted = fit(
+        &small.samples(),
+        &FitConfig {
+            lobes,
+            ..FitConfig::default()
+        },
+    )?;
+    Ok((fitted, small.width))
+}
+
 /// Runs the benchmark.
 pub fn run(
     ctx: &Context,
@@ -263,13 +277,7 @@ pub fn run(
     // of the brute-force baseline), compressed as configured; and the same uncompressed.
     let env = EnvMap::load(&cfg.env)?;
     let (hl, hk) = cfg.headline;
-    let fitted = fit(
-        &env.downsampled(DEFAULT_FIT_WIDTH.min(env.width))?.samples(),
-        &FitConfig {
-            lobes: hl,
-            ..FitConfig::default()
-        },
-    )?;
+    let (fitted, fit_width) = fit_lobes(&env, hl)?;
     let dir_env = env.downsampled(cfg.brute_force_width.min(env.width))?;
     progress("transfer of the mesh (visibility, projection, compression)");
     let vis = texel_visibility(mesh, &dir_env);
@@ -283,7 +291,7 @@ pub fn run(
         height: dir_env.height,
         factor: crate::kernels::srbf::sharp::DEFAULT_FACTOR,
         max_lobes: crate::kernels::srbf::sharp::DEFAULT_MAX_LOBES,
-        fit_width: DEFAULT_FIT_WIDTH.min(env.width),
+        fit_width,
     };
     let headline = measure(
         ctx,
@@ -449,13 +457,7 @@ impl<'a> AllBench<'a> {
             });
         }
         let env = EnvMap::load(&cfg.env)?;
-        let fitted = fit(
-            &env.downsampled(DEFAULT_FIT_WIDTH.min(env.width))?.samples(),
-            &FitConfig {
-                lobes: hl,
-                ..FitConfig::default()
-            },
-        )?;
+        let (fitted, fit_width) = fit_lobes(&env, hl)?;
         let dir_env = env.downsampled(cfg.brute_force_width.min(env.width))?;
         let vis = texel_visibility(&character.mesh, &dir_env);
         let real = diffuse_transfer(
@@ -471,7 +473,7 @@ impl<'a> AllBench<'a> {
             normals: character.mesh.normals.clone(),
             lobes: fitted.lobes,
             vis: Some((vis, dir_env.width, dir_env.height)),
-            fit_width: DEFAULT_FIT_WIDTH.min(env.width),
+            fit_width,
             cpca,
             fps_min,
         })

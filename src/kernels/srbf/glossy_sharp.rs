@@ -255,7 +255,8 @@ impl CompactStage {
         let vec4 =
             |v: &[Vec3]| -> Vec<[f32; 4]> { v.iter().map(|x| x.extend(0.0).into()).collect() };
         let (axes, amps) = super::glossy_gpu::lobe_arrays(compact.lobes);
-        let amps = sharp::flag_resolved(amps, &sharp::points(compact.lobes, compact.fit_width));
+        let points = sharp::points(compact.lobes, compact.fit_width);
+        let amps = sharp::flag_resolved(amps, &points);
         // 0, 1: the lobes; 2, 3: the vertices; grid taps: 4 the taps, 5 the bits.
         let mut buffers = vec![
             storage(rec, "srbf glossy compact axes", &axes)?,
@@ -357,9 +358,7 @@ impl CompactStage {
             images,
             lobes: compact.lobes.len() as u32,
             added: match compact.shadow {
-                CompactShadow::Grid { .. } => {
-                    sharp::tap_count(&sharp::points(compact.lobes, compact.fit_width)) as u32
-                }
+                CompactShadow::Grid { .. } => sharp::tap_count(&points) as u32,
                 CompactShadow::Rays(_) => compact.lobes.len() as u32,
             },
             vertices: vertices as u32,

@@ -83,8 +83,6 @@ pub const SPREAD_SUB: u32 = 8;
 pub const POINT_FRACTION: f64 = 0.85;
 /// The default fit width of `srbf shade` (`--fit-width`) and the one of `bench srbf`.
 pub const DEFAULT_FIT_WIDTH: u32 = 128;
-/// The sharpness cap of the fit's default configuration ([`super::fit::FitConfig`]).
-pub const FIT_MAX_SHARPNESS: f64 = 10_000.0;
 
 /// Grid taps of compact lobes with these point flags: one a point source, [`SPREAD_TAPS`]
 /// a resolved lobe.
@@ -120,7 +118,8 @@ pub fn flag_resolved(mut amps: Vec<[f32; 4]>, points: &[bool]) -> Vec<[f32; 4]> 
 }
 
 /// Whether `lobe`, fitted to a `fit_width` x `fit_width / 2` map, is a point source: its
-/// sharpness is at least [`POINT_FRACTION`] of the fit's cap min([`FIT_MAX_SHARPNESS`],
+/// sharpness is at least [`POINT_FRACTION`] of the fit's cap min(the default
+/// [`super::fit::FitConfig::max_sharpness`],
 /// 2 pi / dO), dO the largest texel solid angle of the fit grid's rows next to its axis (the
 /// fit clamps a lobe at the cap of the sample nearest its axis, which may lie a row away).
 pub fn is_point(lobe: &Lobe, fit_width: u32) -> bool {
@@ -139,7 +138,8 @@ pub fn is_point(lobe: &Lobe, fit_width: u32) -> bool {
             std::f64::consts::TAU / w * (t0.cos() - t1.cos())
         })
         .fold(0.0, f64::max);
-    let cap = FIT_MAX_SHARPNESS.min(std::f64::consts::TAU / d_omega);
+    let max_sharpness = super::fit::FitConfig::default().max_sharpness as f64;
+    let cap = max_sharpness.min(std::f64::consts::TAU / d_omega);
     lobe.sharpness as f64 >= POINT_FRACTION * cap
 }
 /// Of the candidates, those holding at least this share of the lighting's energy
